@@ -1,0 +1,272 @@
+#include "apps/cli.h"
+
+#include <CLI/CLI.hpp>
+
+#include <chrono>
+#include <cmath>
+#include <iomanip>
+#include <map>
+#include <optional>
+#include <ostream>
+#include <sstream>
+
+#include "hybrid_octree/hybrid_io.h"
+#include "hybrid_octree/selection.h"
+#include "hybrid_octree/volume_octree.h"
+#include "volume/file_util.h"
+#include "volume/volume_io.h"
+
+namespace hyb::app {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
+
+// Parses "a,b,c" into three finite numbers; throws ValueError naming @p flag.
+glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
+  std::istringstream s(text);
+  glm::dvec3 v;
+  char c1 = 0, c2 = 0;
+  std::string rest;
+  if (!(s >> v.x >> c1 >> v.y >> c2 >> v.z) || c1 != ',' || c2 != ',' || (s >> rest) ||
+      !std::isfinite(v.x) || !std::isfinite(v.y) || !std::isfinite(v.z))
+    HYB_THROW(ValueError, flag, " '", text, "' invalid (expected three finite numbers x,y,z)");
+  return v;
+}
+
+// Where the volume comes from: a path (default: the Debian CT) and an optional raw layout.
+struct VolumeInput {
+  std::string path = kDefaultVolumePath;
+  std::string rawDims, rawType, rawSpacing, rawEndian = "little";
+  uint64_t rawHeader = 0;
+
+  void add(CLI::App* cmd) {
+    cmd->add_option("volume", path, "volume file (.nrrd .nhdr .mhd .mha .nii .nii.gz .inv3), DICOM directory, raw file, or scene.hoct")
+        ->capture_default_str();
+    cmd->add_option("--raw-dims", rawDims, "raw input: samples per axis X,Y,Z");
+    cmd->add_option("--raw-type", rawType, "raw input: int16|uint16|uint8|int8|int32|uint32|float32|float64");
+    cmd->add_option("--raw-spacing", rawSpacing, "raw input: voxel spacing sx,sy,sz in mm (default 1,1,1)");
+    cmd->add_option("--raw-endian", rawEndian, "raw input: little|big (default little)");
+    cmd->add_option("--raw-header", rawHeader, "raw input: bytes to skip before the samples");
+  }
+
+  // Builds the raw layout when any raw flag is given (then --raw-dims and --raw-type are required).
+  std::optional<RawLayout> rawLayout() const {
+    if (rawDims.empty() && rawType.empty() && rawSpacing.empty()) return std::nullopt;
+    if (rawDims.empty()) HYB_THROW(ValueError, "--raw-dims missing (expected X,Y,Z with --raw-type)");
+    if (rawType.empty()) HYB_THROW(ValueError, "--raw-type missing (expected int16|uint16|uint8|float32...)");
+    RawLayout l;
+    const glm::dvec3 d = parseVec3(rawDims, "--raw-dims");
+    for (int a = 0; a < 3; ++a)
+      if (d[a] != std::floor(d[a]) || d[a] < 1 || d[a] > kMaxDim)
+        HYB_THROW(ValueError, "--raw-dims '", rawDims, "' invalid (expected positive integers up to ", kMaxDim, ")");
+    l.dims = glm::ivec3(d);
+    if (!parseScalarName(rawType, &l.type))
+      HYB_THROW(ValueError, "--raw-type '", rawType, "' unknown (expected int16|uint16|uint8|int8|int32|uint32|float32|float64)");
+    if (!rawSpacing.empty()) l.spacing = parseVec3(rawSpacing, "--raw-spacing");
+    validateSpacing(l.spacing, "--raw-spacing");
+    if (rawEndian != "little" && rawEndian != "big")
+      HYB_THROW(ValueError, "--raw-endian '", rawEndian, "' invalid (expected little or big)");
+    l.bigEndian = rawEndian == "big";
+    l.headerBytes = rawHeader;
+    return l;
+  }
+
+  Volume read() const {
+    const std::optional<RawLayout> raw = rawLayout();
+    return readVolume(path, raw ? &*raw : nullptr);
+  }
+};
+
+// Loads a scene file, or reads a volume and builds its octree.
+Scene loadOrBuild(const VolumeInput& in, std::ostream& out, double* buildMs) {
+  const auto t0 = Clock::now();
+  Scene scene;
+  if (!in.rawLayout() && isSceneFile(in.path)) {
+    scene = loadScene(in.path);
+    *buildMs = 0.0;
+    out << "loaded scene " << in.path << " in " << std::fixed << std::setprecision(1) << msSince(t0) << " ms\n";
+    return scene;
+  }
+  scene.volume = in.read();
+  const auto t1 = Clock::now();
+  scene.octree = VolumeOctree::build(scene.volume);
+  *buildMs = msSince(t1);
+  out << "read " << in.path << " in " << std::fixed << std::setprecision(1) << msSince(t0) - *buildMs
+      << " ms, built volume octree in " << *buildMs << " ms\n";
+  return scene;
+}
+
+std::string octreeSummary(const Volume& v, const VolumeOctree& t) {
+  std::ostringstream s;
+  size_t leaves = 0;
+  for (const OctreeNode& n : t.nodes()) leaves += n.isLeaf();
+  s << "octree   depth " << t.depth() << ", leaf edge " << t.leafEdge() << ", " << t.nodes().size() << " nodes (" << leaves
+    << " leaves), " << t.errorData().size() << " nodal errors\n";
+  s << "memory   " << t.bytesUsed() << " bytes = " << std::fixed << std::setprecision(2)
+    << 100.0 * double(t.bytesUsed()) / double(v.sourceBytes()) << " % of the " << scalarName(v.sourceType()) << " volume\n";
+  const auto e = t.errors(t.root());
+  s << "root     min " << t.root().minValue << "  max " << t.root().maxValue << "  errors";
+  for (float x : e) s << " " << std::setprecision(1) << x;
+  s << "\n";
+  return s.str();
+}
+
+// --------------------------------------------------------------------------------------------
+// Subcommands
+
+struct InfoOptions {
+  VolumeInput input;
+  int bins = 24;
+  std::string validate() const { return bins < 1 || bins > 4096 ? "--bins must be in 1..4096" : ""; }
+};
+
+int runInfo(const InfoOptions& o, std::ostream& out) {
+  const Volume v = o.input.read();
+  out << "file     " << o.input.path << "\n" << v.toString();
+  out << "histogram (" << o.bins << " bins)\n" << formatHistogram(computeHistogram(v, o.bins));
+  return 0;
+}
+
+struct BuildOptions {
+  VolumeInput input;
+  std::string output;
+  int leafEdge = 8;
+  std::string validate() const {
+    if (output.empty()) return "-o missing (expected the scene file to write, e.g. -o scene.hoct)";
+    if (leafEdge < 1 || leafEdge > 256 || (leafEdge & (leafEdge - 1))) return "--leaf-edge must be a power of two in 1..256";
+    return "";
+  }
+};
+
+int runBuild(const BuildOptions& o, std::ostream& out) {
+  const Volume v = o.input.read();
+  const auto t0 = Clock::now();
+  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{o.leafEdge});
+  const double ms = msSince(t0);
+  out << v.toString() << octreeSummary(v, t);
+  out << "build    " << std::fixed << std::setprecision(1) << ms << " ms (" << double(v.voxelCount()) / (ms * 1e3)
+      << " Mvoxels/s)\n";
+  saveScene(o.output, v, t);
+  out << "wrote    " << o.output << "\n";
+  return 0;
+}
+
+struct RenderOptions {
+  VolumeInput input;
+  std::string output, stats, focus;
+  double epsilon = 0.0;
+  double budgetMb = 0.0;
+  int maxBrick = 64;
+  std::string validate() const {
+    if (!std::isfinite(epsilon) || epsilon < 0) return "--epsilon must be a finite value >= 0 (data units)";
+    if (!std::isfinite(budgetMb) || budgetMb < 0) return "--budget must be a finite number of MB >= 0";
+    return "";
+  }
+};
+
+int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
+  double buildMs = 0;
+  const Scene scene = loadOrBuild(o.input, out, &buildMs);
+  SelectionParams params;
+  params.epsilon = float(o.epsilon);
+  params.spacing = scene.volume.spacing();
+  params.maxBrickEdge = o.maxBrick;
+  if (!o.focus.empty()) params.focus = parseVec3(o.focus, "--focus");
+  // Texture memory is counted at 2 bytes a texel (16-bit luminance textures).
+  params.texelBudget = uint64_t(o.budgetMb * 1024.0 * 1024.0 / 2.0);
+  if (o.budgetMb > 0 && params.texelBudget == 0) HYB_THROW(ValueError, "--budget ", o.budgetMb, " MB is smaller than one texel");
+  const auto t0 = Clock::now();
+  const Selection sel = selectNodes(scene.octree, params);
+  const double selectMs = msSince(t0);
+
+  std::map<int, std::pair<int, uint64_t>> perLevel;  // voxel-to-texel ratio -> (bricks, texels)
+  for (const Brick& b : sel.bricks) {
+    auto& e = perLevel[1 << (scene.octree.maxLevel(scene.octree.nodes()[b.node]) - b.p)];
+    ++e.first;
+    e.second += b.texelCount();
+  }
+  out << "selection: epsilon " << o.epsilon << ", " << sel.bricks.size() << " bricks, " << sel.texels << " texels ("
+      << std::fixed << std::setprecision(2) << double(sel.texels) * 2.0 / (1024.0 * 1024.0) << " MB), max nodal error used "
+      << sel.maxError << ", " << std::setprecision(3) << selectMs << " ms\n";
+  for (const auto& [ratio, e] : perLevel)
+    out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
+  if (!sel.budgetMet) err << "hybrid-octree: warning: --budget " << o.budgetMb << " MB cannot be met; using " << sel.texels << " texels\n";
+  if (!o.output.empty())
+    err << "hybrid-octree: note: the slice renderer is not implemented yet; " << o.output << " was not written\n";
+  if (!o.stats.empty()) {
+    writeFileAtomically(o.stats, [&](std::ostream& s) {
+      s << std::setprecision(9) << "{\n  \"nodes_selected\": " << sel.bricks.size() << ",\n  \"texels\": " << sel.texels
+        << ",\n  \"texture_bytes\": " << sel.texels * 2 << ",\n  \"build_ms\": " << buildMs << ",\n  \"select_ms\": "
+        << selectMs << ",\n  \"epsilon\": " << o.epsilon << ",\n  \"max_nodal_error_used\": " << sel.maxError
+        << ",\n  \"budget_met\": " << (sel.budgetMet ? "true" : "false") << "\n}\n";
+    });
+  }
+  return 0;
+}
+
+}  // namespace
+
+int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& err) {
+  CLI::App app("hybrid-octree: CT volume and isosurface rendering with the Hybrid Octree", "hybrid-octree");
+  app.require_subcommand(1);
+  app.set_help_all_flag("--help-all", "show help for every subcommand");
+
+  InfoOptions info;
+  CLI::App* infoCmd = app.add_subcommand("info", "print dims, spacing, type, value range and a histogram");
+  info.input.add(infoCmd);
+  infoCmd->add_option("--bins", info.bins, "histogram bins")->capture_default_str();
+
+  BuildOptions build;
+  CLI::App* buildCmd = app.add_subcommand("build", "build the Hybrid Octree once and save it as a scene file");
+  build.input.add(buildCmd);
+  buildCmd->add_option("-o,--output", build.output, "scene file to write (.hoct)");
+  buildCmd->add_option("--leaf-edge", build.leafEdge, "edge in voxels of the smallest octree nodes")->capture_default_str();
+
+  RenderOptions render;
+  CLI::App* renderCmd = app.add_subcommand("render", "select nodes under epsilon and budget (the image renderer is not implemented yet)");
+  render.input.add(renderCmd);
+  renderCmd->add_option("-o,--output", render.output, "PNG to write");
+  renderCmd->add_option("--epsilon", render.epsilon, "user error epsilon_u in data units (0 = exact)")->capture_default_str();
+  renderCmd->add_option("--budget", render.budgetMb, "texture memory budget in MB (0 = unlimited)");
+  renderCmd->add_option("--focus", render.focus, "region of interest x,y,z in world mm");
+  renderCmd->add_option("--max-brick", render.maxBrick, "largest brick edge in texels (power of two)")->capture_default_str();
+  renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
+
+  try {
+    try {
+      app.parse(argc, argv);
+    } catch (const CLI::CallForHelp&) {
+      out << app.help();
+      return 0;
+    } catch (const CLI::CallForAllHelp&) {
+      out << app.help("", CLI::AppFormatMode::All);
+      return 0;
+    } catch (const CLI::ParseError& e) {
+      err << "hybrid-octree: error: " << e.what() << " (see --help)\n";
+      return 2;
+    }
+    auto check = [&](const std::string& msg) {
+      if (!msg.empty()) throw ValueError(msg);
+    };
+    if (infoCmd->parsed()) return check(info.validate()), runInfo(info, out);
+    if (buildCmd->parsed()) return check(build.validate()), runBuild(build, out);
+    if (renderCmd->parsed()) return check(render.validate()), runRender(render, out, err);
+    return 2;
+  } catch (const IoError& e) {
+    err << "hybrid-octree: error: " << e.what() << "\n";
+    return 2;
+  } catch (const ValueError& e) {
+    err << "hybrid-octree: error: " << e.what() << "\n";
+    return 2;
+  } catch (const std::bad_alloc&) {
+    err << "hybrid-octree: error: out of memory\n";
+    return 1;
+  } catch (const std::exception& e) {
+    err << "hybrid-octree: error: " << e.what() << "\n";
+    return 1;
+  }
+}
+
+}  // namespace hyb::app

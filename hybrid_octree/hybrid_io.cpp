@@ -1,0 +1,173 @@
+#include "hybrid_octree/hybrid_io.h"
+
+#include <zlib.h>
+
+#include <bit>
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <ostream>
+
+#include "volume/error.h"
+#include "volume/file_util.h"
+
+namespace hyb {
+
+namespace {
+
+static_assert(std::endian::native == std::endian::little, "scene files are written in native little-endian order");
+
+constexpr char kMagic[8] = {'H', 'Y', 'B', 'O', 'C', 'T', '\x1a', '\n'};
+constexpr uint32_t tag(const char (&s)[5]) {
+  return uint32_t(uint8_t(s[0])) | uint32_t(uint8_t(s[1])) << 8 | uint32_t(uint8_t(s[2])) << 16 | uint32_t(uint8_t(s[3])) << 24;
+}
+constexpr uint32_t kVolumeTag = tag("VOLM");
+constexpr uint32_t kOctreeTag = tag("VOCT");
+
+// Appends plain values and arrays to a byte buffer.
+class Writer {
+ public:
+  template <typename T>
+  void put(const T& v) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    const auto* p = reinterpret_cast<const uint8_t*>(&v);
+    mBytes.insert(mBytes.end(), p, p + sizeof(T));
+  }
+  template <typename T>
+  void putArray(const std::vector<T>& v) {
+    put(uint64_t(v.size()));
+    const auto* p = reinterpret_cast<const uint8_t*>(v.data());
+    mBytes.insert(mBytes.end(), p, p + v.size() * sizeof(T));
+  }
+  const std::vector<uint8_t>& bytes() const { return mBytes; }
+
+ private:
+  std::vector<uint8_t> mBytes;
+};
+
+// Reads plain values and arrays from a byte range, throwing on overrun.
+class Reader {
+ public:
+  Reader(const uint8_t* data, size_t size, std::string what) : mData(data), mSize(size), mWhat(std::move(what)) {}
+  template <typename T>
+  T get() {
+    need(sizeof(T));
+    T v;
+    std::memcpy(&v, mData + mPos, sizeof(T));
+    mPos += sizeof(T);
+    return v;
+  }
+  template <typename T>
+  std::vector<T> getArray() {
+    const uint64_t n = get<uint64_t>();
+    if (n > (mSize - mPos) / sizeof(T)) fail(n * sizeof(T));
+    std::vector<T> v(static_cast<size_t>(n));
+    std::memcpy(v.data(), mData + mPos, size_t(n) * sizeof(T));
+    mPos += size_t(n) * sizeof(T);
+    return v;
+  }
+
+ private:
+  void need(size_t n) {
+    if (n > mSize - mPos) fail(n);
+  }
+  [[noreturn]] void fail(uint64_t n) {
+    HYB_THROW(IoError, mWhat, ": section too short (needs ", n, " more bytes at offset ", mPos, " of ", mSize, ")");
+  }
+  const uint8_t* mData;
+  size_t mSize;
+  size_t mPos = 0;
+  std::string mWhat;
+};
+
+uint32_t crc(const std::vector<uint8_t>& b) { return uint32_t(crc32(0L, b.data(), uInt(b.size()))); }
+
+}  // namespace
+
+void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree) {
+  Writer vol;
+  vol.put(volume.dims());
+  vol.put(volume.spacing());
+  vol.put(uint32_t(volume.sourceType()));
+  vol.putArray(volume.samples());
+  Writer oct;
+  oct.put(int32_t(octree.leafEdge()));
+  oct.putArray(octree.nodes());
+  oct.putArray(octree.errorData());
+  const std::pair<uint32_t, const Writer*> sections[] = {{kVolumeTag, &vol}, {kOctreeTag, &oct}};
+  writeFileAtomically(path, [&](std::ostream& out) {
+    out.write(kMagic, sizeof kMagic);
+    const uint32_t header[2] = {kSceneVersion, uint32_t(std::size(sections))};
+    out.write(reinterpret_cast<const char*>(header), sizeof header);
+    for (const auto& [t, w] : sections) {
+      const uint64_t size = w->bytes().size();
+      const uint32_t c = crc(w->bytes());
+      out.write(reinterpret_cast<const char*>(&t), 4);
+      out.write(reinterpret_cast<const char*>(&size), 8);
+      out.write(reinterpret_cast<const char*>(&c), 4);
+      out.write(reinterpret_cast<const char*>(w->bytes().data()), std::streamsize(size));
+    }
+  });
+}
+
+bool isSceneFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  char m[8] = {};
+  return in.read(m, 8) && std::memcmp(m, kMagic, 8) == 0;
+}
+
+Scene loadScene(const std::string& path) {
+  const std::vector<uint8_t> bytes = readFileBytes(path);
+  if (bytes.size() < 16 || std::memcmp(bytes.data(), kMagic, 8) != 0)
+    HYB_THROW(IoError, path, ": not a hybrid-octree scene file (expected magic HYBOCT)");
+  Reader header(bytes.data() + 8, bytes.size() - 8, path);
+  const uint32_t version = header.get<uint32_t>();
+  const uint32_t count = header.get<uint32_t>();
+  if (version == 0 || version > kSceneVersion)
+    HYB_THROW(IoError, path, ": scene file version ", version, " unsupported (this build reads version 1..", kSceneVersion, ")");
+  std::map<uint32_t, std::vector<uint8_t>> sections;
+  size_t pos = 16;
+  for (uint32_t s = 0; s < count; ++s) {
+    if (bytes.size() - pos < 16)
+      HYB_THROW(IoError, path, ": truncated scene file (section ", s, " of ", count, " header missing)");
+    uint32_t t, c;
+    uint64_t size;
+    std::memcpy(&t, &bytes[pos], 4);
+    std::memcpy(&size, &bytes[pos + 4], 8);
+    std::memcpy(&c, &bytes[pos + 12], 4);
+    pos += 16;
+    if (size > bytes.size() - pos)
+      HYB_THROW(IoError, path, ": truncated scene file (section ", s, " needs ", size, " bytes, ", bytes.size() - pos, " left)");
+    std::vector<uint8_t> payload(bytes.begin() + ptrdiff_t(pos), bytes.begin() + ptrdiff_t(pos + size));
+    pos += size_t(size);
+    if (crc(payload) != c) HYB_THROW(IoError, path, ": corrupt scene file (checksum mismatch in section ", s, ")");
+    sections[t] = std::move(payload);
+  }
+  auto section = [&](uint32_t t, const char* name) -> const std::vector<uint8_t>& {
+    const auto it = sections.find(t);
+    if (it == sections.end()) HYB_THROW(IoError, path, ": scene file lacks the ", name, " section");
+    return it->second;
+  };
+  Scene scene;
+  {
+    const auto& b = section(kVolumeTag, "volume");
+    Reader r(b.data(), b.size(), path);
+    const glm::ivec3 dims = r.get<glm::ivec3>();
+    const glm::dvec3 spacing = r.get<glm::dvec3>();
+    const uint32_t type = r.get<uint32_t>();
+    if (type > uint32_t(ScalarType::Float64)) HYB_THROW(IoError, path, ": unknown sample type code ", type);
+    validateDims(dims, path);
+    scene.volume = Volume(dims, spacing, ScalarType(type), r.getArray<float>(), path);
+  }
+  {
+    const auto& b = section(kOctreeTag, "volume octree");
+    Reader r(b.data(), b.size(), path);
+    const int32_t leafEdge = r.get<int32_t>();
+    std::vector<OctreeNode> nodes = r.getArray<OctreeNode>();
+    std::vector<float> errors = r.getArray<float>();
+    scene.octree = VolumeOctree::fromParts(scene.volume.dims(), leafEdge, std::move(nodes), std::move(errors), path);
+  }
+  return scene;
+}
+
+}  // namespace hyb

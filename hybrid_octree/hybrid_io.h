@@ -1,0 +1,35 @@
+// Scene files (.hoct): the volume and its Hybrid Octree in one versioned binary.
+//
+// Layout (little-endian): magic "HYBOCT\x1a\n", u32 version, u32 section count, then per section
+// a u32 tag, u64 payload size, u32 CRC-32 of the payload, and the payload. Readers reject a foreign
+// magic, a newer version, truncation and CRC mismatches; unknown sections are skipped.
+#pragma once
+
+#include <string>
+
+#include "hybrid_octree/volume_octree.h"
+#include "volume/volume.h"
+
+namespace hyb {
+
+/// Current scene-file version.
+inline constexpr uint32_t kSceneVersion = 1;
+
+/// A loaded scene.
+struct Scene {
+  Volume volume;
+  VolumeOctree octree;
+};
+
+/// Writes @p volume and @p octree to @p path atomically.
+/// @throw IoError naming @p path when it cannot be written.
+void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree);
+
+/// Reads a scene written by saveScene.
+/// @throw IoError naming @p path for foreign, newer, truncated or corrupt files.
+Scene loadScene(const std::string& path);
+
+/// True when @p path starts with the scene-file magic.
+bool isSceneFile(const std::string& path);
+
+}  // namespace hyb

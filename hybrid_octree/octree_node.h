@@ -1,0 +1,42 @@
+// The packed Volume Octree node and its child-index arithmetic (OpenVDB-style child slots).
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <bit>
+#include <cstdint>
+
+namespace hyb {
+
+/// One node of the flattened Volume Octree. Nodes live in one array in breadth-first order; the
+/// existing children of a node are contiguous, in slot order, starting at firstChild.
+struct OctreeNode {
+  float minValue = 0;        ///< smallest sample in the node's closed box [origin, origin+edge] ∩ grid
+  float maxValue = 0;        ///< largest sample in the same box
+  uint32_t firstChild = 0;   ///< index of the first existing child; meaningless when childMask == 0
+  uint32_t errorOffset = 0;  ///< index of ε_0 in the octree's flat error array
+  glm::u16vec3 origin{0};    ///< voxel index of the node's minimum corner
+  uint8_t level = 0;         ///< 0 at the root
+  uint8_t childMask = 0;     ///< bit s set when child slot s exists (slot bits: x | y<<1 | z<<2)
+
+  bool isLeaf() const { return childMask == 0; }
+  int childCount() const { return std::popcount(unsigned(childMask)); }
+};
+static_assert(sizeof(OctreeNode) == 24, "OctreeNode is meant to pack into 24 bytes");
+
+/// Child slot of voxel position @p p below a node whose children have edge 2^@p shift.
+inline int childSlot(const glm::ivec3& p, int shift) {
+  return ((p.x >> shift) & 1) | (((p.y >> shift) & 1) << 1) | (((p.z >> shift) & 1) << 2);
+}
+
+/// Array index of child @p slot of @p n, which must exist.
+inline uint32_t childIndex(const OctreeNode& n, int slot) {
+  return n.firstChild + uint32_t(std::popcount(unsigned(n.childMask) & ((1u << slot) - 1u)));
+}
+
+/// Offset of child @p slot's origin from its parent's, for children of edge @p childEdge.
+inline glm::ivec3 childOffset(int slot, int childEdge) {
+  return glm::ivec3(slot & 1, (slot >> 1) & 1, (slot >> 2) & 1) * childEdge;
+}
+
+}  // namespace hyb

@@ -1,0 +1,92 @@
+// Volume Octree (Boada, Navazo and Scopigno, TVC 2001; Boada and Navazo 2002 §2.1): one octree over
+// the volume whose nodes carry min/max and the list of nodal errors ε_p, p = 0…L−k (DESIGN 3.3).
+//
+// Geometry. The root covers 2^L cells per axis, L = ⌈log2(max(n_a − 1))⌉, in voxel-index space
+// (voxel centres at integers). A node at level k has edge E = 2^(L−k) cells and covers the closed
+// box [o, o+E] of samples. Nodes exist where they overlap the grid's cells. Nothing outside the
+// grid is ever read: where a node overhangs the grid, its box is cut at the grid's last sample.
+//
+// Nodal errors. ε_p(n) is the largest |v − T| over n's samples, with T the trilinear interpolation
+// of n's sub-grid of spacing s = E/2^p: knots at o + j·s along each axis, the last one moved onto
+// the grid's last sample where the node overhangs the grid ("position clamping"; a trilinear field
+// is therefore reproduced exactly by every node at every level). ε_0 is computed directly for every
+// stored node; ε_p = max over children of ε_(p−1) (exact); below the leaves the sub-levels are
+// computed directly inside each leaf. ε_(L−k) = 0.
+//
+// Textures built from a node at level p hold the knot values; a renderer that needs uniformly
+// spaced texels extrapolates the overhanging last texel linearly, which reproduces T exactly.
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "hybrid_octree/octree_node.h"
+#include "volume/volume.h"
+
+namespace hyb {
+
+/// Build parameters of a VolumeOctree.
+struct VolumeOctreeOptions {
+  int leafEdge = 8;  ///< edge in cells of the smallest stored nodes (power of two, 1…256)
+};
+
+/// The Volume Octree, built once and stored as one pointer-free node array.
+class VolumeOctree {
+ public:
+  VolumeOctree() = default;
+
+  /// Builds the octree of @p volume on all available cores.
+  /// @throw ValueError when options.leafEdge is not a power of two in 1…256.
+  static VolumeOctree build(const Volume& volume, const VolumeOctreeOptions& options = VolumeOctreeOptions());
+
+  /// Reassembles an octree from stored parts (scene files), checking that the node array has exactly
+  /// the shape @p dims and @p leafEdge imply and that every value is finite.
+  /// @throw IoError naming @p source when the parts are inconsistent.
+  static VolumeOctree fromParts(glm::ivec3 dims, int leafEdge, std::vector<OctreeNode> nodes,
+                                std::vector<float> errors, const std::string& source);
+
+  /// L: the root's edge is 2^L cells.
+  int depth() const { return mDepth; }
+  /// Edge in cells of the leaves.
+  int leafEdge() const { return mLeafEdge; }
+  /// Sample grid the octree was built over.
+  const glm::ivec3& dims() const { return mDims; }
+  /// All nodes, breadth first; the root is nodes()[0].
+  const std::vector<OctreeNode>& nodes() const { return mNodes; }
+  const OctreeNode& root() const { return mNodes[0]; }
+  /// Flat array of every node's error list.
+  const std::vector<float>& errorData() const { return mErrors; }
+
+  /// Edge of @p n in cells.
+  int edge(const OctreeNode& n) const { return 1 << (mDepth - n.level); }
+  /// Largest texture level of @p n: L − k (one texel per voxel).
+  int maxLevel(const OctreeNode& n) const { return mDepth - n.level; }
+  /// ε_p(n) for p = 0…maxLevel(n), in data units.
+  std::span<const float> errors(const OctreeNode& n) const {
+    return {mErrors.data() + n.errorOffset, size_t(maxLevel(n) + 1)};
+  }
+  /// Smallest p with ε_p(n) ≤ @p tolerance (always exists: ε_(L−k) = 0).
+  int levelFor(const OctreeNode& n, float tolerance) const;
+
+  /// Knots per axis of @p n's sub-grid at level @p p, cropped to the grid (seamless bricks: up to
+  /// 2^p + 1 per axis; fewer where the node overhangs the grid).
+  glm::ivec3 texelDims(const OctreeNode& n, int p) const;
+  /// Voxel-space box of @p n cropped to the grid: [lo, hi] with hi ≤ dims − 1.
+  void voxelBox(const OctreeNode& n, glm::ivec3* lo, glm::ivec3* hi) const;
+
+  /// Bytes held by the node and error arrays (the octree's memory overhead).
+  size_t bytesUsed() const { return mNodes.size() * sizeof(OctreeNode) + mErrors.size() * sizeof(float) + sizeof(*this); }
+
+ private:
+  glm::ivec3 mDims{0};
+  int mDepth = 0;
+  int mLeafEdge = 1;
+  std::vector<OctreeNode> mNodes;
+  std::vector<float> mErrors;
+};
+
+}  // namespace hyb

@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Installs every Debian 12 package hybrid-octree needs to build, test and run its demo.
+# Idempotent: apt-get skips what is already installed. Run as root (or with sudo).
+set -euo pipefail
+packages=(
+  build-essential cmake ninja-build pkg-config   # toolchain
+  libglm-dev                                     # vector maths shared by every module
+  zlib1g-dev libarchive-dev                      # gzip NRRD/MetaImage data; InVesalius .inv3 (tar.gz)
+  libnifti2-dev                                  # NIfTI-1/2 reader (nifti_clib), .nii and .nii.gz
+  libgdcm-dev                                    # DICOM series: parsing, decompression, rescale tags
+  libcli11-dev                                   # command-line parsing with subcommands
+  libpng-dev                                     # PNG output
+  libcgal-dev libopenmesh-dev                    # exact mesh checks; mesh storage and IO
+  libosmesa6-dev                                 # off-screen OpenGL 4.5 core through llvmpipe
+  libgtest-dev libbenchmark-dev                  # tests and micro-benchmarks
+  invesalius-examples                            # the real CT used by the demo and the tests
+)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi

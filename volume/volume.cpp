@@ -1,0 +1,158 @@
+#include "volume/volume.h"
+
+#include <algorithm>
+#include <cmath>
+#include <iomanip>
+#include <sstream>
+
+namespace hyb {
+
+size_t scalarSize(ScalarType t) {
+  switch (t) {
+    case ScalarType::UInt8:
+    case ScalarType::Int8: return 1;
+    case ScalarType::UInt16:
+    case ScalarType::Int16: return 2;
+    case ScalarType::UInt32:
+    case ScalarType::Int32:
+    case ScalarType::Float32: return 4;
+    case ScalarType::Float64: return 8;
+  }
+  return 0;
+}
+
+namespace {
+constexpr const char* kScalarNames[] = {"uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64"};
+}
+
+const char* scalarName(ScalarType t) { return kScalarNames[static_cast<int>(t)]; }
+
+bool parseScalarName(const std::string& name, ScalarType* out) {
+  for (int i = 0; i < 8; ++i)
+    if (name == kScalarNames[i]) {
+      *out = static_cast<ScalarType>(i);
+      return true;
+    }
+  return false;
+}
+
+void validateDims(const glm::ivec3& dims, const std::string& what) {
+  if (dims.x <= 0 || dims.y <= 0 || dims.z <= 0)
+    HYB_THROW(ValueError, what, ": dims ", dims.x, "x", dims.y, "x", dims.z, " must all be positive");
+  if (dims.x > kMaxDim || dims.y > kMaxDim || dims.z > kMaxDim)
+    HYB_THROW(ValueError, what, ": dims ", dims.x, "x", dims.y, "x", dims.z, " exceed the limit of ",
+              kMaxDim, " samples per axis");
+  const uint64_t n = uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z);
+  if (n > kMaxVoxels)
+    HYB_THROW(ValueError, what, ": dims ", dims.x, "x", dims.y, "x", dims.z, " give ", n,
+              " samples, more than the limit of ", kMaxVoxels);
+}
+
+void validateSpacing(const glm::dvec3& s, const std::string& what) {
+  for (int a = 0; a < 3; ++a)
+    if (!std::isfinite(s[a]) || s[a] <= 0.0)
+      HYB_THROW(ValueError, what, ": spacing ", s.x, ",", s.y, ",", s.z, " must be finite and positive");
+}
+
+Volume::Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, std::vector<float> samples,
+               const std::string& source)
+    : mDims(dims), mSpacing(spacing), mSourceType(sourceType), mSamples(std::move(samples)) {
+  validateDims(dims, source);
+  validateSpacing(spacing, source);
+  const size_t expected = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
+  if (mSamples.size() != expected)
+    HYB_THROW(ValueError, source, ": expected ", expected, " samples for dims ", dims.x, "x", dims.y, "x",
+              dims.z, ", got ", mSamples.size());
+  float lo = mSamples[0], hi = mSamples[0];
+  bool finite = true;
+#pragma omp parallel for reduction(min : lo) reduction(max : hi) reduction(&& : finite)
+  for (size_t i = 0; i < mSamples.size(); ++i) {
+    const float v = mSamples[i];
+    finite = finite && std::isfinite(v);
+    lo = std::min(lo, v);
+    hi = std::max(hi, v);
+  }
+  if (!finite) {
+    const size_t bad = size_t(std::find_if(mSamples.begin(), mSamples.end(), [](float v) { return !std::isfinite(v); }) -
+                              mSamples.begin());
+    const size_t i = bad % dims.x, j = (bad / dims.x) % dims.y, k = bad / (size_t(dims.x) * dims.y);
+    HYB_THROW(ValueError, source, ": sample (", i, ",", j, ",", k, ") is ", mSamples[bad],
+              "; expected finite values");
+  }
+  mMin = lo;
+  mMax = hi;
+}
+
+float Volume::sample(const glm::vec3& p) const {
+  const glm::vec3 q = glm::clamp(p, glm::vec3(0.0f), glm::vec3(mDims - 1));
+  const glm::ivec3 i0 = glm::min(glm::ivec3(q), mDims - 1);
+  const glm::ivec3 i1 = glm::min(i0 + 1, mDims - 1);
+  const glm::vec3 t = q - glm::vec3(i0);
+  auto lerp = [](float a, float b, float w) { return a + (b - a) * w; };
+  const float c00 = lerp(at(i0.x, i0.y, i0.z), at(i1.x, i0.y, i0.z), t.x);
+  const float c10 = lerp(at(i0.x, i1.y, i0.z), at(i1.x, i1.y, i0.z), t.x);
+  const float c01 = lerp(at(i0.x, i0.y, i1.z), at(i1.x, i0.y, i1.z), t.x);
+  const float c11 = lerp(at(i0.x, i1.y, i1.z), at(i1.x, i1.y, i1.z), t.x);
+  return lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z);
+}
+
+std::string Volume::toString() const {
+  std::ostringstream s;
+  s << "dims     " << mDims.x << " x " << mDims.y << " x " << mDims.z << " (" << voxelCount() << " voxels)\n";
+  s << std::setprecision(7) << "spacing  " << mSpacing.x << " x " << mSpacing.y << " x " << mSpacing.z << " mm\n";
+  const glm::dvec3 e = extentMm();
+  s << "extent   " << e.x << " x " << e.y << " x " << e.z << " mm\n";
+  s << "type     " << scalarName(mSourceType) << " (" << sourceBytes() << " bytes)\n";
+  s << "range    " << mMin << " .. " << mMax << "\n";
+  return s.str();
+}
+
+Histogram computeHistogram(const Volume& v, int bins) {
+  HYB_CHECK(bins >= 1);
+  Histogram h;
+  h.minValue = v.minValue();
+  h.maxValue = v.maxValue();
+  h.counts.assign(size_t(bins), 0);
+  const double width = (h.maxValue - h.minValue) / bins;
+  double sum = 0, sum2 = 0;
+  for (float x : v.samples()) {
+    const int b = width > 0 ? std::min(bins - 1, int((x - h.minValue) / width)) : 0;
+    ++h.counts[size_t(b)];
+    sum += x;
+    sum2 += double(x) * x;
+  }
+  const double n = double(std::max<size_t>(1, v.voxelCount()));
+  h.mean = sum / n;
+  h.stddev = std::sqrt(std::max(0.0, sum2 / n - h.mean * h.mean));
+  // Percentiles from the cumulative histogram, reported at bin centres.
+  auto percentile = [&](double q) {
+    const double target = q * n;
+    double acc = 0;
+    for (int b = 0; b < bins; ++b) {
+      acc += double(h.counts[size_t(b)]);
+      if (acc >= target) return h.minValue + (b + 0.5) * width;
+    }
+    return h.maxValue;
+  };
+  h.p01 = percentile(0.01);
+  h.p50 = percentile(0.50);
+  h.p99 = percentile(0.99);
+  return h;
+}
+
+std::string formatHistogram(const Histogram& h) {
+  std::ostringstream s;
+  s << std::fixed << std::setprecision(2) << "mean " << h.mean << "  stddev " << h.stddev << "  p1 " << h.p01
+    << "  median " << h.p50 << "  p99 " << h.p99 << "\n";
+  const uint64_t peak = std::max<uint64_t>(1, *std::max_element(h.counts.begin(), h.counts.end()));
+  const double width = (h.maxValue - h.minValue) / double(h.counts.size());
+  for (size_t b = 0; b < h.counts.size(); ++b) {
+    const int bar = int(std::lround(40.0 * double(h.counts[b]) / double(peak)));
+    s << std::setw(10) << std::setprecision(1) << h.minValue + double(b) * width << " .. " << std::setw(10)
+      << h.minValue + double(b + 1) * width << "  " << std::setw(10) << h.counts[b] << "  "
+      << std::string(size_t(bar), '#') << "\n";
+  }
+  return s.str();
+}
+
+}  // namespace hyb

@@ -1,0 +1,114 @@
+// A scalar volume on a regular grid: dims, spacing, and samples with x varying fastest.
+//
+// World space is millimetres with voxel (i,j,k) centred at (i*sx, j*sy, k*sz); the data domain is
+// the box spanned by the voxel centres (DESIGN 2). Samples are kept as float, which holds every
+// 8- and 16-bit integer (so CT Hounsfield units stay exact) and the source type is remembered.
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "volume/error.h"
+
+namespace hyb {
+
+/// Scalar types a volume file may store.
+enum class ScalarType : uint8_t { UInt8, Int8, UInt16, Int16, UInt32, Int32, Float32, Float64 };
+
+/// Bytes of one sample of @p t.
+size_t scalarSize(ScalarType t);
+/// Canonical lower-case name ("int16", "float32", ...).
+const char* scalarName(ScalarType t);
+/// Parses a canonical name; returns false when @p name is not one.
+bool parseScalarName(const std::string& name, ScalarType* out);
+
+/// Largest accepted extent along one axis; keeps octree coordinates in 16 bits.
+inline constexpr int kMaxDim = 32768;
+/// Largest accepted sample count (16 GiB of float samples).
+inline constexpr uint64_t kMaxVoxels = uint64_t(1) << 32;
+
+/// Checks dims for positivity, the per-axis limit and overflow of the sample count.
+/// @throw ValueError naming @p what (a file or flag) with the offending dims.
+void validateDims(const glm::ivec3& dims, const std::string& what);
+/// Checks spacing for finite positive values.
+/// @throw ValueError naming @p what.
+void validateSpacing(const glm::dvec3& spacing, const std::string& what);
+
+/// Immutable scalar volume.
+class Volume {
+ public:
+  Volume() = default;
+  /// Takes ownership of @p samples (x fastest, then y, then z).
+  /// @throw ValueError when dims/spacing are invalid, the sample count does not match, or a sample
+  ///        is NaN or infinite; the message starts with @p source (file name or description).
+  Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, std::vector<float> samples,
+         const std::string& source = "volume");
+
+  /// Samples per axis.
+  const glm::ivec3& dims() const { return mDims; }
+  /// Millimetres between neighbouring voxel centres, per axis.
+  const glm::dvec3& spacing() const { return mSpacing; }
+  /// Type the samples had in the file they came from.
+  ScalarType sourceType() const { return mSourceType; }
+  /// Number of samples.
+  size_t voxelCount() const { return mSamples.size(); }
+  /// Bytes the samples occupy in the source type (the size users know the data by).
+  size_t sourceBytes() const { return voxelCount() * scalarSize(mSourceType); }
+  /// Bytes held in memory by this object.
+  size_t bytesUsed() const { return mSamples.size() * sizeof(float) + sizeof(*this); }
+  /// Smallest and largest sample.
+  float minValue() const { return mMin; }
+  float maxValue() const { return mMax; }
+  /// All samples, x fastest.
+  const std::vector<float>& samples() const { return mSamples; }
+  bool empty() const { return mSamples.empty(); }
+
+  /// Linear index of voxel (i,j,k); no bounds check beyond a debug assertion.
+  size_t index(int i, int j, int k) const {
+    HYB_DCHECK(i >= 0 && j >= 0 && k >= 0 && i < mDims.x && j < mDims.y && k < mDims.z);
+    return size_t(i) + size_t(mDims.x) * (size_t(j) + size_t(mDims.y) * size_t(k));
+  }
+  /// Sample at voxel (i,j,k), which must be inside the grid.
+  float at(int i, int j, int k) const { return mSamples[index(i, j, k)]; }
+  /// Sample at voxel (i,j,k) with indices clamped to the grid (the logical padding of the octree).
+  float atClamped(int i, int j, int k) const {
+    return at(clampIndex(i, mDims.x), clampIndex(j, mDims.y), clampIndex(k, mDims.z));
+  }
+  /// Trilinear sample at a position in voxel units (voxel centres at integers), clamped to the grid.
+  float sample(const glm::vec3& p) const;
+
+  /// World-space (mm) extent of the data domain: the box spanned by the voxel centres.
+  glm::dvec3 extentMm() const { return glm::dvec3(mDims - 1) * mSpacing; }
+
+  /// Multi-line description: dims, spacing, type, range.
+  std::string toString() const;
+
+ private:
+  static int clampIndex(int i, int n) { return i < 0 ? 0 : (i >= n ? n - 1 : i); }
+
+  glm::ivec3 mDims{0};
+  glm::dvec3 mSpacing{1.0};
+  ScalarType mSourceType = ScalarType::Float32;
+  std::vector<float> mSamples;
+  float mMin = 0.0f;
+  float mMax = 0.0f;
+};
+
+/// Value histogram with summary statistics, for `hybrid-octree info`.
+struct Histogram {
+  double minValue = 0, maxValue = 0, mean = 0, stddev = 0;
+  double p01 = 0, p50 = 0, p99 = 0;  ///< 1st, 50th and 99th percentiles (bin centres)
+  std::vector<uint64_t> counts;      ///< equal-width bins over [minValue, maxValue]
+};
+
+/// Histogram of @p v with @p bins equal-width bins (bins >= 1).
+Histogram computeHistogram(const Volume& v, int bins);
+
+/// Text report of a histogram, one line per bin with a proportional bar.
+std::string formatHistogram(const Histogram& h);
+
+}  // namespace hyb

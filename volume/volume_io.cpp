@@ -1,0 +1,682 @@
+#include "volume/volume_io.h"
+
+#include <archive.h>
+#include <archive_entry.h>
+#include <gdcmDirectory.h>
+#include <gdcmIPPSorter.h>
+#include <gdcmImageReader.h>
+#include <gdcmScanner.h>
+#include <nifti2_io.h>
+#include <zlib.h>
+
+#include <algorithm>
+#include <bit>
+#include <cctype>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <sstream>
+
+#include "volume/file_util.h"
+#include "volume/plist.h"
+
+namespace hyb {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// ---------------------------------------------------------------------------------------------
+// Shared helpers
+
+std::string trim(const std::string& s) {
+  const size_t b = s.find_first_not_of(" \t\r\n");
+  if (b == std::string::npos) return "";
+  const size_t e = s.find_last_not_of(" \t\r\n");
+  return s.substr(b, e - b + 1);
+}
+
+std::string lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+// Parses exactly @p n whitespace-separated numbers from @p text.
+template <typename T>
+bool parseNumbers(const std::string& text, int n, T* out) {
+  std::istringstream s(text);
+  for (int i = 0; i < n; ++i)
+    if (!(s >> out[i])) return false;
+  std::string rest;
+  return !(s >> rest);
+}
+
+uint64_t expectedBytes(const glm::ivec3& dims, ScalarType t) {
+  return uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z) * scalarSize(t);
+}
+
+// Converts @p count samples of type @p t at @p data (any alignment) to float.
+std::vector<float> decodeSamples(const uint8_t* data, size_t count, ScalarType t, bool bigEndian) {
+  const size_t size = scalarSize(t);
+  std::vector<float> out(count);
+  const bool swap = bigEndian != (std::endian::native == std::endian::big);
+#pragma omp parallel for schedule(static)
+  for (size_t i = 0; i < count; ++i) {
+    uint8_t b[8];
+    std::memcpy(b, data + i * size, size);
+    if (swap) std::reverse(b, b + size);
+    switch (t) {
+      case ScalarType::UInt8: out[i] = b[0]; break;
+      case ScalarType::Int8: out[i] = static_cast<int8_t>(b[0]); break;
+      case ScalarType::UInt16: { uint16_t v; std::memcpy(&v, b, 2); out[i] = v; break; }
+      case ScalarType::Int16: { int16_t v; std::memcpy(&v, b, 2); out[i] = v; break; }
+      case ScalarType::UInt32: { uint32_t v; std::memcpy(&v, b, 4); out[i] = float(v); break; }
+      case ScalarType::Int32: { int32_t v; std::memcpy(&v, b, 4); out[i] = float(v); break; }
+      case ScalarType::Float32: { float v; std::memcpy(&v, b, 4); out[i] = v; break; }
+      case ScalarType::Float64: { double v; std::memcpy(&v, b, 8); out[i] = float(v); break; }
+    }
+  }
+  return out;
+}
+
+// Checks that exactly @p expected bytes of samples are present, with messages naming the file.
+void checkByteCount(const std::string& file, uint64_t expected, uint64_t actual, const glm::ivec3& dims,
+                    ScalarType t) {
+  if (actual == expected) return;
+  const std::string layout = detail::concat(dims.x, "x", dims.y, "x", dims.z, " ", scalarName(t));
+  if (actual < expected)
+    HYB_THROW(IoError, file, ": truncated data: expected ", expected, " bytes for ", layout, ", found ", actual);
+  HYB_THROW(IoError, file, ": header/data size mismatch: expected ", expected, " bytes for ", layout, ", found ",
+            actual);
+}
+
+// Inflates a gzip or zlib stream (auto-detected) of unknown length.
+std::vector<uint8_t> inflateAll(const uint8_t* data, size_t size, uint64_t sizeHint, const std::string& file) {
+  z_stream z{};
+  if (inflateInit2(&z, 15 + 32) != Z_OK) HYB_THROW(RuntimeError, file, ": zlib initialisation failed");
+  std::vector<uint8_t> out(std::max<uint64_t>(sizeHint, 1024));
+  z.next_in = const_cast<uint8_t*>(data);
+  z.avail_in = static_cast<uInt>(std::min<size_t>(size, UINT32_MAX));
+  size_t inLeft = size - z.avail_in;
+  size_t produced = 0;
+  int rc = Z_OK;
+  while (rc != Z_STREAM_END) {
+    if (produced == out.size()) out.resize(out.size() * 2);
+    z.next_out = out.data() + produced;
+    z.avail_out = static_cast<uInt>(std::min<size_t>(out.size() - produced, UINT32_MAX));
+    const uInt before = z.avail_out;
+    rc = inflate(&z, Z_NO_FLUSH);
+    produced += before - z.avail_out;
+    if (rc == Z_BUF_ERROR && z.avail_in == 0 && inLeft > 0) {
+      const size_t chunk = std::min<size_t>(inLeft, UINT32_MAX);
+      z.avail_in = static_cast<uInt>(chunk);
+      inLeft -= chunk;
+      continue;
+    }
+    if (rc == Z_BUF_ERROR && z.avail_in == 0) {
+      inflateEnd(&z);
+      HYB_THROW(IoError, file, ": truncated compressed data: stream ends after ", produced, " bytes");
+    }
+    if (rc != Z_OK && rc != Z_STREAM_END && rc != Z_BUF_ERROR) {
+      const std::string msg = z.msg ? z.msg : "unknown error";
+      inflateEnd(&z);
+      HYB_THROW(IoError, file, ": corrupt compressed data (", msg, ")");
+    }
+  }
+  inflateEnd(&z);
+  out.resize(produced);
+  return out;
+}
+
+// Parses whitespace-separated ASCII samples.
+std::vector<float> parseAsciiSamples(const char* begin, const char* end, size_t count, const std::string& file) {
+  std::vector<float> out;
+  out.reserve(count);
+  const char* p = begin;
+  while (p < end) {
+    while (p < end && (std::isspace(static_cast<unsigned char>(*p)) || *p == ',')) ++p;
+    if (p >= end) break;
+    char* next = nullptr;
+    const std::string token(p, std::find_if(p, end, [](char c) { return std::isspace(static_cast<unsigned char>(c)) || c == ','; }));
+    const double v = std::strtod(token.c_str(), &next);
+    if (next == token.c_str()) HYB_THROW(IoError, file, ": expected a number in ASCII data, found '", token, "'");
+    out.push_back(float(v));
+    p += token.size();
+  }
+  if (out.size() != count)
+    HYB_THROW(IoError, file, ": ASCII data holds ", out.size(), " samples, expected ", count);
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------
+// NRRD (http://teem.sourceforge.net/nrrd/format.html)
+
+bool nrrdType(const std::string& name, ScalarType* t) {
+  static const std::map<std::string, ScalarType> kTypes = {
+      {"signed char", ScalarType::Int8},         {"int8", ScalarType::Int8},
+      {"int8_t", ScalarType::Int8},              {"uchar", ScalarType::UInt8},
+      {"unsigned char", ScalarType::UInt8},      {"uint8", ScalarType::UInt8},
+      {"uint8_t", ScalarType::UInt8},            {"short", ScalarType::Int16},
+      {"short int", ScalarType::Int16},          {"signed short", ScalarType::Int16},
+      {"signed short int", ScalarType::Int16},   {"int16", ScalarType::Int16},
+      {"int16_t", ScalarType::Int16},            {"ushort", ScalarType::UInt16},
+      {"unsigned short", ScalarType::UInt16},    {"unsigned short int", ScalarType::UInt16},
+      {"uint16", ScalarType::UInt16},            {"uint16_t", ScalarType::UInt16},
+      {"int", ScalarType::Int32},                {"signed int", ScalarType::Int32},
+      {"int32", ScalarType::Int32},              {"int32_t", ScalarType::Int32},
+      {"uint", ScalarType::UInt32},              {"unsigned int", ScalarType::UInt32},
+      {"uint32", ScalarType::UInt32},            {"uint32_t", ScalarType::UInt32},
+      {"float", ScalarType::Float32},            {"double", ScalarType::Float64}};
+  const auto it = kTypes.find(name);
+  if (it == kTypes.end()) return false;
+  *t = it->second;
+  return true;
+}
+
+// Parses NRRD "space directions" such as "(0.9,0,0) (0,0.9,0) (0,0,1.5)" into per-axis lengths.
+bool parseSpaceDirections(const std::string& text, glm::dvec3* spacing) {
+  std::string s = text;
+  for (char& c : s)
+    if (c == '(' || c == ')' || c == ',') c = ' ';
+  double v[9];
+  if (!parseNumbers(s, 9, v)) return false;
+  for (int a = 0; a < 3; ++a) (*spacing)[a] = std::sqrt(v[3 * a] * v[3 * a] + v[3 * a + 1] * v[3 * a + 1] + v[3 * a + 2] * v[3 * a + 2]);
+  return true;
+}
+
+// Offset of the first byte after the header's blank line (or the end of the bytes).
+size_t headerEnd(const std::vector<uint8_t>& bytes, std::vector<std::string>* lines) {
+  size_t pos = 0;
+  while (pos < bytes.size()) {
+    const uint8_t* nl = static_cast<const uint8_t*>(std::memchr(bytes.data() + pos, '\n', bytes.size() - pos));
+    const size_t end = nl ? size_t(nl - bytes.data()) : bytes.size();
+    std::string line(reinterpret_cast<const char*>(bytes.data() + pos), end - pos);
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    pos = nl ? end + 1 : end;
+    if (line.empty()) return pos;
+    lines->push_back(line);
+  }
+  return bytes.size();
+}
+
+}  // namespace
+
+Volume readNrrd(const std::string& path) {
+  const std::vector<uint8_t> bytes = readFileBytes(path);
+  std::vector<std::string> lines;
+  const size_t dataStart = headerEnd(bytes, &lines);
+  if (lines.empty() || lines[0].rfind("NRRD000", 0) != 0)
+    HYB_THROW(IoError, path, ": not a NRRD file (expected magic 'NRRD000x' on the first line)");
+
+  std::map<std::string, std::string> fields;
+  for (size_t i = 1; i < lines.size(); ++i) {
+    const std::string& line = lines[i];
+    if (line[0] == '#') continue;
+    const size_t colon = line.find(": ");
+    if (colon == std::string::npos) {
+      if (line.find(":=") != std::string::npos) continue;  // key/value pairs carry no layout
+      HYB_THROW(IoError, path, ": malformed header line ", i + 1, " '", line, "' (expected 'field: value')");
+    }
+    fields[lower(trim(line.substr(0, colon)))] = trim(line.substr(colon + 2));
+  }
+  auto field = [&](const char* name) -> const std::string* {
+    const auto it = fields.find(name);
+    return it == fields.end() ? nullptr : &it->second;
+  };
+  auto required = [&](const char* name) -> const std::string& {
+    const std::string* v = field(name);
+    if (!v) HYB_THROW(IoError, path, ": missing required field '", name, "'");
+    return *v;
+  };
+
+  ScalarType type;
+  if (!nrrdType(lower(required("type")), &type))
+    HYB_THROW(IoError, path, ": unknown or unsupported type '", required("type"),
+              "' (expected int8/uint8/int16/uint16/int32/uint32/float/double)");
+  int dimension = 0;
+  if (!parseNumbers(required("dimension"), 1, &dimension) || dimension != 3)
+    HYB_THROW(IoError, path, ": dimension '", required("dimension"), "' unsupported (expected 3)");
+  long long sizes[3];
+  if (!parseNumbers(required("sizes"), 3, sizes))
+    HYB_THROW(IoError, path, ": sizes '", required("sizes"), "' malformed (expected three integers)");
+  for (long long s : sizes)
+    if (s <= 0 || s > kMaxDim)
+      HYB_THROW(IoError, path, ": sizes '", required("sizes"), "' invalid (expected 1..", kMaxDim, " per axis)");
+  const glm::ivec3 dims{int(sizes[0]), int(sizes[1]), int(sizes[2])};
+  validateDims(dims, path);
+
+  glm::dvec3 spacing(1.0);
+  if (const std::string* s = field("spacings")) {
+    if (!parseNumbers(*s, 3, &spacing.x))
+      HYB_THROW(IoError, path, ": spacings '", *s, "' malformed (expected three numbers)");
+  } else if (const std::string* d = field("space directions")) {
+    if (!parseSpaceDirections(*d, &spacing))
+      HYB_THROW(IoError, path, ": space directions '", *d, "' malformed (expected three 3-vectors)");
+  }
+  validateSpacing(spacing, path);
+
+  const std::string encoding = lower(required("encoding"));
+  const std::string* endianField = field("endian");
+  if (scalarSize(type) > 1 && encoding != "ascii" && encoding != "text" && encoding != "txt" && !endianField)
+    HYB_THROW(IoError, path, ": missing field 'endian' (required for multi-byte ", scalarName(type), " samples)");
+  const std::string endian = endianField ? lower(*endianField) : "little";
+  if (endian != "little" && endian != "big")
+    HYB_THROW(IoError, path, ": endian '", endian, "' invalid (expected little or big)");
+  long long byteSkip = 0, lineSkip = 0;
+  if (const std::string* s = field("byte skip"); s && !parseNumbers(*s, 1, &byteSkip))
+    HYB_THROW(IoError, path, ": byte skip '", *s, "' malformed");
+  if (const std::string* s = field("line skip"); s && (!parseNumbers(*s, 1, &lineSkip) || lineSkip < 0))
+    HYB_THROW(IoError, path, ": line skip '", *s, "' malformed");
+
+  // Data: detached file or attached after the blank line.
+  std::vector<uint8_t> detached;
+  std::string dataName = path;
+  const uint8_t* data = bytes.data() + dataStart;
+  size_t dataSize = bytes.size() - dataStart;
+  const std::string* dataFile = field("data file") ? field("data file") : field("datafile");
+  if (dataFile) {
+    if (dataFile->rfind("LIST", 0) == 0 || dataFile->find('%') != std::string::npos ||
+        dataFile->find(' ') != std::string::npos)
+      HYB_THROW(IoError, path, ": multi-file 'data file' lists are not supported (expected one file)");
+    fs::path p(*dataFile);
+    if (p.is_relative()) p = fs::path(path).parent_path() / p;
+    dataName = p.string();
+    std::error_code ec;
+    if (!fs::exists(p, ec)) HYB_THROW(IoError, path, ": data file '", dataName, "' does not exist");
+    detached = readFileBytes(dataName);
+    data = detached.data();
+    dataSize = detached.size();
+  } else if (fileExtension(path) == ".nhdr") {
+    HYB_THROW(IoError, path, ": detached header has no 'data file' field");
+  }
+  for (long long l = 0; l < lineSkip; ++l) {
+    const void* nl = std::memchr(data, '\n', dataSize);
+    if (!nl) HYB_THROW(IoError, dataName, ": cannot skip ", lineSkip, " lines (file too short)");
+    const size_t skip = size_t(static_cast<const uint8_t*>(nl) - data) + 1;
+    data += skip;
+    dataSize -= skip;
+  }
+
+  const uint64_t expected = expectedBytes(dims, type);
+  const size_t count = size_t(dims.x) * dims.y * dims.z;
+  std::vector<float> samples;
+  if (encoding == "raw") {
+    if (byteSkip == -1) {  // data are the last bytes of the file
+      if (dataSize < expected) checkByteCount(dataName, expected, dataSize, dims, type);
+      data += dataSize - expected;
+      dataSize = expected;
+    } else if (byteSkip < 0 || uint64_t(byteSkip) > dataSize) {
+      HYB_THROW(IoError, dataName, ": byte skip ", byteSkip, " invalid for a ", dataSize, "-byte file");
+    } else {
+      data += byteSkip;
+      dataSize -= size_t(byteSkip);
+    }
+    checkByteCount(dataName, expected, dataSize, dims, type);
+    samples = decodeSamples(data, count, type, endian == "big");
+  } else if (encoding == "gzip" || encoding == "gz") {
+    std::vector<uint8_t> raw = inflateAll(data, dataSize, expected, dataName);
+    if (byteSkip < 0 || uint64_t(byteSkip) > raw.size())
+      HYB_THROW(IoError, dataName, ": byte skip ", byteSkip, " invalid for gzip data");
+    checkByteCount(dataName + " (decompressed)", expected, raw.size() - size_t(byteSkip), dims, type);
+    samples = decodeSamples(raw.data() + byteSkip, count, type, endian == "big");
+  } else if (encoding == "ascii" || encoding == "text" || encoding == "txt") {
+    samples = parseAsciiSamples(reinterpret_cast<const char*>(data), reinterpret_cast<const char*>(data) + dataSize,
+                                count, dataName);
+  } else {
+    HYB_THROW(IoError, path, ": encoding '", encoding, "' unsupported (expected raw, gzip or ascii)");
+  }
+  return Volume(dims, spacing, type, std::move(samples), path);
+}
+
+// ---------------------------------------------------------------------------------------------
+// MetaImage (https://itk.org/Wiki/ITK/MetaIO/Documentation)
+
+Volume readMetaImage(const std::string& path) {
+  const std::vector<uint8_t> bytes = readFileBytes(path);
+  std::map<std::string, std::string> fields;
+  size_t pos = 0;
+  size_t dataStart = std::string::npos;
+  while (pos < bytes.size()) {
+    const uint8_t* nl = static_cast<const uint8_t*>(std::memchr(bytes.data() + pos, '\n', bytes.size() - pos));
+    const size_t end = nl ? size_t(nl - bytes.data()) : bytes.size();
+    const std::string line(reinterpret_cast<const char*>(bytes.data() + pos), end - pos);
+    pos = nl ? end + 1 : end;
+    if (trim(line).empty()) continue;
+    const size_t eq = line.find('=');
+    if (eq == std::string::npos)
+      HYB_THROW(IoError, path, ": malformed header line '", trim(line), "' (expected 'Key = Value')");
+    const std::string key = trim(line.substr(0, eq));
+    fields[key] = trim(line.substr(eq + 1));
+    if (key == "ElementDataFile") {
+      dataStart = pos;
+      break;
+    }
+  }
+  auto required = [&](const char* name) -> const std::string& {
+    const auto it = fields.find(name);
+    if (it == fields.end()) HYB_THROW(IoError, path, ": missing required field '", name, "'");
+    return it->second;
+  };
+  if (fields.count("ObjectType") && fields["ObjectType"] != "Image")
+    HYB_THROW(IoError, path, ": ObjectType '", fields["ObjectType"], "' unsupported (expected Image)");
+  int ndims = 0;
+  if (!parseNumbers(required("NDims"), 1, &ndims) || ndims != 3)
+    HYB_THROW(IoError, path, ": NDims '", required("NDims"), "' unsupported (expected 3)");
+  long long sizes[3];
+  if (!parseNumbers(required("DimSize"), 3, sizes))
+    HYB_THROW(IoError, path, ": DimSize '", required("DimSize"), "' malformed (expected three integers)");
+  for (long long s : sizes)
+    if (s <= 0 || s > kMaxDim)
+      HYB_THROW(IoError, path, ": DimSize '", required("DimSize"), "' invalid (expected 1..", kMaxDim, " per axis)");
+  const glm::ivec3 dims{int(sizes[0]), int(sizes[1]), int(sizes[2])};
+  validateDims(dims, path);
+  if (fields.count("ElementNumberOfChannels") && trim(fields["ElementNumberOfChannels"]) != "1")
+    HYB_THROW(IoError, path, ": ElementNumberOfChannels ", fields["ElementNumberOfChannels"], " unsupported (expected 1)");
+
+  static const std::map<std::string, ScalarType> kTypes = {
+      {"MET_UCHAR", ScalarType::UInt8},   {"MET_CHAR", ScalarType::Int8},    {"MET_USHORT", ScalarType::UInt16},
+      {"MET_SHORT", ScalarType::Int16},   {"MET_UINT", ScalarType::UInt32},  {"MET_INT", ScalarType::Int32},
+      {"MET_FLOAT", ScalarType::Float32}, {"MET_DOUBLE", ScalarType::Float64}};
+  const auto typeIt = kTypes.find(required("ElementType"));
+  if (typeIt == kTypes.end())
+    HYB_THROW(IoError, path, ": ElementType '", required("ElementType"), "' unsupported (expected MET_UCHAR, MET_CHAR, ",
+              "MET_USHORT, MET_SHORT, MET_UINT, MET_INT, MET_FLOAT or MET_DOUBLE)");
+  const ScalarType type = typeIt->second;
+
+  glm::dvec3 spacing(1.0);
+  const char* spacingKey = fields.count("ElementSpacing") ? "ElementSpacing" : (fields.count("ElementSize") ? "ElementSize" : nullptr);
+  if (spacingKey && !parseNumbers(fields[spacingKey], 3, &spacing.x))
+    HYB_THROW(IoError, path, ": ", spacingKey, " '", fields[spacingKey], "' malformed (expected three numbers)");
+  validateSpacing(spacing, path);
+
+  auto isTrue = [&](const char* key) { return fields.count(key) && lower(fields[key]) == "true"; };
+  const bool bigEndian = isTrue("ElementByteOrderMSB") || isTrue("BinaryDataByteOrderMSB");
+  const bool compressed = isTrue("CompressedData");
+
+  const std::string& dataFile = required("ElementDataFile");
+  std::vector<uint8_t> detached;
+  std::string dataName = path;
+  const uint8_t* data = nullptr;
+  size_t dataSize = 0;
+  if (dataFile == "LOCAL") {
+    data = bytes.data() + dataStart;
+    dataSize = bytes.size() - dataStart;
+  } else {
+    if (dataFile.rfind("LIST", 0) == 0 || dataFile.find('%') != std::string::npos)
+      HYB_THROW(IoError, path, ": multi-file ElementDataFile is not supported (expected one file or LOCAL)");
+    fs::path p(dataFile);
+    if (p.is_relative()) p = fs::path(path).parent_path() / p;
+    dataName = p.string();
+    std::error_code ec;
+    if (!fs::exists(p, ec)) HYB_THROW(IoError, path, ": data file '", dataName, "' does not exist");
+    detached = readFileBytes(dataName);
+    data = detached.data();
+    dataSize = detached.size();
+  }
+  long long headerSize = 0;
+  if (fields.count("HeaderSize") && !parseNumbers(fields["HeaderSize"], 1, &headerSize))
+    HYB_THROW(IoError, path, ": HeaderSize '", fields["HeaderSize"], "' malformed");
+
+  const uint64_t expected = expectedBytes(dims, type);
+  const size_t count = size_t(dims.x) * dims.y * dims.z;
+  if (compressed) {
+    const std::vector<uint8_t> raw = inflateAll(data, dataSize, expected, dataName);
+    checkByteCount(dataName + " (decompressed)", expected, raw.size(), dims, type);
+    return Volume(dims, spacing, type, decodeSamples(raw.data(), count, type, bigEndian), path);
+  }
+  if (headerSize == -1) {
+    if (dataSize < expected) checkByteCount(dataName, expected, dataSize, dims, type);
+    data += dataSize - expected;
+    dataSize = expected;
+  } else if (headerSize < 0 || uint64_t(headerSize) > dataSize) {
+    HYB_THROW(IoError, dataName, ": HeaderSize ", headerSize, " invalid for a ", dataSize, "-byte file");
+  } else {
+    data += headerSize;
+    dataSize -= size_t(headerSize);
+  }
+  checkByteCount(dataName, expected, dataSize, dims, type);
+  return Volume(dims, spacing, type, decodeSamples(data, count, type, bigEndian), path);
+}
+
+// ---------------------------------------------------------------------------------------------
+// NIfTI through nifti_clib
+
+Volume readNifti(const std::string& path) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
+  nifti_set_debug_level(0);  // we report errors ourselves, in one line
+  std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nifti_image_read(path.c_str(), 1), nifti_image_free);
+  if (!nim) HYB_THROW(IoError, path, ": not a readable NIfTI-1/2 image (bad header, or data missing or truncated)");
+  if (!nim->data) HYB_THROW(IoError, path, ": NIfTI data could not be read (missing or truncated)");
+  for (int d = 4; d <= nim->ndim; ++d)
+    if (nim->dim[d] > 1)
+      HYB_THROW(IoError, path, ": NIfTI image has ", nim->ndim, " dimensions with extent ", nim->dim[d],
+                " along axis ", d, " (expected one 3D volume)");
+  if (nim->nx > kMaxDim || nim->ny > kMaxDim || nim->nz > kMaxDim)
+    HYB_THROW(IoError, path, ": NIfTI dims exceed ", kMaxDim, " per axis");
+  const glm::ivec3 dims(int(nim->nx), int(std::max<int64_t>(1, nim->ny)), int(std::max<int64_t>(1, nim->nz)));
+  validateDims(dims, path);
+  ScalarType type;
+  switch (nim->datatype) {
+    case DT_UINT8: type = ScalarType::UInt8; break;
+    case DT_INT8: type = ScalarType::Int8; break;
+    case DT_UINT16: type = ScalarType::UInt16; break;
+    case DT_INT16: type = ScalarType::Int16; break;
+    case DT_UINT32: type = ScalarType::UInt32; break;
+    case DT_INT32: type = ScalarType::Int32; break;
+    case DT_FLOAT32: type = ScalarType::Float32; break;
+    case DT_FLOAT64: type = ScalarType::Float64; break;
+    default:
+      HYB_THROW(IoError, path, ": NIfTI datatype ", nim->datatype, " unsupported (expected a real scalar type)");
+  }
+  const glm::dvec3 spacing(std::fabs(nim->dx), std::fabs(nim->dy > 0 ? nim->dy : 1.0), std::fabs(nim->dz > 0 ? nim->dz : 1.0));
+  validateSpacing(spacing, path);
+  const size_t count = size_t(dims.x) * dims.y * dims.z;
+  // nifti_clib has already swapped to native byte order.
+  std::vector<float> samples = decodeSamples(static_cast<const uint8_t*>(nim->data), count, type,
+                                             std::endian::native == std::endian::big);
+  const double slope = nim->scl_slope, inter = nim->scl_inter;
+  if (std::isfinite(slope) && slope != 0.0 && std::isfinite(inter) && (slope != 1.0 || inter != 0.0)) {
+    for (float& v : samples) v = float(v * slope + inter);
+    type = ScalarType::Float32;
+  }
+  return Volume(dims, spacing, type, std::move(samples), path);
+}
+
+// ---------------------------------------------------------------------------------------------
+// DICOM series through GDCM
+
+Volume readDicomSeries(const std::string& dir) {
+  gdcm::Directory directory;
+  if (directory.Load(dir, false) == 0) HYB_THROW(IoError, dir, ": directory holds no files (expected a DICOM series)");
+  // Group by series instance UID and keep the largest series.
+  const gdcm::Tag seriesTag(0x0020, 0x000e);
+  gdcm::Scanner scanner;
+  scanner.AddTag(seriesTag);
+  if (!scanner.Scan(directory.GetFilenames())) HYB_THROW(IoError, dir, ": cannot scan the directory for DICOM files");
+  std::map<std::string, std::vector<std::string>> series;
+  for (const std::string& f : directory.GetFilenames())
+    if (scanner.IsKey(f.c_str())) {
+      const char* uid = scanner.GetValue(f.c_str(), seriesTag);
+      series[uid ? trim(uid) : std::string()].push_back(f);
+    }
+  if (series.empty()) HYB_THROW(IoError, dir, ": no DICOM files found (expected a directory holding one series)");
+  const auto largest = std::max_element(series.begin(), series.end(),
+                                        [](const auto& a, const auto& b) { return a.second.size() < b.second.size(); });
+  std::vector<std::string> files = largest->second;
+
+  double zSpacing = 1.0;
+  if (files.size() > 1) {
+    gdcm::IPPSorter sorter;
+    sorter.SetComputeZSpacing(true);
+    sorter.SetZSpacingTolerance(1e-3);
+    if (!sorter.Sort(files))
+      HYB_THROW(IoError, dir, ": cannot sort the series by image position (missing or inconsistent Image Position/Orientation)");
+    files = sorter.GetFilenames();
+    zSpacing = sorter.GetZSpacing();
+    if (!(zSpacing > 0))
+      HYB_THROW(IoError, dir, ": slices are not evenly spaced along the normal (expected a regular grid)");
+  }
+
+  glm::ivec3 dims(0, 0, int(files.size()));
+  glm::dvec3 spacing(1.0, 1.0, zSpacing);
+  ScalarType type = ScalarType::Int16;
+  std::vector<float> samples;
+  bool rescaled = false;
+  for (size_t s = 0; s < files.size(); ++s) {
+    gdcm::ImageReader reader;
+    reader.SetFileName(files[s].c_str());
+    if (!reader.Read()) HYB_THROW(IoError, files[s], ": not a readable DICOM image");
+    const gdcm::Image& image = reader.GetImage();
+    const gdcm::PixelFormat& pf = image.GetPixelFormat();
+    if (pf.GetSamplesPerPixel() != 1)
+      HYB_THROW(IoError, files[s], ": ", pf.GetSamplesPerPixel(), " samples per pixel (expected 1, greyscale)");
+    if (image.GetNumberOfDimensions() == 3 && image.GetDimension(2) > 1)
+      HYB_THROW(IoError, files[s], ": multi-frame images are not supported (expected one slice per file)");
+    const glm::ivec2 size(int(image.GetDimension(0)), int(image.GetDimension(1)));
+    ScalarType sliceType;
+    switch (pf.GetScalarType()) {
+      case gdcm::PixelFormat::UINT8: sliceType = ScalarType::UInt8; break;
+      case gdcm::PixelFormat::INT8: sliceType = ScalarType::Int8; break;
+      case gdcm::PixelFormat::UINT16: sliceType = ScalarType::UInt16; break;
+      case gdcm::PixelFormat::INT16: sliceType = ScalarType::Int16; break;
+      case gdcm::PixelFormat::UINT32: sliceType = ScalarType::UInt32; break;
+      case gdcm::PixelFormat::INT32: sliceType = ScalarType::Int32; break;
+      case gdcm::PixelFormat::FLOAT32: sliceType = ScalarType::Float32; break;
+      case gdcm::PixelFormat::FLOAT64: sliceType = ScalarType::Float64; break;
+      default: HYB_THROW(IoError, files[s], ": unsupported pixel format ", pf.GetScalarTypeAsString());
+    }
+    if (s == 0) {
+      dims.x = size.x;
+      dims.y = size.y;
+      validateDims(dims, dir);
+      const double* sp = image.GetSpacing();
+      spacing.x = sp[0];
+      spacing.y = sp[1];
+      type = sliceType;
+      samples.resize(size_t(dims.x) * dims.y * dims.z);
+    } else if (size.x != dims.x || size.y != dims.y) {
+      HYB_THROW(IoError, files[s], ": slice is ", size.x, "x", size.y, ", expected ", dims.x, "x", dims.y,
+                " like the first slice");
+    }
+    const size_t sliceCount = size_t(dims.x) * dims.y;
+    std::vector<char> buffer(image.GetBufferLength());
+    if (buffer.size() < sliceCount * scalarSize(sliceType) || !image.GetBuffer(buffer.data()))
+      HYB_THROW(IoError, files[s], ": pixel data missing or truncated");
+    std::vector<float> slice = decodeSamples(reinterpret_cast<const uint8_t*>(buffer.data()), sliceCount, sliceType,
+                                             std::endian::native == std::endian::big);
+    const double slopeValue = image.GetSlope(), intercept = image.GetIntercept();
+    if (slopeValue != 1.0 || intercept != 0.0) rescaled = true;
+    for (size_t i = 0; i < sliceCount; ++i) samples[s * sliceCount + i] = float(slice[i] * slopeValue + intercept);
+  }
+  if (rescaled && type != ScalarType::Float32 && type != ScalarType::Float64) type = ScalarType::Int32;
+  validateSpacing(spacing, dir);
+  return Volume(dims, spacing, type, std::move(samples), dir);
+}
+
+// ---------------------------------------------------------------------------------------------
+// InVesalius 3 project: a gzip tar holding main.plist (matrix shape, dtype, spacing) and the
+// matrix as raw samples in C order (z, y, x), native (little-endian) byte order.
+
+Volume readInv3(const std::string& path) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
+  std::unique_ptr<archive, int (*)(archive*)> ar(archive_read_new(), archive_read_free);
+  archive_read_support_filter_all(ar.get());
+  archive_read_support_format_tar(ar.get());
+  if (archive_read_open_filename(ar.get(), path.c_str(), 1 << 16) != ARCHIVE_OK)
+    HYB_THROW(IoError, path, ": not an InVesalius project (expected a gzip tar archive: ", archive_error_string(ar.get()), ")");
+  // Keep main.plist and every .dat entry that may be the matrix; masks are skipped by name later.
+  std::string mainPlist;
+  std::map<std::string, std::vector<uint8_t>> blobs;
+  archive_entry* entry = nullptr;
+  int rc;
+  while ((rc = archive_read_next_header(ar.get(), &entry)) == ARCHIVE_OK) {
+    const std::string name = fs::path(archive_entry_pathname(entry)).filename().string();
+    const bool wanted = name == "main.plist" || (name.size() > 4 && name.rfind("mask_", 0) != 0 &&
+                                                 name.compare(name.size() - 4, 4, ".dat") == 0);
+    if (!wanted) continue;
+    std::vector<uint8_t> content;
+    const la_int64_t declared = archive_entry_size(entry);
+    if (declared > 0) content.reserve(size_t(declared));
+    char buf[1 << 16];
+    la_ssize_t n;
+    while ((n = archive_read_data(ar.get(), buf, sizeof buf)) > 0) content.insert(content.end(), buf, buf + n);
+    if (n < 0) HYB_THROW(IoError, path, ": truncated or corrupt archive entry '", name, "' (", archive_error_string(ar.get()), ")");
+    if (name == "main.plist")
+      mainPlist.assign(content.begin(), content.end());
+    else
+      blobs[name] = std::move(content);
+  }
+  if (rc != ARCHIVE_EOF) HYB_THROW(IoError, path, ": truncated or corrupt archive (", archive_error_string(ar.get()), ")");
+  if (mainPlist.empty()) HYB_THROW(IoError, path, ": archive has no main.plist (expected an InVesalius 3 project)");
+
+  const detail::PlistValue plist = detail::parsePlist(mainPlist, path + ":main.plist");
+  const detail::PlistValue* matrix = plist.find("matrix");
+  const detail::PlistValue* spacingList = plist.find("spacing");
+  if (!matrix || !matrix->find("shape") || !matrix->find("filename") || !matrix->find("dtype") || !spacingList)
+    HYB_THROW(IoError, path, ": main.plist lacks matrix shape/filename/dtype or spacing");
+  const auto& shape = matrix->find("shape")->items;
+  double shapeValues[3], spacingValues[3];
+  if (shape.size() != 3 || spacingList->items.size() != 3)
+    HYB_THROW(IoError, path, ": main.plist matrix shape and spacing must have 3 entries");
+  for (int a = 0; a < 3; ++a)
+    if (!shape[size_t(a)].number(&shapeValues[a]) || !spacingList->items[size_t(a)].number(&spacingValues[a]))
+      HYB_THROW(IoError, path, ": main.plist matrix shape or spacing entry ", a, " is not a number");
+  for (double s : shapeValues)
+    if (s < 1 || s > kMaxDim || s != std::floor(s))
+      HYB_THROW(IoError, path, ": main.plist matrix shape entry ", s, " invalid (expected 1..", kMaxDim, ")");
+  const glm::ivec3 dims{int(shapeValues[2]), int(shapeValues[1]), int(shapeValues[0])};  // shape is (z, y, x)
+  validateDims(dims, path);
+  const glm::dvec3 spacing(spacingValues[0], spacingValues[1], spacingValues[2]);
+  validateSpacing(spacing, path);
+  static const std::map<std::string, ScalarType> kTypes = {
+      {"int16", ScalarType::Int16}, {"uint16", ScalarType::UInt16}, {"uint8", ScalarType::UInt8},
+      {"int8", ScalarType::Int8},   {"int32", ScalarType::Int32},   {"uint32", ScalarType::UInt32},
+      {"float32", ScalarType::Float32}, {"float64", ScalarType::Float64}};
+  const std::string dtype = matrix->find("dtype")->text;
+  const auto typeIt = kTypes.find(dtype);
+  if (typeIt == kTypes.end()) HYB_THROW(IoError, path, ": matrix dtype '", dtype, "' unsupported");
+  const std::string matrixName = fs::path(matrix->find("filename")->text).filename().string();
+  const auto blob = blobs.find(matrixName);
+  if (blob == blobs.end()) HYB_THROW(IoError, path, ": archive has no matrix file '", matrixName, "'");
+  checkByteCount(path + ":" + matrixName, expectedBytes(dims, typeIt->second), blob->second.size(), dims, typeIt->second);
+  return Volume(dims, spacing, typeIt->second,
+                decodeSamples(blob->second.data(), size_t(dims.x) * dims.y * dims.z, typeIt->second, false), path);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Raw
+
+Volume readRaw(const std::string& path, const RawLayout& layout) {
+  validateDims(layout.dims, "--raw-dims");
+  validateSpacing(layout.spacing, "--raw-spacing");
+  const std::vector<uint8_t> bytes = readFileBytes(path);
+  if (layout.headerBytes > bytes.size())
+    HYB_THROW(IoError, path, ": header of ", layout.headerBytes, " bytes is longer than the ", bytes.size(), "-byte file");
+  const uint64_t expected = expectedBytes(layout.dims, layout.type);
+  checkByteCount(path, expected, bytes.size() - layout.headerBytes, layout.dims, layout.type);
+  const size_t count = size_t(layout.dims.x) * layout.dims.y * layout.dims.z;
+  return Volume(layout.dims, layout.spacing, layout.type,
+                decodeSamples(bytes.data() + layout.headerBytes, count, layout.type, layout.bigEndian), path);
+}
+
+Volume readVolume(const std::string& path, const RawLayout* raw) {
+  if (raw) return readRaw(path, *raw);
+  std::error_code ec;
+  if (!fs::exists(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
+  if (fs::is_directory(path, ec)) return readDicomSeries(path);
+  const std::string ext = fileExtension(path);
+  if (ext == ".nrrd" || ext == ".nhdr") return readNrrd(path);
+  if (ext == ".mhd" || ext == ".mha") return readMetaImage(path);
+  if (ext == ".nii" || ext == ".nii.gz" || ext == ".hdr") return readNifti(path);
+  if (ext == ".inv3") return readInv3(path);
+  if (ext == ".raw")
+    HYB_THROW(ValueError, path, ": raw data needs --raw-dims X,Y,Z and --raw-type (and optionally --raw-spacing, --raw-endian)");
+  HYB_THROW(IoError, path, ": unknown volume format '", ext,
+            "' (expected .nrrd .nhdr .mhd .mha .nii .nii.gz .inv3, a DICOM directory, or raw with --raw-dims)");
+}
+
+}  // namespace hyb
