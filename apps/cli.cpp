@@ -236,6 +236,10 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
 
   try {
     try {
+      const auto known = app.get_subcommands([](const CLI::App*) { return true; });
+      if (argc > 1 && argv[1][0] != '-' &&
+          std::none_of(known.begin(), known.end(), [&](const CLI::App* c) { return c->get_name() == argv[1]; }))
+        HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build or render; see --help)");
       app.parse(argc, argv);
     } catch (const CLI::CallForHelp&) {
       out << app.help();

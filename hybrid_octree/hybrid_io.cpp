@@ -30,18 +30,22 @@ class Writer {
   template <typename T>
   void put(const T& v) {
     static_assert(std::is_trivially_copyable_v<T>);
-    const auto* p = reinterpret_cast<const uint8_t*>(&v);
-    mBytes.insert(mBytes.end(), p, p + sizeof(T));
+    append(&v, sizeof(T));
   }
   template <typename T>
   void putArray(const std::vector<T>& v) {
+    static_assert(std::is_trivially_copyable_v<T>);
     put(uint64_t(v.size()));
-    const auto* p = reinterpret_cast<const uint8_t*>(v.data());
-    mBytes.insert(mBytes.end(), p, p + v.size() * sizeof(T));
+    append(v.data(), v.size() * sizeof(T));
   }
   const std::vector<uint8_t>& bytes() const { return mBytes; }
 
  private:
+  void append(const void* p, size_t n) {
+    const size_t at = mBytes.size();
+    mBytes.resize(at + n);
+    if (n) std::memcpy(mBytes.data() + at, p, n);
+  }
   std::vector<uint8_t> mBytes;
 };
 

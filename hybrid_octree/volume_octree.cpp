@@ -100,6 +100,25 @@ struct LevelData {
   std::vector<float> err;  // countAt(k) × (depth − k + 1)
 };
 
+// The error loops are max-reductions; `omp simd` lets the compiler vectorize them (a plain float
+// max-reduction is not vectorized without -ffast-math, which would also drop our finiteness checks).
+
+// Largest |s[x] − (a + slope·x)| over x in [0, n).
+float maxLinearResidual(const float* s, int n, float a, float slope) {
+  float m = 0.0f;
+#pragma omp simd reduction(max : m)
+  for (int x = 0; x < n; ++x) m = std::max(m, std::fabs(s[x] - (a + slope * float(x))));
+  return m;
+}
+
+// Largest |s[x] − (a[x] + (b[x] − a[x])·w)| over x in [0, n).
+float maxLerpResidual(const float* s, const float* a, const float* b, float w, int n) {
+  float m = 0.0f;
+#pragma omp simd reduction(max : m)
+  for (int x = 0; x < n; ++x) m = std::max(m, std::fabs(s[x] - (a[x] + (b[x] - a[x]) * w)));
+  return m;
+}
+
 // Knots of the sub-grid of spacing e along one axis of a node, local coordinates 0…lim (lim: last real
 // sample): min(j·e, lim). For each sample t, the knots around it and its interpolation weight.
 struct AxisKnots {
@@ -188,8 +207,7 @@ void buildLeaves(const Volume& v, const Geometry& g, LevelData* out) {
             const float* a = &at(by, 0, y, kz.left[size_t(z)]);
             const float* b = &at(by, 0, y, kz.right[size_t(z)]);
             const float* s = &at(block, 0, y, z);
-            const float w = kz.w[size_t(z)];
-            for (int x = 0; x <= lim.x; ++x) eps = std::max(eps, std::fabs(s[x] - (a[x] + (b[x] - a[x]) * w)));
+            eps = std::max(eps, maxLerpResidual(s, a, b, kz.w[size_t(z)], lim.x + 1));
           }
         errs[p] = eps;
       }
@@ -228,11 +246,7 @@ std::vector<float> directNodalErrors(const Volume& v, const Geometry& g, int lev
         return a + (b - a) * wz;
       };
       const float a = bilerp(o.x), b = bilerp(hi.x);
-      const float* row = s + v.index(0, y, z);
-      const float slope = (b - a) * invX;
-      float rowEps = 0.0f;
-      for (int x = o.x; x <= hi.x; ++x) rowEps = std::max(rowEps, std::fabs(row[x] - (a + slope * float(x - o.x))));
-      eps = std::max(eps, rowEps);
+      eps = std::max(eps, maxLinearResidual(s + v.index(o.x, y, z), hi.x - o.x + 1, a, (b - a) * invX));
     }
     sliceErr[item] = eps;
   }

@@ -1,1 +1,137 @@
+#include "apps/cli.h"
+
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
+
+#include <sstream>
+
+#include "test_util.h"
+
+namespace hyb {
+namespace {
+
+using ::testing::HasSubstr;
+
+struct CliRun {
+  int status;
+  std::string out, err;
+};
+
+CliRun run(std::vector<std::string> args) {
+  args.insert(args.begin(), "hybrid-octree");
+  std::vector<const char*> argv;
+  for (const auto& a : args) argv.push_back(a.c_str());
+  std::ostringstream out, err;
+  const int status = app::runMain(int(argv.size()), argv.data(), out, err);
+  return {status, out.str(), err.str()};
+}
+
+size_t lines(const std::string& s) { return size_t(std::count(s.begin(), s.end(), '\n')); }
+
+// Bad input: exit status 2 and exactly one line on stderr mentioning @p named.
+void expectBadInput(const std::vector<std::string>& args, const std::string& named) {
+  const CliRun r = run(args);
+  EXPECT_EQ(r.status, 2) << r.err;
+  EXPECT_EQ(lines(r.err), size_t(1)) << r.err;
+  EXPECT_THAT(r.err, HasSubstr(named));
+}
+
+std::string writeNrrd(const test::TempDir& dir, const std::string& name, const std::string& header, const std::vector<uint8_t>& raw) {
+  test::writeBytes(dir.file(name + ".raw"), raw);
+  test::writeText(dir.file(name + ".nhdr"), header + "data file: " + name + ".raw\n");
+  return dir.file(name + ".nhdr");
+}
+
+const std::string kHeader = "NRRD0004\ntype: float\ndimension: 3\nsizes: 9 7 5\nspacings: 1 1 2\nendian: little\nencoding: raw\n";
+
+std::vector<uint8_t> sphereBytes() {
+  return test::toBytes(test::sphereVolume({9, 7, 5}, 3.0).samples());
+}
+
+TEST(Cli, InfoBuildAndSelect) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  CliRun r = run({"info", nhdr});
+  EXPECT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("9 x 7 x 5"));
+  EXPECT_THAT(r.out, HasSubstr("float32"));
+
+  r = run({"build", nhdr, "-o", dir.file("s.hoct")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_TRUE(std::filesystem::exists(dir.file("s.hoct")));
+
+  r = run({"render", dir.file("s.hoct"), "--epsilon", "0", "--stats", dir.file("st.json")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("max nodal error used 0.00"));
+  const auto json = test::readBytes(dir.file("st.json"));
+  EXPECT_THAT(std::string(json.begin(), json.end()), HasSubstr("\"nodes_selected\": 1"));
+
+  r = run({"render", nhdr, "--epsilon", "100"});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("1 bricks, 8 texels"));
+}
+
+TEST(Cli, RawInput) {
+  test::TempDir dir;
+  test::writeBytes(dir.file("v.bin"), sphereBytes());
+  const CliRun r = run({"info", dir.file("v.bin"), "--raw-dims", "9,7,5", "--raw-type", "float32", "--raw-spacing", "1,1,2"});
+  EXPECT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("1 x 1 x 2 mm"));
+  expectBadInput({"info", dir.file("v.bin"), "--raw-dims", "9,7", "--raw-type", "float32"}, "--raw-dims");
+  expectBadInput({"info", dir.file("v.bin"), "--raw-dims", "9,7,5", "--raw-type", "complex"}, "--raw-type");
+  expectBadInput({"info", dir.file("v.bin"), "--raw-dims", "9,7,6", "--raw-type", "float32"}, "v.bin");
+  expectBadInput({"info", dir.file("v.bin"), "--raw-dims", "9,7,5"}, "--raw-type");
+  expectBadInput({"info", dir.file("v.bin"), "--raw-dims", "9,7,5", "--raw-type", "float32", "--raw-endian", "middle"},
+                 "--raw-endian");
+}
+
+TEST(Cli, MalformedInputExitsTwoWithOneLine) {
+  test::TempDir dir;
+  const auto raw = sphereBytes();
+  expectBadInput({"info", writeNrrd(dir, "trunc", kHeader, std::vector<uint8_t>(raw.begin(), raw.end() - 4))}, "trunc.raw");
+  expectBadInput({"info", writeNrrd(dir, "long", kHeader, [&] { auto b = raw; b.push_back(0); return b; }())}, "long.raw");
+  expectBadInput({"info", writeNrrd(dir, "zero", "NRRD0004\ntype: float\ndimension: 3\nsizes: 9 0 5\nendian: little\nencoding: raw\n", raw)},
+                 "zero.nhdr");
+  expectBadInput({"info", writeNrrd(dir, "neg", "NRRD0004\ntype: float\ndimension: 3\nsizes: 9 -7 5\nendian: little\nencoding: raw\n", raw)},
+                 "neg.nhdr");
+  expectBadInput({"info", writeNrrd(dir, "ovf", "NRRD0004\ntype: float\ndimension: 3\nsizes: 32768 32768 32768\nendian: little\nencoding: raw\n", raw)},
+                 "ovf.nhdr");
+  expectBadInput({"info", writeNrrd(dir, "type", "NRRD0004\ntype: int128\ndimension: 3\nsizes: 9 7 5\nendian: little\nencoding: raw\n", raw)},
+                 "type.nhdr");
+  auto nanRaw = raw;
+  const float nan = std::nanf("");
+  std::memcpy(&nanRaw[40], &nan, 4);
+  expectBadInput({"info", writeNrrd(dir, "nan", kHeader, nanRaw)}, "nan.nhdr");
+  test::writeText(dir.file("nofile.nhdr"), kHeader + "data file: gone.raw\n");
+  expectBadInput({"info", dir.file("nofile.nhdr")}, "gone.raw");
+  expectBadInput({"info", dir.file("absent.nrrd")}, "absent.nrrd");
+  expectBadInput({"render", dir.file("absent.hoct")}, "absent.hoct");
+}
+
+TEST(Cli, BadFlagsExitTwo) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  expectBadInput({"render", nhdr, "--epsilon", "-1"}, "--epsilon");
+  expectBadInput({"render", nhdr, "--epsilon", "abc"}, "--epsilon");
+  expectBadInput({"render", nhdr, "--focus", "1,2"}, "--focus");
+  expectBadInput({"render", nhdr, "--budget", "-3"}, "--budget");
+  expectBadInput({"render", nhdr, "--no-such-flag"}, "--no-such-flag");
+  expectBadInput({"build", nhdr}, "-o");
+  expectBadInput({"build", nhdr, "-o", dir.file("x.hoct"), "--leaf-edge", "6"}, "--leaf-edge");
+  expectBadInput({"frobnicate"}, "frobnicate");
+  expectBadInput({}, "subcommand");
+  const CliRun help = run({"--help"});
+  EXPECT_EQ(help.status, 0);
+  EXPECT_THAT(help.out, HasSubstr("render"));
+}
+
+TEST(Cli, UnwritableOutputLeavesNothing) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  expectBadInput({"build", nhdr, "-o", dir.file("missing/dir/s.hoct")}, "missing/dir/s.hoct");
+  test::writeText(dir.file("bad.hoct"), "HYBOCT\x1a\ntruncated");
+  expectBadInput({"render", dir.file("bad.hoct")}, "bad.hoct");
+}
+
+}  // namespace
+}  // namespace hyb

@@ -1,1 +1,86 @@
+#include "hybrid_octree/hybrid_io.h"
+
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
+
+#include "test_util.h"
+
+namespace hyb {
+namespace {
+
+using ::testing::HasSubstr;
+
+void expectLoadFails(const std::string& path, const std::string& what) {
+  try {
+    loadScene(path);
+    ADD_FAILURE() << "loaded " << path;
+  } catch (const IoError& e) {
+    EXPECT_THAT(e.what(), HasSubstr(path));
+    EXPECT_THAT(e.what(), HasSubstr(what));
+  }
+}
+
+TEST(SceneFile, RoundTripIsExact) {
+  test::TempDir dir;
+  const Volume v = test::randomVolume({33, 20, 9}, 3);
+  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{4});
+  saveScene(dir.file("s.hoct"), v, t);
+  EXPECT_TRUE(isSceneFile(dir.file("s.hoct")));
+  const Scene s = loadScene(dir.file("s.hoct"));
+  EXPECT_EQ(s.volume.dims(), v.dims());
+  EXPECT_EQ(s.volume.spacing(), v.spacing());
+  EXPECT_EQ(s.volume.samples(), v.samples());
+  EXPECT_EQ(s.octree.leafEdge(), 4);
+  ASSERT_EQ(s.octree.nodes().size(), t.nodes().size());
+  EXPECT_EQ(std::memcmp(s.octree.nodes().data(), t.nodes().data(), t.nodes().size() * sizeof(OctreeNode)), 0);
+  EXPECT_EQ(s.octree.errorData(), t.errorData());
+}
+
+TEST(SceneFile, RejectsForeignTruncatedCorruptAndNewer) {
+  test::TempDir dir;
+  const Volume v = test::randomVolume({17, 9, 5}, 4);
+  saveScene(dir.file("s.hoct"), v, VolumeOctree::build(v));
+  const std::vector<uint8_t> good = test::readBytes(dir.file("s.hoct"));
+
+  test::writeText(dir.file("foreign.hoct"), "NRRD0004\nnot a scene at all");
+  expectLoadFails(dir.file("foreign.hoct"), "not a hybrid-octree scene file");
+  EXPECT_FALSE(isSceneFile(dir.file("foreign.hoct")));
+
+  for (size_t cut : {size_t(10), size_t(20), good.size() / 3, good.size() - 1}) {
+    test::writeBytes(dir.file("cut.hoct"), std::vector<uint8_t>(good.begin(), good.begin() + ptrdiff_t(cut)));
+    expectLoadFails(dir.file("cut.hoct"), cut < 16 ? "not a hybrid-octree scene file" : "truncated");
+  }
+  std::vector<uint8_t> corrupt = good;
+  corrupt[good.size() / 2] ^= 0x40;
+  test::writeBytes(dir.file("corrupt.hoct"), corrupt);
+  expectLoadFails(dir.file("corrupt.hoct"), "checksum mismatch");
+
+  std::vector<uint8_t> newer = good;
+  newer[8] = uint8_t(kSceneVersion + 1);
+  test::writeBytes(dir.file("newer.hoct"), newer);
+  expectLoadFails(dir.file("newer.hoct"), "version 2 unsupported");
+}
+
+TEST(SceneFile, FromPartsRejectsInconsistentOctrees) {
+  const Volume v = test::randomVolume({17, 9, 5}, 4);
+  const VolumeOctree t = VolumeOctree::build(v);
+  auto nodes = t.nodes();
+  auto errors = t.errorData();
+  EXPECT_NO_THROW(VolumeOctree::fromParts(v.dims(), 8, nodes, errors, "x"));
+  EXPECT_THROW(VolumeOctree::fromParts({18, 9, 5}, 8, nodes, errors, "x"), IoError);  // other grid, other shape
+  EXPECT_THROW(VolumeOctree::fromParts(v.dims(), 4, nodes, errors, "x"), IoError);
+  auto badChild = nodes;
+  badChild[0].firstChild = 1000;
+  EXPECT_THROW(VolumeOctree::fromParts(v.dims(), 8, badChild, errors, "x"), IoError);
+  auto badRange = nodes;
+  badRange[1].minValue = badRange[1].maxValue + 1;
+  EXPECT_THROW(VolumeOctree::fromParts(v.dims(), 8, badRange, errors, "x"), IoError);
+  auto badError = errors;
+  badError[3] = -1.0f;
+  EXPECT_THROW(VolumeOctree::fromParts(v.dims(), 8, nodes, badError, "x"), IoError);
+  badError.pop_back();
+  EXPECT_THROW(VolumeOctree::fromParts(v.dims(), 8, nodes, badError, "x"), IoError);
+}
+
+}  // namespace
+}  // namespace hyb

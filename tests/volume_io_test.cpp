@@ -1,1 +1,446 @@
+#include "volume/volume_io.h"
+
+#include <archive.h>
+#include <archive_entry.h>
+#include <gdcmAttribute.h>
+#include <gdcmImageWriter.h>
+#include <gdcmMediaStorage.h>
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <nifti1.h>
+#include <zlib.h>
+
+#include "test_util.h"
+#include "volume/file_util.h"
+
+namespace hyb {
+namespace {
+
+using ::testing::HasSubstr;
+using test::TempDir;
+using test::toBytes;
+using test::writeBytes;
+using test::writeText;
+
+// A small int16 volume with distinct, signed values: v(i,j,k) = 100k + 10j + i − 300.
+constexpr glm::ivec3 kDims(4, 3, 5);
+int16_t expectedValue(int i, int j, int k) { return int16_t(100 * k + 10 * j + i - 300); }
+std::vector<int16_t> expectedSamples() {
+  std::vector<int16_t> s;
+  for (int k = 0; k < kDims.z; ++k)
+    for (int j = 0; j < kDims.y; ++j)
+      for (int i = 0; i < kDims.x; ++i) s.push_back(expectedValue(i, j, k));
+  return s;
+}
+
+void expectExpectedVolume(const Volume& v, glm::dvec3 spacing, ScalarType type = ScalarType::Int16) {
+  ASSERT_EQ(v.dims(), kDims);
+  EXPECT_EQ(v.sourceType(), type);
+  EXPECT_DOUBLE_EQ(v.spacing().x, spacing.x);
+  EXPECT_DOUBLE_EQ(v.spacing().y, spacing.y);
+  EXPECT_DOUBLE_EQ(v.spacing().z, spacing.z);
+  for (int k = 0; k < kDims.z; ++k)
+    for (int j = 0; j < kDims.y; ++j)
+      for (int i = 0; i < kDims.x; ++i) ASSERT_EQ(v.at(i, j, k), float(expectedValue(i, j, k))) << i << "," << j << "," << k;
+  EXPECT_EQ(v.minValue(), -300.0f);
+  EXPECT_EQ(v.maxValue(), float(expectedValue(3, 2, 4)));
+}
+
+std::vector<uint8_t> gzipBytes(const std::vector<uint8_t>& raw, const TempDir& dir) {
+  const std::string tmp = dir.file("tmp.gz");
+  gzFile f = gzopen(tmp.c_str(), "wb");
+  gzwrite(f, raw.data(), unsigned(raw.size()));
+  gzclose(f);
+  return test::readBytes(tmp);
+}
+
+std::vector<uint8_t> zlibBytes(const std::vector<uint8_t>& raw) {
+  uLongf size = compressBound(uLong(raw.size()));
+  std::vector<uint8_t> out(size);
+  compress2(out.data(), &size, raw.data(), uLong(raw.size()), 6);
+  out.resize(size);
+  return out;
+}
+
+std::vector<uint8_t> concat(const std::string& header, const std::vector<uint8_t>& data) {
+  std::vector<uint8_t> b(header.size() + data.size());
+  std::memcpy(b.data(), header.data(), header.size());
+  if (!data.empty()) std::memcpy(b.data() + header.size(), data.data(), data.size());
+  return b;
+}
+
+// Expects readVolume(path) to throw an hyb::Error whose message names @p named and contains @p what.
+void expectRejected(const std::string& path, const std::string& named, const std::string& what,
+                    const RawLayout* raw = nullptr) {
+  try {
+    readVolume(path, raw);
+    ADD_FAILURE() << path << " was accepted; expected an error containing '" << what << "'";
+  } catch (const Error& e) {
+    const std::string msg = e.what();
+    EXPECT_THAT(msg, HasSubstr(named));
+    EXPECT_THAT(msg, HasSubstr(what));
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << "message must be one line: " << msg;
+  }
+}
+
+const char* kNrrdHeader =
+    "NRRD0004\n# a comment\ntype: short\ndimension: 3\nsizes: 4 3 5\nspacings: 0.5 0.75 2.5\n";
+
+// ---------------------------------------------------------------------------------------------
+// NRRD
+
+TEST(NrrdReader, AttachedRawLittleEndian) {
+  TempDir dir;
+  const std::string path = dir.file("v.nrrd");
+  writeBytes(path, concat(std::string(kNrrdHeader) + "endian: little\nencoding: raw\n\n", toBytes(expectedSamples())));
+  expectExpectedVolume(readVolume(path), {0.5, 0.75, 2.5});
+}
+
+TEST(NrrdReader, DetachedRawBigEndianWithSpaceDirections) {
+  TempDir dir;
+  writeBytes(dir.file("v.raw"), toBytes(expectedSamples(), true));
+  writeText(dir.file("v.nhdr"),
+            "NRRD0005\ntype: int16\ndimension: 3\nspace: left-posterior-superior\nsizes: 4 3 5\n"
+            "space directions: (0.5,0,0) (0,0.75,0) (0,0,2.5)\nendian: big\nencoding: raw\ndata file: v.raw\n");
+  expectExpectedVolume(readVolume(dir.file("v.nhdr")), {0.5, 0.75, 2.5});
+}
+
+TEST(NrrdReader, GzipAttachedAndDetached) {
+  TempDir dir;
+  const auto gz = gzipBytes(toBytes(expectedSamples()), dir);
+  writeBytes(dir.file("a.nrrd"), concat(std::string(kNrrdHeader) + "endian: little\nencoding: gzip\n\n", gz));
+  expectExpectedVolume(readVolume(dir.file("a.nrrd")), {0.5, 0.75, 2.5});
+  writeBytes(dir.file("d.raw.gz"), gz);
+  writeText(dir.file("d.nhdr"), std::string(kNrrdHeader) + "endian: little\nencoding: gz\ndata file: d.raw.gz\n");
+  expectExpectedVolume(readVolume(dir.file("d.nhdr")), {0.5, 0.75, 2.5});
+}
+
+TEST(NrrdReader, AsciiAndByteSkipAndUint8) {
+  TempDir dir;
+  std::string text;
+  for (int16_t v : expectedSamples()) text += std::to_string(v) + " ";
+  writeText(dir.file("t.nrrd"), std::string(kNrrdHeader) + "encoding: ascii\n\n" + text);
+  expectExpectedVolume(readVolume(dir.file("t.nrrd")), {0.5, 0.75, 2.5});
+
+  std::vector<uint8_t> raw = {9, 9, 9};  // three bytes to skip
+  for (int i = 0; i < 8; ++i) raw.push_back(uint8_t(250 + i % 6));
+  writeBytes(dir.file("u.raw"), raw);
+  writeText(dir.file("u.nhdr"), "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\nbyte skip: 3\ndata file: u.raw\n");
+  const Volume v = readVolume(dir.file("u.nhdr"));
+  EXPECT_EQ(v.sourceType(), ScalarType::UInt8);
+  EXPECT_EQ(v.at(0, 0, 0), 250.0f);
+  EXPECT_EQ(v.at(1, 1, 1), 251.0f);  // index 7 -> 250 + 7 % 6
+  EXPECT_EQ(v.spacing(), glm::dvec3(1.0));
+}
+
+TEST(NrrdReader, RejectsMalformedFiles) {
+  TempDir dir;
+  const auto data = toBytes(expectedSamples());
+  auto nhdr = [&](const std::string& name, const std::string& fields, const std::vector<uint8_t>& raw) {
+    writeBytes(dir.file(name + ".raw"), raw);
+    writeText(dir.file(name + ".nhdr"), "NRRD0004\n" + fields + "data file: " + name + ".raw\n");
+    return dir.file(name + ".nhdr");
+  };
+  const std::string good = "type: short\ndimension: 3\nsizes: 4 3 5\nendian: little\nencoding: raw\n";
+  std::vector<uint8_t> shorter(data.begin(), data.end() - 7), longer = data;
+  longer.resize(data.size() + 10);
+  expectRejected(nhdr("trunc", good, shorter), "trunc.raw", "truncated data: expected 120 bytes");
+  expectRejected(nhdr("long", good, longer), "long.raw", "header/data size mismatch");
+  expectRejected(nhdr("zero", "type: short\ndimension: 3\nsizes: 4 0 5\nendian: little\nencoding: raw\n", data), "zero.nhdr", "sizes");
+  expectRejected(nhdr("neg", "type: short\ndimension: 3\nsizes: 4 -3 5\nendian: little\nencoding: raw\n", data), "neg.nhdr", "sizes");
+  expectRejected(nhdr("ovf", "type: short\ndimension: 3\nsizes: 30000 30000 30000\nendian: little\nencoding: raw\n", data),
+                 "ovf.nhdr", "more than the limit");
+  expectRejected(nhdr("big", "type: short\ndimension: 3\nsizes: 99999999999 2 2\nendian: little\nencoding: raw\n", data),
+                 "big.nhdr", "sizes");
+  expectRejected(nhdr("type", "type: quaternion\ndimension: 3\nsizes: 4 3 5\nendian: little\nencoding: raw\n", data),
+                 "type.nhdr", "unknown or unsupported type");
+  expectRejected(nhdr("dim", "type: short\ndimension: 2\nsizes: 4 3\nendian: little\nencoding: raw\n", data), "dim.nhdr",
+                 "dimension");
+  expectRejected(nhdr("end", "type: short\ndimension: 3\nsizes: 4 3 5\nencoding: raw\n", data), "end.nhdr", "endian");
+  expectRejected(nhdr("enc", "type: short\ndimension: 3\nsizes: 4 3 5\nendian: little\nencoding: bzip2\n", data), "enc.nhdr",
+                 "encoding 'bzip2' unsupported");
+  std::vector<float> nan = {1.0f, std::nanf(""), 3.0f, 4.0f, 5.0f, 6.0f, 7.0f, 8.0f};
+  expectRejected(nhdr("nan", "type: float\ndimension: 3\nsizes: 2 2 2\nendian: little\nencoding: raw\n", toBytes(nan)),
+                 "nan.nhdr", "sample (1,0,0) is nan; expected finite values");
+  writeText(dir.file("missing.nhdr"), "NRRD0004\n" + good + "data file: nowhere.raw\n");
+  expectRejected(dir.file("missing.nhdr"), "missing.nhdr", "data file '" + dir.file("nowhere.raw") + "' does not exist");
+  writeText(dir.file("magic.nrrd"), "P6\n4 4\n255\n");
+  expectRejected(dir.file("magic.nrrd"), "magic.nrrd", "not a NRRD file");
+  const auto gz = gzipBytes(data, dir);
+  writeBytes(dir.file("tgz.nrrd"), concat(std::string(kNrrdHeader) + "endian: little\nencoding: gzip\n\n",
+                                          std::vector<uint8_t>(gz.begin(), gz.begin() + ptrdiff_t(gz.size() / 2))));
+  expectRejected(dir.file("tgz.nrrd"), "tgz.nrrd", "truncated compressed data");
+  expectRejected(dir.file("absent.nrrd"), "absent.nrrd", "does not exist");
+  expectRejected(dir.file("x.vtk"), "x.vtk", "does not exist");
+  writeText(dir.file("x.vtk"), "vtk");
+  expectRejected(dir.file("x.vtk"), "x.vtk", "unknown volume format");
+}
+
+// ---------------------------------------------------------------------------------------------
+// MetaImage
+
+TEST(MetaImageReader, DetachedLocalAndCompressed) {
+  TempDir dir;
+  const auto data = toBytes(expectedSamples());
+  const std::string header =
+      "ObjectType = Image\nNDims = 3\nDimSize = 4 3 5\nElementSpacing = 0.5 0.75 2.5\nElementType = MET_SHORT\n";
+  writeBytes(dir.file("v.raw"), data);
+  writeText(dir.file("v.mhd"), header + "ElementByteOrderMSB = False\nElementDataFile = v.raw\n");
+  expectExpectedVolume(readVolume(dir.file("v.mhd")), {0.5, 0.75, 2.5});
+
+  writeBytes(dir.file("l.mha"), concat(header + "BinaryDataByteOrderMSB = True\nElementDataFile = LOCAL\n",
+                                       toBytes(expectedSamples(), true)));
+  expectExpectedVolume(readVolume(dir.file("l.mha")), {0.5, 0.75, 2.5});
+
+  const auto z = zlibBytes(data);
+  writeBytes(dir.file("c.mha"), concat(header + "CompressedData = True\nCompressedDataSize = " + std::to_string(z.size()) +
+                                           "\nElementDataFile = LOCAL\n", z));
+  expectExpectedVolume(readVolume(dir.file("c.mha")), {0.5, 0.75, 2.5});
+}
+
+TEST(MetaImageReader, RejectsMalformedFiles) {
+  TempDir dir;
+  const auto data = toBytes(expectedSamples());
+  writeBytes(dir.file("v.raw"), std::vector<uint8_t>(data.begin(), data.begin() + 50));
+  writeText(dir.file("t.mhd"), "NDims = 3\nDimSize = 4 3 5\nElementType = MET_SHORT\nElementDataFile = v.raw\n");
+  expectRejected(dir.file("t.mhd"), "v.raw", "truncated data");
+  writeText(dir.file("u.mhd"), "NDims = 3\nDimSize = 4 3 5\nElementType = MET_LONG_LONG\nElementDataFile = v.raw\n");
+  expectRejected(dir.file("u.mhd"), "u.mhd", "ElementType 'MET_LONG_LONG' unsupported");
+  writeText(dir.file("m.mhd"), "NDims = 3\nDimSize = 4 3 5\nElementDataFile = v.raw\n");
+  expectRejected(dir.file("m.mhd"), "m.mhd", "missing required field 'ElementType'");
+  writeText(dir.file("d.mhd"), "NDims = 3\nDimSize = 4 3\nElementType = MET_SHORT\nElementDataFile = v.raw\n");
+  expectRejected(dir.file("d.mhd"), "d.mhd", "DimSize");
+  writeText(dir.file("s.mhd"), "NDims = 3\nDimSize = 4 3 5\nElementSpacing = 1 0 1\nElementType = MET_SHORT\nElementDataFile = v.raw\n");
+  expectRejected(dir.file("s.mhd"), "s.mhd", "spacing");
+}
+
+// ---------------------------------------------------------------------------------------------
+// NIfTI (header written by hand from nifti1.h, read through nifti_clib)
+
+std::vector<uint8_t> niftiFile(float slope, float inter, const std::vector<uint8_t>& data) {
+  nifti_1_header h{};
+  h.sizeof_hdr = 348;
+  h.dim[0] = 3;
+  h.dim[1] = short(kDims.x);
+  h.dim[2] = short(kDims.y);
+  h.dim[3] = short(kDims.z);
+  for (int d = 4; d < 8; ++d) h.dim[d] = 1;
+  h.datatype = DT_INT16;
+  h.bitpix = 16;
+  h.pixdim[0] = 1.0f;
+  h.pixdim[1] = 0.5f;
+  h.pixdim[2] = 0.75f;
+  h.pixdim[3] = 2.5f;
+  h.vox_offset = 352.0f;
+  h.scl_slope = slope;
+  h.scl_inter = inter;
+  std::memcpy(h.magic, "n+1\0", 4);
+  std::vector<uint8_t> b(352 + data.size(), 0);
+  std::memcpy(b.data(), &h, sizeof h);
+  if (!data.empty()) std::memcpy(b.data() + 352, data.data(), data.size());
+  return b;
+}
+
+TEST(NiftiReader, PlainGzipAndScaling) {
+  TempDir dir;
+  const auto data = toBytes(expectedSamples());
+  writeBytes(dir.file("v.nii"), niftiFile(0.0f, 0.0f, data));
+  expectExpectedVolume(readVolume(dir.file("v.nii")), {0.5, 0.75, 2.5});
+  writeBytes(dir.file("v.nii.gz"), gzipBytes(niftiFile(1.0f, 0.0f, data), dir));
+  expectExpectedVolume(readVolume(dir.file("v.nii.gz")), {0.5, 0.75, 2.5});
+  writeBytes(dir.file("s.nii"), niftiFile(2.0f, -1024.0f, data));
+  const Volume s = readVolume(dir.file("s.nii"));
+  EXPECT_EQ(s.at(1, 2, 3), 2.0f * expectedValue(1, 2, 3) - 1024.0f);
+}
+
+TEST(NiftiReader, RejectsTruncatedAndGarbage) {
+  TempDir dir;
+  const auto data = toBytes(expectedSamples());
+  writeBytes(dir.file("t.nii"), niftiFile(0.0f, 0.0f, std::vector<uint8_t>(data.begin(), data.begin() + 40)));
+  expectRejected(dir.file("t.nii"), "t.nii", "NIfTI");
+  writeText(dir.file("g.nii"), std::string(400, 'x'));
+  expectRejected(dir.file("g.nii"), "g.nii", "NIfTI");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Raw
+
+TEST(RawReader, LayoutsAndSizeChecks) {
+  TempDir dir;
+  writeBytes(dir.file("v.bin"), toBytes(expectedSamples(), true));
+  RawLayout l;
+  l.dims = kDims;
+  l.type = ScalarType::Int16;
+  l.spacing = {0.5, 0.75, 2.5};
+  l.bigEndian = true;
+  expectExpectedVolume(readVolume(dir.file("v.bin"), &l), {0.5, 0.75, 2.5});
+  l.dims = {4, 3, 6};
+  expectRejected(dir.file("v.bin"), "v.bin", "truncated data: expected 144 bytes for 4x3x6 int16, found 120", &l);
+  l.dims = {4, 3, 4};
+  expectRejected(dir.file("v.bin"), "v.bin", "header/data size mismatch", &l);
+  l.dims = {4, 0, 4};
+  expectRejected(dir.file("v.bin"), "--raw-dims", "must all be positive", &l);
+  l.dims = kDims;
+  l.spacing = {1, -1, 1};
+  expectRejected(dir.file("v.bin"), "--raw-spacing", "finite and positive", &l);
+  expectRejected(dir.file("v.raw"), "v.raw", "does not exist");
+  writeText(dir.file("v.raw"), "x");
+  expectRejected(dir.file("v.raw"), "v.raw", "--raw-dims");
+}
+
+// ---------------------------------------------------------------------------------------------
+// InVesalius .inv3 (synthetic archive written with libarchive, and the real CT)
+
+void writeInv3(const std::string& path, const std::string& plist, const std::vector<uint8_t>& matrix) {
+  archive* a = archive_write_new();
+  archive_write_add_filter_gzip(a);
+  archive_write_set_format_pax_restricted(a);
+  archive_write_open_filename(a, path.c_str());
+  auto add = [&](const std::string& name, const void* data, size_t size) {
+    archive_entry* e = archive_entry_new();
+    archive_entry_set_pathname(e, name.c_str());
+    archive_entry_set_size(e, la_int64_t(size));
+    archive_entry_set_filetype(e, AE_IFREG);
+    archive_entry_set_perm(e, 0644);
+    archive_write_header(a, e);
+    archive_write_data(a, data, size);
+    archive_entry_free(e);
+  };
+  add("proj/main.plist", plist.data(), plist.size());
+  add("proj/matrix.dat", matrix.data(), matrix.size());
+  archive_write_close(a);
+  archive_write_free(a);
+}
+
+std::string inv3Plist(const std::string& shape) {
+  return "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<plist version=\"1.0\">\n<dict>\n"
+         "<key>matrix</key><dict><key>dtype</key><string>int16</string><key>filename</key><string>matrix.dat</string>"
+         "<key>shape</key><array>" + shape + "</array></dict>\n"
+         "<key>modality</key><string>CT</string>\n"
+         "<key>spacing</key><array><real>0.5</real><real>0.75</real><real>2.5</real></array>\n</dict>\n</plist>\n";
+}
+
+TEST(Inv3Reader, SyntheticProjectInCOrder) {
+  TempDir dir;
+  writeInv3(dir.file("p.inv3"), inv3Plist("<integer>5</integer><integer>3</integer><integer>4</integer>"),
+            toBytes(expectedSamples()));
+  expectExpectedVolume(readVolume(dir.file("p.inv3")), {0.5, 0.75, 2.5});
+}
+
+TEST(Inv3Reader, RejectsBrokenProjects) {
+  TempDir dir;
+  writeInv3(dir.file("s.inv3"), inv3Plist("<integer>6</integer><integer>3</integer><integer>4</integer>"),
+            toBytes(expectedSamples()));
+  expectRejected(dir.file("s.inv3"), "s.inv3", "truncated data");
+  writeInv3(dir.file("m.inv3"), "<plist><dict></dict></plist>", toBytes(expectedSamples()));
+  expectRejected(dir.file("m.inv3"), "m.inv3", "lacks matrix");
+  writeInv3(dir.file("x.inv3"), "<plist><dict><key>matrix</key><array>", toBytes(expectedSamples()));
+  expectRejected(dir.file("x.inv3"), "x.inv3", "malformed property list");
+  const auto whole = test::readBytes(dir.file("s.inv3"));
+  writeBytes(dir.file("cut.inv3"), std::vector<uint8_t>(whole.begin(), whole.begin() + ptrdiff_t(whole.size() / 2)));
+  expectRejected(dir.file("cut.inv3"), "cut.inv3", "truncated");
+  writeText(dir.file("txt.inv3"), "not an archive at all");
+  expectRejected(dir.file("txt.inv3"), "txt.inv3", "InVesalius");
+}
+
+TEST(Inv3Reader, RealCraniumLoadsInHounsfieldUnits) {
+  ASSERT_TRUE(std::filesystem::exists(kDefaultVolumePath))
+      << kDefaultVolumePath << " missing: run scripts/setup.sh (Debian package invesalius-examples)";
+  const Volume v = readVolume(kDefaultVolumePath);
+  EXPECT_EQ(v.dims(), glm::ivec3(256, 256, 108));
+  EXPECT_EQ(v.sourceType(), ScalarType::Int16);
+  EXPECT_NEAR(v.spacing().x, 0.9570312, 1e-6);
+  EXPECT_NEAR(v.spacing().y, 0.9570312, 1e-6);
+  EXPECT_DOUBLE_EQ(v.spacing().z, 1.5);
+  EXPECT_EQ(v.minValue(), -1024.0f);
+  EXPECT_EQ(v.maxValue(), 2986.0f);
+  EXPECT_EQ(v.sourceBytes(), size_t(256 * 256 * 108 * 2));
+}
+
+// ---------------------------------------------------------------------------------------------
+// DICOM series (written with GDCM, shuffled file names, rescale to HU)
+
+void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels, double z, const std::string& seriesUid) {
+  gdcm::ImageWriter w;
+  gdcm::Image& im = w.GetImage();
+  im.SetNumberOfDimensions(2);
+  im.SetDimension(0, unsigned(kDims.x));
+  im.SetDimension(1, unsigned(kDims.y));
+  im.SetSpacing(0, 0.5);
+  im.SetSpacing(1, 0.75);
+  im.SetOrigin(0, 10.0);
+  im.SetOrigin(1, -5.0);
+  im.SetOrigin(2, z);
+  const double cosines[6] = {1, 0, 0, 0, 1, 0};
+  im.SetDirectionCosines(cosines);
+  im.SetPixelFormat(gdcm::PixelFormat::INT16);
+  im.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
+  im.SetSlope(1.0);
+  im.SetIntercept(-1024.0);
+  gdcm::DataElement pixelData(gdcm::Tag(0x7fe0, 0x0010));
+  pixelData.SetByteValue(reinterpret_cast<const char*>(pixels.data()), uint32_t(pixels.size() * 2));
+  im.SetDataElement(pixelData);
+  gdcm::DataSet& ds = w.GetFile().GetDataSet();
+  gdcm::Attribute<0x0008, 0x0016> sopClass;
+  sopClass.SetValue(gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::CTImageStorage));
+  ds.Replace(sopClass.GetAsDataElement());
+  gdcm::Attribute<0x0008, 0x0060> modality;
+  modality.SetValue("CT");
+  ds.Replace(modality.GetAsDataElement());
+  gdcm::Attribute<0x0020, 0x000e> series;
+  series.SetValue(seriesUid);
+  ds.Replace(series.GetAsDataElement());
+  w.SetFileName(path.c_str());
+  ASSERT_TRUE(w.Write()) << path;
+}
+
+TEST(DicomReader, SeriesSortedByPositionWithRescale) {
+  TempDir dir;
+  const auto all = expectedSamples();
+  const size_t slice = size_t(kDims.x) * kDims.y;
+  // Stored value = HU + 1024; slices written in a shuffled order under names that do not sort.
+  const int order[5] = {3, 0, 4, 1, 2};
+  for (int f = 0; f < 5; ++f) {
+    const int k = order[f];
+    std::vector<int16_t> px(all.begin() + ptrdiff_t(k * slice), all.begin() + ptrdiff_t((k + 1) * slice));
+    for (int16_t& p : px) p = int16_t(p + 1024);
+    writeDicomSlice(dir.file("img" + std::to_string(f) + ".dcm"), px, 100.0 + 2.5 * k, "1.2.826.0.1.3680043.2.1125.1");
+  }
+  writeText(dir.file("notes.txt"), "not dicom");
+  const Volume v = readVolume(dir.path().string());
+  ASSERT_EQ(v.dims(), kDims);
+  EXPECT_NEAR(v.spacing().x, 0.5, 1e-9);
+  EXPECT_NEAR(v.spacing().y, 0.75, 1e-9);
+  EXPECT_NEAR(v.spacing().z, 2.5, 1e-6);
+  for (int k = 0; k < kDims.z; ++k)
+    for (int j = 0; j < kDims.y; ++j)
+      for (int i = 0; i < kDims.x; ++i) ASSERT_EQ(v.at(i, j, k), float(expectedValue(i, j, k)));
+}
+
+TEST(DicomReader, RejectsDirectoryWithoutDicom) {
+  TempDir dir;
+  writeText(dir.file("a.txt"), "hello");
+  expectRejected(dir.path().string(), dir.path().string(), "no DICOM files");
+}
+
+TEST(FileUtil, AtomicWriteLeavesNothingBehindOnFailure) {
+  TempDir dir;
+  const std::string path = dir.file("out.bin");
+  writeFileAtomically(path, [](std::ostream& o) { o << "complete"; });
+  EXPECT_EQ(test::readBytes(path).size(), size_t(8));
+  EXPECT_THROW(writeFileAtomically(path, [](std::ostream& o) {
+                 o << "half";
+                 throw IoError("simulated failure");
+               }),
+               IoError);
+  EXPECT_EQ(test::readBytes(path).size(), size_t(8));  // old content intact
+  size_t files = 0;
+  for (const auto& e : std::filesystem::directory_iterator(dir.path())) files += e.is_regular_file();
+  EXPECT_EQ(files, size_t(1));  // no temporary left behind
+  EXPECT_THROW(writeFileAtomically(dir.file("no/such/dir/x.bin"), [](std::ostream& o) { o << "x"; }), IoError);
+  EXPECT_EQ(fileExtension("/a/b/Scan.NII.GZ"), ".nii.gz");
+  EXPECT_EQ(fileExtension("/a/b.c/scan"), "");
+}
+
+}  // namespace
+}  // namespace hyb

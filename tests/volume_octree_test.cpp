@@ -1,1 +1,297 @@
+#include "hybrid_octree/volume_octree.h"
+
 #include <gtest/gtest.h>
+
+#include <numeric>
+#include <set>
+
+#include "hybrid_octree/selection.h"
+#include "test_util.h"
+#include "volume/volume_io.h"
+
+namespace hyb {
+namespace {
+
+using test::bruteForceNodalError;
+
+// Every node's closed box, cut at the grid.
+void boxOf(const VolumeOctree& t, const OctreeNode& n, glm::ivec3* lo, glm::ivec3* hi) { t.voxelBox(n, lo, hi); }
+
+TEST(VolumeOctree, StructureOfNonPowerOfTwoGrid) {
+  const Volume v = test::randomVolume({33, 20, 9}, 1);
+  const VolumeOctree t = VolumeOctree::build(v);
+  // Cells 32 x 19 x 8 -> L = 5; leaves of edge 8: 4 x 3 x 1; edge 16: 2 x 2 x 1; the root.
+  EXPECT_EQ(t.depth(), 5);
+  EXPECT_EQ(t.leafEdge(), 8);
+  EXPECT_EQ(t.nodes().size(), size_t(1 + 4 + 12));
+  size_t leaves = 0;
+  uint64_t cellsCovered = 0;
+  for (size_t i = 0; i < t.nodes().size(); ++i) {
+    const OctreeNode& n = t.nodes()[i];
+    if (n.isLeaf()) {
+      ++leaves;
+      EXPECT_EQ(t.edge(n), 8);
+      glm::ivec3 lo, hi;
+      boxOf(t, n, &lo, &hi);
+      const glm::ivec3 c = hi - lo;
+      cellsCovered += uint64_t(c.x) * c.y * c.z;
+      continue;
+    }
+    EXPECT_GT(n.firstChild, i);  // breadth first: children after parents
+    for (int slot = 0; slot < 8; ++slot) {
+      if (!(n.childMask & (1u << slot))) continue;
+      const OctreeNode& c = t.nodes()[childIndex(n, slot)];
+      EXPECT_EQ(c.level, n.level + 1);
+      EXPECT_EQ(glm::ivec3(c.origin), glm::ivec3(n.origin) + childOffset(slot, t.edge(c)));
+      EXPECT_EQ(childSlot(glm::ivec3(c.origin), t.depth() - c.level), slot);
+    }
+  }
+  EXPECT_EQ(leaves, size_t(12));
+  EXPECT_EQ(cellsCovered, uint64_t(32 * 19 * 8));  // the leaves tile the grid's cells exactly once
+}
+
+TEST(VolumeOctree, MinMaxMatchBruteForce) {
+  const Volume v = test::randomVolume({33, 20, 9}, 2);
+  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{4});
+  for (const OctreeNode& n : t.nodes()) {
+    glm::ivec3 lo, hi;
+    boxOf(t, n, &lo, &hi);
+    float mn = 1e30f, mx = -1e30f;
+    for (int z = lo.z; z <= hi.z; ++z)
+      for (int y = lo.y; y <= hi.y; ++y)
+        for (int x = lo.x; x <= hi.x; ++x) {
+          mn = std::min(mn, v.at(x, y, z));
+          mx = std::max(mx, v.at(x, y, z));
+        }
+    EXPECT_EQ(n.minValue, mn);
+    EXPECT_EQ(n.maxValue, mx);
+  }
+  EXPECT_EQ(t.root().minValue, v.minValue());
+  EXPECT_EQ(t.root().maxValue, v.maxValue());
+}
+
+TEST(VolumeOctree, TrilinearFieldHasZeroErrorAtEveryLevel) {
+  // Non-power-of-two dims: partial nodes must reproduce the field too (position clamping).
+  for (const glm::ivec3 dims : {glm::ivec3(37, 20, 9), glm::ivec3(17, 17, 17), glm::ivec3(2, 2, 2), glm::ivec3(65, 3, 40)}) {
+    const Volume v = test::makeVolume(dims, [](int i, int j, int k) { return test::trilinearField(i, j, k); });
+    const float scale = std::max(std::fabs(v.minValue()), std::fabs(v.maxValue()));
+    for (int leafEdge : {1, 2, 8}) {
+      const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{leafEdge});
+      for (const OctreeNode& n : t.nodes())
+        for (float e : t.errors(n)) EXPECT_LE(e, 1e-5f * scale) << "dims " << dims.x << "x" << dims.y << "x" << dims.z;
+    }
+  }
+}
+
+TEST(VolumeOctree, SingleSpikeGivesHeightAtEveryAncestor) {
+  const float h = 37.5f;
+  const glm::ivec3 spike(5, 9, 3);  // odd coordinates: never a knot of any sub-grid coarser than 1
+  const Volume v = test::makeVolume({33, 33, 17}, [&](int i, int j, int k) { return glm::ivec3(i, j, k) == spike ? h : 0.0f; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  int ancestors = 0;
+  for (const OctreeNode& n : t.nodes()) {
+    glm::ivec3 lo, hi;
+    t.voxelBox(n, &lo, &hi);
+    const bool contains = glm::all(glm::greaterThanEqual(spike, lo)) && glm::all(glm::lessThanEqual(spike, hi));
+    const auto e = t.errors(n);
+    for (int p = 0; p <= t.maxLevel(n); ++p) {
+      const float expected = (contains && p < t.maxLevel(n)) ? h : 0.0f;
+      EXPECT_EQ(e[size_t(p)], expected) << "level " << int(n.level) << " p " << p;
+    }
+    ancestors += contains;
+  }
+  EXPECT_EQ(ancestors, t.depth() - 3 + 1);  // root down to the edge-8 leaf
+}
+
+TEST(VolumeOctree, RecurrenceEqualsBruteForceOnRandomVolumes) {
+  for (const glm::ivec3 dims : {glm::ivec3(17, 17, 17), glm::ivec3(33, 20, 9)}) {
+    const Volume v = test::randomVolume(dims, 7);
+    for (int leafEdge : {2, 8}) {
+      const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{leafEdge});
+      size_t checked = 0;
+      for (const OctreeNode& n : t.nodes())
+        for (int p = 0; p <= t.maxLevel(n); ++p) {
+          const float brute = bruteForceNodalError(v, glm::ivec3(n.origin), t.edge(n), p);
+          EXPECT_NEAR(t.errors(n)[size_t(p)], brute, 1e-4f * 200.0f)
+              << "dims " << dims.x << "x" << dims.y << "x" << dims.z << " level " << int(n.level) << " p " << p;
+          ++checked;
+        }
+      EXPECT_GT(checked, t.nodes().size());
+    }
+  }
+}
+
+TEST(VolumeOctree, ConstantAndTinyVolumes) {
+  // Constant: every error is exactly zero.
+  const Volume c = test::makeVolume({10, 7, 3}, [](int, int, int) { return 42.0f; });
+  const VolumeOctree tc = VolumeOctree::build(c);
+  for (const OctreeNode& n : tc.nodes()) {
+    EXPECT_EQ(n.minValue, 42.0f);
+    for (float e : tc.errors(n)) EXPECT_EQ(e, 0.0f);
+  }
+  // One voxel, a single row and a single slice build without reading outside the grid.
+  for (const glm::ivec3 dims : {glm::ivec3(1, 1, 1), glm::ivec3(9, 1, 1), glm::ivec3(5, 6, 1)}) {
+    const Volume v = test::randomVolume(dims, 3);
+    const VolumeOctree t = VolumeOctree::build(v);
+    EXPECT_GE(t.nodes().size(), size_t(1));
+    EXPECT_EQ(t.root().minValue, v.minValue());
+    EXPECT_EQ(t.root().maxValue, v.maxValue());
+    for (const OctreeNode& n : t.nodes())
+      for (int p = 0; p <= t.maxLevel(n); ++p)
+        EXPECT_NEAR(t.errors(n)[size_t(p)], bruteForceNodalError(v, glm::ivec3(n.origin), t.edge(n), p), 1e-3f);
+  }
+}
+
+TEST(VolumeOctree, RejectsBadLeafEdge) {
+  const Volume v = test::randomVolume({4, 4, 4}, 1);
+  EXPECT_THROW(VolumeOctree::build(v, VolumeOctreeOptions{3}), ValueError);
+  EXPECT_THROW(VolumeOctree::build(v, VolumeOctreeOptions{0}), ValueError);
+  EXPECT_THROW(VolumeOctree::build(v, VolumeOctreeOptions{512}), ValueError);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Selection
+
+uint64_t cellsOf(const VolumeOctree& t, const OctreeNode& n) {
+  glm::ivec3 lo, hi;
+  t.voxelBox(n, &lo, &hi);
+  const glm::ivec3 c = glm::max(hi - lo, glm::ivec3(0));
+  return uint64_t(c.x) * c.y * c.z;
+}
+
+TEST(Selection, ZeroEpsilonSelectsFullResolutionEverywhere) {
+  const Volume v = test::randomVolume({70, 45, 33}, 11);
+  const VolumeOctree t = VolumeOctree::build(v);
+  SelectionParams params;
+  params.epsilon = 0.0f;
+  const Selection sel = selectNodes(t, params);
+  uint64_t cells = 0;
+  for (const Brick& b : sel.bricks) {
+    const OctreeNode& n = t.nodes()[b.node];
+    EXPECT_EQ(b.p, t.maxLevel(n));  // one texel per voxel
+    EXPECT_EQ(b.error, 0.0f);
+    EXPECT_LE(1 << b.p, params.maxBrickEdge);
+    cells += cellsOf(t, n);
+  }
+  EXPECT_EQ(cells, uint64_t(69 * 44 * 32));  // bricks tile the grid exactly once
+  EXPECT_EQ(sel.maxError, 0.0f);
+  EXPECT_GE(sel.texels, v.voxelCount());
+}
+
+TEST(Selection, EpsilonAboveRangeSelectsRootAtLevelZero) {
+  const Volume v = test::randomVolume({70, 45, 33}, 12);
+  const VolumeOctree t = VolumeOctree::build(v);
+  SelectionParams params;
+  params.epsilon = v.maxValue() - v.minValue();
+  const Selection sel = selectNodes(t, params);
+  ASSERT_EQ(sel.bricks.size(), size_t(1));
+  EXPECT_EQ(sel.bricks[0].node, 0u);
+  EXPECT_EQ(sel.bricks[0].p, 0);
+  EXPECT_EQ(sel.texels, uint64_t(8));
+}
+
+TEST(Selection, ErrorsStayWithinToleranceAndLevelsAreMinimal) {
+  const Volume v = test::sphereVolume({65, 65, 40}, 20.0);
+  const VolumeOctree t = VolumeOctree::build(v);
+  for (float eps : {0.01f, 0.1f, 0.5f, 2.0f}) {
+    SelectionParams params;
+    params.epsilon = eps;
+    const Selection sel = selectNodes(t, params);
+    for (const Brick& b : sel.bricks) {
+      const OctreeNode& n = t.nodes()[b.node];
+      EXPECT_LE(b.error, eps);
+      for (int q = 0; q < b.p; ++q) EXPECT_GT(t.errors(n)[size_t(q)], eps);  // smallest admissible p
+      EXPECT_TRUE((1 << b.p) <= params.maxBrickEdge || n.isLeaf());
+    }
+    EXPECT_LE(sel.maxError, eps);
+  }
+}
+
+TEST(Selection, FocusTightensErrorNearTheFocus) {
+  const Volume v = test::sphereVolume({65, 65, 65}, 25.0);
+  const VolumeOctree t = VolumeOctree::build(v);
+  SelectionParams params;
+  params.epsilon = 0.3f;
+  params.focus = glm::dvec3(0.0);
+  params.focusRadiusMm = 8.0;
+  params.maxBrickEdge = 8;  // small bricks so importance can differ between them
+  const Selection sel = selectNodes(t, params);
+  for (const Brick& b : sel.bricks) {
+    const OctreeNode& n = t.nodes()[b.node];
+    EXPECT_LE(b.error, params.epsilon / b.importance * 1.0001f);
+    if (n.origin == glm::u16vec3(0)) {
+      EXPECT_FLOAT_EQ(b.importance, 1.0f);  // the focus is in this node
+    }
+  }
+  SelectionParams uniform = params;
+  uniform.focus.reset();
+  EXPECT_LT(sel.texels, selectNodes(t, uniform).texels);  // looser far from the focus
+}
+
+TEST(Selection, TexelBudgetLowersLevels) {
+  const Volume v = test::randomVolume({65, 65, 65}, 5);
+  const VolumeOctree t = VolumeOctree::build(v);
+  SelectionParams params;
+  const uint64_t full = selectNodes(t, params).texels;
+  for (uint64_t budget : {full / 2, full / 8, full / 64}) {
+    params.texelBudget = budget;
+    const Selection sel = selectNodes(t, params);
+    EXPECT_TRUE(sel.budgetMet);
+    EXPECT_LE(sel.texels, budget);
+    uint64_t sum = 0;
+    for (const Brick& b : sel.bricks) sum += b.texelCount();
+    EXPECT_EQ(sum, sel.texels);
+  }
+  params.texelBudget = 1;  // impossible even at p = 0
+  EXPECT_FALSE(selectNodes(t, params).budgetMet);
+}
+
+TEST(Selection, TexelDimsAreCroppedToTheGrid) {
+  const Volume v = test::randomVolume({33, 20, 9}, 1);
+  const VolumeOctree t = VolumeOctree::build(v);
+  // Root: edge 32; at p = 5 one texel per voxel, cut at the grid: exactly the grid's samples.
+  EXPECT_EQ(t.texelDims(t.root(), 5), glm::ivec3(33, 20, 9));
+  EXPECT_EQ(t.texelDims(t.root(), 0), glm::ivec3(2, 2, 2));
+  // p = 2 (spacing 8): knots 0,8,16,19 in y and 0,8 in z.
+  EXPECT_EQ(t.texelDims(t.root(), 2), glm::ivec3(5, 4, 2));
+}
+
+TEST(Selection, RejectsInvalidParameters) {
+  const VolumeOctree t = VolumeOctree::build(test::randomVolume({9, 9, 9}, 1));
+  SelectionParams params;
+  params.epsilon = -1.0f;
+  EXPECT_THROW(selectNodes(t, params), ValueError);
+  params.epsilon = std::nanf("");
+  EXPECT_THROW(selectNodes(t, params), ValueError);
+  params.epsilon = 0.0f;
+  params.maxBrickEdge = 48;
+  EXPECT_THROW(selectNodes(t, params), ValueError);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The real CT
+
+TEST(VolumeOctreeCranium, ExactSelectionAndSmallOverhead) {
+  const Volume v = readVolume(kDefaultVolumePath);
+  const VolumeOctree t = VolumeOctree::build(v);
+  EXPECT_EQ(t.depth(), 8);
+  EXPECT_EQ(t.root().minValue, -1024.0f);
+  EXPECT_EQ(t.root().maxValue, 2986.0f);
+  EXPECT_LE(double(t.bytesUsed()), 0.15 * double(v.sourceBytes()));  // overhead target of the issue
+  SelectionParams params;
+  const Selection exact = selectNodes(t, params);
+  EXPECT_EQ(exact.maxError, 0.0f);
+  params.epsilon = 3000.0f;
+  const Selection coarse = selectNodes(t, params);
+  EXPECT_LT(coarse.texels, exact.texels / 10);
+  EXPECT_LE(coarse.maxError, 3000.0f);
+  // Spot-check the recurrence against the definition on a few nodes of every level.
+  for (size_t i = 0; i < t.nodes().size(); i += 997) {
+    const OctreeNode& n = t.nodes()[i];
+    for (int p = 0; p <= std::min(2, t.maxLevel(n)); ++p)
+      EXPECT_NEAR(t.errors(n)[size_t(p)], bruteForceNodalError(v, glm::ivec3(n.origin), t.edge(n), p), 0.05f);
+  }
+}
+
+}  // namespace
+}  // namespace hyb

@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# Installs what is needed (Debian 12, as root), builds in Release and runs the whole test suite.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release -DHYB_WERROR=ON > /dev/null
+cmake --build build --parallel 2
+ctest --test-dir build --output-on-failure -j2
