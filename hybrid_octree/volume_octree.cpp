@@ -361,4 +361,23 @@ void VolumeOctree::voxelBox(const OctreeNode& n, glm::ivec3* lo, glm::ivec3* hi)
   *hi = glm::min(*lo + edge(n), mDims - 1);
 }
 
+std::vector<VoxelBlock> isoBlocks(const VolumeOctree& octree, float iso) {
+  std::vector<VoxelBlock> blocks;
+  std::vector<uint32_t> stack{0};
+  while (!stack.empty()) {
+    const OctreeNode& n = octree.nodes()[stack.back()];
+    stack.pop_back();
+    if (!(n.minValue < iso && n.maxValue >= iso)) continue;
+    if (n.isLeaf()) {
+      VoxelBlock b;
+      octree.voxelBox(n, &b.lo, &b.hi);
+      blocks.push_back(b);
+      continue;
+    }
+    for (int slot = 7; slot >= 0; --slot)
+      if (n.childMask & (1u << slot)) stack.push_back(childIndex(n, slot));
+  }
+  return blocks;
+}
+
 }  // namespace hyb

@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "hybrid_octree/octree_node.h"
+#include "surface/mesh.h"
 #include "volume/volume.h"
 
 namespace hyb {
@@ -88,5 +89,9 @@ class VolumeOctree {
   std::vector<OctreeNode> mNodes;
   std::vector<float> mErrors;
 };
+
+/// The leaves whose samples straddle @p iso (some < iso, some ≥ iso) as voxel blocks: the only cells
+/// an isosurface extraction needs to visit (min/max culling, Wilhelms and Van Gelder 1992).
+std::vector<VoxelBlock> isoBlocks(const VolumeOctree& octree, float iso);
 
 }  // namespace hyb

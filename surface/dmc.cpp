@@ -1,0 +1,190 @@
+// Discretized Marching Cubes: C. Montani, R. Scateni, R. Scopigno, "Discretized Marching Cubes",
+// Visualization '94, 281–287. Classic Marching Cubes: W. Lorensen, H. Cline, SIGGRAPH '87.
+#include "surface/dmc.h"
+
+#include "surface/dmc_table.h"
+#include "surface/triangulate.h"
+#include "volume/error.h"
+
+namespace hyb {
+
+namespace {
+
+// Open-addressing map from a 64-bit key to a vertex index (keys are never ~0).
+class VertexMap {
+ public:
+  explicit VertexMap(size_t expected) { rehash(std::max<size_t>(1024, expected * 2)); }
+  // Index stored for @p key, or the result of @p make() stored now.
+  template <typename Make>
+  uint32_t findOrInsert(uint64_t key, Make&& make) {
+    if (2 * (mCount + 1) > mKeys.size()) rehash(mKeys.size() * 2);
+    size_t h = hash(key) & (mKeys.size() - 1);
+    while (mKeys[h] != kEmpty) {
+      if (mKeys[h] == key) return mValues[h];
+      h = (h + 1) & (mKeys.size() - 1);
+    }
+    mKeys[h] = key;
+    ++mCount;
+    return mValues[h] = make();
+  }
+
+ private:
+  static constexpr uint64_t kEmpty = ~uint64_t(0);
+  static size_t hash(uint64_t k) {
+    k ^= k >> 33;
+    k *= 0xff51afd7ed558ccdULL;
+    k ^= k >> 33;
+    return size_t(k);
+  }
+  void rehash(size_t capacity) {
+    std::vector<uint64_t> keys(capacity, kEmpty);
+    std::vector<uint32_t> values(capacity);
+    for (size_t i = 0; i < mKeys.size(); ++i)
+      if (mKeys[i] != kEmpty) {
+        size_t h = hash(mKeys[i]) & (capacity - 1);
+        while (keys[h] != kEmpty) h = (h + 1) & (capacity - 1);
+        keys[h] = mKeys[i];
+        values[h] = mValues[i];
+      }
+    mKeys.swap(keys);
+    mValues.swap(values);
+  }
+  std::vector<uint64_t> mKeys;
+  std::vector<uint32_t> mValues;
+  size_t mCount = 0;
+};
+
+// Doubled coordinates are below 2^17, so 21 bits an axis never collide.
+uint64_t packKey(const glm::ivec3& p) {
+  return (uint64_t(uint32_t(p.x)) << 42) | (uint64_t(uint32_t(p.y)) << 21) | uint64_t(uint32_t(p.z));
+}
+
+unsigned cellMask(const Volume& v, float iso, int i, int j, int k) {
+  unsigned mask = 0;
+  for (int c = 0; c < 8; ++c) mask |= unsigned(v.at(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)) >= iso) << c;
+  return mask;
+}
+
+// The case a DiscMC cell uses: the table's, unless the cell's fold lies on its low face and the cell
+// below folds onto the same diagonal, in which case the centre-diagonal variant (dmc_table.h).
+const dmc::Case& cellCase(const Volume& v, float iso, int i, int j, int k, unsigned mask) {
+  const dmc::Case& c = dmc::caseTable()[mask];
+  if (!c.hasFold()) return c;
+  const glm::ivec3 a = dmc::edgeMidpoint(c.fold[0]), b = dmc::edgeMidpoint(c.fold[1]);
+  for (int axis = 0; axis < 3; ++axis) {
+    if (a[axis] != 0 || b[axis] != 0) continue;  // the fold is on the low face of this axis
+    glm::ivec3 n(i, j, k);
+    if (--n[axis] < 0) return c;
+    const dmc::Case& below = dmc::caseTable()[cellMask(v, iso, n.x, n.y, n.z)];
+    if (!below.hasFold()) return c;
+    // Compare the folds in the upper cell's coordinates: the cell below is shifted by 2 on this axis.
+    glm::ivec3 shift(0);
+    shift[axis] = -2;
+    const glm::ivec3 p = dmc::edgeMidpoint(below.fold[0]) + shift, q = dmc::edgeMidpoint(below.fold[1]) + shift;
+    const bool same = (p == a && q == b) || (p == b && q == a);
+    return same ? dmc::alternativeCaseTable()[mask] : c;
+  }
+  return c;
+}
+
+// Calls visit(i, j, k, mask) for every cell of the blocks whose corners are not all on one side.
+template <typename Visit>
+void forEachActiveCell(const Volume& v, float iso, std::span<const VoxelBlock> blocks, Visit&& visit) {
+  const VoxelBlock whole{glm::ivec3(0), v.dims() - 1};
+  const std::span<const VoxelBlock> all = blocks.empty() ? std::span<const VoxelBlock>(&whole, 1) : blocks;
+  const float* s = v.samples().data();
+  for (const VoxelBlock& b : all) {
+    HYB_DCHECK(glm::all(glm::greaterThanEqual(b.lo, glm::ivec3(0))) && glm::all(glm::lessThan(b.hi, v.dims())));
+    for (int k = b.lo.z; k < b.hi.z; ++k)
+      for (int j = b.lo.y; j < b.hi.y; ++j) {
+        const float* r00 = s + v.index(0, j, k);
+        const float* r10 = s + v.index(0, j + 1, k);
+        const float* r01 = s + v.index(0, j, k + 1);
+        const float* r11 = s + v.index(0, j + 1, k + 1);
+        for (int i = b.lo.x; i < b.hi.x; ++i) {
+          const unsigned mask = unsigned(r00[i] >= iso) | unsigned(r00[i + 1] >= iso) << 1 | unsigned(r10[i] >= iso) << 2 |
+                                unsigned(r10[i + 1] >= iso) << 3 | unsigned(r01[i] >= iso) << 4 |
+                                unsigned(r01[i + 1] >= iso) << 5 | unsigned(r11[i] >= iso) << 6 | unsigned(r11[i + 1] >= iso) << 7;
+          if (mask != 0 && mask != 255) visit(i, j, k, mask);
+        }
+      }
+  }
+}
+
+}  // namespace
+
+DiscreteMesh extractDiscMC(const Volume& volume, float iso, std::span<const VoxelBlock> blocks, DmcFaces faces) {
+  std::array<glm::ivec3, 12> mid;
+  for (int e = 0; e < 12; ++e) mid[size_t(e)] = dmc::edgeMidpoint(e);
+  DiscreteMesh mesh;
+  VertexMap map(1 << 16);
+  uint32_t ids[12];
+  forEachActiveCell(volume, iso, blocks, [&](int i, int j, int k, unsigned mask) {
+    const dmc::Case& c = cellCase(volume, iso, i, j, k, mask);
+    const glm::ivec3 base = 2 * glm::ivec3(i, j, k);
+    auto vertex = [&](uint8_t e) {
+      const glm::ivec3 p = base + mid[e];
+      return map.findOrInsert(packKey(p), [&] {
+        mesh.vertices.push_back(p);
+        return uint32_t(mesh.vertices.size() - 1);
+      });
+    };
+    if (faces == DmcFaces::CellPolygons) {
+      for (const dmc::CasePolygon& poly : c.polygons) {
+        for (size_t v = 0; v < poly.edges.size(); ++v) ids[v] = vertex(poly.edges[v]);
+        mesh.addFace(ids, poly.edges.size(), c.planes[poly.plane].translated(base));
+      }
+    } else {
+      for (size_t t = 0; t < c.triangles.size(); ++t) {
+        for (int v = 0; v < 3; ++v) ids[v] = vertex(c.triangles[t][size_t(v)]);
+        mesh.addFace(ids, 3, c.planes[c.trianglePlane[t]].translated(base));
+      }
+    }
+  });
+  return mesh;
+}
+
+TriangleMesh extractMarchingCubes(const Volume& volume, float iso, std::span<const VoxelBlock> blocks) {
+  const auto& table = dmc::caseTable();
+  TriangleMesh mesh;
+  VertexMap map(1 << 16);
+  std::array<uint32_t, 12> ids;
+  forEachActiveCell(volume, iso, blocks, [&](int i, int j, int k, unsigned mask) {
+    const dmc::Case& c = table[mask];
+    const glm::ivec3 base(i, j, k);
+    for (const auto& loop : c.loops) {
+      for (size_t v = 0; v < loop.size(); ++v) {
+        const auto [ca, cb] = dmc::edgeCorners(loop[v]);
+        const glm::ivec3 a = base + dmc::cornerPosition(ca) / 2, b = base + dmc::cornerPosition(cb) / 2;
+        ids[v] = map.findOrInsert(uint64_t(volume.index(a.x, a.y, a.z)) * 3 + uint64_t(loop[v] / 4), [&] {
+          const float va = volume.at(a.x, a.y, a.z), vb = volume.at(b.x, b.y, b.z);
+          const float t = (iso - va) / (vb - va);  // corners classify differently, so va != vb
+          mesh.vertices.push_back(glm::vec3(a) + t * glm::vec3(b - a));
+          return uint32_t(mesh.vertices.size() - 1);
+        });
+      }
+      for (size_t v = 1; v + 1 < loop.size(); ++v) mesh.triangles.push_back({ids[0], ids[v], ids[v + 1]});
+    }
+  });
+  return mesh;
+}
+
+TriangleMesh toTriangleMesh(const DiscreteMesh& mesh, const glm::dvec3& spacing) {
+  TriangleMesh out;
+  out.vertices.reserve(mesh.vertices.size());
+  for (const glm::ivec3& p : mesh.vertices) out.vertices.push_back(glm::vec3(glm::dvec3(p) * 0.5 * spacing));
+  std::vector<std::array<uint32_t, 3>> tris;
+  for (size_t f = 0; f < mesh.faceCount(); ++f) {
+    tris.clear();
+    const bool ok = triangulatePolygon(mesh.vertices, &mesh.indices[mesh.offsets[f]], mesh.faceSize(f), mesh.planes[f].normal(), &tris);
+    HYB_CHECK(ok);
+    for (const auto& t : tris) out.triangles.push_back({t[0], t[1], t[2]});
+  }
+  return out;
+}
+
+void scaleToMillimetres(TriangleMesh* mesh, const glm::dvec3& spacing) {
+  for (glm::vec3& p : mesh->vertices) p = glm::vec3(glm::dvec3(p) * spacing);
+}
+
+}  // namespace hyb

@@ -1,0 +1,37 @@
+// Isosurface extraction: Discretized Marching Cubes (Montani, Scateni and Scopigno, Visualization
+// '94) and classic Marching Cubes (Lorensen and Cline, SIGGRAPH '87) as the accuracy and speed
+// baseline. Both use the same face-consistent loops (surface/dmc_table.h), so both are crack-free.
+// A corner is inside the solid when its sample is ≥ the isovalue.
+#pragma once
+
+#include <span>
+
+#include "surface/mesh.h"
+#include "volume/volume.h"
+
+namespace hyb {
+
+/// What DiscMC emits per cell.
+enum class DmcFaces {
+  Triangles,     ///< the table's triangles
+  CellPolygons,  ///< the table's triangles merged per plane inside each cell
+};
+
+/// DiscMC surface of @p volume at @p iso over the cells of @p blocks (all cells when empty).
+/// Vertices are shared between faces; every face lies on one of the 13 discrete orientations.
+/// Blocks must not overlap in cells.
+DiscreteMesh extractDiscMC(const Volume& volume, float iso, std::span<const VoxelBlock> blocks = {},
+                           DmcFaces faces = DmcFaces::CellPolygons);
+
+/// Classic Marching Cubes with vertices interpolated along the edges, in voxel coordinates,
+/// each loop fan-triangulated.
+TriangleMesh extractMarchingCubes(const Volume& volume, float iso, std::span<const VoxelBlock> blocks = {});
+
+/// Triangulates @p mesh (fans: its faces must be convex or table polygons) and maps doubled voxel
+/// coordinates to world millimetres with @p spacing.
+TriangleMesh toTriangleMesh(const DiscreteMesh& mesh, const glm::dvec3& spacing);
+
+/// Scales a voxel-coordinate triangle mesh to world millimetres.
+void scaleToMillimetres(TriangleMesh* mesh, const glm::dvec3& spacing);
+
+}  // namespace hyb
