@@ -13,6 +13,9 @@
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
+#include "surface/cgal_geometry.h"
+#include "surface/dmc.h"
+#include "surface/mesh_io.h"
 #include "volume/file_util.h"
 #include "volume/volume_io.h"
 
@@ -206,6 +209,70 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   return 0;
 }
 
+struct ExportOptions {
+  VolumeInput input;
+  std::string output, surface = "dmc";
+  std::optional<double> iso;
+  bool check = false;
+  std::string validate() const {
+    if (!iso) return "--iso missing (expected the isovalue in data units)";
+    if (!std::isfinite(*iso)) return "--iso must be a finite number";
+    if (output.empty()) return "-o missing (expected mesh.ply, .obj, .stl or .off)";
+    const std::string ext = fileExtension(output);
+    if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".off")
+      return "-o '" + output + "' has an unknown extension (expected .ply, .obj, .stl or .off)";
+    if (surface != "dmc" && surface != "mc") return "--surface '" + surface + "' invalid (expected dmc or mc)";
+    return "";
+  }
+};
+
+int runExport(const ExportOptions& o, std::ostream& out) {
+  double buildMs = 0;
+  const Scene scene = loadOrBuild(o.input, out, &buildMs);
+  const Volume& v = scene.volume;
+  const float iso = float(*o.iso);
+  if (iso <= v.minValue() || iso > v.maxValue())
+    out << "note: --iso " << iso << " is outside the data's crossing range (" << v.minValue() << ", " << v.maxValue()
+        << "]: the surface is empty\n";
+  const std::vector<VoxelBlock> blocks = isoBlocks(scene.octree, iso);
+  auto t0 = Clock::now();
+  const TriangleMesh mc = extractMarchingCubes(v, iso, blocks);
+  const double mcMs = msSince(t0);
+  t0 = Clock::now();
+  TriangleMesh mesh;
+  size_t polygons = 0;
+  if (o.surface == "mc") {
+    mesh = mc;
+    polygons = mc.triangles.size();
+    scaleToMillimetres(&mesh, v.spacing());
+  } else {
+    const DiscreteMesh d = extractDiscMC(v, iso, blocks);
+    polygons = d.faceCount();
+    mesh = toTriangleMesh(d, v.spacing());
+  }
+  const double ms = o.surface == "mc" ? mcMs : msSince(t0);
+  out << std::fixed << std::setprecision(1) << "surface  " << o.surface << " at iso " << iso << ": " << polygons << " polygons, "
+      << mesh.triangles.size() << " triangles, " << mesh.vertices.size() << " vertices, " << ms << " ms\n";
+  out << "vs mc    " << mc.triangles.size() << " triangles in " << mcMs << " ms; triangles ratio "
+      << std::setprecision(3) << (mc.triangles.empty() ? 1.0 : double(mesh.triangles.size()) / double(mc.triangles.size())) << "\n";
+  writeMesh(o.output, mesh);
+  out << "wrote    " << o.output << "\n";
+  if (o.check) {
+    const MeshCheck c = checkMesh(mesh);
+    out << "check    manifold " << (c.manifold ? "yes" : "no") << ", closed " << (c.closed ? "yes" : "no") << " ("
+        << c.boundaryEdges << " boundary edges), self-intersections " << (c.manifold ? (c.selfIntersecting ? "yes" : "no") : "not tested")
+        << (c.closed ? std::string(", outward ") + (c.outward ? "yes" : "no") : std::string()) << "\n";
+    if (o.surface != "mc") {
+      TriangleMesh mcMm = mc;
+      scaleToMillimetres(&mcMm, v.spacing());
+      const double cell = std::max({v.spacing().x, v.spacing().y, v.spacing().z});
+      out << "check    Hausdorff distance to mc " << std::setprecision(4) << hausdorffDistance(mesh, mcMm, 0.01 * cell)
+          << " mm (bound 0.01 cell)\n";
+    }
+  }
+  return 0;
+}
+
 }  // namespace
 
 int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& err) {
@@ -234,12 +301,20 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   renderCmd->add_option("--max-brick", render.maxBrick, "largest brick edge in texels (power of two)")->capture_default_str();
   renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
 
+  ExportOptions exportOpts;
+  CLI::App* exportCmd = app.add_subcommand("export", "write the isosurface as a mesh in millimetres");
+  exportOpts.input.add(exportCmd);
+  exportCmd->add_option("--iso", exportOpts.iso, "isovalue in data units (samples >= iso are inside)");
+  exportCmd->add_option("-o,--output", exportOpts.output, "mesh file: .ply .obj .stl .off");
+  exportCmd->add_option("--surface", exportOpts.surface, "dmc (Discretized Marching Cubes) or mc (classic)")->capture_default_str();
+  exportCmd->add_flag("--check", exportOpts.check, "check manifold, closed, self-intersections and Hausdorff distance to mc (CGAL)");
+
   try {
     try {
       const auto known = app.get_subcommands([](const CLI::App*) { return true; });
       if (argc > 1 && argv[1][0] != '-' &&
           std::none_of(known.begin(), known.end(), [&](const CLI::App* c) { return c->get_name() == argv[1]; }))
-        HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build or render; see --help)");
+        HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build, render or export; see --help)");
       app.parse(argc, argv);
     } catch (const CLI::CallForHelp&) {
       out << app.help();
@@ -257,6 +332,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     if (infoCmd->parsed()) return check(info.validate()), runInfo(info, out);
     if (buildCmd->parsed()) return check(build.validate()), runBuild(build, out);
     if (renderCmd->parsed()) return check(render.validate()), runRender(render, out, err);
+    if (exportCmd->parsed()) return check(exportOpts.validate()), runExport(exportOpts, out);
     return 2;
   } catch (const IoError& e) {
     err << "hybrid-octree: error: " << e.what() << "\n";

@@ -6,6 +6,7 @@
 #include <CGAL/Polygon_mesh_processing/distance.h>
 #include <CGAL/Polygon_mesh_processing/measure.h>
 #include <CGAL/Polygon_mesh_processing/orientation.h>
+#include <CGAL/Polygon_mesh_processing/orient_polygon_soup.h>
 #include <CGAL/Polygon_mesh_processing/polygon_soup_to_polygon_mesh.h>
 #include <CGAL/Polygon_mesh_processing/self_intersections.h>
 #include <CGAL/Surface_mesh.h>
@@ -24,14 +25,19 @@ using Point = Kernel::Point_3;
 using Mesh = CGAL::Surface_mesh<Point>;
 namespace PMP = CGAL::Polygon_mesh_processing;
 
-bool toSurfaceMesh(const TriangleMesh& in, Mesh* out) {
+// Converts @p in; when it is not a polygon mesh, returns false unless @p repair, in which case
+// non-manifold vertices and edges are duplicated (geometry unchanged) so distances can be measured.
+bool toSurfaceMesh(const TriangleMesh& in, Mesh* out, bool repair = false) {
   std::vector<Point> points;
   points.reserve(in.vertices.size());
   for (const glm::vec3& p : in.vertices) points.emplace_back(p.x, p.y, p.z);
   std::vector<std::vector<size_t>> faces;
   faces.reserve(in.triangles.size());
   for (const glm::uvec3& t : in.triangles) faces.push_back({t.x, t.y, t.z});
-  if (!PMP::is_polygon_soup_a_polygon_mesh(faces)) return false;
+  if (!PMP::is_polygon_soup_a_polygon_mesh(faces)) {
+    if (!repair) return false;
+    PMP::orient_polygon_soup(points, faces);
+  }
   PMP::polygon_soup_to_polygon_mesh(points, faces, *out);
   return true;
 }
@@ -66,8 +72,8 @@ double hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, double er
   if (a.triangles.empty() || b.triangles.empty()) return std::numeric_limits<double>::infinity();
   try {
     Mesh ma, mb;
-    if (!toSurfaceMesh(a, &ma) || !toSurfaceMesh(b, &mb))
-      HYB_THROW(RuntimeError, "Hausdorff distance needs manifold meshes");
+    toSurfaceMesh(a, &ma, true);
+    toSurfaceMesh(b, &mb, true);
     return PMP::bounded_error_symmetric_Hausdorff_distance<CGAL::Sequential_tag>(ma, mb, errorBound);
   } catch (const Error&) {
     throw;

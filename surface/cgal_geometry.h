@@ -23,6 +23,7 @@ MeshCheck checkMesh(const TriangleMesh& mesh);
 
 /// Symmetric Hausdorff distance between @p a and @p b, within @p errorBound (CGAL's bounded-error
 /// algorithm), in the meshes' units. Zero for two empty meshes, infinite when only one is empty.
+/// Non-manifold soups (classic MC) are measured as they are.
 double hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, double errorBound);
 
 }  // namespace hyb

@@ -125,6 +125,29 @@ TEST(Cli, BadFlagsExitTwo) {
   EXPECT_THAT(help.out, HasSubstr("render"));
 }
 
+TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
+  test::TempDir dir;
+  // A sphere that fits inside its volume, so its surface is closed.
+  const std::string nhdr = writeNrrd(dir, "s", "NRRD0004\ntype: float\ndimension: 3\nsizes: 11 11 11\nendian: little\nencoding: raw\n",
+                                     test::toBytes(test::sphereVolume(glm::ivec3(11), 3.5).samples()));
+  CliRun r = run({"export", nhdr, "--iso", "0", "-o", dir.file("s.off"), "--check"});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("manifold yes, closed yes"));
+  EXPECT_THAT(r.out, HasSubstr("self-intersections no"));
+  EXPECT_TRUE(std::filesystem::exists(dir.file("s.off")));
+  r = run({"export", nhdr, "--iso", "0", "-o", dir.file("s.stl"), "--surface", "mc"});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("triangles ratio 1.000"));
+  r = run({"export", nhdr, "--iso", "1000", "-o", dir.file("empty.ply")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("the surface is empty"));
+  expectBadInput({"export", nhdr, "-o", dir.file("x.ply")}, "--iso");
+  expectBadInput({"export", nhdr, "--iso", "0", "-o", dir.file("x.vtk")}, "x.vtk");
+  expectBadInput({"export", nhdr, "--iso", "0"}, "-o");
+  expectBadInput({"export", nhdr, "--iso", "0", "-o", dir.file("x.ply"), "--surface", "voxels"}, "--surface");
+  expectBadInput({"export", nhdr, "--iso", "nan", "-o", dir.file("x.ply")}, "--iso");
+}
+
 TEST(Cli, UnwritableOutputLeavesNothing) {
   test::TempDir dir;
   const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());

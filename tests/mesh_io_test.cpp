@@ -1,0 +1,58 @@
+#include "surface/mesh_io.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "surface/dmc.h"
+#include "test_util.h"
+
+namespace hyb {
+namespace {
+
+TEST(MeshIo, RoundTripEveryFormat) {
+  test::TempDir dir;
+  const Volume v = test::sphereVolume(glm::ivec3(15), 5.2);
+  const TriangleMesh mesh = toTriangleMesh(extractDiscMC(v, 0.0f), glm::dvec3(0.5, 0.75, 1.25));
+  ASSERT_GT(mesh.triangles.size(), size_t(100));
+  for (const char* ext : {".ply", ".obj", ".stl", ".off"}) {
+    const std::string path = dir.file(std::string("sphere") + ext);
+    writeMesh(path, mesh);
+    const TriangleMesh back = readMesh(path);
+    EXPECT_EQ(back.triangles.size(), mesh.triangles.size()) << ext;
+    EXPECT_EQ(back.vertices.size(), mesh.vertices.size()) << ext;
+    // Millimetres: the extent along z is the sphere's diameter at 1.25 mm a voxel, within a cell.
+    float zmin = 1e9f, zmax = -1e9f;
+    for (const glm::vec3& p : back.vertices) {
+      zmin = std::min(zmin, p.z);
+      zmax = std::max(zmax, p.z);
+    }
+    EXPECT_NEAR(zmax - zmin, 2 * 5.2 * 1.25, 1.25) << ext;
+  }
+}
+
+TEST(MeshIo, EmptyMeshesWriteValidFiles) {
+  test::TempDir dir;
+  for (const char* ext : {".ply", ".obj", ".stl", ".off"}) {
+    const std::string path = dir.file(std::string("empty") + ext);
+    writeMesh(path, TriangleMesh{});
+    ASSERT_TRUE(std::filesystem::exists(path)) << ext;
+    const TriangleMesh back = readMesh(path);
+    EXPECT_EQ(back.triangles.size(), size_t(0)) << ext;
+  }
+}
+
+TEST(MeshIo, RejectsUnknownFormatsAndUnwritablePaths) {
+  test::TempDir dir;
+  TriangleMesh one;
+  one.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  one.triangles = {{0, 1, 2}};
+  EXPECT_THROW(writeMesh(dir.file("m.vtk"), one), IoError);
+  EXPECT_THROW(writeMesh(dir.file("no/dir/m.ply"), one), IoError);
+  EXPECT_THROW(readMesh(dir.file("absent.ply")), IoError);
+  size_t files = 0;
+  for (const auto& e : std::filesystem::recursive_directory_iterator(dir.path())) files += e.is_regular_file();
+  EXPECT_EQ(files, size_t(0));  // nothing half-written
+}
+
+}  // namespace
+}  // namespace hyb
