@@ -2,6 +2,8 @@
 // Visualization '94, 281–287. Classic Marching Cubes: W. Lorensen, H. Cline, SIGGRAPH '87.
 #include "surface/dmc.h"
 
+#include <functional>
+
 #include "surface/dmc_table.h"
 #include "surface/triangulate.h"
 #include "volume/error.h"
@@ -65,26 +67,29 @@ unsigned cellMask(const Volume& v, float iso, int i, int j, int k) {
   return mask;
 }
 
-// The case a DiscMC cell uses: the table's, unless the cell's fold lies on its low face and the cell
-// below folds onto the same diagonal, in which case the centre-diagonal variant (dmc_table.h).
-const dmc::Case& cellCase(const Volume& v, float iso, int i, int j, int k, unsigned mask) {
+// Whether a DiscMC cell uses the centre-diagonal variant of its case: its fold lies on its low face
+// and the cell below folds onto the same diagonal (dmc_table.h).
+bool usesAlternative(const Volume& v, float iso, int i, int j, int k, unsigned mask) {
   const dmc::Case& c = dmc::caseTable()[mask];
-  if (!c.hasFold()) return c;
+  if (!c.hasFold()) return false;
   const glm::ivec3 a = dmc::edgeMidpoint(c.fold[0]), b = dmc::edgeMidpoint(c.fold[1]);
   for (int axis = 0; axis < 3; ++axis) {
     if (a[axis] != 0 || b[axis] != 0) continue;  // the fold is on the low face of this axis
     glm::ivec3 n(i, j, k);
-    if (--n[axis] < 0) return c;
+    if (--n[axis] < 0) return false;
     const dmc::Case& below = dmc::caseTable()[cellMask(v, iso, n.x, n.y, n.z)];
-    if (!below.hasFold()) return c;
+    if (!below.hasFold()) return false;
     // Compare the folds in the upper cell's coordinates: the cell below is shifted by 2 on this axis.
     glm::ivec3 shift(0);
     shift[axis] = -2;
     const glm::ivec3 p = dmc::edgeMidpoint(below.fold[0]) + shift, q = dmc::edgeMidpoint(below.fold[1]) + shift;
-    const bool same = (p == a && q == b) || (p == b && q == a);
-    return same ? dmc::alternativeCaseTable()[mask] : c;
+    return (p == a && q == b) || (p == b && q == a);
   }
-  return c;
+  return false;
+}
+
+const dmc::Case& cellCase(const Volume& v, float iso, int i, int j, int k, unsigned mask) {
+  return usesAlternative(v, iso, i, j, k, mask) ? dmc::alternativeCaseTable()[mask] : dmc::caseTable()[mask];
 }
 
 // Calls visit(i, j, k, mask) for every cell of the blocks whose corners are not all on one side.
@@ -112,6 +117,13 @@ void forEachActiveCell(const Volume& v, float iso, std::span<const VoxelBlock> b
 }
 
 }  // namespace
+
+void forEachSurfaceCell(const Volume& volume, float iso, std::span<const VoxelBlock> blocks,
+                        const std::function<void(int, int, int, unsigned, bool)>& visit) {
+  forEachActiveCell(volume, iso, blocks, [&](int i, int j, int k, unsigned mask) {
+    visit(i, j, k, mask, usesAlternative(volume, iso, i, j, k, mask));
+  });
+}
 
 DiscreteMesh extractDiscMC(const Volume& volume, float iso, std::span<const VoxelBlock> blocks, DmcFaces faces) {
   std::array<glm::ivec3, 12> mid;

@@ -4,6 +4,7 @@
 // A corner is inside the solid when its sample is ≥ the isovalue.
 #pragma once
 
+#include <functional>
 #include <span>
 
 #include "surface/mesh.h"
@@ -22,6 +23,12 @@ enum class DmcFaces {
 /// Blocks must not overlap in cells.
 DiscreteMesh extractDiscMC(const Volume& volume, float iso, std::span<const VoxelBlock> blocks = {},
                            DmcFaces faces = DmcFaces::CellPolygons);
+
+/// Calls @p visit(i, j, k, mask, alternative) for every cell of @p blocks (all cells when empty) the
+/// isosurface crosses: mask has bit c set for inside corner c; alternative says the cell uses its
+/// case's centre-diagonal variant (dmc::alternativeCaseTable) to avoid a fold shared with the cell below.
+void forEachSurfaceCell(const Volume& volume, float iso, std::span<const VoxelBlock> blocks,
+                        const std::function<void(int, int, int, unsigned, bool)>& visit);
 
 /// Classic Marching Cubes with vertices interpolated along the edges, in voxel coordinates,
 /// each loop fan-triangulated.

@@ -1,0 +1,608 @@
+// Surface Octree: I. Boada, I. Navazo, "An Octree Isosurface Codification based on Discrete Planes",
+// SCCG 2001, with the exact code and merge rule of DESIGN 3.2 (see surface_octree.h).
+#include "hybrid_octree/surface_octree.h"
+
+#include <algorithm>
+#include <map>
+#include <numeric>
+#include <unordered_map>
+
+#include "surface/dmc.h"
+#include "surface/dmc_table.h"
+#include "surface/triangulate.h"
+#include "volume/error.h"
+
+namespace hyb {
+
+namespace {
+
+using I64 = int64_t;
+using V64 = glm::i64vec3;
+constexpr int kFine = 12;  // fine units per doubled unit
+
+// A plane n·X = d in doubled coordinates (n from the 13 orientations or an axis).
+struct Plane {
+  glm::ivec3 n;
+  I64 d;
+};
+
+Plane toPlane(const GeoPlane& g) { return {orientationNormal(g.orientation), g.d}; }
+
+I64 dot64(const glm::ivec3& n, const V64& p) { return I64(n.x) * p.x + I64(n.y) * p.y + I64(n.z) * p.z; }
+
+// Sign of plane @p at the fine point p / scale.
+int sideOf(const Plane& pl, const V64& p, I64 scale) {
+  const I64 v = dot64(pl.n, p) - I64(kFine) * scale * pl.d;
+  return (v > 0) - (v < 0);
+}
+
+// Exact intersection of three planes in fine coordinates; false when they do not meet in a point.
+bool intersect3(const Plane& a, const Plane& b, const Plane& c, V64* out) {
+  const glm::ivec3 bc = icross(b.n, c.n), ca = icross(c.n, a.n), ab = icross(a.n, b.n);
+  const I64 det = idot(a.n, bc);
+  if (det == 0) return false;
+  HYB_CHECK(kFine % det == 0);
+  const V64 num = V64(bc) * a.d + V64(ca) * b.d + V64(ab) * c.d;
+  *out = num * (I64(kFine) / det);
+  return true;
+}
+
+I64 orient3(const V64& a, const V64& b, const V64& c, const V64& d) {
+  const V64 u = b - a, v = c - a, w = d - a;
+  return u.x * (v.y * w.z - v.z * w.y) - u.y * (v.x * w.z - v.z * w.x) + u.z * (v.x * w.y - v.y * w.x);
+}
+
+// Axis-aligned box [lo, hi] in doubled coordinates.
+struct Box {
+  glm::ivec3 lo, hi;
+  std::array<Plane, 6> faces() const {
+    std::array<Plane, 6> f;
+    for (int a = 0; a < 3; ++a) {
+      glm::ivec3 n(0);
+      n[a] = 1;
+      f[size_t(2 * a)] = {n, lo[a]};
+      f[size_t(2 * a + 1)] = {n, hi[a]};
+    }
+    return f;
+  }
+  bool contains(const V64& p) const {
+    for (int a = 0; a < 3; ++a)
+      if (p[a] < I64(kFine) * lo[a] || p[a] > I64(kFine) * hi[a]) return false;
+    return true;
+  }
+};
+
+// For every sign vector σ over @p planes: does R_σ ∩ box have volume, and an interior point
+// (sum of the set's vertices over their count).
+struct Regions {
+  uint32_t occurs = 0;
+  std::array<V64, 32> sum{};
+  std::array<I64, 32> count{};
+};
+
+Regions analyseRegions(const Plane* planes, int np, const Box& box) {
+  std::array<Plane, 11> all;
+  for (int i = 0; i < np; ++i) all[size_t(i)] = planes[i];
+  const auto faces = box.faces();
+  for (int i = 0; i < 6; ++i) all[size_t(np + i)] = faces[size_t(i)];
+  const int total = np + 6;
+  struct Vertex {
+    V64 p;
+    uint32_t pos, neg;  // planes with the vertex strictly on the positive / negative side
+  };
+  std::vector<Vertex> vertices;
+  vertices.reserve(128);
+  for (int a = 0; a < total; ++a)
+    for (int b = a + 1; b < total; ++b)
+      for (int c = b + 1; c < total; ++c) {
+        V64 p;
+        if (!intersect3(all[size_t(a)], all[size_t(b)], all[size_t(c)], &p) || !box.contains(p)) continue;
+        Vertex v{p, 0, 0};
+        for (int j = 0; j < np; ++j) {
+          const int s = sideOf(planes[j], p, 1);
+          if (s > 0) v.pos |= 1u << j;
+          if (s < 0) v.neg |= 1u << j;
+        }
+        vertices.push_back(v);
+      }
+  Regions r;
+  std::vector<const V64*> members;
+  for (uint32_t sigma = 0; sigma < (1u << np); ++sigma) {
+    members.clear();
+    for (const Vertex& v : vertices)
+      if (!(v.pos & ~sigma) && !(v.neg & sigma)) members.push_back(&v.p);  // compatible with σ
+    // Solid iff four of them are affinely independent.
+    bool solid = false;
+    for (size_t i = 1; i < members.size() && !solid; ++i)
+      for (size_t j = i + 1; j < members.size() && !solid; ++j) {
+        const V64 u = *members[i] - *members[0], w = *members[j] - *members[0];
+        if (V64(u.y * w.z - u.z * w.y, u.z * w.x - u.x * w.z, u.x * w.y - u.y * w.x) == V64(0)) continue;
+        for (size_t k = j + 1; k < members.size() && !solid; ++k) solid = orient3(*members[0], *members[i], *members[j], *members[k]) != 0;
+      }
+    if (!solid) continue;
+    r.occurs |= 1u << sigma;
+    V64 s(0);
+    for (const V64* m : members) s += *m;
+    r.sum[sigma] = s;
+    r.count[sigma] = I64(members.size());
+  }
+  return r;
+}
+
+// Canonical geometric planes of a DiscMC case (sorted, unique), local to the cell.
+std::vector<GeoPlane> casePlanes(const dmc::Case& c) {
+  std::vector<GeoPlane> g;
+  for (const PlaneId& p : c.planes) g.push_back(GeoPlane{p.orientation, p.sign > 0 ? p.d : -p.d});
+  std::sort(g.begin(), g.end());
+  g.erase(std::unique(g.begin(), g.end()), g.end());
+  return g;
+}
+
+// Membership of the fine point p / scale in the solid of a DiscMC case, by the parity of crossings
+// of a segment to a corner with exact orientation tests (a corner whose segment is degenerate is
+// skipped).
+bool caseContains(const dmc::Case& c, int mask, const V64& p, I64 scale) {
+  for (int corner = 0; corner < 8; ++corner) {
+    const V64 q = V64(dmc::cornerPosition(corner)) * (I64(kFine) * scale);
+    int crossings = 0;
+    bool degenerate = false;
+    for (const auto& t : c.triangles) {
+      const V64 a = V64(dmc::edgeMidpoint(t[0])) * (I64(kFine) * scale), b = V64(dmc::edgeMidpoint(t[1])) * (I64(kFine) * scale),
+                cc = V64(dmc::edgeMidpoint(t[2])) * (I64(kFine) * scale);
+      const I64 sp = orient3(a, b, cc, p), sq = orient3(a, b, cc, q);
+      if (sp == 0 || sq == 0) {
+        degenerate = true;
+        break;
+      }
+      if ((sp > 0) == (sq > 0)) continue;
+      const I64 e1 = orient3(p, q, a, b), e2 = orient3(p, q, b, cc), e3 = orient3(p, q, cc, a);
+      if (e1 == 0 || e2 == 0 || e3 == 0) {
+        degenerate = true;
+        break;
+      }
+      if ((e1 > 0) == (e2 > 0) && (e2 > 0) == (e3 > 0)) ++crossings;
+    }
+    if (degenerate) continue;
+    return bool((mask >> corner) & 1) != bool(crossings & 1);
+  }
+  HYB_CHECK(false);  // some corner always gives a generic segment
+  return false;
+}
+
+SurfaceNode computeLeafCode(int mask, bool alternative) {
+  SurfaceNode node;
+  const dmc::Case& c = alternative ? dmc::alternativeCaseTable()[size_t(mask)] : dmc::caseTable()[size_t(mask)];
+  if (c.triangles.empty()) return node;
+  const std::vector<GeoPlane> g = casePlanes(c);
+  HYB_CHECK(g.size() <= node.planes.size());
+  node.planeCount = uint8_t(g.size());
+  std::array<Plane, 5> planes;
+  for (size_t i = 0; i < g.size(); ++i) {
+    node.planes[i] = g[i];
+    planes[i] = toPlane(g[i]);
+  }
+  const Regions r = analyseRegions(planes.data(), int(g.size()), Box{glm::ivec3(0), glm::ivec3(2)});
+  node.occurs = r.occurs;
+  for (uint32_t sigma = 0; sigma < (1u << g.size()); ++sigma)
+    if ((r.occurs >> sigma) & 1)
+      if (caseContains(c, mask, r.sum[sigma], r.count[sigma])) node.inside |= 1u << sigma;
+  return node;
+}
+
+const std::array<std::array<SurfaceNode, 2>, 256>& leafCodes() {
+  static const auto table = [] {
+    std::array<std::array<SurfaceNode, 2>, 256> t{};
+    for (int m = 1; m < 255; ++m) {
+      t[size_t(m)][0] = computeLeafCode(m, false);
+      if (dmc::caseTable()[size_t(m)].hasFold()) t[size_t(m)][1] = computeLeafCode(m, true);
+    }
+    return t;
+  }();
+  return table;
+}
+
+Box nodeBox(const glm::ivec3& origin, int edge, const glm::ivec3& dims) {
+  return Box{2 * origin, 2 * glm::min(origin + edge, glm::max(dims - 1, glm::ivec3(1)))};
+}
+
+// Working entry of the bottom-up merge.
+struct Entry {
+  uint64_t parentKey = 0;
+  SurfaceNode node;
+  bool grey = false;
+};
+
+uint64_t packCells(const glm::ivec3& c) { return (uint64_t(c.x) << 42) | (uint64_t(c.y) << 21) | uint64_t(c.z); }
+
+}  // namespace
+
+SurfaceNode leafCode(int mask, bool alternative) { return leafCodes()[size_t(mask)][alternative ? 1 : 0]; }
+
+bool nodeContains(const SurfaceNode& node, const glm::i64vec3& p, int64_t scale) {
+  uint32_t sigma = 0;
+  for (int j = 0; j < node.planeCount; ++j) {
+    const int s = sideOf(toPlane(node.planes[size_t(j)]), p, scale);
+    HYB_DCHECK(s != 0);
+    if (s > 0) sigma |= 1u << j;
+  }
+  HYB_DCHECK((node.occurs >> sigma) & 1);
+  return (node.inside >> sigma) & 1;
+}
+
+SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& octree, float iso,
+                                   const SurfaceOctreeOptions& options) {
+  if (options.maxPlanes < 1 || options.maxPlanes > kMaxNodePlanes)
+    HYB_THROW(ValueError, "maximum planes per node ", options.maxPlanes, " invalid (expected 1..", kMaxNodePlanes, ")");
+  SurfaceOctree so;
+  so.mDims = volume.dims();
+  so.mIso = iso;
+  const auto& codes = leafCodes();
+  // Leaves: one entry per DiscMC cell, code translated to the cell.
+  std::vector<Entry> level;
+  forEachSurfaceCell(volume, iso, isoBlocks(octree, iso), [&](int i, int j, int k, unsigned mask, bool alternative) {
+    Entry e;
+    e.node = codes[mask][alternative ? 1 : 0];
+    e.node.origin = glm::u16vec3(i, j, k);
+    e.node.edge = 1;
+    const glm::ivec3 shift = 2 * glm::ivec3(i, j, k);
+    for (int p = 0; p < e.node.planeCount; ++p)
+      e.node.planes[size_t(p)].d += idot(orientationNormal(e.node.planes[size_t(p)].orientation), shift);
+    level.push_back(e);
+  });
+  so.mCellCount = level.size();
+
+  // Bottom-up: group by parent, merge or emit.
+  std::vector<Entry> next;
+  std::vector<Plane> planes;
+  for (int edge = 1; !level.empty(); edge *= 2) {
+    const int parentEdge = edge * 2;
+    const bool mayMerge = (options.maxEdge == 0 || parentEdge <= options.maxEdge) &&
+                          parentEdge <= (1 << octree.depth());
+    for (Entry& e : level) e.parentKey = packCells(glm::ivec3(e.node.origin) / parentEdge);
+    std::sort(level.begin(), level.end(), [](const Entry& a, const Entry& b) { return a.parentKey < b.parentKey; });
+    next.clear();
+    auto emitGroup = [&](size_t b, size_t e) {
+      for (size_t i = b; i < e; ++i)
+        if (!level[i].grey) so.mNodes.push_back(level[i].node);
+    };
+    for (size_t b = 0, e; b < level.size(); b = e) {
+      for (e = b + 1; e < level.size() && level[e].parentKey == level[b].parentKey; ++e) {
+      }
+      Entry parent;
+      parent.grey = !mayMerge;
+      std::vector<GeoPlane> u;
+      for (size_t i = b; i < e && !parent.grey; ++i) {
+        parent.grey = level[i].grey || level[i].node.planeCount > kMaxNodePlanes;
+        u.insert(u.end(), level[i].node.planes.begin(), level[i].node.planes.begin() + level[i].node.planeCount);
+      }
+      std::sort(u.begin(), u.end());
+      u.erase(std::unique(u.begin(), u.end()), u.end());
+      if (int(u.size()) > options.maxPlanes) parent.grey = true;
+      const glm::ivec3 origin = glm::ivec3(level[b].node.origin) / parentEdge * parentEdge;
+      parent.node.origin = glm::u16vec3(origin);
+      parent.node.edge = uint16_t(parentEdge);
+      if (!parent.grey) {
+        planes.clear();
+        for (const GeoPlane& g : u) planes.push_back(toPlane(g));
+        const Box box = nodeBox(origin, parentEdge, so.mDims);
+        const Regions r = analyseRegions(planes.data(), int(planes.size()), box);
+        parent.node.planeCount = uint8_t(u.size());
+        std::copy(u.begin(), u.end(), parent.node.planes.begin());
+        parent.node.occurs = r.occurs;
+        for (uint32_t sigma = 0; sigma < (1u << u.size()); ++sigma) {
+          if (!((r.occurs >> sigma) & 1)) continue;
+          const V64& p = r.sum[sigma];
+          const I64 m = r.count[sigma];
+          // Octant of the interior point (either one where it lies on a mid-plane).
+          const glm::ivec3 mid = 2 * (origin + edge);
+          glm::ivec3 childOrigin = origin;
+          for (int a = 0; a < 3; ++a)
+            if (p[a] >= I64(kFine) * m * mid[a]) childOrigin[a] += edge;
+          bool inside = false;
+          const Entry* child = nullptr;
+          for (size_t i = b; i < e; ++i)
+            if (glm::ivec3(level[i].node.origin) == childOrigin) child = &level[i];
+          if (child) {
+            inside = nodeContains(child->node, p, m);
+          } else {  // a uniform octant: the class of any of its samples
+            const glm::ivec3 s = glm::min(childOrigin, volume.dims() - 1);
+            inside = volume.at(s.x, s.y, s.z) >= iso;
+          }
+          if (inside) parent.node.inside |= 1u << sigma;
+        }
+      } else {
+        emitGroup(b, e);
+      }
+      next.push_back(parent);
+    }
+    level.swap(next);
+    // Stop once everything left is grey.
+    if (std::all_of(level.begin(), level.end(), [](const Entry& x) { return x.grey; })) break;
+  }
+  for (const Entry& e : level)
+    if (!e.grey) so.mNodes.push_back(e.node);
+  return so;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reconstruction
+
+namespace {
+
+// A convex polygon on one plane, vertices in fine coordinates, counter-clockwise around +normal.
+using Poly = std::vector<V64>;
+
+I64 evalFine(const Plane& pl, const V64& p) { return dot64(pl.n, p) - I64(kFine) * pl.d; }
+
+// Splits convex @p poly by @p pl into its parts with eval ≥ 0 and ≤ 0 (exact: intersection points
+// are arrangement vertices, integral in fine coordinates).
+void split(const Poly& poly, const Plane& pl, Poly* pos, Poly* neg) {
+  pos->clear();
+  neg->clear();
+  const size_t n = poly.size();
+  for (size_t i = 0; i < n; ++i) {
+    const V64& a = poly[i];
+    const V64& b = poly[(i + 1) % n];
+    const I64 ea = evalFine(pl, a), eb = evalFine(pl, b);
+    if (ea >= 0) pos->push_back(a);
+    if (ea <= 0) neg->push_back(a);
+    if ((ea > 0 && eb < 0) || (ea < 0 && eb > 0)) {
+      const V64 num = a * eb - b * ea;
+      const I64 den = eb - ea;
+      HYB_CHECK(num.x % den == 0 && num.y % den == 0 && num.z % den == 0);
+      const V64 x = num / den;
+      pos->push_back(x);
+      neg->push_back(x);
+    }
+  }
+}
+
+// Plane ∩ box as a convex polygon counter-clockwise around the plane's normal.
+Poly clipToBox(const Plane& pl, const Box& box) {
+  // Start from the box's face polygon cut: intersect the plane with the 12 box edges.
+  std::vector<V64> pts;
+  const auto faces = box.faces();
+  for (int a = 0; a < 6; ++a)
+    for (int b = a + 1; b < 6; ++b) {
+      if (a / 2 == b / 2) continue;  // parallel faces
+      V64 p;
+      if (!intersect3(pl, faces[size_t(a)], faces[size_t(b)], &p) || !box.contains(p)) continue;
+      if (std::find(pts.begin(), pts.end(), p) == pts.end()) pts.push_back(p);
+    }
+  if (pts.size() < 3) return {};
+  // Sort counter-clockwise around the normal: project, gift-wrap (points are in convex position).
+  int axis = 0;
+  for (int a = 1; a < 3; ++a)
+    if (std::abs(pl.n[a]) > std::abs(pl.n[axis])) axis = a;
+  const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+  const bool flip = pl.n[axis] < 0;
+  auto cross2 = [&](const V64& o, const V64& p, const V64& q) {
+    const I64 c = (p[u] - o[u]) * (q[v] - o[v]) - (p[v] - o[v]) * (q[u] - o[u]);
+    return flip ? -c : c;
+  };
+  size_t start = 0;
+  for (size_t i = 1; i < pts.size(); ++i)
+    if (pts[i][u] < pts[start][u] || (pts[i][u] == pts[start][u] && pts[i][v] < pts[start][v])) start = i;
+  Poly hull;
+  size_t cur = start;
+  do {
+    hull.push_back(pts[cur]);
+    size_t cand = (cur + 1) % pts.size();
+    for (size_t i = 0; i < pts.size(); ++i) {
+      if (i == cur) continue;
+      const I64 c = cross2(pts[cur], pts[cand], pts[i]);
+      if (c < 0) cand = i;  // i is more clockwise: wrap tighter
+    }
+    cur = cand;
+  } while (cur != start && hull.size() <= pts.size());
+  return hull;
+}
+
+// Line key of an edge lying in a node face: (axis, face coordinate, reduced direction, offset).
+struct LineKey {
+  int axis;
+  I64 coord, du, dv, offset;
+  bool operator==(const LineKey& o) const {
+    return axis == o.axis && coord == o.coord && du == o.du && dv == o.dv && offset == o.offset;
+  }
+};
+struct LineKeyHash {
+  size_t operator()(const LineKey& k) const {
+    size_t h = size_t(k.axis);
+    for (I64 x : {k.coord, k.du, k.dv, k.offset}) h = h * 1000003u ^ std::hash<I64>()(x);
+    return h;
+  }
+};
+
+}  // namespace
+
+DiscreteMesh SurfaceOctree::reconstruct() const {
+  struct OutPoly {
+    std::vector<V64> loop;
+    PlaneId plane;  // d in fine units
+    Box box;
+  };
+  std::vector<OutPoly> polys;
+  Poly pos, neg;
+  for (const SurfaceNode& node : mNodes) {
+    const Box box = nodeBox(glm::ivec3(node.origin), node.edge, mDims);
+    const int np = node.planeCount;
+    for (int i = 0; i < np; ++i) {
+      const Plane pi = toPlane(node.planes[size_t(i)]);
+      std::vector<Poly> pieces{clipToBox(pi, box)};
+      if (pieces[0].size() < 3) continue;
+      for (int j = 0; j < np; ++j) {
+        if (j == i) continue;
+        const Plane pj = toPlane(node.planes[size_t(j)]);
+        std::vector<Poly> out;
+        for (const Poly& p : pieces) {
+          split(p, pj, &pos, &neg);
+          if (pos.size() >= 3) out.push_back(pos);
+          if (neg.size() >= 3) out.push_back(neg);
+        }
+        pieces.swap(out);
+      }
+      // Keep the pieces where the solid changes across plane i; group by facing.
+      std::array<std::vector<Poly>, 2> kept;  // [0]: outward = +normal, [1]: outward = −normal
+      for (Poly& p : pieces) {
+        V64 c(0);
+        for (const V64& x : p) c += x;
+        const I64 m = I64(p.size());
+        uint32_t sigma = 0;
+        bool interior = true;
+        for (int j = 0; j < np && interior; ++j) {
+          if (j == i) continue;
+          const int s = sideOf(toPlane(node.planes[size_t(j)]), c, m);
+          interior = s != 0;
+          if (s > 0) sigma |= 1u << j;
+        }
+        if (!interior) continue;  // a degenerate sliver
+        const uint32_t sp = sigma | (1u << i), sn = sigma;
+        if (!((node.occurs >> sp) & 1) || !((node.occurs >> sn) & 1)) continue;
+        const uint32_t inPos = (node.inside >> sp) & 1u, inNeg = (node.inside >> sn) & 1u;
+        if (inPos == inNeg) continue;
+        if (inPos) std::reverse(p.begin(), p.end());  // outside on the negative side: face −normal
+        kept[inPos].push_back(std::move(p));
+      }
+      for (int facing = 0; facing < 2; ++facing) {
+        if (kept[size_t(facing)].empty()) continue;
+        PlaneId id{node.planes[size_t(i)].orientation, int8_t(facing ? -1 : 1), 0};
+        id.d = int32_t((facing ? -1 : 1) * I64(kFine) * pi.d);
+        // Merge pieces sharing edges: cancel opposite directed edges, chain the rest. A vertex with
+        // two outgoing edges (pieces touching at a point) or several loops (holes) keeps the pieces.
+        using Key3 = std::array<I64, 3>;
+        std::map<std::array<I64, 6>, int> edges;
+        for (const Poly& p : kept[size_t(facing)])
+          for (size_t k = 0; k < p.size(); ++k) {
+            const V64 a = p[k], b = p[(k + 1) % p.size()];
+            if (a == b) continue;
+            const auto rev = edges.find({b.x, b.y, b.z, a.x, a.y, a.z});
+            if (rev != edges.end())
+              edges.erase(rev);
+            else
+              edges[{a.x, a.y, a.z, b.x, b.y, b.z}] = 1;
+          }
+        std::map<Key3, Key3> nextOf;
+        bool branching = false;
+        for (const auto& [e, n] : edges) {
+          const Key3 from{e[0], e[1], e[2]}, to{e[3], e[4], e[5]};
+          branching |= !nextOf.emplace(from, to).second;
+        }
+        std::vector<Poly> loops;
+        while (!branching && !nextOf.empty()) {
+          Poly loop;
+          Key3 v = nextOf.begin()->first;
+          for (auto it = nextOf.find(v); it != nextOf.end(); it = nextOf.find(v)) {
+            loop.push_back(V64(v[0], v[1], v[2]));
+            v = it->second;
+            nextOf.erase(it);
+          }
+          loops.push_back(std::move(loop));
+        }
+        const std::vector<Poly>& emit = (!branching && loops.size() == 1) ? loops : kept[size_t(facing)];
+        for (const Poly& p : emit) polys.push_back({p, id, box});
+      }
+    }
+  }
+
+  // T-junctions: vertices on the same line in a node face are inserted into every edge on that line.
+  auto faceLine = [](const Box& box, const V64& a, const V64& b, LineKey* key) {
+    for (int axis = 0; axis < 3; ++axis)
+      for (I64 c : {I64(kFine) * box.lo[axis], I64(kFine) * box.hi[axis]})
+        if (a[axis] == c && b[axis] == c) {
+          const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+          I64 du = b[u] - a[u], dv = b[v] - a[v];
+          const I64 g = std::gcd(std::llabs(du), std::llabs(dv));
+          du /= g;
+          dv /= g;
+          if (du < 0 || (du == 0 && dv < 0)) du = -du, dv = -dv;
+          *key = LineKey{axis, c, du, dv, dv * a[u] - du * a[v]};
+          return true;
+        }
+    return false;
+  };
+  std::unordered_map<LineKey, std::vector<V64>, LineKeyHash> onLine;
+  for (const OutPoly& p : polys)
+    for (size_t k = 0; k < p.loop.size(); ++k) {
+      LineKey key;
+      const V64 &a = p.loop[k], &b = p.loop[(k + 1) % p.loop.size()];
+      if (faceLine(p.box, a, b, &key)) {
+        onLine[key].push_back(a);
+        onLine[key].push_back(b);
+      }
+    }
+  for (auto& [key, pts] : onLine) {
+    std::sort(pts.begin(), pts.end(), [](const V64& a, const V64& b) { return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z); });
+    pts.erase(std::unique(pts.begin(), pts.end()), pts.end());
+  }
+
+  DiscreteMesh mesh;
+  std::unordered_map<uint64_t, uint32_t> ids;
+  auto vertexId = [&](const V64& p) {
+    const uint64_t key = (uint64_t(p.x) << 42) | (uint64_t(p.y) << 21) | uint64_t(p.z);  // each < 2^21
+    auto [it, inserted] = ids.try_emplace(key, uint32_t(mesh.vertices.size()));
+    if (inserted) mesh.vertices.push_back(glm::ivec3(p));
+    HYB_DCHECK(V64(mesh.vertices[it->second]) == p);
+    return it->second;
+  };
+  std::vector<std::vector<uint32_t>> loops(polys.size());
+  for (size_t pi = 0; pi < polys.size(); ++pi) {
+    const OutPoly& p = polys[pi];
+    std::vector<uint32_t>& loop = loops[pi];
+    for (size_t k = 0; k < p.loop.size(); ++k) {
+      const V64 &a = p.loop[k], &b = p.loop[(k + 1) % p.loop.size()];
+      loop.push_back(vertexId(a));
+      LineKey key;
+      if (!faceLine(p.box, a, b, &key)) continue;
+      // Insert the line's vertices strictly between a and b, in order from a to b.
+      const V64 d = b - a;
+      const I64 len = d.x * d.x + d.y * d.y + d.z * d.z;
+      std::vector<std::pair<I64, V64>> between;
+      for (const V64& q : onLine[key]) {
+        const I64 t = (q - a).x * d.x + (q - a).y * d.y + (q - a).z * d.z;
+        if (t > 0 && t < len) between.push_back({t, q});
+      }
+      std::sort(between.begin(), between.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+      for (const auto& [t, q] : between) loop.push_back(vertexId(q));
+    }
+  }
+  // Drop straight-through vertices that no other polygon uses: they only add triangles. A vertex
+  // another polygon references is kept, so no T-junction can open.
+  std::vector<uint32_t> uses(mesh.vertices.size(), 0);
+  for (const auto& loop : loops)
+    for (uint32_t v : loop) ++uses[v];
+  for (size_t pi = 0; pi < polys.size(); ++pi) {
+    std::vector<uint32_t>& loop = loops[pi];
+    for (bool removed = true; removed && loop.size() > 3;) {
+      removed = false;
+      for (size_t k = 0; k < loop.size() && loop.size() > 3; ++k) {
+        const uint32_t prev = loop[(k + loop.size() - 1) % loop.size()], cur = loop[k], next = loop[(k + 1) % loop.size()];
+        if (uses[cur] != 1) continue;
+        const V64 u = V64(mesh.vertices[cur]) - V64(mesh.vertices[prev]), w = V64(mesh.vertices[next]) - V64(mesh.vertices[cur]);
+        const V64 x(u.y * w.z - u.z * w.y, u.z * w.x - u.x * w.z, u.x * w.y - u.y * w.x);
+        if (x != V64(0) || u.x * w.x + u.y * w.y + u.z * w.z <= 0) continue;  // a corner, or a spike
+        loop.erase(loop.begin() + ptrdiff_t(k));
+        uses[cur] = 0;
+        removed = true;
+      }
+    }
+    mesh.addFace(loop.data(), loop.size(), polys[pi].plane);
+  }
+  return mesh;
+}
+
+TriangleMesh fineMeshToTriangles(const DiscreteMesh& mesh, const glm::dvec3& spacing) {
+  TriangleMesh out;
+  out.vertices.reserve(mesh.vertices.size());
+  for (const glm::ivec3& p : mesh.vertices) out.vertices.push_back(glm::vec3(glm::dvec3(p) / double(2 * kFine) * spacing));
+  std::vector<std::array<uint32_t, 3>> tris;
+  for (size_t f = 0; f < mesh.faceCount(); ++f) {
+    tris.clear();
+    const bool ok = triangulatePolygon(mesh.vertices, &mesh.indices[mesh.offsets[f]], mesh.faceSize(f), mesh.planes[f].normal(), &tris);
+    HYB_CHECK(ok);
+    for (const auto& t : tris) out.triangles.push_back({t[0], t[1], t[2]});
+  }
+  return out;
+}
+
+}  // namespace hyb
