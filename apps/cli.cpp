@@ -135,13 +135,25 @@ int runInfo(const InfoOptions& o, std::ostream& out) {
 struct BuildOptions {
   VolumeInput input;
   std::string output;
+  std::optional<double> iso;
   int leafEdge = 8;
   std::string validate() const {
     if (output.empty()) return "-o missing (expected the scene file to write, e.g. -o scene.hoct)";
     if (leafEdge < 1 || leafEdge > 256 || (leafEdge & (leafEdge - 1))) return "--leaf-edge must be a power of two in 1..256";
+    if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
     return "";
   }
 };
+
+std::string surfaceSummary(const SurfaceOctree& so, double ms) {
+  std::ostringstream s;
+  size_t planes = 0;
+  for (const SurfaceNode& n : so.nodes()) planes += n.planeCount;
+  s << "surface  iso " << so.isovalue() << ": " << so.cellCount() << " DiscMC cells merged into " << so.nodes().size()
+    << " terminal nodes (" << planes << " plane ids, " << so.bytesUsed() << " bytes), " << std::fixed << std::setprecision(1)
+    << ms << " ms\n";
+  return s.str();
+}
 
 int runBuild(const BuildOptions& o, std::ostream& out) {
   const Volume v = o.input.read();
@@ -151,7 +163,13 @@ int runBuild(const BuildOptions& o, std::ostream& out) {
   out << v.toString() << octreeSummary(v, t);
   out << "build    " << std::fixed << std::setprecision(1) << ms << " ms (" << double(v.voxelCount()) / (ms * 1e3)
       << " Mvoxels/s)\n";
-  saveScene(o.output, v, t);
+  std::optional<SurfaceOctree> so;
+  if (o.iso) {
+    const auto t1 = Clock::now();
+    so = SurfaceOctree::build(v, t, float(*o.iso));
+    out << surfaceSummary(*so, msSince(t1));
+  }
+  saveScene(o.output, v, t, so ? &*so : nullptr);
   out << "wrote    " << o.output << "\n";
   return 0;
 }
@@ -221,7 +239,8 @@ struct ExportOptions {
     const std::string ext = fileExtension(output);
     if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".off")
       return "-o '" + output + "' has an unknown extension (expected .ply, .obj, .stl or .off)";
-    if (surface != "dmc" && surface != "mc") return "--surface '" + surface + "' invalid (expected dmc or mc)";
+    if (surface != "dmc" && surface != "mc" && surface != "octree")
+      return "--surface '" + surface + "' invalid (expected dmc, octree or mc)";
     return "";
   }
 };
@@ -245,10 +264,17 @@ int runExport(const ExportOptions& o, std::ostream& out) {
     mesh = mc;
     polygons = mc.triangles.size();
     scaleToMillimetres(&mesh, v.spacing());
-  } else {
+  } else if (o.surface == "dmc") {
     const DiscreteMesh d = extractDiscMC(v, iso, blocks);
     polygons = d.faceCount();
     mesh = toTriangleMesh(d, v.spacing());
+  } else {
+    const bool stored = scene.surface && scene.surface->isovalue() == iso;
+    const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, scene.octree, iso);
+    const DiscreteMesh d = so.reconstruct();
+    polygons = d.faceCount();
+    mesh = fineMeshToTriangles(d, v.spacing());
+    out << surfaceSummary(so, 0.0).substr(0, surfaceSummary(so, 0.0).find(')') + 1) << (stored ? " (from the scene)" : "") << "\n";
   }
   const double ms = o.surface == "mc" ? mcMs : msSince(t0);
   out << std::fixed << std::setprecision(1) << "surface  " << o.surface << " at iso " << iso << ": " << polygons << " polygons, "
@@ -289,6 +315,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   CLI::App* buildCmd = app.add_subcommand("build", "build the Hybrid Octree once and save it as a scene file");
   build.input.add(buildCmd);
   buildCmd->add_option("-o,--output", build.output, "scene file to write (.hoct)");
+  buildCmd->add_option("--iso", build.iso, "isovalue of the Surface Octree to build (data units; none = volume only)");
   buildCmd->add_option("--leaf-edge", build.leafEdge, "edge in voxels of the smallest octree nodes")->capture_default_str();
 
   RenderOptions render;
@@ -306,7 +333,8 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   exportOpts.input.add(exportCmd);
   exportCmd->add_option("--iso", exportOpts.iso, "isovalue in data units (samples >= iso are inside)");
   exportCmd->add_option("-o,--output", exportOpts.output, "mesh file: .ply .obj .stl .off");
-  exportCmd->add_option("--surface", exportOpts.surface, "dmc (Discretized Marching Cubes) or mc (classic)")->capture_default_str();
+  exportCmd->add_option("--surface", exportOpts.surface, "dmc (Discretized Marching Cubes), octree (Surface Octree, merged) or mc (classic)")
+      ->capture_default_str();
   exportCmd->add_flag("--check", exportOpts.check, "check manifold, closed, self-intersections and Hausdorff distance to mc (CGAL)");
 
   try {

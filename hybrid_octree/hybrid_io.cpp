@@ -23,6 +23,7 @@ constexpr uint32_t tag(const char (&s)[5]) {
 }
 constexpr uint32_t kVolumeTag = tag("VOLM");
 constexpr uint32_t kOctreeTag = tag("VOCT");
+constexpr uint32_t kSurfaceTag = tag("SURF");
 
 // Appends plain values and arrays to a byte buffer.
 class Writer {
@@ -88,7 +89,7 @@ uint32_t crc(const std::vector<uint8_t>& b) { return uint32_t(crc32(0L, b.data()
 
 }  // namespace
 
-void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree) {
+void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceOctree* surface) {
   Writer vol;
   vol.put(volume.dims());
   vol.put(volume.spacing());
@@ -98,10 +99,17 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
   oct.put(int32_t(octree.leafEdge()));
   oct.putArray(octree.nodes());
   oct.putArray(octree.errorData());
-  const std::pair<uint32_t, const Writer*> sections[] = {{kVolumeTag, &vol}, {kOctreeTag, &oct}};
+  std::vector<std::pair<uint32_t, const Writer*>> sections = {{kVolumeTag, &vol}, {kOctreeTag, &oct}};
+  Writer surf;
+  if (surface) {
+    surf.put(surface->isovalue());
+    surf.put(uint64_t(surface->cellCount()));
+    surf.putArray(surface->nodes());
+    sections.push_back({kSurfaceTag, &surf});
+  }
   writeFileAtomically(path, [&](std::ostream& out) {
     out.write(kMagic, sizeof kMagic);
-    const uint32_t header[2] = {kSceneVersion, uint32_t(std::size(sections))};
+    const uint32_t header[2] = {kSceneVersion, uint32_t(sections.size())};
     out.write(reinterpret_cast<const char*>(header), sizeof header);
     for (const auto& [t, w] : sections) {
       const uint64_t size = w->bytes().size();
@@ -170,6 +178,12 @@ Scene loadScene(const std::string& path) {
     std::vector<OctreeNode> nodes = r.getArray<OctreeNode>();
     std::vector<float> errors = r.getArray<float>();
     scene.octree = VolumeOctree::fromParts(scene.volume.dims(), leafEdge, std::move(nodes), std::move(errors), path);
+  }
+  if (const auto it = sections.find(kSurfaceTag); it != sections.end()) {
+    Reader r(it->second.data(), it->second.size(), path);
+    const float iso = r.get<float>();
+    const uint64_t cells = r.get<uint64_t>();
+    scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), r.getArray<SurfaceNode>(), path);
   }
   return scene;
 }

@@ -1,12 +1,15 @@
 // Scene files (.hoct): the volume and its Hybrid Octree in one versioned binary.
 //
 // Layout (little-endian): magic "HYBOCT\x1a\n", u32 version, u32 section count, then per section
-// a u32 tag, u64 payload size, u32 CRC-32 of the payload, and the payload. Readers reject a foreign
-// magic, a newer version, truncation and CRC mismatches; unknown sections are skipped.
+// a u32 tag, u64 payload size, u32 CRC-32 of the payload, and the payload. Sections: VOLM (volume),
+// VOCT (Volume Octree), SURF (Surface Octree, optional). Readers reject a foreign magic, a newer
+// version, truncation and CRC mismatches; unknown sections are skipped.
 #pragma once
 
+#include <optional>
 #include <string>
 
+#include "hybrid_octree/surface_octree.h"
 #include "hybrid_octree/volume_octree.h"
 #include "volume/volume.h"
 
@@ -15,15 +18,17 @@ namespace hyb {
 /// Current scene-file version.
 inline constexpr uint32_t kSceneVersion = 1;
 
-/// A loaded scene.
+/// A loaded scene: the volume, its Volume Octree and, when built with an isovalue, its Surface Octree.
 struct Scene {
   Volume volume;
   VolumeOctree octree;
+  std::optional<SurfaceOctree> surface;
 };
 
-/// Writes @p volume and @p octree to @p path atomically.
+/// Writes @p volume, @p octree and, if given, @p surface to @p path atomically.
 /// @throw IoError naming @p path when it cannot be written.
-void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree);
+void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree,
+               const SurfaceOctree* surface = nullptr);
 
 /// Reads a scene written by saveScene.
 /// @throw IoError naming @p path for foreign, newer, truncated or corrupt files.

@@ -3,6 +3,7 @@
 #include "hybrid_octree/surface_octree.h"
 
 #include <algorithm>
+#include <cmath>
 #include <map>
 #include <numeric>
 #include <unordered_map>
@@ -214,6 +215,20 @@ struct Entry {
 
 uint64_t packCells(const glm::ivec3& c) { return (uint64_t(c.x) << 42) | (uint64_t(c.y) << 21) | uint64_t(c.z); }
 
+// Morton code of a cell index.
+uint64_t morton(const glm::ivec3& c) {
+  auto spread = [](uint64_t v) {
+    v &= 0x1fffff;  // 21 bits an axis
+    v = (v | (v << 32)) & 0x1f00000000ffffULL;
+    v = (v | (v << 16)) & 0x1f0000ff0000ffULL;
+    v = (v | (v << 8)) & 0x100f00f00f00f00fULL;
+    v = (v | (v << 4)) & 0x10c30c30c30c30c3ULL;
+    v = (v | (v << 2)) & 0x1249249249249249ULL;
+    return v;
+  };
+  return spread(uint64_t(c.x)) | spread(uint64_t(c.y)) << 1 | spread(uint64_t(c.z)) << 2;
+}
+
 }  // namespace
 
 SurfaceNode leafCode(int mask, bool alternative) { return leafCodes()[size_t(mask)][alternative ? 1 : 0]; }
@@ -256,8 +271,8 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
   std::vector<Plane> planes;
   for (int edge = 1; !level.empty(); edge *= 2) {
     const int parentEdge = edge * 2;
-    const bool mayMerge = (options.maxEdge == 0 || parentEdge <= options.maxEdge) &&
-                          parentEdge <= (1 << octree.depth());
+    const int maxEdge = options.maxEdge > 0 ? options.maxEdge : octree.leafEdge();
+    const bool mayMerge = parentEdge <= maxEdge && parentEdge <= (1 << octree.depth());
     for (Entry& e : level) e.parentKey = packCells(glm::ivec3(e.node.origin) / parentEdge);
     std::sort(level.begin(), level.end(), [](const Entry& a, const Entry& b) { return a.parentKey < b.parentKey; });
     next.clear();
@@ -321,6 +336,40 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
   }
   for (const Entry& e : level)
     if (!e.grey) so.mNodes.push_back(e.node);
+  std::sort(so.mNodes.begin(), so.mNodes.end(),
+            [](const SurfaceNode& a, const SurfaceNode& b) { return morton(glm::ivec3(a.origin)) < morton(glm::ivec3(b.origin)); });
+  return so;
+}
+
+std::pair<uint32_t, uint32_t> SurfaceOctree::rangeIn(const glm::ivec3& origin, int edge) const {
+  const uint64_t lo = morton(origin), hi = lo + uint64_t(edge) * uint64_t(edge) * uint64_t(edge);
+  auto key = [](const SurfaceNode& n) { return morton(glm::ivec3(n.origin)); };
+  const auto b = std::partition_point(mNodes.begin(), mNodes.end(), [&](const SurfaceNode& n) { return key(n) < lo; });
+  const auto e = std::partition_point(b, mNodes.end(), [&](const SurfaceNode& n) { return key(n) < hi; });
+  return {uint32_t(b - mNodes.begin()), uint32_t(e - mNodes.begin())};
+}
+
+SurfaceOctree SurfaceOctree::fromParts(glm::ivec3 dims, float iso, size_t cellCount, std::vector<SurfaceNode> nodes,
+                                       const std::string& source) {
+  validateDims(dims, source);
+  uint64_t previous = 0;
+  for (size_t i = 0; i < nodes.size(); ++i) {
+    const SurfaceNode& n = nodes[i];
+    const glm::ivec3 o(n.origin);
+    const bool ok = n.edge >= 1 && (n.edge & (n.edge - 1)) == 0 && o.x % n.edge == 0 && o.y % n.edge == 0 &&
+                    o.z % n.edge == 0 && glm::all(glm::lessThan(o, glm::max(dims - 1, glm::ivec3(1)))) && n.planeCount >= 1 &&
+                    n.planeCount <= n.planes.size() && (uint64_t(n.occurs) >> (1u << n.planeCount)) == 0 &&
+                    (n.inside & ~n.occurs) == 0 && morton(o) >= previous;
+    bool planesOk = true;
+    for (int j = 0; j < n.planeCount; ++j) planesOk &= n.planes[size_t(j)].orientation >= 0 && n.planes[size_t(j)].orientation < kOrientationCount;
+    if (!ok || !planesOk || !std::isfinite(iso)) HYB_THROW(IoError, source, ": surface octree node ", i, " is invalid");
+    previous = morton(o);
+  }
+  SurfaceOctree so;
+  so.mDims = dims;
+  so.mIso = iso;
+  so.mCellCount = cellCount;
+  so.mNodes = std::move(nodes);
   return so;
 }
 

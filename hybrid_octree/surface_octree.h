@@ -25,6 +25,8 @@
 
 #include <array>
 #include <cstdint>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "hybrid_octree/volume_octree.h"
@@ -60,7 +62,9 @@ struct SurfaceNode {
 /// Build options.
 struct SurfaceOctreeOptions {
   int maxPlanes = kMaxNodePlanes;  ///< K
-  int maxEdge = 0;                 ///< largest merged node edge in cells (0 = no limit)
+  /// Largest merged node edge in cells; 0 = the volume octree's leaf edge, so that every surface
+  /// node lies in exactly one volume leaf (the renderer finds a brick's polygons by range).
+  int maxEdge = 0;
 };
 
 /// The Surface Octree of one isovalue.
@@ -73,8 +77,16 @@ class SurfaceOctree {
   static SurfaceOctree build(const Volume& volume, const VolumeOctree& octree, float iso,
                              const SurfaceOctreeOptions& options = SurfaceOctreeOptions());
 
-  /// Terminal surface nodes (white, black and grey nodes are implicit).
+  /// Reassembles a stored octree, checking every node against @p dims.
+  /// @throw IoError naming @p source when a node is out of range or inconsistent.
+  static SurfaceOctree fromParts(glm::ivec3 dims, float iso, size_t cellCount, std::vector<SurfaceNode> nodes,
+                                 const std::string& source);
+
+  /// Terminal surface nodes in Morton order of their origins (white, black and grey nodes are implicit).
   const std::vector<SurfaceNode>& nodes() const { return mNodes; }
+  /// The nodes inside the aligned cube of cells [origin, origin + edge): a contiguous range of nodes().
+  /// Nodes larger than the cube are not listed (none are when edge ≥ the build's maxEdge).
+  std::pair<uint32_t, uint32_t> rangeIn(const glm::ivec3& origin, int edge) const;
   float isovalue() const { return mIso; }
   const glm::ivec3& dims() const { return mDims; }
   /// Surface cells the DiscMC extraction produced (the leaves before merging).

@@ -135,6 +135,13 @@ TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
   EXPECT_THAT(r.out, HasSubstr("manifold yes, closed yes"));
   EXPECT_THAT(r.out, HasSubstr("self-intersections no"));
   EXPECT_TRUE(std::filesystem::exists(dir.file("s.off")));
+  r = run({"build", nhdr, "--iso", "0", "-o", dir.file("s.hoct")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("terminal nodes"));
+  r = run({"export", dir.file("s.hoct"), "--iso", "0", "-o", dir.file("o.obj"), "--surface", "octree", "--check"});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("(from the scene)"));
+  EXPECT_THAT(r.out, HasSubstr("manifold yes, closed yes"));
   r = run({"export", nhdr, "--iso", "0", "-o", dir.file("s.stl"), "--surface", "mc"});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("triangles ratio 1.000"));

@@ -36,6 +36,28 @@ TEST(SceneFile, RoundTripIsExact) {
   EXPECT_EQ(s.octree.errorData(), t.errorData());
 }
 
+TEST(SceneFile, SurfaceOctreeRoundTrip) {
+  test::TempDir dir;
+  const Volume v = test::sphereVolume(glm::ivec3(21, 19, 17), 7.3);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const SurfaceOctree so = SurfaceOctree::build(v, t, 0.0f);
+  saveScene(dir.file("s.hoct"), v, t, &so);
+  const Scene s = loadScene(dir.file("s.hoct"));
+  ASSERT_TRUE(s.surface.has_value());
+  EXPECT_EQ(s.surface->isovalue(), 0.0f);
+  EXPECT_EQ(s.surface->cellCount(), so.cellCount());
+  ASSERT_EQ(s.surface->nodes().size(), so.nodes().size());
+  EXPECT_EQ(std::memcmp(s.surface->nodes().data(), so.nodes().data(), so.nodes().size() * sizeof(SurfaceNode)), 0);
+  EXPECT_EQ(s.surface->reconstruct().indices, so.reconstruct().indices);
+  // A scene without a surface loads without one.
+  saveScene(dir.file("v.hoct"), v, t);
+  EXPECT_FALSE(loadScene(dir.file("v.hoct")).surface.has_value());
+  // A node pointing outside the grid is rejected.
+  auto nodes = so.nodes();
+  nodes.back().origin = glm::u16vec3(60000);
+  EXPECT_THROW(SurfaceOctree::fromParts(v.dims(), 0.0f, so.cellCount(), nodes, "x"), IoError);
+}
+
 TEST(SceneFile, RejectsForeignTruncatedCorruptAndNewer) {
   test::TempDir dir;
   const Volume v = test::randomVolume({17, 9, 5}, 4);

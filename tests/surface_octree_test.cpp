@@ -146,6 +146,26 @@ TEST(SurfaceOctree, DegenerateInputs) {
   }
 }
 
+TEST(SurfaceOctree, VolumeNodeRangesPartitionTheNodes) {
+  const Volume v = test::sphereVolume(glm::ivec3(40, 37, 30), 13.1);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const SurfaceOctree so = SurfaceOctree::build(v, t, 0.0f);
+  // Every surface node lies in exactly one volume leaf, found by range without search at draw time.
+  size_t covered = 0;
+  for (const OctreeNode& n : t.nodes()) {
+    const auto [b, e] = so.rangeIn(glm::ivec3(n.origin), t.edge(n));
+    for (uint32_t i = b; i < e; ++i) {
+      const SurfaceNode& s = so.nodes()[i];
+      EXPECT_TRUE(glm::all(glm::greaterThanEqual(glm::ivec3(s.origin), glm::ivec3(n.origin))));
+      EXPECT_TRUE(glm::all(glm::lessThanEqual(glm::ivec3(s.origin) + int(s.edge), glm::ivec3(n.origin) + t.edge(n))));
+    }
+    if (n.isLeaf()) covered += e - b;
+  }
+  EXPECT_EQ(covered, so.nodes().size());
+  const auto root = so.rangeIn(glm::ivec3(0), 1 << t.depth());
+  EXPECT_EQ(root.second - root.first, so.nodes().size());
+}
+
 TEST(SurfaceOctreeCranium, LosslessOnBoneAndSkin) {
   const Volume v = readVolume(kDefaultVolumePath);
   const VolumeOctree t = VolumeOctree::build(v);
