@@ -213,6 +213,44 @@ struct Entry {
   bool grey = false;
 };
 
+// analyseRegions memoised on the box's size and the planes relative to its corner: flat and
+// repetitive surfaces meet the same local configurations again and again. Points are returned in
+// the box's own coordinates shifted back.
+class RegionCache {
+ public:
+  /// Regions of @p planes in @p box with interior points relative to the box's corner: add
+  /// count · 12 · box.lo to a sum to get fine coordinates.
+  const Regions& get(const GeoPlane* planes, size_t np, const Box& box) {
+    std::array<int32_t, 11> key{};
+    const glm::ivec3 size = box.hi - box.lo;
+    key[0] = size.x;
+    key[1] = size.y;
+    key[2] = size.z;
+    std::array<Plane, 4> local;
+    for (size_t i = 0; i < np; ++i) {
+      local[i] = {orientationNormal(planes[i].orientation), planes[i].d - idot(orientationNormal(planes[i].orientation), box.lo)};
+      key[3 + 2 * i] = planes[i].orientation + 1;
+      key[4 + 2 * i] = int32_t(local[i].d);
+    }
+    auto it = mCache.find(key);
+    if (it == mCache.end()) {
+      if (mCache.size() > 100000) mCache.clear();
+      it = mCache.emplace(key, analyseRegions(local.data(), int(np), Box{glm::ivec3(0), size})).first;
+    }
+    return it->second;
+  }
+
+ private:
+  struct Hash {
+    size_t operator()(const std::array<int32_t, 11>& k) const {
+      size_t h = 1469598103934665603ULL;
+      for (int32_t x : k) h = (h ^ size_t(uint32_t(x))) * 1099511628211ULL;
+      return h;
+    }
+  };
+  std::unordered_map<std::array<int32_t, 11>, Regions, Hash> mCache;
+};
+
 uint64_t packCells(const glm::ivec3& c) { return (uint64_t(c.x) << 42) | (uint64_t(c.y) << 21) | uint64_t(c.z); }
 
 // Morton code of a cell index.
@@ -265,16 +303,23 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
     level.push_back(e);
   });
   so.mCellCount = level.size();
+  {  // Morton order: siblings are contiguous at every level and parents come out in order.
+    std::vector<std::pair<uint64_t, uint32_t>> order(level.size());
+    for (size_t i = 0; i < level.size(); ++i) order[i] = {morton(glm::ivec3(level[i].node.origin)), uint32_t(i)};
+    std::sort(order.begin(), order.end());
+    std::vector<Entry> sorted(level.size());
+    for (size_t i = 0; i < order.size(); ++i) sorted[i] = level[order[i].second];
+    level.swap(sorted);
+  }
+  RegionCache cache;
 
   // Bottom-up: group by parent, merge or emit.
   std::vector<Entry> next;
-  std::vector<Plane> planes;
   for (int edge = 1; !level.empty(); edge *= 2) {
     const int parentEdge = edge * 2;
     const int maxEdge = options.maxEdge > 0 ? options.maxEdge : octree.leafEdge();
     const bool mayMerge = parentEdge <= maxEdge && parentEdge <= (1 << octree.depth());
-    for (Entry& e : level) e.parentKey = packCells(glm::ivec3(e.node.origin) / parentEdge);
-    std::sort(level.begin(), level.end(), [](const Entry& a, const Entry& b) { return a.parentKey < b.parentKey; });
+    for (Entry& e : level) e.parentKey = packCells(glm::ivec3(e.node.origin) / parentEdge);  // Morton-sorted already
     next.clear();
     auto emitGroup = [&](size_t b, size_t e) {
       for (size_t i = b; i < e; ++i)
@@ -285,38 +330,51 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
       }
       Entry parent;
       parent.grey = !mayMerge;
-      std::vector<GeoPlane> u;
+      std::array<GeoPlane, kMaxNodePlanes + 1> u;  // the union, sorted, stops growing past K
+      size_t nu = 0;
       for (size_t i = b; i < e && !parent.grey; ++i) {
         parent.grey = level[i].grey || level[i].node.planeCount > kMaxNodePlanes;
-        u.insert(u.end(), level[i].node.planes.begin(), level[i].node.planes.begin() + level[i].node.planeCount);
+        for (int j = 0; j < level[i].node.planeCount && !parent.grey; ++j) {
+          const GeoPlane& g = level[i].node.planes[size_t(j)];
+          const auto at = std::lower_bound(u.begin(), u.begin() + ptrdiff_t(nu), g);
+          if (at != u.begin() + ptrdiff_t(nu) && *at == g) continue;
+          if (int(nu) == options.maxPlanes) {
+            parent.grey = true;
+            break;
+          }
+          std::copy_backward(at, u.begin() + ptrdiff_t(nu), u.begin() + ptrdiff_t(nu) + 1);
+          *at = g;
+          ++nu;
+        }
       }
-      std::sort(u.begin(), u.end());
-      u.erase(std::unique(u.begin(), u.end()), u.end());
-      if (int(u.size()) > options.maxPlanes) parent.grey = true;
       const glm::ivec3 origin = glm::ivec3(level[b].node.origin) / parentEdge * parentEdge;
       parent.node.origin = glm::u16vec3(origin);
       parent.node.edge = uint16_t(parentEdge);
       if (!parent.grey) {
-        planes.clear();
-        for (const GeoPlane& g : u) planes.push_back(toPlane(g));
         const Box box = nodeBox(origin, parentEdge, so.mDims);
-        const Regions r = analyseRegions(planes.data(), int(planes.size()), box);
-        parent.node.planeCount = uint8_t(u.size());
-        std::copy(u.begin(), u.end(), parent.node.planes.begin());
+        const Regions& r = cache.get(u.data(), nu, box);
+        const V64 corner = V64(box.lo) * I64(kFine);
+        parent.node.planeCount = uint8_t(nu);
+        std::copy(u.begin(), u.begin() + ptrdiff_t(nu), parent.node.planes.begin());
         parent.node.occurs = r.occurs;
-        for (uint32_t sigma = 0; sigma < (1u << u.size()); ++sigma) {
+        // Children by octant (slot bits x | y<<1 | z<<2), nullptr for uniform octants.
+        std::array<const Entry*, 8> children{};
+        for (size_t i = b; i < e; ++i) {
+          const glm::ivec3 rel = (glm::ivec3(level[i].node.origin) - origin) / edge;
+          children[size_t(rel.x | rel.y << 1 | rel.z << 2)] = &level[i];
+        }
+        for (uint32_t sigma = 0; sigma < (1u << nu); ++sigma) {
           if (!((r.occurs >> sigma) & 1)) continue;
-          const V64& p = r.sum[sigma];
           const I64 m = r.count[sigma];
+          const V64 p = r.sum[sigma] + corner * m;
           // Octant of the interior point (either one where it lies on a mid-plane).
           const glm::ivec3 mid = 2 * (origin + edge);
           glm::ivec3 childOrigin = origin;
           for (int a = 0; a < 3; ++a)
             if (p[a] >= I64(kFine) * m * mid[a]) childOrigin[a] += edge;
           bool inside = false;
-          const Entry* child = nullptr;
-          for (size_t i = b; i < e; ++i)
-            if (glm::ivec3(level[i].node.origin) == childOrigin) child = &level[i];
+          const glm::ivec3 rel = (childOrigin - origin) / edge;
+          const Entry* child = children[size_t(rel.x | rel.y << 1 | rel.z << 2)];
           if (child) {
             inside = nodeContains(child->node, p, m);
           } else {  // a uniform octant: the class of any of its samples
@@ -336,8 +394,14 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
   }
   for (const Entry& e : level)
     if (!e.grey) so.mNodes.push_back(e.node);
-  std::sort(so.mNodes.begin(), so.mNodes.end(),
-            [](const SurfaceNode& a, const SurfaceNode& b) { return morton(glm::ivec3(a.origin)) < morton(glm::ivec3(b.origin)); });
+  {
+    std::vector<std::pair<uint64_t, uint32_t>> order(so.mNodes.size());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = {morton(glm::ivec3(so.mNodes[i].origin)), uint32_t(i)};
+    std::sort(order.begin(), order.end());
+    std::vector<SurfaceNode> sorted(order.size());
+    for (size_t i = 0; i < order.size(); ++i) sorted[i] = so.mNodes[order[i].second];
+    so.mNodes.swap(sorted);
+  }
   return so;
 }
 
