@@ -221,12 +221,12 @@ class RegionCache {
   /// Regions of @p planes in @p box with interior points relative to the box's corner: add
   /// count · 12 · box.lo to a sum to get fine coordinates.
   const Regions& get(const GeoPlane* planes, size_t np, const Box& box) {
-    std::array<int32_t, 11> key{};
+    std::array<int32_t, 3 + 2 * (kMaxNodePlanes + 1)> key{};
     const glm::ivec3 size = box.hi - box.lo;
     key[0] = size.x;
     key[1] = size.y;
     key[2] = size.z;
-    std::array<Plane, 4> local;
+    std::array<Plane, kMaxNodePlanes + 1> local;
     for (size_t i = 0; i < np; ++i) {
       local[i] = {orientationNormal(planes[i].orientation), planes[i].d - idot(orientationNormal(planes[i].orientation), box.lo)};
       key[3 + 2 * i] = planes[i].orientation + 1;
@@ -242,13 +242,13 @@ class RegionCache {
 
  private:
   struct Hash {
-    size_t operator()(const std::array<int32_t, 11>& k) const {
+    size_t operator()(const std::array<int32_t, 3 + 2 * (kMaxNodePlanes + 1)>& k) const {
       size_t h = 1469598103934665603ULL;
       for (int32_t x : k) h = (h ^ size_t(uint32_t(x))) * 1099511628211ULL;
       return h;
     }
   };
-  std::unordered_map<std::array<int32_t, 11>, Regions, Hash> mCache;
+  std::unordered_map<std::array<int32_t, 3 + 2 * (kMaxNodePlanes + 1)>, Regions, Hash> mCache;
 };
 
 uint64_t packCells(const glm::ivec3& c) { return (uint64_t(c.x) << 42) | (uint64_t(c.y) << 21) | uint64_t(c.z); }
