@@ -519,12 +519,24 @@ struct LineKey {
     return axis == o.axis && coord == o.coord && du == o.du && dv == o.dv && offset == o.offset;
   }
 };
+bool lexLess(const V64& a, const V64& b) { return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z); }
+
+// splitmix64 finaliser: std::hash<int64_t> is the identity, which clusters these keys badly.
+uint64_t mix64(uint64_t x) {
+  x += 0x9e3779b97f4a7c15ULL;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+  return x ^ (x >> 31);
+}
 struct LineKeyHash {
   size_t operator()(const LineKey& k) const {
-    size_t h = size_t(k.axis);
-    for (I64 x : {k.coord, k.du, k.dv, k.offset}) h = h * 1000003u ^ std::hash<I64>()(x);
-    return h;
+    uint64_t h = uint64_t(k.axis);
+    for (I64 x : {k.coord, k.du, k.dv, k.offset}) h = mix64(h ^ uint64_t(x));
+    return size_t(h);
   }
+};
+struct VertexKeyHash {
+  size_t operator()(uint64_t k) const { return size_t(mix64(k)); }
 };
 
 }  // namespace
@@ -583,32 +595,34 @@ DiscreteMesh SurfaceOctree::reconstruct() const {
         id.d = int32_t((facing ? -1 : 1) * I64(kFine) * pi.d);
         // Merge pieces sharing edges: cancel opposite directed edges, chain the rest. A vertex with
         // two outgoing edges (pieces touching at a point) or several loops (holes) keeps the pieces.
-        using Key3 = std::array<I64, 3>;
-        std::map<std::array<I64, 6>, int> edges;
+        // Few edges per group: small vectors with linear search beat node-based maps here.
+        std::vector<std::pair<V64, V64>> edges;
         for (const Poly& p : kept[size_t(facing)])
           for (size_t k = 0; k < p.size(); ++k) {
             const V64 a = p[k], b = p[(k + 1) % p.size()];
             if (a == b) continue;
-            const auto rev = edges.find({b.x, b.y, b.z, a.x, a.y, a.z});
-            if (rev != edges.end())
-              edges.erase(rev);
-            else
-              edges[{a.x, a.y, a.z, b.x, b.y, b.z}] = 1;
+            const auto rev = std::find(edges.begin(), edges.end(), std::make_pair(b, a));
+            if (rev != edges.end()) {
+              *rev = edges.back();
+              edges.pop_back();
+            } else {
+              edges.emplace_back(a, b);
+            }
           }
-        std::map<Key3, Key3> nextOf;
         bool branching = false;
-        for (const auto& [e, n] : edges) {
-          const Key3 from{e[0], e[1], e[2]}, to{e[3], e[4], e[5]};
-          branching |= !nextOf.emplace(from, to).second;
-        }
+        for (size_t x = 0; x < edges.size() && !branching; ++x)
+          for (size_t y = x + 1; y < edges.size() && !branching; ++y) branching = edges[x].first == edges[y].first;
         std::vector<Poly> loops;
-        while (!branching && !nextOf.empty()) {
+        while (!branching && !edges.empty()) {
           Poly loop;
-          Key3 v = nextOf.begin()->first;
-          for (auto it = nextOf.find(v); it != nextOf.end(); it = nextOf.find(v)) {
-            loop.push_back(V64(v[0], v[1], v[2]));
+          V64 v = edges.back().first;
+          for (auto it = edges.end() - 1;;) {
+            loop.push_back(v);
             v = it->second;
-            nextOf.erase(it);
+            *it = edges.back();
+            edges.pop_back();
+            it = std::find_if(edges.begin(), edges.end(), [&](const auto& e) { return e.first == v; });
+            if (it == edges.end()) break;
           }
           loops.push_back(std::move(loop));
         }
@@ -635,6 +649,7 @@ DiscreteMesh SurfaceOctree::reconstruct() const {
     return false;
   };
   std::unordered_map<LineKey, std::vector<V64>, LineKeyHash> onLine;
+  onLine.reserve(polys.size());
   for (const OutPoly& p : polys)
     for (size_t k = 0; k < p.loop.size(); ++k) {
       LineKey key;
@@ -645,12 +660,13 @@ DiscreteMesh SurfaceOctree::reconstruct() const {
       }
     }
   for (auto& [key, pts] : onLine) {
-    std::sort(pts.begin(), pts.end(), [](const V64& a, const V64& b) { return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z); });
+    std::sort(pts.begin(), pts.end(), lexLess);
     pts.erase(std::unique(pts.begin(), pts.end()), pts.end());
   }
 
   DiscreteMesh mesh;
-  std::unordered_map<uint64_t, uint32_t> ids;
+  std::unordered_map<uint64_t, uint32_t, VertexKeyHash> ids;
+  ids.reserve(polys.size() * 2);
   auto vertexId = [&](const V64& p) {
     const uint64_t key = (uint64_t(p.x) << 42) | (uint64_t(p.y) << 21) | uint64_t(p.z);  // each < 2^21
     auto [it, inserted] = ids.try_emplace(key, uint32_t(mesh.vertices.size()));
@@ -667,16 +683,19 @@ DiscreteMesh SurfaceOctree::reconstruct() const {
       loop.push_back(vertexId(a));
       LineKey key;
       if (!faceLine(p.box, a, b, &key)) continue;
-      // Insert the line's vertices strictly between a and b, in order from a to b.
-      const V64 d = b - a;
-      const I64 len = d.x * d.x + d.y * d.y + d.z * d.z;
-      std::vector<std::pair<I64, V64>> between;
-      for (const V64& q : onLine[key]) {
-        const I64 t = (q - a).x * d.x + (q - a).y * d.y + (q - a).z * d.z;
-        if (t > 0 && t < len) between.push_back({t, q});
+      // Insert the line's vertices strictly between a and b, in order from a to b. Points on one
+      // line are sorted lexicographically, which is their order along the line.
+      const auto& pts = onLine[key];
+      const bool forward = lexLess(a, b);
+      const V64& lo = forward ? a : b;
+      const V64& hi = forward ? b : a;
+      const auto first = std::upper_bound(pts.begin(), pts.end(), lo, lexLess);
+      const auto last = std::lower_bound(first, pts.end(), hi, lexLess);
+      if (forward) {
+        for (auto it = first; it != last; ++it) loop.push_back(vertexId(*it));
+      } else {
+        for (auto it = last; it != first;) loop.push_back(vertexId(*--it));
       }
-      std::sort(between.begin(), between.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
-      for (const auto& [t, q] : between) loop.push_back(vertexId(q));
     }
   }
   // Drop straight-through vertices that no other polygon uses: they only add triangles. A vertex

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs what is needed (Debian 12, as root), builds in Release and runs the main job on the real
-# CT from Debian's invesalius-examples package: volume summary, octree build, node selection.
+# CT from Debian's invesalius-examples package: volume summary, octree build with the bone surface,
+# bone mesh export with checks, node selection.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -8,5 +9,6 @@ cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release > /dev/null
 cmake --build build --parallel 2
 mkdir -p out
 ./build/hybrid-octree info
-./build/hybrid-octree build -o out/cranium.hoct
+./build/hybrid-octree build --iso 400 -o out/cranium.hoct
+./build/hybrid-octree export out/cranium.hoct --iso 400 --surface octree -o out/bone.ply --check
 ./build/hybrid-octree render out/cranium.hoct -o out/cranium.png --epsilon 0 --stats out/cranium-stats.json
