@@ -271,7 +271,7 @@ int runExport(const ExportOptions& o, std::ostream& out) {
   } else {
     const bool stored = scene.surface && scene.surface->isovalue() == iso;
     const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, scene.octree, iso);
-    const DiscreteMesh d = so.reconstruct();
+    const DiscreteMesh d = so.reconstruct(kMaxDim);  // one mesh: merge coplanar polygons across bricks too
     polygons = d.faceCount();
     mesh = fineMeshToTriangles(d, v.spacing());
     out << surfaceSummary(so, 0.0).substr(0, surfaceSummary(so, 0.0).find(')') + 1) << (stored ? " (from the scene)" : "") << "\n";

@@ -104,6 +104,7 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
   if (surface) {
     surf.put(surface->isovalue());
     surf.put(uint64_t(surface->cellCount()));
+    surf.put(int32_t(surface->mergeEdge()));
     surf.putArray(surface->nodes());
     sections.push_back({kSurfaceTag, &surf});
   }
@@ -183,7 +184,8 @@ Scene loadScene(const std::string& path) {
     Reader r(it->second.data(), it->second.size(), path);
     const float iso = r.get<float>();
     const uint64_t cells = r.get<uint64_t>();
-    scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), r.getArray<SurfaceNode>(), path);
+    const int32_t mergeEdge = r.get<int32_t>();
+    scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), mergeEdge, r.getArray<SurfaceNode>(), path);
   }
   return scene;
 }

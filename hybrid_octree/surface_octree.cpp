@@ -289,6 +289,7 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
   SurfaceOctree so;
   so.mDims = volume.dims();
   so.mIso = iso;
+  so.mMergeEdge = options.maxEdge > 0 ? options.maxEdge : octree.leafEdge();
   const auto& codes = leafCodes();
   // Leaves: one entry per DiscMC cell, code translated to the cell.
   std::vector<Entry> level;
@@ -317,8 +318,7 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
   std::vector<Entry> next;
   for (int edge = 1; !level.empty(); edge *= 2) {
     const int parentEdge = edge * 2;
-    const int maxEdge = options.maxEdge > 0 ? options.maxEdge : octree.leafEdge();
-    const bool mayMerge = parentEdge <= maxEdge && parentEdge <= (1 << octree.depth());
+    const bool mayMerge = parentEdge <= so.mMergeEdge && parentEdge <= (1 << octree.depth());
     for (Entry& e : level) e.parentKey = packCells(glm::ivec3(e.node.origin) / parentEdge);  // Morton-sorted already
     next.clear();
     auto emitGroup = [&](size_t b, size_t e) {
@@ -413,9 +413,11 @@ std::pair<uint32_t, uint32_t> SurfaceOctree::rangeIn(const glm::ivec3& origin, i
   return {uint32_t(b - mNodes.begin()), uint32_t(e - mNodes.begin())};
 }
 
-SurfaceOctree SurfaceOctree::fromParts(glm::ivec3 dims, float iso, size_t cellCount, std::vector<SurfaceNode> nodes,
-                                       const std::string& source) {
+SurfaceOctree SurfaceOctree::fromParts(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge,
+                                       std::vector<SurfaceNode> nodes, const std::string& source) {
   validateDims(dims, source);
+  if (mergeEdge < 1 || mergeEdge > kMaxDim || (mergeEdge & (mergeEdge - 1)))
+    HYB_THROW(IoError, source, ": surface octree merge edge ", mergeEdge, " invalid (expected a power of two)");
   uint64_t previous = 0;
   for (size_t i = 0; i < nodes.size(); ++i) {
     const SurfaceNode& n = nodes[i];
@@ -423,7 +425,7 @@ SurfaceOctree SurfaceOctree::fromParts(glm::ivec3 dims, float iso, size_t cellCo
     const bool ok = n.edge >= 1 && (n.edge & (n.edge - 1)) == 0 && o.x % n.edge == 0 && o.y % n.edge == 0 &&
                     o.z % n.edge == 0 && glm::all(glm::lessThan(o, glm::max(dims - 1, glm::ivec3(1)))) && n.planeCount >= 1 &&
                     n.planeCount <= n.planes.size() && (uint64_t(n.occurs) >> (1u << n.planeCount)) == 0 &&
-                    (n.inside & ~n.occurs) == 0 && morton(o) >= previous;
+                    (n.inside & ~n.occurs) == 0 && morton(o) >= previous && n.edge <= mergeEdge;
     bool planesOk = true;
     for (int j = 0; j < n.planeCount; ++j) planesOk &= n.planes[size_t(j)].orientation >= 0 && n.planes[size_t(j)].orientation < kOrientationCount;
     if (!ok || !planesOk || !std::isfinite(iso)) HYB_THROW(IoError, source, ": surface octree node ", i, " is invalid");
@@ -433,6 +435,7 @@ SurfaceOctree SurfaceOctree::fromParts(glm::ivec3 dims, float iso, size_t cellCo
   so.mDims = dims;
   so.mIso = iso;
   so.mCellCount = cellCount;
+  so.mMergeEdge = mergeEdge;
   so.mNodes = std::move(nodes);
   return so;
 }
@@ -541,11 +544,14 @@ struct VertexKeyHash {
 
 }  // namespace
 
-DiscreteMesh SurfaceOctree::reconstruct() const {
+DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
+  if (mergeCube <= 0) mergeCube = mMergeEdge;
+  HYB_CHECK((mergeCube & (mergeCube - 1)) == 0);
   struct OutPoly {
     std::vector<V64> loop;
     PlaneId plane;  // d in fine units
     Box box;
+    glm::u16vec3 origin;  // of the node
   };
   std::vector<OutPoly> polys;
   Poly pos, neg;
@@ -627,7 +633,7 @@ DiscreteMesh SurfaceOctree::reconstruct() const {
           loops.push_back(std::move(loop));
         }
         const std::vector<Poly>& emit = (!branching && loops.size() == 1) ? loops : kept[size_t(facing)];
-        for (const Poly& p : emit) polys.push_back({p, id, box});
+        for (const Poly& p : emit) polys.push_back({p, id, box, node.origin});
       }
     }
   }
@@ -698,6 +704,59 @@ DiscreteMesh SurfaceOctree::reconstruct() const {
       }
     }
   }
+  // Merge polygons of different nodes that lie on the same plane with the same facing and share an
+  // edge, within one merge cube of edge @p mergeCube cells (a volume leaf by default, so that every
+  // polygon stays inside one brick): union-find over shared edges, then the union's boundary replaces
+  // them when it is a single loop (the surface is unchanged).
+  {
+    std::vector<uint32_t> parent(polys.size());
+    std::iota(parent.begin(), parent.end(), 0u);
+    auto find = [&](uint32_t x) {
+      while (parent[x] != x) x = parent[x] = parent[parent[x]];
+      return x;
+    };
+    auto cellOf = [&](size_t pi) { return packCells(glm::ivec3(polys[pi].origin) / mergeCube); };
+    std::unordered_map<uint64_t, uint32_t, VertexKeyHash> owner;
+    owner.reserve(polys.size() * 4);
+    for (size_t pi = 0; pi < polys.size(); ++pi)
+      for (size_t k = 0; k < loops[pi].size(); ++k)
+        owner[uint64_t(loops[pi][k]) << 32 | loops[pi][(k + 1) % loops[pi].size()]] = uint32_t(pi);
+    for (size_t pi = 0; pi < polys.size(); ++pi)
+      for (size_t k = 0; k < loops[pi].size(); ++k) {
+        const auto it = owner.find(uint64_t(loops[pi][(k + 1) % loops[pi].size()]) << 32 | loops[pi][k]);
+        if (it == owner.end() || it->second == pi) continue;
+        const uint32_t q = it->second;
+        if (polys[q].plane == polys[pi].plane && cellOf(q) == cellOf(pi)) parent[find(uint32_t(pi))] = find(q);
+      }
+    std::unordered_map<uint32_t, std::vector<uint32_t>> sets;
+    for (uint32_t pi = 0; pi < polys.size(); ++pi) sets[find(pi)].push_back(pi);
+    for (auto& [root, members] : sets) {
+      if (members.size() < 2) continue;
+      // Boundary: directed edges whose reverse is not in the set.
+      std::unordered_map<uint64_t, int, VertexKeyHash> present;
+      for (uint32_t m : members)
+        for (size_t k = 0; k < loops[m].size(); ++k) ++present[uint64_t(loops[m][k]) << 32 | loops[m][(k + 1) % loops[m].size()]];
+      std::unordered_map<uint32_t, uint32_t> next;
+      bool branching = false;
+      for (const auto& [e, n] : present) {
+        const uint32_t a = uint32_t(e >> 32), b = uint32_t(e);
+        if (!present.count(uint64_t(b) << 32 | a)) branching |= !next.emplace(a, b).second;
+      }
+      if (branching || next.empty()) continue;
+      std::vector<uint32_t> merged;
+      uint32_t v = next.begin()->first;
+      for (auto it = next.find(v); it != next.end(); it = next.find(v)) {
+        merged.push_back(v);
+        v = it->second;
+        next.erase(it);
+      }
+      if (!next.empty()) continue;  // several loops (a hole): keep the members
+      loops[root] = std::move(merged);
+      for (uint32_t m : members)
+        if (m != root) loops[m].clear();
+    }
+  }
+
   // Drop straight-through vertices that no other polygon uses: they only add triangles. A vertex
   // another polygon references is kept, so no T-junction can open.
   std::vector<uint32_t> uses(mesh.vertices.size(), 0);
@@ -705,6 +764,7 @@ DiscreteMesh SurfaceOctree::reconstruct() const {
     for (uint32_t v : loop) ++uses[v];
   for (size_t pi = 0; pi < polys.size(); ++pi) {
     std::vector<uint32_t>& loop = loops[pi];
+    if (loop.empty()) continue;  // merged into another polygon
     for (bool removed = true; removed && loop.size() > 3;) {
       removed = false;
       for (size_t k = 0; k < loop.size() && loop.size() > 3; ++k) {

@@ -79,7 +79,7 @@ class SurfaceOctree {
 
   /// Reassembles a stored octree, checking every node against @p dims.
   /// @throw IoError naming @p source when a node is out of range or inconsistent.
-  static SurfaceOctree fromParts(glm::ivec3 dims, float iso, size_t cellCount, std::vector<SurfaceNode> nodes,
+  static SurfaceOctree fromParts(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge, std::vector<SurfaceNode> nodes,
                                  const std::string& source);
 
   /// Terminal surface nodes in Morton order of their origins (white, black and grey nodes are implicit).
@@ -91,17 +91,22 @@ class SurfaceOctree {
   const glm::ivec3& dims() const { return mDims; }
   /// Surface cells the DiscMC extraction produced (the leaves before merging).
   size_t cellCount() const { return mCellCount; }
+  /// Largest node edge the build allowed; reconstructed polygons never cross a cube of this edge.
+  int mergeEdge() const { return mMergeEdge; }
   size_t bytesUsed() const { return mNodes.size() * sizeof(SurfaceNode) + sizeof(*this); }
 
-  /// Polygons of every terminal node, merged per plane and facing inside each node, with T-junction
-  /// vertices inserted; vertices in fine coordinates (12 × doubled). Watertight where DiscMC is.
-  DiscreteMesh reconstruct() const;
+  /// Polygons of every terminal node, merged per plane and facing inside each node and then across
+  /// nodes inside each aligned cube of @p mergeCube cells (0 = mergeEdge(), so every polygon lies in
+  /// one volume leaf; export passes the whole volume), with T-junction vertices inserted; vertices
+  /// in fine coordinates (12 × doubled). Watertight where DiscMC is.
+  DiscreteMesh reconstruct(int mergeCube = 0) const;
 
  private:
   std::vector<SurfaceNode> mNodes;
   glm::ivec3 mDims{0};
   float mIso = 0;
   size_t mCellCount = 0;
+  int mMergeEdge = 1;
 };
 
 /// The code of DiscMC case @p mask (alternative: the centre-diagonal variant) for a cell at the

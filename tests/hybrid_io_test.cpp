@@ -55,7 +55,8 @@ TEST(SceneFile, SurfaceOctreeRoundTrip) {
   // A node pointing outside the grid is rejected.
   auto nodes = so.nodes();
   nodes.back().origin = glm::u16vec3(60000);
-  EXPECT_THROW(SurfaceOctree::fromParts(v.dims(), 0.0f, so.cellCount(), nodes, "x"), IoError);
+  EXPECT_THROW(SurfaceOctree::fromParts(v.dims(), 0.0f, so.cellCount(), so.mergeEdge(), nodes, "x"), IoError);
+  EXPECT_THROW(SurfaceOctree::fromParts(v.dims(), 0.0f, so.cellCount(), 3, so.nodes(), "x"), IoError);
 }
 
 TEST(SceneFile, RejectsForeignTruncatedCorruptAndNewer) {
