@@ -13,6 +13,7 @@
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
+#include "render/raycast.h"
 #include "surface/cgal_geometry.h"
 #include "surface/dmc.h"
 #include "surface/mesh_io.h"
@@ -176,29 +177,63 @@ int runBuild(const BuildOptions& o, std::ostream& out) {
 
 struct RenderOptions {
   VolumeInput input;
-  std::string output, stats, focus;
-  double epsilon = 0.0;
-  double budgetMb = 0.0;
+  std::string output, stats, focus, renderer = "raycast", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
+  std::string eye, center, up = "0,0,1", orbit = "180,10", size = "512x512", background = "0,0,0", shading = "on";
+  std::optional<double> iso;
+  double epsilon = 0.0, budgetMb = 0.0, fov = 30.0, step = 0.25;
+  bool ortho = false;
   int maxBrick = 64;
   std::string validate() const {
     if (!std::isfinite(epsilon) || epsilon < 0) return "--epsilon must be a finite value >= 0 (data units)";
     if (!std::isfinite(budgetMb) || budgetMb < 0) return "--budget must be a finite number of MB >= 0";
+    if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
+    if (renderer != "raycast" && renderer != "slices") return "--renderer '" + renderer + "' invalid (expected slices or raycast)";
+    if (!(fov > 0 && fov < 179)) return "--fov must be in (0, 179) degrees";
+    if (!(step > 0.01 && step <= 4)) return "--step must be in (0.01, 4] voxels";
+    if (shading != "on" && shading != "off") return "--shading must be on or off";
+    if (!tfFile.empty() && !preset.empty()) return "--tf and --preset are exclusive";
     return "";
   }
 };
 
+// Parses "WxH" into a positive size no larger than 16384.
+glm::ivec2 parseSize(const std::string& text) {
+  int w = 0, h = 0;
+  char x = 0;
+  std::istringstream s(text);
+  std::string rest;
+  if (!(s >> w >> x >> h) || (x != 'x' && x != 'X') || (s >> rest) || w < 1 || h < 1 || w > 16384 || h > 16384)
+    HYB_THROW(ValueError, "--size '", text, "' invalid (expected WxH, 1..16384 each)");
+  return {w, h};
+}
+
+glm::vec4 parseColor(const std::string& text, const std::string& flag, int n) {
+  std::string t = text;
+  for (char& c : t)
+    if (c == ',') c = ' ';
+  std::istringstream s(t);
+  glm::vec4 c(1.0f);
+  for (int k = 0; k < n; ++k)
+    if (!(s >> c[k]) || !(c[k] >= 0.0f && c[k] <= 1.0f))
+      HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", n, " numbers in [0, 1])");
+  std::string rest;
+  if (s >> rest) HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", n, " numbers in [0, 1])");
+  return c;
+}
+
 int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   double buildMs = 0;
   const Scene scene = loadOrBuild(o.input, out, &buildMs);
+  const Volume& v = scene.volume;
   SelectionParams params;
   params.epsilon = float(o.epsilon);
-  params.spacing = scene.volume.spacing();
+  params.spacing = v.spacing();
   params.maxBrickEdge = o.maxBrick;
   if (!o.focus.empty()) params.focus = parseVec3(o.focus, "--focus");
   // Texture memory is counted at 2 bytes a texel (16-bit luminance textures).
   params.texelBudget = uint64_t(o.budgetMb * 1024.0 * 1024.0 / 2.0);
   if (o.budgetMb > 0 && params.texelBudget == 0) HYB_THROW(ValueError, "--budget ", o.budgetMb, " MB is smaller than one texel");
-  const auto t0 = Clock::now();
+  auto t0 = Clock::now();
   const Selection sel = selectNodes(scene.octree, params);
   const double selectMs = msSince(t0);
 
@@ -214,14 +249,76 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   for (const auto& [ratio, e] : perLevel)
     out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
   if (!sel.budgetMet) err << "hybrid-octree: warning: --budget " << o.budgetMb << " MB cannot be met; using " << sel.texels << " texels\n";
-  if (!o.output.empty())
-    err << "hybrid-octree: note: the slice renderer is not implemented yet; " << o.output << " was not written\n";
+
+  // Transfer function: file, preset, or a CT default for Hounsfield data.
+  const TransferFunction tf = !o.tfFile.empty() ? TransferFunction::fromFile(o.tfFile)
+                              : TransferFunction::preset(o.preset.empty() ? "ct-skin-bone" : o.preset);
+  const glm::ivec2 size = parseSize(o.size);
+  Camera camera;
+  if (!o.eye.empty()) {
+    camera.eye = parseVec3(o.eye, "--eye");
+    camera.center = o.center.empty() ? 0.5 * v.extentMm() : parseVec3(o.center, "--center");
+    camera.up = parseVec3(o.up, "--up");
+    if (glm::length(camera.eye - camera.center) == 0 || glm::length(glm::cross(camera.center - camera.eye, camera.up)) == 0)
+      HYB_THROW(ValueError, "--eye, --center and --up must give a view direction not parallel to up");
+    camera.fovDeg = o.fov;
+    camera.ortho = o.ortho;
+    camera.orthoHeight = glm::length(v.extentMm()) * 1.05;
+    camera.width = size.x;
+    camera.height = size.y;
+  } else {
+    const glm::dvec3 ae = parseVec3(o.orbit + ",0", "--orbit");
+    camera = Camera::orbit(glm::dvec3(0.0), v.extentMm(), ae.x, ae.y, o.fov, o.ortho, size.x, size.y);
+  }
+  // Surface: the scene's when the isovalue matches, else built now.
+  std::optional<SurfaceOctree> built;
+  const SurfaceOctree* so = nullptr;
+  double surfaceMs = 0;
+  if (o.iso) {
+    if (scene.surface && scene.surface->isovalue() == float(*o.iso)) {
+      so = &*scene.surface;
+    } else {
+      t0 = Clock::now();
+      built = SurfaceOctree::build(v, scene.octree, float(*o.iso));
+      surfaceMs = msSince(t0);
+      so = &*built;
+    }
+  }
+  TriangleMesh mesh;
+  size_t polygons = 0;
+  if (so) {
+    const DiscreteMesh d = so->reconstruct();
+    polygons = d.faceCount();
+    mesh = fineMeshToTriangles(d, v.spacing());
+  }
+  const Bvh bvh(mesh);
+  if (o.renderer == "slices")
+    err << "hybrid-octree: note: the slice renderer is not implemented yet; using the reference ray tracer\n";
+  RaycastOptions ro;
+  ro.stepVoxels = o.step;
+  ro.shading = o.shading == "on";
+  ro.surface = so ? &bvh : nullptr;
+  ro.surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
+  const glm::vec3 background(parseColor(o.background, "--background", 3));
+  t0 = Clock::now();
+  RaycastStats rs;
+  const Image image = raycast(v, scene.octree, tf, camera, ro, &rs);
+  const double renderMs = msSince(t0);
+  out << "render   raycast " << size.x << "x" << size.y << ", " << rs.samples << " samples, " << rs.skippedLeaves
+      << " empty-space skips, " << rs.surfaceHits << " surface crossings, " << std::setprecision(1) << renderMs << " ms\n";
+  if (!o.output.empty()) {
+    writePng(o.output, image, background);
+    out << "wrote    " << o.output << "\n";
+  }
   if (!o.stats.empty()) {
     writeFileAtomically(o.stats, [&](std::ostream& s) {
-      s << std::setprecision(9) << "{\n  \"nodes_selected\": " << sel.bricks.size() << ",\n  \"texels\": " << sel.texels
-        << ",\n  \"texture_bytes\": " << sel.texels * 2 << ",\n  \"build_ms\": " << buildMs << ",\n  \"select_ms\": "
-        << selectMs << ",\n  \"epsilon\": " << o.epsilon << ",\n  \"max_nodal_error_used\": " << sel.maxError
-        << ",\n  \"budget_met\": " << (sel.budgetMet ? "true" : "false") << "\n}\n";
+      s << std::setprecision(9) << "{\n  \"renderer\": \"raycast\",\n  \"nodes_selected\": " << sel.bricks.size()
+        << ",\n  \"texels\": " << sel.texels << ",\n  \"texture_bytes\": " << sel.texels * 2 << ",\n  \"slices\": 0"
+        << ",\n  \"surface_polygons\": " << polygons << ",\n  \"surface_triangles\": " << mesh.triangles.size()
+        << ",\n  \"slab_polygon_draws\": 0,\n  \"build_ms\": " << buildMs + surfaceMs << ",\n  \"select_ms\": " << selectMs
+        << ",\n  \"render_ms\": " << renderMs << ",\n  \"samples\": " << rs.samples << ",\n  \"epsilon\": " << o.epsilon
+        << ",\n  \"max_nodal_error_used\": " << sel.maxError << ",\n  \"budget_met\": " << (sel.budgetMet ? "true" : "false")
+        << "\n}\n";
     });
   }
   return 0;
@@ -319,12 +416,27 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   buildCmd->add_option("--leaf-edge", build.leafEdge, "edge in voxels of the smallest octree nodes")->capture_default_str();
 
   RenderOptions render;
-  CLI::App* renderCmd = app.add_subcommand("render", "select nodes under epsilon and budget (the image renderer is not implemented yet)");
+  CLI::App* renderCmd = app.add_subcommand("render", "render one image (reference ray tracer; the slice renderer is not implemented yet)");
   render.input.add(renderCmd);
   renderCmd->add_option("-o,--output", render.output, "PNG to write");
+  renderCmd->add_option("--iso", render.iso, "isovalue of the embedded surface (data units; none = volume only)");
+  renderCmd->add_option("--surface-color", render.surfaceColor, "surface r,g,b,a in [0,1]; a < 1 is translucent")->capture_default_str();
+  renderCmd->add_option("--tf", render.tfFile, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm");
+  renderCmd->add_option("--preset", render.preset, "ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone (default)");
   renderCmd->add_option("--epsilon", render.epsilon, "user error epsilon_u in data units (0 = exact)")->capture_default_str();
   renderCmd->add_option("--budget", render.budgetMb, "texture memory budget in MB (0 = unlimited)");
   renderCmd->add_option("--focus", render.focus, "region of interest x,y,z in world mm");
+  renderCmd->add_option("--eye", render.eye, "camera position x,y,z in mm (with --center, --up)");
+  renderCmd->add_option("--center", render.center, "point looked at, x,y,z in mm (default: the volume centre)");
+  renderCmd->add_option("--up", render.up, "up direction x,y,z")->capture_default_str();
+  renderCmd->add_option("--orbit", render.orbit, "azimuth,elevation in degrees around the volume centre")->capture_default_str();
+  renderCmd->add_option("--fov", render.fov, "vertical field of view in degrees")->capture_default_str();
+  renderCmd->add_flag("--ortho", render.ortho, "orthographic projection");
+  renderCmd->add_option("--size", render.size, "image size WxH")->capture_default_str();
+  renderCmd->add_option("--background", render.background, "background r,g,b in [0,1]")->capture_default_str();
+  renderCmd->add_option("--shading", render.shading, "gradient shading of the volume: on|off")->capture_default_str();
+  renderCmd->add_option("--renderer", render.renderer, "slices|raycast")->capture_default_str();
+  renderCmd->add_option("--step", render.step, "ray tracer sample spacing in voxels")->capture_default_str();
   renderCmd->add_option("--max-brick", render.maxBrick, "largest brick edge in texels (power of two)")->capture_default_str();
   renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
 

@@ -1,0 +1,26 @@
+// Pinhole and orthographic cameras in world millimetres.
+#pragma once
+
+#include <glm/glm.hpp>
+
+namespace hyb {
+
+/// A camera looking from eye to center; pixel (0, 0) is the top-left corner.
+struct Camera {
+  glm::dvec3 eye{0, 0, 1}, center{0}, up{0, 1, 0};
+  double fovDeg = 30.0;      ///< vertical field of view (perspective)
+  bool ortho = false;
+  double orthoHeight = 1.0;  ///< world height of the view (orthographic), mm
+  int width = 512, height = 512;
+
+  /// Camera around the box [lo, hi] (mm): azimuth about +z from −y, elevation towards +z, degrees,
+  /// at a distance where the box's bounding sphere fills the view.
+  static Camera orbit(const glm::dvec3& lo, const glm::dvec3& hi, double azimuthDeg, double elevationDeg, double fovDeg,
+                      bool ortho, int width, int height);
+
+  glm::dvec3 forward() const { return glm::normalize(center - eye); }
+  /// Ray through the point (px, py) in pixel units (pixel centres at +0.5).
+  void ray(double px, double py, glm::dvec3* origin, glm::dvec3* dir) const;
+};
+
+}  // namespace hyb

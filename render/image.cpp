@@ -1,0 +1,73 @@
+#include "render/image.h"
+
+#include <png.h>
+
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <memory>
+
+#include "volume/error.h"
+#include "volume/file_util.h"
+
+namespace hyb {
+
+std::vector<uint8_t> toRgba8(const Image& image, const glm::vec3& background) {
+  std::vector<uint8_t> out(image.pixels.size() * 4);
+  for (size_t i = 0; i < image.pixels.size(); ++i) {
+    const glm::vec4 p = image.pixels[i];
+    const glm::vec3 c = glm::vec3(p) + (1.0f - p.a) * background;  // premultiplied "over"
+    for (int k = 0; k < 3; ++k) out[4 * i + size_t(k)] = uint8_t(std::lround(std::clamp(c[k], 0.0f, 1.0f) * 255.0f));
+    out[4 * i + 3] = 255;
+  }
+  return out;
+}
+
+void writePng(const std::string& path, const Image& image, const glm::vec3& background) {
+  const std::vector<uint8_t> rgba = toRgba8(image, background);
+  writeFileAtomicallyByName(path, [&](const std::string& tmp) {
+    FILE* f = std::fopen(tmp.c_str(), "wb");
+    if (!f) HYB_THROW(IoError, path, ": cannot create file");
+    png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
+    png_infop info = png ? png_create_info_struct(png) : nullptr;
+    if (!png || !info || setjmp(png_jmpbuf(png))) {
+      png_destroy_write_struct(&png, &info);
+      std::fclose(f);
+      HYB_THROW(IoError, path, ": PNG encoding failed");
+    }
+    png_init_io(png, f);
+    png_set_IHDR(png, info, png_uint_32(image.width), png_uint_32(image.height), 8, PNG_COLOR_TYPE_RGBA, PNG_INTERLACE_NONE,
+                 PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+    png_write_info(png, info);
+    for (int y = 0; y < image.height; ++y) png_write_row(png, &rgba[size_t(y) * size_t(image.width) * 4]);
+    png_write_end(png, nullptr);
+    png_destroy_write_struct(&png, &info);
+    if (std::fclose(f) != 0) HYB_THROW(IoError, path, ": write failed");
+  });
+}
+
+std::vector<uint8_t> readPng(const std::string& path, int* width, int* height) {
+  png_image img{};
+  img.version = PNG_IMAGE_VERSION;
+  if (!png_image_begin_read_from_file(&img, path.c_str())) HYB_THROW(IoError, path, ": not a readable PNG");
+  img.format = PNG_FORMAT_RGBA;
+  std::vector<uint8_t> out(PNG_IMAGE_SIZE(img));
+  if (!png_image_finish_read(&img, nullptr, out.data(), 0, nullptr)) HYB_THROW(IoError, path, ": PNG decoding failed");
+  *width = int(img.width);
+  *height = int(img.height);
+  return out;
+}
+
+double psnr(const std::vector<uint8_t>& a, const std::vector<uint8_t>& b) {
+  HYB_CHECK(a.size() == b.size() && a.size() % 4 == 0);
+  double se = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    if (i % 4 == 3) continue;
+    const double d = double(a[i]) - double(b[i]);
+    se += d * d;
+  }
+  const double mse = se / double(a.size() / 4 * 3);
+  return mse == 0 ? std::numeric_limits<double>::infinity() : 10.0 * std::log10(255.0 * 255.0 / mse);
+}
+
+}  // namespace hyb

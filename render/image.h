@@ -1,0 +1,36 @@
+// Images: linear float RGBA while compositing, 8-bit RGBA PNG on disk, and error metrics.
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <string>
+#include <vector>
+
+namespace hyb {
+
+/// A width × height image of premultiplied RGBA floats, row 0 at the top.
+struct Image {
+  int width = 0, height = 0;
+  std::vector<glm::vec4> pixels;
+
+  Image() = default;
+  Image(int w, int h) : width(w), height(h), pixels(size_t(w) * size_t(h), glm::vec4(0.0f)) {}
+  glm::vec4& at(int x, int y) { return pixels[size_t(y) * size_t(width) + size_t(x)]; }
+  const glm::vec4& at(int x, int y) const { return pixels[size_t(y) * size_t(width) + size_t(x)]; }
+};
+
+/// Composites @p image over an opaque @p background and rounds to 8 bits: what the PNG holds.
+std::vector<uint8_t> toRgba8(const Image& image, const glm::vec3& background);
+
+/// Writes the composited image as an 8-bit RGBA PNG (alpha 255) atomically.
+/// @throw IoError naming @p path when it cannot be written.
+void writePng(const std::string& path, const Image& image, const glm::vec3& background);
+
+/// Reads an 8-bit PNG (RGB or RGBA) into RGBA bytes. For tests and comparisons.
+/// @throw IoError naming @p path when it cannot be read.
+std::vector<uint8_t> readPng(const std::string& path, int* width, int* height);
+
+/// PSNR in dB over RGB of two equal-size RGBA8 images (infinity when identical).
+double psnr(const std::vector<uint8_t>& a, const std::vector<uint8_t>& b);
+
+}  // namespace hyb

@@ -1,0 +1,46 @@
+// 1D transfer function: data value → colour and opacity per millimetre (DESIGN 2).
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <string>
+#include <vector>
+
+namespace hyb {
+
+/// Piecewise-linear transfer function. Opacity is that of one millimetre of material, so a sample
+/// spanning d mm has α = 1 − (1 − a)^d and images do not depend on the sampling rate.
+class TransferFunction {
+ public:
+  struct Point {
+    float value;      ///< data units
+    glm::vec3 color;  ///< [0, 1]
+    float alpha;      ///< opacity of 1 mm, [0, 1]
+  };
+
+  TransferFunction() = default;
+  /// @throw ValueError naming @p source when points are unsorted, empty, or outside [0, 1].
+  TransferFunction(std::vector<Point> points, const std::string& source = "transfer function");
+
+  /// Reads "value r g b a" lines ('#' comments).
+  /// @throw IoError / ValueError naming @p path and the line.
+  static TransferFunction fromFile(const std::string& path);
+  /// Presets in Hounsfield units: ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone.
+  /// @throw ValueError listing the presets when @p name is unknown.
+  static TransferFunction preset(const std::string& name);
+  static std::vector<std::string> presetNames();
+
+  /// Colour and opacity per mm at @p v (clamped to the end points).
+  glm::vec4 lookup(float v) const;
+  /// Largest opacity per mm over [lo, hi] (exact for the piecewise-linear function).
+  float maxAlpha(float lo, float hi) const;
+  /// Opacity of a segment of @p mm millimetres with opacity @p alphaPerMm per mm.
+  static float segmentAlpha(float alphaPerMm, float mm);
+
+  const std::vector<Point>& points() const { return mPoints; }
+
+ private:
+  std::vector<Point> mPoints;
+};
+
+}  // namespace hyb

@@ -1,0 +1,222 @@
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "render/raycast.h"
+#include "test_util.h"
+#include "volume/volume_io.h"
+
+namespace hyb {
+namespace {
+
+// One material everywhere: colour (0.8, 0.5, 0.2), opacity a per mm.
+TransferFunction constantTf(float a) {
+  return TransferFunction({{0.0f, {0.8f, 0.5f, 0.2f}, a}, {1.0f, {0.8f, 0.5f, 0.2f}, a}}, "constant");
+}
+
+// Orthographic camera looking along -dir from outside the box centre.
+Camera orthoAlong(const Volume& v, glm::dvec3 dir, int size = 8) {
+  Camera c;
+  c.center = 0.5 * v.extentMm();
+  c.eye = c.center + glm::normalize(dir) * 100.0;
+  c.up = std::abs(dir.z) > 0.9 ? glm::dvec3(0, 1, 0) : glm::dvec3(0, 0, 1);
+  c.ortho = true;
+  c.orthoHeight = 2.0;  // a small window around the centre ray
+  c.width = c.height = size;
+  return c;
+}
+
+// Two triangles forming the square z = zq over [x0,x1] x [y0,y1], mm.
+TriangleMesh quadAt(double zq, double x0, double x1, double y0, double y1) {
+  TriangleMesh m;
+  m.vertices = {{x0, y0, zq}, {x1, y0, zq}, {x1, y1, zq}, {x0, y1, zq}};
+  m.triangles = {{0, 1, 2}, {0, 2, 3}};
+  return m;
+}
+
+glm::vec4 centre(const Image& img) { return img.at(img.width / 2, img.height / 2); }
+
+constexpr float kTol = 1.0f / 255.0f;
+
+TEST(Raycast, HomogeneousSlabMatchesClosedFormAtAnyStep) {
+  // 21 x 21 x 11 voxels of 1 mm: 10 mm of material along z.
+  const Volume v = test::makeVolume({21, 21, 11}, [](int, int, int) { return 0.5f; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const float a = 0.1f;
+  const double D = 10.0;
+  const float alpha = 1.0f - std::pow(1.0f - a, float(D));
+  for (double step : {0.25, 0.5, 1.0}) {
+    RaycastOptions o;
+    o.stepVoxels = step;
+    o.shading = false;
+    const glm::vec4 p = centre(raycast(v, t, constantTf(a), orthoAlong(v, {0, 0, 1}), o));
+    EXPECT_NEAR(p.a, alpha, kTol) << step;
+    EXPECT_NEAR(p.r, 0.8f * alpha, kTol) << step;
+    EXPECT_NEAR(p.b, 0.2f * alpha, kTol) << step;
+  }
+}
+
+TEST(Raycast, TranslucentQuadInsideASlabAlongSeveralDirections) {
+  const Volume v = test::makeVolume({21, 21, 11}, [](int, int, int) { return 0.5f; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const float a = 0.08f;
+  const glm::vec4 surface(0.1f, 0.9f, 0.3f, 0.6f);
+  const glm::vec3 c(0.8f, 0.5f, 0.2f);
+  // Quad planes at a generic depth, exactly on a sample boundary (z = 4 mm with 0.25-voxel steps
+  // from the entry at 10 mm), and at the slab's front face.
+  for (double zq : {3.3, 4.0, 9.9}) {
+    const TriangleMesh quad = quadAt(zq, -5, 25, -5, 25);
+    const Bvh bvh(quad);
+    for (const glm::dvec3 dir : {glm::dvec3(0, 0, 1), glm::dvec3(0.3, 0.2, 1), glm::dvec3(1, 1, 1), glm::dvec3(0, 1, 1)}) {
+      const glm::dvec3 u = glm::normalize(dir);
+      RaycastOptions o;
+      o.shading = false;
+      o.surface = &bvh;
+      o.surfaceColor = surface;
+      const glm::vec4 p = centre(raycast(v, t, constantTf(a), orthoAlong(v, dir), o));
+      // Front part (z from 10 down to zq) and back part (zq down to 0), lengths along the ray.
+      const double front = (10.0 - zq) / u.z, back = zq / u.z;
+      const float a1 = 1.0f - std::pow(1.0f - a, float(front)), a2 = 1.0f - std::pow(1.0f - a, float(back));
+      const float shade = float(0.25 + 0.75 * u.z);  // headlight on the quad's normal (0, 0, 1)
+      const glm::vec3 expected = c * a1 + (1 - a1) * (glm::vec3(surface) * shade * surface.a + (1 - surface.a) * c * a2);
+      const float expectedA = a1 + (1 - a1) * (surface.a + (1 - surface.a) * a2);
+      EXPECT_NEAR(p.a, expectedA, kTol) << "zq " << zq << " dir " << dir.x << "," << dir.y << "," << dir.z;
+      for (int k = 0; k < 3; ++k) EXPECT_NEAR(p[k], expected[k], kTol) << "zq " << zq << " channel " << k;
+      // The quad composited behind all of the volume (a wrong depth order) is far from the pixel.
+      const float av = 1.0f - std::pow(1.0f - a, float(front + back));
+      const glm::vec3 behind = c * av + (1 - av) * glm::vec3(surface) * shade * surface.a;
+      if (zq < 9.0) {
+        EXPECT_GT(glm::length(glm::vec3(p) - behind), 3 * kTol);
+      }
+    }
+  }
+}
+
+TEST(Raycast, OpaqueSurfaceEndsTheRayAndShadingUsesTheHeadlight) {
+  const Volume v = test::makeVolume({11, 11, 11}, [](int, int, int) { return 0.5f; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TriangleMesh quad = quadAt(5.0, -1, 11, -1, 11);
+  const Bvh bvh(quad);
+  RaycastOptions o;
+  o.shading = false;
+  o.surface = &bvh;
+  o.surfaceColor = glm::vec4(0.2f, 0.4f, 0.6f, 1.0f);
+  const float a = 0.05f, a1 = 1.0f - std::pow(1.0f - a, 5.0f);
+  const glm::vec4 p = centre(raycast(v, t, constantTf(a), orthoAlong(v, {0, 0, 1}), o));
+  EXPECT_NEAR(p.a, 1.0f, kTol);
+  EXPECT_NEAR(p.b, 0.2f * a1 + (1 - a1) * 0.6f, kTol);  // nothing behind the opaque quad
+}
+
+TEST(Raycast, EmptySpaceSkippingDoesNotChangeTheImage) {
+  const Volume v = test::sphereVolume({40, 36, 30}, 11.0);  // values > 0 inside
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {12.0f, {1, 1, 1}, 0.6f}}, "sphere");
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 35, 20, 30, false, 48, 40);
+  RaycastOptions o;
+  RaycastStats with, without;
+  const Image a = raycast(v, t, tf, cam, o, &with);
+  o.skipEmptySpace = false;
+  const Image b = raycast(v, t, tf, cam, o, &without);
+  EXPECT_EQ(toRgba8(a, glm::vec3(0)), toRgba8(b, glm::vec3(0)));
+  EXPECT_GT(with.skippedLeaves, uint64_t(0));
+  EXPECT_LT(with.samples, without.samples / 2);
+}
+
+TEST(Raycast, Extremes) {
+  const Volume v = test::makeVolume({9, 9, 9}, [](int, int, int) { return 0.5f; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  RaycastOptions o;
+  o.shading = false;
+  // Fully transparent: the background.
+  EXPECT_EQ(centre(raycast(v, t, constantTf(0.0f), orthoAlong(v, {1, 2, 3}), o)), glm::vec4(0.0f));
+  // Fully opaque: the material's colour, alpha 1.
+  const glm::vec4 opaque = centre(raycast(v, t, constantTf(1.0f), orthoAlong(v, {1, 2, 3}), o));
+  EXPECT_NEAR(opaque.a, 1.0f, 1e-6f);
+  EXPECT_NEAR(opaque.r, 0.8f, 1e-6f);
+  // Camera inside the volume: only the material in front of the eye counts (4 mm to the face).
+  Camera inside;
+  inside.eye = glm::dvec3(4, 4, 4);
+  inside.center = glm::dvec3(4, 4, 0);
+  inside.up = glm::dvec3(0, 1, 0);
+  inside.width = inside.height = 3;
+  const glm::vec4 in = centre(raycast(v, t, constantTf(0.1f), inside, o));
+  EXPECT_NEAR(in.a, 1.0f - std::pow(0.9f, 4.0f), kTol);
+  // One voxel, a single slice, a 1x1 and a 4096x4096 image: no crash, finite pixels.
+  const Volume one = test::makeVolume({1, 1, 1}, [](int, int, int) { return 0.5f; });
+  const VolumeOctree tOne = VolumeOctree::build(one);
+  EXPECT_EQ(raycast(one, tOne, constantTf(0.5f), orthoAlong(one, {0, 0, 1}, 1), o).pixels.size(), size_t(1));
+  const Volume slice = test::randomVolume({16, 16, 1}, 2, 0.0f, 1.0f);
+  const Image s = raycast(slice, VolumeOctree::build(slice), constantTf(0.5f), orthoAlong(slice, {0.2, 0.1, 1}), o);
+  for (const glm::vec4& p : s.pixels) EXPECT_TRUE(std::isfinite(p.a) && p.a >= 0.0f && p.a <= 1.0f);
+  Camera big = orthoAlong(v, {0, 0, 1}, 4096);
+  big.orthoHeight = 40.0;
+  const Image huge = raycast(v, t, constantTf(0.2f), big, o);
+  EXPECT_EQ(huge.width, 4096);
+  EXPECT_NEAR(centre(huge).a, 1.0f - std::pow(0.8f, 8.0f), kTol);
+  EXPECT_EQ(huge.at(0, 0), glm::vec4(0.0f));  // outside the volume's footprint
+}
+
+TEST(TransferFunction, LookupFilesPresetsAndSegments) {
+  const TransferFunction tf({{0, {0, 0, 0}, 0.0f}, {10, {1, 0.5f, 0}, 0.5f}}, "t");
+  EXPECT_EQ(tf.lookup(5).a, 0.25f);
+  EXPECT_EQ(tf.lookup(-3).a, 0.0f);
+  EXPECT_EQ(tf.lookup(30).a, 0.5f);
+  EXPECT_EQ(tf.maxAlpha(-5, 5), 0.25f);
+  EXPECT_EQ(tf.maxAlpha(-5, 50), 0.5f);
+  EXPECT_FLOAT_EQ(TransferFunction::segmentAlpha(0.5f, 2.0f), 0.75f);
+  EXPECT_FLOAT_EQ(TransferFunction::segmentAlpha(0.5f, 0.5f) * 2 - TransferFunction::segmentAlpha(0.5f, 0.5f) * TransferFunction::segmentAlpha(0.5f, 0.5f),
+                  0.5f);  // two half-millimetre samples compose to one millimetre
+  EXPECT_EQ(TransferFunction::segmentAlpha(1.0f, 0.01f), 1.0f);
+  EXPECT_EQ(TransferFunction::segmentAlpha(0.0f, 100.0f), 0.0f);
+  for (const std::string& name : TransferFunction::presetNames()) EXPECT_NO_THROW(TransferFunction::preset(name));
+  EXPECT_THROW(TransferFunction::preset("ct-lungs"), ValueError);
+  test::TempDir dir;
+  test::writeText(dir.file("ok.tf"), "# bone\n100 1 1 1 0\n\n400 1 0.9 0.8 0.3 # ramp\n");
+  EXPECT_EQ(TransferFunction::fromFile(dir.file("ok.tf")).points().size(), size_t(2));
+  test::writeText(dir.file("bad.tf"), "100 1 1 1\n");
+  EXPECT_THROW(TransferFunction::fromFile(dir.file("bad.tf")), IoError);
+  test::writeText(dir.file("range.tf"), "100 1 1 1 2\n");
+  EXPECT_THROW(TransferFunction::fromFile(dir.file("range.tf")), ValueError);
+  test::writeText(dir.file("order.tf"), "100 1 1 1 0.5\n50 1 1 1 0.5\n");
+  EXPECT_THROW(TransferFunction::fromFile(dir.file("order.tf")), ValueError);
+}
+
+TEST(Image, PngRoundTripAndPsnr) {
+  test::TempDir dir;
+  Image img(5, 3);
+  img.at(1, 2) = glm::vec4(0.5f, 0.25f, 0.0f, 0.5f);  // premultiplied
+  writePng(dir.file("a.png"), img, glm::vec3(0.0f, 0.0f, 1.0f));
+  int w = 0, h = 0;
+  const std::vector<uint8_t> back = readPng(dir.file("a.png"), &w, &h);
+  EXPECT_EQ(w, 5);
+  EXPECT_EQ(h, 3);
+  EXPECT_EQ(back, toRgba8(img, glm::vec3(0.0f, 0.0f, 1.0f)));
+  const size_t px = (2 * 5 + 1) * 4;
+  EXPECT_EQ(back[px + 0], 128);  // 0.5 + 0.5 * 0
+  EXPECT_EQ(back[px + 2], 128);  // 0 + 0.5 * 1 (background blue)
+  EXPECT_EQ(back[px + 3], 255);
+  EXPECT_TRUE(std::isinf(psnr(back, back)));
+  std::vector<uint8_t> off = back;
+  off[0] = uint8_t(off[0] + 10);
+  EXPECT_NEAR(psnr(back, off), 10 * std::log10(255.0 * 255.0 / (100.0 / 45.0)), 1e-9);
+  EXPECT_THROW(writePng(dir.file("no/dir/a.png"), img, glm::vec3(0)), IoError);
+}
+
+TEST(RaycastCranium, RendersTheRealCtWithItsBoneSurface) {
+  const Volume v = readVolume(kDefaultVolumePath);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 180, 10, 30, false, 64, 64);
+  RaycastOptions o;
+  const Image img = raycast(v, t, TransferFunction::preset("ct-bone"), cam, o);
+  // The skull covers the middle of the frame and leaves the corners empty.
+  EXPECT_GT(img.at(32, 32).a, 0.9f);
+  EXPECT_EQ(img.at(0, 0).a, 0.0f);
+  double covered = 0;
+  for (const glm::vec4& p : img.pixels) covered += p.a > 0.5f;
+  EXPECT_GT(covered / double(img.pixels.size()), 0.08);  // the frame also holds the head rest
+  EXPECT_LT(covered / double(img.pixels.size()), 0.5);
+}
+
+}  // namespace
+}  // namespace hyb
