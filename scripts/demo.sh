@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs what is needed (Debian 12, as root), builds in Release and runs the main job on the real
 # CT from Debian's invesalius-examples package: volume summary, octree build with the bone surface,
-# bone mesh export with checks, node selection.
+# bone mesh export with checks, and out/cranium.png: translucent volume with the bone surface inside.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -11,4 +11,5 @@ mkdir -p out
 ./build/hybrid-octree info
 ./build/hybrid-octree build --iso 400 -o out/cranium.hoct
 ./build/hybrid-octree export out/cranium.hoct --iso 400 --surface octree -o out/bone.ply --check
-./build/hybrid-octree render out/cranium.hoct -o out/cranium.png --epsilon 0 --stats out/cranium-stats.json
+./build/hybrid-octree render out/cranium.hoct --iso 400 --surface-color 0.95,0.92,0.85,0.5 -o out/cranium.png \
+  --stats out/cranium-stats.json
