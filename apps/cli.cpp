@@ -14,6 +14,7 @@
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
 #include "render/raycast.h"
+#include "render/slices.h"
 #include "surface/cgal_geometry.h"
 #include "surface/dmc.h"
 #include "surface/mesh_io.h"
@@ -230,8 +231,8 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   params.spacing = v.spacing();
   params.maxBrickEdge = o.maxBrick;
   if (!o.focus.empty()) params.focus = parseVec3(o.focus, "--focus");
-  // Texture memory is counted at 2 bytes a texel (16-bit luminance textures).
-  params.texelBudget = uint64_t(o.budgetMb * 1024.0 * 1024.0 / 2.0);
+  // Texture memory is counted at 4 bytes a texel (R32F textures, which hold the extrapolated texels).
+  params.texelBudget = uint64_t(o.budgetMb * 1024.0 * 1024.0 / 4.0);
   if (o.budgetMb > 0 && params.texelBudget == 0) HYB_THROW(ValueError, "--budget ", o.budgetMb, " MB is smaller than one texel");
   auto t0 = Clock::now();
   const Selection sel = selectNodes(scene.octree, params);
@@ -244,7 +245,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     e.second += b.texelCount();
   }
   out << "selection: epsilon " << o.epsilon << ", " << sel.bricks.size() << " bricks, " << sel.texels << " texels ("
-      << std::fixed << std::setprecision(2) << double(sel.texels) * 2.0 / (1024.0 * 1024.0) << " MB), max nodal error used "
+      << std::fixed << std::setprecision(2) << double(sel.texels) * 4.0 / (1024.0 * 1024.0) << " MB), max nodal error used "
       << sel.maxError << ", " << std::setprecision(3) << selectMs << " ms\n";
   for (const auto& [ratio, e] : perLevel)
     out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
@@ -291,29 +292,51 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     polygons = d.faceCount();
     mesh = fineMeshToTriangles(d, v.spacing());
   }
-  const Bvh bvh(mesh);
-  if (o.renderer == "slices")
-    err << "hybrid-octree: note: the slice renderer is not implemented yet; using the reference ray tracer\n";
-  RaycastOptions ro;
-  ro.stepVoxels = o.step;
-  ro.shading = o.shading == "on";
-  ro.surface = so ? &bvh : nullptr;
-  ro.surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
+  const glm::vec4 surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
   const glm::vec3 background(parseColor(o.background, "--background", 3));
-  t0 = Clock::now();
+  std::string renderer = o.renderer;
+  if (renderer == "slices" && so && surfaceColor.a < 1.0f) {
+    err << "hybrid-octree: note: translucent surfaces in the slice renderer (SlabPolygon lists) are not implemented yet; "
+           "using the reference ray tracer\n";
+    renderer = "raycast";
+  }
+  Image image;
   RaycastStats rs;
-  const Image image = raycast(v, scene.octree, tf, camera, ro, &rs);
+  SlicesStats ss;
+  t0 = Clock::now();
+  if (renderer == "slices") {
+    const GlContext gl;
+    SlicesOptions opt;
+    opt.stepVoxels = o.step;
+    opt.shading = o.shading == "on";
+    opt.surface = so ? &mesh : nullptr;
+    opt.surfaceColor = glm::vec3(surfaceColor);
+    image = renderSlices(v, scene.octree, sel, tf, camera, opt, &ss);
+  } else {
+    const Bvh bvh(mesh);
+    RaycastOptions ro;
+    ro.stepVoxels = o.step;
+    ro.shading = o.shading == "on";
+    ro.surface = so ? &bvh : nullptr;
+    ro.surfaceColor = surfaceColor;
+    image = raycast(v, scene.octree, tf, camera, ro, &rs);
+  }
   const double renderMs = msSince(t0);
-  out << "render   raycast " << size.x << "x" << size.y << ", " << rs.samples << " samples, " << rs.skippedLeaves
-      << " empty-space skips, " << rs.surfaceHits << " surface crossings, " << std::setprecision(1) << renderMs << " ms\n";
+  if (renderer == "slices")
+    out << "render   slices " << size.x << "x" << size.y << ", " << ss.bricks << " textured bricks, " << ss.textureBytes
+        << " texture bytes, " << ss.slices << " slices, " << std::setprecision(1) << renderMs << " ms\n";
+  else
+    out << "render   raycast " << size.x << "x" << size.y << ", " << rs.samples << " samples, " << rs.skippedLeaves
+        << " empty-space skips, " << rs.surfaceHits << " surface crossings, " << std::setprecision(1) << renderMs << " ms\n";
   if (!o.output.empty()) {
     writePng(o.output, image, background);
     out << "wrote    " << o.output << "\n";
   }
   if (!o.stats.empty()) {
     writeFileAtomically(o.stats, [&](std::ostream& s) {
-      s << std::setprecision(9) << "{\n  \"renderer\": \"raycast\",\n  \"nodes_selected\": " << sel.bricks.size()
-        << ",\n  \"texels\": " << sel.texels << ",\n  \"texture_bytes\": " << sel.texels * 2 << ",\n  \"slices\": 0"
+      s << std::setprecision(9) << "{\n  \"renderer\": \"" << renderer << "\",\n  \"nodes_selected\": " << sel.bricks.size()
+        << ",\n  \"texels\": " << sel.texels << ",\n  \"texture_bytes\": " << (renderer == "slices" ? ss.textureBytes : sel.texels * 4)
+        << ",\n  \"slices\": " << ss.slices
         << ",\n  \"surface_polygons\": " << polygons << ",\n  \"surface_triangles\": " << mesh.triangles.size()
         << ",\n  \"slab_polygon_draws\": 0,\n  \"build_ms\": " << buildMs + surfaceMs << ",\n  \"select_ms\": " << selectMs
         << ",\n  \"render_ms\": " << renderMs << ",\n  \"samples\": " << rs.samples << ",\n  \"epsilon\": " << o.epsilon
@@ -416,7 +439,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   buildCmd->add_option("--leaf-edge", build.leafEdge, "edge in voxels of the smallest octree nodes")->capture_default_str();
 
   RenderOptions render;
-  CLI::App* renderCmd = app.add_subcommand("render", "render one image (reference ray tracer; the slice renderer is not implemented yet)");
+  CLI::App* renderCmd = app.add_subcommand("render", "render one image (slice renderer or reference ray tracer)");
   render.input.add(renderCmd);
   renderCmd->add_option("-o,--output", render.output, "PNG to write");
   renderCmd->add_option("--iso", render.iso, "isovalue of the embedded surface (data units; none = volume only)");

@@ -1,0 +1,75 @@
+// GLSL sources of the slice renderer, as raw strings.
+#pragma once
+
+namespace hyb::shaders {
+
+/// Slices and surfaces: world-space positions in, transformed by viewProj.
+inline constexpr const char* kWorldVertex = R"(#version 450 core
+layout(location = 0) in vec3 position;
+layout(location = 1) in vec3 normal;
+uniform mat4 viewProj;
+out vec3 vWorld;
+out vec3 vNormal;
+void main() {
+  vWorld = position;
+  vNormal = normal;
+  gl_Position = viewProj * vec4(position, 1.0);
+}
+)";
+
+/// One brick's slice: sample the brick texture, classify with the per-millimetre transfer
+/// function, correct opacity for the segment the slice stands for, shade, premultiply.
+inline constexpr const char* kSliceFragment = R"(#version 450 core
+in vec3 vWorld;
+in vec3 vNormal;
+out vec4 fragColor;
+uniform sampler3D volumeTex;
+uniform sampler1D tfTex;
+uniform vec3 spacing;      // mm per voxel
+uniform vec3 brickOrigin;  // voxel index of the brick's first texel
+uniform float texelStep;   // voxels per texel
+uniform vec3 texDims;
+uniform float tfMin, tfScale, tfSize;
+uniform vec3 eye, forward;
+uniform int ortho;
+uniform float sliceSpacing;  // mm between slice planes along forward
+uniform int shading;
+
+float sampleAt(vec3 t) { return texture(volumeTex, (t + 0.5) / texDims).r; }
+
+void main() {
+  vec3 t = (vWorld / spacing - brickOrigin) / texelStep;
+  float v = sampleAt(t);
+  vec4 c = texture(tfTex, ((v - tfMin) * tfScale + 0.5) / tfSize);
+  if (c.a <= 0.0) discard;
+  vec3 dir = ortho == 1 ? forward : normalize(vWorld - eye);
+  float len = sliceSpacing / max(abs(dot(dir, forward)), 1e-6);
+  float alpha = c.a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - c.a, len);
+  float shade = 1.0;
+  if (shading == 1) {
+    float h = 0.5;
+    vec3 g = vec3(sampleAt(t + vec3(h, 0, 0)) - sampleAt(t - vec3(h, 0, 0)),
+                  sampleAt(t + vec3(0, h, 0)) - sampleAt(t - vec3(0, h, 0)),
+                  sampleAt(t + vec3(0, 0, h)) - sampleAt(t - vec3(0, 0, h))) / (2.0 * h * texelStep * spacing);
+    float m = length(g);
+    if (m > 1e-6) shade = 0.25 + 0.75 * abs(dot(g / m, dir));
+  }
+  fragColor = vec4(c.rgb * shade * alpha, alpha);
+}
+)";
+
+/// Opaque surface: headlight shading, alpha 1.
+inline constexpr const char* kSurfaceFragment = R"(#version 450 core
+in vec3 vWorld;
+in vec3 vNormal;
+out vec4 fragColor;
+uniform vec3 eye, forward;
+uniform int ortho;
+uniform vec3 color;
+void main() {
+  vec3 dir = ortho == 1 ? forward : normalize(vWorld - eye);
+  fragColor = vec4(color * (0.25 + 0.75 * abs(dot(normalize(vNormal), dir))), 1.0);
+}
+)";
+
+}  // namespace hyb::shaders

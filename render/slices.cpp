@@ -1,0 +1,324 @@
+// Hybrid slice renderer: I. Boada, I. Navazo, "3D Texture-based Hybrid Visualizations", 2002, §4,
+// with the view-aligned form of DESIGN 3.4 (slice polygons cut on the CPU, global slice planes).
+#include "render/slices.h"
+
+#define GL_GLEXT_PROTOTYPES
+#include <GL/gl.h>
+#include <GL/glext.h>
+
+#include <glm/gtc/matrix_transform.hpp>
+#include <glm/gtc/type_ptr.hpp>
+
+#include <algorithm>
+#include <cmath>
+
+#include "render/shaders.h"
+#include "volume/error.h"
+
+namespace hyb {
+
+namespace {
+
+GLuint compile(GLenum type, const char* src) {
+  const GLuint s = glCreateShader(type);
+  glShaderSource(s, 1, &src, nullptr);
+  glCompileShader(s);
+  GLint ok = 0;
+  glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
+  if (!ok) {
+    char log[2048];
+    glGetShaderInfoLog(s, sizeof log, nullptr, log);
+    HYB_THROW(RuntimeError, "shader compilation failed: ", log);
+  }
+  return s;
+}
+
+// A linked program, deleted with its owner.
+struct Program {
+  GLuint id = 0;
+  Program(const char* vs, const char* fs) {
+    const GLuint v = compile(GL_VERTEX_SHADER, vs), f = compile(GL_FRAGMENT_SHADER, fs);
+    id = glCreateProgram();
+    glAttachShader(id, v);
+    glAttachShader(id, f);
+    glLinkProgram(id);
+    glDeleteShader(v);
+    glDeleteShader(f);
+    GLint ok = 0;
+    glGetProgramiv(id, GL_LINK_STATUS, &ok);
+    if (!ok) HYB_THROW(RuntimeError, "shader program failed to link");
+  }
+  ~Program() { glDeleteProgram(id); }
+  GLint at(const char* name) const { return glGetUniformLocation(id, name); }
+};
+
+// The texels of brick @p n at level @p p: the sub-grid knots (position-clamped at the grid's far
+// side, DESIGN 3.3), with the overhanging last texel extrapolated so that uniform trilinear
+// filtering reproduces the node's approximation exactly.
+std::vector<float> brickTexels(const Volume& v, const VolumeOctree& t, const OctreeNode& n, int p, glm::ivec3* dims) {
+  const int s = t.edge(n) >> p;
+  glm::ivec3 lo, hi;
+  t.voxelBox(n, &lo, &hi);
+  const glm::ivec3 d = t.texelDims(n, p);
+  *dims = d;
+  std::vector<float> out(size_t(d.x) * d.y * d.z);
+  auto knot = [&](int a, int j) { return std::min(lo[a] + j * s, hi[a]); };
+  for (int k = 0; k < d.z; ++k)
+    for (int j = 0; j < d.y; ++j)
+      for (int i = 0; i < d.x; ++i) out[size_t(i) + size_t(d.x) * (j + size_t(d.y) * k)] = v.at(knot(0, i), knot(1, j), knot(2, k));
+  for (int a = 0; a < 3; ++a) {
+    const int m = d[a] - 1;
+    if (m < 1 || lo[a] + m * s <= hi[a]) continue;  // the last knot sits where a uniform texel would
+    const float scale = float(s) / float(hi[a] - (lo[a] + (m - 1) * s));
+    for (int k = 0; k < d.z; ++k)
+      for (int j = 0; j < d.y; ++j)
+        for (int i = 0; i < d.x; ++i) {
+          glm::ivec3 q(i, j, k);
+          if (q[a] != m) continue;
+          glm::ivec3 r = q;
+          r[a] = m - 1;
+          float& last = out[size_t(q.x) + size_t(d.x) * (q.y + size_t(d.y) * q.z)];
+          const float prev = out[size_t(r.x) + size_t(d.x) * (r.y + size_t(d.y) * r.z)];
+          last = prev + (last - prev) * scale;
+        }
+  }
+  return out;
+}
+
+// Appends plane f·X = depth ∩ box [lo, hi] as a triangle fan (world mm) to @p out; returns whether
+// the plane cuts the box in a polygon.
+bool slicePolygon(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& f, double depth, std::vector<float>* out) {
+  std::vector<glm::dvec3> pts;
+  pts.reserve(12);
+  for (int axis = 0; axis < 3; ++axis)
+    for (int c = 0; c < 4; ++c) {
+      glm::dvec3 a, b;
+      const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+      a[u] = b[u] = (c & 1) ? hi[u] : lo[u];
+      a[v] = b[v] = (c & 2) ? hi[v] : lo[v];
+      a[axis] = lo[axis];
+      b[axis] = hi[axis];
+      const double da = glm::dot(f, a) - depth, db = glm::dot(f, b) - depth;
+      if ((da < 0) == (db < 0) && da != 0 && db != 0) continue;  // an endpoint on the plane counts
+      const double t = da == db ? 0.0 : da / (da - db);
+      pts.push_back(a + (b - a) * t);
+    }
+  const int n = int(pts.size());
+  if (n < 3) return false;
+  glm::dvec3 centre(0.0);
+  for (int i = 0; i < n; ++i) centre += pts[i];
+  centre /= double(n);
+  const glm::dvec3 r = glm::normalize(std::abs(f.x) < 0.9 ? glm::cross(f, glm::dvec3(1, 0, 0)) : glm::cross(f, glm::dvec3(0, 1, 0)));
+  const glm::dvec3 u = glm::cross(f, r);
+  std::sort(pts.begin(), pts.end(), [&](const glm::dvec3& p, const glm::dvec3& q) {
+    return std::atan2(glm::dot(p - centre, u), glm::dot(p - centre, r)) < std::atan2(glm::dot(q - centre, u), glm::dot(q - centre, r));
+  });
+  for (int i = 1; i + 1 < n; ++i)
+    for (const glm::dvec3* p : {&pts[0], &pts[i], &pts[i + 1]})
+      for (int k = 0; k < 3; ++k) out->insert(out->end(), {float((*p)[k])});
+  return true;
+}
+
+}  // namespace
+
+Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
+                   const Camera& camera, const SlicesOptions& options, SlicesStats* stats) {
+  const int W = camera.width, H = camera.height;
+  const glm::dvec3 spacing = volume.spacing();
+  const glm::dvec3 f = camera.forward();
+  const double delta = options.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
+  SlicesStats st;
+
+  // Framebuffer: float colour (premultiplied), depth for opaque surfaces.
+  GLuint fbo, color, depth;
+  glGenFramebuffers(1, &fbo);
+  glBindFramebuffer(GL_FRAMEBUFFER, fbo);
+  glGenTextures(1, &color);
+  glBindTexture(GL_TEXTURE_2D, color);
+  glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA32F, W, H, 0, GL_RGBA, GL_FLOAT, nullptr);
+  glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, color, 0);
+  glGenRenderbuffers(1, &depth);
+  glBindRenderbuffer(GL_RENDERBUFFER, depth);
+  glRenderbufferStorage(GL_RENDERBUFFER, GL_DEPTH_COMPONENT24, W, H);
+  glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, depth);
+  if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
+    HYB_THROW(RuntimeError, "OpenGL framebuffer incomplete for a ", W, "x", H, " float image");
+  glViewport(0, 0, W, H);
+  glDepthMask(GL_TRUE);  // a previous frame may have left depth writes off, which would skip the clear
+  glDisable(GL_BLEND);
+  glClearColor(0, 0, 0, 0);
+  glClearDepth(1.0);
+  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+
+  // Camera matrices with near/far around the volume.
+  const glm::dvec3 boxHi = volume.extentMm();
+  double dmin = 1e300, dmax = -1e300;
+  for (int c = 0; c < 8; ++c) {
+    const glm::dvec3 p((c & 1) ? boxHi.x : 0, (c & 2) ? boxHi.y : 0, (c & 4) ? boxHi.z : 0);
+    dmin = std::min(dmin, glm::dot(p - camera.eye, f));
+    dmax = std::max(dmax, glm::dot(p - camera.eye, f));
+  }
+  const double diag = std::max(1e-3, glm::length(boxHi));
+  const double zNear = camera.ortho ? dmin - 0.01 * diag : std::max(dmin - 0.01 * diag, 1e-4 * diag);
+  const double zFar = dmax + 0.01 * diag;
+  const double aspect = double(W) / double(H);
+  const glm::dmat4 view = glm::lookAt(camera.eye, camera.center, camera.up);
+  const glm::dmat4 proj = camera.ortho ? glm::ortho(-0.5 * camera.orthoHeight * aspect, 0.5 * camera.orthoHeight * aspect,
+                                                    -0.5 * camera.orthoHeight, 0.5 * camera.orthoHeight, zNear, zFar)
+                                       : glm::perspective(glm::radians(camera.fovDeg), aspect, zNear, zFar);
+  const glm::mat4 viewProj(proj * view);
+
+  GLuint vao, vbo;
+  glGenVertexArrays(1, &vao);
+  glBindVertexArray(vao);
+  glGenBuffers(1, &vbo);
+  glBindBuffer(GL_ARRAY_BUFFER, vbo);
+  glEnable(GL_DEPTH_TEST);
+  glDepthFunc(GL_LESS);
+
+  // Opaque surface first, writing depth.
+  if (options.surface && !options.surface->triangles.empty()) {
+    Program surf(shaders::kWorldVertex, shaders::kSurfaceFragment);
+    glUseProgram(surf.id);
+    std::vector<float> data;
+    data.reserve(options.surface->triangles.size() * 18);
+    for (const glm::uvec3& t : options.surface->triangles) {
+      const glm::vec3 a = options.surface->vertices[t.x], b = options.surface->vertices[t.y], c = options.surface->vertices[t.z];
+      const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
+      for (const glm::vec3& p : {a, b, c}) data.insert(data.end(), {p.x, p.y, p.z, n.x, n.y, n.z});
+    }
+    glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(data.size() * sizeof(float)), data.data(), GL_STATIC_DRAW);
+    glEnableVertexAttribArray(0);
+    glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), nullptr);
+    glEnableVertexAttribArray(1);
+    glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
+    glUniformMatrix4fv(surf.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
+    glUniform3f(surf.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
+    glUniform3f(surf.at("forward"), float(f.x), float(f.y), float(f.z));
+    glUniform1i(surf.at("ortho"), camera.ortho ? 1 : 0);
+    glUniform3fv(surf.at("color"), 1, glm::value_ptr(options.surfaceColor));
+    glDrawArrays(GL_TRIANGLES, 0, GLsizei(data.size() / 6));
+  }
+
+  // Transfer function as a 4096-entry float lookup over the data range.
+  constexpr int kTfSize = 4096;
+  const float vmin = volume.minValue(), vmax = std::max(volume.maxValue(), volume.minValue() + 1e-6f);
+  std::vector<glm::vec4> lut(kTfSize);
+  for (int i = 0; i < kTfSize; ++i) lut[size_t(i)] = tf.lookup(vmin + (vmax - vmin) * float(i) / float(kTfSize - 1));
+  GLuint tfTex;
+  glGenTextures(1, &tfTex);
+  glActiveTexture(GL_TEXTURE1);
+  glBindTexture(GL_TEXTURE_1D, tfTex);
+  glTexImage1D(GL_TEXTURE_1D, 0, GL_RGBA32F, kTfSize, 0, GL_RGBA, GL_FLOAT, lut.data());
+  glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+
+  Program slices(shaders::kWorldVertex, shaders::kSliceFragment);
+  glUseProgram(slices.id);
+  glUniformMatrix4fv(slices.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
+  glUniform1i(slices.at("volumeTex"), 0);
+  glUniform1i(slices.at("tfTex"), 1);
+  glUniform3f(slices.at("spacing"), float(spacing.x), float(spacing.y), float(spacing.z));
+  glUniform1f(slices.at("tfMin"), vmin);
+  glUniform1f(slices.at("tfScale"), float(kTfSize - 1) / (vmax - vmin));
+  glUniform1f(slices.at("tfSize"), float(kTfSize));
+  glUniform3f(slices.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
+  glUniform3f(slices.at("forward"), float(f.x), float(f.y), float(f.z));
+  glUniform1i(slices.at("ortho"), camera.ortho ? 1 : 0);
+  glUniform1f(slices.at("sliceSpacing"), float(delta));
+  glUniform1i(slices.at("shading"), options.shading ? 1 : 0);
+  glDisableVertexAttribArray(1);
+  glVertexAttrib3f(1, 0, 0, 0);
+  glEnableVertexAttribArray(0);
+  glDepthMask(GL_FALSE);
+  glEnable(GL_BLEND);
+  glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
+
+  // Bricks back to front: octree order, farther octants first (valid for perspective too).
+  std::vector<int> brickOf(octree.nodes().size(), -1);
+  for (size_t b = 0; b < selection.bricks.size(); ++b) brickOf[selection.bricks[b].node] = int(b);
+  const glm::dvec3 eyeVoxel = (camera.ortho ? camera.eye - f * 1e9 * diag : camera.eye) / spacing;
+  std::vector<uint32_t> order;
+  std::vector<uint32_t> stack{0};
+  while (!stack.empty()) {
+    const uint32_t i = stack.back();
+    stack.pop_back();
+    if (brickOf[i] >= 0) {
+      order.push_back(i);
+      continue;
+    }
+    const OctreeNode& n = octree.nodes()[i];
+    const glm::dvec3 mid = glm::dvec3(n.origin) + 0.5 * octree.edge(n);
+    const int far = (eyeVoxel.x < mid.x) | (eyeVoxel.y < mid.y) << 1 | (eyeVoxel.z < mid.z) << 2;
+    // Pushed in reverse: popped far first, then one, two and three flips towards the eye.
+    for (int k : {7, 6, 5, 3, 4, 2, 1, 0}) {
+      const int slot = far ^ k;
+      if (n.childMask & (1u << slot)) stack.push_back(childIndex(n, slot));
+    }
+  }
+  HYB_CHECK(order.size() == selection.bricks.size());
+
+  std::vector<float> poly;
+  GLuint tex;
+  glGenTextures(1, &tex);
+  glActiveTexture(GL_TEXTURE0);
+  glBindTexture(GL_TEXTURE_3D, tex);
+  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  for (GLenum w : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R}) glTexParameteri(GL_TEXTURE_3D, w, GL_CLAMP_TO_EDGE);
+  glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+  for (uint32_t i : order) {
+    const Brick& b = selection.bricks[size_t(brickOf[i])];
+    const OctreeNode& n = octree.nodes()[i];
+    if (tf.maxAlpha(n.minValue, n.maxValue) <= 0.0f) continue;  // transparent: costs nothing
+    glm::ivec3 dims;
+    const std::vector<float> texels = brickTexels(volume, octree, n, b.p, &dims);
+    glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, dims.x, dims.y, dims.z, 0, GL_RED, GL_FLOAT, texels.data());
+    st.texels += texels.size();
+    ++st.bricks;
+    glm::ivec3 lo, hi;
+    octree.voxelBox(n, &lo, &hi);
+    const glm::dvec3 blo = glm::dvec3(lo) * spacing, bhi = glm::dvec3(hi) * spacing;
+    glUniform3f(slices.at("brickOrigin"), float(lo.x), float(lo.y), float(lo.z));
+    glUniform1f(slices.at("texelStep"), float(octree.edge(n) >> b.p));
+    glUniform3f(slices.at("texDims"), float(dims.x), float(dims.y), float(dims.z));
+    // Global slice planes f·X = j·delta; this brick owns those with depth in [dmin, dmax).
+    double bmin = 1e300, bmax = -1e300;
+    for (int c = 0; c < 8; ++c) {
+      const glm::dvec3 p((c & 1) ? bhi.x : blo.x, (c & 2) ? bhi.y : blo.y, (c & 4) ? bhi.z : blo.z);
+      bmin = std::min(bmin, glm::dot(f, p));
+      bmax = std::max(bmax, glm::dot(f, p));
+    }
+    poly.clear();
+    for (long long j = (long long)std::ceil(bmax / delta) - 1; double(j) * delta >= bmin; --j)
+      if (double(j) * delta < bmax && slicePolygon(blo, bhi, f, double(j) * delta, &poly)) ++st.slices;
+    if (poly.empty()) continue;
+    glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(poly.size() * sizeof(float)), poly.data(), GL_STREAM_DRAW);
+    glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 3 * sizeof(float), nullptr);
+    glDrawArrays(GL_TRIANGLES, 0, GLsizei(poly.size() / 3));
+  }
+  st.textureBytes = st.texels * sizeof(float);
+
+  Image image(W, H);
+  std::vector<float> rgba(size_t(W) * H * 4);
+  glReadPixels(0, 0, W, H, GL_RGBA, GL_FLOAT, rgba.data());
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const float* p = &rgba[(size_t(H - 1 - y) * W + x) * 4];
+      image.at(x, y) = glm::vec4(p[0], p[1], p[2], p[3]);
+    }
+  const GLenum err = glGetError();
+  glDeleteTextures(1, &tex);
+  glDeleteTextures(1, &tfTex);
+  glDeleteBuffers(1, &vbo);
+  glDeleteVertexArrays(1, &vao);
+  glDeleteRenderbuffers(1, &depth);
+  glDeleteTextures(1, &color);
+  glDeleteFramebuffers(1, &fbo);
+  if (err != GL_NO_ERROR) HYB_THROW(RuntimeError, "OpenGL error 0x", std::hex, err, " while rendering slices");
+  if (stats) *stats = st;
+  return image;
+}
+
+}  // namespace hyb
