@@ -178,7 +178,7 @@ int runBuild(const BuildOptions& o, std::ostream& out) {
 
 struct RenderOptions {
   VolumeInput input;
-  std::string output, stats, focus, renderer = "raycast", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
+  std::string output, stats, focus, renderer = "slices", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
   std::string eye, center, up = "0,0,1", orbit = "180,10", size = "512x512", background = "0,0,0", shading = "on";
   std::optional<double> iso;
   double epsilon = 0.0, budgetMb = 0.0, fov = 30.0, step = 0.25;
@@ -294,12 +294,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   }
   const glm::vec4 surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
   const glm::vec3 background(parseColor(o.background, "--background", 3));
-  std::string renderer = o.renderer;
-  if (renderer == "slices" && so && surfaceColor.a < 1.0f) {
-    err << "hybrid-octree: note: translucent surfaces in the slice renderer (SlabPolygon lists) are not implemented yet; "
-           "using the reference ray tracer\n";
-    renderer = "raycast";
-  }
+  const std::string& renderer = o.renderer;
   Image image;
   RaycastStats rs;
   SlicesStats ss;
@@ -310,7 +305,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     opt.stepVoxels = o.step;
     opt.shading = o.shading == "on";
     opt.surface = so ? &mesh : nullptr;
-    opt.surfaceColor = glm::vec3(surfaceColor);
+    opt.surfaceColor = surfaceColor;
     image = renderSlices(v, scene.octree, sel, tf, camera, opt, &ss);
   } else {
     const Bvh bvh(mesh);
@@ -324,7 +319,8 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   const double renderMs = msSince(t0);
   if (renderer == "slices")
     out << "render   slices " << size.x << "x" << size.y << ", " << ss.bricks << " textured bricks, " << ss.textureBytes
-        << " texture bytes, " << ss.slices << " slices, " << std::setprecision(1) << renderMs << " ms\n";
+        << " texture bytes, " << ss.slices << " slices, " << ss.slabPolygonDraws << " slab polygon draws, " << std::setprecision(1)
+        << renderMs << " ms\n";
   else
     out << "render   raycast " << size.x << "x" << size.y << ", " << rs.samples << " samples, " << rs.skippedLeaves
         << " empty-space skips, " << rs.surfaceHits << " surface crossings, " << std::setprecision(1) << renderMs << " ms\n";
@@ -338,7 +334,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
         << ",\n  \"texels\": " << sel.texels << ",\n  \"texture_bytes\": " << (renderer == "slices" ? ss.textureBytes : sel.texels * 4)
         << ",\n  \"slices\": " << ss.slices
         << ",\n  \"surface_polygons\": " << polygons << ",\n  \"surface_triangles\": " << mesh.triangles.size()
-        << ",\n  \"slab_polygon_draws\": 0,\n  \"build_ms\": " << buildMs + surfaceMs << ",\n  \"select_ms\": " << selectMs
+        << ",\n  \"slab_polygon_draws\": " << ss.slabPolygonDraws << ",\n  \"build_ms\": " << buildMs + surfaceMs << ",\n  \"select_ms\": " << selectMs
         << ",\n  \"render_ms\": " << renderMs << ",\n  \"samples\": " << rs.samples << ",\n  \"epsilon\": " << o.epsilon
         << ",\n  \"max_nodal_error_used\": " << sel.maxError << ",\n  \"budget_met\": " << (sel.budgetMet ? "true" : "false")
         << "\n}\n";

@@ -17,12 +17,36 @@ void main() {
 }
 )";
 
+/// One brick's stream of slices and translucent surface triangles in draw order. kind 0: a slice;
+/// kind 1: a surface triangle clipped to its slab [slab.x, slab.y] of view depth (SlabPolygon).
+inline constexpr const char* kStreamVertex = R"(#version 450 core
+layout(location = 0) in vec3 position;
+layout(location = 1) in vec3 normal;
+layout(location = 2) in vec3 kindSlab;  // kind, slab near depth, slab far depth
+uniform mat4 viewProj;
+uniform vec3 forward;
+out vec3 vWorld;
+out vec3 vNormal;
+flat out float vKind;
+void main() {
+  vWorld = position;
+  vNormal = normal;
+  vKind = kindSlab.x;
+  float depth = dot(forward, position);
+  gl_ClipDistance[0] = depth - kindSlab.y;
+  gl_ClipDistance[1] = kindSlab.z - depth;
+  gl_Position = viewProj * vec4(position, 1.0);
+}
+)";
+
 /// One brick's slice: sample the brick texture, classify with the per-millimetre transfer
 /// function, correct opacity for the segment the slice stands for, shade, premultiply.
 inline constexpr const char* kSliceFragment = R"(#version 450 core
 in vec3 vWorld;
 in vec3 vNormal;
+flat in float vKind;
 out vec4 fragColor;
+uniform vec4 surfaceColor;  // straight rgb, alpha per crossing
 uniform sampler3D volumeTex;
 uniform sampler1D tfTex;
 uniform vec3 spacing;      // mm per voxel
@@ -38,6 +62,12 @@ uniform int shading;
 float sampleAt(vec3 t) { return texture(volumeTex, (t + 0.5) / texDims).r; }
 
 void main() {
+  if (vKind > 0.5) {  // translucent surface, headlight-shaded, premultiplied
+    vec3 d = ortho == 1 ? forward : normalize(vWorld - eye);
+    float shade = 0.25 + 0.75 * abs(dot(normalize(vNormal), d));
+    fragColor = vec4(surfaceColor.rgb * shade * surfaceColor.a, surfaceColor.a);
+    return;
+  }
   vec3 t = (vWorld / spacing - brickOrigin) / texelStep;
   float v = sampleAt(t);
   vec4 c = texture(tfTex, ((v - tfMin) * tfScale + 0.5) / tfSize);

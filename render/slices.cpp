@@ -177,7 +177,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glDepthFunc(GL_LESS);
 
   // Opaque surface first, writing depth.
-  if (options.surface && !options.surface->triangles.empty()) {
+  const bool translucent = options.surface && !options.surface->triangles.empty() && options.surfaceColor.a < 1.0f;
+  if (options.surface && !options.surface->triangles.empty() && !translucent) {
     Program surf(shaders::kWorldVertex, shaders::kSurfaceFragment);
     glUseProgram(surf.id);
     std::vector<float> data;
@@ -196,7 +197,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     glUniform3f(surf.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
     glUniform3f(surf.at("forward"), float(f.x), float(f.y), float(f.z));
     glUniform1i(surf.at("ortho"), camera.ortho ? 1 : 0);
-    glUniform3fv(surf.at("color"), 1, glm::value_ptr(options.surfaceColor));
+    glUniform3f(surf.at("color"), options.surfaceColor.r, options.surfaceColor.g, options.surfaceColor.b);
     glDrawArrays(GL_TRIANGLES, 0, GLsizei(data.size() / 6));
   }
 
@@ -214,7 +215,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
 
-  Program slices(shaders::kWorldVertex, shaders::kSliceFragment);
+  Program slices(shaders::kStreamVertex, shaders::kSliceFragment);
   glUseProgram(slices.id);
   glUniformMatrix4fv(slices.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
   glUniform1i(slices.at("volumeTex"), 0);
@@ -228,9 +229,12 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glUniform1i(slices.at("ortho"), camera.ortho ? 1 : 0);
   glUniform1f(slices.at("sliceSpacing"), float(delta));
   glUniform1i(slices.at("shading"), options.shading ? 1 : 0);
-  glDisableVertexAttribArray(1);
-  glVertexAttrib3f(1, 0, 0, 0);
+  glUniform4fv(slices.at("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
   glEnableVertexAttribArray(0);
+  glEnableVertexAttribArray(1);
+  glEnableVertexAttribArray(2);
+  glEnable(GL_CLIP_DISTANCE0);
+  glEnable(GL_CLIP_DISTANCE1);
   glDepthMask(GL_FALSE);
   glEnable(GL_BLEND);
   glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
@@ -259,6 +263,27 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   }
   HYB_CHECK(order.size() == selection.bricks.size());
 
+  // SlabPolygon input: translucent triangles by brick. Every triangle lies inside one volume leaf
+  // (Surface Octree polygons never cross one), so its centroid names its brick.
+  std::vector<std::vector<uint32_t>> trianglesOf(octree.nodes().size());
+  if (translucent) {
+    const glm::ivec3 cells = glm::max(volume.dims() - 1, glm::ivec3(1));
+    for (uint32_t ti = 0; ti < options.surface->triangles.size(); ++ti) {
+      const glm::uvec3 tr = options.surface->triangles[ti];
+      const glm::dvec3 c = (glm::dvec3(options.surface->vertices[tr.x]) + glm::dvec3(options.surface->vertices[tr.y]) +
+                            glm::dvec3(options.surface->vertices[tr.z])) / 3.0 / spacing;
+      const glm::ivec3 cell = glm::clamp(glm::ivec3(glm::floor(c)), glm::ivec3(0), cells - 1);
+      uint32_t i = 0;
+      while (brickOf[i] < 0) {
+        const OctreeNode& n = octree.nodes()[i];
+        const int half = octree.edge(n) / 2;
+        const glm::ivec3 rel = cell - glm::ivec3(n.origin);
+        i = childIndex(n, (rel.x >= half) | (rel.y >= half) << 1 | (rel.z >= half) << 2);
+      }
+      trianglesOf[i].push_back(ti);
+    }
+  }
+
   std::vector<float> poly;
   GLuint tex;
   glGenTextures(1, &tex);
@@ -268,35 +293,94 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   for (GLenum w : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R}) glTexParameteri(GL_TEXTURE_3D, w, GL_CLAMP_TO_EDGE);
   glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+  // A slab instance of a translucent triangle: which triangle, its slab, whether to clip, sort key.
+  struct Instance {
+    uint32_t triangle;
+    long long slab;
+    bool clip;
+    double depth;
+  };
+  std::vector<Instance> instances;
+  auto emitSlice = [&](const std::vector<float>& polygon) {
+    for (size_t v = 0; v < polygon.size(); v += 3)
+      poly.insert(poly.end(), {polygon[v], polygon[v + 1], polygon[v + 2], 0, 0, 0, 0, -1e30f, 1e30f});
+  };
+  auto emitTriangle = [&](const Instance& in) {
+    const glm::uvec3 tr = options.surface->triangles[in.triangle];
+    const glm::vec3 a = options.surface->vertices[tr.x], b = options.surface->vertices[tr.y], c = options.surface->vertices[tr.z];
+    const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
+    const float lo = in.clip ? float(double(in.slab) * delta) : -1e30f, hi = in.clip ? float(double(in.slab + 1) * delta) : 1e30f;
+    for (const glm::vec3& p : {a, b, c}) poly.insert(poly.end(), {p.x, p.y, p.z, n.x, n.y, n.z, 1.0f, lo, hi});
+    ++st.slabPolygonDraws;
+  };
+  std::vector<float> one;
   for (uint32_t i : order) {
     const Brick& b = selection.bricks[size_t(brickOf[i])];
     const OctreeNode& n = octree.nodes()[i];
-    if (tf.maxAlpha(n.minValue, n.maxValue) <= 0.0f) continue;  // transparent: costs nothing
-    glm::ivec3 dims;
-    const std::vector<float> texels = brickTexels(volume, octree, n, b.p, &dims);
-    glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, dims.x, dims.y, dims.z, 0, GL_RED, GL_FLOAT, texels.data());
-    st.texels += texels.size();
-    ++st.bricks;
+    const bool visible = tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;  // transparent bricks cost no texels
+    if (!visible && trianglesOf[i].empty()) continue;
     glm::ivec3 lo, hi;
     octree.voxelBox(n, &lo, &hi);
     const glm::dvec3 blo = glm::dvec3(lo) * spacing, bhi = glm::dvec3(hi) * spacing;
-    glUniform3f(slices.at("brickOrigin"), float(lo.x), float(lo.y), float(lo.z));
-    glUniform1f(slices.at("texelStep"), float(octree.edge(n) >> b.p));
-    glUniform3f(slices.at("texDims"), float(dims.x), float(dims.y), float(dims.z));
-    // Global slice planes f·X = j·delta; this brick owns those with depth in [dmin, dmax).
+    if (visible) {
+      glm::ivec3 dims;
+      const std::vector<float> texels = brickTexels(volume, octree, n, b.p, &dims);
+      glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, dims.x, dims.y, dims.z, 0, GL_RED, GL_FLOAT, texels.data());
+      st.texels += texels.size();
+      ++st.bricks;
+      glUniform3f(slices.at("brickOrigin"), float(lo.x), float(lo.y), float(lo.z));
+      glUniform1f(slices.at("texelStep"), float(octree.edge(n) >> b.p));
+      glUniform3f(slices.at("texDims"), float(dims.x), float(dims.y), float(dims.z));
+    }
+    // Global slice planes f·X = j·delta; this brick owns those with depth in [bmin, bmax).
     double bmin = 1e300, bmax = -1e300;
     for (int c = 0; c < 8; ++c) {
       const glm::dvec3 p((c & 1) ? bhi.x : blo.x, (c & 2) ? bhi.y : blo.y, (c & 4) ? bhi.z : blo.z);
       bmin = std::min(bmin, glm::dot(f, p));
       bmax = std::max(bmax, glm::dot(f, p));
     }
+    // SlabPolygon list: slab k = [k·delta, (k+1)·delta); a triangle goes into every slab its depth
+    // range covers, clipped to the slab when it covers more than one.
+    instances.clear();
+    long long kLo = (long long)std::floor(bmin / delta) - 1, kHi = (long long)std::ceil(bmax / delta);
+    for (uint32_t ti : trianglesOf[i]) {
+      const glm::uvec3 tr = options.surface->triangles[ti];
+      double dmn = 1e300, dmx = -1e300, sum = 0;
+      for (int k = 0; k < 3; ++k) {
+        const double d = glm::dot(f, glm::dvec3(options.surface->vertices[tr[k]]));
+        dmn = std::min(dmn, d);
+        dmx = std::max(dmx, d);
+        sum += d;
+      }
+      const long long k0 = (long long)std::floor(dmn / delta), k1 = (long long)std::floor(dmx / delta);
+      for (long long k = k0; k <= k1; ++k) instances.push_back({ti, k, k1 > k0, std::clamp(sum / 3, double(k) * delta, double(k + 1) * delta)});
+      kLo = std::min(kLo, k0);
+      kHi = std::max(kHi, k1);
+      ++st.surfaceTriangles;
+    }
+    // Far to near: by slab, then by depth inside a slab.
+    std::sort(instances.begin(), instances.end(), [](const Instance& x, const Instance& y) {
+      return x.slab != y.slab ? x.slab > y.slab : x.depth > y.depth;
+    });
     poly.clear();
-    for (long long j = (long long)std::ceil(bmax / delta) - 1; double(j) * delta >= bmin; --j)
-      if (double(j) * delta < bmax && slicePolygon(blo, bhi, f, double(j) * delta, &poly)) ++st.slices;
+    size_t next = 0;
+    for (long long k = kHi; k >= kLo; --k) {
+      if (options.slabOrder)
+        for (; next < instances.size() && instances[next].slab >= k; ++next) emitTriangle(instances[next]);
+      const double plane = double(k) * delta;
+      one.clear();
+      if (visible && plane >= bmin && plane < bmax && slicePolygon(blo, bhi, f, plane, &one)) {
+        emitSlice(one);
+        ++st.slices;
+      }
+    }
+    for (; next < instances.size(); ++next) emitTriangle(instances[next]);
     if (poly.empty()) continue;
     glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(poly.size() * sizeof(float)), poly.data(), GL_STREAM_DRAW);
-    glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 3 * sizeof(float), nullptr);
-    glDrawArrays(GL_TRIANGLES, 0, GLsizei(poly.size() / 3));
+    glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), nullptr);
+    glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
+    glVertexAttribPointer(2, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), reinterpret_cast<void*>(6 * sizeof(float)));
+    glDrawArrays(GL_TRIANGLES, 0, GLsizei(poly.size() / 9));
   }
   st.textureBytes = st.texels * sizeof(float);
 
@@ -309,6 +393,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       image.at(x, y) = glm::vec4(p[0], p[1], p[2], p[3]);
     }
   const GLenum err = glGetError();
+  glDisable(GL_CLIP_DISTANCE0);
+  glDisable(GL_CLIP_DISTANCE1);
   glDeleteTextures(1, &tex);
   glDeleteTextures(1, &tfTex);
   glDeleteBuffers(1, &vbo);

@@ -3,8 +3,10 @@
 // globally aligned planes, bricks drawn back to front in octree order (valid for perspective and
 // orthographic views), composited in a float framebuffer with premultiplied colours.
 //
-// This first version renders the volume and opaque surfaces (depth-tested, drawn first); the
-// SlabPolygon integration of translucent surfaces is not implemented yet.
+// Opaque surfaces are drawn first with depth writes. Translucent surface triangles go through the
+// SlabPolygon lists: each is put into the slabs between global slice planes that its depth range
+// covers (clipped with gl_ClipDistance where it spans several), sorted back to front inside a slab,
+// and drawn between the slices of its brick; the lists are rebuilt for every view.
 #pragma once
 
 #include "hybrid_octree/selection.h"
@@ -22,8 +24,10 @@ namespace hyb {
 struct SlicesOptions {
   double stepVoxels = 0.5;              ///< slice spacing along the view direction, in smallest voxel spacings
   bool shading = true;                  ///< gradient (headlight) shading of the volume
-  const TriangleMesh* surface = nullptr;  ///< opaque isosurface triangles in world mm, or none
-  glm::vec3 surfaceColor{1.0f};
+  const TriangleMesh* surface = nullptr;  ///< isosurface triangles in world mm, or none
+  glm::vec4 surfaceColor{1.0f};           ///< straight RGBA; a < 1 is translucent (per crossing)
+  bool slabOrder = true;                  ///< false: draw each brick's surface after its slices (a
+                                          ///< deliberately wrong order, to show the tests catch it)
 };
 
 /// What a frame used.
@@ -32,6 +36,8 @@ struct SlicesStats {
   uint64_t texels = 0;
   uint64_t textureBytes = 0;
   uint64_t slices = 0;            ///< slice polygons drawn
+  uint64_t surfaceTriangles = 0;  ///< translucent triangles placed
+  uint64_t slabPolygonDraws = 0;  ///< translucent triangle instances drawn (one per slab covered)
 };
 
 /// Renders the bricks of @p selection. Requires a current GlContext.
