@@ -10,7 +10,6 @@
 
 #include "surface/dmc.h"
 #include "surface/dmc_table.h"
-#include "surface/triangulate.h"
 #include "volume/error.h"
 
 namespace hyb {
@@ -784,17 +783,7 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
 }
 
 TriangleMesh fineMeshToTriangles(const DiscreteMesh& mesh, const glm::dvec3& spacing) {
-  TriangleMesh out;
-  out.vertices.reserve(mesh.vertices.size());
-  for (const glm::ivec3& p : mesh.vertices) out.vertices.push_back(glm::vec3(glm::dvec3(p) / double(2 * kFine) * spacing));
-  std::vector<std::array<uint32_t, 3>> tris;
-  for (size_t f = 0; f < mesh.faceCount(); ++f) {
-    tris.clear();
-    const bool ok = triangulatePolygon(mesh.vertices, &mesh.indices[mesh.offsets[f]], mesh.faceSize(f), mesh.planes[f].normal(), &tris);
-    HYB_CHECK(ok);
-    for (const auto& t : tris) out.triangles.push_back({t[0], t[1], t[2]});
-  }
-  return out;
+  return toTriangleMesh(mesh, spacing, 2.0 * kFine);
 }
 
 }  // namespace hyb

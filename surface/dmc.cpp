@@ -181,10 +181,10 @@ TriangleMesh extractMarchingCubes(const Volume& volume, float iso, std::span<con
   return mesh;
 }
 
-TriangleMesh toTriangleMesh(const DiscreteMesh& mesh, const glm::dvec3& spacing) {
+TriangleMesh toTriangleMesh(const DiscreteMesh& mesh, const glm::dvec3& spacing, double unitsPerVoxel) {
   TriangleMesh out;
   out.vertices.reserve(mesh.vertices.size());
-  for (const glm::ivec3& p : mesh.vertices) out.vertices.push_back(glm::vec3(glm::dvec3(p) * 0.5 * spacing));
+  for (const glm::ivec3& p : mesh.vertices) out.vertices.push_back(glm::vec3(glm::dvec3(p) / unitsPerVoxel * spacing));
   std::vector<std::array<uint32_t, 3>> tris;
   for (size_t f = 0; f < mesh.faceCount(); ++f) {
     tris.clear();

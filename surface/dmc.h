@@ -34,9 +34,9 @@ void forEachSurfaceCell(const Volume& volume, float iso, std::span<const VoxelBl
 /// each loop fan-triangulated.
 TriangleMesh extractMarchingCubes(const Volume& volume, float iso, std::span<const VoxelBlock> blocks = {});
 
-/// Triangulates @p mesh (fans: its faces must be convex or table polygons) and maps doubled voxel
-/// coordinates to world millimetres with @p spacing.
-TriangleMesh toTriangleMesh(const DiscreteMesh& mesh, const glm::dvec3& spacing);
+/// Triangulates @p mesh (exact ear clipping) and maps its integer vertices to world millimetres:
+/// voxel coordinates are vertices / @p unitsPerVoxel (2 for DiscMC's doubled grid), times @p spacing.
+TriangleMesh toTriangleMesh(const DiscreteMesh& mesh, const glm::dvec3& spacing, double unitsPerVoxel = 2.0);
 
 /// Scales a voxel-coordinate triangle mesh to world millimetres.
 void scaleToMillimetres(TriangleMesh* mesh, const glm::dvec3& spacing);

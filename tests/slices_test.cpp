@@ -19,6 +19,18 @@ GlContext& gl() {
 
 double psnrOf(const Image& a, const Image& b) { return psnr(toRgba8(a, glm::vec3(0)), toRgba8(b, glm::vec3(0))); }
 
+// An 8x8 orthographic view straight down -z onto a 4 mm window around @p centre.
+Camera straightOn(const glm::dvec3& centre) {
+  Camera cam;
+  cam.center = centre;
+  cam.eye = centre + glm::dvec3(0, 0, 60);
+  cam.up = glm::dvec3(0, 1, 0);
+  cam.ortho = true;
+  cam.orthoHeight = 4.0;
+  cam.width = cam.height = 8;
+  return cam;
+}
+
 TEST(Slices, ContextIsOpenGl45Core) { EXPECT_NE(gl().description().find("4.5"), std::string::npos) << gl().description(); }
 
 TEST(Slices, MatchesTheReferenceOnASphereInBothProjections) {
@@ -42,13 +54,7 @@ TEST(Slices, OpacityDoesNotDependOnTheSliceSpacing) {
   const VolumeOctree t = VolumeOctree::build(v);
   const TransferFunction tf({{0.0f, {0.8f, 0.5f, 0.2f}, 0.07f}, {2.0f, {0.8f, 0.5f, 0.2f}, 0.07f}}, "block");
   const Selection sel = selectNodes(t, SelectionParams{});
-  Camera cam;
-  cam.center = glm::dvec3(8.0);
-  cam.eye = cam.center + glm::dvec3(0, 0, 60);
-  cam.up = glm::dvec3(0, 1, 0);
-  cam.ortho = true;
-  cam.orthoHeight = 4.0;
-  cam.width = cam.height = 8;
+  const Camera cam = straightOn(glm::dvec3(8.0));
   std::vector<glm::vec4> centres;
   for (double step : {0.25, 0.5, 1.0}) {
     SlicesOptions o;
@@ -73,13 +79,7 @@ TEST(Slices, OpaqueSurfaceHidesTheVolumeBehindIt) {
   TriangleMesh quad;
   quad.vertices = {{-1, -1, 5}, {11, -1, 5}, {11, 11, 5}, {-1, 11, 5}};
   quad.triangles = {{0, 1, 2}, {0, 2, 3}};
-  Camera cam;
-  cam.center = glm::dvec3(5.0);
-  cam.eye = cam.center + glm::dvec3(0, 0, 60);
-  cam.up = glm::dvec3(0, 1, 0);
-  cam.ortho = true;
-  cam.orthoHeight = 4.0;
-  cam.width = cam.height = 8;
+  const Camera cam = straightOn(glm::dvec3(5.0));
   SlicesOptions o;
   o.shading = false;
   o.surface = &quad;

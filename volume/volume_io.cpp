@@ -92,6 +92,23 @@ void checkByteCount(const std::string& file, uint64_t expected, uint64_t actual,
             actual);
 }
 
+// Skips @p skip header bytes of raw data (-1: the samples are the file's last bytes), then checks
+// that exactly @p expected bytes remain. @p field names the header field in messages.
+void skipToSamples(const uint8_t** data, size_t* size, long long skip, uint64_t expected, const std::string& file,
+                   const char* field, const glm::ivec3& dims, ScalarType t) {
+  if (skip == -1) {
+    if (*size < expected) checkByteCount(file, expected, *size, dims, t);
+    *data += *size - expected;
+    *size = size_t(expected);
+  } else if (skip < 0 || uint64_t(skip) > *size) {
+    HYB_THROW(IoError, file, ": ", field, " ", skip, " invalid for a ", *size, "-byte file");
+  } else {
+    *data += skip;
+    *size -= size_t(skip);
+  }
+  checkByteCount(file, expected, *size, dims, t);
+}
+
 // Inflates a gzip or zlib stream (auto-detected) of unknown length.
 std::vector<uint8_t> inflateAll(const uint8_t* data, size_t size, uint64_t sizeHint, const std::string& file) {
   z_stream z{};
@@ -148,6 +165,18 @@ std::vector<float> parseAsciiSamples(const char* begin, const char* end, size_t 
   if (out.size() != count)
     HYB_THROW(IoError, file, ": ASCII data holds ", out.size(), " samples, expected ", count);
   return out;
+}
+
+// Three sample counts from header field @p field, each in 1..kMaxDim, with a product in range.
+glm::ivec3 parseDims(const std::string& text, const char* field, const std::string& path) {
+  long long sizes[3];
+  if (!parseNumbers(text, 3, sizes))
+    HYB_THROW(IoError, path, ": ", field, " '", text, "' malformed (expected three integers)");
+  for (long long s : sizes)
+    if (s <= 0 || s > kMaxDim) HYB_THROW(IoError, path, ": ", field, " '", text, "' invalid (expected 1..", kMaxDim, " per axis)");
+  const glm::ivec3 dims{int(sizes[0]), int(sizes[1]), int(sizes[2])};
+  validateDims(dims, path);
+  return dims;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -238,14 +267,7 @@ Volume readNrrd(const std::string& path) {
   int dimension = 0;
   if (!parseNumbers(required("dimension"), 1, &dimension) || dimension != 3)
     HYB_THROW(IoError, path, ": dimension '", required("dimension"), "' unsupported (expected 3)");
-  long long sizes[3];
-  if (!parseNumbers(required("sizes"), 3, sizes))
-    HYB_THROW(IoError, path, ": sizes '", required("sizes"), "' malformed (expected three integers)");
-  for (long long s : sizes)
-    if (s <= 0 || s > kMaxDim)
-      HYB_THROW(IoError, path, ": sizes '", required("sizes"), "' invalid (expected 1..", kMaxDim, " per axis)");
-  const glm::ivec3 dims{int(sizes[0]), int(sizes[1]), int(sizes[2])};
-  validateDims(dims, path);
+  const glm::ivec3 dims = parseDims(required("sizes"), "sizes", path);
 
   glm::dvec3 spacing(1.0);
   if (const std::string* s = field("spacings")) {
@@ -303,17 +325,7 @@ Volume readNrrd(const std::string& path) {
   const size_t count = size_t(dims.x) * dims.y * dims.z;
   std::vector<float> samples;
   if (encoding == "raw") {
-    if (byteSkip == -1) {  // data are the last bytes of the file
-      if (dataSize < expected) checkByteCount(dataName, expected, dataSize, dims, type);
-      data += dataSize - expected;
-      dataSize = expected;
-    } else if (byteSkip < 0 || uint64_t(byteSkip) > dataSize) {
-      HYB_THROW(IoError, dataName, ": byte skip ", byteSkip, " invalid for a ", dataSize, "-byte file");
-    } else {
-      data += byteSkip;
-      dataSize -= size_t(byteSkip);
-    }
-    checkByteCount(dataName, expected, dataSize, dims, type);
+    skipToSamples(&data, &dataSize, byteSkip, expected, dataName, "byte skip", dims, type);
     samples = decodeSamples(data, count, type, endian == "big");
   } else if (encoding == "gzip" || encoding == "gz") {
     std::vector<uint8_t> raw = inflateAll(data, dataSize, expected, dataName);
@@ -364,14 +376,7 @@ Volume readMetaImage(const std::string& path) {
   int ndims = 0;
   if (!parseNumbers(required("NDims"), 1, &ndims) || ndims != 3)
     HYB_THROW(IoError, path, ": NDims '", required("NDims"), "' unsupported (expected 3)");
-  long long sizes[3];
-  if (!parseNumbers(required("DimSize"), 3, sizes))
-    HYB_THROW(IoError, path, ": DimSize '", required("DimSize"), "' malformed (expected three integers)");
-  for (long long s : sizes)
-    if (s <= 0 || s > kMaxDim)
-      HYB_THROW(IoError, path, ": DimSize '", required("DimSize"), "' invalid (expected 1..", kMaxDim, " per axis)");
-  const glm::ivec3 dims{int(sizes[0]), int(sizes[1]), int(sizes[2])};
-  validateDims(dims, path);
+  const glm::ivec3 dims = parseDims(required("DimSize"), "DimSize", path);
   if (fields.count("ElementNumberOfChannels") && trim(fields["ElementNumberOfChannels"]) != "1")
     HYB_THROW(IoError, path, ": ElementNumberOfChannels ", fields["ElementNumberOfChannels"], " unsupported (expected 1)");
 
@@ -426,17 +431,7 @@ Volume readMetaImage(const std::string& path) {
     checkByteCount(dataName + " (decompressed)", expected, raw.size(), dims, type);
     return Volume(dims, spacing, type, decodeSamples(raw.data(), count, type, bigEndian), path);
   }
-  if (headerSize == -1) {
-    if (dataSize < expected) checkByteCount(dataName, expected, dataSize, dims, type);
-    data += dataSize - expected;
-    dataSize = expected;
-  } else if (headerSize < 0 || uint64_t(headerSize) > dataSize) {
-    HYB_THROW(IoError, dataName, ": HeaderSize ", headerSize, " invalid for a ", dataSize, "-byte file");
-  } else {
-    data += headerSize;
-    dataSize -= size_t(headerSize);
-  }
-  checkByteCount(dataName, expected, dataSize, dims, type);
+  skipToSamples(&data, &dataSize, headerSize, expected, dataName, "HeaderSize", dims, type);
   return Volume(dims, spacing, type, decodeSamples(data, count, type, bigEndian), path);
 }
 
