@@ -24,7 +24,10 @@ namespace hyb {
 struct SlicesOptions {
   double stepVoxels = 0.5;              ///< slice spacing along the view direction, in smallest voxel spacings
   bool shading = true;                  ///< gradient (headlight) shading of the volume
-  const TriangleMesh* surface = nullptr;  ///< isosurface triangles in world mm, or none
+  /// Isosurface triangles in world mm, or none. Translucent triangles are placed in the brick that
+  /// holds their centroid, so each must lie inside one brick (Surface Octree polygons lie inside one
+  /// volume leaf, hence one brick).
+  const TriangleMesh* surface = nullptr;
   glm::vec4 surfaceColor{1.0f};           ///< straight RGBA; a < 1 is translucent (per crossing)
   bool slabOrder = true;                  ///< false: draw each brick's surface after its slices (a
                                           ///< deliberately wrong order, to show the tests catch it)
