@@ -181,7 +181,8 @@ struct RenderOptions {
   std::string output, stats, focus, renderer = "slices", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
   std::string eye, center, up = "0,0,1", orbit = "180,10", size = "512x512", background = "0,0,0", shading = "on";
   std::optional<double> iso;
-  double epsilon = 0.0, budgetMb = 0.0, fov = 30.0, step = 0.25;
+  double epsilon = 0.0, budgetMb = 0.0, fov = 30.0;
+  std::optional<double> step;  // default: 0.5 voxel for slices, 0.25 for the reference
   bool ortho = false;
   int maxBrick = 64;
   std::string validate() const {
@@ -190,7 +191,7 @@ struct RenderOptions {
     if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
     if (renderer != "raycast" && renderer != "slices") return "--renderer '" + renderer + "' invalid (expected slices or raycast)";
     if (!(fov > 0 && fov < 179)) return "--fov must be in (0, 179) degrees";
-    if (!(step > 0.01 && step <= 4)) return "--step must be in (0.01, 4] voxels";
+    if (step && !(*step > 0.01 && *step <= 4)) return "--step must be in (0.01, 4] voxels";
     if (shading != "on" && shading != "off") return "--shading must be on or off";
     if (!tfFile.empty() && !preset.empty()) return "--tf and --preset are exclusive";
     return "";
@@ -302,7 +303,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   if (renderer == "slices") {
     const GlContext gl;
     SlicesOptions opt;
-    opt.stepVoxels = o.step;
+    opt.stepVoxels = o.step.value_or(0.5);
     opt.shading = o.shading == "on";
     opt.surface = so ? &mesh : nullptr;
     opt.surfaceColor = surfaceColor;
@@ -310,7 +311,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   } else {
     const Bvh bvh(mesh);
     RaycastOptions ro;
-    ro.stepVoxels = o.step;
+    ro.stepVoxels = o.step.value_or(0.25);
     ro.shading = o.shading == "on";
     ro.surface = so ? &bvh : nullptr;
     ro.surfaceColor = surfaceColor;
@@ -455,7 +456,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   renderCmd->add_option("--background", render.background, "background r,g,b in [0,1]")->capture_default_str();
   renderCmd->add_option("--shading", render.shading, "gradient shading of the volume: on|off")->capture_default_str();
   renderCmd->add_option("--renderer", render.renderer, "slices|raycast")->capture_default_str();
-  renderCmd->add_option("--step", render.step, "ray tracer sample spacing in voxels")->capture_default_str();
+  renderCmd->add_option("--step", render.step, "slice / sample spacing in voxels (default 0.5 for slices, 0.25 for raycast)");
   renderCmd->add_option("--max-brick", render.maxBrick, "largest brick edge in texels (power of two)")->capture_default_str();
   renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
 
