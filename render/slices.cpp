@@ -10,6 +10,7 @@
 #include <glm/gtc/type_ptr.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 
 #include "render/shaders.h"
@@ -284,6 +285,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     }
   }
 
+  GLuint query;
+  glGenQueries(1, &query);
+  glBeginQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB, query);
   std::vector<float> poly;
   GLuint tex;
   glGenTextures(1, &tex);
@@ -383,6 +387,11 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     glDrawArrays(GL_TRIANGLES, 0, GLsizei(poly.size() / 9));
   }
   st.textureBytes = st.texels * sizeof(float);
+  glEndQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB);
+  GLuint fragments = 0;  // libOSMesa exports only the 32-bit getter; frames stay below 2^32 fragments
+  glGetQueryObjectuiv(query, GL_QUERY_RESULT, &fragments);
+  glDeleteQueries(1, &query);
+  st.fragments = fragments;
 
   Image image(W, H);
   std::vector<float> rgba(size_t(W) * H * 4);
@@ -405,6 +414,74 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   if (err != GL_NO_ERROR) HYB_THROW(RuntimeError, "OpenGL error 0x", std::hex, err, " while rendering slices");
   if (stats) *stats = st;
   return image;
+}
+
+double plainQuadSeconds(const Volume& volume, int width, int height, int quads, uint64_t* fragments) {
+  static constexpr const char* kVertex = R"(#version 450 core
+layout(location = 0) in vec2 position;
+uniform float layer;
+out vec3 uvw;
+void main() { uvw = vec3(position * 0.5 + 0.5, layer); gl_Position = vec4(position, 0.0, 1.0); }
+)";
+  static constexpr const char* kFragment = R"(#version 450 core
+in vec3 uvw;
+out vec4 fragColor;
+uniform sampler3D tex;
+void main() { float v = texture(tex, uvw).r; fragColor = vec4(v, v, v, 1.0) * 0.001; }
+)";
+  GLuint fbo, color;
+  glGenFramebuffers(1, &fbo);
+  glBindFramebuffer(GL_FRAMEBUFFER, fbo);
+  glGenTextures(1, &color);
+  glBindTexture(GL_TEXTURE_2D, color);
+  glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA32F, width, height, 0, GL_RGBA, GL_FLOAT, nullptr);
+  glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, color, 0);
+  glViewport(0, 0, width, height);
+  glDisable(GL_DEPTH_TEST);
+  glEnable(GL_BLEND);
+  glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+  GLuint tex;
+  glGenTextures(1, &tex);
+  glActiveTexture(GL_TEXTURE0);
+  glBindTexture(GL_TEXTURE_3D, tex);
+  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  const glm::ivec3 d = volume.dims();
+  glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, d.x, d.y, d.z, 0, GL_RED, GL_FLOAT, volume.samples().data());
+  Program program(kVertex, kFragment);
+  glUseProgram(program.id);
+  const float quad[] = {-1, -1, 1, -1, 1, 1, -1, -1, 1, 1, -1, 1};
+  GLuint vao, vbo;
+  glGenVertexArrays(1, &vao);
+  glBindVertexArray(vao);
+  glGenBuffers(1, &vbo);
+  glBindBuffer(GL_ARRAY_BUFFER, vbo);
+  glBufferData(GL_ARRAY_BUFFER, sizeof quad, quad, GL_STATIC_DRAW);
+  glEnableVertexAttribArray(0);
+  glVertexAttribPointer(0, 2, GL_FLOAT, GL_FALSE, 0, nullptr);
+  float pixel[4];
+  glReadPixels(0, 0, 1, 1, GL_RGBA, GL_FLOAT, pixel);  // the upload is done before timing
+  GLuint query;
+  glGenQueries(1, &query);
+  const auto t0 = std::chrono::steady_clock::now();
+  glBeginQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB, query);
+  for (int q = 0; q < quads; ++q) {
+    glUniform1f(program.at("layer"), (float(q) + 0.5f) / float(quads));
+    glDrawArrays(GL_TRIANGLES, 0, 6);
+  }
+  glEndQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB);
+  glReadPixels(0, 0, 1, 1, GL_RGBA, GL_FLOAT, pixel);  // waits for the quads
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  GLuint count = 0;
+  glGetQueryObjectuiv(query, GL_QUERY_RESULT, &count);
+  *fragments = count;
+  glDeleteQueries(1, &query);
+  glDeleteBuffers(1, &vbo);
+  glDeleteVertexArrays(1, &vao);
+  glDeleteTextures(1, &tex);
+  glDeleteTextures(1, &color);
+  glDeleteFramebuffers(1, &fbo);
+  return seconds;
 }
 
 }  // namespace hyb

@@ -41,7 +41,13 @@ struct SlicesStats {
   uint64_t slices = 0;            ///< slice polygons drawn
   uint64_t surfaceTriangles = 0;  ///< translucent triangles placed
   uint64_t slabPolygonDraws = 0;  ///< translucent triangle instances drawn (one per slab covered)
+  uint64_t fragments = 0;         ///< fragment shader invocations of the slices and slab polygons
 };
+
+/// Throughput baseline: seconds llvmpipe takes to blend @p quads full-screen quads that sample a
+/// float 3D texture of @p volume into a float framebuffer of @p width x @p height, and the
+/// fragments it shaded. Requires a current GlContext.
+double plainQuadSeconds(const Volume& volume, int width, int height, int quads, uint64_t* fragments);
 
 /// Renders the bricks of @p selection. Requires a current GlContext.
 /// @throw RuntimeError when OpenGL fails (shader compilation, framebuffer).
