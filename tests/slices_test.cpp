@@ -140,6 +140,48 @@ TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
   }
 }
 
+TEST(Slices, Extremes) {
+  gl();
+  const Volume v = test::makeVolume({9, 9, 9}, [](int, int, int) { return 1.0f; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const Selection sel = selectNodes(t, SelectionParams{});
+  auto tfOf = [](float a) { return TransferFunction({{0.0f, {0.8f, 0.5f, 0.2f}, a}, {2.0f, {0.8f, 0.5f, 0.2f}, a}}, "c"); };
+  SlicesOptions o;
+  o.shading = false;
+  // Fully transparent: the background; fully opaque: the material's colour.
+  EXPECT_EQ(renderSlices(v, t, sel, tfOf(0.0f), straightOn(glm::dvec3(4.0)), o).at(4, 4), glm::vec4(0.0f));
+  const glm::vec4 opaque = renderSlices(v, t, sel, tfOf(1.0f), straightOn(glm::dvec3(4.0)), o).at(4, 4);
+  EXPECT_NEAR(opaque.a, 1.0f, 1e-5f);
+  EXPECT_NEAR(opaque.r, 0.8f, 1e-5f);
+  // Camera inside the volume, looking down -z from z = 4: the 4 mm in front count, less at most one
+  // slice spacing (0.5 mm) next to the eye, whose slice lies on the near plane.
+  Camera inside;
+  inside.eye = glm::dvec3(4, 4, 4);
+  inside.center = glm::dvec3(4, 4, 0);
+  inside.up = glm::dvec3(0, 1, 0);
+  inside.width = inside.height = 3;
+  const float in = renderSlices(v, t, sel, tfOf(0.1f), inside, o).at(1, 1).a;
+  EXPECT_GE(in, 1.0f - std::pow(0.9f, 3.5f) - 1e-4f);
+  EXPECT_LE(in, 1.0f - std::pow(0.9f, 4.0f) + 1e-4f);
+  // One voxel and a single slice: no volume to slice, no crash, an empty image.
+  for (const glm::ivec3 dims : {glm::ivec3(1, 1, 1), glm::ivec3(16, 16, 1)}) {
+    const Volume thin = test::makeVolume(dims, [](int, int, int) { return 1.0f; });
+    const VolumeOctree tt = VolumeOctree::build(thin);
+    const Image img = renderSlices(thin, tt, selectNodes(tt, SelectionParams{}), tfOf(0.5f), straightOn(glm::dvec3(0.5)), o);
+    for (const glm::vec4& p : img.pixels) EXPECT_EQ(p, glm::vec4(0.0f));
+  }
+  // A 1x1 image and a 4096x4096 image.
+  Camera tiny = straightOn(glm::dvec3(4.0));
+  tiny.width = tiny.height = 1;
+  EXPECT_NEAR(renderSlices(v, t, sel, tfOf(0.1f), tiny, o).at(0, 0).a, 1.0f - std::pow(0.9f, 8.0f), 2.0f / 255.0f);
+  Camera big = straightOn(glm::dvec3(4.0));
+  big.width = big.height = 4096;
+  big.orthoHeight = 40.0;
+  const Image huge = renderSlices(v, t, sel, tfOf(0.1f), big, o);
+  EXPECT_NEAR(huge.at(2048, 2048).a, 1.0f - std::pow(0.9f, 8.0f), 2.0f / 255.0f);
+  EXPECT_EQ(huge.at(0, 0), glm::vec4(0.0f));
+}
+
 TEST(SlicesCranium, MatchesTheReferenceAtFullResolution) {
   gl();
   const Volume v = readVolume(kDefaultVolumePath);
