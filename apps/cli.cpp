@@ -252,9 +252,10 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
   if (!sel.budgetMet) err << "hybrid-octree: warning: --budget " << o.budgetMb << " MB cannot be met; using " << sel.texels << " texels\n";
 
-  // Transfer function: file, preset, or a CT default for Hounsfield data.
-  const TransferFunction tf = !o.tfFile.empty() ? TransferFunction::fromFile(o.tfFile)
-                              : TransferFunction::preset(o.preset.empty() ? "ct-skin-bone" : o.preset);
+  // Transfer function: file, preset, or a default chosen from the data's range.
+  const TransferFunction tf = !o.tfFile.empty()     ? TransferFunction::fromFile(o.tfFile)
+                              : !o.preset.empty() ? TransferFunction::preset(o.preset)
+                                                  : TransferFunction::defaultFor(v.minValue(), v.maxValue());
   const glm::ivec2 size = parseSize(o.size);
   Camera camera;
   if (!o.eye.empty()) {
@@ -442,7 +443,8 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   renderCmd->add_option("--iso", render.iso, "isovalue of the embedded surface (data units; none = volume only)");
   renderCmd->add_option("--surface-color", render.surfaceColor, "surface r,g,b,a in [0,1]; a < 1 is translucent")->capture_default_str();
   renderCmd->add_option("--tf", render.tfFile, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm");
-  renderCmd->add_option("--preset", render.preset, "ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone (default)");
+  renderCmd->add_option("--preset", render.preset,
+                        "ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone (default for CT; other data: a ramp)");
   renderCmd->add_option("--epsilon", render.epsilon, "user error epsilon_u in data units (0 = exact)")->capture_default_str();
   renderCmd->add_option("--budget", render.budgetMb, "texture memory budget in MB (0 = unlimited)");
   renderCmd->add_option("--focus", render.focus, "region of interest x,y,z in world mm");

@@ -65,6 +65,12 @@ TransferFunction TransferFunction::preset(const std::string& name) {
   return TransferFunction(std::move(p), name);
 }
 
+TransferFunction TransferFunction::defaultFor(float minValue, float maxValue) {
+  if (minValue <= -900.0f && maxValue >= 200.0f) return preset("ct-skin-bone");
+  const float lo = minValue + 0.4f * (maxValue - minValue), hi = std::max(maxValue, lo + 1e-3f);
+  return TransferFunction({{lo, {0.9f, 0.6f, 0.3f}, 0.0f}, {hi, {1.0f, 0.95f, 0.85f}, 0.1f}}, "default ramp");
+}
+
 glm::vec4 TransferFunction::lookup(float v) const {
   if (v <= mPoints.front().value) return glm::vec4(mPoints.front().color, mPoints.front().alpha);
   if (v >= mPoints.back().value) return glm::vec4(mPoints.back().color, mPoints.back().alpha);

@@ -29,6 +29,9 @@ class TransferFunction {
   /// @throw ValueError listing the presets when @p name is unknown.
   static TransferFunction preset(const std::string& name);
   static std::vector<std::string> presetNames();
+  /// A default for data whose units are unknown: CT (air near -1000 HU) gets ct-skin-bone; other
+  /// data a warm ramp from the 40th to the 100th percentile of [min, max] with opacity up to 0.1/mm.
+  static TransferFunction defaultFor(float minValue, float maxValue);
 
   /// Colour and opacity per mm at @p v (clamped to the end points).
   glm::vec4 lookup(float v) const;

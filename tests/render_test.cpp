@@ -170,6 +170,12 @@ TEST(TransferFunction, LookupFilesPresetsAndSegments) {
   EXPECT_EQ(TransferFunction::segmentAlpha(1.0f, 0.01f), 1.0f);
   EXPECT_EQ(TransferFunction::segmentAlpha(0.0f, 100.0f), 0.0f);
   for (const std::string& name : TransferFunction::presetNames()) EXPECT_NO_THROW(TransferFunction::preset(name));
+  // Defaults: CT ranges get the CT preset; other data a ramp over their own range.
+  EXPECT_EQ(TransferFunction::defaultFor(-1024, 3000).points().size(), TransferFunction::preset("ct-skin-bone").points().size());
+  const TransferFunction ramp = TransferFunction::defaultFor(0, 255);
+  EXPECT_EQ(ramp.lookup(50).a, 0.0f);
+  EXPECT_FLOAT_EQ(ramp.lookup(255).a, 0.1f);
+  EXPECT_GT(ramp.maxAlpha(0, 255), 0.0f);
   EXPECT_THROW(TransferFunction::preset("ct-lungs"), ValueError);
   test::TempDir dir;
   test::writeText(dir.file("ok.tf"), "# bone\n100 1 1 1 0\n\n400 1 0.9 0.8 0.3 # ramp\n");
