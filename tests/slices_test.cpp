@@ -140,6 +140,32 @@ TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
   }
 }
 
+TEST(Slices, QuadSeenEdgeOnLeavesThePureSlab) {
+  gl();
+  // Viewing along x, the quad z = 3.3 is edge-on (perpendicular to every slice): the centre ray at
+  // z = 5 meets only the 20 mm of material along x.
+  const Volume v = test::makeVolume({21, 21, 11}, [](int, int, int) { return 1.0f; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf({{0.0f, {0.8f, 0.5f, 0.2f}, 0.05f}, {2.0f, {0.8f, 0.5f, 0.2f}, 0.05f}}, "slab");
+  TriangleMesh quad;
+  quad.vertices = {{-5, -5, 3.3f}, {25, -5, 3.3f}, {25, 25, 3.3f}, {-5, 25, 3.3f}};
+  quad.triangles = {{0, 1, 2}, {0, 2, 3}};
+  Camera cam;
+  cam.center = glm::dvec3(10, 10, 5);
+  cam.eye = cam.center + glm::dvec3(80, 0, 0);
+  cam.up = glm::dvec3(0, 0, 1);
+  cam.ortho = true;
+  cam.orthoHeight = 1.0;
+  cam.width = cam.height = 8;
+  SlicesOptions o;
+  o.shading = false;
+  o.surface = &quad;
+  o.surfaceColor = glm::vec4(0.1f, 0.9f, 0.3f, 0.6f);
+  const glm::vec4 p = renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, o).at(4, 4);
+  EXPECT_NEAR(p.a, 1.0f - std::pow(0.95f, 20.0f), 2.0f / 255.0f);
+  EXPECT_NEAR(p.g, 0.5f * p.a, 2.0f / 255.0f);  // no green from the quad
+}
+
 TEST(Slices, Extremes) {
   gl();
   const Volume v = test::makeVolume({9, 9, 9}, [](int, int, int) { return 1.0f; });
