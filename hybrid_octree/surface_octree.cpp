@@ -291,17 +291,17 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
   so.mMergeEdge = options.maxEdge > 0 ? options.maxEdge : octree.leafEdge();
   const auto& codes = leafCodes();
   // Leaves: one entry per DiscMC cell, code translated to the cell.
-  std::vector<Entry> level;
-  forEachSurfaceCell(volume, iso, isoBlocks(octree, iso), [&](int i, int j, int k, unsigned mask, bool alternative) {
-    Entry e;
-    e.node = codes[mask][alternative ? 1 : 0];
-    e.node.origin = glm::u16vec3(i, j, k);
+  const std::vector<SurfaceCell> cells = surfaceCells(volume, iso, isoBlocks(octree, iso));
+  std::vector<Entry> level(cells.size());
+  for (size_t c = 0; c < cells.size(); ++c) {
+    Entry& e = level[c];
+    e.node = codes[cells[c].mask][cells[c].alternative ? 1 : 0];
+    e.node.origin = cells[c].cell;
     e.node.edge = 1;
-    const glm::ivec3 shift = 2 * glm::ivec3(i, j, k);
+    const glm::ivec3 shift = 2 * glm::ivec3(cells[c].cell);
     for (int p = 0; p < e.node.planeCount; ++p)
       e.node.planes[size_t(p)].d += idot(orientationNormal(e.node.planes[size_t(p)].orientation), shift);
-    level.push_back(e);
-  });
+  }
   so.mCellCount = level.size();
   {  // Morton order: siblings are contiguous at every level and parents come out in order.
     std::vector<std::pair<uint64_t, uint32_t>> order(level.size());
@@ -356,6 +356,12 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
         parent.node.planeCount = uint8_t(nu);
         std::copy(u.begin(), u.begin() + ptrdiff_t(nu), parent.node.planes.begin());
         parent.node.occurs = r.occurs;
+        // A uniform (absent) child is wholly inside or outside; every octant touches the parent's
+        // centre sample, so one read classifies them all (octant origins where the centre lies
+        // outside the grid).
+        const glm::ivec3 centre = origin + edge;
+        const bool centreInGrid = glm::all(glm::lessThan(centre, volume.dims()));
+        const bool centreInside = centreInGrid && volume.at(centre.x, centre.y, centre.z) >= iso;
         // Children by octant (slot bits x | y<<1 | z<<2), nullptr for uniform octants.
         std::array<const Entry*, 8> children{};
         for (size_t i = b; i < e; ++i) {
@@ -376,6 +382,8 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
           const Entry* child = children[size_t(rel.x | rel.y << 1 | rel.z << 2)];
           if (child) {
             inside = nodeContains(child->node, p, m);
+          } else if (centreInGrid) {
+            inside = centreInside;
           } else {  // a uniform octant: the class of any of its samples
             const glm::ivec3 s = glm::min(childOrigin, volume.dims() - 1);
             inside = volume.at(s.x, s.y, s.z) >= iso;

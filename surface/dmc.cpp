@@ -2,8 +2,6 @@
 // Visualization '94, 281–287. Classic Marching Cubes: W. Lorensen, H. Cline, SIGGRAPH '87.
 #include "surface/dmc.h"
 
-#include <functional>
-
 #include "surface/dmc_table.h"
 #include "surface/triangulate.h"
 #include "volume/error.h"
@@ -118,11 +116,12 @@ void forEachActiveCell(const Volume& v, float iso, std::span<const VoxelBlock> b
 
 }  // namespace
 
-void forEachSurfaceCell(const Volume& volume, float iso, std::span<const VoxelBlock> blocks,
-                        const std::function<void(int, int, int, unsigned, bool)>& visit) {
+std::vector<SurfaceCell> surfaceCells(const Volume& volume, float iso, std::span<const VoxelBlock> blocks) {
+  std::vector<SurfaceCell> cells;
   forEachActiveCell(volume, iso, blocks, [&](int i, int j, int k, unsigned mask) {
-    visit(i, j, k, mask, usesAlternative(volume, iso, i, j, k, mask));
+    cells.push_back({glm::u16vec3(i, j, k), uint8_t(mask), usesAlternative(volume, iso, i, j, k, mask)});
   });
+  return cells;
 }
 
 DiscreteMesh extractDiscMC(const Volume& volume, float iso, std::span<const VoxelBlock> blocks, DmcFaces faces) {

@@ -4,8 +4,8 @@
 // A corner is inside the solid when its sample is ≥ the isovalue.
 #pragma once
 
-#include <functional>
 #include <span>
+#include <vector>
 
 #include "surface/mesh.h"
 #include "volume/volume.h"
@@ -24,11 +24,17 @@ enum class DmcFaces {
 DiscreteMesh extractDiscMC(const Volume& volume, float iso, std::span<const VoxelBlock> blocks = {},
                            DmcFaces faces = DmcFaces::CellPolygons);
 
-/// Calls @p visit(i, j, k, mask, alternative) for every cell of @p blocks (all cells when empty) the
-/// isosurface crosses: mask has bit c set for inside corner c; alternative says the cell uses its
-/// case's centre-diagonal variant (dmc::alternativeCaseTable) to avoid a fold shared with the cell below.
-void forEachSurfaceCell(const Volume& volume, float iso, std::span<const VoxelBlock> blocks,
-                        const std::function<void(int, int, int, unsigned, bool)>& visit);
+/// A cell the isosurface crosses: mask has bit c set for inside corner c; alternative says the cell
+/// uses its case's centre-diagonal variant (dmc::alternativeCaseTable) to avoid a fold shared with
+/// the cell below.
+struct SurfaceCell {
+  glm::u16vec3 cell;
+  uint8_t mask;
+  bool alternative;
+};
+
+/// The cells of @p blocks (all cells when empty) the isosurface crosses, block by block.
+std::vector<SurfaceCell> surfaceCells(const Volume& volume, float iso, std::span<const VoxelBlock> blocks = {});
 
 /// Classic Marching Cubes with vertices interpolated along the edges, in voxel coordinates,
 /// each loop fan-triangulated.
