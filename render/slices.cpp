@@ -53,6 +53,37 @@ struct Program {
   GLint at(const char* name) const { return glGetUniformLocation(id, name); }
 };
 
+// A float colour (premultiplied) and depth render target, bound while it lives.
+struct FloatTarget {
+  GLuint fbo = 0, color = 0, depth = 0;
+  FloatTarget(int w, int h) {
+    glGenFramebuffers(1, &fbo);
+    glBindFramebuffer(GL_FRAMEBUFFER, fbo);
+    glGenTextures(1, &color);
+    glBindTexture(GL_TEXTURE_2D, color);
+    glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA32F, w, h, 0, GL_RGBA, GL_FLOAT, nullptr);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, color, 0);
+    glGenRenderbuffers(1, &depth);
+    glBindRenderbuffer(GL_RENDERBUFFER, depth);
+    glRenderbufferStorage(GL_RENDERBUFFER, GL_DEPTH_COMPONENT24, w, h);
+    glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, depth);
+    if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
+      release();
+      HYB_THROW(RuntimeError, "OpenGL framebuffer incomplete for a ", w, "x", h, " float image");
+    }
+    glViewport(0, 0, w, h);
+  }
+  FloatTarget(const FloatTarget&) = delete;
+  FloatTarget& operator=(const FloatTarget&) = delete;
+  ~FloatTarget() { release(); }
+  void release() {
+    glDeleteRenderbuffers(1, &depth);
+    glDeleteTextures(1, &color);
+    glDeleteFramebuffers(1, &fbo);
+    depth = color = fbo = 0;
+  }
+};
+
 // The texels of brick @p n at level @p p: the sub-grid knots (position-clamped at the grid's far
 // side, DESIGN 3.3), with the overhanging last texel extrapolated so that uniform trilinear
 // filtering reproduces the node's approximation exactly.
@@ -131,20 +162,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   SlicesStats st;
 
   // Framebuffer: float colour (premultiplied), depth for opaque surfaces.
-  GLuint fbo, color, depth;
-  glGenFramebuffers(1, &fbo);
-  glBindFramebuffer(GL_FRAMEBUFFER, fbo);
-  glGenTextures(1, &color);
-  glBindTexture(GL_TEXTURE_2D, color);
-  glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA32F, W, H, 0, GL_RGBA, GL_FLOAT, nullptr);
-  glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, color, 0);
-  glGenRenderbuffers(1, &depth);
-  glBindRenderbuffer(GL_RENDERBUFFER, depth);
-  glRenderbufferStorage(GL_RENDERBUFFER, GL_DEPTH_COMPONENT24, W, H);
-  glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, depth);
-  if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
-    HYB_THROW(RuntimeError, "OpenGL framebuffer incomplete for a ", W, "x", H, " float image");
-  glViewport(0, 0, W, H);
+  const FloatTarget target(W, H);
   glDepthMask(GL_TRUE);  // a previous frame may have left depth writes off, which would skip the clear
   glDisable(GL_BLEND);
   glClearColor(0, 0, 0, 0);
@@ -408,9 +426,6 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glDeleteTextures(1, &tfTex);
   glDeleteBuffers(1, &vbo);
   glDeleteVertexArrays(1, &vao);
-  glDeleteRenderbuffers(1, &depth);
-  glDeleteTextures(1, &color);
-  glDeleteFramebuffers(1, &fbo);
   if (err != GL_NO_ERROR) HYB_THROW(RuntimeError, "OpenGL error 0x", std::hex, err, " while rendering slices");
   if (stats) *stats = st;
   return image;
@@ -429,14 +444,7 @@ out vec4 fragColor;
 uniform sampler3D tex;
 void main() { float v = texture(tex, uvw).r; fragColor = vec4(v, v, v, 1.0) * 0.001; }
 )";
-  GLuint fbo, color;
-  glGenFramebuffers(1, &fbo);
-  glBindFramebuffer(GL_FRAMEBUFFER, fbo);
-  glGenTextures(1, &color);
-  glBindTexture(GL_TEXTURE_2D, color);
-  glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA32F, width, height, 0, GL_RGBA, GL_FLOAT, nullptr);
-  glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, color, 0);
-  glViewport(0, 0, width, height);
+  const FloatTarget target(width, height);
   glDisable(GL_DEPTH_TEST);
   glEnable(GL_BLEND);
   glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
@@ -479,8 +487,6 @@ void main() { float v = texture(tex, uvw).r; fragColor = vec4(v, v, v, 1.0) * 0.
   glDeleteBuffers(1, &vbo);
   glDeleteVertexArrays(1, &vao);
   glDeleteTextures(1, &tex);
-  glDeleteTextures(1, &color);
-  glDeleteFramebuffers(1, &fbo);
   return seconds;
 }
 
