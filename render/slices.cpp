@@ -84,6 +84,19 @@ struct FloatTarget {
   }
 };
 
+// A 3D texture on unit 0 with trilinear filtering and clamped edges, for one R32F volume at a time.
+GLuint newVolumeTexture() {
+  GLuint tex;
+  glGenTextures(1, &tex);
+  glActiveTexture(GL_TEXTURE0);
+  glBindTexture(GL_TEXTURE_3D, tex);
+  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  for (GLenum w : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R}) glTexParameteri(GL_TEXTURE_3D, w, GL_CLAMP_TO_EDGE);
+  glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+  return tex;
+}
+
 // The texels of brick @p n at level @p p: the sub-grid knots (position-clamped at the grid's far
 // side, DESIGN 3.3), with the overhanging last texel extrapolated so that uniform trilinear
 // filtering reproduces the node's approximation exactly.
@@ -307,14 +320,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glGenQueries(1, &query);
   glBeginQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB, query);
   std::vector<float> poly;
-  GLuint tex;
-  glGenTextures(1, &tex);
-  glActiveTexture(GL_TEXTURE0);
-  glBindTexture(GL_TEXTURE_3D, tex);
-  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-  for (GLenum w : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R}) glTexParameteri(GL_TEXTURE_3D, w, GL_CLAMP_TO_EDGE);
-  glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+  const GLuint tex = newVolumeTexture();
   // A slab instance of a translucent triangle: which triangle, its slab, whether to clip, sort key.
   struct Instance {
     uint32_t triangle;
@@ -448,12 +454,7 @@ void main() { float v = texture(tex, uvw).r; fragColor = vec4(v, v, v, 1.0) * 0.
   glDisable(GL_DEPTH_TEST);
   glEnable(GL_BLEND);
   glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
-  GLuint tex;
-  glGenTextures(1, &tex);
-  glActiveTexture(GL_TEXTURE0);
-  glBindTexture(GL_TEXTURE_3D, tex);
-  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  const GLuint tex = newVolumeTexture();
   const glm::ivec3 d = volume.dims();
   glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, d.x, d.y, d.z, 0, GL_RED, GL_FLOAT, volume.samples().data());
   Program program(kVertex, kFragment);
