@@ -147,14 +147,16 @@ struct BuildOptions {
   }
 };
 
-std::string surfaceSummary(const SurfaceOctree& so, double ms) {
+// One line on a Surface Octree, with its build time when it was just built.
+std::string surfaceSummary(const SurfaceOctree& so, std::optional<double> buildMs) {
   std::ostringstream s;
   size_t planes = 0;
   for (const SurfaceNode& n : so.nodes()) planes += n.planeCount;
   s << "surface  iso " << so.isovalue() << ": " << so.cellCount() << " DiscMC cells merged into " << so.nodes().size()
-    << " terminal nodes (" << planes << " plane ids, " << so.bytesUsed() << " bytes), " << std::fixed << std::setprecision(1)
-    << ms << " ms\n";
-  return s.str();
+    << " terminal nodes (" << planes << " plane ids, " << so.bytesUsed() << " bytes)";
+  if (buildMs) s << ", " << std::fixed << std::setprecision(1) << *buildMs << " ms";
+  else s << " (from the scene)";
+  return s.str() + "\n";
 }
 
 int runBuild(const BuildOptions& o, std::ostream& out) {
@@ -388,11 +390,12 @@ int runExport(const ExportOptions& o, std::ostream& out) {
     mesh = toTriangleMesh(d, v.spacing());
   } else {
     const bool stored = scene.surface && scene.surface->isovalue() == iso;
+    const auto ts = Clock::now();
     const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, scene.octree, iso);
+    out << surfaceSummary(so, stored ? std::nullopt : std::optional<double>(msSince(ts)));
     const DiscreteMesh d = so.reconstruct(kMaxDim);  // one mesh: merge coplanar polygons across bricks too
     polygons = d.faceCount();
     mesh = fineMeshToTriangles(d, v.spacing());
-    out << surfaceSummary(so, 0.0).substr(0, surfaceSummary(so, 0.0).find(')') + 1) << (stored ? " (from the scene)" : "") << "\n";
   }
   const double ms = o.surface == "mc" ? mcMs : msSince(t0);
   out << std::fixed << std::setprecision(1) << "surface  " << o.surface << " at iso " << iso << ": " << polygons << " polygons, "
