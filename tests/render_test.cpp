@@ -4,16 +4,15 @@
 #include <cmath>
 
 #include "render/raycast.h"
+#include "render_util.h"
 #include "test_util.h"
 #include "volume/volume_io.h"
 
 namespace hyb {
 namespace {
 
-// One material everywhere: colour (0.8, 0.5, 0.2), opacity a per mm.
-TransferFunction constantTf(float a) {
-  return TransferFunction({{0.0f, {0.8f, 0.5f, 0.2f}, a}, {1.0f, {0.8f, 0.5f, 0.2f}, a}}, "constant");
-}
+using test::constantTf;
+using test::quadAt;
 
 // Orthographic camera looking along -dir from outside the box centre.
 Camera orthoAlong(const Volume& v, glm::dvec3 dir, int size = 8) {
@@ -25,14 +24,6 @@ Camera orthoAlong(const Volume& v, glm::dvec3 dir, int size = 8) {
   c.orthoHeight = 2.0;  // a small window around the centre ray
   c.width = c.height = size;
   return c;
-}
-
-// Two triangles forming the square z = zq over [x0,x1] x [y0,y1], mm.
-TriangleMesh quadAt(double zq, double x0, double x1, double y0, double y1) {
-  TriangleMesh m;
-  m.vertices = {{x0, y0, zq}, {x1, y0, zq}, {x1, y1, zq}, {x0, y1, zq}};
-  m.triangles = {{0, 1, 2}, {0, 2, 3}};
-  return m;
 }
 
 glm::vec4 centre(const Image& img) { return img.at(img.width / 2, img.height / 2); }
@@ -135,12 +126,7 @@ TEST(Raycast, Extremes) {
   EXPECT_NEAR(opaque.a, 1.0f, 1e-6f);
   EXPECT_NEAR(opaque.r, 0.8f, 1e-6f);
   // Camera inside the volume: only the material in front of the eye counts (4 mm to the face).
-  Camera inside;
-  inside.eye = glm::dvec3(4, 4, 4);
-  inside.center = glm::dvec3(4, 4, 0);
-  inside.up = glm::dvec3(0, 1, 0);
-  inside.width = inside.height = 3;
-  const glm::vec4 in = centre(raycast(v, t, constantTf(0.1f), inside, o));
+  const glm::vec4 in = centre(raycast(v, t, constantTf(0.1f), test::insideCamera(), o));
   EXPECT_NEAR(in.a, 1.0f - std::pow(0.9f, 4.0f), kTol);
   // One voxel, a single slice, a 1x1 and a 4096x4096 image: no crash, finite pixels.
   const Volume one = test::makeVolume({1, 1, 1}, [](int, int, int) { return 0.5f; });

@@ -5,6 +5,7 @@
 #include "render/raycast.h"
 #include "hybrid_octree/surface_octree.h"
 #include "render/slices.h"
+#include "render_util.h"
 #include "test_util.h"
 #include "volume/volume_io.h"
 
@@ -16,6 +17,9 @@ GlContext& gl() {
   static GlContext context;
   return context;
 }
+
+using test::constantTf;
+using test::quadAt;
 
 double psnrOf(const Image& a, const Image& b) { return psnr(toRgba8(a, glm::vec3(0)), toRgba8(b, glm::vec3(0))); }
 
@@ -52,7 +56,7 @@ TEST(Slices, OpacityDoesNotDependOnTheSliceSpacing) {
   // A homogeneous block viewed straight on: every slice spacing gives the same colour.
   const Volume v = test::makeVolume({17, 17, 17}, [](int, int, int) { return 1.0f; });
   const VolumeOctree t = VolumeOctree::build(v);
-  const TransferFunction tf({{0.0f, {0.8f, 0.5f, 0.2f}, 0.07f}, {2.0f, {0.8f, 0.5f, 0.2f}, 0.07f}}, "block");
+  const TransferFunction tf = constantTf(0.07f);
   const Selection sel = selectNodes(t, SelectionParams{});
   const Camera cam = straightOn(glm::dvec3(8.0));
   std::vector<glm::vec4> centres;
@@ -75,10 +79,8 @@ TEST(Slices, OpaqueSurfaceHidesTheVolumeBehindIt) {
   gl();
   const Volume v = test::makeVolume({11, 11, 11}, [](int, int, int) { return 1.0f; });
   const VolumeOctree t = VolumeOctree::build(v);
-  const TransferFunction tf({{0.0f, {0.8f, 0.5f, 0.2f}, 0.05f}, {2.0f, {0.8f, 0.5f, 0.2f}, 0.05f}}, "block");
-  TriangleMesh quad;
-  quad.vertices = {{-1, -1, 5}, {11, -1, 5}, {11, 11, 5}, {-1, 11, 5}};
-  quad.triangles = {{0, 1, 2}, {0, 2, 3}};
+  const TransferFunction tf = constantTf(0.05f);
+  const TriangleMesh quad = quadAt(5.0, -1, 11, -1, 11);
   const Camera cam = straightOn(glm::dvec3(5.0));
   SlicesOptions o;
   o.shading = false;
@@ -99,13 +101,11 @@ TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
   const VolumeOctree t = VolumeOctree::build(v);
   const float a = 0.08f;
   const glm::vec3 c(0.8f, 0.5f, 0.2f);
-  const TransferFunction tf({{0.0f, c, a}, {2.0f, c, a}}, "slab");
+  const TransferFunction tf = constantTf(a);
   const Selection sel = selectNodes(t, SelectionParams{});
   const glm::vec4 surface(0.1f, 0.9f, 0.3f, 0.6f);
   for (double zq : {3.3, 4.0, 9.9}) {
-    TriangleMesh quad;
-    quad.vertices = {{-5, -5, float(zq)}, {25, -5, float(zq)}, {25, 25, float(zq)}, {-5, 25, float(zq)}};
-    quad.triangles = {{0, 1, 2}, {0, 2, 3}};
+    const TriangleMesh quad = quadAt(zq, -5, 25, -5, 25);
     for (const glm::dvec3 dir : {glm::dvec3(0, 0, 1), glm::dvec3(0.3, 0.2, 1), glm::dvec3(1, 1, 1)}) {
       const glm::dvec3 u = glm::normalize(dir);
       Camera cam;
@@ -146,10 +146,8 @@ TEST(Slices, QuadSeenEdgeOnLeavesThePureSlab) {
   // z = 5 meets only the 20 mm of material along x.
   const Volume v = test::makeVolume({21, 21, 11}, [](int, int, int) { return 1.0f; });
   const VolumeOctree t = VolumeOctree::build(v);
-  const TransferFunction tf({{0.0f, {0.8f, 0.5f, 0.2f}, 0.05f}, {2.0f, {0.8f, 0.5f, 0.2f}, 0.05f}}, "slab");
-  TriangleMesh quad;
-  quad.vertices = {{-5, -5, 3.3f}, {25, -5, 3.3f}, {25, 25, 3.3f}, {-5, 25, 3.3f}};
-  quad.triangles = {{0, 1, 2}, {0, 2, 3}};
+  const TransferFunction tf = constantTf(0.05f);
+  const TriangleMesh quad = quadAt(3.3, -5, 25, -5, 25);
   Camera cam;
   cam.center = glm::dvec3(10, 10, 5);
   cam.eye = cam.center + glm::dvec3(80, 0, 0);
@@ -171,39 +169,33 @@ TEST(Slices, Extremes) {
   const Volume v = test::makeVolume({9, 9, 9}, [](int, int, int) { return 1.0f; });
   const VolumeOctree t = VolumeOctree::build(v);
   const Selection sel = selectNodes(t, SelectionParams{});
-  auto tfOf = [](float a) { return TransferFunction({{0.0f, {0.8f, 0.5f, 0.2f}, a}, {2.0f, {0.8f, 0.5f, 0.2f}, a}}, "c"); };
   SlicesOptions o;
   o.shading = false;
   // Fully transparent: the background; fully opaque: the material's colour.
-  EXPECT_EQ(renderSlices(v, t, sel, tfOf(0.0f), straightOn(glm::dvec3(4.0)), o).at(4, 4), glm::vec4(0.0f));
-  const glm::vec4 opaque = renderSlices(v, t, sel, tfOf(1.0f), straightOn(glm::dvec3(4.0)), o).at(4, 4);
+  EXPECT_EQ(renderSlices(v, t, sel, constantTf(0.0f), straightOn(glm::dvec3(4.0)), o).at(4, 4), glm::vec4(0.0f));
+  const glm::vec4 opaque = renderSlices(v, t, sel, constantTf(1.0f), straightOn(glm::dvec3(4.0)), o).at(4, 4);
   EXPECT_NEAR(opaque.a, 1.0f, 1e-5f);
   EXPECT_NEAR(opaque.r, 0.8f, 1e-5f);
   // Camera inside the volume, looking down -z from z = 4: the 4 mm in front count, less at most one
   // slice spacing (0.5 mm) next to the eye, whose slice lies on the near plane.
-  Camera inside;
-  inside.eye = glm::dvec3(4, 4, 4);
-  inside.center = glm::dvec3(4, 4, 0);
-  inside.up = glm::dvec3(0, 1, 0);
-  inside.width = inside.height = 3;
-  const float in = renderSlices(v, t, sel, tfOf(0.1f), inside, o).at(1, 1).a;
+  const float in = renderSlices(v, t, sel, constantTf(0.1f), test::insideCamera(), o).at(1, 1).a;
   EXPECT_GE(in, 1.0f - std::pow(0.9f, 3.5f) - 1e-4f);
   EXPECT_LE(in, 1.0f - std::pow(0.9f, 4.0f) + 1e-4f);
   // One voxel and a single slice: no volume to slice, no crash, an empty image.
   for (const glm::ivec3 dims : {glm::ivec3(1, 1, 1), glm::ivec3(16, 16, 1)}) {
     const Volume thin = test::makeVolume(dims, [](int, int, int) { return 1.0f; });
     const VolumeOctree tt = VolumeOctree::build(thin);
-    const Image img = renderSlices(thin, tt, selectNodes(tt, SelectionParams{}), tfOf(0.5f), straightOn(glm::dvec3(0.5)), o);
+    const Image img = renderSlices(thin, tt, selectNodes(tt, SelectionParams{}), constantTf(0.5f), straightOn(glm::dvec3(0.5)), o);
     for (const glm::vec4& p : img.pixels) EXPECT_EQ(p, glm::vec4(0.0f));
   }
   // A 1x1 image and a 4096x4096 image.
   Camera tiny = straightOn(glm::dvec3(4.0));
   tiny.width = tiny.height = 1;
-  EXPECT_NEAR(renderSlices(v, t, sel, tfOf(0.1f), tiny, o).at(0, 0).a, 1.0f - std::pow(0.9f, 8.0f), 2.0f / 255.0f);
+  EXPECT_NEAR(renderSlices(v, t, sel, constantTf(0.1f), tiny, o).at(0, 0).a, 1.0f - std::pow(0.9f, 8.0f), 2.0f / 255.0f);
   Camera big = straightOn(glm::dvec3(4.0));
   big.width = big.height = 4096;
   big.orthoHeight = 40.0;
-  const Image huge = renderSlices(v, t, sel, tfOf(0.1f), big, o);
+  const Image huge = renderSlices(v, t, sel, constantTf(0.1f), big, o);
   EXPECT_NEAR(huge.at(2048, 2048).a, 1.0f - std::pow(0.9f, 8.0f), 2.0f / 255.0f);
   EXPECT_EQ(huge.at(0, 0), glm::vec4(0.0f));
 }

@@ -1,0 +1,33 @@
+// Scene pieces shared by the renderer tests (the ray tracer's and the slice renderer's).
+#pragma once
+
+#include "render/camera.h"
+#include "render/transfer_function.h"
+#include "surface/mesh.h"
+
+namespace hyb::test {
+
+/// One material for every value in [0, 2]: colour (0.8, 0.5, 0.2), opacity @p a per mm.
+inline TransferFunction constantTf(float a) {
+  return TransferFunction({{0.0f, {0.8f, 0.5f, 0.2f}, a}, {2.0f, {0.8f, 0.5f, 0.2f}, a}}, "constant");
+}
+
+/// Two triangles forming the square z = zq over [x0, x1] x [y0, y1], mm, facing +z.
+inline TriangleMesh quadAt(double zq, double x0, double x1, double y0, double y1) {
+  TriangleMesh m;
+  m.vertices = {{x0, y0, zq}, {x1, y0, zq}, {x1, y1, zq}, {x0, y1, zq}};
+  m.triangles = {{0, 1, 2}, {0, 2, 3}};
+  return m;
+}
+
+/// A 3x3 perspective camera at (4, 4, 4) looking down -z: inside a volume that spans z = 0…8.
+inline Camera insideCamera() {
+  Camera c;
+  c.eye = glm::dvec3(4, 4, 4);
+  c.center = glm::dvec3(4, 4, 0);
+  c.up = glm::dvec3(0, 1, 0);
+  c.width = c.height = 3;
+  return c;
+}
+
+}  // namespace hyb::test
