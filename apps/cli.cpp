@@ -182,6 +182,7 @@ struct RenderOptions {
   VolumeInput input;
   std::string output, stats, focus, renderer = "slices", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
   std::string eye, center, up = "0,0,1", orbit = "180,10", size = "512x512", background = "0,0,0", shading = "on";
+  std::string blend = "on";
   std::optional<double> iso;
   double epsilon = 0.0, budgetMb = 0.0, fov = 30.0;
   std::optional<double> step;  // default: 0.5 voxel for slices, 0.25 for the reference
@@ -195,8 +196,31 @@ struct RenderOptions {
     if (!(fov > 0 && fov < 179)) return "--fov must be in (0, 179) degrees";
     if (step && !(*step > 0.01 && *step <= 4)) return "--step must be in (0.01, 4] voxels";
     if (shading != "on" && shading != "off") return "--shading must be on or off";
+    if (blend != "on" && blend != "off") return "--blend must be on or off";
     if (!tfFile.empty() && !preset.empty()) return "--tf and --preset are exclusive";
     return "";
+  }
+
+  // The flags shared by render and bench.
+  void add(CLI::App* cmd) {
+    input.add(cmd);
+    cmd->add_option("--iso", iso, "isovalue of the embedded surface (data units; none = volume only)");
+    cmd->add_option("--surface-color", surfaceColor, "surface r,g,b,a in [0,1]; a < 1 is translucent")->capture_default_str();
+    cmd->add_option("--tf", tfFile, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm");
+    cmd->add_option("--preset", preset, "ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone (default for CT; other data: a ramp)");
+    cmd->add_option("--focus", focus, "region of interest x,y,z in world mm");
+    cmd->add_option("--eye", eye, "camera position x,y,z in mm (with --center, --up)");
+    cmd->add_option("--center", center, "point looked at, x,y,z in mm (default: the volume centre)");
+    cmd->add_option("--up", up, "up direction x,y,z")->capture_default_str();
+    cmd->add_option("--orbit", orbit, "azimuth,elevation in degrees around the volume centre")->capture_default_str();
+    cmd->add_option("--fov", fov, "vertical field of view in degrees")->capture_default_str();
+    cmd->add_flag("--ortho", ortho, "orthographic projection");
+    cmd->add_option("--size", size, "image size WxH")->capture_default_str();
+    cmd->add_option("--background", background, "background r,g,b in [0,1]")->capture_default_str();
+    cmd->add_option("--shading", shading, "gradient shading of the volume: on|off")->capture_default_str();
+    cmd->add_option("--blend", blend, "blend bricks towards coarser neighbours (Carmona et al.): on|off")->capture_default_str();
+    cmd->add_option("--step", step, "slice / sample spacing in voxels (default 0.5 for slices, 0.25 for raycast)");
+    cmd->add_option("--max-brick", maxBrick, "brick edge in texels (power of two)")->capture_default_str();
   }
 };
 
@@ -225,41 +249,29 @@ glm::vec4 parseColor(const std::string& text, const std::string& flag, int n) {
   return c;
 }
 
-int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
-  double buildMs = 0;
-  const Scene scene = loadOrBuild(o.input, out, &buildMs);
-  const Volume& v = scene.volume;
-  SelectionParams params;
-  params.epsilon = float(o.epsilon);
-  params.spacing = v.spacing();
-  params.maxBrickEdge = o.maxBrick;
-  if (!o.focus.empty()) params.focus = parseVec3(o.focus, "--focus");
-  // Texture memory is counted at 4 bytes a texel (R32F textures, which hold the extrapolated texels).
-  params.texelBudget = uint64_t(o.budgetMb * 1024.0 * 1024.0 / 4.0);
-  if (o.budgetMb > 0 && params.texelBudget == 0) HYB_THROW(ValueError, "--budget ", o.budgetMb, " MB is smaller than one texel");
-  auto t0 = Clock::now();
-  const Selection sel = selectNodes(scene.octree, params);
-  const double selectMs = msSince(t0);
-
-  std::map<int, std::pair<int, uint64_t>> perLevel;  // voxel-to-texel ratio -> (bricks, texels)
-  for (const Brick& b : sel.bricks) {
-    auto& e = perLevel[1 << (scene.octree.maxLevel(scene.octree.nodes()[b.node]) - b.p)];
-    ++e.first;
-    e.second += b.texelCount();
-  }
-  out << "selection: epsilon " << o.epsilon << ", " << sel.bricks.size() << " bricks, " << sel.texels << " texels ("
-      << std::fixed << std::setprecision(2) << double(sel.texels) * 4.0 / (1024.0 * 1024.0) << " MB), max nodal error used "
-      << sel.maxError << ", " << std::setprecision(3) << selectMs << " ms\n";
-  for (const auto& [ratio, e] : perLevel)
-    out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
-  if (!sel.budgetMet) err << "hybrid-octree: warning: --budget " << o.budgetMb << " MB cannot be met; using " << sel.texels << " texels\n";
-
-  // Transfer function: file, preset, or a default chosen from the data's range.
-  const TransferFunction tf = !o.tfFile.empty()     ? TransferFunction::fromFile(o.tfFile)
-                              : !o.preset.empty() ? TransferFunction::preset(o.preset)
-                                                  : TransferFunction::defaultFor(v.minValue(), v.maxValue());
-  const glm::ivec2 size = parseSize(o.size);
+// Everything a frame needs besides the selection: the scene, transfer function, camera, surface.
+struct Frame {
+  Scene scene;
+  double buildMs = 0, surfaceMs = 0;
+  TransferFunction tf;
   Camera camera;
+  std::optional<SurfaceOctree> builtSurface;
+  const SurfaceOctree* so = nullptr;
+  TriangleMesh mesh;
+  size_t polygons = 0;
+  glm::vec4 surfaceColor{1.0f};
+  glm::vec3 background{0.0f};
+};
+
+void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
+  f->scene = loadOrBuild(o.input, out, &f->buildMs);
+  const Volume& v = f->scene.volume;
+  // Transfer function: file, preset, or a default chosen from the data's range.
+  f->tf = !o.tfFile.empty()   ? TransferFunction::fromFile(o.tfFile)
+          : !o.preset.empty() ? TransferFunction::preset(o.preset)
+                              : TransferFunction::defaultFor(v.minValue(), v.maxValue());
+  const glm::ivec2 size = parseSize(o.size);
+  Camera& camera = f->camera;
   if (!o.eye.empty()) {
     camera.eye = parseVec3(o.eye, "--eye");
     camera.center = o.center.empty() ? 0.5 * v.extentMm() : parseVec3(o.center, "--center");
@@ -275,73 +287,122 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     const glm::dvec3 ae = parseVec3(o.orbit + ",0", "--orbit");
     camera = Camera::orbit(glm::dvec3(0.0), v.extentMm(), ae.x, ae.y, o.fov, o.ortho, size.x, size.y);
   }
+  f->surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
+  f->background = glm::vec3(parseColor(o.background, "--background", 3));
   // Surface: the scene's when the isovalue matches, else built now.
-  std::optional<SurfaceOctree> built;
-  const SurfaceOctree* so = nullptr;
-  double surfaceMs = 0;
   if (o.iso) {
-    if (scene.surface && scene.surface->isovalue() == float(*o.iso)) {
-      so = &*scene.surface;
+    if (f->scene.surface && f->scene.surface->isovalue() == float(*o.iso)) {
+      f->so = &*f->scene.surface;
     } else {
-      t0 = Clock::now();
-      built = SurfaceOctree::build(v, scene.octree, float(*o.iso));
-      surfaceMs = msSince(t0);
-      so = &*built;
+      const auto t0 = Clock::now();
+      f->builtSurface = SurfaceOctree::build(v, f->scene.octree, float(*o.iso));
+      f->surfaceMs = msSince(t0);
+      f->so = &*f->builtSurface;
     }
+    const DiscreteMesh d = f->so->reconstruct();
+    f->polygons = d.faceCount();
+    f->mesh = fineMeshToTriangles(d, v.spacing());
   }
-  TriangleMesh mesh;
-  size_t polygons = 0;
-  if (so) {
-    const DiscreteMesh d = so->reconstruct();
-    polygons = d.faceCount();
-    mesh = fineMeshToTriangles(d, v.spacing());
-  }
-  const glm::vec4 surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
-  const glm::vec3 background(parseColor(o.background, "--background", 3));
-  const std::string& renderer = o.renderer;
-  Image image;
-  RaycastStats rs;
-  SlicesStats ss;
-  t0 = Clock::now();
-  if (renderer == "slices") {
-    const GlContext gl;
+}
+
+// Selection parameters for a frame: ε, budget, focus, the eye, the transfer function's opacity
+// and slope, frustum culling and blending.
+SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double epsilon, double budgetMb) {
+  const Volume& v = f.scene.volume;
+  SelectionParams params;
+  params.epsilon = float(epsilon);
+  params.spacing = v.spacing();
+  params.maxBrickEdge = o.maxBrick;
+  if (!o.focus.empty()) params.focus = parseVec3(o.focus, "--focus");
+  params.eye = f.camera.eye;
+  // Texture memory is counted at 4 bytes a texel (R32F textures, which hold the extrapolated texels).
+  params.texelBudget = uint64_t(budgetMb * 1024.0 * 1024.0 / 4.0);
+  if (budgetMb > 0 && params.texelBudget == 0) HYB_THROW(ValueError, "--budget ", budgetMb, " MB is smaller than one texel");
+  params.blend = o.blend == "on";
+  const TransferFunction* tf = &f.tf;
+  const Camera* camera = &f.camera;
+  params.opacity = [tf](float lo, float hi) { return tf->maxAlpha(lo, hi); };
+  params.sensitivity = [tf](float lo, float hi) { return tf->maxSlope(lo, hi); };
+  params.inView = [camera](const glm::dvec3& lo, const glm::dvec3& hi) { return camera->seesBox(lo, hi); };
+  return params;
+}
+
+// Renders one frame with the chosen renderer; needs a current GlContext for slices.
+Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, SlicesStats* ss, RaycastStats* rs) {
+  const Volume& v = f.scene.volume;
+  if (o.renderer == "slices") {
     SlicesOptions opt;
     opt.stepVoxels = o.step.value_or(0.5);
     opt.shading = o.shading == "on";
-    opt.surface = so ? &mesh : nullptr;
-    opt.surfaceColor = surfaceColor;
-    image = renderSlices(v, scene.octree, sel, tf, camera, opt, &ss);
-  } else {
-    const Bvh bvh(mesh);
-    RaycastOptions ro;
-    ro.stepVoxels = o.step.value_or(0.25);
-    ro.shading = o.shading == "on";
-    ro.surface = so ? &bvh : nullptr;
-    ro.surfaceColor = surfaceColor;
-    image = raycast(v, scene.octree, tf, camera, ro, &rs);
+    opt.surface = f.so ? &f.mesh : nullptr;
+    opt.surfaceColor = f.surfaceColor;
+    return renderSlices(v, f.scene.octree, sel, f.tf, f.camera, opt, ss);
   }
+  const Bvh bvh(f.mesh);
+  RaycastOptions ro;
+  ro.stepVoxels = o.step.value_or(0.25);
+  ro.shading = o.shading == "on";
+  ro.surface = f.so ? &bvh : nullptr;
+  ro.surfaceColor = f.surfaceColor;
+  return raycast(v, f.scene.octree, f.tf, f.camera, ro, rs);
+}
+
+int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
+  Frame f;
+  prepareFrame(o, out, &f);
+  const Volume& v = f.scene.volume;
+  auto t0 = Clock::now();
+  const Selection sel = selectNodes(f.scene.octree, selectionParams(o, f, o.epsilon, o.budgetMb));
+  const double selectMs = msSince(t0);
+
+  std::map<int, std::pair<int, uint64_t>> perLevel;  // voxel-to-texel ratio -> (visible bricks, texels)
+  size_t hidden = 0;
+  for (const Brick& b : sel.bricks) {
+    if (b.hidden) {
+      ++hidden;
+      continue;
+    }
+    auto& e = perLevel[1 << resolutionLevel(f.scene.octree, b)];
+    ++e.first;
+    e.second += b.texelCount() + b.coarseTexelCount();
+  }
+  out << "selection: epsilon " << o.epsilon << ", " << sel.bricks.size() << " bricks (" << hidden << " transparent or culled), "
+      << sel.texels << " texels (" << std::fixed << std::setprecision(2) << double(sel.texels) * 4.0 / (1024.0 * 1024.0)
+      << " MB, blending " << sel.blendTexels << "), max nodal error used " << sel.maxError << ", " << std::setprecision(3) << selectMs
+      << " ms\n";
+  for (const auto& [ratio, e] : perLevel)
+    out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
+  if (!sel.budgetMet) err << "hybrid-octree: warning: --budget " << o.budgetMb << " MB cannot be met; using " << sel.texels << " texels\n";
+
+  const glm::ivec2 size(f.camera.width, f.camera.height);
+  RaycastStats rs;
+  SlicesStats ss;
+  std::optional<GlContext> gl;
+  if (o.renderer == "slices") gl.emplace();
+  t0 = Clock::now();
+  const Image image = renderFrame(o, f, sel, &ss, &rs);
   const double renderMs = msSince(t0);
-  if (renderer == "slices")
-    out << "render   slices " << size.x << "x" << size.y << ", " << ss.bricks << " textured bricks, " << ss.textureBytes
-        << " texture bytes, " << ss.slices << " slices, " << ss.slabPolygonDraws << " slab polygon draws, " << std::setprecision(1)
-        << renderMs << " ms\n";
+  if (o.renderer == "slices")
+    out << "render   slices " << size.x << "x" << size.y << ", " << ss.bricks << " textured bricks (" << ss.blendedBricks << " blended), "
+        << ss.textureBytes << " texture bytes, " << ss.slices << " slices, " << ss.slabPolygonDraws << " slab polygon draws, "
+        << std::setprecision(1) << renderMs << " ms\n";
   else
     out << "render   raycast " << size.x << "x" << size.y << ", " << rs.samples << " samples, " << rs.skippedLeaves
         << " empty-space skips, " << rs.surfaceHits << " surface crossings, " << std::setprecision(1) << renderMs << " ms\n";
   if (!o.output.empty()) {
-    writePng(o.output, image, background);
+    writePng(o.output, image, f.background);
     out << "wrote    " << o.output << "\n";
   }
   if (!o.stats.empty()) {
     writeFileAtomically(o.stats, [&](std::ostream& s) {
-      s << std::setprecision(9) << "{\n  \"renderer\": \"" << renderer << "\",\n  \"nodes_selected\": " << sel.bricks.size()
-        << ",\n  \"texels\": " << sel.texels << ",\n  \"texture_bytes\": " << (renderer == "slices" ? ss.textureBytes : sel.texels * 4)
-        << ",\n  \"slices\": " << ss.slices
-        << ",\n  \"surface_polygons\": " << polygons << ",\n  \"surface_triangles\": " << mesh.triangles.size()
-        << ",\n  \"slab_polygon_draws\": " << ss.slabPolygonDraws << ",\n  \"build_ms\": " << buildMs + surfaceMs << ",\n  \"select_ms\": " << selectMs
-        << ",\n  \"render_ms\": " << renderMs << ",\n  \"samples\": " << rs.samples << ",\n  \"epsilon\": " << o.epsilon
-        << ",\n  \"max_nodal_error_used\": " << sel.maxError << ",\n  \"budget_met\": " << (sel.budgetMet ? "true" : "false")
-        << "\n}\n";
+      s << std::setprecision(9) << "{\n  \"renderer\": \"" << o.renderer << "\",\n  \"nodes_selected\": " << sel.bricks.size()
+        << ",\n  \"nodes_hidden\": " << hidden << ",\n  \"texels\": " << sel.texels << ",\n  \"blend_texels\": " << sel.blendTexels
+        << ",\n  \"texture_bytes\": " << (o.renderer == "slices" ? ss.textureBytes : sel.texels * 4) << ",\n  \"slices\": " << ss.slices
+        << ",\n  \"surface_polygons\": " << f.polygons << ",\n  \"surface_triangles\": " << f.mesh.triangles.size()
+        << ",\n  \"slab_polygon_draws\": " << ss.slabPolygonDraws << ",\n  \"build_ms\": " << f.buildMs + f.surfaceMs
+        << ",\n  \"select_ms\": " << selectMs << ",\n  \"render_ms\": " << renderMs << ",\n  \"samples\": " << rs.samples
+        << ",\n  \"epsilon\": " << o.epsilon << ",\n  \"max_nodal_error_used\": " << sel.maxError
+        << ",\n  \"budget_met\": " << (sel.budgetMet ? "true" : "false") << "\n}\n";
     });
   }
   return 0;
@@ -441,28 +502,11 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
 
   RenderOptions render;
   CLI::App* renderCmd = app.add_subcommand("render", "render one image (slice renderer or reference ray tracer)");
-  render.input.add(renderCmd);
+  render.add(renderCmd);
   renderCmd->add_option("-o,--output", render.output, "PNG to write");
-  renderCmd->add_option("--iso", render.iso, "isovalue of the embedded surface (data units; none = volume only)");
-  renderCmd->add_option("--surface-color", render.surfaceColor, "surface r,g,b,a in [0,1]; a < 1 is translucent")->capture_default_str();
-  renderCmd->add_option("--tf", render.tfFile, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm");
-  renderCmd->add_option("--preset", render.preset,
-                        "ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone (default for CT; other data: a ramp)");
   renderCmd->add_option("--epsilon", render.epsilon, "user error epsilon_u in data units (0 = exact)")->capture_default_str();
-  renderCmd->add_option("--budget", render.budgetMb, "texture memory budget in MB (0 = unlimited)");
-  renderCmd->add_option("--focus", render.focus, "region of interest x,y,z in world mm");
-  renderCmd->add_option("--eye", render.eye, "camera position x,y,z in mm (with --center, --up)");
-  renderCmd->add_option("--center", render.center, "point looked at, x,y,z in mm (default: the volume centre)");
-  renderCmd->add_option("--up", render.up, "up direction x,y,z")->capture_default_str();
-  renderCmd->add_option("--orbit", render.orbit, "azimuth,elevation in degrees around the volume centre")->capture_default_str();
-  renderCmd->add_option("--fov", render.fov, "vertical field of view in degrees")->capture_default_str();
-  renderCmd->add_flag("--ortho", render.ortho, "orthographic projection");
-  renderCmd->add_option("--size", render.size, "image size WxH")->capture_default_str();
-  renderCmd->add_option("--background", render.background, "background r,g,b in [0,1]")->capture_default_str();
-  renderCmd->add_option("--shading", render.shading, "gradient shading of the volume: on|off")->capture_default_str();
+  renderCmd->add_option("--budget", render.budgetMb, "texture memory budget in MB, blend textures included (0 = unlimited)");
   renderCmd->add_option("--renderer", render.renderer, "slices|raycast")->capture_default_str();
-  renderCmd->add_option("--step", render.step, "slice / sample spacing in voxels (default 0.5 for slices, 0.25 for raycast)");
-  renderCmd->add_option("--max-brick", render.maxBrick, "largest brick edge in texels (power of two)")->capture_default_str();
   renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
 
   ExportOptions exportOpts;

@@ -1,5 +1,7 @@
 #include "hybrid_octree/selection.h"
 
+#include <algorithm>
+#include <bit>
 #include <cmath>
 #include <queue>
 #include <string>
@@ -8,88 +10,277 @@
 
 namespace hyb {
 
+namespace {
+
+// Calls visit(j) for every brick j whose closed node box meets the closed voxel box [lo, hi];
+// isBrick(j) tells the bricks apart from the inner nodes above them.
+template <class IsBrick, class Visit>
+void forEachBrickTouching(const VolumeOctree& t, const glm::ivec3& lo, const glm::ivec3& hi, const IsBrick& isBrick,
+                          const Visit& visit) {
+  uint32_t stack[64 * 8];
+  int top = 0;
+  stack[top++] = 0;
+  while (top > 0) {
+    const uint32_t j = stack[--top];
+    const OctreeNode& n = t.nodes()[j];
+    const glm::ivec3 o(n.origin), e = o + t.edge(n);
+    if (glm::any(glm::greaterThan(o, hi)) || glm::any(glm::lessThan(e, lo))) continue;
+    if (isBrick(j)) {
+      visit(j);
+      continue;
+    }
+    for (int slot = 0; slot < 8; ++slot)
+      if (n.childMask & (1u << slot)) stack[top++] = childIndex(n, slot);
+  }
+}
+
+glm::ivec3 nodeLo(const OctreeNode& n) { return glm::ivec3(n.origin); }
+glm::ivec3 nodeHi(const VolumeOctree& t, const OctreeNode& n) { return glm::ivec3(n.origin) + t.edge(n); }
+
+// The greedy refinement of Carmona et al. over a restricted octree, with an undo journal so that a
+// refinement whose restriction closure overruns the budget can be taken back.
+class Refiner {
+ public:
+  Refiner(const VolumeOctree& t, const SelectionParams& params)
+      : mT(t), mParams(params), mP(t.nodes().size(), -1), mHidden(t.nodes().size()), mImportance(t.nodes().size()) {
+    for (size_t i = 0; i < mHidden.size(); ++i) {
+      const OctreeNode& n = t.nodes()[i];
+      glm::ivec3 lo, hi;
+      t.voxelBox(n, &lo, &hi);
+      const bool transparent = params.opacity && !(params.opacity(n.minValue, n.maxValue) > 0.0f);
+      const bool culled = params.inView && !params.inView(glm::dvec3(lo) * params.spacing, glm::dvec3(hi) * params.spacing);
+      mHidden[i] = transparent || culled;
+      mImportance[i] = nodeImportance(t, n, params);
+    }
+    mBrickLevel = std::max(0, std::countr_zero(unsigned(params.maxBrickEdge)));
+    set(0, 0);
+  }
+
+  uint64_t texels() const { return mTexels; }
+  const std::vector<int8_t>& levels() const { return mP; }
+  bool hidden(uint32_t i) const { return mHidden[i]; }
+  double importance(uint32_t i) const { return mImportance[i]; }
+
+  // Refines every brick that asks for it, best first, within the budget.
+  void run() {
+    using Entry = std::pair<double, std::pair<uint32_t, int>>;  // (priority, (node, p when pushed))
+    std::priority_queue<Entry> heap;
+    auto push = [&](uint32_t i) {
+      if (wantsRefinement(i)) heap.push({priority(i), {i, mP[i]}});
+    };
+    push(0);
+    while (!heap.empty()) {
+      const auto [i, p] = heap.top().second;
+      heap.pop();
+      if (mP[i] != p || !wantsRefinement(i)) continue;  // stale entry
+      mJournal.clear();
+      const uint64_t before = mTexels;
+      refineRestricted(i);
+      if (mParams.texelBudget > 0 && mTexels > mParams.texelBudget) {
+        const std::vector<std::pair<uint32_t, int8_t>> undo = std::move(mJournal);
+        for (auto it = undo.rbegin(); it != undo.rend(); ++it) set(it->first, it->second);
+        HYB_CHECK(mTexels == before);
+        continue;  // this node stays as it is; smaller refinements elsewhere may still fit
+      }
+      for (const auto& [node, old] : mJournal)
+        if (mP[node] >= 0) push(node);
+    }
+  }
+
+ private:
+  int level(uint32_t i) const { return mT.maxLevel(mT.nodes()[i]) - mP[i]; }
+
+  float tolerance(uint32_t i) const { return float(double(mParams.epsilon) / mImportance[i]); }
+
+  bool wantsRefinement(uint32_t i) const {
+    return mP[i] >= 0 && !mHidden[i] && level(i) > 0 && mT.errors(mT.nodes()[i])[size_t(mP[i])] > tolerance(i);
+  }
+
+  // P = D·Imp with D = ε_p · sensitivity; a tiny floor keeps ε_u binding where the slope is 0.
+  double priority(uint32_t i) const {
+    const OctreeNode& n = mT.nodes()[i];
+    const double e = mT.errors(n)[size_t(mP[i])];
+    const double s = mParams.sensitivity ? double(mParams.sensitivity(n.minValue, n.maxValue)) : 1.0;
+    return e * (s + 1e-9) * mImportance[i];
+  }
+
+  // Texels brick i costs at level p: its own texture and, when blending, the coarse one.
+  uint64_t cost(uint32_t i, int p) const {
+    if (p < 0 || mHidden[i]) return 0;
+    const OctreeNode& n = mT.nodes()[i];
+    uint64_t c = mT.lattice(n, p).count();
+    if (mParams.blend && i != 0) c += mT.coarseLattice(n, p).count();
+    return c;
+  }
+
+  // Every change of the cut goes through here (journalled).
+  void set(uint32_t i, int p) {
+    mJournal.push_back({i, mP[i]});
+    mTexels = mTexels - cost(i, mP[i]) + cost(i, p);
+    mP[i] = int8_t(p);
+  }
+
+  // One level finer: a higher p up to B_max, then the children at the same p.
+  void refineOnce(uint32_t i, std::vector<uint32_t>* created) {
+    const OctreeNode& n = mT.nodes()[i];
+    const int p = mP[i];
+    HYB_DCHECK(level(i) > 0);
+    if (p < std::min(mBrickLevel, mT.maxLevel(n)) || n.isLeaf()) {
+      set(i, p + 1);
+      created->push_back(i);
+      return;
+    }
+    set(i, -1);
+    for (int slot = 0; slot < 8; ++slot)
+      if (n.childMask & (1u << slot)) {
+        const uint32_t c = childIndex(n, slot);
+        set(c, p);
+        created->push_back(c);
+      }
+  }
+
+  // Refines brick i, then every visible brick that would become two or more levels coarser than a
+  // touching visible brick.
+  void refineRestricted(uint32_t i) {
+    std::vector<uint32_t> work;
+    refineOnce(i, &work);
+    if (!mParams.restricted) return;
+    const auto isBrick = [&](uint32_t j) { return mP[j] >= 0; };
+    while (!work.empty()) {
+      const uint32_t b = work.back();
+      work.pop_back();
+      if (mP[b] < 0 || mHidden[b]) continue;
+      const OctreeNode& n = mT.nodes()[b];
+      uint32_t coarse = UINT32_MAX;
+      forEachBrickTouching(mT, nodeLo(n), nodeHi(mT, n), isBrick, [&](uint32_t j) {
+        if (coarse == UINT32_MAX && !mHidden[j] && level(j) > level(b) + 1) coarse = j;
+      });
+      if (coarse == UINT32_MAX) continue;
+      work.push_back(b);  // check b again once this neighbour is one level finer
+      refineOnce(coarse, &work);
+    }
+  }
+
+  const VolumeOctree& mT;
+  const SelectionParams& mParams;
+  std::vector<int8_t> mP;  // brick level per node, −1 when the node is not a brick
+  std::vector<uint8_t> mHidden;
+  std::vector<double> mImportance;
+  int mBrickLevel = 6;
+  uint64_t mTexels = 0;
+  std::vector<std::pair<uint32_t, int8_t>> mJournal;  // (node, previous level)
+};
+
+// Brick index per node, −1 for nodes that are not bricks.
+std::vector<int> brickIndex(const VolumeOctree& t, const Selection& sel) {
+  std::vector<int> of(t.nodes().size(), -1);
+  for (size_t b = 0; b < sel.bricks.size(); ++b) of[sel.bricks[b].node] = int(b);
+  return of;
+}
+
+}  // namespace
+
 std::string SelectionParams::validate() const {
   if (!std::isfinite(epsilon) || epsilon < 0.0f) return detail::concat("--epsilon ", epsilon, " invalid (expected a finite value >= 0)");
   if (focus && !(std::isfinite(focus->x) && std::isfinite(focus->y) && std::isfinite(focus->z)))
     return "--focus invalid (expected three finite coordinates in mm)";
+  if (eye && !(std::isfinite(eye->x) && std::isfinite(eye->y) && std::isfinite(eye->z))) return "eye position invalid (expected finite mm)";
   if (!std::isfinite(focusRadiusMm) || focusRadiusMm < 0.0) return "focus radius invalid (expected >= 0 mm)";
-  if (maxBrickEdge < 1 || (maxBrickEdge & (maxBrickEdge - 1)))
-    return detail::concat("maximum brick edge ", maxBrickEdge, " invalid (expected a power of two)");
+  if (maxBrickEdge < 1 || maxBrickEdge > 256 || (maxBrickEdge & (maxBrickEdge - 1)))
+    return detail::concat("maximum brick edge ", maxBrickEdge, " invalid (expected a power of two in 1..256)");
   return "";
 }
 
 double nodeImportance(const VolumeOctree& octree, const OctreeNode& n, const SelectionParams& params) {
-  if (!params.focus) return 1.0;
+  if (!params.focus && !params.eye) return 1.0;
   glm::ivec3 lo, hi;
   octree.voxelBox(n, &lo, &hi);
   const glm::dvec3 boxLo = glm::dvec3(lo) * params.spacing, boxHi = glm::dvec3(hi) * params.spacing;
-  const glm::dvec3 nearest = glm::clamp(*params.focus, boxLo, boxHi);
-  const double d = glm::length(*params.focus - nearest);
+  const glm::dvec3 extent = glm::dvec3(octree.dims() - 1) * params.spacing;
   double radius = params.focusRadiusMm;
-  if (radius <= 0.0) radius = 0.25 * glm::length(glm::dvec3(octree.dims() - 1) * params.spacing);
-  return radius > 0.0 ? 1.0 / (1.0 + d / radius) : 1.0;
+  if (radius <= 0.0) radius = 0.25 * glm::length(extent);
+  if (radius <= 0.0) return 1.0;
+  auto distance = [](const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b) { return glm::length(p - glm::clamp(p, a, b)); };
+  double imp = 1.0;
+  if (params.focus) imp /= 1.0 + distance(*params.focus, boxLo, boxHi) / radius;
+  if (params.eye) imp /= 1.0 + (distance(*params.eye, boxLo, boxHi) - distance(*params.eye, glm::dvec3(0.0), extent)) / radius;
+  return imp;
 }
 
 Selection selectNodes(const VolumeOctree& octree, const SelectionParams& params) {
   if (const std::string msg = params.validate(); !msg.empty()) throw ValueError(msg);
+  Refiner refiner(octree, params);
   Selection sel;
-  const auto& nodes = octree.nodes();
-  // Recursive descent with an explicit stack (children pushed in reverse keep slot order).
+  sel.budgetMet = params.texelBudget == 0 || refiner.texels() <= params.texelBudget;
+  refiner.run();
+
+  // The bricks in depth-first slot order.
+  const std::vector<int8_t>& level = refiner.levels();
   std::vector<uint32_t> stack{0};
   while (!stack.empty()) {
     const uint32_t i = stack.back();
     stack.pop_back();
-    const OctreeNode& n = nodes[i];
-    const double imp = nodeImportance(octree, n, params);
-    const float tolerance = float(double(params.epsilon) / imp);
-    const int p = octree.levelFor(n, tolerance);
-    if ((1 << p) <= params.maxBrickEdge || n.isLeaf()) {
+    const OctreeNode& n = octree.nodes()[i];
+    if (level[i] >= 0) {
       Brick b;
       b.node = i;
-      b.p = p;
-      b.error = octree.errors(n)[size_t(p)];
-      b.importance = float(imp);
-      b.texels = octree.texelDims(n, p);
+      b.p = level[i];
+      b.error = octree.errors(n)[size_t(b.p)];
+      b.importance = float(refiner.importance(i));
+      b.hidden = refiner.hidden(i);
+      if (!b.hidden) b.texels = octree.texelDims(n, b.p);
       sel.bricks.push_back(b);
       continue;
     }
     for (int slot = 7; slot >= 0; --slot)
       if (n.childMask & (1u << slot)) stack.push_back(childIndex(n, slot));
   }
-  for (const Brick& b : sel.bricks) sel.texels += b.texelCount();
-
-  // Budget: lower the cheapest brick (importance-weighted error per texel saved) one level at a time.
-  if (params.texelBudget > 0 && sel.texels > params.texelBudget) {
-    using Entry = std::pair<double, size_t>;  // (cost, brick index)
-    std::priority_queue<Entry, std::vector<Entry>, std::greater<Entry>> heap;
-    auto push = [&](size_t bi) {
-      const Brick& b = sel.bricks[bi];
-      if (b.p == 0) return;
-      const OctreeNode& n = nodes[b.node];
-      const uint64_t saved = b.texelCount() - [&] {
-        const glm::ivec3 t = octree.texelDims(n, b.p - 1);
-        return uint64_t(t.x) * t.y * t.z;
-      }();
-      const double cost = double(b.importance) * octree.errors(n)[size_t(b.p - 1)] / double(std::max<uint64_t>(saved, 1));
-      heap.push({cost, bi});
-    };
-    for (size_t bi = 0; bi < sel.bricks.size(); ++bi) push(bi);
-    while (sel.texels > params.texelBudget && !heap.empty()) {
-      const size_t bi = heap.top().second;
-      heap.pop();
-      Brick& b = sel.bricks[bi];
-      const OctreeNode& n = nodes[b.node];
-      sel.texels -= b.texelCount();
-      --b.p;
-      b.texels = octree.texelDims(n, b.p);
-      b.error = octree.errors(n)[size_t(b.p)];
-      sel.texels += b.texelCount();
-      push(bi);
-    }
-    sel.budgetMet = sel.texels <= params.texelBudget;
-  }
-  for (const Brick& b : sel.bricks) sel.maxError = std::max(sel.maxError, b.error);
+  for (const Brick& b : sel.bricks)
+    if (!b.hidden) sel.maxError = std::max(sel.maxError, b.error);
+  if (params.blend) assignBlendCorners(octree, &sel);
+  else
+    for (const Brick& b : sel.bricks) sel.texels += b.texelCount();
   return sel;
+}
+
+void assignBlendCorners(const VolumeOctree& octree, Selection* sel) {
+  const std::vector<int> of = brickIndex(octree, *sel);
+  const auto isBrick = [&](uint32_t j) { return of[j] >= 0; };
+  sel->texels = sel->blendTexels = 0;
+  for (Brick& b : sel->bricks) {
+    b.coarseCorners = 0;
+    b.coarseTexels = glm::ivec3(0);
+    if (b.hidden) continue;
+    const OctreeNode& n = octree.nodes()[b.node];
+    const int r = resolutionLevel(octree, b);
+    for (int c = 0; c < 8; ++c) {
+      const glm::ivec3 corner = nodeLo(n) + childOffset(c, octree.edge(n));
+      forEachBrickTouching(octree, corner, corner, isBrick, [&](uint32_t j) {
+        const Brick& nb = sel->bricks[size_t(of[j])];
+        if (!nb.hidden && resolutionLevel(octree, nb) > r) b.coarseCorners |= uint8_t(1u << c);
+      });
+    }
+    if (b.coarseCorners) b.coarseTexels = octree.coarseLattice(n, b.p).dims;
+    sel->texels += b.texelCount() + b.coarseTexelCount();
+    sel->blendTexels += b.coarseTexelCount();
+  }
+}
+
+bool isRestricted(const VolumeOctree& octree, const Selection& sel) {
+  const std::vector<int> of = brickIndex(octree, sel);
+  const auto isBrick = [&](uint32_t j) { return of[j] >= 0; };
+  for (const Brick& b : sel.bricks) {
+    if (b.hidden) continue;
+    const OctreeNode& n = octree.nodes()[b.node];
+    const int r = resolutionLevel(octree, b);
+    bool ok = true;
+    forEachBrickTouching(octree, nodeLo(n), nodeHi(octree, n), isBrick, [&](uint32_t j) {
+      const Brick& nb = sel.bricks[size_t(of[j])];
+      if (!nb.hidden && std::abs(resolutionLevel(octree, nb) - r) > 1) ok = false;
+    });
+    if (!ok) return false;
+  }
+  return true;
 }
 
 }  // namespace hyb

@@ -1,11 +1,19 @@
-// Error-driven node selection (DESIGN 3.3; Boada, Navazo and Scopigno 2001, OTcut):
-// pick the nodes to render and, per node, its texture level p (voxel-to-texel ratio 2^(L−k−p)).
+// Budgeted, importance-driven node selection (DESIGN 3.3 and 7): Boada, Navazo and Scopigno 2001
+// (OTcut: ε_u over importance), Carmona et al. (greedy refinement by priority under a texture budget,
+// restricted octree, per-corner blending towards coarser data), LaMar 1999 (culling).
+//
+// Resolution. A brick (node n, texture level p) has voxel-to-texel ratio 2^r, r = maxLevel(n) − p.
+// Refinement lowers r by one: it raises p while 2^p < B_max, then splits the node into its children
+// at the same p. So every brick but the root holds 2^p = B_max texel intervals per edge and a
+// coarser neighbour is always a larger node (the property per-corner blending needs).
 #pragma once
 
 #include <glm/glm.hpp>
 
 #include <cstdint>
+#include <functional>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "hybrid_octree/volume_octree.h"
@@ -14,12 +22,23 @@ namespace hyb {
 
 /// Parameters of a selection.
 struct SelectionParams {
-  float epsilon = 0.0f;               ///< ε_u: largest nodal error allowed at the focus, data units (≥ 0)
-  std::optional<glm::dvec3> focus;    ///< region of interest (world mm); none = uniform importance
+  float epsilon = 0.0f;               ///< ε_u: largest nodal error allowed at importance 1, data units (≥ 0)
+  std::optional<glm::dvec3> focus;    ///< region of interest (world mm); none = no focus term
+  std::optional<glm::dvec3> eye;      ///< viewpoint (world mm); none = no eye-distance term
   double focusRadiusMm = 0.0;         ///< importance falloff distance; 0 = a quarter of the volume diagonal
-  int maxBrickEdge = 64;              ///< B_max: a node becomes a brick when 2^p ≤ B_max (power of two)
-  uint64_t texelBudget = 0;           ///< T_max in texels; 0 = unlimited
-  glm::dvec3 spacing{1.0};            ///< voxel spacing (mm), to measure distances to the focus
+  int maxBrickEdge = 64;              ///< B_max: texel intervals per brick edge (power of two)
+  uint64_t texelBudget = 0;           ///< T_max in texels, blend textures included; 0 = unlimited
+  glm::dvec3 spacing{1.0};            ///< voxel spacing (mm), to measure distances
+  bool restricted = true;             ///< keep 26-neighbouring visible bricks within one resolution level
+  bool blend = true;                  ///< blend towards coarser neighbours (counts the coarse textures)
+  /// Largest opacity the transfer function gives a value range [lo, hi]; a node whose range gets 0
+  /// is transparent and costs nothing. None: every node is visible.
+  std::function<float(float lo, float hi)> opacity;
+  /// How much one data unit of error changes the classified colour in [lo, hi] (the transfer
+  /// function's slope); the distortion is D = ε_p · sensitivity. None: 1.
+  std::function<float(float lo, float hi)> sensitivity;
+  /// Whether the world box [lo, hi] (mm) can be seen (frustum culling); none: always.
+  std::function<bool(const glm::dvec3& lo, const glm::dvec3& hi)> inView;
 
   /// Returns an empty string when valid, else a message naming the offending parameter.
   std::string validate() const;
@@ -27,29 +46,47 @@ struct SelectionParams {
 
 /// One selected node and the level its texture is built at.
 struct Brick {
-  uint32_t node = 0;       ///< index into VolumeOctree::nodes()
-  int p = 0;               ///< texture level: 2^p texel intervals per node edge
-  float error = 0;         ///< ε_p(node): largest approximation error of this brick, data units
-  float importance = 1;    ///< Imp(node, focus) in (0, 1]
-  glm::ivec3 texels{0};    ///< texture samples per axis (cropped to the grid)
+  uint32_t node = 0;          ///< index into VolumeOctree::nodes()
+  int p = 0;                  ///< texture level: 2^p texel intervals per node edge
+  float error = 0;            ///< ε_p(node): largest approximation error of this brick, data units
+  float importance = 1;       ///< Imp(node) in (0, 1]
+  bool hidden = false;        ///< transparent by its min/max or outside the view: no texture
+  uint8_t coarseCorners = 0;  ///< bit c (slot order x|y<<1|z<<2) set when corner c touches a coarser brick
+  glm::ivec3 texels{0};       ///< texture samples per axis (cropped to the grid); 0 when hidden
+  glm::ivec3 coarseTexels{0}; ///< samples of the coarse blend texture; 0 when no corner blends
   uint64_t texelCount() const { return uint64_t(texels.x) * texels.y * texels.z; }
+  uint64_t coarseTexelCount() const { return uint64_t(coarseTexels.x) * coarseTexels.y * coarseTexels.z; }
 };
 
-/// The result of a selection: bricks cover the grid exactly once.
+/// The result of a selection: bricks (hidden ones included) cover the grid exactly once.
 struct Selection {
   std::vector<Brick> bricks;
-  uint64_t texels = 0;      ///< total texture samples
-  float maxError = 0;       ///< largest ε_p over the bricks
-  bool budgetMet = true;    ///< false when texelBudget could not be reached even at p = 0
+  uint64_t texels = 0;       ///< texture samples of the visible bricks, blend textures included
+  uint64_t blendTexels = 0;  ///< of which coarse blend textures
+  float maxError = 0;        ///< largest ε_p over the visible bricks
+  bool budgetMet = true;     ///< false when even the coarsest selection exceeds texelBudget
 };
 
-/// Importance of @p n for @p params: 1 / (1 + d / R), d the distance from the node's box to the focus.
+/// Importance of @p n: 1/(1 + d_f/R) for the focus times 1/(1 + (d_e − d_near)/R) for the eye,
+/// d the distance from the node's box (R: focusRadiusMm; d_near: the volume's distance to the eye).
 double nodeImportance(const VolumeOctree& octree, const OctreeNode& n, const SelectionParams& params);
 
-/// Selects bricks: recursing from the root, p(n) is the smallest p with ε_p(n) ≤ ε_u / Imp(n); n is a
-/// brick when 2^p ≤ B_max or n is a leaf. While the texels exceed the budget, the brick with the
-/// smallest Imp·ε_(p−1) per texel saved is lowered one level.
+/// Resolution level r of a brick: its voxel-to-texel ratio is 2^r.
+inline int resolutionLevel(const VolumeOctree& octree, const Brick& b) {
+  return octree.maxLevel(octree.nodes()[b.node]) - b.p;
+}
+
+/// Selects bricks. Starting from the root at p = 0, the visible brick of highest priority
+/// D·Imp is refined while its ε_p exceeds ε_u/Imp, keeping the tree restricted (refining coarser
+/// neighbours as needed) and skipping refinements that would exceed the texel budget.
 /// @throw ValueError when @p params is invalid.
 Selection selectNodes(const VolumeOctree& octree, const SelectionParams& params);
+
+/// Sets each visible brick's coarseCorners and coarseTexels from its neighbours (a corner blends when
+/// a visible brick of a higher resolution level touches it) and recounts the selection's texels.
+void assignBlendCorners(const VolumeOctree& octree, Selection* selection);
+
+/// Whether every two touching visible bricks differ by at most one resolution level.
+bool isRestricted(const VolumeOctree& octree, const Selection& selection);
 
 }  // namespace hyb

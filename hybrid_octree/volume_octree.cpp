@@ -348,12 +348,31 @@ int VolumeOctree::levelFor(const OctreeNode& n, float tolerance) const {
   return maxLevel(n);
 }
 
-glm::ivec3 VolumeOctree::texelDims(const OctreeNode& n, int p) const {
+namespace {
+
+// Knots spaced @p step from @p origin up to @p end (exclusive of overshoot), clamped at the grid.
+KnotLattice makeLattice(const glm::ivec3& origin, int step, const glm::ivec3& end, const glm::ivec3& dims) {
+  KnotLattice k;
+  k.origin = origin;
+  k.step = step;
+  k.last = glm::min(end, dims - 1);
+  k.dims = (k.last - origin + step - 1) / step + 1;
+  return k;
+}
+
+}  // namespace
+
+KnotLattice VolumeOctree::lattice(const OctreeNode& n, int p) const {
   HYB_DCHECK(p >= 0 && p <= maxLevel(n));
-  const int E = edge(n), step = E >> p;
-  glm::ivec3 lo, hi;
-  voxelBox(n, &lo, &hi);
-  return (hi - lo + step - 1) / step + 1;
+  const glm::ivec3 o(n.origin);
+  return makeLattice(o, edge(n) >> p, o + edge(n), mDims);
+}
+
+KnotLattice VolumeOctree::coarseLattice(const OctreeNode& n, int p) const {
+  HYB_DCHECK(p >= 0 && p <= maxLevel(n));
+  const int step = 2 * (edge(n) >> p);
+  const glm::ivec3 o(n.origin), lo = o / step * step, hi = (o + edge(n) + step - 1) / step * step;
+  return makeLattice(lo, step, hi, mDims);
 }
 
 void VolumeOctree::voxelBox(const OctreeNode& n, glm::ivec3* lo, glm::ivec3* hi) const {

@@ -30,6 +30,17 @@
 
 namespace hyb {
 
+/// A uniformly spaced lattice of sample positions (voxel indices), position-clamped at the grid's
+/// far side: knot j on axis a sits at min(origin[a] + j·step, last[a]). A texture of `dims` texels
+/// whose overhanging last texel is extrapolated linearly reproduces its trilinear field exactly.
+struct KnotLattice {
+  glm::ivec3 origin{0};  ///< first knot
+  int step = 1;          ///< voxels between knots
+  glm::ivec3 dims{1};    ///< knots per axis
+  glm::ivec3 last{0};    ///< position of the last knot per axis (≤ grid dims − 1)
+  uint64_t count() const { return uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z); }
+};
+
 /// Build parameters of a VolumeOctree.
 struct VolumeOctreeOptions {
   int leafEdge = 8;  ///< edge in cells of the smallest stored nodes (power of two, 1…256)
@@ -75,7 +86,13 @@ class VolumeOctree {
 
   /// Knots per axis of @p n's sub-grid at level @p p, cropped to the grid (seamless bricks: up to
   /// 2^p + 1 per axis; fewer where the node overhangs the grid).
-  glm::ivec3 texelDims(const OctreeNode& n, int p) const;
+  glm::ivec3 texelDims(const OctreeNode& n, int p) const { return lattice(n, p).dims; }
+  /// The knots of @p n's sub-grid at level @p p (spacing edge/2^p, starting at the node's origin).
+  KnotLattice lattice(const OctreeNode& n, int p) const;
+  /// The knots one level coarser than lattice(n, p) (spacing 2·edge/2^p, aligned to multiples of
+  /// it) that cover @p n: the data a brick next to a coarser neighbour blends towards. For p ≥ 1
+  /// they are every other knot of lattice(n, p); for p = 0 they are the parent's corners.
+  KnotLattice coarseLattice(const OctreeNode& n, int p) const;
   /// Voxel-space box of @p n cropped to the grid: [lo, hi] with hi ≤ dims − 1.
   void voxelBox(const OctreeNode& n, glm::ivec3* lo, glm::ivec3* hi) const;
 

@@ -25,6 +25,29 @@ Camera Camera::orbit(const glm::dvec3& lo, const glm::dvec3& hi, double azimuthD
   return c;
 }
 
+bool Camera::seesBox(const glm::dvec3& lo, const glm::dvec3& hi) const {
+  const glm::dvec3 f = forward();
+  const glm::dvec3 r = glm::normalize(glm::cross(f, up));
+  const glm::dvec3 u = glm::cross(r, f);
+  const double aspect = double(width) / double(height);
+  const double ty = ortho ? 0.5 * orthoHeight : std::tan(glm::radians(fovDeg) * 0.5), tx = ty * aspect;
+  // Signed distances to the side planes, positive outside: x − tx·z (perspective) or x − tx (ortho).
+  int outside[5] = {0, 0, 0, 0, 0};
+  for (int c = 0; c < 8; ++c) {
+    const glm::dvec3 p = glm::dvec3((c & 1) ? hi.x : lo.x, (c & 2) ? hi.y : lo.y, (c & 4) ? hi.z : lo.z) - eye;
+    const double x = glm::dot(p, r), y = glm::dot(p, u), z = glm::dot(p, f);
+    const double sx = ortho ? tx : tx * z, sy = ortho ? ty : ty * z;
+    outside[0] += x > sx;
+    outside[1] += -x > sx;
+    outside[2] += y > sy;
+    outside[3] += -y > sy;
+    outside[4] += !ortho && z <= 0.0;
+  }
+  for (int k = 0; k < 5; ++k)
+    if (outside[k] == 8) return false;
+  return true;
+}
+
 void Camera::ray(double px, double py, glm::dvec3* origin, glm::dvec3* dir) const {
   const glm::dvec3 f = forward();
   const glm::dvec3 r = glm::normalize(glm::cross(f, up));

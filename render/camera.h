@@ -19,6 +19,9 @@ struct Camera {
                       bool ortho, int width, int height);
 
   glm::dvec3 forward() const { return glm::normalize(center - eye); }
+  /// Whether any part of the box [lo, hi] (mm) may be seen: false only when all eight corners lie
+  /// outside one side of the view frustum (the near side being the eye plane; ortho: no near side).
+  bool seesBox(const glm::dvec3& lo, const glm::dvec3& hi) const;
   /// Ray through the point (px, py) in pixel units (pixel centres at +0.5).
   void ray(double px, double py, glm::dvec3* origin, glm::dvec3* dir) const;
 };

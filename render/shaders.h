@@ -40,26 +40,42 @@ void main() {
 )";
 
 /// One brick's slice: sample the brick texture, classify with the per-millimetre transfer
-/// function, correct opacity for the segment the slice stands for, shade, premultiply.
-inline constexpr const char* kSliceFragment = R"(#version 450 core
+/// function, correct opacity for the segment the slice stands for, shade, premultiply. Compiled
+/// twice, after "#version 450 core\n#define BLEND 0|1\n": llvmpipe evaluates both sides of a
+/// uniform branch, so bricks that do not blend get a program without the coarse fetches.
+inline constexpr const char* kSliceFragment = R"(
 in vec3 vWorld;
 in vec3 vNormal;
 flat in float vKind;
 out vec4 fragColor;
 uniform vec4 surfaceColor;  // straight rgb, alpha per crossing
-uniform sampler3D volumeTex;
+uniform sampler3D volumeTex;  // the brick's lattice
+uniform sampler3D coarseTex;  // the lattice one level coarser (blend == 1)
 uniform sampler1D tfTex;
-uniform vec3 spacing;      // mm per voxel
-uniform vec3 brickOrigin;  // voxel index of the brick's first texel
-uniform float texelStep;   // voxels per texel
-uniform vec3 texDims;
+uniform vec3 fineScale, fineOffset;      // world mm -> the brick texture's coordinates
+uniform vec3 coarseScale, coarseOffset;  // world mm -> the coarse texture's coordinates
+uniform vec3 nodeScale, nodeOffset;      // world mm -> [0,1]^3 over the node's box, for the blend weights
+uniform float cornerWeight[8];  // 1: the brick's own data at that corner, 0: the coarse data
+uniform vec3 gradientStep;      // half a texel, mm
 uniform float tfMin, tfScale, tfSize;
 uniform vec3 eye, forward;
 uniform int ortho;
-uniform float sliceSpacing;  // mm between slice planes along forward
+uniform float sliceSpacing;  // mm between this brick's slice planes along forward
 uniform int shading;
 
-float sampleAt(vec3 t) { return texture(volumeTex, (t + 0.5) / texDims).r; }
+// The brick's field at world position x; blended towards the coarse lattice near coarser bricks.
+float sampleAt(vec3 x) {
+  float v = texture(volumeTex, x * fineScale + fineOffset).r;
+#if BLEND == 0
+  return v;
+#else
+  float c = texture(coarseTex, x * coarseScale + coarseOffset).r;
+  vec3 u = clamp(x * nodeScale + nodeOffset, 0.0, 1.0);
+  float w = mix(mix(mix(cornerWeight[0], cornerWeight[1], u.x), mix(cornerWeight[2], cornerWeight[3], u.x), u.y),
+                mix(mix(cornerWeight[4], cornerWeight[5], u.x), mix(cornerWeight[6], cornerWeight[7], u.x), u.y), u.z);
+  return mix(c, v, w);
+#endif
+}
 
 void main() {
   if (vKind > 0.5) {  // translucent surface, headlight-shaded, premultiplied
@@ -68,8 +84,8 @@ void main() {
     fragColor = vec4(surfaceColor.rgb * shade * surfaceColor.a, surfaceColor.a);
     return;
   }
-  vec3 t = (vWorld / spacing - brickOrigin) / texelStep;
-  float v = sampleAt(t);
+  vec3 x = vWorld;
+  float v = sampleAt(x);
   vec4 c = texture(tfTex, ((v - tfMin) * tfScale + 0.5) / tfSize);
   if (c.a <= 0.0) discard;
   vec3 dir = ortho == 1 ? forward : normalize(vWorld - eye);
@@ -77,10 +93,10 @@ void main() {
   float alpha = c.a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - c.a, len);
   float shade = 1.0;
   if (shading == 1) {
-    float h = 0.5;
-    vec3 g = vec3(sampleAt(t + vec3(h, 0, 0)) - sampleAt(t - vec3(h, 0, 0)),
-                  sampleAt(t + vec3(0, h, 0)) - sampleAt(t - vec3(0, h, 0)),
-                  sampleAt(t + vec3(0, 0, h)) - sampleAt(t - vec3(0, 0, h))) / (2.0 * h * texelStep * spacing);
+    vec3 h = gradientStep;
+    vec3 g = vec3(sampleAt(x + vec3(h.x, 0, 0)) - sampleAt(x - vec3(h.x, 0, 0)),
+                  sampleAt(x + vec3(0, h.y, 0)) - sampleAt(x - vec3(0, h.y, 0)),
+                  sampleAt(x + vec3(0, 0, h.z)) - sampleAt(x - vec3(0, 0, h.z))) / (2.0 * h);
     float m = length(g);
     if (m > 1e-6) shade = 0.25 + 0.75 * abs(dot(g / m, dir));
   }

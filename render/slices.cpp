@@ -49,6 +49,8 @@ struct Program {
     glGetProgramiv(id, GL_LINK_STATUS, &ok);
     if (!ok) HYB_THROW(RuntimeError, "shader program failed to link");
   }
+  Program(const Program&) = delete;
+  Program& operator=(const Program&) = delete;
   ~Program() { glDeleteProgram(id); }
   GLint at(const char* name) const { return glGetUniformLocation(id, name); }
 };
@@ -84,11 +86,11 @@ struct FloatTarget {
   }
 };
 
-// A 3D texture on unit 0 with trilinear filtering and clamped edges, for one R32F volume at a time.
-GLuint newVolumeTexture() {
+// A 3D texture on @p unit with trilinear filtering and clamped edges, for one R32F volume at a time.
+GLuint newVolumeTexture(int unit = 0) {
   GLuint tex;
   glGenTextures(1, &tex);
-  glActiveTexture(GL_TEXTURE0);
+  glActiveTexture(GLenum(GL_TEXTURE0 + unit));
   glBindTexture(GL_TEXTURE_3D, tex);
   glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
@@ -97,24 +99,22 @@ GLuint newVolumeTexture() {
   return tex;
 }
 
-// The texels of brick @p n at level @p p: the sub-grid knots (position-clamped at the grid's far
-// side, DESIGN 3.3), with the overhanging last texel extrapolated so that uniform trilinear
-// filtering reproduces the node's approximation exactly.
-std::vector<float> brickTexels(const Volume& v, const VolumeOctree& t, const OctreeNode& n, int p, glm::ivec3* dims) {
-  const int s = t.edge(n) >> p;
-  glm::ivec3 lo, hi;
-  t.voxelBox(n, &lo, &hi);
-  const glm::ivec3 d = t.texelDims(n, p);
-  *dims = d;
-  std::vector<float> out(size_t(d.x) * d.y * d.z);
-  auto knot = [&](int a, int j) { return std::min(lo[a] + j * s, hi[a]); };
+// The texels of a knot lattice (a brick's own or its coarse blend lattice, DESIGN 3.3), with the
+// overhanging last texel extrapolated so that uniform trilinear filtering reproduces the lattice's
+// position-clamped trilinear field exactly.
+std::vector<float> latticeTexels(const Volume& v, const KnotLattice& L) {
+  const glm::ivec3 d = L.dims;
+  const int s = L.step;
+  std::vector<float> out(size_t(L.count()));
+  auto at = [&](int i, int j, int k) -> float& { return out[size_t(i) + size_t(d.x) * (size_t(j) + size_t(d.y) * size_t(k))]; };
+  auto knot = [&](int a, int j) { return std::min(L.origin[a] + j * s, L.last[a]); };
   for (int k = 0; k < d.z; ++k)
     for (int j = 0; j < d.y; ++j)
-      for (int i = 0; i < d.x; ++i) out[size_t(i) + size_t(d.x) * (j + size_t(d.y) * k)] = v.at(knot(0, i), knot(1, j), knot(2, k));
+      for (int i = 0; i < d.x; ++i) at(i, j, k) = v.at(knot(0, i), knot(1, j), knot(2, k));
   for (int a = 0; a < 3; ++a) {
     const int m = d[a] - 1;
-    if (m < 1 || lo[a] + m * s <= hi[a]) continue;  // the last knot sits where a uniform texel would
-    const float scale = float(s) / float(hi[a] - (lo[a] + (m - 1) * s));
+    if (m < 1 || L.origin[a] + m * s <= L.last[a]) continue;  // the last knot sits where a uniform texel would
+    const float scale = float(s) / float(L.last[a] - (L.origin[a] + (m - 1) * s));
     for (int k = 0; k < d.z; ++k)
       for (int j = 0; j < d.y; ++j)
         for (int i = 0; i < d.x; ++i) {
@@ -122,8 +122,8 @@ std::vector<float> brickTexels(const Volume& v, const VolumeOctree& t, const Oct
           if (q[a] != m) continue;
           glm::ivec3 r = q;
           r[a] = m - 1;
-          float& last = out[size_t(q.x) + size_t(d.x) * (q.y + size_t(d.y) * q.z)];
-          const float prev = out[size_t(r.x) + size_t(d.x) * (r.y + size_t(d.y) * r.z)];
+          float& last = at(q.x, q.y, q.z);
+          const float prev = at(r.x, r.y, r.z);
           last = prev + (last - prev) * scale;
         }
   }
@@ -171,7 +171,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   const int W = camera.width, H = camera.height;
   const glm::dvec3 spacing = volume.spacing();
   const glm::dvec3 f = camera.forward();
-  const double delta = options.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
+  const double baseDelta = options.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
   SlicesStats st;
 
   // Framebuffer: float colour (premultiplied), depth for opaque surfaces.
@@ -247,21 +247,25 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
 
-  Program slices(shaders::kStreamVertex, shaders::kSliceFragment);
-  glUseProgram(slices.id);
-  glUniformMatrix4fv(slices.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
-  glUniform1i(slices.at("volumeTex"), 0);
-  glUniform1i(slices.at("tfTex"), 1);
-  glUniform3f(slices.at("spacing"), float(spacing.x), float(spacing.y), float(spacing.z));
-  glUniform1f(slices.at("tfMin"), vmin);
-  glUniform1f(slices.at("tfScale"), float(kTfSize - 1) / (vmax - vmin));
-  glUniform1f(slices.at("tfSize"), float(kTfSize));
-  glUniform3f(slices.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
-  glUniform3f(slices.at("forward"), float(f.x), float(f.y), float(f.z));
-  glUniform1i(slices.at("ortho"), camera.ortho ? 1 : 0);
-  glUniform1f(slices.at("sliceSpacing"), float(delta));
-  glUniform1i(slices.at("shading"), options.shading ? 1 : 0);
-  glUniform4fv(slices.at("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
+  // Two slice programs: [0] without, [1] with blending towards coarser data.
+  const std::string plainSource = std::string("#version 450 core\n#define BLEND 0\n") + shaders::kSliceFragment;
+  const std::string blendSource = std::string("#version 450 core\n#define BLEND 1\n") + shaders::kSliceFragment;
+  const Program programs[2] = {{shaders::kStreamVertex, plainSource.c_str()}, {shaders::kStreamVertex, blendSource.c_str()}};
+  for (const Program& slices : programs) {
+    glUseProgram(slices.id);
+    glUniformMatrix4fv(slices.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
+    glUniform1i(slices.at("volumeTex"), 0);
+    glUniform1i(slices.at("tfTex"), 1);
+    glUniform1i(slices.at("coarseTex"), 2);
+    glUniform1f(slices.at("tfMin"), vmin);
+    glUniform1f(slices.at("tfScale"), float(kTfSize - 1) / (vmax - vmin));
+    glUniform1f(slices.at("tfSize"), float(kTfSize));
+    glUniform3f(slices.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
+    glUniform3f(slices.at("forward"), float(f.x), float(f.y), float(f.z));
+    glUniform1i(slices.at("ortho"), camera.ortho ? 1 : 0);
+    glUniform1i(slices.at("shading"), options.shading ? 1 : 0);
+    glUniform4fv(slices.at("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
+  }
   glEnableVertexAttribArray(0);
   glEnableVertexAttribArray(1);
   glEnableVertexAttribArray(2);
@@ -295,10 +299,10 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   }
   HYB_CHECK(order.size() == selection.bricks.size());
 
-  // SlabPolygon input: translucent triangles by brick. Every triangle lies inside one volume leaf
+  // Surface triangles by brick (the SlabPolygon input when translucent). Every triangle lies inside one volume leaf
   // (Surface Octree polygons never cross one), so its centroid names its brick.
   std::vector<std::vector<uint32_t>> trianglesOf(octree.nodes().size());
-  if (translucent) {
+  if (options.surface) {
     const glm::ivec3 cells = glm::max(volume.dims() - 1, glm::ivec3(1));
     for (uint32_t ti = 0; ti < options.surface->triangles.size(); ++ti) {
       const glm::uvec3 tr = options.surface->triangles[ti];
@@ -320,7 +324,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glGenQueries(1, &query);
   glBeginQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB, query);
   std::vector<float> poly;
-  const GLuint tex = newVolumeTexture();
+  const GLuint coarseTex = newVolumeTexture(2);
+  const GLuint tex = newVolumeTexture(0);
   // A slab instance of a translucent triangle: which triangle, its slab, whether to clip, sort key.
   struct Instance {
     uint32_t triangle;
@@ -333,7 +338,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     for (size_t v = 0; v < polygon.size(); v += 3)
       poly.insert(poly.end(), {polygon[v], polygon[v + 1], polygon[v + 2], 0, 0, 0, 0, -1e30f, 1e30f});
   };
-  auto emitTriangle = [&](const Instance& in) {
+  auto emitTriangle = [&](const Instance& in, double delta) {
     const glm::uvec3 tr = options.surface->triangles[in.triangle];
     const glm::vec3 a = options.surface->vertices[tr.x], b = options.surface->vertices[tr.y], c = options.surface->vertices[tr.z];
     const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
@@ -345,20 +350,54 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   for (uint32_t i : order) {
     const Brick& b = selection.bricks[size_t(brickOf[i])];
     const OctreeNode& n = octree.nodes()[i];
-    const bool visible = tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;  // transparent bricks cost no texels
-    if (!visible && trianglesOf[i].empty()) continue;
+    // Hidden (transparent or culled) bricks cost no texels; their surface triangles are still drawn.
+    const bool visible = !b.hidden && tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
+    const std::vector<uint32_t> noTriangles;
+    const std::vector<uint32_t>& slabTriangles = translucent ? trianglesOf[i] : noTriangles;
+    if (!visible && slabTriangles.empty()) continue;
     glm::ivec3 lo, hi;
     octree.voxelBox(n, &lo, &hi);
     const glm::dvec3 blo = glm::dvec3(lo) * spacing, bhi = glm::dvec3(hi) * spacing;
+    // Slices every `ratio` base spacings: each level is sampled at its own rate (LaMar 1999) and
+    // the shader corrects the opacity for it; the planes stay a subset of the global ones. Bricks
+    // holding surface polygons or the eye keep the base spacing, so that surfaces and the near
+    // plane cut the volume at the finest depth resolution.
+    const KnotLattice fine = octree.lattice(n, b.p);
+    const bool holdsEye = !camera.ortho && glm::all(glm::greaterThanEqual(camera.eye, blo)) && glm::all(glm::lessThanEqual(camera.eye, bhi));
+    const double delta = baseDelta * (visible && trianglesOf[i].empty() && !holdsEye ? fine.step : 1);
+    const Program& slices = programs[visible && b.coarseCorners ? 1 : 0];
+    glUseProgram(slices.id);
+    glUniform1f(slices.at("sliceSpacing"), float(delta));
     if (visible) {
-      glm::ivec3 dims;
-      const std::vector<float> texels = brickTexels(volume, octree, n, b.p, &dims);
-      glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, dims.x, dims.y, dims.z, 0, GL_RED, GL_FLOAT, texels.data());
-      st.texels += texels.size();
+      // A lattice's texture coordinates are affine in world mm: uv = x·scale + offset.
+      auto upload = [&](const KnotLattice& L, const char* scaleName, const char* offsetName) {
+        const std::vector<float> texels = latticeTexels(volume, L);
+        glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, L.dims.x, L.dims.y, L.dims.z, 0, GL_RED, GL_FLOAT, texels.data());
+        st.texels += texels.size();
+        const glm::dvec3 d(L.dims), scale = 1.0 / (spacing * double(L.step) * d);
+        const glm::dvec3 offset = (0.5 - glm::dvec3(L.origin) / double(L.step)) / d;
+        glUniform3f(slices.at(scaleName), float(scale.x), float(scale.y), float(scale.z));
+        glUniform3f(slices.at(offsetName), float(offset.x), float(offset.y), float(offset.z));
+      };
+      glActiveTexture(GL_TEXTURE0);
+      upload(fine, "fineScale", "fineOffset");
+      const glm::dvec3 h = 0.5 * double(fine.step) * spacing;
+      glUniform3f(slices.at("gradientStep"), float(h.x), float(h.y), float(h.z));
       ++st.bricks;
-      glUniform3f(slices.at("brickOrigin"), float(lo.x), float(lo.y), float(lo.z));
-      glUniform1f(slices.at("texelStep"), float(octree.edge(n) >> b.p));
-      glUniform3f(slices.at("texDims"), float(dims.x), float(dims.y), float(dims.z));
+      // Carmona et al.: corners touching a coarser brick take the coarse lattice's value, so the
+      // field is continuous across the level change; weights are trilinear inside the node.
+      if (b.coarseCorners) {
+        glActiveTexture(GL_TEXTURE2);
+        upload(octree.coarseLattice(n, b.p), "coarseScale", "coarseOffset");
+        float w[8];
+        for (int c = 0; c < 8; ++c) w[c] = (b.coarseCorners >> c) & 1 ? 0.0f : 1.0f;
+        glUniform1fv(slices.at("cornerWeight"), 8, w);
+        const glm::dvec3 nodeScale = 1.0 / (spacing * double(octree.edge(n)));
+        const glm::dvec3 nodeOffset = -glm::dvec3(n.origin) / double(octree.edge(n));
+        glUniform3f(slices.at("nodeScale"), float(nodeScale.x), float(nodeScale.y), float(nodeScale.z));
+        glUniform3f(slices.at("nodeOffset"), float(nodeOffset.x), float(nodeOffset.y), float(nodeOffset.z));
+        ++st.blendedBricks;
+      }
     }
     // Global slice planes f·X = j·delta; this brick owns those with depth in [bmin, bmax).
     double bmin = 1e300, bmax = -1e300;
@@ -371,7 +410,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     // range covers, clipped to the slab when it covers more than one.
     instances.clear();
     long long kLo = (long long)std::floor(bmin / delta) - 1, kHi = (long long)std::ceil(bmax / delta);
-    for (uint32_t ti : trianglesOf[i]) {
+    for (uint32_t ti : slabTriangles) {
       const glm::uvec3 tr = options.surface->triangles[ti];
       double dmn = 1e300, dmx = -1e300, sum = 0;
       for (int k = 0; k < 3; ++k) {
@@ -394,7 +433,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     size_t next = 0;
     for (long long k = kHi; k >= kLo; --k) {
       if (options.slabOrder)
-        for (; next < instances.size() && instances[next].slab >= k; ++next) emitTriangle(instances[next]);
+        for (; next < instances.size() && instances[next].slab >= k; ++next) emitTriangle(instances[next], delta);
       const double plane = double(k) * delta;
       one.clear();
       if (visible && plane >= bmin && plane < bmax && slicePolygon(blo, bhi, f, plane, &one)) {
@@ -402,7 +441,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         ++st.slices;
       }
     }
-    for (; next < instances.size(); ++next) emitTriangle(instances[next]);
+    for (; next < instances.size(); ++next) emitTriangle(instances[next], delta);
     if (poly.empty()) continue;
     glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(poly.size() * sizeof(float)), poly.data(), GL_STREAM_DRAW);
     glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), nullptr);
@@ -429,6 +468,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glDisable(GL_CLIP_DISTANCE0);
   glDisable(GL_CLIP_DISTANCE1);
   glDeleteTextures(1, &tex);
+  glDeleteTextures(1, &coarseTex);
   glDeleteTextures(1, &tfTex);
   glDeleteBuffers(1, &vbo);
   glDeleteVertexArrays(1, &vao);

@@ -35,8 +35,9 @@ struct SlicesOptions {
 
 /// What a frame used.
 struct SlicesStats {
-  size_t bricks = 0;
-  uint64_t texels = 0;
+  size_t bricks = 0;               ///< textured bricks
+  size_t blendedBricks = 0;        ///< of which blend towards coarser data at some corner
+  uint64_t texels = 0;             ///< texels uploaded, blend textures included
   uint64_t textureBytes = 0;
   uint64_t slices = 0;            ///< slice polygons drawn
   uint64_t surfaceTriangles = 0;  ///< translucent triangles placed

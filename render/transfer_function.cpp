@@ -88,6 +88,18 @@ float TransferFunction::maxAlpha(float lo, float hi) const {
   return m;
 }
 
+float TransferFunction::maxSlope(float lo, float hi) const {
+  float m = 0.0f;
+  for (size_t i = 1; i < mPoints.size(); ++i) {
+    const Point &a = mPoints[i - 1], &b = mPoints[i];
+    if (b.value <= lo || a.value >= hi || b.value <= a.value) continue;
+    const glm::vec3 dc = glm::abs(b.color * b.alpha - a.color * a.alpha);
+    const float change = std::abs(b.alpha - a.alpha) + std::max({dc.r, dc.g, dc.b});
+    m = std::max(m, change / (b.value - a.value));
+  }
+  return m;
+}
+
 float TransferFunction::segmentAlpha(float alphaPerMm, float mm) {
   if (alphaPerMm <= 0.0f || mm <= 0.0f) return 0.0f;
   if (alphaPerMm >= 1.0f) return 1.0f;

@@ -37,6 +37,9 @@ class TransferFunction {
   glm::vec4 lookup(float v) const;
   /// Largest opacity per mm over [lo, hi] (exact for the piecewise-linear function).
   float maxAlpha(float lo, float hi) const;
+  /// Largest rate of change, per data unit, of the opacity plus the opacity-weighted colour over
+  /// [lo, hi]: how much an error of one data unit in that range can change the image.
+  float maxSlope(float lo, float hi) const;
   /// Opacity of a segment of @p mm millimetres with opacity @p alphaPerMm per mm.
   static float segmentAlpha(float alphaPerMm, float mm);
 

@@ -190,18 +190,33 @@ TEST(Selection, EpsilonAboveRangeSelectsRootAtLevelZero) {
   EXPECT_EQ(sel.texels, uint64_t(8));
 }
 
-TEST(Selection, ErrorsStayWithinToleranceAndLevelsAreMinimal) {
+TEST(Selection, ErrorsStayWithinToleranceAndRefinementsAreNeeded) {
   const Volume v = test::sphereVolume({65, 65, 40}, 20.0);
   const VolumeOctree t = VolumeOctree::build(v);
   for (float eps : {0.01f, 0.1f, 0.5f, 2.0f}) {
     SelectionParams params;
     params.epsilon = eps;
+    params.maxBrickEdge = 8;
+    params.restricted = false;  // without forced refinements every step was asked for by ε_u
     const Selection sel = selectNodes(t, params);
     for (const Brick& b : sel.bricks) {
       const OctreeNode& n = t.nodes()[b.node];
       EXPECT_LE(b.error, eps);
-      for (int q = 0; q < b.p; ++q) EXPECT_GT(t.errors(n)[size_t(q)], eps);  // smallest admissible p
-      EXPECT_TRUE((1 << b.p) <= params.maxBrickEdge || n.isLeaf());
+      EXPECT_LE(1 << b.p, params.maxBrickEdge);
+      if (b.node == 0) {
+        if (b.p > 0) {
+          EXPECT_GT(t.errors(n)[size_t(b.p - 1)], eps);  // the root's p is minimal
+        }
+      } else {
+        EXPECT_EQ(1 << b.p, params.maxBrickEdge);  // other bricks: B_max intervals per edge
+        // The parent was split because it was over the tolerance at that level.
+        uint32_t parent = 0;
+        for (uint32_t i = 0; i < t.nodes().size(); ++i) {
+          const OctreeNode& q = t.nodes()[i];
+          if (!q.isLeaf() && b.node >= q.firstChild && b.node < q.firstChild + uint32_t(q.childCount())) parent = i;
+        }
+        EXPECT_GT(t.errors(t.nodes()[parent])[size_t(b.p)], eps);
+      }
     }
     EXPECT_LE(sel.maxError, eps);
   }
@@ -228,22 +243,116 @@ TEST(Selection, FocusTightensErrorNearTheFocus) {
   EXPECT_LT(sel.texels, selectNodes(t, uniform).texels);  // looser far from the focus
 }
 
-TEST(Selection, TexelBudgetLowersLevels) {
-  const Volume v = test::randomVolume({65, 65, 65}, 5);
+uint64_t summedTexels(const Selection& sel) {
+  uint64_t sum = 0;
+  for (const Brick& b : sel.bricks) sum += b.texelCount() + b.coarseTexelCount();
+  return sum;
+}
+
+TEST(Selection, TexelBudgetIsNeverExceededAndTheTreeStaysRestricted) {
+  const Volume v = test::sphereVolume({65, 65, 65}, 25.0);
+  const VolumeOctree t = VolumeOctree::build(v);
+  std::mt19937 rng(7);
+  for (int blend = 0; blend < 2; ++blend) {
+    SelectionParams params;
+    params.maxBrickEdge = 8;
+    params.blend = blend == 1;
+    const uint64_t full = selectNodes(t, params).texels;
+    std::uniform_int_distribution<uint64_t> pick(8, full);
+    for (int trial = 0; trial < 12; ++trial) {
+      params.texelBudget = trial == 0 ? full : pick(rng);
+      const Selection sel = selectNodes(t, params);
+      EXPECT_TRUE(sel.budgetMet);
+      EXPECT_LE(sel.texels, params.texelBudget);
+      EXPECT_EQ(summedTexels(sel), sel.texels);
+      EXPECT_TRUE(isRestricted(t, sel));
+      if (!params.blend) {
+        EXPECT_EQ(sel.blendTexels, 0u);
+      }
+    }
+  }
+  SelectionParams params;
+  params.texelBudget = 1;  // impossible even for the root at p = 0
+  EXPECT_FALSE(selectNodes(t, params).budgetMet);
+}
+
+TEST(Selection, RestrictionRefinesCoarseNeighbours) {
+  // Noise in one block touching the plane x = 32, constant elsewhere: ε alone leaves the coarse
+  // node beyond the plane (ratio 4) beside fine ones (ratio 1).
+  const Volume v = test::makeVolume({65, 65, 65}, [](int i, int j, int k) {
+    return i >= 24 && i < 32 && j < 8 && k < 8 ? double((i * 7 + j * 13 + k * 29) % 11) : 0.0;
+  });
   const VolumeOctree t = VolumeOctree::build(v);
   SelectionParams params;
-  const uint64_t full = selectNodes(t, params).texels;
-  for (uint64_t budget : {full / 2, full / 8, full / 64}) {
-    params.texelBudget = budget;
-    const Selection sel = selectNodes(t, params);
-    EXPECT_TRUE(sel.budgetMet);
-    EXPECT_LE(sel.texels, budget);
-    uint64_t sum = 0;
-    for (const Brick& b : sel.bricks) sum += b.texelCount();
-    EXPECT_EQ(sum, sel.texels);
+  params.maxBrickEdge = 8;
+  params.restricted = false;
+  const Selection loose = selectNodes(t, params);
+  EXPECT_FALSE(isRestricted(t, loose));
+  params.restricted = true;
+  const Selection restricted = selectNodes(t, params);
+  EXPECT_TRUE(isRestricted(t, restricted));
+  EXPECT_GT(restricted.bricks.size(), loose.bricks.size());
+  EXPECT_EQ(restricted.maxError, 0.0f);
+}
+
+TEST(Selection, TransparentNodesCostNothing) {
+  const Volume v = test::sphereVolume({65, 65, 65}, 20.0);  // values from about −35 to 20
+  const VolumeOctree t = VolumeOctree::build(v);
+  SelectionParams params;
+  params.maxBrickEdge = 16;
+  params.opacity = [](float, float hi) { return hi >= 5.0f ? 1.0f : 0.0f; };  // only the core is visible
+  const Selection sel = selectNodes(t, params);
+  uint64_t visibleCells = 0;
+  for (const Brick& b : sel.bricks) {
+    const OctreeNode& n = t.nodes()[b.node];
+    EXPECT_EQ(b.hidden, n.maxValue < 5.0f);
+    if (b.hidden) {
+      EXPECT_EQ(b.texelCount(), 0u);
+    } else {
+      visibleCells += cellsOf(t, n);
+    }
   }
-  params.texelBudget = 1;  // impossible even at p = 0
-  EXPECT_FALSE(selectNodes(t, params).budgetMet);
+  EXPECT_LT(visibleCells, uint64_t(64 * 64 * 64) / 2);
+  EXPECT_LT(sel.texels, selectNodes(t, SelectionParams{}).texels / 2);
+  params.opacity = [](float, float) { return 0.0f; };
+  const Selection none = selectNodes(t, params);
+  ASSERT_EQ(none.bricks.size(), 1u);
+  EXPECT_TRUE(none.bricks[0].hidden);
+  EXPECT_EQ(none.texels, 0u);
+}
+
+TEST(Selection, FrustumCulledNodesCostNothing) {
+  const Volume v = test::randomVolume({65, 65, 65}, 3);
+  const VolumeOctree t = VolumeOctree::build(v);
+  SelectionParams params;
+  params.maxBrickEdge = 16;
+  params.inView = [](const glm::dvec3& lo, const glm::dvec3&) { return lo.x < 32.0; };  // the half x < 32 is seen
+  const Selection sel = selectNodes(t, params);
+  for (const Brick& b : sel.bricks) EXPECT_EQ(b.hidden, t.nodes()[b.node].origin.x >= 32);
+  EXPECT_LT(sel.texels, selectNodes(t, SelectionParams{}).texels * 6 / 10);
+}
+
+TEST(Selection, BlendCornersMarkCoarserNeighbours) {
+  const Volume v = test::randomVolume({33, 33, 33}, 4);
+  const VolumeOctree t = VolumeOctree::build(v);  // root edge 32, leaves edge 8
+  // Root split into eight edge-16 children at p = 3 (ratio 2); child 0 split again (ratio 1).
+  Selection sel;
+  const OctreeNode& root = t.root();
+  const OctreeNode& child0 = t.nodes()[childIndex(root, 0)];
+  for (int s = 0; s < 8; ++s) sel.bricks.push_back({childIndex(child0, s), 3});
+  for (int s = 1; s < 8; ++s) sel.bricks.push_back({childIndex(root, s), 3});
+  assignBlendCorners(t, &sel);
+  EXPECT_TRUE(isRestricted(t, sel));
+  EXPECT_EQ(sel.bricks[0].coarseCorners, 0x00);  // [0,8]³: inside child 0
+  EXPECT_EQ(sel.bricks[1].coarseCorners, 0xAA);  // [8,16]x[0,8]²: its x = 16 corners touch coarser bricks
+  EXPECT_EQ(sel.bricks[7].coarseCorners, 0xFE);  // [8,16]³: all but (8,8,8)
+  for (int b = 8; b < 15; ++b) EXPECT_EQ(sel.bricks[size_t(b)].coarseCorners, 0x00);
+  // Coarse textures: every other knot of the 9³ fine ones.
+  EXPECT_EQ(sel.bricks[7].coarseTexels, glm::ivec3(5));
+  EXPECT_EQ(sel.blendTexels, 7u * 125u);
+  const KnotLattice c = t.coarseLattice(t.nodes()[sel.bricks[7].node], 3);
+  EXPECT_EQ(c.origin, glm::ivec3(8));
+  EXPECT_EQ(c.step, 2);
 }
 
 TEST(Selection, TexelDimsAreCroppedToTheGrid) {
