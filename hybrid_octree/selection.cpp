@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <limits>
 #include <queue>
 #include <string>
 
@@ -75,8 +76,9 @@ class Refiner {
       if (mP[i] != p || !wantsRefinement(i)) continue;  // stale entry
       mJournal.clear();
       const uint64_t before = mTexels;
+      const bool onlyFree = !overTolerance(i);
       refineRestricted(i);
-      if (mParams.texelBudget > 0 && mTexels > mParams.texelBudget) {
+      if ((mParams.texelBudget > 0 && mTexels > mParams.texelBudget) || (onlyFree && mTexels > before)) {
         const std::vector<std::pair<uint32_t, int8_t>> undo = std::move(mJournal);
         for (auto it = undo.rbegin(); it != undo.rend(); ++it) set(it->first, it->second);
         HYB_CHECK(mTexels == before);
@@ -92,12 +94,27 @@ class Refiner {
 
   float tolerance(uint32_t i) const { return float(double(mParams.epsilon) / mImportance[i]); }
 
+  bool overTolerance(uint32_t i) const { return mT.errors(mT.nodes()[i])[size_t(mP[i])] > tolerance(i); }
+
+  // Whether splitting brick i costs no more texels than keeping it: its transparent or culled
+  // children cost nothing, so a coarse node that is mostly empty is better split.
+  bool splitIsFree(uint32_t i) const {
+    const OctreeNode& n = mT.nodes()[i];
+    if (n.isLeaf() || mP[i] < std::min(mBrickLevel, mT.maxLevel(n))) return false;
+    uint64_t children = 0;
+    for (int slot = 0; slot < 8; ++slot)
+      if (n.childMask & (1u << slot)) children += cost(childIndex(n, slot), mP[i]);
+    return children <= cost(i, mP[i]);
+  }
+
   bool wantsRefinement(uint32_t i) const {
-    return mP[i] >= 0 && !mHidden[i] && level(i) > 0 && mT.errors(mT.nodes()[i])[size_t(mP[i])] > tolerance(i);
+    return mP[i] >= 0 && !mHidden[i] && level(i) > 0 && (overTolerance(i) || splitIsFree(i));
   }
 
   // P = D·Imp with D = ε_p · sensitivity; a tiny floor keeps ε_u binding where the slope is 0.
+  // Free splits come first: they cost nothing and make the image no worse.
   double priority(uint32_t i) const {
+    if (!overTolerance(i)) return std::numeric_limits<double>::infinity();
     const OctreeNode& n = mT.nodes()[i];
     const double e = mT.errors(n)[size_t(mP[i])];
     const double s = mParams.sensitivity ? double(mParams.sensitivity(n.minValue, n.maxValue)) : 1.0;

@@ -2,10 +2,21 @@
 #pragma once
 
 #include "render/camera.h"
+#include "render/gl_context.h"
+#include "render/image.h"
 #include "render/transfer_function.h"
 #include "surface/mesh.h"
 
 namespace hyb::test {
+
+/// One OpenGL context for the whole test binary (creating one costs a few milliseconds on llvmpipe).
+inline GlContext& gl() {
+  static GlContext context;
+  return context;
+}
+
+/// PSNR of two float images composited over black, in dB.
+inline double psnrOf(const Image& a, const Image& b) { return psnr(toRgba8(a, glm::vec3(0)), toRgba8(b, glm::vec3(0))); }
 
 /// One material for every value in [0, 2]: colour (0.8, 0.5, 0.2), opacity @p a per mm.
 inline TransferFunction constantTf(float a) {

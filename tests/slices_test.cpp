@@ -12,16 +12,10 @@
 namespace hyb {
 namespace {
 
-// One OpenGL context for the whole suite (creating one costs a few milliseconds on llvmpipe).
-GlContext& gl() {
-  static GlContext context;
-  return context;
-}
-
 using test::constantTf;
+using test::gl;
+using test::psnrOf;
 using test::quadAt;
-
-double psnrOf(const Image& a, const Image& b) { return psnr(toRgba8(a, glm::vec3(0)), toRgba8(b, glm::vec3(0))); }
 
 // An 8x8 orthographic view straight down -z onto a 4 mm window around @p centre.
 Camera straightOn(const glm::dvec3& centre) {

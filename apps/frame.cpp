@@ -1,0 +1,153 @@
+#include "apps/frame.h"
+
+#include <chrono>
+#include <cmath>
+#include <iomanip>
+#include <ostream>
+#include <sstream>
+
+#include "hybrid_octree/surface_octree.h"
+#include "render/bvh.h"
+
+namespace hyb::app {
+
+namespace {
+
+
+}  // namespace
+
+glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
+  std::istringstream s(text);
+  glm::dvec3 v;
+  char c1 = 0, c2 = 0;
+  std::string rest;
+  if (!(s >> v.x >> c1 >> v.y >> c2 >> v.z) || c1 != ',' || c2 != ',' || (s >> rest) ||
+      !std::isfinite(v.x) || !std::isfinite(v.y) || !std::isfinite(v.z))
+    HYB_THROW(ValueError, flag, " '", text, "' invalid (expected three finite numbers x,y,z)");
+  return v;
+}
+
+Scene loadOrBuild(const VolumeInput& in, std::ostream& out, double* buildMs) {
+  const auto t0 = Clock::now();
+  Scene scene;
+  if (!in.rawLayout() && isSceneFile(in.path)) {
+    scene = loadScene(in.path);
+    *buildMs = 0.0;
+    out << "loaded scene " << in.path << " in " << std::fixed << std::setprecision(1) << msSince(t0) << " ms\n";
+    return scene;
+  }
+  scene.volume = in.read();
+  const auto t1 = Clock::now();
+  scene.octree = VolumeOctree::build(scene.volume);
+  *buildMs = msSince(t1);
+  out << "read " << in.path << " in " << std::fixed << std::setprecision(1) << msSince(t0) - *buildMs
+      << " ms, built volume octree in " << *buildMs << " ms\n";
+  return scene;
+}
+
+glm::ivec2 parseSize(const std::string& text) {
+  int w = 0, h = 0;
+  char x = 0;
+  std::istringstream s(text);
+  std::string rest;
+  if (!(s >> w >> x >> h) || (x != 'x' && x != 'X') || (s >> rest) || w < 1 || h < 1 || w > 16384 || h > 16384)
+    HYB_THROW(ValueError, "--size '", text, "' invalid (expected WxH, 1..16384 each)");
+  return {w, h};
+}
+
+glm::vec4 parseColor(const std::string& text, const std::string& flag, int n) {
+  std::string t = text;
+  for (char& c : t)
+    if (c == ',') c = ' ';
+  std::istringstream s(t);
+  glm::vec4 c(1.0f);
+  for (int k = 0; k < n; ++k)
+    if (!(s >> c[k]) || !(c[k] >= 0.0f && c[k] <= 1.0f))
+      HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", n, " numbers in [0, 1])");
+  std::string rest;
+  if (s >> rest) HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", n, " numbers in [0, 1])");
+  return c;
+}
+
+void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
+  f->scene = loadOrBuild(o.input, out, &f->buildMs);
+  const Volume& v = f->scene.volume;
+  // Transfer function: file, preset, or a default chosen from the data's range.
+  f->tf = !o.tfFile.empty()   ? TransferFunction::fromFile(o.tfFile)
+          : !o.preset.empty() ? TransferFunction::preset(o.preset)
+                              : TransferFunction::defaultFor(v.minValue(), v.maxValue());
+  const glm::ivec2 size = parseSize(o.size);
+  Camera& camera = f->camera;
+  if (!o.eye.empty()) {
+    camera.eye = parseVec3(o.eye, "--eye");
+    camera.center = o.center.empty() ? 0.5 * v.extentMm() : parseVec3(o.center, "--center");
+    camera.up = parseVec3(o.up, "--up");
+    if (glm::length(camera.eye - camera.center) == 0 || glm::length(glm::cross(camera.center - camera.eye, camera.up)) == 0)
+      HYB_THROW(ValueError, "--eye, --center and --up must give a view direction not parallel to up");
+    camera.fovDeg = o.fov;
+    camera.ortho = o.ortho;
+    camera.orthoHeight = glm::length(v.extentMm()) * 1.05;
+    camera.width = size.x;
+    camera.height = size.y;
+  } else {
+    const glm::dvec3 ae = parseVec3(o.orbit + ",0", "--orbit");
+    camera = Camera::orbit(glm::dvec3(0.0), v.extentMm(), ae.x, ae.y, o.fov, o.ortho, size.x, size.y);
+  }
+  f->surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
+  f->background = glm::vec3(parseColor(o.background, "--background", 3));
+  // Surface: the scene's when the isovalue matches, else built now.
+  if (o.iso) {
+    if (f->scene.surface && f->scene.surface->isovalue() == float(*o.iso)) {
+      f->so = &*f->scene.surface;
+    } else {
+      const auto t0 = Clock::now();
+      f->builtSurface = SurfaceOctree::build(v, f->scene.octree, float(*o.iso));
+      f->surfaceMs = msSince(t0);
+      f->so = &*f->builtSurface;
+    }
+    const DiscreteMesh d = f->so->reconstruct();
+    f->polygons = d.faceCount();
+    f->mesh = fineMeshToTriangles(d, v.spacing());
+  }
+}
+
+SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double epsilon, double budgetMb) {
+  const Volume& v = f.scene.volume;
+  SelectionParams params;
+  params.epsilon = float(epsilon);
+  params.spacing = v.spacing();
+  params.maxBrickEdge = o.maxBrick;
+  if (!o.focus.empty()) params.focus = parseVec3(o.focus, "--focus");
+  params.eye = f.camera.eye;
+  // Texture memory is counted at 4 bytes a texel (R32F textures, which hold the extrapolated texels).
+  params.texelBudget = uint64_t(budgetMb * 1024.0 * 1024.0 / 4.0);
+  if (budgetMb > 0 && params.texelBudget == 0) HYB_THROW(ValueError, "--budget ", budgetMb, " MB is smaller than one texel");
+  params.blend = o.blend == "on";
+  const TransferFunction* tf = &f.tf;
+  const Camera* camera = &f.camera;
+  params.opacity = [tf](float lo, float hi) { return tf->maxAlpha(lo, hi); };
+  params.sensitivity = [tf](float lo, float hi) { return tf->maxSlope(lo, hi); };
+  params.inView = [camera](const glm::dvec3& lo, const glm::dvec3& hi) { return camera->seesBox(lo, hi); };
+  return params;
+}
+
+Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, SlicesStats* ss, RaycastStats* rs) {
+  const Volume& v = f.scene.volume;
+  if (o.renderer == "slices") {
+    SlicesOptions opt;
+    opt.stepVoxels = o.step.value_or(0.5);
+    opt.shading = o.shading == "on";
+    opt.surface = f.so ? &f.mesh : nullptr;
+    opt.surfaceColor = f.surfaceColor;
+    return renderSlices(v, f.scene.octree, sel, f.tf, f.camera, opt, ss);
+  }
+  const Bvh bvh(f.mesh);
+  RaycastOptions ro;
+  ro.stepVoxels = o.step.value_or(0.25);
+  ro.shading = o.shading == "on";
+  ro.surface = f.so ? &bvh : nullptr;
+  ro.surfaceColor = f.surfaceColor;
+  return raycast(v, f.scene.octree, f.tf, f.camera, ro, rs);
+}
+
+}  // namespace hyb::app

@@ -1,0 +1,153 @@
+// What the render and bench subcommands share: input and render flags, and the pieces of a frame
+// (scene, transfer function, camera, surface), its selection parameters and its rendering.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <chrono>
+#include <iosfwd>
+#include <optional>
+#include <string>
+
+#include "hybrid_octree/hybrid_io.h"
+#include "hybrid_octree/selection.h"
+#include "render/camera.h"
+#include "render/image.h"
+#include "render/raycast.h"
+#include "render/slices.h"
+#include "render/transfer_function.h"
+#include "volume/volume_io.h"
+
+namespace hyb::app {
+
+using Clock = std::chrono::steady_clock;
+/// Milliseconds since @p t0.
+inline double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
+
+/// Parses "a,b,c" into three finite numbers. @throw ValueError naming @p flag.
+glm::dvec3 parseVec3(const std::string& text, const std::string& flag);
+/// Parses "WxH" into a positive size no larger than 16384. @throw ValueError naming --size.
+glm::ivec2 parseSize(const std::string& text);
+/// Parses @p n comma-separated numbers in [0, 1]. @throw ValueError naming @p flag.
+glm::vec4 parseColor(const std::string& text, const std::string& flag, int n);
+
+/// Where the volume comes from: a path (default: the Debian CT) and an optional raw layout.
+struct VolumeInput {
+  std::string path = kDefaultVolumePath;
+  std::string rawDims, rawType, rawSpacing, rawEndian = "little";
+  uint64_t rawHeader = 0;
+
+  void add(CLI::App* cmd) {
+    cmd->add_option("volume", path, "volume file (.nrrd .nhdr .mhd .mha .nii .nii.gz .inv3), DICOM directory, raw file, or scene.hoct")
+        ->capture_default_str();
+    cmd->add_option("--raw-dims", rawDims, "raw input: samples per axis X,Y,Z");
+    cmd->add_option("--raw-type", rawType, "raw input: int16|uint16|uint8|int8|int32|uint32|float32|float64");
+    cmd->add_option("--raw-spacing", rawSpacing, "raw input: voxel spacing sx,sy,sz in mm (default 1,1,1)");
+    cmd->add_option("--raw-endian", rawEndian, "raw input: little|big (default little)");
+    cmd->add_option("--raw-header", rawHeader, "raw input: bytes to skip before the samples");
+  }
+
+  // Builds the raw layout when any raw flag is given (then --raw-dims and --raw-type are required).
+  std::optional<RawLayout> rawLayout() const {
+    if (rawDims.empty() && rawType.empty() && rawSpacing.empty()) return std::nullopt;
+    if (rawDims.empty()) HYB_THROW(ValueError, "--raw-dims missing (expected X,Y,Z with --raw-type)");
+    if (rawType.empty()) HYB_THROW(ValueError, "--raw-type missing (expected int16|uint16|uint8|float32...)");
+    RawLayout l;
+    const glm::dvec3 d = parseVec3(rawDims, "--raw-dims");
+    for (int a = 0; a < 3; ++a)
+      if (d[a] != std::floor(d[a]) || d[a] < 1 || d[a] > kMaxDim)
+        HYB_THROW(ValueError, "--raw-dims '", rawDims, "' invalid (expected positive integers up to ", kMaxDim, ")");
+    l.dims = glm::ivec3(d);
+    if (!parseScalarName(rawType, &l.type))
+      HYB_THROW(ValueError, "--raw-type '", rawType, "' unknown (expected int16|uint16|uint8|int8|int32|uint32|float32|float64)");
+    if (!rawSpacing.empty()) l.spacing = parseVec3(rawSpacing, "--raw-spacing");
+    validateSpacing(l.spacing, "--raw-spacing");
+    if (rawEndian != "little" && rawEndian != "big")
+      HYB_THROW(ValueError, "--raw-endian '", rawEndian, "' invalid (expected little or big)");
+    l.bigEndian = rawEndian == "big";
+    l.headerBytes = rawHeader;
+    return l;
+  }
+
+  Volume read() const {
+    const std::optional<RawLayout> raw = rawLayout();
+    return readVolume(path, raw ? &*raw : nullptr);
+  }
+};
+
+
+/// Loads a scene file, or reads a volume and builds its octree (printing what it did on @p out).
+Scene loadOrBuild(const VolumeInput& in, std::ostream& out, double* buildMs);
+
+/// Render flags (DESIGN 2), shared by render and bench.
+struct RenderOptions {
+  VolumeInput input;
+  std::string output, stats, focus, renderer = "slices", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
+  std::string eye, center, up = "0,0,1", orbit = "180,10", size = "512x512", background = "0,0,0", shading = "on";
+  std::string blend = "on";
+  std::optional<double> iso;
+  double epsilon = 0.0, budgetMb = 0.0, fov = 30.0;
+  std::optional<double> step;  // default: 0.5 voxel for slices, 0.25 for the reference
+  bool ortho = false;
+  int maxBrick = 64;
+  std::string validate() const {
+    if (!std::isfinite(epsilon) || epsilon < 0) return "--epsilon must be a finite value >= 0 (data units)";
+    if (!std::isfinite(budgetMb) || budgetMb < 0) return "--budget must be a finite number of MB >= 0";
+    if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
+    if (renderer != "raycast" && renderer != "slices") return "--renderer '" + renderer + "' invalid (expected slices or raycast)";
+    if (!(fov > 0 && fov < 179)) return "--fov must be in (0, 179) degrees";
+    if (step && !(*step > 0.01 && *step <= 4)) return "--step must be in (0.01, 4] voxels";
+    if (shading != "on" && shading != "off") return "--shading must be on or off";
+    if (blend != "on" && blend != "off") return "--blend must be on or off";
+    if (!tfFile.empty() && !preset.empty()) return "--tf and --preset are exclusive";
+    return "";
+  }
+
+  // The flags shared by render and bench.
+  void add(CLI::App* cmd) {
+    input.add(cmd);
+    cmd->add_option("--iso", iso, "isovalue of the embedded surface (data units; none = volume only)");
+    cmd->add_option("--surface-color", surfaceColor, "surface r,g,b,a in [0,1]; a < 1 is translucent")->capture_default_str();
+    cmd->add_option("--tf", tfFile, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm");
+    cmd->add_option("--preset", preset, "ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone (default for CT; other data: a ramp)");
+    cmd->add_option("--focus", focus, "region of interest x,y,z in world mm");
+    cmd->add_option("--eye", eye, "camera position x,y,z in mm (with --center, --up)");
+    cmd->add_option("--center", center, "point looked at, x,y,z in mm (default: the volume centre)");
+    cmd->add_option("--up", up, "up direction x,y,z")->capture_default_str();
+    cmd->add_option("--orbit", orbit, "azimuth,elevation in degrees around the volume centre")->capture_default_str();
+    cmd->add_option("--fov", fov, "vertical field of view in degrees")->capture_default_str();
+    cmd->add_flag("--ortho", ortho, "orthographic projection");
+    cmd->add_option("--size", size, "image size WxH")->capture_default_str();
+    cmd->add_option("--background", background, "background r,g,b in [0,1]")->capture_default_str();
+    cmd->add_option("--shading", shading, "gradient shading of the volume: on|off")->capture_default_str();
+    cmd->add_option("--blend", blend, "blend bricks towards coarser neighbours (Carmona et al.): on|off")->capture_default_str();
+    cmd->add_option("--step", step, "slice / sample spacing in voxels (default 0.5 for slices, 0.25 for raycast)");
+    cmd->add_option("--max-brick", maxBrick, "brick edge in texels (power of two)")->capture_default_str();
+  }
+};
+
+/// Everything a frame needs besides the selection: the scene, transfer function, camera, surface.
+struct Frame {
+  Scene scene;
+  double buildMs = 0, surfaceMs = 0;
+  TransferFunction tf;
+  Camera camera;
+  std::optional<SurfaceOctree> builtSurface;
+  const SurfaceOctree* so = nullptr;
+  TriangleMesh mesh;
+  size_t polygons = 0;
+  glm::vec4 surfaceColor{1.0f};
+  glm::vec3 background{0.0f};
+};
+
+/// Loads the scene and sets up the transfer function, camera and surface of @p o.
+void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f);
+
+/// Selection parameters for a frame: ε, budget (MB), focus, the eye, the transfer function's opacity
+/// and slope, frustum culling and blending.
+SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double epsilon, double budgetMb);
+
+/// Renders one frame with o.renderer; slices need a current GlContext.
+Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, SlicesStats* ss, RaycastStats* rs);
+
+}  // namespace hyb::app

@@ -1,0 +1,127 @@
+// Multiresolution rendering: level blending, surface invariance, the speed/accuracy trade.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <functional>
+
+#include "hybrid_octree/selection.h"
+#include "hybrid_octree/surface_octree.h"
+#include "render/raycast.h"
+#include "render/slices.h"
+#include "render_util.h"
+#include "test_util.h"
+#include "volume/volume_io.h"
+
+namespace hyb {
+namespace {
+
+using test::gl;
+using test::psnrOf;
+
+// Bricks at p = 3 on the nodes whose edge is edgeFor(node): a hand-made cut with forced levels.
+Selection cutAt(const VolumeOctree& t, const std::function<int(const OctreeNode&)>& edgeFor) {
+  Selection sel;
+  std::vector<uint32_t> stack{0};
+  while (!stack.empty()) {
+    const uint32_t i = stack.back();
+    stack.pop_back();
+    const OctreeNode& n = t.nodes()[i];
+    if (t.edge(n) <= edgeFor(n) || n.isLeaf()) {
+      Brick b;
+      b.node = i;
+      b.p = 3;
+      b.texels = t.texelDims(n, 3);
+      sel.bricks.push_back(b);
+      continue;
+    }
+    for (int slot = 7; slot >= 0; --slot)
+      if (n.childMask & (1u << slot)) stack.push_back(childIndex(n, slot));
+  }
+  for (const Brick& b : sel.bricks) sel.texels += b.texelCount();
+  return sel;
+}
+
+// Largest change between neighbouring pixel columns of the red channel, over columns [x0, x1).
+float largestColumnJump(const Image& img, int x0, int x1) {
+  float jump = 0.0f;
+  for (int y = 2; y < img.height - 2; ++y)
+    for (int x = x0; x < x1; ++x) jump = std::max(jump, std::abs(img.at(x + 1, y).r - img.at(x, y).r));
+  return jump;
+}
+
+TEST(Multires, BlendingRemovesTheSeamAtALevelChange) {
+  gl();
+  // A smooth field along y only; x < 32 at one texel per voxel, x >= 32 at one per two voxels.
+  const Volume v = test::makeVolume({65, 33, 9}, [](int, int j, int) { return 100.0 + 80.0 * std::sin(2.0 * M_PI * j / 10.0); });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const Selection naive = cutAt(t, [](const OctreeNode& n) { return n.origin.x < 32 ? 8 : 16; });
+  Selection blended = naive;
+  assignBlendCorners(t, &blended);
+  ASSERT_TRUE(isRestricted(t, blended));
+  ASSERT_GT(blended.blendTexels, 0u);
+  const TransferFunction tf({{0.0f, {0, 0, 0}, 0.2f}, {200.0f, {1, 1, 1}, 0.2f}}, "grey");
+  Camera cam;  // orthographic, straight down -z, 0.5 mm a pixel, the level change between columns 31 and 32
+  cam.center = glm::dvec3(32, 16, 4);
+  cam.eye = cam.center + glm::dvec3(0, 0, 50);
+  cam.up = glm::dvec3(0, 1, 0);
+  cam.ortho = true;
+  cam.orthoHeight = 32.0;
+  cam.width = cam.height = 64;
+  SlicesOptions o;
+  o.shading = false;
+  const Image a = renderSlices(v, t, naive, tf, cam, o), b = renderSlices(v, t, blended, tf, cam, o);
+  // Within one level the columns are equal (the field does not vary along x): the jumps around the
+  // level change are the seam. Blending spreads it over the fine bricks next to the coarse ones.
+  const float seamNaive = largestColumnJump(a, 20, 44), seamBlended = largestColumnJump(b, 20, 44);
+  EXPECT_GT(seamNaive, 10.0f / 255.0f);
+  EXPECT_LE(seamBlended * 4.0f, seamNaive) << "naive " << seamNaive << ", blended " << seamBlended;
+  // Far from the change, both show the fine data unchanged.
+  for (int y = 0; y < 64; ++y) EXPECT_NEAR(a.at(4, y).r, b.at(4, y).r, 1e-6f);
+}
+
+TEST(Multires, SurfaceDoesNotMoveWithTheVolumeLevel) {
+  gl();
+  // A sphere (values up to 95, isosurface at 50, transparent) left, a smooth blob (down to −300,
+  // visible below −150) right.
+  const Volume v = test::makeVolume({64, 32, 32}, [](int i, int j, int k) {
+    const double r1 = glm::length(glm::dvec3(i, j, k) - glm::dvec3(14, 16, 16)), r2 = glm::length(glm::dvec3(i, j, k) - glm::dvec3(48, 16, 16));
+    if (r2 < 12.0) return -300.0 * std::exp(-(r2 / 6.0) * (r2 / 6.0));
+    return std::max(0.0, 50.0 + 5.0 * (9.0 - r1));
+  });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const SurfaceOctree so = SurfaceOctree::build(v, t, 50.0f);
+  const TriangleMesh mesh = fineMeshToTriangles(so.reconstruct(), v.spacing());
+  ASSERT_GT(mesh.triangles.size(), 100u);
+  const TransferFunction tf({{-300.0f, {0.9f, 0.4f, 0.2f}, 0.3f}, {-160.0f, {0.2f, 0.4f, 0.9f}, 0.3f}, {-150.0f, {0.2f, 0.4f, 0.9f}, 0.0f}}, "blob");
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 20, 15, 30, false, 96, 96);
+  SelectionParams exact, coarse;
+  for (SelectionParams* p : {&exact, &coarse}) {
+    p->maxBrickEdge = 4;  // leaves (edge 8) reach one texel per voxel only when ε_u asks for it
+    p->opacity = [&tf](float lo, float hi) { return tf.maxAlpha(lo, hi); };
+  }
+  coarse.epsilon = 40.0f;
+  const Selection fine = selectNodes(t, exact), rough = selectNodes(t, coarse);
+  ASSERT_GT(rough.maxError, 10.0f);
+  // An opaque surface: what lies behind it cannot show through.
+  SlicesOptions o;
+  o.surface = &mesh;
+  o.surfaceColor = glm::vec4(0.9f, 0.9f, 0.8f, 1.0f);
+  const Image a = renderSlices(v, t, fine, tf, cam, o), b = renderSlices(v, t, rough, tf, cam, o);
+  // The surface's pixels: those a surface-only image covers.
+  const TransferFunction clear({{0.0f, {0, 0, 0}, 0.0f}, {1.0f, {0, 0, 0}, 0.0f}}, "clear");
+  const Image s = renderSlices(v, t, fine, clear, cam, o);
+  int surfacePixels = 0, volumeDiffers = 0;
+  for (size_t i = 0; i < s.pixels.size(); ++i) {
+    if (s.pixels[i].a > 0.0f) {
+      ++surfacePixels;
+      EXPECT_EQ(a.pixels[i], b.pixels[i]) << "pixel " << i;
+    } else if (glm::length(a.pixels[i] - b.pixels[i]) > 1e-3f) {
+      ++volumeDiffers;
+    }
+  }
+  EXPECT_GT(surfacePixels, 300);
+  EXPECT_GT(volumeDiffers, 50);  // the volume did change with ε_u
+}
+
+}  // namespace
+}  // namespace hyb
