@@ -1,5 +1,6 @@
 #include "apps/cli.h"
 
+#include "apps/bench.h"
 #include "apps/frame.h"
 
 #include <CLI/CLI.hpp>
@@ -263,6 +264,10 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   renderCmd->add_option("--renderer", render.renderer, "slices|raycast")->capture_default_str();
   renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
 
+  BenchOptions bench;
+  CLI::App* benchCmd = app.add_subcommand("bench", "speed/accuracy sweep over epsilon and budget: CSV, plot and images");
+  bench.add(benchCmd);
+
   ExportOptions exportOpts;
   CLI::App* exportCmd = app.add_subcommand("export", "write the isosurface as a mesh in millimetres");
   exportOpts.input.add(exportCmd);
@@ -277,7 +282,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
       const auto known = app.get_subcommands([](const CLI::App*) { return true; });
       if (argc > 1 && argv[1][0] != '-' &&
           std::none_of(known.begin(), known.end(), [&](const CLI::App* c) { return c->get_name() == argv[1]; }))
-        HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build, render or export; see --help)");
+        HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build, render, export or bench; see --help)");
       app.parse(argc, argv);
     } catch (const CLI::CallForHelp&) {
       out << app.help();
@@ -296,6 +301,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     if (buildCmd->parsed()) return check(build.validate()), runBuild(build, out);
     if (renderCmd->parsed()) return check(render.validate()), runRender(render, out, err);
     if (exportCmd->parsed()) return check(exportOpts.validate()), runExport(exportOpts, out);
+    if (benchCmd->parsed()) return check(bench.validate()), runBench(bench, out);
     return 2;
   } catch (const IoError& e) {
     err << "hybrid-octree: error: " << e.what() << "\n";

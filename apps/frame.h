@@ -89,7 +89,7 @@ struct RenderOptions {
   double epsilon = 0.0, budgetMb = 0.0, fov = 30.0;
   std::optional<double> step;  // default: 0.5 voxel for slices, 0.25 for the reference
   bool ortho = false;
-  int maxBrick = 64;
+  int maxBrick = 16;
   std::string validate() const {
     if (!std::isfinite(epsilon) || epsilon < 0) return "--epsilon must be a finite value >= 0 (data units)";
     if (!std::isfinite(budgetMb) || budgetMb < 0) return "--budget must be a finite number of MB >= 0";

@@ -26,7 +26,7 @@ struct SelectionParams {
   std::optional<glm::dvec3> focus;    ///< region of interest (world mm); none = no focus term
   std::optional<glm::dvec3> eye;      ///< viewpoint (world mm); none = no eye-distance term
   double focusRadiusMm = 0.0;         ///< importance falloff distance; 0 = a quarter of the volume diagonal
-  int maxBrickEdge = 64;              ///< B_max: texel intervals per brick edge (power of two)
+  int maxBrickEdge = 16;              ///< B_max: texel intervals per brick edge (power of two)
   uint64_t texelBudget = 0;           ///< T_max in texels, blend textures included; 0 = unlimited
   glm::dvec3 spacing{1.0};            ///< voxel spacing (mm), to measure distances
   bool restricted = true;             ///< keep 26-neighbouring visible bricks within one resolution level

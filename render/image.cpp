@@ -2,6 +2,7 @@
 
 #include <png.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -68,6 +69,34 @@ double psnr(const std::vector<uint8_t>& a, const std::vector<uint8_t>& b) {
   }
   const double mse = se / double(a.size() / 4 * 3);
   return mse == 0 ? std::numeric_limits<double>::infinity() : 10.0 * std::log10(255.0 * 255.0 / mse);
+}
+
+double ssim(const std::vector<uint8_t>& a, const std::vector<uint8_t>& b, int width, int height) {
+  HYB_CHECK(a.size() == b.size() && a.size() == size_t(width) * size_t(height) * 4);
+  constexpr double kC1 = (0.01 * 255) * (0.01 * 255), kC2 = (0.03 * 255) * (0.03 * 255);
+  const int wx = std::min(8, width), wy = std::min(8, height);
+  double sum = 0;
+  long count = 0;
+  for (int y0 = 0; y0 + wy <= height; y0 += 4)
+    for (int x0 = 0; x0 + wx <= width; x0 += 4)
+      for (int c = 0; c < 3; ++c) {
+        double sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
+        for (int y = y0; y < y0 + wy; ++y)
+          for (int x = x0; x < x0 + wx; ++x) {
+            const size_t i = (size_t(y) * size_t(width) + size_t(x)) * 4 + size_t(c);
+            const double p = a[i], q = b[i];
+            sa += p;
+            sb += q;
+            saa += p * p;
+            sbb += q * q;
+            sab += p * q;
+          }
+        const double n = double(wx * wy), ma = sa / n, mb = sb / n;
+        const double va = saa / n - ma * ma, vb = sbb / n - mb * mb, cov = sab / n - ma * mb;
+        sum += (2 * ma * mb + kC1) * (2 * cov + kC2) / ((ma * ma + mb * mb + kC1) * (va + vb + kC2));
+        ++count;
+      }
+  return count ? sum / double(count) : 1.0;
 }
 
 }  // namespace hyb

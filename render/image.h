@@ -33,4 +33,9 @@ std::vector<uint8_t> readPng(const std::string& path, int* width, int* height);
 /// PSNR in dB over RGB of two equal-size RGBA8 images (infinity when identical).
 double psnr(const std::vector<uint8_t>& a, const std::vector<uint8_t>& b);
 
+/// Mean structural similarity (Wang et al. 2004) over RGB of two equal-size RGBA8 images: 8x8
+/// windows every 4 pixels (one window over the whole image when smaller), C1 = (0.01·255)²,
+/// C2 = (0.03·255)², averaged over windows and channels. 1 when identical.
+double ssim(const std::vector<uint8_t>& a, const std::vector<uint8_t>& b, int width, int height);
+
 }  // namespace hyb

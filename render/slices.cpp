@@ -324,8 +324,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glGenQueries(1, &query);
   glBeginQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB, query);
   std::vector<float> poly;
-  const GLuint coarseTex = newVolumeTexture(2);
-  const GLuint tex = newVolumeTexture(0);
+  // A texture object per brick: re-specifying one shared texture would make llvmpipe wait for the
+  // previous brick's draws before every upload.
+  std::vector<GLuint> textures, buffers;
   // A slab instance of a translucent triangle: which triangle, its slab, whether to clip, sort key.
   struct Instance {
     uint32_t triangle;
@@ -379,7 +380,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         glUniform3f(slices.at(scaleName), float(scale.x), float(scale.y), float(scale.z));
         glUniform3f(slices.at(offsetName), float(offset.x), float(offset.y), float(offset.z));
       };
-      glActiveTexture(GL_TEXTURE0);
+      textures.push_back(newVolumeTexture(0));
       upload(fine, "fineScale", "fineOffset");
       const glm::dvec3 h = 0.5 * double(fine.step) * spacing;
       glUniform3f(slices.at("gradientStep"), float(h.x), float(h.y), float(h.z));
@@ -387,7 +388,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       // Carmona et al.: corners touching a coarser brick take the coarse lattice's value, so the
       // field is continuous across the level change; weights are trilinear inside the node.
       if (b.coarseCorners) {
-        glActiveTexture(GL_TEXTURE2);
+        textures.push_back(newVolumeTexture(2));
         upload(octree.coarseLattice(n, b.p), "coarseScale", "coarseOffset");
         float w[8];
         for (int c = 0; c < 8; ++c) w[c] = (b.coarseCorners >> c) & 1 ? 0.0f : 1.0f;
@@ -443,6 +444,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     }
     for (; next < instances.size(); ++next) emitTriangle(instances[next], delta);
     if (poly.empty()) continue;
+    buffers.emplace_back();
+    glGenBuffers(1, &buffers.back());
+    glBindBuffer(GL_ARRAY_BUFFER, buffers.back());
     glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(poly.size() * sizeof(float)), poly.data(), GL_STREAM_DRAW);
     glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), nullptr);
     glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
@@ -467,8 +471,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   const GLenum err = glGetError();
   glDisable(GL_CLIP_DISTANCE0);
   glDisable(GL_CLIP_DISTANCE1);
-  glDeleteTextures(1, &tex);
-  glDeleteTextures(1, &coarseTex);
+  glDeleteTextures(GLsizei(textures.size()), textures.data());
+  glDeleteBuffers(GLsizei(buffers.size()), buffers.data());
   glDeleteTextures(1, &tfTex);
   glDeleteBuffers(1, &vbo);
   glDeleteVertexArrays(1, &vao);

@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 
 #include "render/raycast.h"
 #include "render_util.h"
@@ -193,6 +194,19 @@ TEST(Image, PngRoundTripAndPsnr) {
   off[0] = uint8_t(off[0] + 10);
   EXPECT_NEAR(psnr(back, off), 10 * std::log10(255.0 * 255.0 / (100.0 / 45.0)), 1e-9);
   EXPECT_THROW(writePng(dir.file("no/dir/a.png"), img, glm::vec3(0)), IoError);
+}
+
+TEST(Image, SsimOfIdenticalConstantAndNoisyImages) {
+  std::vector<uint8_t> a(16 * 16 * 4, 100), b = a;
+  EXPECT_DOUBLE_EQ(ssim(a, a, 16, 16), 1.0);
+  for (size_t i = 0; i < b.size(); ++i) b[i] = 120;
+  // Constant windows: only the luminance term, (2·100·120 + C1) / (100² + 120² + C1).
+  const double c1 = 2.55 * 2.55;
+  EXPECT_NEAR(ssim(a, b, 16, 16), (2 * 100.0 * 120.0 + c1) / (100.0 * 100.0 + 120.0 * 120.0 + c1), 1e-12);
+  std::mt19937 rng(3);
+  for (uint8_t& x : b) x = uint8_t(rng() % 256);
+  EXPECT_LT(ssim(a, b, 16, 16), 0.2);
+  EXPECT_DOUBLE_EQ(ssim(std::vector<uint8_t>(3 * 2 * 4, 7), std::vector<uint8_t>(3 * 2 * 4, 7), 3, 2), 1.0);  // smaller than a window
 }
 
 TEST(RaycastCranium, RendersTheRealCtWithItsBoneSurface) {

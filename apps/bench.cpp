@@ -1,0 +1,235 @@
+#include "apps/bench.h"
+
+#include <spawn.h>
+#include <sys/wait.h>
+
+#include <filesystem>
+#include <iomanip>
+#include <limits>
+#include <ostream>
+#include <sstream>
+
+#include "render/gl_context.h"
+#include "volume/file_util.h"
+
+extern char** environ;
+
+namespace hyb::app {
+
+namespace {
+
+// "a,b,c" into numbers, each checked by @p ok; throws ValueError naming @p flag.
+std::vector<double> parseList(const std::string& text, const std::string& flag, bool (*ok)(double), const char* expected) {
+  std::vector<double> out;
+  std::string item;
+  std::istringstream s(text);
+  while (std::getline(s, item, ',')) {
+    size_t used = 0;
+    double x = 0;
+    try {
+      x = std::stod(item, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used == 0 || used != item.size() || !ok(x)) HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", expected, ")");
+    out.push_back(x);
+  }
+  if (out.empty()) HYB_THROW(ValueError, flag, " is empty (expected ", expected, ")");
+  return out;
+}
+
+// One measured point of the sweep.
+struct Point {
+  std::string sweep;  // full, epsilon or budget
+  double epsilon = 0, budgetFraction = 0, budgetMb = 0;
+  bool blend = true;
+  size_t bricks = 0, textured = 0, blended = 0;
+  uint64_t textureBytes = 0;
+  float maxError = 0;
+  double selectMs = 0, frameMs = 0, psnrDb = 0, ssim = 0;
+  std::string image;
+};
+
+// Runs gnuplot on @p script; false when it cannot be started or fails.
+bool runGnuplot(const std::string& script) {
+  const char* argv[] = {"gnuplot", script.c_str(), nullptr};
+  pid_t pid = 0;
+  if (posix_spawnp(&pid, "gnuplot", nullptr, nullptr, const_cast<char* const*>(argv), environ) != 0) return false;
+  int status = 0;
+  if (waitpid(pid, &status, 0) != pid) return false;
+  return WIFEXITED(status) && WEXITSTATUS(status) == 0;
+}
+
+// The gnuplot script of the two panels: PSNR and frame time against texture memory.
+std::string plotScript(const std::string& csv, const std::string& png, const std::string& title) {
+  std::ostringstream g;
+  auto series = [&](int column) {
+    g << "plot f u ((strcol(1) eq 'full' || strcol(1) eq 'epsilon') ? $9/1048576 : NaN):" << column
+      << " w lp pt 7 lw 2 t 'epsilon_u sweep (blend on)', \\\n"
+      << "     f u ((strcol(1) eq 'full' || strcol(1) eq 'epsilon') ? $9/1048576 : NaN):" << column
+      << ":(sprintf('%g', $2)) w labels offset 0,0.9 tc rgb '#555555' notitle, \\\n"
+      << "     f u (strcol(1) eq 'budget' && strcol(5) eq 'on' ? $9/1048576 : NaN):" << column
+      << " w lp pt 5 lw 2 t 'budget sweep, blend on', \\\n"
+      << "     f u (strcol(1) eq 'budget' && strcol(5) eq 'off' ? $9/1048576 : NaN):" << column
+      << " w lp pt 4 lw 1 dt 2 t 'budget sweep, blend off'\n";
+  };
+  g << "set terminal pngcairo size 1280,540 font 'sans,11'\n"
+    << "set output '" << png << "'\n"
+    << "set datafile separator ','\nset datafile columnheaders\nf = '" << csv << "'\n"
+    << "set multiplot layout 1,2 title '" << title << "' noenhanced\n"
+    << "set grid\nset logscale x 2\nset xlabel 'texture memory (MB)'\nset key bottom right\n"
+    << "set ylabel 'PSNR against the reference ray tracer (dB)'\n";
+  series(13);
+  g << "set ylabel 'frame time (ms)'\nset key top left\n";
+  series(12);
+  g << "unset multiplot\n";
+  return g.str();
+}
+
+}  // namespace
+
+std::string BenchOptions::validate() const {
+  if (outDir.empty()) return "-o missing (expected the output directory)";
+  if (repeat < 1 || repeat > 100) return "--repeat must be in 1..100";
+  return render.validate();
+}
+
+void BenchOptions::add(CLI::App* cmd) {
+  render.add(cmd);
+  cmd->add_option("-o,--output", outDir, "directory for trade.csv, trade.png and the images");
+  cmd->add_option("--epsilons", epsilons, "epsilon_u values in data units, comma-separated (default: 0 to 10 % of the data range)");
+  cmd->add_option("--budgets", budgets, "texture budgets as fractions of the full-resolution bytes")->capture_default_str();
+  cmd->add_option("--repeat", repeat, "frames per point; the fastest counts")->capture_default_str();
+  cmd->add_flag("!--no-plot", plot, "skip the gnuplot plot");
+}
+
+int runBench(const BenchOptions& o, std::ostream& out) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  fs::create_directories(o.outDir, ec);
+  if (ec || !fs::is_directory(o.outDir)) HYB_THROW(IoError, o.outDir, ": cannot create the output directory (", ec.message(), ")");
+  const std::vector<double> budgets =
+      parseList(o.budgets, "--budgets", [](double x) { return x > 0.0 && x <= 1.0; }, "fractions in (0, 1]");
+  Frame f;
+  prepareFrame(o.render, out, &f);
+  const Volume& v = f.scene.volume;
+  std::vector<double> epsilons;
+  if (o.epsilons.empty()) {
+    for (double fraction : {0.0025, 0.005, 0.01, 0.025, 0.05, 0.1}) epsilons.push_back(fraction * double(v.maxValue() - v.minValue()));
+  } else {
+    epsilons = parseList(o.epsilons, "--epsilons", [](double x) { return std::isfinite(x) && x >= 0.0; }, "finite values >= 0");
+  }
+  const std::string dir = fs::path(o.outDir).string();
+  auto file = [&](const std::string& name) { return (fs::path(dir) / name).string(); };
+
+  // The reference: the CPU hybrid ray tracer at full resolution.
+  RenderOptions refOptions = o.render;
+  refOptions.renderer = "raycast";
+  refOptions.step.reset();
+  auto t0 = Clock::now();
+  RaycastStats rs;
+  const Image reference = renderFrame(refOptions, f, Selection{}, nullptr, &rs);
+  const double referenceMs = msSince(t0);
+  writePng(file("reference.png"), reference, f.background);
+  const std::vector<uint8_t> refRgba = toRgba8(reference, f.background);
+  out << "reference ray tracer: " << std::fixed << std::setprecision(1) << referenceMs << " ms -> " << file("reference.png") << "\n";
+
+  const GlContext gl;
+  RenderOptions slices = o.render;
+  slices.renderer = "slices";
+  const size_t total = 1 + epsilons.size() + 2 * budgets.size();
+  std::vector<Point> points;
+  auto measure = [&](Point p) {
+    RenderOptions ro = slices;
+    ro.blend = p.blend ? "on" : "off";
+    auto s0 = Clock::now();
+    const Selection sel = selectNodes(f.scene.octree, selectionParams(ro, f, p.epsilon, p.budgetMb));
+    p.selectMs = msSince(s0);
+    Image img;
+    SlicesStats ss;
+    p.frameMs = std::numeric_limits<double>::infinity();
+    for (int r = 0; r < o.repeat; ++r) {
+      s0 = Clock::now();
+      img = renderFrame(ro, f, sel, &ss, nullptr);
+      p.frameMs = std::min(p.frameMs, msSince(s0));
+    }
+    const std::vector<uint8_t> rgba = toRgba8(img, f.background);
+    p.psnrDb = std::min(99.0, psnr(rgba, refRgba));  // 99: identical
+    p.ssim = ssim(rgba, refRgba, img.width, img.height);
+    p.bricks = sel.bricks.size();
+    p.textured = ss.bricks;
+    p.blended = ss.blendedBricks;
+    p.textureBytes = ss.textureBytes;
+    p.maxError = sel.maxError;
+    std::ostringstream name;
+    name << p.sweep;
+    if (p.sweep == "epsilon") name << "_" << p.epsilon;
+    if (p.sweep == "budget") name << "_" << p.budgetFraction << "_blend_" << ro.blend;
+    p.image = name.str() + ".png";
+    writePng(file(p.image), img, f.background);
+    points.push_back(p);
+    out << "[" << points.size() << "/" << total << "] " << std::left << std::setw(28) << name.str() << std::right << std::setprecision(2)
+        << std::setw(8) << double(p.textureBytes) / 1048576.0 << " MB " << std::setw(5) << p.textured << " bricks " << std::setprecision(1)
+        << std::setw(8) << p.frameMs << " ms " << std::setprecision(2) << std::setw(6) << p.psnrDb << " dB  SSIM " << std::setprecision(4)
+        << p.ssim << std::endl;
+  };
+  Point full;
+  full.sweep = "full";
+  measure(full);
+  for (double e : epsilons) {
+    if (e == 0.0) continue;
+    Point p;
+    p.sweep = "epsilon";
+    p.epsilon = e;
+    measure(p);
+  }
+  const double fullMb = double(points[0].textureBytes) / 1048576.0;
+  for (bool blend : {true, false})  // one run of rows per series, so the plot joins them
+    for (double b : budgets) {
+      Point p;
+      p.sweep = "budget";
+      p.budgetFraction = b;
+      p.budgetMb = b * fullMb;
+      p.blend = blend;
+      measure(p);
+    }
+
+  // The table and the plot.
+  writeFileAtomically(file("trade.csv"), [&](std::ostream& s) {
+    s << "sweep,epsilon,budget_fraction,budget_mb,blend,bricks,textured_bricks,blended_bricks,texture_bytes,max_error,select_ms,frame_ms,"
+         "psnr_db,ssim,image\n";
+    for (const Point& p : points)
+      s << std::setprecision(6) << p.sweep << "," << p.epsilon << "," << p.budgetFraction << "," << p.budgetMb << "," << (p.blend ? "on" : "off")
+        << "," << p.bricks << "," << p.textured << "," << p.blended << "," << p.textureBytes << "," << p.maxError << "," << p.selectMs << ","
+        << p.frameMs << "," << p.psnrDb << "," << p.ssim << "," << p.image << "\n";
+  });
+  out << "wrote    " << file("trade.csv") << "\n";
+  const Point& base = points[0];
+  out << std::setprecision(2) << "summary  full resolution: " << fullMb << " MB, " << std::setprecision(1) << base.frameMs << " ms, "
+      << std::setprecision(2) << base.psnrDb << " dB; reference " << std::setprecision(1) << referenceMs << " ms\n";
+  const size_t firstBudget = points.size() - 2 * budgets.size();
+  for (size_t i = 0; i < budgets.size(); ++i) {
+    const Point &on = points[firstBudget + i], &off = points[firstBudget + budgets.size() + i];
+    out << "  budget " << std::setprecision(4) << on.budgetFraction << ": " << std::setprecision(2) << base.frameMs / on.frameMs
+        << "x faster than full, " << on.psnrDb << " dB; blending costs " << std::setprecision(1) << 100.0 * (on.frameMs / off.frameMs - 1.0)
+        << " % frame time, " << 100.0 * (double(on.textureBytes) / double(std::max<uint64_t>(off.textureBytes, 1)) - 1.0)
+        << " % texture bytes, " << std::setprecision(2) << on.psnrDb - off.psnrDb << " dB\n";
+  }
+  if (o.plot) {
+    std::ostringstream title;
+    title << "hybrid-octree speed/accuracy: " << fs::path(o.render.input.path).filename().string() << ", " << f.camera.width << "x"
+          << f.camera.height << (f.camera.ortho ? ", orthographic" : ", perspective");
+    const std::string png = file("trade.png"), tmp = file(".trade.png.tmp");
+    writeFileAtomically(file("trade.gp"), [&](std::ostream& s) { s << plotScript(file("trade.csv"), tmp, title.str()); });
+    if (!runGnuplot(file("trade.gp"))) {
+      fs::remove(tmp, ec);
+      HYB_THROW(RuntimeError, file("trade.gp"), ": gnuplot failed or is not installed (apt-get install gnuplot-nox); the CSV is written");
+    }
+    fs::rename(tmp, png, ec);
+    if (ec) HYB_THROW(IoError, png, ": cannot write the plot (", ec.message(), ")");
+    out << "wrote    " << png << "\n";
+  }
+  return 0;
+}
+
+}  // namespace hyb::app

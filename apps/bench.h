@@ -1,0 +1,31 @@
+// `hybrid-octree bench`: the speed/accuracy trade, measured (DESIGN 6; issue "multiresolution").
+#pragma once
+
+#include <iosfwd>
+#include <string>
+
+#include "apps/frame.h"
+
+namespace hyb::app {
+
+/// Options of the sweep; the render flags choose the scene (renderer: always slices, against the
+/// reference ray tracer).
+struct BenchOptions {
+  RenderOptions render;
+  std::string outDir;
+  std::string epsilons;                            ///< ε_u values (data units); empty: 0…10 % of the data range
+  std::string budgets = "0.5,0.25,0.125,0.0625";  ///< fractions of the full-resolution texture bytes
+  int repeat = 1;                                  ///< frames per point; the fastest counts
+  bool plot = true;                                ///< draw trade.png with gnuplot
+
+  std::string validate() const;
+  void add(CLI::App* cmd);
+};
+
+/// Sweeps ε_u (blending on) and the budget (blending on and off), and for each point records the
+/// texture bytes, bricks, select and frame times and PSNR/SSIM against the reference into
+/// outDir/trade.csv, with the images and a plot outDir/trade.png. Prints progress and a summary.
+/// @throw ValueError / IoError for bad flags or unwritable outputs; RuntimeError when gnuplot fails.
+int runBench(const BenchOptions& o, std::ostream& out);
+
+}  // namespace hyb::app
