@@ -119,11 +119,11 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     }
     auto& e = perLevel[1 << resolutionLevel(f.scene.octree, b)];
     ++e.first;
-    e.second += b.texelCount() + b.coarseTexelCount();
+    e.second += b.texelCount();
   }
   out << "selection: epsilon " << o.epsilon << ", " << sel.bricks.size() << " bricks (" << hidden << " transparent or culled), "
       << sel.texels << " texels (" << std::fixed << std::setprecision(2) << double(sel.texels) * 4.0 / (1024.0 * 1024.0)
-      << " MB, blending " << sel.blendTexels << "), max nodal error used " << sel.maxError << ", " << std::setprecision(3) << selectMs
+      << " MB; " << sel.blendedBricks << " bricks blend), max nodal error used " << sel.maxError << ", " << std::setprecision(3) << selectMs
       << " ms\n";
   for (const auto& [ratio, e] : perLevel)
     out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
@@ -151,7 +151,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   if (!o.stats.empty()) {
     writeFileAtomically(o.stats, [&](std::ostream& s) {
       s << std::setprecision(9) << "{\n  \"renderer\": \"" << o.renderer << "\",\n  \"nodes_selected\": " << sel.bricks.size()
-        << ",\n  \"nodes_hidden\": " << hidden << ",\n  \"texels\": " << sel.texels << ",\n  \"blend_texels\": " << sel.blendTexels
+        << ",\n  \"nodes_hidden\": " << hidden << ",\n  \"texels\": " << sel.texels << ",\n  \"blended_bricks\": " << sel.blendedBricks
         << ",\n  \"texture_bytes\": " << (o.renderer == "slices" ? ss.textureBytes : sel.texels * 4) << ",\n  \"slices\": " << ss.slices
         << ",\n  \"surface_polygons\": " << f.polygons << ",\n  \"surface_triangles\": " << f.mesh.triangles.size()
         << ",\n  \"slab_polygon_draws\": " << ss.slabPolygonDraws << ",\n  \"build_ms\": " << f.buildMs + f.surfaceMs

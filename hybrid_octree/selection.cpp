@@ -62,7 +62,9 @@ class Refiner {
   bool hidden(uint32_t i) const { return mHidden[i]; }
   double importance(uint32_t i) const { return mImportance[i]; }
 
-  // Refines every brick that asks for it, best first, within the budget.
+  // Refines every brick that asks for it, best first, within the budget. A refinement that was
+  // taken back may fit once others have happened (a free split whose restriction closure cost
+  // texels, say), so the bricks are offered again until a pass changes nothing.
   void run() {
     using Entry = std::pair<double, std::pair<uint32_t, int>>;  // (priority, (node, p when pushed))
     std::priority_queue<Entry> heap;
@@ -70,22 +72,29 @@ class Refiner {
       if (wantsRefinement(i)) heap.push({priority(i), {i, mP[i]}});
     };
     push(0);
-    while (!heap.empty()) {
-      const auto [i, p] = heap.top().second;
-      heap.pop();
-      if (mP[i] != p || !wantsRefinement(i)) continue;  // stale entry
-      mJournal.clear();
-      const uint64_t before = mTexels;
-      const bool onlyFree = !overTolerance(i);
-      refineRestricted(i);
-      if ((mParams.texelBudget > 0 && mTexels > mParams.texelBudget) || (onlyFree && mTexels > before)) {
-        const std::vector<std::pair<uint32_t, int8_t>> undo = std::move(mJournal);
-        for (auto it = undo.rbegin(); it != undo.rend(); ++it) set(it->first, it->second);
-        HYB_CHECK(mTexels == before);
-        continue;  // this node stays as it is; smaller refinements elsewhere may still fit
+    for (int pass = 0; pass < 4 && !heap.empty(); ++pass) {
+      bool rolledBack = false, changed = false;
+      while (!heap.empty()) {
+        const auto [i, p] = heap.top().second;
+        heap.pop();
+        if (mP[i] != p || !wantsRefinement(i)) continue;  // stale entry
+        mJournal.clear();
+        const uint64_t before = mTexels;
+        const bool onlyFree = !overTolerance(i);
+        refineRestricted(i);
+        if ((mParams.texelBudget > 0 && mTexels > mParams.texelBudget) || (onlyFree && mTexels > before)) {
+          const std::vector<std::pair<uint32_t, int8_t>> undo = std::move(mJournal);
+          for (auto it = undo.rbegin(); it != undo.rend(); ++it) set(it->first, it->second);
+          HYB_CHECK(mTexels == before);
+          rolledBack = true;
+          continue;  // this node stays as it is; smaller refinements elsewhere may still fit
+        }
+        changed = true;
+        for (const auto& [node, old] : mJournal)
+          if (mP[node] >= 0) push(node);
       }
-      for (const auto& [node, old] : mJournal)
-        if (mP[node] >= 0) push(node);
+      if (!rolledBack || !changed) break;
+      for (uint32_t i = 0; i < mP.size(); ++i) push(i);
     }
   }
 
@@ -121,14 +130,8 @@ class Refiner {
     return e * (s + 1e-9) * mImportance[i];
   }
 
-  // Texels brick i costs at level p: its own texture and, when blending, the coarse one.
-  uint64_t cost(uint32_t i, int p) const {
-    if (p < 0 || mHidden[i]) return 0;
-    const OctreeNode& n = mT.nodes()[i];
-    uint64_t c = mT.lattice(n, p).count();
-    if (mParams.blend && i != 0) c += mT.coarseLattice(n, p).count();
-    return c;
-  }
+  // Texels brick i costs at level p.
+  uint64_t cost(uint32_t i, int p) const { return p < 0 || mHidden[i] ? 0 : mT.lattice(mT.nodes()[i], p).count(); }
 
   // Every change of the cut goes through here (journalled).
   void set(uint32_t i, int p) {
@@ -254,19 +257,17 @@ Selection selectNodes(const VolumeOctree& octree, const SelectionParams& params)
   }
   for (const Brick& b : sel.bricks)
     if (!b.hidden) sel.maxError = std::max(sel.maxError, b.error);
+  for (const Brick& b : sel.bricks) sel.texels += b.texelCount();
   if (params.blend) assignBlendCorners(octree, &sel);
-  else
-    for (const Brick& b : sel.bricks) sel.texels += b.texelCount();
   return sel;
 }
 
 void assignBlendCorners(const VolumeOctree& octree, Selection* sel) {
   const std::vector<int> of = brickIndex(octree, *sel);
   const auto isBrick = [&](uint32_t j) { return of[j] >= 0; };
-  sel->texels = sel->blendTexels = 0;
+  sel->blendedBricks = 0;
   for (Brick& b : sel->bricks) {
     b.coarseCorners = 0;
-    b.coarseTexels = glm::ivec3(0);
     if (b.hidden) continue;
     const OctreeNode& n = octree.nodes()[b.node];
     const int r = resolutionLevel(octree, b);
@@ -277,9 +278,7 @@ void assignBlendCorners(const VolumeOctree& octree, Selection* sel) {
         if (!nb.hidden && resolutionLevel(octree, nb) > r) b.coarseCorners |= uint8_t(1u << c);
       });
     }
-    if (b.coarseCorners) b.coarseTexels = octree.coarseLattice(n, b.p).dims;
-    sel->texels += b.texelCount() + b.coarseTexelCount();
-    sel->blendTexels += b.coarseTexelCount();
+    sel->blendedBricks += b.coarseCorners != 0;
   }
 }
 

@@ -6,6 +6,12 @@
 // Refinement lowers r by one: it raises p while 2^p < B_max, then splits the node into its children
 // at the same p. So every brick but the root holds 2^p = B_max texel intervals per edge and a
 // coarser neighbour is always a larger node (the property per-corner blending needs).
+//
+// Blending (Carmona et al.): a brick whose corner touches a coarser visible brick gets weight 0 at
+// that corner (1 elsewhere, trilinear inside the node) and shows mix(coarse, own, w), the coarse
+// field being that of VolumeOctree::coarseLattice. On a face shared with a coarser brick all
+// weights are 0, so the field is continuous across the level change. The renderer bakes the mix
+// into the brick's own texels: blending costs no texture memory and no shader work.
 #pragma once
 
 #include <glm/glm.hpp>
@@ -27,10 +33,10 @@ struct SelectionParams {
   std::optional<glm::dvec3> eye;      ///< viewpoint (world mm); none = no eye-distance term
   double focusRadiusMm = 0.0;         ///< importance falloff distance; 0 = a quarter of the volume diagonal
   int maxBrickEdge = 16;              ///< B_max: texel intervals per brick edge (power of two)
-  uint64_t texelBudget = 0;           ///< T_max in texels, blend textures included; 0 = unlimited
+  uint64_t texelBudget = 0;           ///< T_max in texels; 0 = unlimited
   glm::dvec3 spacing{1.0};            ///< voxel spacing (mm), to measure distances
   bool restricted = true;             ///< keep 26-neighbouring visible bricks within one resolution level
-  bool blend = true;                  ///< blend towards coarser neighbours (counts the coarse textures)
+  bool blend = true;                  ///< mark the corners that blend towards coarser neighbours
   /// Largest opacity the transfer function gives a value range [lo, hi]; a node whose range gets 0
   /// is transparent and costs nothing. None: every node is visible.
   std::function<float(float lo, float hi)> opacity;
@@ -53,16 +59,14 @@ struct Brick {
   bool hidden = false;        ///< transparent by its min/max or outside the view: no texture
   uint8_t coarseCorners = 0;  ///< bit c (slot order x|y<<1|z<<2) set when corner c touches a coarser brick
   glm::ivec3 texels{0};       ///< texture samples per axis (cropped to the grid); 0 when hidden
-  glm::ivec3 coarseTexels{0}; ///< samples of the coarse blend texture; 0 when no corner blends
   uint64_t texelCount() const { return uint64_t(texels.x) * texels.y * texels.z; }
-  uint64_t coarseTexelCount() const { return uint64_t(coarseTexels.x) * coarseTexels.y * coarseTexels.z; }
 };
 
 /// The result of a selection: bricks (hidden ones included) cover the grid exactly once.
 struct Selection {
   std::vector<Brick> bricks;
-  uint64_t texels = 0;       ///< texture samples of the visible bricks, blend textures included
-  uint64_t blendTexels = 0;  ///< of which coarse blend textures
+  uint64_t texels = 0;       ///< texture samples of the visible bricks
+  size_t blendedBricks = 0;  ///< visible bricks with a corner that blends
   float maxError = 0;        ///< largest ε_p over the visible bricks
   bool budgetMet = true;     ///< false when even the coarsest selection exceeds texelBudget
 };
@@ -82,8 +86,8 @@ inline int resolutionLevel(const VolumeOctree& octree, const Brick& b) {
 /// @throw ValueError when @p params is invalid.
 Selection selectNodes(const VolumeOctree& octree, const SelectionParams& params);
 
-/// Sets each visible brick's coarseCorners and coarseTexels from its neighbours (a corner blends when
-/// a visible brick of a higher resolution level touches it) and recounts the selection's texels.
+/// Sets each visible brick's coarseCorners from its neighbours (a corner blends when a visible brick
+/// of a higher resolution level touches it) and counts the blended bricks.
 void assignBlendCorners(const VolumeOctree& octree, Selection* selection);
 
 /// Whether every two touching visible bricks differ by at most one resolution level.

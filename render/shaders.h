@@ -40,42 +40,25 @@ void main() {
 )";
 
 /// One brick's slice: sample the brick texture, classify with the per-millimetre transfer
-/// function, correct opacity for the segment the slice stands for, shade, premultiply. Compiled
-/// twice, after "#version 450 core\n#define BLEND 0|1\n": llvmpipe evaluates both sides of a
-/// uniform branch, so bricks that do not blend get a program without the coarse fetches.
-inline constexpr const char* kSliceFragment = R"(
+/// function, correct opacity for the segment the slice stands for, shade, premultiply.
+inline constexpr const char* kSliceFragment = R"(#version 450 core
 in vec3 vWorld;
 in vec3 vNormal;
 flat in float vKind;
 out vec4 fragColor;
 uniform vec4 surfaceColor;  // straight rgb, alpha per crossing
 uniform sampler3D volumeTex;  // the brick's lattice
-uniform sampler3D coarseTex;  // the lattice one level coarser (blend == 1)
 uniform sampler1D tfTex;
-uniform vec3 fineScale, fineOffset;      // world mm -> the brick texture's coordinates
-uniform vec3 coarseScale, coarseOffset;  // world mm -> the coarse texture's coordinates
-uniform vec3 nodeScale, nodeOffset;      // world mm -> [0,1]^3 over the node's box, for the blend weights
-uniform float cornerWeight[8];  // 1: the brick's own data at that corner, 0: the coarse data
-uniform vec3 gradientStep;      // half a texel, mm
+uniform vec3 fineScale, fineOffset;  // world mm -> the brick texture's coordinates
+uniform vec3 gradientStep;           // half a texel, mm
 uniform float tfMin, tfScale, tfSize;
 uniform vec3 eye, forward;
 uniform int ortho;
 uniform float sliceSpacing;  // mm between this brick's slice planes along forward
 uniform int shading;
 
-// The brick's field at world position x; blended towards the coarse lattice near coarser bricks.
-float sampleAt(vec3 x) {
-  float v = texture(volumeTex, x * fineScale + fineOffset).r;
-#if BLEND == 0
-  return v;
-#else
-  float c = texture(coarseTex, x * coarseScale + coarseOffset).r;
-  vec3 u = clamp(x * nodeScale + nodeOffset, 0.0, 1.0);
-  float w = mix(mix(mix(cornerWeight[0], cornerWeight[1], u.x), mix(cornerWeight[2], cornerWeight[3], u.x), u.y),
-                mix(mix(cornerWeight[4], cornerWeight[5], u.x), mix(cornerWeight[6], cornerWeight[7], u.x), u.y), u.z);
-  return mix(c, v, w);
-#endif
-}
+// The brick's field at world position x (blending towards coarser bricks is baked into its texels).
+float sampleAt(vec3 x) { return texture(volumeTex, x * fineScale + fineOffset).r; }
 
 void main() {
   if (vKind > 0.5) {  // translucent surface, headlight-shaded, premultiplied

@@ -86,11 +86,11 @@ struct FloatTarget {
   }
 };
 
-// A 3D texture on @p unit with trilinear filtering and clamped edges, for one R32F volume at a time.
-GLuint newVolumeTexture(int unit = 0) {
+// A 3D texture on unit 0 with trilinear filtering and clamped edges, for one R32F volume.
+GLuint newVolumeTexture() {
   GLuint tex;
   glGenTextures(1, &tex);
-  glActiveTexture(GLenum(GL_TEXTURE0 + unit));
+  glActiveTexture(GL_TEXTURE0);
   glBindTexture(GL_TEXTURE_3D, tex);
   glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
@@ -99,10 +99,11 @@ GLuint newVolumeTexture(int unit = 0) {
   return tex;
 }
 
-// The texels of a knot lattice (a brick's own or its coarse blend lattice, DESIGN 3.3), with the
-// overhanging last texel extrapolated so that uniform trilinear filtering reproduces the lattice's
+// The texels of a knot lattice (DESIGN 3.3): value(knot position) at each knot, with the overhanging
+// last texel extrapolated so that uniform trilinear filtering reproduces the lattice's
 // position-clamped trilinear field exactly.
-std::vector<float> latticeTexels(const Volume& v, const KnotLattice& L) {
+template <class Value>
+std::vector<float> latticeTexels(const KnotLattice& L, const Value& value) {
   const glm::ivec3 d = L.dims;
   const int s = L.step;
   std::vector<float> out(size_t(L.count()));
@@ -110,7 +111,7 @@ std::vector<float> latticeTexels(const Volume& v, const KnotLattice& L) {
   auto knot = [&](int a, int j) { return std::min(L.origin[a] + j * s, L.last[a]); };
   for (int k = 0; k < d.z; ++k)
     for (int j = 0; j < d.y; ++j)
-      for (int i = 0; i < d.x; ++i) at(i, j, k) = v.at(knot(0, i), knot(1, j), knot(2, k));
+      for (int i = 0; i < d.x; ++i) at(i, j, k) = value(glm::ivec3(knot(0, i), knot(1, j), knot(2, k)));
   for (int a = 0; a < 3; ++a) {
     const int m = d[a] - 1;
     if (m < 1 || L.origin[a] + m * s <= L.last[a]) continue;  // the last knot sits where a uniform texel would
@@ -128,6 +129,41 @@ std::vector<float> latticeTexels(const Volume& v, const KnotLattice& L) {
         }
   }
   return out;
+}
+
+// The position-clamped trilinear field of lattice @p L at voxel @p p.
+float latticeField(const Volume& v, const KnotLattice& L, const glm::ivec3& p) {
+  glm::ivec3 lo, hi;
+  glm::vec3 t;
+  for (int a = 0; a < 3; ++a) {
+    const int j = std::clamp((p[a] - L.origin[a]) / L.step, 0, std::max(L.dims[a] - 2, 0));
+    lo[a] = std::min(L.origin[a] + j * L.step, L.last[a]);
+    hi[a] = std::min(L.origin[a] + (j + 1) * L.step, L.last[a]);
+    t[a] = hi[a] > lo[a] ? float(p[a] - lo[a]) / float(hi[a] - lo[a]) : 0.0f;
+  }
+  auto at = [&](int c) { return v.at(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z); };
+  const float x00 = glm::mix(at(0), at(1), t.x), x10 = glm::mix(at(2), at(3), t.x);
+  const float x01 = glm::mix(at(4), at(5), t.x), x11 = glm::mix(at(6), at(7), t.x);
+  return glm::mix(glm::mix(x00, x10, t.y), glm::mix(x01, x11, t.y), t.z);
+}
+
+// The texels of brick @p b: its lattice's samples or, when a corner blends (Carmona et al.),
+// mix(coarse field, sample, w) with w trilinear in the corner weights over the node's box.
+std::vector<float> brickTexels(const Volume& v, const VolumeOctree& t, const Brick& b) {
+  const OctreeNode& n = t.nodes()[b.node];
+  const KnotLattice fine = t.lattice(n, b.p);
+  if (!b.coarseCorners) return latticeTexels(fine, [&](const glm::ivec3& p) { return v.at(p.x, p.y, p.z); });
+  const KnotLattice coarse = t.coarseLattice(n, b.p);
+  const glm::vec3 origin(n.origin);
+  const float edge = float(t.edge(n));
+  return latticeTexels(fine, [&](const glm::ivec3& p) {
+    const glm::vec3 u = (glm::vec3(p) - origin) / edge;
+    float w = 0.0f;
+    for (int c = 0; c < 8; ++c)
+      if (!((b.coarseCorners >> c) & 1))
+        w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
+    return glm::mix(latticeField(v, coarse, p), v.at(p.x, p.y, p.z), w);
+  });
 }
 
 // Appends plane f·X = depth ∩ box [lo, hi] as a triangle fan (world mm) to @p out; returns whether
@@ -247,25 +283,19 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
 
-  // Two slice programs: [0] without, [1] with blending towards coarser data.
-  const std::string plainSource = std::string("#version 450 core\n#define BLEND 0\n") + shaders::kSliceFragment;
-  const std::string blendSource = std::string("#version 450 core\n#define BLEND 1\n") + shaders::kSliceFragment;
-  const Program programs[2] = {{shaders::kStreamVertex, plainSource.c_str()}, {shaders::kStreamVertex, blendSource.c_str()}};
-  for (const Program& slices : programs) {
-    glUseProgram(slices.id);
-    glUniformMatrix4fv(slices.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
-    glUniform1i(slices.at("volumeTex"), 0);
-    glUniform1i(slices.at("tfTex"), 1);
-    glUniform1i(slices.at("coarseTex"), 2);
-    glUniform1f(slices.at("tfMin"), vmin);
-    glUniform1f(slices.at("tfScale"), float(kTfSize - 1) / (vmax - vmin));
-    glUniform1f(slices.at("tfSize"), float(kTfSize));
-    glUniform3f(slices.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
-    glUniform3f(slices.at("forward"), float(f.x), float(f.y), float(f.z));
-    glUniform1i(slices.at("ortho"), camera.ortho ? 1 : 0);
-    glUniform1i(slices.at("shading"), options.shading ? 1 : 0);
-    glUniform4fv(slices.at("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
-  }
+  Program slices(shaders::kStreamVertex, shaders::kSliceFragment);
+  glUseProgram(slices.id);
+  glUniformMatrix4fv(slices.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
+  glUniform1i(slices.at("volumeTex"), 0);
+  glUniform1i(slices.at("tfTex"), 1);
+  glUniform1f(slices.at("tfMin"), vmin);
+  glUniform1f(slices.at("tfScale"), float(kTfSize - 1) / (vmax - vmin));
+  glUniform1f(slices.at("tfSize"), float(kTfSize));
+  glUniform3f(slices.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
+  glUniform3f(slices.at("forward"), float(f.x), float(f.y), float(f.z));
+  glUniform1i(slices.at("ortho"), camera.ortho ? 1 : 0);
+  glUniform1i(slices.at("shading"), options.shading ? 1 : 0);
+  glUniform4fv(slices.at("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
   glEnableVertexAttribArray(0);
   glEnableVertexAttribArray(1);
   glEnableVertexAttribArray(2);
@@ -366,39 +396,21 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     const KnotLattice fine = octree.lattice(n, b.p);
     const bool holdsEye = !camera.ortho && glm::all(glm::greaterThanEqual(camera.eye, blo)) && glm::all(glm::lessThanEqual(camera.eye, bhi));
     const double delta = baseDelta * (visible && trianglesOf[i].empty() && !holdsEye ? fine.step : 1);
-    const Program& slices = programs[visible && b.coarseCorners ? 1 : 0];
-    glUseProgram(slices.id);
     glUniform1f(slices.at("sliceSpacing"), float(delta));
     if (visible) {
-      // A lattice's texture coordinates are affine in world mm: uv = x·scale + offset.
-      auto upload = [&](const KnotLattice& L, const char* scaleName, const char* offsetName) {
-        const std::vector<float> texels = latticeTexels(volume, L);
-        glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, L.dims.x, L.dims.y, L.dims.z, 0, GL_RED, GL_FLOAT, texels.data());
-        st.texels += texels.size();
-        const glm::dvec3 d(L.dims), scale = 1.0 / (spacing * double(L.step) * d);
-        const glm::dvec3 offset = (0.5 - glm::dvec3(L.origin) / double(L.step)) / d;
-        glUniform3f(slices.at(scaleName), float(scale.x), float(scale.y), float(scale.z));
-        glUniform3f(slices.at(offsetName), float(offset.x), float(offset.y), float(offset.z));
-      };
-      textures.push_back(newVolumeTexture(0));
-      upload(fine, "fineScale", "fineOffset");
-      const glm::dvec3 h = 0.5 * double(fine.step) * spacing;
-      glUniform3f(slices.at("gradientStep"), float(h.x), float(h.y), float(h.z));
+      // The texture coordinates are affine in world mm: uv = x·scale + offset.
+      const std::vector<float> texels = brickTexels(volume, octree, b);
+      textures.push_back(newVolumeTexture());
+      glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, fine.dims.x, fine.dims.y, fine.dims.z, 0, GL_RED, GL_FLOAT, texels.data());
+      st.texels += texels.size();
       ++st.bricks;
-      // Carmona et al.: corners touching a coarser brick take the coarse lattice's value, so the
-      // field is continuous across the level change; weights are trilinear inside the node.
-      if (b.coarseCorners) {
-        textures.push_back(newVolumeTexture(2));
-        upload(octree.coarseLattice(n, b.p), "coarseScale", "coarseOffset");
-        float w[8];
-        for (int c = 0; c < 8; ++c) w[c] = (b.coarseCorners >> c) & 1 ? 0.0f : 1.0f;
-        glUniform1fv(slices.at("cornerWeight"), 8, w);
-        const glm::dvec3 nodeScale = 1.0 / (spacing * double(octree.edge(n)));
-        const glm::dvec3 nodeOffset = -glm::dvec3(n.origin) / double(octree.edge(n));
-        glUniform3f(slices.at("nodeScale"), float(nodeScale.x), float(nodeScale.y), float(nodeScale.z));
-        glUniform3f(slices.at("nodeOffset"), float(nodeOffset.x), float(nodeOffset.y), float(nodeOffset.z));
-        ++st.blendedBricks;
-      }
+      st.blendedBricks += b.coarseCorners != 0;
+      const glm::dvec3 d(fine.dims), scale = 1.0 / (spacing * double(fine.step) * d);
+      const glm::dvec3 offset = (0.5 - glm::dvec3(fine.origin) / double(fine.step)) / d;
+      const glm::dvec3 h = 0.5 * double(fine.step) * spacing;
+      glUniform3f(slices.at("fineScale"), float(scale.x), float(scale.y), float(scale.z));
+      glUniform3f(slices.at("fineOffset"), float(offset.x), float(offset.y), float(offset.z));
+      glUniform3f(slices.at("gradientStep"), float(h.x), float(h.y), float(h.z));
     }
     // Global slice planes f·X = j·delta; this brick owns those with depth in [bmin, bmax).
     double bmin = 1e300, bmax = -1e300;

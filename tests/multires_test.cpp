@@ -58,7 +58,7 @@ TEST(Multires, BlendingRemovesTheSeamAtALevelChange) {
   Selection blended = naive;
   assignBlendCorners(t, &blended);
   ASSERT_TRUE(isRestricted(t, blended));
-  ASSERT_GT(blended.blendTexels, 0u);
+  ASSERT_GT(blended.blendedBricks, 0u);
   const TransferFunction tf({{0.0f, {0, 0, 0}, 0.2f}, {200.0f, {1, 1, 1}, 0.2f}}, "grey");
   Camera cam;  // orthographic, straight down -z, 0.5 mm a pixel, the level change between columns 31 and 32
   cam.center = glm::dvec3(32, 16, 4);

@@ -245,7 +245,7 @@ TEST(Selection, FocusTightensErrorNearTheFocus) {
 
 uint64_t summedTexels(const Selection& sel) {
   uint64_t sum = 0;
-  for (const Brick& b : sel.bricks) sum += b.texelCount() + b.coarseTexelCount();
+  for (const Brick& b : sel.bricks) sum += b.texelCount();
   return sum;
 }
 
@@ -267,7 +267,7 @@ TEST(Selection, TexelBudgetIsNeverExceededAndTheTreeStaysRestricted) {
       EXPECT_EQ(summedTexels(sel), sel.texels);
       EXPECT_TRUE(isRestricted(t, sel));
       if (!params.blend) {
-        EXPECT_EQ(sel.blendTexels, 0u);
+        EXPECT_EQ(sel.blendedBricks, 0u);
       }
     }
   }
@@ -347,12 +347,12 @@ TEST(Selection, BlendCornersMarkCoarserNeighbours) {
   EXPECT_EQ(sel.bricks[1].coarseCorners, 0xAA);  // [8,16]x[0,8]²: its x = 16 corners touch coarser bricks
   EXPECT_EQ(sel.bricks[7].coarseCorners, 0xFE);  // [8,16]³: all but (8,8,8)
   for (int b = 8; b < 15; ++b) EXPECT_EQ(sel.bricks[size_t(b)].coarseCorners, 0x00);
-  // Coarse textures: every other knot of the 9³ fine ones.
-  EXPECT_EQ(sel.bricks[7].coarseTexels, glm::ivec3(5));
-  EXPECT_EQ(sel.blendTexels, 7u * 125u);
+  EXPECT_EQ(sel.blendedBricks, 7u);
+  // The coarse lattice: every other knot of the 9³ fine one.
   const KnotLattice c = t.coarseLattice(t.nodes()[sel.bricks[7].node], 3);
   EXPECT_EQ(c.origin, glm::ivec3(8));
   EXPECT_EQ(c.step, 2);
+  EXPECT_EQ(c.dims, glm::ivec3(5));
 }
 
 TEST(Selection, TexelDimsAreCroppedToTheGrid) {
