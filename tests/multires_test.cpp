@@ -123,5 +123,65 @@ TEST(Multires, SurfaceDoesNotMoveWithTheVolumeLevel) {
   EXPECT_GT(volumeDiffers, 50);  // the volume did change with ε_u
 }
 
+// The cranium at 128x128x108: a 2x2 in-plane box average of the Debian CT (as CI-sized data).
+Volume halfCranium() {
+  const Volume full = readVolume(kDefaultVolumePath);
+  const glm::ivec3 d(full.dims().x / 2, full.dims().y / 2, full.dims().z);
+  std::vector<float> s(size_t(d.x) * d.y * d.z);
+  for (int k = 0; k < d.z; ++k)
+    for (int j = 0; j < d.y; ++j)
+      for (int i = 0; i < d.x; ++i)
+        s[size_t(i) + size_t(d.x) * (j + size_t(d.y) * k)] =
+            0.25f * (full.at(2 * i, 2 * j, k) + full.at(2 * i + 1, 2 * j, k) + full.at(2 * i, 2 * j + 1, k) + full.at(2 * i + 1, 2 * j + 1, k));
+  return Volume(d, full.spacing() * glm::dvec3(2, 2, 1), ScalarType::Float32, std::move(s), "half cranium");
+}
+
+TEST(MultiresCranium, AccuracyAndBytesFallAsEpsilonGrowsOrTheBudgetShrinks) {
+  gl();
+  const Volume v = halfCranium();
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf = TransferFunction::preset("ct-skin-bone");
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 180, 10, 30, false, 128, 128);
+  const std::vector<uint8_t> reference = toRgba8(raycast(v, t, tf, cam, RaycastOptions{}), glm::vec3(0));
+  SelectionParams base;
+  base.spacing = v.spacing();
+  base.eye = cam.eye;
+  base.opacity = [&tf](float lo, float hi) { return tf.maxAlpha(lo, hi); };
+  base.sensitivity = [&tf](float lo, float hi) { return tf.maxSlope(lo, hi); };
+  base.inView = [&cam](const glm::dvec3& lo, const glm::dvec3& hi) { return cam.seesBox(lo, hi); };
+  struct Result {
+    double db;
+    uint64_t bytes;
+  };
+  auto run = [&](const SelectionParams& params) {
+    SlicesStats st;
+    const Image img = renderSlices(v, t, selectNodes(t, params), tf, cam, SlicesOptions{}, &st);
+    return Result{psnr(toRgba8(img, glm::vec3(0)), reference), st.textureBytes};
+  };
+  auto expectFalling = [](const std::vector<Result>& r, const char* what) {
+    for (size_t i = 1; i < r.size(); ++i) {
+      EXPECT_LE(r[i].db, r[i - 1].db + 0.2) << what << " step " << i;
+      EXPECT_LE(r[i].bytes, r[i - 1].bytes) << what << " step " << i;
+    }
+    EXPECT_LT(r.back().db, r.front().db - 3.0) << what << ": the sweep must reach a visibly coarser image";
+  };
+  std::vector<Result> byEpsilon;
+  for (float eps : {0.0f, 100.0f, 300.0f, 500.0f, 800.0f, 1500.0f}) {
+    SelectionParams p = base;
+    p.epsilon = eps;
+    byEpsilon.push_back(run(p));
+  }
+  EXPECT_GE(byEpsilon.front().db, 35.0);
+  expectFalling(byEpsilon, "epsilon");
+  std::vector<Result> byBudget{byEpsilon.front()};
+  for (double fraction : {0.5, 0.25, 0.125, 0.0625}) {
+    SelectionParams p = base;
+    p.texelBudget = uint64_t(fraction * double(byEpsilon.front().bytes) / 4.0);
+    byBudget.push_back(run(p));
+    EXPECT_LE(byBudget.back().bytes, p.texelBudget * 4);
+  }
+  expectFalling(byBudget, "budget");
+}
+
 }  // namespace
 }  // namespace hyb
