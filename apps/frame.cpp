@@ -94,6 +94,19 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
     camera = Camera::orbit(glm::dvec3(0.0), v.extentMm(), ae.x, ae.y, o.fov, o.ortho, size.x, size.y);
   }
   f->surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
+  if (!o.cut.empty()) {
+    std::string text = o.cut;
+    for (char& c : text)
+      if (c == ',') c = ' ';
+    std::istringstream s(text);
+    double x[6];
+    std::string rest;
+    bool ok = true;
+    for (double& e : x) ok = ok && (s >> e) && std::isfinite(e);
+    if (!ok || (s >> rest) || (x[3] == 0 && x[4] == 0 && x[5] == 0))
+      HYB_THROW(ValueError, "--cut '", o.cut, "' invalid (expected px,py,pz,nx,ny,nz: a point and a non-zero normal, finite mm)");
+    f->cut = CutPlane{glm::dvec3(x[0], x[1], x[2]), glm::dvec3(x[3], x[4], x[5])};
+  }
   f->background = glm::vec3(parseColor(o.background, "--background", 3));
   // Surface: the scene's when the isovalue matches, else built now.
   if (o.iso) {
@@ -127,7 +140,12 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
   const Camera* camera = &f.camera;
   params.opacity = [tf](float lo, float hi) { return tf->maxAlpha(lo, hi); };
   params.sensitivity = [tf](float lo, float hi) { return tf->maxSlope(lo, hi); };
-  params.inView = [camera](const glm::dvec3& lo, const glm::dvec3& hi) { return camera->seesBox(lo, hi); };
+  // Frustum culling, and nodes wholly on the removed side of the cutting plane.
+  const glm::dvec4 cut = f.cut ? f.cut->keptSide(f.camera) : glm::dvec4(0, 0, 0, 1);
+  params.inView = [camera, cut](const glm::dvec3& lo, const glm::dvec3& hi) {
+    const glm::dvec3 far = glm::mix(lo, hi, glm::dvec3(glm::greaterThan(glm::dvec3(cut), glm::dvec3(0.0))));
+    return glm::dot(glm::dvec3(cut), far) + cut.w >= 0.0 && camera->seesBox(lo, hi);
+  };
   return params;
 }
 
@@ -139,6 +157,8 @@ Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, 
     opt.shading = o.shading == "on";
     opt.surface = f.so ? &f.mesh : nullptr;
     opt.surfaceColor = f.surfaceColor;
+    opt.cut = f.cut ? &*f.cut : nullptr;
+    opt.cutLine = o.cutLine == "on";
     return renderSlices(v, f.scene.octree, sel, f.tf, f.camera, opt, ss);
   }
   const Bvh bvh(f.mesh);
@@ -147,6 +167,7 @@ Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, 
   ro.shading = o.shading == "on";
   ro.surface = f.so ? &bvh : nullptr;
   ro.surfaceColor = f.surfaceColor;
+  ro.cut = f.cut ? &*f.cut : nullptr;
   return raycast(v, f.scene.octree, f.tf, f.camera, ro, rs);
 }
 

@@ -84,7 +84,7 @@ struct RenderOptions {
   VolumeInput input;
   std::string output, stats, focus, renderer = "slices", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
   std::string eye, center, up = "0,0,1", orbit = "180,10", size = "512x512", background = "0,0,0", shading = "on";
-  std::string blend = "on";
+  std::string blend = "on", cut, cutLine = "on";
   std::optional<double> iso;
   double epsilon = 0.0, budgetMb = 0.0, fov = 30.0;
   std::optional<double> step;  // default: 0.5 voxel for slices, 0.25 for the reference
@@ -99,6 +99,7 @@ struct RenderOptions {
     if (step && !(*step > 0.01 && *step <= 4)) return "--step must be in (0.01, 4] voxels";
     if (shading != "on" && shading != "off") return "--shading must be on or off";
     if (blend != "on" && blend != "off") return "--blend must be on or off";
+    if (cutLine != "on" && cutLine != "off") return "--cut-line must be on or off";
     if (!tfFile.empty() && !preset.empty()) return "--tf and --preset are exclusive";
     return "";
   }
@@ -121,6 +122,8 @@ struct RenderOptions {
     cmd->add_option("--background", background, "background r,g,b in [0,1]")->capture_default_str();
     cmd->add_option("--shading", shading, "gradient shading of the volume: on|off")->capture_default_str();
     cmd->add_option("--blend", blend, "blend bricks towards coarser neighbours (Carmona et al.): on|off")->capture_default_str();
+    cmd->add_option("--cut", cut, "cutting plane px,py,pz,nx,ny,nz (point and normal, mm): removes the eye's side, shows the data on it");
+    cmd->add_option("--cut-line", cutLine, "draw the isosurface's intersection with the cutting plane: on|off")->capture_default_str();
     cmd->add_option("--step", step, "slice / sample spacing in voxels (default 0.5 for slices, 0.25 for raycast)");
     cmd->add_option("--max-brick", maxBrick, "brick edge in texels (power of two)")->capture_default_str();
   }
@@ -138,6 +141,7 @@ struct Frame {
   size_t polygons = 0;
   glm::vec4 surfaceColor{1.0f};
   glm::vec3 background{0.0f};
+  std::optional<CutPlane> cut;
 };
 
 /// Loads the scene and sets up the transfer function, camera and surface of @p o.

@@ -69,6 +69,8 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
     }
   };
 
+  const glm::dvec4 cut = options.cut ? options.cut->keptSide(camera) : glm::dvec4(0, 0, 0, 1);
+
   uint64_t samples = 0, skipped = 0, crossings = 0;
 #pragma omp parallel for schedule(dynamic, 1) reduction(+ : samples, skipped, crossings)
   for (int y = 0; y < camera.height; ++y) {
@@ -83,7 +85,30 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
       double t0 = 0, t1 = 0;
       const bool inBox = slab(o, d, glm::dvec3(0.0), boxHi, &t0, &t1);
       t0 = std::max(t0, 0.0);
-      if (options.surface) options.surface->allHits(o, d, 0.0, 1e300, &hits);
+      // The cutting plane: only [keepLo, keepHi] of the ray is kept; where the ray enters the kept
+      // side inside the data box, the plane shows the data's colour, opaque.
+      double keepLo = 0.0, keepHi = 1e300;
+      if (options.cut) {
+        const double sd = glm::dot(glm::dvec3(cut), o) + cut.w, dn = glm::dot(glm::dvec3(cut), d);
+        if (dn > 0.0) {
+          keepLo = std::max(0.0, -sd / dn);
+          const double slack = 1e-9 * glm::length(boxHi);
+          if (inBox && keepLo >= t0 - slack && keepLo <= t1 + slack) {
+            const glm::vec4 c = tf.lookup(volume.sample(glm::vec3((o + d * keepLo) / spacing)));
+            if (c.a > 0.0f) {
+              image.at(x, y) = glm::vec4(glm::vec3(c), 1.0f);
+              continue;
+            }
+          }
+        } else if (sd < 0.0) {
+          keepHi = -1.0;  // the whole ray is on the removed side
+        } else if (dn < 0.0) {
+          keepHi = -sd / dn;
+        }
+      }
+      t0 = std::max(t0, keepLo);
+      t1 = std::min(t1, keepHi);
+      if (options.surface) options.surface->allHits(o, d, keepLo, std::max(keepLo, keepHi), &hits);
       size_t nextHit = 0;
       auto surfaceUntil = [&](double t) {  // composite surface crossings before distance t
         while (nextHit < hits.size() && hits[nextHit].t <= t && acc.a < 0.999) {

@@ -7,6 +7,7 @@
 #include "hybrid_octree/volume_octree.h"
 #include "render/bvh.h"
 #include "render/camera.h"
+#include "render/cut_plane.h"
 #include "render/image.h"
 #include "render/transfer_function.h"
 #include "volume/volume.h"
@@ -21,6 +22,7 @@ struct RaycastOptions {
   glm::vec4 surfaceColor{1.0f};      ///< straight RGBA; a < 1 is translucent (per crossing)
   bool volume = true;                ///< false: surfaces only
   bool skipEmptySpace = true;        ///< jump over nodes the transfer function makes transparent
+  const CutPlane* cut = nullptr;     ///< cutting plane, or none
 };
 
 /// Per-pixel statistics of a render.

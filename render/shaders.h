@@ -8,23 +8,27 @@ inline constexpr const char* kWorldVertex = R"(#version 450 core
 layout(location = 0) in vec3 position;
 layout(location = 1) in vec3 normal;
 uniform mat4 viewProj;
+uniform vec4 cutPlane;  // kept where dot(cutPlane.xyz, x) + cutPlane.w >= 0
 out vec3 vWorld;
 out vec3 vNormal;
 void main() {
   vWorld = position;
   vNormal = normal;
+  gl_ClipDistance[0] = dot(cutPlane.xyz, position) + cutPlane.w;
   gl_Position = viewProj * vec4(position, 1.0);
 }
 )";
 
 /// One brick's stream of slices and translucent surface triangles in draw order. kind 0: a slice;
-/// kind 1: a surface triangle clipped to its slab [slab.x, slab.y] of view depth (SlabPolygon).
+/// kind 1: a surface triangle clipped to its slab [slab.x, slab.y] of view depth (SlabPolygon);
+/// kind 2: the brick's piece of the cutting plane. All but the plane are clipped by it.
 inline constexpr const char* kStreamVertex = R"(#version 450 core
 layout(location = 0) in vec3 position;
 layout(location = 1) in vec3 normal;
 layout(location = 2) in vec3 kindSlab;  // kind, slab near depth, slab far depth
 uniform mat4 viewProj;
 uniform vec3 forward;
+uniform vec4 cutPlane;  // kept where dot(cutPlane.xyz, x) + cutPlane.w >= 0
 out vec3 vWorld;
 out vec3 vNormal;
 flat out float vKind;
@@ -35,6 +39,7 @@ void main() {
   float depth = dot(forward, position);
   gl_ClipDistance[0] = depth - kindSlab.y;
   gl_ClipDistance[1] = kindSlab.z - depth;
+  gl_ClipDistance[2] = kindSlab.x > 1.5 ? 1.0 : dot(cutPlane.xyz, position) + cutPlane.w;
   gl_Position = viewProj * vec4(position, 1.0);
 }
 )";
@@ -61,7 +66,7 @@ uniform int shading;
 float sampleAt(vec3 x) { return texture(volumeTex, x * fineScale + fineOffset).r; }
 
 void main() {
-  if (vKind > 0.5) {  // translucent surface, headlight-shaded, premultiplied
+  if (vKind > 0.5 && vKind < 1.5) {  // translucent surface, headlight-shaded, premultiplied
     vec3 d = ortho == 1 ? forward : normalize(vWorld - eye);
     float shade = 0.25 + 0.75 * abs(dot(normalize(vNormal), d));
     fragColor = vec4(surfaceColor.rgb * shade * surfaceColor.a, surfaceColor.a);
@@ -71,6 +76,10 @@ void main() {
   float v = sampleAt(x);
   vec4 c = texture(tfTex, ((v - tfMin) * tfScale + 0.5) / tfSize);
   if (c.a <= 0.0) discard;
+  if (vKind > 1.5) {  // the cutting plane: the data's colour, opaque
+    fragColor = vec4(c.rgb, 1.0);
+    return;
+  }
   vec3 dir = ortho == 1 ? forward : normalize(vWorld - eye);
   float len = sliceSpacing / max(abs(dot(dir, forward)), 1e-6);
   float alpha = c.a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - c.a, len);

@@ -200,6 +200,54 @@ bool slicePolygon(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& 
   return true;
 }
 
+// Draws the intersection of @p surface with the plane @p cut (n·x + w = 0) as lines on top: the
+// plane is the nearest thing wherever it is drawn, everything in front of it being clipped away.
+void drawCutLine(const TriangleMesh& surface, const glm::dvec4& cut, const glm::mat4& viewProj, const glm::vec4& color,
+                 SlicesStats* st) {
+  std::vector<float> lines;
+  for (const glm::uvec3& t : surface.triangles) {
+    glm::dvec3 p[3];
+    double s[3];
+    for (int k = 0; k < 3; ++k) {
+      p[k] = glm::dvec3(surface.vertices[t[k]]);
+      s[k] = glm::dot(glm::dvec3(cut), p[k]) + cut.w;
+    }
+    glm::dvec3 ends[3];
+    int n = 0;
+    for (int k = 0; k < 3; ++k) {
+      const int j = (k + 1) % 3;
+      if ((s[k] < 0) != (s[j] < 0)) ends[n++] = p[k] + (p[j] - p[k]) * (s[k] / (s[k] - s[j]));
+    }
+    if (n != 2) continue;
+    for (int e = 0; e < 2; ++e) lines.insert(lines.end(), {float(ends[e].x), float(ends[e].y), float(ends[e].z), 0, 0, 0});
+    ++st->cutLineSegments;
+  }
+  if (lines.empty()) return;
+  static constexpr const char* kLineFragment = R"(#version 450 core
+out vec4 fragColor;
+uniform vec3 color;
+void main() { fragColor = vec4(color, 1.0); }
+)";
+  const Program program(shaders::kWorldVertex, kLineFragment);
+  glUseProgram(program.id);
+  glUniformMatrix4fv(program.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
+  glUniform4f(program.at("cutPlane"), 0, 0, 0, 1);
+  glUniform3f(program.at("color"), color.r, color.g, color.b);
+  GLuint buffer;
+  glGenBuffers(1, &buffer);
+  glBindBuffer(GL_ARRAY_BUFFER, buffer);
+  glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(lines.size() * sizeof(float)), lines.data(), GL_STREAM_DRAW);
+  glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), nullptr);
+  glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
+  glDisableVertexAttribArray(2);
+  glDisable(GL_DEPTH_TEST);
+  glBlendFunc(GL_ONE, GL_ZERO);
+  glDrawArrays(GL_LINES, 0, GLsizei(lines.size() / 6));
+  glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+  glEnable(GL_DEPTH_TEST);
+  glDeleteBuffers(1, &buffer);
+}
+
 }  // namespace
 
 Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
@@ -243,6 +291,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glBindBuffer(GL_ARRAY_BUFFER, vbo);
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LESS);
+  // The cutting plane's kept side (everything kept without a plane).
+  const glm::dvec4 cut = options.cut ? options.cut->keptSide(camera) : glm::dvec4(0, 0, 0, 1);
+  const glm::vec4 cutPlane(cut);
 
   // Opaque surface first, writing depth.
   const bool translucent = options.surface && !options.surface->triangles.empty() && options.surfaceColor.a < 1.0f;
@@ -266,6 +317,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     glUniform3f(surf.at("forward"), float(f.x), float(f.y), float(f.z));
     glUniform1i(surf.at("ortho"), camera.ortho ? 1 : 0);
     glUniform3f(surf.at("color"), options.surfaceColor.r, options.surfaceColor.g, options.surfaceColor.b);
+    glUniform4fv(surf.at("cutPlane"), 1, glm::value_ptr(cutPlane));
+    glEnable(GL_CLIP_DISTANCE0);
     glDrawArrays(GL_TRIANGLES, 0, GLsizei(data.size() / 6));
   }
 
@@ -296,11 +349,13 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glUniform1i(slices.at("ortho"), camera.ortho ? 1 : 0);
   glUniform1i(slices.at("shading"), options.shading ? 1 : 0);
   glUniform4fv(slices.at("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
+  glUniform4fv(slices.at("cutPlane"), 1, glm::value_ptr(cutPlane));
   glEnableVertexAttribArray(0);
   glEnableVertexAttribArray(1);
   glEnableVertexAttribArray(2);
   glEnable(GL_CLIP_DISTANCE0);
   glEnable(GL_CLIP_DISTANCE1);
+  glEnable(GL_CLIP_DISTANCE2);
   glDepthMask(GL_FALSE);
   glEnable(GL_BLEND);
   glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
@@ -443,6 +498,17 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       return x.slab != y.slab ? x.slab > y.slab : x.depth > y.depth;
     });
     poly.clear();
+    // This brick's piece of the cutting plane goes first, writing depth: the brick's slices behind
+    // it are hidden, those in front are clipped away.
+    size_t cutVertices = 0;
+    if (options.cut && visible) {
+      one.clear();
+      if (slicePolygon(blo, bhi, glm::dvec3(cut), -cut.w, &one)) {
+        for (size_t k = 0; k < one.size(); k += 3) poly.insert(poly.end(), {one[k], one[k + 1], one[k + 2], 0, 0, 0, 2, -1e30f, 1e30f});
+        cutVertices = one.size() / 3;
+        ++st.cutPolygons;
+      }
+    }
     size_t next = 0;
     for (long long k = kHi; k >= kLo; --k) {
       if (options.slabOrder)
@@ -463,8 +529,14 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), nullptr);
     glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
     glVertexAttribPointer(2, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), reinterpret_cast<void*>(6 * sizeof(float)));
-    glDrawArrays(GL_TRIANGLES, 0, GLsizei(poly.size() / 9));
+    if (cutVertices > 0) {
+      glDepthMask(GL_TRUE);
+      glDrawArrays(GL_TRIANGLES, 0, GLsizei(cutVertices));
+      glDepthMask(GL_FALSE);
+    }
+    glDrawArrays(GL_TRIANGLES, GLint(cutVertices), GLsizei(poly.size() / 9 - cutVertices));
   }
+  if (options.cut && options.cutLine && options.surface) drawCutLine(*options.surface, cut, viewProj, options.surfaceColor, &st);
   st.textureBytes = st.texels * sizeof(float);
   glEndQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB);
   GLuint fragments = 0;  // libOSMesa exports only the 32-bit getter; frames stay below 2^32 fragments
@@ -483,6 +555,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   const GLenum err = glGetError();
   glDisable(GL_CLIP_DISTANCE0);
   glDisable(GL_CLIP_DISTANCE1);
+  glDisable(GL_CLIP_DISTANCE2);
   glDeleteTextures(GLsizei(textures.size()), textures.data());
   glDeleteBuffers(GLsizei(buffers.size()), buffers.data());
   glDeleteTextures(1, &tfTex);

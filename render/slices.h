@@ -12,6 +12,7 @@
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
 #include "render/camera.h"
+#include "render/cut_plane.h"
 #include "render/gl_context.h"
 #include "render/image.h"
 #include "render/transfer_function.h"
@@ -29,6 +30,8 @@ struct SlicesOptions {
   /// volume leaf, hence one brick).
   const TriangleMesh* surface = nullptr;
   glm::vec4 surfaceColor{1.0f};           ///< straight RGBA; a < 1 is translucent (per crossing)
+  const CutPlane* cut = nullptr;          ///< cutting plane, or none
+  bool cutLine = true;                    ///< draw the surface's intersection with the cutting plane
   bool slabOrder = true;                  ///< false: draw each brick's surface after its slices (a
                                           ///< deliberately wrong order, to show the tests catch it)
 };
@@ -43,6 +46,8 @@ struct SlicesStats {
   uint64_t surfaceTriangles = 0;  ///< translucent triangles placed
   uint64_t slabPolygonDraws = 0;  ///< translucent triangle instances drawn (one per slab covered)
   uint64_t fragments = 0;         ///< fragment shader invocations of the slices and slab polygons
+  uint64_t cutPolygons = 0;       ///< pieces of the cutting plane drawn (one per textured brick it crosses)
+  uint64_t cutLineSegments = 0;   ///< segments of the surface's intersection with the cutting plane
 };
 
 /// Throughput baseline: seconds llvmpipe takes to blend @p quads full-screen quads that sample a

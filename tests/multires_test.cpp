@@ -183,5 +183,35 @@ TEST(MultiresCranium, AccuracyAndBytesFallAsEpsilonGrowsOrTheBudgetShrinks) {
   expectFalling(byBudget, "budget");
 }
 
+TEST(Multires, AxisAlignedCutShowsTheDataSliceThroughTheTransferFunction) {
+  gl();
+  const Volume v = test::makeVolume({33, 33, 33}, [](int i, int j, int k) { return 2.0 * i + 1.5 * j + k + 0.05 * i * j; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf({{0.0f, {0.1f, 0.2f, 0.9f}, 0.2f}, {60.0f, {0.9f, 0.8f, 0.1f}, 0.05f}, {140.0f, {1.0f, 0.3f, 0.3f}, 0.5f}}, "ramp");
+  const CutPlane cut{glm::dvec3(16.0, 16.0, 12.3), glm::dvec3(0.0, 0.0, 1.0)};
+  Camera cam;  // orthographic, straight down -z: pixel (x, y) sees (x + 0.5, 31.5 - y) on the plane
+  cam.center = glm::dvec3(16.0, 16.0, 12.3);
+  cam.eye = cam.center + glm::dvec3(0, 0, 80);
+  cam.up = glm::dvec3(0, 1, 0);
+  cam.ortho = true;
+  cam.orthoHeight = 32.0;
+  cam.width = cam.height = 32;
+  SlicesOptions so;
+  so.cut = &cut;
+  RaycastOptions ro;
+  ro.cut = &cut;
+  SlicesStats st;
+  const Image a = renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, so, &st);
+  const Image b = raycast(v, t, tf, cam, ro);
+  EXPECT_GT(st.cutPolygons, 0u);
+  for (int y = 0; y < 32; ++y)
+    for (int x = 0; x < 32; ++x) {
+      const glm::vec4 c = tf.lookup(v.sample(glm::vec3(x + 0.5f, 31.5f - y, 12.3f)));
+      const glm::vec4 expected(glm::vec3(c), 1.0f);
+      for (const Image* img : {&a, &b})
+        for (int k = 0; k < 4; ++k) ASSERT_NEAR(img->at(x, y)[k], expected[k], 1.0f / 255.0f) << "pixel " << x << "," << y << (img == &a ? " slices" : " raycast");
+    }
+}
+
 }  // namespace
 }  // namespace hyb
