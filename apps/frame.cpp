@@ -16,15 +16,22 @@ namespace {
 
 }  // namespace
 
-glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
-  std::istringstream s(text);
-  glm::dvec3 v;
-  char c1 = 0, c2 = 0;
+std::vector<double> parseNumbers(const std::string& text, const std::string& flag, size_t n, const char* expected) {
+  std::string t = text;
+  for (char& c : t)
+    if (c == ',') c = ' ';
+  std::istringstream s(t);
+  std::vector<double> x(n);
   std::string rest;
-  if (!(s >> v.x >> c1 >> v.y >> c2 >> v.z) || c1 != ',' || c2 != ',' || (s >> rest) ||
-      !std::isfinite(v.x) || !std::isfinite(v.y) || !std::isfinite(v.z))
-    HYB_THROW(ValueError, flag, " '", text, "' invalid (expected three finite numbers x,y,z)");
-  return v;
+  for (double& e : x)
+    if (!(s >> e) || !std::isfinite(e)) HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", expected, ")");
+  if (s >> rest) HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", expected, ")");
+  return x;
+}
+
+glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
+  const std::vector<double> x = parseNumbers(text, flag, 3, "three finite numbers x,y,z");
+  return {x[0], x[1], x[2]};
 }
 
 Scene loadOrBuild(const VolumeInput& in, std::ostream& out, double* buildMs) {
@@ -95,17 +102,22 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
   }
   f->surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
   if (!o.cut.empty()) {
-    std::string text = o.cut;
-    for (char& c : text)
-      if (c == ',') c = ' ';
-    std::istringstream s(text);
-    double x[6];
-    std::string rest;
-    bool ok = true;
-    for (double& e : x) ok = ok && (s >> e) && std::isfinite(e);
-    if (!ok || (s >> rest) || (x[3] == 0 && x[4] == 0 && x[5] == 0))
-      HYB_THROW(ValueError, "--cut '", o.cut, "' invalid (expected px,py,pz,nx,ny,nz: a point and a non-zero normal, finite mm)");
+    const char* expected = "px,py,pz,nx,ny,nz: a point and a non-zero normal, finite mm";
+    const std::vector<double> x = parseNumbers(o.cut, "--cut", 6, expected);
+    if (x[3] == 0 && x[4] == 0 && x[5] == 0) HYB_THROW(ValueError, "--cut '", o.cut, "' invalid (expected ", expected, ")");
     f->cut = CutPlane{glm::dvec3(x[0], x[1], x[2]), glm::dvec3(x[3], x[4], x[5])};
+  }
+  if (!o.voi.empty()) {
+    const char* expected = "x0,y0,z0,x1,y1,z1: the box's corners in mm, x0 < x1, y0 < y1, z0 < z1";
+    const std::vector<double> x = parseNumbers(o.voi, "--voi", 6, expected);
+    VolumeOfInterest voi;
+    voi.lo = glm::dvec3(x[0], x[1], x[2]);
+    voi.hi = glm::dvec3(x[3], x[4], x[5]);
+    if (!glm::all(glm::lessThan(voi.lo, voi.hi))) HYB_THROW(ValueError, "--voi '", o.voi, "' invalid (expected ", expected, ")");
+    voi.inside = o.voiInside;
+    voi.outside = o.voiOutside;
+    voi.ramp = o.voiRamp;
+    f->voi = voi;
   }
   f->background = glm::vec3(parseColor(o.background, "--background", 3));
   // Surface: the scene's when the isovalue matches, else built now.
@@ -142,9 +154,11 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
   params.sensitivity = [tf](float lo, float hi) { return tf->maxSlope(lo, hi); };
   // Frustum culling, and nodes wholly on the removed side of the cutting plane.
   const glm::dvec4 cut = f.cut ? f.cut->keptSide(f.camera) : glm::dvec4(0, 0, 0, 1);
-  params.inView = [camera, cut](const glm::dvec3& lo, const glm::dvec3& hi) {
+  // And nodes the volume of interest scales to zero opacity.
+  const VolumeOfInterest* voi = f.voi ? &*f.voi : nullptr;
+  params.inView = [camera, cut, voi](const glm::dvec3& lo, const glm::dvec3& hi) {
     const glm::dvec3 far = glm::mix(lo, hi, glm::dvec3(glm::greaterThan(glm::dvec3(cut), glm::dvec3(0.0))));
-    return glm::dot(glm::dvec3(cut), far) + cut.w >= 0.0 && camera->seesBox(lo, hi);
+    return glm::dot(glm::dvec3(cut), far) + cut.w >= 0.0 && camera->seesBox(lo, hi) && !(voi && voi->hides(lo, hi));
   };
   return params;
 }
@@ -159,6 +173,7 @@ Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, 
     opt.surfaceColor = f.surfaceColor;
     opt.cut = f.cut ? &*f.cut : nullptr;
     opt.cutLine = o.cutLine == "on";
+    opt.voi = f.voi ? &*f.voi : nullptr;
     return renderSlices(v, f.scene.octree, sel, f.tf, f.camera, opt, ss);
   }
   const Bvh bvh(f.mesh);
@@ -168,6 +183,7 @@ Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, 
   ro.surface = f.so ? &bvh : nullptr;
   ro.surfaceColor = f.surfaceColor;
   ro.cut = f.cut ? &*f.cut : nullptr;
+  ro.voi = f.voi ? &*f.voi : nullptr;
   return raycast(v, f.scene.octree, f.tf, f.camera, ro, rs);
 }
 

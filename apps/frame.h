@@ -26,6 +26,8 @@ inline double msSince(Clock::time_point t0) { return std::chrono::duration<doubl
 
 /// Parses "a,b,c" into three finite numbers. @throw ValueError naming @p flag.
 glm::dvec3 parseVec3(const std::string& text, const std::string& flag);
+/// Parses @p n comma-separated finite numbers. @throw ValueError naming @p flag and @p expected.
+std::vector<double> parseNumbers(const std::string& text, const std::string& flag, size_t n, const char* expected);
 /// Parses "WxH" into a positive size no larger than 16384. @throw ValueError naming --size.
 glm::ivec2 parseSize(const std::string& text);
 /// Parses @p n comma-separated numbers in [0, 1]. @throw ValueError naming @p flag.
@@ -84,7 +86,8 @@ struct RenderOptions {
   VolumeInput input;
   std::string output, stats, focus, renderer = "slices", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
   std::string eye, center, up = "0,0,1", orbit = "180,10", size = "512x512", background = "0,0,0", shading = "on";
-  std::string blend = "on", cut, cutLine = "on";
+  std::string blend = "on", cut, cutLine = "on", voi;
+  double voiInside = 1.0, voiOutside = 0.1, voiRamp = 4.0;
   std::optional<double> iso;
   double epsilon = 0.0, budgetMb = 0.0, fov = 30.0;
   std::optional<double> step;  // default: 0.5 voxel for slices, 0.25 for the reference
@@ -100,6 +103,9 @@ struct RenderOptions {
     if (shading != "on" && shading != "off") return "--shading must be on or off";
     if (blend != "on" && blend != "off") return "--blend must be on or off";
     if (cutLine != "on" && cutLine != "off") return "--cut-line must be on or off";
+    if (!(std::isfinite(voiInside) && voiInside >= 0)) return "--voi-inside must be a finite factor >= 0";
+    if (!(std::isfinite(voiOutside) && voiOutside >= 0)) return "--voi-outside must be a finite factor >= 0";
+    if (!(std::isfinite(voiRamp) && voiRamp >= 0)) return "--voi-ramp must be a finite width >= 0 mm";
     if (!tfFile.empty() && !preset.empty()) return "--tf and --preset are exclusive";
     return "";
   }
@@ -124,6 +130,10 @@ struct RenderOptions {
     cmd->add_option("--blend", blend, "blend bricks towards coarser neighbours (Carmona et al.): on|off")->capture_default_str();
     cmd->add_option("--cut", cut, "cutting plane px,py,pz,nx,ny,nz (point and normal, mm): removes the eye's side, shows the data on it");
     cmd->add_option("--cut-line", cutLine, "draw the isosurface's intersection with the cutting plane: on|off")->capture_default_str();
+    cmd->add_option("--voi", voi, "volume of interest x0,y0,z0,x1,y1,z1 (mm): opacity scaled inside/outside the box (Levoy)");
+    cmd->add_option("--voi-inside", voiInside, "opacity factor inside the volume of interest")->capture_default_str();
+    cmd->add_option("--voi-outside", voiOutside, "opacity factor outside the volume of interest")->capture_default_str();
+    cmd->add_option("--voi-ramp", voiRamp, "width of the smooth transition across the box's surface, mm")->capture_default_str();
     cmd->add_option("--step", step, "slice / sample spacing in voxels (default 0.5 for slices, 0.25 for raycast)");
     cmd->add_option("--max-brick", maxBrick, "brick edge in texels (power of two)")->capture_default_str();
   }
@@ -142,6 +152,7 @@ struct Frame {
   glm::vec4 surfaceColor{1.0f};
   glm::vec3 background{0.0f};
   std::optional<CutPlane> cut;
+  std::optional<VolumeOfInterest> voi;
 };
 
 /// Loads the scene and sets up the transfer function, camera and surface of @p o.

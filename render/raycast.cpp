@@ -138,7 +138,8 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
             if (e > s) {
               const double tm = 0.5 * (s + e);
               const glm::dvec3 q = (o + d * tm) / spacing;
-              const glm::vec4 c = tf.lookup(volume.sample(glm::vec3(q)));
+              glm::vec4 c = tf.lookup(volume.sample(glm::vec3(q)));
+              if (options.voi) c.a = float(std::min(1.0, double(c.a) * options.voi->factor(o + d * tm)));
               ++samples;
               const float a = TransferFunction::segmentAlpha(c.a, float(e - s));
               if (a > 0.0f) {

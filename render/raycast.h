@@ -8,6 +8,7 @@
 #include "render/bvh.h"
 #include "render/camera.h"
 #include "render/cut_plane.h"
+#include "render/voi.h"
 #include "render/image.h"
 #include "render/transfer_function.h"
 #include "volume/volume.h"
@@ -23,6 +24,7 @@ struct RaycastOptions {
   bool volume = true;                ///< false: surfaces only
   bool skipEmptySpace = true;        ///< jump over nodes the transfer function makes transparent
   const CutPlane* cut = nullptr;     ///< cutting plane, or none
+  const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
 };
 
 /// Per-pixel statistics of a render.

@@ -61,6 +61,17 @@ uniform vec3 eye, forward;
 uniform int ortho;
 uniform float sliceSpacing;  // mm between this brick's slice planes along forward
 uniform int shading;
+uniform int voi;  // 1: scale opacity by the volume of interest
+uniform vec3 voiCentre, voiHalf;
+uniform float voiInside, voiOutside, voiRamp;
+
+// Levoy's volume of interest: the opacity factor, smooth across the box's surface.
+float voiFactor(vec3 x) {
+  vec3 q = abs(x - voiCentre) - voiHalf;
+  float d = length(max(q, vec3(0.0))) + min(max(q.x, max(q.y, q.z)), 0.0);
+  float t = voiRamp > 0.0 ? clamp(0.5 - d / voiRamp, 0.0, 1.0) : (d <= 0.0 ? 1.0 : 0.0);
+  return mix(voiOutside, voiInside, t * t * (3.0 - 2.0 * t));
+}
 
 // The brick's field at world position x (blending towards coarser bricks is baked into its texels).
 float sampleAt(vec3 x) { return texture(volumeTex, x * fineScale + fineOffset).r; }
@@ -82,6 +93,10 @@ void main() {
   }
   vec3 dir = ortho == 1 ? forward : normalize(vWorld - eye);
   float len = sliceSpacing / max(abs(dot(dir, forward)), 1e-6);
+  if (voi == 1) {
+    c.a = min(c.a * voiFactor(x), 1.0);
+    if (c.a <= 0.0) discard;
+  }
   float alpha = c.a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - c.a, len);
   float shade = 1.0;
   if (shading == 1) {

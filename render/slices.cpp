@@ -350,6 +350,15 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glUniform1i(slices.at("shading"), options.shading ? 1 : 0);
   glUniform4fv(slices.at("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
   glUniform4fv(slices.at("cutPlane"), 1, glm::value_ptr(cutPlane));
+  glUniform1i(slices.at("voi"), options.voi ? 1 : 0);
+  if (options.voi) {
+    const glm::vec3 centre(0.5 * (options.voi->lo + options.voi->hi)), half(0.5 * (options.voi->hi - options.voi->lo));
+    glUniform3fv(slices.at("voiCentre"), 1, glm::value_ptr(centre));
+    glUniform3fv(slices.at("voiHalf"), 1, glm::value_ptr(half));
+    glUniform1f(slices.at("voiInside"), float(options.voi->inside));
+    glUniform1f(slices.at("voiOutside"), float(options.voi->outside));
+    glUniform1f(slices.at("voiRamp"), float(options.voi->ramp));
+  }
   glEnableVertexAttribArray(0);
   glEnableVertexAttribArray(1);
   glEnableVertexAttribArray(2);

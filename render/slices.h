@@ -13,6 +13,7 @@
 #include "hybrid_octree/volume_octree.h"
 #include "render/camera.h"
 #include "render/cut_plane.h"
+#include "render/voi.h"
 #include "render/gl_context.h"
 #include "render/image.h"
 #include "render/transfer_function.h"
@@ -31,6 +32,7 @@ struct SlicesOptions {
   const TriangleMesh* surface = nullptr;
   glm::vec4 surfaceColor{1.0f};           ///< straight RGBA; a < 1 is translucent (per crossing)
   const CutPlane* cut = nullptr;          ///< cutting plane, or none
+  const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
   bool cutLine = true;                    ///< draw the surface's intersection with the cutting plane
   bool slabOrder = true;                  ///< false: draw each brick's surface after its slices (a
                                           ///< deliberately wrong order, to show the tests catch it)

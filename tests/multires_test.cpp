@@ -213,5 +213,43 @@ TEST(Multires, AxisAlignedCutShowsTheDataSliceThroughTheTransferFunction) {
     }
 }
 
+TEST(Multires, VolumeOfInterestScalesOpacitySmoothly) {
+  gl();
+  const Volume v = test::makeVolume({33, 33, 33}, [](int, int, int) { return 1.0; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf = test::constantTf(0.05f);
+  VolumeOfInterest voi;  // the slab 8 <= x <= 24, fully opaque inside, removed outside, 4 mm ramp
+  voi.lo = glm::dvec3(8, -10, -10);
+  voi.hi = glm::dvec3(24, 50, 50);
+  voi.outside = 0.0;
+  voi.ramp = 4.0;
+  Camera cam;  // orthographic, straight down -z through all 32 mm: pixel column x sees x + 0.5 mm
+  cam.center = glm::dvec3(16, 16, 16);
+  cam.eye = cam.center + glm::dvec3(0, 0, 80);
+  cam.up = glm::dvec3(0, 1, 0);
+  cam.ortho = true;
+  cam.orthoHeight = 32.0;
+  cam.width = cam.height = 32;
+  SlicesOptions so;
+  so.shading = false;
+  so.voi = &voi;
+  RaycastOptions ro;
+  ro.shading = false;
+  ro.voi = &voi;
+  const Image a = renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, so), b = raycast(v, t, tf, cam, ro);
+  for (int x = 0; x < 32; ++x) {
+    const double factor = voi.factor(glm::dvec3(x + 0.5, 16, 16));
+    const float expected = 1.0f - std::pow(1.0f - 0.05f * float(factor), 32.0f);
+    EXPECT_NEAR(a.at(x, 16).a, expected, 2.0f / 255.0f) << "slices, column " << x;
+    EXPECT_NEAR(b.at(x, 16).a, expected, 2.0f / 255.0f) << "raycast, column " << x;
+  }
+  // Closed-form factors: 0 beyond the ramp, 1/2 on the surface, 1 deep inside.
+  EXPECT_EQ(voi.factor(glm::dvec3(5.9, 0, 0)), 0.0);
+  EXPECT_DOUBLE_EQ(voi.factor(glm::dvec3(8, 0, 0)), 0.5);
+  EXPECT_EQ(voi.factor(glm::dvec3(16, 0, 0)), 1.0);
+  EXPECT_TRUE(voi.hides(glm::dvec3(0, 0, 0), glm::dvec3(5.9, 8, 8)));
+  EXPECT_FALSE(voi.hides(glm::dvec3(0, 0, 0), glm::dvec3(6.1, 8, 8)));
+}
+
 }  // namespace
 }  // namespace hyb
