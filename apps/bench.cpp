@@ -3,6 +3,7 @@
 #include <spawn.h>
 #include <sys/wait.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <iomanip>
 #include <limits>
@@ -137,7 +138,7 @@ int runBench(const BenchOptions& o, std::ostream& out) {
   const GlContext gl;
   RenderOptions slices = o.render;
   slices.renderer = "slices";
-  const size_t total = 1 + epsilons.size() + 2 * budgets.size();
+  const size_t total = 1 + size_t(std::count_if(epsilons.begin(), epsilons.end(), [](double e) { return e > 0.0; })) + 2 * budgets.size();
   std::vector<Point> points;
   auto measure = [&](Point p) {
     RenderOptions ro = slices;

@@ -6,6 +6,7 @@
 #include <CLI/CLI.hpp>
 
 #include <chrono>
+#include <filesystem>
 #include <cmath>
 #include <iomanip>
 #include <map>
@@ -103,6 +104,12 @@ int runBuild(const BuildOptions& o, std::ostream& out) {
   return 0;
 }
 
+// out.png -> out_<k>.png, the k-th image of a progressive sequence.
+std::string progressivePath(const std::string& output, int k) {
+  const std::filesystem::path p(output);
+  return (p.parent_path() / (p.stem().string() + "_" + std::to_string(k) + p.extension().string())).string();
+}
+
 int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   Frame f;
   prepareFrame(o, out, &f);
@@ -134,6 +141,18 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   SlicesStats ss;
   std::optional<GlContext> gl;
   if (o.renderer == "slices") gl.emplace();
+  // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
+  // texels (one level coarser), the last being the requested selection.
+  for (int k = 1; k < o.progressive; ++k) {
+    const double mb = double(sel.texels) * 4.0 / (1024.0 * 1024.0) / std::pow(8.0, o.progressive - k);
+    const auto p0 = Clock::now();
+    const Selection coarse = selectNodes(f.scene.octree, selectionParams(o, f, o.epsilon, std::max(mb, 1e-6)));
+    const Image preview = renderFrame(o, f, coarse, &ss, &rs);
+    const std::string path = progressivePath(o.output, k);
+    writePng(path, preview, f.background);
+    out << "progressive " << k << "/" << o.progressive << ": " << std::setprecision(2) << double(ss.textureBytes) / 1048576.0 << " MB, "
+        << std::setprecision(1) << msSince(p0) << " ms -> " << path << "\n";
+  }
   t0 = Clock::now();
   const Image image = renderFrame(o, f, sel, &ss, &rs);
   const double renderMs = msSince(t0);
@@ -145,6 +164,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     out << "render   raycast " << size.x << "x" << size.y << ", " << rs.samples << " samples, " << rs.skippedLeaves
         << " empty-space skips, " << rs.surfaceHits << " surface crossings, " << std::setprecision(1) << renderMs << " ms\n";
   if (!o.output.empty()) {
+    if (o.progressive > 1) writePng(progressivePath(o.output, o.progressive), image, f.background);
     writePng(o.output, image, f.background);
     out << "wrote    " << o.output << "\n";
   }
@@ -263,6 +283,8 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   renderCmd->add_option("--budget", render.budgetMb, "texture memory budget in MB, blend textures included (0 = unlimited)");
   renderCmd->add_option("--renderer", render.renderer, "slices|raycast")->capture_default_str();
   renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
+  renderCmd->add_option("--progressive", render.progressive, "write N images coarse to fine (out_1.png ... out_N.png, and out.png)")
+      ->capture_default_str();
 
   BenchOptions bench;
   CLI::App* benchCmd = app.add_subcommand("bench", "speed/accuracy sweep over epsilon and budget: CSV, plot and images");

@@ -93,6 +93,7 @@ struct RenderOptions {
   std::optional<double> step;  // default: 0.5 voxel for slices, 0.25 for the reference
   bool ortho = false;
   int maxBrick = 16;
+  int progressive = 1;
   std::string validate() const {
     if (!std::isfinite(epsilon) || epsilon < 0) return "--epsilon must be a finite value >= 0 (data units)";
     if (!std::isfinite(budgetMb) || budgetMb < 0) return "--budget must be a finite number of MB >= 0";
@@ -103,6 +104,8 @@ struct RenderOptions {
     if (shading != "on" && shading != "off") return "--shading must be on or off";
     if (blend != "on" && blend != "off") return "--blend must be on or off";
     if (cutLine != "on" && cutLine != "off") return "--cut-line must be on or off";
+    if (progressive < 1 || progressive > 8) return "--progressive must be in 1..8 images";
+    if (progressive > 1 && output.empty()) return "--progressive needs -o (the images are named after it)";
     if (!(std::isfinite(voiInside) && voiInside >= 0)) return "--voi-inside must be a finite factor >= 0";
     if (!(std::isfinite(voiOutside) && voiOutside >= 0)) return "--voi-outside must be a finite factor >= 0";
     if (!(std::isfinite(voiRamp) && voiRamp >= 0)) return "--voi-ramp must be a finite width >= 0 mm";

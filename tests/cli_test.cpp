@@ -5,6 +5,7 @@
 
 #include <sstream>
 
+#include "render/image.h"
 #include "test_util.h"
 
 namespace hyb {
@@ -118,11 +119,51 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"render", nhdr, "--no-such-flag"}, "--no-such-flag");
   expectBadInput({"build", nhdr}, "-o");
   expectBadInput({"build", nhdr, "-o", dir.file("x.hoct"), "--leaf-edge", "6"}, "--leaf-edge");
+  expectBadInput({"render", nhdr, "--cut", "1,2,3,0,0,0"}, "--cut");
+  expectBadInput({"render", nhdr, "--cut", "1,2,3"}, "--cut");
+  expectBadInput({"render", nhdr, "--voi", "5,5,5,1,9,9"}, "--voi");
+  expectBadInput({"render", nhdr, "--voi-outside", "-1"}, "--voi-outside");
+  expectBadInput({"render", nhdr, "--blend", "maybe"}, "--blend");
+  expectBadInput({"render", nhdr, "--progressive", "3"}, "--progressive");
+  expectBadInput({"render", nhdr, "--progressive", "0", "-o", dir.file("a.png")}, "--progressive");
+  expectBadInput({"bench", nhdr}, "-o");
+  expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--budgets", "0.5,2"}, "--budgets");
+  expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--epsilons", "1,x"}, "--epsilons");
   expectBadInput({"frobnicate"}, "frobnicate");
   expectBadInput({}, "subcommand");
   const CliRun help = run({"--help"});
   EXPECT_EQ(help.status, 0);
   EXPECT_THAT(help.out, HasSubstr("render"));
+}
+
+TEST(Cli, ProgressiveCutAndVolumeOfInterest) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  CliRun r = run({"render", nhdr, "--size", "24x24", "--progressive", "3", "-o", dir.file("p.png"), "--cut", "4,3,4,1,0,0.2",
+                  "--voi", "1,1,1,6,5,7", "--iso", "0.5", "--stats", dir.file("p.json")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("progressive 2/3"));
+  int w = 0, h = 0;
+  for (const char* name : {"p_1.png", "p_2.png", "p_3.png", "p.png"}) {
+    EXPECT_EQ(readPng(dir.file(name), &w, &h).size(), size_t(24 * 24 * 4)) << name;
+  }
+  EXPECT_EQ(readPng(dir.file("p_3.png"), &w, &h), readPng(dir.file("p.png"), &w, &h));  // the last is the requested image
+}
+
+TEST(Cli, BenchWritesTheTableThePlotAndTheImages) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  const CliRun r = run({"bench", nhdr, "--size", "32x32", "--epsilons", "0,0.5", "--budgets", "0.5", "--max-brick", "2", "-o",
+                        dir.file("bench")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("[4/4]"));
+  const std::string csv = test::readText(dir.file("bench/trade.csv"));
+  EXPECT_EQ(lines(csv), size_t(5));  // header, full, one epsilon, the budget with and without blending
+  EXPECT_THAT(csv, HasSubstr("budget,0,0.5,"));
+  int w = 0, h = 0;
+  EXPECT_GT(readPng(dir.file("bench/trade.png"), &w, &h).size(), 0u);
+  EXPECT_EQ(readPng(dir.file("bench/full.png"), &w, &h).size(), size_t(32 * 32 * 4));
+  EXPECT_EQ(readPng(dir.file("bench/reference.png"), &w, &h).size(), size_t(32 * 32 * 4));
 }
 
 TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {

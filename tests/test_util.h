@@ -95,6 +95,11 @@ inline std::vector<uint8_t> readBytes(const std::string& path) {
   return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
 }
 
+inline std::string readText(const std::string& path) {
+  const std::vector<uint8_t> b = readBytes(path);
+  return std::string(b.begin(), b.end());
+}
+
 /// Serialises @p values as bytes in the given byte order.
 template <typename T>
 std::vector<uint8_t> toBytes(const std::vector<T>& values, bool bigEndian = false) {
