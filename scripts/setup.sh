@@ -13,6 +13,7 @@ packages=(
   libcgal-dev libopenmesh-dev                    # exact mesh checks; mesh storage and IO
   libosmesa6-dev                                 # off-screen OpenGL 4.5 core through llvmpipe
   libgtest-dev libbenchmark-dev                  # tests and micro-benchmarks
+  gnuplot-nox                                    # the plot of `hybrid-octree bench` (speed/accuracy trade)
   invesalius-examples                            # the real CT used by the demo and the tests
 )
 missing=()
