@@ -174,6 +174,7 @@ Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, 
     opt.cut = f.cut ? &*f.cut : nullptr;
     opt.cutLine = o.cutLine == "on";
     opt.voi = f.voi ? &*f.voi : nullptr;
+    opt.proxy = o.proxy == "shells" ? Proxy::Shells : Proxy::Planes;
     return renderSlices(v, f.scene.octree, sel, f.tf, f.camera, opt, ss);
   }
   const Bvh bvh(f.mesh);

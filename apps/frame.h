@@ -86,7 +86,7 @@ struct RenderOptions {
   VolumeInput input;
   std::string output, stats, focus, renderer = "slices", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
   std::string eye, center, up = "0,0,1", orbit = "180,10", size = "512x512", background = "0,0,0", shading = "on";
-  std::string blend = "on", cut, cutLine = "on", voi;
+  std::string blend = "on", cut, cutLine = "on", voi, proxy = "planes";
   double voiInside = 1.0, voiOutside = 0.1, voiRamp = 4.0;
   std::optional<double> iso;
   double epsilon = 0.0, budgetMb = 0.0, fov = 30.0;
@@ -103,6 +103,7 @@ struct RenderOptions {
     if (step && !(*step > 0.01 && *step <= 4)) return "--step must be in (0.01, 4] voxels";
     if (shading != "on" && shading != "off") return "--shading must be on or off";
     if (blend != "on" && blend != "off") return "--blend must be on or off";
+    if (proxy != "planes" && proxy != "shells") return "--proxy '" + proxy + "' invalid (expected planes or shells)";
     if (cutLine != "on" && cutLine != "off") return "--cut-line must be on or off";
     if (progressive < 1 || progressive > 8) return "--progressive must be in 1..8 images";
     if (progressive > 1 && output.empty()) return "--progressive needs -o (the images are named after it)";
@@ -130,6 +131,8 @@ struct RenderOptions {
     cmd->add_option("--size", size, "image size WxH")->capture_default_str();
     cmd->add_option("--background", background, "background r,g,b in [0,1]")->capture_default_str();
     cmd->add_option("--shading", shading, "gradient shading of the volume: on|off")->capture_default_str();
+    cmd->add_option("--proxy", proxy, "slice geometry: planes (view-aligned) or shells (spherical around the eye, perspective)")
+        ->capture_default_str();
     cmd->add_option("--blend", blend, "blend bricks towards coarser neighbours (Carmona et al.): on|off")->capture_default_str();
     cmd->add_option("--cut", cut, "cutting plane px,py,pz,nx,ny,nz (point and normal, mm): removes the eye's side, shows the data on it");
     cmd->add_option("--cut-line", cutLine, "draw the isosurface's intersection with the cutting plane: on|off")->capture_default_str();

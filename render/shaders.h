@@ -29,16 +29,19 @@ layout(location = 2) in vec3 kindSlab;  // kind, slab near depth, slab far depth
 uniform mat4 viewProj;
 uniform vec3 forward;
 uniform vec4 cutPlane;  // kept where dot(cutPlane.xyz, x) + cutPlane.w >= 0
+uniform int shells;     // 1: slabs are spherical shells around the eye, clipped per fragment
 out vec3 vWorld;
 out vec3 vNormal;
 flat out float vKind;
+flat out vec2 vSlab;
 void main() {
   vWorld = position;
   vNormal = normal;
   vKind = kindSlab.x;
+  vSlab = kindSlab.yz;
   float depth = dot(forward, position);
-  gl_ClipDistance[0] = depth - kindSlab.y;
-  gl_ClipDistance[1] = kindSlab.z - depth;
+  gl_ClipDistance[0] = shells == 1 ? 1.0 : depth - kindSlab.y;
+  gl_ClipDistance[1] = shells == 1 ? 1.0 : kindSlab.z - depth;
   gl_ClipDistance[2] = kindSlab.x > 1.5 ? 1.0 : dot(cutPlane.xyz, position) + cutPlane.w;
   gl_Position = viewProj * vec4(position, 1.0);
 }
@@ -50,6 +53,7 @@ inline constexpr const char* kSliceFragment = R"(#version 450 core
 in vec3 vWorld;
 in vec3 vNormal;
 flat in float vKind;
+flat in vec2 vSlab;
 out vec4 fragColor;
 uniform vec4 surfaceColor;  // straight rgb, alpha per crossing
 uniform sampler3D volumeTex;  // the brick's lattice
@@ -61,6 +65,7 @@ uniform vec3 eye, forward;
 uniform int ortho;
 uniform float sliceSpacing;  // mm between this brick's slice planes along forward
 uniform int shading;
+uniform int shells;  // 1: the proxies are spherical shells around the eye
 uniform int voi;  // 1: scale opacity by the volume of interest
 uniform vec3 voiCentre, voiHalf;
 uniform float voiInside, voiOutside, voiRamp;
@@ -78,6 +83,10 @@ float sampleAt(vec3 x) { return texture(volumeTex, x * fineScale + fineOffset).r
 
 void main() {
   if (vKind > 0.5 && vKind < 1.5) {  // translucent surface, headlight-shaded, premultiplied
+    if (shells == 1) {  // the slab between two shells: a sphere cannot be a clip plane
+      float r = length(vWorld - eye);
+      if (r < vSlab.x || r >= vSlab.y) discard;
+    }
     vec3 d = ortho == 1 ? forward : normalize(vWorld - eye);
     float shade = 0.25 + 0.75 * abs(dot(normalize(vNormal), d));
     fragColor = vec4(surfaceColor.rgb * shade * surfaceColor.a, surfaceColor.a);
@@ -92,7 +101,7 @@ void main() {
     return;
   }
   vec3 dir = ortho == 1 ? forward : normalize(vWorld - eye);
-  float len = sliceSpacing / max(abs(dot(dir, forward)), 1e-6);
+  float len = shells == 1 ? sliceSpacing : sliceSpacing / max(abs(dot(dir, forward)), 1e-6);
   if (voi == 1) {
     c.a = min(c.a * voiFactor(x), 1.0);
     if (c.a <= 0.0) discard;

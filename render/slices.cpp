@@ -248,6 +248,94 @@ void main() { fragColor = vec4(color, 1.0); }
   glDeleteBuffers(1, &buffer);
 }
 
+// Sutherland–Hodgman: clips the convex polygon @p poly to the box [lo, hi].
+void clipToBox(const glm::dvec3& lo, const glm::dvec3& hi, std::vector<glm::dvec3>* poly) {
+  std::vector<glm::dvec3> out;
+  for (int axis = 0; axis < 3; ++axis)
+    for (int side = 0; side < 2; ++side) {
+      if (poly->empty()) return;
+      // Inside: x[axis] >= lo[axis] (side 0) or x[axis] <= hi[axis] (side 1).
+      auto dist = [&](const glm::dvec3& p) { return side == 0 ? p[axis] - lo[axis] : hi[axis] - p[axis]; };
+      out.clear();
+      for (size_t i = 0; i < poly->size(); ++i) {
+        const glm::dvec3 &a = (*poly)[i], &b = (*poly)[(i + 1) % poly->size()];
+        const double da = dist(a), db = dist(b);
+        if (da >= 0) out.push_back(a);
+        if ((da >= 0) != (db >= 0)) out.push_back(a + (b - a) * (da / (da - db)));
+      }
+      poly->swap(out);
+    }
+}
+
+// Directions from the eye to a box, as gnomonic coordinates (s, t) around the axis a towards the
+// box's centre: d ∝ a + s·e1 + t·e2. False when the box is too wide seen from the eye (or holds it).
+struct ShellFrame {
+  glm::dvec3 a, e1, e2;
+  double s0, s1, t0, t1;
+};
+bool shellFrame(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& eye, ShellFrame* fr) {
+  fr->a = glm::normalize(0.5 * (lo + hi) - eye);
+  fr->e1 = glm::normalize(glm::cross(fr->a, std::abs(fr->a.x) < 0.9 ? glm::dvec3(1, 0, 0) : glm::dvec3(0, 1, 0)));
+  fr->e2 = glm::cross(fr->a, fr->e1);
+  fr->s0 = fr->t0 = 1e300;
+  fr->s1 = fr->t1 = -1e300;
+  for (int c = 0; c < 8; ++c) {
+    const glm::dvec3 d = glm::dvec3((c & 1) ? hi.x : lo.x, (c & 2) ? hi.y : lo.y, (c & 4) ? hi.z : lo.z) - eye;
+    const double da = glm::dot(d, fr->a);
+    if (da <= 0.5 * glm::length(d)) return false;  // more than 60 degrees off the axis
+    const double s = glm::dot(d, fr->e1) / da, t = glm::dot(d, fr->e2) / da;
+    fr->s0 = std::min(fr->s0, s);
+    fr->s1 = std::max(fr->s1, s);
+    fr->t0 = std::min(fr->t0, t);
+    fr->t1 = std::max(fr->t1, t);
+  }
+  return true;
+}
+
+// Appends the sphere |x − eye| = r inside the box [lo, hi] as triangles (world mm): an n×n grid of
+// chords over the box's directions, each clipped to the box. Returns whether anything was appended.
+bool shellPolygon(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& eye, const ShellFrame& fr, double r, int n,
+                  std::vector<float>* out) {
+  const size_t before = out->size();
+  auto at = [&](int i, int j) {
+    const double s = fr.s0 + (fr.s1 - fr.s0) * i / n, t = fr.t0 + (fr.t1 - fr.t0) * j / n;
+    return eye + r * glm::normalize(fr.a + s * fr.e1 + t * fr.e2);
+  };
+  std::vector<glm::dvec3> poly;
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i)
+      for (int half = 0; half < 2; ++half) {
+        poly = half == 0 ? std::vector<glm::dvec3>{at(i, j), at(i + 1, j), at(i + 1, j + 1)}
+                         : std::vector<glm::dvec3>{at(i, j), at(i + 1, j + 1), at(i, j + 1)};
+        clipToBox(lo, hi, &poly);
+        for (size_t k = 1; k + 1 < poly.size(); ++k)
+          for (const glm::dvec3* p : {&poly[0], &poly[k], &poly[k + 1]})
+            for (int c = 0; c < 3; ++c) out->push_back(float((*p)[c]));
+      }
+  return out->size() > before;
+}
+
+// Distance from @p p to the triangle (a, b, c) (Ericson, Real-Time Collision Detection, 5.1.5).
+double distanceToTriangle(const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {
+  const glm::dvec3 ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = glm::dot(ab, ap), d2 = glm::dot(ac, ap);
+  if (d1 <= 0 && d2 <= 0) return glm::length(ap);
+  const glm::dvec3 bp = p - b;
+  const double d3 = glm::dot(ab, bp), d4 = glm::dot(ac, bp);
+  if (d3 >= 0 && d4 <= d3) return glm::length(bp);
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) return glm::length(p - (a + ab * (d1 / (d1 - d3))));
+  const glm::dvec3 cp = p - c;
+  const double d5 = glm::dot(ab, cp), d6 = glm::dot(ac, cp);
+  if (d6 >= 0 && d5 <= d6) return glm::length(cp);
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) return glm::length(p - (a + ac * (d2 / (d2 - d6))));
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) return glm::length(p - (b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)))));
+  const double denom = 1.0 / (va + vb + vc);
+  return glm::length(p - (a + ab * (vb * denom) + ac * (vc * denom)));
+}
+
 }  // namespace
 
 Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
@@ -476,13 +564,25 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       glUniform3f(slices.at("fineOffset"), float(offset.x), float(offset.y), float(offset.z));
       glUniform3f(slices.at("gradientStep"), float(h.x), float(h.y), float(h.z));
     }
-    // Global slice planes f·X = j·delta; this brick owns those with depth in [bmin, bmax).
+    // Proxies: global planes f·X = k·delta, or shells |X − eye| = k·delta (LaMar 1999); "depth"
+    // below is f·X or |X − eye| accordingly. This brick owns the proxies with depth in [bmin, bmax).
+    ShellFrame frame{};
+    const bool shell = options.proxy == Proxy::Shells && !camera.ortho && shellFrame(blo, bhi, camera.eye, &frame);
+    glUniform1i(slices.at("shells"), shell ? 1 : 0);
+    st.shellBricks += shell && visible;
     double bmin = 1e300, bmax = -1e300;
     for (int c = 0; c < 8; ++c) {
       const glm::dvec3 p((c & 1) ? bhi.x : blo.x, (c & 2) ? bhi.y : blo.y, (c & 4) ? bhi.z : blo.z);
-      bmin = std::min(bmin, glm::dot(f, p));
-      bmax = std::max(bmax, glm::dot(f, p));
+      const double d = shell ? glm::length(p - camera.eye) : glm::dot(f, p);
+      bmin = std::min(bmin, d);
+      bmax = std::max(bmax, d);
     }
+    if (shell) bmin = glm::length(camera.eye - glm::clamp(camera.eye, blo, bhi));
+    // Shell tessellation: chords whose sagitta stays below a quarter of the spacing.
+    auto shellCells = [&](double r) {
+      const double theta = 2.0 * std::acos(std::max(-1.0, 1.0 - delta / (4.0 * r)));
+      return std::clamp(int(std::ceil(std::max(frame.s1 - frame.s0, frame.t1 - frame.t0) / theta)), 1, 32);
+    };
     // SlabPolygon list: slab k = [k·delta, (k+1)·delta); a triangle goes into every slab its depth
     // range covers, clipped to the slab when it covers more than one.
     instances.clear();
@@ -491,11 +591,15 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       const glm::uvec3 tr = options.surface->triangles[ti];
       double dmn = 1e300, dmx = -1e300, sum = 0;
       for (int k = 0; k < 3; ++k) {
-        const double d = glm::dot(f, glm::dvec3(options.surface->vertices[tr[k]]));
+        const glm::dvec3 p(options.surface->vertices[tr[k]]);
+        const double d = shell ? glm::length(p - camera.eye) : glm::dot(f, p);
         dmn = std::min(dmn, d);
         dmx = std::max(dmx, d);
         sum += d;
       }
+      if (shell)  // the nearest point of a triangle to the eye may lie inside it
+        dmn = distanceToTriangle(camera.eye, glm::dvec3(options.surface->vertices[tr.x]), glm::dvec3(options.surface->vertices[tr.y]),
+                                 glm::dvec3(options.surface->vertices[tr.z]));
       const long long k0 = (long long)std::floor(dmn / delta), k1 = (long long)std::floor(dmx / delta);
       for (long long k = k0; k <= k1; ++k) instances.push_back({ti, k, k1 > k0, std::clamp(sum / 3, double(k) * delta, double(k + 1) * delta)});
       kLo = std::min(kLo, k0);
@@ -524,7 +628,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         for (; next < instances.size() && instances[next].slab >= k; ++next) emitTriangle(instances[next], delta);
       const double plane = double(k) * delta;
       one.clear();
-      if (visible && plane >= bmin && plane < bmax && slicePolygon(blo, bhi, f, plane, &one)) {
+      if (visible && plane >= bmin && plane < bmax &&
+          (shell ? plane > 0.0 && shellPolygon(blo, bhi, camera.eye, frame, plane, shellCells(plane), &one)
+                 : slicePolygon(blo, bhi, f, plane, &one))) {
         emitSlice(one);
         ++st.slices;
       }

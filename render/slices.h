@@ -22,10 +22,18 @@
 
 namespace hyb {
 
+/// Proxy geometry that samples the bricks (LaMar 1999).
+enum class Proxy {
+  Planes,  ///< view-aligned planes f·x = kΔ, globally aligned
+  Shells,  ///< spherical shells |x − eye| = kΔ around the eye (perspective; bricks the eye is too close
+           ///< to, and orthographic views, use planes)
+};
+
 /// Options of the slice renderer.
 struct SlicesOptions {
   double stepVoxels = 0.5;              ///< slice spacing along the view direction, in smallest voxel spacings
   bool shading = true;                  ///< gradient (headlight) shading of the volume
+  Proxy proxy = Proxy::Planes;
   /// Isosurface triangles in world mm, or none. Translucent triangles are placed in the brick that
   /// holds their centroid, so each must lie inside one brick (Surface Octree polygons lie inside one
   /// volume leaf, hence one brick).
@@ -44,7 +52,8 @@ struct SlicesStats {
   size_t blendedBricks = 0;        ///< of which blend towards coarser data at some corner
   uint64_t texels = 0;             ///< texels uploaded, blend textures included
   uint64_t textureBytes = 0;
-  uint64_t slices = 0;            ///< slice polygons drawn
+  uint64_t slices = 0;            ///< slice polygons (or shell pieces) drawn
+  uint64_t shellBricks = 0;       ///< bricks sampled by spherical shells
   uint64_t surfaceTriangles = 0;  ///< translucent triangles placed
   uint64_t slabPolygonDraws = 0;  ///< translucent triangle instances drawn (one per slab covered)
   uint64_t fragments = 0;         ///< fragment shader invocations of the slices and slab polygons

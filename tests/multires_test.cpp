@@ -251,5 +251,61 @@ TEST(Multires, VolumeOfInterestScalesOpacitySmoothly) {
   EXPECT_FALSE(voi.hides(glm::dvec3(0, 0, 0), glm::dvec3(6.1, 8, 8)));
 }
 
+TEST(Multires, ShellsAndPlanesComposeTheClosedFormInPerspective) {
+  gl();
+  // A homogeneous block (0.05 per mm) with a translucent quad across it at z = 13.
+  const Volume v = test::makeVolume({33, 33, 33}, [](int, int, int) { return 1.0; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf = test::constantTf(0.05f);
+  const TriangleMesh quad = test::quadAt(13.0, -1.0, 33.0, -1.0, 33.0);
+  Camera cam;
+  cam.eye = glm::dvec3(20, 12, 70);
+  cam.center = glm::dvec3(16, 16, 16);
+  cam.up = glm::dvec3(0, 1, 0);
+  cam.fovDeg = 30;
+  cam.width = cam.height = 48;
+  const glm::vec4 surface(0.2f, 0.6f, 0.9f, 0.4f);
+  SlicesOptions so;
+  so.shading = false;
+  so.surface = &quad;
+  so.surfaceColor = surface;
+  const Bvh bvh(quad);
+  RaycastOptions ro;
+  ro.shading = false;
+  ro.surface = &bvh;
+  ro.surfaceColor = surface;
+  const Selection sel = selectNodes(t, SelectionParams{});
+  SlicesStats st;
+  so.proxy = Proxy::Shells;
+  const Image shells = renderSlices(v, t, sel, tf, cam, so, &st);
+  EXPECT_GT(st.shellBricks, 0u);
+  so.proxy = Proxy::Planes;
+  const Image planes = renderSlices(v, t, sel, tf, cam, so), reference = raycast(v, t, tf, cam, ro);
+  int checked = 0;
+  for (int y = 4; y < 48; y += 8)
+    for (int x = 4; x < 48; x += 8) {
+      glm::dvec3 o, d;
+      cam.ray(x + 0.5, y + 0.5, &o, &d);
+      // Entry at the top face z = 32 and the quad at z = 13, both inside the block for these pixels.
+      const double tTop = (32.0 - o.z) / d.z, tQuad = (13.0 - o.z) / d.z, tBottom = (0.0 - o.z) / d.z;
+      const glm::dvec3 top = o + d * tTop, bottom = o + d * tBottom;
+      if (glm::any(glm::lessThan(glm::dvec2(top), glm::dvec2(0.0))) || glm::any(glm::greaterThan(glm::dvec2(top), glm::dvec2(32.0))) ||
+          glm::any(glm::lessThan(glm::dvec2(bottom), glm::dvec2(0.0))) || glm::any(glm::greaterThan(glm::dvec2(bottom), glm::dvec2(32.0))))
+        continue;
+      const double front = 1.0 - std::pow(0.95, tQuad - tTop), back = 1.0 - std::pow(0.95, tBottom - tQuad);
+      const double shade = 0.25 + 0.75 * std::abs(d.z), q = surface.a;
+      const glm::dvec3 material(0.8, 0.5, 0.2);
+      const glm::dvec3 rgb = material * front + (1.0 - front) * (glm::dvec3(surface) * shade * q + (1.0 - q) * material * back);
+      const double alpha = front + (1.0 - front) * (q + (1.0 - q) * back);
+      const glm::vec4 expected{glm::vec3(rgb), float(alpha)};
+      for (const Image* img : {&shells, &planes, &reference})
+        for (int k = 0; k < 4; ++k)
+          EXPECT_NEAR(img->at(x, y)[k], expected[k], 2.5f / 255.0f)
+              << "pixel " << x << "," << y << (img == &shells ? " shells" : img == &planes ? " planes" : " reference");
+      ++checked;
+    }
+  EXPECT_GE(checked, 9);
+}
+
 }  // namespace
 }  // namespace hyb
