@@ -107,6 +107,7 @@ struct RenderOptions {
     if (cutLine != "on" && cutLine != "off") return "--cut-line must be on or off";
     if (progressive < 1 || progressive > 8) return "--progressive must be in 1..8 images";
     if (progressive > 1 && output.empty()) return "--progressive needs -o (the images are named after it)";
+    if (progressive > 1 && renderer != "slices") return "--progressive needs --renderer slices (the reference is always exact)";
     if (!(std::isfinite(voiInside) && voiInside >= 0)) return "--voi-inside must be a finite factor >= 0";
     if (!(std::isfinite(voiOutside) && voiOutside >= 0)) return "--voi-outside must be a finite factor >= 0";
     if (!(std::isfinite(voiRamp) && voiRamp >= 0)) return "--voi-ramp must be a finite width >= 0 mm";
