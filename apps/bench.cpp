@@ -68,7 +68,7 @@ std::string plotScript(const std::string& csv, const std::string& png, const std
     g << "plot f u ((strcol(1) eq 'full' || strcol(1) eq 'epsilon') ? $9/1048576 : NaN):" << column
       << " w lp pt 7 lw 2 t 'epsilon_u sweep (blend on)', \\\n"
       << "     f u ((strcol(1) eq 'full' || strcol(1) eq 'epsilon') ? $9/1048576 : NaN):" << column
-      << ":(sprintf('%g', $2)) w labels offset 0,0.9 tc rgb '#555555' notitle, \\\n"
+      << ":(sprintf('%.0f', $2)) w labels offset 0,0.9 tc rgb '#555555' notitle, \\\n"
       << "     f u (strcol(1) eq 'budget' && strcol(5) eq 'on' ? $9/1048576 : NaN):" << column
       << " w lp pt 5 lw 2 t 'budget sweep, blend on', \\\n"
       << "     f u (strcol(1) eq 'budget' && strcol(5) eq 'off' ? $9/1048576 : NaN):" << column
