@@ -60,13 +60,8 @@ TEST(Multires, BlendingRemovesTheSeamAtALevelChange) {
   ASSERT_TRUE(isRestricted(t, blended));
   ASSERT_GT(blended.blendedBricks, 0u);
   const TransferFunction tf({{0.0f, {0, 0, 0}, 0.2f}, {200.0f, {1, 1, 1}, 0.2f}}, "grey");
-  Camera cam;  // orthographic, straight down -z, 0.5 mm a pixel, the level change between columns 31 and 32
-  cam.center = glm::dvec3(32, 16, 4);
-  cam.eye = cam.center + glm::dvec3(0, 0, 50);
-  cam.up = glm::dvec3(0, 1, 0);
-  cam.ortho = true;
-  cam.orthoHeight = 32.0;
-  cam.width = cam.height = 64;
+  // Orthographic, straight down -z, 0.5 mm a pixel, the level change between columns 31 and 32.
+  const Camera cam = test::orthoDown(glm::dvec3(32, 16, 4), 32.0, 64);
   SlicesOptions o;
   o.shading = false;
   const Image a = renderSlices(v, t, naive, tf, cam, o), b = renderSlices(v, t, blended, tf, cam, o);
@@ -189,13 +184,8 @@ TEST(Multires, AxisAlignedCutShowsTheDataSliceThroughTheTransferFunction) {
   const VolumeOctree t = VolumeOctree::build(v);
   const TransferFunction tf({{0.0f, {0.1f, 0.2f, 0.9f}, 0.2f}, {60.0f, {0.9f, 0.8f, 0.1f}, 0.05f}, {140.0f, {1.0f, 0.3f, 0.3f}, 0.5f}}, "ramp");
   const CutPlane cut{glm::dvec3(16.0, 16.0, 12.3), glm::dvec3(0.0, 0.0, 1.0)};
-  Camera cam;  // orthographic, straight down -z: pixel (x, y) sees (x + 0.5, 31.5 - y) on the plane
-  cam.center = glm::dvec3(16.0, 16.0, 12.3);
-  cam.eye = cam.center + glm::dvec3(0, 0, 80);
-  cam.up = glm::dvec3(0, 1, 0);
-  cam.ortho = true;
-  cam.orthoHeight = 32.0;
-  cam.width = cam.height = 32;
+  // Orthographic, straight down -z: pixel (x, y) sees (x + 0.5, 31.5 - y) on the plane.
+  const Camera cam = test::orthoDown(glm::dvec3(16.0, 16.0, 12.3), 32.0, 32);
   SlicesOptions so;
   so.cut = &cut;
   RaycastOptions ro;
@@ -223,13 +213,8 @@ TEST(Multires, VolumeOfInterestScalesOpacitySmoothly) {
   voi.hi = glm::dvec3(24, 50, 50);
   voi.outside = 0.0;
   voi.ramp = 4.0;
-  Camera cam;  // orthographic, straight down -z through all 32 mm: pixel column x sees x + 0.5 mm
-  cam.center = glm::dvec3(16, 16, 16);
-  cam.eye = cam.center + glm::dvec3(0, 0, 80);
-  cam.up = glm::dvec3(0, 1, 0);
-  cam.ortho = true;
-  cam.orthoHeight = 32.0;
-  cam.width = cam.height = 32;
+  // Orthographic, straight down -z through all 32 mm: pixel column x sees x + 0.5 mm.
+  const Camera cam = test::orthoDown(glm::dvec3(16, 16, 16), 32.0, 32);
   SlicesOptions so;
   so.shading = false;
   so.voi = &voi;

@@ -31,6 +31,19 @@ inline TriangleMesh quadAt(double zq, double x0, double x1, double y0, double y1
   return m;
 }
 
+/// An orthographic camera looking straight down -z at @p centre (from 60 mm above it), @p height mm
+/// tall, @p pixels square: pixel (x, y) sees centre + ((x + ½)/pixels − ½, ½ − (y + ½)/pixels)·height.
+inline Camera orthoDown(const glm::dvec3& centre, double height, int pixels) {
+  Camera c;
+  c.center = centre;
+  c.eye = centre + glm::dvec3(0, 0, 60);
+  c.up = glm::dvec3(0, 1, 0);
+  c.ortho = true;
+  c.orthoHeight = height;
+  c.width = c.height = pixels;
+  return c;
+}
+
 /// A 3x3 perspective camera at (4, 4, 4) looking down -z: inside a volume that spans z = 0…8.
 inline Camera insideCamera() {
   Camera c;

@@ -18,16 +18,7 @@ using test::psnrOf;
 using test::quadAt;
 
 // An 8x8 orthographic view straight down -z onto a 4 mm window around @p centre.
-Camera straightOn(const glm::dvec3& centre) {
-  Camera cam;
-  cam.center = centre;
-  cam.eye = centre + glm::dvec3(0, 0, 60);
-  cam.up = glm::dvec3(0, 1, 0);
-  cam.ortho = true;
-  cam.orthoHeight = 4.0;
-  cam.width = cam.height = 8;
-  return cam;
-}
+Camera straightOn(const glm::dvec3& centre) { return test::orthoDown(centre, 4.0, 8); }
 
 TEST(Slices, ContextIsOpenGl45Core) { EXPECT_NE(gl().description().find("4.5"), std::string::npos) << gl().description(); }
 
