@@ -292,5 +292,50 @@ TEST(Multires, ShellsAndPlanesComposeTheClosedFormInPerspective) {
   EXPECT_GE(checked, 9);
 }
 
+TEST(Multires, ExtremesGiveFiniteImages) {
+  gl();
+  const Volume v = test::sphereVolume({40, 36, 30}, 12.0);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf({{-5.0f, {1, 1, 1}, 0.0f}, {0.0f, {1, 0.5f, 0.2f}, 0.4f}, {12.0f, {0.2f, 0.5f, 1}, 0.1f}}, "s");
+  const SurfaceOctree so = SurfaceOctree::build(v, t, 4.0f);
+  const TriangleMesh mesh = fineMeshToTriangles(so.reconstruct(), v.spacing());
+  Camera inside;  // perspective from inside the sphere
+  inside.eye = glm::dvec3(19, 17, 14);
+  inside.center = glm::dvec3(30, 17, 14);
+  inside.up = glm::dvec3(0, 0, 1);
+  inside.width = inside.height = 24;
+  const Camera outside = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 30, 20, 30, false, 24, 24);
+  const CutPlane away{glm::dvec3(500, 0, 0), glm::dvec3(1, 0, 0)};  // misses the volume
+  const CutPlane through{glm::dvec3(20, 18, 15), glm::dvec3(0.3, 1, 0.2)};
+  VolumeOfInterest voi;
+  voi.lo = glm::dvec3(100);  // outside the volume: everything fades to `outside`
+  voi.hi = glm::dvec3(110);
+  voi.outside = 0.0;
+  for (const Camera* cam : {static_cast<const Camera*>(&inside), &outside})
+    for (uint64_t budget : {uint64_t(0), uint64_t(8), uint64_t(3000)})
+      for (Proxy proxy : {Proxy::Planes, Proxy::Shells})
+        for (const CutPlane* cut : {static_cast<const CutPlane*>(nullptr), &away, &through}) {
+          SelectionParams params;
+          params.texelBudget = budget;
+          params.maxBrickEdge = 8;
+          params.eye = cam->eye;
+          const Selection sel = selectNodes(t, params);
+          if (budget > 0) {
+            EXPECT_LE(sel.texels, budget);
+          }
+          SlicesOptions o;
+          o.proxy = proxy;
+          o.cut = cut;
+          o.surface = &mesh;
+          o.surfaceColor = glm::vec4(0.9f, 0.9f, 0.9f, 0.5f);
+          for (bool withVoi : {false, true}) {
+            o.voi = withVoi ? &voi : nullptr;
+            const Image img = renderSlices(v, t, sel, tf, *cam, o);
+            for (const glm::vec4& p : img.pixels)
+              for (int k = 0; k < 4; ++k) ASSERT_TRUE(std::isfinite(p[k]) && p[k] >= -1e-6f && p[k] <= 1.0f + 1e-5f);
+          }
+        }
+}
+
 }  // namespace
 }  // namespace hyb

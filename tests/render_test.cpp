@@ -4,6 +4,7 @@
 #include <cmath>
 #include <random>
 
+#include "render/cut_plane.h"
 #include "render/raycast.h"
 #include "render_util.h"
 #include "test_util.h"
@@ -173,6 +174,39 @@ TEST(TransferFunction, LookupFilesPresetsAndSegments) {
   EXPECT_THROW(TransferFunction::fromFile(dir.file("range.tf")), ValueError);
   test::writeText(dir.file("order.tf"), "100 1 1 1 0.5\n50 1 1 1 0.5\n");
   EXPECT_THROW(TransferFunction::fromFile(dir.file("order.tf")), ValueError);
+}
+
+TEST(Camera, SeesBoxCullsOnlyBoxesOutsideTheFrustum) {
+  Camera cam;  // perspective at (0, 0, 10) looking down -z, 30 degrees, square
+  cam.eye = glm::dvec3(0, 0, 10);
+  cam.center = glm::dvec3(0, 0, 0);
+  cam.up = glm::dvec3(0, 1, 0);
+  EXPECT_TRUE(cam.seesBox(glm::dvec3(-1), glm::dvec3(1)));                       // in front, centred
+  EXPECT_FALSE(cam.seesBox(glm::dvec3(-1, -1, 11), glm::dvec3(1, 1, 12)));       // behind the eye
+  EXPECT_FALSE(cam.seesBox(glm::dvec3(6, -1, -1), glm::dvec3(8, 1, 1)));         // right of the frustum (tan 15° · 11 ≈ 2.9)
+  EXPECT_TRUE(cam.seesBox(glm::dvec3(2, -1, -1), glm::dvec3(8, 1, 1)));          // straddling its side
+  EXPECT_TRUE(cam.seesBox(glm::dvec3(-50, -50, -50), glm::dvec3(50, 50, 50)));   // holding the eye
+  cam.ortho = true;
+  cam.orthoHeight = 4.0;  // |x|, |y| <= 2
+  EXPECT_FALSE(cam.seesBox(glm::dvec3(2.5, -1, -1), glm::dvec3(3, 1, 1)));
+  EXPECT_TRUE(cam.seesBox(glm::dvec3(-1, -1, 11), glm::dvec3(1, 1, 12)));  // no near side for ortho
+}
+
+TEST(CutPlane, KeptSideFacesAwayFromTheEye) {
+  Camera cam;
+  cam.eye = glm::dvec3(0, 0, 10);
+  cam.center = glm::dvec3(0, 0, 0);
+  cam.up = glm::dvec3(0, 1, 0);
+  for (double sign : {1.0, -1.0}) {
+    const CutPlane cut{glm::dvec3(0, 0, 2), glm::dvec3(0, 0, 3 * sign)};  // any length, either way
+    const glm::dvec4 k = cut.keptSide(cam);
+    EXPECT_NEAR(glm::length(glm::dvec3(k)), 1.0, 1e-12);
+    EXPECT_LT(glm::dot(glm::dvec3(k), cam.eye) + k.w, 0.0);                      // the eye's side is removed
+    EXPECT_NEAR(glm::dot(glm::dvec3(k), glm::dvec3(5, 7, 2)) + k.w, 0.0, 1e-12);  // the plane itself
+  }
+  cam.ortho = true;
+  const glm::dvec4 k = CutPlane{glm::dvec3(0), glm::dvec3(1, 0, 1)}.keptSide(cam);
+  EXPECT_GT(glm::dot(glm::dvec3(k), cam.forward()), 0.0);
 }
 
 TEST(Image, PngRoundTripAndPsnr) {
