@@ -77,29 +77,7 @@ glm::vec4 parseColor(const std::string& text, const std::string& flag, int n) {
 }
 
 void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
-  f->scene = loadOrBuild(o.input, out, &f->buildMs);
-  const Volume& v = f->scene.volume;
-  // Transfer function: file, preset, or a default chosen from the data's range.
-  f->tf = !o.tfFile.empty()   ? TransferFunction::fromFile(o.tfFile)
-          : !o.preset.empty() ? TransferFunction::preset(o.preset)
-                              : TransferFunction::defaultFor(v.minValue(), v.maxValue());
-  const glm::ivec2 size = parseSize(o.size);
-  Camera& camera = f->camera;
-  if (!o.eye.empty()) {
-    camera.eye = parseVec3(o.eye, "--eye");
-    camera.center = o.center.empty() ? 0.5 * v.extentMm() : parseVec3(o.center, "--center");
-    camera.up = parseVec3(o.up, "--up");
-    if (glm::length(camera.eye - camera.center) == 0 || glm::length(glm::cross(camera.center - camera.eye, camera.up)) == 0)
-      HYB_THROW(ValueError, "--eye, --center and --up must give a view direction not parallel to up");
-    camera.fovDeg = o.fov;
-    camera.ortho = o.ortho;
-    camera.orthoHeight = glm::length(v.extentMm()) * 1.05;
-    camera.width = size.x;
-    camera.height = size.y;
-  } else {
-    const glm::dvec3 ae = parseVec3(o.orbit + ",0", "--orbit");
-    camera = Camera::orbit(glm::dvec3(0.0), v.extentMm(), ae.x, ae.y, o.fov, o.ortho, size.x, size.y);
-  }
+  // Flags that need no data first, so that a typo fails before the volume is read.
   f->surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
   if (!o.cut.empty()) {
     const char* expected = "px,py,pz,nx,ny,nz: a point and a non-zero normal, finite mm";
@@ -120,6 +98,29 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
     f->voi = voi;
   }
   f->background = glm::vec3(parseColor(o.background, "--background", 3));
+  const glm::ivec2 size = parseSize(o.size);
+  const glm::dvec3 orbit = parseVec3(o.orbit + ",0", "--orbit");
+  f->scene = loadOrBuild(o.input, out, &f->buildMs);
+  const Volume& v = f->scene.volume;
+  // Transfer function: file, preset, or a default chosen from the data's range.
+  f->tf = !o.tfFile.empty()   ? TransferFunction::fromFile(o.tfFile)
+          : !o.preset.empty() ? TransferFunction::preset(o.preset)
+                              : TransferFunction::defaultFor(v.minValue(), v.maxValue());
+  Camera& camera = f->camera;
+  if (!o.eye.empty()) {
+    camera.eye = parseVec3(o.eye, "--eye");
+    camera.center = o.center.empty() ? 0.5 * v.extentMm() : parseVec3(o.center, "--center");
+    camera.up = parseVec3(o.up, "--up");
+    if (glm::length(camera.eye - camera.center) == 0 || glm::length(glm::cross(camera.center - camera.eye, camera.up)) == 0)
+      HYB_THROW(ValueError, "--eye, --center and --up must give a view direction not parallel to up");
+    camera.fovDeg = o.fov;
+    camera.ortho = o.ortho;
+    camera.orthoHeight = glm::length(v.extentMm()) * 1.05;
+    camera.width = size.x;
+    camera.height = size.y;
+  } else {
+    camera = Camera::orbit(glm::dvec3(0.0), v.extentMm(), orbit.x, orbit.y, o.fov, o.ortho, size.x, size.y);
+  }
   // Surface: the scene's when the isovalue matches, else built now.
   if (o.iso) {
     if (f->scene.surface && f->scene.surface->isovalue() == float(*o.iso)) {
