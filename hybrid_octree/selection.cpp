@@ -43,7 +43,8 @@ glm::ivec3 nodeHi(const VolumeOctree& t, const OctreeNode& n) { return glm::ivec
 class Refiner {
  public:
   Refiner(const VolumeOctree& t, const SelectionParams& params)
-      : mT(t), mParams(params), mP(t.nodes().size(), -1), mHidden(t.nodes().size()), mImportance(t.nodes().size()) {
+      : mT(t), mParams(params), mP(t.nodes().size(), -1), mHidden(t.nodes().size()), mNearEye(t.nodes().size()),
+        mImportance(t.nodes().size()) {
     for (size_t i = 0; i < mHidden.size(); ++i) {
       const OctreeNode& n = t.nodes()[i];
       glm::ivec3 lo, hi;
@@ -52,6 +53,9 @@ class Refiner {
       const bool culled = params.inView && !params.inView(glm::dvec3(lo) * params.spacing, glm::dvec3(hi) * params.spacing);
       mHidden[i] = transparent || culled;
       mImportance[i] = nodeImportance(t, n, params);
+      // LaMar's distance filter: a node nearer to the eye than its own diagonal is too coarse.
+      const glm::dvec3 boxLo = glm::dvec3(lo) * params.spacing, boxHi = glm::dvec3(hi) * params.spacing;
+      mNearEye[i] = params.eye && glm::length(*params.eye - glm::clamp(*params.eye, boxLo, boxHi)) < glm::length(boxHi - boxLo);
     }
     mBrickLevel = std::max(0, std::countr_zero(unsigned(params.maxBrickEdge)));
     set(0, 0);
@@ -80,7 +84,7 @@ class Refiner {
         if (mP[i] != p || !wantsRefinement(i)) continue;  // stale entry
         mJournal.clear();
         const uint64_t before = mTexels;
-        const bool onlyFree = !overTolerance(i);
+        const bool onlyFree = !asked(i);
         refineRestricted(i);
         if ((mParams.texelBudget > 0 && mTexels > mParams.texelBudget) || (onlyFree && mTexels > before)) {
           const std::vector<std::pair<uint32_t, int8_t>> undo = std::move(mJournal);
@@ -104,6 +108,10 @@ class Refiner {
   float tolerance(uint32_t i) const { return float(double(mParams.epsilon) / mImportance[i]); }
 
   bool overTolerance(uint32_t i) const { return mT.errors(mT.nodes()[i])[size_t(mP[i])] > tolerance(i); }
+  // Refinement asked for by ε_u or by the distance filter (where it still changes anything).
+  bool asked(uint32_t i) const {
+    return overTolerance(i) || (mNearEye[i] && mT.errors(mT.nodes()[i])[size_t(mP[i])] > 0.0f);
+  }
 
   // Whether splitting brick i costs no more texels than keeping it: its transparent or culled
   // children cost nothing, so a coarse node that is mostly empty is better split.
@@ -117,13 +125,13 @@ class Refiner {
   }
 
   bool wantsRefinement(uint32_t i) const {
-    return mP[i] >= 0 && !mHidden[i] && level(i) > 0 && (overTolerance(i) || splitIsFree(i));
+    return mP[i] >= 0 && !mHidden[i] && level(i) > 0 && (asked(i) || splitIsFree(i));
   }
 
   // P = D·Imp with D = ε_p · sensitivity; a tiny floor keeps ε_u binding where the slope is 0.
   // Free splits come first: they cost nothing and make the image no worse.
   double priority(uint32_t i) const {
-    if (!overTolerance(i)) return std::numeric_limits<double>::infinity();
+    if (!asked(i)) return std::numeric_limits<double>::infinity();
     const OctreeNode& n = mT.nodes()[i];
     const double e = mT.errors(n)[size_t(mP[i])];
     const double s = mParams.sensitivity ? double(mParams.sensitivity(n.minValue, n.maxValue)) : 1.0;
@@ -184,7 +192,7 @@ class Refiner {
   const VolumeOctree& mT;
   const SelectionParams& mParams;
   std::vector<int8_t> mP;  // brick level per node, −1 when the node is not a brick
-  std::vector<uint8_t> mHidden;
+  std::vector<uint8_t> mHidden, mNearEye;
   std::vector<double> mImportance;
   int mBrickLevel = 6;
   uint64_t mTexels = 0;

@@ -30,7 +30,7 @@ namespace hyb {
 struct SelectionParams {
   float epsilon = 0.0f;               ///< ε_u: largest nodal error allowed at importance 1, data units (≥ 0)
   std::optional<glm::dvec3> focus;    ///< region of interest (world mm); none = no focus term
-  std::optional<glm::dvec3> eye;      ///< viewpoint (world mm); none = no eye-distance term
+  std::optional<glm::dvec3> eye;      ///< viewpoint (world mm); none = no eye-distance term and no distance filter
   double focusRadiusMm = 0.0;         ///< importance falloff distance; 0 = a quarter of the volume diagonal
   int maxBrickEdge = 16;              ///< B_max: texel intervals per brick edge (power of two)
   uint64_t texelBudget = 0;           ///< T_max in texels; 0 = unlimited
@@ -81,7 +81,8 @@ inline int resolutionLevel(const VolumeOctree& octree, const Brick& b) {
 }
 
 /// Selects bricks. Starting from the root at p = 0, the visible brick of highest priority
-/// D·Imp is refined while its ε_p exceeds ε_u/Imp, keeping the tree restricted (refining coarser
+/// D·Imp is refined while its ε_p exceeds ε_u/Imp or, with an eye, while the eye is nearer to it
+/// than its diagonal (LaMar's distance filter), keeping the tree restricted (refining coarser
 /// neighbours as needed) and skipping refinements that would exceed the texel budget.
 /// @throw ValueError when @p params is invalid.
 Selection selectNodes(const VolumeOctree& octree, const SelectionParams& params);

@@ -321,6 +321,30 @@ TEST(Selection, TransparentNodesCostNothing) {
   EXPECT_EQ(none.texels, 0u);
 }
 
+TEST(Selection, DistanceFilterRefinesNodesNearTheEye) {
+  const Volume v = test::randomVolume({65, 65, 65}, 8);
+  const VolumeOctree t = VolumeOctree::build(v);
+  SelectionParams params;
+  params.maxBrickEdge = 8;
+  params.epsilon = 1000.0f;  // ε_u alone keeps the root
+  EXPECT_EQ(selectNodes(t, params).bricks.size(), 1u);
+  params.eye = glm::dvec3(-1.0, -1.0, -1.0);  // just outside the corner at the origin
+  const Selection sel = selectNodes(t, params);
+  EXPECT_TRUE(isRestricted(t, sel));
+  for (const Brick& b : sel.bricks) {
+    const OctreeNode& n = t.nodes()[b.node];
+    glm::ivec3 lo, hi;
+    t.voxelBox(n, &lo, &hi);
+    const double distance = glm::length(*params.eye - glm::clamp(*params.eye, glm::dvec3(lo), glm::dvec3(hi)));
+    if (resolutionLevel(t, b) > 0) {
+      EXPECT_GE(distance, glm::length(glm::dvec3(hi - lo))) << "a coarse brick nearer than its diagonal";
+    }
+    if (n.origin == glm::u16vec3(0)) {
+      EXPECT_EQ(resolutionLevel(t, b), 0);  // the brick at the eye: one texel per voxel
+    }
+  }
+}
+
 TEST(Selection, FrustumCulledNodesCostNothing) {
   const Volume v = test::randomVolume({65, 65, 65}, 3);
   const VolumeOctree t = VolumeOctree::build(v);
