@@ -48,8 +48,10 @@ void main() {
 )";
 
 /// One brick's slice: sample the brick texture, classify with the per-millimetre transfer
-/// function, correct opacity for the segment the slice stands for, shade, premultiply.
-inline constexpr const char* kSliceFragment = R"(#version 450 core
+/// function, correct opacity for the segment the slice stands for, shade, premultiply. Compiled
+/// after "#version 450 core\n#define SHADING 0|1\n": llvmpipe runs both sides of a uniform branch,
+/// so an unshaded frame gets a program without the six gradient fetches.
+inline constexpr const char* kSliceFragment = R"(
 in vec3 vWorld;
 in vec3 vNormal;
 flat in float vKind;
@@ -64,7 +66,6 @@ uniform float tfMin, tfScale, tfSize;
 uniform vec3 eye, forward;
 uniform int ortho;
 uniform float sliceSpacing;  // mm between this brick's slice planes along forward
-uniform int shading;
 uniform int shells;  // 1: the proxies are spherical shells around the eye
 uniform int voi;  // 1: scale opacity by the volume of interest
 uniform vec3 voiCentre, voiHalf;
@@ -108,7 +109,8 @@ void main() {
   }
   float alpha = c.a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - c.a, len);
   float shade = 1.0;
-  if (shading == 1) {
+#if SHADING
+  {
     vec3 h = gradientStep;
     vec3 g = vec3(sampleAt(x + vec3(h.x, 0, 0)) - sampleAt(x - vec3(h.x, 0, 0)),
                   sampleAt(x + vec3(0, h.y, 0)) - sampleAt(x - vec3(0, h.y, 0)),
@@ -116,6 +118,7 @@ void main() {
     float m = length(g);
     if (m > 1e-6) shade = 0.25 + 0.75 * abs(dot(g / m, dir));
   }
+#endif
   fragColor = vec4(c.rgb * shade * alpha, alpha);
 }
 )";

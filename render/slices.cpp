@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <string>
 
 #include "render/shaders.h"
 #include "volume/error.h"
@@ -424,7 +425,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
 
-  Program slices(shaders::kStreamVertex, shaders::kSliceFragment);
+  const std::string fragment = std::string("#version 450 core\n#define SHADING ") + (options.shading ? "1" : "0") + "\n" + shaders::kSliceFragment;
+  Program slices(shaders::kStreamVertex, fragment.c_str());
   glUseProgram(slices.id);
   glUniformMatrix4fv(slices.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
   glUniform1i(slices.at("volumeTex"), 0);
@@ -435,7 +437,6 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glUniform3f(slices.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
   glUniform3f(slices.at("forward"), float(f.x), float(f.y), float(f.z));
   glUniform1i(slices.at("ortho"), camera.ortho ? 1 : 0);
-  glUniform1i(slices.at("shading"), options.shading ? 1 : 0);
   glUniform4fv(slices.at("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
   glUniform4fv(slices.at("cutPlane"), 1, glm::value_ptr(cutPlane));
   glUniform1i(slices.at("voi"), options.voi ? 1 : 0);
