@@ -152,7 +152,7 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
   const TransferFunction* tf = &f.tf;
   const Camera* camera = &f.camera;
   params.opacity = [tf](float lo, float hi) { return tf->maxAlpha(lo, hi); };
-  params.sensitivity = [tf](float lo, float hi) { return tf->maxSlope(lo, hi); };
+  params.distortion = [tf](float lo, float hi, float error) { return tf->distortion(lo, hi, error); };
   // Frustum culling, and nodes wholly on the removed side of the cutting plane.
   const glm::dvec4 cut = f.cut ? f.cut->keptSide(f.camera) : glm::dvec4(0, 0, 0, 1);
   // And nodes the volume of interest scales to zero opacity.

@@ -128,14 +128,15 @@ class Refiner {
     return mP[i] >= 0 && !mHidden[i] && level(i) > 0 && (asked(i) || splitIsFree(i));
   }
 
-  // P = D·Imp with D = ε_p · sensitivity; a tiny floor keeps ε_u binding where the slope is 0.
-  // Free splits come first: they cost nothing and make the image no worse.
+  // P = D·Imp with D the distortion of ε_p after the transfer function; a tiny term in ε_p
+  // orders nodes the transfer function does not tell apart. Free splits come first: they cost
+  // nothing and make the image no worse.
   double priority(uint32_t i) const {
     if (!asked(i)) return std::numeric_limits<double>::infinity();
     const OctreeNode& n = mT.nodes()[i];
-    const double e = mT.errors(n)[size_t(mP[i])];
-    const double s = mParams.sensitivity ? double(mParams.sensitivity(n.minValue, n.maxValue)) : 1.0;
-    return e * (s + 1e-9) * mImportance[i];
+    const float e = mT.errors(n)[size_t(mP[i])];
+    const double d = mParams.distortion ? mParams.distortion(n.minValue, n.maxValue, e) : double(e);
+    return d * mImportance[i] + 1e-12 * double(e);
   }
 
   // Texels brick i costs at level p.

@@ -40,9 +40,9 @@ struct SelectionParams {
   /// Largest opacity the transfer function gives a value range [lo, hi]; a node whose range gets 0
   /// is transparent and costs nothing. None: every node is visible.
   std::function<float(float lo, float hi)> opacity;
-  /// How much one data unit of error changes the classified colour in [lo, hi] (the transfer
-  /// function's slope); the distortion is D = ε_p · sensitivity. None: 1.
-  std::function<float(float lo, float hi)> sensitivity;
+  /// Distortion after the transfer function: how much an error of @p error data units in values
+  /// within [lo, hi] can change the classified opacity and colour. None: the error itself.
+  std::function<double(float lo, float hi, float error)> distortion;
   /// Whether the world box [lo, hi] (mm) can be seen (frustum culling); none: always.
   std::function<bool(const glm::dvec3& lo, const glm::dvec3& hi)> inView;
 

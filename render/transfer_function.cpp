@@ -100,6 +100,10 @@ float TransferFunction::maxSlope(float lo, float hi) const {
   return m;
 }
 
+double TransferFunction::distortion(float lo, float hi, float error) const {
+  return std::min(double(error) * double(maxSlope(lo, hi)), double(maxAlpha(lo, hi)));
+}
+
 float TransferFunction::segmentAlpha(float alphaPerMm, float mm) {
   if (alphaPerMm <= 0.0f || mm <= 0.0f) return 0.0f;
   if (alphaPerMm >= 1.0f) return 1.0f;

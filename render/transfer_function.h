@@ -40,6 +40,11 @@ class TransferFunction {
   /// Largest rate of change, per data unit, of the opacity plus the opacity-weighted colour over
   /// [lo, hi]: how much an error of one data unit in that range can change the image.
   float maxSlope(float lo, float hi) const;
+  /// Bound on how much an error of @p error data units in values within [lo, hi] changes the
+  /// classified opacity plus opacity-weighted colour: error · maxSlope, and never more than the
+  /// largest opacity the range reaches (a change cannot exceed what is there; this keeps edges of
+  /// saturated material, such as bone, from hiding thin translucent structures).
+  double distortion(float lo, float hi, float error) const;
   /// Opacity of a segment of @p mm millimetres with opacity @p alphaPerMm per mm.
   static float segmentAlpha(float alphaPerMm, float mm);
 

@@ -142,7 +142,7 @@ TEST(MultiresCranium, AccuracyAndBytesFallAsEpsilonGrowsOrTheBudgetShrinks) {
   base.spacing = v.spacing();
   base.eye = cam.eye;
   base.opacity = [&tf](float lo, float hi) { return tf.maxAlpha(lo, hi); };
-  base.sensitivity = [&tf](float lo, float hi) { return tf.maxSlope(lo, hi); };
+  base.distortion = [&tf](float lo, float hi, float error) { return tf.distortion(lo, hi, error); };
   base.inView = [&cam](const glm::dvec3& lo, const glm::dvec3& hi) { return cam.seesBox(lo, hi); };
   struct Result {
     double db;
