@@ -601,10 +601,14 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       if (shell)  // the nearest point of a triangle to the eye may lie inside it
         dmn = distanceToTriangle(camera.eye, glm::dvec3(options.surface->vertices[tr.x]), glm::dvec3(options.surface->vertices[tr.y]),
                                  glm::dvec3(options.surface->vertices[tr.z]));
-      const long long k0 = (long long)std::floor(dmn / delta), k1 = (long long)std::floor(dmx / delta);
-      for (long long k = k0; k <= k1; ++k) instances.push_back({ti, k, k1 > k0, std::clamp(sum / 3, double(k) * delta, double(k + 1) * delta)});
-      kLo = std::min(kLo, k0);
-      kHi = std::max(kHi, k1);
+      // A brick without slices needs no slabs: its triangles are only sorted back to front.
+      const long long k0 = visible ? (long long)std::floor(dmn / delta) : 0, k1 = visible ? (long long)std::floor(dmx / delta) : 0;
+      for (long long k = k0; k <= k1; ++k)
+        instances.push_back({ti, k, k1 > k0, visible ? std::clamp(sum / 3, double(k) * delta, double(k + 1) * delta) : sum / 3});
+      if (visible) {
+        kLo = std::min(kLo, k0);
+        kHi = std::max(kHi, k1);
+      }
       ++st.surfaceTriangles;
     }
     // Far to near: by slab, then by depth inside a slab.

@@ -1,6 +1,7 @@
 // Multiresolution rendering: level blending, surface invariance, the speed/accuracy trade.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <functional>
 
@@ -335,6 +336,32 @@ TEST(Multires, ExtremesGiveFiniteImages) {
               for (int k = 0; k < 4; ++k) ASSERT_TRUE(std::isfinite(p[k]) && p[k] >= -1e-6f && p[k] <= 1.0f + 1e-5f);
           }
         }
+}
+
+TEST(Multires, TrianglesOfBricksWithoutSlicesAreNotSplitIntoSlabs) {
+  gl();
+  // Nothing of the volume is visible, so every brick is hidden: its triangles need no slabs (one
+  // instance each, sorted back to front) and the two quads composite over each other.
+  const Volume v = test::makeVolume({17, 17, 17}, [](int, int, int) { return 1.0; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction clear({{0.0f, {0, 0, 0}, 0.0f}, {2.0f, {0, 0, 0}, 0.0f}}, "clear");
+  SelectionParams params;
+  params.opacity = [&clear](float lo, float hi) { return clear.maxAlpha(lo, hi); };
+  const Selection sel = selectNodes(t, params);
+  ASSERT_TRUE(std::all_of(sel.bricks.begin(), sel.bricks.end(), [](const Brick& b) { return b.hidden; }));
+  TriangleMesh quads = test::quadAt(5.0, 1, 15, 1, 15);  // the far one (the eye looks down -z)
+  const TriangleMesh near = test::quadAt(11.0, 1, 15, 1, 15);
+  for (const glm::uvec3& tr : near.triangles) quads.triangles.push_back(tr + glm::uvec3(4));
+  quads.vertices.insert(quads.vertices.end(), near.vertices.begin(), near.vertices.end());
+  SlicesOptions o;
+  o.surface = &quads;
+  o.surfaceColor = glm::vec4(0.2f, 0.6f, 1.0f, 0.5f);
+  SlicesStats st;
+  const glm::vec4 p = renderSlices(v, t, sel, clear, test::orthoDown(glm::dvec3(8, 8, 8), 4.0, 8), o, &st).at(4, 4);
+  EXPECT_EQ(st.slabPolygonDraws, 4u);  // one instance a triangle: no slabs without slices
+  const float a = 0.5f;  // each quad faces the eye: shade 1
+  EXPECT_NEAR(p.a, a + (1 - a) * a, 1e-5f);
+  EXPECT_NEAR(p.b, 1.0f * a + (1 - a) * 1.0f * a, 1e-5f);
 }
 
 }  // namespace
