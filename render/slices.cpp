@@ -337,6 +337,80 @@ double distanceToTriangle(const glm::dvec3& p, const glm::dvec3& a, const glm::d
   return glm::length(p - (a + ab * (vb * denom) + ac * (vc * denom)));
 }
 
+// Draws @p surface opaque with depth writes, headlight-shaded, clipped by @p cutPlane.
+void drawOpaqueSurface(const TriangleMesh& surface, const glm::mat4& viewProj, const Camera& camera, const glm::vec3& color,
+                       const glm::vec4& cutPlane) {
+  const Program surf(shaders::kWorldVertex, shaders::kSurfaceFragment);
+  glUseProgram(surf.id);
+  std::vector<float> data;
+  data.reserve(surface.triangles.size() * 18);
+  for (const glm::uvec3& t : surface.triangles) {
+    const glm::vec3 a = surface.vertices[t.x], b = surface.vertices[t.y], c = surface.vertices[t.z];
+    const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
+    for (const glm::vec3& p : {a, b, c}) data.insert(data.end(), {p.x, p.y, p.z, n.x, n.y, n.z});
+  }
+  const glm::vec3 f(camera.forward());
+  glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(data.size() * sizeof(float)), data.data(), GL_STATIC_DRAW);
+  glEnableVertexAttribArray(0);
+  glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), nullptr);
+  glEnableVertexAttribArray(1);
+  glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
+  glUniformMatrix4fv(surf.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
+  glUniform3f(surf.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
+  glUniform3fv(surf.at("forward"), 1, glm::value_ptr(f));
+  glUniform1i(surf.at("ortho"), camera.ortho ? 1 : 0);
+  glUniform3fv(surf.at("color"), 1, glm::value_ptr(color));
+  glUniform4fv(surf.at("cutPlane"), 1, glm::value_ptr(cutPlane));
+  glEnable(GL_CLIP_DISTANCE0);
+  glDrawArrays(GL_TRIANGLES, 0, GLsizei(data.size() / 6));
+}
+
+// The bricks (nodes with brickOf ≥ 0) in back-to-front octree order: the octant farthest from the
+// eye first, then those one, two and three flips towards it (valid for perspective too).
+std::vector<uint32_t> bricksBackToFront(const VolumeOctree& octree, const std::vector<int>& brickOf, const glm::dvec3& eyeVoxel) {
+  std::vector<uint32_t> order;
+  std::vector<uint32_t> stack{0};
+  while (!stack.empty()) {
+    const uint32_t i = stack.back();
+    stack.pop_back();
+    if (brickOf[i] >= 0) {
+      order.push_back(i);
+      continue;
+    }
+    const OctreeNode& n = octree.nodes()[i];
+    const glm::dvec3 mid = glm::dvec3(n.origin) + 0.5 * octree.edge(n);
+    const int far = (eyeVoxel.x < mid.x) | (eyeVoxel.y < mid.y) << 1 | (eyeVoxel.z < mid.z) << 2;
+    for (int k : {7, 6, 5, 3, 4, 2, 1, 0}) {  // pushed in reverse, popped far first
+      const int slot = far ^ k;
+      if (n.childMask & (1u << slot)) stack.push_back(childIndex(n, slot));
+    }
+  }
+  return order;
+}
+
+// The triangles of @p surface each brick holds, by node index. Every triangle lies inside one
+// volume leaf (Surface Octree polygons never cross one), so its centroid names its brick.
+std::vector<std::vector<uint32_t>> trianglesByBrick(const Volume& volume, const VolumeOctree& octree, const std::vector<int>& brickOf,
+                                                    const TriangleMesh& surface) {
+  std::vector<std::vector<uint32_t>> trianglesOf(octree.nodes().size());
+  const glm::ivec3 cells = glm::max(volume.dims() - 1, glm::ivec3(1));
+  for (uint32_t ti = 0; ti < surface.triangles.size(); ++ti) {
+    const glm::uvec3 tr = surface.triangles[ti];
+    const glm::dvec3 c = (glm::dvec3(surface.vertices[tr.x]) + glm::dvec3(surface.vertices[tr.y]) + glm::dvec3(surface.vertices[tr.z])) /
+                         3.0 / volume.spacing();
+    const glm::ivec3 cell = glm::clamp(glm::ivec3(glm::floor(c)), glm::ivec3(0), cells - 1);
+    uint32_t i = 0;
+    while (brickOf[i] < 0) {
+      const OctreeNode& n = octree.nodes()[i];
+      const int half = octree.edge(n) / 2;
+      const glm::ivec3 rel = cell - glm::ivec3(n.origin);
+      i = childIndex(n, (rel.x >= half) | (rel.y >= half) << 1 | (rel.z >= half) << 2);
+    }
+    trianglesOf[i].push_back(ti);
+  }
+  return trianglesOf;
+}
+
 }  // namespace
 
 Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
@@ -386,30 +460,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
 
   // Opaque surface first, writing depth.
   const bool translucent = options.surface && !options.surface->triangles.empty() && options.surfaceColor.a < 1.0f;
-  if (options.surface && !options.surface->triangles.empty() && !translucent) {
-    Program surf(shaders::kWorldVertex, shaders::kSurfaceFragment);
-    glUseProgram(surf.id);
-    std::vector<float> data;
-    data.reserve(options.surface->triangles.size() * 18);
-    for (const glm::uvec3& t : options.surface->triangles) {
-      const glm::vec3 a = options.surface->vertices[t.x], b = options.surface->vertices[t.y], c = options.surface->vertices[t.z];
-      const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
-      for (const glm::vec3& p : {a, b, c}) data.insert(data.end(), {p.x, p.y, p.z, n.x, n.y, n.z});
-    }
-    glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(data.size() * sizeof(float)), data.data(), GL_STATIC_DRAW);
-    glEnableVertexAttribArray(0);
-    glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), nullptr);
-    glEnableVertexAttribArray(1);
-    glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
-    glUniformMatrix4fv(surf.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
-    glUniform3f(surf.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
-    glUniform3f(surf.at("forward"), float(f.x), float(f.y), float(f.z));
-    glUniform1i(surf.at("ortho"), camera.ortho ? 1 : 0);
-    glUniform3f(surf.at("color"), options.surfaceColor.r, options.surfaceColor.g, options.surfaceColor.b);
-    glUniform4fv(surf.at("cutPlane"), 1, glm::value_ptr(cutPlane));
-    glEnable(GL_CLIP_DISTANCE0);
-    glDrawArrays(GL_TRIANGLES, 0, GLsizei(data.size() / 6));
-  }
+  if (options.surface && !options.surface->triangles.empty() && !translucent)
+    drawOpaqueSurface(*options.surface, viewProj, camera, glm::vec3(options.surfaceColor), cutPlane);
 
   // Transfer function as a 4096-entry float lookup over the data range.
   constexpr int kTfSize = 4096;
@@ -458,50 +510,14 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glEnable(GL_BLEND);
   glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
 
-  // Bricks back to front: octree order, farther octants first (valid for perspective too).
+  // Bricks back to front, and the surface triangles each brick holds.
   std::vector<int> brickOf(octree.nodes().size(), -1);
   for (size_t b = 0; b < selection.bricks.size(); ++b) brickOf[selection.bricks[b].node] = int(b);
   const glm::dvec3 eyeVoxel = (camera.ortho ? camera.eye - f * 1e9 * diag : camera.eye) / spacing;
-  std::vector<uint32_t> order;
-  std::vector<uint32_t> stack{0};
-  while (!stack.empty()) {
-    const uint32_t i = stack.back();
-    stack.pop_back();
-    if (brickOf[i] >= 0) {
-      order.push_back(i);
-      continue;
-    }
-    const OctreeNode& n = octree.nodes()[i];
-    const glm::dvec3 mid = glm::dvec3(n.origin) + 0.5 * octree.edge(n);
-    const int far = (eyeVoxel.x < mid.x) | (eyeVoxel.y < mid.y) << 1 | (eyeVoxel.z < mid.z) << 2;
-    // Pushed in reverse: popped far first, then one, two and three flips towards the eye.
-    for (int k : {7, 6, 5, 3, 4, 2, 1, 0}) {
-      const int slot = far ^ k;
-      if (n.childMask & (1u << slot)) stack.push_back(childIndex(n, slot));
-    }
-  }
+  const std::vector<uint32_t> order = bricksBackToFront(octree, brickOf, eyeVoxel);
   HYB_CHECK(order.size() == selection.bricks.size());
-
-  // Surface triangles by brick (the SlabPolygon input when translucent). Every triangle lies inside one volume leaf
-  // (Surface Octree polygons never cross one), so its centroid names its brick.
-  std::vector<std::vector<uint32_t>> trianglesOf(octree.nodes().size());
-  if (options.surface) {
-    const glm::ivec3 cells = glm::max(volume.dims() - 1, glm::ivec3(1));
-    for (uint32_t ti = 0; ti < options.surface->triangles.size(); ++ti) {
-      const glm::uvec3 tr = options.surface->triangles[ti];
-      const glm::dvec3 c = (glm::dvec3(options.surface->vertices[tr.x]) + glm::dvec3(options.surface->vertices[tr.y]) +
-                            glm::dvec3(options.surface->vertices[tr.z])) / 3.0 / spacing;
-      const glm::ivec3 cell = glm::clamp(glm::ivec3(glm::floor(c)), glm::ivec3(0), cells - 1);
-      uint32_t i = 0;
-      while (brickOf[i] < 0) {
-        const OctreeNode& n = octree.nodes()[i];
-        const int half = octree.edge(n) / 2;
-        const glm::ivec3 rel = cell - glm::ivec3(n.origin);
-        i = childIndex(n, (rel.x >= half) | (rel.y >= half) << 1 | (rel.z >= half) << 2);
-      }
-      trianglesOf[i].push_back(ti);
-    }
-  }
+  const std::vector<std::vector<uint32_t>> trianglesOf =
+      options.surface ? trianglesByBrick(volume, octree, brickOf, *options.surface) : std::vector<std::vector<uint32_t>>(octree.nodes().size());
 
   GLuint query;
   glGenQueries(1, &query);
