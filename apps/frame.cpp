@@ -152,6 +152,13 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
   const TransferFunction* tf = &f.tf;
   const Camera* camera = &f.camera;
   params.opacity = [tf](float lo, float hi) { return tf->maxAlpha(lo, hi); };
+  // LaMar's screen-space stop: the size of a pixel at a box's nearest point.
+  params.lodPixels = o.lodPixels;
+  params.pixelSize = [camera](const glm::dvec3& lo, const glm::dvec3& hi) {
+    if (camera->ortho) return camera->orthoHeight / camera->height;
+    const double d = glm::length(camera->eye - glm::clamp(camera->eye, lo, hi));
+    return 2.0 * d * std::tan(glm::radians(camera->fovDeg) * 0.5) / camera->height;
+  };
   params.distortion = [tf](float lo, float hi, float error) { return tf->distortion(lo, hi, error); };
   // Frustum culling, and nodes wholly on the removed side of the cutting plane.
   const glm::dvec4 cut = f.cut ? f.cut->keptSide(f.camera) : glm::dvec4(0, 0, 0, 1);

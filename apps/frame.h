@@ -87,7 +87,7 @@ struct RenderOptions {
   std::string output, stats, focus, renderer = "slices", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
   std::string eye, center, up = "0,0,1", orbit = "180,10", size = "512x512", background = "0,0,0", shading = "on";
   std::string blend = "on", cut, cutLine = "on", voi, proxy = "planes";
-  double voiInside = 1.0, voiOutside = 0.1, voiRamp = 4.0;
+  double voiInside = 1.0, voiOutside = 0.1, voiRamp = 4.0, lodPixels = 0.0;
   std::optional<double> iso;
   double epsilon = 0.0, budgetMb = 0.0, fov = 30.0;
   std::optional<double> step;  // default: 0.5 voxel for slices, 0.25 for the reference
@@ -106,6 +106,7 @@ struct RenderOptions {
     if (proxy != "planes" && proxy != "shells") return "--proxy '" + proxy + "' invalid (expected planes or shells)";
     if (cutLine != "on" && cutLine != "off") return "--cut-line must be on or off";
     if (progressive < 1 || progressive > 8) return "--progressive must be in 1..8 images";
+    if (!(std::isfinite(lodPixels) && lodPixels >= 0)) return "--lod-pixels must be a finite number of pixels >= 0";
     if (progressive > 1 && output.empty()) return "--progressive needs -o (the images are named after it)";
     if (progressive > 1 && renderer != "slices") return "--progressive needs --renderer slices (the reference is always exact)";
     if (!(std::isfinite(voiInside) && voiInside >= 0)) return "--voi-inside must be a finite factor >= 0";
@@ -142,6 +143,8 @@ struct RenderOptions {
     cmd->add_option("--voi-outside", voiOutside, "opacity factor outside the volume of interest")->capture_default_str();
     cmd->add_option("--voi-ramp", voiRamp, "width of the smooth transition across the box's surface, mm")->capture_default_str();
     cmd->add_option("--step", step, "slice / sample spacing in voxels (default 0.5 for slices, 0.25 for raycast)");
+    cmd->add_option("--lod-pixels", lodPixels, "stop refining where texels are at most this many pixels apart on screen (0 = off)")
+        ->capture_default_str();
     cmd->add_option("--max-brick", maxBrick, "brick edge in texels (power of two)")->capture_default_str();
   }
 };

@@ -44,7 +44,7 @@ class Refiner {
  public:
   Refiner(const VolumeOctree& t, const SelectionParams& params)
       : mT(t), mParams(params), mP(t.nodes().size(), -1), mHidden(t.nodes().size()), mNearEye(t.nodes().size()),
-        mImportance(t.nodes().size()) {
+        mImportance(t.nodes().size()), mPixelMm(t.nodes().size()) {
     for (size_t i = 0; i < mHidden.size(); ++i) {
       const OctreeNode& n = t.nodes()[i];
       glm::ivec3 lo, hi;
@@ -56,6 +56,7 @@ class Refiner {
       // LaMar's distance filter: a node nearer to the eye than its own diagonal is too coarse.
       const glm::dvec3 boxLo = glm::dvec3(lo) * params.spacing, boxHi = glm::dvec3(hi) * params.spacing;
       mNearEye[i] = params.eye && glm::length(*params.eye - glm::clamp(*params.eye, boxLo, boxHi)) < glm::length(boxHi - boxLo);
+      mPixelMm[i] = params.pixelSize && params.lodPixels > 0.0 ? params.lodPixels * params.pixelSize(boxLo, boxHi) : 0.0;
     }
     mBrickLevel = std::max(0, std::countr_zero(unsigned(params.maxBrickEdge)));
     set(0, 0);
@@ -110,7 +111,10 @@ class Refiner {
   bool overTolerance(uint32_t i) const { return mT.errors(mT.nodes()[i])[size_t(mP[i])] > tolerance(i); }
   // Refinement asked for by ε_u or by the distance filter (where it still changes anything).
   bool asked(uint32_t i) const {
-    return overTolerance(i) || (mNearEye[i] && mT.errors(mT.nodes()[i])[size_t(mP[i])] > 0.0f);
+    const OctreeNode& n = mT.nodes()[i];
+    const double texelMm = double(mT.edge(n) >> mP[i]) * std::min({mParams.spacing.x, mParams.spacing.y, mParams.spacing.z});
+    if (texelMm <= mPixelMm[i]) return false;  // finer texels would not be seen
+    return overTolerance(i) || (mNearEye[i] && mT.errors(n)[size_t(mP[i])] > 0.0f);
   }
 
   // Whether splitting brick i costs no more texels than keeping it: its transparent or culled
@@ -195,6 +199,7 @@ class Refiner {
   std::vector<int8_t> mP;  // brick level per node, −1 when the node is not a brick
   std::vector<uint8_t> mHidden, mNearEye;
   std::vector<double> mImportance;
+  std::vector<double> mPixelMm;  // lodPixels pixels at the node, mm (0: no screen-space stop)
   int mBrickLevel = 6;
   uint64_t mTexels = 0;
   std::vector<std::pair<uint32_t, int8_t>> mJournal;  // (node, previous level)
@@ -215,6 +220,7 @@ std::string SelectionParams::validate() const {
     return "--focus invalid (expected three finite coordinates in mm)";
   if (eye && !(std::isfinite(eye->x) && std::isfinite(eye->y) && std::isfinite(eye->z))) return "eye position invalid (expected finite mm)";
   if (!std::isfinite(focusRadiusMm) || focusRadiusMm < 0.0) return "focus radius invalid (expected >= 0 mm)";
+  if (!std::isfinite(lodPixels) || lodPixels < 0.0) return detail::concat("--lod-pixels ", lodPixels, " invalid (expected a finite value >= 0)");
   if (maxBrickEdge < 1 || maxBrickEdge > 256 || (maxBrickEdge & (maxBrickEdge - 1)))
     return detail::concat("maximum brick edge ", maxBrickEdge, " invalid (expected a power of two in 1..256)");
   return "";

@@ -43,6 +43,11 @@ struct SelectionParams {
   /// Distortion after the transfer function: how much an error of @p error data units in values
   /// within [lo, hi] can change the classified opacity and colour. None: the error itself.
   std::function<double(float lo, float hi, float error)> distortion;
+  /// Size in mm of one pixel at the nearest point of the world box [lo, hi] (the camera's); with
+  /// lodPixels > 0 a brick is not refined once its texels are at most lodPixels pixels apart there
+  /// (LaMar's screen-space criterion: finer data cannot be seen). None: no screen-space stop.
+  std::function<double(const glm::dvec3& lo, const glm::dvec3& hi)> pixelSize;
+  double lodPixels = 0.0;             ///< texel spacing, in pixels, below which refinement stops; 0 = off
   /// Whether the world box [lo, hi] (mm) can be seen (frustum culling); none: always.
   std::function<bool(const glm::dvec3& lo, const glm::dvec3& hi)> inView;
 

@@ -345,6 +345,23 @@ TEST(Selection, DistanceFilterRefinesNodesNearTheEye) {
   }
 }
 
+TEST(Selection, ScreenSpaceStopLeavesTexelsNoFinerThanAPixel) {
+  const Volume v = test::randomVolume({65, 65, 65}, 9);
+  const VolumeOctree t = VolumeOctree::build(v);
+  SelectionParams params;
+  params.maxBrickEdge = 8;
+  const uint64_t full = selectNodes(t, params).texels;
+  params.pixelSize = [](const glm::dvec3&, const glm::dvec3&) { return 2.0; };  // 2 mm a pixel everywhere
+  params.lodPixels = 1.0;
+  const Selection sel = selectNodes(t, params);
+  for (const Brick& b : sel.bricks) EXPECT_EQ(resolutionLevel(t, b), 1);  // texels 2 mm apart: refined no further
+  EXPECT_LT(sel.texels, full / 6);
+  params.lodPixels = 0.0;  // off
+  EXPECT_EQ(selectNodes(t, params).texels, full);
+  params.lodPixels = -1.0;
+  EXPECT_THROW(selectNodes(t, params), ValueError);
+}
+
 TEST(Selection, FrustumCulledNodesCostNothing) {
   const Volume v = test::randomVolume({65, 65, 65}, 3);
   const VolumeOctree t = VolumeOctree::build(v);
