@@ -545,8 +545,50 @@ struct LineKeyHash {
     return size_t(h);
   }
 };
-struct VertexKeyHash {
-  size_t operator()(uint64_t k) const { return size_t(mix64(k)); }
+// Open-addressing map from 64-bit keys (never ~0) to 32-bit values, linear probing in a power-of-two
+// table: the reconstruction's vertex and edge maps without an allocation per entry.
+class FlatMap {
+ public:
+  explicit FlatMap(size_t expected) {
+    size_t capacity = 16;
+    while (capacity < 2 * expected) capacity <<= 1;
+    mKeys.assign(capacity, kEmpty);
+    mValues.resize(capacity);
+  }
+  /// The value of @p key, inserted as @p value when absent; second: whether it was inserted.
+  std::pair<uint32_t*, bool> tryEmplace(uint64_t key, uint32_t value) {
+    HYB_DCHECK(key != kEmpty);
+    if (2 * (mSize + 1) > mKeys.size()) grow();
+    size_t i = slot(key);
+    for (; mKeys[i] != kEmpty; i = (i + 1) & (mKeys.size() - 1))
+      if (mKeys[i] == key) return {&mValues[i], false};
+    mKeys[i] = key;
+    mValues[i] = value;
+    ++mSize;
+    return {&mValues[i], true};
+  }
+  /// The value of @p key, or nullptr.
+  const uint32_t* find(uint64_t key) const {
+    for (size_t i = slot(key); mKeys[i] != kEmpty; i = (i + 1) & (mKeys.size() - 1))
+      if (mKeys[i] == key) return &mValues[i];
+    return nullptr;
+  }
+
+ private:
+  static constexpr uint64_t kEmpty = ~uint64_t(0);
+  size_t slot(uint64_t key) const { return size_t(mix64(key)) & (mKeys.size() - 1); }
+  void grow() {
+    std::vector<uint64_t> keys(2 * mKeys.size(), kEmpty);
+    std::vector<uint32_t> values(keys.size());
+    keys.swap(mKeys);
+    values.swap(mValues);
+    mSize = 0;
+    for (size_t i = 0; i < keys.size(); ++i)
+      if (keys[i] != kEmpty) tryEmplace(keys[i], values[i]);
+  }
+  std::vector<uint64_t> mKeys;
+  std::vector<uint32_t> mValues;
+  size_t mSize = 0;
 };
 
 }  // namespace
@@ -678,14 +720,13 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
   }
 
   DiscreteMesh mesh;
-  std::unordered_map<uint64_t, uint32_t, VertexKeyHash> ids;
-  ids.reserve(polys.size() * 2);
+  FlatMap ids(polys.size() * 2);
   auto vertexId = [&](const V64& p) {
     const uint64_t key = (uint64_t(p.x) << 42) | (uint64_t(p.y) << 21) | uint64_t(p.z);  // each < 2^21
-    auto [it, inserted] = ids.try_emplace(key, uint32_t(mesh.vertices.size()));
+    const auto [id, inserted] = ids.tryEmplace(key, uint32_t(mesh.vertices.size()));
     if (inserted) mesh.vertices.push_back(glm::ivec3(p));
-    HYB_DCHECK(V64(mesh.vertices[it->second]) == p);
-    return it->second;
+    HYB_DCHECK(V64(mesh.vertices[*id]) == p);
+    return *id;
   };
   std::vector<std::vector<uint32_t>> loops(polys.size());
   for (size_t pi = 0; pi < polys.size(); ++pi) {
@@ -723,44 +764,56 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
       return x;
     };
     auto cellOf = [&](size_t pi) { return packCells(glm::ivec3(polys[pi].origin) / mergeCube); };
-    std::unordered_map<uint64_t, uint32_t, VertexKeyHash> owner;
-    owner.reserve(polys.size() * 4);
+    auto edgeKey = [](uint32_t from, uint32_t to) { return uint64_t(from) << 32 | to; };
+    FlatMap owner(polys.size() * 4);
     for (size_t pi = 0; pi < polys.size(); ++pi)
-      for (size_t k = 0; k < loops[pi].size(); ++k)
-        owner[uint64_t(loops[pi][k]) << 32 | loops[pi][(k + 1) % loops[pi].size()]] = uint32_t(pi);
+      for (size_t k = 0; k < loops[pi].size(); ++k) *owner.tryEmplace(edgeKey(loops[pi][k], loops[pi][(k + 1) % loops[pi].size()]), 0).first = uint32_t(pi);
     for (size_t pi = 0; pi < polys.size(); ++pi)
       for (size_t k = 0; k < loops[pi].size(); ++k) {
-        const auto it = owner.find(uint64_t(loops[pi][(k + 1) % loops[pi].size()]) << 32 | loops[pi][k]);
-        if (it == owner.end() || it->second == pi) continue;
-        const uint32_t q = it->second;
-        if (polys[q].plane == polys[pi].plane && cellOf(q) == cellOf(pi)) parent[find(uint32_t(pi))] = find(q);
+        const uint32_t* q = owner.find(edgeKey(loops[pi][(k + 1) % loops[pi].size()], loops[pi][k]));
+        if (!q || *q == pi) continue;
+        if (polys[*q].plane == polys[pi].plane && cellOf(*q) == cellOf(pi)) parent[find(uint32_t(pi))] = find(*q);
       }
-    std::unordered_map<uint32_t, std::vector<uint32_t>> sets;
-    for (uint32_t pi = 0; pi < polys.size(); ++pi) sets[find(pi)].push_back(pi);
-    for (auto& [root, members] : sets) {
-      if (members.size() < 2) continue;
-      // Boundary: directed edges whose reverse is not in the set.
-      std::unordered_map<uint64_t, int, VertexKeyHash> present;
-      for (uint32_t m : members)
-        for (size_t k = 0; k < loops[m].size(); ++k) ++present[uint64_t(loops[m][k]) << 32 | loops[m][(k + 1) % loops[m].size()]];
-      std::unordered_map<uint32_t, uint32_t> next;
-      bool branching = false;
-      for (const auto& [e, n] : present) {
-        const uint32_t a = uint32_t(e >> 32), b = uint32_t(e);
-        if (!present.count(uint64_t(b) << 32 | a)) branching |= !next.emplace(a, b).second;
+    // The sets, as runs of (root, polygon) pairs; each set's boundary from its sorted directed edges.
+    std::vector<std::pair<uint32_t, uint32_t>> bySet(polys.size());
+    for (uint32_t pi = 0; pi < polys.size(); ++pi) bySet[pi] = {find(pi), pi};
+    std::sort(bySet.begin(), bySet.end());
+    std::vector<uint64_t> edges, boundary;
+    std::vector<uint8_t> used;
+    for (size_t b = 0, e; b < bySet.size(); b = e) {
+      for (e = b + 1; e < bySet.size() && bySet[e].first == bySet[b].first; ++e) {
       }
-      if (branching || next.empty()) continue;
+      if (e - b < 2) continue;
+      const uint32_t root = bySet[b].first;
+      edges.clear();
+      for (size_t m = b; m < e; ++m) {
+        const std::vector<uint32_t>& loop = loops[bySet[m].second];
+        for (size_t k = 0; k < loop.size(); ++k) edges.push_back(edgeKey(loop[k], loop[(k + 1) % loop.size()]));
+      }
+      std::sort(edges.begin(), edges.end());
+      edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
+      // Boundary: directed edges whose reverse is not in the set; sorted by their first vertex.
+      boundary.clear();
+      for (uint64_t x : edges)
+        if (!std::binary_search(edges.begin(), edges.end(), edgeKey(uint32_t(x), uint32_t(x >> 32)))) boundary.push_back(x);
+      bool branching = boundary.empty();
+      for (size_t k = 1; k < boundary.size() && !branching; ++k) branching = boundary[k] >> 32 == boundary[k - 1] >> 32;
+      if (branching) continue;
+      // Walk the boundary from its first edge; a single loop replaces the members.
       std::vector<uint32_t> merged;
-      uint32_t v = next.begin()->first;
-      for (auto it = next.find(v); it != next.end(); it = next.find(v)) {
+      used.assign(boundary.size(), 0);
+      uint32_t v = uint32_t(boundary[0] >> 32);
+      for (;;) {
+        const auto it = std::lower_bound(boundary.begin(), boundary.end(), uint64_t(v) << 32);
+        if (it == boundary.end() || uint32_t(*it >> 32) != v || used[size_t(it - boundary.begin())]) break;
+        used[size_t(it - boundary.begin())] = 1;
         merged.push_back(v);
-        v = it->second;
-        next.erase(it);
+        v = uint32_t(*it);
       }
-      if (!next.empty()) continue;  // several loops (a hole): keep the members
+      if (merged.size() != boundary.size()) continue;  // several loops (a hole): keep the members
       loops[root] = std::move(merged);
-      for (uint32_t m : members)
-        if (m != root) loops[m].clear();
+      for (size_t m = b; m < e; ++m)
+        if (bySet[m].second != root) loops[bySet[m].second].clear();
     }
   }
 
