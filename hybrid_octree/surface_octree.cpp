@@ -10,6 +10,7 @@
 
 #include "surface/dmc.h"
 #include "surface/dmc_table.h"
+#include "surface/flat_map.h"
 #include "volume/error.h"
 
 namespace hyb {
@@ -545,52 +546,6 @@ struct LineKeyHash {
     return size_t(h);
   }
 };
-// Open-addressing map from 64-bit keys (never ~0) to 32-bit values, linear probing in a power-of-two
-// table: the reconstruction's vertex and edge maps without an allocation per entry.
-class FlatMap {
- public:
-  explicit FlatMap(size_t expected) {
-    size_t capacity = 16;
-    while (capacity < 2 * expected) capacity <<= 1;
-    mKeys.assign(capacity, kEmpty);
-    mValues.resize(capacity);
-  }
-  /// The value of @p key, inserted as @p value when absent; second: whether it was inserted.
-  std::pair<uint32_t*, bool> tryEmplace(uint64_t key, uint32_t value) {
-    HYB_DCHECK(key != kEmpty);
-    if (2 * (mSize + 1) > mKeys.size()) grow();
-    size_t i = slot(key);
-    for (; mKeys[i] != kEmpty; i = (i + 1) & (mKeys.size() - 1))
-      if (mKeys[i] == key) return {&mValues[i], false};
-    mKeys[i] = key;
-    mValues[i] = value;
-    ++mSize;
-    return {&mValues[i], true};
-  }
-  /// The value of @p key, or nullptr.
-  const uint32_t* find(uint64_t key) const {
-    for (size_t i = slot(key); mKeys[i] != kEmpty; i = (i + 1) & (mKeys.size() - 1))
-      if (mKeys[i] == key) return &mValues[i];
-    return nullptr;
-  }
-
- private:
-  static constexpr uint64_t kEmpty = ~uint64_t(0);
-  size_t slot(uint64_t key) const { return size_t(mix64(key)) & (mKeys.size() - 1); }
-  void grow() {
-    std::vector<uint64_t> keys(2 * mKeys.size(), kEmpty);
-    std::vector<uint32_t> values(keys.size());
-    keys.swap(mKeys);
-    values.swap(mValues);
-    mSize = 0;
-    for (size_t i = 0; i < keys.size(); ++i)
-      if (keys[i] != kEmpty) tryEmplace(keys[i], values[i]);
-  }
-  std::vector<uint64_t> mKeys;
-  std::vector<uint32_t> mValues;
-  size_t mSize = 0;
-};
-
 }  // namespace
 
 DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
@@ -723,10 +678,12 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
   FlatMap ids(polys.size() * 2);
   auto vertexId = [&](const V64& p) {
     const uint64_t key = (uint64_t(p.x) << 42) | (uint64_t(p.y) << 21) | uint64_t(p.z);  // each < 2^21
-    const auto [id, inserted] = ids.tryEmplace(key, uint32_t(mesh.vertices.size()));
-    if (inserted) mesh.vertices.push_back(glm::ivec3(p));
-    HYB_DCHECK(V64(mesh.vertices[*id]) == p);
-    return *id;
+    const uint32_t id = ids.findOrInsert(key, [&] {
+      mesh.vertices.push_back(glm::ivec3(p));
+      return uint32_t(mesh.vertices.size() - 1);
+    });
+    HYB_DCHECK(V64(mesh.vertices[id]) == p);
+    return id;
   };
   std::vector<std::vector<uint32_t>> loops(polys.size());
   for (size_t pi = 0; pi < polys.size(); ++pi) {
@@ -767,7 +724,7 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
     auto edgeKey = [](uint32_t from, uint32_t to) { return uint64_t(from) << 32 | to; };
     FlatMap owner(polys.size() * 4);
     for (size_t pi = 0; pi < polys.size(); ++pi)
-      for (size_t k = 0; k < loops[pi].size(); ++k) *owner.tryEmplace(edgeKey(loops[pi][k], loops[pi][(k + 1) % loops[pi].size()]), 0).first = uint32_t(pi);
+      for (size_t k = 0; k < loops[pi].size(); ++k) owner[edgeKey(loops[pi][k], loops[pi][(k + 1) % loops[pi].size()])] = uint32_t(pi);
     for (size_t pi = 0; pi < polys.size(); ++pi)
       for (size_t k = 0; k < loops[pi].size(); ++k) {
         const uint32_t* q = owner.find(edgeKey(loops[pi][(k + 1) % loops[pi].size()], loops[pi][k]));

@@ -3,56 +3,13 @@
 #include "surface/dmc.h"
 
 #include "surface/dmc_table.h"
+#include "surface/flat_map.h"
 #include "surface/triangulate.h"
 #include "volume/error.h"
 
 namespace hyb {
 
 namespace {
-
-// Open-addressing map from a 64-bit key to a vertex index (keys are never ~0).
-class VertexMap {
- public:
-  explicit VertexMap(size_t expected) { rehash(std::max<size_t>(1024, expected * 2)); }
-  // Index stored for @p key, or the result of @p make() stored now.
-  template <typename Make>
-  uint32_t findOrInsert(uint64_t key, Make&& make) {
-    if (2 * (mCount + 1) > mKeys.size()) rehash(mKeys.size() * 2);
-    size_t h = hash(key) & (mKeys.size() - 1);
-    while (mKeys[h] != kEmpty) {
-      if (mKeys[h] == key) return mValues[h];
-      h = (h + 1) & (mKeys.size() - 1);
-    }
-    mKeys[h] = key;
-    ++mCount;
-    return mValues[h] = make();
-  }
-
- private:
-  static constexpr uint64_t kEmpty = ~uint64_t(0);
-  static size_t hash(uint64_t k) {
-    k ^= k >> 33;
-    k *= 0xff51afd7ed558ccdULL;
-    k ^= k >> 33;
-    return size_t(k);
-  }
-  void rehash(size_t capacity) {
-    std::vector<uint64_t> keys(capacity, kEmpty);
-    std::vector<uint32_t> values(capacity);
-    for (size_t i = 0; i < mKeys.size(); ++i)
-      if (mKeys[i] != kEmpty) {
-        size_t h = hash(mKeys[i]) & (capacity - 1);
-        while (keys[h] != kEmpty) h = (h + 1) & (capacity - 1);
-        keys[h] = mKeys[i];
-        values[h] = mValues[i];
-      }
-    mKeys.swap(keys);
-    mValues.swap(values);
-  }
-  std::vector<uint64_t> mKeys;
-  std::vector<uint32_t> mValues;
-  size_t mCount = 0;
-};
 
 // Doubled coordinates are below 2^17, so 21 bits an axis never collide.
 uint64_t packKey(const glm::ivec3& p) {
@@ -128,7 +85,7 @@ DiscreteMesh extractDiscMC(const Volume& volume, float iso, std::span<const Voxe
   std::array<glm::ivec3, 12> mid;
   for (int e = 0; e < 12; ++e) mid[size_t(e)] = dmc::edgeMidpoint(e);
   DiscreteMesh mesh;
-  VertexMap map(1 << 16);
+  FlatMap map(1 << 16);
   uint32_t ids[12];
   forEachActiveCell(volume, iso, blocks, [&](int i, int j, int k, unsigned mask) {
     const dmc::Case& c = cellCase(volume, iso, i, j, k, mask);
@@ -158,7 +115,7 @@ DiscreteMesh extractDiscMC(const Volume& volume, float iso, std::span<const Voxe
 TriangleMesh extractMarchingCubes(const Volume& volume, float iso, std::span<const VoxelBlock> blocks) {
   const auto& table = dmc::caseTable();
   TriangleMesh mesh;
-  VertexMap map(1 << 16);
+  FlatMap map(1 << 16);
   std::array<uint32_t, 12> ids;
   forEachActiveCell(volume, iso, blocks, [&](int i, int j, int k, unsigned mask) {
     const dmc::Case& c = table[mask];
