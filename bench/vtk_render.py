@@ -1,0 +1,157 @@
+#!/usr/bin/python3
+"""Optional comparison of the renderer issue's speed targets with VTK, in one run on this machine:
+VTK's GPU ray cast mapper with depth peeling (volume + translucent isosurface) and its CPU
+fixed-point ray caster (volume only, automatic sample distances), both through Mesa's llvmpipe
+under Xvfb, against `hybrid-octree render` on the same volume, view, transfer function and size.
+
+Needs Debian's python3-vtk9 and xvfb (not dependencies of the project). From the repository root:
+
+    xvfb-run -a /usr/bin/python3 bench/vtk_render.py cranium_256x256x108_int16le.nhdr [--runs 3]
+"""
+import argparse
+import math
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+
+# The ct-skin-bone preset of render/transfer_function.cpp: value, colour, opacity per mm.
+SKIN, BONE = (0.93, 0.72, 0.60), (1.0, 0.96, 0.86)
+CT_SKIN_BONE = [(-700, SKIN, 0.0), (-500, SKIN, 0.08), (-300, SKIN, 0.12), (-100, SKIN, 0.0), (150, BONE, 0.0),
+                (400, BONE, 0.2), (3000, BONE, 0.6)]
+
+
+def best_ms(runs, f):
+    best = float("inf")
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        f()
+        best = min(best, (time.perf_counter() - t0) * 1e3)
+    return best
+
+
+def ours_ms(exe, volume, runs, extra):
+    best = float("inf")
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(runs):
+            out = subprocess.run([exe, "render", volume, "--size", "512x512", "-o", os.path.join(tmp, "o.png")] + extra,
+                                 check=True, capture_output=True, text=True).stdout
+            best = min(best, float(re.search(r"^render .* ([0-9.]+) ms$", out, re.M).group(1)))
+    return best
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("volume")
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--hybrid-octree", default="build/hybrid-octree")
+    args = parser.parse_args()
+    try:
+        import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (registers the OpenGL back end)
+        import vtkmodules.vtkRenderingVolumeOpenGL2  # noqa: F401
+        from vtkmodules.vtkCommonDataModel import vtkPiecewiseFunction
+        from vtkmodules.vtkFiltersCore import vtkFlyingEdges3D
+        from vtkmodules.vtkIOImage import vtkNrrdReader
+        from vtkmodules.vtkRenderingCore import (vtkActor, vtkColorTransferFunction, vtkPolyDataMapper, vtkRenderer,
+                                                 vtkRenderWindow, vtkVolume, vtkVolumeProperty)
+        from vtkmodules.vtkRenderingVolume import vtkFixedPointVolumeRayCastMapper, vtkGPUVolumeRayCastMapper
+    except ImportError:
+        sys.exit("vtk_render.py: VTK's Python modules are missing (apt-get install python3-vtk9)")
+    reader = vtkNrrdReader()
+    reader.SetFileName(args.volume)
+    reader.Update()
+    image = reader.GetOutput()
+    dims, spacing = image.GetDimensions(), image.GetSpacing()
+    extent = [(dims[a] - 1) * spacing[a] for a in range(3)]
+
+    # The default orbit of hybrid-octree render (azimuth 180, elevation 10, 30 degrees).
+    centre = [0.5 * e for e in extent]
+    radius = 0.5 * math.sqrt(sum(e * e for e in extent))
+    az, el, fov = math.radians(180), math.radians(10), 30.0
+    direction = (math.sin(az) * math.cos(el), -math.cos(az) * math.cos(el), math.sin(el))
+    distance = radius / math.sin(math.atan(math.tan(math.radians(fov) / 2))) * 1.05
+    eye = [centre[a] + direction[a] * distance for a in range(3)]
+
+    colour, opacity = vtkColorTransferFunction(), vtkPiecewiseFunction()
+    for value, rgb, alpha in CT_SKIN_BONE:
+        colour.AddRGBPoint(value, *rgb)
+        opacity.AddPoint(value, alpha)
+    prop = vtkVolumeProperty()
+    prop.SetColor(colour)
+    prop.SetScalarOpacity(opacity)
+    prop.SetScalarOpacityUnitDistance(1.0)  # opacity per millimetre, as ours
+    prop.SetInterpolationTypeToLinear()
+    prop.ShadeOn()
+    prop.SetAmbient(0.25)
+    prop.SetDiffuse(0.75)
+    prop.SetSpecular(0.0)
+
+    def scene(mapper, surface):
+        renderer = vtkRenderer()
+        window = vtkRenderWindow()
+        window.SetOffScreenRendering(1)
+        window.SetSize(512, 512)
+        window.AddRenderer(renderer)
+        volume = vtkVolume()
+        volume.SetMapper(mapper)
+        volume.SetProperty(prop)
+        renderer.AddVolume(volume)
+        if surface:
+            fe = vtkFlyingEdges3D()
+            fe.SetInputData(image)
+            fe.SetValue(0, 400.0)
+            fe.Update()
+            polys = vtkPolyDataMapper()
+            polys.SetInputConnection(fe.GetOutputPort())
+            polys.ScalarVisibilityOff()
+            actor = vtkActor()
+            actor.SetMapper(polys)
+            actor.GetProperty().SetColor(0.95, 0.92, 0.85)
+            actor.GetProperty().SetOpacity(0.5)
+            renderer.AddActor(actor)
+            window.SetAlphaBitPlanes(1)
+            window.SetMultiSamples(0)
+            renderer.SetUseDepthPeeling(1)
+            renderer.SetUseDepthPeelingForVolumes(1)
+            renderer.SetMaximumNumberOfPeels(8)
+            renderer.SetOcclusionRatio(0.0)
+        camera = renderer.GetActiveCamera()
+        camera.SetPosition(*eye)
+        camera.SetFocalPoint(*centre)
+        camera.SetViewUp(0, 0, 1)
+        camera.SetViewAngle(fov)
+        renderer.ResetCameraClippingRange()
+        window.Render()  # first frame: uploads and shader builds, not timed
+
+        def frame():
+            camera.Azimuth(0.0)
+            camera.Modified()
+            window.Render()
+        return best_ms(args.runs, frame)
+
+    gpu = vtkGPUVolumeRayCastMapper()
+    gpu.SetInputData(image)
+    gpu.SetAutoAdjustSampleDistances(0)
+    gpu.SetSampleDistance(0.5 * min(spacing))  # as our default slice spacing
+    gpu_surface = scene(gpu, True)
+    gpu_volume = scene(gpu, False)
+    cpu = vtkFixedPointVolumeRayCastMapper()
+    cpu.SetInputData(image)  # automatic sample distances (its default)
+    cpu_volume = scene(cpu, False)
+
+    ours_surface = ours_ms(args.hybrid_octree, args.volume, args.runs, ["--iso", "400", "--surface-color", "0.95,0.92,0.85,0.5"])
+    ours_volume = ours_ms(args.hybrid_octree, args.volume, args.runs, [])
+    print(f"volume {args.volume}, 512x512, ct-skin-bone, perspective; best of {args.runs}, ms")
+    print(f"  VTK GPU ray cast + translucent surface, depth peeling   {gpu_surface:8.1f}")
+    print(f"  VTK GPU ray cast, volume only                           {gpu_volume:8.1f}")
+    print(f"  VTK CPU fixed-point ray cast, volume only               {cpu_volume:8.1f}")
+    print(f"  hybrid-octree slices + translucent surface              {ours_surface:8.1f}   "
+          f"VTK/ours {gpu_surface / ours_surface:5.2f} (target >= 10)")
+    print(f"  hybrid-octree slices, volume only                       {ours_volume:8.1f}   "
+          f"VTK CPU/ours {cpu_volume / ours_volume:5.2f} (target >= 1)")
+
+
+if __name__ == "__main__":
+    main()
