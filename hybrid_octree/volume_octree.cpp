@@ -341,13 +341,6 @@ VolumeOctree VolumeOctree::fromParts(glm::ivec3 dims, int leafEdge, std::vector<
   return t;
 }
 
-int VolumeOctree::levelFor(const OctreeNode& n, float tolerance) const {
-  const std::span<const float> e = errors(n);
-  for (size_t p = 0; p < e.size(); ++p)
-    if (e[p] <= tolerance) return int(p);
-  return maxLevel(n);
-}
-
 namespace {
 
 // Knots spaced @p step from @p origin up to @p end (exclusive of overshoot), clamped at the grid.

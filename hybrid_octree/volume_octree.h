@@ -81,8 +81,6 @@ class VolumeOctree {
   std::span<const float> errors(const OctreeNode& n) const {
     return {mErrors.data() + n.errorOffset, size_t(maxLevel(n) + 1)};
   }
-  /// Smallest p with ε_p(n) ≤ @p tolerance (always exists: ε_(L−k) = 0).
-  int levelFor(const OctreeNode& n, float tolerance) const;
 
   /// Knots per axis of @p n's sub-grid at level @p p, cropped to the grid (seamless bricks: up to
   /// 2^p + 1 per axis; fewer where the node overhangs the grid).
