@@ -21,21 +21,9 @@ namespace {
 
 // "a,b,c" into numbers, each checked by @p ok; throws ValueError naming @p flag.
 std::vector<double> parseList(const std::string& text, const std::string& flag, bool (*ok)(double), const char* expected) {
-  std::vector<double> out;
-  std::string item;
-  std::istringstream s(text);
-  while (std::getline(s, item, ',')) {
-    size_t used = 0;
-    double x = 0;
-    try {
-      x = std::stod(item, &used);
-    } catch (const std::exception&) {
-      used = 0;
-    }
-    if (used == 0 || used != item.size() || !ok(x)) HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", expected, ")");
-    out.push_back(x);
-  }
-  if (out.empty()) HYB_THROW(ValueError, flag, " is empty (expected ", expected, ")");
+  const std::vector<double> out = parseNumbers(text, flag, 0, expected);
+  for (double x : out)
+    if (!ok(x)) HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", expected, ")");
   return out;
 }
 

@@ -21,11 +21,10 @@ std::vector<double> parseNumbers(const std::string& text, const std::string& fla
   for (char& c : t)
     if (c == ',') c = ' ';
   std::istringstream s(t);
-  std::vector<double> x(n);
-  std::string rest;
-  for (double& e : x)
-    if (!(s >> e) || !std::isfinite(e)) HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", expected, ")");
-  if (s >> rest) HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", expected, ")");
+  std::vector<double> x;
+  double e = 0;
+  while (s >> e && std::isfinite(e)) x.push_back(e);
+  if (!s.eof() || x.empty() || (n > 0 && x.size() != n)) HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", expected, ")");
   return x;
 }
 

@@ -26,7 +26,8 @@ inline double msSince(Clock::time_point t0) { return std::chrono::duration<doubl
 
 /// Parses "a,b,c" into three finite numbers. @throw ValueError naming @p flag.
 glm::dvec3 parseVec3(const std::string& text, const std::string& flag);
-/// Parses @p n comma-separated finite numbers. @throw ValueError naming @p flag and @p expected.
+/// Parses @p n comma-separated finite numbers (any count ≥ 1 when @p n is 0).
+/// @throw ValueError naming @p flag and @p expected.
 std::vector<double> parseNumbers(const std::string& text, const std::string& flag, size_t n, const char* expected);
 /// Parses "WxH" into a positive size no larger than 16384. @throw ValueError naming --size.
 glm::ivec2 parseSize(const std::string& text);
