@@ -35,6 +35,17 @@ void forEachBrickTouching(const VolumeOctree& t, const glm::ivec3& lo, const glm
   }
 }
 
+// The box of @p n cropped to the grid, in world mm.
+void worldBox(const VolumeOctree& t, const OctreeNode& n, const glm::dvec3& spacing, glm::dvec3* lo, glm::dvec3* hi) {
+  glm::ivec3 a, b;
+  t.voxelBox(n, &a, &b);
+  *lo = glm::dvec3(a) * spacing;
+  *hi = glm::dvec3(b) * spacing;
+}
+
+// Distance from @p p to the box [lo, hi] (0 inside).
+double distanceToBox(const glm::dvec3& p, const glm::dvec3& lo, const glm::dvec3& hi) { return glm::length(p - glm::clamp(p, lo, hi)); }
+
 glm::ivec3 nodeLo(const OctreeNode& n) { return glm::ivec3(n.origin); }
 glm::ivec3 nodeHi(const VolumeOctree& t, const OctreeNode& n) { return glm::ivec3(n.origin) + t.edge(n); }
 
@@ -47,15 +58,14 @@ class Refiner {
         mImportance(t.nodes().size()), mPixelMm(t.nodes().size()) {
     for (size_t i = 0; i < mHidden.size(); ++i) {
       const OctreeNode& n = t.nodes()[i];
-      glm::ivec3 lo, hi;
-      t.voxelBox(n, &lo, &hi);
+      glm::dvec3 boxLo, boxHi;
+      worldBox(t, n, params.spacing, &boxLo, &boxHi);
       const bool transparent = params.opacity && !(params.opacity(n.minValue, n.maxValue) > 0.0f);
-      const bool culled = params.inView && !params.inView(glm::dvec3(lo) * params.spacing, glm::dvec3(hi) * params.spacing);
+      const bool culled = params.inView && !params.inView(boxLo, boxHi);
       mHidden[i] = transparent || culled;
       mImportance[i] = nodeImportance(t, n, params);
       // LaMar's distance filter: a node nearer to the eye than its own diagonal is too coarse.
-      const glm::dvec3 boxLo = glm::dvec3(lo) * params.spacing, boxHi = glm::dvec3(hi) * params.spacing;
-      mNearEye[i] = params.eye && glm::length(*params.eye - glm::clamp(*params.eye, boxLo, boxHi)) < glm::length(boxHi - boxLo);
+      mNearEye[i] = params.eye && distanceToBox(*params.eye, boxLo, boxHi) < glm::length(boxHi - boxLo);
       mPixelMm[i] = params.pixelSize && params.lodPixels > 0.0 ? params.lodPixels * params.pixelSize(boxLo, boxHi) : 0.0;
     }
     mBrickLevel = std::max(0, std::countr_zero(unsigned(params.maxBrickEdge)));
@@ -228,17 +238,15 @@ std::string SelectionParams::validate() const {
 
 double nodeImportance(const VolumeOctree& octree, const OctreeNode& n, const SelectionParams& params) {
   if (!params.focus && !params.eye) return 1.0;
-  glm::ivec3 lo, hi;
-  octree.voxelBox(n, &lo, &hi);
-  const glm::dvec3 boxLo = glm::dvec3(lo) * params.spacing, boxHi = glm::dvec3(hi) * params.spacing;
+  glm::dvec3 boxLo, boxHi;
+  worldBox(octree, n, params.spacing, &boxLo, &boxHi);
   const glm::dvec3 extent = glm::dvec3(octree.dims() - 1) * params.spacing;
   double radius = params.focusRadiusMm;
   if (radius <= 0.0) radius = 0.25 * glm::length(extent);
   if (radius <= 0.0) return 1.0;
-  auto distance = [](const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b) { return glm::length(p - glm::clamp(p, a, b)); };
   double imp = 1.0;
-  if (params.focus) imp /= 1.0 + distance(*params.focus, boxLo, boxHi) / radius;
-  if (params.eye) imp /= 1.0 + (distance(*params.eye, boxLo, boxHi) - distance(*params.eye, glm::dvec3(0.0), extent)) / radius;
+  if (params.focus) imp /= 1.0 + distanceToBox(*params.focus, boxLo, boxHi) / radius;
+  if (params.eye) imp /= 1.0 + (distanceToBox(*params.eye, boxLo, boxHi) - distanceToBox(*params.eye, glm::dvec3(0.0), extent)) / radius;
   return imp;
 }
 
