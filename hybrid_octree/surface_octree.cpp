@@ -91,8 +91,8 @@ Regions analyseRegions(const Plane* planes, int np, const Box& box) {
     V64 p;
     uint32_t pos, neg;  // planes with the vertex strictly on the positive / negative side
   };
-  std::vector<Vertex> vertices;
-  vertices.reserve(128);
+  std::array<Vertex, 165> vertices;  // C(11, 3) triples at most
+  size_t nv = 0;
   for (int a = 0; a < total; ++a)
     for (int b = a + 1; b < total; ++b)
       for (int c = b + 1; c < total; ++c) {
@@ -104,28 +104,34 @@ Regions analyseRegions(const Plane* planes, int np, const Box& box) {
           if (s > 0) v.pos |= 1u << j;
           if (s < 0) v.neg |= 1u << j;
         }
-        vertices.push_back(v);
+        vertices[nv++] = v;
       }
+  // A vertex where more than three planes meet is found once per triple: keep one copy.
+  std::sort(vertices.begin(), vertices.begin() + ptrdiff_t(nv), [](const Vertex& u, const Vertex& w) {
+    return std::tie(u.p.x, u.p.y, u.p.z) < std::tie(w.p.x, w.p.y, w.p.z);
+  });
+  nv = size_t(std::unique(vertices.begin(), vertices.begin() + ptrdiff_t(nv), [](const Vertex& u, const Vertex& w) { return u.p == w.p; }) -
+              vertices.begin());
   Regions r;
-  std::vector<const V64*> members;
+  std::array<const V64*, 165> members;
   for (uint32_t sigma = 0; sigma < (1u << np); ++sigma) {
-    members.clear();
-    for (const Vertex& v : vertices)
-      if (!(v.pos & ~sigma) && !(v.neg & sigma)) members.push_back(&v.p);  // compatible with σ
+    size_t nm = 0;
+    for (size_t i = 0; i < nv; ++i)
+      if (!(vertices[i].pos & ~sigma) && !(vertices[i].neg & sigma)) members[nm++] = &vertices[i].p;  // compatible with σ
     // Solid iff four of them are affinely independent.
     bool solid = false;
-    for (size_t i = 1; i < members.size() && !solid; ++i)
-      for (size_t j = i + 1; j < members.size() && !solid; ++j) {
+    for (size_t i = 1; i < nm && !solid; ++i)
+      for (size_t j = i + 1; j < nm && !solid; ++j) {
         const V64 u = *members[i] - *members[0], w = *members[j] - *members[0];
         if (V64(u.y * w.z - u.z * w.y, u.z * w.x - u.x * w.z, u.x * w.y - u.y * w.x) == V64(0)) continue;
-        for (size_t k = j + 1; k < members.size() && !solid; ++k) solid = orient3(*members[0], *members[i], *members[j], *members[k]) != 0;
+        for (size_t k = j + 1; k < nm && !solid; ++k) solid = orient3(*members[0], *members[i], *members[j], *members[k]) != 0;
       }
     if (!solid) continue;
     r.occurs |= 1u << sigma;
     V64 s(0);
-    for (const V64* m : members) s += *m;
+    for (size_t i = 0; i < nm; ++i) s += *members[i];
     r.sum[sigma] = s;
-    r.count[sigma] = I64(members.size());
+    r.count[sigma] = I64(nm);
   }
   return r;
 }
@@ -206,22 +212,21 @@ Box nodeBox(const glm::ivec3& origin, int edge, const glm::ivec3& dims) {
   return Box{2 * origin, 2 * glm::min(origin + edge, glm::max(dims - 1, glm::ivec3(1)))};
 }
 
-// Working entry of the bottom-up merge.
-struct Entry {
-  uint64_t parentKey = 0;
-  SurfaceNode node;
-  bool grey = false;
-};
-
 // analyseRegions memoised on the box's size and the planes relative to its corner: flat and
 // repetitive surfaces meet the same local configurations again and again. Points are returned in
 // the box's own coordinates shifted back.
 class RegionCache {
  public:
-  /// Regions of @p planes in @p box with interior points relative to the box's corner: add
-  /// count · 12 · box.lo to a sum to get fine coordinates.
-  const Regions& get(const GeoPlane* planes, size_t np, const Box& box) {
-    std::array<int32_t, 3 + 2 * (kMaxNodePlanes + 1)> key{};
+  /// The regions of a node, compactly: point k is the interior point of the k-th region in
+  /// occurs, relative to the box's corner: add count · 12 · box.lo to its sum to get fine coordinates.
+  struct Compact {
+    uint32_t occurs = 0;
+    const std::pair<V64, I64>* points = nullptr;
+  };
+
+  /// Regions of @p planes in @p box; valid until the next call.
+  Compact get(const GeoPlane* planes, size_t np, const Box& box) {
+    Key key{};
     const glm::ivec3 size = box.hi - box.lo;
     key[0] = size.x;
     key[1] = size.y;
@@ -232,23 +237,35 @@ class RegionCache {
       key[3 + 2 * i] = planes[i].orientation + 1;
       key[4 + 2 * i] = int32_t(local[i].d);
     }
-    auto it = mCache.find(key);
-    if (it == mCache.end()) {
-      if (mCache.size() > 100000) mCache.clear();
-      it = mCache.emplace(key, analyseRegions(local.data(), int(np), Box{glm::ivec3(0), size})).first;
+    uint64_t h = 1469598103934665603ULL;  // FNV-1a; the full key is compared on a hit
+    for (int32_t x : key) h = (h ^ uint64_t(uint32_t(x))) * 1099511628211ULL;
+    h >>= 1;  // never FlatMap's empty key
+    const uint32_t* found = mIndex.find(h);
+    if (found && mEntries[*found].key == key) return {mEntries[*found].occurs, mPoints.data() + mEntries[*found].first};
+    if (mEntries.size() == kMaxEntries) {
+      mEntries.clear();
+      mPoints.clear();
+      mIndex = FlatMap(kMaxEntries);
+      found = nullptr;
     }
-    return it->second;
+    const Regions r = analyseRegions(local.data(), int(np), Box{glm::ivec3(0), size});
+    if (!found) mIndex[h] = uint32_t(mEntries.size());  // else a hash collision: stored, never found again
+    mEntries.push_back({key, r.occurs, uint32_t(mPoints.size())});
+    for (uint32_t sigma = 0; sigma < 32; ++sigma)
+      if ((r.occurs >> sigma) & 1) mPoints.emplace_back(r.sum[sigma], r.count[sigma]);
+    return {r.occurs, mPoints.data() + mEntries.back().first};
   }
 
  private:
-  struct Hash {
-    size_t operator()(const std::array<int32_t, 3 + 2 * (kMaxNodePlanes + 1)>& k) const {
-      size_t h = 1469598103934665603ULL;
-      for (int32_t x : k) h = (h ^ size_t(uint32_t(x))) * 1099511628211ULL;
-      return h;
-    }
+  using Key = std::array<int32_t, 3 + 2 * (kMaxNodePlanes + 1)>;
+  static constexpr size_t kMaxEntries = 1 << 16;
+  struct Entry {
+    Key key;
+    uint32_t occurs, first;  // regions, and the index of the first one's point in mPoints
   };
-  std::unordered_map<std::array<int32_t, 3 + 2 * (kMaxNodePlanes + 1)>, Regions, Hash> mCache;
+  std::vector<Entry> mEntries;
+  std::vector<std::pair<V64, I64>> mPoints;
+  FlatMap mIndex{4096};
 };
 
 uint64_t packCells(const glm::ivec3& c) { return (uint64_t(c.x) << 42) | (uint64_t(c.y) << 21) | uint64_t(c.z); }
@@ -266,6 +283,147 @@ uint64_t morton(const glm::ivec3& c) {
   };
   return spread(uint64_t(c.x)) | spread(uint64_t(c.y)) << 1 | spread(uint64_t(c.z)) << 2;
 }
+
+
+// Merges the DiscMC cells of one volume-octree leaf bottom-up. A leaf is at least as large as the
+// merge limit, so leaves are independent: each one's cells are sorted and merged while they are in
+// cache, and its nodes come out in Morton order after those of the leaves before it.
+class BlockMerger {
+ public:
+  BlockMerger(const Volume& volume, float iso, int maxPlanes, int mergeEdge)
+      : mVolume(volume), mIso(iso), mMaxPlanes(maxPlanes), mMergeEdge(mergeEdge), mCodes(leafCodes()) {}
+
+  /// Appends the terminal nodes of the cells of @p block to @p out; returns the number of cells.
+  size_t run(const VoxelBlock& block, std::vector<SurfaceNode>* out) {
+    mCells.clear();
+    appendSurfaceCells(mVolume, mIso, block, &mCells);
+    if (mCells.empty()) return 0;
+    mOrder.resize(mCells.size());
+    for (size_t i = 0; i < mCells.size(); ++i) mOrder[i] = {morton(glm::ivec3(mCells[i].cell)), uint32_t(i)};
+    std::sort(mOrder.begin(), mOrder.end());
+    mLevel.resize(mCells.size());
+    for (size_t i = 0; i < mOrder.size(); ++i) {
+      const SurfaceCell& cell = mCells[mOrder[i].second];
+      Entry& e = mLevel[i];
+      e.grey = false;
+      e.node = mCodes[cell.mask][cell.alternative ? 1 : 0];
+      e.node.origin = cell.cell;
+      e.node.edge = 1;
+      const glm::ivec3 shift = 2 * glm::ivec3(cell.cell);
+      for (int p = 0; p < e.node.planeCount; ++p)
+        e.node.planes[size_t(p)].d += idot(orientationNormal(e.node.planes[size_t(p)].orientation), shift);
+    }
+    mEmitted.clear();
+    for (int edge = 1; !mLevel.empty(); edge *= 2) {
+      const int parentEdge = edge * 2;
+      mNext.clear();
+      for (size_t b = 0, e; b < mLevel.size(); b = e) {
+        const glm::ivec3 origin = glm::ivec3(mLevel[b].node.origin) & ~(parentEdge - 1);
+        for (e = b + 1; e < mLevel.size() && (glm::ivec3(mLevel[e].node.origin) & ~(parentEdge - 1)) == origin; ++e) {
+        }
+        mNext.push_back(merge(b, e, origin, edge, parentEdge <= mMergeEdge));
+      }
+      mLevel.swap(mNext);
+      if (std::all_of(mLevel.begin(), mLevel.end(), [](const Entry& x) { return x.grey; })) break;
+    }
+    for (const Entry& e : mLevel)
+      if (!e.grey) emit(e.node);
+    std::sort(mEmitted.begin(), mEmitted.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    for (const auto& [key, node] : mEmitted) out->push_back(node);
+    return mCells.size();
+  }
+
+ private:
+  struct Entry {
+    SurfaceNode node;
+    bool grey = false;
+  };
+
+  void emit(const SurfaceNode& node) { mEmitted.emplace_back(morton(glm::ivec3(node.origin)), node); }
+
+  // The parent (edge 2·@p edge at @p origin) of the Morton-contiguous children mLevel[b, e): merged
+  // when allowed and their planes number at most K, else grey with its terminal children emitted.
+  Entry merge(size_t b, size_t e, const glm::ivec3& origin, int edge, bool mayMerge) {
+    Entry parent;
+    parent.grey = !mayMerge;
+    std::array<GeoPlane, kMaxNodePlanes + 1> u;  // the union, sorted, stops growing past K
+    size_t nu = 0;
+    for (size_t i = b; i < e && !parent.grey; ++i) {
+      parent.grey = mLevel[i].grey || mLevel[i].node.planeCount > kMaxNodePlanes;
+      for (int j = 0; j < mLevel[i].node.planeCount && !parent.grey; ++j) {
+        const GeoPlane& g = mLevel[i].node.planes[size_t(j)];
+        const auto at = std::lower_bound(u.begin(), u.begin() + ptrdiff_t(nu), g);
+        if (at != u.begin() + ptrdiff_t(nu) && *at == g) continue;
+        if (int(nu) == mMaxPlanes) {
+          parent.grey = true;
+          break;
+        }
+        std::copy_backward(at, u.begin() + ptrdiff_t(nu), u.begin() + ptrdiff_t(nu) + 1);
+        *at = g;
+        ++nu;
+      }
+    }
+    const int parentEdge = 2 * edge;
+    parent.node.origin = glm::u16vec3(origin);
+    parent.node.edge = uint16_t(parentEdge);
+    if (parent.grey) {
+      for (size_t i = b; i < e; ++i)
+        if (!mLevel[i].grey) emit(mLevel[i].node);
+      return parent;
+    }
+    const Box box = nodeBox(origin, parentEdge, mVolume.dims());
+    const RegionCache::Compact r = mCache.get(u.data(), nu, box);
+    const V64 corner = V64(box.lo) * I64(kFine);
+    parent.node.planeCount = uint8_t(nu);
+    std::copy(u.begin(), u.begin() + ptrdiff_t(nu), parent.node.planes.begin());
+    parent.node.occurs = r.occurs;
+    // A uniform (absent) child is wholly inside or outside; every octant touches the parent's
+    // centre sample, so one read classifies them all (octant origins where the centre lies
+    // outside the grid).
+    const glm::ivec3 centre = origin + edge;
+    const bool centreInGrid = glm::all(glm::lessThan(centre, mVolume.dims()));
+    const bool centreInside = centreInGrid && mVolume.at(centre.x, centre.y, centre.z) >= mIso;
+    // Children by octant (slot bits x | y<<1 | z<<2), nullptr for uniform octants.
+    std::array<const Entry*, 8> children{};
+    for (size_t i = b; i < e; ++i) {
+      const glm::ivec3 rel = glm::ivec3(glm::notEqual(glm::ivec3(mLevel[i].node.origin), origin));
+      children[size_t(rel.x | rel.y << 1 | rel.z << 2)] = &mLevel[i];
+    }
+    const glm::ivec3 mid = 2 * (origin + edge);
+    for (uint32_t sigma = 0, k = 0; sigma < (1u << nu); ++sigma) {
+      if (!((r.occurs >> sigma) & 1)) continue;
+      const auto& [sum, m] = r.points[k++];
+      const V64 p = sum + corner * m;
+      // Octant of the interior point (either one where it lies on a mid-plane).
+      glm::ivec3 childOrigin = origin;
+      for (int a = 0; a < 3; ++a)
+        if (p[a] >= I64(kFine) * m * mid[a]) childOrigin[a] += edge;
+      bool inside = false;
+      const glm::ivec3 rel = glm::ivec3(glm::notEqual(childOrigin, origin));
+      const Entry* child = children[size_t(rel.x | rel.y << 1 | rel.z << 2)];
+      if (child) {
+        inside = nodeContains(child->node, p, m);
+      } else if (centreInGrid) {
+        inside = centreInside;
+      } else {  // a uniform octant: the class of any of its samples
+        const glm::ivec3 s = glm::min(childOrigin, mVolume.dims() - 1);
+        inside = mVolume.at(s.x, s.y, s.z) >= mIso;
+      }
+      if (inside) parent.node.inside |= 1u << sigma;
+    }
+    return parent;
+  }
+
+  const Volume& mVolume;
+  float mIso;
+  int mMaxPlanes, mMergeEdge;
+  const std::array<std::array<SurfaceNode, 2>, 256>& mCodes;
+  RegionCache mCache;
+  std::vector<SurfaceCell> mCells;
+  std::vector<std::pair<uint64_t, uint32_t>> mOrder;
+  std::vector<Entry> mLevel, mNext;
+  std::vector<std::pair<uint64_t, SurfaceNode>> mEmitted;
+};
 
 }  // namespace
 
@@ -286,130 +444,14 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
                                    const SurfaceOctreeOptions& options) {
   if (options.maxPlanes < 1 || options.maxPlanes > kMaxNodePlanes)
     HYB_THROW(ValueError, "maximum planes per node ", options.maxPlanes, " invalid (expected 1..", kMaxNodePlanes, ")");
+  if (options.maxEdge < 0 || (options.maxEdge & (options.maxEdge - 1)))
+    HYB_THROW(ValueError, "largest merged node edge ", options.maxEdge, " invalid (expected 0 or a power of two)");
   SurfaceOctree so;
   so.mDims = volume.dims();
   so.mIso = iso;
-  so.mMergeEdge = options.maxEdge > 0 ? options.maxEdge : octree.leafEdge();
-  const auto& codes = leafCodes();
-  // Leaves: one entry per DiscMC cell, code translated to the cell.
-  const std::vector<SurfaceCell> cells = surfaceCells(volume, iso, isoBlocks(octree, iso));
-  std::vector<Entry> level(cells.size());
-  for (size_t c = 0; c < cells.size(); ++c) {
-    Entry& e = level[c];
-    e.node = codes[cells[c].mask][cells[c].alternative ? 1 : 0];
-    e.node.origin = cells[c].cell;
-    e.node.edge = 1;
-    const glm::ivec3 shift = 2 * glm::ivec3(cells[c].cell);
-    for (int p = 0; p < e.node.planeCount; ++p)
-      e.node.planes[size_t(p)].d += idot(orientationNormal(e.node.planes[size_t(p)].orientation), shift);
-  }
-  so.mCellCount = level.size();
-  {  // Morton order: siblings are contiguous at every level and parents come out in order.
-    std::vector<std::pair<uint64_t, uint32_t>> order(level.size());
-    for (size_t i = 0; i < level.size(); ++i) order[i] = {morton(glm::ivec3(level[i].node.origin)), uint32_t(i)};
-    std::sort(order.begin(), order.end());
-    std::vector<Entry> sorted(level.size());
-    for (size_t i = 0; i < order.size(); ++i) sorted[i] = level[order[i].second];
-    level.swap(sorted);
-  }
-  RegionCache cache;
-
-  // Bottom-up: group by parent, merge or emit.
-  std::vector<Entry> next;
-  for (int edge = 1; !level.empty(); edge *= 2) {
-    const int parentEdge = edge * 2;
-    const bool mayMerge = parentEdge <= so.mMergeEdge && parentEdge <= (1 << octree.depth());
-    for (Entry& e : level) e.parentKey = packCells(glm::ivec3(e.node.origin) / parentEdge);  // Morton-sorted already
-    next.clear();
-    auto emitGroup = [&](size_t b, size_t e) {
-      for (size_t i = b; i < e; ++i)
-        if (!level[i].grey) so.mNodes.push_back(level[i].node);
-    };
-    for (size_t b = 0, e; b < level.size(); b = e) {
-      for (e = b + 1; e < level.size() && level[e].parentKey == level[b].parentKey; ++e) {
-      }
-      Entry parent;
-      parent.grey = !mayMerge;
-      std::array<GeoPlane, kMaxNodePlanes + 1> u;  // the union, sorted, stops growing past K
-      size_t nu = 0;
-      for (size_t i = b; i < e && !parent.grey; ++i) {
-        parent.grey = level[i].grey || level[i].node.planeCount > kMaxNodePlanes;
-        for (int j = 0; j < level[i].node.planeCount && !parent.grey; ++j) {
-          const GeoPlane& g = level[i].node.planes[size_t(j)];
-          const auto at = std::lower_bound(u.begin(), u.begin() + ptrdiff_t(nu), g);
-          if (at != u.begin() + ptrdiff_t(nu) && *at == g) continue;
-          if (int(nu) == options.maxPlanes) {
-            parent.grey = true;
-            break;
-          }
-          std::copy_backward(at, u.begin() + ptrdiff_t(nu), u.begin() + ptrdiff_t(nu) + 1);
-          *at = g;
-          ++nu;
-        }
-      }
-      const glm::ivec3 origin = glm::ivec3(level[b].node.origin) / parentEdge * parentEdge;
-      parent.node.origin = glm::u16vec3(origin);
-      parent.node.edge = uint16_t(parentEdge);
-      if (!parent.grey) {
-        const Box box = nodeBox(origin, parentEdge, so.mDims);
-        const Regions& r = cache.get(u.data(), nu, box);
-        const V64 corner = V64(box.lo) * I64(kFine);
-        parent.node.planeCount = uint8_t(nu);
-        std::copy(u.begin(), u.begin() + ptrdiff_t(nu), parent.node.planes.begin());
-        parent.node.occurs = r.occurs;
-        // A uniform (absent) child is wholly inside or outside; every octant touches the parent's
-        // centre sample, so one read classifies them all (octant origins where the centre lies
-        // outside the grid).
-        const glm::ivec3 centre = origin + edge;
-        const bool centreInGrid = glm::all(glm::lessThan(centre, volume.dims()));
-        const bool centreInside = centreInGrid && volume.at(centre.x, centre.y, centre.z) >= iso;
-        // Children by octant (slot bits x | y<<1 | z<<2), nullptr for uniform octants.
-        std::array<const Entry*, 8> children{};
-        for (size_t i = b; i < e; ++i) {
-          const glm::ivec3 rel = (glm::ivec3(level[i].node.origin) - origin) / edge;
-          children[size_t(rel.x | rel.y << 1 | rel.z << 2)] = &level[i];
-        }
-        for (uint32_t sigma = 0; sigma < (1u << nu); ++sigma) {
-          if (!((r.occurs >> sigma) & 1)) continue;
-          const I64 m = r.count[sigma];
-          const V64 p = r.sum[sigma] + corner * m;
-          // Octant of the interior point (either one where it lies on a mid-plane).
-          const glm::ivec3 mid = 2 * (origin + edge);
-          glm::ivec3 childOrigin = origin;
-          for (int a = 0; a < 3; ++a)
-            if (p[a] >= I64(kFine) * m * mid[a]) childOrigin[a] += edge;
-          bool inside = false;
-          const glm::ivec3 rel = (childOrigin - origin) / edge;
-          const Entry* child = children[size_t(rel.x | rel.y << 1 | rel.z << 2)];
-          if (child) {
-            inside = nodeContains(child->node, p, m);
-          } else if (centreInGrid) {
-            inside = centreInside;
-          } else {  // a uniform octant: the class of any of its samples
-            const glm::ivec3 s = glm::min(childOrigin, volume.dims() - 1);
-            inside = volume.at(s.x, s.y, s.z) >= iso;
-          }
-          if (inside) parent.node.inside |= 1u << sigma;
-        }
-      } else {
-        emitGroup(b, e);
-      }
-      next.push_back(parent);
-    }
-    level.swap(next);
-    // Stop once everything left is grey.
-    if (std::all_of(level.begin(), level.end(), [](const Entry& x) { return x.grey; })) break;
-  }
-  for (const Entry& e : level)
-    if (!e.grey) so.mNodes.push_back(e.node);
-  {
-    std::vector<std::pair<uint64_t, uint32_t>> order(so.mNodes.size());
-    for (size_t i = 0; i < order.size(); ++i) order[i] = {morton(glm::ivec3(so.mNodes[i].origin)), uint32_t(i)};
-    std::sort(order.begin(), order.end());
-    std::vector<SurfaceNode> sorted(order.size());
-    for (size_t i = 0; i < order.size(); ++i) sorted[i] = so.mNodes[order[i].second];
-    so.mNodes.swap(sorted);
-  }
+  so.mMergeEdge = options.maxEdge > 0 ? std::min(options.maxEdge, octree.leafEdge()) : octree.leafEdge();
+  BlockMerger merger(volume, iso, options.maxPlanes, so.mMergeEdge);
+  for (const VoxelBlock& block : isoBlocks(octree, iso)) so.mCellCount += merger.run(block, &so.mNodes);
   return so;
 }
 

@@ -62,8 +62,9 @@ struct SurfaceNode {
 /// Build options.
 struct SurfaceOctreeOptions {
   int maxPlanes = kMaxNodePlanes;  ///< K
-  /// Largest merged node edge in cells; 0 = the volume octree's leaf edge, so that every surface
-  /// node lies in exactly one volume leaf (the renderer finds a brick's polygons by range).
+  /// Largest merged node edge in cells (a power of two, at most the volume octree's leaf edge);
+  /// 0 = the leaf edge. Every surface node lies in exactly one volume leaf, so the renderer finds a
+  /// brick's polygons by range and the build merges leaf by leaf.
   int maxEdge = 0;
 };
 

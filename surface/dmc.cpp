@@ -47,38 +47,57 @@ const dmc::Case& cellCase(const Volume& v, float iso, int i, int j, int k, unsig
   return usesAlternative(v, iso, i, j, k, mask) ? dmc::alternativeCaseTable()[mask] : dmc::caseTable()[mask];
 }
 
-// Calls visit(i, j, k, mask) for every cell of the blocks whose corners are not all on one side.
+// Calls visit(i, j, k, mask) for every cell of the blocks whose corners are not all on one side
+// (all cells, in blocks of 16³, when @p blocks is empty). Each block's samples are classified once
+// into bytes, and cell masks are combined from four rows of them (vectorisable).
 template <typename Visit>
 void forEachActiveCell(const Volume& v, float iso, std::span<const VoxelBlock> blocks, Visit&& visit) {
-  const VoxelBlock whole{glm::ivec3(0), v.dims() - 1};
-  const std::span<const VoxelBlock> all = blocks.empty() ? std::span<const VoxelBlock>(&whole, 1) : blocks;
+  std::vector<VoxelBlock> tiles;
+  if (blocks.empty()) {
+    constexpr int kTile = 16;
+    const glm::ivec3 last = glm::max(v.dims() - 1, glm::ivec3(0));
+    for (int z = 0; z < last.z; z += kTile)
+      for (int y = 0; y < last.y; y += kTile)
+        for (int x = 0; x < last.x; x += kTile)
+          tiles.push_back({glm::ivec3(x, y, z), glm::min(glm::ivec3(x, y, z) + kTile, last)});
+    blocks = tiles;
+  }
   const float* s = v.samples().data();
-  for (const VoxelBlock& b : all) {
+  std::vector<uint8_t> inside, masks;
+  for (const VoxelBlock& b : blocks) {
     HYB_DCHECK(glm::all(glm::greaterThanEqual(b.lo, glm::ivec3(0))) && glm::all(glm::lessThan(b.hi, v.dims())));
-    for (int k = b.lo.z; k < b.hi.z; ++k)
-      for (int j = b.lo.y; j < b.hi.y; ++j) {
-        const float* r00 = s + v.index(0, j, k);
-        const float* r10 = s + v.index(0, j + 1, k);
-        const float* r01 = s + v.index(0, j, k + 1);
-        const float* r11 = s + v.index(0, j + 1, k + 1);
-        for (int i = b.lo.x; i < b.hi.x; ++i) {
-          const unsigned mask = unsigned(r00[i] >= iso) | unsigned(r00[i + 1] >= iso) << 1 | unsigned(r10[i] >= iso) << 2 |
-                                unsigned(r10[i + 1] >= iso) << 3 | unsigned(r01[i] >= iso) << 4 |
-                                unsigned(r01[i + 1] >= iso) << 5 | unsigned(r11[i] >= iso) << 6 | unsigned(r11[i + 1] >= iso) << 7;
-          if (mask != 0 && mask != 255) visit(i, j, k, mask);
-        }
+    const glm::ivec3 n = b.hi - b.lo + 1;  // samples a side
+    if (glm::any(glm::lessThan(n, glm::ivec3(2)))) continue;
+    inside.resize(size_t(n.x) * size_t(n.y) * size_t(n.z));
+    uint8_t* in = inside.data();
+    for (int k = 0; k < n.z; ++k)
+      for (int j = 0; j < n.y; ++j) {
+        const float* row = s + v.index(b.lo.x, b.lo.y + j, b.lo.z + k);
+        uint8_t* out = in + (size_t(k) * size_t(n.y) + size_t(j)) * size_t(n.x);
+        for (int i = 0; i < n.x; ++i) out[i] = uint8_t(row[i] >= iso);
+      }
+    masks.resize(size_t(n.x));
+    uint8_t* m = masks.data();
+    const size_t dy = size_t(n.x), dz = size_t(n.x) * size_t(n.y);
+    for (int k = 0; k + 1 < n.z; ++k)
+      for (int j = 0; j + 1 < n.y; ++j) {
+        const uint8_t* r00 = in + size_t(k) * dz + size_t(j) * dy;
+        const uint8_t *r10 = r00 + dy, *r01 = r00 + dz, *r11 = r00 + dz + dy;
+        for (int i = 0; i + 1 < n.x; ++i)
+          m[i] = uint8_t(r00[i] | r00[i + 1] << 1 | r10[i] << 2 | r10[i + 1] << 3 | r01[i] << 4 | r01[i + 1] << 5 |
+                         r11[i] << 6 | r11[i + 1] << 7);
+        for (int i = 0; i + 1 < n.x; ++i)
+          if (uint8_t(m[i] + 1) > 1) visit(b.lo.x + i, b.lo.y + j, b.lo.z + k, unsigned(m[i]));  // not 0 or 255
       }
   }
 }
 
 }  // namespace
 
-std::vector<SurfaceCell> surfaceCells(const Volume& volume, float iso, std::span<const VoxelBlock> blocks) {
-  std::vector<SurfaceCell> cells;
-  forEachActiveCell(volume, iso, blocks, [&](int i, int j, int k, unsigned mask) {
-    cells.push_back({glm::u16vec3(i, j, k), uint8_t(mask), usesAlternative(volume, iso, i, j, k, mask)});
+void appendSurfaceCells(const Volume& volume, float iso, const VoxelBlock& block, std::vector<SurfaceCell>* cells) {
+  forEachActiveCell(volume, iso, std::span<const VoxelBlock>(&block, 1), [&](int i, int j, int k, unsigned mask) {
+    cells->push_back({glm::u16vec3(i, j, k), uint8_t(mask), usesAlternative(volume, iso, i, j, k, mask)});
   });
-  return cells;
 }
 
 DiscreteMesh extractDiscMC(const Volume& volume, float iso, std::span<const VoxelBlock> blocks, DmcFaces faces) {

@@ -33,8 +33,8 @@ struct SurfaceCell {
   bool alternative;
 };
 
-/// The cells of @p blocks (all cells when empty) the isosurface crosses, block by block.
-std::vector<SurfaceCell> surfaceCells(const Volume& volume, float iso, std::span<const VoxelBlock> blocks = {});
+/// Appends the cells of @p block the isosurface crosses to @p cells, x fastest.
+void appendSurfaceCells(const Volume& volume, float iso, const VoxelBlock& block, std::vector<SurfaceCell>* cells);
 
 /// Classic Marching Cubes with vertices interpolated along the edges, in voxel coordinates,
 /// each loop fan-triangulated.
