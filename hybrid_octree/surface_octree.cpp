@@ -42,9 +42,11 @@ bool intersect3(const Plane& a, const Plane& b, const Plane& c, V64* out) {
   const glm::ivec3 bc = icross(b.n, c.n), ca = icross(c.n, a.n), ab = icross(a.n, b.n);
   const I64 det = idot(a.n, bc);
   if (det == 0) return false;
-  HYB_CHECK(kFine % det == 0);
+  // |det| <= 4 for the 13 orientations and the axes, so kFine / det is exact.
+  static constexpr std::array<I64, 9> kScale{-kFine / 4, -kFine / 3, -kFine / 2, -kFine, 0, kFine, kFine / 2, kFine / 3, kFine / 4};
+  HYB_CHECK(det >= -4 && det <= 4);
   const V64 num = V64(bc) * a.d + V64(ca) * b.d + V64(ab) * c.d;
-  *out = num * (I64(kFine) / det);
+  *out = num * kScale[size_t(det + 4)];
   return true;
 }
 
@@ -106,32 +108,26 @@ Regions analyseRegions(const Plane* planes, int np, const Box& box) {
         }
         vertices[nv++] = v;
       }
-  // A vertex where more than three planes meet is found once per triple: keep one copy.
-  std::sort(vertices.begin(), vertices.begin() + ptrdiff_t(nv), [](const Vertex& u, const Vertex& w) {
-    return std::tie(u.p.x, u.p.y, u.p.z) < std::tie(w.p.x, w.p.y, w.p.z);
-  });
-  nv = size_t(std::unique(vertices.begin(), vertices.begin() + ptrdiff_t(nv), [](const Vertex& u, const Vertex& w) { return u.p == w.p; }) -
-              vertices.begin());
+  // The closed set P_σ (σ's closed half-spaces ∩ box) is the hull of the vertices it holds, so their
+  // average c lies in its relative interior. P_σ has volume iff no constraint holds with equality on
+  // all of it, i.e. iff c is strictly inside every half-space and the box.
   Regions r;
-  std::array<const V64*, 165> members;
+  for (size_t i = 0; i < nv; ++i) {  // add each vertex to every σ it is compatible with
+    const uint32_t on = ((1u << np) - 1) & ~(vertices[i].pos | vertices[i].neg);  // planes through it
+    for (uint32_t sub = on;; sub = (sub - 1) & on) {
+      r.sum[vertices[i].pos | sub] += vertices[i].p;
+      ++r.count[vertices[i].pos | sub];
+      if (sub == 0) break;
+    }
+  }
   for (uint32_t sigma = 0; sigma < (1u << np); ++sigma) {
-    size_t nm = 0;
-    for (size_t i = 0; i < nv; ++i)
-      if (!(vertices[i].pos & ~sigma) && !(vertices[i].neg & sigma)) members[nm++] = &vertices[i].p;  // compatible with σ
-    // Solid iff four of them are affinely independent.
-    bool solid = false;
-    for (size_t i = 1; i < nm && !solid; ++i)
-      for (size_t j = i + 1; j < nm && !solid; ++j) {
-        const V64 u = *members[i] - *members[0], w = *members[j] - *members[0];
-        if (V64(u.y * w.z - u.z * w.y, u.z * w.x - u.x * w.z, u.x * w.y - u.y * w.x) == V64(0)) continue;
-        for (size_t k = j + 1; k < nm && !solid; ++k) solid = orient3(*members[0], *members[i], *members[j], *members[k]) != 0;
-      }
-    if (!solid) continue;
-    r.occurs |= 1u << sigma;
-    V64 s(0);
-    for (size_t i = 0; i < nm; ++i) s += *members[i];
-    r.sum[sigma] = s;
-    r.count[sigma] = I64(nm);
+    const V64 sum = r.sum[sigma];
+    const I64 m = r.count[sigma];
+    if (m == 0) continue;
+    bool solid = true;
+    for (int j = 0; j < np && solid; ++j) solid = sideOf(planes[j], sum, m) != 0;
+    for (int a = 0; a < 3 && solid; ++a) solid = sum[a] > I64(kFine) * m * box.lo[a] && sum[a] < I64(kFine) * m * box.hi[a];
+    if (solid) r.occurs |= 1u << sigma;
   }
   return r;
 }

@@ -2,6 +2,9 @@
 // Visualization '94, 281–287. Classic Marching Cubes: W. Lorensen, H. Cline, SIGGRAPH '87.
 #include "surface/dmc.h"
 
+#include <algorithm>
+#include <bit>
+
 #include "surface/dmc_table.h"
 #include "surface/flat_map.h"
 #include "surface/triangulate.h"
@@ -48,46 +51,54 @@ const dmc::Case& cellCase(const Volume& v, float iso, int i, int j, int k, unsig
 }
 
 // Calls visit(i, j, k, mask) for every cell of the blocks whose corners are not all on one side
-// (all cells, in blocks of 16³, when @p blocks is empty). Each block's samples are classified once
-// into bytes, and cell masks are combined from four rows of them (vectorisable).
+// (all cells, in blocks of 16³, when @p blocks is empty), x fastest. Each row of a block's samples is
+// classified once into a bit mask (blocks wider than 63 cells are cut along x); a row of cells
+// combines four of them, and only its mixed cells are visited.
 template <typename Visit>
 void forEachActiveCell(const Volume& v, float iso, std::span<const VoxelBlock> blocks, Visit&& visit) {
-  std::vector<VoxelBlock> tiles;
+  constexpr int kMaxRun = 63;  // cells a row: its samples fit a 64-bit mask
+  std::vector<VoxelBlock> pieces;
   if (blocks.empty()) {
     constexpr int kTile = 16;
     const glm::ivec3 last = glm::max(v.dims() - 1, glm::ivec3(0));
     for (int z = 0; z < last.z; z += kTile)
       for (int y = 0; y < last.y; y += kTile)
         for (int x = 0; x < last.x; x += kTile)
-          tiles.push_back({glm::ivec3(x, y, z), glm::min(glm::ivec3(x, y, z) + kTile, last)});
-    blocks = tiles;
+          pieces.push_back({glm::ivec3(x, y, z), glm::min(glm::ivec3(x, y, z) + kTile, last)});
+    blocks = pieces;
+  } else if (std::any_of(blocks.begin(), blocks.end(), [](const VoxelBlock& b) { return b.hi.x - b.lo.x > kMaxRun; })) {
+    for (const VoxelBlock& b : blocks)
+      for (int x = b.lo.x; x < b.hi.x; x += kMaxRun)
+        pieces.push_back({glm::ivec3(x, b.lo.y, b.lo.z), glm::ivec3(std::min(x + kMaxRun, b.hi.x), b.hi.y, b.hi.z)});
+    blocks = pieces;
   }
   const float* s = v.samples().data();
-  std::vector<uint8_t> inside, masks;
+  std::vector<uint64_t> rows;  // bit i: sample i of a row is inside
   for (const VoxelBlock& b : blocks) {
     HYB_DCHECK(glm::all(glm::greaterThanEqual(b.lo, glm::ivec3(0))) && glm::all(glm::lessThan(b.hi, v.dims())));
     const glm::ivec3 n = b.hi - b.lo + 1;  // samples a side
     if (glm::any(glm::lessThan(n, glm::ivec3(2)))) continue;
-    inside.resize(size_t(n.x) * size_t(n.y) * size_t(n.z));
-    uint8_t* in = inside.data();
+    rows.resize(size_t(n.y) * size_t(n.z));
     for (int k = 0; k < n.z; ++k)
       for (int j = 0; j < n.y; ++j) {
         const float* row = s + v.index(b.lo.x, b.lo.y + j, b.lo.z + k);
-        uint8_t* out = in + (size_t(k) * size_t(n.y) + size_t(j)) * size_t(n.x);
-        for (int i = 0; i < n.x; ++i) out[i] = uint8_t(row[i] >= iso);
+        uint64_t bits = 0;
+        for (int i = 0; i < n.x; ++i) bits |= uint64_t(row[i] >= iso) << i;
+        rows[size_t(k) * size_t(n.y) + size_t(j)] = bits;
       }
-    masks.resize(size_t(n.x));
-    uint8_t* m = masks.data();
-    const size_t dy = size_t(n.x), dz = size_t(n.x) * size_t(n.y);
+    const uint64_t cellsOfRow = (uint64_t(1) << (n.x - 1)) - 1;
     for (int k = 0; k + 1 < n.z; ++k)
       for (int j = 0; j + 1 < n.y; ++j) {
-        const uint8_t* r00 = in + size_t(k) * dz + size_t(j) * dy;
-        const uint8_t *r10 = r00 + dy, *r01 = r00 + dz, *r11 = r00 + dz + dy;
-        for (int i = 0; i + 1 < n.x; ++i)
-          m[i] = uint8_t(r00[i] | r00[i + 1] << 1 | r10[i] << 2 | r10[i + 1] << 3 | r01[i] << 4 | r01[i + 1] << 5 |
-                         r11[i] << 6 | r11[i + 1] << 7);
-        for (int i = 0; i + 1 < n.x; ++i)
-          if (uint8_t(m[i] + 1) > 1) visit(b.lo.x + i, b.lo.y + j, b.lo.z + k, unsigned(m[i]));  // not 0 or 255
+        const uint64_t* r = rows.data() + size_t(k) * size_t(n.y) + size_t(j);
+        const uint64_t r00 = r[0], r10 = r[1], r01 = r[n.y], r11 = r[n.y + 1];
+        // Per cell i: any corner inside, all corners inside (bits i and i + 1 of the four rows).
+        const uint64_t any = r00 | r10 | r01 | r11, all = r00 & r10 & r01 & r11;
+        for (uint64_t mixed = ((any | any >> 1) & ~(all & all >> 1)) & cellsOfRow; mixed; mixed &= mixed - 1) {
+          const int i = std::countr_zero(mixed);
+          const unsigned mask = unsigned(r00 >> i & 3) | unsigned(r10 >> i & 3) << 2 | unsigned(r01 >> i & 3) << 4 |
+                                unsigned(r11 >> i & 3) << 6;
+          visit(b.lo.x + i, b.lo.y + j, b.lo.z + k, mask);
+        }
       }
   }
 }

@@ -207,6 +207,27 @@ TEST(Dmc, OctreeCullingGivesTheSameSurface) {
   EXPECT_EQ(culled.faceCount(), full.faceCount());
   EXPECT_EQ(culled.vertices.size(), full.vertices.size());
   EXPECT_EQ(extractMarchingCubes(v, 0.0f, blocks).triangles.size(), extractMarchingCubes(v, 0.0f).triangles.size());
+
+  // Leaves wider than a 64-bit row of samples are cut along x: nothing lost or doubled at the cuts.
+  const Volume wide = test::randomVolume({150, 9, 7}, 3);
+  VolumeOctreeOptions o;
+  o.leafEdge = 256;
+  const std::vector<VoxelBlock> whole = isoBlocks(VolumeOctree::build(wide, o), 0.0f);
+  ASSERT_EQ(whole.size(), size_t(1));
+  EXPECT_EQ(whole[0].hi.x - whole[0].lo.x, 149);
+  const DiscreteMesh a = extractDiscMC(wide, 0.0f, whole), b = extractDiscMC(wide, 0.0f);
+  EXPECT_EQ(a.faceCount(), b.faceCount());
+  EXPECT_EQ(a.vertices.size(), b.vertices.size());
+  size_t expected = 0;  // MC triangles counted cell by cell
+  for (int k = 0; k + 1 < 7; ++k)
+    for (int j = 0; j + 1 < 9; ++j)
+      for (int i = 0; i + 1 < 150; ++i) {
+        unsigned mask = 0;
+        for (int c = 0; c < 8; ++c) mask |= unsigned(wide.at(i + (c & 1), j + (c >> 1 & 1), k + (c >> 2 & 1)) >= 0.0f) << c;
+        for (const auto& loop : dmc::caseTable()[mask].loops) expected += loop.size() - 2;
+      }
+  EXPECT_EQ(extractMarchingCubes(wide, 0.0f, whole).triangles.size(), expected);
+  EXPECT_EQ(extractMarchingCubes(wide, 0.0f).triangles.size(), expected);
 }
 
 TEST(DmcCranium, BoneAndSkinSurfacesAreManifold) {
