@@ -3,6 +3,7 @@
 #include "hybrid_octree/surface_octree.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <map>
 #include <numeric>
@@ -294,12 +295,10 @@ class BlockMerger {
     mCells.clear();
     appendSurfaceCells(mVolume, mIso, block, &mCells);
     if (mCells.empty()) return 0;
-    mOrder.resize(mCells.size());
-    for (size_t i = 0; i < mCells.size(); ++i) mOrder[i] = {morton(glm::ivec3(mCells[i].cell)), uint32_t(i)};
-    std::sort(mOrder.begin(), mOrder.end());
+    sortCells(block);
     mLevel.resize(mCells.size());
     for (size_t i = 0; i < mOrder.size(); ++i) {
-      const SurfaceCell& cell = mCells[mOrder[i].second];
+      const SurfaceCell& cell = mCells[mOrder[i]];
       Entry& e = mLevel[i];
       e.grey = false;
       e.node = mCodes[cell.mask][cell.alternative ? 1 : 0];
@@ -334,6 +333,26 @@ class BlockMerger {
     SurfaceNode node;
     bool grey = false;
   };
+
+  // mOrder = indices of mCells in Morton order. The block's corner is aligned to its (power-of-two)
+  // edge, so local Morton codes order the cells; blocks of up to 16³ cells are bucketed by them.
+  void sortCells(const VoxelBlock& block) {
+    mOrder.clear();
+    if (glm::any(glm::greaterThan(block.hi - block.lo, glm::ivec3(16)))) {
+      std::vector<std::pair<uint64_t, uint32_t>> keyed(mCells.size());
+      for (size_t i = 0; i < mCells.size(); ++i) keyed[i] = {morton(glm::ivec3(mCells[i].cell)), uint32_t(i)};
+      std::sort(keyed.begin(), keyed.end());
+      for (const auto& [key, i] : keyed) mOrder.push_back(i);
+      return;
+    }
+    for (size_t i = 0; i < mCells.size(); ++i) {
+      const uint32_t code = uint32_t(morton(glm::ivec3(mCells[i].cell) - block.lo));
+      mSlot[code] = uint32_t(i);
+      mOccupied[code >> 6] |= uint64_t(1) << (code & 63);
+    }
+    for (size_t w = 0; w < mOccupied.size(); ++w)
+      for (; mOccupied[w]; mOccupied[w] &= mOccupied[w] - 1) mOrder.push_back(mSlot[w * 64 + size_t(std::countr_zero(mOccupied[w]))]);
+  }
 
   void emit(const SurfaceNode& node) { mEmitted.emplace_back(morton(glm::ivec3(node.origin)), node); }
 
@@ -416,7 +435,9 @@ class BlockMerger {
   const std::array<std::array<SurfaceNode, 2>, 256>& mCodes;
   RegionCache mCache;
   std::vector<SurfaceCell> mCells;
-  std::vector<std::pair<uint64_t, uint32_t>> mOrder;
+  std::vector<uint32_t> mOrder;
+  std::array<uint64_t, 64> mOccupied{};  // local Morton codes of a block of up to 16³ cells
+  std::array<uint32_t, 4096> mSlot;
   std::vector<Entry> mLevel, mNext;
   std::vector<std::pair<uint64_t, SurfaceNode>> mEmitted;
 };

@@ -4,6 +4,9 @@
 
 #include <algorithm>
 #include <bit>
+#ifdef __SSE2__
+#include <immintrin.h>
+#endif
 
 #include "surface/dmc_table.h"
 #include "surface/flat_map.h"
@@ -50,6 +53,18 @@ const dmc::Case& cellCase(const Volume& v, float iso, int i, int j, int k, unsig
   return usesAlternative(v, iso, i, j, k, mask) ? dmc::alternativeCaseTable()[mask] : dmc::caseTable()[mask];
 }
 
+// Bit i set where row[i] >= iso, for @p n <= 64 samples.
+uint64_t insideBits(const float* row, int n, float iso) {
+  uint64_t bits = 0;
+  int i = 0;
+#ifdef __SSE2__
+  const __m128 t = _mm_set1_ps(iso);
+  for (; i + 4 <= n; i += 4) bits |= uint64_t(_mm_movemask_ps(_mm_cmpge_ps(_mm_loadu_ps(row + i), t))) << i;
+#endif
+  for (; i < n; ++i) bits |= uint64_t(row[i] >= iso) << i;
+  return bits;
+}
+
 // Calls visit(i, j, k, mask) for every cell of the blocks whose corners are not all on one side
 // (all cells, in blocks of 16³, when @p blocks is empty), x fastest. Each row of a block's samples is
 // classified once into a bit mask (blocks wider than 63 cells are cut along x); a row of cells
@@ -82,9 +97,7 @@ void forEachActiveCell(const Volume& v, float iso, std::span<const VoxelBlock> b
     for (int k = 0; k < n.z; ++k)
       for (int j = 0; j < n.y; ++j) {
         const float* row = s + v.index(b.lo.x, b.lo.y + j, b.lo.z + k);
-        uint64_t bits = 0;
-        for (int i = 0; i < n.x; ++i) bits |= uint64_t(row[i] >= iso) << i;
-        rows[size_t(k) * size_t(n.y) + size_t(j)] = bits;
+        rows[size_t(k) * size_t(n.y) + size_t(j)] = insideBits(row, n.x, iso);
       }
     const uint64_t cellsOfRow = (uint64_t(1) << (n.x - 1)) - 1;
     for (int k = 0; k + 1 < n.z; ++k)

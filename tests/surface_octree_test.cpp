@@ -123,6 +123,25 @@ TEST(SurfaceOctree, MergeLimitsAndPlaneBudgetAreRespected) {
   SurfaceOctreeOptions bad;
   bad.maxPlanes = 5;
   EXPECT_THROW(SurfaceOctree::build(v, VolumeOctree::build(v), 0.0f, bad), ValueError);
+  bad = SurfaceOctreeOptions();
+  bad.maxEdge = 3;
+  EXPECT_THROW(SurfaceOctree::build(v, VolumeOctree::build(v), 0.0f, bad), ValueError);
+
+  // The build merges leaf by leaf (cells bucketed by Morton code up to 16³ a leaf, sorted above):
+  // leaves of 32 cells and a merge limit of 8 give exactly the nodes of leaves of 8.
+  VolumeOctreeOptions wide;
+  wide.leafEdge = 32;
+  SurfaceOctreeOptions eight;
+  eight.maxEdge = 8;
+  const SurfaceOctree a = SurfaceOctree::build(v, VolumeOctree::build(v, wide), 0.0f, eight);
+  const SurfaceOctree b = SurfaceOctree::build(v, VolumeOctree::build(v), 0.0f);
+  ASSERT_EQ(a.nodes().size(), b.nodes().size());
+  for (size_t i = 0; i < a.nodes().size(); ++i) {
+    EXPECT_EQ(a.nodes()[i].origin, b.nodes()[i].origin);
+    EXPECT_EQ(a.nodes()[i].edge, b.nodes()[i].edge);
+    EXPECT_EQ(a.nodes()[i].inside, b.nodes()[i].inside);
+    EXPECT_EQ(a.nodes()[i].occurs, b.nodes()[i].occurs);
+  }
 }
 
 TEST(SurfaceOctree, DegenerateInputs) {
