@@ -85,30 +85,49 @@ struct Regions {
 };
 
 Regions analyseRegions(const Plane* planes, int np, const Box& box) {
-  std::array<Plane, 11> all;
-  for (int i = 0; i < np; ++i) all[size_t(i)] = planes[i];
-  const auto faces = box.faces();
-  for (int i = 0; i < 6; ++i) all[size_t(np + i)] = faces[size_t(i)];
-  const int total = np + 6;
+  // The vertices of the arrangement of the planes and the box's faces inside the box, one per
+  // triple meeting in a point: box corners, planes on box edges, two planes on a face, three planes.
   struct Vertex {
     V64 p;
     uint32_t pos, neg;  // planes with the vertex strictly on the positive / negative side
   };
-  std::array<Vertex, 165> vertices;  // C(11, 3) triples at most
+  std::array<Vertex, 8 + 12 * 5 + 6 * 10 + 10> vertices;
   size_t nv = 0;
-  for (int a = 0; a < total; ++a)
-    for (int b = a + 1; b < total; ++b)
-      for (int c = b + 1; c < total; ++c) {
+  auto add = [&](const V64& p) {
+    if (!box.contains(p)) return;
+    Vertex v{p, 0, 0};
+    for (int j = 0; j < np; ++j) {
+      const int s = sideOf(planes[j], p, 1);
+      if (s > 0) v.pos |= 1u << j;
+      if (s < 0) v.neg |= 1u << j;
+    }
+    vertices[nv++] = v;
+  };
+  const V64 lo = V64(box.lo) * I64(kFine), hi = V64(box.hi) * I64(kFine);
+  for (int c = 0; c < 8; ++c) add(V64(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z));
+  for (int j = 0; j < np; ++j) {
+    const glm::ivec3& n = planes[j].n;
+    for (int a = 0; a < 3; ++a) {  // the edges along axis a: solve for p[a] (normal components are 0 or ±1)
+      if (n[a] == 0) continue;
+      const int b = (a + 1) % 3, c = (a + 2) % 3;
+      for (int e = 0; e < 4; ++e) {
         V64 p;
-        if (!intersect3(all[size_t(a)], all[size_t(b)], all[size_t(c)], &p) || !box.contains(p)) continue;
-        Vertex v{p, 0, 0};
-        for (int j = 0; j < np; ++j) {
-          const int s = sideOf(planes[j], p, 1);
-          if (s > 0) v.pos |= 1u << j;
-          if (s < 0) v.neg |= 1u << j;
-        }
-        vertices[nv++] = v;
+        p[b] = e & 1 ? hi[b] : lo[b];
+        p[c] = e & 2 ? hi[c] : lo[c];
+        p[a] = (I64(kFine) * planes[j].d - n[b] * p[b] - n[c] * p[c]) * n[a];
+        add(p);
       }
+    }
+  }
+  const auto faces = box.faces();
+  for (int i = 0; i < np; ++i)
+    for (int j = i + 1; j < np; ++j) {
+      V64 p;
+      for (const Plane& f : faces)
+        if (intersect3(planes[i], planes[j], f, &p)) add(p);
+      for (int k = j + 1; k < np; ++k)
+        if (intersect3(planes[i], planes[j], planes[k], &p)) add(p);
+    }
   // The closed set P_σ (σ's closed half-spaces ∩ box) is the hull of the vertices it holds, so their
   // average c lies in its relative interior. P_σ has volume iff no constraint holds with equality on
   // all of it, i.e. iff c is strictly inside every half-space and the box.
@@ -298,8 +317,9 @@ class BlockMerger {
     sortCells(block);
     mLevel.resize(mCells.size());
     for (size_t i = 0; i < mOrder.size(); ++i) {
-      const SurfaceCell& cell = mCells[mOrder[i]];
+      const SurfaceCell& cell = mCells[mOrder[i].second];
       Entry& e = mLevel[i];
+      e.code = mOrder[i].first;
       e.grey = false;
       e.node = mCodes[cell.mask][cell.alternative ? 1 : 0];
       e.node.origin = cell.cell;
@@ -309,28 +329,31 @@ class BlockMerger {
         e.node.planes[size_t(p)].d += idot(orientationNormal(e.node.planes[size_t(p)].orientation), shift);
     }
     mEmitted.clear();
-    for (int edge = 1; !mLevel.empty(); edge *= 2) {
+    mEmittedOrder.clear();
+    for (int edge = 1, level = 0; !mLevel.empty(); edge *= 2, ++level) {
       const int parentEdge = edge * 2;
+      const int shift = 3 * (level + 1);  // Morton bits below the parent
       mNext.clear();
       for (size_t b = 0, e; b < mLevel.size(); b = e) {
-        const glm::ivec3 origin = glm::ivec3(mLevel[b].node.origin) & ~(parentEdge - 1);
-        for (e = b + 1; e < mLevel.size() && (glm::ivec3(mLevel[e].node.origin) & ~(parentEdge - 1)) == origin; ++e) {
+        const uint64_t parent = mLevel[b].code >> shift;
+        for (e = b + 1; e < mLevel.size() && mLevel[e].code >> shift == parent; ++e) {
         }
-        mNext.push_back(merge(b, e, origin, edge, parentEdge <= mMergeEdge));
+        mNext.push_back(merge(b, e, level, parentEdge <= mMergeEdge));
       }
       mLevel.swap(mNext);
       if (std::all_of(mLevel.begin(), mLevel.end(), [](const Entry& x) { return x.grey; })) break;
     }
     for (const Entry& e : mLevel)
-      if (!e.grey) emit(e.node);
-    std::sort(mEmitted.begin(), mEmitted.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
-    for (const auto& [key, node] : mEmitted) out->push_back(node);
+      if (!e.grey) emit(e);
+    std::sort(mEmittedOrder.begin(), mEmittedOrder.end());
+    for (const auto& [key, i] : mEmittedOrder) out->push_back(mEmitted[i]);
     return mCells.size();
   }
 
  private:
   struct Entry {
     SurfaceNode node;
+    uint64_t code = 0;  // Morton code of the node's origin
     bool grey = false;
   };
 
@@ -339,27 +362,35 @@ class BlockMerger {
   void sortCells(const VoxelBlock& block) {
     mOrder.clear();
     if (glm::any(glm::greaterThan(block.hi - block.lo, glm::ivec3(16)))) {
-      std::vector<std::pair<uint64_t, uint32_t>> keyed(mCells.size());
-      for (size_t i = 0; i < mCells.size(); ++i) keyed[i] = {morton(glm::ivec3(mCells[i].cell)), uint32_t(i)};
-      std::sort(keyed.begin(), keyed.end());
-      for (const auto& [key, i] : keyed) mOrder.push_back(i);
+      for (size_t i = 0; i < mCells.size(); ++i) mOrder.emplace_back(morton(glm::ivec3(mCells[i].cell)), uint32_t(i));
+      std::sort(mOrder.begin(), mOrder.end());
       return;
     }
+    const uint64_t base = morton(block.lo);
     for (size_t i = 0; i < mCells.size(); ++i) {
       const uint32_t code = uint32_t(morton(glm::ivec3(mCells[i].cell) - block.lo));
       mSlot[code] = uint32_t(i);
       mOccupied[code >> 6] |= uint64_t(1) << (code & 63);
     }
     for (size_t w = 0; w < mOccupied.size(); ++w)
-      for (; mOccupied[w]; mOccupied[w] &= mOccupied[w] - 1) mOrder.push_back(mSlot[w * 64 + size_t(std::countr_zero(mOccupied[w]))]);
+      for (; mOccupied[w]; mOccupied[w] &= mOccupied[w] - 1) {
+        const size_t code = w * 64 + size_t(std::countr_zero(mOccupied[w]));
+        mOrder.emplace_back(base | code, mSlot[code]);
+      }
   }
 
-  void emit(const SurfaceNode& node) { mEmitted.emplace_back(morton(glm::ivec3(node.origin)), node); }
+  void emit(const Entry& e) {
+    mEmittedOrder.emplace_back(e.code, uint32_t(mEmitted.size()));
+    mEmitted.push_back(e.node);
+  }
 
-  // The parent (edge 2·@p edge at @p origin) of the Morton-contiguous children mLevel[b, e): merged
+  // The parent of the Morton-contiguous children mLevel[b, e) at @p level (edge 2^level): merged
   // when allowed and their planes number at most K, else grey with its terminal children emitted.
-  Entry merge(size_t b, size_t e, const glm::ivec3& origin, int edge, bool mayMerge) {
+  Entry merge(size_t b, size_t e, int level, bool mayMerge) {
+    const int edge = 1 << level;
+    const glm::ivec3 origin = glm::ivec3(mLevel[b].node.origin) & ~(2 * edge - 1);
     Entry parent;
+    parent.code = mLevel[b].code & ~((uint64_t(1) << (3 * level + 3)) - 1);
     parent.grey = !mayMerge;
     std::array<GeoPlane, kMaxNodePlanes + 1> u;  // the union, sorted, stops growing past K
     size_t nu = 0;
@@ -383,7 +414,7 @@ class BlockMerger {
     parent.node.edge = uint16_t(parentEdge);
     if (parent.grey) {
       for (size_t i = b; i < e; ++i)
-        if (!mLevel[i].grey) emit(mLevel[i].node);
+        if (!mLevel[i].grey) emit(mLevel[i]);
       return parent;
     }
     const Box box = nodeBox(origin, parentEdge, mVolume.dims());
@@ -401,8 +432,7 @@ class BlockMerger {
     // Children by octant (slot bits x | y<<1 | z<<2), nullptr for uniform octants.
     std::array<const Entry*, 8> children{};
     for (size_t i = b; i < e; ++i) {
-      const glm::ivec3 rel = glm::ivec3(glm::notEqual(glm::ivec3(mLevel[i].node.origin), origin));
-      children[size_t(rel.x | rel.y << 1 | rel.z << 2)] = &mLevel[i];
+      children[size_t(mLevel[i].code >> (3 * level) & 7)] = &mLevel[i];
     }
     const glm::ivec3 mid = 2 * (origin + edge);
     for (uint32_t sigma = 0, k = 0; sigma < (1u << nu); ++sigma) {
@@ -435,11 +465,12 @@ class BlockMerger {
   const std::array<std::array<SurfaceNode, 2>, 256>& mCodes;
   RegionCache mCache;
   std::vector<SurfaceCell> mCells;
-  std::vector<uint32_t> mOrder;
+  std::vector<std::pair<uint64_t, uint32_t>> mOrder;  // Morton code, index in mCells
   std::array<uint64_t, 64> mOccupied{};  // local Morton codes of a block of up to 16³ cells
   std::array<uint32_t, 4096> mSlot;
   std::vector<Entry> mLevel, mNext;
-  std::vector<std::pair<uint64_t, SurfaceNode>> mEmitted;
+  std::vector<SurfaceNode> mEmitted;
+  std::vector<std::pair<uint64_t, uint32_t>> mEmittedOrder;  // Morton code, index in mEmitted
 };
 
 }  // namespace

@@ -4,6 +4,8 @@
 
 #include <glm/glm.hpp>
 
+#include <array>
+#include <cstddef>
 #include <cstdint>
 
 namespace hyb {
@@ -18,7 +20,13 @@ inline glm::ivec3 icross(const glm::ivec3& a, const glm::ivec3& b) {
 inline constexpr int kOrientationCount = 13;
 
 /// Canonical normal of orientation @p o (first non-zero component positive).
-const glm::ivec3& orientationNormal(int o);
+inline const glm::ivec3& orientationNormal(int o) {
+  static constexpr std::array<glm::ivec3, kOrientationCount> kNormals = {{
+      {1, 0, 0}, {0, 1, 0}, {0, 0, 1},                                  // axis
+      {1, 1, 0}, {1, -1, 0}, {1, 0, 1}, {1, 0, -1}, {0, 1, 1}, {0, 1, -1},  // face diagonals
+      {1, 1, 1}, {1, 1, -1}, {1, -1, 1}, {1, -1, -1}}};                  // body diagonals
+  return kNormals[size_t(o)];
+}
 
 /// Orientation of the integer direction @p n after removing its gcd, with the sign that maps the
 /// canonical normal onto it; -1 when @p n is zero or not one of the 13 orientations.
