@@ -230,7 +230,8 @@ Box nodeBox(const glm::ivec3& origin, int edge, const glm::ivec3& dims) {
 
 // analyseRegions memoised on the box's size and the planes relative to its corner: flat and
 // repetitive surfaces meet the same local configurations again and again. Points are returned in
-// the box's own coordinates shifted back.
+// the box's own coordinates shifted back. The key is exact in 64 bits for boxes of up to 8 cells
+// (the default merge limit); larger boxes are analysed uncached.
 class RegionCache {
  public:
   /// The regions of a node, compactly: point k is the interior point of the k-th region in
@@ -240,43 +241,38 @@ class RegionCache {
     const std::pair<V64, I64>* points = nullptr;
   };
 
-  /// Regions of @p planes in @p box; valid until the next call.
+  /// Regions of @p planes (at most K) in @p box; valid until the next call.
   Compact get(const GeoPlane* planes, size_t np, const Box& box) {
-    Key key{};
+    HYB_DCHECK(np <= size_t(kMaxNodePlanes));
     const glm::ivec3 size = box.hi - box.lo;
-    key[0] = size.x;
-    key[1] = size.y;
-    key[2] = size.z;
-    std::array<Plane, kMaxNodePlanes + 1> local;
+    std::array<Plane, kMaxNodePlanes> local;
+    // size: 5 bits an axis (≤ 16); a plane: orientation + 1 in 4 bits, local d + 64 in 7 (|d| ≤ 3 · 16).
+    bool exact = glm::all(glm::lessThanEqual(size, glm::ivec3(16)));
+    uint64_t key = uint64_t(size.x) | uint64_t(size.y) << 5 | uint64_t(size.z) << 10;
     for (size_t i = 0; i < np; ++i) {
-      local[i] = {orientationNormal(planes[i].orientation), planes[i].d - idot(orientationNormal(planes[i].orientation), box.lo)};
-      key[3 + 2 * i] = planes[i].orientation + 1;
-      key[4 + 2 * i] = int32_t(local[i].d);
+      const glm::ivec3& n = orientationNormal(planes[i].orientation);
+      local[i] = {n, planes[i].d - idot(n, box.lo)};
+      exact = exact && local[i].d >= -64 && local[i].d < 64;
+      key |= uint64_t((planes[i].orientation + 1) | (local[i].d + 64) << 4) << (15 + 11 * i);
     }
-    uint64_t h = 1469598103934665603ULL;  // FNV-1a; the full key is compared on a hit
-    for (int32_t x : key) h = (h ^ uint64_t(uint32_t(x))) * 1099511628211ULL;
-    h >>= 1;  // never FlatMap's empty key
-    const uint32_t* found = mIndex.find(h);
-    if (found && mEntries[*found].key == key) return {mEntries[*found].occurs, mPoints.data() + mEntries[*found].first};
-    if (mEntries.size() == kMaxEntries) {
+    if (exact)
+      if (const uint32_t* found = mIndex.find(key)) return {mEntries[*found].occurs, mPoints.data() + mEntries[*found].first};
+    if (mEntries.size() >= kMaxEntries) {
       mEntries.clear();
       mPoints.clear();
       mIndex = FlatMap(kMaxEntries);
-      found = nullptr;
     }
+    if (exact) mIndex[key] = uint32_t(mEntries.size());
     const Regions r = analyseRegions(local.data(), int(np), Box{glm::ivec3(0), size});
-    if (!found) mIndex[h] = uint32_t(mEntries.size());  // else a hash collision: stored, never found again
-    mEntries.push_back({key, r.occurs, uint32_t(mPoints.size())});
+    mEntries.push_back({r.occurs, uint32_t(mPoints.size())});
     for (uint32_t sigma = 0; sigma < 32; ++sigma)
       if ((r.occurs >> sigma) & 1) mPoints.emplace_back(r.sum[sigma], r.count[sigma]);
     return {r.occurs, mPoints.data() + mEntries.back().first};
   }
 
  private:
-  using Key = std::array<int32_t, 3 + 2 * (kMaxNodePlanes + 1)>;
   static constexpr size_t kMaxEntries = 1 << 16;
   struct Entry {
-    Key key;
     uint32_t occurs, first;  // regions, and the index of the first one's point in mPoints
   };
   std::vector<Entry> mEntries;

@@ -142,6 +142,22 @@ TEST(SurfaceOctree, MergeLimitsAndPlaneBudgetAreRespected) {
     EXPECT_EQ(a.nodes()[i].inside, b.nodes()[i].inside);
     EXPECT_EQ(a.nodes()[i].occurs, b.nodes()[i].occurs);
   }
+  // Merging up to 32 cells (regions of boxes over 8 cells are analysed uncached): a tilted plane
+  // merges into nodes of 32 cells and keeps exactly the DiscMC surface.
+  const glm::ivec3 dims(33);
+  std::vector<float> samples;
+  for (int k = 0; k < dims.z; ++k)
+    for (int j = 0; j < dims.y; ++j)
+      for (int i = 0; i < dims.x; ++i) samples.push_back(float(i + j) - 31.5f + 0.01f * float(k % 2));
+  const Volume plane(dims, glm::dvec3(1.0), ScalarType::Float32, samples, "plane");
+  const SurfaceOctree big = SurfaceOctree::build(plane, VolumeOctree::build(plane, wide), 0.0f);
+  const SurfaceOctree small = SurfaceOctree::build(plane, VolumeOctree::build(plane), 0.0f);
+  EXPECT_EQ(big.mergeEdge(), 32);
+  EXPECT_TRUE(std::any_of(big.nodes().begin(), big.nodes().end(), [](const SurfaceNode& n) { return n.edge == 32; }));
+  EXPECT_LT(big.nodes().size(), small.nodes().size());
+  const TriangleMesh bigMesh = fineMeshToTriangles(big.reconstruct(), plane.spacing());
+  const TriangleMesh dmc = toTriangleMesh(extractDiscMC(plane, 0.0f), plane.spacing());
+  EXPECT_NEAR(area(bigMesh), area(dmc), 1e-9 * area(dmc));
 }
 
 TEST(SurfaceOctree, DegenerateInputs) {
