@@ -4,7 +4,8 @@
 // Surface: classic MC (baseline), DiscMC and the Surface Octree at each isovalue, single thread:
 // triangles and time, with the Surface Octree's triangles and time as ratios of MC's.
 //
-// usage: hyb_bench [VOLUME] [--runs N] [--iso V]...   (defaults: the Debian Cranium.inv3, 400 and -500)
+// usage: hyb_bench [VOLUME] [--runs N] [--iso V]... [--surface-only]
+//        (defaults: the Debian Cranium.inv3, 400 and -500; --surface-only stops after the surfaces)
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -44,11 +45,14 @@ int main(int argc, char** argv) {
   std::string path = hyb::kDefaultVolumePath;
   int runs = 7;
   std::vector<float> isovalues;
+  bool surfaceOnly = false;
   for (int i = 1; i < argc; ++i) {
     if (std::strcmp(argv[i], "--runs") == 0 && i + 1 < argc)
       runs = std::max(1, std::atoi(argv[++i]));
     else if (std::strcmp(argv[i], "--iso") == 0 && i + 1 < argc)
       isovalues.push_back(float(std::atof(argv[++i])));
+    else if (std::strcmp(argv[i], "--surface-only") == 0)
+      surfaceOnly = true;
     else
       path = argv[i];
   }
@@ -122,6 +126,8 @@ int main(int argc, char** argv) {
       std::printf("  %-28s %10zu %10zu %10.1f %10.2f   triangles %.3f x MC (target <= 0.5)\n", "SO polygons, export (whole)",
                   whole.faceCount(), wholeTris, wholeMs, wholeMs / mcMs, double(wholeTris) / mcT);
     }
+
+    if (surfaceOnly) return 0;
 
     // Rendering: 512x512, translucent volume (ct-skin-bone) with the translucent 400 HU surface.
     omp_set_num_threads(2);

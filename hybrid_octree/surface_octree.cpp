@@ -413,11 +413,20 @@ class BlockMerger {
         if (!mLevel[i].grey) emit(mLevel[i]);
       return parent;
     }
+    parent.node.planeCount = uint8_t(nu);
+    std::copy(u.begin(), u.begin() + ptrdiff_t(nu), parent.node.planes.begin());
+    // A child on all of the union's planes in which every sign vector has a region: the parent's
+    // regions contain the child's, so they all occur too and share the child's truth values.
+    const uint32_t all = (uint32_t(1) << (1u << nu)) - 1;  // nu ≤ K = 4
+    for (size_t i = b; i < e; ++i)
+      if (mLevel[i].node.planeCount == nu && mLevel[i].node.occurs == all) {
+        parent.node.occurs = all;
+        parent.node.inside = mLevel[i].node.inside;
+        return parent;
+      }
     const Box box = nodeBox(origin, parentEdge, mVolume.dims());
     const RegionCache::Compact r = mCache.get(u.data(), nu, box);
     const V64 corner = V64(box.lo) * I64(kFine);
-    parent.node.planeCount = uint8_t(nu);
-    std::copy(u.begin(), u.begin() + ptrdiff_t(nu), parent.node.planes.begin());
     parent.node.occurs = r.occurs;
     // A uniform (absent) child is wholly inside or outside; every octant touches the parent's
     // centre sample, so one read classifies them all (octant origins where the centre lies

@@ -20,26 +20,25 @@ class FlatMap {
   /// The value stored for @p key, or the result of @p make() stored now.
   template <typename Make>
   uint32_t findOrInsert(uint64_t key, Make&& make) {
-    const size_t i = probeForInsert(key);
-    if (mKeys[i] == key) return mValues[i];
-    mKeys[i] = key;
+    Slot& slot = mSlots[probeForInsert(key)];
+    if (slot.key == key) return slot.value;
+    slot.key = key;
     ++mCount;
-    return mValues[i] = make();
+    return slot.value = make();
   }
   /// The value of @p key, inserted as 0 when absent.
   uint32_t& operator[](uint64_t key) {
-    const size_t i = probeForInsert(key);
-    if (mKeys[i] != key) {
-      mKeys[i] = key;
-      mValues[i] = 0;
+    Slot& slot = mSlots[probeForInsert(key)];
+    if (slot.key != key) {
+      slot = {key, 0};
       ++mCount;
     }
-    return mValues[i];
+    return slot.value;
   }
   /// The value of @p key, or nullptr.
   const uint32_t* find(uint64_t key) const {
-    for (size_t i = hash(key) & (mKeys.size() - 1); mKeys[i] != kEmpty; i = (i + 1) & (mKeys.size() - 1))
-      if (mKeys[i] == key) return &mValues[i];
+    for (size_t i = hash(key) & (mSlots.size() - 1); mSlots[i].key != kEmpty; i = (i + 1) & (mSlots.size() - 1))
+      if (mSlots[i].key == key) return &mSlots[i].value;
     return nullptr;
   }
 
@@ -59,26 +58,26 @@ class FlatMap {
   // The slot holding @p key, or the empty slot where it goes (growing first if needed).
   size_t probeForInsert(uint64_t key) {
     HYB_DCHECK(key != kEmpty);
-    if (2 * (mCount + 1) > mKeys.size()) rehash(mKeys.size() * 2);
-    size_t i = hash(key) & (mKeys.size() - 1);
-    while (mKeys[i] != kEmpty && mKeys[i] != key) i = (i + 1) & (mKeys.size() - 1);
+    if (2 * (mCount + 1) > mSlots.size()) rehash(mSlots.size() * 2);
+    size_t i = hash(key) & (mSlots.size() - 1);
+    while (mSlots[i].key != kEmpty && mSlots[i].key != key) i = (i + 1) & (mSlots.size() - 1);
     return i;
   }
   void rehash(size_t capacity) {
-    std::vector<uint64_t> keys(capacity, kEmpty);
-    std::vector<uint32_t> values(capacity);
-    for (size_t i = 0; i < mKeys.size(); ++i)
-      if (mKeys[i] != kEmpty) {
-        size_t h = hash(mKeys[i]) & (capacity - 1);
-        while (keys[h] != kEmpty) h = (h + 1) & (capacity - 1);
-        keys[h] = mKeys[i];
-        values[h] = mValues[i];
+    std::vector<Slot> slots(capacity);
+    for (const Slot& s : mSlots)
+      if (s.key != kEmpty) {
+        size_t h = hash(s.key) & (capacity - 1);
+        while (slots[h].key != kEmpty) h = (h + 1) & (capacity - 1);
+        slots[h] = s;
       }
-    mKeys.swap(keys);
-    mValues.swap(values);
+    mSlots.swap(slots);
   }
-  std::vector<uint64_t> mKeys;
-  std::vector<uint32_t> mValues;
+  struct Slot {  // key and value side by side: one cache line per probe
+    uint64_t key = kEmpty;
+    uint32_t value = 0;
+  };
+  std::vector<Slot> mSlots;
   size_t mCount = 0;
 };
 
