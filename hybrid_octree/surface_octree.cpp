@@ -365,6 +365,7 @@ class BlockMerger {
     const uint64_t base = morton(block.lo);
     for (size_t i = 0; i < mCells.size(); ++i) {
       const uint32_t code = uint32_t(morton(glm::ivec3(mCells[i].cell) - block.lo));
+      HYB_DCHECK((base & code) == 0);  // the block's corner is aligned to its edge
       mSlot[code] = uint32_t(i);
       mOccupied[code >> 6] |= uint64_t(1) << (code & 63);
     }
