@@ -7,7 +7,6 @@
 #include <cmath>
 #include <map>
 #include <numeric>
-#include <unordered_map>
 
 #include "surface/dmc.h"
 #include "surface/dmc_table.h"
@@ -618,30 +617,7 @@ Poly clipToBox(const Plane& pl, const Box& box) {
   return hull;
 }
 
-// Line key of an edge lying in a node face: (axis, face coordinate, reduced direction, offset).
-struct LineKey {
-  int axis;
-  I64 coord, du, dv, offset;
-  bool operator==(const LineKey& o) const {
-    return axis == o.axis && coord == o.coord && du == o.du && dv == o.dv && offset == o.offset;
-  }
-};
 bool lexLess(const V64& a, const V64& b) { return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z); }
-
-// splitmix64 finaliser: std::hash<int64_t> is the identity, which clusters these keys badly.
-uint64_t mix64(uint64_t x) {
-  x += 0x9e3779b97f4a7c15ULL;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
-  return x ^ (x >> 31);
-}
-struct LineKeyHash {
-  size_t operator()(const LineKey& k) const {
-    uint64_t h = uint64_t(k.axis);
-    for (I64 x : {k.coord, k.du, k.dv, k.offset}) h = mix64(h ^ uint64_t(x));
-    return size_t(h);
-  }
-};
 }  // namespace
 
 DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
@@ -739,7 +715,10 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
   }
 
   // T-junctions: vertices on the same line in a node face are inserted into every edge on that line.
-  auto faceLine = [](const Box& box, const V64& a, const V64& b, LineKey* key) {
+  // A line is keyed exactly in 64 bits: the face's axis and coordinate, the reduced direction within
+  // the face (components in {-1, 0, 1}: the line lies on one of the 13 planes and an axis plane) and
+  // its offset.
+  auto faceLine = [](const Box& box, const V64& a, const V64& b, uint64_t* key) {
     for (int axis = 0; axis < 3; ++axis)
       for (I64 c : {I64(kFine) * box.lo[axis], I64(kFine) * box.hi[axis]})
         if (a[axis] == c && b[axis] == c) {
@@ -749,26 +728,31 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
           du /= g;
           dv /= g;
           if (du < 0 || (du == 0 && dv < 0)) du = -du, dv = -dv;
-          *key = LineKey{axis, c, du, dv, dv * a[u] - du * a[v]};
+          HYB_DCHECK(std::llabs(du) <= 1 && std::llabs(dv) <= 1);
+          const I64 offset = dv * a[u] - du * a[v];  // fine coordinates are < 2^21, so |offset| < 2^22
+          *key = uint64_t(axis) | uint64_t(c) << 2 | uint64_t(du + 1) << 23 | uint64_t(dv + 1) << 25 |
+                 uint64_t(offset + (I64(1) << 23)) << 27;
           return true;
         }
     return false;
   };
-  std::unordered_map<LineKey, std::vector<V64>, LineKeyHash> onLine;
-  onLine.reserve(polys.size());
+  // The points of every line, sorted by line and then lexicographically (their order along it).
+  std::vector<std::pair<uint64_t, V64>> linePoints;
   for (const OutPoly& p : polys)
     for (size_t k = 0; k < p.loop.size(); ++k) {
-      LineKey key;
+      uint64_t key;
       const V64 &a = p.loop[k], &b = p.loop[(k + 1) % p.loop.size()];
       if (faceLine(p.box, a, b, &key)) {
-        onLine[key].push_back(a);
-        onLine[key].push_back(b);
+        linePoints.emplace_back(key, a);
+        linePoints.emplace_back(key, b);
       }
     }
-  for (auto& [key, pts] : onLine) {
-    std::sort(pts.begin(), pts.end(), lexLess);
-    pts.erase(std::unique(pts.begin(), pts.end()), pts.end());
-  }
+  std::sort(linePoints.begin(), linePoints.end(), [](const auto& x, const auto& y) {
+    return x.first != y.first ? x.first < y.first : lexLess(x.second, y.second);
+  });
+  linePoints.erase(std::unique(linePoints.begin(), linePoints.end()), linePoints.end());
+  FlatMap lineStart(linePoints.size() / 2);
+  for (size_t k = linePoints.size(); k-- > 0;) lineStart[linePoints[k].first] = uint32_t(k);
 
   DiscreteMesh mesh;
   FlatMap ids(polys.size() * 2);
@@ -788,20 +772,20 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
     for (size_t k = 0; k < p.loop.size(); ++k) {
       const V64 &a = p.loop[k], &b = p.loop[(k + 1) % p.loop.size()];
       loop.push_back(vertexId(a));
-      LineKey key;
+      uint64_t key;
       if (!faceLine(p.box, a, b, &key)) continue;
-      // Insert the line's vertices strictly between a and b, in order from a to b. Points on one
-      // line are sorted lexicographically, which is their order along the line.
-      const auto& pts = onLine[key];
+      // Insert the line's vertices strictly between a and b, in order from a to b.
       const bool forward = lexLess(a, b);
       const V64& lo = forward ? a : b;
       const V64& hi = forward ? b : a;
-      const auto first = std::upper_bound(pts.begin(), pts.end(), lo, lexLess);
-      const auto last = std::lower_bound(first, pts.end(), hi, lexLess);
+      auto first = linePoints.begin() + *lineStart.find(key);
+      while (lexLess(first->second, lo) || first->second == lo) ++first;  // lo and hi are on the line
+      auto last = first;
+      while (lexLess(last->second, hi)) ++last;
       if (forward) {
-        for (auto it = first; it != last; ++it) loop.push_back(vertexId(*it));
+        for (auto it = first; it != last; ++it) loop.push_back(vertexId(it->second));
       } else {
-        for (auto it = last; it != first;) loop.push_back(vertexId(*--it));
+        for (auto it = last; it != first;) loop.push_back(vertexId((--it)->second));
       }
     }
   }
