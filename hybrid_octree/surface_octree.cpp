@@ -6,6 +6,7 @@
 #include <bit>
 #include <cmath>
 #include <map>
+#include <iterator>
 #include <numeric>
 
 #include "surface/dmc.h"
@@ -629,9 +630,9 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
     Box box;
     glm::u16vec3 origin;  // of the node
   };
-  std::vector<OutPoly> polys;
-  Poly pos, neg;
-  for (const SurfaceNode& node : mNodes) {
+  // A node's polygons depend on the node alone: nodes are processed in parallel, in contiguous
+  // chunks whose polygons are concatenated in node order (the output does not depend on threads).
+  auto polygonsOf = [&](const SurfaceNode& node, Poly& pos, Poly& neg, std::vector<OutPoly>& polys) {
     const Box box = nodeBox(glm::ivec3(node.origin), node.edge, mDims);
     const int np = node.planeCount;
     for (int i = 0; i < np; ++i) {
@@ -712,7 +713,16 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
         for (const Poly& p : emit) polys.push_back({p, id, box, node.origin});
       }
     }
+  };
+  const size_t chunks = std::min<size_t>(mNodes.size(), 64), per = chunks ? (mNodes.size() + chunks - 1) / chunks : 0;
+  std::vector<std::vector<OutPoly>> parts(chunks);
+#pragma omp parallel for schedule(dynamic)
+  for (size_t c = 0; c < chunks; ++c) {
+    Poly pos, neg;
+    for (size_t k = c * per; k < std::min(mNodes.size(), (c + 1) * per); ++k) polygonsOf(mNodes[k], pos, neg, parts[c]);
   }
+  std::vector<OutPoly> polys;
+  for (std::vector<OutPoly>& part : parts) std::move(part.begin(), part.end(), std::back_inserter(polys));
 
   // T-junctions: vertices on the same line in a node face are inserted into every edge on that line.
   // A line is keyed exactly in 64 bits: the face's axis and coordinate, the reduced direction within
