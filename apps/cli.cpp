@@ -9,7 +9,9 @@
 #include <filesystem>
 #include <cmath>
 #include <iomanip>
+#include <limits>
 #include <map>
+#include <sstream>
 #include <optional>
 #include <ostream>
 #include <sstream>
@@ -140,29 +142,44 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   RaycastStats rs;
   SlicesStats ss;
   std::optional<GlContext> gl;
-  if (o.renderer == "slices") gl.emplace();
+  std::optional<BrickTextureCache> textures;  // destroyed before the context
+  if (o.renderer == "slices") {
+    gl.emplace();
+    textures.emplace();
+  }
+  BrickTextureCache* cache = textures ? &*textures : nullptr;
   // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
   // texels (one level coarser), the last being the requested selection.
   for (int k = 1; k < o.progressive; ++k) {
     const double mb = double(sel.texels) * 4.0 / (1024.0 * 1024.0) / std::pow(8.0, o.progressive - k);
     const auto p0 = Clock::now();
     const Selection coarse = selectNodes(f.scene.octree, selectionParams(o, f, o.epsilon, std::max(mb, 1e-6)));
-    const Image preview = renderFrame(o, f, coarse, &ss, &rs);
+    const Image preview = renderFrame(o, f, coarse, &ss, &rs, cache);
     const std::string path = progressivePath(o.output, k);
     writePng(path, preview, f.background);
     out << "progressive " << k << "/" << o.progressive << ": " << std::setprecision(2) << double(ss.textureBytes) / 1048576.0 << " MB, "
         << std::setprecision(1) << msSince(p0) << " ms -> " << path << "\n";
   }
-  t0 = Clock::now();
-  const Image image = renderFrame(o, f, sel, &ss, &rs);
-  const double renderMs = msSince(t0);
+  // --repeat: the same view again; brick textures are uploaded once (as an interactive viewer would).
+  Image image;
+  double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0;
+  for (int r = 0; r < o.repeat; ++r) {
+    t0 = Clock::now();
+    image = renderFrame(o, f, sel, &ss, &rs, cache);
+    renderMs = std::min(renderMs, msSince(t0));
+    if (r == 0) firstMs = renderMs;
+  }
+  std::ostringstream timing;
+  timing << std::fixed << std::setprecision(1);
+  if (o.repeat > 1) timing << "first frame " << firstMs << " ms, best of " << o.repeat << " ";
+  timing << renderMs << " ms";
   if (o.renderer == "slices")
     out << "render   slices " << size.x << "x" << size.y << ", " << ss.bricks << " textured bricks (" << ss.blendedBricks << " blended), "
         << ss.textureBytes << " texture bytes, " << ss.slices << " slices, " << ss.slabPolygonDraws << " slab polygon draws, "
-        << std::setprecision(1) << renderMs << " ms\n";
+        << timing.str() << "\n";
   else
     out << "render   raycast " << size.x << "x" << size.y << ", " << rs.samples << " samples, " << rs.skippedLeaves
-        << " empty-space skips, " << rs.surfaceHits << " surface crossings, " << std::setprecision(1) << renderMs << " ms\n";
+        << " empty-space skips, " << rs.surfaceHits << " surface crossings, " << timing.str() << "\n";
   if (!o.output.empty()) {
     if (o.progressive > 1) writePng(progressivePath(o.output, o.progressive), image, f.background);
     writePng(o.output, image, f.background);
@@ -176,7 +193,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
         << ",\n  \"surface_polygons\": " << f.polygons << ",\n  \"surface_triangles\": " << f.mesh.triangles.size()
         << ",\n  \"slab_polygon_draws\": " << ss.slabPolygonDraws << ",\n  \"shell_bricks\": " << ss.shellBricks
         << ",\n  \"cut_polygons\": " << ss.cutPolygons << ",\n  \"cut_line_segments\": " << ss.cutLineSegments << ",\n  \"build_ms\": " << f.buildMs + f.surfaceMs
-        << ",\n  \"select_ms\": " << selectMs << ",\n  \"render_ms\": " << renderMs << ",\n  \"samples\": " << rs.samples
+        << ",\n  \"select_ms\": " << selectMs << ",\n  \"render_ms\": " << renderMs << ",\n  \"first_render_ms\": " << firstMs << ",\n  \"samples\": " << rs.samples
         << ",\n  \"epsilon\": " << o.epsilon << ",\n  \"max_nodal_error_used\": " << sel.maxError
         << ",\n  \"budget_met\": " << (sel.budgetMet ? "true" : "false") << "\n}\n";
     });
@@ -285,6 +302,8 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   renderCmd->add_option("--renderer", render.renderer, "slices|raycast")->capture_default_str();
   renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
   renderCmd->add_option("--progressive", render.progressive, "write N images coarse to fine (out_1.png ... out_N.png, and out.png)")
+      ->capture_default_str();
+  renderCmd->add_option("--repeat", render.repeat, "render the view N times, brick textures kept; report the fastest frame")
       ->capture_default_str();
 
   BenchOptions bench;

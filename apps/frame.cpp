@@ -170,7 +170,8 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
   return params;
 }
 
-Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, SlicesStats* ss, RaycastStats* rs) {
+Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, SlicesStats* ss, RaycastStats* rs,
+                  BrickTextureCache* textures) {
   const Volume& v = f.scene.volume;
   if (o.renderer == "slices") {
     SlicesOptions opt;
@@ -182,6 +183,7 @@ Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, 
     opt.cutLine = o.cutLine == "on";
     opt.voi = f.voi ? &*f.voi : nullptr;
     opt.proxy = o.proxy == "shells" ? Proxy::Shells : Proxy::Planes;
+    opt.textures = textures;
     return renderSlices(v, f.scene.octree, sel, f.tf, f.camera, opt, ss);
   }
   const Bvh bvh(f.mesh);

@@ -95,6 +95,7 @@ struct RenderOptions {
   bool ortho = false;
   int maxBrick = 16;
   int progressive = 1;
+  int repeat = 1;  // render: frames of the same view; brick textures are kept, the fastest counts
   std::string validate() const {
     if (!std::isfinite(epsilon) || epsilon < 0) return "--epsilon must be a finite value >= 0 (data units)";
     if (!std::isfinite(budgetMb) || budgetMb < 0) return "--budget must be a finite number of MB >= 0";
@@ -107,6 +108,7 @@ struct RenderOptions {
     if (proxy != "planes" && proxy != "shells") return "--proxy '" + proxy + "' invalid (expected planes or shells)";
     if (cutLine != "on" && cutLine != "off") return "--cut-line must be on or off";
     if (progressive < 1 || progressive > 8) return "--progressive must be in 1..8 images";
+    if (repeat < 1 || repeat > 100) return "--repeat must be in 1..100 frames";
     if (!(std::isfinite(lodPixels) && lodPixels >= 0)) return "--lod-pixels must be a finite number of pixels >= 0";
     if (progressive > 1 && output.empty()) return "--progressive needs -o (the images are named after it)";
     if (progressive > 1 && renderer != "slices") return "--progressive needs --renderer slices (the reference is always exact)";
@@ -174,6 +176,7 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f);
 SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double epsilon, double budgetMb);
 
 /// Renders one frame with o.renderer; slices need a current GlContext.
-Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, SlicesStats* ss, RaycastStats* rs);
+Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, SlicesStats* ss, RaycastStats* rs,
+                  BrickTextureCache* textures = nullptr);
 
 }  // namespace hyb::app

@@ -590,11 +590,21 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     const double delta = baseDelta * (visible && trianglesOf[i].empty() && !holdsEye ? fine.step : 1);
     glUniform1f(slices.at("sliceSpacing"), float(delta));
     if (visible) {
+      GLuint tex = options.textures ? options.textures->find(b) : 0;
+      if (tex) {
+        glActiveTexture(GL_TEXTURE0);
+        glBindTexture(GL_TEXTURE_3D, tex);
+      } else {
+        const std::vector<float> texels = brickTexels(volume, octree, b);
+        tex = newVolumeTexture();
+        glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, fine.dims.x, fine.dims.y, fine.dims.z, 0, GL_RED, GL_FLOAT, texels.data());
+        if (options.textures)
+          options.textures->insert(b, tex);
+        else
+          textures.push_back(tex);
+      }
       // The texture coordinates are affine in world mm: uv = x·scale + offset.
-      const std::vector<float> texels = brickTexels(volume, octree, b);
-      textures.push_back(newVolumeTexture());
-      glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, fine.dims.x, fine.dims.y, fine.dims.z, 0, GL_RED, GL_FLOAT, texels.data());
-      st.texels += texels.size();
+      st.texels += fine.count();
       ++st.bricks;
       st.blendedBricks += b.coarseCorners != 0;
       const glm::dvec3 d(fine.dims), scale = 1.0 / (spacing * double(fine.step) * d);
@@ -723,6 +733,18 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   if (err != GL_NO_ERROR) HYB_THROW(RuntimeError, "OpenGL error 0x", std::hex, err, " while rendering slices");
   if (stats) *stats = st;
   return image;
+}
+
+unsigned BrickTextureCache::find(const Brick& b) const {
+  const auto it = mTextures.find(key(b));
+  return it == mTextures.end() ? 0 : it->second;
+}
+
+void BrickTextureCache::insert(const Brick& b, unsigned texture) { mTextures[key(b)] = texture; }
+
+void BrickTextureCache::clear() {
+  for (const auto& [k, tex] : mTextures) glDeleteTextures(1, &tex);
+  mTextures.clear();
 }
 
 double plainQuadSeconds(const Volume& volume, int width, int height, int quads, uint64_t* fragments) {

@@ -5,9 +5,13 @@
 //
 // Opaque surfaces are drawn first with depth writes. Translucent surface triangles go through the
 // SlabPolygon lists: each is put into the slabs between global slice planes that its depth range
-// covers (clipped with gl_ClipDistance where it spans several), sorted back to front inside a slab,
-// and drawn between the slices of its brick; the lists are rebuilt for every view.
+// covers (clipped to each slab on the CPU where it spans several; per fragment for shells), sorted
+// back to front inside a slab, and drawn between the slices of its brick; the lists are rebuilt for
+// every view.
 #pragma once
+
+#include <cstdint>
+#include <unordered_map>
 
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
@@ -29,6 +33,28 @@ enum class Proxy {
            ///< to, and orthographic views, use planes)
 };
 
+/// Brick textures kept across frames of one volume and octree: a view that is rendered again (an
+/// interactive viewer, progressive refinement, a benchmark) uploads only bricks it has not drawn
+/// before. Keyed by node, level and blended corners. Owns GL textures: destroy it, or clear() it,
+/// while its GlContext is current.
+class BrickTextureCache {
+ public:
+  BrickTextureCache() = default;
+  BrickTextureCache(const BrickTextureCache&) = delete;
+  BrickTextureCache& operator=(const BrickTextureCache&) = delete;
+  ~BrickTextureCache() { clear(); }
+
+  /// The texture of brick @p b, or 0.
+  unsigned find(const Brick& b) const;
+  void insert(const Brick& b, unsigned texture);
+  size_t size() const { return mTextures.size(); }
+  void clear();
+
+ private:
+  static uint64_t key(const Brick& b) { return uint64_t(b.node) | uint64_t(uint8_t(b.p)) << 32 | uint64_t(b.coarseCorners) << 40; }
+  std::unordered_map<uint64_t, unsigned> mTextures;
+};
+
 /// Options of the slice renderer.
 struct SlicesOptions {
   double stepVoxels = 0.5;              ///< slice spacing along the view direction, in smallest voxel spacings
@@ -42,6 +68,7 @@ struct SlicesOptions {
   const CutPlane* cut = nullptr;          ///< cutting plane, or none
   const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
   bool cutLine = true;                    ///< draw the surface's intersection with the cutting plane
+  BrickTextureCache* textures = nullptr;  ///< brick textures reused across frames (none: uploaded per frame)
   bool slabOrder = true;                  ///< false: draw each brick's surface after its slices (a
                                           ///< deliberately wrong order, to show the tests catch it)
 };

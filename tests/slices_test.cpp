@@ -36,6 +36,37 @@ TEST(Slices, MatchesTheReferenceOnASphereInBothProjections) {
   }
 }
 
+TEST(Slices, CachedBrickTexturesGiveTheSameImage) {
+  gl();
+  // A curved field, so that coarse levels and blending change the texels.
+  const Volume v = test::makeVolume({40, 36, 33}, [](int i, int j, int k) {
+    return 8.0 + 7.0 * std::sin(0.35 * i) * std::cos(0.3 * j) + 0.2 * k;
+  });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "s");
+  SelectionParams coarse, naive;
+  coarse.texelBudget = naive.texelBudget = selectNodes(t, SelectionParams{}).texels / 4;  // bricks at several levels
+  naive.blend = false;                    // the same bricks, none blended
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64);
+  BrickTextureCache cache;
+  SlicesOptions cached;
+  cached.textures = &cache;
+  ASSERT_GT(selectNodes(t, coarse).blendedBricks, 0u);
+  for (const SelectionParams& params : {SelectionParams{}, naive, coarse}) {
+    const Selection sel = selectNodes(t, params);
+    SlicesStats st;
+    const Image fresh = renderSlices(v, t, sel, tf, cam, SlicesOptions{}, &st);
+    const size_t before = cache.size();
+    const Image first = renderSlices(v, t, sel, tf, cam, cached), again = renderSlices(v, t, sel, tf, cam, cached);
+    EXPECT_LE(cache.size() - before, st.bricks);  // one texture a textured brick, none twice
+    EXPECT_EQ(first.pixels, fresh.pixels);
+    EXPECT_EQ(again.pixels, fresh.pixels);
+  }
+  EXPECT_GT(cache.size(), 0u);
+  cache.clear();
+  EXPECT_EQ(cache.size(), 0u);
+}
+
 TEST(Slices, OpacityDoesNotDependOnTheSliceSpacing) {
   gl();
   // A homogeneous block viewed straight on: every slice spacing gives the same colour.
