@@ -11,7 +11,6 @@
 #include <iomanip>
 #include <limits>
 #include <map>
-#include <sstream>
 #include <optional>
 #include <ostream>
 #include <sstream>

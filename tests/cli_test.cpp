@@ -126,6 +126,7 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"render", nhdr, "--blend", "maybe"}, "--blend");
   expectBadInput({"render", nhdr, "--progressive", "3"}, "--progressive");
   expectBadInput({"render", nhdr, "--progressive", "0", "-o", dir.file("a.png")}, "--progressive");
+  expectBadInput({"render", nhdr, "--repeat", "0"}, "--repeat");
   expectBadInput({"bench", nhdr}, "-o");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--budgets", "0.5,2"}, "--budgets");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--epsilons", "1,x"}, "--epsilons");
@@ -148,6 +149,15 @@ TEST(Cli, ProgressiveCutAndVolumeOfInterest) {
     EXPECT_EQ(readPng(dir.file(name), &w, &h).size(), size_t(24 * 24 * 4)) << name;
   }
   EXPECT_EQ(readPng(dir.file("p_3.png"), &w, &h), readPng(dir.file("p.png"), &w, &h));  // the last is the requested image
+
+  // --repeat: frames after the first reuse the brick textures; the image is the same.
+  r = run({"render", nhdr, "--size", "24x24", "--iso", "0.5", "--surface-color", "1,1,1,0.5", "--repeat", "3", "-o", dir.file("r.png"),
+           "--stats", dir.file("r.json")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("best of 3"));
+  EXPECT_THAT(test::readText(dir.file("r.json")), HasSubstr("\"first_render_ms\""));
+  ASSERT_EQ(run({"render", nhdr, "--size", "24x24", "--iso", "0.5", "--surface-color", "1,1,1,0.5", "-o", dir.file("r1.png")}).status, 0);
+  EXPECT_EQ(readPng(dir.file("r.png"), &w, &h), readPng(dir.file("r1.png"), &w, &h));
 }
 
 TEST(Cli, BenchWritesTheTableThePlotAndTheImages) {
