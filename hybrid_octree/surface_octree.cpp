@@ -296,10 +296,9 @@ uint64_t morton(const glm::ivec3& c) {
   return spread(uint64_t(c.x)) | spread(uint64_t(c.y)) << 1 | spread(uint64_t(c.z)) << 2;
 }
 
-
 // Merges the DiscMC cells of one volume-octree leaf bottom-up. A leaf is at least as large as the
-// merge limit, so leaves are independent: each one's cells are sorted and merged while they are in
-// cache, and its nodes come out in Morton order after those of the leaves before it.
+// merge limit, so leaves are independent: each one's cells are put in Morton order and merged while
+// they are in cache, and its nodes come out in Morton order after those of the leaves before it.
 class BlockMerger {
  public:
   BlockMerger(const Volume& volume, float iso, int maxPlanes, int mergeEdge)
