@@ -3,11 +3,12 @@
 #include "hybrid_octree/surface_octree.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
-#include <map>
 #include <iterator>
 #include <numeric>
+#include <tuple>
 
 #include "surface/dmc.h"
 #include "surface/dmc_table.h"
