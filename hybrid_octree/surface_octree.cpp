@@ -281,6 +281,7 @@ class RegionCache {
   FlatMap mIndex{4096};
 };
 
+// 21 bits an axis: cell indices, and fine coordinates (< 2^21).
 uint64_t packCells(const glm::ivec3& c) { return (uint64_t(c.x) << 42) | (uint64_t(c.y) << 21) | uint64_t(c.z); }
 
 // Morton code of a cell index.
@@ -767,7 +768,7 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
   DiscreteMesh mesh;
   FlatMap ids(polys.size() * 2);
   auto vertexId = [&](const V64& p) {
-    const uint64_t key = (uint64_t(p.x) << 42) | (uint64_t(p.y) << 21) | uint64_t(p.z);  // each < 2^21
+    const uint64_t key = packCells(glm::ivec3(p));
     const uint32_t id = ids.findOrInsert(key, [&] {
       mesh.vertices.push_back(glm::ivec3(p));
       return uint32_t(mesh.vertices.size() - 1);
