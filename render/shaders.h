@@ -48,9 +48,11 @@ void main() {
 )";
 
 /// One brick's slice: sample the brick texture, classify with the per-millimetre transfer
-/// function, correct opacity for the segment the slice stands for, shade, premultiply. Compiled
-/// after "#version 450 core\n#define SHADING 0|1\n": llvmpipe runs both sides of a uniform branch,
-/// so an unshaded frame gets a program without the six gradient fetches.
+/// function, correct opacity for the segment the slice stands for, shade, premultiply. llvmpipe
+/// runs both sides of every branch, uniform ones included, so each feature a frame does not use
+/// is compiled out: the source follows "#version 450 core\n" and a #define of SHADING (the six
+/// gradient fetches), SURFACE (translucent triangles in the stream), CUT (the cutting plane's
+/// pieces), SHELLS (spherical-shell bricks may occur), VOI and ORTHO, each 0 or 1.
 inline constexpr const char* kSliceFragment = R"(
 in vec3 vWorld;
 in vec3 vNormal;
@@ -64,10 +66,8 @@ uniform vec3 fineScale, fineOffset;  // world mm -> the brick texture's coordina
 uniform vec3 gradientStep;           // half a texel, mm
 uniform float tfMin, tfScale, tfSize;
 uniform vec3 eye, forward;
-uniform int ortho;
 uniform float sliceSpacing;  // mm between this brick's slice planes along forward
-uniform int shells;  // 1: the proxies are spherical shells around the eye
-uniform int voi;  // 1: scale opacity by the volume of interest
+uniform int shells;  // 1: this brick's proxies are spherical shells around the eye
 uniform vec3 voiCentre, voiHalf;
 uniform float voiInside, voiOutside, voiRamp;
 
@@ -82,31 +82,51 @@ float voiFactor(vec3 x) {
 // The brick's field at world position x (blending towards coarser bricks is baked into its texels).
 float sampleAt(vec3 x) { return texture(volumeTex, x * fineScale + fineOffset).r; }
 
+// The unit ray direction through this fragment.
+vec3 rayDirection() {
+#if ORTHO
+  return forward;
+#else
+  return normalize(vWorld - eye);
+#endif
+}
+
 void main() {
+#if SURFACE
   if (vKind > 0.5 && vKind < 1.5) {  // translucent surface, headlight-shaded, premultiplied
+#if SHELLS
     if (shells == 1) {  // the slab between two shells: a sphere cannot be a clip plane
       float r = length(vWorld - eye);
       if (r < vSlab.x || r >= vSlab.y) discard;
     }
-    vec3 d = ortho == 1 ? forward : normalize(vWorld - eye);
-    float shade = 0.25 + 0.75 * abs(dot(normalize(vNormal), d));
+#endif
+    float shade = 0.25 + 0.75 * abs(dot(normalize(vNormal), rayDirection()));
     fragColor = vec4(surfaceColor.rgb * shade * surfaceColor.a, surfaceColor.a);
     return;
   }
+#endif
   vec3 x = vWorld;
   float v = sampleAt(x);
   vec4 c = texture(tfTex, ((v - tfMin) * tfScale + 0.5) / tfSize);
   if (c.a <= 0.0) discard;
+#if CUT
   if (vKind > 1.5) {  // the cutting plane: the data's colour, opaque
     fragColor = vec4(c.rgb, 1.0);
     return;
   }
-  vec3 dir = ortho == 1 ? forward : normalize(vWorld - eye);
-  float len = shells == 1 ? sliceSpacing : sliceSpacing / max(abs(dot(dir, forward)), 1e-6);
-  if (voi == 1) {
-    c.a = min(c.a * voiFactor(x), 1.0);
-    if (c.a <= 0.0) discard;
-  }
+#endif
+  vec3 dir = rayDirection();
+  float len = sliceSpacing;
+#if !ORTHO
+#if SHELLS
+  if (shells == 0)
+#endif
+    len /= max(abs(dot(dir, forward)), 1e-6);
+#endif
+#if VOI
+  c.a = min(c.a * voiFactor(x), 1.0);
+  if (c.a <= 0.0) discard;
+#endif
   float alpha = c.a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - c.a, len);
   float shade = 1.0;
 #if SHADING

@@ -477,7 +477,11 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
 
-  const std::string fragment = std::string("#version 450 core\n#define SHADING ") + (options.shading ? "1" : "0") + "\n" + shaders::kSliceFragment;
+  std::string fragment = "#version 450 core\n";
+  for (const auto& [name, on] : {std::pair{"SHADING", options.shading}, {"SURFACE", translucent}, {"CUT", bool(options.cut)},
+                                 {"SHELLS", options.proxy == Proxy::Shells && !camera.ortho}, {"VOI", bool(options.voi)}, {"ORTHO", camera.ortho}})
+    fragment += std::string("#define ") + name + (on ? " 1\n" : " 0\n");
+  fragment += shaders::kSliceFragment;
   Program slices(shaders::kStreamVertex, fragment.c_str());
   glUseProgram(slices.id);
   glUniformMatrix4fv(slices.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
@@ -488,10 +492,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glUniform1f(slices.at("tfSize"), float(kTfSize));
   glUniform3f(slices.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
   glUniform3f(slices.at("forward"), float(f.x), float(f.y), float(f.z));
-  glUniform1i(slices.at("ortho"), camera.ortho ? 1 : 0);
   glUniform4fv(slices.at("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
   glUniform4fv(slices.at("cutPlane"), 1, glm::value_ptr(cutPlane));
-  glUniform1i(slices.at("voi"), options.voi ? 1 : 0);
   if (options.voi) {
     const glm::vec3 centre(0.5 * (options.voi->lo + options.voi->hi)), half(0.5 * (options.voi->hi - options.voi->lo));
     glUniform3fv(slices.at("voiCentre"), 1, glm::value_ptr(centre));
