@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <string>
 
 #include "render/shaders.h"
@@ -165,6 +166,68 @@ std::vector<float> brickTexels(const Volume& v, const VolumeOctree& t, const Bri
         w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
     return glm::mix(latticeField(v, coarse, p), v.at(p.x, p.y, p.z), w);
   });
+}
+
+// The ranges of @p texels (a lattice of @p dims knots) over blocks of 2×2×2 cells.
+BrickRanges texelRanges(const std::vector<float>& texels, const glm::ivec3& dims) {
+  BrickRanges r;
+  r.blocks = (glm::max(dims - 1, 1) + 1) / 2;
+  r.minMax.reserve(size_t(r.blocks.x) * r.blocks.y * r.blocks.z);
+  for (int bz = 0; bz < r.blocks.z; ++bz)
+    for (int by = 0; by < r.blocks.y; ++by)
+      for (int bx = 0; bx < r.blocks.x; ++bx) {
+        const glm::ivec3 lo = 2 * glm::ivec3(bx, by, bz), hi = glm::min(lo + 2, dims - 1);
+        glm::vec2 m(std::numeric_limits<float>::max(), std::numeric_limits<float>::lowest());
+        for (int k = lo.z; k <= hi.z; ++k)
+          for (int j = lo.y; j <= hi.y; ++j)
+            for (int i = lo.x; i <= hi.x; ++i) {
+              const float t = texels[size_t(i) + size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k))];
+              m = glm::vec2(std::min(m.x, t), std::max(m.y, t));
+            }
+        r.minMax.push_back(m);
+      }
+  return r;
+}
+
+// The value ranges to which the transfer function's lookup table, filtered linearly as the shader
+// reads it, gives a non-zero opacity: a value between bins i and i+1 reads both.
+class LutSupport {
+ public:
+  LutSupport(const std::vector<glm::vec4>& lut, float vmin, float scale) : mMin(vmin), mScale(scale), mPrefix(lut.size() + 1, 0) {
+    for (size_t i = 0; i < lut.size(); ++i) mPrefix[i + 1] = mPrefix[i] + (lut[i].a > 0.0f);
+  }
+  bool anyVisible(float lo, float hi) const {
+    const int last = int(mPrefix.size()) - 2;  // a bin of margin each side covers rounding in the filter
+    const int i0 = int(std::clamp(std::floor(double(lo - mMin) * mScale) - 1.0, 0.0, double(last)));
+    const int i1 = int(std::clamp(std::ceil(double(hi - mMin) * mScale) + 1.0, 0.0, double(last)));
+    return mPrefix[size_t(i1) + 1] > mPrefix[size_t(i0)];
+  }
+
+ private:
+  float mMin;
+  double mScale;
+  std::vector<int> mPrefix;
+};
+
+// The box (voxel units) of the cells of lattice @p L whose ranges @p support can make visible;
+// false when there is none.
+bool visibleBox(const BrickRanges& r, const KnotLattice& L, const LutSupport& support, glm::dvec3* lo, glm::dvec3* hi) {
+  glm::ivec3 b0(std::numeric_limits<int>::max()), b1(-1);
+  size_t index = 0;
+  for (int bz = 0; bz < r.blocks.z; ++bz)
+    for (int by = 0; by < r.blocks.y; ++by)
+      for (int bx = 0; bx < r.blocks.x; ++bx, ++index)
+        if (support.anyVisible(r.minMax[index].x, r.minMax[index].y)) {
+          b0 = glm::min(b0, glm::ivec3(bx, by, bz));
+          b1 = glm::max(b1, glm::ivec3(bx, by, bz));
+        }
+  if (b1.x < 0) return false;
+  for (int a = 0; a < 3; ++a) {
+    auto knot = [&](int j) { return double(std::min(L.origin[a] + std::min(j, L.dims[a] - 1) * L.step, L.last[a])); };
+    (*lo)[a] = knot(2 * b0[a]);
+    (*hi)[a] = knot(2 * b1[a] + 2);
+  }
+  return true;
 }
 
 // Appends plane f·X = depth ∩ box [lo, hi] as a triangle fan (world mm) to @p out; returns whether
@@ -473,6 +536,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glActiveTexture(GL_TEXTURE1);
   glBindTexture(GL_TEXTURE_1D, tfTex);
   glTexImage1D(GL_TEXTURE_1D, 0, GL_RGBA32F, kTfSize, 0, GL_RGBA, GL_FLOAT, lut.data());
+  const float tfScale = float(kTfSize - 1) / (vmax - vmin);
+  const LutSupport support(lut, vmin, tfScale);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
@@ -488,7 +553,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glUniform1i(slices.at("volumeTex"), 0);
   glUniform1i(slices.at("tfTex"), 1);
   glUniform1f(slices.at("tfMin"), vmin);
-  glUniform1f(slices.at("tfScale"), float(kTfSize - 1) / (vmax - vmin));
+  glUniform1f(slices.at("tfScale"), tfScale);
   glUniform1f(slices.at("tfSize"), float(kTfSize));
   glUniform3f(slices.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
   glUniform3f(slices.at("forward"), float(f.x), float(f.y), float(f.z));
@@ -588,27 +653,36 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     // holding surface polygons or the eye keep the base spacing, so that surfaces and the near
     // plane cut the volume at the finest depth resolution.
     const KnotLattice fine = octree.lattice(n, b.p);
-    const bool holdsEye = !camera.ortho && glm::all(glm::greaterThanEqual(camera.eye, blo)) && glm::all(glm::lessThanEqual(camera.eye, bhi));
-    const double delta = baseDelta * (visible && trianglesOf[i].empty() && !holdsEye ? fine.step : 1);
-    glUniform1f(slices.at("sliceSpacing"), float(delta));
+    // Slices cover only the box of cells the transfer function can make visible (empty-space
+    // skipping inside the brick; the fragments cut away would all be discarded).
+    bool sliced = visible;
+    glm::dvec3 slo = blo, shi = bhi;
     if (visible) {
-      GLuint tex = options.textures ? options.textures->find(b) : 0;
-      if (tex) {
-        glActiveTexture(GL_TEXTURE0);
-        glBindTexture(GL_TEXTURE_3D, tex);
-      } else {
+      const CachedBrick* cached = options.textures ? options.textures->find(b) : nullptr;
+      CachedBrick made;
+      if (!cached) {
         const std::vector<float> texels = brickTexels(volume, octree, b);
-        tex = newVolumeTexture();
+        made.texture = newVolumeTexture();
         glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, fine.dims.x, fine.dims.y, fine.dims.z, 0, GL_RED, GL_FLOAT, texels.data());
+        made.ranges = texelRanges(texels, fine.dims);
         if (options.textures)
-          options.textures->insert(b, tex);
+          cached = &options.textures->insert(b, std::move(made));
         else
-          textures.push_back(tex);
+          textures.push_back(made.texture);
       }
-      // The texture coordinates are affine in world mm: uv = x·scale + offset.
+      const CachedBrick& brick = cached ? *cached : made;
+      glActiveTexture(GL_TEXTURE0);
+      glBindTexture(GL_TEXTURE_3D, brick.texture);
       st.texels += fine.count();
       ++st.bricks;
       st.blendedBricks += b.coarseCorners != 0;
+      if (options.visibleBoxes) {
+        glm::dvec3 vlo(0.0), vhi(0.0);
+        sliced = visibleBox(brick.ranges, fine, support, &vlo, &vhi);
+        slo = glm::max(blo, vlo * spacing);
+        shi = glm::min(bhi, vhi * spacing);
+      }
+      // The texture coordinates are affine in world mm: uv = x·scale + offset.
       const glm::dvec3 d(fine.dims), scale = 1.0 / (spacing * double(fine.step) * d);
       const glm::dvec3 offset = (0.5 - glm::dvec3(fine.origin) / double(fine.step)) / d;
       const glm::dvec3 h = 0.5 * double(fine.step) * spacing;
@@ -616,12 +690,15 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       glUniform3f(slices.at("fineOffset"), float(offset.x), float(offset.y), float(offset.z));
       glUniform3f(slices.at("gradientStep"), float(h.x), float(h.y), float(h.z));
     }
+    const bool holdsEye = !camera.ortho && glm::all(glm::greaterThanEqual(camera.eye, blo)) && glm::all(glm::lessThanEqual(camera.eye, bhi));
+    const double delta = baseDelta * (sliced && trianglesOf[i].empty() && !holdsEye ? fine.step : 1);
+    glUniform1f(slices.at("sliceSpacing"), float(delta));
     // Proxies: global planes f·X = k·delta, or shells |X − eye| = k·delta (LaMar 1999); "depth"
     // below is f·X or |X − eye| accordingly. This brick owns the proxies with depth in [bmin, bmax).
     ShellFrame frame{};
     const bool shell = options.proxy == Proxy::Shells && !camera.ortho && shellFrame(blo, bhi, camera.eye, &frame);
     glUniform1i(slices.at("shells"), shell ? 1 : 0);
-    st.shellBricks += shell && visible;
+    st.shellBricks += shell && sliced;
     double bmin = 1e300, bmax = -1e300;
     for (int c = 0; c < 8; ++c) {
       const glm::dvec3 p((c & 1) ? bhi.x : blo.x, (c & 2) ? bhi.y : blo.y, (c & 4) ? bhi.z : blo.z);
@@ -653,10 +730,10 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         dmn = distanceToTriangle(camera.eye, glm::dvec3(options.surface->vertices[tr.x]), glm::dvec3(options.surface->vertices[tr.y]),
                                  glm::dvec3(options.surface->vertices[tr.z]));
       // A brick without slices needs no slabs: its triangles are only sorted back to front.
-      const long long k0 = visible ? (long long)std::floor(dmn / delta) : 0, k1 = visible ? (long long)std::floor(dmx / delta) : 0;
+      const long long k0 = sliced ? (long long)std::floor(dmn / delta) : 0, k1 = sliced ? (long long)std::floor(dmx / delta) : 0;
       for (long long k = k0; k <= k1; ++k)
-        instances.push_back({ti, k, k1 > k0, visible ? std::clamp(sum / 3, double(k) * delta, double(k + 1) * delta) : sum / 3});
-      if (visible) {
+        instances.push_back({ti, k, k1 > k0, sliced ? std::clamp(sum / 3, double(k) * delta, double(k + 1) * delta) : sum / 3});
+      if (sliced) {
         kLo = std::min(kLo, k0);
         kHi = std::max(kHi, k1);
       }
@@ -684,9 +761,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         for (; next < instances.size() && instances[next].slab >= k; ++next) emitTriangle(instances[next], delta, shell);
       const double plane = double(k) * delta;
       one.clear();
-      if (visible && plane >= bmin && plane < bmax &&
-          (shell ? plane > 0.0 && shellPolygon(blo, bhi, camera.eye, frame, plane, shellCells(plane), &one)
-                 : slicePolygon(blo, bhi, f, plane, &one))) {
+      if (sliced && plane >= bmin && plane < bmax &&
+          (shell ? plane > 0.0 && shellPolygon(slo, shi, camera.eye, frame, plane, shellCells(plane), &one)
+                 : slicePolygon(slo, shi, f, plane, &one))) {
         emitSlice(one);
         ++st.slices;
       }
@@ -737,15 +814,19 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   return image;
 }
 
-unsigned BrickTextureCache::find(const Brick& b) const {
+const CachedBrick* BrickTextureCache::find(const Brick& b) const {
   const auto it = mTextures.find(key(b));
-  return it == mTextures.end() ? 0 : it->second;
+  return it == mTextures.end() ? nullptr : &it->second;
 }
 
-void BrickTextureCache::insert(const Brick& b, unsigned texture) { mTextures[key(b)] = texture; }
+const CachedBrick& BrickTextureCache::insert(const Brick& b, CachedBrick brick) {
+  CachedBrick& slot = mTextures[key(b)];
+  glDeleteTextures(1, &slot.texture);
+  return slot = std::move(brick);
+}
 
 void BrickTextureCache::clear() {
-  for (const auto& [k, tex] : mTextures) glDeleteTextures(1, &tex);
+  for (const auto& [k, brick] : mTextures) glDeleteTextures(1, &brick.texture);
   mTextures.clear();
 }
 

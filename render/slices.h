@@ -12,6 +12,7 @@
 
 #include <cstdint>
 #include <unordered_map>
+#include <vector>
 
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
@@ -33,6 +34,20 @@ enum class Proxy {
            ///< to, and orthographic views, use planes)
 };
 
+/// Value ranges of a brick's texels over blocks of 2×2×2 knot cells. The field inside a cell lies
+/// within its eight texels, so the ranges bound, for any transfer function, the part of the brick
+/// that can be visible.
+struct BrickRanges {
+  glm::ivec3 blocks{0};           ///< blocks per axis
+  std::vector<glm::vec2> minMax;  ///< per block (x fastest): least and greatest texel
+};
+
+/// A brick's texture and the ranges of its texels.
+struct CachedBrick {
+  unsigned texture = 0;
+  BrickRanges ranges;
+};
+
 /// Brick textures kept across frames of one volume and octree: a view that is rendered again (an
 /// interactive viewer, progressive refinement, a benchmark) uploads only bricks it has not drawn
 /// before. Keyed by node, level and blended corners. Owns GL textures: destroy it, or clear() it,
@@ -44,15 +59,16 @@ class BrickTextureCache {
   BrickTextureCache& operator=(const BrickTextureCache&) = delete;
   ~BrickTextureCache() { clear(); }
 
-  /// The texture of brick @p b, or 0.
-  unsigned find(const Brick& b) const;
-  void insert(const Brick& b, unsigned texture);
+  /// Brick @p b's entry, or null.
+  const CachedBrick* find(const Brick& b) const;
+  /// Takes ownership of @p brick's texture.
+  const CachedBrick& insert(const Brick& b, CachedBrick brick);
   size_t size() const { return mTextures.size(); }
   void clear();
 
  private:
   static uint64_t key(const Brick& b) { return uint64_t(b.node) | uint64_t(uint8_t(b.p)) << 32 | uint64_t(b.coarseCorners) << 40; }
-  std::unordered_map<uint64_t, unsigned> mTextures;
+  std::unordered_map<uint64_t, CachedBrick> mTextures;
 };
 
 /// Options of the slice renderer.
@@ -69,6 +85,8 @@ struct SlicesOptions {
   const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
   bool cutLine = true;                    ///< draw the surface's intersection with the cutting plane
   BrickTextureCache* textures = nullptr;  ///< brick textures reused across frames (none: uploaded per frame)
+  bool visibleBoxes = true;             ///< slice only the box of each brick's cells that the transfer
+                                        ///< function can make visible (false: the whole brick; same image)
   bool slabOrder = true;                  ///< false: draw each brick's surface after its slices (a
                                           ///< deliberately wrong order, to show the tests catch it)
 };

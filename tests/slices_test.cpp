@@ -67,6 +67,36 @@ TEST(Slices, CachedBrickTexturesGiveTheSameImage) {
   EXPECT_EQ(cache.size(), 0u);
 }
 
+TEST(Slices, VisibleBoxesCutOnlyTransparentSpace) {
+  gl();
+  // A shell of material around a transparent core, with a translucent quad through it, at full
+  // resolution and with coarse, blended bricks: slicing only each brick's visible box must give
+  // the image of whole bricks (to rounding of the interpolated positions) with fewer fragments.
+  const Volume v = test::sphereVolume(glm::ivec3(48, 44, 40), 15.0);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf({{-1.0f, {1, 1, 1}, 0.0f}, {0.0f, {1.0f, 0.6f, 0.3f}, 0.4f}, {2.0f, {0.3f, 0.6f, 1.0f}, 0.4f}, {3.0f, {1, 1, 1}, 0.0f}}, "shell");
+  const TriangleMesh quad = quadAt(19.5, 2, 45, 2, 41);
+  SelectionParams coarse;
+  coarse.texelBudget = selectNodes(t, SelectionParams{}).texels / 4;
+  ASSERT_GT(selectNodes(t, coarse).blendedBricks, 0u);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64);
+  for (const SelectionParams& params : {SelectionParams{}, coarse}) {
+    const Selection sel = selectNodes(t, params);
+    SlicesOptions boxes, whole;
+    boxes.surface = whole.surface = &quad;
+    boxes.surfaceColor = whole.surfaceColor = glm::vec4(0.2f, 0.9f, 0.4f, 0.5f);
+    whole.visibleBoxes = false;
+    SlicesStats sb, sw;
+    const std::vector<uint8_t> a = toRgba8(renderSlices(v, t, sel, tf, cam, boxes, &sb), glm::vec3(0.0f));
+    const std::vector<uint8_t> b = toRgba8(renderSlices(v, t, sel, tf, cam, whole, &sw), glm::vec3(0.0f));
+    int worst = 0;
+    for (size_t k = 0; k < a.size(); ++k) worst = std::max(worst, std::abs(int(a[k]) - int(b[k])));
+    EXPECT_LE(worst, 1) << "budget " << params.texelBudget;
+    EXPECT_EQ(sb.slabPolygonDraws, sw.slabPolygonDraws);
+    EXPECT_LT(double(sb.fragments), 0.8 * double(sw.fragments)) << "budget " << params.texelBudget;
+  }
+}
+
 TEST(Slices, OpacityDoesNotDependOnTheSliceSpacing) {
   gl();
   // A homogeneous block viewed straight on: every slice spacing gives the same colour.
