@@ -145,13 +145,7 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
               if (a > 0.0f) {
                 double shade = 1.0;
                 if (options.shading) {
-                  const double h = 0.5;
-                  glm::dvec3 g;
-                  for (int k = 0; k < 3; ++k) {
-                    glm::dvec3 dq(0.0);
-                    dq[k] = h;
-                    g[k] = (double(volume.sample(glm::vec3(q + dq))) - double(volume.sample(glm::vec3(q - dq)))) / (2 * h * spacing[k]);
-                  }
+                  const glm::dvec3 g(volume.sampleGradient(glm::vec3(q)));
                   const double len = glm::length(g);
                   if (len > 1e-6) shade = headlight(g / len, d);
                 }

@@ -60,10 +60,10 @@ flat in float vKind;
 flat in vec2 vSlab;
 out vec4 fragColor;
 uniform vec4 surfaceColor;  // straight rgb, alpha per crossing
-uniform sampler3D volumeTex;  // the brick's lattice
+uniform sampler3D volumeTex;  // the brick's lattice: normalised value, gradient direction
 uniform sampler1D tfTex;
 uniform vec3 fineScale, fineOffset;  // world mm -> the brick texture's coordinates
-uniform vec3 gradientStep;           // half a texel, mm
+uniform float valueOffset, valueScale;  // normalised value -> data units
 uniform float tfMin, tfScale, tfSize;
 uniform vec3 eye, forward;
 uniform float sliceSpacing;  // mm between this brick's slice planes along forward
@@ -78,9 +78,6 @@ float voiFactor(vec3 x) {
   float t = voiRamp > 0.0 ? clamp(0.5 - d / voiRamp, 0.0, 1.0) : (d <= 0.0 ? 1.0 : 0.0);
   return mix(voiOutside, voiInside, t * t * (3.0 - 2.0 * t));
 }
-
-// The brick's field at world position x (blending towards coarser bricks is baked into its texels).
-float sampleAt(vec3 x) { return texture(volumeTex, x * fineScale + fineOffset).r; }
 
 // The unit ray direction through this fragment.
 vec3 rayDirection() {
@@ -106,7 +103,9 @@ void main() {
   }
 #endif
   vec3 x = vWorld;
-  float v = sampleAt(x);
+  // The brick's field and gradient at x (blending towards coarser bricks is baked into its texels).
+  vec4 texel = texture(volumeTex, x * fineScale + fineOffset);
+  float v = valueOffset + valueScale * texel.x;
   vec4 c = texture(tfTex, ((v - tfMin) * tfScale + 0.5) / tfSize);
   if (c.a <= 0.0) discard;
 #if CUT
@@ -131,10 +130,7 @@ void main() {
   float shade = 1.0;
 #if SHADING
   {
-    vec3 h = gradientStep;
-    vec3 g = vec3(sampleAt(x + vec3(h.x, 0, 0)) - sampleAt(x - vec3(h.x, 0, 0)),
-                  sampleAt(x + vec3(0, h.y, 0)) - sampleAt(x - vec3(0, h.y, 0)),
-                  sampleAt(x + vec3(0, 0, h.z)) - sampleAt(x - vec3(0, 0, h.z))) / (2.0 * h);
+    vec3 g = texel.yzw;
     float m = length(g);
     if (m > 1e-6) shade = 0.25 + 0.75 * abs(dot(g / m, dir));
   }

@@ -88,7 +88,7 @@ struct FloatTarget {
   }
 };
 
-// A 3D texture on unit 0 with trilinear filtering and clamped edges, for one R32F volume.
+// A 3D texture on unit 0 with trilinear filtering and clamped edges.
 GLuint newVolumeTexture() {
   GLuint tex;
   glGenTextures(1, &tex);
@@ -105,11 +105,12 @@ GLuint newVolumeTexture() {
 // last texel extrapolated so that uniform trilinear filtering reproduces the lattice's
 // position-clamped trilinear field exactly.
 template <class Value>
-std::vector<float> latticeTexels(const KnotLattice& L, const Value& value) {
+auto latticeTexels(const KnotLattice& L, const Value& value) {
+  using T = decltype(value(glm::ivec3()));
   const glm::ivec3 d = L.dims;
   const int s = L.step;
-  std::vector<float> out(size_t(L.count()));
-  auto at = [&](int i, int j, int k) -> float& { return out[size_t(i) + size_t(d.x) * (size_t(j) + size_t(d.y) * size_t(k))]; };
+  std::vector<T> out(size_t(L.count()));
+  auto at = [&](int i, int j, int k) -> T& { return out[size_t(i) + size_t(d.x) * (size_t(j) + size_t(d.y) * size_t(k))]; };
   auto knot = [&](int a, int j) { return std::min(L.origin[a] + j * s, L.last[a]); };
   for (int k = 0; k < d.z; ++k)
     for (int j = 0; j < d.y; ++j)
@@ -125,8 +126,8 @@ std::vector<float> latticeTexels(const KnotLattice& L, const Value& value) {
           if (q[a] != m) continue;
           glm::ivec3 r = q;
           r[a] = m - 1;
-          float& last = at(q.x, q.y, q.z);
-          const float prev = at(r.x, r.y, r.z);
+          T& last = at(q.x, q.y, q.z);
+          const T prev = at(r.x, r.y, r.z);
           last = prev + (last - prev) * scale;
         }
   }
@@ -149,27 +150,65 @@ float latticeField(const Volume& v, const KnotLattice& L, const glm::ivec3& p) {
   return glm::mix(glm::mix(x00, x10, t.y), glm::mix(x01, x11, t.y), t.z);
 }
 
-// The texels of brick @p b: its lattice's samples or, when a corner blends (Carmona et al.),
-// mix(coarse field, sample, w) with w trilinear in the corner weights over the node's box.
-std::vector<float> brickTexels(const Volume& v, const VolumeOctree& t, const Brick& b) {
+// The texels of brick @p b, value and gradient: its lattice's samples or, when a corner blends
+// (Carmona et al.), mix(coarse field, sample, w) with w trilinear in the corner weights over the
+// node's box. The gradient at a knot takes central differences of that field one knot step away
+// (one-sided on the volume's faces): at full resolution, Volume::gradientAt.
+std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const Brick& b) {
   const OctreeNode& n = t.nodes()[b.node];
   const KnotLattice fine = t.lattice(n, b.p);
-  if (!b.coarseCorners) return latticeTexels(fine, [&](const glm::ivec3& p) { return v.at(p.x, p.y, p.z); });
-  const KnotLattice coarse = t.coarseLattice(n, b.p);
+  const KnotLattice coarse = b.coarseCorners ? t.coarseLattice(n, b.p) : fine;
   const glm::vec3 origin(n.origin);
   const float edge = float(t.edge(n));
-  return latticeTexels(fine, [&](const glm::ivec3& p) {
-    const glm::vec3 u = (glm::vec3(p) - origin) / edge;
+  auto field = [&](const glm::ivec3& p) {
+    if (!b.coarseCorners) return v.at(p.x, p.y, p.z);
+    const glm::vec3 u = glm::clamp((glm::vec3(p) - origin) / edge, 0.0f, 1.0f);
     float w = 0.0f;
     for (int c = 0; c < 8; ++c)
       if (!((b.coarseCorners >> c) & 1))
         w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
-    return glm::mix(latticeField(v, coarse, p), v.at(p.x, p.y, p.z), w);
+    return glm::mix(latticeField(v, coarse, glm::clamp(p, coarse.origin, coarse.last)), v.at(p.x, p.y, p.z), w);
+  };
+  const glm::ivec3 dims = v.dims();
+  const glm::dvec3 spacing = v.spacing();
+  return latticeTexels(fine, [&](const glm::ivec3& p) {
+    glm::vec4 out(field(p), 0.0f, 0.0f, 0.0f);
+    for (int a = 0; a < 3; ++a) {
+      glm::ivec3 lo = p, hi = p;
+      lo[a] = std::max(p[a] - fine.step, 0);
+      hi[a] = std::min(p[a] + fine.step, dims[a] - 1);
+      if (hi[a] > lo[a]) out[a + 1] = float(double(field(hi) - field(lo)) / (double(hi[a] - lo[a]) * spacing[a]));
+    }
+    return out;
   });
 }
 
+// Uploads @p texels as an RGBA16_SNORM texture: the value mapped from its range to [-1, 1] (the
+// brick's offset and scale undo it), the gradient divided by its largest component (shading uses
+// only its direction). 16 bits hold the value to 1/65534 of the brick's range.
+CachedBrick uploadBrick(const std::vector<glm::vec4>& texels, const glm::ivec3& dims) {
+  float lo = std::numeric_limits<float>::max(), hi = std::numeric_limits<float>::lowest(), gmax = 0.0f;
+  for (const glm::vec4& t : texels) {
+    lo = std::min(lo, t.x);
+    hi = std::max(hi, t.x);
+    gmax = std::max({gmax, std::abs(t.y), std::abs(t.z), std::abs(t.w)});
+  }
+  CachedBrick brick;
+  brick.valueOffset = 0.5f * (lo + hi);
+  brick.valueScale = hi > lo ? 0.5f * (hi - lo) : 1.0f;
+  const float toValue = 1.0f / brick.valueScale, toGradient = gmax > 0.0f ? 1.0f / gmax : 0.0f;
+  auto snorm = [](float x) { return int16_t(std::lround(std::clamp(x, -1.0f, 1.0f) * 32767.0f)); };
+  std::vector<int16_t> packed;
+  packed.reserve(texels.size() * 4);
+  for (const glm::vec4& t : texels)
+    packed.insert(packed.end(), {snorm((t.x - brick.valueOffset) * toValue), snorm(t.y * toGradient), snorm(t.z * toGradient), snorm(t.w * toGradient)});
+  brick.texture = newVolumeTexture();
+  glTexImage3D(GL_TEXTURE_3D, 0, GL_RGBA16_SNORM, dims.x, dims.y, dims.z, 0, GL_RGBA, GL_SHORT, packed.data());
+  return brick;
+}
+
 // The ranges of @p texels (a lattice of @p dims knots) over blocks of 2×2×2 cells.
-BrickRanges texelRanges(const std::vector<float>& texels, const glm::ivec3& dims) {
+BrickRanges texelRanges(const std::vector<glm::vec4>& texels, const glm::ivec3& dims) {
   BrickRanges r;
   r.blocks = (glm::max(dims - 1, 1) + 1) / 2;
   r.minMax.reserve(size_t(r.blocks.x) * r.blocks.y * r.blocks.z);
@@ -181,7 +220,7 @@ BrickRanges texelRanges(const std::vector<float>& texels, const glm::ivec3& dims
         for (int k = lo.z; k <= hi.z; ++k)
           for (int j = lo.y; j <= hi.y; ++j)
             for (int i = lo.x; i <= hi.x; ++i) {
-              const float t = texels[size_t(i) + size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k))];
+              const float t = texels[size_t(i) + size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k))].x;
               m = glm::vec2(std::min(m.x, t), std::max(m.y, t));
             }
         r.minMax.push_back(m);
@@ -661,9 +700,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       const CachedBrick* cached = options.textures ? options.textures->find(b) : nullptr;
       CachedBrick made;
       if (!cached) {
-        const std::vector<float> texels = brickTexels(volume, octree, b);
-        made.texture = newVolumeTexture();
-        glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, fine.dims.x, fine.dims.y, fine.dims.z, 0, GL_RED, GL_FLOAT, texels.data());
+        const std::vector<glm::vec4> texels = brickTexels(volume, octree, b);
+        made = uploadBrick(texels, fine.dims);
         made.ranges = texelRanges(texels, fine.dims);
         if (options.textures)
           cached = &options.textures->insert(b, std::move(made));
@@ -685,10 +723,10 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       // The texture coordinates are affine in world mm: uv = x·scale + offset.
       const glm::dvec3 d(fine.dims), scale = 1.0 / (spacing * double(fine.step) * d);
       const glm::dvec3 offset = (0.5 - glm::dvec3(fine.origin) / double(fine.step)) / d;
-      const glm::dvec3 h = 0.5 * double(fine.step) * spacing;
       glUniform3f(slices.at("fineScale"), float(scale.x), float(scale.y), float(scale.z));
       glUniform3f(slices.at("fineOffset"), float(offset.x), float(offset.y), float(offset.z));
-      glUniform3f(slices.at("gradientStep"), float(h.x), float(h.y), float(h.z));
+      glUniform1f(slices.at("valueOffset"), brick.valueOffset);
+      glUniform1f(slices.at("valueScale"), brick.valueScale);
     }
     const bool holdsEye = !camera.ortho && glm::all(glm::greaterThanEqual(camera.eye, blo)) && glm::all(glm::lessThanEqual(camera.eye, bhi));
     const double delta = baseDelta * (sliced && trianglesOf[i].empty() && !holdsEye ? fine.step : 1);
@@ -785,7 +823,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     glDrawArrays(GL_TRIANGLES, GLint(cutVertices), GLsizei(poly.size() / 9 - cutVertices));
   }
   if (options.cut && options.cutLine && options.surface) drawCutLine(*options.surface, cut, viewProj, options.surfaceColor, &st);
-  st.textureBytes = st.texels * sizeof(float);
+  st.textureBytes = st.texels * kBytesPerTexel;
   glEndQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB);
   GLuint fragments = 0;  // libOSMesa exports only the 32-bit getter; frames stay below 2^32 fragments
   glGetQueryObjectuiv(query, GL_QUERY_RESULT, &fragments);

@@ -42,9 +42,14 @@ struct BrickRanges {
   std::vector<glm::vec2> minMax;  ///< per block (x fastest): least and greatest texel
 };
 
-/// A brick's texture and the ranges of its texels.
+/// Bytes of one brick texel: value and gradient, 16 bits each (RGBA16_SNORM).
+inline constexpr uint64_t kBytesPerTexel = 8;
+
+/// A brick's texture, the mapping of its normalised values back to data units, and the ranges of
+/// its texels.
 struct CachedBrick {
   unsigned texture = 0;
+  float valueOffset = 0.0f, valueScale = 1.0f;  ///< value = offset + scale · texel
   BrickRanges ranges;
 };
 

@@ -172,9 +172,9 @@ TEST(MultiresCranium, AccuracyAndBytesFallAsEpsilonGrowsOrTheBudgetShrinks) {
   std::vector<Result> byBudget{byEpsilon.front()};
   for (double fraction : {0.5, 0.25, 0.125, 0.0625}) {
     SelectionParams p = base;
-    p.texelBudget = uint64_t(fraction * double(byEpsilon.front().bytes) / 4.0);
+    p.texelBudget = uint64_t(fraction * double(byEpsilon.front().bytes) / double(kBytesPerTexel));
     byBudget.push_back(run(p));
-    EXPECT_LE(byBudget.back().bytes, p.texelBudget * 4);
+    EXPECT_LE(byBudget.back().bytes, p.texelBudget * kBytesPerTexel);
   }
   expectFalling(byBudget, "budget");
 }

@@ -96,6 +96,29 @@ float Volume::sample(const glm::vec3& p) const {
   return lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z);
 }
 
+glm::vec3 Volume::gradientAt(int i, int j, int k) const {
+  const glm::ivec3 p(i, j, k);
+  glm::vec3 g(0.0f);
+  for (int a = 0; a < 3; ++a) {
+    glm::ivec3 lo = p, hi = p;
+    lo[a] = std::max(p[a] - 1, 0);
+    hi[a] = std::min(p[a] + 1, mDims[a] - 1);
+    if (hi[a] > lo[a]) g[a] = float(double(at(hi.x, hi.y, hi.z) - at(lo.x, lo.y, lo.z)) / (double(hi[a] - lo[a]) * mSpacing[a]));
+  }
+  return g;
+}
+
+glm::vec3 Volume::sampleGradient(const glm::vec3& p) const {
+  const glm::vec3 q = glm::clamp(p, glm::vec3(0.0f), glm::vec3(mDims - 1));
+  const glm::ivec3 i0 = glm::min(glm::ivec3(q), mDims - 1);
+  const glm::ivec3 i1 = glm::min(i0 + 1, mDims - 1);
+  const glm::vec3 t = q - glm::vec3(i0);
+  auto g = [&](int c) { return gradientAt(c & 1 ? i1.x : i0.x, c & 2 ? i1.y : i0.y, c & 4 ? i1.z : i0.z); };
+  const glm::vec3 c00 = glm::mix(g(0), g(1), t.x), c10 = glm::mix(g(2), g(3), t.x);
+  const glm::vec3 c01 = glm::mix(g(4), g(5), t.x), c11 = glm::mix(g(6), g(7), t.x);
+  return glm::mix(glm::mix(c00, c10, t.y), glm::mix(c01, c11, t.y), t.z);
+}
+
 std::string Volume::toString() const {
   std::ostringstream s;
   s << "dims     " << mDims.x << " x " << mDims.y << " x " << mDims.z << " (" << voxelCount() << " voxels)\n";

@@ -80,6 +80,12 @@ class Volume {
   }
   /// Trilinear sample at a position in voxel units (voxel centres at integers), clamped to the grid.
   float sample(const glm::vec3& p) const;
+  /// Gradient at voxel (i,j,k) in data units per mm: central differences, one-sided on the grid's
+  /// faces, zero along an axis of one sample.
+  glm::vec3 gradientAt(int i, int j, int k) const;
+  /// Gradient at a position in voxel units: the voxel gradients interpolated trilinearly (Levoy
+  /// 1988), clamped to the grid like sample().
+  glm::vec3 sampleGradient(const glm::vec3& p) const;
 
   /// World-space (mm) extent of the data domain: the box spanned by the voxel centres.
   glm::dvec3 extentMm() const { return glm::dvec3(mDims - 1) * mSpacing; }
