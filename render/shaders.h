@@ -20,16 +20,15 @@ void main() {
 )";
 
 /// One brick's stream of slices and translucent surface triangles in draw order. kind 0: a slice;
-/// kind 1: a surface triangle clipped to its slab [slab.x, slab.y] of view depth (SlabPolygon);
-/// kind 2: the brick's piece of the cutting plane. All but the plane are clipped by it.
+/// kind 1: a surface triangle in its slab [slab.x, slab.y] (SlabPolygon; clipped to planar slabs
+/// on the CPU, to shells per fragment); kind 2: the brick's piece of the cutting plane. All but the
+/// plane are clipped by it (GL_CLIP_DISTANCE0 is enabled only when there is one).
 inline constexpr const char* kStreamVertex = R"(#version 450 core
 layout(location = 0) in vec3 position;
 layout(location = 1) in vec3 normal;
 layout(location = 2) in vec3 kindSlab;  // kind, slab near depth, slab far depth
 uniform mat4 viewProj;
-uniform vec3 forward;
 uniform vec4 cutPlane;  // kept where dot(cutPlane.xyz, x) + cutPlane.w >= 0
-uniform int shells;     // 1: slabs are spherical shells around the eye, clipped per fragment
 out vec3 vWorld;
 out vec3 vNormal;
 flat out float vKind;
@@ -39,10 +38,7 @@ void main() {
   vNormal = normal;
   vKind = kindSlab.x;
   vSlab = kindSlab.yz;
-  float depth = dot(forward, position);
-  gl_ClipDistance[0] = shells == 1 ? 1.0 : depth - kindSlab.y;
-  gl_ClipDistance[1] = shells == 1 ? 1.0 : kindSlab.z - depth;
-  gl_ClipDistance[2] = kindSlab.x > 1.5 ? 1.0 : dot(cutPlane.xyz, position) + cutPlane.w;
+  gl_ClipDistance[0] = kindSlab.x > 1.5 ? 1.0 : dot(cutPlane.xyz, position) + cutPlane.w;
   gl_Position = viewProj * vec4(position, 1.0);
 }
 )";

@@ -463,7 +463,6 @@ void drawOpaqueSurface(const TriangleMesh& surface, const glm::mat4& viewProj, c
   glUniform1i(surf.at("ortho"), camera.ortho ? 1 : 0);
   glUniform3fv(surf.at("color"), 1, glm::value_ptr(color));
   glUniform4fv(surf.at("cutPlane"), 1, glm::value_ptr(cutPlane));
-  glEnable(GL_CLIP_DISTANCE0);
   glDrawArrays(GL_TRIANGLES, 0, GLsizei(data.size() / 6));
 }
 
@@ -559,6 +558,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   // The cutting plane's kept side (everything kept without a plane).
   const glm::dvec4 cut = options.cut ? options.cut->keptSide(camera) : glm::dvec4(0, 0, 0, 1);
   const glm::vec4 cutPlane(cut);
+  if (options.cut) glEnable(GL_CLIP_DISTANCE0);
 
   // Opaque surface first, writing depth.
   const bool translucent = options.surface && !options.surface->triangles.empty() && options.surfaceColor.a < 1.0f;
@@ -609,9 +609,6 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glEnableVertexAttribArray(0);
   glEnableVertexAttribArray(1);
   glEnableVertexAttribArray(2);
-  glEnable(GL_CLIP_DISTANCE0);
-  glEnable(GL_CLIP_DISTANCE1);
-  glEnable(GL_CLIP_DISTANCE2);
   glDepthMask(GL_FALSE);
   glEnable(GL_BLEND);
   glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
@@ -840,8 +837,6 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     }
   const GLenum err = glGetError();
   glDisable(GL_CLIP_DISTANCE0);
-  glDisable(GL_CLIP_DISTANCE1);
-  glDisable(GL_CLIP_DISTANCE2);
   glDeleteTextures(GLsizei(textures.size()), textures.data());
   glDeleteBuffers(GLsizei(buffers.size()), buffers.data());
   glDeleteTextures(1, &tfTex);
