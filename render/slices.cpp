@@ -10,10 +10,13 @@
 #include <glm/gtc/type_ptr.hpp>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <limits>
 #include <string>
+#include <thread>
 
 #include "render/shaders.h"
 #include "volume/error.h"
@@ -625,75 +628,46 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   GLuint query;
   glGenQueries(1, &query);
   glBeginQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB, query);
-  std::vector<float> poly;
   // A texture object per brick: re-specifying one shared texture would make llvmpipe wait for the
   // previous brick's draws before every upload.
   std::vector<GLuint> textures, buffers;
-  // A slab instance of a translucent triangle: which triangle, its slab, whether to clip, sort key.
-  struct Instance {
-    uint32_t triangle;
-    long long slab;
-    bool clip;
-    double depth;
+
+  // What one brick draws: planned on this thread (textures are GL work), its vertex stream built
+  // by a worker thread while this one submits the bricks before it to llvmpipe, whose vertex
+  // processing runs on the submitting thread: the two halves of the per-brick work overlap.
+  struct BrickDraw {
+    uint32_t node = 0;
+    bool visible = false, sliced = false, shell = false;
+    GLuint texture = 0;
+    glm::vec3 fineScale{0.0f}, fineOffset{0.0f};
+    float valueOffset = 0.0f, valueScale = 1.0f;
+    double delta = 0.0;
+    glm::dvec3 blo{0.0}, bhi{0.0}, slo{0.0}, shi{0.0};
+    ShellFrame frame{};
+    // Built by the worker:
+    std::vector<float> stream;  // 9 floats a vertex: position, normal, kind and slab
+    size_t cutVertices = 0;
+    SlicesStats counts;  // slices, surface triangles, slab polygon draws, cut polygons
   };
-  std::vector<Instance> instances;
-  auto emitSlice = [&](const std::vector<float>& polygon) {
-    for (size_t v = 0; v < polygon.size(); v += 3)
-      poly.insert(poly.end(), {polygon[v], polygon[v + 1], polygon[v + 2], 0, 0, 0, 0, -1e30f, 1e30f});
-  };
-  // A slab instance of a translucent triangle. Between planes it is clipped to its slab here: the
-  // piece is at most a pentagon, and llvmpipe's clipper (gl_ClipDistance) was the costliest step of
-  // drawing slab triangles (~0.3 µs a clipped triangle). Shell slabs are clipped per fragment.
-  auto emitTriangle = [&](const Instance& in, double delta, bool shellSlabs) {
-    const glm::uvec3 tr = options.surface->triangles[in.triangle];
-    const glm::vec3 a = options.surface->vertices[tr.x], b = options.surface->vertices[tr.y], c = options.surface->vertices[tr.z];
-    const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
-    ++st.slabPolygonDraws;
-    auto put = [&](const glm::vec3& p, float lo, float hi) { poly.insert(poly.end(), {p.x, p.y, p.z, n.x, n.y, n.z, 1.0f, lo, hi}); };
-    if (!in.clip || shellSlabs) {
-      const float lo = in.clip ? float(double(in.slab) * delta) : -1e30f, hi = in.clip ? float(double(in.slab + 1) * delta) : 1e30f;
-      for (const glm::vec3& p : {a, b, c}) put(p, lo, hi);
-      return;
-    }
-    std::array<glm::dvec3, 5> piece{glm::dvec3(a), glm::dvec3(b), glm::dvec3(c)}, kept;
-    size_t count = 3;
-    const double lo = double(in.slab) * delta, hi = double(in.slab + 1) * delta;
-    for (const auto& [sign, bound] : {std::pair{1.0, lo}, std::pair{-1.0, -hi}}) {  // depth ≥ lo, then −depth ≥ −hi
-      size_t m = 0;
-      for (size_t v = 0; v < count; ++v) {
-        const glm::dvec3 &p = piece[v], &q = piece[(v + 1) % count];
-        const double dp = sign * glm::dot(f, p) - bound, dq = sign * glm::dot(f, q) - bound;
-        if (dp >= 0) kept[m++] = p;
-        if ((dp >= 0) != (dq >= 0)) kept[m++] = p + (q - p) * (dp / (dp - dq));
-      }
-      piece = kept;
-      count = m;
-    }
-    for (size_t v = 1; v + 1 < count; ++v)
-      for (const glm::dvec3& p : {piece[0], piece[v], piece[v + 1]}) put(glm::vec3(p), -1e30f, 1e30f);
-  };
-  std::vector<float> one;
+  std::vector<BrickDraw> draws;
+  draws.reserve(order.size());
   for (uint32_t i : order) {
     const Brick& b = selection.bricks[size_t(brickOf[i])];
     const OctreeNode& n = octree.nodes()[i];
+    BrickDraw d;
+    d.node = i;
     // Hidden (transparent or culled) bricks cost no texels; their surface triangles are still drawn.
-    const bool visible = !b.hidden && tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
-    const std::vector<uint32_t> noTriangles;
-    const std::vector<uint32_t>& slabTriangles = translucent ? trianglesOf[i] : noTriangles;
-    if (!visible && slabTriangles.empty()) continue;
+    d.visible = !b.hidden && tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
+    if (!d.visible && (!translucent || trianglesOf[i].empty())) continue;
     glm::ivec3 lo, hi;
     octree.voxelBox(n, &lo, &hi);
-    const glm::dvec3 blo = glm::dvec3(lo) * spacing, bhi = glm::dvec3(hi) * spacing;
-    // Slices every `ratio` base spacings: each level is sampled at its own rate (LaMar 1999) and
-    // the shader corrects the opacity for it; the planes stay a subset of the global ones. Bricks
-    // holding surface polygons or the eye keep the base spacing, so that surfaces and the near
-    // plane cut the volume at the finest depth resolution.
+    d.blo = d.slo = glm::dvec3(lo) * spacing;
+    d.bhi = d.shi = glm::dvec3(hi) * spacing;
     const KnotLattice fine = octree.lattice(n, b.p);
     // Slices cover only the box of cells the transfer function can make visible (empty-space
     // skipping inside the brick; the fragments cut away would all be discarded).
-    bool sliced = visible;
-    glm::dvec3 slo = blo, shi = bhi;
-    if (visible) {
+    d.sliced = d.visible;
+    if (d.visible) {
       const CachedBrick* cached = options.textures ? options.textures->find(b) : nullptr;
       CachedBrick made;
       if (!cached) {
@@ -706,119 +680,207 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
           textures.push_back(made.texture);
       }
       const CachedBrick& brick = cached ? *cached : made;
-      glActiveTexture(GL_TEXTURE0);
-      glBindTexture(GL_TEXTURE_3D, brick.texture);
+      d.texture = brick.texture;
+      d.valueOffset = brick.valueOffset;
+      d.valueScale = brick.valueScale;
       st.texels += fine.count();
       ++st.bricks;
       st.blendedBricks += b.coarseCorners != 0;
       if (options.visibleBoxes) {
         glm::dvec3 vlo(0.0), vhi(0.0);
-        sliced = visibleBox(brick.ranges, fine, support, &vlo, &vhi);
-        slo = glm::max(blo, vlo * spacing);
-        shi = glm::min(bhi, vhi * spacing);
+        d.sliced = visibleBox(brick.ranges, fine, support, &vlo, &vhi);
+        d.slo = glm::max(d.blo, vlo * spacing);
+        d.shi = glm::min(d.bhi, vhi * spacing);
       }
       // The texture coordinates are affine in world mm: uv = x·scale + offset.
-      const glm::dvec3 d(fine.dims), scale = 1.0 / (spacing * double(fine.step) * d);
-      const glm::dvec3 offset = (0.5 - glm::dvec3(fine.origin) / double(fine.step)) / d;
-      glUniform3f(slices.at("fineScale"), float(scale.x), float(scale.y), float(scale.z));
-      glUniform3f(slices.at("fineOffset"), float(offset.x), float(offset.y), float(offset.z));
-      glUniform1f(slices.at("valueOffset"), brick.valueOffset);
-      glUniform1f(slices.at("valueScale"), brick.valueScale);
+      const glm::dvec3 dims(fine.dims);
+      d.fineScale = glm::vec3(1.0 / (spacing * double(fine.step) * dims));
+      d.fineOffset = glm::vec3((0.5 - glm::dvec3(fine.origin) / double(fine.step)) / dims);
     }
-    const bool holdsEye = !camera.ortho && glm::all(glm::greaterThanEqual(camera.eye, blo)) && glm::all(glm::lessThanEqual(camera.eye, bhi));
-    const double delta = baseDelta * (sliced && trianglesOf[i].empty() && !holdsEye ? fine.step : 1);
-    glUniform1f(slices.at("sliceSpacing"), float(delta));
+    // Slices every `ratio` base spacings: each level is sampled at its own rate (LaMar 1999) and
+    // the shader corrects the opacity for it; the planes stay a subset of the global ones. Bricks
+    // holding surface polygons or the eye keep the base spacing, so that surfaces and the near
+    // plane cut the volume at the finest depth resolution.
+    const bool holdsEye = !camera.ortho && glm::all(glm::greaterThanEqual(camera.eye, d.blo)) && glm::all(glm::lessThanEqual(camera.eye, d.bhi));
+    d.delta = baseDelta * (d.sliced && trianglesOf[i].empty() && !holdsEye ? fine.step : 1);
+    d.shell = options.proxy == Proxy::Shells && !camera.ortho && shellFrame(d.blo, d.bhi, camera.eye, &d.frame);
+    st.shellBricks += d.shell && d.sliced;
+    draws.push_back(std::move(d));
+  }
+
+  // A slab instance of a translucent triangle: which triangle, its slab, whether to clip, sort key.
+  struct Instance {
+    uint32_t triangle;
+    long long slab;
+    bool clip;
+    double depth;
+  };
+  // Builds brick @p d's vertex stream: its piece of the cutting plane, then slices far to near
+  // with each SlabPolygon list before the slice that closes its slab.
+  auto buildStream = [&](BrickDraw& d, std::vector<Instance>& instances, std::vector<float>& one) {
+    std::vector<float>& poly = d.stream;
+    auto emitSlice = [&](const std::vector<float>& polygon) {
+      for (size_t v = 0; v < polygon.size(); v += 3)
+        poly.insert(poly.end(), {polygon[v], polygon[v + 1], polygon[v + 2], 0, 0, 0, 0, -1e30f, 1e30f});
+    };
+    // A slab instance of a translucent triangle. Between planes it is clipped to its slab here: the
+    // piece is at most a pentagon, and llvmpipe's clipper (gl_ClipDistance) was the costliest step of
+    // drawing slab triangles (~0.3 µs a clipped triangle). Shell slabs are clipped per fragment.
+    auto emitTriangle = [&](const Instance& in) {
+      const glm::uvec3 tr = options.surface->triangles[in.triangle];
+      const glm::vec3 a = options.surface->vertices[tr.x], b = options.surface->vertices[tr.y], c = options.surface->vertices[tr.z];
+      const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
+      ++d.counts.slabPolygonDraws;
+      auto put = [&](const glm::vec3& p, float lo, float hi) { poly.insert(poly.end(), {p.x, p.y, p.z, n.x, n.y, n.z, 1.0f, lo, hi}); };
+      if (!in.clip || d.shell) {
+        const float lo = in.clip ? float(double(in.slab) * d.delta) : -1e30f, hi = in.clip ? float(double(in.slab + 1) * d.delta) : 1e30f;
+        for (const glm::vec3& p : {a, b, c}) put(p, lo, hi);
+        return;
+      }
+      std::array<glm::dvec3, 5> piece{glm::dvec3(a), glm::dvec3(b), glm::dvec3(c)}, kept;
+      size_t count = 3;
+      const double lo = double(in.slab) * d.delta, hi = double(in.slab + 1) * d.delta;
+      for (const auto& [sign, bound] : {std::pair{1.0, lo}, std::pair{-1.0, -hi}}) {  // depth ≥ lo, then −depth ≥ −hi
+        size_t m = 0;
+        for (size_t v = 0; v < count; ++v) {
+          const glm::dvec3 &p = piece[v], &q = piece[(v + 1) % count];
+          const double dp = sign * glm::dot(f, p) - bound, dq = sign * glm::dot(f, q) - bound;
+          if (dp >= 0) kept[m++] = p;
+          if ((dp >= 0) != (dq >= 0)) kept[m++] = p + (q - p) * (dp / (dp - dq));
+        }
+        piece = kept;
+        count = m;
+      }
+      for (size_t v = 1; v + 1 < count; ++v)
+        for (const glm::dvec3& p : {piece[0], piece[v], piece[v + 1]}) put(glm::vec3(p), -1e30f, 1e30f);
+    };
     // Proxies: global planes f·X = k·delta, or shells |X − eye| = k·delta (LaMar 1999); "depth"
     // below is f·X or |X − eye| accordingly. This brick owns the proxies with depth in [bmin, bmax).
-    ShellFrame frame{};
-    const bool shell = options.proxy == Proxy::Shells && !camera.ortho && shellFrame(blo, bhi, camera.eye, &frame);
-    glUniform1i(slices.at("shells"), shell ? 1 : 0);
-    st.shellBricks += shell && sliced;
     double bmin = 1e300, bmax = -1e300;
     for (int c = 0; c < 8; ++c) {
-      const glm::dvec3 p((c & 1) ? bhi.x : blo.x, (c & 2) ? bhi.y : blo.y, (c & 4) ? bhi.z : blo.z);
-      const double d = shell ? glm::length(p - camera.eye) : glm::dot(f, p);
-      bmin = std::min(bmin, d);
-      bmax = std::max(bmax, d);
+      const glm::dvec3 p((c & 1) ? d.bhi.x : d.blo.x, (c & 2) ? d.bhi.y : d.blo.y, (c & 4) ? d.bhi.z : d.blo.z);
+      const double depth = d.shell ? glm::length(p - camera.eye) : glm::dot(f, p);
+      bmin = std::min(bmin, depth);
+      bmax = std::max(bmax, depth);
     }
-    if (shell) bmin = glm::length(camera.eye - glm::clamp(camera.eye, blo, bhi));
+    if (d.shell) bmin = glm::length(camera.eye - glm::clamp(camera.eye, d.blo, d.bhi));
     // Shell tessellation: chords whose sagitta stays below a quarter of the spacing.
     auto shellCells = [&](double r) {
-      const double theta = 2.0 * std::acos(std::max(-1.0, 1.0 - delta / (4.0 * r)));
-      return std::clamp(int(std::ceil(std::max(frame.s1 - frame.s0, frame.t1 - frame.t0) / theta)), 1, 32);
+      const double theta = 2.0 * std::acos(std::max(-1.0, 1.0 - d.delta / (4.0 * r)));
+      return std::clamp(int(std::ceil(std::max(d.frame.s1 - d.frame.s0, d.frame.t1 - d.frame.t0) / theta)), 1, 32);
     };
     // SlabPolygon list: slab k = [k·delta, (k+1)·delta); a triangle goes into every slab its depth
     // range covers, clipped to the slab when it covers more than one.
     instances.clear();
-    long long kLo = (long long)std::floor(bmin / delta) - 1, kHi = (long long)std::ceil(bmax / delta);
-    for (uint32_t ti : slabTriangles) {
-      const glm::uvec3 tr = options.surface->triangles[ti];
-      double dmn = 1e300, dmx = -1e300, sum = 0;
-      for (int k = 0; k < 3; ++k) {
-        const glm::dvec3 p(options.surface->vertices[tr[k]]);
-        const double d = shell ? glm::length(p - camera.eye) : glm::dot(f, p);
-        dmn = std::min(dmn, d);
-        dmx = std::max(dmx, d);
-        sum += d;
+    long long kLo = (long long)std::floor(bmin / d.delta) - 1, kHi = (long long)std::ceil(bmax / d.delta);
+    if (translucent)
+      for (uint32_t ti : trianglesOf[d.node]) {
+        const glm::uvec3 tr = options.surface->triangles[ti];
+        double dmn = 1e300, dmx = -1e300, sum = 0;
+        for (int k = 0; k < 3; ++k) {
+          const glm::dvec3 p(options.surface->vertices[tr[k]]);
+          const double depth = d.shell ? glm::length(p - camera.eye) : glm::dot(f, p);
+          dmn = std::min(dmn, depth);
+          dmx = std::max(dmx, depth);
+          sum += depth;
+        }
+        if (d.shell)  // the nearest point of a triangle to the eye may lie inside it
+          dmn = distanceToTriangle(camera.eye, glm::dvec3(options.surface->vertices[tr.x]), glm::dvec3(options.surface->vertices[tr.y]),
+                                   glm::dvec3(options.surface->vertices[tr.z]));
+        // A brick without slices needs no slabs: its triangles are only sorted back to front.
+        const long long k0 = d.sliced ? (long long)std::floor(dmn / d.delta) : 0, k1 = d.sliced ? (long long)std::floor(dmx / d.delta) : 0;
+        for (long long k = k0; k <= k1; ++k)
+          instances.push_back({ti, k, k1 > k0, d.sliced ? std::clamp(sum / 3, double(k) * d.delta, double(k + 1) * d.delta) : sum / 3});
+        if (d.sliced) {
+          kLo = std::min(kLo, k0);
+          kHi = std::max(kHi, k1);
+        }
+        ++d.counts.surfaceTriangles;
       }
-      if (shell)  // the nearest point of a triangle to the eye may lie inside it
-        dmn = distanceToTriangle(camera.eye, glm::dvec3(options.surface->vertices[tr.x]), glm::dvec3(options.surface->vertices[tr.y]),
-                                 glm::dvec3(options.surface->vertices[tr.z]));
-      // A brick without slices needs no slabs: its triangles are only sorted back to front.
-      const long long k0 = sliced ? (long long)std::floor(dmn / delta) : 0, k1 = sliced ? (long long)std::floor(dmx / delta) : 0;
-      for (long long k = k0; k <= k1; ++k)
-        instances.push_back({ti, k, k1 > k0, sliced ? std::clamp(sum / 3, double(k) * delta, double(k + 1) * delta) : sum / 3});
-      if (sliced) {
-        kLo = std::min(kLo, k0);
-        kHi = std::max(kHi, k1);
-      }
-      ++st.surfaceTriangles;
-    }
     // Far to near: by slab, then by depth inside a slab.
     std::sort(instances.begin(), instances.end(), [](const Instance& x, const Instance& y) {
       return x.slab != y.slab ? x.slab > y.slab : x.depth > y.depth;
     });
-    poly.clear();
     // This brick's piece of the cutting plane goes first, writing depth: the brick's slices behind
     // it are hidden, those in front are clipped away.
-    size_t cutVertices = 0;
-    if (options.cut && visible) {
+    if (options.cut && d.visible) {
       one.clear();
-      if (slicePolygon(blo, bhi, glm::dvec3(cut), -cut.w, &one)) {
+      if (slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &one)) {
         for (size_t k = 0; k < one.size(); k += 3) poly.insert(poly.end(), {one[k], one[k + 1], one[k + 2], 0, 0, 0, 2, -1e30f, 1e30f});
-        cutVertices = one.size() / 3;
-        ++st.cutPolygons;
+        d.cutVertices = one.size() / 3;
+        ++d.counts.cutPolygons;
       }
     }
     size_t next = 0;
     for (long long k = kHi; k >= kLo; --k) {
       if (options.slabOrder)
-        for (; next < instances.size() && instances[next].slab >= k; ++next) emitTriangle(instances[next], delta, shell);
-      const double plane = double(k) * delta;
+        for (; next < instances.size() && instances[next].slab >= k; ++next) emitTriangle(instances[next]);
+      const double plane = double(k) * d.delta;
       one.clear();
-      if (sliced && plane >= bmin && plane < bmax &&
-          (shell ? plane > 0.0 && shellPolygon(slo, shi, camera.eye, frame, plane, shellCells(plane), &one)
-                 : slicePolygon(slo, shi, f, plane, &one))) {
+      if (d.sliced && plane >= bmin && plane < bmax &&
+          (d.shell ? plane > 0.0 && shellPolygon(d.slo, d.shi, camera.eye, d.frame, plane, shellCells(plane), &one)
+                   : slicePolygon(d.slo, d.shi, f, plane, &one))) {
         emitSlice(one);
-        ++st.slices;
+        ++d.counts.slices;
       }
     }
-    for (; next < instances.size(); ++next) emitTriangle(instances[next], delta, shell);
-    if (poly.empty()) continue;
+    for (; next < instances.size(); ++next) emitTriangle(instances[next]);
+  };
+
+  // The worker builds the streams in draw order and publishes how many are done.
+  std::atomic<size_t> built{0};
+  std::exception_ptr failure;
+  std::thread worker([&] {
+    std::vector<Instance> instances;
+    std::vector<float> one;
+    try {
+      for (BrickDraw& d : draws) {
+        buildStream(d, instances, one);
+        built.fetch_add(1, std::memory_order_release);
+        built.notify_one();
+      }
+    } catch (...) {
+      failure = std::current_exception();
+      built.store(draws.size(), std::memory_order_release);
+      built.notify_one();
+    }
+  });
+  for (size_t j = 0; j < draws.size(); ++j) {
+    for (size_t seen = built.load(std::memory_order_acquire); seen <= j; seen = built.load(std::memory_order_acquire)) built.wait(seen);
+    if (failure) break;
+    BrickDraw& d = draws[j];
+    st.slices += d.counts.slices;
+    st.surfaceTriangles += d.counts.surfaceTriangles;
+    st.slabPolygonDraws += d.counts.slabPolygonDraws;
+    st.cutPolygons += d.counts.cutPolygons;
+    if (d.stream.empty()) continue;
+    if (d.visible) {
+      glActiveTexture(GL_TEXTURE0);
+      glBindTexture(GL_TEXTURE_3D, d.texture);
+      glUniform3fv(slices.at("fineScale"), 1, glm::value_ptr(d.fineScale));
+      glUniform3fv(slices.at("fineOffset"), 1, glm::value_ptr(d.fineOffset));
+      glUniform1f(slices.at("valueOffset"), d.valueOffset);
+      glUniform1f(slices.at("valueScale"), d.valueScale);
+    }
+    glUniform1f(slices.at("sliceSpacing"), float(d.delta));
+    glUniform1i(slices.at("shells"), d.shell ? 1 : 0);
     buffers.emplace_back();
     glGenBuffers(1, &buffers.back());
     glBindBuffer(GL_ARRAY_BUFFER, buffers.back());
-    glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(poly.size() * sizeof(float)), poly.data(), GL_STREAM_DRAW);
+    glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(d.stream.size() * sizeof(float)), d.stream.data(), GL_STREAM_DRAW);
     glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), nullptr);
     glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
     glVertexAttribPointer(2, 3, GL_FLOAT, GL_FALSE, 9 * sizeof(float), reinterpret_cast<void*>(6 * sizeof(float)));
-    if (cutVertices > 0) {
+    if (d.cutVertices > 0) {
       glDepthMask(GL_TRUE);
-      glDrawArrays(GL_TRIANGLES, 0, GLsizei(cutVertices));
+      glDrawArrays(GL_TRIANGLES, 0, GLsizei(d.cutVertices));
       glDepthMask(GL_FALSE);
     }
-    glDrawArrays(GL_TRIANGLES, GLint(cutVertices), GLsizei(poly.size() / 9 - cutVertices));
+    glDrawArrays(GL_TRIANGLES, GLint(d.cutVertices), GLsizei(d.stream.size() / 9 - d.cutVertices));
+    std::vector<float>().swap(d.stream);
   }
+  worker.join();
+  if (failure) std::rethrow_exception(failure);
   if (options.cut && options.cutLine && options.surface) drawCutLine(*options.surface, cut, viewProj, options.surfaceColor, &st);
   st.textureBytes = st.texels * kBytesPerTexel;
   glEndQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB);
