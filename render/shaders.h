@@ -102,7 +102,7 @@ void main() {
   // The brick's field and gradient at x (blending towards coarser bricks is baked into its texels).
   vec4 texel = texture(volumeTex, x * fineScale + fineOffset);
   float v = valueOffset + valueScale * texel.x;
-  vec4 c = texture(tfTex, ((v - tfMin) * tfScale + 0.5) / tfSize);
+  vec4 c = texelFetch(tfTex, int(clamp((v - tfMin) * tfScale + 0.5, 0.0, tfSize - 1.0)), 0);
   if (c.a <= 0.0) discard;
 #if CUT
   if (vKind > 1.5) {  // the cutting plane: the data's colour, opaque
@@ -110,13 +110,20 @@ void main() {
     return;
   }
 #endif
-  vec3 dir = rayDirection();
+  // The ray r through this fragment, unnormalised, and its squared length.
+#if ORTHO
+  vec3 r = forward;
+  float rr = 1.0;
+#else
+  vec3 r = vWorld - eye;
+  float rr = dot(r, r);
+#endif
   float len = sliceSpacing;
 #if !ORTHO
 #if SHELLS
   if (shells == 0)
 #endif
-    len /= max(abs(dot(dir, forward)), 1e-6);
+    len *= sqrt(rr) / max(abs(dot(r, forward)), 1e-6 * sqrt(rr));
 #endif
 #if VOI
   c.a = min(c.a * voiFactor(x), 1.0);
@@ -127,8 +134,8 @@ void main() {
 #if SHADING
   {
     vec3 g = texel.yzw;
-    float m = length(g);
-    if (m > 1e-6) shade = 0.25 + 0.75 * abs(dot(g / m, dir));
+    float gg = dot(g, g);
+    if (gg > 1e-12) shade = 0.25 + 0.75 * abs(dot(g, r)) * inversesqrt(gg * rr);
   }
 #endif
   fragColor = vec4(c.rgb * shade * alpha, alpha);
