@@ -190,7 +190,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
         << ",\n  \"nodes_hidden\": " << hidden << ",\n  \"texels\": " << sel.texels << ",\n  \"blended_bricks\": " << sel.blendedBricks
         << ",\n  \"texture_bytes\": " << (o.renderer == "slices" ? ss.textureBytes : sel.texels * kBytesPerTexel) << ",\n  \"slices\": " << ss.slices
         << ",\n  \"surface_polygons\": " << f.polygons << ",\n  \"surface_triangles\": " << f.mesh.triangles.size()
-        << ",\n  \"slab_polygon_draws\": " << ss.slabPolygonDraws << ",\n  \"shell_bricks\": " << ss.shellBricks
+        << ",\n  \"slab_polygon_draws\": " << ss.slabPolygonDraws << ",\n  \"fragments\": " << ss.fragments << ",\n  \"shell_bricks\": " << ss.shellBricks
         << ",\n  \"cut_polygons\": " << ss.cutPolygons << ",\n  \"cut_line_segments\": " << ss.cutLineSegments << ",\n  \"build_ms\": " << f.buildMs + f.surfaceMs
         << ",\n  \"select_ms\": " << selectMs << ",\n  \"render_ms\": " << renderMs << ",\n  \"first_render_ms\": " << firstMs << ",\n  \"samples\": " << rs.samples
         << ",\n  \"epsilon\": " << o.epsilon << ",\n  \"max_nodal_error_used\": " << sel.maxError

@@ -22,23 +22,30 @@ void main() {
 /// One brick's stream of slices and translucent surface triangles in draw order. kind 0: a slice;
 /// kind 1: a surface triangle in its slab [slab.x, slab.y] (SlabPolygon; clipped to planar slabs
 /// on the CPU, to shells per fragment); kind 2: the brick's piece of the cutting plane. All but the
-/// plane are clipped by it (GL_CLIP_DISTANCE0 is enabled only when there is one).
-inline constexpr const char* kStreamVertex = R"(#version 450 core
+/// plane are clipped by it. Compiled after the same #defines as kSliceFragment: llvmpipe sets up
+/// every varying of every triangle, so the face normal is flat and the slab goes only to shells.
+inline constexpr const char* kStreamVertex = R"(
 layout(location = 0) in vec3 position;
 layout(location = 1) in vec3 normal;
 layout(location = 2) in vec3 kindSlab;  // kind, slab near depth, slab far depth
 uniform mat4 viewProj;
 uniform vec4 cutPlane;  // kept where dot(cutPlane.xyz, x) + cutPlane.w >= 0
 out vec3 vWorld;
-out vec3 vNormal;
+flat out vec3 vNormal;
 flat out float vKind;
+#if SHELLS
 flat out vec2 vSlab;
+#endif
 void main() {
   vWorld = position;
   vNormal = normal;
   vKind = kindSlab.x;
+#if SHELLS
   vSlab = kindSlab.yz;
+#endif
+#if CUT
   gl_ClipDistance[0] = kindSlab.x > 1.5 ? 1.0 : dot(cutPlane.xyz, position) + cutPlane.w;
+#endif
   gl_Position = viewProj * vec4(position, 1.0);
 }
 )";
@@ -51,9 +58,11 @@ void main() {
 /// pieces), SHELLS (spherical-shell bricks may occur), VOI and ORTHO, each 0 or 1.
 inline constexpr const char* kSliceFragment = R"(
 in vec3 vWorld;
-in vec3 vNormal;
+flat in vec3 vNormal;  // a surface triangle's face normal
 flat in float vKind;
+#if SHELLS
 flat in vec2 vSlab;
+#endif
 out vec4 fragColor;
 uniform vec4 surfaceColor;  // straight rgb, alpha per crossing
 uniform sampler3D volumeTex;  // the brick's lattice: normalised value, gradient direction

@@ -585,12 +585,11 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
 
-  std::string fragment = "#version 450 core\n";
+  std::string defines = "#version 450 core\n";
   for (const auto& [name, on] : {std::pair{"SHADING", options.shading}, {"SURFACE", translucent}, {"CUT", bool(options.cut)},
                                  {"SHELLS", options.proxy == Proxy::Shells && !camera.ortho}, {"VOI", bool(options.voi)}, {"ORTHO", camera.ortho}})
-    fragment += std::string("#define ") + name + (on ? " 1\n" : " 0\n");
-  fragment += shaders::kSliceFragment;
-  Program slices(shaders::kStreamVertex, fragment.c_str());
+    defines += std::string("#define ") + name + (on ? " 1\n" : " 0\n");
+  Program slices((defines + shaders::kStreamVertex).c_str(), (defines + shaders::kSliceFragment).c_str());
   glUseProgram(slices.id);
   glUniformMatrix4fv(slices.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
   glUniform1i(slices.at("volumeTex"), 0);
