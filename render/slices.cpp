@@ -542,6 +542,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     dmax = std::max(dmax, glm::dot(p - camera.eye, f));
   }
   const double diag = std::max(1e-3, glm::length(boxHi));
+  // Slab indices (depth / spacing, depth along f or from the eye) are kept in 32 bits.
+  if ((glm::length(camera.eye) + diag) / baseDelta >= double(1 << 30))
+    HYB_THROW(ValueError, "slice spacing ", baseDelta, " mm is too small for a scene ", glm::length(camera.eye) + diag, " mm deep (at most 2^30 slabs)");
   const double zNear = camera.ortho ? dmin - 0.01 * diag : std::max(dmin - 0.01 * diag, 1e-4 * diag);
   const double zFar = dmax + 0.01 * diag;
   const double aspect = double(W) / double(H);
@@ -708,12 +711,12 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     draws.push_back(std::move(d));
   }
 
-  // A slab instance of a translucent triangle: which triangle, its slab, whether to clip, sort key.
+  // A slab instance of a translucent triangle: sort key (the centroid's depth, clamped to the
+  // slab), slab, triangle, and whether it spans several slabs (16 bytes: sorting is a frame's cost).
   struct Instance {
-    uint32_t triangle;
-    long long slab;
-    bool clip;
     double depth;
+    int32_t slab;
+    uint32_t triangle : 31, clip : 1;
   };
   // Builds brick @p d's vertex stream: its piece of the cutting plane, then slices far to near
   // with each SlabPolygon list before the slice that closes its slab.
@@ -731,7 +734,12 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       const glm::vec3 a = options.surface->vertices[tr.x], b = options.surface->vertices[tr.y], c = options.surface->vertices[tr.z];
       const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
       ++d.counts.slabPolygonDraws;
-      auto put = [&](const glm::vec3& p, float lo, float hi) { poly.insert(poly.end(), {p.x, p.y, p.z, n.x, n.y, n.z, 1.0f, lo, hi}); };
+      auto put = [&](const glm::vec3& p, float lo, float hi) {
+        const size_t at = poly.size();
+        poly.resize(at + 9);
+        float* v = &poly[at];
+        v[0] = p.x, v[1] = p.y, v[2] = p.z, v[3] = n.x, v[4] = n.y, v[5] = n.z, v[6] = 1.0f, v[7] = lo, v[8] = hi;
+      };
       if (!in.clip || d.shell) {
         const float lo = in.clip ? float(double(in.slab) * d.delta) : -1e30f, hi = in.clip ? float(double(in.slab + 1) * d.delta) : 1e30f;
         for (const glm::vec3& p : {a, b, c}) put(p, lo, hi);
@@ -790,7 +798,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         // A brick without slices needs no slabs: its triangles are only sorted back to front.
         const long long k0 = d.sliced ? (long long)std::floor(dmn / d.delta) : 0, k1 = d.sliced ? (long long)std::floor(dmx / d.delta) : 0;
         for (long long k = k0; k <= k1; ++k)
-          instances.push_back({ti, k, k1 > k0, d.sliced ? std::clamp(sum / 3, double(k) * d.delta, double(k + 1) * d.delta) : sum / 3});
+          instances.push_back({d.sliced ? std::clamp(sum / 3, double(k) * d.delta, double(k + 1) * d.delta) : sum / 3, int32_t(k), ti, k1 > k0});
         if (d.sliced) {
           kLo = std::min(kLo, k0);
           kHi = std::max(kHi, k1);

@@ -244,6 +244,10 @@ TEST(Slices, Extremes) {
   const Image huge = renderSlices(v, t, sel, constantTf(0.1f), big, o);
   EXPECT_NEAR(huge.at(2048, 2048).a, 1.0f - std::pow(0.9f, 8.0f), 2.0f / 255.0f);
   EXPECT_EQ(huge.at(0, 0), glm::vec4(0.0f));
+  // A spacing that would need more than 2^30 slabs is refused with a message, not wrapped.
+  SlicesOptions fine = o;
+  fine.stepVoxels = 1e-9;
+  EXPECT_THROW(renderSlices(v, t, sel, constantTf(0.1f), straightOn(glm::dvec3(4.0)), fine), ValueError);
 }
 
 TEST(SlicesCranium, MatchesTheReferenceAtFullResolution) {
