@@ -15,6 +15,7 @@
 #include <cmath>
 #include <exception>
 #include <limits>
+#include <span>
 #include <string>
 #include <thread>
 
@@ -492,27 +493,41 @@ std::vector<uint32_t> bricksBackToFront(const VolumeOctree& octree, const std::v
   return order;
 }
 
-// The triangles of @p surface each brick holds, by node index. Every triangle lies inside one
-// volume leaf (Surface Octree polygons never cross one), so its centroid names its brick.
-std::vector<std::vector<uint32_t>> trianglesByBrick(const Volume& volume, const VolumeOctree& octree, const std::vector<int>& brickOf,
-                                                    const TriangleMesh& surface) {
-  std::vector<std::vector<uint32_t>> trianglesOf(octree.nodes().size());
+// The surface's triangles by brick (the brick holding a triangle's centroid; Surface Octree
+// polygons lie inside one volume leaf, hence one brick), as one list in brick order: brick b's
+// triangles are list[offsets[b] .. offsets[b + 1]). A grid of leaves says which brick holds each.
+struct BrickTriangles {
+  std::vector<uint32_t> offsets, list;
+  std::span<const uint32_t> of(size_t b) const { return {list.data() + offsets[b], list.data() + offsets[b + 1]}; }
+};
+BrickTriangles trianglesByBrick(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TriangleMesh& surface) {
   const glm::ivec3 cells = glm::max(volume.dims() - 1, glm::ivec3(1));
-  for (uint32_t ti = 0; ti < surface.triangles.size(); ++ti) {
+  const int leaf = octree.leafEdge();
+  const glm::ivec3 grid = (cells + leaf - 1) / leaf;
+  std::vector<uint32_t> brickAt(size_t(grid.x) * size_t(grid.y) * size_t(grid.z), 0);
+  for (size_t b = 0; b < selection.bricks.size(); ++b) {
+    const OctreeNode& n = octree.nodes()[selection.bricks[b].node];
+    const glm::ivec3 lo = glm::ivec3(n.origin) / leaf, hi = glm::min((glm::ivec3(n.origin) + octree.edge(n) + leaf - 1) / leaf, grid);
+    for (int z = lo.z; z < hi.z; ++z)
+      for (int y = lo.y; y < hi.y; ++y)
+        for (int x = lo.x; x < hi.x; ++x) brickAt[size_t(x) + size_t(grid.x) * (size_t(y) + size_t(grid.y) * size_t(z))] = uint32_t(b);
+  }
+  BrickTriangles out;
+  out.offsets.assign(selection.bricks.size() + 1, 0);
+  std::vector<uint32_t> brickOf(surface.triangles.size());
+  for (size_t ti = 0; ti < surface.triangles.size(); ++ti) {
     const glm::uvec3 tr = surface.triangles[ti];
     const glm::dvec3 c = (glm::dvec3(surface.vertices[tr.x]) + glm::dvec3(surface.vertices[tr.y]) + glm::dvec3(surface.vertices[tr.z])) /
                          3.0 / volume.spacing();
-    const glm::ivec3 cell = glm::clamp(glm::ivec3(glm::floor(c)), glm::ivec3(0), cells - 1);
-    uint32_t i = 0;
-    while (brickOf[i] < 0) {
-      const OctreeNode& n = octree.nodes()[i];
-      const int half = octree.edge(n) / 2;
-      const glm::ivec3 rel = cell - glm::ivec3(n.origin);
-      i = childIndex(n, (rel.x >= half) | (rel.y >= half) << 1 | (rel.z >= half) << 2);
-    }
-    trianglesOf[i].push_back(ti);
+    const glm::ivec3 g = glm::clamp(glm::ivec3(glm::floor(c)), glm::ivec3(0), cells - 1) / leaf;
+    brickOf[ti] = brickAt[size_t(g.x) + size_t(grid.x) * (size_t(g.y) + size_t(grid.y) * size_t(g.z))];
+    ++out.offsets[brickOf[ti] + 1];
   }
-  return trianglesOf;
+  for (size_t b = 0; b < selection.bricks.size(); ++b) out.offsets[b + 1] += out.offsets[b];
+  out.list.resize(surface.triangles.size());
+  std::vector<uint32_t> next(out.offsets.begin(), out.offsets.end() - 1);
+  for (size_t ti = 0; ti < surface.triangles.size(); ++ti) out.list[next[brickOf[ti]]++] = uint32_t(ti);
+  return out;
 }
 
 }  // namespace
@@ -625,8 +640,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   const glm::dvec3 eyeVoxel = (camera.ortho ? camera.eye - f * 1e9 * diag : camera.eye) / spacing;
   const std::vector<uint32_t> order = bricksBackToFront(octree, brickOf, eyeVoxel);
   HYB_CHECK(order.size() == selection.bricks.size());
-  const std::vector<std::vector<uint32_t>> trianglesOf =
-      options.surface ? trianglesByBrick(volume, octree, brickOf, *options.surface) : std::vector<std::vector<uint32_t>>(octree.nodes().size());
+  const bool withTriangles = options.surface && !options.surface->triangles.empty();
+  const BrickTriangles trianglesOf = withTriangles ? trianglesByBrick(volume, octree, selection, *options.surface) : BrickTriangles{};
 
   GLuint query;
   glGenQueries(1, &query);
@@ -639,7 +654,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   // by a worker thread while this one submits the bricks before it to llvmpipe, whose vertex
   // processing runs on the submitting thread: the two halves of the per-brick work overlap.
   struct BrickDraw {
-    uint32_t node = 0;
+    uint32_t node = 0, brick = 0;
     bool visible = false, sliced = false, shell = false;
     GLuint texture = 0;
     glm::vec3 fineScale{0.0f}, fineOffset{0.0f};
@@ -661,7 +676,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     d.node = i;
     // Hidden (transparent or culled) bricks cost no texels; their surface triangles are still drawn.
     d.visible = !b.hidden && tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
-    if (!d.visible && (!translucent || trianglesOf[i].empty())) continue;
+    d.brick = uint32_t(brickOf[i]);
+    const bool holdsTriangles = withTriangles && !trianglesOf.of(d.brick).empty();
+    if (!d.visible && !(translucent && holdsTriangles)) continue;
     glm::ivec3 lo, hi;
     octree.voxelBox(n, &lo, &hi);
     d.blo = d.slo = glm::dvec3(lo) * spacing;
@@ -705,7 +722,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     // holding surface polygons or the eye keep the base spacing, so that surfaces and the near
     // plane cut the volume at the finest depth resolution.
     const bool holdsEye = !camera.ortho && glm::all(glm::greaterThanEqual(camera.eye, d.blo)) && glm::all(glm::lessThanEqual(camera.eye, d.bhi));
-    d.delta = baseDelta * (d.sliced && trianglesOf[i].empty() && !holdsEye ? fine.step : 1);
+    d.delta = baseDelta * (d.sliced && !holdsTriangles && !holdsEye ? fine.step : 1);
     d.shell = options.proxy == Proxy::Shells && !camera.ortho && shellFrame(d.blo, d.bhi, camera.eye, &d.frame);
     st.shellBricks += d.shell && d.sliced;
     draws.push_back(std::move(d));
@@ -782,7 +799,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     instances.clear();
     long long kLo = (long long)std::floor(bmin / d.delta) - 1, kHi = (long long)std::ceil(bmax / d.delta);
     if (translucent)
-      for (uint32_t ti : trianglesOf[d.node]) {
+      for (uint32_t ti : trianglesOf.of(d.brick)) {
         const glm::uvec3 tr = options.surface->triangles[ti];
         double dmn = 1e300, dmx = -1e300, sum = 0;
         for (int k = 0; k < 3; ++k) {
