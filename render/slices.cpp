@@ -240,7 +240,7 @@ class LutSupport {
     for (size_t i = 0; i < lut.size(); ++i) mPrefix[i + 1] = mPrefix[i] + (lut[i].a > 0.0f);
   }
   bool anyVisible(float lo, float hi) const {
-    const int last = int(mPrefix.size()) - 2;  // a bin of margin each side covers rounding in the filter
+    const int last = int(mPrefix.size()) - 2;  // a bin of margin each side covers the shader's rounding
     const int i0 = int(std::clamp(std::floor(double(lo - mMin) * mScale) - 1.0, 0.0, double(last)));
     const int i1 = int(std::clamp(std::ceil(double(hi - mMin) * mScale) + 1.0, 0.0, double(last)));
     return mPrefix[size_t(i1) + 1] > mPrefix[size_t(i0)];
@@ -654,7 +654,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   // by a worker thread while this one submits the bricks before it to llvmpipe, whose vertex
   // processing runs on the submitting thread: the two halves of the per-brick work overlap.
   struct BrickDraw {
-    uint32_t node = 0, brick = 0;
+    uint32_t brick = 0;  // index into selection.bricks
     bool visible = false, sliced = false, shell = false;
     GLuint texture = 0;
     glm::vec3 fineScale{0.0f}, fineOffset{0.0f};
@@ -673,7 +673,6 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     const Brick& b = selection.bricks[size_t(brickOf[i])];
     const OctreeNode& n = octree.nodes()[i];
     BrickDraw d;
-    d.node = i;
     // Hidden (transparent or culled) bricks cost no texels; their surface triangles are still drawn.
     d.visible = !b.hidden && tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
     d.brick = uint32_t(brickOf[i]);
