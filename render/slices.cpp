@@ -198,8 +198,8 @@ CachedBrick uploadBrick(const std::vector<glm::vec4>& texels, const glm::ivec3& 
     gmax = std::max({gmax, std::abs(t.y), std::abs(t.z), std::abs(t.w)});
   }
   CachedBrick brick;
-  brick.valueOffset = 0.5f * (lo + hi);
-  brick.valueScale = hi > lo ? 0.5f * (hi - lo) : 1.0f;
+  brick.valueOffset = 0.5f * lo + 0.5f * hi;  // halves first: no overflow near the float range's ends
+  brick.valueScale = hi > lo ? 0.5f * hi - 0.5f * lo : 1.0f;
   const float toValue = 1.0f / brick.valueScale, toGradient = gmax > 0.0f ? 1.0f / gmax : 0.0f;
   auto snorm = [](float x) { return int16_t(std::lround(std::clamp(x, -1.0f, 1.0f) * 32767.0f)); };
   std::vector<int16_t> packed;

@@ -244,6 +244,16 @@ TEST(Slices, Extremes) {
   const Image huge = renderSlices(v, t, sel, constantTf(0.1f), big, o);
   EXPECT_NEAR(huge.at(2048, 2048).a, 1.0f - std::pow(0.9f, 8.0f), 2.0f / 255.0f);
   EXPECT_EQ(huge.at(0, 0), glm::vec4(0.0f));
+  // Values near the float range's ends: finite images from both renderers.
+  const Volume wild = test::makeVolume({9, 9, 9}, [](int i, int j, int k) { return ((i + j + k) % 2 ? 1.0f : -1.0f) * 1e37f; });
+  const VolumeOctree wt = VolumeOctree::build(wild);
+  const TransferFunction wtf({{-1e37f, {1, 1, 1}, 0.1f}, {1e37f, {0.5f, 0.5f, 1}, 0.3f}}, "wild");
+  SlicesOptions shaded;
+  for (const Image& img : {renderSlices(wild, wt, selectNodes(wt, SelectionParams{}), wtf, straightOn(glm::dvec3(4.0)), shaded),
+                           raycast(wild, wt, wtf, straightOn(glm::dvec3(4.0)), RaycastOptions{})}) {
+    for (const glm::vec4& p : img.pixels) ASSERT_TRUE(std::isfinite(p.r) && std::isfinite(p.a));
+    EXPECT_GT(img.at(4, 4).a, 0.5f);
+  }
   // A spacing that would need more than 2^30 slabs is refused with a message, not wrapped.
   SlicesOptions fine = o;
   fine.stepVoxels = 1e-9;
