@@ -211,44 +211,52 @@ CachedBrick uploadBrick(const std::vector<glm::vec4>& texels, const glm::ivec3& 
   return brick;
 }
 
+// The transfer function's lookup table: 4096 entries over the volume's range, read at the nearest
+// entry (1/4095 of the range apart; texelFetch costs less than a filtered read).
+struct LutLayout {
+  static constexpr int kSize = 4096;
+  float vmin, vmax, scale;  // the entry of value v is round((v − vmin) · scale)
+  explicit LutLayout(const Volume& v)
+      : vmin(v.minValue()), vmax(std::max(v.maxValue(), v.minValue() + 1e-6f)), scale(float(kSize - 1) / (vmax - vmin)) {}
+  float value(int entry) const { return vmin + (vmax - vmin) * float(entry) / float(kSize - 1); }
+  // The entries values in [lo, hi] can read, with one of margin each side for the shader's rounding.
+  std::array<uint16_t, 2> entries(float lo, float hi) const {
+    auto at = [&](double e) { return uint16_t(std::clamp(e, 0.0, double(kSize - 1))); };
+    return {at(std::floor(double(lo - vmin) * scale) - 1.0), at(std::ceil(double(hi - vmin) * scale) + 1.0)};
+  }
+};
+
 // The ranges of @p texels (a lattice of @p dims knots) over blocks of 2×2×2 cells.
-BrickRanges texelRanges(const std::vector<glm::vec4>& texels, const glm::ivec3& dims) {
+BrickRanges texelRanges(const std::vector<glm::vec4>& texels, const glm::ivec3& dims, const LutLayout& lut) {
   BrickRanges r;
   r.blocks = (glm::max(dims - 1, 1) + 1) / 2;
-  r.minMax.reserve(size_t(r.blocks.x) * r.blocks.y * r.blocks.z);
+  r.entries.reserve(size_t(r.blocks.x) * r.blocks.y * r.blocks.z);
   for (int bz = 0; bz < r.blocks.z; ++bz)
     for (int by = 0; by < r.blocks.y; ++by)
       for (int bx = 0; bx < r.blocks.x; ++bx) {
         const glm::ivec3 lo = 2 * glm::ivec3(bx, by, bz), hi = glm::min(lo + 2, dims - 1);
-        glm::vec2 m(std::numeric_limits<float>::max(), std::numeric_limits<float>::lowest());
+        float least = std::numeric_limits<float>::max(), greatest = std::numeric_limits<float>::lowest();
         for (int k = lo.z; k <= hi.z; ++k)
           for (int j = lo.y; j <= hi.y; ++j)
             for (int i = lo.x; i <= hi.x; ++i) {
               const float t = texels[size_t(i) + size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k))].x;
-              m = glm::vec2(std::min(m.x, t), std::max(m.y, t));
+              least = std::min(least, t);
+              greatest = std::max(greatest, t);
             }
-        r.minMax.push_back(m);
+        r.entries.push_back(lut.entries(least, greatest));
       }
   return r;
 }
 
-// The value ranges to which the transfer function's lookup table, read as the shader reads it (the
-// nearest bin), gives a non-zero opacity.
+// Which spans of the transfer function's lookup table hold a non-zero opacity.
 class LutSupport {
  public:
-  LutSupport(const std::vector<glm::vec4>& lut, float vmin, float scale) : mMin(vmin), mScale(scale), mPrefix(lut.size() + 1, 0) {
+  explicit LutSupport(const std::vector<glm::vec4>& lut) : mPrefix(lut.size() + 1, 0) {
     for (size_t i = 0; i < lut.size(); ++i) mPrefix[i + 1] = mPrefix[i] + (lut[i].a > 0.0f);
   }
-  bool anyVisible(float lo, float hi) const {
-    const int last = int(mPrefix.size()) - 2;  // a bin of margin each side covers the shader's rounding
-    const int i0 = int(std::clamp(std::floor(double(lo - mMin) * mScale) - 1.0, 0.0, double(last)));
-    const int i1 = int(std::clamp(std::ceil(double(hi - mMin) * mScale) + 1.0, 0.0, double(last)));
-    return mPrefix[size_t(i1) + 1] > mPrefix[size_t(i0)];
-  }
+  bool anyVisible(const std::array<uint16_t, 2>& span) const { return mPrefix[size_t(span[1]) + 1] > mPrefix[span[0]]; }
 
  private:
-  float mMin;
-  double mScale;
   std::vector<int> mPrefix;
 };
 
@@ -260,7 +268,7 @@ bool visibleBox(const BrickRanges& r, const KnotLattice& L, const LutSupport& su
   for (int bz = 0; bz < r.blocks.z; ++bz)
     for (int by = 0; by < r.blocks.y; ++by)
       for (int bx = 0; bx < r.blocks.x; ++bx, ++index)
-        if (support.anyVisible(r.minMax[index].x, r.minMax[index].y)) {
+        if (support.anyVisible(r.entries[index])) {
           b0 = glm::min(b0, glm::ivec3(bx, by, bz));
           b1 = glm::max(b1, glm::ivec3(bx, by, bz));
         }
@@ -298,9 +306,15 @@ bool slicePolygon(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& 
   centre /= double(n);
   const glm::dvec3 r = glm::normalize(std::abs(f.x) < 0.9 ? glm::cross(f, glm::dvec3(1, 0, 0)) : glm::cross(f, glm::dvec3(0, 1, 0)));
   const glm::dvec3 u = glm::cross(f, r);
-  std::sort(pts.begin(), pts.end(), [&](const glm::dvec3& p, const glm::dvec3& q) {
-    return std::atan2(glm::dot(p - centre, u), glm::dot(p - centre, r)) < std::atan2(glm::dot(q - centre, u), glm::dot(q - centre, r));
-  });
+  // Around the centre by angle, as atan2 orders them from −π, with a pseudo-angle: the "diamond"
+  // angle in (−2, 2], monotonic in the true one.
+  auto angle = [&](const glm::dvec3& p) {
+    const double x = glm::dot(p - centre, r), y = glm::dot(p - centre, u), l = std::abs(x) + std::abs(y);
+    if (l == 0.0) return 0.0;
+    const double d = y >= 0 ? (x >= 0 ? y / l : 2.0 - y / l) : (x < 0 ? 2.0 - y / l : 4.0 + y / l);
+    return d > 2.0 ? d - 4.0 : d;
+  };
+  std::sort(pts.begin(), pts.end(), [&](const glm::dvec3& p, const glm::dvec3& q) { return angle(p) < angle(q); });
   for (int i = 1; i + 1 < n; ++i)
     for (const glm::dvec3* p : {&pts[0], &pts[i], &pts[i + 1]})
       for (int k = 0; k < 3; ++k) out->insert(out->end(), {float((*p)[k])});
@@ -586,19 +600,16 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   if (options.surface && !options.surface->triangles.empty() && !translucent)
     drawOpaqueSurface(*options.surface, viewProj, camera, glm::vec3(options.surfaceColor), cutPlane);
 
-  // Transfer function as a 4096-entry float lookup over the data range, read at the nearest entry
-  // (1/4095 of the range apart; texelFetch costs less than a filtered read).
-  constexpr int kTfSize = 4096;
-  const float vmin = volume.minValue(), vmax = std::max(volume.maxValue(), volume.minValue() + 1e-6f);
-  std::vector<glm::vec4> lut(kTfSize);
-  for (int i = 0; i < kTfSize; ++i) lut[size_t(i)] = tf.lookup(vmin + (vmax - vmin) * float(i) / float(kTfSize - 1));
+  // Transfer function lookup table.
+  const LutLayout layout(volume);
+  std::vector<glm::vec4> lut(LutLayout::kSize);
+  for (int i = 0; i < LutLayout::kSize; ++i) lut[size_t(i)] = tf.lookup(layout.value(i));
   GLuint tfTex;
   glGenTextures(1, &tfTex);
   glActiveTexture(GL_TEXTURE1);
   glBindTexture(GL_TEXTURE_1D, tfTex);
-  glTexImage1D(GL_TEXTURE_1D, 0, GL_RGBA32F, kTfSize, 0, GL_RGBA, GL_FLOAT, lut.data());
-  const float tfScale = float(kTfSize - 1) / (vmax - vmin);
-  const LutSupport support(lut, vmin, tfScale);
+  glTexImage1D(GL_TEXTURE_1D, 0, GL_RGBA32F, LutLayout::kSize, 0, GL_RGBA, GL_FLOAT, lut.data());
+  const LutSupport support(lut);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
@@ -612,9 +623,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glUniformMatrix4fv(slices.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
   glUniform1i(slices.at("volumeTex"), 0);
   glUniform1i(slices.at("tfTex"), 1);
-  glUniform1f(slices.at("tfMin"), vmin);
-  glUniform1f(slices.at("tfScale"), tfScale);
-  glUniform1f(slices.at("tfSize"), float(kTfSize));
+  glUniform1f(slices.at("tfMin"), layout.vmin);
+  glUniform1f(slices.at("tfScale"), layout.scale);
+  glUniform1f(slices.at("tfSize"), float(LutLayout::kSize));
   glUniform3f(slices.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
   glUniform3f(slices.at("forward"), float(f.x), float(f.y), float(f.z));
   glUniform4fv(slices.at("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
@@ -692,7 +703,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       if (!cached) {
         const std::vector<glm::vec4> texels = brickTexels(volume, octree, b);
         made = uploadBrick(texels, fine.dims);
-        made.ranges = texelRanges(texels, fine.dims);
+        made.ranges = texelRanges(texels, fine.dims, layout);
         if (options.textures)
           cached = &options.textures->insert(b, std::move(made));
         else

@@ -10,6 +10,7 @@
 // every view.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <unordered_map>
 #include <vector>
@@ -34,12 +35,12 @@ enum class Proxy {
            ///< to, and orthographic views, use planes)
 };
 
-/// Value ranges of a brick's texels over blocks of 2×2×2 knot cells. The field inside a cell lies
-/// within its eight texels, so the ranges bound, for any transfer function, the part of the brick
-/// that can be visible.
+/// Value ranges of a brick's texels over blocks of 2×2×2 knot cells, as the span of transfer-function
+/// lookup entries each block can read. The field inside a cell lies within its eight texels, so the
+/// spans bound, for any transfer function, the part of the brick that can be visible.
 struct BrickRanges {
-  glm::ivec3 blocks{0};           ///< blocks per axis
-  std::vector<glm::vec2> minMax;  ///< per block (x fastest): least and greatest texel
+  glm::ivec3 blocks{0};                         ///< blocks per axis
+  std::vector<std::array<uint16_t, 2>> entries;  ///< per block (x fastest): first and last entry
 };
 
 /// Bytes of one brick texel: value and gradient, 16 bits each (RGBA16_SNORM).
