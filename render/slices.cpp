@@ -173,17 +173,8 @@ std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const
         w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
     return glm::mix(latticeField(v, coarse, glm::clamp(p, coarse.origin, coarse.last)), v.at(p.x, p.y, p.z), w);
   };
-  const glm::ivec3 dims = v.dims();
-  const glm::dvec3 spacing = v.spacing();
   return latticeTexels(fine, [&](const glm::ivec3& p) {
-    glm::vec4 out(field(p), 0.0f, 0.0f, 0.0f);
-    for (int a = 0; a < 3; ++a) {
-      glm::ivec3 lo = p, hi = p;
-      lo[a] = std::max(p[a] - fine.step, 0);
-      hi[a] = std::min(p[a] + fine.step, dims[a] - 1);
-      if (hi[a] > lo[a]) out[a + 1] = float(double(field(hi) - field(lo)) / (double(hi[a] - lo[a]) * spacing[a]));
-    }
-    return out;
+    return glm::vec4(field(p), centralDifferences(field, p, fine.step, v.dims(), v.spacing()));
   });
 }
 

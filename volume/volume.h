@@ -7,6 +7,7 @@
 
 #include <glm/glm.hpp>
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <string>
@@ -37,6 +38,21 @@ void validateDims(const glm::ivec3& dims, const std::string& what);
 /// Checks spacing for finite positive values.
 /// @throw ValueError naming @p what.
 void validateSpacing(const glm::dvec3& spacing, const std::string& what);
+
+/// Central differences of @p field (callable on integer grid points) at @p p, @p step grid points
+/// either side, one-sided on the faces of a grid of @p dims, zero along an axis of one point; in
+/// field units per mm for grid points @p spacing mm apart.
+template <class Field>
+glm::vec3 centralDifferences(const Field& field, const glm::ivec3& p, int step, const glm::ivec3& dims, const glm::dvec3& spacing) {
+  glm::vec3 g(0.0f);
+  for (int a = 0; a < 3; ++a) {
+    glm::ivec3 lo = p, hi = p;
+    lo[a] = std::max(p[a] - step, 0);
+    hi[a] = std::min(p[a] + step, dims[a] - 1);
+    if (hi[a] > lo[a]) g[a] = float(double(field(hi) - field(lo)) / (double(hi[a] - lo[a]) * spacing[a]));
+  }
+  return g;
+}
 
 /// Immutable scalar volume.
 class Volume {
