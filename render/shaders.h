@@ -53,9 +53,9 @@ void main() {
 /// One brick's slice: sample the brick texture, classify with the per-millimetre transfer
 /// function, correct opacity for the segment the slice stands for, shade, premultiply. llvmpipe
 /// runs both sides of every branch, uniform ones included, so each feature a frame does not use
-/// is compiled out: the source follows "#version 450 core\n" and a #define of SHADING (the six
-/// gradient fetches), SURFACE (translucent triangles in the stream), CUT (the cutting plane's
-/// pieces), SHELLS (spherical-shell bricks may occur), VOI and ORTHO, each 0 or 1.
+/// is compiled out: the source follows "#version 450 core\n" and a #define of SHADING (headlight
+/// shading by the brick's stored gradient), SURFACE (translucent triangles in the stream), CUT (the
+/// cutting plane's pieces), SHELLS (spherical-shell bricks may occur), VOI and ORTHO, each 0 or 1.
 inline constexpr const char* kSliceFragment = R"(
 in vec3 vWorld;
 flat in vec3 vNormal;  // a surface triangle's face normal
