@@ -951,7 +951,7 @@ void BrickTextureCache::clear() {
   mTextures.clear();
 }
 
-double plainQuadSeconds(const Volume& volume, int width, int height, int quads, uint64_t* fragments) {
+double plainQuadSeconds(const Volume& volume, int width, int height, int quads, uint64_t* fragments, bool brickFormat) {
   static constexpr const char* kVertex = R"(#version 450 core
 layout(location = 0) in vec2 position;
 uniform float layer;
@@ -968,9 +968,17 @@ void main() { float v = texture(tex, uvw).r; fragColor = vec4(v, v, v, 1.0) * 0.
   glDisable(GL_DEPTH_TEST);
   glEnable(GL_BLEND);
   glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
-  const GLuint tex = newVolumeTexture();
   const glm::ivec3 d = volume.dims();
-  glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, d.x, d.y, d.z, 0, GL_RED, GL_FLOAT, volume.samples().data());
+  GLuint tex;
+  if (brickFormat) {
+    std::vector<glm::vec4> texels;
+    texels.reserve(volume.voxelCount());
+    for (float v : volume.samples()) texels.emplace_back(v, 0.0f, 0.0f, 0.0f);
+    tex = uploadBrick(texels, d).texture;
+  } else {
+    tex = newVolumeTexture();
+    glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, d.x, d.y, d.z, 0, GL_RED, GL_FLOAT, volume.samples().data());
+  }
   Program program(kVertex, kFragment);
   glUseProgram(program.id);
   const float quad[] = {-1, -1, 1, -1, 1, 1, -1, -1, 1, 1, -1, 1};

@@ -113,9 +113,10 @@ struct SlicesStats {
 };
 
 /// Throughput baseline: seconds llvmpipe takes to blend @p quads full-screen quads that sample a
-/// float 3D texture of @p volume into a float framebuffer of @p width x @p height, and the
-/// fragments it shaded. Requires a current GlContext.
-double plainQuadSeconds(const Volume& volume, int width, int height, int quads, uint64_t* fragments);
+/// 3D texture of @p volume into a float framebuffer of @p width x @p height, and the fragments it
+/// shaded. The texture is R32F, or with @p brickFormat the bricks' RGBA16_SNORM (value and
+/// gradient), to tell the cost of the format from that of the shader. Requires a current GlContext.
+double plainQuadSeconds(const Volume& volume, int width, int height, int quads, uint64_t* fragments, bool brickFormat = false);
 
 /// Renders the bricks of @p selection. Requires a current GlContext.
 /// @throw RuntimeError when OpenGL fails (shader compilation, framebuffer).
