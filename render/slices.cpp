@@ -15,9 +15,11 @@
 #include <cmath>
 #include <exception>
 #include <limits>
+#include <optional>
 #include <span>
 #include <string>
 #include <thread>
+#include <utility>
 
 #include "render/shaders.h"
 #include "volume/error.h"
@@ -58,6 +60,8 @@ struct Program {
   Program(const Program&) = delete;
   Program& operator=(const Program&) = delete;
   ~Program() { glDeleteProgram(id); }
+  // Hands the program over to a new owner.
+  GLuint release() { return std::exchange(id, 0u); }
   GLint at(const char* name) const { return glGetUniformLocation(id, name); }
 };
 
@@ -609,25 +613,34 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   for (const auto& [name, on] : {std::pair{"SHADING", options.shading}, {"SURFACE", translucent}, {"CUT", bool(options.cut)},
                                  {"SHELLS", options.proxy == Proxy::Shells && !camera.ortho}, {"VOI", bool(options.voi)}, {"ORTHO", camera.ortho}})
     defines += std::string("#define ") + name + (on ? " 1\n" : " 0\n");
-  Program slices((defines + shaders::kStreamVertex).c_str(), (defines + shaders::kSliceFragment).c_str());
-  glUseProgram(slices.id);
-  glUniformMatrix4fv(slices.at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
-  glUniform1i(slices.at("volumeTex"), 0);
-  glUniform1i(slices.at("tfTex"), 1);
-  glUniform1f(slices.at("tfMin"), layout.vmin);
-  glUniform1f(slices.at("tfScale"), layout.scale);
-  glUniform1f(slices.at("tfSize"), float(LutLayout::kSize));
-  glUniform3f(slices.at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
-  glUniform3f(slices.at("forward"), float(f.x), float(f.y), float(f.z));
-  glUniform4fv(slices.at("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
-  glUniform4fv(slices.at("cutPlane"), 1, glm::value_ptr(cutPlane));
+  // The slice program, kept with the brick textures across frames when there is a cache: llvmpipe
+  // compiles a new program's shaders again at its first draw (~5 % of a volume-only frame).
+  std::optional<Program> ownProgram;
+  GLuint program = options.textures ? options.textures->program(defines) : 0;
+  if (!program) {
+    ownProgram.emplace((defines + shaders::kStreamVertex).c_str(), (defines + shaders::kSliceFragment).c_str());
+    program = ownProgram->id;
+    if (options.textures) options.textures->insertProgram(defines, ownProgram->release());
+  }
+  auto uniform = [&](const char* name) { return glGetUniformLocation(program, name); };
+  glUseProgram(program);
+  glUniformMatrix4fv(uniform("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
+  glUniform1i(uniform("volumeTex"), 0);
+  glUniform1i(uniform("tfTex"), 1);
+  glUniform1f(uniform("tfMin"), layout.vmin);
+  glUniform1f(uniform("tfScale"), layout.scale);
+  glUniform1f(uniform("tfSize"), float(LutLayout::kSize));
+  glUniform3f(uniform("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
+  glUniform3f(uniform("forward"), float(f.x), float(f.y), float(f.z));
+  glUniform4fv(uniform("surfaceColor"), 1, glm::value_ptr(options.surfaceColor));
+  glUniform4fv(uniform("cutPlane"), 1, glm::value_ptr(cutPlane));
   if (options.voi) {
     const glm::vec3 centre(0.5 * (options.voi->lo + options.voi->hi)), half(0.5 * (options.voi->hi - options.voi->lo));
-    glUniform3fv(slices.at("voiCentre"), 1, glm::value_ptr(centre));
-    glUniform3fv(slices.at("voiHalf"), 1, glm::value_ptr(half));
-    glUniform1f(slices.at("voiInside"), float(options.voi->inside));
-    glUniform1f(slices.at("voiOutside"), float(options.voi->outside));
-    glUniform1f(slices.at("voiRamp"), float(options.voi->ramp));
+    glUniform3fv(uniform("voiCentre"), 1, glm::value_ptr(centre));
+    glUniform3fv(uniform("voiHalf"), 1, glm::value_ptr(half));
+    glUniform1f(uniform("voiInside"), float(options.voi->inside));
+    glUniform1f(uniform("voiOutside"), float(options.voi->outside));
+    glUniform1f(uniform("voiRamp"), float(options.voi->ramp));
   }
   glEnableVertexAttribArray(0);
   glEnableVertexAttribArray(1);
@@ -853,6 +866,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     for (; next < instances.size(); ++next) emitTriangle(instances[next]);
   };
 
+  // Per-brick uniforms, looked up once.
+  const GLint uFineScale = uniform("fineScale"), uFineOffset = uniform("fineOffset"), uValueOffset = uniform("valueOffset");
+  const GLint uValueScale = uniform("valueScale"), uSliceSpacing = uniform("sliceSpacing"), uShells = uniform("shells");
   // The worker builds the streams in draw order and publishes how many are done.
   std::atomic<size_t> built{0};
   std::exception_ptr failure;
@@ -883,13 +899,13 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     if (d.visible) {
       glActiveTexture(GL_TEXTURE0);
       glBindTexture(GL_TEXTURE_3D, d.texture);
-      glUniform3fv(slices.at("fineScale"), 1, glm::value_ptr(d.fineScale));
-      glUniform3fv(slices.at("fineOffset"), 1, glm::value_ptr(d.fineOffset));
-      glUniform1f(slices.at("valueOffset"), d.valueOffset);
-      glUniform1f(slices.at("valueScale"), d.valueScale);
+      glUniform3fv(uFineScale, 1, glm::value_ptr(d.fineScale));
+      glUniform3fv(uFineOffset, 1, glm::value_ptr(d.fineOffset));
+      glUniform1f(uValueOffset, d.valueOffset);
+      glUniform1f(uValueScale, d.valueScale);
     }
-    glUniform1f(slices.at("sliceSpacing"), float(d.delta));
-    glUniform1i(slices.at("shells"), d.shell ? 1 : 0);
+    glUniform1f(uSliceSpacing, float(d.delta));
+    glUniform1i(uShells, d.shell ? 1 : 0);
     buffers.emplace_back();
     glGenBuffers(1, &buffers.back());
     glBindBuffer(GL_ARRAY_BUFFER, buffers.back());
@@ -946,7 +962,16 @@ const CachedBrick& BrickTextureCache::insert(const Brick& b, CachedBrick brick) 
   return slot = std::move(brick);
 }
 
+unsigned BrickTextureCache::program(const std::string& key) const {
+  const auto it = mPrograms.find(key);
+  return it == mPrograms.end() ? 0 : it->second;
+}
+
+void BrickTextureCache::insertProgram(const std::string& key, unsigned program) { mPrograms[key] = program; }
+
 void BrickTextureCache::clear() {
+  for (const auto& [k, program] : mPrograms) glDeleteProgram(program);
+  mPrograms.clear();
   for (const auto& [k, brick] : mTextures) glDeleteTextures(1, &brick.texture);
   mTextures.clear();
 }

@@ -12,6 +12,7 @@
 
 #include <array>
 #include <cstdint>
+#include <string>
 #include <unordered_map>
 #include <vector>
 
@@ -56,8 +57,9 @@ struct CachedBrick {
 
 /// Brick textures kept across frames of one volume and octree: a view that is rendered again (an
 /// interactive viewer, progressive refinement, a benchmark) uploads only bricks it has not drawn
-/// before. Keyed by node, level and blended corners. Owns GL textures: destroy it, or clear() it,
-/// while its GlContext is current.
+/// before. Keyed by node, level and blended corners. Also keeps the slice shader programs, keyed
+/// by their sources' feature defines. Owns GL objects: destroy it, or clear() it, while its
+/// GlContext is current.
 class BrickTextureCache {
  public:
   BrickTextureCache() = default;
@@ -70,11 +72,16 @@ class BrickTextureCache {
   /// Takes ownership of @p brick's texture.
   const CachedBrick& insert(const Brick& b, CachedBrick brick);
   size_t size() const { return mTextures.size(); }
+  /// The linked program kept under @p key, or 0.
+  unsigned program(const std::string& key) const;
+  /// Takes ownership of @p program.
+  void insertProgram(const std::string& key, unsigned program);
   void clear();
 
  private:
   static uint64_t key(const Brick& b) { return uint64_t(b.node) | uint64_t(uint8_t(b.p)) << 32 | uint64_t(b.coarseCorners) << 40; }
   std::unordered_map<uint64_t, CachedBrick> mTextures;
+  std::unordered_map<std::string, unsigned> mPrograms;
 };
 
 /// Options of the slice renderer.
