@@ -19,6 +19,7 @@
 
 #include <glm/glm.hpp>
 
+#include <algorithm>
 #include <cstdint>
 #include <span>
 #include <string>
@@ -39,6 +40,8 @@ struct KnotLattice {
   glm::ivec3 dims{1};    ///< knots per axis
   glm::ivec3 last{0};    ///< position of the last knot per axis (≤ grid dims − 1)
   uint64_t count() const { return uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z); }
+  /// Position (voxel index) of knot @p j on axis @p a.
+  int knot(int a, int j) const { return std::min(origin[a] + j * step, last[a]); }
 };
 
 /// Build parameters of a VolumeOctree.

@@ -119,10 +119,9 @@ auto latticeTexels(const KnotLattice& L, const Value& value) {
   const int s = L.step;
   std::vector<T> out(size_t(L.count()));
   auto at = [&](int i, int j, int k) -> T& { return out[size_t(i) + size_t(d.x) * (size_t(j) + size_t(d.y) * size_t(k))]; };
-  auto knot = [&](int a, int j) { return std::min(L.origin[a] + j * s, L.last[a]); };
   for (int k = 0; k < d.z; ++k)
     for (int j = 0; j < d.y; ++j)
-      for (int i = 0; i < d.x; ++i) at(i, j, k) = value(glm::ivec3(knot(0, i), knot(1, j), knot(2, k)));
+      for (int i = 0; i < d.x; ++i) at(i, j, k) = value(glm::ivec3(L.knot(0, i), L.knot(1, j), L.knot(2, k)));
   for (int a = 0; a < 3; ++a) {
     const int m = d[a] - 1;
     if (m < 1 || L.origin[a] + m * s <= L.last[a]) continue;  // the last knot sits where a uniform texel would
@@ -148,8 +147,8 @@ float latticeField(const Volume& v, const KnotLattice& L, const glm::ivec3& p) {
   glm::vec3 t;
   for (int a = 0; a < 3; ++a) {
     const int j = std::clamp((p[a] - L.origin[a]) / L.step, 0, std::max(L.dims[a] - 2, 0));
-    lo[a] = std::min(L.origin[a] + j * L.step, L.last[a]);
-    hi[a] = std::min(L.origin[a] + (j + 1) * L.step, L.last[a]);
+    lo[a] = L.knot(a, j);
+    hi[a] = L.knot(a, j + 1);
     t[a] = hi[a] > lo[a] ? float(p[a] - lo[a]) / float(hi[a] - lo[a]) : 0.0f;
   }
   auto at = [&](int c) { return v.at(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z); };
@@ -269,9 +268,8 @@ bool visibleBox(const BrickRanges& r, const KnotLattice& L, const LutSupport& su
         }
   if (b1.x < 0) return false;
   for (int a = 0; a < 3; ++a) {
-    auto knot = [&](int j) { return double(std::min(L.origin[a] + std::min(j, L.dims[a] - 1) * L.step, L.last[a])); };
-    (*lo)[a] = knot(2 * b0[a]);
-    (*hi)[a] = knot(2 * b1[a] + 2);
+    (*lo)[a] = L.knot(a, std::min(2 * b0[a], L.dims[a] - 1));
+    (*hi)[a] = L.knot(a, std::min(2 * b1[a] + 2, L.dims[a] - 1));
   }
   return true;
 }
