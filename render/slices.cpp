@@ -589,8 +589,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   if (options.cut) glEnable(GL_CLIP_DISTANCE0);
 
   // Opaque surface first, writing depth.
-  const bool translucent = options.surface && !options.surface->triangles.empty() && options.surfaceColor.a < 1.0f;
-  if (options.surface && !options.surface->triangles.empty() && !translucent)
+  const bool withTriangles = options.surface && !options.surface->triangles.empty();
+  const bool translucent = withTriangles && options.surfaceColor.a < 1.0f;
+  if (withTriangles && !translucent)
     drawOpaqueSurface(*options.surface, viewProj, camera, glm::vec3(options.surfaceColor), cutPlane);
 
   // Transfer function lookup table.
@@ -603,9 +604,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glBindTexture(GL_TEXTURE_1D, tfTex);
   glTexImage1D(GL_TEXTURE_1D, 0, GL_RGBA32F, LutLayout::kSize, 0, GL_RGBA, GL_FLOAT, lut.data());
   const LutSupport support(lut);
-  glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-  glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-  glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+  // Read with texelFetch; a filter without mipmaps keeps the texture complete.
+  glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+  glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
 
   std::string defines = "#version 450 core\n";
   for (const auto& [name, on] : {std::pair{"SHADING", options.shading}, {"SURFACE", translucent}, {"CUT", bool(options.cut)},
@@ -653,7 +654,6 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   const glm::dvec3 eyeVoxel = (camera.ortho ? camera.eye - f * 1e9 * diag : camera.eye) / spacing;
   const std::vector<uint32_t> order = bricksBackToFront(octree, brickOf, eyeVoxel);
   HYB_CHECK(order.size() == selection.bricks.size());
-  const bool withTriangles = options.surface && !options.surface->triangles.empty();
   const BrickTriangles trianglesOf = withTriangles ? trianglesByBrick(volume, octree, selection, *options.surface) : BrickTriangles{};
 
   GLuint query;
@@ -751,9 +751,16 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   // with each SlabPolygon list before the slice that closes its slab.
   auto buildStream = [&](BrickDraw& d, std::vector<Instance>& instances, std::vector<float>& one) {
     std::vector<float>& poly = d.stream;
-    auto emitSlice = [&](const std::vector<float>& polygon) {
-      for (size_t v = 0; v < polygon.size(); v += 3)
-        poly.insert(poly.end(), {polygon[v], polygon[v + 1], polygon[v + 2], 0, 0, 0, 0, -1e30f, 1e30f});
+    // One vertex: position, normal, kind (0 slice, 1 surface triangle, 2 cutting plane), slab.
+    auto put = [&](const glm::vec3& p, const glm::vec3& n, float kind, float lo, float hi) {
+      const size_t at = poly.size();
+      poly.resize(at + 9);
+      float* v = &poly[at];
+      v[0] = p.x, v[1] = p.y, v[2] = p.z, v[3] = n.x, v[4] = n.y, v[5] = n.z, v[6] = kind, v[7] = lo, v[8] = hi;
+    };
+    // A slice or cutting-plane polygon (a triangle list, xyz a vertex).
+    auto emitPolygon = [&](const std::vector<float>& polygon, float kind) {
+      for (size_t v = 0; v < polygon.size(); v += 3) put(glm::vec3(polygon[v], polygon[v + 1], polygon[v + 2]), glm::vec3(0.0f), kind, -1e30f, 1e30f);
     };
     // A slab instance of a translucent triangle. Between planes it is clipped to its slab here: the
     // piece is at most a pentagon, and llvmpipe's clipper (gl_ClipDistance) was the costliest step of
@@ -763,15 +770,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       const glm::vec3 a = options.surface->vertices[tr.x], b = options.surface->vertices[tr.y], c = options.surface->vertices[tr.z];
       const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
       ++d.counts.slabPolygonDraws;
-      auto put = [&](const glm::vec3& p, float lo, float hi) {
-        const size_t at = poly.size();
-        poly.resize(at + 9);
-        float* v = &poly[at];
-        v[0] = p.x, v[1] = p.y, v[2] = p.z, v[3] = n.x, v[4] = n.y, v[5] = n.z, v[6] = 1.0f, v[7] = lo, v[8] = hi;
-      };
       if (!in.clip || d.shell) {
         const float lo = in.clip ? float(double(in.slab) * d.delta) : -1e30f, hi = in.clip ? float(double(in.slab + 1) * d.delta) : 1e30f;
-        for (const glm::vec3& p : {a, b, c}) put(p, lo, hi);
+        for (const glm::vec3& p : {a, b, c}) put(p, n, 1.0f, lo, hi);
         return;
       }
       std::array<glm::dvec3, 5> piece{glm::dvec3(a), glm::dvec3(b), glm::dvec3(c)}, kept;
@@ -789,7 +790,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         count = m;
       }
       for (size_t v = 1; v + 1 < count; ++v)
-        for (const glm::dvec3& p : {piece[0], piece[v], piece[v + 1]}) put(glm::vec3(p), -1e30f, 1e30f);
+        for (const glm::dvec3& p : {piece[0], piece[v], piece[v + 1]}) put(glm::vec3(p), n, 1.0f, -1e30f, 1e30f);
     };
     // Proxies: global planes f·X = k·delta, or shells |X − eye| = k·delta (LaMar 1999); "depth"
     // below is f·X or |X − eye| accordingly. This brick owns the proxies with depth in [bmin, bmax).
@@ -843,7 +844,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     if (options.cut && d.visible) {
       one.clear();
       if (slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &one)) {
-        for (size_t k = 0; k < one.size(); k += 3) poly.insert(poly.end(), {one[k], one[k + 1], one[k + 2], 0, 0, 0, 2, -1e30f, 1e30f});
+        emitPolygon(one, 2.0f);
         d.cutVertices = one.size() / 3;
         ++d.counts.cutPolygons;
       }
@@ -857,7 +858,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       if (d.sliced && plane >= bmin && plane < bmax &&
           (d.shell ? plane > 0.0 && shellPolygon(d.slo, d.shi, camera.eye, d.frame, plane, shellCells(plane), &one)
                    : slicePolygon(d.slo, d.shi, f, plane, &one))) {
-        emitSlice(one);
+        emitPolygon(one, 0.0f);
         ++d.counts.slices;
       }
     }
