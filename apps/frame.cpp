@@ -144,7 +144,8 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
   params.maxBrickEdge = o.maxBrick;
   if (!o.focus.empty()) params.focus = parseVec3(o.focus, "--focus");
   params.eye = f.camera.eye;
-  // Texture memory is counted at 4 bytes a texel (R32F textures, which hold the extrapolated texels).
+  // Texture memory is counted at the bricks' bytes a texel (value and gradient; the extrapolated
+  // texels included).
   params.texelBudget = uint64_t(budgetMb * 1024.0 * 1024.0 / double(kBytesPerTexel));
   if (budgetMb > 0 && params.texelBudget == 0) HYB_THROW(ValueError, "--budget ", budgetMb, " MB is smaller than one texel");
   params.blend = o.blend == "on";

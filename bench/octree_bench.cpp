@@ -182,20 +182,19 @@ int main(int argc, char** argv) {
       // Fragment throughput against plain full-screen quads sampling a float 3D texture (the
       // target's baseline) and the bricks' RGBA16_SNORM format (what the format alone costs).
       const double slicesRate = double(vst.fragments) / (volMs / 1e3) / 1e6;
-      double floatRate = 0;
-      for (const bool brickFormat : {false, true}) {
+      auto plainRate = [&](bool brickFormat, const char* label) {
         uint64_t plainFragments = 0;
         double plainS = 1e300;
         for (int r = 0; r < std::max(1, runs / 3); ++r)
           plainS = std::min(plainS, hyb::plainQuadSeconds(v, 512, 512, 200, &plainFragments, brickFormat));
         const double rate = double(plainFragments) / plainS / 1e6;
-        if (!brickFormat) floatRate = rate;
-        std::printf("%s%-34s %10.1f M fragments/s (%llu fragments)\n", brickFormat ? "" : "\n",
-                    brickFormat ? "plain quads, RGBA16_SNORM texture" : "plain quads, R32F texture", rate, (unsigned long long)plainFragments);
-        if (brickFormat)
-          std::printf("%-34s %10.1f M fragments/s (%llu fragments), %.0f %% of plain R32F (target >= 70 %%), %.0f %% of plain RGBA16_SNORM\n",
-                      "slices, volume only", slicesRate, (unsigned long long)vst.fragments, 100.0 * slicesRate / floatRate, 100.0 * slicesRate / rate);
-      }
+        std::printf("%-34s %10.1f M fragments/s (%llu fragments)\n", label, rate, (unsigned long long)plainFragments);
+        return rate;
+      };
+      std::printf("\n");
+      const double floatRate = plainRate(false, "plain quads, R32F texture"), brickRate = plainRate(true, "plain quads, RGBA16_SNORM texture");
+      std::printf("%-34s %10.1f M fragments/s (%llu fragments), %.0f %% of plain R32F (target >= 70 %%), %.0f %% of plain RGBA16_SNORM\n",
+                  "slices, volume only", slicesRate, (unsigned long long)vst.fragments, 100.0 * slicesRate / floatRate, 100.0 * slicesRate / brickRate);
     }
     std::printf("runs %d (sink %g)\n", runs, double(sink));
     return 0;
