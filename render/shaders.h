@@ -21,8 +21,7 @@ void main() {
 
 /// One brick's stream of slices and translucent surface triangles in draw order. kind 0: a slice;
 /// kind 1: a surface triangle in its slab [slab.x, slab.y] (SlabPolygon; clipped to planar slabs
-/// on the CPU, to shells per fragment); kind 2: the brick's piece of the cutting plane. All but the
-/// plane are clipped by it. Compiled after the same #defines as kSliceFragment: llvmpipe sets up
+/// on the CPU, to shells per fragment). All are clipped by the cutting plane. Compiled after the same #defines as kSliceFragment: llvmpipe sets up
 /// every varying of every triangle, so the face normal is flat and the slab goes only to shells.
 inline constexpr const char* kStreamVertex = R"(
 layout(location = 0) in vec3 position;
@@ -44,9 +43,38 @@ void main() {
   vSlab = kindSlab.yz;
 #endif
 #if CUT
-  gl_ClipDistance[0] = kindSlab.x > 1.5 ? 1.0 : dot(cutPlane.xyz, position) + cutPlane.w;
+  gl_ClipDistance[0] = dot(cutPlane.xyz, position) + cutPlane.w;
 #endif
   gl_Position = viewProj * vec4(position, 1.0);
+}
+)";
+
+/// What the slice and cutting-plane fragment shaders share: a brick's texture coordinates and its
+/// normalised values' classification by the transfer function's lookup table. Follows the
+/// #version line (and the slice shader's #defines); the shader's source follows it.
+inline constexpr const char* kClassify = R"(
+uniform sampler1D tfTex;
+uniform float tfMin, tfScale, tfSize;
+uniform vec3 fineScale, fineOffset;  // world mm -> the brick texture's coordinates
+uniform float valueOffset, valueScale;  // value = valueOffset + valueScale * (2 u - 1)
+
+// The lookup table's entry (nearest) for the normalised value u.
+vec4 classify(float u) {
+  float v = valueOffset + valueScale * (2.0 * u - 1.0);
+  return texelFetch(tfTex, int(clamp((v - tfMin) * tfScale + 0.5, 0.0, tfSize - 1.0)), 0);
+}
+)";
+
+/// A brick's piece of the cutting plane (multiplanar reformat): the data's colour, opaque, from the
+/// brick's values at 16 bits; transparent entries let the volume behind show. After kClassify.
+inline constexpr const char* kCutFragment = R"(
+in vec3 vWorld;
+out vec4 fragColor;
+uniform sampler3D cutTex;
+void main() {
+  vec4 c = classify(texture(cutTex, vWorld * fineScale + fineOffset).x);
+  if (c.a <= 0.0) discard;
+  fragColor = vec4(c.rgb, 1.0);
 }
 )";
 
@@ -54,8 +82,8 @@ void main() {
 /// function, correct opacity for the segment the slice stands for, shade, premultiply. llvmpipe
 /// runs both sides of every branch, uniform ones included, so each feature a frame does not use
 /// is compiled out: the source follows "#version 450 core\n" and a #define of SHADING (headlight
-/// shading by the brick's stored gradient), SURFACE (translucent triangles in the stream), CUT (the
-/// cutting plane's pieces), SHELLS (spherical-shell bricks may occur), VOI and ORTHO, each 0 or 1.
+/// shading by the brick's stored gradient), SURFACE (translucent triangles in the stream), CUT (a
+/// cutting plane clips the stream), SHELLS (spherical-shell bricks may occur), VOI and ORTHO, each 0 or 1.
 inline constexpr const char* kSliceFragment = R"(
 in vec3 vWorld;
 flat in vec3 vNormal;  // a surface triangle's face normal
@@ -65,11 +93,7 @@ flat in vec2 vSlab;
 #endif
 out vec4 fragColor;
 uniform vec4 surfaceColor;  // straight rgb, alpha per crossing
-uniform sampler3D volumeTex;  // the brick's lattice: normalised value, gradient direction
-uniform sampler1D tfTex;
-uniform vec3 fineScale, fineOffset;  // world mm -> the brick texture's coordinates
-uniform float valueOffset, valueScale;  // normalised value -> data units
-uniform float tfMin, tfScale, tfSize;
+uniform sampler3D volumeTex;  // the brick's lattice: normalised value, gradient direction (RGBA8)
 uniform vec3 eye, forward;
 uniform float sliceSpacing;  // mm between this brick's slice planes along forward
 uniform int shells;  // 1: this brick's proxies are spherical shells around the eye
@@ -95,7 +119,7 @@ vec3 rayDirection() {
 
 void main() {
 #if SURFACE
-  if (vKind > 0.5 && vKind < 1.5) {  // translucent surface, headlight-shaded, premultiplied
+  if (vKind > 0.5) {  // translucent surface, headlight-shaded, premultiplied
 #if SHELLS
     if (shells == 1) {  // the slab between two shells: a sphere cannot be a clip plane
       float r = length(vWorld - eye);
@@ -110,15 +134,8 @@ void main() {
   vec3 x = vWorld;
   // The brick's field and gradient at x (blending towards coarser bricks is baked into its texels).
   vec4 texel = texture(volumeTex, x * fineScale + fineOffset);
-  float v = valueOffset + valueScale * texel.x;
-  vec4 c = texelFetch(tfTex, int(clamp((v - tfMin) * tfScale + 0.5, 0.0, tfSize - 1.0)), 0);
+  vec4 c = classify(texel.x);
   if (c.a <= 0.0) discard;
-#if CUT
-  if (vKind > 1.5) {  // the cutting plane: the data's colour, opaque
-    fragColor = vec4(c.rgb, 1.0);
-    return;
-  }
-#endif
   // The ray r through this fragment, unnormalised, and its squared length.
 #if ORTHO
   vec3 r = forward;
@@ -142,7 +159,7 @@ void main() {
   float shade = 1.0;
 #if SHADING
   {
-    vec3 g = texel.yzw;
+    vec3 g = texel.yzw - vec3(128.0 / 255.0);  // 128 encodes 0
     float gg = dot(g, g);
     if (gg > 1e-12) shade = 0.25 + 0.75 * abs(dot(g, r)) * inversesqrt(gg * rr);
   }

@@ -44,14 +44,17 @@ struct BrickRanges {
   std::vector<std::array<uint16_t, 2>> entries;  ///< per block (x fastest): first and last entry
 };
 
-/// Bytes of one brick texel: value and gradient, 16 bits each (RGBA16_SNORM).
-inline constexpr uint64_t kBytesPerTexel = 8;
+/// Bytes of one brick texel: value and gradient, 8 bits each (RGBA8).
+inline constexpr uint64_t kBytesPerTexel = 4;
+/// Bytes of one texel of the 16-bit value textures made for bricks a cutting plane crosses.
+inline constexpr uint64_t kBytesPerCutTexel = 2;
 
 /// A brick's texture, the mapping of its normalised values back to data units, and the ranges of
 /// its texels.
 struct CachedBrick {
   unsigned texture = 0;
-  float valueOffset = 0.0f, valueScale = 1.0f;  ///< value = offset + scale · texel
+  unsigned cutTexture = 0;  ///< its values at 16 bits, made once a cutting plane crosses the brick
+  float valueOffset = 0.0f, valueScale = 1.0f;  ///< value = offset + scale · (2·texel − 1)
   BrickRanges ranges;
 };
 
@@ -68,9 +71,9 @@ class BrickTextureCache {
   ~BrickTextureCache() { clear(); }
 
   /// Brick @p b's entry, or null.
-  const CachedBrick* find(const Brick& b) const;
-  /// Takes ownership of @p brick's texture.
-  const CachedBrick& insert(const Brick& b, CachedBrick brick);
+  CachedBrick* find(const Brick& b);
+  /// Takes ownership of @p brick's textures.
+  CachedBrick& insert(const Brick& b, CachedBrick brick);
   size_t size() const { return mTextures.size(); }
   /// The linked program kept under @p key, or 0.
   unsigned program(const std::string& key) const;
@@ -109,7 +112,7 @@ struct SlicesStats {
   size_t bricks = 0;               ///< textured bricks
   size_t blendedBricks = 0;        ///< of which blend towards coarser data at some corner
   uint64_t texels = 0;             ///< texels uploaded, blend textures included
-  uint64_t textureBytes = 0;
+  uint64_t textureBytes = 0;       ///< texels' bytes and those of the cutting plane's 16-bit values
   uint64_t slices = 0;            ///< slice polygons (or shell pieces) drawn
   uint64_t shellBricks = 0;       ///< bricks sampled by spherical shells
   uint64_t surfaceTriangles = 0;  ///< translucent triangles placed
@@ -121,7 +124,7 @@ struct SlicesStats {
 
 /// Throughput baseline: seconds llvmpipe takes to blend @p quads full-screen quads that sample a
 /// 3D texture of @p volume into a float framebuffer of @p width x @p height, and the fragments it
-/// shaded. The texture is R32F, or with @p brickFormat the bricks' RGBA16_SNORM (value and
+/// shaded. The texture is R32F, or with @p brickFormat the bricks' RGBA8 (value and
 /// gradient), to tell the cost of the format from that of the shader. Requires a current GlContext.
 double plainQuadSeconds(const Volume& volume, int width, int height, int quads, uint64_t* fragments, bool brickFormat = false);
 

@@ -195,6 +195,9 @@ TEST(Multires, AxisAlignedCutShowsTheDataSliceThroughTheTransferFunction) {
   const Image a = renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, so, &st);
   const Image b = raycast(v, t, tf, cam, ro);
   EXPECT_GT(st.cutPolygons, 0u);
+  // 16-bit values only for the bricks the plane crosses (z = 12.3: the lower half of the volume).
+  EXPECT_GT(st.textureBytes, st.texels * kBytesPerTexel);
+  EXPECT_LT(st.textureBytes, st.texels * kBytesPerTexel + st.texels * kBytesPerCutTexel);
   for (int y = 0; y < 32; ++y)
     for (int x = 0; x < 32; ++x) {
       const glm::vec4 c = tf.lookup(v.sample(glm::vec3(x + 0.5f, 31.5f - y, 12.3f)));
