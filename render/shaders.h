@@ -21,8 +21,9 @@ void main() {
 
 /// One brick's stream of slices and translucent surface triangles in draw order. kind 0: a slice;
 /// kind 1: a surface triangle in its slab [slab.x, slab.y] (SlabPolygon; clipped to planar slabs
-/// on the CPU, to shells per fragment). All are clipped by the cutting plane. Compiled after the same #defines as kSliceFragment: llvmpipe sets up
-/// every varying of every triangle, so the face normal is flat and the slab goes only to shells.
+/// on the CPU, to shells per fragment). All are clipped by the cutting plane. Compiled after the
+/// same #defines as kSliceFragment: llvmpipe sets up every varying of every triangle, so the face
+/// normal is flat and the slab goes only to shells.
 inline constexpr const char* kStreamVertex = R"(
 layout(location = 0) in vec3 position;
 layout(location = 1) in vec3 normal;
