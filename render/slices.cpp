@@ -160,14 +160,17 @@ float latticeField(const Volume& v, const KnotLattice& L, const glm::ivec3& p) {
 // The texels of brick @p b, value and gradient: its lattice's samples or, when a corner blends
 // (Carmona et al.), mix(coarse field, sample, w) with w trilinear in the corner weights over the
 // node's box. The gradient at a knot takes central differences of that field one knot step away
-// (one-sided on the volume's faces): at full resolution, Volume::gradientAt.
-std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const Brick& b) {
+// (one-sided on the volume's faces): at full resolution, Volume::gradientAt. The field is clamped
+// to @p kept, which holds the transfer function's domain with a wide margin: an outlier (a
+// padding value, metal) then costs neither the 8-bit value's precision nor the gradient's over the
+// whole brick, and changes the field only within a cell of it.
+std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const Brick& b, const glm::vec2& kept) {
   const OctreeNode& n = t.nodes()[b.node];
   const KnotLattice fine = t.lattice(n, b.p);
   const KnotLattice coarse = b.coarseCorners ? t.coarseLattice(n, b.p) : fine;
   const glm::vec3 origin(n.origin);
   const float edge = float(t.edge(n));
-  auto field = [&](const glm::ivec3& p) {
+  auto raw = [&](const glm::ivec3& p) {
     if (!b.coarseCorners) return v.at(p.x, p.y, p.z);
     const glm::vec3 u = glm::clamp((glm::vec3(p) - origin) / edge, 0.0f, 1.0f);
     float w = 0.0f;
@@ -176,6 +179,7 @@ std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const
         w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
     return glm::mix(latticeField(v, coarse, glm::clamp(p, coarse.origin, coarse.last)), v.at(p.x, p.y, p.z), w);
   };
+  auto field = [&](const glm::ivec3& p) { return std::clamp(raw(p), kept.x, kept.y); };
   return latticeTexels(fine, [&](const glm::ivec3& p) {
     return glm::vec4(field(p), centralDifferences(field, p, fine.step, v.dims(), v.spacing()));
   });
@@ -227,9 +231,23 @@ void uploadCutTexture(const std::vector<glm::vec4>& texels, const glm::ivec3& di
 // entry (1/4095 of the range apart; texelFetch costs less than a filtered read).
 struct LutLayout {
   static constexpr int kSize = 4096;
-  float vmin, vmax, scale;  // the entry of value v is round((v − vmin) · scale)
-  explicit LutLayout(const Volume& v)
-      : vmin(v.minValue()), vmax(std::max(v.maxValue(), v.minValue() + 1e-6f)), scale(float(kSize - 1) / (vmax - vmin)) {}
+  float vmin, vmax, scale;  // the entry of value v is round((v − vmin) · scale), clamped
+  // Over the part of the volume's range where the transfer function changes: it is constant
+  // beyond its first and last points, so no entries go to padding values (CT's −3024 outside the
+  // scanned disc) or outliers. When the two do not overlap every value reads entry 0.
+  LutLayout(const Volume& v, const TransferFunction& tf)
+      : vmin(std::clamp(tf.points().front().value, v.minValue(), v.maxValue())),
+        vmax(std::clamp(tf.points().back().value, v.minValue(), v.maxValue())),
+        scale(vmax > vmin ? float(kSize - 1) / (vmax - vmin) : 0.0f) {
+    if (!std::isfinite(scale)) scale = 0.0f;  // a domain narrower than float can divide by
+  }
+  // The values brick texels keep: the domain widened by four times its width each side (the
+  // transfer function is constant beyond it; 8-bit texels then hold at least 1/9 of the domain's
+  // width per 255 steps).
+  glm::vec2 kept() const {
+    const float margin = 4.0f * (vmax - vmin);
+    return {vmin - margin, vmax + margin};
+  }
   float value(int entry) const { return vmin + (vmax - vmin) * float(entry) / float(kSize - 1); }
   // The entries values in [lo, hi] can read, with one of margin each side for the shader's rounding.
   std::array<uint16_t, 2> entries(float lo, float hi) const {
@@ -613,7 +631,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     drawOpaqueSurface(*options.surface, viewProj, camera, glm::vec3(options.surfaceColor), cutPlane);
 
   // Transfer function lookup table.
-  const LutLayout layout(volume);
+  const LutLayout layout(volume, tf);
+  if (options.textures) options.textures->setLutRange(layout.vmin, layout.vmax);
   std::vector<glm::vec4> lut(LutLayout::kSize);
   for (int i = 0; i < LutLayout::kSize; ++i) lut[size_t(i)] = tf.lookup(layout.value(i));
   GLuint tfTex;
@@ -730,7 +749,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       CachedBrick made;
       std::vector<glm::vec4> texels;
       if (!cached) {
-        texels = brickTexels(volume, octree, b);
+        texels = brickTexels(volume, octree, b, layout.kept());
         made = uploadBrick(texels, fine.dims);
         made.ranges = texelRanges(texels, fine.dims, layout);
         if (options.textures)
@@ -741,7 +760,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       CachedBrick& brick = cached ? *cached : made;
       if (options.cut && slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &d.cutPolygon)) {
         if (!brick.cutTexture) {
-          if (texels.empty()) texels = brickTexels(volume, octree, b);
+          if (texels.empty()) texels = brickTexels(volume, octree, b, layout.kept());
           uploadCutTexture(texels, fine.dims, &brick);
           if (!options.textures) textures.push_back(brick.cutTexture);
         }
@@ -1022,6 +1041,13 @@ CachedBrick& BrickTextureCache::insert(const Brick& b, CachedBrick brick) {
   return slot = std::move(brick);
 }
 
+void BrickTextureCache::setLutRange(float vmin, float vmax) {
+  if (vmin == mLutMin && vmax == mLutMax) return;
+  clearBricks();
+  mLutMin = vmin;
+  mLutMax = vmax;
+}
+
 unsigned BrickTextureCache::program(const std::string& key) const {
   const auto it = mPrograms.find(key);
   return it == mPrograms.end() ? 0 : it->second;
@@ -1029,14 +1055,18 @@ unsigned BrickTextureCache::program(const std::string& key) const {
 
 void BrickTextureCache::insertProgram(const std::string& key, unsigned program) { mPrograms[key] = program; }
 
-void BrickTextureCache::clear() {
-  for (const auto& [k, program] : mPrograms) glDeleteProgram(program);
-  mPrograms.clear();
+void BrickTextureCache::clearBricks() {
   for (const auto& [k, brick] : mTextures) {
     glDeleteTextures(1, &brick.texture);
     glDeleteTextures(1, &brick.cutTexture);
   }
   mTextures.clear();
+}
+
+void BrickTextureCache::clear() {
+  for (const auto& [k, program] : mPrograms) glDeleteProgram(program);
+  mPrograms.clear();
+  clearBricks();
 }
 
 double plainQuadSeconds(const Volume& volume, int width, int height, int quads, uint64_t* fragments, bool brickFormat) {

@@ -75,6 +75,9 @@ class BrickTextureCache {
   /// Takes ownership of @p brick's textures.
   CachedBrick& insert(const Brick& b, CachedBrick brick);
   size_t size() const { return mTextures.size(); }
+  /// The value range of the transfer function's lookup table, to which the bricks' block ranges
+  /// refer (it follows the transfer function's domain): a different range drops the bricks.
+  void setLutRange(float vmin, float vmax);
   /// The linked program kept under @p key, or 0.
   unsigned program(const std::string& key) const;
   /// Takes ownership of @p program.
@@ -83,7 +86,9 @@ class BrickTextureCache {
 
  private:
   static uint64_t key(const Brick& b) { return uint64_t(b.node) | uint64_t(uint8_t(b.p)) << 32 | uint64_t(b.coarseCorners) << 40; }
+  void clearBricks();
   std::unordered_map<uint64_t, CachedBrick> mTextures;
+  float mLutMin = 0.0f, mLutMax = 0.0f;
   std::unordered_map<std::string, unsigned> mPrograms;
 };
 

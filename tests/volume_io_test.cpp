@@ -183,6 +183,9 @@ TEST(NrrdReader, RejectsMalformedFiles) {
   std::vector<float> nan = {1.0f, std::nanf(""), 3.0f, 4.0f, 5.0f, 6.0f, 7.0f, 8.0f};
   expectRejected(nhdr("nan", "type: float\ndimension: 3\nsizes: 2 2 2\nendian: little\nencoding: raw\n", toBytes(nan)),
                  "nan.nhdr", "sample (1,0,0) is nan; expected finite values");
+  std::vector<float> wide = {-3e38f, 3e38f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+  expectRejected(nhdr("wide", "type: float\ndimension: 3\nsizes: 2 2 2\nendian: little\nencoding: raw\n", toBytes(wide)),
+                 "wide.nhdr", "expected a range (max - min) below");
   writeText(dir.file("missing.nhdr"), "NRRD0004\n" + good + "data file: nowhere.raw\n");
   expectRejected(dir.file("missing.nhdr"), "missing.nhdr", "data file '" + dir.file("nowhere.raw") + "' does not exist");
   writeText(dir.file("magic.nrrd"), "P6\n4 4\n255\n");

@@ -1,6 +1,7 @@
 #include "volume/volume.h"
 
 #include <algorithm>
+#include <limits>
 #include <cmath>
 #include <iomanip>
 #include <sstream>
@@ -79,6 +80,10 @@ Volume::Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, std::
     HYB_THROW(ValueError, source, ": sample (", i, ",", j, ",", k, ") is ", mSamples[bad],
               "; expected finite values");
   }
+  // Differences of samples (nodal errors, gradients, the lookup table's scale) must stay finite.
+  if (!std::isfinite(hi - lo))
+    HYB_THROW(ValueError, source, ": samples span [", lo, ", ", hi, "]; expected a range (max - min) below ",
+              std::numeric_limits<float>::max(), " so that differences of samples stay finite");
   mMin = lo;
   mMax = hi;
 }

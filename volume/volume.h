@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -49,7 +50,10 @@ glm::vec3 centralDifferences(const Field& field, const glm::ivec3& p, int step, 
     glm::ivec3 lo = p, hi = p;
     lo[a] = std::max(p[a] - step, 0);
     hi[a] = std::min(p[a] + step, dims[a] - 1);
-    if (hi[a] > lo[a]) g[a] = float(double(field(hi) - field(lo)) / (double(hi[a] - lo[a]) * spacing[a]));
+    if (hi[a] > lo[a]) {
+      const double d = (double(field(hi)) - double(field(lo))) / (double(hi[a] - lo[a]) * spacing[a]);
+      g[a] = float(std::clamp(d, -double(std::numeric_limits<float>::max()), double(std::numeric_limits<float>::max())));
+    }
   }
   return g;
 }
