@@ -190,31 +190,49 @@ float unitValue(const CachedBrick& brick, float value) {
   return std::clamp(0.5f + 0.5f * ((value - brick.valueOffset) / brick.valueScale), 0.0f, 1.0f);
 }
 
-// Uploads @p texels as an RGBA8 texture: the value mapped from its range to [0, 1] (the brick's
+// A brick ready for upload: its value mapping and RGBA8 texels (the CPU half of an upload, made
+// on all cores before the frame's GL work).
+struct PackedBrick {
+  CachedBrick brick;  // texture not made yet
+  std::vector<uint8_t> rgba;
+};
+
+// Packs @p texels for an RGBA8 texture: the value mapped from its range to [0, 1] (the brick's
 // offset and scale undo it: value = offset + scale·(2u − 1)), the gradient divided by its largest
 // component and stored as 128 + 127·g (zero exact). Eight-bit formats take llvmpipe's fixed-point
 // filtering path, which fetches about twice as fast as the float path every other format takes;
 // the value keeps 1/255 of the brick's range (a frame's PSNR against the reference drops by
 // 0.05–0.3 dB). Cutting planes read the value from a 16-bit texture of its own (cutTexture).
-CachedBrick uploadBrick(const std::vector<glm::vec4>& texels, const glm::ivec3& dims) {
+PackedBrick packBrick(const std::vector<glm::vec4>& texels) {
   float lo = std::numeric_limits<float>::max(), hi = std::numeric_limits<float>::lowest(), gmax = 0.0f;
   for (const glm::vec4& t : texels) {
     lo = std::min(lo, t.x);
     hi = std::max(hi, t.x);
     gmax = std::max({gmax, std::abs(t.y), std::abs(t.z), std::abs(t.w)});
   }
-  CachedBrick brick;
+  PackedBrick out;
+  CachedBrick& brick = out.brick;
   brick.valueOffset = 0.5f * lo + 0.5f * hi;  // halves first: no overflow near the float range's ends
   brick.valueScale = hi > lo ? 0.5f * hi - 0.5f * lo : 1.0f;
   const float toGradient = gmax > 0.0f ? 127.0f / gmax : 0.0f;
-  auto gradient = [&](float g) { return uint8_t(128 + std::lround(std::clamp(g * toGradient, -127.0f, 127.0f))); };
-  std::vector<uint8_t> packed;
-  packed.reserve(texels.size() * 4);
-  for (const glm::vec4& t : texels)
-    packed.insert(packed.end(), {uint8_t(std::lround(unitValue(brick, t.x) * 255.0f)), gradient(t.y), gradient(t.z), gradient(t.w)});
-  brick.texture = newVolumeTexture();
-  glTexImage3D(GL_TEXTURE_3D, 0, GL_RGBA8, dims.x, dims.y, dims.z, 0, GL_RGBA, GL_UNSIGNED_BYTE, packed.data());
-  return brick;
+  // Rounded by truncating x + 0.5 (x >= 0 here): std::lround was a fifth of a first frame.
+  auto gradient = [&](float g) { return uint8_t(128.5f + std::clamp(g * toGradient, -127.0f, 127.0f)); };
+  out.rgba.resize(texels.size() * 4);
+  uint8_t* q = out.rgba.data();
+  for (const glm::vec4& t : texels) {
+    *q++ = uint8_t(unitValue(brick, t.x) * 255.0f + 0.5f);
+    *q++ = gradient(t.y);
+    *q++ = gradient(t.z);
+    *q++ = gradient(t.w);
+  }
+  return out;
+}
+
+// Makes @p packed's texture and hands its brick over.
+CachedBrick uploadBrick(PackedBrick&& packed, const glm::ivec3& dims) {
+  packed.brick.texture = newVolumeTexture();
+  glTexImage3D(GL_TEXTURE_3D, 0, GL_RGBA8, dims.x, dims.y, dims.z, 0, GL_RGBA, GL_UNSIGNED_BYTE, packed.rgba.data());
+  return std::move(packed.brick);
 }
 
 // Uploads @p brick's values alone at 16 bits (R16, same mapping as its RGBA8 texture): a cutting
@@ -222,13 +240,13 @@ CachedBrick uploadBrick(const std::vector<glm::vec4>& texels, const glm::ivec3& 
 void uploadCutTexture(const std::vector<glm::vec4>& texels, const glm::ivec3& dims, CachedBrick* brick) {
   std::vector<uint16_t> values;
   values.reserve(texels.size());
-  for (const glm::vec4& t : texels) values.push_back(uint16_t(std::lround(unitValue(*brick, t.x) * 65535.0f)));
+  for (const glm::vec4& t : texels) values.push_back(uint16_t(unitValue(*brick, t.x) * 65535.0f + 0.5f));
   brick->cutTexture = newVolumeTexture();
   glTexImage3D(GL_TEXTURE_3D, 0, GL_R16, dims.x, dims.y, dims.z, 0, GL_RED, GL_UNSIGNED_SHORT, values.data());
 }
 
-// The transfer function's lookup table: 4096 entries over the volume's range, read at the nearest
-// entry (1/4095 of the range apart; texelFetch costs less than a filtered read).
+// The transfer function's lookup table: 4096 entries, read at the nearest entry (texelFetch costs
+// less than a filtered read).
 struct LutLayout {
   static constexpr int kSize = 4096;
   float vmin, vmax, scale;  // the entry of value v is round((v − vmin) · scale), clamped
@@ -724,6 +742,30 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     std::vector<float> stream;  // 9 floats a vertex: position, normal, kind and slab
     SlicesStats counts;  // slices, surface triangles, slab polygon draws
   };
+  // Hidden (transparent or culled) bricks cost no texels; their surface triangles are still drawn.
+  auto textured = [&](uint32_t node) {
+    const OctreeNode& n = octree.nodes()[node];
+    return !selection.bricks[size_t(brickOf[node])].hidden && tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
+  };
+  // Bricks without a texture yet are packed on all cores first: their texels are most of a first
+  // frame's work.
+  std::vector<uint32_t> toPack;
+  std::vector<int32_t> packedOf(octree.nodes().size(), -1);
+  for (uint32_t i : order)
+    if (textured(i) && !(options.textures && options.textures->find(selection.bricks[size_t(brickOf[i])]))) {
+      packedOf[i] = int32_t(toPack.size());
+      toPack.push_back(i);
+    }
+  std::vector<PackedBrick> packed(toPack.size());
+#pragma omp parallel for schedule(dynamic)
+  for (size_t k = 0; k < toPack.size(); ++k) {
+    const uint32_t i = toPack[k];
+    const Brick& b = selection.bricks[size_t(brickOf[i])];
+    const std::vector<glm::vec4> texels = brickTexels(volume, octree, b, layout.kept());
+    packed[k] = packBrick(texels);
+    packed[k].brick.ranges = texelRanges(texels, octree.lattice(octree.nodes()[i], b.p).dims, layout);
+  }
+
   std::vector<BrickDraw> draws;
   uint64_t cutTexels = 0;  // of the 16-bit value textures the cutting plane reads
   draws.reserve(order.size());
@@ -731,8 +773,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     const Brick& b = selection.bricks[size_t(brickOf[i])];
     const OctreeNode& n = octree.nodes()[i];
     BrickDraw d;
-    // Hidden (transparent or culled) bricks cost no texels; their surface triangles are still drawn.
-    d.visible = !b.hidden && tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
+    d.visible = textured(i);
     d.brick = uint32_t(brickOf[i]);
     const bool holdsTriangles = withTriangles && !trianglesOf.of(d.brick).empty();
     if (!d.visible && !(translucent && holdsTriangles)) continue;
@@ -747,11 +788,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     if (d.visible) {
       CachedBrick* cached = options.textures ? options.textures->find(b) : nullptr;
       CachedBrick made;
-      std::vector<glm::vec4> texels;
       if (!cached) {
-        texels = brickTexels(volume, octree, b, layout.kept());
-        made = uploadBrick(texels, fine.dims);
-        made.ranges = texelRanges(texels, fine.dims, layout);
+        made = uploadBrick(std::move(packed[size_t(packedOf[i])]), fine.dims);
         if (options.textures)
           cached = &options.textures->insert(b, std::move(made));
         else
@@ -760,8 +798,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       CachedBrick& brick = cached ? *cached : made;
       if (options.cut && slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &d.cutPolygon)) {
         if (!brick.cutTexture) {
-          if (texels.empty()) texels = brickTexels(volume, octree, b, layout.kept());
-          uploadCutTexture(texels, fine.dims, &brick);
+          uploadCutTexture(brickTexels(volume, octree, b, layout.kept()), fine.dims, &brick);
           if (!options.textures) textures.push_back(brick.cutTexture);
         }
         d.cutTexture = brick.cutTexture;
@@ -1092,7 +1129,7 @@ void main() { float v = texture(tex, uvw).r; fragColor = vec4(v, v, v, 1.0) * 0.
     std::vector<glm::vec4> texels;
     texels.reserve(volume.voxelCount());
     for (float v : volume.samples()) texels.emplace_back(v, 0.0f, 0.0f, 0.0f);
-    tex = uploadBrick(texels, d).texture;
+    tex = uploadBrick(packBrick(texels), d).texture;
   } else {
     tex = newVolumeTexture();
     glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, d.x, d.y, d.z, 0, GL_RED, GL_FLOAT, volume.samples().data());
