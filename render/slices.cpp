@@ -931,8 +931,6 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     std::sort(instances.begin(), instances.end(), [](const Instance& x, const Instance& y) {
       return x.slab != y.slab ? x.slab > y.slab : x.depth > y.depth;
     });
-    // This brick's piece of the cutting plane goes first, writing depth: the brick's slices behind
-    // it are hidden, those in front are clipped away.
     size_t next = 0;
     for (long long k = kHi; k >= kLo; --k) {
       if (options.slabOrder)
