@@ -98,7 +98,7 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
   }
   f->background = glm::vec3(parseColor(o.background, "--background", 3));
   const glm::ivec2 size = parseSize(o.size);
-  const glm::dvec3 orbit = parseVec3(o.orbit + ",0", "--orbit");
+  const std::vector<double> orbit = parseNumbers(o.orbit, "--orbit", 2, "two finite numbers azimuth,elevation in degrees");
   f->scene = loadOrBuild(o.input, out, &f->buildMs);
   const Volume& v = f->scene.volume;
   // Transfer function: file, preset, or a default chosen from the data's range.
@@ -118,7 +118,7 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
     camera.width = size.x;
     camera.height = size.y;
   } else {
-    camera = Camera::orbit(glm::dvec3(0.0), v.extentMm(), orbit.x, orbit.y, o.fov, o.ortho, size.x, size.y);
+    camera = Camera::orbit(glm::dvec3(0.0), v.extentMm(), orbit[0], orbit[1], o.fov, o.ortho, size.x, size.y);
   }
   // Surface: the scene's when the isovalue matches, else built now.
   if (o.iso) {
