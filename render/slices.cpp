@@ -160,17 +160,14 @@ float latticeField(const Volume& v, const KnotLattice& L, const glm::ivec3& p) {
 // The texels of brick @p b, value and gradient: its lattice's samples or, when a corner blends
 // (Carmona et al.), mix(coarse field, sample, w) with w trilinear in the corner weights over the
 // node's box. The gradient at a knot takes central differences of that field one knot step away
-// (one-sided on the volume's faces): at full resolution, Volume::gradientAt. The field is clamped
-// to @p kept, which holds the transfer function's domain with a wide margin: an outlier (a
-// padding value, metal) then costs neither the 8-bit value's precision nor the gradient's over the
-// whole brick, and changes the field only within a cell of it.
-std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const Brick& b, const glm::vec2& kept) {
+// (one-sided on the volume's faces): at full resolution, Volume::gradientAt.
+std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const Brick& b) {
   const OctreeNode& n = t.nodes()[b.node];
   const KnotLattice fine = t.lattice(n, b.p);
   const KnotLattice coarse = b.coarseCorners ? t.coarseLattice(n, b.p) : fine;
   const glm::vec3 origin(n.origin);
   const float edge = float(t.edge(n));
-  auto raw = [&](const glm::ivec3& p) {
+  auto field = [&](const glm::ivec3& p) {
     if (!b.coarseCorners) return v.at(p.x, p.y, p.z);
     const glm::vec3 u = glm::clamp((glm::vec3(p) - origin) / edge, 0.0f, 1.0f);
     float w = 0.0f;
@@ -179,7 +176,6 @@ std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const
         w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
     return glm::mix(latticeField(v, coarse, glm::clamp(p, coarse.origin, coarse.last)), v.at(p.x, p.y, p.z), w);
   };
-  auto field = [&](const glm::ivec3& p) { return std::clamp(raw(p), kept.x, kept.y); };
   return latticeTexels(fine, [&](const glm::ivec3& p) {
     return glm::vec4(field(p), centralDifferences(field, p, fine.step, v.dims(), v.spacing()));
   });
@@ -258,13 +254,6 @@ struct LutLayout {
         vmax(std::clamp(tf.points().back().value, v.minValue(), v.maxValue())),
         scale(vmax > vmin ? float(kSize - 1) / (vmax - vmin) : 0.0f) {
     if (!std::isfinite(scale)) scale = 0.0f;  // a domain narrower than float can divide by
-  }
-  // The values brick texels keep: the domain widened by four times its width each side (the
-  // transfer function is constant beyond it; 8-bit texels then hold at least 1/9 of the domain's
-  // width per 255 steps).
-  glm::vec2 kept() const {
-    const float margin = 4.0f * (vmax - vmin);
-    return {vmin - margin, vmax + margin};
   }
   float value(int entry) const { return vmin + (vmax - vmin) * float(entry) / float(kSize - 1); }
   // The entries values in [lo, hi] can read, with one of margin each side for the shader's rounding.
@@ -761,7 +750,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   for (size_t k = 0; k < toPack.size(); ++k) {
     const uint32_t i = toPack[k];
     const Brick& b = selection.bricks[size_t(brickOf[i])];
-    const std::vector<glm::vec4> texels = brickTexels(volume, octree, b, layout.kept());
+    const std::vector<glm::vec4> texels = brickTexels(volume, octree, b);
     packed[k] = packBrick(texels);
     packed[k].brick.ranges = texelRanges(texels, octree.lattice(octree.nodes()[i], b.p).dims, layout);
   }
@@ -798,7 +787,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       CachedBrick& brick = cached ? *cached : made;
       if (options.cut && slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &d.cutPolygon)) {
         if (!brick.cutTexture) {
-          uploadCutTexture(brickTexels(volume, octree, b, layout.kept()), fine.dims, &brick);
+          uploadCutTexture(brickTexels(volume, octree, b), fine.dims, &brick);
           if (!options.textures) textures.push_back(brick.cutTexture);
         }
         d.cutTexture = brick.cutTexture;

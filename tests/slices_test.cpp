@@ -37,12 +37,13 @@ TEST(Slices, MatchesTheReferenceOnASphereInBothProjections) {
 }
 
 // The lookup table spans the transfer function's domain, not the data's range: one padding voxel
-// far below the data (CT's −3024 outside the scanned disc, here −10^6) must not coarsen it. Over
-// the whole range an entry would span ~250 units, wider than the function's features.
+// far below the data (CT's −3024 outside the scanned disc, here −10^6, in a corner brick the
+// function makes transparent) must not coarsen it. Over the whole range an entry would span ~250
+// units, wider than the function's features.
 TEST(Slices, PaddingValuesDoNotCoarsenTheLookupTable) {
   gl();
-  const Volume v = test::makeVolume({40, 40, 40}, [](int i, int j, int k) {
-    return i + j + k == 0 ? -1e6 : 16.0 - glm::length(glm::dvec3(i, j, k) - glm::dvec3(20.0));
+  const Volume v = test::makeVolume({44, 44, 44}, [](int i, int j, int k) {
+    return i + j + k == 0 ? -1e6 : 8.0 - glm::length(glm::dvec3(i, j, k) - glm::dvec3(30.0));
   });
   const VolumeOctree t = VolumeOctree::build(v);
   const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {4.0f, {0.2f, 0.9f, 0.4f}, 0.05f},
@@ -58,9 +59,14 @@ TEST(Slices, PaddingValuesDoNotCoarsenTheLookupTable) {
   // Another transfer function with another domain (a shell outside the sphere), through the same
   // cache: the bricks' block ranges, kept as table entries, are rebuilt; read in the new table the
   // old entries would call the shell transparent and cut it away.
-  const TransferFunction outer({{-10.0f, {1, 1, 1}, 0.0f}, {-7.0f, {0.9f, 0.5f, 0.2f}, 0.3f}, {-4.0f, {0.2f, 0.4f, 1.0f}, 0.0f}}, "outer");
+  const TransferFunction outer({{-5.0f, {1, 1, 1}, 0.0f}, {-3.0f, {0.9f, 0.5f, 0.2f}, 0.3f}, {-1.0f, {0.2f, 0.4f, 1.0f}, 0.0f}}, "outer");
   const Image b = renderSlices(v, t, sel, outer, cam, so);
   EXPECT_GE(psnrOf(b, raycast(v, t, outer, cam, RaycastOptions{})), 35.0);
+  // A transfer function of one point (the same colour and opacity everywhere: a table of one
+  // value) still shades by the data's gradients.
+  const TransferFunction constant({{5.0f, {0.9f, 0.7f, 0.5f}, 0.04f}}, "constant");
+  const Image c = renderSlices(v, t, sel, constant, cam, so);
+  EXPECT_GE(psnrOf(c, raycast(v, t, constant, cam, RaycastOptions{})), 35.0);
 }
 
 TEST(Slices, CachedBrickTexturesGiveTheSameImage) {
