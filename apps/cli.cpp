@@ -130,7 +130,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     e.second += b.texelCount();
   }
   out << "selection: epsilon " << o.epsilon << ", " << sel.bricks.size() << " bricks (" << hidden << " transparent or culled), "
-      << sel.texels << " texels (" << std::fixed << std::setprecision(2) << double(sel.texels * kBytesPerTexel) / (1024.0 * 1024.0)
+      << sel.texels << " texels (" << std::fixed << std::setprecision(2) << double(sel.texels * bytesPerTexel(o.bits())) / (1024.0 * 1024.0)
       << " MB; " << sel.blendedBricks << " bricks blend), max nodal error used " << sel.maxError << ", " << std::setprecision(3) << selectMs
       << " ms\n";
   for (const auto& [ratio, e] : perLevel)
@@ -150,7 +150,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
   // texels (one level coarser), the last being the requested selection.
   for (int k = 1; k < o.progressive; ++k) {
-    const double mb = double(sel.texels * kBytesPerTexel) / (1024.0 * 1024.0) / std::pow(8.0, o.progressive - k);
+    const double mb = double(sel.texels * bytesPerTexel(o.bits())) / (1024.0 * 1024.0) / std::pow(8.0, o.progressive - k);
     const auto p0 = Clock::now();
     const Selection coarse = selectNodes(f.scene.octree, selectionParams(o, f, o.epsilon, std::max(mb, 1e-6)));
     const Image preview = renderFrame(o, f, coarse, &ss, &rs, cache);
@@ -188,7 +188,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     writeFileAtomically(o.stats, [&](std::ostream& s) {
       s << std::setprecision(9) << "{\n  \"renderer\": \"" << o.renderer << "\",\n  \"nodes_selected\": " << sel.bricks.size()
         << ",\n  \"nodes_hidden\": " << hidden << ",\n  \"texels\": " << sel.texels << ",\n  \"blended_bricks\": " << sel.blendedBricks
-        << ",\n  \"texture_bytes\": " << (o.renderer == "slices" ? ss.textureBytes : sel.texels * kBytesPerTexel) << ",\n  \"slices\": " << ss.slices
+        << ",\n  \"texture_bytes\": " << (o.renderer == "slices" ? ss.textureBytes : sel.texels * bytesPerTexel(o.bits())) << ",\n  \"slices\": " << ss.slices
         << ",\n  \"surface_polygons\": " << f.polygons << ",\n  \"surface_triangles\": " << f.mesh.triangles.size()
         << ",\n  \"slab_polygon_draws\": " << ss.slabPolygonDraws << ",\n  \"fragments\": " << ss.fragments << ",\n  \"shell_bricks\": " << ss.shellBricks
         << ",\n  \"cut_polygons\": " << ss.cutPolygons << ",\n  \"cut_line_segments\": " << ss.cutLineSegments << ",\n  \"build_ms\": " << f.buildMs + f.surfaceMs

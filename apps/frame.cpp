@@ -146,7 +146,7 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
   params.eye = f.camera.eye;
   // Texture memory is counted at the bricks' bytes a texel (value and gradient; the extrapolated
   // texels included).
-  params.texelBudget = uint64_t(budgetMb * 1024.0 * 1024.0 / double(kBytesPerTexel));
+  params.texelBudget = uint64_t(budgetMb * 1024.0 * 1024.0 / double(bytesPerTexel(o.bits())));
   if (budgetMb > 0 && params.texelBudget == 0) HYB_THROW(ValueError, "--budget ", budgetMb, " MB is smaller than one texel");
   params.blend = o.blend == "on";
   const TransferFunction* tf = &f.tf;
@@ -178,6 +178,7 @@ Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, 
     SlicesOptions opt;
     opt.stepVoxels = o.step.value_or(0.5);
     opt.shading = o.shading == "on";
+    opt.texelBits = o.bits();
     opt.surface = f.so ? &f.mesh : nullptr;
     opt.surfaceColor = f.surfaceColor;
     opt.cut = f.cut ? &*f.cut : nullptr;

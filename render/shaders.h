@@ -84,7 +84,8 @@ void main() {
 /// runs both sides of every branch, uniform ones included, so each feature a frame does not use
 /// is compiled out: the source follows "#version 450 core\n" and a #define of SHADING (headlight
 /// shading by the brick's stored gradient), SURFACE (translucent triangles in the stream), CUT (a
-/// cutting plane clips the stream), SHELLS (spherical-shell bricks may occur), VOI and ORTHO, each 0 or 1.
+/// cutting plane clips the stream), SHELLS (spherical-shell bricks may occur), VOI, ORTHO and
+/// TEXEL16 (16-bit brick texels), each 0 or 1.
 inline constexpr const char* kSliceFragment = R"(
 in vec3 vWorld;
 flat in vec3 vNormal;  // a surface triangle's face normal
@@ -160,7 +161,11 @@ void main() {
   float shade = 1.0;
 #if SHADING
   {
-    vec3 g = texel.yzw - vec3(128.0 / 255.0);  // 128 encodes 0
+#if TEXEL16
+    vec3 g = texel.yzw - vec3(32768.0 / 65535.0);  // the middle code encodes 0
+#else
+    vec3 g = texel.yzw - vec3(128.0 / 255.0);
+#endif
     float gg = dot(g, g);
     if (gg > 1e-12) shade = 0.25 + 0.75 * abs(dot(g, r)) * inversesqrt(gg * rr);
   }

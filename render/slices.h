@@ -44,16 +44,20 @@ struct BrickRanges {
   std::vector<std::array<uint16_t, 2>> entries;  ///< per block (x fastest): first and last entry
 };
 
-/// Bytes of one brick texel: value and gradient, 8 bits each (RGBA8).
-inline constexpr uint64_t kBytesPerTexel = 4;
-/// Bytes of one texel of the 16-bit value textures made for bricks a cutting plane crosses.
+/// Precision of the brick textures' value and gradient: 8 bits (RGBA8, which llvmpipe filters in
+/// fixed point) or 16 bits (RGBA16: twice the bytes, slower frames, for transfer functions whose
+/// features are narrow against a brick's range of values, e.g. soft tissue next to air and bone).
+enum class TexelBits { Eight = 8, Sixteen = 16 };
+/// Bytes of one brick texel: value and three gradient components.
+inline constexpr uint64_t bytesPerTexel(TexelBits bits) { return bits == TexelBits::Sixteen ? 8 : 4; }
+/// Bytes of one texel of the 16-bit value textures made for 8-bit bricks a cutting plane crosses.
 inline constexpr uint64_t kBytesPerCutTexel = 2;
 
 /// A brick's texture, the mapping of its normalised values back to data units, and the ranges of
 /// its texels.
 struct CachedBrick {
   unsigned texture = 0;
-  unsigned cutTexture = 0;  ///< its values at 16 bits, made once a cutting plane crosses the brick
+  unsigned cutTexture = 0;  ///< 8-bit bricks: its values at 16 bits, made once a cutting plane crosses it
   float valueOffset = 0.0f, valueScale = 1.0f;  ///< value = offset + scale · (2·texel − 1)
   BrickRanges ranges;
 };
@@ -76,8 +80,9 @@ class BrickTextureCache {
   CachedBrick& insert(const Brick& b, CachedBrick brick);
   size_t size() const { return mTextures.size(); }
   /// The value range of the transfer function's lookup table, to which the bricks' block ranges
-  /// refer (it follows the transfer function's domain): a different range drops the bricks.
-  void setLutRange(float vmin, float vmax);
+  /// refer (it follows the transfer function's domain), and the texels' precision: a frame with
+  /// another range or precision drops the bricks.
+  void setLayout(float lutMin, float lutMax, TexelBits bits);
   /// The linked program kept under @p key, or 0.
   unsigned program(const std::string& key) const;
   /// Takes ownership of @p program.
@@ -89,6 +94,7 @@ class BrickTextureCache {
   void clearBricks();
   std::unordered_map<uint64_t, CachedBrick> mTextures;
   float mLutMin = 0.0f, mLutMax = 0.0f;
+  TexelBits mBits = TexelBits::Eight;
   std::unordered_map<std::string, unsigned> mPrograms;
 };
 
@@ -106,6 +112,7 @@ struct SlicesOptions {
   const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
   bool cutLine = true;                    ///< draw the surface's intersection with the cutting plane
   BrickTextureCache* textures = nullptr;  ///< brick textures reused across frames (none: uploaded per frame)
+  TexelBits texelBits = TexelBits::Eight;
   bool visibleBoxes = true;             ///< slice only the box of each brick's cells that the transfer
                                         ///< function can make visible (false: the whole brick; same image)
   bool slabOrder = true;                  ///< false: draw each brick's surface after its slices (a
@@ -129,7 +136,7 @@ struct SlicesStats {
 
 /// Throughput baseline: seconds llvmpipe takes to blend @p quads full-screen quads that sample a
 /// 3D texture of @p volume into a float framebuffer of @p width x @p height, and the fragments it
-/// shaded. The texture is R32F, or with @p brickFormat the bricks' RGBA8 (value and
+/// shaded. The texture is R32F, or with @p brickFormat the bricks' default RGBA8 (value and
 /// gradient), to tell the cost of the format from that of the shader. Requires a current GlContext.
 double plainQuadSeconds(const Volume& volume, int width, int height, int quads, uint64_t* fragments, bool brickFormat = false);
 

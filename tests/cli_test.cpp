@@ -117,6 +117,7 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"render", nhdr, "--epsilon", "abc"}, "--epsilon");
   expectBadInput({"render", nhdr, "--focus", "1,2"}, "--focus");
   expectBadInput({"render", nhdr, "--orbit", "10"}, "azimuth,elevation");
+  expectBadInput({"render", nhdr, "--texel-bits", "12"}, "--texel-bits");
   expectBadInput({"render", nhdr, "--orbit", "10,20,30"}, "azimuth,elevation");
   expectBadInput({"render", nhdr, "--budget", "-3"}, "--budget");
   expectBadInput({"render", nhdr, "--no-such-flag"}, "--no-such-flag");

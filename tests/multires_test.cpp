@@ -172,9 +172,9 @@ TEST(MultiresCranium, AccuracyAndBytesFallAsEpsilonGrowsOrTheBudgetShrinks) {
   std::vector<Result> byBudget{byEpsilon.front()};
   for (double fraction : {0.5, 0.25, 0.125, 0.0625}) {
     SelectionParams p = base;
-    p.texelBudget = uint64_t(fraction * double(byEpsilon.front().bytes) / double(kBytesPerTexel));
+    p.texelBudget = uint64_t(fraction * double(byEpsilon.front().bytes) / double(bytesPerTexel(TexelBits::Eight)));
     byBudget.push_back(run(p));
-    EXPECT_LE(byBudget.back().bytes, p.texelBudget * kBytesPerTexel);
+    EXPECT_LE(byBudget.back().bytes, p.texelBudget * bytesPerTexel(TexelBits::Eight));
   }
   expectFalling(byBudget, "budget");
 }
@@ -187,24 +187,34 @@ TEST(Multires, AxisAlignedCutShowsTheDataSliceThroughTheTransferFunction) {
   const CutPlane cut{glm::dvec3(16.0, 16.0, 12.3), glm::dvec3(0.0, 0.0, 1.0)};
   // Orthographic, straight down -z: pixel (x, y) sees (x + 0.5, 31.5 - y) on the plane.
   const Camera cam = test::orthoDown(glm::dvec3(16.0, 16.0, 12.3), 32.0, 32);
-  SlicesOptions so;
-  so.cut = &cut;
   RaycastOptions ro;
   ro.cut = &cut;
-  SlicesStats st;
-  const Image a = renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, so, &st);
   const Image b = raycast(v, t, tf, cam, ro);
-  EXPECT_GT(st.cutPolygons, 0u);
-  // 16-bit values only for the bricks the plane crosses (z = 12.3: the lower half of the volume).
-  EXPECT_GT(st.textureBytes, st.texels * kBytesPerTexel);
-  EXPECT_LT(st.textureBytes, st.texels * kBytesPerTexel + st.texels * kBytesPerCutTexel);
-  for (int y = 0; y < 32; ++y)
-    for (int x = 0; x < 32; ++x) {
-      const glm::vec4 c = tf.lookup(v.sample(glm::vec3(x + 0.5f, 31.5f - y, 12.3f)));
-      const glm::vec4 expected(glm::vec3(c), 1.0f);
-      for (const Image* img : {&a, &b})
-        for (int k = 0; k < 4; ++k) ASSERT_NEAR(img->at(x, y)[k], expected[k], 1.0f / 255.0f) << "pixel " << x << "," << y << (img == &a ? " slices" : " raycast");
+  for (TexelBits bits : {TexelBits::Eight, TexelBits::Sixteen}) {
+    SlicesOptions so;
+    so.cut = &cut;
+    so.texelBits = bits;
+    SlicesStats st;
+    const Image a = renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, so, &st);
+    EXPECT_GT(st.cutPolygons, 0u);
+    const uint64_t bytes = st.texels * bytesPerTexel(bits);
+    if (bits == TexelBits::Eight) {
+      // 16-bit values only for the bricks the plane crosses (z = 12.3: the lower half of the volume).
+      EXPECT_GT(st.textureBytes, bytes);
+      EXPECT_LT(st.textureBytes, bytes + st.texels * kBytesPerCutTexel);
+    } else {
+      EXPECT_EQ(st.textureBytes, bytes);  // the plane reads the bricks' own 16-bit values
     }
+    for (int y = 0; y < 32; ++y)
+      for (int x = 0; x < 32; ++x) {
+        const glm::vec4 c = tf.lookup(v.sample(glm::vec3(x + 0.5f, 31.5f - y, 12.3f)));
+        const glm::vec4 expected(glm::vec3(c), 1.0f);
+        for (const Image* img : {&a, &b})
+          for (int k = 0; k < 4; ++k)
+            ASSERT_NEAR(img->at(x, y)[k], expected[k], 1.0f / 255.0f)
+                << "pixel " << x << "," << y << (img == &a ? " slices" : " raycast") << ", " << int(bits) << "-bit texels";
+      }
+  }
 }
 
 TEST(Multires, VolumeOfInterestScalesOpacitySmoothly) {

@@ -69,6 +69,38 @@ TEST(Slices, PaddingValuesDoNotCoarsenTheLookupTable) {
   EXPECT_GE(psnrOf(c, raycast(v, t, constant, cam, RaycastOptions{})), 35.0);
 }
 
+// 8-bit texels keep 1/255 of a brick's range: soft tissue (0..60) inside air (−1000) around bone
+// (2000) keeps ~12 units, coarse against a soft-tissue window. 16-bit texels resolve it; the cache
+// drops 8-bit bricks when a frame asks for 16 bits.
+TEST(Slices, SixteenBitTexelsResolveANarrowWindow) {
+  gl();
+  const Volume v = test::makeVolume({48, 48, 48}, [](int i, int j, int k) {
+    const glm::dvec3 p(i, j, k);
+    const double r = glm::length(p - glm::dvec3(24.0));
+    if (r > 18.0) return -1000.0;
+    if (glm::all(glm::lessThan(glm::abs(p - glm::dvec3(24.0)), glm::dvec3(4.0)))) return 2000.0;
+    return 30.0 + 30.0 * std::sin(0.3 * i) * std::cos(0.25 * j + 0.2 * k);
+  });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf = TransferFunction::preset("ct-soft-tissue");
+  const Selection sel = selectNodes(t, SelectionParams{});
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 96, 96);
+  const Image reference = raycast(v, t, tf, cam, RaycastOptions{});
+  BrickTextureCache cache;
+  SlicesOptions so;
+  so.textures = &cache;
+  SlicesStats st8, st16;
+  const double db8 = psnrOf(renderSlices(v, t, sel, tf, cam, so, &st8), reference);
+  so.texelBits = TexelBits::Sixteen;
+  const double db16 = psnrOf(renderSlices(v, t, sel, tf, cam, so, &st16), reference);
+  EXPECT_GE(db16, 55.0);
+  EXPECT_GE(db16, db8 + 8.0) << "8-bit " << db8 << " dB";
+  EXPECT_EQ(st16.textureBytes, 2 * st8.textureBytes);
+  SlicesOptions fresh;
+  fresh.texelBits = TexelBits::Sixteen;
+  EXPECT_GE(psnrOf(renderSlices(v, t, sel, tf, cam, so), renderSlices(v, t, sel, tf, cam, fresh)), 60.0);
+}
+
 TEST(Slices, CachedBrickTexturesGiveTheSameImage) {
   gl();
   // A curved field, so that coarse levels and blending change the texels.
