@@ -328,6 +328,38 @@ bool visibleBox(const BrickRanges& r, const KnotLattice& L, const LutSupport& su
   return true;
 }
 
+// A block of 2×2×2 cells that the transfer function can make visible: its box in world mm and the
+// depths f·X its corners span.
+struct VisibleBlock {
+  glm::dvec3 lo, hi;
+  double near, far;
+};
+
+// The visible blocks of a brick by nearest depth, for slices cut per plane from the box of the
+// blocks it meets.
+std::vector<VisibleBlock> visibleBlocks(const BrickRanges& r, const KnotLattice& L, const LutSupport& support, const glm::dvec3& spacing,
+                                        const glm::dvec3& f) {
+  std::vector<VisibleBlock> out;
+  size_t index = 0;
+  for (int bz = 0; bz < r.blocks.z; ++bz)
+    for (int by = 0; by < r.blocks.y; ++by)
+      for (int bx = 0; bx < r.blocks.x; ++bx, ++index) {
+        if (!support.anyVisible(r.entries[index])) continue;
+        const glm::ivec3 b(bx, by, bz);
+        VisibleBlock v;
+        for (int a = 0; a < 3; ++a) {
+          v.lo[a] = L.knot(a, std::min(2 * b[a], L.dims[a] - 1)) * spacing[a];
+          v.hi[a] = L.knot(a, std::min(2 * b[a] + 2, L.dims[a] - 1)) * spacing[a];
+        }
+        const glm::dvec3 nearCorner = glm::mix(v.hi, v.lo, glm::dvec3(glm::greaterThan(f, glm::dvec3(0.0))));
+        v.near = glm::dot(f, nearCorner);
+        v.far = glm::dot(f, v.lo + v.hi - nearCorner);
+        out.push_back(v);
+      }
+  std::sort(out.begin(), out.end(), [](const VisibleBlock& a, const VisibleBlock& b) { return a.near < b.near; });
+  return out;
+}
+
 // Appends plane f·X = depth ∩ box [lo, hi] as a triangle fan (world mm) to @p out; returns whether
 // the plane cuts the box in a polygon.
 bool slicePolygon(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& f, double depth, std::vector<float>* out) {
@@ -739,6 +771,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     double delta = 0.0;
     glm::dvec3 blo{0.0}, bhi{0.0}, slo{0.0}, shi{0.0};
     ShellFrame frame{};
+    std::vector<VisibleBlock> blocks;  // planes: each slice is cut from the box of the blocks it meets
     // Built by the worker:
     std::vector<float> stream;  // 9 floats a vertex: position, normal, kind and slab
     SlicesStats counts;  // slices, surface triangles, slab polygon draws
@@ -782,6 +815,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     octree.voxelBox(n, &lo, &hi);
     d.blo = d.slo = glm::dvec3(lo) * spacing;
     d.bhi = d.shi = glm::dvec3(hi) * spacing;
+    d.shell = options.proxy == Proxy::Shells && !camera.ortho && shellFrame(d.blo, d.bhi, camera.eye, &d.frame);
     const KnotLattice fine = octree.lattice(n, b.p);
     // Slices cover only the box of cells the transfer function can make visible (empty-space
     // skipping inside the brick; the fragments cut away would all be discarded).
@@ -820,6 +854,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         d.sliced = visibleBox(brick.ranges, fine, support, &vlo, &vhi);
         d.slo = glm::max(d.blo, vlo * spacing);
         d.shi = glm::min(d.bhi, vhi * spacing);
+        if (d.sliced && !d.shell) d.blocks = visibleBlocks(brick.ranges, fine, support, spacing, f);
       }
       // The texture coordinates are affine in world mm: uv = x·scale + offset.
       const glm::dvec3 dims(fine.dims);
@@ -832,7 +867,6 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     // plane cut the volume at the finest depth resolution.
     const bool holdsEye = !camera.ortho && glm::all(glm::greaterThanEqual(camera.eye, d.blo)) && glm::all(glm::lessThanEqual(camera.eye, d.bhi));
     d.delta = baseDelta * (d.sliced && !holdsTriangles && !holdsEye ? fine.step : 1);
-    d.shell = options.proxy == Proxy::Shells && !camera.ortho && shellFrame(d.blo, d.bhi, camera.eye, &d.frame);
     st.shellBricks += d.shell && d.sliced;
     draws.push_back(std::move(d));
   }
@@ -942,9 +976,22 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         for (; next < instances.size() && instances[next].slab >= k; ++next) emitTriangle(instances[next]);
       const double plane = double(k) * d.delta;
       one.clear();
-      if (d.sliced && plane >= bmin && plane < bmax &&
+      glm::dvec3 lo = d.slo, hi = d.shi;
+      if (!d.blocks.empty()) {  // the box of the visible blocks this plane meets (sorted by near)
+        glm::dvec3 ulo(1e300), uhi(-1e300);
+        for (const VisibleBlock& v : d.blocks) {
+          if (v.near > plane) break;
+          if (plane <= v.far) {
+            ulo = glm::min(ulo, v.lo);
+            uhi = glm::max(uhi, v.hi);
+          }
+        }
+        lo = glm::max(lo, ulo);
+        hi = glm::min(hi, uhi);
+      }
+      if (d.sliced && plane >= bmin && plane < bmax && glm::all(glm::lessThanEqual(lo, hi)) &&
           (d.shell ? plane > 0.0 && shellPolygon(d.slo, d.shi, camera.eye, d.frame, plane, shellCells(plane), &one)
-                   : slicePolygon(d.slo, d.shi, f, plane, &one))) {
+                   : slicePolygon(lo, hi, f, plane, &one))) {
         emitSlice(one);
         ++d.counts.slices;
       }
