@@ -328,36 +328,34 @@ bool visibleBox(const BrickRanges& r, const KnotLattice& L, const LutSupport& su
   return true;
 }
 
-// A block of 2×2×2 cells that the transfer function can make visible: its box in world mm and the
-// depths f·X its corners span.
-struct VisibleBlock {
-  glm::dvec3 lo, hi;
-  double near, far;
-};
-
-// The visible blocks of a brick by nearest depth, for slices cut per plane from the box of the
-// blocks it meets.
-std::vector<VisibleBlock> visibleBlocks(const BrickRanges& r, const KnotLattice& L, const LutSupport& support, const glm::dvec3& spacing,
-                                        const glm::dvec3& f) {
-  std::vector<VisibleBlock> out;
+// For planes f·X = k·delta, k in [kLo, kLo + boxes->size()): the box of the visible blocks of 2×2×2
+// cells each plane meets (empty boxes have lo > hi). A block meets the planes between the depths
+// of its nearest and farthest corners.
+void planeBoxes(const BrickRanges& r, const KnotLattice& L, const LutSupport& support, const glm::dvec3& spacing, const glm::dvec3& f,
+                double delta, long long kLo, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes) {
+  const long long count = (long long)boxes->size();
+  std::fill(boxes->begin(), boxes->end(), std::pair{glm::dvec3(1e300), glm::dvec3(-1e300)});
+  const glm::dvec3 nearSide(glm::greaterThan(f, glm::dvec3(0.0)));  // 1 where the near corner takes lo
   size_t index = 0;
   for (int bz = 0; bz < r.blocks.z; ++bz)
     for (int by = 0; by < r.blocks.y; ++by)
       for (int bx = 0; bx < r.blocks.x; ++bx, ++index) {
         if (!support.anyVisible(r.entries[index])) continue;
         const glm::ivec3 b(bx, by, bz);
-        VisibleBlock v;
+        glm::dvec3 lo, hi;
         for (int a = 0; a < 3; ++a) {
-          v.lo[a] = L.knot(a, std::min(2 * b[a], L.dims[a] - 1)) * spacing[a];
-          v.hi[a] = L.knot(a, std::min(2 * b[a] + 2, L.dims[a] - 1)) * spacing[a];
+          lo[a] = L.knot(a, std::min(2 * b[a], L.dims[a] - 1)) * spacing[a];
+          hi[a] = L.knot(a, std::min(2 * b[a] + 2, L.dims[a] - 1)) * spacing[a];
         }
-        const glm::dvec3 nearCorner = glm::mix(v.hi, v.lo, glm::dvec3(glm::greaterThan(f, glm::dvec3(0.0))));
-        v.near = glm::dot(f, nearCorner);
-        v.far = glm::dot(f, v.lo + v.hi - nearCorner);
-        out.push_back(v);
+        const glm::dvec3 nearCorner = glm::mix(hi, lo, nearSide);
+        const long long k0 = std::max((long long)std::ceil(glm::dot(f, nearCorner) / delta) - kLo, 0LL);
+        const long long k1 = std::min((long long)std::floor(glm::dot(f, lo + hi - nearCorner) / delta) - kLo, count - 1);
+        for (long long k = k0; k <= k1; ++k) {
+          auto& [ulo, uhi] = (*boxes)[size_t(k)];
+          ulo = glm::min(ulo, lo);
+          uhi = glm::max(uhi, hi);
+        }
       }
-  std::sort(out.begin(), out.end(), [](const VisibleBlock& a, const VisibleBlock& b) { return a.near < b.near; });
-  return out;
 }
 
 // Appends plane f·X = depth ∩ box [lo, hi] as a triangle fan (world mm) to @p out; returns whether
@@ -771,7 +769,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     double delta = 0.0;
     glm::dvec3 blo{0.0}, bhi{0.0}, slo{0.0}, shi{0.0};
     ShellFrame frame{};
-    std::vector<VisibleBlock> blocks;  // planes: each slice is cut from the box of the blocks it meets
+    const BrickRanges* ranges = nullptr;  // planes: each slice is cut from the box of the blocks it meets
+    KnotLattice lattice{};
     // Built by the worker:
     std::vector<float> stream;  // 9 floats a vertex: position, normal, kind and slab
     SlicesStats counts;  // slices, surface triangles, slab polygon draws
@@ -801,6 +800,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   }
 
   std::vector<BrickDraw> draws;
+  std::deque<BrickRanges> frameRanges;  // block ranges of bricks no cache keeps
   uint64_t cutTexels = 0;  // of the 16-bit value textures the cutting plane reads
   draws.reserve(order.size());
   for (uint32_t i : order) {
@@ -854,7 +854,10 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         d.sliced = visibleBox(brick.ranges, fine, support, &vlo, &vhi);
         d.slo = glm::max(d.blo, vlo * spacing);
         d.shi = glm::min(d.bhi, vhi * spacing);
-        if (d.sliced && !d.shell) d.blocks = visibleBlocks(brick.ranges, fine, support, spacing, f);
+        if (d.sliced && !d.shell) {
+          d.ranges = cached ? &cached->ranges : &frameRanges.emplace_back(std::move(made.ranges));
+          d.lattice = fine;
+        }
       }
       // The texture coordinates are affine in world mm: uv = x·scale + offset.
       const glm::dvec3 dims(fine.dims);
@@ -880,7 +883,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   };
   // Builds brick @p d's vertex stream: slices far to near with each SlabPolygon list before the
   // slice that closes its slab.
-  auto buildStream = [&](BrickDraw& d, std::vector<Instance>& instances, std::vector<float>& one) {
+  auto buildStream = [&](BrickDraw& d, std::vector<Instance>& instances, std::vector<float>& one,
+                         std::vector<std::pair<glm::dvec3, glm::dvec3>>& boxes) {
     std::vector<float>& poly = d.stream;
     // One vertex: position, normal, kind (0 slice, 1 surface triangle), slab.
     auto put = [&](const glm::vec3& p, const glm::vec3& n, float kind, float lo, float hi) {
@@ -970,6 +974,10 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     std::sort(instances.begin(), instances.end(), [](const Instance& x, const Instance& y) {
       return x.slab != y.slab ? x.slab > y.slab : x.depth > y.depth;
     });
+    if (d.ranges) {
+      boxes.resize(size_t(kHi - kLo + 1));
+      planeBoxes(*d.ranges, d.lattice, support, spacing, f, d.delta, kLo, &boxes);
+    }
     size_t next = 0;
     for (long long k = kHi; k >= kLo; --k) {
       if (options.slabOrder)
@@ -977,17 +985,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       const double plane = double(k) * d.delta;
       one.clear();
       glm::dvec3 lo = d.slo, hi = d.shi;
-      if (!d.blocks.empty()) {  // the box of the visible blocks this plane meets (sorted by near)
-        glm::dvec3 ulo(1e300), uhi(-1e300);
-        for (const VisibleBlock& v : d.blocks) {
-          if (v.near > plane) break;
-          if (plane <= v.far) {
-            ulo = glm::min(ulo, v.lo);
-            uhi = glm::max(uhi, v.hi);
-          }
-        }
-        lo = glm::max(lo, ulo);
-        hi = glm::min(hi, uhi);
+      if (d.ranges) {
+        lo = glm::max(lo, boxes[size_t(k - kLo)].first);
+        hi = glm::min(hi, boxes[size_t(k - kLo)].second);
       }
       if (d.sliced && plane >= bmin && plane < bmax && glm::all(glm::lessThanEqual(lo, hi)) &&
           (d.shell ? plane > 0.0 && shellPolygon(d.slo, d.shi, camera.eye, d.frame, plane, shellCells(plane), &one)
@@ -1046,9 +1046,10 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   std::thread worker([&] {
     std::vector<Instance> instances;
     std::vector<float> one;
+    std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes;
     try {
       for (BrickDraw& d : draws) {
-        buildStream(d, instances, one);
+        buildStream(d, instances, one, boxes);
         built.fetch_add(1, std::memory_order_release);
         built.notify_one();
       }
