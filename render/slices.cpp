@@ -308,54 +308,59 @@ class LutSupport {
   std::vector<int> mPrefix;
 };
 
-// The box (voxel units) of the cells of lattice @p L whose ranges @p support can make visible;
-// false when there is none.
-bool visibleBox(const BrickRanges& r, const KnotLattice& L, const LutSupport& support, glm::dvec3* lo, glm::dvec3* hi) {
-  glm::ivec3 b0(std::numeric_limits<int>::max()), b1(-1);
+// Calls visit(block) for every block of @p r whose span @p support can make visible.
+template <class Visit>
+void forEachVisibleBlock(const BrickRanges& r, const LutSupport& support, const Visit& visit) {
   size_t index = 0;
   for (int bz = 0; bz < r.blocks.z; ++bz)
     for (int by = 0; by < r.blocks.y; ++by)
       for (int bx = 0; bx < r.blocks.x; ++bx, ++index)
-        if (support.anyVisible(r.entries[index])) {
-          b0 = glm::min(b0, glm::ivec3(bx, by, bz));
-          b1 = glm::max(b1, glm::ivec3(bx, by, bz));
-        }
-  if (b1.x < 0) return false;
+        if (support.anyVisible(r.entries[index])) visit(glm::ivec3(bx, by, bz));
+}
+
+// The box (voxel units) of blocks @p b0 to @p b1 of lattice @p L (blocks are 2×2×2 cells).
+void blockBox(const KnotLattice& L, const glm::ivec3& b0, const glm::ivec3& b1, glm::dvec3* lo, glm::dvec3* hi) {
   for (int a = 0; a < 3; ++a) {
     (*lo)[a] = L.knot(a, std::min(2 * b0[a], L.dims[a] - 1));
     (*hi)[a] = L.knot(a, std::min(2 * b1[a] + 2, L.dims[a] - 1));
   }
+}
+
+// The box (voxel units) of the cells of lattice @p L whose ranges @p support can make visible;
+// false when there is none.
+bool visibleBox(const BrickRanges& r, const KnotLattice& L, const LutSupport& support, glm::dvec3* lo, glm::dvec3* hi) {
+  glm::ivec3 b0(std::numeric_limits<int>::max()), b1(-1);
+  forEachVisibleBlock(r, support, [&](const glm::ivec3& b) {
+    b0 = glm::min(b0, b);
+    b1 = glm::max(b1, b);
+  });
+  if (b1.x < 0) return false;
+  blockBox(L, b0, b1, lo, hi);
   return true;
 }
 
-// For planes f·X = k·delta, k in [kLo, kLo + boxes->size()): the box of the visible blocks of 2×2×2
-// cells each plane meets (empty boxes have lo > hi). A block meets the planes between the depths
-// of its nearest and farthest corners.
+// For planes f·X = k·delta, k in [kLo, kLo + boxes->size()): the box (mm) of the visible blocks
+// each plane meets (empty boxes have lo > hi). A block meets the planes between the depths of its
+// nearest and farthest corners.
 void planeBoxes(const BrickRanges& r, const KnotLattice& L, const LutSupport& support, const glm::dvec3& spacing, const glm::dvec3& f,
                 double delta, long long kLo, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes) {
   const long long count = (long long)boxes->size();
   std::fill(boxes->begin(), boxes->end(), std::pair{glm::dvec3(1e300), glm::dvec3(-1e300)});
   const glm::dvec3 nearSide(glm::greaterThan(f, glm::dvec3(0.0)));  // 1 where the near corner takes lo
-  size_t index = 0;
-  for (int bz = 0; bz < r.blocks.z; ++bz)
-    for (int by = 0; by < r.blocks.y; ++by)
-      for (int bx = 0; bx < r.blocks.x; ++bx, ++index) {
-        if (!support.anyVisible(r.entries[index])) continue;
-        const glm::ivec3 b(bx, by, bz);
-        glm::dvec3 lo, hi;
-        for (int a = 0; a < 3; ++a) {
-          lo[a] = L.knot(a, std::min(2 * b[a], L.dims[a] - 1)) * spacing[a];
-          hi[a] = L.knot(a, std::min(2 * b[a] + 2, L.dims[a] - 1)) * spacing[a];
-        }
-        const glm::dvec3 nearCorner = glm::mix(hi, lo, nearSide);
-        const long long k0 = std::max((long long)std::ceil(glm::dot(f, nearCorner) / delta) - kLo, 0LL);
-        const long long k1 = std::min((long long)std::floor(glm::dot(f, lo + hi - nearCorner) / delta) - kLo, count - 1);
-        for (long long k = k0; k <= k1; ++k) {
-          auto& [ulo, uhi] = (*boxes)[size_t(k)];
-          ulo = glm::min(ulo, lo);
-          uhi = glm::max(uhi, hi);
-        }
-      }
+  forEachVisibleBlock(r, support, [&](const glm::ivec3& b) {
+    glm::dvec3 lo, hi;
+    blockBox(L, b, b, &lo, &hi);
+    lo *= spacing;
+    hi *= spacing;
+    const glm::dvec3 nearCorner = glm::mix(hi, lo, nearSide);
+    const long long k0 = std::max((long long)std::ceil(glm::dot(f, nearCorner) / delta) - kLo, 0LL);
+    const long long k1 = std::min((long long)std::floor(glm::dot(f, lo + hi - nearCorner) / delta) - kLo, count - 1);
+    for (long long k = k0; k <= k1; ++k) {
+      auto& [ulo, uhi] = (*boxes)[size_t(k)];
+      ulo = glm::min(ulo, lo);
+      uhi = glm::max(uhi, hi);
+    }
+  });
 }
 
 // Appends plane f·X = depth ∩ box [lo, hi] as a triangle fan (world mm) to @p out; returns whether
