@@ -152,7 +152,7 @@ struct RenderOptions {
         ->capture_default_str();
     cmd->add_option("--max-brick", maxBrick, "brick edge in texels (power of two)")->capture_default_str();
     cmd->add_option("--texel-bits", texelBits,
-                    "brick precision: 8 (value and gradient in 8 bits, fastest) or 16 (twice the memory, ~15-40 % slower frames; "
+                    "brick precision: 8 (value and gradient in 8 bits, fastest) or 16 (twice the memory, ~10 % slower frames; "
                     "for transfer functions narrow against a brick's values, e.g. soft tissue)")
         ->capture_default_str();
   }

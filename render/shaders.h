@@ -95,7 +95,7 @@ flat in vec2 vSlab;
 #endif
 out vec4 fragColor;
 uniform vec4 surfaceColor;  // straight rgb, alpha per crossing
-uniform sampler3D volumeTex;  // the brick's lattice: normalised value, gradient direction (RGBA8)
+uniform sampler3D volumeTex;  // the brick's lattice: normalised value, gradient direction (RGBA8 or RGBA16)
 uniform vec3 eye, forward;
 uniform float sliceSpacing;  // mm between this brick's slice planes along forward
 uniform int shells;  // 1: this brick's proxies are spherical shells around the eye
