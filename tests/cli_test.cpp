@@ -67,6 +67,19 @@ TEST(Cli, InfoBuildAndSelect) {
   EXPECT_THAT(r.out, HasSubstr("max nodal error used 0.00"));
   const auto json = test::readBytes(dir.file("st.json"));
   EXPECT_THAT(std::string(json.begin(), json.end()), HasSubstr("\"nodes_selected\": 1"));
+  // Texture bytes follow the texels' precision: 4 bytes a texel by default, 8 with 16 bits.
+  auto number = [&](const std::string& file, const std::string& key) {
+    const auto bytes = test::readBytes(file);
+    const std::string text(bytes.begin(), bytes.end());
+    const size_t at = text.find("\"" + key + "\": ");
+    return at == std::string::npos ? -1.0 : std::stod(text.substr(at + key.size() + 4));
+  };
+  const double texels = number(dir.file("st.json"), "texels");
+  EXPECT_GT(texels, 0.0);
+  EXPECT_EQ(number(dir.file("st.json"), "texture_bytes"), 4.0 * texels);
+  r = run({"render", dir.file("s.hoct"), "--texel-bits", "16", "--stats", dir.file("st16.json")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(number(dir.file("st16.json"), "texture_bytes"), 8.0 * texels);
 
   r = run({"render", nhdr, "--epsilon", "100"});
   ASSERT_EQ(r.status, 0) << r.err;
