@@ -35,7 +35,8 @@ std::string octreeSummary(const Volume& v, const VolumeOctree& t) {
   size_t leaves = 0;
   for (const OctreeNode& n : t.nodes()) leaves += n.isLeaf();
   s << "octree   depth " << t.depth() << ", leaf edge " << t.leafEdge() << ", " << t.nodes().size() << " nodes (" << leaves
-    << " leaves), " << t.errorData().size() << " nodal errors\n";
+    << " leaves), " << t.errorData().size() << " nodal errors, coarse knots " << (t.prefiltered() ? "prefiltered" : "point-subsampled")
+    << "\n";
   s << "memory   " << t.bytesUsed() << " bytes = " << std::fixed << std::setprecision(2)
     << 100.0 * double(t.bytesUsed()) / double(v.sourceBytes()) << " % of the " << scalarName(v.sourceType()) << " volume\n";
   const auto e = t.errors(t.root());
@@ -66,8 +67,10 @@ struct BuildOptions {
   std::string output;
   std::optional<double> iso;
   int leafEdge = 8;
+  std::string prefilter = "on";
   std::string validate() const {
     if (output.empty()) return "-o missing (expected the scene file to write, e.g. -o scene.hoct)";
+    if (prefilter != "on" && prefilter != "off") return "--prefilter must be on or off";
     if (leafEdge < 1 || leafEdge > 256 || (leafEdge & (leafEdge - 1))) return "--leaf-edge must be a power of two in 1..256";
     if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
     return "";
@@ -89,7 +92,7 @@ std::string surfaceSummary(const SurfaceOctree& so, std::optional<double> buildM
 int runBuild(const BuildOptions& o, std::ostream& out) {
   const Volume v = o.input.read();
   const auto t0 = Clock::now();
-  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{o.leafEdge});
+  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{o.leafEdge, o.prefilter == "on"});
   const double ms = msSince(t0);
   out << v.toString() << octreeSummary(v, t);
   out << "build    " << std::fixed << std::setprecision(1) << ms << " ms (" << double(v.voxelCount()) / (ms * 1e3)
@@ -291,6 +294,9 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   buildCmd->add_option("-o,--output", build.output, "scene file to write (.hoct)");
   buildCmd->add_option("--iso", build.iso, "isovalue of the Surface Octree to build (data units; none = volume only)");
   buildCmd->add_option("--leaf-edge", build.leafEdge, "edge in voxels of the smallest octree nodes")->capture_default_str();
+  buildCmd->add_option("--prefilter", build.prefilter,
+                       "coarse levels (texels 4+ voxels apart) hold the data smoothed by their tent filter: on|off")
+      ->capture_default_str();
 
   RenderOptions render;
   CLI::App* renderCmd = app.add_subcommand("render", "render one image (slice renderer or reference ray tracer)");

@@ -33,7 +33,7 @@ glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
   return {x[0], x[1], x[2]};
 }
 
-Scene loadOrBuild(const VolumeInput& in, std::ostream& out, double* buildMs) {
+Scene loadOrBuild(const VolumeInput& in, std::ostream& out, double* buildMs, const VolumeOctreeOptions& options) {
   const auto t0 = Clock::now();
   Scene scene;
   if (!in.rawLayout() && isSceneFile(in.path)) {
@@ -44,7 +44,7 @@ Scene loadOrBuild(const VolumeInput& in, std::ostream& out, double* buildMs) {
   }
   scene.volume = in.read();
   const auto t1 = Clock::now();
-  scene.octree = VolumeOctree::build(scene.volume);
+  scene.octree = VolumeOctree::build(scene.volume, options);
   *buildMs = msSince(t1);
   out << "read " << in.path << " in " << std::fixed << std::setprecision(1) << msSince(t0) - *buildMs
       << " ms, built volume octree in " << *buildMs << " ms\n";
@@ -99,7 +99,9 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
   f->background = glm::vec3(parseColor(o.background, "--background", 3));
   const glm::ivec2 size = parseSize(o.size);
   const std::vector<double> orbit = parseNumbers(o.orbit, "--orbit", 2, "two finite numbers azimuth,elevation in degrees");
-  f->scene = loadOrBuild(o.input, out, &f->buildMs);
+  VolumeOctreeOptions octree;
+  octree.prefilter = o.prefilter == "on";
+  f->scene = loadOrBuild(o.input, out, &f->buildMs, octree);
   const Volume& v = f->scene.volume;
   // Transfer function: file, preset, or a default chosen from the data's range.
   f->tf = !o.tfFile.empty()   ? TransferFunction::fromFile(o.tfFile)

@@ -80,14 +80,14 @@ struct VolumeInput {
 
 
 /// Loads a scene file, or reads a volume and builds its octree (printing what it did on @p out).
-Scene loadOrBuild(const VolumeInput& in, std::ostream& out, double* buildMs);
+Scene loadOrBuild(const VolumeInput& in, std::ostream& out, double* buildMs, const VolumeOctreeOptions& options = {});
 
 /// Render flags (DESIGN 2), shared by render and bench.
 struct RenderOptions {
   VolumeInput input;
   std::string output, stats, focus, renderer = "slices", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
   std::string eye, center, up = "0,0,1", orbit = "180,10", size = "512x512", background = "0,0,0", shading = "on";
-  std::string blend = "on", cut, cutLine = "on", voi, proxy = "planes";
+  std::string blend = "on", cut, cutLine = "on", voi, proxy = "planes", prefilter = "on";
   double voiInside = 1.0, voiOutside = 0.1, voiRamp = 4.0, lodPixels = 0.0;
   std::optional<double> iso;
   double epsilon = 0.0, budgetMb = 0.0, fov = 30.0;
@@ -106,6 +106,7 @@ struct RenderOptions {
     if (step && !(*step > 0.01 && *step <= 4)) return "--step must be in (0.01, 4] voxels";
     if (shading != "on" && shading != "off") return "--shading must be on or off";
     if (blend != "on" && blend != "off") return "--blend must be on or off";
+    if (prefilter != "on" && prefilter != "off") return "--prefilter must be on or off";
     if (proxy != "planes" && proxy != "shells") return "--proxy '" + proxy + "' invalid (expected planes or shells)";
     if (cutLine != "on" && cutLine != "off") return "--cut-line must be on or off";
     if (progressive < 1 || progressive > 8) return "--progressive must be in 1..8 images";
@@ -141,6 +142,10 @@ struct RenderOptions {
     cmd->add_option("--proxy", proxy, "slice geometry: planes (view-aligned) or shells (spherical around the eye, perspective)")
         ->capture_default_str();
     cmd->add_option("--blend", blend, "blend bricks towards coarser neighbours (Carmona et al.): on|off")->capture_default_str();
+    cmd->add_option("--prefilter", prefilter,
+                    "coarse levels (texels 4+ voxels apart) hold the data smoothed by their tent filter instead of point samples "
+                    "(no aliasing of thin structures): on|off (a scene file keeps the choice it was built with)")
+        ->capture_default_str();
     cmd->add_option("--cut", cut, "cutting plane px,py,pz,nx,ny,nz (point and normal, mm): removes the eye's side, shows the data on it");
     cmd->add_option("--cut-line", cutLine, "draw the isosurface's intersection with the cutting plane: on|off")->capture_default_str();
     cmd->add_option("--voi", voi, "volume of interest x0,y0,z0,x1,y1,z1 (mm): opacity scaled inside/outside the box (Levoy)");

@@ -97,6 +97,7 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
   vol.putArray(volume.samples());
   Writer oct;
   oct.put(int32_t(octree.leafEdge()));
+  oct.put(uint32_t(octree.prefiltered()));
   oct.putArray(octree.nodes());
   oct.putArray(octree.errorData());
   std::vector<std::pair<uint32_t, const Writer*>> sections = {{kVolumeTag, &vol}, {kOctreeTag, &oct}};
@@ -176,9 +177,12 @@ Scene loadScene(const std::string& path) {
     const auto& b = section(kOctreeTag, "volume octree");
     Reader r(b.data(), b.size(), path);
     const int32_t leafEdge = r.get<int32_t>();
+    const uint32_t prefiltered = version >= 2 ? r.get<uint32_t>() : 0;  // version 1: point-subsampled knots
+    if (prefiltered > 1) HYB_THROW(IoError, path, ": octree knot mode ", prefiltered, " unknown (expected 0 or 1)");
     std::vector<OctreeNode> nodes = r.getArray<OctreeNode>();
     std::vector<float> errors = r.getArray<float>();
-    scene.octree = VolumeOctree::fromParts(scene.volume.dims(), leafEdge, std::move(nodes), std::move(errors), path);
+    scene.octree = VolumeOctree::fromParts(scene.volume.dims(), leafEdge, std::move(nodes), std::move(errors), path,
+                                           prefiltered ? &scene.volume : nullptr);
   }
   if (const auto it = sections.find(kSurfaceTag); it != sections.end()) {
     Reader r(it->second.data(), it->second.size(), path);

@@ -16,7 +16,7 @@
 namespace hyb {
 
 /// Current scene-file version.
-inline constexpr uint32_t kSceneVersion = 1;
+inline constexpr uint32_t kSceneVersion = 2;  // 2: the octree records whether its coarse knots are prefiltered
 
 /// A loaded scene: the volume, its Volume Octree and, when built with an isovalue, its Surface Octree.
 struct Scene {

@@ -146,7 +146,7 @@ struct AxisKnots {
 
 // Leaves: min/max over their samples and ε_p for every sub-level, computed inside a cached block.
 // The trilinear approximation of spacing e is evaluated separably (x, then y, then z).
-void buildLeaves(const Volume& v, const Geometry& g, LevelData* out) {
+void buildLeaves(const Volume& v, const Geometry& g, const KnotPyramid& knots, LevelData* out) {
   const int E = g.leafEdge, B = E + 1, levels = g.depth - g.leafLevel + 1;
   const size_t count = g.countAt(g.leafLevel);
   out->minV.resize(count);
@@ -155,7 +155,7 @@ void buildLeaves(const Volume& v, const Geometry& g, LevelData* out) {
   const glm::ivec3 dims = v.dims();
 #pragma omp parallel
   {
-    std::vector<float> block(size_t(B) * B * B), ax(block.size()), by(block.size());
+    std::vector<float> block(size_t(B) * B * B), ax(block.size()), by(block.size()), filtered(block.size());
     AxisKnots kx, ky, kz;
     auto at = [B](std::vector<float>& a, int x, int y, int z) -> float& { return a[size_t(x) + size_t(B) * (y + size_t(B) * z)]; };
 #pragma omp for schedule(dynamic, 8)
@@ -181,10 +181,18 @@ void buildLeaves(const Volume& v, const Geometry& g, LevelData* out) {
         kx.reset(e, lim.x);
         ky.reset(e, lim.y);
         kz.reset(e, lim.z);
+        // The knot values: the samples, or the prefiltered values where the spacing asks for them.
+        std::vector<float>* knotValues = &block;
+        if (knots.covers(e)) {
+          for (int Z : kz.knots)
+            for (int Y : ky.knots)
+              for (int X : kx.knots) at(filtered, X, Y, Z) = knots.at(e, o + glm::ivec3(X, Y, Z));
+          knotValues = &filtered;
+        }
         // x: rows on the knot lattice of (y, z).
         for (int Z : kz.knots)
           for (int Y : ky.knots) {
-            const float* src = &at(block, 0, Y, Z);
+            const float* src = &at(*knotValues, 0, Y, Z);
             float* dst = &at(ax, 0, Y, Z);
             for (int x = 0; x <= lim.x; ++x) {
               const float a = src[kx.left[size_t(x)]], b = src[kx.right[size_t(x)]];
@@ -218,7 +226,7 @@ void buildLeaves(const Volume& v, const Geometry& g, LevelData* out) {
 // ε_0 of every node at an upper level, straight from the samples: along a row of fixed (y, z) the
 // trilinear approximation is linear in x, so each row costs one bilinear pair and a linear scan.
 // The far corners are the grid's last samples where the node overhangs the grid (position clamping).
-std::vector<float> directNodalErrors(const Volume& v, const Geometry& g, int level) {
+std::vector<float> directNodalErrors(const Volume& v, const Geometry& g, const KnotPyramid& knots, int level) {
   const int E = g.edgeAt(level);
   const size_t count = g.countAt(level);
   const size_t slices = size_t(E) + 1;
@@ -234,18 +242,22 @@ std::vector<float> directNodalErrors(const Volume& v, const Geometry& g, int lev
     const int z = o.z + dz;
     if (z > hi.z) continue;
     const float* s = v.samples().data();
-    auto corner = [&](int x, int y, int zz) { return s[v.index(x, y, zz)]; };
+    float corners[8];  // the knot values at the node's corners (bit 0: x = hi.x, 1: y = hi.y, 2: z = hi.z)
+    for (int c = 0; c < 8; ++c) {
+      const glm::ivec3 q(c & 1 ? hi.x : o.x, c & 2 ? hi.y : o.y, c & 4 ? hi.z : o.z);
+      corners[c] = knots.covers(E) ? knots.at(E, q) : s[v.index(q.x, q.y, q.z)];
+    }
     const float wz = float(dz) * inverse(hi.z - o.z);
     const float invY = inverse(hi.y - o.y), invX = inverse(hi.x - o.x);
     float eps = 0.0f;
     for (int y = o.y; y <= hi.y; ++y) {
       const float wy = float(y - o.y) * invY;
-      auto bilerp = [&](int x) {
-        const float a = corner(x, o.y, o.z) + (corner(x, hi.y, o.z) - corner(x, o.y, o.z)) * wy;
-        const float b = corner(x, o.y, hi.z) + (corner(x, hi.y, hi.z) - corner(x, o.y, hi.z)) * wy;
+      auto bilerp = [&](int cx) {
+        const float a = corners[cx] + (corners[cx | 2] - corners[cx]) * wy;
+        const float b = corners[cx | 4] + (corners[cx | 6] - corners[cx | 4]) * wy;
         return a + (b - a) * wz;
       };
-      const float a = bilerp(o.x), b = bilerp(hi.x);
+      const float a = bilerp(0), b = bilerp(1);
       eps = std::max(eps, maxLinearResidual(s + v.index(o.x, y, z), hi.x - o.x + 1, a, (b - a) * invX));
     }
     sliceErr[item] = eps;
@@ -264,9 +276,11 @@ VolumeOctree VolumeOctree::build(const Volume& volume, const VolumeOctreeOptions
   HYB_CHECK(!volume.empty());
   const Geometry g = geometryFor(volume.dims(), options.leafEdge);
 
+  KnotPyramid knots = options.prefilter ? KnotPyramid(volume) : KnotPyramid();
+
   // Bottom-up over the dense per-level grids.
   std::vector<LevelData> levels(size_t(g.leafLevel) + 1);
-  buildLeaves(volume, g, &levels[size_t(g.leafLevel)]);
+  buildLeaves(volume, g, knots, &levels[size_t(g.leafLevel)]);
   for (int k = g.leafLevel - 1; k >= 0; --k) {
     LevelData& d = levels[size_t(k)];
     const LevelData& c = levels[size_t(k) + 1];
@@ -275,7 +289,7 @@ VolumeOctree VolumeOctree::build(const Volume& volume, const VolumeOctreeOptions
     d.minV.assign(count, std::numeric_limits<float>::max());
     d.maxV.assign(count, -std::numeric_limits<float>::max());
     d.err.assign(count * nErr, 0.0f);
-    const std::vector<float> eps0 = directNodalErrors(volume, g, k);
+    const std::vector<float> eps0 = directNodalErrors(volume, g, knots, k);
     for (size_t i = 0; i < count; ++i) {
       const glm::ivec3 idx = g.unravel(k, i);
       float* e = &d.err[i * nErr];
@@ -308,11 +322,12 @@ VolumeOctree VolumeOctree::build(const Volume& volume, const VolumeOctreeOptions
     std::copy_n(&d.err[di * nErr], nErr, &t.mErrors[n.errorOffset]);
   }
   t.mNodes = std::move(s.nodes);
+  t.mKnots = std::move(knots);
   return t;
 }
 
 VolumeOctree VolumeOctree::fromParts(glm::ivec3 dims, int leafEdge, std::vector<OctreeNode> nodes,
-                                     std::vector<float> errors, const std::string& source) {
+                                     std::vector<float> errors, const std::string& source, const Volume* prefilteredFrom) {
   validateDims(dims, source);
   if (leafEdge < 1 || leafEdge > 256 || (leafEdge & (leafEdge - 1)))
     HYB_THROW(IoError, source, ": stored leaf edge ", leafEdge, " invalid (expected a power of two in 1..256)");
@@ -338,6 +353,10 @@ VolumeOctree VolumeOctree::fromParts(glm::ivec3 dims, int leafEdge, std::vector<
   t.mLeafEdge = g.leafEdge;
   t.mNodes = std::move(nodes);
   t.mErrors = std::move(errors);
+  if (prefilteredFrom) {
+    HYB_CHECK(prefilteredFrom->dims() == dims);
+    t.mKnots = KnotPyramid(*prefilteredFrom);
+  }
   return t;
 }
 
@@ -366,6 +385,21 @@ KnotLattice VolumeOctree::coarseLattice(const OctreeNode& n, int p) const {
   const int step = 2 * (edge(n) >> p);
   const glm::ivec3 o(n.origin), lo = o / step * step, hi = (o + edge(n) + step - 1) / step * step;
   return makeLattice(lo, step, hi, mDims);
+}
+
+float VolumeOctree::knotField(const Volume& v, int step, const glm::ivec3& p) const {
+  glm::ivec3 lo, hi;
+  glm::vec3 t;
+  for (int a = 0; a < 3; ++a) {
+    const int last = mDims[a] - 1;
+    lo[a] = std::min(p[a] / step * step, last);
+    hi[a] = std::min(lo[a] + step, last);
+    t[a] = hi[a] > lo[a] ? float(p[a] - lo[a]) / float(hi[a] - lo[a]) : 0.0f;
+  }
+  auto at = [&](int c) { return knotValue(v, step, glm::ivec3(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z)); };
+  const float x00 = glm::mix(at(0), at(1), t.x), x10 = glm::mix(at(2), at(3), t.x);
+  const float x01 = glm::mix(at(4), at(5), t.x), x11 = glm::mix(at(6), at(7), t.x);
+  return glm::mix(glm::mix(x00, x10, t.y), glm::mix(x01, x11, t.y), t.z);
 }
 
 void VolumeOctree::voxelBox(const OctreeNode& n, glm::ivec3* lo, glm::ivec3* hi) const {

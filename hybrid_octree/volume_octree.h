@@ -13,6 +13,12 @@
 // stored node; ε_p = max over children of ε_(p−1) (exact); below the leaves the sub-levels are
 // computed directly inside each leaf. ε_(L−k) = 0.
 //
+// Knot values. Lattices take the samples at their knots (the paper's subsampling) except, when the
+// octree is built with prefiltering (the default), those spaced kPrefilterSpacing…
+// kPrefilterMaxSpacing voxels apart: they take the volume prefiltered by the lattice's tent
+// (knot_pyramid.h). Nodal errors are measured against the knots a lattice holds, so ε_p keeps its
+// meaning: the largest difference between the samples and what a brick at level p shows.
+//
 // Textures built from a node at level p hold the knot values; a renderer that needs uniformly
 // spaced texels extrapolates the overhanging last texel linearly, which reproduces T exactly.
 #pragma once
@@ -25,6 +31,7 @@
 #include <string>
 #include <vector>
 
+#include "hybrid_octree/knot_pyramid.h"
 #include "hybrid_octree/octree_node.h"
 #include "surface/mesh.h"
 #include "volume/volume.h"
@@ -46,7 +53,8 @@ struct KnotLattice {
 
 /// Build parameters of a VolumeOctree.
 struct VolumeOctreeOptions {
-  int leafEdge = 8;  ///< edge in cells of the smallest stored nodes (power of two, 1…256)
+  int leafEdge = 8;        ///< edge in cells of the smallest stored nodes (power of two, 1…256)
+  bool prefilter = true;   ///< coarse lattices (≥ kPrefilterSpacing apart) hold tent-prefiltered knots
 };
 
 /// The Volume Octree, built once and stored as one pointer-free node array.
@@ -61,8 +69,11 @@ class VolumeOctree {
   /// Reassembles an octree from stored parts (scene files), checking that the node array has exactly
   /// the shape @p dims and @p leafEdge imply and that every value is finite.
   /// @throw IoError naming @p source when the parts are inconsistent.
+  /// With @p prefilteredFrom (the volume the parts were built from), the octree is a prefiltered one
+  /// and its knot pyramid is rebuilt from that volume.
   static VolumeOctree fromParts(glm::ivec3 dims, int leafEdge, std::vector<OctreeNode> nodes,
-                                std::vector<float> errors, const std::string& source);
+                                std::vector<float> errors, const std::string& source,
+                                const Volume* prefilteredFrom = nullptr);
 
   /// L: the root's edge is 2^L cells.
   int depth() const { return mDepth; }
@@ -94,11 +105,24 @@ class VolumeOctree {
   /// it) that cover @p n: the data a brick next to a coarser neighbour blends towards. For p ≥ 1
   /// they are every other knot of lattice(n, p); for p = 0 they are the parent's corners.
   KnotLattice coarseLattice(const OctreeNode& n, int p) const;
+  /// Whether lattices spaced kPrefilterSpacing or more apart hold prefiltered knots.
+  bool prefiltered() const { return !mKnots.empty(); }
+  /// The value a lattice of spacing @p step holds at its knot @p p (each coordinate a multiple of
+  /// step or the grid's last index): the sample, or the prefiltered value.
+  float knotValue(const Volume& v, int step, const glm::ivec3& p) const {
+    return mKnots.covers(step) ? mKnots.at(step, p) : v.at(p.x, p.y, p.z);
+  }
+  /// The trilinear field at voxel @p p of the position-clamped lattice of spacing @p step whose
+  /// knots are the multiples of step (and the grid's last index): what a brick of that spacing
+  /// shows there. @p v is the volume the octree was built from.
+  float knotField(const Volume& v, int step, const glm::ivec3& p) const;
   /// Voxel-space box of @p n cropped to the grid: [lo, hi] with hi ≤ dims − 1.
   void voxelBox(const OctreeNode& n, glm::ivec3* lo, glm::ivec3* hi) const;
 
-  /// Bytes held by the node and error arrays (the octree's memory overhead).
-  size_t bytesUsed() const { return mNodes.size() * sizeof(OctreeNode) + mErrors.size() * sizeof(float) + sizeof(*this); }
+  /// Bytes held by the node and error arrays and the knot pyramid (the octree's memory overhead).
+  size_t bytesUsed() const {
+    return mNodes.size() * sizeof(OctreeNode) + mErrors.size() * sizeof(float) + mKnots.bytesUsed() + sizeof(*this);
+  }
 
  private:
   glm::ivec3 mDims{0};
@@ -106,6 +130,7 @@ class VolumeOctree {
   int mLeafEdge = 1;
   std::vector<OctreeNode> mNodes;
   std::vector<float> mErrors;
+  KnotPyramid mKnots;  // empty unless prefiltered
 };
 
 /// The leaves whose samples straddle @p iso (some < iso, some ≥ iso) as voxel blocks: the only cells

@@ -141,40 +141,28 @@ auto latticeTexels(const KnotLattice& L, const Value& value) {
   return out;
 }
 
-// The position-clamped trilinear field of lattice @p L at voxel @p p.
-float latticeField(const Volume& v, const KnotLattice& L, const glm::ivec3& p) {
-  glm::ivec3 lo, hi;
-  glm::vec3 t;
-  for (int a = 0; a < 3; ++a) {
-    const int j = std::clamp((p[a] - L.origin[a]) / L.step, 0, std::max(L.dims[a] - 2, 0));
-    lo[a] = L.knot(a, j);
-    hi[a] = L.knot(a, j + 1);
-    t[a] = hi[a] > lo[a] ? float(p[a] - lo[a]) / float(hi[a] - lo[a]) : 0.0f;
-  }
-  auto at = [&](int c) { return v.at(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z); };
-  const float x00 = glm::mix(at(0), at(1), t.x), x10 = glm::mix(at(2), at(3), t.x);
-  const float x01 = glm::mix(at(4), at(5), t.x), x11 = glm::mix(at(6), at(7), t.x);
-  return glm::mix(glm::mix(x00, x10, t.y), glm::mix(x01, x11, t.y), t.z);
-}
-
-// The texels of brick @p b, value and gradient: its lattice's samples or, when a corner blends
-// (Carmona et al.), mix(coarse field, sample, w) with w trilinear in the corner weights over the
-// node's box. The gradient at a knot takes central differences of that field one knot step away
-// (one-sided on the volume's faces): at full resolution, Volume::gradientAt.
+// The texels of brick @p b, value and gradient: its lattice's knot values (samples, or prefiltered
+// ones on coarse lattices) or, when a corner blends (Carmona et al.), mix(coarse field, own field,
+// w) with w trilinear in the corner weights over the node's box. The gradient at a knot takes
+// central differences of that field one knot step away (one-sided on the volume's faces): at full
+// resolution, Volume::gradientAt.
 std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const Brick& b) {
   const OctreeNode& n = t.nodes()[b.node];
   const KnotLattice fine = t.lattice(n, b.p);
   const KnotLattice coarse = b.coarseCorners ? t.coarseLattice(n, b.p) : fine;
   const glm::vec3 origin(n.origin);
   const float edge = float(t.edge(n));
+  // Point-subsampled lattices read the samples themselves, also between knots (the differences).
+  const bool prefiltered = t.prefiltered() && fine.step >= kPrefilterSpacing;
+  auto own = [&](const glm::ivec3& p) { return prefiltered ? t.knotField(v, fine.step, p) : v.at(p.x, p.y, p.z); };
   auto field = [&](const glm::ivec3& p) {
-    if (!b.coarseCorners) return v.at(p.x, p.y, p.z);
+    if (!b.coarseCorners) return own(p);
     const glm::vec3 u = glm::clamp((glm::vec3(p) - origin) / edge, 0.0f, 1.0f);
     float w = 0.0f;
     for (int c = 0; c < 8; ++c)
       if (!((b.coarseCorners >> c) & 1))
         w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
-    return glm::mix(latticeField(v, coarse, glm::clamp(p, coarse.origin, coarse.last)), v.at(p.x, p.y, p.z), w);
+    return glm::mix(t.knotField(v, coarse.step, glm::clamp(p, coarse.origin, coarse.last)), own(p), w);
   };
   return latticeTexels(fine, [&](const glm::ivec3& p) {
     return glm::vec4(field(p), centralDifferences(field, p, fine.step, v.dims(), v.spacing()));

@@ -61,6 +61,10 @@ TEST(Cli, InfoBuildAndSelect) {
   r = run({"build", nhdr, "-o", dir.file("s.hoct")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_TRUE(std::filesystem::exists(dir.file("s.hoct")));
+  EXPECT_THAT(r.out, HasSubstr("coarse knots prefiltered"));
+  r = run({"build", nhdr, "-o", dir.file("point.hoct"), "--prefilter", "off"});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("coarse knots point-subsampled"));
 
   r = run({"render", dir.file("s.hoct"), "--epsilon", "0", "--stats", dir.file("st.json")});
   ASSERT_EQ(r.status, 0) << r.err;
@@ -141,6 +145,8 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"render", nhdr, "--voi", "5,5,5,1,9,9"}, "--voi");
   expectBadInput({"render", nhdr, "--voi-outside", "-1"}, "--voi-outside");
   expectBadInput({"render", nhdr, "--blend", "maybe"}, "--blend");
+  expectBadInput({"render", nhdr, "--prefilter", "yes"}, "--prefilter");
+  expectBadInput({"build", nhdr, "-o", dir.file("x.hoct"), "--prefilter", "1"}, "--prefilter");
   expectBadInput({"render", nhdr, "--progressive", "3"}, "--progressive");
   expectBadInput({"render", nhdr, "--progressive", "0", "-o", dir.file("a.png")}, "--progressive");
   expectBadInput({"render", nhdr, "--repeat", "0"}, "--repeat");

@@ -2,6 +2,9 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <zlib.h>
+
+#include <cstring>
 
 #include "test_util.h"
 
@@ -34,6 +37,41 @@ TEST(SceneFile, RoundTripIsExact) {
   ASSERT_EQ(s.octree.nodes().size(), t.nodes().size());
   EXPECT_EQ(std::memcmp(s.octree.nodes().data(), t.nodes().data(), t.nodes().size() * sizeof(OctreeNode)), 0);
   EXPECT_EQ(s.octree.errorData(), t.errorData());
+}
+
+TEST(SceneFile, KnotModeRoundTripsAndVersionOneIsPointSubsampled) {
+  test::TempDir dir;
+  const Volume v = test::randomVolume({33, 20, 9}, 5);
+  for (const bool prefilter : {true, false}) {
+    const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{8, prefilter});
+    saveScene(dir.file("s.hoct"), v, t);
+    const Scene s = loadScene(dir.file("s.hoct"));
+    EXPECT_EQ(s.octree.prefiltered(), prefilter);
+    EXPECT_EQ(s.octree.errorData(), t.errorData());
+    for (const glm::ivec3 knot : {glm::ivec3(0, 0, 0), glm::ivec3(8, 16, 8), glm::ivec3(32, 19, 8)})
+      EXPECT_EQ(s.octree.knotValue(s.volume, 8, knot), t.knotValue(v, 8, knot));
+  }
+  // A version-1 file (no knot mode in the octree section) loads with point-subsampled knots.
+  std::vector<uint8_t> bytes = test::readBytes(dir.file("s.hoct"));  // the point-subsampled one
+  uint32_t version = 1;
+  std::memcpy(&bytes[8], &version, 4);
+  size_t pos = 16;
+  for (int section = 0; section < 2; ++section) {
+    uint64_t size;
+    std::memcpy(&size, &bytes[pos + 4], 8);
+    if (section == 1) {  // the octree: drop the u32 knot mode after the leaf edge, fix size and CRC
+      bytes.erase(bytes.begin() + ptrdiff_t(pos + 16 + 4), bytes.begin() + ptrdiff_t(pos + 16 + 8));
+      size -= 4;
+      std::memcpy(&bytes[pos + 4], &size, 8);
+      const uint32_t crc = uint32_t(crc32(0L, &bytes[pos + 16], uInt(size)));
+      std::memcpy(&bytes[pos + 12], &crc, 4);
+    }
+    pos += 16 + size;
+  }
+  test::writeBytes(dir.file("v1.hoct"), bytes);
+  const Scene old = loadScene(dir.file("v1.hoct"));
+  EXPECT_FALSE(old.octree.prefiltered());
+  EXPECT_EQ(old.octree.errorData(), VolumeOctree::build(v, VolumeOctreeOptions{8, false}).errorData());
 }
 
 TEST(SceneFile, SurfaceOctreeRoundTrip) {
@@ -81,7 +119,7 @@ TEST(SceneFile, RejectsForeignTruncatedCorruptAndNewer) {
   std::vector<uint8_t> newer = good;
   newer[8] = uint8_t(kSceneVersion + 1);
   test::writeBytes(dir.file("newer.hoct"), newer);
-  expectLoadFails(dir.file("newer.hoct"), "version 2 unsupported");
+  expectLoadFails(dir.file("newer.hoct"), "version " + std::to_string(kSceneVersion + 1) + " unsupported");
 }
 
 TEST(SceneFile, FromPartsRejectsInconsistentOctrees) {

@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "hybrid_octree/volume_octree.h"
 #include "volume/volume.h"
 
 namespace hyb::test {
@@ -115,8 +116,9 @@ std::vector<uint8_t> toBytes(const std::vector<T>& values, bool bigEndian = fals
 
 /// ε_p of the node with @p origin and @p edge straight from the definition: every sample of the
 /// node's box cut at the grid, full 8-corner trilinear weights in double, knots o + j·s with the
-/// last one moved onto the grid's last sample.
-inline float bruteForceNodalError(const Volume& v, glm::ivec3 origin, int edge, int p) {
+/// last one moved onto the grid's last sample, holding the values @p t's lattices hold there
+/// (samples, or prefiltered values).
+inline float bruteForceNodalError(const Volume& v, const VolumeOctree& octree, glm::ivec3 origin, int edge, int p) {
   const int s = edge >> p, cells = 1 << p;
   const glm::ivec3 last = v.dims() - 1;
   const glm::ivec3 hi = glm::min(origin + edge, last);
@@ -137,7 +139,7 @@ inline float bruteForceNodalError(const Volume& v, glm::ivec3 origin, int edge, 
         for (int c = 0; c < 8; ++c) {
           const glm::ivec3 q((c & 1) ? r.x : l.x, (c & 2) ? r.y : l.y, (c & 4) ? r.z : l.z);
           const double weight = ((c & 1) ? w.x : 1 - w.x) * ((c & 2) ? w.y : 1 - w.y) * ((c & 4) ? w.z : 1 - w.z);
-          t += weight * v.at(q.x, q.y, q.z);
+          t += weight * octree.knotValue(v, s, q);
         }
         worst = std::max(worst, std::fabs(double(v.at(x, y, z)) - t));
       }

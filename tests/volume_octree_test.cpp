@@ -83,11 +83,63 @@ TEST(VolumeOctree, TrilinearFieldHasZeroErrorAtEveryLevel) {
   }
 }
 
+// Sample i of the axis of n samples extended by odd reflection about its end samples, as weights
+// on the real samples, added times @p scale into @p w.
+void addOddExtension(int n, int i, double scale, std::vector<double>* w) {
+  if (n == 1 || (i >= 0 && i < n)) {
+    (*w)[size_t(n == 1 ? 0 : i)] += scale;
+    return;
+  }
+  const int end = i < 0 ? 0 : n - 1;
+  (*w)[size_t(end)] += 2.0 * scale;
+  addOddExtension(n, 2 * end - i, -scale, w);
+}
+
+// The tent of half-width s at knot q of an axis of n samples, as weights on the real samples.
+std::vector<double> tentWeights(int n, int s, int q) {
+  std::vector<double> w(size_t(n), 0.0);
+  for (int d = 1 - s; d < s; ++d) addOddExtension(n, q + d, double(s - std::abs(d)) / (double(s) * s), &w);
+  return w;
+}
+
+TEST(KnotPyramid, KnotsAreTheTentFilteredVolumeWithOddReflection) {
+  for (const glm::ivec3 dims : {glm::ivec3(37, 20, 9), glm::ivec3(1, 5, 3), glm::ivec3(2, 2, 2), glm::ivec3(65, 3, 40)}) {
+    const Volume v = test::randomVolume(dims, 11);
+    const KnotPyramid pyramid(v);
+    for (int s = kPrefilterSpacing; s <= kPrefilterMaxSpacing; s *= 2) {
+      ASSERT_TRUE(pyramid.covers(s));
+      std::vector<int> knots[3];
+      for (int a = 0; a < 3; ++a) {
+        for (int q = 0; q < dims[a] - 1; q += s) knots[a].push_back(q);
+        knots[a].push_back(dims[a] - 1);
+      }
+      for (int z : knots[2])
+        for (int y : knots[1])
+          for (int x : knots[0]) {
+            const std::vector<double> wx = tentWeights(dims.x, s, x), wy = tentWeights(dims.y, s, y), wz = tentWeights(dims.z, s, z);
+            double expected = 0.0;
+            for (int k = 0; k < dims.z; ++k)
+              for (int j = 0; j < dims.y; ++j)
+                for (int i = 0; i < dims.x; ++i) expected += wx[size_t(i)] * wy[size_t(j)] * wz[size_t(k)] * v.at(i, j, k);
+            ASSERT_NEAR(pyramid.at(s, glm::ivec3(x, y, z)), expected, 1e-3) << "spacing " << s << " knot " << x << "," << y << "," << z;
+          }
+    }
+  }
+  // Beyond the covered spacings, and point-subsampled octrees, lattices take the samples.
+  const Volume v = test::randomVolume({9, 9, 9}, 2);
+  EXPECT_FALSE(KnotPyramid(v).covers(2 * kPrefilterMaxSpacing));
+  EXPECT_FALSE(KnotPyramid(v).covers(kPrefilterSpacing / 2));
+  const VolumeOctree point = VolumeOctree::build(v, VolumeOctreeOptions{8, false});
+  EXPECT_EQ(point.knotValue(v, 4, glm::ivec3(4, 8, 0)), v.at(4, 8, 0));
+}
+
 TEST(VolumeOctree, SingleSpikeGivesHeightAtEveryAncestor) {
+  // Point-subsampled knots (the paper's definition); prefiltered ones are checked against the
+  // definition by the brute-force tests.
   const float h = 37.5f;
   const glm::ivec3 spike(5, 9, 3);  // odd coordinates: never a knot of any sub-grid coarser than 1
   const Volume v = test::makeVolume({33, 33, 17}, [&](int i, int j, int k) { return glm::ivec3(i, j, k) == spike ? h : 0.0f; });
-  const VolumeOctree t = VolumeOctree::build(v);
+  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{8, false});
   int ancestors = 0;
   for (const OctreeNode& n : t.nodes()) {
     glm::ivec3 lo, hi;
@@ -106,12 +158,13 @@ TEST(VolumeOctree, SingleSpikeGivesHeightAtEveryAncestor) {
 TEST(VolumeOctree, RecurrenceEqualsBruteForceOnRandomVolumes) {
   for (const glm::ivec3 dims : {glm::ivec3(17, 17, 17), glm::ivec3(33, 20, 9)}) {
     const Volume v = test::randomVolume(dims, 7);
-    for (int leafEdge : {2, 8}) {
-      const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{leafEdge});
+    for (const VolumeOctreeOptions options : {VolumeOctreeOptions{2, true}, VolumeOctreeOptions{8, true}, VolumeOctreeOptions{8, false}}) {
+      const VolumeOctree t = VolumeOctree::build(v, options);
+      EXPECT_EQ(t.prefiltered(), options.prefilter);
       size_t checked = 0;
       for (const OctreeNode& n : t.nodes())
         for (int p = 0; p <= t.maxLevel(n); ++p) {
-          const float brute = bruteForceNodalError(v, glm::ivec3(n.origin), t.edge(n), p);
+          const float brute = bruteForceNodalError(v, t, glm::ivec3(n.origin), t.edge(n), p);
           EXPECT_NEAR(t.errors(n)[size_t(p)], brute, 1e-4f * 200.0f)
               << "dims " << dims.x << "x" << dims.y << "x" << dims.z << " level " << int(n.level) << " p " << p;
           ++checked;
@@ -138,7 +191,7 @@ TEST(VolumeOctree, ConstantAndTinyVolumes) {
     EXPECT_EQ(t.root().maxValue, v.maxValue());
     for (const OctreeNode& n : t.nodes())
       for (int p = 0; p <= t.maxLevel(n); ++p)
-        EXPECT_NEAR(t.errors(n)[size_t(p)], bruteForceNodalError(v, glm::ivec3(n.origin), t.edge(n), p), 1e-3f);
+        EXPECT_NEAR(t.errors(n)[size_t(p)], bruteForceNodalError(v, t, glm::ivec3(n.origin), t.edge(n), p), 1e-3f);
   }
 }
 
@@ -278,11 +331,12 @@ TEST(Selection, TexelBudgetIsNeverExceededAndTheTreeStaysRestricted) {
 
 TEST(Selection, RestrictionRefinesCoarseNeighbours) {
   // Noise in one block touching the plane x = 32, constant elsewhere: ε alone leaves the coarse
-  // node beyond the plane (ratio 4) beside fine ones (ratio 1).
+  // node beyond the plane (ratio 4) beside fine ones (ratio 1). Point-subsampled knots: prefiltered
+  // ones would carry the noise across the plane and refine that node by ε already.
   const Volume v = test::makeVolume({65, 65, 65}, [](int i, int j, int k) {
     return i >= 24 && i < 32 && j < 8 && k < 8 ? double((i * 7 + j * 13 + k * 29) % 11) : 0.0;
   });
-  const VolumeOctree t = VolumeOctree::build(v);
+  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{8, false});
   SelectionParams params;
   params.maxBrickEdge = 8;
   params.restricted = false;
@@ -439,7 +493,7 @@ TEST(VolumeOctreeCranium, ExactSelectionAndSmallOverhead) {
   for (size_t i = 0; i < t.nodes().size(); i += 997) {
     const OctreeNode& n = t.nodes()[i];
     for (int p = 0; p <= std::min(2, t.maxLevel(n)); ++p)
-      EXPECT_NEAR(t.errors(n)[size_t(p)], bruteForceNodalError(v, glm::ivec3(n.origin), t.edge(n), p), 0.05f);
+      EXPECT_NEAR(t.errors(n)[size_t(p)], bruteForceNodalError(v, t, glm::ivec3(n.origin), t.edge(n), p), 0.05f);
   }
 }
 
