@@ -123,8 +123,7 @@ KnotPyramid::KnotPyramid(const Volume& volume) : mDims(volume.dims()) {
     Level& level = mLevels[l];
     const int s = level.spacing;
     const glm::ivec3 c = level.count;
-    std::vector<float> ay(size_t(c.x) * c.y * n.z);
-    level.values.resize(size_t(c.x) * c.y * c.z);
+    std::vector<float> ay(size_t(c.x) * c.y * n.z), values(size_t(c.x) * c.y * c.z);
     const ptrdiff_t plane = ptrdiff_t(c.x) * c.y;
     const OddExtension columns(n.y, s), pillars(n.z, s);
 #pragma omp parallel
@@ -151,10 +150,18 @@ KnotPyramid::KnotPyramid(const Volume& volume) : mDims(volume.dims()) {
         for (int r = 0; r < count; ++r) lines[r] = &ay[size_t(first + r)];
         pillars.secondPrefixSums(lines, count, plane, &p2);
         for (int r = 0; r < count; ++r)
-          for (int j = 0; j < c.z; ++j) level.values[size_t(first + r) + size_t(plane) * j] = pillars.tentAt(p2, r, knotAt(j, s, n.z, c.z), s);
+          for (int j = 0; j < c.z; ++j) values[size_t(first + r) + size_t(plane) * j] = pillars.tentAt(p2, r, knotAt(j, s, n.z, c.z), s);
       }
     }
     std::vector<float>().swap(ax[l]);
+    // Stored in 16 bits over the level's range: half the memory, and the knots a brick shows and
+    // the nodal errors are computed from are the stored ones, so nothing is approximated twice.
+    const auto [lo, hi] = std::minmax_element(values.begin(), values.end());
+    level.offset = *lo;
+    level.scale = *hi > *lo ? (*hi - *lo) / 65535.0f : 0.0f;
+    level.codes.resize(values.size());
+    for (size_t i = 0; i < values.size(); ++i)
+      level.codes[i] = level.scale > 0.0f ? uint16_t(std::min(65535.0f, (values[i] - level.offset) / level.scale + 0.5f)) : 0;
   }
 }
 
@@ -166,12 +173,12 @@ float KnotPyramid::at(int s, const glm::ivec3& p) const {
     HYB_DCHECK(p[a] >= 0 && p[a] < mDims[a] && (p[a] % s == 0 || p[a] == mDims[a] - 1));
     j[a] = p[a] == mDims[a] - 1 ? level.count[a] - 1 : p[a] / s;
   }
-  return level.values[size_t(j.x) + size_t(level.count.x) * (size_t(j.y) + size_t(level.count.y) * size_t(j.z))];
+  return level.offset + level.scale * float(level.codes[size_t(j.x) + size_t(level.count.x) * (size_t(j.y) + size_t(level.count.y) * size_t(j.z))]);
 }
 
 size_t KnotPyramid::bytesUsed() const {
   size_t bytes = sizeof(*this);
-  for (const Level& l : mLevels) bytes += l.values.size() * sizeof(float) + sizeof(Level);
+  for (const Level& l : mLevels) bytes += l.codes.size() * sizeof(uint16_t) + sizeof(Level);
   return bytes;
 }
 
