@@ -3,6 +3,7 @@
 #include "hybrid_octree/volume_octree.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -223,48 +224,73 @@ void buildLeaves(const Volume& v, const Geometry& g, const KnotPyramid& knots, L
   }
 }
 
-// ε_0 of every node at an upper level, straight from the samples: along a row of fixed (y, z) the
-// trilinear approximation is linear in x, so each row costs one bilinear pair and a linear scan.
-// The far corners are the grid's last samples where the node overhangs the grid (position clamping).
-std::vector<float> directNodalErrors(const Volume& v, const Geometry& g, const KnotPyramid& knots, int level) {
-  const int E = g.edgeAt(level);
-  const size_t count = g.countAt(level);
-  const size_t slices = size_t(E) + 1;
+// ε_0 of every node above the leaves, straight from the samples, all levels in one pass over the
+// volume (each row is read from memory once and scanned from cache for every level): along a row of
+// fixed (y, z) a node's trilinear approximation is linear in x, so each node's piece of a row costs
+// one bilinear pair and a vectorized scan. The far corners are the grid's last samples where a node
+// overhangs the grid (position clamping); samples on a face shared by two nodes count in both.
+std::vector<std::vector<float>> directNodalErrors(const Volume& v, const Geometry& g, const KnotPyramid& knots) {
+  const int levels = g.leafLevel;  // 0 … leafLevel − 1
   const glm::ivec3 dims = v.dims();
-  std::vector<float> sliceErr(count * slices, 0.0f);
-  auto inverse = [](int d) { return d > 0 ? 1.0f / float(d) : 0.0f; };
-#pragma omp parallel for schedule(dynamic, 4)
-  for (size_t item = 0; item < count * slices; ++item) {
-    const size_t node = item / slices;
-    const int dz = int(item % slices);
-    const glm::ivec3 o = g.unravel(level, node) * E;
-    const glm::ivec3 hi = glm::min(o + E, dims - 1);
-    const int z = o.z + dz;
-    if (z > hi.z) continue;
-    const float* s = v.samples().data();
-    float corners[8];  // the knot values at the node's corners (bit 0: x = hi.x, 1: y = hi.y, 2: z = hi.z)
-    for (int c = 0; c < 8; ++c) {
-      const glm::ivec3 q(c & 1 ? hi.x : o.x, c & 2 ? hi.y : o.y, c & 4 ? hi.z : o.z);
-      corners[c] = knots.covers(E) ? knots.at(E, q) : s[v.index(q.x, q.y, q.z)];
+  const float* s = v.samples().data();
+  // Each node's corner knots (bit 0: x = hi.x, 1: y = hi.y, 2: z = hi.z).
+  std::vector<std::vector<std::array<float, 8>>> corners(static_cast<size_t>(levels));
+  for (int k = 0; k < levels; ++k) {
+    const int E = g.edgeAt(k);
+    corners[size_t(k)].resize(g.countAt(k));
+    for (size_t node = 0; node < g.countAt(k); ++node) {
+      const glm::ivec3 o = g.unravel(k, node) * E, hi = glm::min(o + E, dims - 1);
+      for (int c = 0; c < 8; ++c) {
+        const glm::ivec3 q(c & 1 ? hi.x : o.x, c & 2 ? hi.y : o.y, c & 4 ? hi.z : o.z);
+        corners[size_t(k)][node][size_t(c)] = knots.covers(E) ? knots.at(E, q) : s[v.index(q.x, q.y, q.z)];
+      }
     }
-    const float wz = float(dz) * inverse(hi.z - o.z);
-    const float invY = inverse(hi.y - o.y), invX = inverse(hi.x - o.x);
-    float eps = 0.0f;
-    for (int y = o.y; y <= hi.y; ++y) {
-      const float wy = float(y - o.y) * invY;
-      auto bilerp = [&](int cx) {
-        const float a = corners[cx] + (corners[cx | 2] - corners[cx]) * wy;
-        const float b = corners[cx | 4] + (corners[cx | 6] - corners[cx | 4]) * wy;
-        return a + (b - a) * wz;
-      };
-      const float a = bilerp(0), b = bilerp(1);
-      eps = std::max(eps, maxLinearResidual(s + v.index(o.x, y, z), hi.x - o.x + 1, a, (b - a) * invX));
-    }
-    sliceErr[item] = eps;
   }
-  std::vector<float> result(count, 0.0f);
-  for (size_t node = 0; node < count; ++node)
-    result[node] = *std::max_element(sliceErr.begin() + ptrdiff_t(node * slices), sliceErr.begin() + ptrdiff_t((node + 1) * slices));
+  auto inverse = [](int d) { return d > 0 ? 1.0f / float(d) : 0.0f; };
+  // The nodes of level k along one axis whose closed extent [o, min(o + E, n − 1)] holds sample t.
+  auto nodesHolding = [&](int k, int a, int t, int* first, int* last) {
+    const int E = g.edgeAt(k);
+    *last = std::min(t / E, g.grid[size_t(k)][a] - 1);
+    *first = t % E == 0 && t > 0 ? std::max(t / E - 1, 0) : *last;
+  };
+  std::vector<std::vector<float>> result(static_cast<size_t>(levels));
+  for (int k = 0; k < levels; ++k) result[size_t(k)].assign(g.countAt(k), 0.0f);
+#pragma omp parallel
+  {
+    std::vector<std::vector<float>> err(static_cast<size_t>(levels));
+    for (int k = 0; k < levels; ++k) err[size_t(k)].assign(g.countAt(k), 0.0f);
+#pragma omp for schedule(dynamic, 1)
+    for (int z = 0; z < dims.z; ++z)
+      for (int y = 0; y < dims.y; ++y) {
+        const float* row = s + v.index(0, y, z);
+        for (int k = 0; k < levels; ++k) {
+          const int E = g.edgeAt(k);
+          int z0, z1, y0, y1;
+          nodesHolding(k, 2, z, &z0, &z1);
+          nodesHolding(k, 1, y, &y0, &y1);
+          for (int iz = z0; iz <= z1; ++iz)
+            for (int iy = y0; iy <= y1; ++iy)
+              for (int ix = 0; ix < g.grid[size_t(k)].x; ++ix) {
+                const size_t node = g.dense(k, glm::ivec3(ix, iy, iz));
+                const glm::ivec3 o = glm::ivec3(ix, iy, iz) * E, hi = glm::min(o + E, dims - 1);
+                const std::array<float, 8>& c = corners[size_t(k)][node];
+                const float wz = float(z - o.z) * inverse(hi.z - o.z), wy = float(y - o.y) * inverse(hi.y - o.y);
+                auto bilerp = [&](int cx) {
+                  const float a = c[size_t(cx)] + (c[size_t(cx | 2)] - c[size_t(cx)]) * wy;
+                  const float b = c[size_t(cx | 4)] + (c[size_t(cx | 6)] - c[size_t(cx | 4)]) * wy;
+                  return a + (b - a) * wz;
+                };
+                const float a = bilerp(0), b = bilerp(1);
+                float& e = err[size_t(k)][node];
+                e = std::max(e, maxLinearResidual(row + o.x, hi.x - o.x + 1, a, (b - a) * inverse(hi.x - o.x)));
+              }
+        }
+      }
+#pragma omp critical
+    for (int k = 0; k < levels; ++k)
+      for (size_t node = 0; node < err[size_t(k)].size(); ++node)
+        result[size_t(k)][node] = std::max(result[size_t(k)][node], err[size_t(k)][node]);
+  }
   return result;
 }
 
@@ -281,6 +307,7 @@ VolumeOctree VolumeOctree::build(const Volume& volume, const VolumeOctreeOptions
   // Bottom-up over the dense per-level grids.
   std::vector<LevelData> levels(size_t(g.leafLevel) + 1);
   buildLeaves(volume, g, knots, &levels[size_t(g.leafLevel)]);
+  const std::vector<std::vector<float>> upperErrors = directNodalErrors(volume, g, knots);
   for (int k = g.leafLevel - 1; k >= 0; --k) {
     LevelData& d = levels[size_t(k)];
     const LevelData& c = levels[size_t(k) + 1];
@@ -289,7 +316,7 @@ VolumeOctree VolumeOctree::build(const Volume& volume, const VolumeOctreeOptions
     d.minV.assign(count, std::numeric_limits<float>::max());
     d.maxV.assign(count, -std::numeric_limits<float>::max());
     d.err.assign(count * nErr, 0.0f);
-    const std::vector<float> eps0 = directNodalErrors(volume, g, knots, k);
+    const std::vector<float>& eps0 = upperErrors[size_t(k)];
     for (size_t i = 0; i < count; ++i) {
       const glm::ivec3 idx = g.unravel(k, i);
       float* e = &d.err[i * nErr];
