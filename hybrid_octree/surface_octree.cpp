@@ -281,9 +281,6 @@ class RegionCache {
   FlatMap mIndex{4096};
 };
 
-// 21 bits an axis: cell indices, and fine coordinates (< 2^21).
-uint64_t packCells(const glm::ivec3& c) { return (uint64_t(c.x) << 42) | (uint64_t(c.y) << 21) | uint64_t(c.z); }
-
 // Morton code of a cell index.
 uint64_t morton(const glm::ivec3& c) {
   auto spread = [](uint64_t v) {
@@ -768,7 +765,7 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
   DiscreteMesh mesh;
   FlatMap ids(polys.size() * 2);
   auto vertexId = [&](const V64& p) {
-    const uint64_t key = packCells(glm::ivec3(p));
+    const uint64_t key = gridKey(glm::ivec3(p));
     const uint32_t id = ids.findOrInsert(key, [&] {
       mesh.vertices.push_back(glm::ivec3(p));
       return uint32_t(mesh.vertices.size() - 1);
@@ -811,7 +808,7 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
       while (parent[x] != x) x = parent[x] = parent[parent[x]];
       return x;
     };
-    auto cellOf = [&](size_t pi) { return packCells(glm::ivec3(polys[pi].origin) / mergeCube); };
+    auto cellOf = [&](size_t pi) { return gridKey(glm::ivec3(polys[pi].origin) / mergeCube); };
     auto edgeKey = [](uint32_t from, uint32_t to) { return uint64_t(from) << 32 | to; };
     FlatMap owner(polys.size() * 4);
     for (size_t pi = 0; pi < polys.size(); ++pi)

@@ -17,11 +17,6 @@ namespace hyb {
 
 namespace {
 
-// Doubled coordinates are below 2^17, so 21 bits an axis never collide.
-uint64_t packKey(const glm::ivec3& p) {
-  return (uint64_t(uint32_t(p.x)) << 42) | (uint64_t(uint32_t(p.y)) << 21) | uint64_t(uint32_t(p.z));
-}
-
 unsigned cellMask(const Volume& v, float iso, int i, int j, int k) {
   unsigned mask = 0;
   for (int c = 0; c < 8; ++c) mask |= unsigned(v.at(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)) >= iso) << c;
@@ -134,8 +129,8 @@ DiscreteMesh extractDiscMC(const Volume& volume, float iso, std::span<const Voxe
     const dmc::Case& c = cellCase(volume, iso, i, j, k, mask);
     const glm::ivec3 base = 2 * glm::ivec3(i, j, k);
     auto vertex = [&](uint8_t e) {
-      const glm::ivec3 p = base + mid[e];
-      return map.findOrInsert(packKey(p), [&] {
+      const glm::ivec3 p = base + mid[e];  // doubled coordinates: below 2^17
+      return map.findOrInsert(gridKey(p), [&] {
         mesh.vertices.push_back(p);
         return uint32_t(mesh.vertices.size() - 1);
       });

@@ -8,9 +8,18 @@
 #include <cstdint>
 #include <vector>
 
+#include <glm/glm.hpp>
+
 #include "volume/error.h"
 
 namespace hyb {
+
+/// A key for FlatMap from a grid point whose coordinates lie in [0, 2^21): 21 bits an axis, so
+/// distinct points never collide (and the key is never ~0).
+inline uint64_t gridKey(const glm::ivec3& p) {
+  HYB_DCHECK(p.x >= 0 && p.y >= 0 && p.z >= 0 && p.x < (1 << 21) && p.y < (1 << 21) && p.z < (1 << 21));
+  return (uint64_t(p.x) << 42) | (uint64_t(p.y) << 21) | uint64_t(p.z);
+}
 
 /// Map from keys (never ~0) to values. References and pointers into it are invalidated by inserts.
 class FlatMap {
