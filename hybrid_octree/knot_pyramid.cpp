@@ -96,63 +96,71 @@ KnotPyramid::KnotPyramid(const Volume& volume) : mDims(volume.dims()) {
     level.count = glm::ivec3(knotCount(n.x, s), knotCount(n.y, s), knotCount(n.z, s));
     mLevels.push_back(std::move(level));
   }
-  // Separably: x along every row for all spacings at once (one pair of prefix sums a row), then, per
-  // spacing, y at its x knots and z at its (x, y) knots.
+  // Separably, z-slice by z-slice: x along each row for all spacings at once (one pair of prefix
+  // sums a row), then y at each spacing's x knots; last, per spacing, z at its (x, y) knots. Only
+  // the (x, y)-filtered slices are kept (a sixteenth of the samples or less), not whole passes.
+  const size_t levels = mLevels.size();
   const OddExtension rows(n.x, mLevels.back().spacing);
-  std::vector<std::vector<float>> ax(mLevels.size());
-  for (size_t l = 0; l < mLevels.size(); ++l) ax[l].resize(size_t(mLevels[l].count.x) * n.y * n.z);
+  std::vector<std::vector<float>> ay(levels);  // per spacing: count.x · count.y · n.z
+  std::vector<OddExtension> columns;
+  for (const Level& level : mLevels) {
+    ay[size_t(&level - mLevels.data())].resize(size_t(level.count.x) * level.count.y * n.z);
+    columns.emplace_back(n.y, level.spacing);
+  }
+  constexpr int L = OddExtension::kLanes;
 #pragma omp parallel
   {
     std::vector<double> p2;
-    constexpr int L = OddExtension::kLanes;
-#pragma omp for schedule(static)
-    for (int first = 0; first < n.y * n.z; first += L) {
-      const int count = std::min(L, n.y * n.z - first);
-      const float* lines[L];
-      for (int r = 0; r < count; ++r) lines[r] = &volume.samples()[size_t(first + r) * n.x];
-      rows.secondPrefixSums(lines, count, 1, &p2);
-      for (int r = 0; r < count; ++r)
-        for (size_t l = 0; l < mLevels.size(); ++l) {
-          const int s = mLevels[l].spacing, cx = mLevels[l].count.x;
-          for (int j = 0; j < cx; ++j) ax[l][size_t(first + r) * cx + j] = rows.tentAt(p2, r, knotAt(j, s, n.x, cx), s);
+    std::vector<std::vector<float>> ax(levels);  // this slice's x-filtered rows, per spacing
+    for (size_t l = 0; l < levels; ++l) ax[l].resize(size_t(mLevels[l].count.x) * n.y);
+    const float* lines[L];
+#pragma omp for schedule(dynamic, 1)
+    for (int z = 0; z < n.z; ++z) {
+      for (int first = 0; first < n.y; first += L) {
+        const int count = std::min(L, n.y - first);
+        for (int r = 0; r < count; ++r) lines[r] = &volume.samples()[volume.index(0, first + r, z)];
+        rows.secondPrefixSums(lines, count, 1, &p2);
+        for (int r = 0; r < count; ++r)
+          for (size_t l = 0; l < levels; ++l) {
+            const int s = mLevels[l].spacing, cx = mLevels[l].count.x;
+            for (int j = 0; j < cx; ++j) ax[l][size_t(first + r) * cx + j] = rows.tentAt(p2, r, knotAt(j, s, n.x, cx), s);
+          }
+      }
+      for (size_t l = 0; l < levels; ++l) {
+        const int s = mLevels[l].spacing;
+        const glm::ivec3 c = mLevels[l].count;
+        for (int first = 0; first < c.x; first += L) {
+          const int count = std::min(L, c.x - first);
+          for (int r = 0; r < count; ++r) lines[r] = &ax[l][size_t(first + r)];
+          columns[l].secondPrefixSums(lines, count, c.x, &p2);
+          for (int r = 0; r < count; ++r)
+            for (int j = 0; j < c.y; ++j)
+              ay[l][size_t(first + r) + size_t(c.x) * (j + size_t(c.y) * z)] = columns[l].tentAt(p2, r, knotAt(j, s, n.y, c.y), s);
         }
+      }
     }
   }
-  for (size_t l = 0; l < mLevels.size(); ++l) {
+  for (size_t l = 0; l < levels; ++l) {
     Level& level = mLevels[l];
     const int s = level.spacing;
     const glm::ivec3 c = level.count;
-    std::vector<float> ay(size_t(c.x) * c.y * n.z), values(size_t(c.x) * c.y * c.z);
+    std::vector<float> values(size_t(c.x) * c.y * c.z);
     const ptrdiff_t plane = ptrdiff_t(c.x) * c.y;
-    const OddExtension columns(n.y, s), pillars(n.z, s);
+    const OddExtension pillars(n.z, s);
 #pragma omp parallel
     {
       std::vector<double> p2;
-      constexpr int L = OddExtension::kLanes;
       const float* lines[L];
-#pragma omp for schedule(static)
-      for (int first = 0; first < c.x * n.z; first += L) {
-        const int count = std::min(L, c.x * n.z - first);
-        for (int r = 0; r < count; ++r) {
-          const int x = (first + r) % c.x, z = (first + r) / c.x;
-          lines[r] = &ax[l][size_t(x) + size_t(c.x) * n.y * z];
-        }
-        columns.secondPrefixSums(lines, count, c.x, &p2);
-        for (int r = 0; r < count; ++r) {
-          const int x = (first + r) % c.x, z = (first + r) / c.x;
-          for (int j = 0; j < c.y; ++j) ay[size_t(x) + size_t(c.x) * (j + size_t(c.y) * z)] = columns.tentAt(p2, r, knotAt(j, s, n.y, c.y), s);
-        }
-      }
 #pragma omp for schedule(static)
       for (int first = 0; first < c.x * c.y; first += L) {
         const int count = std::min(L, c.x * c.y - first);
-        for (int r = 0; r < count; ++r) lines[r] = &ay[size_t(first + r)];
+        for (int r = 0; r < count; ++r) lines[r] = &ay[l][size_t(first + r)];
         pillars.secondPrefixSums(lines, count, plane, &p2);
         for (int r = 0; r < count; ++r)
           for (int j = 0; j < c.z; ++j) values[size_t(first + r) + size_t(plane) * j] = pillars.tentAt(p2, r, knotAt(j, s, n.z, c.z), s);
       }
     }
-    std::vector<float>().swap(ax[l]);
+    std::vector<float>().swap(ay[l]);
     // Stored in 16 bits over the level's range: half the memory, and the knots a brick shows and
     // the nodal errors are computed from are the stored ones, so nothing is approximated twice.
     const auto [lo, hi] = std::minmax_element(values.begin(), values.end());
