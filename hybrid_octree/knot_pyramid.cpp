@@ -103,9 +103,9 @@ KnotPyramid::KnotPyramid(const Volume& volume) : mDims(volume.dims()) {
   const OddExtension rows(n.x, mLevels.back().spacing);
   std::vector<std::vector<float>> ay(levels);  // per spacing: count.x · count.y · n.z
   std::vector<OddExtension> columns;
-  for (const Level& level : mLevels) {
-    ay[size_t(&level - mLevels.data())].resize(size_t(level.count.x) * level.count.y * n.z);
-    columns.emplace_back(n.y, level.spacing);
+  for (size_t l = 0; l < levels; ++l) {
+    ay[l].resize(size_t(mLevels[l].count.x) * mLevels[l].count.y * n.z);
+    columns.emplace_back(n.y, mLevels[l].spacing);
   }
   constexpr int L = OddExtension::kLanes;
 #pragma omp parallel
