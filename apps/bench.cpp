@@ -205,6 +205,18 @@ int runBench(const BenchOptions& o, std::ostream& out) {
         << " % frame time, " << 100.0 * (double(on.textureBytes) / double(std::max<uint64_t>(off.textureBytes, 1)) - 1.0)
         << " % texture bytes, " << std::setprecision(2) << on.psnrDb - off.psnrDb << " dB\n";
   }
+  // The trade should only lose accuracy and bytes along each sweep.
+  std::vector<TradePoint> epsilonSweep{{"full resolution", base.psnrDb, base.textureBytes}}, budgetSweep = epsilonSweep;
+  for (const Point& p : points) {
+    std::ostringstream label;
+    label << std::setprecision(6) << p.sweep << " " << (p.sweep == "epsilon" ? p.epsilon : p.budgetFraction);
+    if (p.sweep == "epsilon") epsilonSweep.push_back({label.str(), p.psnrDb, p.textureBytes});
+    if (p.sweep == "budget" && p.blend) budgetSweep.push_back({label.str(), p.psnrDb, p.textureBytes});
+  }
+  std::vector<std::string> breaks = monotonicityBreaks(epsilonSweep);
+  for (const std::string& b : monotonicityBreaks(budgetSweep)) breaks.push_back(b);
+  if (breaks.empty()) out << "  monotonic: PSNR and texture bytes fall as epsilon grows and as the budget shrinks (0.2 dB tolerance)\n";
+  for (const std::string& b : breaks) out << "  not monotonic: " << b << "\n";
   if (o.plot) {
     std::ostringstream title;
     title << "hybrid-octree speed/accuracy: " << fs::path(o.render.input.path).filename().string() << ", " << f.camera.width << "x"
@@ -220,6 +232,19 @@ int runBench(const BenchOptions& o, std::ostream& out) {
     out << "wrote    " << png << "\n";
   }
   return 0;
+}
+
+std::vector<std::string> monotonicityBreaks(const std::vector<TradePoint>& sweep, double toleranceDb) {
+  std::vector<std::string> breaks;
+  for (size_t i = 1; i < sweep.size(); ++i) {
+    const TradePoint &a = sweep[i - 1], &b = sweep[i];
+    std::ostringstream line;
+    line << std::fixed << std::setprecision(2) << a.label << " -> " << b.label << ":";
+    if (b.psnrDb > a.psnrDb + toleranceDb) line << " PSNR +" << b.psnrDb - a.psnrDb << " dB";
+    if (b.textureBytes > a.textureBytes) line << " texture bytes +" << b.textureBytes - a.textureBytes;
+    if (b.psnrDb > a.psnrDb + toleranceDb || b.textureBytes > a.textureBytes) breaks.push_back(line.str());
+  }
+  return breaks;
 }
 
 }  // namespace hyb::app

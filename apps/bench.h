@@ -1,8 +1,10 @@
 // `hybrid-octree bench`: the speed/accuracy trade, measured (DESIGN 6; issue "multiresolution").
 #pragma once
 
+#include <cstdint>
 #include <iosfwd>
 #include <string>
+#include <vector>
 
 #include "apps/frame.h"
 
@@ -21,6 +23,19 @@ struct BenchOptions {
   std::string validate() const;
   void add(CLI::App* cmd);
 };
+
+/// One point of a sweep as the monotonicity check sees it.
+struct TradePoint {
+  std::string label;  ///< e.g. "epsilon 401"
+  double psnrDb = 0;
+  uint64_t textureBytes = 0;
+};
+
+/// Where a sweep ordered from the most to the least accurate setting (ε_u growing, or the budget
+/// shrinking) gains more than @p toleranceDb of PSNR or any texture bytes from one point to the
+/// next: one line per such step ("epsilon 200 -> epsilon 401: PSNR +1.43 dB"); empty when the
+/// trade is monotonic.
+std::vector<std::string> monotonicityBreaks(const std::vector<TradePoint>& sweep, double toleranceDb = 0.2);
 
 /// Sweeps ε_u (blending on) and the budget (blending on and off), and for each point records the
 /// texture bytes, bricks, select and frame times and PSNR/SSIM against the reference into

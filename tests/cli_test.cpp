@@ -5,6 +5,7 @@
 
 #include <sstream>
 
+#include "apps/bench.h"
 #include "render/image.h"
 #include "test_util.h"
 
@@ -184,6 +185,15 @@ TEST(Cli, ProgressiveCutAndVolumeOfInterest) {
   EXPECT_EQ(readPng(dir.file("r.png"), &w, &h), readPng(dir.file("r1.png"), &w, &h));
 }
 
+TEST(Cli, BenchNamesEveryStepWhereTheTradeIsNotMonotonic) {
+  EXPECT_TRUE(app::monotonicityBreaks({{"full", 47.7, 1000}, {"epsilon 100", 40.1, 990}, {"epsilon 200", 40.2, 990}}).empty());
+  const std::vector<std::string> breaks =
+      app::monotonicityBreaks({{"full", 47.7, 1000}, {"epsilon 200", 31.6, 700}, {"epsilon 401", 33.0, 300}, {"epsilon 800", 30.0, 310}});
+  ASSERT_EQ(breaks.size(), 2u);
+  EXPECT_EQ(breaks[0], "epsilon 200 -> epsilon 401: PSNR +1.40 dB");
+  EXPECT_EQ(breaks[1], "epsilon 401 -> epsilon 800: texture bytes +10");
+}
+
 TEST(Cli, BenchWritesTheTableThePlotAndTheImages) {
   test::TempDir dir;
   const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
@@ -191,6 +201,7 @@ TEST(Cli, BenchWritesTheTableThePlotAndTheImages) {
                         dir.file("bench")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("[4/4]"));
+  EXPECT_THAT(r.out, HasSubstr("  monotonic: PSNR and texture bytes fall"));
   const std::string csv = test::readText(dir.file("bench/trade.csv"));
   EXPECT_EQ(lines(csv), size_t(5));  // header, full, one epsilon, the budget with and without blending
   EXPECT_THAT(csv, HasSubstr("budget,0,0.5,"));
