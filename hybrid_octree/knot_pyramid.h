@@ -5,7 +5,8 @@
 // weights (s − |d|)/s² per axis), so a coarse brick shows a smoothed, alias-free field.
 //
 // Beyond the grid the volume is extended by odd reflection about its end samples (f(−d) =
-// 2f(0) − f(d)): a trilinear field stays trilinear, so it is still reproduced exactly at every level.
+// 2f(0) − f(d)): a trilinear field stays trilinear, so it is still reproduced at every level (to the
+// knots' 16-bit storage).
 #pragma once
 
 #include <glm/glm.hpp>
@@ -19,7 +20,7 @@
 namespace hyb {
 
 /// Lattices spaced kPrefilterSpacing…kPrefilterMaxSpacing voxels apart hold prefiltered knots. At
-/// 2 voxels the tent blurred bone edges more than aliasing cost (cranium, 512²: −0.6 dB at half
+/// 2 voxels the tent blurred bone edges more than aliasing cost (cranium, 512²: −1.2 dB at half
 /// the texture bytes). Lattices beyond 32 voxels (a few knots per axis: the coarsest bricks of
 /// the very smallest budgets, and the ε_0 of large nodes) keep point samples: filtering them would
 /// double the octree's build time.
