@@ -9,7 +9,7 @@
 // Nodal errors. ε_p(n) is the largest |v − T| over n's samples, with T the trilinear interpolation
 // of n's sub-grid of spacing s = E/2^p: knots at o + j·s along each axis, the last one moved onto
 // the grid's last sample where the node overhangs the grid ("position clamping"; a trilinear field
-// is therefore reproduced exactly by every node at every level). ε_0 is computed directly for every
+// is therefore reproduced exactly by every node at every level, prefiltered knots to their 16 bits). ε_0 is computed directly for every
 // stored node; ε_p = max over children of ε_(p−1) (exact); below the leaves the sub-levels are
 // computed directly inside each leaf. ε_(L−k) = 0.
 //
