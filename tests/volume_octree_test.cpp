@@ -132,6 +132,12 @@ TEST(KnotPyramid, KnotsAreTheTentFilteredVolumeWithOddReflection) {
           }
     }
   }
+  // Samples near the float limits (a range near FLT_MAX; the reflection extrapolates near the faces,
+  // the prefix sums add up to thousands of samples): every knot and every nodal error stays finite.
+  const Volume huge = test::makeVolume({19, 11, 6}, [](int i, int j, int k) { return ((i * 7 + j * 3 + k) % 5 - 2) * 0.8e38; });
+  const VolumeOctree ht = VolumeOctree::build(huge);
+  for (float e : ht.errorData()) ASSERT_TRUE(std::isfinite(e));
+  for (int q : {0, 4, 8, 12, 16, 18}) ASSERT_TRUE(std::isfinite(ht.knotValue(huge, 4, glm::ivec3(q, 4, 5))));
   // Beyond the covered spacings, and point-subsampled octrees, lattices take the samples.
   const Volume v = test::randomVolume({9, 9, 9}, 2);
   EXPECT_FALSE(KnotPyramid(v).covers(2 * kPrefilterMaxSpacing));
