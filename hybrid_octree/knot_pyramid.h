@@ -43,6 +43,8 @@ class KnotPyramid {
   /// The prefiltered value at @p p, a knot of spacing @p s: each coordinate a multiple of s or the
   /// grid's last index. Requires covers(s).
   float at(int s, const glm::ivec3& p) const;
+  /// What a lattice of spacing @p s holds at its knot @p p: at(s, p) where covered, else the sample.
+  float knotValue(const Volume& v, int s, const glm::ivec3& p) const { return covers(s) ? at(s, p) : v.at(p.x, p.y, p.z); }
   size_t bytesUsed() const;
 
  private:

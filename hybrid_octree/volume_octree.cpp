@@ -242,7 +242,7 @@ std::vector<std::vector<float>> directNodalErrors(const Volume& v, const Geometr
       const glm::ivec3 o = g.unravel(k, node) * E, hi = glm::min(o + E, dims - 1);
       for (int c = 0; c < 8; ++c) {
         const glm::ivec3 q(c & 1 ? hi.x : o.x, c & 2 ? hi.y : o.y, c & 4 ? hi.z : o.z);
-        corners[size_t(k)][node][size_t(c)] = knots.covers(E) ? knots.at(E, q) : s[v.index(q.x, q.y, q.z)];
+        corners[size_t(k)][node][size_t(c)] = knots.knotValue(v, E, q);
       }
     }
   }

@@ -9,9 +9,9 @@
 // Nodal errors. ε_p(n) is the largest |v − T| over n's samples, with T the trilinear interpolation
 // of n's sub-grid of spacing s = E/2^p: knots at o + j·s along each axis, the last one moved onto
 // the grid's last sample where the node overhangs the grid ("position clamping"; a trilinear field
-// is therefore reproduced exactly by every node at every level, prefiltered knots to their 16 bits). ε_0 is computed directly for every
-// stored node; ε_p = max over children of ε_(p−1) (exact); below the leaves the sub-levels are
-// computed directly inside each leaf. ε_(L−k) = 0.
+// is therefore reproduced exactly by every node at every level, by prefiltered knots to their 16
+// bits). ε_0 is computed directly for every stored node; ε_p = max over children of ε_(p−1)
+// (exact); below the leaves the sub-levels are computed directly inside each leaf. ε_(L−k) = 0.
 //
 // Knot values. Lattices take the samples at their knots (the paper's subsampling) except, when the
 // octree is built with prefiltering (the default), those spaced kPrefilterSpacing…
@@ -107,11 +107,11 @@ class VolumeOctree {
   KnotLattice coarseLattice(const OctreeNode& n, int p) const;
   /// Whether lattices spaced kPrefilterSpacing or more apart hold prefiltered knots.
   bool prefiltered() const { return !mKnots.empty(); }
+  /// Whether lattices of spacing @p step hold prefiltered knots (else the samples at their knots).
+  bool prefilteredAt(int step) const { return mKnots.covers(step); }
   /// The value a lattice of spacing @p step holds at its knot @p p (each coordinate a multiple of
   /// step or the grid's last index): the sample, or the prefiltered value.
-  float knotValue(const Volume& v, int step, const glm::ivec3& p) const {
-    return mKnots.covers(step) ? mKnots.at(step, p) : v.at(p.x, p.y, p.z);
-  }
+  float knotValue(const Volume& v, int step, const glm::ivec3& p) const { return mKnots.knotValue(v, step, p); }
   /// The trilinear field at voxel @p p of the position-clamped lattice of spacing @p step whose
   /// knots are the multiples of step (and the grid's last index): what a brick of that spacing
   /// shows there. @p v is the volume the octree was built from.

@@ -153,7 +153,7 @@ std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const
   const glm::vec3 origin(n.origin);
   const float edge = float(t.edge(n));
   // Point-subsampled lattices read the samples themselves, also between knots (the differences).
-  const bool prefiltered = t.prefiltered() && fine.step >= kPrefilterSpacing;
+  const bool prefiltered = t.prefilteredAt(fine.step);
   auto own = [&](const glm::ivec3& p) { return prefiltered ? t.knotField(v, fine.step, p) : v.at(p.x, p.y, p.z); };
   auto field = [&](const glm::ivec3& p) {
     if (!b.coarseCorners) return own(p);
