@@ -151,11 +151,14 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   }
   BrickTextureCache* cache = textures ? &*textures : nullptr;
   // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
-  // texels (one level coarser), the last being the requested selection.
+  // texels (one level coarser), the last being the requested selection. Early images of a long
+  // sequence bottom out at the coarsest selection the octree has (at least one texel is asked for).
   for (int k = 1; k < o.progressive; ++k) {
-    const double mb = double(sel.texels * bytesPerTexel(o.bits())) / (1024.0 * 1024.0) / std::pow(8.0, o.progressive - k);
+    const int shift = 3 * (o.progressive - k);
+    SelectionParams params = selectionParams(o, f, o.epsilon, 0.0);
+    params.texelBudget = std::max<uint64_t>(1, shift < 64 ? sel.texels >> shift : 0);
     const auto p0 = Clock::now();
-    const Selection coarse = selectNodes(f.scene.octree, selectionParams(o, f, o.epsilon, std::max(mb, 1e-6)));
+    const Selection coarse = selectNodes(f.scene.octree, params);
     const Image preview = renderFrame(o, f, coarse, &ss, &rs, cache);
     const std::string path = progressivePath(o.output, k);
     writePng(path, preview, f.background);

@@ -174,6 +174,23 @@ TEST(Cli, ProgressiveCutAndVolumeOfInterest) {
   }
   EXPECT_EQ(readPng(dir.file("p_3.png"), &w, &h), readPng(dir.file("p.png"), &w, &h));  // the last is the requested image
 
+  // A sequence longer than the octree has levels (its first budgets are below one texel) starts at
+  // the coarsest selection instead of failing, and the memory never falls from one image to the next.
+  r = run({"render", nhdr, "--size", "24x24", "--progressive", "7", "--budget", "0.01", "-o", dir.file("q.png")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  std::istringstream lines(r.out);
+  double previous = -1.0;
+  int images = 0;
+  for (std::string line; std::getline(lines, line);) {
+    if (line.rfind("progressive ", 0) != 0) continue;
+    const double mb = std::stod(line.substr(line.find(": ") + 2));
+    EXPECT_GE(mb, previous) << line;
+    previous = mb;
+    ++images;
+  }
+  EXPECT_EQ(images, 6);
+  EXPECT_EQ(readPng(dir.file("q_1.png"), &w, &h).size(), size_t(24 * 24 * 4));
+
   // --repeat: frames after the first reuse the brick textures; the image is the same.
   r = run({"render", nhdr, "--size", "24x24", "--iso", "0.5", "--surface-color", "1,1,1,0.5", "--repeat", "3", "-o", dir.file("r.png"),
            "--stats", dir.file("r.json")});
