@@ -731,6 +731,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glEnableVertexAttribArray(1);
   glEnableVertexAttribArray(2);
   glDepthMask(GL_FALSE);
+  // Only the opaque surface and the cutting plane write depth; without them every fragment passes
+  // (llvmpipe would still read and compare the depth of every one: ~1.5 % of a volume-only frame).
+  if (!(withTriangles && !translucent) && !options.cut) glDisable(GL_DEPTH_TEST);
   glEnable(GL_BLEND);
   glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
 
