@@ -117,8 +117,19 @@ std::string progressivePath(const std::string& output, int k) {
 int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   Frame f;
   prepareFrame(o, out, &f);
+  // A budget in percent is of this view's full-resolution bytes (every visible brick exact).
+  const Budget budget = o.budget.empty() ? Budget{} : *parseBudget(o.budget);
+  double budgetMb = budget.value;
+  if (budget.percent) {
+    const uint64_t fullTexels = selectNodes(f.scene.octree, selectionParams(o, f, 0.0, 0.0)).texels;
+    const double fullMb = double(fullTexels * bytesPerTexel(o.bits())) / (1024.0 * 1024.0);
+    budgetMb = std::max(budget.value / 100.0 * fullMb, double(bytesPerTexel(o.bits())) / (1024.0 * 1024.0));  // one texel at least
+    std::ostringstream line;
+    line << "budget:  " << budget.value << " % of the full-resolution " << std::fixed << std::setprecision(2) << fullMb << " MB = " << budgetMb << " MB\n";
+    out << line.str();
+  }
   auto t0 = Clock::now();
-  const Selection sel = selectNodes(f.scene.octree, selectionParams(o, f, o.epsilon, o.budgetMb));
+  const Selection sel = selectNodes(f.scene.octree, selectionParams(o, f, o.epsilon, budgetMb));
   const double selectMs = msSince(t0);
 
   std::map<int, std::pair<int, uint64_t>> perLevel;  // voxel-to-texel ratio -> (visible bricks, texels)
@@ -138,7 +149,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
       << " ms\n";
   for (const auto& [ratio, e] : perLevel)
     out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
-  if (!sel.budgetMet) err << "hybrid-octree: warning: --budget " << o.budgetMb << " MB cannot be met; using " << sel.texels << " texels\n";
+  if (!sel.budgetMet) err << "hybrid-octree: warning: --budget " << budgetMb << " MB cannot be met; using " << sel.texels << " texels\n";
 
   const glm::ivec2 size(f.camera.width, f.camera.height);
   RaycastStats rs;
@@ -306,7 +317,8 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   render.add(renderCmd);
   renderCmd->add_option("-o,--output", render.output, "PNG to write");
   renderCmd->add_option("--epsilon", render.epsilon, "user error epsilon_u in data units (0 = exact)")->capture_default_str();
-  renderCmd->add_option("--budget", render.budgetMb, "texture memory budget in MB, blend textures included (0 = unlimited)");
+  renderCmd->add_option("--budget", render.budget,
+                         "texture memory budget in MB, blend textures included (0 = unlimited), or P% of this view's full-resolution bytes");
   renderCmd->add_option("--renderer", render.renderer, "slices|raycast")->capture_default_str();
   renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
   renderCmd->add_option("--progressive", render.progressive, "write N images coarse to fine (out_1.png ... out_N.png, and out.png)")

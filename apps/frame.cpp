@@ -28,6 +28,16 @@ std::vector<double> parseNumbers(const std::string& text, const std::string& fla
   return x;
 }
 
+std::optional<Budget> parseBudget(const std::string& text) {
+  Budget b;
+  b.percent = !text.empty() && text.back() == '%';
+  const std::string number = b.percent ? text.substr(0, text.size() - 1) : text;
+  std::istringstream s(number);
+  if (!(s >> b.value) || !s.eof() || !std::isfinite(b.value)) return std::nullopt;
+  if (b.percent ? !(b.value > 0.0 && b.value <= 100.0) : b.value < 0.0) return std::nullopt;
+  return b;
+}
+
 glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
   const std::vector<double> x = parseNumbers(text, flag, 3, "three finite numbers x,y,z");
   return {x[0], x[1], x[2]};

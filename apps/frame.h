@@ -34,6 +34,14 @@ glm::ivec2 parseSize(const std::string& text);
 /// Parses @p n comma-separated numbers in [0, 1]. @throw ValueError naming @p flag.
 glm::vec4 parseColor(const std::string& text, const std::string& flag, int n);
 
+/// A texture budget: megabytes, or a percentage of the view's full-resolution texture bytes.
+struct Budget {
+  double value = 0.0;  ///< MB (0 = unlimited), or percent in (0, 100]
+  bool percent = false;
+};
+/// Parses --budget: "MB" (>= 0) or "P%" (0 < P <= 100); none when @p text is neither.
+std::optional<Budget> parseBudget(const std::string& text);
+
 /// Where the volume comes from: a path (default: the Debian CT) and an optional raw layout.
 struct VolumeInput {
   std::string path = kDefaultVolumePath;
@@ -90,7 +98,8 @@ struct RenderOptions {
   std::string blend = "on", cut, cutLine = "on", voi, proxy = "planes", prefilter = "on";
   double voiInside = 1.0, voiOutside = 0.1, voiRamp = 4.0, lodPixels = 0.0;
   std::optional<double> iso;
-  double epsilon = 0.0, budgetMb = 0.0, fov = 30.0;
+  std::string budget;  // MB or "P%" of the full-resolution bytes (parseBudget); empty = unlimited
+  double epsilon = 0.0, fov = 30.0;
   std::optional<double> step;  // default: 0.5 voxel for slices, 0.25 for the reference
   bool ortho = false;
   int maxBrick = 16;
@@ -99,7 +108,8 @@ struct RenderOptions {
   int repeat = 1;  // render: frames of the same view; brick textures are kept, the fastest counts
   std::string validate() const {
     if (!std::isfinite(epsilon) || epsilon < 0) return "--epsilon must be a finite value >= 0 (data units)";
-    if (!std::isfinite(budgetMb) || budgetMb < 0) return "--budget must be a finite number of MB >= 0";
+    if (!budget.empty() && !parseBudget(budget))
+      return "--budget '" + budget + "' invalid (expected megabytes >= 0, or a percentage of the full-resolution texture bytes: 0 < P <= 100 followed by %)";
     if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
     if (renderer != "raycast" && renderer != "slices") return "--renderer '" + renderer + "' invalid (expected slices or raycast)";
     if (!(fov > 0 && fov < 179)) return "--fov must be in (0, 179) degrees";

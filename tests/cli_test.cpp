@@ -91,6 +91,31 @@ TEST(Cli, InfoBuildAndSelect) {
   EXPECT_THAT(r.out, HasSubstr("1 bricks, 8 texels"));
 }
 
+TEST(Cli, BudgetInPercentOfTheFullResolutionBytes) {
+  test::TempDir dir;
+  const std::string header = "NRRD0004\ntype: float\ndimension: 3\nsizes: 33 33 33\nspacings: 1 1 1\nendian: little\nencoding: raw\n";
+  const std::string nhdr = writeNrrd(dir, "b", header, test::toBytes(test::sphereVolume({33, 33, 33}, 12.0).samples()));
+  auto texels = [&](const std::string& budget, std::string* out) {
+    std::vector<std::string> args{"render", nhdr, "--size", "16x16", "--max-brick", "4", "--stats", dir.file("t.json")};
+    if (!budget.empty()) args.insert(args.end(), {"--budget", budget});
+    const CliRun r = run(args);
+    EXPECT_EQ(r.status, 0) << r.err;
+    if (out) *out = r.out;
+    const std::string text = test::readText(dir.file("t.json"));
+    const size_t at = text.find("\"texels\": ");
+    return at == std::string::npos ? -1.0 : std::stod(text.substr(at + 10));
+  };
+  const double full = texels("", nullptr);
+  ASSERT_GT(full, 1000.0);
+  std::string out;
+  const double quarter = texels("25%", &out);
+  EXPECT_THAT(out, HasSubstr("25 % of the full-resolution"));
+  EXPECT_LE(quarter, 0.25 * full);
+  EXPECT_GT(quarter, 0.0);
+  EXPECT_EQ(texels("100%", nullptr), full);
+  EXPECT_LT(texels("3%", nullptr), quarter);
+}
+
 TEST(Cli, RawInput) {
   test::TempDir dir;
   test::writeBytes(dir.file("v.bin"), sphereBytes());
@@ -138,6 +163,7 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"render", nhdr, "--texel-bits", "12"}, "--texel-bits");
   expectBadInput({"render", nhdr, "--orbit", "10,20,30"}, "azimuth,elevation");
   expectBadInput({"render", nhdr, "--budget", "-3"}, "--budget");
+  for (const char* budget : {"0%", "150%", "x%", "5%%", "%"}) expectBadInput({"render", nhdr, "--budget", budget}, "--budget");
   expectBadInput({"render", nhdr, "--no-such-flag"}, "--no-such-flag");
   expectBadInput({"build", nhdr}, "-o");
   expectBadInput({"build", nhdr, "-o", dir.file("x.hoct"), "--leaf-edge", "6"}, "--leaf-edge");
