@@ -47,6 +47,13 @@ std::string writeNrrd(const test::TempDir& dir, const std::string& name, const s
 
 const std::string kHeader = "NRRD0004\ntype: float\ndimension: 3\nsizes: 9 7 5\nspacings: 1 1 2\nendian: little\nencoding: raw\n";
 
+// The number after "key": in a --stats JSON file, or -1 when the key is missing.
+double jsonNumber(const std::string& file, const std::string& key) {
+  const std::string text = test::readText(file);
+  const size_t at = text.find("\"" + key + "\": ");
+  return at == std::string::npos ? -1.0 : std::stod(text.substr(at + key.size() + 4));
+}
+
 std::vector<uint8_t> sphereBytes() {
   return test::toBytes(test::sphereVolume({9, 7, 5}, 3.0).samples());
 }
@@ -73,18 +80,12 @@ TEST(Cli, InfoBuildAndSelect) {
   const auto json = test::readBytes(dir.file("st.json"));
   EXPECT_THAT(std::string(json.begin(), json.end()), HasSubstr("\"nodes_selected\": 1"));
   // Texture bytes follow the texels' precision: 4 bytes a texel by default, 8 with 16 bits.
-  auto number = [&](const std::string& file, const std::string& key) {
-    const auto bytes = test::readBytes(file);
-    const std::string text(bytes.begin(), bytes.end());
-    const size_t at = text.find("\"" + key + "\": ");
-    return at == std::string::npos ? -1.0 : std::stod(text.substr(at + key.size() + 4));
-  };
-  const double texels = number(dir.file("st.json"), "texels");
+  const double texels = jsonNumber(dir.file("st.json"), "texels");
   EXPECT_GT(texels, 0.0);
-  EXPECT_EQ(number(dir.file("st.json"), "texture_bytes"), 4.0 * texels);
+  EXPECT_EQ(jsonNumber(dir.file("st.json"), "texture_bytes"), 4.0 * texels);
   r = run({"render", dir.file("s.hoct"), "--texel-bits", "16", "--stats", dir.file("st16.json")});
   ASSERT_EQ(r.status, 0) << r.err;
-  EXPECT_EQ(number(dir.file("st16.json"), "texture_bytes"), 8.0 * texels);
+  EXPECT_EQ(jsonNumber(dir.file("st16.json"), "texture_bytes"), 8.0 * texels);
 
   r = run({"render", nhdr, "--epsilon", "100"});
   ASSERT_EQ(r.status, 0) << r.err;
@@ -101,9 +102,7 @@ TEST(Cli, BudgetInPercentOfTheFullResolutionBytes) {
     const CliRun r = run(args);
     EXPECT_EQ(r.status, 0) << r.err;
     if (out) *out = r.out;
-    const std::string text = test::readText(dir.file("t.json"));
-    const size_t at = text.find("\"texels\": ");
-    return at == std::string::npos ? -1.0 : std::stod(text.substr(at + 10));
+    return jsonNumber(dir.file("t.json"), "texels");
   };
   const double full = texels("", nullptr);
   ASSERT_GT(full, 1000.0);
