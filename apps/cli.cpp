@@ -290,6 +290,51 @@ int runExport(const ExportOptions& o, std::ostream& out) {
   return 0;
 }
 
+struct CompareOptions {
+  std::string reference, image, diff;
+  std::string validate() const {
+    if (reference.empty() || image.empty()) return "compare needs two PNG files (expected: compare REFERENCE.png IMAGE.png)";
+    if (!diff.empty() && fileExtension(diff) != ".png") return "--diff '" + diff + "' must be a .png file";
+    return "";
+  }
+};
+
+// PSNR and SSIM of an image against a reference (as `bench` measures them), where the largest
+// difference is, and optionally the difference as a grey image (1/255 of RMS difference over RGB
+// is 8/255 of grey: small errors show).
+int runCompare(const CompareOptions& o, std::ostream& out) {
+  int w = 0, h = 0, w2 = 0, h2 = 0;
+  const std::vector<uint8_t> a = readPng(o.reference, &w, &h), b = readPng(o.image, &w2, &h2);
+  if (w != w2 || h != h2)
+    HYB_THROW(ValueError, o.image, " is ", w2, "x", h2, " pixels, ", o.reference, " is ", w, "x", h, " (expected images of the same size)");
+  double largest = -1.0;
+  glm::ivec2 at(0);
+  Image d(w, h);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      double sum = 0.0;
+      for (int c = 0; c < 3; ++c) {
+        const double e = double(a[(size_t(y) * w + x) * 4 + c]) - double(b[(size_t(y) * w + x) * 4 + c]);
+        sum += e * e;
+      }
+      const double rms = std::sqrt(sum / 3.0);
+      if (rms > largest) largest = rms, at = glm::ivec2(x, y);
+      const float g = float(std::min(1.0, 8.0 * rms / 255.0));
+      d.at(x, y) = glm::vec4(g, g, g, 1.0f);
+    }
+  const double p = psnr(a, b);
+  out << "compare  " << o.image << " against " << o.reference << " (" << w << "x" << h << "): ";
+  if (std::isinf(p)) out << "identical\n";
+  else
+    out << "PSNR " << std::fixed << std::setprecision(2) << p << " dB, SSIM " << std::setprecision(4) << ssim(a, b, w, h)
+        << ", largest difference " << std::setprecision(1) << largest << "/255 (RMS over RGB) at pixel " << at.x << "," << at.y << "\n";
+  if (!o.diff.empty()) {
+    writePng(o.diff, d, glm::vec3(0.0f));
+    out << "wrote    " << o.diff << "\n";
+  }
+  return 0;
+}
+
 }  // namespace
 
 int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& err) {
@@ -339,12 +384,18 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
       ->capture_default_str();
   exportCmd->add_flag("--check", exportOpts.check, "check manifold, closed, self-intersections and Hausdorff distance to mc (CGAL)");
 
+  CompareOptions compare;
+  CLI::App* compareCmd = app.add_subcommand("compare", "PSNR and SSIM of an image against a reference image, and where they differ");
+  compareCmd->add_option("reference", compare.reference, "reference PNG (e.g. from render --renderer raycast)");
+  compareCmd->add_option("image", compare.image, "PNG to compare, of the same size");
+  compareCmd->add_option("--diff", compare.diff, "write the per-pixel difference as a grey PNG (8x the RMS difference over RGB)");
+
   try {
     try {
       const auto known = app.get_subcommands([](const CLI::App*) { return true; });
       if (argc > 1 && argv[1][0] != '-' &&
           std::none_of(known.begin(), known.end(), [&](const CLI::App* c) { return c->get_name() == argv[1]; }))
-        HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build, render, export or bench; see --help)");
+        HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build, render, export, bench or compare; see --help)");
       app.parse(argc, argv);
     } catch (const CLI::CallForHelp&) {
       out << app.help();
@@ -364,6 +415,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     if (renderCmd->parsed()) return check(render.validate()), runRender(render, out, err);
     if (exportCmd->parsed()) return check(exportOpts.validate()), runExport(exportOpts, out);
     if (benchCmd->parsed()) return check(bench.validate()), runBench(bench, out);
+    if (compareCmd->parsed()) return check(compare.validate()), runCompare(compare, out);
     return 2;
   } catch (const IoError& e) {
     err << "hybrid-octree: error: " << e.what() << "\n";

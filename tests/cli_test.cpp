@@ -3,6 +3,8 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <iomanip>
 #include <sstream>
 
 #include "apps/bench.h"
@@ -113,6 +115,39 @@ TEST(Cli, BudgetInPercentOfTheFullResolutionBytes) {
   EXPECT_GT(quarter, 0.0);
   EXPECT_EQ(texels("100%", nullptr), full);
   EXPECT_LT(texels("3%", nullptr), quarter);
+}
+
+TEST(Cli, CompareMeasuresAnImageAgainstAReference) {
+  test::TempDir dir;
+  Image black(24, 16), one(24, 16), small(8, 8);
+  for (Image* img : {&black, &one, &small})
+    for (glm::vec4& p : img->pixels) p = glm::vec4(0.0f, 0.0f, 0.0f, 1.0f);
+  one.at(5, 3) = glm::vec4(0.2f, 0.0f, 0.0f, 1.0f);  // red 51 of 255 at one pixel
+  writePng(dir.file("black.png"), black, glm::vec3(0.0f));
+  writePng(dir.file("one.png"), one, glm::vec3(0.0f));
+  writePng(dir.file("small.png"), small, glm::vec3(0.0f));
+
+  CliRun r = run({"compare", dir.file("black.png"), dir.file("black.png")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("identical"));
+  r = run({"compare", dir.file("black.png"), dir.file("one.png"), "--diff", dir.file("d.png")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  // MSE over the RGB values: 51² / (24·16·3); PSNR = 10·log10(255² / MSE) = 35.60 dB.
+  const double mse = 51.0 * 51.0 / (24.0 * 16.0 * 3.0);
+  std::ostringstream expected;
+  expected << "PSNR " << std::fixed << std::setprecision(2) << 10.0 * std::log10(255.0 * 255.0 / mse) << " dB";
+  EXPECT_THAT(r.out, HasSubstr(expected.str()));
+  EXPECT_THAT(r.out, HasSubstr("largest difference 29.4/255 (RMS over RGB) at pixel 5,3"));
+  int w = 0, h = 0;
+  const std::vector<uint8_t> d = readPng(dir.file("d.png"), &w, &h);
+  ASSERT_EQ(d.size(), size_t(24 * 16 * 4));
+  EXPECT_EQ(d[(3 * 24 + 5) * 4], 236);  // 8 · 29.44 of 255
+  EXPECT_EQ(d[0], 0);
+
+  expectBadInput({"compare", dir.file("black.png"), dir.file("small.png")}, "small.png");
+  expectBadInput({"compare", dir.file("black.png")}, "compare");
+  expectBadInput({"compare", dir.file("black.png"), dir.file("missing.png")}, "missing.png");
+  expectBadInput({"compare", dir.file("black.png"), dir.file("one.png"), "--diff", dir.file("d.jpg")}, "--diff");
 }
 
 TEST(Cli, RawInput) {
