@@ -117,19 +117,21 @@ std::string progressivePath(const std::string& output, int k) {
 int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   Frame f;
   prepareFrame(o, out, &f);
-  // A budget in percent is of this view's full-resolution bytes (every visible brick exact).
+  // A budget in percent is of this view's full-resolution texels (every visible brick exact), at
+  // least one texel.
   const Budget budget = o.budget.empty() ? Budget{} : *parseBudget(o.budget);
-  double budgetMb = budget.value;
+  SelectionParams params = selectionParams(o, f, o.epsilon, budget.percent ? 0.0 : budget.value);
   if (budget.percent) {
     const uint64_t fullTexels = selectNodes(f.scene.octree, selectionParams(o, f, 0.0, 0.0)).texels;
-    const double fullMb = double(fullTexels * bytesPerTexel(o.bits())) / (1024.0 * 1024.0);
-    budgetMb = std::max(budget.value / 100.0 * fullMb, double(bytesPerTexel(o.bits())) / (1024.0 * 1024.0));  // one texel at least
+    params.texelBudget = std::max<uint64_t>(1, uint64_t(budget.value / 100.0 * double(fullTexels)));
+    auto mb = [&](uint64_t texels) { return double(texels * bytesPerTexel(o.bits())) / (1024.0 * 1024.0); };
     std::ostringstream line;
-    line << "budget:  " << budget.value << " % of the full-resolution " << std::fixed << std::setprecision(2) << fullMb << " MB = " << budgetMb << " MB\n";
+    line << "budget:  " << budget.value << " % of the full-resolution " << std::fixed << std::setprecision(2) << mb(fullTexels)
+         << " MB = " << mb(params.texelBudget) << " MB\n";
     out << line.str();
   }
   auto t0 = Clock::now();
-  const Selection sel = selectNodes(f.scene.octree, selectionParams(o, f, o.epsilon, budgetMb));
+  const Selection sel = selectNodes(f.scene.octree, params);
   const double selectMs = msSince(t0);
 
   std::map<int, std::pair<int, uint64_t>> perLevel;  // voxel-to-texel ratio -> (visible bricks, texels)
@@ -149,7 +151,8 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
       << " ms\n";
   for (const auto& [ratio, e] : perLevel)
     out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
-  if (!sel.budgetMet) err << "hybrid-octree: warning: --budget " << budgetMb << " MB cannot be met; using " << sel.texels << " texels\n";
+  if (!sel.budgetMet)
+    err << "hybrid-octree: warning: --budget " << o.budget << (budget.percent ? "" : " MB") << " cannot be met; using " << sel.texels << " texels\n";
 
   const glm::ivec2 size(f.camera.width, f.camera.height);
   RaycastStats rs;
@@ -166,10 +169,10 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   // sequence bottom out at the coarsest selection the octree has (at least one texel is asked for).
   for (int k = 1; k < o.progressive; ++k) {
     const int shift = 3 * (o.progressive - k);
-    SelectionParams params = selectionParams(o, f, o.epsilon, 0.0);
-    params.texelBudget = std::max<uint64_t>(1, shift < 64 ? sel.texels >> shift : 0);
+    SelectionParams coarser = params;
+    coarser.texelBudget = std::max<uint64_t>(1, shift < 64 ? sel.texels >> shift : 0);
     const auto p0 = Clock::now();
-    const Selection coarse = selectNodes(f.scene.octree, params);
+    const Selection coarse = selectNodes(f.scene.octree, coarser);
     const Image preview = renderFrame(o, f, coarse, &ss, &rs, cache);
     const std::string path = progressivePath(o.output, k);
     writePng(path, preview, f.background);
