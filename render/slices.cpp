@@ -10,12 +10,14 @@
 #include <glm/gtc/type_ptr.hpp>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
 #include <deque>
 #include <exception>
 #include <limits>
+#include <numeric>
 #include <span>
 #include <string>
 #include <thread>
@@ -577,14 +579,16 @@ std::vector<uint32_t> bricksBackToFront(const VolumeOctree& octree, const std::v
   return order;
 }
 
-// The surface's triangles by brick (the brick holding a triangle's centroid; Surface Octree
-// polygons lie inside one volume leaf, hence one brick), as one list in brick order: brick b's
-// triangles are list[offsets[b] .. offsets[b + 1]). A grid of leaves says which brick holds each.
-struct BrickTriangles {
+// The surface's planar polygons (triangle ranges starts[p] .. starts[p + 1]) by brick (the brick
+// holding the polygon's centroid; Surface Octree polygons lie inside one volume leaf, hence one
+// brick), as one list in brick order: brick b's polygons are list[offsets[b] .. offsets[b + 1]).
+// A grid of leaves says which brick holds each.
+struct BrickPolygons {
   std::vector<uint32_t> offsets, list;
   std::span<const uint32_t> of(size_t b) const { return {list.data() + offsets[b], list.data() + offsets[b + 1]}; }
 };
-BrickTriangles trianglesByBrick(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TriangleMesh& surface) {
+BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TriangleMesh& surface,
+                              const std::vector<uint32_t>& starts) {
   const glm::ivec3 cells = glm::max(volume.dims() - 1, glm::ivec3(1));
   const int leaf = octree.leafEdge();
   const glm::ivec3 grid = (cells + leaf - 1) / leaf;
@@ -596,21 +600,23 @@ BrickTriangles trianglesByBrick(const Volume& volume, const VolumeOctree& octree
       for (int y = lo.y; y < hi.y; ++y)
         for (int x = lo.x; x < hi.x; ++x) brickAt[size_t(x) + size_t(grid.x) * (size_t(y) + size_t(grid.y) * size_t(z))] = uint32_t(b);
   }
-  BrickTriangles out;
+  BrickPolygons out;
   out.offsets.assign(selection.bricks.size() + 1, 0);
-  std::vector<uint32_t> brickOf(surface.triangles.size());
-  for (size_t ti = 0; ti < surface.triangles.size(); ++ti) {
-    const glm::uvec3 tr = surface.triangles[ti];
-    const glm::dvec3 c = (glm::dvec3(surface.vertices[tr.x]) + glm::dvec3(surface.vertices[tr.y]) + glm::dvec3(surface.vertices[tr.z])) /
-                         3.0 / volume.spacing();
+  const size_t polygons = starts.size() - 1;
+  std::vector<uint32_t> brickOf(polygons);
+  for (size_t pi = 0; pi < polygons; ++pi) {
+    glm::dvec3 c(0.0);
+    for (uint32_t ti = starts[pi]; ti < starts[pi + 1]; ++ti)
+      for (int k = 0; k < 3; ++k) c += glm::dvec3(surface.vertices[surface.triangles[ti][k]]);
+    c /= 3.0 * double(std::max(starts[pi + 1] - starts[pi], 1u)) * volume.spacing();
     const glm::ivec3 g = glm::clamp(glm::ivec3(glm::floor(c)), glm::ivec3(0), cells - 1) / leaf;
-    brickOf[ti] = brickAt[size_t(g.x) + size_t(grid.x) * (size_t(g.y) + size_t(grid.y) * size_t(g.z))];
-    ++out.offsets[brickOf[ti] + 1];
+    brickOf[pi] = brickAt[size_t(g.x) + size_t(grid.x) * (size_t(g.y) + size_t(grid.y) * size_t(g.z))];
+    ++out.offsets[brickOf[pi] + 1];
   }
   for (size_t b = 0; b < selection.bricks.size(); ++b) out.offsets[b + 1] += out.offsets[b];
-  out.list.resize(surface.triangles.size());
+  out.list.resize(polygons);
   std::vector<uint32_t> next(out.offsets.begin(), out.offsets.end() - 1);
-  for (size_t ti = 0; ti < surface.triangles.size(); ++ti) out.list[next[brickOf[ti]]++] = uint32_t(ti);
+  for (size_t pi = 0; pi < polygons; ++pi) out.list[next[brickOf[pi]]++] = uint32_t(pi);
   return out;
 }
 
@@ -743,7 +749,18 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   const glm::dvec3 eyeVoxel = (camera.ortho ? camera.eye - f * 1e9 * diag : camera.eye) / spacing;
   const std::vector<uint32_t> order = bricksBackToFront(octree, brickOf, eyeVoxel);
   HYB_CHECK(order.size() == selection.bricks.size());
-  const BrickTriangles trianglesOf = withTriangles ? trianglesByBrick(volume, octree, selection, *options.surface) : BrickTriangles{};
+  // The surface's planar polygons as triangle ranges (each triangle its own when the mesh does not
+  // say): a polygon's triangles never overlap one another, so they go into a slab as one unit.
+  std::vector<uint32_t> polygonStarts;
+  if (withTriangles) {
+    polygonStarts = options.surface->polygonStarts;
+    if (polygonStarts.empty()) {
+      polygonStarts.resize(options.surface->triangles.size() + 1);
+      std::iota(polygonStarts.begin(), polygonStarts.end(), 0u);
+    }
+    HYB_CHECK(polygonStarts.front() == 0 && polygonStarts.back() == options.surface->triangles.size());
+  }
+  const BrickPolygons polygonsOf = withTriangles ? polygonsByBrick(volume, octree, selection, *options.surface, polygonStarts) : BrickPolygons{};
 
   GLuint query;
   glGenQueries(1, &query);
@@ -807,7 +824,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     BrickDraw d;
     d.visible = textured(i);
     d.brick = uint32_t(brickOf[i]);
-    const bool holdsTriangles = withTriangles && !trianglesOf.of(d.brick).empty();
+    const bool holdsTriangles = withTriangles && !polygonsOf.of(d.brick).empty();
     if (!d.visible && !(translucent && holdsTriangles)) continue;
     glm::ivec3 lo, hi;
     octree.voxelBox(n, &lo, &hi);
@@ -872,17 +889,27 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     draws.push_back(std::move(d));
   }
 
-  // A slab instance of a translucent triangle: sort key (the centroid's depth, clamped to the
-  // slab), slab, triangle, and whether it spans several slabs (16 bytes: sorting is a frame's cost).
+  // A slab instance of a translucent polygon: sort key (the polygon's centroid depth, clamped to
+  // the slab), slab, and the polygon's index in the brick's list (16 bytes: sorting is a frame's cost).
   struct Instance {
     double depth;
     int32_t slab;
-    uint32_t triangle : 31, clip : 1;
+    uint32_t polygon;
+  };
+  // What building one brick's stream needs, kept by the worker across bricks.
+  struct Scratch {
+    std::vector<Instance> instances;
+    std::vector<uint32_t> polygons;             // the brick's polygons (mesh indices)
+    std::vector<uint32_t> firstSpan;            // per polygon of the brick: its first triangle's span
+    std::vector<std::array<int32_t, 2>> spans;  // the slabs each of those triangles covers
+    std::vector<float> one;
+    std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes;
   };
   // Builds brick @p d's vertex stream: slices far to near with each SlabPolygon list before the
   // slice that closes its slab.
-  auto buildStream = [&](BrickDraw& d, std::vector<Instance>& instances, std::vector<float>& one,
-                         std::vector<std::pair<glm::dvec3, glm::dvec3>>& boxes) {
+  auto buildStream = [&](BrickDraw& d, Scratch& scratch) {
+    std::vector<Instance>& instances = scratch.instances;
+    std::vector<float>& one = scratch.one;
     std::vector<float>& poly = d.stream;
     // One vertex: position, normal, kind (0 slice, 1 surface triangle), slab.
     auto put = [&](const glm::vec3& p, const glm::vec3& n, float kind, float lo, float hi) {
@@ -898,19 +925,19 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     // A slab instance of a translucent triangle. Between planes it is clipped to its slab here: the
     // piece is at most a pentagon, and llvmpipe's clipper (gl_ClipDistance) was the costliest step of
     // drawing slab triangles (~0.3 µs a clipped triangle). Shell slabs are clipped per fragment.
-    auto emitTriangle = [&](const Instance& in) {
-      const glm::uvec3 tr = options.surface->triangles[in.triangle];
+    auto emitTriangle = [&](uint32_t triangle, int32_t slab, bool clip) {
+      const glm::uvec3 tr = options.surface->triangles[triangle];
       const glm::vec3 a = options.surface->vertices[tr.x], b = options.surface->vertices[tr.y], c = options.surface->vertices[tr.z];
       const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
       ++d.counts.slabPolygonDraws;
-      if (!in.clip || d.shell) {
-        const float lo = in.clip ? float(double(in.slab) * d.delta) : -1e30f, hi = in.clip ? float(double(in.slab + 1) * d.delta) : 1e30f;
+      if (!clip || d.shell) {
+        const float lo = clip ? float(double(slab) * d.delta) : -1e30f, hi = clip ? float(double(slab + 1) * d.delta) : 1e30f;
         for (const glm::vec3& p : {a, b, c}) put(p, n, 1.0f, lo, hi);
         return;
       }
       std::array<glm::dvec3, 5> piece{glm::dvec3(a), glm::dvec3(b), glm::dvec3(c)}, kept;
       size_t count = 3;
-      const double lo = double(in.slab) * d.delta, hi = double(in.slab + 1) * d.delta;
+      const double lo = double(slab) * d.delta, hi = double(slab + 1) * d.delta;
       for (const auto& [sign, bound] : {std::pair{1.0, lo}, std::pair{-1.0, -hi}}) {  // depth ≥ lo, then −depth ≥ −hi
         size_t m = 0;
         for (size_t v = 0; v < count; ++v) {
@@ -924,6 +951,16 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       }
       for (size_t v = 1; v + 1 < count; ++v)
         for (const glm::dvec3& p : {piece[0], piece[v], piece[v + 1]}) put(glm::vec3(p), n, 1.0f, -1e30f, 1e30f);
+    };
+    // A polygon's part in one slab: each of its triangles that reaches the slab, clipped to it
+    // when the triangle covers more than one.
+    auto emitPolygon = [&](const Instance& in) {
+      const uint32_t pi = scratch.polygons[in.polygon];
+      size_t j = scratch.firstSpan[in.polygon];
+      for (uint32_t ti = polygonStarts[pi]; ti < polygonStarts[pi + 1]; ++ti, ++j) {
+        const auto [k0, k1] = scratch.spans[j];
+        if (in.slab >= k0 && in.slab <= k1) emitTriangle(ti, in.slab, k1 > k0);
+      }
     };
     // Proxies: global planes f·X = k·delta, or shells |X − eye| = k·delta (LaMar 1999); "depth"
     // below is f·X or |X − eye| accordingly. This brick owns the proxies with depth in [bmin, bmax).
@@ -940,38 +977,54 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       const double theta = 2.0 * std::acos(std::max(-1.0, 1.0 - d.delta / (4.0 * r)));
       return std::clamp(int(std::ceil(std::max(d.frame.s1 - d.frame.s0, d.frame.t1 - d.frame.t0) / theta)), 1, 32);
     };
-    // SlabPolygon list: slab k = [k·delta, (k+1)·delta); a triangle goes into every slab its depth
-    // range covers, clipped to the slab when it covers more than one.
+    // SlabPolygon list: slab k = [k·delta, (k+1)·delta); a polygon goes into every slab its depth
+    // range covers, each of its triangles clipped to the slab when it covers more than one.
     instances.clear();
+    scratch.polygons.clear();
+    scratch.firstSpan.clear();
+    scratch.spans.clear();
     long long kLo = (long long)std::floor(bmin / d.delta) - 1, kHi = (long long)std::ceil(bmax / d.delta);
     if (translucent)
-      for (uint32_t ti : trianglesOf.of(d.brick)) {
-        const glm::uvec3 tr = options.surface->triangles[ti];
-        double dmn = 1e300, dmx = -1e300, sum = 0;
-        for (int k = 0; k < 3; ++k) {
-          const glm::dvec3 p(options.surface->vertices[tr[k]]);
-          const double depth = d.shell ? glm::length(p - camera.eye) : glm::dot(f, p);
-          dmn = std::min(dmn, depth);
-          dmx = std::max(dmx, depth);
-          sum += depth;
+      for (uint32_t pi : polygonsOf.of(d.brick)) {
+        const uint32_t local = uint32_t(scratch.polygons.size());
+        scratch.polygons.push_back(pi);
+        scratch.firstSpan.push_back(uint32_t(scratch.spans.size()));
+        long long p0 = std::numeric_limits<long long>::max(), p1 = std::numeric_limits<long long>::min();
+        double centroid = 0;
+        for (uint32_t ti = polygonStarts[pi]; ti < polygonStarts[pi + 1]; ++ti) {
+          const glm::uvec3 tr = options.surface->triangles[ti];
+          double dmn = 1e300, dmx = -1e300, sum = 0;
+          for (int k = 0; k < 3; ++k) {
+            const glm::dvec3 p(options.surface->vertices[tr[k]]);
+            const double depth = d.shell ? glm::length(p - camera.eye) : glm::dot(f, p);
+            dmn = std::min(dmn, depth);
+            dmx = std::max(dmx, depth);
+            sum += depth;
+          }
+          if (d.shell)  // the nearest point of a triangle to the eye may lie inside it
+            dmn = distanceToTriangle(camera.eye, glm::dvec3(options.surface->vertices[tr.x]), glm::dvec3(options.surface->vertices[tr.y]),
+                                     glm::dvec3(options.surface->vertices[tr.z]));
+          // A brick without slices needs no slabs: its polygons are only sorted back to front.
+          const long long k0 = d.sliced ? (long long)std::floor(dmn / d.delta) : 0, k1 = d.sliced ? (long long)std::floor(dmx / d.delta) : 0;
+          scratch.spans.push_back({int32_t(k0), int32_t(k1)});
+          p0 = std::min(p0, k0);
+          p1 = std::max(p1, k1);
+          centroid += sum / 3;
+          ++d.counts.surfaceTriangles;
         }
-        if (d.shell)  // the nearest point of a triangle to the eye may lie inside it
-          dmn = distanceToTriangle(camera.eye, glm::dvec3(options.surface->vertices[tr.x]), glm::dvec3(options.surface->vertices[tr.y]),
-                                   glm::dvec3(options.surface->vertices[tr.z]));
-        // A brick without slices needs no slabs: its triangles are only sorted back to front.
-        const long long k0 = d.sliced ? (long long)std::floor(dmn / d.delta) : 0, k1 = d.sliced ? (long long)std::floor(dmx / d.delta) : 0;
-        for (long long k = k0; k <= k1; ++k)
-          instances.push_back({d.sliced ? std::clamp(sum / 3, double(k) * d.delta, double(k + 1) * d.delta) : sum / 3, int32_t(k), ti, k1 > k0});
-        if (d.sliced) {
-          kLo = std::min(kLo, k0);
-          kHi = std::max(kHi, k1);
+        centroid /= double(polygonStarts[pi + 1] - polygonStarts[pi]);
+        for (long long k = p0; k <= p1; ++k)
+          instances.push_back({d.sliced ? std::clamp(centroid, double(k) * d.delta, double(k + 1) * d.delta) : centroid, int32_t(k), local});
+        if (d.sliced && p0 <= p1) {
+          kLo = std::min(kLo, p0);
+          kHi = std::max(kHi, p1);
         }
-        ++d.counts.surfaceTriangles;
       }
     // Far to near: by slab, then by depth inside a slab.
     std::sort(instances.begin(), instances.end(), [](const Instance& x, const Instance& y) {
       return x.slab != y.slab ? x.slab > y.slab : x.depth > y.depth;
     });
+    std::vector<std::pair<glm::dvec3, glm::dvec3>>& boxes = scratch.boxes;
     if (d.ranges) {
       boxes.resize(size_t(kHi - kLo + 1));
       planeBoxes(*d.ranges, d.lattice, support, spacing, f, d.delta, kLo, &boxes);
@@ -979,7 +1032,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     size_t next = 0;
     for (long long k = kHi; k >= kLo; --k) {
       if (options.slabOrder)
-        for (; next < instances.size() && instances[next].slab >= k; ++next) emitTriangle(instances[next]);
+        for (; next < instances.size() && instances[next].slab >= k; ++next) emitPolygon(instances[next]);
       const double plane = double(k) * d.delta;
       one.clear();
       glm::dvec3 lo = d.slo, hi = d.shi;
@@ -994,7 +1047,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         ++d.counts.slices;
       }
     }
-    for (; next < instances.size(); ++next) emitTriangle(instances[next]);
+    for (; next < instances.size(); ++next) emitPolygon(instances[next]);
   };
 
   // The cutting plane first, opaque and writing depth, from each crossed brick's 16-bit values:
@@ -1042,12 +1095,10 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   std::atomic<size_t> built{0};
   std::exception_ptr failure;
   std::thread worker([&] {
-    std::vector<Instance> instances;
-    std::vector<float> one;
-    std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes;
+    Scratch scratch;
     try {
       for (BrickDraw& d : draws) {
-        buildStream(d, instances, one, boxes);
+        buildStream(d, scratch);
         built.fetch_add(1, std::memory_order_release);
         built.notify_one();
       }

@@ -180,11 +180,14 @@ TriangleMesh toTriangleMesh(const DiscreteMesh& mesh, const glm::dvec3& spacing,
   out.vertices.reserve(mesh.vertices.size());
   for (const glm::ivec3& p : mesh.vertices) out.vertices.push_back(glm::vec3(glm::dvec3(p) / unitsPerVoxel * spacing));
   std::vector<std::array<uint32_t, 3>> tris;
+  out.polygonStarts.reserve(mesh.faceCount() + 1);
+  out.polygonStarts.push_back(0);
   for (size_t f = 0; f < mesh.faceCount(); ++f) {
     tris.clear();
     const bool ok = triangulatePolygon(mesh.vertices, &mesh.indices[mesh.offsets[f]], mesh.faceSize(f), mesh.planes[f].normal(), &tris);
     HYB_CHECK(ok);
     for (const auto& t : tris) out.triangles.push_back({t[0], t[1], t[2]});
+    out.polygonStarts.push_back(uint32_t(out.triangles.size()));
   }
   return out;
 }

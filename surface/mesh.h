@@ -34,10 +34,13 @@ struct DiscreteMesh {
   }
 };
 
-/// Triangle mesh with float vertices, used for export and checks.
+/// Triangle mesh with float vertices, used for export, checks and rendering.
 struct TriangleMesh {
   std::vector<glm::vec3> vertices;
   std::vector<glm::uvec3> triangles;
+  /// When the triangles come from planar polygons (a triangulated DiscreteMesh): polygon f's
+  /// triangles are [polygonStarts[f], polygonStarts[f + 1]). Empty: nothing is known of polygons.
+  std::vector<uint32_t> polygonStarts;
 };
 
 /// A box of samples [lo, hi] (voxel indices, inclusive) whose cells an extraction visits.

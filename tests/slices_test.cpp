@@ -221,6 +221,8 @@ TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
   // A 10 mm slab of material with a translucent quad inside, at a generic depth, exactly on a slice
   // plane, and at the front face; axis-aligned, tilted and diagonal views. The centre pixel must
   // match the closed form; drawing the quad after its brick's slices (no slab order) must not.
+  // The quad goes in as two triangles and as one planar polygon of two (a slab then takes the
+  // polygon's triangles that reach it, each clipped to it where it covers more than one).
   const Volume v = test::makeVolume({21, 21, 11}, [](int, int, int) { return 1.0f; });
   const VolumeOctree t = VolumeOctree::build(v);
   const float a = 0.08f;
@@ -229,7 +231,10 @@ TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
   const Selection sel = selectNodes(t, SelectionParams{});
   const glm::vec4 surface(0.1f, 0.9f, 0.3f, 0.6f);
   for (double zq : {3.3, 4.0, 9.9}) {
-    const TriangleMesh quad = quadAt(zq, -5, 25, -5, 25);
+    TriangleMesh quad = quadAt(zq, -5, 25, -5, 25);
+    quad.triangles = {{0, 1, 3}, {1, 2, 3}};  // seen tilted, the two triangles cover different slabs
+    TriangleMesh polygon = quad;
+    polygon.polygonStarts = {0, 2};
     for (const glm::dvec3 dir : {glm::dvec3(0, 0, 1), glm::dvec3(0.3, 0.2, 1), glm::dvec3(1, 1, 1)}) {
       const glm::dvec3 u = glm::normalize(dir);
       Camera cam;
@@ -243,23 +248,29 @@ TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
       const float a1 = 1.0f - std::pow(1.0f - a, float(front)), a2 = 1.0f - std::pow(1.0f - a, float(back));
       const float shade = float(0.25 + 0.75 * u.z);
       const glm::vec3 expected = c * a1 + (1 - a1) * (glm::vec3(surface) * shade * surface.a + (1 - surface.a) * c * a2);
-      for (bool slabOrder : {true, false}) {
-        SlicesOptions o;
-        o.stepVoxels = 0.25;
-        o.shading = false;
-        o.surface = &quad;
-        o.surfaceColor = surface;
-        o.slabOrder = slabOrder;
-        SlicesStats st;
-        const glm::vec4 p = renderSlices(v, t, sel, tf, cam, o, &st).at(4, 4);
-        const float error = glm::length(glm::vec3(p) - expected);
-        if (slabOrder) {
-          EXPECT_LE(error, 2.0f / 255.0f) << "zq " << zq << " dir " << dir.x << "," << dir.y << "," << dir.z;
-          EXPECT_GE(st.slabPolygonDraws, st.surfaceTriangles);
-        } else if (zq < 9.0) {
-          EXPECT_GT(error, 10.0f / 255.0f) << "the wrong order went unnoticed at zq " << zq;
+      uint64_t draws[2] = {0, 0};
+      for (const TriangleMesh* mesh : {&quad, &polygon})
+        for (bool slabOrder : {true, false}) {
+          SlicesOptions o;
+          o.stepVoxels = 0.25;
+          o.shading = false;
+          o.surface = mesh;
+          o.surfaceColor = surface;
+          o.slabOrder = slabOrder;
+          SlicesStats st;
+          const glm::vec4 p = renderSlices(v, t, sel, tf, cam, o, &st).at(4, 4);
+          const float error = glm::length(glm::vec3(p) - expected);
+          const std::string where = "zq " + std::to_string(zq) + (mesh == &polygon ? " as a polygon" : " as triangles") + " dir " +
+                                    std::to_string(dir.x) + "," + std::to_string(dir.y) + "," + std::to_string(dir.z);
+          if (slabOrder) {
+            EXPECT_LE(error, 2.0f / 255.0f) << where;
+            EXPECT_GE(st.slabPolygonDraws, st.surfaceTriangles) << where;
+            draws[mesh == &polygon] = st.slabPolygonDraws;
+          } else if (zq < 9.0) {
+            EXPECT_GT(error, 10.0f / 255.0f) << "the wrong order went unnoticed at " << where;
+          }
         }
-      }
+      EXPECT_EQ(draws[0], draws[1]) << "a polygon's triangles are clipped to the slabs they reach, as on their own";
     }
   }
 }
