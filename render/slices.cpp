@@ -752,6 +752,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   // The surface's planar polygons as triangle ranges (each triangle its own when the mesh does not
   // say): a polygon's triangles never overlap one another, so they go into a slab as one unit.
   std::vector<uint32_t> polygonStarts;
+  // And the boundaries of the convex ones, which a slab cuts whole.
+  const std::vector<uint32_t>& loopStarts = options.surface ? options.surface->loopStarts : polygonStarts;
+  const std::vector<uint32_t>& loops = options.surface ? options.surface->loops : polygonStarts;
   if (withTriangles) {
     polygonStarts = options.surface->polygonStarts;
     if (polygonStarts.empty()) {
@@ -759,6 +762,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       std::iota(polygonStarts.begin(), polygonStarts.end(), 0u);
     }
     HYB_CHECK(polygonStarts.front() == 0 && polygonStarts.back() == options.surface->triangles.size());
+    HYB_CHECK(loopStarts.empty() || (loopStarts.size() == polygonStarts.size() && loopStarts.back() == loops.size()));
   }
   const BrickPolygons polygonsOf = withTriangles ? polygonsByBrick(volume, octree, selection, *options.surface, polygonStarts) : BrickPolygons{};
 
@@ -900,8 +904,10 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   struct Scratch {
     std::vector<Instance> instances;
     std::vector<uint32_t> polygons;             // the brick's polygons (mesh indices)
-    std::vector<uint32_t> firstSpan;            // per polygon of the brick: its first triangle's span
-    std::vector<std::array<int32_t, 2>> spans;  // the slabs each of those triangles covers
+    std::vector<std::array<int32_t, 2>> polygonSpans;  // per polygon of the brick: the slabs it covers
+    std::vector<uint32_t> firstSpan;                   // per polygon of the brick: its first triangle's span
+    std::vector<std::array<int32_t, 2>> spans;         // the slabs each of those triangles covers
+    std::vector<glm::dvec3> piece, kept;               // a piece being cut to its slab
     std::vector<float> one;
     std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes;
   };
@@ -925,37 +931,57 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     // A slab instance of a translucent triangle. Between planes it is clipped to its slab here: the
     // piece is at most a pentagon, and llvmpipe's clipper (gl_ClipDistance) was the costliest step of
     // drawing slab triangles (~0.3 µs a clipped triangle). Shell slabs are clipped per fragment.
-    auto emitTriangle = [&](uint32_t triangle, int32_t slab, bool clip) {
+    // The planar piece in scratch.piece cut to slab [slab·delta, (slab+1)·delta) (Sutherland and
+    // Hodgman, two parallel planes) and fanned; a convex piece stays convex.
+    auto emitClipped = [&](int32_t slab, const glm::vec3& n) {
+      std::vector<glm::dvec3>& piece = scratch.piece;
+      std::vector<glm::dvec3>& kept = scratch.kept;
+      const double lo = double(slab) * d.delta, hi = double(slab + 1) * d.delta;
+      for (const auto& [sign, bound] : {std::pair{1.0, lo}, std::pair{-1.0, -hi}}) {  // depth ≥ lo, then −depth ≥ −hi
+        kept.clear();
+        for (size_t v = 0; v < piece.size(); ++v) {
+          const glm::dvec3 &p = piece[v], &q = piece[(v + 1) % piece.size()];
+          const double dp = sign * glm::dot(f, p) - bound, dq = sign * glm::dot(f, q) - bound;
+          if (dp >= 0) kept.push_back(p);
+          if ((dp >= 0) != (dq >= 0)) kept.push_back(p + (q - p) * (dp / (dp - dq)));
+        }
+        piece.swap(kept);
+      }
+      for (size_t v = 1; v + 1 < piece.size(); ++v)
+        for (const glm::dvec3& p : {piece[0], piece[v], piece[v + 1]}) put(glm::vec3(p), n, 1.0f, -1e30f, 1e30f);
+    };
+    auto faceNormal = [&](uint32_t triangle) {
       const glm::uvec3 tr = options.surface->triangles[triangle];
       const glm::vec3 a = options.surface->vertices[tr.x], b = options.surface->vertices[tr.y], c = options.surface->vertices[tr.z];
-      const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
+      return glm::normalize(glm::cross(b - a, c - a));
+    };
+    // A triangle in one slab, cut to it when it covers more than one.
+    auto emitTriangle = [&](uint32_t triangle, int32_t slab, bool clip) {
+      const glm::uvec3 tr = options.surface->triangles[triangle];
+      const glm::vec3 n = faceNormal(triangle);
       ++d.counts.slabPolygonDraws;
       if (!clip || d.shell) {
         const float lo = clip ? float(double(slab) * d.delta) : -1e30f, hi = clip ? float(double(slab + 1) * d.delta) : 1e30f;
-        for (const glm::vec3& p : {a, b, c}) put(p, n, 1.0f, lo, hi);
+        for (int k = 0; k < 3; ++k) put(options.surface->vertices[tr[k]], n, 1.0f, lo, hi);
         return;
       }
-      std::array<glm::dvec3, 5> piece{glm::dvec3(a), glm::dvec3(b), glm::dvec3(c)}, kept;
-      size_t count = 3;
-      const double lo = double(slab) * d.delta, hi = double(slab + 1) * d.delta;
-      for (const auto& [sign, bound] : {std::pair{1.0, lo}, std::pair{-1.0, -hi}}) {  // depth ≥ lo, then −depth ≥ −hi
-        size_t m = 0;
-        for (size_t v = 0; v < count; ++v) {
-          const glm::dvec3 &p = piece[v], &q = piece[(v + 1) % count];
-          const double dp = sign * glm::dot(f, p) - bound, dq = sign * glm::dot(f, q) - bound;
-          if (dp >= 0) kept[m++] = p;
-          if ((dp >= 0) != (dq >= 0)) kept[m++] = p + (q - p) * (dp / (dp - dq));
-        }
-        piece = kept;
-        count = m;
-      }
-      for (size_t v = 1; v + 1 < count; ++v)
-        for (const glm::dvec3& p : {piece[0], piece[v], piece[v + 1]}) put(glm::vec3(p), n, 1.0f, -1e30f, 1e30f);
+      scratch.piece.assign({glm::dvec3(options.surface->vertices[tr.x]), glm::dvec3(options.surface->vertices[tr.y]),
+                            glm::dvec3(options.surface->vertices[tr.z])});
+      emitClipped(slab, n);
     };
-    // A polygon's part in one slab: each of its triangles that reaches the slab, clipped to it
-    // when the triangle covers more than one.
+    // A polygon's part in one slab: a convex polygon that covers several slabs is cut to the slab
+    // whole (one piece, fanned); otherwise each of its triangles that reaches the slab goes in, cut
+    // to it when the triangle covers more than one.
     auto emitPolygon = [&](const Instance& in) {
       const uint32_t pi = scratch.polygons[in.polygon];
+      const auto [p0, p1] = scratch.polygonSpans[in.polygon];
+      if (p1 > p0 && !d.shell && pi + 1 < loopStarts.size() && loopStarts[pi + 1] > loopStarts[pi]) {
+        ++d.counts.slabPolygonDraws;
+        scratch.piece.clear();
+        for (uint32_t l = loopStarts[pi]; l < loopStarts[pi + 1]; ++l) scratch.piece.push_back(glm::dvec3(options.surface->vertices[loops[l]]));
+        emitClipped(in.slab, faceNormal(polygonStarts[pi]));
+        return;
+      }
       size_t j = scratch.firstSpan[in.polygon];
       for (uint32_t ti = polygonStarts[pi]; ti < polygonStarts[pi + 1]; ++ti, ++j) {
         const auto [k0, k1] = scratch.spans[j];
@@ -981,6 +1007,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     // range covers, each of its triangles clipped to the slab when it covers more than one.
     instances.clear();
     scratch.polygons.clear();
+    scratch.polygonSpans.clear();
     scratch.firstSpan.clear();
     scratch.spans.clear();
     long long kLo = (long long)std::floor(bmin / d.delta) - 1, kHi = (long long)std::ceil(bmax / d.delta);
@@ -1013,6 +1040,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
           ++d.counts.surfaceTriangles;
         }
         centroid /= double(polygonStarts[pi + 1] - polygonStarts[pi]);
+        scratch.polygonSpans.push_back({int32_t(p0), int32_t(p1)});
         for (long long k = p0; k <= p1; ++k)
           instances.push_back({d.sliced ? std::clamp(centroid, double(k) * d.delta, double(k + 1) * d.delta) : centroid, int32_t(k), local});
         if (d.sliced && p0 <= p1) {

@@ -128,7 +128,7 @@ struct SlicesStats {
   uint64_t slices = 0;            ///< slice polygons (or shell pieces) drawn
   uint64_t shellBricks = 0;       ///< bricks sampled by spherical shells
   uint64_t surfaceTriangles = 0;  ///< translucent triangles placed
-  uint64_t slabPolygonDraws = 0;  ///< translucent triangle instances drawn (one per slab covered)
+  uint64_t slabPolygonDraws = 0;  ///< translucent pieces drawn: a triangle's, or a convex polygon's, part in each slab it covers
   uint64_t fragments = 0;         ///< fragment shader invocations of the slices and slab polygons
   uint64_t cutPolygons = 0;       ///< pieces of the cutting plane drawn (one per textured brick it crosses)
   uint64_t cutLineSegments = 0;   ///< segments of the surface's intersection with the cutting plane

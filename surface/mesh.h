@@ -39,8 +39,10 @@ struct TriangleMesh {
   std::vector<glm::vec3> vertices;
   std::vector<glm::uvec3> triangles;
   /// When the triangles come from planar polygons (a triangulated DiscreteMesh): polygon f's
-  /// triangles are [polygonStarts[f], polygonStarts[f + 1]). Empty: nothing is known of polygons.
-  std::vector<uint32_t> polygonStarts;
+  /// triangles are [polygonStarts[f], polygonStarts[f + 1]), and, when the polygon is convex, its
+  /// boundary (vertex indices in order) is loops[loopStarts[f] .. loopStarts[f + 1]) (empty for a
+  /// polygon that is not). All three empty: nothing is known of polygons.
+  std::vector<uint32_t> polygonStarts, loopStarts, loops;
 };
 
 /// A box of samples [lo, hi] (voxel indices, inclusive) whose cells an extraction visits.

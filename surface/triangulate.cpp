@@ -70,4 +70,18 @@ bool triangulatePolygon(const std::vector<glm::ivec3>& points, const uint32_t* l
   return true;
 }
 
+bool isConvex(const std::vector<glm::ivec3>& points, const uint32_t* loop, size_t n, const glm::ivec3& normal) {
+  if (n < 3) return false;
+  bool left = false, right = false;
+  for (size_t i = 0; i < n; ++i) {
+    const glm::i64vec3 a(points[loop[(i + n - 1) % n]]), b(points[loop[i]]), c(points[loop[(i + 1) % n]]);
+    const glm::i64vec3 u = b - a, v = c - b;
+    const glm::i64vec3 turn(u.y * v.z - u.z * v.y, u.z * v.x - u.x * v.z, u.x * v.y - u.y * v.x);
+    const int64_t side = turn.x * normal.x + turn.y * normal.y + turn.z * normal.z;
+    left = left || side > 0;
+    right = right || side < 0;
+  }
+  return left != right;
+}
+
 }  // namespace hyb

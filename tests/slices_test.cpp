@@ -221,8 +221,9 @@ TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
   // A 10 mm slab of material with a translucent quad inside, at a generic depth, exactly on a slice
   // plane, and at the front face; axis-aligned, tilted and diagonal views. The centre pixel must
   // match the closed form; drawing the quad after its brick's slices (no slab order) must not.
-  // The quad goes in as two triangles and as one planar polygon of two (a slab then takes the
-  // polygon's triangles that reach it, each clipped to it where it covers more than one).
+  // The quad goes in as two triangles, as one planar polygon of two (a slab then takes the
+  // polygon's triangles that reach it, each clipped to it where it covers more than one) and as a
+  // convex polygon with its boundary (a slab cuts it whole: one piece a slab).
   const Volume v = test::makeVolume({21, 21, 11}, [](int, int, int) { return 1.0f; });
   const VolumeOctree t = VolumeOctree::build(v);
   const float a = 0.08f;
@@ -235,6 +236,9 @@ TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
     quad.triangles = {{0, 1, 3}, {1, 2, 3}};  // seen tilted, the two triangles cover different slabs
     TriangleMesh polygon = quad;
     polygon.polygonStarts = {0, 2};
+    TriangleMesh convex = polygon;
+    convex.loopStarts = {0, 4};
+    convex.loops = {0, 1, 2, 3};
     for (const glm::dvec3 dir : {glm::dvec3(0, 0, 1), glm::dvec3(0.3, 0.2, 1), glm::dvec3(1, 1, 1)}) {
       const glm::dvec3 u = glm::normalize(dir);
       Camera cam;
@@ -248,29 +252,33 @@ TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
       const float a1 = 1.0f - std::pow(1.0f - a, float(front)), a2 = 1.0f - std::pow(1.0f - a, float(back));
       const float shade = float(0.25 + 0.75 * u.z);
       const glm::vec3 expected = c * a1 + (1 - a1) * (glm::vec3(surface) * shade * surface.a + (1 - surface.a) * c * a2);
-      uint64_t draws[2] = {0, 0};
-      for (const TriangleMesh* mesh : {&quad, &polygon})
+      uint64_t draws[3] = {0, 0, 0};
+      const TriangleMesh* meshes[3] = {&quad, &polygon, &convex};
+      for (int kind = 0; kind < 3; ++kind)
         for (bool slabOrder : {true, false}) {
           SlicesOptions o;
           o.stepVoxels = 0.25;
           o.shading = false;
-          o.surface = mesh;
+          o.surface = meshes[kind];
           o.surfaceColor = surface;
           o.slabOrder = slabOrder;
           SlicesStats st;
           const glm::vec4 p = renderSlices(v, t, sel, tf, cam, o, &st).at(4, 4);
           const float error = glm::length(glm::vec3(p) - expected);
-          const std::string where = "zq " + std::to_string(zq) + (mesh == &polygon ? " as a polygon" : " as triangles") + " dir " +
-                                    std::to_string(dir.x) + "," + std::to_string(dir.y) + "," + std::to_string(dir.z);
+          const std::string where = "zq " + std::to_string(zq) + (kind == 0 ? " as triangles" : kind == 1 ? " as a polygon" : " as a convex polygon") +
+                                    " dir " + std::to_string(dir.x) + "," + std::to_string(dir.y) + "," + std::to_string(dir.z);
           if (slabOrder) {
             EXPECT_LE(error, 2.0f / 255.0f) << where;
             EXPECT_GE(st.slabPolygonDraws, st.surfaceTriangles) << where;
-            draws[mesh == &polygon] = st.slabPolygonDraws;
+            draws[kind] = st.slabPolygonDraws;
           } else if (zq < 9.0) {
             EXPECT_GT(error, 10.0f / 255.0f) << "the wrong order went unnoticed at " << where;
           }
         }
       EXPECT_EQ(draws[0], draws[1]) << "a polygon's triangles are clipped to the slabs they reach, as on their own";
+      if (dir.x != 0.0) {
+        EXPECT_LT(draws[2], draws[0]) << "a tilted convex quad is one piece a slab, not two";
+      }
     }
   }
 }
