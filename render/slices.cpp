@@ -903,7 +903,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   // What building one brick's stream needs, kept by the worker across bricks.
   struct Scratch {
     std::vector<Instance> instances;
-    std::vector<uint32_t> polygons;             // the brick's polygons (mesh indices)
+    std::vector<uint32_t> polygons;                    // the brick's polygons (mesh indices)
     std::vector<std::array<int32_t, 2>> polygonSpans;  // per polygon of the brick: the slabs it covers
     std::vector<uint32_t> firstSpan;                   // per polygon of the brick: its first triangle's span
     std::vector<std::array<int32_t, 2>> spans;         // the slabs each of those triangles covers
@@ -928,11 +928,11 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     auto emitSlice = [&](const std::vector<float>& polygon) {
       for (size_t v = 0; v < polygon.size(); v += 3) put(glm::vec3(polygon[v], polygon[v + 1], polygon[v + 2]), glm::vec3(0.0f), 0.0f, -1e30f, 1e30f);
     };
-    // A slab instance of a translucent triangle. Between planes it is clipped to its slab here: the
-    // piece is at most a pentagon, and llvmpipe's clipper (gl_ClipDistance) was the costliest step of
-    // drawing slab triangles (~0.3 µs a clipped triangle). Shell slabs are clipped per fragment.
-    // The planar piece in scratch.piece cut to slab [slab·delta, (slab+1)·delta) (Sutherland and
-    // Hodgman, two parallel planes) and fanned; a convex piece stays convex.
+    // Between planes a translucent piece is cut to its slab here, not by llvmpipe's clipper
+    // (gl_ClipDistance), which was the costliest step of drawing slab triangles (~0.3 µs a clipped
+    // triangle); shell slabs are clipped per fragment. The convex planar piece in scratch.piece is
+    // cut to slab [slab·delta, (slab+1)·delta) (Sutherland and Hodgman, two parallel planes; it
+    // stays convex) and fanned.
     auto emitClipped = [&](int32_t slab, const glm::vec3& n) {
       std::vector<glm::dvec3>& piece = scratch.piece;
       std::vector<glm::dvec3>& kept = scratch.kept;
@@ -1004,7 +1004,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       return std::clamp(int(std::ceil(std::max(d.frame.s1 - d.frame.s0, d.frame.t1 - d.frame.t0) / theta)), 1, 32);
     };
     // SlabPolygon list: slab k = [k·delta, (k+1)·delta); a polygon goes into every slab its depth
-    // range covers, each of its triangles clipped to the slab when it covers more than one.
+    // range covers (emitPolygon cuts it there).
     instances.clear();
     scratch.polygons.clear();
     scratch.polygonSpans.clear();
