@@ -166,8 +166,34 @@ std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const
         w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
     return glm::mix(t.knotField(v, coarse.step, glm::clamp(p, coarse.origin, coarse.last)), own(p), w);
   };
+  // The field once at each knot and one knot beyond the lattice either way (most of what the
+  // central differences read, a sixth of the evaluations); positions elsewhere are evaluated.
+  const glm::ivec3 ext = fine.dims + 2;
+  std::array<std::vector<int>, 3> at;  // at[a][j + 1]: position of extended knot j, j = −1 … dims
+  for (int a = 0; a < 3; ++a) {
+    at[a].resize(size_t(ext[a]));
+    for (int j = 0; j < fine.dims[a]; ++j) at[a][size_t(j) + 1] = fine.knot(a, j);
+    at[a].front() = std::max(at[a][1] - fine.step, 0);
+    at[a].back() = std::min(at[a][size_t(fine.dims[a])] + fine.step, v.dims()[a] - 1);
+  }
+  std::vector<float> cache(size_t(ext.x) * size_t(ext.y) * size_t(ext.z));
+  for (int k = 0; k < ext.z; ++k)
+    for (int j = 0; j < ext.y; ++j)
+      for (int i = 0; i < ext.x; ++i)
+        cache[size_t(i) + size_t(ext.x) * (size_t(j) + size_t(ext.y) * size_t(k))] = field(glm::ivec3(at[0][size_t(i)], at[1][size_t(j)], at[2][size_t(k)]));
+  glm::ivec3 index(0);  // the current knot's extended index
+  auto cached = [&](const glm::ivec3& q) {
+    glm::ivec3 e;
+    for (int a = 0; a < 3; ++a) {
+      const size_t j = size_t(index[a]);
+      e[a] = at[a][j] == q[a] ? index[a] : at[a][j - 1] == q[a] ? index[a] - 1 : at[a][j + 1] == q[a] ? index[a] + 1 : -1;
+      if (e[a] < 0) return field(q);
+    }
+    return cache[size_t(e.x) + size_t(ext.x) * (size_t(e.y) + size_t(ext.y) * size_t(e.z))];
+  };
   return latticeTexels(fine, [&](const glm::ivec3& p) {
-    return glm::vec4(field(p), centralDifferences(field, p, fine.step, v.dims(), v.spacing()));
+    for (int a = 0; a < 3; ++a) index[a] = (p[a] == fine.last[a] ? fine.dims[a] - 1 : (p[a] - fine.origin[a]) / fine.step) + 1;
+    return glm::vec4(cached(p), centralDifferences(cached, p, fine.step, v.dims(), v.spacing()));
   });
 }
 
