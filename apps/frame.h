@@ -16,6 +16,7 @@
 #include "render/raycast.h"
 #include "render/slices.h"
 #include "render/transfer_function.h"
+#include "volume/file_util.h"
 #include "volume/volume_io.h"
 
 namespace hyb::app {
@@ -123,6 +124,7 @@ struct RenderOptions {
     if (repeat < 1 || repeat > 100) return "--repeat must be in 1..100 frames";
     if (texelBits != 8 && texelBits != 16) return "--texel-bits must be 8 or 16";
     if (!(std::isfinite(lodPixels) && lodPixels >= 0)) return "--lod-pixels must be a finite number of pixels >= 0";
+    if (!output.empty() && fileExtension(output) != ".png") return "-o '" + output + "' must be a .png file (render writes PNG images)";
     if (progressive > 1 && output.empty()) return "--progressive needs -o (the images are named after it)";
     if (progressive > 1 && renderer != "slices") return "--progressive needs --renderer slices (the reference is always exact)";
     if (!(std::isfinite(voiInside) && voiInside >= 0)) return "--voi-inside must be a finite factor >= 0";

@@ -211,6 +211,8 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"render", nhdr, "--progressive", "3"}, "--progressive");
   expectBadInput({"render", nhdr, "--progressive", "0", "-o", dir.file("a.png")}, "--progressive");
   expectBadInput({"render", nhdr, "--repeat", "0"}, "--repeat");
+  expectBadInput({"render", nhdr, "-o", dir.file("image.txt")}, ".png");
+  EXPECT_FALSE(std::filesystem::exists(dir.file("image.txt")));
   expectBadInput({"bench", nhdr}, "-o");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--budgets", "0.5,2"}, "--budgets");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--epsilons", "1,x"}, "--epsilons");
