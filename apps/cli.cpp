@@ -167,7 +167,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
   // texels (one level coarser), the last being the requested selection. Early images of a long
   // sequence bottom out at the coarsest selection the octree has (at least one texel is asked for).
-  for (int k = 1; k < o.progressive; ++k) {
+  for (int k = 1; k < o.progressive && o.renderer == "slices"; ++k) {
     const int shift = 3 * (o.progressive - k);
     SelectionParams coarser = params;
     coarser.texelBudget = std::max<uint64_t>(1, shift < 64 ? sel.texels >> shift : 0);
@@ -180,11 +180,20 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
         << std::setprecision(1) << msSince(p0) << " ms -> " << path << "\n";
   }
   // --repeat: the same view again; brick textures are uploaded once (as an interactive viewer would).
+  // The reference's progressive refinement (Levoy): its levels are the images, rays reused.
+  const int pixels = size.x * size.y;
+  auto onLevel = [&](int level, const Image& preview, uint64_t rays) {
+    if (level >= o.progressive) return;
+    const std::string path = progressivePath(o.output, level);
+    writePng(path, preview, f.background);
+    out << "progressive " << level << "/" << o.progressive << ": " << rays << " rays (" << std::setprecision(1) << 100.0 * double(rays) / pixels
+        << " % of the pixels), " << msSince(t0) << " ms -> " << path << "\n";
+  };
   Image image;
   double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0;
   for (int r = 0; r < o.repeat; ++r) {
     t0 = Clock::now();
-    image = renderFrame(o, f, sel, &ss, &rs, cache);
+    image = renderFrame(o, f, sel, &ss, &rs, cache, r == 0 && o.progressive > 1 ? std::function<void(int, const Image&, uint64_t)>(onLevel) : nullptr);
     renderMs = std::min(renderMs, msSince(t0));
     if (r == 0) firstMs = renderMs;
   }
@@ -197,8 +206,9 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
         << ss.textureBytes << " texture bytes, " << ss.slices << " slices, " << ss.slabPolygonDraws << " slab polygon draws, "
         << timing.str() << "\n";
   else
-    out << "render   raycast " << size.x << "x" << size.y << ", " << rs.samples << " samples, " << rs.skippedLeaves
-        << " empty-space skips, " << rs.surfaceHits << " surface crossings, " << timing.str() << "\n";
+    out << "render   raycast " << size.x << "x" << size.y << ", " << rs.rays << " rays (" << std::setprecision(1) << 100.0 * double(rs.rays) / pixels
+        << " % of the pixels), " << rs.samples << " samples, " << rs.skippedLeaves << " empty-space skips, " << rs.surfaceHits << " surface crossings, "
+        << timing.str() << "\n";
   if (!o.output.empty()) {
     if (o.progressive > 1) writePng(progressivePath(o.output, o.progressive), image, f.background);
     writePng(o.output, image, f.background);
@@ -212,7 +222,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
         << ",\n  \"surface_polygons\": " << f.polygons << ",\n  \"surface_triangles\": " << f.mesh.triangles.size()
         << ",\n  \"slab_polygon_draws\": " << ss.slabPolygonDraws << ",\n  \"fragments\": " << ss.fragments << ",\n  \"shell_bricks\": " << ss.shellBricks
         << ",\n  \"cut_polygons\": " << ss.cutPolygons << ",\n  \"cut_line_segments\": " << ss.cutLineSegments << ",\n  \"build_ms\": " << f.buildMs + f.surfaceMs
-        << ",\n  \"select_ms\": " << selectMs << ",\n  \"render_ms\": " << renderMs << ",\n  \"first_render_ms\": " << firstMs << ",\n  \"samples\": " << rs.samples
+        << ",\n  \"select_ms\": " << selectMs << ",\n  \"render_ms\": " << renderMs << ",\n  \"first_render_ms\": " << firstMs << ",\n  \"samples\": " << rs.samples << ",\n  \"rays\": " << rs.rays
         << ",\n  \"epsilon\": " << o.epsilon << ",\n  \"max_nodal_error_used\": " << sel.maxError
         << ",\n  \"budget_met\": " << (sel.budgetMet ? "true" : "false") << "\n}\n";
     });
@@ -369,7 +379,13 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
                          "texture memory budget in MB, blend textures included (0 = unlimited), or P% of this view's full-resolution bytes");
   renderCmd->add_option("--renderer", render.renderer, "slices|raycast")->capture_default_str();
   renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
-  renderCmd->add_option("--progressive", render.progressive, "write N images coarse to fine (out_1.png ... out_N.png, and out.png)")
+  renderCmd->add_option("--progressive", render.progressive,
+                         "write N images coarse to fine (out_1.png ... out_N.png, and out.png): slices one level coarser each, the "
+                         "reference's rays on a grid 2^(N-k) pixels apart, refined where colours differ")
+      ->capture_default_str();
+  renderCmd->add_option("--adaptive", render.adaptive,
+                         "reference only: Levoy's adaptive refinement, rays 8 pixels apart first and more only where neighbouring "
+                         "colours differ by more than T/255, the rest interpolated (0 = every pixel, exact)")
       ->capture_default_str();
   renderCmd->add_option("--repeat", render.repeat, "render the view N times, brick textures kept; report the fastest frame")
       ->capture_default_str();

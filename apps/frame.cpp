@@ -184,7 +184,7 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
 }
 
 Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, SlicesStats* ss, RaycastStats* rs,
-                  BrickTextureCache* textures) {
+                  BrickTextureCache* textures, const std::function<void(int, const Image&, uint64_t)>& onLevel) {
   const Volume& v = f.scene.volume;
   if (o.renderer == "slices") {
     SlicesOptions opt;
@@ -208,6 +208,11 @@ Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, 
   ro.surfaceColor = f.surfaceColor;
   ro.cut = f.cut ? &*f.cut : nullptr;
   ro.voi = f.voi ? &*f.voi : nullptr;
+  // Levoy's refinement: --progressive N levels (the first grid 2^(N−1) pixels apart), or four with
+  // --adaptive alone; the last level is exact unless --adaptive is given.
+  ro.refineLevels = o.progressive > 1 ? o.progressive : o.adaptive > 0 ? 4 : 1;
+  ro.refineTolerance = float(o.adaptive / 255.0);
+  ro.onLevel = onLevel;
   return raycast(v, f.scene.octree, f.tf, f.camera, ro, rs);
 }
 

@@ -5,6 +5,7 @@
 #include <CLI/CLI.hpp>
 
 #include <chrono>
+#include <functional>
 #include <iosfwd>
 #include <optional>
 #include <string>
@@ -106,6 +107,7 @@ struct RenderOptions {
   int maxBrick = 16;
   int texelBits = 8;  // brick texture precision: 8 or 16 bits a channel
   int progressive = 1;
+  double adaptive = 0;  // raycast: refine where neighbouring colours differ by more than this (1/255 units); 0 = every pixel
   int repeat = 1;  // render: frames of the same view; brick textures are kept, the fastest counts
   std::string validate() const {
     if (!std::isfinite(epsilon) || epsilon < 0) return "--epsilon must be a finite value >= 0 (data units)";
@@ -126,7 +128,8 @@ struct RenderOptions {
     if (!(std::isfinite(lodPixels) && lodPixels >= 0)) return "--lod-pixels must be a finite number of pixels >= 0";
     if (!output.empty() && fileExtension(output) != ".png") return "-o '" + output + "' must be a .png file (render writes PNG images)";
     if (progressive > 1 && output.empty()) return "--progressive needs -o (the images are named after it)";
-    if (progressive > 1 && renderer != "slices") return "--progressive needs --renderer slices (the reference is always exact)";
+    if (!(std::isfinite(adaptive) && adaptive >= 0 && adaptive <= 255)) return "--adaptive must be a colour difference in [0, 255] (units of 1/255)";
+    if (adaptive > 0 && renderer != "raycast") return "--adaptive needs --renderer raycast (Levoy's adaptive refinement of the reference's rays)";
     if (!(std::isfinite(voiInside) && voiInside >= 0)) return "--voi-inside must be a finite factor >= 0";
     if (!(std::isfinite(voiOutside) && voiOutside >= 0)) return "--voi-outside must be a finite factor >= 0";
     if (!(std::isfinite(voiRamp) && voiRamp >= 0)) return "--voi-ramp must be a finite width >= 0 mm";
@@ -199,8 +202,9 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f);
 /// and slope, frustum culling and blending.
 SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double epsilon, double budgetMb);
 
-/// Renders one frame with o.renderer; slices need a current GlContext.
+/// Renders one frame with o.renderer; slices need a current GlContext. The reference refines its
+/// rays progressively with --progressive or --adaptive; @p onLevel receives each level's image.
 Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, SlicesStats* ss, RaycastStats* rs,
-                  BrickTextureCache* textures = nullptr);
+                  BrickTextureCache* textures = nullptr, const std::function<void(int, const Image&, uint64_t)>& onLevel = {});
 
 }  // namespace hyb::app

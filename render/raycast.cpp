@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "volume/error.h"
+
 namespace hyb {
 
 namespace {
@@ -31,11 +33,11 @@ bool slab(const glm::dvec3& o, const glm::dvec3& d, const glm::dvec3& lo, const 
 // Shading factor of a headlight on a surface with normal n (two-sided Lambert with ambient).
 double headlight(const glm::dvec3& n, const glm::dvec3& dir) { return 0.25 + 0.75 * std::abs(glm::dot(n, dir)); }
 
-}  // namespace
-
-Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-              const RaycastOptions& options, RaycastStats* stats) {
-  Image image(camera.width, camera.height);
+// Traces pixels pixel(0) … pixel(count − 1) into @p out on all cores, chunk pixels at a time.
+template <class Pixel>
+void tracePixels(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
+                 const RaycastOptions& options, size_t count, size_t chunk, const Pixel& pixel, Image* out, RaycastStats* stats) {
+  Image& image = *out;
   const glm::dvec3 spacing = volume.spacing();
   const glm::dvec3 boxHi = volume.extentMm();
   const double dt = options.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
@@ -72,10 +74,13 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
   const glm::dvec4 cut = options.cut ? options.cut->keptSide(camera) : glm::dvec4(0, 0, 0, 1);
 
   uint64_t samples = 0, skipped = 0, crossings = 0;
-#pragma omp parallel for schedule(dynamic, 1) reduction(+ : samples, skipped, crossings)
-  for (int y = 0; y < camera.height; ++y) {
+#pragma omp parallel reduction(+ : samples, skipped, crossings)
+  {
     std::vector<Hit> hits;
-    for (int x = 0; x < camera.width; ++x) {
+#pragma omp for schedule(dynamic, chunk)
+    for (size_t i = 0; i < count; ++i) {
+      const glm::ivec2 px = pixel(i);
+      const int x = px.x, y = px.y;
       glm::dvec3 o, d;
       camera.ray(x + 0.5, y + 0.5, &o, &d);
       glm::dvec4 acc(0.0);  // premultiplied rgb, alpha
@@ -162,7 +167,105 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
       image.at(x, y) = glm::vec4(acc);
     }
   }
-  if (stats) *stats = RaycastStats{samples, skipped, crossings};
+  stats->samples += samples;
+  stats->skippedLeaves += skipped;
+  stats->surfaceHits += crossings;
+  stats->rays += count;
+}
+
+// Levoy's progressive (adaptive) refinement: rays on a grid 2^(levels − 1) pixels apart, then, level
+// by level, at half the spacing inside every square whose corners' colours differ by more than the
+// tolerance; the other squares keep the bilinear interpolation of their corners. With tolerance 0
+// the last level traces every pixel not traced yet: the image is the exact one.
+Image refine(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
+             const RaycastOptions& options, RaycastStats* stats) {
+  const int W = camera.width, H = camera.height, levels = options.refineLevels;
+  Image image(W, H);
+  std::vector<uint8_t> traced(size_t(W) * size_t(H), 0);
+  std::vector<glm::ivec2> todo;
+  auto want = [&](int x, int y) {
+    uint8_t& t = traced[size_t(y) * size_t(W) + size_t(x)];
+    if (!t) todo.push_back({x, y});
+    t = 1;
+  };
+  auto trace = [&] {
+    tracePixels(volume, octree, tf, camera, options, todo.size(), 64, [&](size_t i) { return todo[i]; }, &image, stats);
+    todo.clear();
+  };
+  // Squares [x0, x1] × [y0, y1] whose corners are traced: the first grid's, then their quarters.
+  struct Square {
+    int x0, y0, x1, y1;
+  };
+  auto grid = [](int n, int s) {
+    std::vector<int> g;
+    for (int v = 0; v < n; v += s) g.push_back(v);
+    if (g.back() != n - 1) g.push_back(n - 1);
+    return g;
+  };
+  const int first = 1 << (levels - 1);
+  const std::vector<int> gx = grid(W, first), gy = grid(H, first);
+  std::vector<Square> open, settled;
+  for (size_t j = 0; j < gy.size(); ++j)
+    for (size_t i = 0; i < gx.size(); ++i) {
+      want(gx[i], gy[j]);
+      if ((i + 1 < gx.size() || gx.size() == 1) && (j + 1 < gy.size() || gy.size() == 1))
+        open.push_back({gx[i], gy[j], gx[std::min(i + 1, gx.size() - 1)], gy[std::min(j + 1, gy.size() - 1)]});
+    }
+  auto fill = [&](const Square& q) {
+    const glm::vec4 a = image.at(q.x0, q.y0), b = image.at(q.x1, q.y0), c = image.at(q.x0, q.y1), e = image.at(q.x1, q.y1);
+    for (int y = q.y0; y <= q.y1; ++y)
+      for (int x = q.x0; x <= q.x1; ++x) {
+        if (traced[size_t(y) * size_t(W) + size_t(x)]) continue;
+        const float u = q.x1 > q.x0 ? float(x - q.x0) / float(q.x1 - q.x0) : 0.0f, v = q.y1 > q.y0 ? float(y - q.y0) / float(q.y1 - q.y0) : 0.0f;
+        image.at(x, y) = glm::mix(glm::mix(a, b, u), glm::mix(c, e, u), v);
+      }
+  };
+  auto differ = [&](const Square& q) {
+    const glm::vec4 a = image.at(q.x0, q.y0), b = image.at(q.x1, q.y0), c = image.at(q.x0, q.y1), e = image.at(q.x1, q.y1);
+    const glm::vec4 spread = glm::max(glm::max(a, b), glm::max(c, e)) - glm::min(glm::min(a, b), glm::min(c, e));
+    return std::max({spread.r, spread.g, spread.b, spread.a}) > options.refineTolerance;
+  };
+  for (int level = 1; level <= levels; ++level) {
+    if (level > 1) {
+      std::vector<Square> next;
+      for (const Square& q : open) {
+        if (q.x1 - q.x0 <= 1 && q.y1 - q.y0 <= 1) continue;  // every pixel of it is a corner
+        if (!differ(q) && options.refineTolerance > 0.0f) {
+          settled.push_back(q);
+          continue;
+        }
+        const int xm = q.x1 - q.x0 >= 2 ? (q.x0 + q.x1) / 2 : q.x0, ym = q.y1 - q.y0 >= 2 ? (q.y0 + q.y1) / 2 : q.y0;
+        for (const Square& r : {Square{q.x0, q.y0, xm, ym}, Square{xm, q.y0, q.x1, ym}, Square{q.x0, ym, xm, q.y1}, Square{xm, ym, q.x1, q.y1}}) {
+          if ((r.x0 == r.x1 && q.x1 > q.x0) || (r.y0 == r.y1 && q.y1 > q.y0)) continue;  // no split along that axis
+          for (const glm::ivec2& c : {glm::ivec2(r.x0, r.y0), glm::ivec2(r.x1, r.y0), glm::ivec2(r.x0, r.y1), glm::ivec2(r.x1, r.y1)}) want(c.x, c.y);
+          next.push_back(r);
+        }
+      }
+      open.swap(next);
+    }
+    trace();
+    for (const Square& q : settled) fill(q);
+    for (const Square& q : open) fill(q);
+    if (options.onLevel) options.onLevel(level, image, stats->rays);
+  }
+  return image;
+}
+
+}  // namespace
+
+Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
+              const RaycastOptions& options, RaycastStats* stats) {
+  HYB_CHECK(options.refineLevels >= 1 && options.refineLevels <= 16 && options.refineTolerance >= 0.0f);
+  RaycastStats counts;
+  Image image(camera.width, camera.height);
+  if (options.refineLevels > 1) {
+    image = refine(volume, octree, tf, camera, options, &counts);
+  } else {
+    const size_t W = size_t(camera.width);
+    tracePixels(volume, octree, tf, camera, options, W * size_t(camera.height), W,
+                [W](size_t i) { return glm::ivec2(int(i % W), int(i / W)); }, &image, &counts);
+  }
+  if (stats) *stats = counts;
   return image;
 }
 

@@ -4,6 +4,8 @@
 // depth, empty-space skipping with the Volume Octree's min/max, early termination at α ≥ 0.999.
 #pragma once
 
+#include <functional>
+
 #include "hybrid_octree/volume_octree.h"
 #include "render/bvh.h"
 #include "render/camera.h"
@@ -25,6 +27,15 @@ struct RaycastOptions {
   bool skipEmptySpace = true;        ///< jump over nodes the transfer function makes transparent
   const CutPlane* cut = nullptr;     ///< cutting plane, or none
   const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
+  /// Levoy's progressive refinement: rays on a grid 2^(refineLevels − 1) pixels apart first, then,
+  /// level by level, at half the spacing inside each square whose corners' colours (premultiplied
+  /// RGBA) differ by more than refineTolerance; the other squares show the bilinear interpolation
+  /// of their corners. With tolerance 0 the last level traces every pixel (the exact image).
+  /// 1 level: every pixel at once.
+  int refineLevels = 1;
+  float refineTolerance = 0.0f;
+  /// Receives the image after each level of refinement, and the rays traced so far.
+  std::function<void(int level, const Image& image, uint64_t rays)> onLevel;
 };
 
 /// Per-pixel statistics of a render.
@@ -32,6 +43,7 @@ struct RaycastStats {
   uint64_t samples = 0;         ///< volume samples taken
   uint64_t skippedLeaves = 0;   ///< transparent octree leaves jumped over
   uint64_t surfaceHits = 0;     ///< surface crossings composited
+  uint64_t rays = 0;            ///< pixels traced (the others interpolated by refinement)
 };
 
 /// Renders @p volume (world mm: voxel (i,j,k) at (i·sx, j·sy, k·sz)) into premultiplied RGBA,

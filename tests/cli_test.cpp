@@ -212,6 +212,8 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"render", nhdr, "--progressive", "0", "-o", dir.file("a.png")}, "--progressive");
   expectBadInput({"render", nhdr, "--repeat", "0"}, "--repeat");
   expectBadInput({"render", nhdr, "-o", dir.file("image.txt")}, ".png");
+  expectBadInput({"render", nhdr, "--adaptive", "2"}, "--adaptive");  // the slice renderer has no rays to refine
+  for (const char* t : {"-1", "300", "nan"}) expectBadInput({"render", nhdr, "--renderer", "raycast", "--adaptive", t}, "--adaptive");
   EXPECT_FALSE(std::filesystem::exists(dir.file("image.txt")));
   expectBadInput({"bench", nhdr}, "-o");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--budgets", "0.5,2"}, "--budgets");
@@ -262,6 +264,22 @@ TEST(Cli, ProgressiveCutAndVolumeOfInterest) {
   EXPECT_THAT(test::readText(dir.file("r.json")), Not(HasSubstr("\"fragments\": 0,")));  // shader invocations counted
   ASSERT_EQ(run({"render", nhdr, "--size", "24x24", "--iso", "0.5", "--surface-color", "1,1,1,0.5", "-o", dir.file("r1.png")}).status, 0);
   EXPECT_EQ(readPng(dir.file("r.png"), &w, &h), readPng(dir.file("r1.png"), &w, &h));
+
+  // The reference refines its rays progressively (Levoy): the previews trace a growing share of the
+  // pixels and the last image is the plain reference's; --adaptive interpolates where colours agree.
+  r = run({"render", nhdr, "--size", "24x24", "--renderer", "raycast", "--progressive", "3", "-o", dir.file("t.png"), "--stats",
+           dir.file("t.json")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("progressive 1/3: 49 rays"));  // the grid 4 pixels apart: 0, 4, …, 20 and 23
+  EXPECT_THAT(r.out, HasSubstr("576 rays (100.0 % of the pixels)"));
+  EXPECT_EQ(readPng(dir.file("t_1.png"), &w, &h).size(), size_t(24 * 24 * 4));
+  ASSERT_EQ(run({"render", nhdr, "--size", "24x24", "--renderer", "raycast", "-o", dir.file("t1.png")}).status, 0);
+  EXPECT_EQ(readPng(dir.file("t.png"), &w, &h), readPng(dir.file("t1.png"), &w, &h));
+  EXPECT_EQ(readPng(dir.file("t_3.png"), &w, &h), readPng(dir.file("t1.png"), &w, &h));
+  EXPECT_THAT(test::readText(dir.file("t.json")), HasSubstr("\"rays\": 576"));
+  r = run({"render", nhdr, "--size", "24x24", "--renderer", "raycast", "--adaptive", "2", "-o", dir.file("u.png")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, Not(HasSubstr("576 rays")));
 }
 
 TEST(Cli, BenchNamesEveryStepWhereTheTradeIsNotMonotonic) {

@@ -14,6 +14,7 @@ namespace hyb {
 namespace {
 
 using test::constantTf;
+using test::psnrOf;
 using test::quadAt;
 
 // Orthographic camera looking along -dir from outside the box centre.
@@ -114,6 +115,69 @@ TEST(Raycast, EmptySpaceSkippingDoesNotChangeTheImage) {
   EXPECT_EQ(toRgba8(a, glm::vec3(0)), toRgba8(b, glm::vec3(0)));
   EXPECT_GT(with.skippedLeaves, uint64_t(0));
   EXPECT_LT(with.samples, without.samples / 2);
+}
+
+TEST(Raycast, ProgressiveRefinementEndsWithTheExactImage) {
+  // Levoy's progressive refinement with tolerance 0: the first level traces the grid 2^(L−1)
+  // pixels apart (and the last row and column), each level traces more, the last every pixel, and
+  // the last image is the plain reference's, pixel for pixel.
+  const Volume v = test::sphereVolume({40, 36, 30}, 11.0);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {12.0f, {1, 1, 1}, 0.6f}}, "sphere");
+  for (const glm::ivec2 size : {glm::ivec2(1, 1), glm::ivec2(2, 2), glm::ivec2(7, 5), glm::ivec2(33, 17), glm::ivec2(48, 40)}) {
+    const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 35, 20, 30, false, size.x, size.y);
+    const Image exact = raycast(v, t, tf, cam, RaycastOptions{});
+    for (int levels : {2, 3, 5}) {
+      RaycastOptions o;
+      o.refineLevels = levels;
+      std::vector<std::pair<int, uint64_t>> seen;
+      std::vector<double> psnrs;
+      o.onLevel = [&](int level, const Image& image, uint64_t rays) {
+        seen.push_back({level, rays});
+        psnrs.push_back(psnrOf(image, exact));
+      };
+      RaycastStats st;
+      const Image last = raycast(v, t, tf, cam, o, &st);
+      const std::string where = std::to_string(size.x) + "x" + std::to_string(size.y) + ", " + std::to_string(levels) + " levels";
+      EXPECT_EQ(last.pixels, exact.pixels) << where;
+      ASSERT_EQ(seen.size(), size_t(levels)) << where;
+      const int s = 1 << (levels - 1);
+      auto gridPoints = [s](int n) { return (n - 1) / s + 1 + ((n - 1) % s != 0); };
+      EXPECT_EQ(seen.front().second, uint64_t(gridPoints(size.x) * gridPoints(size.y))) << where;
+      EXPECT_EQ(seen.back().second, uint64_t(size.x) * uint64_t(size.y)) << where;
+      EXPECT_EQ(st.rays, uint64_t(size.x) * uint64_t(size.y)) << where;
+      for (size_t k = 1; k < seen.size(); ++k) {
+        EXPECT_EQ(seen[k].first, int(k) + 1);
+        EXPECT_GE(seen[k].second, seen[k - 1].second) << where;
+      }
+      if (size.x >= 33 && levels >= 3) {
+        EXPECT_GT(psnrs[levels - 2], 25.0) << where << ": the image before the last is a fair preview";
+        EXPECT_GT(psnrs[levels - 2], psnrs[0]) << where;
+      }
+    }
+  }
+}
+
+TEST(Raycast, AdaptiveRefinementTracesOnlyWhereColoursChange) {
+  // A small sphere in a wide empty view: with a tolerance the background's squares stay
+  // interpolated (black from black corners), the sphere's are refined; a fully transparent
+  // volume needs the first grid alone.
+  const Volume v = test::sphereVolume({40, 36, 30}, 11.0);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {12.0f, {1, 1, 1}, 0.6f}}, "sphere");
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 35, 20, 60, false, 96, 96);
+  const Image exact = raycast(v, t, tf, cam, RaycastOptions{});
+  RaycastOptions o;
+  o.refineLevels = 4;
+  o.refineTolerance = 2.0f / 255.0f;
+  RaycastStats st;
+  const Image adaptive = raycast(v, t, tf, cam, o, &st);
+  EXPECT_LT(st.rays, uint64_t(96 * 96 / 2));
+  EXPECT_GT(psnrOf(adaptive, exact), 40.0);
+  RaycastStats none;
+  const Image black = raycast(v, t, constantTf(0.0f), cam, o, &none);
+  EXPECT_EQ(none.rays, uint64_t(13 * 13));  // the grid 8 pixels apart: 0, 8, …, 88 and 95
+  for (const glm::vec4& p : black.pixels) EXPECT_EQ(p, glm::vec4(0.0f));
 }
 
 TEST(Raycast, Extremes) {
