@@ -221,7 +221,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
         << ",\n  \"texture_bytes\": " << (o.renderer == "slices" ? ss.textureBytes : sel.texels * bytesPerTexel(o.bits())) << ",\n  \"slices\": " << ss.slices
         << ",\n  \"surface_polygons\": " << f.polygons << ",\n  \"surface_triangles\": " << f.mesh.triangles.size()
         << ",\n  \"slab_polygon_draws\": " << ss.slabPolygonDraws << ",\n  \"fragments\": " << ss.fragments << ",\n  \"shell_bricks\": " << ss.shellBricks
-        << ",\n  \"cut_polygons\": " << ss.cutPolygons << ",\n  \"cut_line_segments\": " << ss.cutLineSegments << ",\n  \"build_ms\": " << f.buildMs + f.surfaceMs
+        << ",\n  \"cut_polygons\": " << ss.cutPolygons << ",\n  \"cut_line_segments\": " << ss.cutLineSegments << ",\n  \"build_ms\": " << f.buildMs + f.surfaceMs << ",\n  \"surface_polygons_ms\": " << f.polygonsMs
         << ",\n  \"select_ms\": " << selectMs << ",\n  \"render_ms\": " << renderMs << ",\n  \"first_render_ms\": " << firstMs << ",\n  \"samples\": " << rs.samples << ",\n  \"rays\": " << rs.rays
         << ",\n  \"epsilon\": " << o.epsilon << ",\n  \"max_nodal_error_used\": " << sel.maxError
         << ",\n  \"budget_met\": " << (sel.budgetMet ? "true" : "false") << "\n}\n";

@@ -142,9 +142,16 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
       f->surfaceMs = msSince(t0);
       f->so = &*f->builtSurface;
     }
+    const auto t0 = Clock::now();
     const DiscreteMesh d = f->so->reconstruct();
     f->polygons = d.faceCount();
     f->mesh = fineMeshToTriangles(d, v.spacing());
+    f->polygonsMs = msSince(t0);
+    std::ostringstream line;
+    line << std::fixed << std::setprecision(1) << "surface  iso " << *o.iso << ": Surface Octree "
+         << (f->builtSurface ? "built in " + std::to_string(int(std::lround(f->surfaceMs))) + " ms" : std::string("from the scene")) << ", "
+         << f->polygons << " polygons (" << f->mesh.triangles.size() << " triangles) reconstructed in " << f->polygonsMs << " ms\n";
+    out << line.str();
   }
 }
 

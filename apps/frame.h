@@ -182,7 +182,7 @@ struct RenderOptions {
 /// Everything a frame needs besides the selection: the scene, transfer function, camera, surface.
 struct Frame {
   Scene scene;
-  double buildMs = 0, surfaceMs = 0;
+  double buildMs = 0, surfaceMs = 0, polygonsMs = 0;  // octrees built; the surface's polygons reconstructed
   TransferFunction tf;
   Camera camera;
   std::optional<SurfaceOctree> builtSurface;

@@ -261,6 +261,8 @@ TEST(Cli, ProgressiveCutAndVolumeOfInterest) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("best of 3"));
   EXPECT_THAT(test::readText(dir.file("r.json")), HasSubstr("\"first_render_ms\""));
+  EXPECT_THAT(test::readText(dir.file("r.json")), HasSubstr("\"surface_polygons_ms\""));
+  EXPECT_THAT(r.out, HasSubstr("polygons ("));  // where a surface frame's set-up time goes
   EXPECT_THAT(test::readText(dir.file("r.json")), Not(HasSubstr("\"fragments\": 0,")));  // shader invocations counted
   ASSERT_EQ(run({"render", nhdr, "--size", "24x24", "--iso", "0.5", "--surface-color", "1,1,1,0.5", "-o", dir.file("r1.png")}).status, 0);
   EXPECT_EQ(readPng(dir.file("r.png"), &w, &h), readPng(dir.file("r1.png"), &w, &h));
