@@ -234,12 +234,16 @@ Image refine(const Volume& volume, const VolumeOctree& octree, const TransferFun
           settled.push_back(q);
           continue;
         }
-        const int xm = q.x1 - q.x0 >= 2 ? (q.x0 + q.x1) / 2 : q.x0, ym = q.y1 - q.y0 >= 2 ? (q.y0 + q.y1) / 2 : q.y0;
-        for (const Square& r : {Square{q.x0, q.y0, xm, ym}, Square{xm, q.y0, q.x1, ym}, Square{q.x0, ym, xm, q.y1}, Square{xm, ym, q.x1, q.y1}}) {
-          if ((r.x0 == r.x1 && q.x1 > q.x0) || (r.y0 == r.y1 && q.y1 > q.y0)) continue;  // no split along that axis
-          for (const glm::ivec2& c : {glm::ivec2(r.x0, r.y0), glm::ivec2(r.x1, r.y0), glm::ivec2(r.x0, r.y1), glm::ivec2(r.x1, r.y1)}) want(c.x, c.y);
-          next.push_back(r);
-        }
+        // Halves along each axis at least two pixels long (the square itself along the others).
+        auto halves = [](int lo, int hi) {
+          return hi - lo >= 2 ? std::vector<glm::ivec2>{{lo, (lo + hi) / 2}, {(lo + hi) / 2, hi}} : std::vector<glm::ivec2>{{lo, hi}};
+        };
+        for (const glm::ivec2& ry : halves(q.y0, q.y1))
+          for (const glm::ivec2& rx : halves(q.x0, q.x1)) {
+            for (const int y : {ry.x, ry.y})
+              for (const int x : {rx.x, rx.y}) want(x, y);
+            next.push_back({rx.x, ry.x, rx.y, ry.y});
+          }
       }
       open.swap(next);
     }
