@@ -779,8 +779,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   // say): a polygon's triangles never overlap one another, so they go into a slab as one unit.
   std::vector<uint32_t> polygonStarts;
   // And the boundaries of the convex ones, which a slab cuts whole.
-  const std::vector<uint32_t>& loopStarts = options.surface ? options.surface->loopStarts : polygonStarts;
-  const std::vector<uint32_t>& loops = options.surface ? options.surface->loops : polygonStarts;
+  static const std::vector<uint32_t> kNone;
+  const std::vector<uint32_t>& loopStarts = options.surface ? options.surface->loopStarts : kNone;
+  const std::vector<uint32_t>& loops = options.surface ? options.surface->loops : kNone;
   if (withTriangles) {
     polygonStarts = options.surface->polygonStarts;
     if (polygonStarts.empty()) {
