@@ -13,12 +13,8 @@ int64_t orient(const P2& a, const P2& b, const P2& c) { return (b.x - a.x) * (c.
 bool inTriangle(const P2& a, const P2& b, const P2& c, const P2& p) {
   return orient(a, b, p) >= 0 && orient(b, c, p) >= 0 && orient(c, a, p) >= 0;
 }
-}  // namespace
-
-bool triangulatePolygon(const std::vector<glm::ivec3>& points, const uint32_t* loop, size_t n, const glm::ivec3& normal,
-                        std::vector<std::array<uint32_t, 3>>* out) {
-  if (n < 3) return false;
-  // Project along the dominant axis of the normal, keeping counter-clockwise order.
+// The polygon projected along the dominant axis of its normal, keeping counter-clockwise order.
+std::vector<P2> project(const std::vector<glm::ivec3>& points, const uint32_t* loop, size_t n, const glm::ivec3& normal) {
   int axis = 0;
   for (int a = 1; a < 3; ++a)
     if (std::abs(normal[a]) > std::abs(normal[axis])) axis = a;
@@ -29,6 +25,14 @@ bool triangulatePolygon(const std::vector<glm::ivec3>& points, const uint32_t* l
     const glm::ivec3& q = points[loop[i]];
     p[i] = flip ? P2{q[v], q[u]} : P2{q[u], q[v]};
   }
+  return p;
+}
+}  // namespace
+
+bool triangulatePolygon(const std::vector<glm::ivec3>& points, const uint32_t* loop, size_t n, const glm::ivec3& normal,
+                        std::vector<std::array<uint32_t, 3>>* out) {
+  if (n < 3) return false;
+  const std::vector<P2> p = project(points, loop, n, normal);
   std::vector<size_t> idx(n);
   for (size_t i = 0; i < n; ++i) idx[i] = i;
   const size_t start = out->size();
@@ -72,12 +76,10 @@ bool triangulatePolygon(const std::vector<glm::ivec3>& points, const uint32_t* l
 
 bool isConvex(const std::vector<glm::ivec3>& points, const uint32_t* loop, size_t n, const glm::ivec3& normal) {
   if (n < 3) return false;
+  const std::vector<P2> p = project(points, loop, n, normal);
   bool left = false, right = false;
   for (size_t i = 0; i < n; ++i) {
-    const glm::i64vec3 a(points[loop[(i + n - 1) % n]]), b(points[loop[i]]), c(points[loop[(i + 1) % n]]);
-    const glm::i64vec3 u = b - a, v = c - b;
-    const glm::i64vec3 turn(u.y * v.z - u.z * v.y, u.z * v.x - u.x * v.z, u.x * v.y - u.y * v.x);
-    const int64_t side = turn.x * normal.x + turn.y * normal.y + turn.z * normal.z;
+    const int64_t side = orient(p[(i + n - 1) % n], p[i], p[(i + 1) % n]);
     left = left || side > 0;
     right = right || side < 0;
   }
