@@ -179,21 +179,21 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     out << "progressive " << k << "/" << o.progressive << ": " << std::setprecision(2) << double(ss.textureBytes) / 1048576.0 << " MB, "
         << std::setprecision(1) << msSince(p0) << " ms -> " << path << "\n";
   }
-  // --repeat: the same view again; brick textures are uploaded once (as an interactive viewer would).
   // The reference's progressive refinement (Levoy): its levels are the images, rays reused.
   const int pixels = size.x * size.y;
-  auto onLevel = [&](int level, const Image& preview, uint64_t rays) {
+  const std::function<void(int, const Image&, uint64_t)> onLevel = [&](int level, const Image& preview, uint64_t rays) {
     if (level >= o.progressive) return;
     const std::string path = progressivePath(o.output, level);
     writePng(path, preview, f.background);
     out << "progressive " << level << "/" << o.progressive << ": " << rays << " rays (" << std::setprecision(1) << 100.0 * double(rays) / pixels
         << " % of the pixels), " << msSince(t0) << " ms -> " << path << "\n";
   };
+  // --repeat: the same view again; brick textures are uploaded once (as an interactive viewer would).
   Image image;
   double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0;
   for (int r = 0; r < o.repeat; ++r) {
     t0 = Clock::now();
-    image = renderFrame(o, f, sel, &ss, &rs, cache, r == 0 && o.progressive > 1 ? std::function<void(int, const Image&, uint64_t)>(onLevel) : nullptr);
+    image = renderFrame(o, f, sel, &ss, &rs, cache, r == 0 && o.progressive > 1 ? onLevel : nullptr);
     renderMs = std::min(renderMs, msSince(t0));
     if (r == 0) firstMs = renderMs;
   }

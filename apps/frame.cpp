@@ -148,9 +148,12 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
     f->mesh = fineMeshToTriangles(d, v.spacing());
     f->polygonsMs = msSince(t0);
     std::ostringstream line;
-    line << std::fixed << std::setprecision(1) << "surface  iso " << *o.iso << ": Surface Octree "
-         << (f->builtSurface ? "built in " + std::to_string(int(std::lround(f->surfaceMs))) + " ms" : std::string("from the scene")) << ", "
-         << f->polygons << " polygons (" << f->mesh.triangles.size() << " triangles) reconstructed in " << f->polygonsMs << " ms\n";
+    line << std::fixed << std::setprecision(1) << "surface  iso " << *o.iso << ": Surface Octree ";
+    if (f->builtSurface)
+      line << "built in " << f->surfaceMs << " ms";
+    else
+      line << "from the scene";
+    line << ", " << f->polygons << " polygons (" << f->mesh.triangles.size() << " triangles) reconstructed in " << f->polygonsMs << " ms\n";
     out << line.str();
   }
 }
