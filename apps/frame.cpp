@@ -168,8 +168,10 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
   params.eye = f.camera.eye;
   // Texture memory is counted at the bricks' bytes a texel (value and gradient; the extrapolated
   // texels included).
-  params.texelBudget = uint64_t(budgetMb * 1024.0 * 1024.0 / double(bytesPerTexel(o.bits())));
-  if (budgetMb > 0 && params.texelBudget == 0) HYB_THROW(ValueError, "--budget ", budgetMb, " MB is smaller than one texel");
+  // A budget beyond 2^62 texels limits nothing (and would overflow the count): unlimited.
+  const double texels = budgetMb * 1024.0 * 1024.0 / double(bytesPerTexel(o.bits()));
+  params.texelBudget = texels < 0x1p62 ? uint64_t(texels) : 0;
+  if (budgetMb > 0 && texels < 1.0) HYB_THROW(ValueError, "--budget ", budgetMb, " MB is smaller than one texel");
   params.blend = o.blend == "on";
   const TransferFunction* tf = &f.tf;
   const Camera* camera = &f.camera;

@@ -145,10 +145,11 @@ struct RenderOptions {
     cmd->add_option("--tf", tfFile, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm");
     cmd->add_option("--preset", preset, "ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone (default for CT; other data: a ramp)");
     cmd->add_option("--focus", focus, "region of interest x,y,z in world mm");
-    cmd->add_option("--eye", eye, "camera position x,y,z in mm (with --center, --up)");
-    cmd->add_option("--center", center, "point looked at, x,y,z in mm (default: the volume centre)");
-    cmd->add_option("--up", up, "up direction x,y,z")->capture_default_str();
-    cmd->add_option("--orbit", orbit, "azimuth,elevation in degrees around the volume centre")->capture_default_str();
+    CLI::Option* eyeOption = cmd->add_option("--eye", eye, "camera position x,y,z in mm (with --center, --up)");
+    // Without --eye the camera orbits, and a --center or --up would be silently ignored.
+    cmd->add_option("--center", center, "point looked at, x,y,z in mm (default: the volume centre); needs --eye")->needs(eyeOption);
+    cmd->add_option("--up", up, "up direction x,y,z; needs --eye")->capture_default_str()->needs(eyeOption);
+    cmd->add_option("--orbit", orbit, "azimuth,elevation in degrees around the volume centre")->capture_default_str()->excludes(eyeOption);
     cmd->add_option("--fov", fov, "vertical field of view in degrees")->capture_default_str();
     cmd->add_flag("--ortho", ortho, "orthographic projection");
     cmd->add_option("--size", size, "image size WxH")->capture_default_str();

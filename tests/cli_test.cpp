@@ -115,6 +115,7 @@ TEST(Cli, BudgetInPercentOfTheFullResolutionBytes) {
   EXPECT_GT(quarter, 0.0);
   EXPECT_EQ(texels("100%", nullptr), full);
   EXPECT_LT(texels("3%", nullptr), quarter);
+  EXPECT_EQ(texels("1e30", nullptr), full);  // more megabytes than texels can count: no limit
 }
 
 TEST(Cli, CompareMeasuresAnImageAgainstAReference) {
@@ -196,6 +197,9 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"render", nhdr, "--orbit", "10"}, "azimuth,elevation");
   expectBadInput({"render", nhdr, "--texel-bits", "12"}, "--texel-bits");
   expectBadInput({"render", nhdr, "--orbit", "10,20,30"}, "azimuth,elevation");
+  expectBadInput({"render", nhdr, "--up", "0,1,0"}, "--up requires --eye");  // an orbit would ignore it
+  expectBadInput({"render", nhdr, "--center", "1,2,3"}, "--center requires --eye");
+  expectBadInput({"render", nhdr, "--eye", "1,2,3", "--orbit", "10,20"}, "--orbit");
   expectBadInput({"render", nhdr, "--budget", "-3"}, "--budget");
   for (const char* budget : {"0%", "150%", "x%", "5%%", "%"}) expectBadInput({"render", nhdr, "--budget", budget}, "--budget");
   expectBadInput({"render", nhdr, "--no-such-flag"}, "--no-such-flag");
