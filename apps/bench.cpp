@@ -94,20 +94,20 @@ void BenchOptions::add(CLI::App* cmd) {
 
 int runBench(const BenchOptions& o, std::ostream& out) {
   namespace fs = std::filesystem;
-  std::error_code ec;
-  fs::create_directories(o.outDir, ec);
-  if (ec || !fs::is_directory(o.outDir)) HYB_THROW(IoError, o.outDir, ": cannot create the output directory (", ec.message(), ")");
+  // Bad lists or a bad volume leave no output directory behind: it is created last.
   const std::vector<double> budgets =
       parseList(o.budgets, "--budgets", [](double x) { return x > 0.0 && x <= 1.0; }, "fractions in (0, 1]");
+  std::vector<double> epsilons;
+  if (!o.epsilons.empty())
+    epsilons = parseList(o.epsilons, "--epsilons", [](double x) { return std::isfinite(x) && x >= 0.0; }, "finite values >= 0");
   Frame f;
   prepareFrame(o.render, out, &f);
   const Volume& v = f.scene.volume;
-  std::vector<double> epsilons;
-  if (o.epsilons.empty()) {
+  if (o.epsilons.empty())
     for (double fraction : {0.0025, 0.005, 0.01, 0.025, 0.05, 0.1}) epsilons.push_back(fraction * double(v.maxValue() - v.minValue()));
-  } else {
-    epsilons = parseList(o.epsilons, "--epsilons", [](double x) { return std::isfinite(x) && x >= 0.0; }, "finite values >= 0");
-  }
+  std::error_code ec;
+  fs::create_directories(o.outDir, ec);
+  if (ec || !fs::is_directory(o.outDir)) HYB_THROW(IoError, o.outDir, ": cannot create the output directory (", ec.message(), ")");
   const std::string dir = fs::path(o.outDir).string();
   auto file = [&](const std::string& name) { return (fs::path(dir) / name).string(); };
 

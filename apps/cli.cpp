@@ -70,6 +70,7 @@ struct BuildOptions {
   std::string prefilter = "on";
   std::string validate() const {
     if (output.empty()) return "-o missing (expected the scene file to write, e.g. -o scene.hoct)";
+    if (std::string e = outputPathError(output, "-o"); !e.empty()) return e;
     if (prefilter != "on" && prefilter != "off") return "--prefilter must be on or off";
     if (leafEdge < 1 || leafEdge > 256 || (leafEdge & (leafEdge - 1))) return "--leaf-edge must be a power of two in 1..256";
     if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
@@ -242,6 +243,7 @@ struct ExportOptions {
     const std::string ext = fileExtension(output);
     if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".off")
       return "-o '" + output + "' has an unknown extension (expected .ply, .obj, .stl or .off)";
+    if (std::string e = outputPathError(output, "-o"); !e.empty()) return e;
     if (surface != "dmc" && surface != "mc" && surface != "octree")
       return "--surface '" + surface + "' invalid (expected dmc, octree or mc)";
     return "";
@@ -308,6 +310,7 @@ struct CompareOptions {
   std::string validate() const {
     if (reference.empty() || image.empty()) return "compare needs two PNG files (expected: compare REFERENCE.png IMAGE.png)";
     if (!diff.empty() && fileExtension(diff) != ".png") return "--diff '" + diff + "' must be a .png file";
+    if (std::string e = outputPathError(diff, "--diff"); !e.empty()) return e;
     return "";
   }
 };

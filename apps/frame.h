@@ -9,11 +9,13 @@
 #include <iosfwd>
 #include <optional>
 #include <string>
+#include <utility>
 
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/selection.h"
 #include "render/camera.h"
 #include "render/image.h"
+#include "volume/file_util.h"
 #include "render/raycast.h"
 #include "render/slices.h"
 #include "render/transfer_function.h"
@@ -134,6 +136,8 @@ struct RenderOptions {
     if (!(std::isfinite(voiOutside) && voiOutside >= 0)) return "--voi-outside must be a finite factor >= 0";
     if (!(std::isfinite(voiRamp) && voiRamp >= 0)) return "--voi-ramp must be a finite width >= 0 mm";
     if (!tfFile.empty() && !preset.empty()) return "--tf and --preset are exclusive";
+    for (const auto& [path, flag] : {std::pair{&output, "-o"}, std::pair{&stats, "--stats"}})
+      if (std::string e = outputPathError(*path, flag); !e.empty()) return e;
     return "";
   }
 

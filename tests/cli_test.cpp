@@ -222,6 +222,14 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"bench", nhdr}, "-o");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--budgets", "0.5,2"}, "--budgets");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--epsilons", "1,x"}, "--epsilons");
+  EXPECT_FALSE(std::filesystem::exists(dir.file("b")));  // bad lists leave no output directory
+  // An output whose directory does not exist is refused before any work, naming the flag.
+  const std::string missing = dir.file("no/such/dir");
+  expectBadInput({"render", nhdr, "-o", missing + "/a.png"}, "-o '" + missing + "/a.png': directory");
+  expectBadInput({"render", nhdr, "--stats", missing + "/s.json"}, "--stats");
+  expectBadInput({"build", nhdr, "-o", missing + "/s.hoct"}, "does not exist");
+  expectBadInput({"export", nhdr, "--iso", "0.5", "-o", missing + "/m.ply"}, "does not exist");
+  expectBadInput({"compare", nhdr, nhdr, "--diff", missing + "/d.png"}, "--diff");
   expectBadInput({"frobnicate"}, "frobnicate");
   expectBadInput({}, "subcommand");
   const CliRun help = run({"--help"});

@@ -68,6 +68,13 @@ void writeFileAtomically(const std::string& path, const std::function<void(std::
   });
 }
 
+std::string outputPathError(const std::string& path, const std::string& flag) {
+  const fs::path dir = fs::path(path).parent_path();
+  std::error_code ec;
+  if (dir.empty() || fs::is_directory(dir, ec)) return "";
+  return flag + " '" + path + "': directory '" + dir.string() + "' does not exist";
+}
+
 std::string fileExtension(const std::string& path) {
   std::string name = fs::path(path).filename().string();
   std::transform(name.begin(), name.end(), name.begin(), [](unsigned char c) { return std::tolower(c); });

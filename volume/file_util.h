@@ -25,6 +25,10 @@ void writeFileAtomically(const std::string& path, const std::function<void(std::
 void writeFileAtomicallyByName(const std::string& path,
                                const std::function<void(const std::string& tmpPath)>& write);
 
+/// Checks, before any work, that output @p path given by flag @p flag can be created: its
+/// directory exists. Returns an empty string when it does, else one message naming both.
+std::string outputPathError(const std::string& path, const std::string& flag);
+
 /// Lower-cased file-name extension including compound ones such as ".nii.gz"; "" if none.
 std::string fileExtension(const std::string& path);
 
