@@ -184,6 +184,11 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
     return 2.0 * d * std::tan(glm::radians(camera->fovDeg) * 0.5) / camera->height;
   };
   params.distortion = [tf](float lo, float hi, float error) { return tf->distortion(lo, hi, error); };
+  // Within a budget, texels go where they change this image most (measured per brick, on first use).
+  params.brickError = [frame = &f](uint32_t node, int p) {
+    if (!frame->brickError) frame->brickError = std::make_shared<BrickImageError>(frame->scene.volume, frame->scene.octree, frame->tf, frame->camera);
+    return (*frame->brickError)(node, p);
+  };
   // Frustum culling, and nodes wholly on the removed side of the cutting plane.
   const glm::dvec4 cut = f.cut ? f.cut->keptSide(f.camera) : glm::dvec4(0, 0, 0, 1);
   // And nodes the volume of interest scales to zero opacity.

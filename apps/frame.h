@@ -7,12 +7,14 @@
 #include <chrono>
 #include <functional>
 #include <iosfwd>
+#include <memory>
 #include <optional>
 #include <string>
 #include <utility>
 
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/selection.h"
+#include "render/brick_error.h"
 #include "render/camera.h"
 #include "render/image.h"
 #include "volume/file_util.h"
@@ -198,6 +200,9 @@ struct Frame {
   glm::vec3 background{0.0f};
   std::optional<CutPlane> cut;
   std::optional<VolumeOfInterest> voi;
+  /// The bricks' image errors for this view and transfer function, made on the first budgeted
+  /// selection and shared by the later ones (bench's sweep, progressive levels).
+  mutable std::shared_ptr<BrickImageError> brickError;
 };
 
 /// Loads the scene and sets up the transfer function, camera and surface of @p o.

@@ -142,15 +142,37 @@ class Refiner {
     return mP[i] >= 0 && !mHidden[i] && level(i) > 0 && (asked(i) || splitIsFree(i));
   }
 
-  // P = D·Imp with D the distortion of ε_p after the transfer function; a tiny term in ε_p
-  // orders nodes the transfer function does not tell apart. Free splits come first: they cost
-  // nothing and make the image no worse.
+  // P = D·Imp with D the distortion of ε_p after the transfer function, or with brickError the
+  // image error refining removes times Imp per texel it costs; a tiny term in ε_p orders nodes
+  // that neither tells apart. Free splits come first: they cost nothing and make the image no worse.
   double priority(uint32_t i) const {
     if (!asked(i)) return std::numeric_limits<double>::infinity();
     const OctreeNode& n = mT.nodes()[i];
     const float e = mT.errors(n)[size_t(mP[i])];
+    if (mParams.brickError && mParams.texelBudget > 0) return imageGain(i) * mImportance[i] + 1e-12 * double(e);
     const double d = mParams.distortion ? mParams.distortion(n.minValue, n.maxValue, e) : double(e);
     return d * mImportance[i] + 1e-12 * double(e);
+  }
+
+  // What refining brick i once removes of its image error, per texel it adds (restriction
+  // closures aside).
+  double imageGain(uint32_t i) const {
+    const OctreeNode& n = mT.nodes()[i];
+    const int p = mP[i];
+    double after = 0.0;
+    int64_t added = -int64_t(cost(i, p));
+    if (p < std::min(mBrickLevel, mT.maxLevel(n)) || n.isLeaf()) {
+      after = mParams.brickError(i, p + 1);
+      added += int64_t(cost(i, p + 1));
+    } else {
+      for (int slot = 0; slot < 8; ++slot)
+        if (n.childMask & (1u << slot)) {
+          const uint32_t c = childIndex(n, slot);
+          if (!mHidden[c]) after += mParams.brickError(c, p);  // hidden children show nothing, as the samples there
+          added += int64_t(cost(c, p));
+        }
+    }
+    return std::max(0.0, mParams.brickError(i, p) - after) / double(std::max<int64_t>(added, 1));
   }
 
   // Texels brick i costs at level p.

@@ -43,6 +43,11 @@ struct SelectionParams {
   /// Distortion after the transfer function: how much an error of @p error data units in values
   /// within [lo, hi] can change the classified opacity and colour. None: the error itself.
   std::function<double(float lo, float hi, float error)> distortion;
+  /// The error brick (node, level p) makes in the image (BrickImageError; 0 where exact). When
+  /// set and a budget is given, the priority is what a refinement removes of it, times the
+  /// importance, per texel it costs, instead of distortion(ε_p): the budget goes where it changes
+  /// the image most. (Without a budget the order of refinement does not change the result.)
+  std::function<double(uint32_t node, int p)> brickError;
   /// Size in mm of one pixel at the nearest point of the world box [lo, hi] (the camera's); with
   /// lodPixels > 0 a brick is not refined once its texels are at most lodPixels pixels apart there
   /// (LaMar's screen-space criterion: finer data cannot be seen). None: no screen-space stop.
@@ -86,7 +91,7 @@ inline int resolutionLevel(const VolumeOctree& octree, const Brick& b) {
 }
 
 /// Selects bricks. Starting from the root at p = 0, the visible brick of highest priority
-/// D·Imp is refined while its ε_p exceeds ε_u/Imp or, with an eye, while the eye is nearer to it
+/// (D·Imp, or with brickError the image error a refinement removes times Imp per texel) is refined while its ε_p exceeds ε_u/Imp or, with an eye, while the eye is nearer to it
 /// than its diagonal (LaMar's distance filter), keeping the tree restricted (refining coarser
 /// neighbours as needed) and skipping refinements that would exceed the texel budget.
 /// @throw ValueError when @p params is invalid.

@@ -6,6 +6,7 @@
 #include <set>
 
 #include "hybrid_octree/selection.h"
+#include "render/brick_error.h"
 #include "test_util.h"
 #include "volume/volume_io.h"
 
@@ -318,11 +319,17 @@ uint64_t summedTexels(const Selection& sel) {
 TEST(Selection, TexelBudgetIsNeverExceededAndTheTreeStaysRestricted) {
   const Volume v = test::sphereVolume({65, 65, 65}, 25.0);
   const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf({{-5.0f, {1, 1, 1}, 0.0f}, {5.0f, {1, 1, 1}, 0.2f}}, "ramp");
+  Camera cam;
+  cam.eye = glm::dvec3(150, 40, 20);
+  cam.center = glm::dvec3(32);
+  BrickImageError imageError(v, t, tf, cam);
   std::mt19937 rng(7);
-  for (int blend = 0; blend < 2; ++blend) {
+  for (int run = 0; run < 4; ++run) {
     SelectionParams params;
     params.maxBrickEdge = 8;
-    params.blend = blend == 1;
+    params.blend = run % 2 == 1;
+    if (run >= 2) params.brickError = [&imageError](uint32_t node, int p) { return imageError(node, p); };  // the render command's priority
     const uint64_t full = selectNodes(t, params).texels;
     std::uniform_int_distribution<uint64_t> pick(8, full);
     for (int trial = 0; trial < 12; ++trial) {

@@ -1,0 +1,291 @@
+#include "render/brick_error.h"
+
+#include <algorithm>
+#include <cmath>
+#include <thread>
+
+namespace hyb {
+
+namespace {
+
+constexpr int kGrid = 4;             // voxels between the transmittance grid's points
+constexpr int kBlock = 4;            // voxel cells per edge of a block skipped where nothing can be seen
+constexpr size_t kTableSize = 4096;  // classification table entries over the data's range
+
+// Index of @p p in an x-fastest array of @p dims.
+size_t linear(const glm::ivec3& p, const glm::ivec3& dims) { return size_t(p.x) + size_t(dims.x) * (size_t(p.y) + size_t(dims.y) * size_t(p.z)); }
+
+// Value of the trilinear interpolation of corners @p c (slot order x | y<<1 | z<<2) at weights
+// @p w, and in @p d its derivative along each weight.
+float trilinear(const float c[8], const glm::vec3& w, glm::vec3* d) {
+  const float x00 = c[0] + (c[1] - c[0]) * w.x, x10 = c[2] + (c[3] - c[2]) * w.x;
+  const float x01 = c[4] + (c[5] - c[4]) * w.x, x11 = c[6] + (c[7] - c[6]) * w.x;
+  const float y0 = x00 + (x10 - x00) * w.y, y1 = x01 + (x11 - x01) * w.y;
+  const float dx0 = (c[1] - c[0]) + ((c[3] - c[2]) - (c[1] - c[0])) * w.y;
+  const float dx1 = (c[5] - c[4]) + ((c[7] - c[6]) - (c[5] - c[4])) * w.y;
+  *d = glm::vec3(dx0 + (dx1 - dx0) * w.z, (x10 - x00) + ((x11 - x01) - (x10 - x00)) * w.z, y1 - y0);
+  return y0 + (y1 - y0) * w.z;
+}
+
+// Calls work(i) for i in [0, count), every core taking every n-th i.
+template <class Work>
+void forEachShare(int count, const Work& work) {
+  const int threads = std::clamp(int(std::thread::hardware_concurrency()), 1, std::max(1, count));
+  auto share = [&](int first) {
+    for (int i = first; i < count; i += threads) work(i);
+  };
+  std::vector<std::thread> workers;
+  for (int k = 1; k < threads; ++k) workers.emplace_back(share, k);
+  share(0);
+  for (std::thread& w : workers) w.join();
+}
+
+// Headlight shading as both renderers do it: 0.25 + 0.75 |cos| between the gradient and the ray.
+float shade(const glm::vec3& g, const glm::vec3& dir) {
+  const float gg = glm::dot(g, g);
+  return gg > 1e-20f ? 0.25f + 0.75f * std::abs(glm::dot(g, dir)) / std::sqrt(gg) : 1.0f;
+}
+
+}  // namespace
+
+BrickImageError::BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera)
+    : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera) {
+  const float lo = volume.minValue(), hi = volume.maxValue();
+  mTable.resize(hi > lo ? kTableSize : 1);
+  mLo = lo;
+  mScale = hi > lo ? float(kTableSize - 1) / (hi - lo) : 0.0f;
+  for (size_t k = 0; k < mTable.size(); ++k) {
+    const glm::vec4 c = tf.lookup(mTable.size() > 1 ? lo + (hi - lo) * float(k) / float(kTableSize - 1) : lo);
+    mTable[k] = {glm::vec3(c), -std::log(std::max(1e-6f, 1.0f - c.a))};
+  }
+  buildTransmittance();
+  buildVisibleBlocks();
+}
+
+void BrickImageError::buildVisibleBlocks() {
+  const glm::ivec3 dims = mVolume.dims();
+  mBlockDims = glm::max((dims - 1 + kBlock - 1) / kBlock, glm::ivec3(1));
+  mVisibleBlock.assign(size_t(mBlockDims.x) * mBlockDims.y * mBlockDims.z, 0);
+  for (int bz = 0, i = 0; bz < mBlockDims.z; ++bz)
+    for (int by = 0; by < mBlockDims.y; ++by)
+      for (int bx = 0; bx < mBlockDims.x; ++bx, ++i) {
+        // The block's cells reach the samples one past its last cell.
+        const glm::ivec3 lo = glm::ivec3(bx, by, bz) * kBlock, hi = glm::min(lo + kBlock, dims - 1);
+        float vmin = mVolume.at(lo.x, lo.y, lo.z), vmax = vmin;
+        for (int z = lo.z; z <= hi.z; ++z)
+          for (int y = lo.y; y <= hi.y; ++y)
+            for (int x = lo.x; x <= hi.x; ++x) {
+              const float v = mVolume.at(x, y, z);
+              vmin = std::min(vmin, v);
+              vmax = std::max(vmax, v);
+            }
+        mVisibleBlock[size_t(i)] = mTf.maxAlpha(vmin, vmax) > 0.0f;
+      }
+}
+
+const BrickImageError::Entry& BrickImageError::classify(float value) const {
+  return mTable[size_t(std::clamp((value - mLo) * mScale + 0.5f, 0.0f, float(mTable.size() - 1)))];
+}
+
+void BrickImageError::buildTransmittance() {
+  const glm::ivec3 dims = mVolume.dims();
+  mGridDims = (dims - 1 + kGrid - 1) / kGrid + 1;
+  const size_t count = size_t(mGridDims.x) * mGridDims.y * mGridDims.z;
+  auto index = [&](const glm::ivec3& g) { return linear(g, mGridDims); };
+  // Extinction per grid point: the mean over the voxels nearest to it.
+  std::vector<float> kappa(count, 0.0f);
+  std::vector<uint32_t> voxels(count, 0);
+  for (int z = 0; z < dims.z; ++z)
+    for (int y = 0; y < dims.y; ++y)
+      for (int x = 0; x < dims.x; ++x) {
+        const size_t g = index(glm::min((glm::ivec3(x, y, z) + kGrid / 2) / kGrid, mGridDims - 1));
+        kappa[g] += classify(mVolume.at(x, y, z)).kappa;
+        ++voxels[g];
+      }
+  for (size_t g = 0; g < count; ++g) kappa[g] = voxels[g] > 0 ? kappa[g] / float(voxels[g]) : 0.0f;
+  // March from every grid point towards the eye through the nearest points' extinction.
+  const glm::dvec3 spacing = mVolume.spacing(), extent = mVolume.extentMm();
+  const double step = kGrid * std::min({spacing.x, spacing.y, spacing.z});
+  mTransmittance.assign(count, 1.0f);
+  forEachShare(mGridDims.z, [&](int z) {
+    for (int y = 0; y < mGridDims.y; ++y)
+      for (int x = 0; x < mGridDims.x; ++x) {
+        const glm::dvec3 p = glm::dvec3(glm::min(glm::ivec3(x, y, z) * kGrid, dims - 1)) * spacing;
+        const glm::dvec3 toEye = mCamera.ortho ? -mCamera.forward() : mCamera.eye - p;
+        if (glm::dot(toEye, toEye) == 0.0) continue;
+        const glm::dvec3 dir = glm::normalize(toEye);
+        double tau = 0.0;
+        for (double s = 0.5 * step; tau < 16.0; s += step) {
+          const glm::dvec3 q = p + dir * s;
+          if (glm::any(glm::lessThan(q, glm::dvec3(0.0))) || glm::any(glm::greaterThan(q, extent))) break;
+          if (!mCamera.ortho && s * s >= glm::dot(toEye, toEye)) break;  // reached the eye inside the volume
+          const glm::ivec3 g = glm::min(glm::ivec3(q / spacing / double(kGrid) + 0.5), mGridDims - 1);
+          tau += double(kappa[index(g)]) * step;
+        }
+        mTransmittance[index(glm::ivec3(x, y, z))] = float(std::exp(-tau));
+      }
+  });
+}
+
+float BrickImageError::transmittance(const glm::vec3& voxel) const {
+  const glm::ivec3 dims = mVolume.dims();
+  glm::ivec3 j;
+  glm::vec3 w;
+  for (int a = 0; a < 3; ++a) {
+    if (mGridDims[a] < 2) {
+      j[a] = 0;
+      w[a] = 0.0f;
+      continue;
+    }
+    const float x = std::clamp(voxel[a], 0.0f, float(dims[a] - 1));
+    j[a] = std::min(int(x) / kGrid, mGridDims[a] - 2);
+    const float lo = float(j[a] * kGrid), hi = float(std::min((j[a] + 1) * kGrid, dims[a] - 1));
+    w[a] = std::clamp((x - lo) / (hi - lo), 0.0f, 1.0f);
+  }
+  float c[8];
+  for (int s = 0; s < 8; ++s) {
+    const glm::ivec3 g = glm::min(j + glm::ivec3(s & 1, (s >> 1) & 1, (s >> 2) & 1), mGridDims - 1);
+    c[s] = mTransmittance[linear(g, mGridDims)];
+  }
+  glm::vec3 unused;
+  return trilinear(c, w, &unused);
+}
+
+double BrickImageError::operator()(uint32_t node, int p) {
+  const uint64_t key = uint64_t(node) * 64 + uint64_t(p);
+  if (const auto it = mMemo.find(key); it != mMemo.end()) return it->second;
+  const double e = measure(mOctree.nodes()[node], p);
+  mMemo.emplace(key, e);
+  return e;
+}
+
+double BrickImageError::measure(const OctreeNode& n, int p) {
+  const int step = mOctree.edge(n) >> p;
+  if (step <= 1) return 0.0;
+  const KnotLattice L = mOctree.lattice(n, p);
+  mKnots.resize(L.count());
+  for (int z = 0, i = 0; z < L.dims.z; ++z)
+    for (int y = 0; y < L.dims.y; ++y)
+      for (int x = 0; x < L.dims.x; ++x, ++i) mKnots[size_t(i)] = mOctree.knotValue(mVolume, step, {L.knot(0, x), L.knot(1, y), L.knot(2, z)});
+  const glm::ivec3 dims = mVolume.dims();
+  const glm::vec3 spacing(mVolume.spacing());
+
+  // The samples' field and its gradient (per mm) at voxel position q.
+  auto fine = [&](const glm::vec3& q, glm::vec3* g) {
+    glm::ivec3 i0, i1;
+    glm::vec3 w;
+    for (int a = 0; a < 3; ++a) {
+      i0[a] = std::min(int(q[a]), std::max(dims[a] - 2, 0));
+      i1[a] = std::min(i0[a] + 1, dims[a] - 1);
+      w[a] = i1[a] > i0[a] ? q[a] - float(i0[a]) : 0.0f;
+    }
+    float c[8];
+    for (int s = 0; s < 8; ++s) c[s] = mVolume.at(s & 1 ? i1.x : i0.x, s & 2 ? i1.y : i0.y, s & 4 ? i1.z : i0.z);
+    const float v = trilinear(c, w, g);
+    *g /= spacing;
+    return v;
+  };
+  // Which cell of the knots holds q.
+  const glm::ivec3 cells = glm::max(L.dims - 1, glm::ivec3(1));
+  auto cellOf = [&](const glm::vec3& q) {
+    glm::ivec3 j;
+    for (int a = 0; a < 3; ++a) j[a] = std::clamp(int((q[a] - float(L.origin[a])) / float(step)), 0, cells[a] - 1);
+    return j;
+  };
+  // Whether the level's field can be visible in each cell (the range of its eight knots).
+  mVisibleCell.resize(size_t(cells.x) * cells.y * cells.z);
+  for (int z = 0, i = 0; z < cells.z; ++z)
+    for (int y = 0; y < cells.y; ++y)
+      for (int x = 0; x < cells.x; ++x, ++i) {
+        float vmin = 1e30f, vmax = -1e30f;
+        for (int s = 0; s < 8; ++s) {
+          const glm::ivec3 k = glm::min(glm::ivec3(x + (s & 1), y + ((s >> 1) & 1), z + ((s >> 2) & 1)), L.dims - 1);
+          const float v = mKnots[linear(k, L.dims)];
+          vmin = std::min(vmin, v);
+          vmax = std::max(vmax, v);
+        }
+        mVisibleCell[size_t(i)] = mTf.maxAlpha(vmin, vmax) > 0.0f;
+      }
+  // The level's field (what the brick shows, without blending) and its gradient (per mm) at q in cell j.
+  auto level = [&](const glm::vec3& q, const glm::ivec3& j, glm::vec3* g) {
+    glm::vec3 w, cell;
+    for (int a = 0; a < 3; ++a) {
+      if (L.dims[a] < 2) {
+        w[a] = 0.0f, cell[a] = 1.0f;
+        continue;
+      }
+      const float lo = float(L.knot(a, j[a])), hi = float(L.knot(a, j[a] + 1));
+      w[a] = std::clamp((q[a] - lo) / (hi - lo), 0.0f, 1.0f);
+      cell[a] = hi - lo;
+    }
+    float c[8];
+    for (int s = 0; s < 8; ++s) {
+      const glm::ivec3 k = glm::min(j + glm::ivec3(s & 1, (s >> 1) & 1, (s >> 2) & 1), L.dims - 1);
+      c[s] = mKnots[linear(k, L.dims)];
+    }
+    const float v = trilinear(c, w, g);
+    *g /= cell * spacing;
+    return v;
+  };
+
+  glm::ivec3 a, b;
+  mOctree.voxelBox(n, &a, &b);
+  const glm::vec3 lo = glm::vec3(a) * spacing, hi = glm::vec3(b) * spacing, centre = 0.5f * (lo + hi);
+  glm::vec3 dir = glm::vec3(mCamera.forward());
+  if (!mCamera.ortho && glm::length(centre - glm::vec3(mCamera.eye)) > 0.0f) dir = glm::normalize(centre - glm::vec3(mCamera.eye));
+  const glm::vec3 u = glm::normalize(std::abs(dir.x) < 0.9f ? glm::cross(dir, glm::vec3(1, 0, 0)) : glm::cross(dir, glm::vec3(0, 1, 0)));
+  const glm::vec3 v = glm::cross(dir, u);
+  glm::vec2 pmin(1e30f), pmax(-1e30f);
+  for (int c = 0; c < 8; ++c) {
+    const glm::vec3 corner((c & 1) ? hi.x : lo.x, (c & 2) ? hi.y : lo.y, (c & 4) ? hi.z : lo.z);
+    const glm::vec2 pc(glm::dot(corner - centre, u), glm::dot(corner - centre, v));
+    pmin = glm::min(pmin, pc);
+    pmax = glm::max(pmax, pc);
+  }
+  // Rays an eighth of the node's edge apart (four voxels for the nodes of 32 whose level the budget
+  // decides most: on the cranium the selections match those of rays one voxel apart within
+  // ±0.3 dB, for a sixteenth of the work; a quarter of the edge loses up to 1.5 dB), one sample
+  // per voxel spacing along them (coarser in large nodes).
+  const float minSpacing = std::min({spacing.x, spacing.y, spacing.z});
+  const float h = minSpacing * std::max(1.0f, float(mOctree.edge(n)) / 8.0f);
+  const float ds = minSpacing * std::max(1.0f, float(mOctree.edge(n)) / 64.0f);
+  // One ray: the squared difference of the colours that reach the eye, times the area it stands for.
+  auto ray = [&](float su, float sv) -> double {
+    const glm::vec3 o = centre + u * su + v * sv;
+    float t0 = -1e30f, t1 = 1e30f;
+    for (int k = 0; k < 3; ++k) {
+      if (std::abs(dir[k]) < 1e-12f) {
+        if (o[k] < lo[k] || o[k] > hi[k]) return 0.0;
+        continue;
+      }
+      float ta = (lo[k] - o[k]) / dir[k], tb = (hi[k] - o[k]) / dir[k];
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta);
+      t1 = std::min(t1, tb);
+    }
+    if (!(t1 > t0)) return 0.0;
+    const float seen = transmittance((o + dir * t0) / spacing);
+    if (seen < 1e-3f) return 0.0;
+    glm::vec4 cf(0.0f), cl(0.0f);  // premultiplied colour and opacity, front to back
+    for (float t = t0 + 0.5f * ds; t < t1 && (cf.a < 0.999f || cl.a < 0.999f); t += ds) {
+      const glm::vec3 q = glm::clamp((o + dir * t) / spacing, glm::vec3(a), glm::vec3(b));
+      const glm::ivec3 block = glm::min(glm::ivec3(q) / kBlock, mBlockDims - 1), j = cellOf(q);
+      if (!mVisibleBlock[linear(block, mBlockDims)] && !mVisibleCell[linear(j, cells)])
+        continue;  // both fields transparent here
+      glm::vec3 gf, gl;
+      const Entry &ef = classify(fine(q, &gf)), &el = classify(level(q, j, &gl));
+      if (ef.kappa <= 0.0f && el.kappa <= 0.0f) continue;
+      const float af = 1.0f - std::exp(-ef.kappa * ds), al = 1.0f - std::exp(-el.kappa * ds);
+      cf += (1.0f - cf.a) * af * glm::vec4(ef.rgb * shade(gf, dir), 1.0f);
+      cl += (1.0f - cl.a) * al * glm::vec4(el.rgb * shade(gl, dir), 1.0f);
+    }
+    const glm::vec4 d = (cf - cl) * seen;  // what reaches the eye of the difference
+    return double(glm::dot(d, d)) * double(h) * double(h);
+  };
+  double total = 0.0;
+  for (float su = pmin.x + 0.5f * h; su < pmax.x; su += h)
+    for (float sv = pmin.y + 0.5f * h; sv < pmax.y; sv += h) total += ray(su, sv);
+  return total;
+}
+
+}  // namespace hyb

@@ -1,0 +1,72 @@
+// The image error of a brick: what the budgeted selection (DESIGN 7, Carmona et al.) weighs when
+// it spends texels, measured for the view and transfer function at hand instead of bounded from the
+// nodal error alone.
+//
+// For node n at texture level p, rays parallel to the line from the eye to the node's centre (the
+// view direction for orthographic cameras), one per voxel spacing across the node's projection,
+// march through its box. Along each, the samples' field and the level's field (the trilinear
+// interpolation of the knots the brick holds) are classified by the transfer function, shaded by
+// their own gradients the way the renderers shade (headlight) and composited front to back. The
+// error is the sum over the rays of the squared difference of the two premultiplied colours and
+// opacities, attenuated by the transmittance from the node to the eye (a grid four voxels apart,
+// marched once per view), times the area a ray stands for: the squared error the brick adds to the
+// image, which is what PSNR counts. So a thin structure that a coarse level smooths away, or
+// aliases, weighs what it changes on the screen along its whole path, a sharp edge weighs its
+// contrast, and what lies behind opaque material weighs little.
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <cstdint>
+#include <unordered_map>
+#include <vector>
+
+#include "hybrid_octree/volume_octree.h"
+#include "render/camera.h"
+#include "render/transfer_function.h"
+#include "volume/volume.h"
+
+namespace hyb {
+
+class BrickImageError {
+ public:
+  /// Prepares one view: the transfer function's table and the transmittance grid. The arguments
+  /// must outlive this object.
+  BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera);
+
+  /// The image error of node @p node at level @p p (0 where the level is exact: one texel per
+  /// voxel). Memoized: each brick is measured once.
+  double operator()(uint32_t node, int p);
+
+  /// Bricks measured so far.
+  size_t measured() const { return mMemo.size(); }
+
+  /// Transmittance from the point @p voxel (voxel units) to the eye, interpolated in the grid.
+  float transmittance(const glm::vec3& voxel) const;
+
+ private:
+  struct Entry {
+    glm::vec3 rgb;  // straight colour
+    float kappa;    // extinction per mm, −ln(1 − α of one mm)
+  };
+  const Entry& classify(float value) const;
+  double measure(const OctreeNode& n, int p);
+  void buildTransmittance();
+  void buildVisibleBlocks();
+
+  const Volume& mVolume;
+  const VolumeOctree& mOctree;
+  const TransferFunction& mTf;
+  const Camera& mCamera;
+  glm::ivec3 mBlockDims{0};
+  std::vector<uint8_t> mVisibleBlock;  // per block of kBlock³ voxel cells: can the samples' field be visible there?
+  std::vector<Entry> mTable;  // classification over [mLo, mLo + (size − 1) / mScale]
+  float mLo = 0.0f, mScale = 0.0f;
+  glm::ivec3 mGridDims{0};
+  std::vector<float> mTransmittance;  // per grid point, kGrid voxels apart
+  std::vector<float> mKnots;          // scratch: the measured brick's knot values
+  std::vector<uint8_t> mVisibleCell;  // scratch: per cell of its knots, can the level's field be visible there?
+  std::unordered_map<uint64_t, double> mMemo;
+};
+
+}  // namespace hyb
