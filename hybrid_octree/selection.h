@@ -8,10 +8,11 @@
 // coarser neighbour is always a larger node (the property per-corner blending needs).
 //
 // Blending (Carmona et al.): a brick whose corner touches a coarser visible brick gets weight 0 at
-// that corner (1 elsewhere, trilinear inside the node) and shows mix(coarse, own, w), the coarse
-// field being that of VolumeOctree::coarseLattice. On a face shared with a coarser brick all
-// weights are 0, so the field is continuous across the level change. The renderer bakes the mix
-// into the brick's own texels: blending costs no texture memory and no shader work.
+// that corner (1 elsewhere, trilinear inside the node, reaching 1 halfway across: the renderer's
+// kBlendSteepness) and shows mix(coarse, own, w), the coarse field being that of
+// VolumeOctree::coarseLattice. On a face shared with a coarser brick all weights are 0, so the
+// field is continuous across the level change. The renderer bakes the mix into the brick's own
+// texels: blending costs no texture memory and no shader work.
 #pragma once
 
 #include <glm/glm.hpp>
