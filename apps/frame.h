@@ -188,6 +188,10 @@ struct RenderOptions {
 
 /// Everything a frame needs besides the selection: the scene, transfer function, camera, surface.
 struct Frame {
+  Frame() = default;
+  Frame(const Frame&) = delete;  // brickError refers to this frame's scene, transfer function and camera
+  Frame& operator=(const Frame&) = delete;
+
   Scene scene;
   double buildMs = 0, surfaceMs = 0, polygonsMs = 0;  // octrees built; the surface's polygons reconstructed
   TransferFunction tf;
