@@ -8,8 +8,6 @@ namespace hyb {
 
 namespace {
 
-constexpr int kGrid = 4;             // voxels between the transmittance grid's points
-constexpr int kBlock = 4;            // voxel cells per edge of a block skipped where nothing can be seen
 constexpr size_t kTableSize = 4096;  // classification table entries over the data's range
 
 // Index of @p p in an x-fastest array of @p dims.
@@ -63,24 +61,17 @@ BrickImageError::BrickImageError(const Volume& volume, const VolumeOctree& octre
 }
 
 void BrickImageError::buildVisibleBlocks() {
-  const glm::ivec3 dims = mVolume.dims();
-  mBlockDims = glm::max((dims - 1 + kBlock - 1) / kBlock, glm::ivec3(1));
+  // The octree's leaves: their ranges cover their closed boxes, all a sample's cell reads.
+  mBlock = mOctree.leafEdge();
+  mBlockDims = glm::max((mVolume.dims() - 1 + mBlock - 1) / mBlock, glm::ivec3(1));
   mVisibleBlock.assign(size_t(mBlockDims.x) * mBlockDims.y * mBlockDims.z, 0);
-  for (int bz = 0, i = 0; bz < mBlockDims.z; ++bz)
-    for (int by = 0; by < mBlockDims.y; ++by)
-      for (int bx = 0; bx < mBlockDims.x; ++bx, ++i) {
-        // The block's cells reach the samples one past its last cell.
-        const glm::ivec3 lo = glm::ivec3(bx, by, bz) * kBlock, hi = glm::min(lo + kBlock, dims - 1);
-        float vmin = mVolume.at(lo.x, lo.y, lo.z), vmax = vmin;
-        for (int z = lo.z; z <= hi.z; ++z)
-          for (int y = lo.y; y <= hi.y; ++y)
-            for (int x = lo.x; x <= hi.x; ++x) {
-              const float v = mVolume.at(x, y, z);
-              vmin = std::min(vmin, v);
-              vmax = std::max(vmax, v);
-            }
-        mVisibleBlock[size_t(i)] = mTf.maxAlpha(vmin, vmax) > 0.0f;
-      }
+  for (const OctreeNode& n : mOctree.nodes()) {
+    if (!n.isLeaf() || !(mTf.maxAlpha(n.minValue, n.maxValue) > 0.0f)) continue;
+    const glm::ivec3 lo = glm::ivec3(n.origin) / mBlock, hi = glm::min((glm::ivec3(n.origin) + mOctree.edge(n)) / mBlock, mBlockDims) - 1;
+    for (int z = lo.z; z <= hi.z; ++z)
+      for (int y = lo.y; y <= hi.y; ++y)
+        for (int x = lo.x; x <= hi.x; ++x) mVisibleBlock[linear({x, y, z}, mBlockDims)] = 1;
+  }
 }
 
 const BrickImageError::Entry& BrickImageError::classify(float value) const {
@@ -89,15 +80,20 @@ const BrickImageError::Entry& BrickImageError::classify(float value) const {
 
 void BrickImageError::buildTransmittance() {
   const glm::ivec3 dims = mVolume.dims();
+  // Four voxels apart up to 256 voxels across, proportionally more beyond (the same grid points).
+  mGrid = 4 * std::max(1, (std::max({dims.x, dims.y, dims.z}) + 255) / 256);
+  const int kGrid = mGrid;
   mGridDims = (dims - 1 + kGrid - 1) / kGrid + 1;
   const size_t count = size_t(mGridDims.x) * mGridDims.y * mGridDims.z;
   auto index = [&](const glm::ivec3& g) { return linear(g, mGridDims); };
-  // Extinction per grid point: the mean over the voxels nearest to it.
+  // Extinction per grid point: the mean over the voxels nearest to it (every voxel up to four
+  // apart, a quarter of the spacing's voxels per axis beyond).
   std::vector<float> kappa(count, 0.0f);
   std::vector<uint32_t> voxels(count, 0);
-  for (int z = 0; z < dims.z; ++z)
-    for (int y = 0; y < dims.y; ++y)
-      for (int x = 0; x < dims.x; ++x) {
+  const int stride = kGrid / 4;
+  for (int z = 0; z < dims.z; z += stride)
+    for (int y = 0; y < dims.y; y += stride)
+      for (int x = 0; x < dims.x; x += stride) {
         const size_t g = index(glm::min((glm::ivec3(x, y, z) + kGrid / 2) / kGrid, mGridDims - 1));
         kappa[g] += classify(mVolume.at(x, y, z)).kappa;
         ++voxels[g];
@@ -129,6 +125,7 @@ void BrickImageError::buildTransmittance() {
 
 float BrickImageError::transmittance(const glm::vec3& voxel) const {
   const glm::ivec3 dims = mVolume.dims();
+  const int kGrid = mGrid;
   glm::ivec3 j;
   glm::vec3 w;
   for (int a = 0; a < 3; ++a) {
@@ -269,7 +266,7 @@ double BrickImageError::measure(const OctreeNode& n, int p) {
     glm::vec4 cf(0.0f), cl(0.0f);  // premultiplied colour and opacity, front to back
     for (float t = t0 + 0.5f * ds; t < t1 && (cf.a < 0.999f || cl.a < 0.999f); t += ds) {
       const glm::vec3 q = glm::clamp((o + dir * t) / spacing, glm::vec3(a), glm::vec3(b));
-      const glm::ivec3 block = glm::min(glm::ivec3(q) / kBlock, mBlockDims - 1), j = cellOf(q);
+      const glm::ivec3 block = glm::min(glm::ivec3(q) / mBlock, mBlockDims - 1), j = cellOf(q);
       if (!mVisibleBlock[linear(block, mBlockDims)] && !mVisibleCell[linear(j, cells)])
         continue;  // both fields transparent here
       glm::vec3 gf, gl;

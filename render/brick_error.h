@@ -58,12 +58,14 @@ class BrickImageError {
   const VolumeOctree& mOctree;
   const TransferFunction& mTf;
   const Camera& mCamera;
+  int mBlock = 8;                      // voxel cells per edge of a block: the octree's leaf edge
   glm::ivec3 mBlockDims{0};
-  std::vector<uint8_t> mVisibleBlock;  // per block of kBlock³ voxel cells: can the samples' field be visible there?
+  std::vector<uint8_t> mVisibleBlock;  // per block: can the samples' field be visible there?
   std::vector<Entry> mTable;  // classification over [mLo, mLo + (size − 1) / mScale]
   float mLo = 0.0f, mScale = 0.0f;
+  int mGrid = 4;  // voxels between the transmittance grid's points
   glm::ivec3 mGridDims{0};
-  std::vector<float> mTransmittance;  // per grid point, kGrid voxels apart
+  std::vector<float> mTransmittance;  // per grid point, mGrid voxels apart
   std::vector<float> mKnots;          // scratch: the measured brick's knot values
   std::vector<uint8_t> mVisibleCell;  // scratch: per cell of its knots, can the level's field be visible there?
   std::unordered_map<uint64_t, double> mMemo;
