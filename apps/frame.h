@@ -17,7 +17,6 @@
 #include "render/brick_error.h"
 #include "render/camera.h"
 #include "render/image.h"
-#include "volume/file_util.h"
 #include "render/raycast.h"
 #include "render/slices.h"
 #include "render/transfer_function.h"

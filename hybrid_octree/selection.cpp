@@ -161,7 +161,7 @@ class Refiner {
     const int p = mP[i];
     double after = 0.0;
     int64_t added = -int64_t(cost(i, p));
-    if (p < std::min(mBrickLevel, mT.maxLevel(n)) || n.isLeaf()) {
+    if (refinesInPlace(i)) {
       after = mParams.brickError(i, p + 1);
       added += int64_t(cost(i, p + 1));
     } else {
@@ -185,12 +185,18 @@ class Refiner {
     mP[i] = int8_t(p);
   }
 
+  // Whether refining brick i raises its p (up to B_max texel intervals), else it splits.
+  bool refinesInPlace(uint32_t i) const {
+    const OctreeNode& n = mT.nodes()[i];
+    return mP[i] < std::min(mBrickLevel, mT.maxLevel(n)) || n.isLeaf();
+  }
+
   // One level finer: a higher p up to B_max, then the children at the same p.
   void refineOnce(uint32_t i, std::vector<uint32_t>* created) {
     const OctreeNode& n = mT.nodes()[i];
     const int p = mP[i];
     HYB_DCHECK(level(i) > 0);
-    if (p < std::min(mBrickLevel, mT.maxLevel(n)) || n.isLeaf()) {
+    if (refinesInPlace(i)) {
       set(i, p + 1);
       created->push_back(i);
       return;

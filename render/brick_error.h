@@ -9,7 +9,7 @@
 // their own gradients the way the renderers shade (headlight) and composited front to back. The
 // error is the sum over the rays of the squared difference of the two premultiplied colours and
 // opacities, attenuated by the transmittance from the node to the eye (a grid four voxels apart,
-// marched once per view), times the area a ray stands for: the squared error the brick adds to the
+// coarser beyond 256 voxels across, marched once per view), times the area a ray stands for: the squared error the brick adds to the
 // image, which is what PSNR counts. So a thin structure that a coarse level smooths away, or
 // aliases, weighs what it changes on the screen along its whole path, a sharp edge weighs its
 // contrast, and what lies behind opaque material weighs little.
