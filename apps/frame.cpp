@@ -184,15 +184,16 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
     return 2.0 * d * std::tan(glm::radians(camera->fovDeg) * 0.5) / camera->height;
   };
   params.distortion = [tf](float lo, float hi, float error) { return tf->distortion(lo, hi, error); };
-  // Within a budget, texels go where they change this image most (measured per brick, on first use).
-  params.brickError = [frame = &f](uint32_t node, int p) {
-    if (!frame->brickError) frame->brickError = std::make_shared<BrickImageError>(frame->scene.volume, frame->scene.octree, frame->tf, frame->camera);
-    return (*frame->brickError)(node, p);
-  };
   // Frustum culling, and nodes wholly on the removed side of the cutting plane.
   const glm::dvec4 cut = f.cut ? f.cut->keptSide(f.camera) : glm::dvec4(0, 0, 0, 1);
   // And nodes the volume of interest scales to zero opacity.
   const VolumeOfInterest* voi = f.voi ? &*f.voi : nullptr;
+  // Within a budget, texels go where they change this image most (measured per brick, on first use).
+  params.brickError = [frame = &f, cut, voi](uint32_t node, int p) {
+    if (!frame->brickError)
+      frame->brickError = std::make_shared<BrickImageError>(frame->scene.volume, frame->scene.octree, frame->tf, frame->camera, cut, voi);
+    return (*frame->brickError)(node, p);
+  };
   params.inView = [camera, cut, voi](const glm::dvec3& lo, const glm::dvec3& hi) {
     const glm::dvec3 far = glm::mix(lo, hi, glm::dvec3(glm::greaterThan(glm::dvec3(cut), glm::dvec3(0.0))));
     return glm::dot(glm::dvec3(cut), far) + cut.w >= 0.0 && camera->seesBox(lo, hi) && !(voi && voi->hides(lo, hi));

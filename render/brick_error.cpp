@@ -46,15 +46,16 @@ float shade(const glm::vec3& g, const glm::vec3& dir) {
 
 }  // namespace
 
-BrickImageError::BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera)
-    : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera) {
+BrickImageError::BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
+                                 const glm::dvec4& kept, const VolumeOfInterest* voi)
+    : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera), mKept(kept), mVoi(voi) {
   const float lo = volume.minValue(), hi = volume.maxValue();
   mTable.resize(hi > lo ? kTableSize : 1);
   mLo = lo;
   mScale = hi > lo ? float(kTableSize - 1) / (hi - lo) : 0.0f;
   for (size_t k = 0; k < mTable.size(); ++k) {
     const glm::vec4 c = tf.lookup(mTable.size() > 1 ? lo + (hi - lo) * float(k) / float(kTableSize - 1) : lo);
-    mTable[k] = {glm::vec3(c), -std::log(std::max(1e-6f, 1.0f - c.a))};
+    mTable[k] = {glm::vec3(c), c.a, -std::log(std::max(1e-6f, 1.0f - c.a))};
   }
   buildTransmittance();
   buildVisibleBlocks();
@@ -72,6 +73,12 @@ void BrickImageError::buildVisibleBlocks() {
       for (int y = lo.y; y <= hi.y; ++y)
         for (int x = lo.x; x <= hi.x; ++x) mVisibleBlock[linear({x, y, z}, mBlockDims)] = 1;
   }
+}
+
+float BrickImageError::extinction(const Entry& e, const glm::vec3& x) const {
+  if (e.kappa <= 0.0f || glm::dot(glm::vec3(mKept), x) + mKept.w < 0.0f) return 0.0f;
+  if (!mVoi) return e.kappa;
+  return -std::log(std::max(1e-6f, 1.0f - std::min(1.0f, e.alpha * float(mVoi->factor(glm::dvec3(x))))));
 }
 
 const BrickImageError::Entry& BrickImageError::classify(float value) const {
@@ -95,7 +102,7 @@ void BrickImageError::buildTransmittance() {
     for (int y = 0; y < dims.y; y += stride)
       for (int x = 0; x < dims.x; x += stride) {
         const size_t g = index(glm::min((glm::ivec3(x, y, z) + kGrid / 2) / kGrid, mGridDims - 1));
-        kappa[g] += classify(mVolume.at(x, y, z)).kappa;
+        kappa[g] += extinction(classify(mVolume.at(x, y, z)), glm::vec3(x, y, z) * glm::vec3(mVolume.spacing()));
         ++voxels[g];
       }
   for (size_t g = 0; g < count; ++g) kappa[g] = voxels[g] > 0 ? kappa[g] / float(voxels[g]) : 0.0f;
@@ -272,7 +279,8 @@ double BrickImageError::measure(const OctreeNode& n, int p) {
       glm::vec3 gf, gl;
       const Entry &ef = classify(fine(q, &gf)), &el = classify(level(q, j, &gl));
       if (ef.kappa <= 0.0f && el.kappa <= 0.0f) continue;
-      const float af = 1.0f - std::exp(-ef.kappa * ds), al = 1.0f - std::exp(-el.kappa * ds);
+      const glm::vec3 x = q * spacing;
+      const float af = 1.0f - std::exp(-extinction(ef, x) * ds), al = 1.0f - std::exp(-extinction(el, x) * ds);
       cf += (1.0f - cf.a) * af * glm::vec4(ef.rgb * shade(gf, dir), 1.0f);
       cl += (1.0f - cl.a) * al * glm::vec4(el.rgb * shade(gl, dir), 1.0f);
     }

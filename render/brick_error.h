@@ -24,15 +24,18 @@
 #include "hybrid_octree/volume_octree.h"
 #include "render/camera.h"
 #include "render/transfer_function.h"
+#include "render/voi.h"
 #include "volume/volume.h"
 
 namespace hyb {
 
 class BrickImageError {
  public:
-  /// Prepares one view: the transfer function's table and the transmittance grid. The arguments
-  /// must outlive this object.
-  BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera);
+  /// Prepares one view: the transfer function's table and the transmittance grid. Only the half
+  /// space @p kept (a·x + d ≥ 0, world mm; a cutting plane's CutPlane::keptSide) is drawn, and
+  /// @p voi, if any, scales opacity as the renderers do. The arguments must outlive this object.
+  BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
+                  const glm::dvec4& kept = glm::dvec4(0, 0, 0, 1), const VolumeOfInterest* voi = nullptr);
 
   /// The image error of node @p node at level @p p (0 where the level is exact: one texel per
   /// voxel). Memoized: each brick is measured once.
@@ -47,9 +50,12 @@ class BrickImageError {
  private:
   struct Entry {
     glm::vec3 rgb;  // straight colour
-    float kappa;    // extinction per mm, −ln(1 − α of one mm)
+    float alpha;    // opacity of one mm
+    float kappa;    // extinction per mm, −ln(1 − alpha)
   };
   const Entry& classify(float value) const;
+  /// Extinction per mm of @p e at world point @p x: none on the removed side, scaled by the VOI.
+  float extinction(const Entry& e, const glm::vec3& x) const;
   double measure(const OctreeNode& n, int p);
   void buildTransmittance();
   void buildVisibleBlocks();
@@ -58,6 +64,8 @@ class BrickImageError {
   const VolumeOctree& mOctree;
   const TransferFunction& mTf;
   const Camera& mCamera;
+  glm::vec4 mKept;
+  const VolumeOfInterest* mVoi;
   int mBlock = 8;                      // voxel cells per edge of a block: the octree's leaf edge
   glm::ivec3 mBlockDims{0};
   std::vector<uint8_t> mVisibleBlock;  // per block: can the samples' field be visible there?
