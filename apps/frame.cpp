@@ -189,11 +189,13 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
   // And nodes the volume of interest scales to zero opacity.
   const VolumeOfInterest* voi = f.voi ? &*f.voi : nullptr;
   // Within a budget, texels go where they change this image most (measured per brick, on first use).
-  params.brickError = [frame = &f, cut, voi](uint32_t node, int p) {
+  auto estimate = [frame = &f, cut, voi]() -> BrickImageError& {
     if (!frame->brickError)
       frame->brickError = std::make_shared<BrickImageError>(frame->scene.volume, frame->scene.octree, frame->tf, frame->camera, cut, voi);
-    return (*frame->brickError)(node, p);
+    return *frame->brickError;
   };
+  params.brickError = [estimate](uint32_t node, int p) { return estimate()(node, p); };
+  params.prefetchBrickErrors = [estimate](const std::vector<std::pair<uint32_t, int>>& bricks) { estimate().prefetch(bricks); };
   params.inView = [camera, cut, voi](const glm::dvec3& lo, const glm::dvec3& hi) {
     const glm::dvec3 far = glm::mix(lo, hi, glm::dvec3(glm::greaterThan(glm::dvec3(cut), glm::dvec3(0.0))));
     return glm::dot(glm::dvec3(cut), far) + cut.w >= 0.0 && camera->seesBox(lo, hi) && !(voi && voi->hides(lo, hi));

@@ -86,6 +86,7 @@ class Refiner {
     auto push = [&](uint32_t i) {
       if (wantsRefinement(i)) heap.push({priority(i), {i, mP[i]}});
     };
+    prefetch({0});
     push(0);
     for (int pass = 0; pass < 4 && !heap.empty(); ++pass) {
       bool rolledBack = false, changed = false;
@@ -105,8 +106,11 @@ class Refiner {
           continue;  // this node stays as it is; smaller refinements elsewhere may still fit
         }
         changed = true;
+        std::vector<uint32_t> touched;
         for (const auto& [node, old] : mJournal)
-          if (mP[node] >= 0) push(node);
+          if (mP[node] >= 0) touched.push_back(node);
+        prefetch(touched);
+        for (uint32_t node : touched) push(node);
       }
       if (!rolledBack || !changed) break;
       for (uint32_t i = 0; i < mP.size(); ++i) push(i);
@@ -152,6 +156,24 @@ class Refiner {
     if (mParams.brickError && mParams.texelBudget > 0) return imageGain(i) * mImportance[i] + 1e-12 * double(e);
     const double d = mParams.distortion ? mParams.distortion(n.minValue, n.maxValue, e) : double(e);
     return d * mImportance[i] + 1e-12 * double(e);
+  }
+
+  // Has the image errors that the priorities of bricks @p nodes will read measured together.
+  void prefetch(const std::vector<uint32_t>& nodes) const {
+    if (!mParams.prefetchBrickErrors || !mParams.brickError || mParams.texelBudget == 0) return;
+    std::vector<std::pair<uint32_t, int>> bricks;
+    for (uint32_t i : nodes) {
+      if (!wantsRefinement(i)) continue;
+      const OctreeNode& n = mT.nodes()[i];
+      bricks.push_back({i, mP[i]});
+      if (refinesInPlace(i)) {
+        bricks.push_back({i, mP[i] + 1});
+        continue;
+      }
+      for (int slot = 0; slot < 8; ++slot)
+        if ((n.childMask & (1u << slot)) && !mHidden[childIndex(n, slot)]) bricks.push_back({childIndex(n, slot), mP[i]});
+    }
+    mParams.prefetchBrickErrors(bricks);
   }
 
   // What refining brick i once removes of its image error, per texel it adds (restriction

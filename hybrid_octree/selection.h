@@ -21,6 +21,7 @@
 #include <functional>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "hybrid_octree/volume_octree.h"
@@ -49,6 +50,9 @@ struct SelectionParams {
   /// importance, per texel it costs, instead of distortion(ε_p): the budget goes where it changes
   /// the image most. (Without a budget the order of refinement does not change the result.)
   std::function<double(uint32_t node, int p)> brickError;
+  /// Optional: brickError will soon be asked for these bricks (node, p); measure them together
+  /// (BrickImageError::prefetch, on all cores).
+  std::function<void(const std::vector<std::pair<uint32_t, int>>&)> prefetchBrickErrors;
   /// Size in mm of one pixel at the nearest point of the world box [lo, hi] (the camera's); with
   /// lodPixels > 0 a brick is not refined once its texels are at most lodPixels pixels apart there
   /// (LaMar's screen-space criterion: finer data cannot be seen). None: no screen-space stop.

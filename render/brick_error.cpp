@@ -163,14 +163,26 @@ double BrickImageError::operator()(uint32_t node, int p) {
   return e;
 }
 
-double BrickImageError::measure(const OctreeNode& n, int p) {
+void BrickImageError::prefetch(const std::vector<std::pair<uint32_t, int>>& bricks) {
+  std::vector<std::pair<uint32_t, int>> todo;
+  for (const auto& [node, p] : bricks)
+    if (!mMemo.contains(uint64_t(node) * 64 + uint64_t(p)) && (mOctree.edge(mOctree.nodes()[node]) >> p) > 1) todo.push_back({node, p});
+  std::sort(todo.begin(), todo.end());
+  todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
+  if (todo.size() < 2) return;  // not worth the threads; operator() measures it
+  std::vector<double> errors(todo.size());
+  forEachShare(int(todo.size()), [&](int k) { errors[size_t(k)] = measure(mOctree.nodes()[todo[size_t(k)].first], todo[size_t(k)].second); });
+  for (size_t k = 0; k < todo.size(); ++k) mMemo.emplace(uint64_t(todo[k].first) * 64 + uint64_t(todo[k].second), errors[k]);
+}
+
+double BrickImageError::measure(const OctreeNode& n, int p) const {
   const int step = mOctree.edge(n) >> p;
   if (step <= 1) return 0.0;
   const KnotLattice L = mOctree.lattice(n, p);
-  mKnots.resize(L.count());
+  std::vector<float> knots(L.count());
   for (int z = 0, i = 0; z < L.dims.z; ++z)
     for (int y = 0; y < L.dims.y; ++y)
-      for (int x = 0; x < L.dims.x; ++x, ++i) mKnots[size_t(i)] = mOctree.knotValue(mVolume, step, {L.knot(0, x), L.knot(1, y), L.knot(2, z)});
+      for (int x = 0; x < L.dims.x; ++x, ++i) knots[size_t(i)] = mOctree.knotValue(mVolume, step, {L.knot(0, x), L.knot(1, y), L.knot(2, z)});
   const glm::ivec3 dims = mVolume.dims();
   const glm::vec3 spacing(mVolume.spacing());
 
@@ -197,18 +209,18 @@ double BrickImageError::measure(const OctreeNode& n, int p) {
     return j;
   };
   // Whether the level's field can be visible in each cell (the range of its eight knots).
-  mVisibleCell.resize(size_t(cells.x) * cells.y * cells.z);
+  std::vector<uint8_t> visibleCell(size_t(cells.x) * cells.y * cells.z);
   for (int z = 0, i = 0; z < cells.z; ++z)
     for (int y = 0; y < cells.y; ++y)
       for (int x = 0; x < cells.x; ++x, ++i) {
         float vmin = 1e30f, vmax = -1e30f;
         for (int s = 0; s < 8; ++s) {
           const glm::ivec3 k = glm::min(glm::ivec3(x + (s & 1), y + ((s >> 1) & 1), z + ((s >> 2) & 1)), L.dims - 1);
-          const float v = mKnots[linear(k, L.dims)];
+          const float v = knots[linear(k, L.dims)];
           vmin = std::min(vmin, v);
           vmax = std::max(vmax, v);
         }
-        mVisibleCell[size_t(i)] = mTf.maxAlpha(vmin, vmax) > 0.0f;
+        visibleCell[size_t(i)] = mTf.maxAlpha(vmin, vmax) > 0.0f;
       }
   // The level's field (what the brick shows, without blending) and its gradient (per mm) at q in cell j.
   auto level = [&](const glm::vec3& q, const glm::ivec3& j, glm::vec3* g) {
@@ -225,7 +237,7 @@ double BrickImageError::measure(const OctreeNode& n, int p) {
     float c[8];
     for (int s = 0; s < 8; ++s) {
       const glm::ivec3 k = glm::min(j + glm::ivec3(s & 1, (s >> 1) & 1, (s >> 2) & 1), L.dims - 1);
-      c[s] = mKnots[linear(k, L.dims)];
+      c[s] = knots[linear(k, L.dims)];
     }
     const float v = trilinear(c, w, g);
     *g /= cell * spacing;
@@ -274,7 +286,7 @@ double BrickImageError::measure(const OctreeNode& n, int p) {
     for (float t = t0 + 0.5f * ds; t < t1 && (cf.a < 0.999f || cl.a < 0.999f); t += ds) {
       const glm::vec3 q = glm::clamp((o + dir * t) / spacing, glm::vec3(a), glm::vec3(b));
       const glm::ivec3 block = glm::min(glm::ivec3(q) / mBlock, mBlockDims - 1), j = cellOf(q);
-      if (!mVisibleBlock[linear(block, mBlockDims)] && !mVisibleCell[linear(j, cells)])
+      if (!mVisibleBlock[linear(block, mBlockDims)] && !visibleCell[linear(j, cells)])
         continue;  // both fields transparent here
       glm::vec3 gf, gl;
       const Entry &ef = classify(fine(q, &gf)), &el = classify(level(q, j, &gl));

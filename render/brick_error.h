@@ -19,6 +19,7 @@
 
 #include <cstdint>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "hybrid_octree/volume_octree.h"
@@ -41,6 +42,10 @@ class BrickImageError {
   /// voxel). Memoized: each brick is measured once.
   double operator()(uint32_t node, int p);
 
+  /// Measures those of @p bricks (node, level) not measured yet, on all cores: what a selection
+  /// is about to ask for (SelectionParams::prefetchBrickErrors).
+  void prefetch(const std::vector<std::pair<uint32_t, int>>& bricks);
+
   /// Bricks measured so far.
   size_t measured() const { return mMemo.size(); }
 
@@ -56,7 +61,7 @@ class BrickImageError {
   const Entry& classify(float value) const;
   /// Extinction per mm of @p e at world point @p x: none on the removed side, scaled by the VOI.
   float extinction(const Entry& e, const glm::vec3& x) const;
-  double measure(const OctreeNode& n, int p);
+  double measure(const OctreeNode& n, int p) const;
   void buildTransmittance();
   void buildVisibleBlocks();
 
@@ -74,8 +79,6 @@ class BrickImageError {
   int mGrid = 4;  // voxels between the transmittance grid's points
   glm::ivec3 mGridDims{0};
   std::vector<float> mTransmittance;  // per grid point, mGrid voxels apart
-  std::vector<float> mKnots;          // scratch: the measured brick's knot values
-  std::vector<uint8_t> mVisibleCell;  // scratch: per cell of its knots, can the level's field be visible there?
   std::unordered_map<uint64_t, double> mMemo;
 };
 
