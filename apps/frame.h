@@ -188,7 +188,7 @@ struct RenderOptions {
 /// Everything a frame needs besides the selection: the scene, transfer function, camera, surface.
 struct Frame {
   Frame() = default;
-  Frame(const Frame&) = delete;  // brickError refers to this frame's scene, transfer function and camera
+  Frame(const Frame&) = delete;  // brickError refers to this frame's scene and volume of interest
   Frame& operator=(const Frame&) = delete;
 
   Scene scene;

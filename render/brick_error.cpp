@@ -10,6 +10,9 @@ namespace {
 
 constexpr size_t kTableSize = 4096;  // classification table entries over the data's range
 
+// The memo's key of brick (node, p).
+uint64_t brickKey(uint32_t node, int p) { return uint64_t(node) * 64 + uint64_t(p); }
+
 // Index of @p p in an x-fastest array of @p dims.
 size_t linear(const glm::ivec3& p, const glm::ivec3& dims) { return size_t(p.x) + size_t(dims.x) * (size_t(p.y) + size_t(dims.y) * size_t(p.z)); }
 
@@ -156,7 +159,7 @@ float BrickImageError::transmittance(const glm::vec3& voxel) const {
 }
 
 double BrickImageError::operator()(uint32_t node, int p) {
-  const uint64_t key = uint64_t(node) * 64 + uint64_t(p);
+  const uint64_t key = brickKey(node, p);
   if (const auto it = mMemo.find(key); it != mMemo.end()) return it->second;
   const double e = measure(mOctree.nodes()[node], p);
   mMemo.emplace(key, e);
@@ -166,13 +169,13 @@ double BrickImageError::operator()(uint32_t node, int p) {
 void BrickImageError::prefetch(const std::vector<std::pair<uint32_t, int>>& bricks) {
   std::vector<std::pair<uint32_t, int>> todo;
   for (const auto& [node, p] : bricks)
-    if (!mMemo.contains(uint64_t(node) * 64 + uint64_t(p)) && (mOctree.edge(mOctree.nodes()[node]) >> p) > 1) todo.push_back({node, p});
+    if (!mMemo.contains(brickKey(node, p)) && (mOctree.edge(mOctree.nodes()[node]) >> p) > 1) todo.push_back({node, p});
   std::sort(todo.begin(), todo.end());
   todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
   if (todo.size() < 2) return;  // not worth the threads; operator() measures it
   std::vector<double> errors(todo.size());
   forEachShare(int(todo.size()), [&](int k) { errors[size_t(k)] = measure(mOctree.nodes()[todo[size_t(k)].first], todo[size_t(k)].second); });
-  for (size_t k = 0; k < todo.size(); ++k) mMemo.emplace(uint64_t(todo[k].first) * 64 + uint64_t(todo[k].second), errors[k]);
+  for (size_t k = 0; k < todo.size(); ++k) mMemo.emplace(brickKey(todo[k].first, todo[k].second), errors[k]);
 }
 
 double BrickImageError::measure(const OctreeNode& n, int p) const {

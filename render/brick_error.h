@@ -34,7 +34,8 @@ class BrickImageError {
  public:
   /// Prepares one view: the transfer function's table and the transmittance grid. Only the half
   /// space @p kept (a·x + d ≥ 0, world mm; a cutting plane's CutPlane::keptSide) is drawn, and
-  /// @p voi, if any, scales opacity as the renderers do. The arguments must outlive this object.
+  /// @p voi, if any, scales opacity as the renderers do. @p volume, @p octree and @p voi must
+  /// outlive this object (the transfer function and the camera are copied).
   BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
                   const glm::dvec4& kept = glm::dvec4(0, 0, 0, 1), const VolumeOfInterest* voi = nullptr);
 
@@ -67,8 +68,8 @@ class BrickImageError {
 
   const Volume& mVolume;
   const VolumeOctree& mOctree;
-  const TransferFunction& mTf;
-  const Camera& mCamera;
+  const TransferFunction mTf;
+  const Camera mCamera;
   glm::vec4 mKept;
   const VolumeOfInterest* mVoi;
   int mBlock = 8;                      // voxel cells per edge of a block: the octree's leaf edge

@@ -201,6 +201,7 @@ TEST(MultiresCranium, AccuracyAndBytesFallAsEpsilonGrowsOrTheBudgetShrinks) {
   base.inView = [&cam](const glm::dvec3& lo, const glm::dvec3& hi) { return cam.seesBox(lo, hi); };
   BrickImageError imageError(v, t, tf, cam);  // as the render command spends budgets
   base.brickError = [&imageError](uint32_t node, int p) { return imageError(node, p); };
+  base.prefetchBrickErrors = [&imageError](const std::vector<std::pair<uint32_t, int>>& bricks) { imageError.prefetch(bricks); };
   struct Result {
     double db;
     uint64_t bytes;
@@ -486,6 +487,13 @@ TEST(BrickImageError, ZeroWhereTheLevelReproducesTheField) {
   EXPECT_EQ(es.measured(), 3u);
   EXPECT_EQ(es(0, 2), es(0, 2));  // memoized
   EXPECT_EQ(es.measured(), 3u);
+  // Measured together on all cores, the same values.
+  BrickImageError batch(s, ts, ring, alongX());
+  batch.prefetch({{0, 2}, {0, 4}, {0, 3}, {0, 2}});
+  EXPECT_EQ(batch.measured(), 3u);
+  EXPECT_EQ(batch(0, 2), es(0, 2));
+  EXPECT_EQ(batch(0, 4), es(0, 4));
+  EXPECT_EQ(batch.measured(), 3u);
 }
 
 TEST(BrickImageError, ABroadChangeOutweighsAPinpointOneAndOpaqueMaterialHidesWhatIsBehind) {
