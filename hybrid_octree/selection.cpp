@@ -164,37 +164,34 @@ class Refiner {
     std::vector<std::pair<uint32_t, int>> bricks;
     for (uint32_t i : nodes) {
       if (!wantsRefinement(i)) continue;
-      const OctreeNode& n = mT.nodes()[i];
       bricks.push_back({i, mP[i]});
-      if (refinesInPlace(i)) {
-        bricks.push_back({i, mP[i] + 1});
-        continue;
-      }
-      for (int slot = 0; slot < 8; ++slot)
-        if ((n.childMask & (1u << slot)) && !mHidden[childIndex(n, slot)]) bricks.push_back({childIndex(n, slot), mP[i]});
+      const std::vector<std::pair<uint32_t, int>> finer = refined(i);
+      bricks.insert(bricks.end(), finer.begin(), finer.end());
     }
     mParams.prefetchBrickErrors(bricks);
+  }
+
+  // The visible bricks (node, p) that refining brick i once makes of it: itself at p + 1, or its
+  // visible children at p (hidden ones show nothing, as the samples there, and cost nothing).
+  std::vector<std::pair<uint32_t, int>> refined(uint32_t i) const {
+    if (refinesInPlace(i)) return {{i, mP[i] + 1}};
+    const OctreeNode& n = mT.nodes()[i];
+    std::vector<std::pair<uint32_t, int>> children;
+    for (int slot = 0; slot < 8; ++slot)
+      if ((n.childMask & (1u << slot)) && !mHidden[childIndex(n, slot)]) children.push_back({childIndex(n, slot), mP[i]});
+    return children;
   }
 
   // What refining brick i once removes of its image error, per texel it adds (restriction
   // closures aside).
   double imageGain(uint32_t i) const {
-    const OctreeNode& n = mT.nodes()[i];
-    const int p = mP[i];
     double after = 0.0;
-    int64_t added = -int64_t(cost(i, p));
-    if (refinesInPlace(i)) {
-      after = mParams.brickError(i, p + 1);
-      added += int64_t(cost(i, p + 1));
-    } else {
-      for (int slot = 0; slot < 8; ++slot)
-        if (n.childMask & (1u << slot)) {
-          const uint32_t c = childIndex(n, slot);
-          if (!mHidden[c]) after += mParams.brickError(c, p);  // hidden children show nothing, as the samples there
-          added += int64_t(cost(c, p));
-        }
+    int64_t added = -int64_t(cost(i, mP[i]));
+    for (const auto& [b, p] : refined(i)) {
+      after += mParams.brickError(b, p);
+      added += int64_t(cost(b, p));
     }
-    return std::max(0.0, mParams.brickError(i, p) - after) / double(std::max<int64_t>(added, 1));
+    return std::max(0.0, mParams.brickError(i, mP[i]) - after) / double(std::max<int64_t>(added, 1));
   }
 
   // Texels brick i costs at level p.

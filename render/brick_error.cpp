@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <thread>
 
 namespace hyb {
 
@@ -26,19 +25,6 @@ float trilinear(const float c[8], const glm::vec3& w, glm::vec3* d) {
   const float dx1 = (c[5] - c[4]) + ((c[7] - c[6]) - (c[5] - c[4])) * w.y;
   *d = glm::vec3(dx0 + (dx1 - dx0) * w.z, (x10 - x00) + ((x11 - x01) - (x10 - x00)) * w.z, y1 - y0);
   return y0 + (y1 - y0) * w.z;
-}
-
-// Calls work(i) for i in [0, count), every core taking every n-th i.
-template <class Work>
-void forEachShare(int count, const Work& work) {
-  const int threads = std::clamp(int(std::thread::hardware_concurrency()), 1, std::max(1, count));
-  auto share = [&](int first) {
-    for (int i = first; i < count; i += threads) work(i);
-  };
-  std::vector<std::thread> workers;
-  for (int k = 1; k < threads; ++k) workers.emplace_back(share, k);
-  share(0);
-  for (std::thread& w : workers) w.join();
 }
 
 // Headlight shading as both renderers do it: 0.25 + 0.75 |cos| between the gradient and the ray.
@@ -113,7 +99,8 @@ void BrickImageError::buildTransmittance() {
   const glm::dvec3 spacing = mVolume.spacing(), extent = mVolume.extentMm();
   const double step = kGrid * std::min({spacing.x, spacing.y, spacing.z});
   mTransmittance.assign(count, 1.0f);
-  forEachShare(mGridDims.z, [&](int z) {
+#pragma omp parallel for schedule(dynamic, 1)
+  for (int z = 0; z < mGridDims.z; ++z)
     for (int y = 0; y < mGridDims.y; ++y)
       for (int x = 0; x < mGridDims.x; ++x) {
         const glm::dvec3 p = glm::dvec3(glm::min(glm::ivec3(x, y, z) * kGrid, dims - 1)) * spacing;
@@ -130,7 +117,6 @@ void BrickImageError::buildTransmittance() {
         }
         mTransmittance[index(glm::ivec3(x, y, z))] = float(std::exp(-tau));
       }
-  });
 }
 
 float BrickImageError::transmittance(const glm::vec3& voxel) const {
@@ -174,7 +160,8 @@ void BrickImageError::prefetch(const std::vector<std::pair<uint32_t, int>>& bric
   todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
   if (todo.size() < 2) return;  // not worth the threads; operator() measures it
   std::vector<double> errors(todo.size());
-  forEachShare(int(todo.size()), [&](int k) { errors[size_t(k)] = measure(mOctree.nodes()[todo[size_t(k)].first], todo[size_t(k)].second); });
+#pragma omp parallel for schedule(dynamic, 1)
+  for (size_t k = 0; k < todo.size(); ++k) errors[k] = measure(mOctree.nodes()[todo[k].first], todo[k].second);
   for (size_t k = 0; k < todo.size(); ++k) mMemo.emplace(brickKey(todo[k].first, todo[k].second), errors[k]);
 }
 
