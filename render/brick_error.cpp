@@ -7,7 +7,6 @@ namespace hyb {
 
 namespace {
 
-constexpr size_t kTableSize = 4096;  // classification table entries over the data's range
 
 // The memo's key of brick (node, p).
 uint64_t brickKey(uint32_t node, int p) { return uint64_t(node) * 64 + uint64_t(p); }
@@ -37,14 +36,11 @@ float shade(const glm::vec3& g, const glm::vec3& dir) {
 
 BrickImageError::BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
                                  const glm::dvec4& kept, const VolumeOfInterest* voi)
-    : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera), mKept(kept), mVoi(voi) {
-  const float lo = volume.minValue(), hi = volume.maxValue();
-  mTable.resize(hi > lo ? kTableSize : 1);
-  mLo = lo;
-  mScale = hi > lo ? float(kTableSize - 1) / (hi - lo) : 0.0f;
-  for (size_t k = 0; k < mTable.size(); ++k) {
-    const glm::vec4 c = tf.lookup(mTable.size() > 1 ? lo + (hi - lo) * float(k) / float(kTableSize - 1) : lo);
-    mTable[k] = {glm::vec3(c), c.a, -std::log(std::max(1e-6f, 1.0f - c.a))};
+    : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera), mKept(kept), mVoi(voi), mLayout(volume.minValue(), volume.maxValue(), tf) {
+  mTable.resize(LutLayout::kSize);
+  for (int k = 0; k < LutLayout::kSize; ++k) {
+    const glm::vec4 c = tf.lookup(mLayout.value(k));
+    mTable[size_t(k)] = {glm::vec3(c), c.a, -std::log(std::max(1e-6f, 1.0f - c.a))};
   }
   buildTransmittance();
   buildVisibleBlocks();
@@ -71,7 +67,7 @@ float BrickImageError::extinction(const Entry& e, const glm::vec3& x) const {
 }
 
 const BrickImageError::Entry& BrickImageError::classify(float value) const {
-  return mTable[size_t(std::clamp((value - mLo) * mScale + 0.5f, 0.0f, float(mTable.size() - 1)))];
+  return mTable[size_t(mLayout.entry(value))];
 }
 
 void BrickImageError::buildTransmittance() {

@@ -75,8 +75,8 @@ class BrickImageError {
   int mBlock = 8;                      // voxel cells per edge of a block: the octree's leaf edge
   glm::ivec3 mBlockDims{0};
   std::vector<uint8_t> mVisibleBlock;  // per block: can the samples' field be visible there?
-  std::vector<Entry> mTable;  // classification over [mLo, mLo + (size − 1) / mScale]
-  float mLo = 0.0f, mScale = 0.0f;
+  LutLayout mLayout;  // as the slice renderer classifies
+  std::vector<Entry> mTable;  // classification per entry of mLayout
   int mGrid = 4;  // voxels between the transmittance grid's points
   glm::ivec3 mGridDims{0};
   std::vector<float> mTransmittance;  // per grid point, mGrid voxels apart

@@ -277,28 +277,6 @@ void uploadCutTexture(const std::vector<glm::vec4>& texels, const glm::ivec3& di
   glTexImage3D(GL_TEXTURE_3D, 0, GL_R16, dims.x, dims.y, dims.z, 0, GL_RED, GL_UNSIGNED_SHORT, values.data());
 }
 
-// The transfer function's lookup table: 4096 entries, read at the nearest entry (texelFetch costs
-// less than a filtered read).
-struct LutLayout {
-  static constexpr int kSize = 4096;
-  float vmin, vmax, scale;  // the entry of value v is round((v − vmin) · scale), clamped
-  // Over the part of the volume's range where the transfer function changes: it is constant
-  // beyond its first and last points, so no entries go to padding values (CT's −3024 outside the
-  // scanned disc) or outliers. When the two do not overlap every value reads entry 0.
-  LutLayout(const Volume& v, const TransferFunction& tf)
-      : vmin(std::clamp(tf.points().front().value, v.minValue(), v.maxValue())),
-        vmax(std::clamp(tf.points().back().value, v.minValue(), v.maxValue())),
-        scale(vmax > vmin ? float(kSize - 1) / (vmax - vmin) : 0.0f) {
-    if (!std::isfinite(scale)) scale = 0.0f;  // a domain narrower than float can divide by
-  }
-  float value(int entry) const { return vmin + (vmax - vmin) * float(entry) / float(kSize - 1); }
-  // The entries values in [lo, hi] can read, with one of margin each side for the shader's rounding.
-  std::array<uint16_t, 2> entries(float lo, float hi) const {
-    auto at = [&](double e) { return uint16_t(std::clamp(e, 0.0, double(kSize - 1))); };
-    return {at(std::floor(double(lo - vmin) * scale) - 1.0), at(std::ceil(double(hi - vmin) * scale) + 1.0)};
-  }
-};
-
 // The ranges of @p texels (a lattice of @p dims knots) over blocks of 2×2×2 cells.
 BrickRanges texelRanges(const std::vector<glm::vec4>& texels, const glm::ivec3& dims, const LutLayout& lut) {
   BrickRanges r;
@@ -713,7 +691,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     drawOpaqueSurface(*options.surface, viewProj, camera, glm::vec3(options.surfaceColor), cutPlane);
 
   // Transfer function lookup table.
-  const LutLayout layout(volume, tf);
+  const LutLayout layout(volume.minValue(), volume.maxValue(), tf);
   if (options.textures) options.textures->setLayout(layout.vmin, layout.vmax, options.texelBits);
   std::vector<glm::vec4> lut(LutLayout::kSize);
   for (int i = 0; i < LutLayout::kSize; ++i) lut[size_t(i)] = tf.lookup(layout.value(i));

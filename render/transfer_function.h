@@ -3,6 +3,10 @@
 
 #include <glm/glm.hpp>
 
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -52,6 +56,32 @@ class TransferFunction {
 
  private:
   std::vector<Point> mPoints;
+};
+
+/// The transfer function's lookup table as the renderers read it: 4096 entries, read at the
+/// nearest entry (in the slice shader texelFetch costs less than a filtered read).
+struct LutLayout {
+  static constexpr int kSize = 4096;
+  float vmin, vmax, scale;  ///< the entry of value v is round((v − vmin) · scale), clamped
+  /// Over the part of the data's range [@p dataMin, @p dataMax] where the transfer function
+  /// changes: it is constant beyond its first and last points, so no entries go to padding values
+  /// (CT's −3024 outside the scanned disc) or outliers. When the two do not overlap every value
+  /// reads entry 0.
+  LutLayout(float dataMin, float dataMax, const TransferFunction& tf)
+      : vmin(std::clamp(tf.points().front().value, dataMin, dataMax)),
+        vmax(std::clamp(tf.points().back().value, dataMin, dataMax)),
+        scale(vmax > vmin ? float(kSize - 1) / (vmax - vmin) : 0.0f) {
+    if (!std::isfinite(scale)) scale = 0.0f;  // a domain narrower than float can divide by
+  }
+  /// The value entry @p entry stands for.
+  float value(int entry) const { return vmin + (vmax - vmin) * float(entry) / float(kSize - 1); }
+  /// The entry value @p v reads.
+  int entry(float v) const { return int(std::clamp((v - vmin) * scale + 0.5f, 0.0f, float(kSize - 1))); }
+  /// The entries values in [lo, hi] can read, with one of margin each side for the shader's rounding.
+  std::array<uint16_t, 2> entries(float lo, float hi) const {
+    auto at = [&](double e) { return uint16_t(std::clamp(e, 0.0, double(kSize - 1))); };
+    return {at(std::floor(double(lo - vmin) * scale) - 1.0), at(std::ceil(double(hi - vmin) * scale) + 1.0)};
+  }
 };
 
 }  // namespace hyb
