@@ -41,6 +41,26 @@ TEST(MeshIo, EmptyMeshesWriteValidFiles) {
   }
 }
 
+// Classic marching cubes can put more than two triangles on one edge, which OpenMesh's half-edge
+// structure rejects: every triangle is still written (with vertices of its own, at the right
+// places), and quietly. (The copies once read points being moved by the copying: garbage.)
+TEST(MeshIo, NonManifoldTrianglesAreWrittenWholeWithoutWarnings) {
+  test::TempDir dir;
+  TriangleMesh book;  // three pages on the spine (0,0,0)-(0,0,1)
+  book.vertices = {{0, 0, 0}, {0, 0, 1}, {1, 0, 0}, {0, 1, 0}, {-1, -1, 0}};
+  book.triangles = {{0, 1, 2}, {0, 1, 3}, {0, 1, 4}};
+  const std::string path = dir.file("book.ply");
+  testing::internal::CaptureStderr();
+  testing::internal::CaptureStdout();
+  writeMesh(path, book);
+  EXPECT_EQ(testing::internal::GetCapturedStdout(), "");
+  EXPECT_EQ(testing::internal::GetCapturedStderr(), "");
+  const TriangleMesh back = readMesh(path);
+  ASSERT_EQ(back.triangles.size(), size_t(3));
+  for (size_t i = 0; i < 3; ++i)
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(back.vertices[back.triangles[i][k]], book.vertices[book.triangles[i][k]]) << i << " " << k;
+}
+
 TEST(MeshIo, RejectsUnknownFormatsAndUnwritablePaths) {
   test::TempDir dir;
   TriangleMesh one;
