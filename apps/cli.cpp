@@ -297,9 +297,11 @@ int runExport(const ExportOptions& o, std::ostream& out) {
     if (o.surface != "mc") {
       TriangleMesh mcMm = mc;
       scaleToMillimetres(&mcMm, v.spacing());
-      const double cell = std::max({v.spacing().x, v.spacing().y, v.spacing().z});
-      out << "check    Hausdorff distance to mc " << std::setprecision(4) << hausdorffDistance(mesh, mcMm, 0.01 * cell)
-          << " mm (bound 0.01 cell)\n";
+      const glm::dvec3 voxel = v.spacing();
+      const auto th = Clock::now();
+      const HausdorffBracket h = hausdorffDistance(mesh, mcMm, 0.01 * std::max({voxel.x, voxel.y, voxel.z}));
+      out << "check    Hausdorff distance to mc " << std::setprecision(4) << h.lower << " mm (at most " << h.upper << "; voxels " << std::setprecision(3)
+          << voxel.x << " x " << voxel.y << " x " << voxel.z << " mm), " << std::setprecision(1) << msSince(th) / 1000.0 << " s\n";
     }
   }
   return 0;

@@ -1,9 +1,11 @@
 // CGAL is confined to this file: Polygon Mesh Processing for topology checks, self-intersection,
-// orientation, volume, and the bounded-error Hausdorff distance (Sieger et al., CGAL 5.3+).
+// orientation and volume; an AABB tree for the bounded-error Hausdorff distance.
 #include "surface/cgal_geometry.h"
 
+#include <CGAL/AABB_traits.h>
+#include <CGAL/AABB_tree.h>
+#include <CGAL/AABB_triangle_primitive.h>
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
-#include <CGAL/Polygon_mesh_processing/distance.h>
 #include <CGAL/Polygon_mesh_processing/measure.h>
 #include <CGAL/Polygon_mesh_processing/orientation.h>
 #include <CGAL/Polygon_mesh_processing/orient_polygon_soup.h>
@@ -11,6 +13,9 @@
 #include <CGAL/Polygon_mesh_processing/self_intersections.h>
 #include <CGAL/Surface_mesh.h>
 
+#include <algorithm>
+#include <array>
+#include <cmath>
 #include <limits>
 #include <map>
 
@@ -22,7 +27,10 @@ namespace {
 
 using Kernel = CGAL::Exact_predicates_inexact_constructions_kernel;
 using Point = Kernel::Point_3;
+using Triangle = Kernel::Triangle_3;
 using Mesh = CGAL::Surface_mesh<Point>;
+using TrianglePrimitive = CGAL::AABB_triangle_primitive<Kernel, std::vector<Triangle>::const_iterator>;
+using TriangleTree = CGAL::AABB_tree<CGAL::AABB_traits<Kernel, TrianglePrimitive>>;
 namespace PMP = CGAL::Polygon_mesh_processing;
 
 // Converts @p in; when it is not a polygon mesh, returns false unless @p repair, in which case
@@ -67,14 +75,114 @@ MeshCheck checkMesh(const TriangleMesh& mesh) {
   return c;
 }
 
-double hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, double errorBound) {
-  if (a.triangles.empty() && b.triangles.empty()) return 0.0;
-  if (a.triangles.empty() || b.triangles.empty()) return std::numeric_limits<double>::infinity();
+namespace {
+
+Point toPoint(const glm::vec3& p) { return Point(p.x, p.y, p.z); }
+
+// The distance from the points of one mesh to another (the target), bracketed: what a point
+// attains is a lower bound of the one-sided Hausdorff distance; a triangle's points are at most
+// U from the target, with U the least of
+//  - max_i d(v_i, t) for a target triangle t (distance to a convex set is convex, so its largest
+//    value on a triangle is at a corner; Sieger et al.'s bound), t among the corners' nearest, and
+//  - max_i d_i + R, R the triangle's smallest enclosing circle's radius (distance is 1-Lipschitz,
+//    and every point of the triangle lies within R of a corner).
+// A triangle whose U exceeds the largest attained distance by more than the error bound is split
+// in four; once R ≤ the bound the second term settles it, so the recursion ends.
+class OneSidedHausdorff {
+ public:
+  OneSidedHausdorff(const TriangleMesh& target, double errorBound) : mBound(errorBound) {
+    mTriangles.reserve(target.triangles.size());
+    for (const glm::uvec3& t : target.triangles)
+      mTriangles.emplace_back(toPoint(target.vertices[t.x]), toPoint(target.vertices[t.y]), toPoint(target.vertices[t.z]));
+    mTree.insert(mTriangles.begin(), mTriangles.end());
+    mTree.build();
+    mTree.accelerate_distance_queries();  // built now: the parallel queries below only read the tree
+  }
+
+  // The bracket [lower, upper] of the one-sided distance from @p source to the target.
+  std::array<double, 2> from(const TriangleMesh& source) const {
+    // The corners first: their largest distance is the bar most triangles are settled against.
+    const size_t n = source.vertices.size();
+    std::vector<Nearest> corners(n);
+    double lower = 0.0;
+#pragma omp parallel for schedule(static) reduction(max : lower)
+    for (size_t i = 0; i < n; ++i) {
+      corners[i] = nearest(toPoint(source.vertices[i]));
+      lower = std::max(lower, corners[i].distance);
+    }
+    double upper = lower;
+    const long long count = (long long)source.triangles.size();
+#pragma omp parallel for schedule(dynamic, 256) reduction(max : lower, upper)
+    for (long long f = 0; f < count; ++f) {
+      const glm::uvec3 t = source.triangles[size_t(f)];
+      std::array<double, 2> b{lower, upper};
+      settle({toPoint(source.vertices[t.x]), toPoint(source.vertices[t.y]), toPoint(source.vertices[t.z])},
+             {corners[t.x], corners[t.y], corners[t.z]}, &b);
+      lower = std::max(lower, b[0]);
+      upper = std::max(upper, b[1]);
+    }
+    return {lower, std::max(upper, lower)};
+  }
+
+ private:
+  struct Nearest {
+    double distance = 0.0;
+    size_t triangle = 0;
+  };
+
+  Nearest nearest(const Point& p) const {
+    const auto [q, id] = mTree.closest_point_and_primitive(p);
+    return {std::sqrt(CGAL::squared_distance(p, q)), size_t(id - mTriangles.begin())};
+  }
+
+  // Settles triangle @p v (its corners' nearest @p d) against the bracket @p b, splitting it as
+  // long as its bound exceeds the attained distance by more than the error bound.
+  void settle(const std::array<Point, 3>& v, const std::array<Nearest, 3>& d, std::array<double, 2>* b) const {
+    const double attained = std::max({d[0].distance, d[1].distance, d[2].distance});
+    (*b)[0] = std::max((*b)[0], attained);
+    double bound = attained + enclosingRadius(v);
+    for (const Nearest& c : d) {
+      double far = 0.0;
+      for (const Point& p : v) far = std::max(far, CGAL::squared_distance(p, mTriangles[c.triangle]));
+      bound = std::min(bound, std::sqrt(far));
+    }
+    if (bound <= (*b)[0] + mBound) {
+      (*b)[1] = std::max((*b)[1], bound);
+      return;
+    }
+    const std::array<Point, 3> m{CGAL::midpoint(v[1], v[2]), CGAL::midpoint(v[2], v[0]), CGAL::midpoint(v[0], v[1])};
+    const std::array<Nearest, 3> dm{nearest(m[0]), nearest(m[1]), nearest(m[2])};
+    settle({v[0], m[2], m[1]}, {d[0], dm[2], dm[1]}, b);
+    settle({m[2], v[1], m[0]}, {dm[2], d[1], dm[0]}, b);
+    settle({m[1], m[0], v[2]}, {dm[1], dm[0], d[2]}, b);
+    settle({m[0], m[1], m[2]}, {dm[0], dm[1], dm[2]}, b);
+  }
+
+  // The radius of the smallest circle around triangle @p v: half the longest edge when the
+  // triangle is right or obtuse, else the circumradius.
+  static double enclosingRadius(const std::array<Point, 3>& v) {
+    std::array<double, 3> e{CGAL::squared_distance(v[1], v[2]), CGAL::squared_distance(v[2], v[0]), CGAL::squared_distance(v[0], v[1])};
+    std::sort(e.begin(), e.end());
+    if (e[2] >= e[0] + e[1]) return 0.5 * std::sqrt(e[2]);
+    const double a = std::sqrt(e[0]), b = std::sqrt(e[1]), c = std::sqrt(e[2]);
+    const double area4 = std::sqrt(std::max((a + b + c) * (-a + b + c) * (a - b + c) * (a + b - c), 0.0));
+    return area4 > 0.0 ? a * b * c / area4 : 0.5 * c;
+  }
+
+  double mBound;
+  std::vector<Triangle> mTriangles;
+  TriangleTree mTree;
+};
+
+}  // namespace
+
+HausdorffBracket hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, double errorBound) {
+  if (!(errorBound > 0.0)) HYB_THROW(ValueError, "Hausdorff distance: error bound ", errorBound, " must be positive");
+  if (a.triangles.empty() && b.triangles.empty()) return {0.0, 0.0};
+  if (a.triangles.empty() || b.triangles.empty()) return {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
   try {
-    Mesh ma, mb;
-    toSurfaceMesh(a, &ma, true);
-    toSurfaceMesh(b, &mb, true);
-    return PMP::bounded_error_symmetric_Hausdorff_distance<CGAL::Sequential_tag>(ma, mb, errorBound);
+    const std::array<double, 2> ab = OneSidedHausdorff(b, errorBound).from(a), ba = OneSidedHausdorff(a, errorBound).from(b);
+    return {std::max(ab[0], ba[0]), std::max(ab[1], ba[1])};
   } catch (const Error&) {
     throw;
   } catch (const std::exception& e) {

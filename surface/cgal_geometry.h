@@ -21,9 +21,18 @@ struct MeshCheck {
 /// @throw RuntimeError when CGAL fails.
 MeshCheck checkMesh(const TriangleMesh& mesh);
 
-/// Symmetric Hausdorff distance between @p a and @p b, within @p errorBound (CGAL's bounded-error
-/// algorithm), in the meshes' units. Zero for two empty meshes, infinite when only one is empty.
-/// Non-manifold soups (classic MC) are measured as they are.
-double hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, double errorBound);
+/// The symmetric Hausdorff distance, bracketed: a point of one mesh lies @c lower from the other,
+/// and no point lies farther than @c upper ≤ lower + the error bound.
+struct HausdorffBracket {
+  double lower = 0.0;
+  double upper = 0.0;
+};
+
+/// Symmetric Hausdorff distance between @p a and @p b within @p errorBound > 0, in the meshes'
+/// units: bounded-error, as Sieger et al.'s algorithm in CGAL, on all cores (closest points from
+/// CGAL's AABB tree; see cgal_geometry.cpp). Zero for two empty meshes, infinite when only one is
+/// empty. Any triangle soup is measured as it is (non-manifold MC, degenerate triangles).
+/// @throw ValueError when the bound is not positive.
+HausdorffBracket hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, double errorBound);
 
 }  // namespace hyb

@@ -197,8 +197,91 @@ TEST(Dmc, SphereVolumeAndHausdorffAgainstMarchingCubes) {
   const double exact = 4.0 / 3.0 * std::numbers::pi * r * r * r;
   EXPECT_NEAR(b.volume, exact, 0.02 * exact);  // interpolated MC: close to the sphere
   EXPECT_NEAR(a.volume, exact, 0.10 * exact);  // midpoints: within half a cell everywhere
-  EXPECT_LE(hausdorffDistance(dmcMesh, mc, 0.01), 0.5 + 0.01);
+  EXPECT_LE(hausdorffDistance(dmcMesh, mc, 0.01).upper, 0.5 + 0.01);
   EXPECT_EQ(dmcMesh.triangles.size(), mc.triangles.size());  // same loops, same triangle count
+}
+
+// Closed-form Hausdorff distances: the bracket holds the exact value and is no wider than asked.
+TEST(Hausdorff, BracketsClosedFormDistances) {
+  auto square = [](float z, float size) {  // [0,size]² at height z, two triangles
+    TriangleMesh m;
+    m.vertices = {{0, 0, z}, {size, 0, z}, {size, size, z}, {0, size, z}};
+    m.triangles = {{0, 1, 2}, {0, 2, 3}};
+    return m;
+  };
+  auto within = [](const HausdorffBracket& h, double exact, double bound) {
+    EXPECT_LE(h.lower, exact + 1e-6);  // the squares' corners are floats
+    EXPECT_GE(h.upper, exact - 1e-6);
+    EXPECT_LE(h.upper - h.lower, bound + 1e-12);
+  };
+  // Parallel squares 0.3 apart; a half square (the far edge of the whole one is 0.5 from it, in
+  // one direction only: the distance is symmetric's larger side).
+  within(hausdorffDistance(square(0, 1), square(0.3f, 1), 0.01), 0.3, 0.01);
+  within(hausdorffDistance(square(0, 1), square(0, 0.5f), 0.01), 0.5 * std::sqrt(2.0), 0.01);
+  within(hausdorffDistance(square(0, 0.5f), square(0, 1), 0.001), 0.5 * std::sqrt(2.0), 0.001);
+  // An acute triangle against its own corners (degenerate triangles, points): every corner of it
+  // is on the other mesh, the farthest point is its circumcentre (not a midpoint of any
+  // subdivision), a circumradius away — found only by splitting the triangle.
+  TriangleMesh acute, corners;
+  acute.vertices = corners.vertices = {{0, 0, 0}, {1, 0, 0}, {0.3f, 0.8f, 0}};
+  acute.triangles = {{0, 1, 2}};
+  corners.triangles = {{0, 0, 0}, {1, 1, 1}, {2, 2, 2}};
+  const glm::dvec3 a0(acute.vertices[0]), a1(acute.vertices[1]), a2(acute.vertices[2]);
+  const double circumradius =
+      glm::length(a1 - a0) * glm::length(a2 - a1) * glm::length(a0 - a2) / (2.0 * glm::length(glm::cross(a1 - a0, a2 - a0)));
+  for (const double bound : {0.05, 0.002}) within(hausdorffDistance(acute, corners, bound), circumradius, bound);
+  // Degenerate triangles (a point, a segment) are measured as the sets they are.
+  TriangleMesh flat = square(0, 1);
+  flat.vertices.push_back({2, 0, 0});
+  flat.triangles.push_back({1, 4, 4});  // the segment (1,0,0)-(2,0,0)
+  within(hausdorffDistance(flat, square(0, 1), 0.01), 1.0, 0.01);
+  within(hausdorffDistance(square(0, 1), flat, 0.01), 1.0, 0.01);
+  // Empty meshes; a bound that is not positive is refused.
+  EXPECT_EQ(hausdorffDistance(TriangleMesh{}, TriangleMesh{}, 0.01).upper, 0.0);
+  EXPECT_TRUE(std::isinf(hausdorffDistance(square(0, 1), TriangleMesh{}, 0.01).lower));
+  EXPECT_THROW(hausdorffDistance(square(0, 1), square(0, 1), 0.0), ValueError);
+  EXPECT_THROW(hausdorffDistance(square(0, 1), square(0, 1), std::nan("")), ValueError);
+}
+
+// Against brute force on curved meshes: DiscMC's and MC's spheres (anisotropic voxels), each
+// triangle's corners, edge midpoints and centroid measured against every triangle of the other.
+TEST(Hausdorff, AgreesWithBruteForceSampling) {
+  const Volume v = test::sphereVolume(glm::ivec3(11), 3.7);
+  const TriangleMesh a = toTriangleMesh(extractDiscMC(v, 0.0f), glm::dvec3(1.0, 1.0, 1.5)), b = extractMarchingCubes(v, 0.0f);
+  TriangleMesh bMm = b;
+  for (glm::vec3& p : bMm.vertices) p.z *= 1.5f;
+  auto segment = [](glm::dvec3 p, glm::dvec3 a, glm::dvec3 b) {
+    const double t = glm::clamp(glm::dot(p - a, b - a) / std::max(glm::dot(b - a, b - a), 1e-300), 0.0, 1.0);
+    return glm::length(p - (a + t * (b - a)));
+  };
+  auto pointTriangle = [&](glm::dvec3 p, glm::dvec3 a, glm::dvec3 b, glm::dvec3 c) {  // the plane inside, else the edges
+    const glm::dvec3 n = glm::cross(b - a, c - a);
+    const double nn = glm::dot(n, n);
+    if (nn > 0.0) {
+      const glm::dvec3 q = p - n * (glm::dot(p - a, n) / nn);
+      if (glm::dot(glm::cross(b - a, q - a), n) >= 0 && glm::dot(glm::cross(c - b, q - b), n) >= 0 && glm::dot(glm::cross(a - c, q - c), n) >= 0)
+        return glm::length(p - q);
+    }
+    return std::min({segment(p, a, b), segment(p, b, c), segment(p, c, a)});
+  };
+  auto sampled = [&](const TriangleMesh& from, const TriangleMesh& to) {
+    double worst = 0.0;
+    for (const glm::uvec3& t : from.triangles)
+      for (const glm::dvec3 w : {glm::dvec3(1, 0, 0), glm::dvec3(0.5, 0.5, 0), glm::dvec3(1.0 / 3.0)}) {
+        const glm::dvec3 p = w.x * glm::dvec3(from.vertices[t.x]) + w.y * glm::dvec3(from.vertices[t.y]) + w.z * glm::dvec3(from.vertices[t.z]);
+        double d = 1e300;
+        for (const glm::uvec3& u : to.triangles)
+          d = std::min(d, pointTriangle(p, to.vertices[u.x], to.vertices[u.y], to.vertices[u.z]));
+        worst = std::max(worst, d);
+      }
+    return worst;
+  };
+  const double brute = std::max(sampled(a, bMm), sampled(bMm, a));
+  const HausdorffBracket h = hausdorffDistance(a, bMm, 0.005);
+  EXPECT_GE(h.upper + 1e-6, brute);  // no sampled point is farther than the upper end
+  EXPECT_LE(h.upper - h.lower, 0.005 + 1e-12);
+  EXPECT_GT(h.lower, 0.2);  // DiscMC's vertices are not MC's
+  EXPECT_LE(h.upper, 0.5 * glm::length(glm::dvec3(1.0, 1.0, 1.5)) + 0.005);  // within half a cell's diagonal
 }
 
 TEST(Dmc, DegenerateValues) {

@@ -79,7 +79,7 @@ TEST(SurfaceOctree, MergedSphereAndTorusAreLosslessClosedAndManifold) {
     EXPECT_FALSE(check.selfIntersecting) << name;
     EXPECT_TRUE(check.outward) << name;
     EXPECT_NEAR(check.volume, checkMesh(c.dmc).volume, 1e-9 * check.volume) << name;
-    EXPECT_LE(hausdorffDistance(c.dmc, c.octree, 0.05), 0.05) << name;  // Hausdorff 0 within the bound
+    EXPECT_LE(hausdorffDistance(c.dmc, c.octree, 0.05).upper, 0.05) << name;  // Hausdorff 0 within the bound
     EXPECT_LT(c.octree.triangles.size(), c.dmc.triangles.size()) << name;
     for (const SurfaceNode& n : c.so.nodes()) EXPECT_LE(n.planeCount, kMaxNodePlanes + (n.edge == 1 ? 1 : 0));
   }
