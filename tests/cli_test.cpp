@@ -331,6 +331,15 @@ TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("manifold yes, closed yes"));
   EXPECT_THAT(r.out, HasSubstr("self-intersections no"));
+  {  // DiscMC within half a unit cell's diagonal of MC, the bracket within its bound (0.01 cell)
+    const size_t at = r.out.find("Hausdorff distance to mc ");
+    ASSERT_NE(at, std::string::npos) << r.out;
+    double lower = -1, upper = -1;
+    ASSERT_EQ(std::sscanf(r.out.c_str() + at, "Hausdorff distance to mc %lf mm (at most %lf", &lower, &upper), 2) << r.out;
+    EXPECT_GT(lower, 0.1);
+    EXPECT_LE(upper, 0.5 * std::sqrt(3.0) + 0.01);
+    EXPECT_LE(upper - lower, 0.01 + 1e-4);  // printed to four digits
+  }
   EXPECT_TRUE(std::filesystem::exists(dir.file("s.off")));
   r = run({"build", nhdr, "--iso", "0", "-o", dir.file("s.hoct")});
   ASSERT_EQ(r.status, 0) << r.err;
