@@ -898,11 +898,16 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       d.fineOffset = glm::vec3((0.5 - glm::dvec3(fine.origin) / double(fine.step)) / dims);
     }
     // Slices every `ratio` base spacings: each level is sampled at its own rate (LaMar 1999) and
-    // the shader corrects the opacity for it; the planes stay a subset of the global ones. Bricks
-    // holding surface polygons or the eye keep the base spacing, so that surfaces and the near
-    // plane cut the volume at the finest depth resolution.
+    // the shader corrects the opacity for it; the planes stay a subset of the global ones. A brick
+    // holding surface polygons is too, its slabs between its own slices (as in the paper, where a
+    // slab is a texel wide), where its level approximates the field (an error, or blending: the
+    // user's ε or budget made it coarse): a polygon's depth against the volume is then quantised to
+    // that slab. Where the level is exact (ε = 0 on uniform data, say) such a brick keeps the base
+    // spacing, so the surface is composited exactly; so does a brick holding the eye, so that the
+    // near plane cuts the volume at the finest depth resolution.
     const bool holdsEye = !camera.ortho && glm::all(glm::greaterThanEqual(camera.eye, d.blo)) && glm::all(glm::lessThanEqual(camera.eye, d.bhi));
-    d.delta = baseDelta * (d.sliced && !holdsTriangles && !holdsEye ? fine.step : 1);
+    const bool exactWithSurface = holdsTriangles && b.error == 0.0f && b.coarseCorners == 0;
+    d.delta = baseDelta * (d.sliced && !holdsEye && !exactWithSurface ? fine.step : 1);
     st.shellBricks += d.shell && d.sliced;
     draws.push_back(std::move(d));
   }

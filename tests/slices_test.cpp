@@ -283,6 +283,65 @@ TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
   }
 }
 
+TEST(Slices, TranslucentQuadKeepsItsOrderInCoarseBricks) {
+  gl();
+  // A smooth field that the transfer function classifies as one material: the image has the closed
+  // form of a homogeneous slab, but coarse levels approximate the field, so ε selects bricks two
+  // voxels a texel. Those are sliced at their own rate, also where they hold the quad (their slabs
+  // follow their slices, as Boada's SlabPolygon lists): the quad keeps its order between the
+  // slices, its depth quantised to a slab (tolerance: a slab's opacity), and it is cut into fewer
+  // slab pieces than at full resolution. Where a level is exact (ε = 0) the base spacing stays.
+  const Volume v = test::makeVolume({17, 17, 17}, [](int x, int y, int z) {  // one node: the quad lies in one brick
+    return float(1.0 + 0.4 * std::sin(x / 3.0) * std::sin(y / 3.0) * std::cos(z / 4.0));
+  });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const float a = 0.08f;
+  const glm::vec3 c(0.8f, 0.5f, 0.2f);
+  const TransferFunction tf = constantTf(a);
+  const glm::vec4 surface(0.1f, 0.9f, 0.3f, 0.6f);
+  SelectionParams coarse;
+  coarse.epsilon = 0.15f;
+  const Selection fine = selectNodes(t, SelectionParams{}), sel = selectNodes(t, coarse);
+  int steps = 1;
+  for (const Brick& b : sel.bricks)
+    if (!b.hidden) steps = std::max(steps, t.lattice(t.nodes()[b.node], b.p).step);
+  ASSERT_EQ(steps, 2) << "the field's error should select bricks two voxels a texel";
+  const double stepVoxels = 0.25, slab = stepVoxels * steps;  // mm (unit spacing)
+  const float tolerance = 1.0f - std::pow(1.0f - a, float(slab)) + 2.0f / 255.0f;
+  for (double zq : {5.3, 8.0}) {
+    const TriangleMesh quad = quadAt(zq, -5, 21, -5, 21);
+    for (const glm::dvec3 dir : {glm::dvec3(0, 0, 1), glm::dvec3(0.3, 0.2, 1)}) {
+      const glm::dvec3 u = glm::normalize(dir);
+      Camera cam;
+      cam.center = glm::dvec3(8, 8, 8);
+      cam.eye = cam.center + u * 80.0;
+      cam.up = glm::dvec3(0, 1, 0);
+      cam.ortho = true;
+      cam.orthoHeight = 2.0;
+      cam.width = cam.height = 8;
+      const double front = (16.0 - zq) / u.z, back = zq / u.z;
+      const float a1 = 1.0f - std::pow(1.0f - a, float(front)), a2 = 1.0f - std::pow(1.0f - a, float(back));
+      const glm::vec3 expected = c * a1 + (1 - a1) * (glm::vec3(surface) * float(0.25 + 0.75 * u.z) * surface.a + (1 - surface.a) * c * a2);
+      const std::string where = "zq " + std::to_string(zq) + " dir " + std::to_string(dir.x) + "," + std::to_string(dir.z);
+      SlicesOptions o;
+      o.stepVoxels = stepVoxels;
+      o.shading = false;
+      o.surface = &quad;
+      o.surfaceColor = surface;
+      SlicesStats atFine, atCoarse, unordered;
+      EXPECT_LE(glm::length(glm::vec3(renderSlices(v, t, fine, tf, cam, o, &atFine).at(4, 4)) - expected), 2.0f / 255.0f) << where;
+      EXPECT_LE(glm::length(glm::vec3(renderSlices(v, t, sel, tf, cam, o, &atCoarse).at(4, 4)) - expected), tolerance) << where;
+      o.slabOrder = false;
+      EXPECT_GT(glm::length(glm::vec3(renderSlices(v, t, sel, tf, cam, o, &unordered).at(4, 4)) - expected), 3.0f * tolerance)
+          << "the wrong order went unnoticed at " << where;
+      EXPECT_LT(atCoarse.slices, atFine.slices) << where;
+      if (dir.x != 0.0) {
+        EXPECT_LT(atCoarse.slabPolygonDraws, atFine.slabPolygonDraws) << where;
+      }
+    }
+  }
+}
+
 TEST(Slices, QuadSeenEdgeOnLeavesThePureSlab) {
   gl();
   // Viewing along x, the quad z = 3.3 is edge-on (perpendicular to every slice): the centre ray at
