@@ -8,7 +8,6 @@
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
 #include <CGAL/Polygon_mesh_processing/measure.h>
 #include <CGAL/Polygon_mesh_processing/orientation.h>
-#include <CGAL/Polygon_mesh_processing/orient_polygon_soup.h>
 #include <CGAL/Polygon_mesh_processing/polygon_soup_to_polygon_mesh.h>
 #include <CGAL/Polygon_mesh_processing/self_intersections.h>
 #include <CGAL/Surface_mesh.h>
@@ -33,19 +32,15 @@ using TrianglePrimitive = CGAL::AABB_triangle_primitive<Kernel, std::vector<Tria
 using TriangleTree = CGAL::AABB_tree<CGAL::AABB_traits<Kernel, TrianglePrimitive>>;
 namespace PMP = CGAL::Polygon_mesh_processing;
 
-// Converts @p in; when it is not a polygon mesh, returns false unless @p repair, in which case
-// non-manifold vertices and edges are duplicated (geometry unchanged) so distances can be measured.
-bool toSurfaceMesh(const TriangleMesh& in, Mesh* out, bool repair = false) {
+// Converts @p in; false when it is not a polygon mesh (non-manifold).
+bool toSurfaceMesh(const TriangleMesh& in, Mesh* out) {
   std::vector<Point> points;
   points.reserve(in.vertices.size());
   for (const glm::vec3& p : in.vertices) points.emplace_back(p.x, p.y, p.z);
   std::vector<std::vector<size_t>> faces;
   faces.reserve(in.triangles.size());
   for (const glm::uvec3& t : in.triangles) faces.push_back({t.x, t.y, t.z});
-  if (!PMP::is_polygon_soup_a_polygon_mesh(faces)) {
-    if (!repair) return false;
-    PMP::orient_polygon_soup(points, faces);
-  }
+  if (!PMP::is_polygon_soup_a_polygon_mesh(faces)) return false;
   PMP::polygon_soup_to_polygon_mesh(points, faces, *out);
   return true;
 }
@@ -102,14 +97,18 @@ class OneSidedHausdorff {
   // The bracket [lower, upper] of the one-sided distance from @p source to the target.
   std::array<double, 2> from(const TriangleMesh& source) const {
     // The corners first: their largest distance is the bar most triangles are settled against.
+    // (Vertices no triangle uses are not on the surface.)
     const size_t n = source.vertices.size();
+    std::vector<uint8_t> used(n, 0);
+    for (const glm::uvec3& t : source.triangles) used[t.x] = used[t.y] = used[t.z] = 1;
     std::vector<Nearest> corners(n);
     double lower = 0.0;
 #pragma omp parallel for schedule(static) reduction(max : lower)
-    for (size_t i = 0; i < n; ++i) {
-      corners[i] = nearest(toPoint(source.vertices[i]));
-      lower = std::max(lower, corners[i].distance);
-    }
+    for (size_t i = 0; i < n; ++i)
+      if (used[i]) {
+        corners[i] = nearest(toPoint(source.vertices[i]));
+        lower = std::max(lower, corners[i].distance);
+      }
     double upper = lower;
     const long long count = (long long)source.triangles.size();
 #pragma omp parallel for schedule(dynamic, 256) reduction(max : lower, upper)

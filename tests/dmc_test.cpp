@@ -236,6 +236,9 @@ TEST(Hausdorff, BracketsClosedFormDistances) {
   flat.triangles.push_back({1, 4, 4});  // the segment (1,0,0)-(2,0,0)
   within(hausdorffDistance(flat, square(0, 1), 0.01), 1.0, 0.01);
   within(hausdorffDistance(square(0, 1), flat, 0.01), 1.0, 0.01);
+  TriangleMesh stray = square(0, 1);
+  stray.vertices.push_back({0, 0, 50});  // no triangle uses it: not part of the surface
+  within(hausdorffDistance(stray, square(0.2f, 1), 0.01), 0.2, 0.01);
   // Empty meshes; a bound that is not positive is refused.
   EXPECT_EQ(hausdorffDistance(TriangleMesh{}, TriangleMesh{}, 0.01).upper, 0.0);
   EXPECT_TRUE(std::isinf(hausdorffDistance(square(0, 1), TriangleMesh{}, 0.01).lower));
@@ -250,19 +253,19 @@ TEST(Hausdorff, AgreesWithBruteForceSampling) {
   const TriangleMesh a = toTriangleMesh(extractDiscMC(v, 0.0f), glm::dvec3(1.0, 1.0, 1.5)), b = extractMarchingCubes(v, 0.0f);
   TriangleMesh bMm = b;
   for (glm::vec3& p : bMm.vertices) p.z *= 1.5f;
-  auto segment = [](glm::dvec3 p, glm::dvec3 a, glm::dvec3 b) {
-    const double t = glm::clamp(glm::dot(p - a, b - a) / std::max(glm::dot(b - a, b - a), 1e-300), 0.0, 1.0);
-    return glm::length(p - (a + t * (b - a)));
+  auto segment = [](glm::dvec3 p, glm::dvec3 s0, glm::dvec3 s1) {
+    const double t = glm::clamp(glm::dot(p - s0, s1 - s0) / std::max(glm::dot(s1 - s0, s1 - s0), 1e-300), 0.0, 1.0);
+    return glm::length(p - (s0 + t * (s1 - s0)));
   };
-  auto pointTriangle = [&](glm::dvec3 p, glm::dvec3 a, glm::dvec3 b, glm::dvec3 c) {  // the plane inside, else the edges
-    const glm::dvec3 n = glm::cross(b - a, c - a);
+  auto pointTriangle = [&](glm::dvec3 p, glm::dvec3 t0, glm::dvec3 t1, glm::dvec3 t2) {  // the plane inside, else the edges
+    const glm::dvec3 n = glm::cross(t1 - t0, t2 - t0);
     const double nn = glm::dot(n, n);
     if (nn > 0.0) {
-      const glm::dvec3 q = p - n * (glm::dot(p - a, n) / nn);
-      if (glm::dot(glm::cross(b - a, q - a), n) >= 0 && glm::dot(glm::cross(c - b, q - b), n) >= 0 && glm::dot(glm::cross(a - c, q - c), n) >= 0)
+      const glm::dvec3 q = p - n * (glm::dot(p - t0, n) / nn);
+      if (glm::dot(glm::cross(t1 - t0, q - t0), n) >= 0 && glm::dot(glm::cross(t2 - t1, q - t1), n) >= 0 && glm::dot(glm::cross(t0 - t2, q - t2), n) >= 0)
         return glm::length(p - q);
     }
-    return std::min({segment(p, a, b), segment(p, b, c), segment(p, c, a)});
+    return std::min({segment(p, t0, t1), segment(p, t1, t2), segment(p, t2, t0)});
   };
   auto sampled = [&](const TriangleMesh& from, const TriangleMesh& to) {
     double worst = 0.0;
