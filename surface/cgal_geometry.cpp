@@ -109,12 +109,15 @@ class OneSidedHausdorff {
         corners[i] = nearest(toPoint(source.vertices[i]));
         lower = std::max(lower, corners[i].distance);
       }
+    // (A reduction's private copies start at the lowest value, not at the corners' bar.)
+    const double bar = lower;
     double upper = lower;
     const long long count = (long long)source.triangles.size();
-#pragma omp parallel for schedule(dynamic, 256) reduction(max : lower, upper)
+    const int chunk = int(std::clamp(count / 64, 1LL, 256LL));  // neighbours together (the tree's cache), yet all threads busy
+#pragma omp parallel for schedule(dynamic, chunk) reduction(max : lower, upper)
     for (long long f = 0; f < count; ++f) {
       const glm::uvec3 t = source.triangles[size_t(f)];
-      std::array<double, 2> b{lower, upper};
+      std::array<double, 2> b{std::max(lower, bar), upper};
       settle({toPoint(source.vertices[t.x]), toPoint(source.vertices[t.y]), toPoint(source.vertices[t.z])},
              {corners[t.x], corners[t.y], corners[t.z]}, &b);
       lower = std::max(lower, b[0]);
