@@ -363,6 +363,65 @@ TEST(Multires, ShellsAndPlanesComposeTheClosedFormInPerspective) {
   EXPECT_GE(checked, 9);
 }
 
+// The same closed form where ε made the brick coarse (a smooth field the transfer function
+// classifies as one material, two voxels a texel): shells and planes slot the quad between the
+// brick's own slices (a slab's opacity off at most), and fewer of them than at full resolution.
+TEST(Multires, CoarseBricksComposeTheClosedFormInPerspective) {
+  gl();
+  const Volume v = test::makeVolume({17, 17, 17}, [](int x, int y, int z) {  // one node: the quad lies in one brick
+    return float(1.0 + 0.4 * std::sin(x / 3.0) * std::sin(y / 3.0) * std::cos(z / 4.0));
+  });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf = test::constantTf(0.05f);
+  const TriangleMesh quad = test::quadAt(6.5, -1.0, 17.0, -1.0, 17.0);
+  Camera cam;
+  cam.eye = glm::dvec3(10, 6, 40);
+  cam.center = glm::dvec3(8, 8, 8);
+  cam.up = glm::dvec3(0, 1, 0);
+  cam.fovDeg = 30;
+  cam.width = cam.height = 32;
+  const glm::vec4 surface(0.2f, 0.6f, 0.9f, 0.4f);
+  SlicesOptions so;
+  so.shading = false;
+  so.surface = &quad;
+  so.surfaceColor = surface;
+  SelectionParams coarse;
+  coarse.epsilon = 0.15f;
+  const Selection sel = selectNodes(t, coarse);
+  ASSERT_EQ(sel.bricks.size(), size_t(1));
+  ASSERT_EQ(t.lattice(t.nodes()[sel.bricks[0].node], sel.bricks[0].p).step, 2);
+  const float tolerance = float(1.0 - std::pow(0.95, 2 * so.stepVoxels)) + 2.5f / 255.0f;  // a slab's opacity
+  for (const Proxy proxy : {Proxy::Shells, Proxy::Planes}) {
+    so.proxy = proxy;
+    SlicesStats st, full;
+    const Image img = renderSlices(v, t, sel, tf, cam, so, &st);
+    renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, so, &full);
+    EXPECT_EQ(st.shellBricks, proxy == Proxy::Shells ? 1u : 0u);
+    EXPECT_LT(st.slabPolygonDraws, full.slabPolygonDraws);
+    int checked = 0;
+    for (int y = 2; y < 32; y += 4)
+      for (int x = 2; x < 32; x += 4) {
+        glm::dvec3 o, d;
+        cam.ray(x + 0.5, y + 0.5, &o, &d);
+        const double tTop = (16.0 - o.z) / d.z, tQuad = (6.5 - o.z) / d.z, tBottom = (0.0 - o.z) / d.z;
+        const glm::dvec3 top = o + d * tTop, bottom = o + d * tBottom;
+        if (glm::any(glm::lessThan(glm::dvec2(top), glm::dvec2(0.0))) || glm::any(glm::greaterThan(glm::dvec2(top), glm::dvec2(16.0))) ||
+            glm::any(glm::lessThan(glm::dvec2(bottom), glm::dvec2(0.0))) || glm::any(glm::greaterThan(glm::dvec2(bottom), glm::dvec2(16.0))))
+          continue;
+        const double front = 1.0 - std::pow(0.95, tQuad - tTop), back = 1.0 - std::pow(0.95, tBottom - tQuad);
+        const double shade = 0.25 + 0.75 * std::abs(d.z), q = surface.a;
+        const glm::dvec3 material(0.8, 0.5, 0.2);
+        const glm::dvec3 rgb = material * front + (1.0 - front) * (glm::dvec3(surface) * shade * q + (1.0 - q) * material * back);
+        const double alpha = front + (1.0 - front) * (q + (1.0 - q) * back);
+        const glm::vec4 expected{glm::vec3(rgb), float(alpha)};
+        for (int k = 0; k < 4; ++k)
+          EXPECT_NEAR(img.at(x, y)[k], expected[k], tolerance) << "pixel " << x << "," << y << (proxy == Proxy::Shells ? " shells" : " planes");
+        ++checked;
+      }
+    EXPECT_GE(checked, 9);
+  }
+}
+
 TEST(Multires, ExtremesGiveFiniteImages) {
   gl();
   const Volume v = test::sphereVolume({40, 36, 30}, 12.0);
