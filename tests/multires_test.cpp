@@ -5,6 +5,8 @@
 #include <cmath>
 #include <functional>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/surface_octree.h"
@@ -307,6 +309,35 @@ TEST(Multires, VolumeOfInterestScalesOpacitySmoothly) {
   EXPECT_FALSE(voi.hides(glm::dvec3(0, 0, 0), glm::dvec3(6.1, 8, 8)));
 }
 
+// The closed form of a homogeneous block [0, size]³ (colour (0.8, 0.5, 0.2), 0.05 per mm, unshaded)
+// with a translucent quad across it at z = quadZ, seen by perspective camera @p cam from above:
+// compares each image's pixels on a grid @p every apart whose rays enter at the top and leave at
+// the bottom face, within @p tolerance. Returns how many pixels were compared.
+int expectBlockWithQuad(const Camera& cam, double size, double quadZ, const glm::vec4& surface, int every, float tolerance,
+                        const std::vector<std::pair<const Image*, std::string>>& images) {
+  int checked = 0;
+  for (int y = every / 2; y < cam.height; y += every)
+    for (int x = every / 2; x < cam.width; x += every) {
+      glm::dvec3 o, d;
+      cam.ray(x + 0.5, y + 0.5, &o, &d);
+      const double tTop = (size - o.z) / d.z, tQuad = (quadZ - o.z) / d.z, tBottom = (0.0 - o.z) / d.z;
+      const glm::dvec3 top = o + d * tTop, bottom = o + d * tBottom;
+      if (glm::any(glm::lessThan(glm::dvec2(top), glm::dvec2(0.0))) || glm::any(glm::greaterThan(glm::dvec2(top), glm::dvec2(size))) ||
+          glm::any(glm::lessThan(glm::dvec2(bottom), glm::dvec2(0.0))) || glm::any(glm::greaterThan(glm::dvec2(bottom), glm::dvec2(size))))
+        continue;
+      const double front = 1.0 - std::pow(0.95, tQuad - tTop), back = 1.0 - std::pow(0.95, tBottom - tQuad);
+      const double shade = 0.25 + 0.75 * std::abs(d.z), q = surface.a;
+      const glm::dvec3 material(0.8, 0.5, 0.2);
+      const glm::dvec3 rgb = material * front + (1.0 - front) * (glm::dvec3(surface) * shade * q + (1.0 - q) * material * back);
+      const double alpha = front + (1.0 - front) * (q + (1.0 - q) * back);
+      const glm::vec4 expected{glm::vec3(rgb), float(alpha)};
+      for (const auto& [img, name] : images)
+        for (int k = 0; k < 4; ++k) EXPECT_NEAR(img->at(x, y)[k], expected[k], tolerance) << "pixel " << x << "," << y << " " << name;
+      ++checked;
+    }
+  return checked;
+}
+
 TEST(Multires, ShellsAndPlanesComposeTheClosedFormInPerspective) {
   gl();
   // A homogeneous block (0.05 per mm) with a translucent quad across it at z = 13.
@@ -337,30 +368,8 @@ TEST(Multires, ShellsAndPlanesComposeTheClosedFormInPerspective) {
   EXPECT_GT(st.shellBricks, 0u);
   so.proxy = Proxy::Planes;
   const Image planes = renderSlices(v, t, sel, tf, cam, so), reference = raycast(v, t, tf, cam, ro);
-  int checked = 0;
-  for (int y = 4; y < 48; y += 8)
-    for (int x = 4; x < 48; x += 8) {
-      glm::dvec3 o, d;
-      cam.ray(x + 0.5, y + 0.5, &o, &d);
-      // Entry at the top face z = 32 and the quad at z = 13, both inside the block for these pixels.
-      const double tTop = (32.0 - o.z) / d.z, tQuad = (13.0 - o.z) / d.z, tBottom = (0.0 - o.z) / d.z;
-      const glm::dvec3 top = o + d * tTop, bottom = o + d * tBottom;
-      if (glm::any(glm::lessThan(glm::dvec2(top), glm::dvec2(0.0))) || glm::any(glm::greaterThan(glm::dvec2(top), glm::dvec2(32.0))) ||
-          glm::any(glm::lessThan(glm::dvec2(bottom), glm::dvec2(0.0))) || glm::any(glm::greaterThan(glm::dvec2(bottom), glm::dvec2(32.0))))
-        continue;
-      const double front = 1.0 - std::pow(0.95, tQuad - tTop), back = 1.0 - std::pow(0.95, tBottom - tQuad);
-      const double shade = 0.25 + 0.75 * std::abs(d.z), q = surface.a;
-      const glm::dvec3 material(0.8, 0.5, 0.2);
-      const glm::dvec3 rgb = material * front + (1.0 - front) * (glm::dvec3(surface) * shade * q + (1.0 - q) * material * back);
-      const double alpha = front + (1.0 - front) * (q + (1.0 - q) * back);
-      const glm::vec4 expected{glm::vec3(rgb), float(alpha)};
-      for (const Image* img : {&shells, &planes, &reference})
-        for (int k = 0; k < 4; ++k)
-          EXPECT_NEAR(img->at(x, y)[k], expected[k], 2.5f / 255.0f)
-              << "pixel " << x << "," << y << (img == &shells ? " shells" : img == &planes ? " planes" : " reference");
-      ++checked;
-    }
-  EXPECT_GE(checked, 9);
+  // Entry at the top face z = 32 and the quad at z = 13.
+  EXPECT_GE(expectBlockWithQuad(cam, 32.0, 13.0, surface, 8, 2.5f / 255.0f, {{&shells, "shells"}, {&planes, "planes"}, {&reference, "reference"}}), 9);
 }
 
 // The same closed form where ε made the brick coarse (a smooth field the transfer function
@@ -398,27 +407,7 @@ TEST(Multires, CoarseBricksComposeTheClosedFormInPerspective) {
     renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, so, &full);
     EXPECT_EQ(st.shellBricks, proxy == Proxy::Shells ? 1u : 0u);
     EXPECT_LT(st.slabPolygonDraws, full.slabPolygonDraws);
-    int checked = 0;
-    for (int y = 2; y < 32; y += 4)
-      for (int x = 2; x < 32; x += 4) {
-        glm::dvec3 o, d;
-        cam.ray(x + 0.5, y + 0.5, &o, &d);
-        const double tTop = (16.0 - o.z) / d.z, tQuad = (6.5 - o.z) / d.z, tBottom = (0.0 - o.z) / d.z;
-        const glm::dvec3 top = o + d * tTop, bottom = o + d * tBottom;
-        if (glm::any(glm::lessThan(glm::dvec2(top), glm::dvec2(0.0))) || glm::any(glm::greaterThan(glm::dvec2(top), glm::dvec2(16.0))) ||
-            glm::any(glm::lessThan(glm::dvec2(bottom), glm::dvec2(0.0))) || glm::any(glm::greaterThan(glm::dvec2(bottom), glm::dvec2(16.0))))
-          continue;
-        const double front = 1.0 - std::pow(0.95, tQuad - tTop), back = 1.0 - std::pow(0.95, tBottom - tQuad);
-        const double shade = 0.25 + 0.75 * std::abs(d.z), q = surface.a;
-        const glm::dvec3 material(0.8, 0.5, 0.2);
-        const glm::dvec3 rgb = material * front + (1.0 - front) * (glm::dvec3(surface) * shade * q + (1.0 - q) * material * back);
-        const double alpha = front + (1.0 - front) * (q + (1.0 - q) * back);
-        const glm::vec4 expected{glm::vec3(rgb), float(alpha)};
-        for (int k = 0; k < 4; ++k)
-          EXPECT_NEAR(img.at(x, y)[k], expected[k], tolerance) << "pixel " << x << "," << y << (proxy == Proxy::Shells ? " shells" : " planes");
-        ++checked;
-      }
-    EXPECT_GE(checked, 9);
+    EXPECT_GE(expectBlockWithQuad(cam, 16.0, 6.5, surface, 4, tolerance, {{&img, proxy == Proxy::Shells ? "shells" : "planes"}}), 9);
   }
 }
 
