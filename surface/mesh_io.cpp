@@ -48,21 +48,25 @@ void writeMesh(const std::string& path, const TriangleMesh& mesh) {
   std::vector<OMesh::VertexHandle> vh;
   vh.reserve(mesh.vertices.size());
   for (const glm::vec3& p : mesh.vertices) vh.push_back(om.add_vertex(OMesh::Point(p.x, p.y, p.z)));
-  // OpenMesh reports each face its half-edge structure rejects on omerr; those are expected here
-  // (classic MC's non-manifold edges) and handled below, so the report is silenced meanwhile.
-  const bool reporting = omerr().is_enabled();
-  omerr().disable();
-  for (const glm::uvec3& t : mesh.triangles)
-    if (!om.add_face(vh[t.x], vh[t.y], vh[t.z]).is_valid()) {
-      // A face OpenMesh's half-edge structure cannot take (non-manifold): keep it with own vertices.
-      OMesh::VertexHandle copy[3];
-      for (int k = 0; k < 3; ++k) {
-        const OMesh::Point p = om.point(vh[t[k]]);  // a copy: adding a vertex may move the points
-        copy[k] = om.add_vertex(p);
+  {
+    // OpenMesh reports each face its half-edge structure rejects on omerr; those are expected here
+    // (classic MC's non-manifold edges) and handled below, so the report is silenced meanwhile.
+    struct Quiet {
+      bool was = omerr().is_enabled();
+      Quiet() { omerr().disable(); }
+      ~Quiet() { if (was) omerr().enable(); }
+    } quiet;
+    for (const glm::uvec3& t : mesh.triangles)
+      if (!om.add_face(vh[t.x], vh[t.y], vh[t.z]).is_valid()) {
+        // A face OpenMesh's half-edge structure cannot take (non-manifold): keep it with own vertices.
+        OMesh::VertexHandle copy[3];
+        for (int k = 0; k < 3; ++k) {
+          const OMesh::Point p = om.point(vh[t[k]]);  // a copy: adding a vertex may move the points
+          copy[k] = om.add_vertex(p);
+        }
+        om.add_face(copy[0], copy[1], copy[2]);
       }
-      om.add_face(copy[0], copy[1], copy[2]);
-    }
-  if (reporting) omerr().enable();
+  }
   OpenMesh::IO::Options options;
   if (ext == ".ply" || ext == ".stl") options += OpenMesh::IO::Options::Binary;
   writeFileAtomicallyByName(path, [&](const std::string& tmp) {
