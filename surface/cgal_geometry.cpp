@@ -14,6 +14,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <map>
@@ -82,10 +83,12 @@ Point toPoint(const glm::vec3& p) { return Point(p.x, p.y, p.z); }
 //  - max_i d_i + R, R the triangle's smallest enclosing circle's radius (distance is 1-Lipschitz,
 //    and every point of the triangle lies within R of a corner).
 // A triangle whose U exceeds the largest attained distance by more than the error bound is split
-// in four; once R ≤ the bound the second term settles it, so the recursion ends.
+// in four; once R ≤ the bound the second term settles it, so the recursion ends. Splits are
+// counted: past the work limit a triangle is settled with the U it has (the bracket stays true,
+// only wider than the bound).
 class OneSidedHausdorff {
  public:
-  OneSidedHausdorff(const TriangleMesh& target, double errorBound) : mBound(errorBound) {
+  OneSidedHausdorff(const TriangleMesh& target, double errorBound, uint64_t maxSplits) : mBound(errorBound), mMaxSplits(maxSplits) {
     mTriangles.reserve(target.triangles.size());
     for (const glm::uvec3& t : target.triangles)
       mTriangles.emplace_back(toPoint(target.vertices[t.x]), toPoint(target.vertices[t.y]), toPoint(target.vertices[t.z]));
@@ -148,7 +151,7 @@ class OneSidedHausdorff {
       for (const Point& p : v) far = std::max(far, CGAL::squared_distance(p, mTriangles[c.triangle]));
       bound = std::min(bound, std::sqrt(far));
     }
-    if (bound <= (*b)[0] + mBound) {
+    if (bound <= (*b)[0] + mBound || mSplits.fetch_add(1, std::memory_order_relaxed) >= mMaxSplits) {
       (*b)[1] = std::max((*b)[1], bound);
       return;
     }
@@ -172,18 +175,20 @@ class OneSidedHausdorff {
   }
 
   double mBound;
+  uint64_t mMaxSplits;
+  mutable std::atomic<uint64_t> mSplits{0};
   std::vector<Triangle> mTriangles;
   TriangleTree mTree;
 };
 
 }  // namespace
 
-HausdorffBracket hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, double errorBound) {
+HausdorffBracket hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, double errorBound, uint64_t maxSplits) {
   if (!(errorBound > 0.0)) HYB_THROW(ValueError, "Hausdorff distance: error bound ", errorBound, " must be positive");
   if (a.triangles.empty() && b.triangles.empty()) return {0.0, 0.0};
   if (a.triangles.empty() || b.triangles.empty()) return {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
   try {
-    const std::array<double, 2> ab = OneSidedHausdorff(b, errorBound).from(a), ba = OneSidedHausdorff(a, errorBound).from(b);
+    const std::array<double, 2> ab = OneSidedHausdorff(b, errorBound, maxSplits / 2).from(a), ba = OneSidedHausdorff(a, errorBound, maxSplits / 2).from(b);
     return {std::max(ab[0], ba[0]), std::max(ab[1], ba[1])};
   } catch (const Error&) {
     throw;

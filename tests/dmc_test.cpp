@@ -230,6 +230,11 @@ TEST(Hausdorff, BracketsClosedFormDistances) {
   const double circumradius =
       glm::length(a1 - a0) * glm::length(a2 - a1) * glm::length(a0 - a2) / (2.0 * glm::length(glm::cross(a1 - a0, a2 - a0)));
   for (const double bound : {0.05, 0.002}) within(hausdorffDistance(acute, corners, bound), circumradius, bound);
+  // Without the splits the bracket stays true, only wide: the corners' 0 and the enclosing radius
+  // (the circumradius itself: the triangle is acute).
+  const HausdorffBracket rough = hausdorffDistance(acute, corners, 0.002, 0);
+  EXPECT_EQ(rough.lower, 0.0);
+  EXPECT_NEAR(rough.upper, circumradius, 1e-6);
   // Degenerate triangles (a point, a segment) are measured as the sets they are.
   TriangleMesh flat = square(0, 1);
   flat.vertices.push_back({2, 0, 0});
