@@ -33,11 +33,13 @@ using TrianglePrimitive = CGAL::AABB_triangle_primitive<Kernel, std::vector<Tria
 using TriangleTree = CGAL::AABB_tree<CGAL::AABB_traits<Kernel, TrianglePrimitive>>;
 namespace PMP = CGAL::Polygon_mesh_processing;
 
+Point toPoint(const glm::vec3& p) { return Point(p.x, p.y, p.z); }
+
 // Converts @p in; false when it is not a polygon mesh (non-manifold).
 bool toSurfaceMesh(const TriangleMesh& in, Mesh* out) {
   std::vector<Point> points;
   points.reserve(in.vertices.size());
-  for (const glm::vec3& p : in.vertices) points.emplace_back(p.x, p.y, p.z);
+  for (const glm::vec3& p : in.vertices) points.push_back(toPoint(p));
   std::vector<std::vector<size_t>> faces;
   faces.reserve(in.triangles.size());
   for (const glm::uvec3& t : in.triangles) faces.push_back({t.x, t.y, t.z});
@@ -72,8 +74,6 @@ MeshCheck checkMesh(const TriangleMesh& mesh) {
 }
 
 namespace {
-
-Point toPoint(const glm::vec3& p) { return Point(p.x, p.y, p.z); }
 
 // The distance from the points of one mesh to another (the target), bracketed: what a point
 // attains is a lower bound of the one-sided Hausdorff distance; a triangle's points are at most
