@@ -128,6 +128,9 @@ struct RenderOptions {
     if (progressive < 1 || progressive > 8) return "--progressive must be in 1..8 images";
     if (repeat < 1 || repeat > 100) return "--repeat must be in 1..100 frames";
     if (texelBits != 8 && texelBits != 16) return "--texel-bits must be 8 or 16";
+    SelectionParams brickEdge;  // the library's own check, here before any file is read or written
+    brickEdge.maxBrickEdge = maxBrick;
+    if (std::string e = brickEdge.validate(); !e.empty()) return e;
     if (!(std::isfinite(lodPixels) && lodPixels >= 0)) return "--lod-pixels must be a finite number of pixels >= 0";
     if (!output.empty() && fileExtension(output) != ".png") return "-o '" + output + "' must be a .png file (render writes PNG images)";
     if (progressive > 1 && output.empty()) return "--progressive needs -o (the images are named after it)";

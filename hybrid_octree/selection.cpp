@@ -279,7 +279,7 @@ std::string SelectionParams::validate() const {
   if (!std::isfinite(focusRadiusMm) || focusRadiusMm < 0.0) return "focus radius invalid (expected >= 0 mm)";
   if (!std::isfinite(lodPixels) || lodPixels < 0.0) return detail::concat("--lod-pixels ", lodPixels, " invalid (expected a finite value >= 0)");
   if (maxBrickEdge < 1 || maxBrickEdge > 256 || (maxBrickEdge & (maxBrickEdge - 1)))
-    return detail::concat("maximum brick edge ", maxBrickEdge, " invalid (expected a power of two in 1..256)");
+    return detail::concat("--max-brick ", maxBrickEdge, " invalid (expected a power of two in 1..256 texels)");
   return "";
 }
 

@@ -196,6 +196,8 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"render", nhdr, "--focus", "1,2"}, "--focus");
   expectBadInput({"render", nhdr, "--orbit", "10"}, "azimuth,elevation");
   expectBadInput({"render", nhdr, "--texel-bits", "12"}, "--texel-bits");
+  expectBadInput({"render", nhdr, "--max-brick", "3"}, "--max-brick 3");
+  expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--max-brick", "512"}, "--max-brick 512");
   expectBadInput({"render", nhdr, "--orbit", "10,20,30"}, "azimuth,elevation");
   expectBadInput({"render", nhdr, "--up", "0,1,0"}, "--up requires --eye");  // an orbit would ignore it
   expectBadInput({"render", nhdr, "--center", "1,2,3"}, "--center requires --eye");
