@@ -324,6 +324,37 @@ TEST(Cli, BenchWritesTheTableThePlotAndTheImages) {
   EXPECT_EQ(readPng(dir.file("bench/reference.png"), &w, &h).size(), size_t(32 * 32 * 4));
 }
 
+// Frame times: the first frame (uploads included) in a column of its own, the best warm frame as
+// frame_ms; with --repeat 1 both are the one frame. An epsilon that selects what full resolution
+// does shares its label in the plot instead of printing over it.
+TEST(Cli, BenchSeparatesFirstFramesAndMergesCoincidingLabels) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  const CliRun r = run({"bench", nhdr, "--size", "16x16", "--epsilons", "0,1e-7", "--budgets", "0.5", "--max-brick", "2", "--repeat", "1",
+                        "-o", dir.file("bench")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  std::istringstream csv(test::readText(dir.file("bench/trade.csv")));
+  std::string header, row;
+  std::getline(csv, header);
+  EXPECT_THAT(header, HasSubstr(",frame_ms,first_frame_ms,psnr_db,"));
+  int rows = 0;
+  while (std::getline(csv, row)) {
+    std::vector<std::string> cells;
+    std::istringstream fields(row);
+    for (std::string c; std::getline(fields, c, ',');) cells.push_back(c);
+    ASSERT_EQ(cells.size(), size_t(16)) << row;
+    EXPECT_EQ(cells[11], cells[12]) << row;  // one frame: it is both the first and the best
+    EXPECT_GT(std::stod(cells[11]), 0.0);
+    ++rows;
+  }
+  EXPECT_EQ(rows, 4);
+  const std::string gp = test::readText(dir.file("bench/trade.gp"));
+  size_t merged = 0;
+  for (size_t at = gp.find("set label '0-1e-07'"); at != std::string::npos; at = gp.find("set label '0-1e-07'", at + 1)) ++merged;
+  EXPECT_EQ(merged, size_t(2)) << gp;  // one in each panel
+  EXPECT_EQ(gp.find("set label '1e-07'"), std::string::npos) << gp;
+}
+
 TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
   test::TempDir dir;
   // A sphere that fits inside its volume, so its surface is closed.
