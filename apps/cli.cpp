@@ -297,8 +297,8 @@ int runExport(const ExportOptions& o, std::ostream& out) {
     if (o.surface != "mc") {
       TriangleMesh mcMm = mc;
       scaleToMillimetres(&mcMm, v.spacing());
-      // Within a hundredth of a voxel, or as close as 40 M triangle splits get (about 1.5 minutes on
-      // two cores: a clinical-size surface can need far more).
+      // Within a hundredth of a voxel, or as close as 40 M triangle bisections get (about a minute on
+      // two cores; the clinical-size stand-in's bone needs ~8 M, 20 s in all).
       const glm::dvec3 voxel = v.spacing();
       const double bound = 0.01 * std::max({voxel.x, voxel.y, voxel.z});
       const auto th = Clock::now();

@@ -82,19 +82,43 @@ namespace {
 //    value on a triangle is at a corner; Sieger et al.'s bound), t among the corners' nearest, and
 //  - max_i d_i + R, R the triangle's smallest enclosing circle's radius (distance is 1-Lipschitz,
 //    and every point of the triangle lies within R of a corner).
-// A triangle whose U exceeds the largest attained distance by more than the error bound is split
-// in four; once R ≤ the bound the second term settles it, so the recursion ends. Splits are
-// counted: past the work limit a triangle is settled with the U it has (the bracket stays true,
-// only wider than the bound).
+// A triangle whose U exceeds the largest attained distance by more than the error bound is
+// bisected at its longest edge; once R ≤ the bound the second term settles it, so the recursion
+// ends. (Splitting in four at the edges' midpoints makes children similar to their parent, so a
+// sliver — a large merged polygon's fan has many, tens of mm long — would need ~aspect² splits
+// before its bounds tighten; bisection makes them rounder.) Splits are counted: past the work
+// limit a triangle is settled with the U it has (the bracket stays true, only wider than the bound).
+// The tree holds the target's triangles cut by the same bisection to edges no longer than a few
+// typical ones (the same point set): the boxes of slivers overlap so much that a closest-point
+// query visits thousands of them. U's first term reads the uncut triangle a piece came from.
 class OneSidedHausdorff {
  public:
   OneSidedHausdorff(const TriangleMesh& target, double errorBound, uint64_t maxSplits) : mBound(errorBound), mMaxSplits(maxSplits) {
-    mTriangles.reserve(target.triangles.size());
-    for (const glm::uvec3& t : target.triangles)
-      mTriangles.emplace_back(toPoint(target.vertices[t.x]), toPoint(target.vertices[t.y]), toPoint(target.vertices[t.z]));
+    mOriginals.reserve(target.triangles.size());
+    std::vector<double> longest;
+    longest.reserve(target.triangles.size());
+    for (const glm::uvec3& t : target.triangles) {
+      mOriginals.emplace_back(toPoint(target.vertices[t.x]), toPoint(target.vertices[t.y]), toPoint(target.vertices[t.z]));
+      longest.push_back(longestEdge(mOriginals.back()).second);
+    }
+    // Pieces' edges at most four times the median longest edge (squared lengths); a target of
+    // points alone is not cut.
+    std::nth_element(longest.begin(), longest.begin() + ptrdiff_t(longest.size() / 2), longest.end());
+    const double median = longest[longest.size() / 2];
+    const double limit = median > 0.0 ? 16.0 * median : std::numeric_limits<double>::infinity();
+    mTriangles.reserve(mOriginals.size());
+    mOrigin.reserve(mOriginals.size());
+    for (size_t i = 0; i < mOriginals.size(); ++i) cut(mOriginals[i], i, limit);
     mTree.insert(mTriangles.begin(), mTriangles.end());
     mTree.build();
-    mTree.accelerate_distance_queries();  // built now: the parallel queries below only read the tree
+    // A query starts from the nearest of these hints. CGAL's default hint is each triangle's first
+    // corner, and a fanned polygon's triangles share theirs: a query far from the fan's apex then
+    // starts with a sphere millimetres wide and visits thousands of boxes. The pieces' centroids
+    // cover the surface. Built now: the parallel queries below only read the tree.
+    std::vector<TriangleTree::Point_and_primitive_id> hints;
+    hints.reserve(mTriangles.size());
+    for (auto it = mTriangles.cbegin(); it != mTriangles.cend(); ++it) hints.emplace_back(CGAL::centroid(*it), it);
+    mTree.accelerate_distance_queries(hints.begin(), hints.end());
   }
 
   // The bracket [lower, upper] of the one-sided distance from @p source to the target.
@@ -137,7 +161,29 @@ class OneSidedHausdorff {
 
   Nearest nearest(const Point& p) const {
     const auto [q, id] = mTree.closest_point_and_primitive(p);
-    return {std::sqrt(CGAL::squared_distance(p, q)), size_t(id - mTriangles.begin())};
+    return {std::sqrt(CGAL::squared_distance(p, q)), mOrigin[size_t(id - mTriangles.begin())]};
+  }
+
+  // The longest edge of @p t: the index of the corner opposite it, and its squared length.
+  static std::pair<int, double> longestEdge(const Triangle& t) {
+    std::pair<int, double> best{0, -1.0};
+    for (int i = 0; i < 3; ++i) best = std::max(best, {i, CGAL::squared_distance(t[(i + 1) % 3], t[(i + 2) % 3])},
+                                                [](const auto& x, const auto& y) { return x.second < y.second; });
+    return best;
+  }
+
+  // Adds @p t to the tree's triangles, bisected at its longest edge until no edge is longer than
+  // the square root of @p limit; every piece remembers @p origin.
+  void cut(const Triangle& t, size_t origin, double limit) {
+    const auto [i, length] = longestEdge(t);
+    if (length <= limit) {
+      mTriangles.push_back(t);
+      mOrigin.push_back(origin);
+      return;
+    }
+    const Point m = CGAL::midpoint(t[(i + 1) % 3], t[(i + 2) % 3]);
+    cut(Triangle(t[i], t[(i + 1) % 3], m), origin, limit);
+    cut(Triangle(t[i], m, t[(i + 2) % 3]), origin, limit);
   }
 
   // Settles triangle @p v (its corners' nearest @p d) against the bracket @p b, splitting it as
@@ -148,19 +194,18 @@ class OneSidedHausdorff {
     double bound = attained + enclosingRadius(v);
     for (const Nearest& c : d) {
       double far = 0.0;
-      for (const Point& p : v) far = std::max(far, CGAL::squared_distance(p, mTriangles[c.triangle]));
+      for (const Point& p : v) far = std::max(far, CGAL::squared_distance(p, mOriginals[c.triangle]));
       bound = std::min(bound, std::sqrt(far));
     }
     if (bound <= (*b)[0] + mBound || mSplits.fetch_add(1, std::memory_order_relaxed) >= mMaxSplits) {
       (*b)[1] = std::max((*b)[1], bound);
       return;
     }
-    const std::array<Point, 3> m{CGAL::midpoint(v[1], v[2]), CGAL::midpoint(v[2], v[0]), CGAL::midpoint(v[0], v[1])};
-    const std::array<Nearest, 3> dm{nearest(m[0]), nearest(m[1]), nearest(m[2])};
-    settle({v[0], m[2], m[1]}, {d[0], dm[2], dm[1]}, b);
-    settle({m[2], v[1], m[0]}, {dm[2], d[1], dm[0]}, b);
-    settle({m[1], m[0], v[2]}, {dm[1], dm[0], d[2]}, b);
-    settle({m[0], m[1], m[2]}, {dm[0], dm[1], dm[2]}, b);
+    const int i = longestEdge(Triangle(v[0], v[1], v[2])).first, j = (i + 1) % 3, k = (i + 2) % 3;
+    const Point m = CGAL::midpoint(v[j], v[k]);
+    const Nearest dm = nearest(m);
+    settle({v[i], v[j], m}, {d[i], d[j], dm}, b);
+    settle({v[i], m, v[k]}, {d[i], dm, d[k]}, b);
   }
 
   // The radius of the smallest circle around triangle @p v: half the longest edge when the
@@ -177,7 +222,9 @@ class OneSidedHausdorff {
   double mBound;
   uint64_t mMaxSplits;
   mutable std::atomic<uint64_t> mSplits{0};
-  std::vector<Triangle> mTriangles;
+  std::vector<Triangle> mOriginals;  // the target's triangles
+  std::vector<Triangle> mTriangles;  // their pieces, in the tree
+  std::vector<size_t> mOrigin;       // the original of each piece
   TriangleTree mTree;
 };
 

@@ -32,8 +32,8 @@ struct HausdorffBracket {
 
 /// Symmetric Hausdorff distance between @p a and @p b within @p errorBound > 0, in the meshes'
 /// units: bounded-error, as Sieger et al.'s algorithm in CGAL, on all cores (closest points from
-/// CGAL's AABB tree; see cgal_geometry.cpp). The work is bounded by @p maxSplits triangle splits
-/// (three closest-point queries each; ~25 M a minute on two cores): past it the bracket is still
+/// CGAL's AABB tree; see cgal_geometry.cpp). The work is bounded by @p maxSplits triangle
+/// bisections (one closest-point query each; ~35 M a minute on two cores): past it the bracket is still
 /// true but may be wider than the bound. Zero for two empty meshes, infinite when only one is
 /// empty. Any triangle soup is measured as it is (non-manifold MC, degenerate triangles).
 /// @throw ValueError when the bound is not positive.

@@ -115,6 +115,47 @@ TEST(DmcTable, EveryConfigurationWithEveryFaceNeighbourIsWatertight) {
   EXPECT_EQ(pairs, size_t(12288));
 }
 
+// The triangulation is the polygon's constrained Delaunay one, measured in the polygon's own plane.
+TEST(Triangulate, IsDelaunayInThePolygonsPlane) {
+  // A 1 × 40 strip with a corner at every unit along both sides (T-junctions): ear clipping alone
+  // fans it from one corner (edges up to √1601 long); its Delaunay triangles are half unit squares.
+  constexpr int kLength = 40;
+  std::vector<glm::ivec3> strip;
+  std::vector<uint32_t> loop;
+  for (int i = 0; i <= kLength; ++i) strip.push_back({i, 0, 0});
+  for (int i = kLength; i >= 0; --i) strip.push_back({i, 1, 0});
+  for (uint32_t i = 0; i < strip.size(); ++i) loop.push_back(i);
+  std::vector<std::array<uint32_t, 3>> tris;
+  ASSERT_TRUE(triangulatePolygon(strip, loop.data(), loop.size(), glm::ivec3(0, 0, 1), &tris));
+  ASSERT_EQ(tris.size(), loop.size() - 2);
+  int64_t area2 = 0;
+  for (const auto& t : tris) {
+    const glm::ivec3 a = strip[t[0]], b = strip[t[1]], c = strip[t[2]];
+    const int64_t twice = int64_t(b.x - a.x) * (c.y - a.y) - int64_t(b.y - a.y) * (c.x - a.x);
+    EXPECT_EQ(twice, 1);  // counter-clockwise, half a unit square
+    area2 += twice;
+    for (const auto& [p, q] : {std::pair{a, b}, std::pair{b, c}, std::pair{c, a}}) {
+      const glm::ivec3 e = q - p;
+      EXPECT_LE(e.x * e.x + e.y * e.y + e.z * e.z, 2);
+    }
+  }
+  EXPECT_EQ(area2, 2 * kLength);
+  // A kite in the plane x + y = 0 (normal (1,1,0)), diagonals A–C (A, C = ∓(3, −3, 0): 6√2 ≈ 8.49
+  // long in the plane) and B–D (B, D = (0, 0, ∓4): 8 long). Delaunay takes the shorter, B–D; in
+  // the dominant-axis projection (x dropped) A–C is 6 long and would win.
+  const std::vector<glm::ivec3> kite = {{-3, 3, 0}, {0, 0, -4}, {3, -3, 0}, {0, 0, 4}};  // A, B, C, D
+  const glm::ivec3 n(1, 1, 0);
+  std::vector<uint32_t> order = {0, 1, 2, 3};
+  const glm::ivec3 ab = kite[1] - kite[0], ac = kite[2] - kite[0];
+  if (glm::dot(glm::vec3(glm::cross(glm::vec3(ab), glm::vec3(ac))), glm::vec3(n)) < 0) std::reverse(order.begin(), order.end());
+  tris.clear();
+  ASSERT_TRUE(triangulatePolygon(kite, order.data(), order.size(), n, &tris));
+  ASSERT_EQ(tris.size(), size_t(2));
+  for (const auto& t : tris) {
+    EXPECT_TRUE(std::count(t.begin(), t.end(), 1u) == 1 && std::count(t.begin(), t.end(), 3u) == 1) << "diagonal A-C chosen";
+  }
+}
+
 TEST(Triangulate, ConvexityIsExactAndAllowsStraightThroughVertices) {
   // In the plane z = 0 (normal +z): a square, the square with a vertex on an edge, an L, a
   // triangle, three collinear points; the square clockwise is convex too (it never turns back).
@@ -249,6 +290,26 @@ TEST(Hausdorff, BracketsClosedFormDistances) {
   EXPECT_TRUE(std::isinf(hausdorffDistance(square(0, 1), TriangleMesh{}, 0.01).lower));
   EXPECT_THROW(hausdorffDistance(square(0, 1), square(0, 1), 0.0), ValueError);
   EXPECT_THROW(hausdorffDistance(square(0, 1), square(0, 1), std::nan("")), ValueError);
+}
+
+// Slivers, as a fanned polygon has them: a 60 × 1 strip with a corner every unit along both long
+// sides, fanned from one corner (triangles up to 60 long and 1/60 wide), against the same strip
+// 0.3 above it cut into unit squares. The distance is 0.3 exactly; bisecting at the longest edge
+// settles the fan in ~170 k splits of one query each, where four-way splits (three queries each)
+// keep every piece a sliver and need ~750 k: past this limit their bracket is 30 units wide.
+TEST(Hausdorff, SettlesSliversWithinAModestWorkLimit) {
+  constexpr int kLength = 60;
+  TriangleMesh fan, squares;
+  for (int i = 0; i <= kLength; ++i) fan.vertices.push_back({float(i), 0, 0});
+  for (int i = kLength; i >= 0; --i) fan.vertices.push_back({float(i), 1, 0});
+  for (uint32_t i = 1; i + 1 < fan.vertices.size(); ++i) fan.triangles.push_back({0, i, i + 1});
+  for (int i = 0; i <= kLength; ++i) squares.vertices.insert(squares.vertices.end(), {{float(i), 0, 0.3f}, {float(i), 1, 0.3f}});
+  for (uint32_t i = 0; i < uint32_t(kLength); ++i)
+    squares.triangles.insert(squares.triangles.end(), {{2 * i, 2 * i + 2, 2 * i + 3}, {2 * i, 2 * i + 3, 2 * i + 1}});
+  const HausdorffBracket h = hausdorffDistance(fan, squares, 0.01, 500000);
+  EXPECT_LE(h.lower, 0.3 + 1e-6);
+  EXPECT_GE(h.upper, 0.3 - 1e-6);
+  EXPECT_LE(h.upper - h.lower, 0.01 + 1e-12);
 }
 
 // Against brute force on curved meshes: DiscMC's and MC's spheres (anisotropic voxels), each
