@@ -1,8 +1,8 @@
 #include "surface/triangulate.h"
 
-#include <cstdlib>
 #include <algorithm>
-#include <utility>
+#include <cstdint>
+#include <cstdlib>
 
 namespace hyb {
 
@@ -57,7 +57,6 @@ bool inCircle(const glm::ivec3& n, const glm::ivec3& a, const glm::ivec3& b, con
     m[r][1] = y;
     m[r][2] = x * x * vv + y * y * uu;  // (x² / uu + y² / vv) · uu·vv
   }
-  // Lifted coordinates (x·√vv, y·√uu) scale both axes by √(uu·vv): the orientation is that of (x, y).
   const __int128 det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
                        m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
   // (x, y) is right-handed about n (u × v points along n), as a, b, c are counter-clockwise.
@@ -74,12 +73,10 @@ void delaunayFlips(const std::vector<glm::ivec3>& points, const uint32_t* loop, 
   constexpr size_t kNone = SIZE_MAX;
   std::vector<std::array<size_t, 3>>& T = *tris;
   // nb[t][k]: the triangle across edge (T[t][k], T[t][k+1]), from one sort of the edges.
-  // Scratch kept by each thread: most polygons are small, and allocating was most of their cost.
-  thread_local std::vector<std::array<size_t, 3>> nb, sides;  // sides: edge's smaller corner, larger corner, 3 t + k
-  thread_local std::vector<std::array<size_t, 2>> todo;       // (t, k): edges to look at
-  nb.assign(T.size(), {kNone, kNone, kNone});
-  sides.clear();
-  todo.clear();
+  std::vector<std::array<size_t, 3>> nb(T.size(), {kNone, kNone, kNone});
+  std::vector<std::array<size_t, 3>> sides;  // an edge's smaller corner, larger corner, 3 t + k
+  std::vector<std::array<size_t, 2>> todo;   // (t, k): edges to look at
+  sides.reserve(3 * T.size());
   for (size_t t = 0; t < T.size(); ++t)
     for (size_t k = 0; k < 3; ++k) sides.push_back({std::min(T[t][k], T[t][(k + 1) % 3]), std::max(T[t][k], T[t][(k + 1) % 3]), 3 * t + k});
   std::sort(sides.begin(), sides.end());
