@@ -30,24 +30,35 @@ std::vector<P2> project(const std::vector<glm::ivec3>& points, const uint32_t* l
   return p;
 }
 
-// Whether point d lies strictly inside the circle through the counter-clockwise triangle abc, all
-// four in the polygon's plane (normal @p n), measured in that plane's own metric — not the
-// dominant-axis projection, which stretches the diagonal planes by √2 in one direction. With
-// u = n × e and v = n × u (integer, orthogonal, u × v along n), a point has plane coordinates
-// (p·u/|u|, p·v/|v|); the usual lifted determinant, scaled by the positive |u|³|v|³, is exact in
-// integers (128 bits: the coordinates of a 2^15-voxel grid stay far below overflow).
 using I3 = std::array<int64_t, 3>;
 I3 cross(const I3& a, const I3& b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
 int64_t dot(const I3& a, const I3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
-bool inCircle(const glm::ivec3& n, const glm::ivec3& a, const glm::ivec3& b, const glm::ivec3& c, const glm::ivec3& d) {
-  int axis = 0;  // e: the axis along which n is smallest, so that n × e is not zero
-  for (int k = 1; k < 3; ++k)
-    if (std::abs(n[k]) < std::abs(n[axis])) axis = k;
-  I3 e{0, 0, 0};
-  e[size_t(axis)] = 1;
-  const I3 u = cross({n.x, n.y, n.z}, e), v = cross({n.x, n.y, n.z}, u);
-  const __int128 uu = dot(u, u), vv = dot(v, v);
+// The metric of the plane with integer normal n, made once a polygon: u = n × e and v = n × u
+// (integer, orthogonal, u × v along n), so that a point has plane coordinates (p·u/|u|, p·v/|v|).
+struct PlaneMetric {
+  I3 u, v;
+  __int128 uu, vv;  // |u|², |v|²
+  explicit PlaneMetric(const glm::ivec3& n) {
+    int axis = 0;  // e: the axis along which n is smallest, so that n × e is not zero
+    for (int k = 1; k < 3; ++k)
+      if (std::abs(n[k]) < std::abs(n[axis])) axis = k;
+    I3 e{0, 0, 0};
+    e[size_t(axis)] = 1;
+    u = cross({n.x, n.y, n.z}, e);
+    v = cross({n.x, n.y, n.z}, u);
+    uu = dot(u, u);
+    vv = dot(v, v);
+  }
+};
+
+// Whether point d lies strictly inside the circle through the counter-clockwise triangle abc, all
+// four in the polygon's plane, measured in that plane's own metric — not the dominant-axis
+// projection, which stretches the diagonal planes by √2 in one direction. The usual lifted
+// determinant in the coordinates of @p plane, scaled by the positive |u|³|v|³, is exact in
+// integers (128 bits: the coordinates of a 2^15-voxel grid stay far below overflow).
+bool inCircle(const PlaneMetric& plane, const glm::ivec3& a, const glm::ivec3& b, const glm::ivec3& c, const glm::ivec3& d) {
+  const auto& [u, v, uu, vv] = plane;
   __int128 m[3][3];
   const glm::ivec3* rows[3] = {&a, &b, &c};
   for (int r = 0; r < 3; ++r) {
@@ -72,6 +83,7 @@ void delaunayFlips(const std::vector<glm::ivec3>& points, const uint32_t* loop, 
                    std::vector<std::array<size_t, 3>>* tris) {
   constexpr size_t kNone = SIZE_MAX;
   std::vector<std::array<size_t, 3>>& T = *tris;
+  const PlaneMetric plane(n);
   // nb[t][k]: the triangle across edge (T[t][k], T[t][k+1]), from one sort of the edges.
   std::vector<std::array<size_t, 3>> nb(T.size(), {kNone, kNone, kNone});
   std::vector<std::array<size_t, 3>> sides;  // an edge's smaller corner, larger corner, 3 t + k
@@ -105,7 +117,7 @@ void delaunayFlips(const std::vector<glm::ivec3>& points, const uint32_t* loop, 
     if (k1 == 3) continue;
     const size_t d = T[t1][(k1 + 2) % 3];
     if (orient(p[c], p[a], p[d]) <= 0 || orient(p[d], p[b], p[c]) <= 0) continue;  // not strictly convex
-    if (!inCircle(n, points[loop[a]], points[loop[b]], points[loop[c]], points[loop[d]])) continue;
+    if (!inCircle(plane, points[loop[a]], points[loop[b]], points[loop[c]], points[loop[d]])) continue;
     const size_t nbc = nb[t0][(k0 + 1) % 3], nca = nb[t0][(k0 + 2) % 3], nad = nb[t1][(k1 + 1) % 3], ndb = nb[t1][(k1 + 2) % 3];
     T[t0] = {c, a, d};
     nb[t0] = {nca, nad, t1};
