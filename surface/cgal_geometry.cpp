@@ -99,7 +99,8 @@ class OneSidedHausdorff {
     longest.reserve(target.triangles.size());
     for (const glm::uvec3& t : target.triangles) {
       mOriginals.emplace_back(toPoint(target.vertices[t.x]), toPoint(target.vertices[t.y]), toPoint(target.vertices[t.z]));
-      longest.push_back(longestEdge(mOriginals.back()).second);
+      const std::array<double, 3> e = squaredEdges(mOriginals.back());
+      longest.push_back(e[size_t(longestOf(e))]);
     }
     // Pieces' edges at most four times the median longest edge (squared lengths); a target of
     // points alone is not cut.
@@ -164,19 +165,22 @@ class OneSidedHausdorff {
     return {std::sqrt(CGAL::squared_distance(p, q)), mOrigin[size_t(id - mTriangles.begin())]};
   }
 
-  // The longest edge of @p t: the index of the corner opposite it, and its squared length.
-  static std::pair<int, double> longestEdge(const Triangle& t) {
-    std::pair<int, double> best{0, -1.0};
-    for (int i = 0; i < 3; ++i) best = std::max(best, {i, CGAL::squared_distance(t[(i + 1) % 3], t[(i + 2) % 3])},
-                                                [](const auto& x, const auto& y) { return x.second < y.second; });
-    return best;
+  // The squared lengths of the edges of triangle @p v (a Triangle or its three corners), each
+  // indexed by the corner opposite it.
+  template <class Corners>
+  static std::array<double, 3> squaredEdges(const Corners& v) {
+    return {CGAL::squared_distance(v[1], v[2]), CGAL::squared_distance(v[2], v[0]), CGAL::squared_distance(v[0], v[1])};
   }
+
+  // The corner opposite the longest of the edges @p e (the first of equal ones).
+  static int longestOf(const std::array<double, 3>& e) { return int(std::max_element(e.begin(), e.end()) - e.begin()); }
 
   // Adds @p t to the tree's triangles, bisected at its longest edge until no edge is longer than
   // the square root of @p limit; every piece remembers @p origin.
   void cut(const Triangle& t, size_t origin, double limit) {
-    const auto [i, length] = longestEdge(t);
-    if (length <= limit) {
+    const std::array<double, 3> e = squaredEdges(t);
+    const int i = longestOf(e);
+    if (e[size_t(i)] <= limit) {
       mTriangles.push_back(t);
       mOrigin.push_back(origin);
       return;
@@ -191,7 +195,8 @@ class OneSidedHausdorff {
   void settle(const std::array<Point, 3>& v, const std::array<Nearest, 3>& d, std::array<double, 2>* b) const {
     const double attained = std::max({d[0].distance, d[1].distance, d[2].distance});
     (*b)[0] = std::max((*b)[0], attained);
-    double bound = attained + enclosingRadius(v);
+    const std::array<double, 3> e = squaredEdges(v);
+    double bound = attained + enclosingRadius(e);
     for (const Nearest& c : d) {
       double far = 0.0;
       for (const Point& p : v) far = std::max(far, CGAL::squared_distance(p, mOriginals[c.triangle]));
@@ -201,17 +206,16 @@ class OneSidedHausdorff {
       (*b)[1] = std::max((*b)[1], bound);
       return;
     }
-    const int i = longestEdge(Triangle(v[0], v[1], v[2])).first, j = (i + 1) % 3, k = (i + 2) % 3;
+    const int i = longestOf(e), j = (i + 1) % 3, k = (i + 2) % 3;
     const Point m = CGAL::midpoint(v[j], v[k]);
     const Nearest dm = nearest(m);
     settle({v[i], v[j], m}, {d[i], d[j], dm}, b);
     settle({v[i], m, v[k]}, {d[i], dm, d[k]}, b);
   }
 
-  // The radius of the smallest circle around triangle @p v: half the longest edge when the
-  // triangle is right or obtuse, else the circumradius.
-  static double enclosingRadius(const std::array<Point, 3>& v) {
-    std::array<double, 3> e{CGAL::squared_distance(v[1], v[2]), CGAL::squared_distance(v[2], v[0]), CGAL::squared_distance(v[0], v[1])};
+  // The radius of the smallest circle around the triangle of squared edges @p e: half the
+  // longest edge when the triangle is right or obtuse, else the circumradius.
+  static double enclosingRadius(std::array<double, 3> e) {
     std::sort(e.begin(), e.end());
     if (e[2] >= e[0] + e[1]) return 0.5 * std::sqrt(e[2]);
     const double a = std::sqrt(e[0]), b = std::sqrt(e[1]), c = std::sqrt(e[2]);
