@@ -414,21 +414,6 @@ KnotLattice VolumeOctree::coarseLattice(const OctreeNode& n, int p) const {
   return makeLattice(lo, step, hi, mDims);
 }
 
-float VolumeOctree::knotField(const Volume& v, int step, const glm::ivec3& p) const {
-  glm::ivec3 lo, hi;
-  glm::vec3 t;
-  for (int a = 0; a < 3; ++a) {
-    const int last = mDims[a] - 1;
-    lo[a] = std::min(p[a] / step * step, last);
-    hi[a] = std::min(lo[a] + step, last);
-    t[a] = hi[a] > lo[a] ? float(p[a] - lo[a]) / float(hi[a] - lo[a]) : 0.0f;
-  }
-  auto at = [&](int c) { return knotValue(v, step, glm::ivec3(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z)); };
-  const float x00 = glm::mix(at(0), at(1), t.x), x10 = glm::mix(at(2), at(3), t.x);
-  const float x01 = glm::mix(at(4), at(5), t.x), x11 = glm::mix(at(6), at(7), t.x);
-  return glm::mix(glm::mix(x00, x10, t.y), glm::mix(x01, x11, t.y), t.z);
-}
-
 void VolumeOctree::voxelBox(const OctreeNode& n, glm::ivec3* lo, glm::ivec3* hi) const {
   *lo = glm::ivec3(n.origin);
   *hi = glm::min(*lo + edge(n), mDims - 1);

@@ -112,10 +112,24 @@ class VolumeOctree {
   /// The value a lattice of spacing @p step holds at its knot @p p (each coordinate a multiple of
   /// step or the grid's last index): the sample, or the prefiltered value.
   float knotValue(const Volume& v, int step, const glm::ivec3& p) const { return mKnots.knotValue(v, step, p); }
-  /// The trilinear field at voxel @p p of the position-clamped lattice of spacing @p step whose
-  /// knots are the multiples of step (and the grid's last index): what a brick of that spacing
-  /// shows there. @p v is the volume the octree was built from.
-  float knotField(const Volume& v, int step, const glm::ivec3& p) const;
+  /// The trilinear interpolation at voxel @p p of @p at(knot) over the position-clamped lattice of
+  /// spacing @p step whose knots are the multiples of step (and the grid's last index): with the
+  /// knots' values, what a brick of that spacing shows there.
+  template <class At>
+  auto latticeField(int step, const glm::ivec3& p, const At& at) const {
+    glm::ivec3 lo, hi;
+    glm::vec3 t;
+    for (int a = 0; a < 3; ++a) {
+      const int last = mDims[a] - 1;
+      lo[a] = std::min(p[a] / step * step, last);
+      hi[a] = std::min(lo[a] + step, last);
+      t[a] = hi[a] > lo[a] ? float(p[a] - lo[a]) / float(hi[a] - lo[a]) : 0.0f;
+    }
+    auto corner = [&](int c) { return at(glm::ivec3(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z)); };
+    const auto x00 = glm::mix(corner(0), corner(1), t.x), x10 = glm::mix(corner(2), corner(3), t.x);
+    const auto x01 = glm::mix(corner(4), corner(5), t.x), x11 = glm::mix(corner(6), corner(7), t.x);
+    return glm::mix(glm::mix(x00, x10, t.y), glm::mix(x01, x11, t.y), t.z);
+  }
   /// Voxel-space box of @p n cropped to the grid: [lo, hi] with hi ≤ dims − 1.
   void voxelBox(const OctreeNode& n, glm::ivec3* lo, glm::ivec3* hi) const;
 

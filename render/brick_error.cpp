@@ -165,10 +165,16 @@ double BrickImageError::measure(const OctreeNode& n, int p) const {
   const int step = mOctree.edge(n) >> p;
   if (step <= 1) return 0.0;
   const KnotLattice L = mOctree.lattice(n, p);
+  // The level's knots: value and shading gradient (the volume's own at the knot, as the brick's texels hold).
   std::vector<float> knots(L.count());
+  std::vector<glm::vec3> gradients(L.count());
   for (int z = 0, i = 0; z < L.dims.z; ++z)
     for (int y = 0; y < L.dims.y; ++y)
-      for (int x = 0; x < L.dims.x; ++x, ++i) knots[size_t(i)] = mOctree.knotValue(mVolume, step, {L.knot(0, x), L.knot(1, y), L.knot(2, z)});
+      for (int x = 0; x < L.dims.x; ++x, ++i) {
+        const glm::ivec3 k(L.knot(0, x), L.knot(1, y), L.knot(2, z));
+        knots[size_t(i)] = mOctree.knotValue(mVolume, step, k);
+        gradients[size_t(i)] = mVolume.gradientAt(k.x, k.y, k.z);
+      }
   const glm::ivec3 dims = mVolume.dims();
   const glm::vec3 spacing(mVolume.spacing());
 
@@ -208,26 +214,28 @@ double BrickImageError::measure(const OctreeNode& n, int p) const {
         }
         visibleCell[size_t(i)] = mTf.maxAlpha(vmin, vmax) > 0.0f;
       }
-  // The level's field (what the brick shows, without blending) and its gradient (per mm) at q in cell j.
+  // The level's field (what the brick shows, without blending) and its shading gradient at q in cell j.
   auto level = [&](const glm::vec3& q, const glm::ivec3& j, glm::vec3* g) {
-    glm::vec3 w, cell;
+    glm::vec3 w;
     for (int a = 0; a < 3; ++a) {
       if (L.dims[a] < 2) {
-        w[a] = 0.0f, cell[a] = 1.0f;
+        w[a] = 0.0f;
         continue;
       }
       const float lo = float(L.knot(a, j[a])), hi = float(L.knot(a, j[a] + 1));
       w[a] = std::clamp((q[a] - lo) / (hi - lo), 0.0f, 1.0f);
-      cell[a] = hi - lo;
     }
     float c[8];
+    glm::vec3 gc[8];
     for (int s = 0; s < 8; ++s) {
-      const glm::ivec3 k = glm::min(j + glm::ivec3(s & 1, (s >> 1) & 1, (s >> 2) & 1), L.dims - 1);
-      c[s] = knots[linear(k, L.dims)];
+      const size_t k = linear(glm::min(j + glm::ivec3(s & 1, (s >> 1) & 1, (s >> 2) & 1), L.dims - 1), L.dims);
+      c[s] = knots[k];
+      gc[s] = gradients[k];
     }
-    const float v = trilinear(c, w, g);
-    *g /= cell * spacing;
-    return v;
+    *g = glm::mix(glm::mix(glm::mix(gc[0], gc[1], w.x), glm::mix(gc[2], gc[3], w.x), w.y),
+                  glm::mix(glm::mix(gc[4], gc[5], w.x), glm::mix(gc[6], gc[7], w.x), w.y), w.z);
+    glm::vec3 unused;
+    return trilinear(c, w, &unused);
   };
 
   glm::ivec3 a, b;

@@ -94,6 +94,32 @@ double roughness(const Image& img, double r) {
   return count ? sum / count : 0.0;
 }
 
+TEST(Multires, CoarseBricksShadeWithTheDatasOwnGradients) {
+  gl();
+  // A ramp along z and a ripple along x: the knots of a lattice two voxels apart (even x) see the
+  // ramp alone, but the data's gradient there leans 45° in x, one way or the other.
+  const Volume v = test::makeVolume({17, 17, 17}, [](int i, int, int k) { return 1.0 + 0.02 * (k - 8) + 0.02 * std::sin(M_PI * i / 2.0); });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const Selection coarse = cutAt(t, [](const OctreeNode&) { return 16; });
+  ASSERT_EQ(coarse.bricks.size(), 1u);
+  ASSERT_EQ(t.lattice(t.nodes()[coarse.bricks[0].node], coarse.bricks[0].p).step, 2);
+  const TransferFunction tf = test::constantTf(0.05f);  // one colour and opacity: only the shading varies
+  const Camera cam = test::orthoDown(glm::dvec3(8, 8, 8), 16.0, 32);
+  const Image ref = raycast(v, t, tf, cam, RaycastOptions{});
+  const Image img = renderSlices(v, t, coarse, tf, cam, SlicesOptions{});
+  // Looking down z the headlight gives 0.25 + 0.75 cos 45° at even x and 1 at odd x, in the
+  // reference and in the coarse brick's interpolated gradients alike; the coarse field's own
+  // differences would shade every column as 1 (0.1 brighter at even x).
+  float ripple = 0.0f, worst = 0.0f;
+  for (int y = 2; y < 30; ++y)
+    for (int x = 2; x < 30; ++x) {
+      ripple = std::max(ripple, std::abs(ref.at(x + 1, y).r - ref.at(x, y).r));
+      for (int c = 0; c < 3; ++c) worst = std::max(worst, std::abs(img.at(x, y)[c] - ref.at(x, y)[c]));
+    }
+  EXPECT_GT(ripple, 0.04f);
+  EXPECT_LE(worst, 3.0f / 255.0f);
+}
+
 TEST(Multires, PrefilteredCoarseLevelsDoNotAliasAThinShell) {
   gl();
   // A spherical shell 1.5 voxels thick: knots 4 voxels apart that take the samples catch it at

@@ -102,7 +102,18 @@ float Volume::sample(const glm::vec3& p) const {
 }
 
 glm::vec3 Volume::gradientAt(int i, int j, int k) const {
-  return centralDifferences([&](const glm::ivec3& q) { return at(q.x, q.y, q.z); }, glm::ivec3(i, j, k), 1, mDims, mSpacing);
+  const glm::ivec3 p(i, j, k);
+  glm::vec3 g(0.0f);
+  for (int a = 0; a < 3; ++a) {
+    glm::ivec3 lo = p, hi = p;
+    lo[a] = std::max(p[a] - 1, 0);
+    hi[a] = std::min(p[a] + 1, mDims[a] - 1);
+    if (hi[a] > lo[a]) {
+      const double d = (double(at(hi.x, hi.y, hi.z)) - double(at(lo.x, lo.y, lo.z))) / (double(hi[a] - lo[a]) * mSpacing[a]);
+      g[a] = float(std::clamp(d, -double(std::numeric_limits<float>::max()), double(std::numeric_limits<float>::max())));
+    }
+  }
+  return g;
 }
 
 glm::vec3 Volume::sampleGradient(const glm::vec3& p) const {

@@ -40,24 +40,6 @@ void validateDims(const glm::ivec3& dims, const std::string& what);
 /// @throw ValueError naming @p what.
 void validateSpacing(const glm::dvec3& spacing, const std::string& what);
 
-/// Central differences of @p field (callable on integer grid points) at @p p, @p step grid points
-/// either side, one-sided on the faces of a grid of @p dims, zero along an axis of one point; in
-/// field units per mm for grid points @p spacing mm apart.
-template <class Field>
-glm::vec3 centralDifferences(const Field& field, const glm::ivec3& p, int step, const glm::ivec3& dims, const glm::dvec3& spacing) {
-  glm::vec3 g(0.0f);
-  for (int a = 0; a < 3; ++a) {
-    glm::ivec3 lo = p, hi = p;
-    lo[a] = std::max(p[a] - step, 0);
-    hi[a] = std::min(p[a] + step, dims[a] - 1);
-    if (hi[a] > lo[a]) {
-      const double d = (double(field(hi)) - double(field(lo))) / (double(hi[a] - lo[a]) * spacing[a]);
-      g[a] = float(std::clamp(d, -double(std::numeric_limits<float>::max()), double(std::numeric_limits<float>::max())));
-    }
-  }
-  return g;
-}
-
 /// Immutable scalar volume.
 class Volume {
  public:
