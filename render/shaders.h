@@ -84,8 +84,9 @@ void main() {
 /// runs both sides of every branch, uniform ones included, so each feature a frame does not use
 /// is compiled out: the source follows "#version 450 core\n" and a #define of SHADING (headlight
 /// shading by the brick's stored gradient), SURFACE (translucent triangles in the stream), CUT (a
-/// cutting plane clips the stream), SHELLS (spherical-shell bricks may occur), VOI, ORTHO and
-/// TEXEL16 (16-bit brick texels), each 0 or 1.
+/// cutting plane clips the stream), SHELLS (spherical-shell bricks may occur), VOI, ORTHO,
+/// TEXEL16 (16-bit brick texels) and SEGMENTS (each fragment's segment cut to the brick's box:
+/// bricks sliced coarser than the base spacing), each 0 or 1.
 inline constexpr const char* kSliceFragment = R"(
 in vec3 vWorld;
 flat in vec3 vNormal;  // a surface triangle's face normal
@@ -97,8 +98,9 @@ out vec4 fragColor;
 uniform vec4 surfaceColor;  // straight rgb, alpha per crossing
 uniform sampler3D volumeTex;  // the brick's lattice: normalised value, gradient direction (RGBA8 or RGBA16)
 uniform vec3 eye, forward;
-uniform float sliceSpacing;  // mm between this brick's slice planes along forward
+uniform float sliceSpacing;  // mm between this brick's slice planes along forward (radii: shells)
 uniform int shells;  // 1: this brick's proxies are spherical shells around the eye
+uniform vec3 boxLo, boxHi;  // this brick's box, world mm (SEGMENTS)
 uniform vec3 voiCentre, voiHalf;
 uniform float voiInside, voiOutside, voiRamp;
 
@@ -146,12 +148,36 @@ void main() {
   vec3 r = vWorld - eye;
   float rr = dot(r, r);
 #endif
+#if SEGMENTS
+  // The segment of the ray this slice stands for: half-way to the planes (shells) either side,
+  // and out to where the ray enters or leaves the brick for the first and last one in it, so that
+  // the brick integrates exactly its own stretch of every ray at any spacing (no seam where a
+  // neighbour's spacing differs, nothing lost or doubled at the volume's faces). In units of the
+  // slices' parameter (depth along forward, or radius), v being the ray's step per unit of it.
+#if ORTHO
+  vec3 v = forward;
+#else
+  vec3 v = r / max(abs(dot(r, forward)), 1e-6 * sqrt(rr));
+#if SHELLS
+  if (shells == 1) v = r * inversesqrt(rr);
+#endif
+#endif
+  vec3 inv = 1.0 / mix(v, vec3(1e-20), lessThan(abs(v), vec3(1e-20)));
+  vec3 sa = (boxLo - x) * inv, sb = (boxHi - x) * inv;
+  vec3 near = min(sa, sb), far = max(sa, sb);
+  float enter = min(max(max(near.x, near.y), near.z), 0.0), leave = max(min(min(far.x, far.y), far.z), 0.0);
+  // A neighbour's plane counts as in the brick unless its face is nearer than the plane by more
+  // than a thousandth of the spacing (a plane on a face belongs to the brick behind it).
+  float h = 0.5 * sliceSpacing;
+  float len = ((leave < 1.001 * sliceSpacing ? leave : h) - (enter > -0.999 * sliceSpacing ? enter : -h)) * length(v);
+#else
   float len = sliceSpacing;
 #if !ORTHO
 #if SHELLS
   if (shells == 0)
 #endif
     len *= sqrt(rr) / max(abs(dot(r, forward)), 1e-6 * sqrt(rr));
+#endif
 #endif
 #if VOI
   c.a = min(c.a * voiFactor(x), 1.0);
