@@ -110,6 +110,7 @@ std::string plotScript(const std::string& csv, const std::string& png, const std
 std::string BenchOptions::validate() const {
   if (outDir.empty()) return "-o missing (expected the output directory)";
   if (repeat < 1 || repeat > 100) return "--repeat must be in 1..100";
+  if (rounds < 1 || rounds > 100) return "--rounds must be in 1..100";
   return render.validate();
 }
 
@@ -119,6 +120,8 @@ void BenchOptions::add(CLI::App* cmd) {
   cmd->add_option("--epsilons", epsilons, "epsilon_u values in data units, comma-separated (default: 0 to 10 % of the data range)");
   cmd->add_option("--budgets", budgets, "texture budgets as fractions of the full-resolution bytes")->capture_default_str();
   cmd->add_option("--repeat", repeat, "frames per point: the first packs and uploads the brick textures, the fastest of the others (warm) counts; 1: the first")->capture_default_str();
+  cmd->add_option("--rounds", rounds, "passes over all the points, each keeping its fastest frames (a slow spell of a shared machine then does not land on one point)")
+      ->capture_default_str();
   cmd->add_flag("!--no-plot", plot, "skip the gnuplot plot");
 }
 
@@ -158,25 +161,34 @@ int runBench(const BenchOptions& o, std::ostream& out) {
   slices.renderer = "slices";
   const size_t total = 1 + size_t(std::count_if(epsilons.begin(), epsilons.end(), [](double e) { return e > 0.0; })) + 2 * budgets.size();
   std::vector<Point> points;
-  auto measure = [&](Point p) {
+  std::vector<Selection> selections;  // the points', for the later rounds
+  auto optionsOf = [&](const Point& p) {
     RenderOptions ro = slices;
     ro.blend = p.blend ? "on" : "off";
-    auto s0 = Clock::now();
-    const Selection sel = selectNodes(f.scene.octree, selectionParams(ro, f, p.epsilon, p.budgetMb));
-    p.selectMs = msSince(s0);
+    return ro;
+  };
+  // The point's frames: the first packs and uploads the brick textures (and compiles the program);
+  // the frames after it reuse them, and the fastest of those is the point's frame time.
+  auto frames = [&](const Selection& sel, Point* p, SlicesStats* ss) {
     Image img;
-    SlicesStats ss;
-    // The first frame packs and uploads the brick textures (and compiles the program); the frames
-    // after it reuse them, and the fastest of those is the point's frame time.
-    p.frameMs = std::numeric_limits<double>::infinity();
     BrickTextureCache textures;
     for (int r = 0; r < o.repeat; ++r) {
-      s0 = Clock::now();
-      img = renderFrame(ro, f, sel, &ss, nullptr, &textures);
+      const auto s0 = Clock::now();
+      img = renderFrame(optionsOf(*p), f, sel, ss, nullptr, &textures);
       const double ms = msSince(s0);
-      if (r == 0) p.firstFrameMs = ms;
-      if (r > 0 || o.repeat == 1) p.frameMs = std::min(p.frameMs, ms);
+      if (r == 0) p->firstFrameMs = std::min(p->firstFrameMs, ms);
+      if (r > 0 || o.repeat == 1) p->frameMs = std::min(p->frameMs, ms);
     }
+    return img;
+  };
+  auto measure = [&](Point p) {
+    const RenderOptions ro = optionsOf(p);
+    const auto s0 = Clock::now();
+    const Selection sel = selectNodes(f.scene.octree, selectionParams(ro, f, p.epsilon, p.budgetMb));
+    p.selectMs = msSince(s0);
+    SlicesStats ss;
+    p.frameMs = p.firstFrameMs = std::numeric_limits<double>::infinity();
+    const Image img = frames(sel, &p, &ss);
     const std::vector<uint8_t> rgba = toRgba8(img, f.background);
     p.psnrDb = std::min(99.0, psnr(rgba, refRgba));  // 99: identical
     p.ssim = ssim(rgba, refRgba, img.width, img.height);
@@ -192,6 +204,7 @@ int runBench(const BenchOptions& o, std::ostream& out) {
     p.image = name.str() + ".png";
     writePng(file(p.image), img, f.background);
     points.push_back(p);
+    selections.push_back(sel);
     out << "[" << points.size() << "/" << total << "] " << std::left << std::setw(28) << name.str() << std::right << std::setprecision(2)
         << std::setw(8) << double(p.textureBytes) / 1048576.0 << " MB " << std::setw(5) << p.textured << " bricks " << std::setprecision(1)
         << std::setw(8) << p.frameMs << " ms (first " << std::setw(6) << p.firstFrameMs << ") " << std::setprecision(2) << std::setw(6) << p.psnrDb << " dB  SSIM " << std::setprecision(4)
@@ -217,6 +230,16 @@ int runBench(const BenchOptions& o, std::ostream& out) {
       p.blend = blend;
       measure(p);
     }
+
+  // Later rounds take every point's frames again, in the same order.
+  for (int round = 2; round <= o.rounds; ++round) {
+    for (size_t i = 0; i < points.size(); ++i) {
+      SlicesStats ss;
+      frames(selections[i], &points[i], &ss);
+    }
+    out << "round " << round << "/" << o.rounds << ": fastest frames so far, full resolution " << std::setprecision(1) << points[0].frameMs
+        << " ms, last point " << points.back().frameMs << " ms" << std::endl;
+  }
 
   // The table and the plot.
   writeFileAtomically(file("trade.csv"), [&](std::ostream& s) {

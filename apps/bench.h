@@ -18,6 +18,7 @@ struct BenchOptions {
   std::string epsilons;                            ///< ε_u values (data units); empty: 0…10 % of the data range
   std::string budgets = "0.5,0.25,0.125,0.0625";  ///< fractions of the full-resolution texture bytes
   int repeat = 4;                                  ///< frames per point: the first uploads, the fastest of the others counts
+  int rounds = 3;                                  ///< passes over all the points; each point keeps its fastest frames
   bool plot = true;                                ///< draw trade.png with gnuplot
 
   std::string validate() const;

@@ -224,6 +224,7 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"bench", nhdr}, "-o");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--budgets", "0.5,2"}, "--budgets");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--epsilons", "1,x"}, "--epsilons");
+  expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--rounds", "0"}, "--rounds");
   EXPECT_FALSE(std::filesystem::exists(dir.file("b")));  // bad lists leave no output directory
   // An output whose directory does not exist is refused before any work, naming the flag.
   const std::string missing = dir.file("no/such/dir");
@@ -325,14 +326,16 @@ TEST(Cli, BenchWritesTheTableThePlotAndTheImages) {
 }
 
 // Frame times: the first frame (uploads included) in a column of its own, the best warm frame as
-// frame_ms; with --repeat 1 both are the one frame. An epsilon that selects what full resolution
+// frame_ms, each the fastest over the rounds; with --repeat 1 both are the one frame. An epsilon that selects what full resolution
 // does shares its label in the plot instead of printing over it.
 TEST(Cli, BenchSeparatesFirstFramesAndMergesCoincidingLabels) {
   test::TempDir dir;
   const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
   const CliRun r = run({"bench", nhdr, "--size", "16x16", "--epsilons", "0,1e-7", "--budgets", "0.5", "--max-brick", "2", "--repeat", "1",
-                        "-o", dir.file("bench")});
+                        "--rounds", "2", "-o", dir.file("bench")});
   ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("round 2/2:"));
+  EXPECT_EQ(r.out.find("round 3/"), std::string::npos);
   std::istringstream csv(test::readText(dir.file("bench/trade.csv")));
   std::string header, row;
   std::getline(csv, header);
