@@ -374,12 +374,7 @@ TEST(Multires, ShellsAndPlanesComposeTheClosedFormInPerspective) {
   const VolumeOctree t = VolumeOctree::build(v);
   const TransferFunction tf = test::constantTf(0.05f);
   const TriangleMesh quad = test::quadAt(13.0, -1.0, 33.0, -1.0, 33.0);
-  Camera cam;
-  cam.eye = glm::dvec3(20, 12, 70);
-  cam.center = glm::dvec3(16, 16, 16);
-  cam.up = glm::dvec3(0, 1, 0);
-  cam.fovDeg = 30;
-  cam.width = cam.height = 48;
+  const Camera cam = test::perspective(glm::dvec3(20, 12, 70), glm::dvec3(16, 16, 16), glm::dvec3(0, 1, 0), 30, 48);
   const glm::vec4 surface(0.2f, 0.6f, 0.9f, 0.4f);
   SlicesOptions so;
   so.shading = false;
@@ -412,12 +407,7 @@ TEST(Multires, CoarseBricksComposeTheClosedFormInPerspective) {
   const VolumeOctree t = VolumeOctree::build(v);
   const TransferFunction tf = test::constantTf(0.05f);
   const TriangleMesh quad = test::quadAt(6.5, -1.0, 17.0, -1.0, 17.0);
-  Camera cam;
-  cam.eye = glm::dvec3(10, 6, 40);
-  cam.center = glm::dvec3(8, 8, 8);
-  cam.up = glm::dvec3(0, 1, 0);
-  cam.fovDeg = 30;
-  cam.width = cam.height = 32;
+  const Camera cam = test::perspective(glm::dvec3(10, 6, 40), glm::dvec3(8, 8, 8), glm::dvec3(0, 1, 0), 30, 32);
   const glm::vec4 surface(0.2f, 0.6f, 0.9f, 0.4f);
   SlicesOptions so;
   so.shading = false;
@@ -465,12 +455,7 @@ TEST(Multires, CoarseBricksIntegrateExactlyTheirStretchOfEveryRay) {
   const VolumeOctree t = VolumeOctree::build(v);
   const Selection sel = cutAt(t, [](const OctreeNode& n) { return n.origin.x < 32 ? 16 : 32; });
   const TransferFunction tf = test::constantTf(0.05f);
-  Camera cam;
-  cam.eye = glm::dvec3(150, 75, 110);
-  cam.center = glm::dvec3(32, 32, 32);
-  cam.up = glm::dvec3(0, 0, 1);
-  cam.fovDeg = 40;
-  cam.width = cam.height = 64;
+  const Camera cam = test::perspective(glm::dvec3(150, 75, 110), glm::dvec3(32, 32, 32), glm::dvec3(0, 0, 1), 40, 64);
   SlicesOptions so;
   so.shading = false;
   for (const Proxy proxy : {Proxy::Planes, Proxy::Shells}) {
@@ -591,14 +576,7 @@ Volume rodAndPlate(bool wall) {
 }
 
 // Looking along +x at the volume's centre from x = −150 mm.
-Camera alongX() {
-  Camera cam;
-  cam.eye = glm::dvec3(-150, 32, 32);
-  cam.center = glm::dvec3(32, 32, 32);
-  cam.up = glm::dvec3(0, 0, 1);
-  cam.width = cam.height = 64;
-  return cam;
-}
+Camera alongX() { return test::perspective(glm::dvec3(-150, 32, 32), glm::dvec3(32, 32, 32), glm::dvec3(0, 0, 1), 30, 64); }
 
 // The resolution level of the visible brick holding voxel @p p (−1 when none).
 int levelAt(const VolumeOctree& t, const Selection& sel, const glm::ivec3& p) {

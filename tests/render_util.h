@@ -44,6 +44,17 @@ inline Camera orthoDown(const glm::dvec3& centre, double height, int pixels) {
   return c;
 }
 
+/// A square perspective camera at @p eye looking at @p centre.
+inline Camera perspective(const glm::dvec3& eye, const glm::dvec3& centre, const glm::dvec3& up, double fovDeg, int pixels) {
+  Camera c;
+  c.eye = eye;
+  c.center = centre;
+  c.up = up;
+  c.fovDeg = fovDeg;
+  c.width = c.height = pixels;
+  return c;
+}
+
 /// A 3x3 perspective camera at (4, 4, 4) looking down -z: inside a volume that spans z = 0…8.
 inline Camera insideCamera() {
   Camera c;
