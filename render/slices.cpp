@@ -159,9 +159,9 @@ constexpr float kBlendSteepness = 2.0f;
 // box (SEGMENTS in the slice shader), so a level change shows no seam of sampling. With every
 // level at twice a texel a coarse brick cost half its region's fragments for an eighth of its
 // texels, and a budget bought little speed (cranium, 512², 1/8 of the bytes: 2.4× faster than full
-// resolution at 33.05 dB against the reference; now 3.5–3.7× at 32.4 dB; once a texel from two
-// voxels on: 4.4×, 31.9 dB; 4/3 a texel at every coarse level: 2.8–3.1×, 32.7 dB). The price is
-// the rings of sampling once a texel where a coarse brick holds a thin shell.
+// resolution at 33.05 dB against the reference; now 3.1–4.1× at 32.4 dB; once a texel from two
+// voxels on: 3.5–4.4×, 31.9 dB; 4/3 a texel at every coarse level: 2.8–3.1×, 32.7 dB). The price
+// is the rings of sampling once a texel where a coarse brick holds a thin shell.
 int slicePeriod(int step) { return step == 1 ? 1 : step == 2 ? 3 : 2 * step; }
 
 // The texels of brick @p b, value and shading gradient: its lattice's knot values (samples, or
@@ -172,7 +172,7 @@ int slicePeriod(int step) { return step == 1 ? 1 : step == 2 ? 3 : 2 * step; }
 // knots, interpolated between them, like a simplified mesh that keeps its original normals: the
 // gradient costs its three channels whatever it holds, and the coarse field's own differences
 // shade a coarse brick wrongly where the data vary within a texel (cranium, 512², against the
-// reference: 1/8 of the texture bytes 31.7 -> 33.0 dB, 1/4 32.2 -> 33.1).
+// reference: 1/8 of the texture bytes 31.7 -> 33.05 dB, 1/4 32.2 -> 33.2).
 std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const Brick& b) {
   const OctreeNode& n = t.nodes()[b.node];
   const KnotLattice fine = t.lattice(n, b.p);
