@@ -342,22 +342,23 @@ bool visibleBox(const BrickRanges& r, const KnotLattice& L, const LutSupport& su
   return true;
 }
 
-// For planes f·X = k·delta, k in [kLo, kLo + boxes->size()): the box (mm) of the visible blocks
-// each plane meets (empty boxes have lo > hi). A block meets the planes between the depths of its
-// nearest and farthest corners.
-void planeBoxes(const BrickRanges& r, const KnotLattice& L, const LutSupport& support, const glm::dvec3& spacing, const glm::dvec3& f,
+// For proxies at depth k·delta, k in [kLo, kLo + boxes->size()): the box (mm) of the visible
+// blocks each proxy meets (empty boxes have lo > hi). A block meets the proxies between the depths
+// @p depthRange gives for its box: planes f·X between its nearest and farthest corners, shells
+// |X − eye| between its nearest point and farthest corner.
+template <class DepthRange>
+void proxyBoxes(const BrickRanges& r, const KnotLattice& L, const LutSupport& support, const glm::dvec3& spacing, const DepthRange& depthRange,
                 double delta, long long kLo, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes) {
   const long long count = (long long)boxes->size();
   std::fill(boxes->begin(), boxes->end(), std::pair{glm::dvec3(1e300), glm::dvec3(-1e300)});
-  const glm::dvec3 nearSide(glm::greaterThan(f, glm::dvec3(0.0)));  // 1 where the near corner takes lo
   forEachVisibleBlock(r, support, [&](const glm::ivec3& b) {
     glm::dvec3 lo, hi;
     blockBox(L, b, b, &lo, &hi);
     lo *= spacing;
     hi *= spacing;
-    const glm::dvec3 nearCorner = glm::mix(hi, lo, nearSide);
-    const long long k0 = std::max((long long)std::ceil(glm::dot(f, nearCorner) / delta) - kLo, 0LL);
-    const long long k1 = std::min((long long)std::floor(glm::dot(f, lo + hi - nearCorner) / delta) - kLo, count - 1);
+    const auto [near, far] = depthRange(lo, hi);
+    const long long k0 = std::max((long long)std::ceil(near / delta) - kLo, 0LL);
+    const long long k1 = std::min((long long)std::floor(far / delta) - kLo, count - 1);
     for (long long k = k0; k <= k1; ++k) {
       auto& [ulo, uhi] = (*boxes)[size_t(k)];
       ulo = glm::min(ulo, lo);
@@ -817,7 +818,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     double delta = 0.0;
     glm::dvec3 blo{0.0}, bhi{0.0}, slo{0.0}, shi{0.0};
     ShellFrame frame{};
-    const BrickRanges* ranges = nullptr;  // planes: each slice is cut from the box of the blocks it meets
+    const BrickRanges* ranges = nullptr;  // each slice or shell is cut from the box of the blocks it meets
     KnotLattice lattice{};
     // Built by the worker:
     std::vector<float> stream;  // 9 floats a vertex: position, normal, kind and slab
@@ -904,7 +905,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         d.sliced = visibleBox(brick.ranges, fine, support, &vlo, &vhi);
         d.slo = glm::max(d.blo, vlo * spacing);
         d.shi = glm::min(d.bhi, vhi * spacing);
-        if (d.sliced && !d.shell) {
+        if (d.sliced) {
           d.ranges = cached ? &cached->ranges : &frameRanges.emplace_back(std::move(made.ranges));
           d.lattice = fine;
         }
@@ -1095,7 +1096,18 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     std::vector<std::pair<glm::dvec3, glm::dvec3>>& boxes = scratch.boxes;
     if (d.ranges) {
       boxes.resize(size_t(kHi - kLo + 1));
-      planeBoxes(*d.ranges, d.lattice, support, spacing, f, d.delta, kLo, &boxes);
+      if (d.shell)
+        proxyBoxes(*d.ranges, d.lattice, support, spacing, [&](const glm::dvec3& lo, const glm::dvec3& hi) {
+          double far = 0.0;
+          for (int c = 0; c < 8; ++c)
+            far = std::max(far, glm::length(glm::dvec3(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z) - camera.eye));
+          return std::pair{glm::length(camera.eye - glm::clamp(camera.eye, lo, hi)), far};
+        }, d.delta, kLo, &boxes);
+      else
+        proxyBoxes(*d.ranges, d.lattice, support, spacing, [&](const glm::dvec3& lo, const glm::dvec3& hi) {
+          const glm::dvec3 nearCorner = glm::mix(hi, lo, glm::dvec3(glm::greaterThan(f, glm::dvec3(0.0))));
+          return std::pair{glm::dot(f, nearCorner), glm::dot(f, lo + hi - nearCorner)};
+        }, d.delta, kLo, &boxes);
     }
     size_t next = 0;
     for (long long k = kHi; k >= kLo; --k) {
@@ -1109,7 +1121,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         hi = glm::min(hi, boxes[size_t(k - kLo)].second);
       }
       if (d.sliced && plane >= bmin && plane < bmax && glm::all(glm::lessThanEqual(lo, hi)) &&
-          (d.shell ? plane > 0.0 && shellPolygon(d.slo, d.shi, camera.eye, d.frame, plane, shellCells(plane), &one)
+          (d.shell ? plane > 0.0 && shellPolygon(lo, hi, camera.eye, d.frame, plane, shellCells(plane), &one)
                    : slicePolygon(lo, hi, f, plane, &one))) {
         emitSlice(one);
         ++d.counts.slices;
