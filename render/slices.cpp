@@ -732,7 +732,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     glUniform1f(glGetUniformLocation(id, "tfSize"), float(LutLayout::kSize));
   };
   // The slice program, in two variants: bricks sliced at the base spacing, and bricks sliced
-  // coarser, whose fragments cut their segment to the brick's box (SEGMENTS; ~15 % of a fragment's
+  // coarser, whose fragments cut their segment to the brick's box (SEGMENTS; 6–14 % of a fragment's
   // time, which full resolution need not pay: its planes tile every ray across bricks already).
   struct SliceProgram {
     GLuint id = 0;
