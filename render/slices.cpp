@@ -344,8 +344,7 @@ bool visibleBox(const BrickRanges& r, const KnotLattice& L, const LutSupport& su
 
 // For proxies at depth k·delta, k in [kLo, kLo + boxes->size()): the box (mm) of the visible
 // blocks each proxy meets (empty boxes have lo > hi). A block meets the proxies between the depths
-// @p depthRange gives for its box: planes f·X between its nearest and farthest corners, shells
-// |X − eye| between its nearest point and farthest corner.
+// @p depthRange gives for its box (mm).
 template <class DepthRange>
 void proxyBoxes(const BrickRanges& r, const KnotLattice& L, const LutSupport& support, const glm::dvec3& spacing, const DepthRange& depthRange,
                 double delta, long long kLo, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes) {
@@ -1030,15 +1029,20 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       }
     };
     // Proxies: global planes f·X = k·delta, or shells |X − eye| = k·delta (LaMar 1999); "depth"
-    // below is f·X or |X − eye| accordingly. This brick owns the proxies with depth in [bmin, bmax).
-    double bmin = 1e300, bmax = -1e300;
-    for (int c = 0; c < 8; ++c) {
-      const glm::dvec3 p((c & 1) ? d.bhi.x : d.blo.x, (c & 2) ? d.bhi.y : d.blo.y, (c & 4) ? d.bhi.z : d.blo.z);
-      const double depth = d.shell ? glm::length(p - camera.eye) : glm::dot(f, p);
-      bmin = std::min(bmin, depth);
-      bmax = std::max(bmax, depth);
-    }
-    if (d.shell) bmin = glm::length(camera.eye - glm::clamp(camera.eye, d.blo, d.bhi));
+    // below is f·X or |X − eye| accordingly. The depths a box [lo, hi] spans: planes between its
+    // nearest and farthest corners, shells between its nearest point and farthest corner.
+    const glm::dvec3 nearSide(glm::greaterThan(f, glm::dvec3(0.0)));  // 1 where a box's nearest corner takes lo
+    auto depthRange = [&](const glm::dvec3& lo, const glm::dvec3& hi) {
+      if (!d.shell) {
+        const glm::dvec3 nearCorner = glm::mix(hi, lo, nearSide);
+        return std::pair{glm::dot(f, nearCorner), glm::dot(f, lo + hi - nearCorner)};
+      }
+      double far = 0.0;
+      for (int c = 0; c < 8; ++c) far = std::max(far, glm::length(glm::dvec3(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z) - camera.eye));
+      return std::pair{glm::length(camera.eye - glm::clamp(camera.eye, lo, hi)), far};
+    };
+    // This brick owns the proxies with depth in [bmin, bmax).
+    const auto [bmin, bmax] = depthRange(d.blo, d.bhi);
     // Shell tessellation: chords whose sagitta stays below a quarter of the spacing.
     auto shellCells = [&](double r) {
       const double theta = 2.0 * std::acos(std::max(-1.0, 1.0 - d.delta / (4.0 * r)));
@@ -1096,18 +1100,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     std::vector<std::pair<glm::dvec3, glm::dvec3>>& boxes = scratch.boxes;
     if (d.ranges) {
       boxes.resize(size_t(kHi - kLo + 1));
-      if (d.shell)
-        proxyBoxes(*d.ranges, d.lattice, support, spacing, [&](const glm::dvec3& lo, const glm::dvec3& hi) {
-          double far = 0.0;
-          for (int c = 0; c < 8; ++c)
-            far = std::max(far, glm::length(glm::dvec3(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z) - camera.eye));
-          return std::pair{glm::length(camera.eye - glm::clamp(camera.eye, lo, hi)), far};
-        }, d.delta, kLo, &boxes);
-      else
-        proxyBoxes(*d.ranges, d.lattice, support, spacing, [&](const glm::dvec3& lo, const glm::dvec3& hi) {
-          const glm::dvec3 nearCorner = glm::mix(hi, lo, glm::dvec3(glm::greaterThan(f, glm::dvec3(0.0))));
-          return std::pair{glm::dot(f, nearCorner), glm::dot(f, lo + hi - nearCorner)};
-        }, d.delta, kLo, &boxes);
+      proxyBoxes(*d.ranges, d.lattice, support, spacing, depthRange, d.delta, kLo, &boxes);
     }
     size_t next = 0;
     for (long long k = kHi; k >= kLo; --k) {
