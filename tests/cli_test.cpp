@@ -9,6 +9,7 @@
 
 #include "apps/bench.h"
 #include "render/image.h"
+#include "cli_util.h"
 #include "test_util.h"
 
 namespace hyb {
@@ -17,29 +18,10 @@ namespace {
 using ::testing::HasSubstr;
 using ::testing::Not;
 
-struct CliRun {
-  int status;
-  std::string out, err;
-};
-
-CliRun run(std::vector<std::string> args) {
-  args.insert(args.begin(), "hybrid-octree");
-  std::vector<const char*> argv;
-  for (const auto& a : args) argv.push_back(a.c_str());
-  std::ostringstream out, err;
-  const int status = app::runMain(int(argv.size()), argv.data(), out, err);
-  return {status, out.str(), err.str()};
-}
-
-size_t lines(const std::string& s) { return size_t(std::count(s.begin(), s.end(), '\n')); }
-
-// Bad input: exit status 2 and exactly one line on stderr mentioning @p named.
-void expectBadInput(const std::vector<std::string>& args, const std::string& named) {
-  const CliRun r = run(args);
-  EXPECT_EQ(r.status, 2) << r.err;
-  EXPECT_EQ(lines(r.err), size_t(1)) << r.err;
-  EXPECT_THAT(r.err, HasSubstr(named));
-}
+using test::CliRun;
+using test::expectBadInput;
+using test::lines;
+using test::run;
 
 std::string writeNrrd(const test::TempDir& dir, const std::string& name, const std::string& header, const std::vector<uint8_t>& raw) {
   test::writeBytes(dir.file(name + ".raw"), raw);
