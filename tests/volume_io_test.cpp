@@ -10,6 +10,9 @@
 #include <nifti1.h>
 #include <zlib.h>
 
+#include <iomanip>
+#include <sstream>
+
 #include "test_util.h"
 #include "volume/file_util.h"
 
@@ -81,6 +84,43 @@ void expectRejected(const std::string& path, const std::string& named, const std
     EXPECT_THAT(msg, HasSubstr(what));
     EXPECT_EQ(msg.find('\n'), std::string::npos) << "message must be one line: " << msg;
   }
+}
+
+// Patient space: every reader keeps the index-to-patient transform (LPS), from files written by
+// the tests with known directions and origins: a flip, a permutation and an oblique rotation.
+struct Geometry {
+  const char* name;
+  glm::dmat3 direction;  // columns: the i, j, k axes in LPS
+  glm::dvec3 origin;     // LPS mm
+};
+
+glm::dmat3 rotation(double xDeg, double zDeg) {
+  const double a = glm::radians(xDeg), b = glm::radians(zDeg);
+  const glm::dmat3 rx(glm::dvec3(1, 0, 0), glm::dvec3(0, std::cos(a), std::sin(a)), glm::dvec3(0, -std::sin(a), std::cos(a)));
+  const glm::dmat3 rz(glm::dvec3(std::cos(b), std::sin(b), 0), glm::dvec3(-std::sin(b), std::cos(b), 0), glm::dvec3(0, 0, 1));
+  return rx * rz;
+}
+
+std::vector<Geometry> geometries() {
+  return {{"flip (LAS)", glm::dmat3(glm::dvec3(1, 0, 0), glm::dvec3(0, -1, 0), glm::dvec3(0, 0, 1)), {10, -20, 30}},
+          {"permutation (SLP)", glm::dmat3(glm::dvec3(0, 0, 1), glm::dvec3(1, 0, 0), glm::dvec3(0, 1, 0)), {-5, 7.5, 100}},
+          {"oblique", rotation(20, 30), {1.25, 2.5, -3.75}}};
+}
+
+const glm::dvec3 kSpacing(0.5, 0.75, 2.5);
+
+void expectFrame(const Volume& v, const Geometry& g, double tolerance) {
+  for (int c = 0; c < 3; ++c) {
+    for (int r = 0; r < 3; ++r) EXPECT_NEAR(v.frame().direction[c][r], g.direction[c][r], tolerance) << g.name << " axis " << c;
+    EXPECT_NEAR(v.frame().origin[c], g.origin[c], tolerance * 100) << g.name;
+    EXPECT_NEAR(v.spacing()[c], kSpacing[c], tolerance) << g.name;
+  }
+}
+
+std::string vec(const glm::dvec3& v, const char* open = "(", const char* sep = ",", const char* close = ")") {
+  std::ostringstream s;
+  s << std::setprecision(17) << open << v.x << sep << v.y << sep << v.z << close;
+  return s.str();
 }
 
 const char* kNrrdHeader =
@@ -384,7 +424,10 @@ TEST(Inv3Reader, RealCraniumLoadsInHounsfieldUnits) {
 // ---------------------------------------------------------------------------------------------
 // DICOM series (written with GDCM, shuffled file names, rescale to HU)
 
-void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels, double z, const std::string& seriesUid) {
+// One CT slice of kDims.x x kDims.y pixels at Image Position @p position with Image Orientation
+// @p cosines (rows' direction, then columns').
+void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels, const glm::dvec3& position, const std::string& seriesUid,
+                     const double (&cosines)[6] = {1, 0, 0, 0, 1, 0}, const std::string& description = "") {
   gdcm::ImageWriter w;
   gdcm::Image& im = w.GetImage();
   im.SetNumberOfDimensions(2);
@@ -392,10 +435,7 @@ void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels
   im.SetDimension(1, unsigned(kDims.y));
   im.SetSpacing(0, 0.5);
   im.SetSpacing(1, 0.75);
-  im.SetOrigin(0, 10.0);
-  im.SetOrigin(1, -5.0);
-  im.SetOrigin(2, z);
-  const double cosines[6] = {1, 0, 0, 0, 1, 0};
+  for (unsigned a = 0; a < 3; ++a) im.SetOrigin(a, position[int(a)]);
   im.SetDirectionCosines(cosines);
   im.SetPixelFormat(gdcm::PixelFormat::INT16);
   im.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
@@ -414,21 +454,35 @@ void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels
   gdcm::Attribute<0x0020, 0x000e> series;
   series.SetValue(seriesUid);
   ds.Replace(series.GetAsDataElement());
+  if (!description.empty()) {
+    gdcm::Attribute<0x0008, 0x103e> text;
+    text.SetValue(description);
+    ds.Replace(text.GetAsDataElement());
+  }
+  gdcm::Attribute<0x0018, 0x0050> thickness;
+  thickness.SetValue(2.0);
+  ds.Replace(thickness.GetAsDataElement());
   w.SetFileName(path.c_str());
   ASSERT_TRUE(w.Write()) << path;
 }
 
-TEST(DicomReader, SeriesSortedByPositionWithRescale) {
-  TempDir dir;
+// Slice k of the expected samples, stored as HU + 1024.
+std::vector<int16_t> storedSlice(int k) {
   const auto all = expectedSamples();
   const size_t slice = size_t(kDims.x) * kDims.y;
+  std::vector<int16_t> px(all.begin() + ptrdiff_t(size_t(k) * slice), all.begin() + ptrdiff_t(size_t(k + 1) * slice));
+  for (int16_t& p : px) p = int16_t(p + 1024);
+  return px;
+}
+
+TEST(DicomReader, SeriesSortedByPositionWithRescale) {
+  TempDir dir;
   // Stored value = HU + 1024; slices written in a shuffled order under names that do not sort.
   const int order[5] = {3, 0, 4, 1, 2};
   for (int f = 0; f < 5; ++f) {
     const int k = order[f];
-    std::vector<int16_t> px(all.begin() + ptrdiff_t(k * slice), all.begin() + ptrdiff_t((k + 1) * slice));
-    for (int16_t& p : px) p = int16_t(p + 1024);
-    writeDicomSlice(dir.file("img" + std::to_string(f) + ".dcm"), px, 100.0 + 2.5 * k, "1.2.826.0.1.3680043.2.1125.1");
+    writeDicomSlice(dir.file("img" + std::to_string(f) + ".dcm"), storedSlice(k), glm::dvec3(10.0, -5.0, 100.0 + 2.5 * k),
+                    "1.2.826.0.1.3680043.2.1125.1");
   }
   writeText(dir.file("notes.txt"), "not dicom");
   const Volume v = readVolume(dir.path().string());
@@ -439,12 +493,261 @@ TEST(DicomReader, SeriesSortedByPositionWithRescale) {
   for (int k = 0; k < kDims.z; ++k)
     for (int j = 0; j < kDims.y; ++j)
       for (int i = 0; i < kDims.x; ++i) ASSERT_EQ(v.at(i, j, k), float(expectedValue(i, j, k)));
+  EXPECT_EQ(v.frame().direction, glm::dmat3(1.0));
+  EXPECT_EQ(v.frame().origin, glm::dvec3(10.0, -5.0, 100.0));
+  EXPECT_EQ(v.infoValue("modality"), "CT");
+  EXPECT_THAT(v.infoValue("thickness"), HasSubstr("2 mm"));
+  EXPECT_THAT(v.infoValue("rescale"), HasSubstr("intercept -1024"));
+  EXPECT_TRUE(v.warnings().empty());
+}
+
+// Image Orientation gives i and j, the slices' order along their normal gives k, the first
+// position the origin: exactly, for a flip, a permutation and an oblique rotation (DICOM frames
+// are right-handed: k = i x j).
+TEST(DicomReader, OrientationAndPositionGiveThePatientFrame) {
+  for (Geometry g : geometries()) {
+    TempDir dir;
+    g.direction[2] = glm::cross(g.direction[0], g.direction[1]);
+    const double cosines[6] = {g.direction[0].x, g.direction[0].y, g.direction[0].z, g.direction[1].x, g.direction[1].y, g.direction[1].z};
+    for (int k = 0; k < kDims.z; ++k)
+      writeDicomSlice(dir.file(std::to_string((k * 3) % 5).append(".dcm")), storedSlice(k), g.origin + g.direction[2] * (2.5 * k), "1.2.3", cosines);
+    const Volume v = readVolume(dir.path().string());
+    expectFrame(v, g, 1e-6);  // DICOM keeps decimal strings of 16 characters
+    for (int j = 0; j < kDims.y; ++j) ASSERT_EQ(v.at(1, j, 3), float(expectedValue(1, j, 3))) << g.name;
+  }
+}
+
+TEST(DicomReader, GantryTiltAndUnevenSpacingAreRefused) {
+  TempDir tilt, uneven;
+  for (int k = 0; k < kDims.z; ++k) {
+    // Each slice 0.4 mm further along y than the last: the positions leave the normal (z).
+    writeDicomSlice(tilt.file(std::to_string(k).append(".dcm")), storedSlice(k), glm::dvec3(0.0, 0.4 * k, 2.5 * k), "1.2.3");
+    writeDicomSlice(uneven.file(std::to_string(k).append(".dcm")), storedSlice(k), glm::dvec3(0.0, 0.0, k < 3 ? 2.5 * k : 3.0 * k), "1.2.3");
+  }
+  expectRejected(tilt.path().string(), tilt.path().string(), "gantry tilt");
+  expectRejected(uneven.path().string(), uneven.path().string(), "not evenly spaced");
+}
+
+TEST(DicomReader, SeveralSeriesAreListedAndOneIsChosen) {
+  TempDir dir;
+  for (int k = 0; k < kDims.z; ++k)
+    writeDicomSlice(dir.file("a" + std::to_string(k) + ".dcm"), storedSlice(k), glm::dvec3(0.0, 0.0, 2.5 * k), "1.2.3.100", {1, 0, 0, 0, 1, 0}, "head soft");
+  for (int k = 0; k < 3; ++k)
+    writeDicomSlice(dir.file("b" + std::to_string(k) + ".dcm"), storedSlice(k), glm::dvec3(0.0, 0.0, 1.0 * k), "1.2.3.200", {1, 0, 0, 0, 1, 0}, "scout");
+  const std::vector<DicomSeriesInfo> all = listDicomSeries(dir.path().string());
+  ASSERT_EQ(all.size(), 2u);
+  EXPECT_EQ(all[0].uid, "1.2.3.100");
+  EXPECT_EQ(all[0].slices, 5u);
+  EXPECT_EQ(all[0].description, "head soft");
+  EXPECT_EQ(all[1].slices, 3u);
+  EXPECT_EQ(all[1].columns, kDims.x);
+  EXPECT_EQ(all[1].rows, kDims.y);
+  // The largest, with a warning that names it and the others.
+  const Volume largest = readVolume(dir.path().string());
+  EXPECT_EQ(largest.dims().z, 5);
+  ASSERT_EQ(largest.warnings().size(), 1u);
+  EXPECT_THAT(largest.warnings()[0], HasSubstr("2 series; reading the largest, '1.2.3.100' (CT, head soft, 5 slices of 4x3)"));
+  EXPECT_THAT(largest.warnings()[0], HasSubstr("--series"));
+  EXPECT_THAT(largest.warnings()[0], HasSubstr("'1.2.3.200' (CT, scout, 3 slices of 4x3)"));
+  // The one named, without a warning.
+  const Volume scout = readVolume(dir.path().string(), nullptr, "1.2.3.200");
+  EXPECT_EQ(scout.dims().z, 3);
+  EXPECT_NEAR(scout.spacing().z, 1.0, 1e-9);
+  EXPECT_TRUE(scout.warnings().empty());
+  try {
+    readVolume(dir.path().string(), nullptr, "9.9");
+    ADD_FAILURE() << "an unknown series was accepted";
+  } catch (const ValueError& e) {
+    EXPECT_THAT(e.what(), HasSubstr("--series '9.9': no such series"));
+    EXPECT_THAT(e.what(), HasSubstr("1.2.3.200"));
+  }
 }
 
 TEST(DicomReader, RejectsDirectoryWithoutDicom) {
   TempDir dir;
   writeText(dir.file("a.txt"), "hello");
   expectRejected(dir.path().string(), dir.path().string(), "no DICOM files");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Patient space in the readers (geometries() above)
+
+TEST(NrrdReader, SpaceDirectionsAndOriginInRasLasAndLps) {
+  TempDir dir;
+  const auto data = toBytes(expectedSamples());
+  for (const Geometry& g : geometries())
+    for (const auto& [space, sign] : {std::pair{"right-anterior-superior", glm::dvec3(-1, -1, 1)}, {"LAS", glm::dvec3(1, -1, 1)},
+                                      {"left-posterior-superior", glm::dvec3(1, 1, 1)}}) {
+      std::string header = std::string("NRRD0005\ntype: short\ndimension: 3\nsizes: 4 3 5\nspace: ") + space + "\nspace directions:";
+      for (int a = 0; a < 3; ++a) header.append(" ").append(vec(g.direction[a] * kSpacing[a] * sign));
+      header.append("\nspace origin: ").append(vec(g.origin * sign)).append("\nendian: little\nencoding: raw\n\n");
+      writeBytes(dir.file("v.nrrd"), concat(header, data));
+      const Volume v = readVolume(dir.file("v.nrrd"));
+      expectFrame(v, g, 1e-12);
+      EXPECT_TRUE(v.warnings().empty()) << v.warnings().front();
+      expectExpectedVolume(v, kSpacing);
+    }
+  // Space units: centimetres scale directions and origin.
+  writeBytes(dir.file("cm.nrrd"), concat("NRRD0005\ntype: short\ndimension: 3\nsizes: 4 3 5\nspace: LPS\nspace units: \"cm\" \"cm\" \"cm\"\n"
+                                         "space directions: (0.05,0,0) (0,0.075,0) (0,0,0.25)\nspace origin: (1,2,3)\nendian: little\nencoding: raw\n\n",
+                                         data));
+  const Volume cm = readVolume(dir.file("cm.nrrd"));
+  EXPECT_EQ(cm.frame().origin, glm::dvec3(10, 20, 30));
+  EXPECT_NEAR(cm.spacing().z, 2.5, 1e-12);
+  // No space directions: identity, with a warning that says so.
+  writeBytes(dir.file("plain.nrrd"), concat(std::string(kNrrdHeader) + "endian: little\nencoding: raw\n\n", data));
+  const Volume plain = readVolume(dir.file("plain.nrrd"));
+  EXPECT_EQ(plain.frame().direction, glm::dmat3(1.0));
+  ASSERT_EQ(plain.warnings().size(), 1u);
+  EXPECT_THAT(plain.warnings()[0], HasSubstr("orientation unknown"));
+  // A sheared grid and an unknown space are refused.
+  writeBytes(dir.file("shear.nrrd"), concat("NRRD0005\ntype: short\ndimension: 3\nsizes: 4 3 5\nspace: LPS\n"
+                                            "space directions: (0.5,0,0) (0,0.75,0) (0,0.5,2.5)\nendian: little\nencoding: raw\n\n", data));
+  expectRejected(dir.file("shear.nrrd"), "shear.nrrd", "not orthogonal");
+  writeBytes(dir.file("sp.nrrd"), concat("NRRD0005\ntype: short\ndimension: 3\nsizes: 4 3 5\nspace: right-anterior-superior-time\n"
+                                         "space directions: (0.5,0,0) (0,0.75,0) (0,0,2.5)\nendian: little\nencoding: raw\n\n", data));
+  expectRejected(dir.file("sp.nrrd"), "sp.nrrd", "space 'right-anterior-superior-time' unsupported");
+}
+
+TEST(MetaImageReader, OffsetTransformMatrixAndAnatomicalOrientation) {
+  TempDir dir;
+  const auto data = toBytes(expectedSamples());
+  writeBytes(dir.file("v.raw"), data);
+  const std::string head = "ObjectType = Image\nNDims = 3\nDimSize = 4 3 5\nElementSpacing = 0.5 0.75 2.5\nElementType = MET_SHORT\n";
+  for (const Geometry& g : geometries()) {
+    std::string m = "TransformMatrix =";
+    for (int a = 0; a < 3; ++a) m += vec(g.direction[a], " ", " ", "");  // row a: axis a's direction (ITK)
+    writeText(dir.file("v.mhd"), head + m + "\nOffset =" + vec(g.origin, " ", " ", "") + "\nElementDataFile = v.raw\n");
+    const Volume v = readVolume(dir.file("v.mhd"));
+    expectFrame(v, g, 1e-12);
+    EXPECT_TRUE(v.warnings().empty());
+  }
+  // AnatomicalOrientation alone: "RPI" names where the axes come from (R, P, I), so they point
+  // to L, A, S.
+  writeText(dir.file("a.mhd"), head + "AnatomicalOrientation = RPI\nPosition = 1 2 3\nElementDataFile = v.raw\n");
+  const Volume a = readVolume(dir.file("a.mhd"));
+  expectFrame(a, {"RPI", glm::dmat3(glm::dvec3(1, 0, 0), glm::dvec3(0, -1, 0), glm::dvec3(0, 0, 1)), {1, 2, 3}}, 0.0);
+  // A matrix that disagrees with the letters wins, with a warning naming both.
+  writeText(dir.file("d.mhd"), head + "TransformMatrix = 1 0 0 0 1 0 0 0 1\nAnatomicalOrientation = RPI\nElementDataFile = v.raw\n");
+  const Volume d = readVolume(dir.file("d.mhd"));
+  EXPECT_EQ(d.frame().direction, glm::dmat3(1.0));
+  ASSERT_EQ(d.warnings().size(), 1u);
+  EXPECT_THAT(d.warnings()[0], HasSubstr("disagrees with TransformMatrix (LPS)"));
+  writeText(dir.file("b.mhd"), head + "TransformMatrix = 1 0 0 0 1\nElementDataFile = v.raw\n");
+  expectRejected(dir.file("b.mhd"), "b.mhd", "TransformMatrix '1 0 0 0 1' malformed");
+}
+
+// A NIfTI-1 header with the given sform (RAS rows, code 1) and/or qform (code 1).
+std::vector<uint8_t> orientedNifti(const std::vector<uint8_t>& data, const glm::dmat3* sformDirection, const glm::dvec3& sformOrigin,
+                                   const glm::dmat3* qformDirection, const glm::dvec3& qformOrigin) {
+  std::vector<uint8_t> b = niftiFile(0.0f, 0.0f, data);
+  nifti_1_header h;
+  std::memcpy(&h, b.data(), sizeof h);
+  h.xyzt_units = NIFTI_UNITS_MM;
+  if (sformDirection) {
+    h.sform_code = NIFTI_XFORM_SCANNER_ANAT;
+    float* rows[3] = {h.srow_x, h.srow_y, h.srow_z};
+    const glm::dvec3 o = rasToLps(sformOrigin);
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) rows[r][c] = float(rasToLps((*sformDirection)[c])[r] * kSpacing[c]);
+      rows[r][3] = float(o[r]);
+    }
+  }
+  if (qformDirection) {
+    // The quaternion of the RAS rotation; a left-handed one stores qfac = −1 and its third column negated.
+    glm::dmat3 r;
+    for (int c = 0; c < 3; ++c) r[c] = rasToLps((*qformDirection)[c]);
+    h.pixdim[0] = glm::determinant(r) < 0 ? -1.0f : 1.0f;
+    if (h.pixdim[0] < 0) r[2] = -r[2];
+    // (a, b, c, d) from the largest of the four diagonal combinations (R[row][col] = r[col][row]).
+    auto R = [&](int row, int col) { return r[col][row]; };
+    const double t[4] = {1 + R(0, 0) + R(1, 1) + R(2, 2), 1 + R(0, 0) - R(1, 1) - R(2, 2), 1 - R(0, 0) + R(1, 1) - R(2, 2),
+                         1 - R(0, 0) - R(1, 1) + R(2, 2)};
+    const int k = int(std::max_element(t, t + 4) - t);
+    const double s = 0.5 / std::sqrt(t[k]);
+    double q[4] = {0, 0, 0, 0};  // a, b, c, d
+    if (k == 0) q[0] = 0.25 / s, q[1] = (R(2, 1) - R(1, 2)) * s, q[2] = (R(0, 2) - R(2, 0)) * s, q[3] = (R(1, 0) - R(0, 1)) * s;
+    if (k == 1) q[1] = 0.25 / s, q[0] = (R(2, 1) - R(1, 2)) * s, q[2] = (R(0, 1) + R(1, 0)) * s, q[3] = (R(0, 2) + R(2, 0)) * s;
+    if (k == 2) q[2] = 0.25 / s, q[0] = (R(0, 2) - R(2, 0)) * s, q[1] = (R(0, 1) + R(1, 0)) * s, q[3] = (R(1, 2) + R(2, 1)) * s;
+    if (k == 3) q[3] = 0.25 / s, q[0] = (R(1, 0) - R(0, 1)) * s, q[1] = (R(0, 2) + R(2, 0)) * s, q[2] = (R(1, 2) + R(2, 1)) * s;
+    const double sign = q[0] < 0 ? -1.0 : 1.0;  // NIfTI keeps a >= 0
+    h.qform_code = NIFTI_XFORM_SCANNER_ANAT;
+    h.quatern_b = float(sign * q[1]);
+    h.quatern_c = float(sign * q[2]);
+    h.quatern_d = float(sign * q[3]);
+    const glm::dvec3 o = rasToLps(qformOrigin);
+    h.qoffset_x = float(o.x);
+    h.qoffset_y = float(o.y);
+    h.qoffset_z = float(o.z);
+  }
+  std::memcpy(b.data(), &h, sizeof h);
+  return b;
+}
+
+TEST(NiftiReader, SformThenQformThenMethodOne) {
+  TempDir dir;
+  const auto data = toBytes(expectedSamples());
+  const glm::dmat3 sheared(glm::dvec3(1, 0, 0), glm::dvec3(0, 1, 0), glm::dvec3(0, 0.3, 1));
+  for (const Geometry& g : geometries()) {
+    // The sform alone, then the sform over a different qform: the sform wins.
+    const glm::dmat3 other(1.0);
+    writeBytes(dir.file("s.nii"), orientedNifti(data, &g.direction, g.origin, nullptr, {}));
+    expectFrame(readVolume(dir.file("s.nii")), g, 1e-6);
+    writeBytes(dir.file("sq.nii"), orientedNifti(data, &g.direction, g.origin, &other, {0, 0, 0}));
+    expectFrame(readVolume(dir.file("sq.nii")), g, 1e-6);
+    // The qform alone (quaternion and qfac), and under a sheared sform, which gives way to it.
+    writeBytes(dir.file("q.nii"), orientedNifti(data, nullptr, {}, &g.direction, g.origin));
+    const Volume q = readVolume(dir.file("q.nii"));
+    expectFrame(q, g, 1e-6);
+    EXPECT_TRUE(q.warnings().empty());
+    writeBytes(dir.file("shq.nii"), orientedNifti(data, &sheared, {0, 0, 0}, &g.direction, g.origin));
+    const Volume shq = readVolume(dir.file("shq.nii"));
+    expectFrame(shq, g, 1e-6);
+    ASSERT_EQ(shq.warnings().size(), 1u);
+    EXPECT_THAT(shq.warnings()[0], HasSubstr("the qform is used instead"));
+  }
+  writeBytes(dir.file("sh.nii"), orientedNifti(data, &sheared, {0, 0, 0}, nullptr, {}));
+  expectRejected(dir.file("sh.nii"), "sh.nii (sform)", "not orthogonal");
+  // Neither: method 1, RAS axes, and a warning.
+  writeBytes(dir.file("none.nii"), niftiFile(0.0f, 0.0f, data));
+  const Volume none = readVolume(dir.file("none.nii"));
+  EXPECT_EQ(orientationCode(none.frame().direction), "RAS");
+  ASSERT_EQ(none.warnings().size(), 1u);
+  EXPECT_THAT(none.warnings()[0], HasSubstr("method 1"));
+}
+
+TEST(Inv3Reader, MatrixIsLasAndAStoredAffineIsUndone) {
+  TempDir dir;
+  const std::string shape = "<integer>5</integer><integer>3</integer><integer>4</integer>";
+  writeInv3(dir.file("p.inv3"), inv3Plist(shape), toBytes(expectedSamples()));
+  const Volume p = readVolume(dir.file("p.inv3"));
+  EXPECT_EQ(orientationCode(p.frame().direction), "LAS");
+  EXPECT_EQ(p.frame().origin, glm::dvec3(0.0));
+  // A project imported from NIfTI stores the inverse of the canonical (RAS) image's rigid
+  // transform, its rows flipped into the matrix: voxel (i, j, k) is canonical voxel (i, ny−1−j, k).
+  const glm::dmat3 r = rotation(10, -25);
+  const glm::dvec3 t(12.5, -40, 7);
+  glm::dmat4 rigid(r);
+  rigid[3] = glm::dvec4(t, 1.0);
+  const glm::dmat4 stored = glm::inverse(rigid);
+  std::ostringstream affine;
+  affine << std::setprecision(17) << "<key>affine</key><array>";
+  for (int row = 0; row < 4; ++row) {
+    affine << "<array>";
+    for (int c = 0; c < 4; ++c) affine << "<real>" << stored[c][row] << "</real>";
+    affine << "</array>";
+  }
+  affine << "</array>\n";
+  std::string plist = inv3Plist(shape);
+  plist.insert(plist.find("<key>modality</key>"), affine.str());
+  writeInv3(dir.file("n.inv3"), plist, toBytes(expectedSamples()));
+  const Volume n = readVolume(dir.file("n.inv3"));
+  for (const glm::ivec3 ijk : {glm::ivec3(0, 0, 0), glm::ivec3(3, 1, 4), glm::ivec3(1, 2, 0)}) {
+    const glm::dvec3 canonical(ijk.x * 0.5, (kDims.y - 1 - ijk.y) * 0.75, ijk.z * 2.5);
+    const glm::dvec3 expected = rasToLps(r * canonical + t);
+    const glm::dvec3 got = n.frame().toPatient(glm::dvec3(ijk) * n.spacing());
+    for (int a = 0; a < 3; ++a) EXPECT_NEAR(got[a], expected[a], 1e-9) << ijk.x << "," << ijk.y << "," << ijk.z;
+  }
 }
 
 TEST(FileUtil, AtomicWriteLeavesNothingBehindOnFailure) {

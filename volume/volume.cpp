@@ -127,6 +127,12 @@ glm::vec3 Volume::sampleGradient(const glm::vec3& p) const {
   return glm::mix(glm::mix(c00, c10, t.y), glm::mix(c01, c11, t.y), t.z);
 }
 
+std::string Volume::infoValue(const std::string& key) const {
+  for (const auto& [k, v] : mInfo)
+    if (k == key) return v;
+  return "";
+}
+
 std::string Volume::toString() const {
   std::ostringstream s;
   s << "dims     " << mDims.x << " x " << mDims.y << " x " << mDims.z << " (" << voxelCount() << " voxels)\n";
@@ -135,6 +141,25 @@ std::string Volume::toString() const {
   s << "extent   " << e.x << " x " << e.y << " x " << e.z << " mm\n";
   s << "type     " << scalarName(mSourceType) << " (" << sourceBytes() << " bytes)\n";
   s << "range    " << mMin << " .. " << mMax << "\n";
+  const glm::dvec3 o = mFrame.origin;
+  s << "origin   " << o.x << ", " << o.y << ", " << o.z << " mm (LPS: the centre of voxel 0,0,0)\n";
+  const glm::dmat3& d = mFrame.direction;
+  for (int row = 0; row < 3; ++row) {
+    s << (row == 0 ? "direction" : "         ");
+    for (int c = 0; c < 3; ++c) s << " " << std::setw(10) << std::fixed << std::setprecision(6) << (d[c][row] == 0.0 ? 0.0 : d[c][row]);
+    s << (row == 0 ? "   (columns: the i, j, k axes in LPS)" : "") << "\n";
+  }
+  s.unsetf(std::ios::floatfield);
+  glm::dvec3 lo(1e300), hi(-1e300);
+  for (int c = 0; c < 8; ++c) {
+    const glm::dvec3 p = mFrame.toPatient(glm::dvec3(c & 1 ? e.x : 0.0, c & 2 ? e.y : 0.0, c & 4 ? e.z : 0.0));
+    lo = glm::min(lo, p);
+    hi = glm::max(hi, p);
+  }
+  s << std::setprecision(7) << "bounds   x " << lo.x << " .. " << hi.x << ", y " << lo.y << " .. " << hi.y << ", z " << lo.z << " .. " << hi.z
+    << " mm (LPS: x towards the patient's left, y posterior, z superior)\n";
+  s << "orient   " << orientationCode(d) << " (each index increases towards: L/R left/right, P/A posterior/anterior, S/I superior/inferior)\n";
+  for (const auto& [k, v] : mInfo) s << std::left << std::setw(9) << k << std::right << v << "\n";
   return s.str();
 }
 
@@ -155,15 +180,24 @@ Histogram computeHistogram(const Volume& v, int bins) {
   const double n = double(std::max<size_t>(1, v.voxelCount()));
   h.mean = sum / n;
   h.stddev = std::sqrt(std::max(0.0, sum2 / n - h.mean * h.mean));
-  // Percentiles from the cumulative histogram, reported at bin centres.
+  // Exact percentiles (nearest rank: the smallest sample with at least q·n samples at or below it):
+  // a fine histogram finds the bin holding the rank, then only that bin's samples are ordered.
+  const int fineBins = 1 << 16;
+  const double fineWidth = (h.maxValue - h.minValue) / fineBins;
+  auto fineBin = [&](float x) { return fineWidth > 0 ? std::min(fineBins - 1, int((x - h.minValue) / fineWidth)) : 0; };
+  std::vector<uint64_t> fine(size_t(fineBins), 0);
+  for (float x : v.samples()) ++fine[size_t(fineBin(x))];
   auto percentile = [&](double q) {
-    const double target = q * n;
-    double acc = 0;
-    for (int b = 0; b < bins; ++b) {
-      acc += double(h.counts[size_t(b)]);
-      if (acc >= target) return h.minValue + (b + 0.5) * width;
-    }
-    return h.maxValue;
+    const uint64_t rank = std::max<uint64_t>(1, uint64_t(std::ceil(q * double(v.voxelCount()))));  // 1-based
+    uint64_t below = 0;
+    int b = 0;
+    while (below + fine[size_t(b)] < rank) below += fine[size_t(b++)];
+    std::vector<float> in;
+    in.reserve(size_t(fine[size_t(b)]));
+    for (float x : v.samples())
+      if (fineBin(x) == b) in.push_back(x);
+    std::nth_element(in.begin(), in.begin() + ptrdiff_t(rank - below - 1), in.end());
+    return double(in[size_t(rank - below - 1)]);
   };
   h.p01 = percentile(0.01);
   h.p50 = percentile(0.50);

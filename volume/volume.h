@@ -1,8 +1,9 @@
 // A scalar volume on a regular grid: dims, spacing, and samples with x varying fastest.
 //
-// World space is millimetres with voxel (i,j,k) centred at (i*sx, j*sy, k*sz); the data domain is
-// the box spanned by the voxel centres (DESIGN 2). Samples are kept as float, which holds every
-// 8- and 16-bit integer (so CT Hounsfield units stay exact) and the source type is remembered.
+// The grid frame is millimetres with voxel (i,j,k) centred at (i*sx, j*sy, k*sz); the data domain
+// is the box spanned by the voxel centres (DESIGN 2). The volume's PatientFrame places that frame
+// in the patient (LPS mm). Samples are kept as float, which holds every 8- and 16-bit integer (so
+// CT Hounsfield units stay exact) and the source type is remembered.
 #pragma once
 
 #include <glm/glm.hpp>
@@ -12,9 +13,11 @@
 #include <cstdint>
 #include <limits>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "volume/error.h"
+#include "volume/patient_frame.h"
 
 namespace hyb {
 
@@ -89,10 +92,23 @@ class Volume {
   /// 1988), clamped to the grid like sample().
   glm::vec3 sampleGradient(const glm::vec3& p) const;
 
-  /// World-space (mm) extent of the data domain: the box spanned by the voxel centres.
+  /// Grid-frame (mm) extent of the data domain: the box spanned by the voxel centres.
   glm::dvec3 extentMm() const { return glm::dvec3(mDims - 1) * mSpacing; }
 
-  /// Multi-line description: dims, spacing, type, range.
+  /// Where the grid lies in the patient (identity when the file does not say).
+  const PatientFrame& frame() const { return mFrame; }
+  void setFrame(const PatientFrame& frame) { mFrame = frame; }
+  /// What the file says of the acquisition, in reading order (e.g. "modality" -> "CT").
+  const std::vector<std::pair<std::string, std::string>>& info() const { return mInfo; }
+  void addInfo(const std::string& key, const std::string& value) { mInfo.emplace_back(key, value); }
+  /// The value of info @p key, or "".
+  std::string infoValue(const std::string& key) const;
+  /// What the reader had to assume or could not use, one sentence each (e.g. a file without
+  /// orientation read as RAS); the command line prints them as warnings.
+  const std::vector<std::string>& warnings() const { return mWarnings; }
+  void addWarning(const std::string& warning) { mWarnings.push_back(warning); }
+
+  /// Multi-line description: dims, spacing, type, range, patient frame.
   std::string toString() const;
 
  private:
@@ -104,12 +120,15 @@ class Volume {
   std::vector<float> mSamples;
   float mMin = 0.0f;
   float mMax = 0.0f;
+  PatientFrame mFrame;
+  std::vector<std::pair<std::string, std::string>> mInfo;
+  std::vector<std::string> mWarnings;
 };
 
 /// Value histogram with summary statistics, for `hybrid-octree info`.
 struct Histogram {
   double minValue = 0, maxValue = 0, mean = 0, stddev = 0;
-  double p01 = 0, p50 = 0, p99 = 0;  ///< 1st, 50th and 99th percentiles (bin centres)
+  double p01 = 0, p50 = 0, p99 = 0;  ///< 1st, 50th and 99th percentiles: samples of the volume (nearest rank)
   std::vector<uint64_t> counts;      ///< equal-width bins over [minValue, maxValue]
 };
 

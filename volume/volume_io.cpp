@@ -15,11 +15,13 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <iomanip>
 #include <map>
 #include <memory>
 #include <sstream>
 
 #include "volume/file_util.h"
+#include "volume/patient_frame.h"
 #include "volume/plist.h"
 
 namespace hyb {
@@ -179,6 +181,13 @@ glm::ivec3 parseDims(const std::string& text, const char* field, const std::stri
   return dims;
 }
 
+// @p v with the patient frame and the reader's warnings.
+Volume placed(Volume v, const PatientFrame& frame, const std::vector<std::string>& warnings) {
+  v.setFrame(frame);
+  for (const std::string& w : warnings) v.addWarning(w);
+  return v;
+}
+
 // ---------------------------------------------------------------------------------------------
 // NRRD (http://teem.sourceforge.net/nrrd/format.html)
 
@@ -204,15 +213,88 @@ bool nrrdType(const std::string& name, ScalarType* t) {
   return true;
 }
 
-// Parses NRRD "space directions" such as "(0.9,0,0) (0,0.9,0) (0,0,1.5)" into per-axis lengths.
-bool parseSpaceDirections(const std::string& text, glm::dvec3* spacing) {
+// Parses @p n parenthesised 3-vectors such as "(0.9,0,0) (0,0.9,0) (0,0,1.5)" (NRRD "space
+// directions", n = 3; "space origin", n = 1).
+bool parseVectors(const std::string& text, int n, double* out) {
   std::string s = text;
   for (char& c : s)
     if (c == '(' || c == ')' || c == ',') c = ' ';
+  return parseNumbers(s, 3 * n, out);
+}
+
+// Signs that take a vector of NRRD space @p space into LPS; false for a space this reader does not
+// know. @p assumed says when the space is not anatomical and its axes are taken as LPS's.
+bool nrrdSpaceToLps(const std::string& space, glm::dvec3* sign, bool* assumed) {
+  static const std::map<std::string, glm::dvec3> kAnatomical = {
+      {"right-anterior-superior", {-1, -1, 1}}, {"ras", {-1, -1, 1}},
+      {"left-anterior-superior", {1, -1, 1}},   {"las", {1, -1, 1}},
+      {"left-posterior-superior", {1, 1, 1}},   {"lps", {1, 1, 1}}};
+  *assumed = false;
+  if (const auto it = kAnatomical.find(space); it != kAnatomical.end()) {
+    *sign = it->second;
+    return true;
+  }
+  *sign = glm::dvec3(1.0);
+  *assumed = space == "scanner-xyz" || space == "3d-right-handed" || space == "3d-left-handed";
+  return *assumed;
+}
+
+// Millimetres in one NRRD "space units" entry (quoted), or 0 when unknown.
+double unitMillimetres(const std::string& unit) {
+  static const std::map<std::string, double> kUnits = {{"mm", 1.0}, {"m", 1000.0}, {"cm", 10.0}, {"um", 1e-3}, {"µm", 1e-3}, {"", 1.0}};
+  const auto it = kUnits.find(unit);
+  return it == kUnits.end() ? 0.0 : it->second;
+}
+
+// The grid's spacing and patient frame from a NRRD header's space fields (@p field returns a
+// field's value or null).
+template <class Field>
+void nrrdGeometry(const Field& field, const std::string& path, glm::dvec3* spacing, PatientFrame* frame, std::vector<std::string>* warnings) {
+  const std::string* directions = field("space directions");
+  const std::string* spacings = field("spacings");
+  if (!directions) {
+    *spacing = glm::dvec3(1.0);
+    if (spacings && !parseNumbers(*spacings, 3, &spacing->x))
+      HYB_THROW(IoError, path, ": spacings '", *spacings, "' malformed (expected three numbers)");
+    validateSpacing(*spacing, path);
+    if (field("space origin")) HYB_THROW(IoError, path, ": space origin without space directions (expected both, or neither)");
+    warnings->push_back(path + ": no 'space directions': orientation unknown, the grid's axes are taken as LPS with the origin at 0");
+    return;
+  }
+  const std::string* spaceField = field("space");
+  const std::string space = spaceField ? lower(*spaceField) : "";
+  glm::dvec3 sign(1.0);
+  bool assumed = true;
+  if (spaceField && !nrrdSpaceToLps(space, &sign, &assumed))
+    HYB_THROW(IoError, path, ": space '", *spaceField, "' unsupported (expected right-anterior-superior, left-anterior-superior, "
+              "left-posterior-superior or scanner-xyz: a 3D volume)");
+  if (assumed)
+    warnings->push_back(path + ": space '" + (spaceField ? *spaceField : std::string("(none)")) +
+                        "' is not anatomical: its axes are taken as LPS (x left, y posterior, z superior)");
   double v[9];
-  if (!parseNumbers(s, 9, v)) return false;
-  for (int a = 0; a < 3; ++a) (*spacing)[a] = std::sqrt(v[3 * a] * v[3 * a] + v[3 * a + 1] * v[3 * a + 1] + v[3 * a + 2] * v[3 * a + 2]);
-  return true;
+  if (!parseVectors(*directions, 3, v))
+    HYB_THROW(IoError, path, ": space directions '", *directions, "' malformed (expected three 3-vectors such as (0.9,0,0))");
+  glm::dvec3 units(1.0);  // millimetres per unit of each space axis
+  if (const std::string* u = field("space units")) {
+    std::istringstream in(*u);
+    for (int a = 0; a < 3; ++a) {
+      std::string quoted;
+      if (!(in >> std::quoted(quoted)) || (units[a] = unitMillimetres(lower(quoted))) == 0.0)
+        HYB_THROW(IoError, path, ": space units '", *u, "' unsupported (expected three of \"mm\", \"cm\", \"m\", \"um\")");
+    }
+  }
+  glm::dmat3 d;
+  for (int a = 0; a < 3; ++a) {
+    d[a] = glm::dvec3(v[3 * a], v[3 * a + 1], v[3 * a + 2]) * units * sign;
+    (*spacing)[a] = glm::length(d[a]);
+  }
+  validateSpacing(*spacing, path + " (lengths of the space directions)");
+  glm::dvec3 origin(0.0);
+  if (const std::string* o = field("space origin")) {
+    if (!parseVectors(*o, 1, &origin.x)) HYB_THROW(IoError, path, ": space origin '", *o, "' malformed (expected one 3-vector (x,y,z))");
+    origin *= sign * units;
+  }
+  *frame = makePatientFrame(d, origin, path);
 }
 
 // Offset of the first byte after the header's blank line (or the end of the bytes).
@@ -270,14 +352,9 @@ Volume readNrrd(const std::string& path) {
   const glm::ivec3 dims = parseDims(required("sizes"), "sizes", path);
 
   glm::dvec3 spacing(1.0);
-  if (const std::string* s = field("spacings")) {
-    if (!parseNumbers(*s, 3, &spacing.x))
-      HYB_THROW(IoError, path, ": spacings '", *s, "' malformed (expected three numbers)");
-  } else if (const std::string* d = field("space directions")) {
-    if (!parseSpaceDirections(*d, &spacing))
-      HYB_THROW(IoError, path, ": space directions '", *d, "' malformed (expected three 3-vectors)");
-  }
-  validateSpacing(spacing, path);
+  PatientFrame frame;
+  std::vector<std::string> warnings;
+  nrrdGeometry(field, path, &spacing, &frame, &warnings);
 
   const std::string encoding = lower(required("encoding"));
   const std::string* endianField = field("endian");
@@ -339,11 +416,60 @@ Volume readNrrd(const std::string& path) {
   } else {
     HYB_THROW(IoError, path, ": encoding '", encoding, "' unsupported (expected raw, gzip or ascii)");
   }
-  return Volume(dims, spacing, type, std::move(samples), path);
+  return placed(Volume(dims, spacing, type, std::move(samples), path), frame, warnings);
 }
 
 // ---------------------------------------------------------------------------------------------
 // MetaImage (https://itk.org/Wiki/ITK/MetaIO/Documentation)
+
+namespace {
+
+// The patient frame of a MetaImage header (ITK's MetaImageIO): the origin from Offset (or its
+// synonyms Position, Origin), the axes from TransformMatrix (or Rotation, Orientation), whose
+// i-th row of three is the direction of axis i, in LPS. AnatomicalOrientation (letters naming the
+// side each axis comes from, "RAI" for LPS axes) is only metadata to ITK: it places the axes here
+// when no matrix is given, and a matrix that disagrees with it is warned about.
+PatientFrame metaImageFrame(const std::map<std::string, std::string>& fields, const std::string& path, std::vector<std::string>* warnings) {
+  auto first = [&](std::initializer_list<const char*> keys) -> std::pair<const char*, const std::string*> {
+    for (const char* k : keys)
+      if (const auto it = fields.find(k); it != fields.end()) return {k, &it->second};
+    return {nullptr, nullptr};
+  };
+  glm::dvec3 origin(0.0);
+  if (const auto [key, value] = first({"Offset", "Position", "Origin"}); key && !parseNumbers(*value, 3, &origin.x))
+    HYB_THROW(IoError, path, ": ", key, " '", *value, "' malformed (expected three numbers)");
+  // AnatomicalOrientation names where each axis comes from: its opposite letters are where it points.
+  glm::dmat3 fromCode(1.0);
+  bool haveCode = false;
+  if (const auto [key, value] = first({"AnatomicalOrientation"}); key && *value != "???") {
+    std::string to;
+    for (char c : *value) {
+      const char u = char(std::toupper(static_cast<unsigned char>(c)));
+      static const std::map<char, char> kOpposite = {{'L', 'R'}, {'R', 'L'}, {'P', 'A'}, {'A', 'P'}, {'S', 'I'}, {'I', 'S'}};
+      const auto it = kOpposite.find(u);
+      to += it == kOpposite.end() ? '?' : it->second;
+    }
+    if (!directionFromCode(to, &fromCode))
+      HYB_THROW(IoError, path, ": AnatomicalOrientation '", *value, "' malformed (expected three letters, one of R/L, A/P, S/I each, e.g. RAI)");
+    haveCode = true;
+  }
+  glm::dmat3 direction(1.0);
+  if (const auto [key, value] = first({"TransformMatrix", "Rotation", "Orientation"}); key) {
+    double m[9];
+    if (!parseNumbers(*value, 9, m)) HYB_THROW(IoError, path, ": ", key, " '", *value, "' malformed (expected nine numbers)");
+    for (int a = 0; a < 3; ++a) direction[a] = glm::dvec3(m[3 * a], m[3 * a + 1], m[3 * a + 2]);
+    const PatientFrame frame = makePatientFrame(direction, origin, path);
+    if (haveCode && orientationCode(frame.direction) != orientationCode(fromCode))
+      warnings->push_back(path + ": AnatomicalOrientation '" + fields.at("AnatomicalOrientation") + "' disagrees with " + key + " (" +
+                          orientationCode(frame.direction) + "); the matrix is used, as ITK does");
+    return frame;
+  }
+  if (!haveCode) warnings->push_back(path + ": no TransformMatrix or AnatomicalOrientation: the grid's axes are taken as LPS, as ITK does");
+  return makePatientFrame(haveCode ? fromCode : direction, origin, path);
+}
+
+}  // namespace
+
 
 Volume readMetaImage(const std::string& path) {
   const std::vector<uint8_t> bytes = readFileBytes(path);
@@ -395,6 +521,8 @@ Volume readMetaImage(const std::string& path) {
   if (spacingKey && !parseNumbers(fields[spacingKey], 3, &spacing.x))
     HYB_THROW(IoError, path, ": ", spacingKey, " '", fields[spacingKey], "' malformed (expected three numbers)");
   validateSpacing(spacing, path);
+  std::vector<std::string> warnings;
+  const PatientFrame frame = metaImageFrame(fields, path, &warnings);
 
   auto isTrue = [&](const char* key) { return fields.count(key) && lower(fields[key]) == "true"; };
   const bool bigEndian = isTrue("ElementByteOrderMSB") || isTrue("BinaryDataByteOrderMSB");
@@ -429,14 +557,46 @@ Volume readMetaImage(const std::string& path) {
   if (compressed) {
     const std::vector<uint8_t> raw = inflateAll(data, dataSize, expected, dataName);
     checkByteCount(dataName + " (decompressed)", expected, raw.size(), dims, type);
-    return Volume(dims, spacing, type, decodeSamples(raw.data(), count, type, bigEndian), path);
+    return placed(Volume(dims, spacing, type, decodeSamples(raw.data(), count, type, bigEndian), path), frame, warnings);
   }
   skipToSamples(&data, &dataSize, headerSize, expected, dataName, "HeaderSize", dims, type);
-  return Volume(dims, spacing, type, decodeSamples(data, count, type, bigEndian), path);
+  return placed(Volume(dims, spacing, type, decodeSamples(data, count, type, bigEndian), path), frame, warnings);
 }
 
 // ---------------------------------------------------------------------------------------------
 // NIfTI through nifti_clib
+
+namespace {
+
+// The patient frame of a NIfTI image, with the precedence of ITK (5.x) and nibabel: the sform when
+// its code is set and its axes are orthogonal (spacing: its columns' lengths), else the qform
+// (nifti_clib's qto_xyz: quaternion, qfac and pixdim), else NIfTI's method 1 (RAS axes, origin 0)
+// with a warning. NIfTI's world is RAS; the frame is LPS.
+PatientFrame niftiFrame(const nifti_image& nim, const std::string& path, glm::dvec3* spacing, std::vector<std::string>* warnings) {
+  const double unit = nim.xyz_units == NIFTI_UNITS_METER ? 1000.0 : nim.xyz_units == NIFTI_UNITS_MICRON ? 1e-3 : 1.0;
+  auto fromMatrix = [&](const nifti_dmat44& m, const char* name) {
+    glm::dmat3 d;
+    for (int c = 0; c < 3; ++c) {
+      d[c] = rasToLps(glm::dvec3(m.m[0][c], m.m[1][c], m.m[2][c]) * unit);
+      (*spacing)[c] = glm::length(d[c]);
+    }
+    return makePatientFrame(d, rasToLps(glm::dvec3(m.m[0][3], m.m[1][3], m.m[2][3]) * unit), path + " (" + name + ")");
+  };
+  if (nim.sform_code > 0) {
+    try {
+      return fromMatrix(nim.sto_xyz, "sform");
+    } catch (const ValueError& e) {
+      if (nim.qform_code <= 0) throw;
+      warnings->push_back(std::string(e.what()) + "; the qform is used instead, as ITK does");
+    }
+  }
+  if (nim.qform_code > 0) return fromMatrix(nim.qto_xyz, "qform");
+  warnings->push_back(path + ": qform_code and sform_code are 0 (no orientation): read as NIfTI's method 1 does, RAS axes with the origin at 0");
+  *spacing *= unit;
+  return makePatientFrame(glm::dmat3(glm::dvec3(-1, 0, 0), glm::dvec3(0, -1, 0), glm::dvec3(0, 0, 1)), glm::dvec3(0.0), path);
+}
+
+}  // namespace
 
 Volume readNifti(const std::string& path) {
   std::error_code ec;
@@ -466,7 +626,9 @@ Volume readNifti(const std::string& path) {
     default:
       HYB_THROW(IoError, path, ": NIfTI datatype ", nim->datatype, " unsupported (expected a real scalar type)");
   }
-  const glm::dvec3 spacing(std::fabs(nim->dx), std::fabs(nim->dy > 0 ? nim->dy : 1.0), std::fabs(nim->dz > 0 ? nim->dz : 1.0));
+  glm::dvec3 spacing(std::fabs(nim->dx), std::fabs(nim->dy > 0 ? nim->dy : 1.0), std::fabs(nim->dz > 0 ? nim->dz : 1.0));
+  std::vector<std::string> warnings;
+  const PatientFrame frame = niftiFrame(*nim, path, &spacing, &warnings);
   validateSpacing(spacing, path);
   const size_t count = size_t(dims.x) * dims.y * dims.z;
   // nifti_clib has already swapped to native byte order.
@@ -477,59 +639,179 @@ Volume readNifti(const std::string& path) {
     for (float& v : samples) v = float(v * slope + inter);
     type = ScalarType::Float32;
   }
-  return Volume(dims, spacing, type, std::move(samples), path);
+  return placed(Volume(dims, spacing, type, std::move(samples), path), frame, warnings);
 }
 
 // ---------------------------------------------------------------------------------------------
 // DICOM series through GDCM
 
-Volume readDicomSeries(const std::string& dir) {
+namespace {
+
+const gdcm::Tag kSeriesUid(0x0020, 0x000e), kSeriesNumber(0x0020, 0x0011), kSeriesDescription(0x0008, 0x103e), kModality(0x0008, 0x0060),
+    kRows(0x0028, 0x0010), kColumns(0x0028, 0x0011), kPosition(0x0020, 0x0032), kOrientation(0x0020, 0x0037), kThickness(0x0018, 0x0050),
+    kSlope(0x0028, 0x1053), kIntercept(0x0028, 0x1052), kPatientPosition(0x0018, 0x5100);
+
+// Backslash-separated decimal strings (DICOM's multi-valued DS).
+std::vector<double> decimals(const char* text) {
+  std::vector<double> out;
+  if (!text) return out;
+  std::string t(text);
+  for (char& c : t)
+    if (c == '\\') c = ' ';
+  std::istringstream in(t);
+  double v;
+  while (in >> v) out.push_back(v);
+  return out;
+}
+
+// The DICOM files of @p dir scanned for the tags the series need.
+struct DicomScan {
+  gdcm::Scanner scanner;
+  std::map<std::string, std::vector<std::string>> series;  // series UID -> files
+  std::string value(const std::string& file, const gdcm::Tag& t) const {
+    const char* v = scanner.GetValue(file.c_str(), t);
+    return v ? trim(v) : std::string();
+  }
+};
+
+void scanDicom(const std::string& dir, DicomScan* scan) {
   gdcm::Directory directory;
   if (directory.Load(dir, false) == 0) HYB_THROW(IoError, dir, ": directory holds no files (expected a DICOM series)");
-  // Group by series instance UID and keep the largest series.
-  const gdcm::Tag seriesTag(0x0020, 0x000e);
-  gdcm::Scanner scanner;
-  scanner.AddTag(seriesTag);
-  if (!scanner.Scan(directory.GetFilenames())) HYB_THROW(IoError, dir, ": cannot scan the directory for DICOM files");
-  std::map<std::string, std::vector<std::string>> series;
+  for (const gdcm::Tag& t : {kSeriesUid, kSeriesNumber, kSeriesDescription, kModality, kRows, kColumns, kPosition, kOrientation, kThickness,
+                             kSlope, kIntercept, kPatientPosition})
+    scan->scanner.AddTag(t);
+  if (!scan->scanner.Scan(directory.GetFilenames())) HYB_THROW(IoError, dir, ": cannot scan the directory for DICOM files");
   for (const std::string& f : directory.GetFilenames())
-    if (scanner.IsKey(f.c_str())) {
-      const char* uid = scanner.GetValue(f.c_str(), seriesTag);
-      series[uid ? trim(uid) : std::string()].push_back(f);
-    }
-  if (series.empty()) HYB_THROW(IoError, dir, ": no DICOM files found (expected a directory holding one series)");
-  const auto largest = std::max_element(series.begin(), series.end(),
-                                        [](const auto& a, const auto& b) { return a.second.size() < b.second.size(); });
-  std::vector<std::string> files = largest->second;
+    if (scan->scanner.IsKey(f.c_str())) scan->series[scan->value(f, kSeriesUid)].push_back(f);
+  if (scan->series.empty()) HYB_THROW(IoError, dir, ": no DICOM files found (expected a directory holding one series)");
+}
 
+DicomSeriesInfo seriesInfo(const DicomScan& scan, const std::string& uid, const std::vector<std::string>& files) {
+  DicomSeriesInfo s;
+  s.uid = uid;
+  s.slices = files.size();
+  const std::string& f = files.front();
+  s.number = scan.value(f, kSeriesNumber);
+  s.description = scan.value(f, kSeriesDescription);
+  s.modality = scan.value(f, kModality);
+  s.columns = std::atoi(scan.value(f, kColumns).c_str());
+  s.rows = std::atoi(scan.value(f, kRows).c_str());
+  return s;
+}
+
+// One line naming series @p s.
+std::string describe(const DicomSeriesInfo& s) {
+  return detail::concat("'", s.uid, "' (", s.modality.empty() ? "?" : s.modality, s.description.empty() ? "" : ", " + s.description, ", ",
+                        s.slices, " slices of ", s.columns, "x", s.rows, ")");
+}
+
+}  // namespace
+
+std::vector<DicomSeriesInfo> listDicomSeries(const std::string& dir) {
+  DicomScan scan;
+  scanDicom(dir, &scan);
+  std::vector<DicomSeriesInfo> out;
+  for (const auto& [uid, files] : scan.series) out.push_back(seriesInfo(scan, uid, files));
+  std::stable_sort(out.begin(), out.end(), [](const DicomSeriesInfo& a, const DicomSeriesInfo& b) { return a.slices > b.slices; });
+  return out;
+}
+
+Volume readDicomSeries(const std::string& dir, const std::string& seriesUid) {
+  DicomScan scan;
+  scanDicom(dir, &scan);
+  std::vector<std::string> warnings;
+  // The series: the one named, or the largest (with a line naming it when there are several).
+  std::vector<DicomSeriesInfo> all;
+  for (const auto& [uid, files] : scan.series) all.push_back(seriesInfo(scan, uid, files));
+  std::stable_sort(all.begin(), all.end(), [](const DicomSeriesInfo& a, const DicomSeriesInfo& b) { return a.slices > b.slices; });
+  std::string listing;
+  for (const DicomSeriesInfo& s : all) listing += (listing.empty() ? "" : "; ") + describe(s);
+  const DicomSeriesInfo* chosen = &all.front();
+  if (!seriesUid.empty()) {
+    const auto it = std::find_if(all.begin(), all.end(), [&](const DicomSeriesInfo& s) { return s.uid == seriesUid; });
+    if (it == all.end()) HYB_THROW(ValueError, "--series '", seriesUid, "': no such series in ", dir, " (it holds ", listing, ")");
+    chosen = &*it;
+  } else if (all.size() > 1) {
+    warnings.push_back(detail::concat(dir, ": ", all.size(), " series; reading the largest, ", describe(*chosen),
+                                      " (choose another with --series UID: ", listing, ")"));
+  }
+  std::vector<std::string> files = scan.series.at(chosen->uid);
+
+  // Geometry (DICOM PS3.3 C.7.6.2): the rows' and columns' directions from Image Orientation
+  // (Patient), the slices ordered by Image Position (Patient) along their normal, which must hold
+  // every position (no gantry tilt) at one spacing.
+  const std::vector<double> iop = decimals(scan.scanner.GetValue(files.front().c_str(), kOrientation));
+  glm::dmat3 direction(1.0);
+  const bool oriented = iop.size() == 6;
+  if (oriented) {
+    direction[0] = glm::dvec3(iop[0], iop[1], iop[2]);
+    direction[1] = glm::dvec3(iop[3], iop[4], iop[5]);
+    direction[2] = glm::cross(direction[0], direction[1]);
+  } else if (files.size() > 1) {
+    HYB_THROW(IoError, files.front(), ": Image Orientation (Patient) missing or malformed (expected six cosines to order the slices)");
+  } else {
+    warnings.push_back(files.front() + ": no Image Orientation (Patient): the slice's axes are taken as LPS");
+  }
+  const PatientFrame axes = makePatientFrame(direction, glm::dvec3(0.0), files.front() + " (Image Orientation (Patient))");
+  struct Slice {
+    std::string file;
+    glm::dvec3 position;
+    double depth;
+  };
+  std::vector<Slice> slices;
+  for (const std::string& f : files) {
+    const std::vector<double> ipp = decimals(scan.scanner.GetValue(f.c_str(), kPosition));
+    if (ipp.size() != 3 && files.size() > 1)
+      HYB_THROW(IoError, f, ": Image Position (Patient) missing or malformed (expected three numbers to order the slices)");
+    const glm::dvec3 p = ipp.size() == 3 ? glm::dvec3(ipp[0], ipp[1], ipp[2]) : glm::dvec3(0.0);
+    if (oriented && f != files.front()) {
+      const std::vector<double> other = decimals(scan.scanner.GetValue(f.c_str(), kOrientation));
+      bool same = other.size() == 6;
+      for (size_t c = 0; same && c < 6; ++c) same = std::abs(other[c] - iop[c]) <= 1e-4;
+      if (!same) HYB_THROW(IoError, f, ": Image Orientation (Patient) differs from ", files.front(), "'s (expected one orientation for the series)");
+    }
+    slices.push_back({f, p, glm::dot(p, axes.direction[2])});
+  }
+  std::sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.depth < b.depth; });
   double zSpacing = 1.0;
-  if (files.size() > 1) {
-    gdcm::IPPSorter sorter;
-    sorter.SetComputeZSpacing(true);
-    sorter.SetZSpacingTolerance(1e-3);
-    if (!sorter.Sort(files))
-      HYB_THROW(IoError, dir, ": cannot sort the series by image position (missing or inconsistent Image Position/Orientation)");
-    files = sorter.GetFilenames();
-    zSpacing = sorter.GetZSpacing();
-    if (!(zSpacing > 0))
-      HYB_THROW(IoError, dir, ": slices are not evenly spaced along the normal (expected a regular grid)");
+  if (slices.size() > 1) {
+    zSpacing = (slices.back().depth - slices.front().depth) / double(slices.size() - 1);
+    for (size_t k = 1; k < slices.size(); ++k) {
+      const double step = slices[k].depth - slices[k - 1].depth;
+      if (step <= 1e-3 * std::max(zSpacing, 1e-3))
+        HYB_THROW(IoError, slices[k].file, ": at the same position as ", slices[k - 1].file, " along the slice normal (expected one slice per position)");
+      if (std::abs(step - zSpacing) > std::max(1e-3, 1e-2 * zSpacing))
+        HYB_THROW(IoError, dir, ": slices are not evenly spaced along the normal (", slices[k - 1].file, " to ", slices[k].file, ": ", step,
+                  " mm, the series' mean ", zSpacing, " mm; expected a regular grid)");
+      // Positions must run along the normal: a gantry tilt moves them across the image plane.
+      const glm::dvec3 offset = slices[k].position - slices.front().position;
+      const double across = glm::length(offset - glm::dot(offset, axes.direction[2]) * axes.direction[2]);
+      if (across > std::max(1e-2, 1e-3 * glm::length(offset)))
+        HYB_THROW(IoError, dir, ": slice positions move ", across, " mm across the image plane by ", slices[k].file,
+                  " (gantry tilt or a sheared series: the grid is not orthogonal); resample it to an orthogonal grid first "
+                  "(e.g. Slicer or ITK), it is refused rather than drawn sheared");
+    }
+  } else if (const std::vector<double> t = decimals(scan.scanner.GetValue(slices.front().file.c_str(), kThickness)); t.size() == 1 && t[0] > 0) {
+    zSpacing = t[0];
   }
 
-  glm::ivec3 dims(0, 0, int(files.size()));
+  glm::ivec3 dims(0, 0, int(slices.size()));
   glm::dvec3 spacing(1.0, 1.0, zSpacing);
   ScalarType type = ScalarType::Int16;
   std::vector<float> samples;
   bool rescaled = false;
-  for (size_t s = 0; s < files.size(); ++s) {
+  double slopeFirst = 1.0, interceptFirst = 0.0;
+  for (size_t s = 0; s < slices.size(); ++s) {
+    const std::string& file = slices[s].file;
     gdcm::ImageReader reader;
-    reader.SetFileName(files[s].c_str());
-    if (!reader.Read()) HYB_THROW(IoError, files[s], ": not a readable DICOM image");
+    reader.SetFileName(file.c_str());
+    if (!reader.Read()) HYB_THROW(IoError, file, ": not a readable DICOM image");
     const gdcm::Image& image = reader.GetImage();
     const gdcm::PixelFormat& pf = image.GetPixelFormat();
     if (pf.GetSamplesPerPixel() != 1)
-      HYB_THROW(IoError, files[s], ": ", pf.GetSamplesPerPixel(), " samples per pixel (expected 1, greyscale)");
+      HYB_THROW(IoError, file, ": ", pf.GetSamplesPerPixel(), " samples per pixel (expected 1, greyscale)");
     if (image.GetNumberOfDimensions() == 3 && image.GetDimension(2) > 1)
-      HYB_THROW(IoError, files[s], ": multi-frame images are not supported (expected one slice per file)");
+      HYB_THROW(IoError, file, ": multi-frame images are not supported (expected one slice per file)");
     const glm::ivec2 size(int(image.GetDimension(0)), int(image.GetDimension(1)));
     ScalarType sliceType;
     switch (pf.GetScalarType()) {
@@ -541,25 +823,26 @@ Volume readDicomSeries(const std::string& dir) {
       case gdcm::PixelFormat::INT32: sliceType = ScalarType::Int32; break;
       case gdcm::PixelFormat::FLOAT32: sliceType = ScalarType::Float32; break;
       case gdcm::PixelFormat::FLOAT64: sliceType = ScalarType::Float64; break;
-      default: HYB_THROW(IoError, files[s], ": unsupported pixel format ", pf.GetScalarTypeAsString());
+      default: HYB_THROW(IoError, file, ": unsupported pixel format ", pf.GetScalarTypeAsString());
     }
     if (s == 0) {
       dims.x = size.x;
       dims.y = size.y;
       validateDims(dims, dir);
-      const double* sp = image.GetSpacing();
+      const double* sp = image.GetSpacing();  // column spacing, row spacing (Pixel Spacing's second and first)
       spacing.x = sp[0];
       spacing.y = sp[1];
       type = sliceType;
       samples.resize(size_t(dims.x) * dims.y * dims.z);
+      slopeFirst = image.GetSlope();
+      interceptFirst = image.GetIntercept();
     } else if (size.x != dims.x || size.y != dims.y) {
-      HYB_THROW(IoError, files[s], ": slice is ", size.x, "x", size.y, ", expected ", dims.x, "x", dims.y,
-                " like the first slice");
+      HYB_THROW(IoError, file, ": slice is ", size.x, "x", size.y, ", expected ", dims.x, "x", dims.y, " like the first slice");
     }
     const size_t sliceCount = size_t(dims.x) * dims.y;
     std::vector<char> buffer(image.GetBufferLength());
     if (buffer.size() < sliceCount * scalarSize(sliceType) || !image.GetBuffer(buffer.data()))
-      HYB_THROW(IoError, files[s], ": pixel data missing or truncated");
+      HYB_THROW(IoError, file, ": pixel data missing or truncated");
     std::vector<float> slice = decodeSamples(reinterpret_cast<const uint8_t*>(buffer.data()), sliceCount, sliceType,
                                              std::endian::native == std::endian::big);
     const double slopeValue = image.GetSlope(), intercept = image.GetIntercept();
@@ -568,12 +851,63 @@ Volume readDicomSeries(const std::string& dir) {
   }
   if (rescaled && type != ScalarType::Float32 && type != ScalarType::Float64) type = ScalarType::Int32;
   validateSpacing(spacing, dir);
-  return Volume(dims, spacing, type, std::move(samples), dir);
+  Volume v = placed(Volume(dims, spacing, type, std::move(samples), dir),
+                    makePatientFrame(axes.direction, slices.front().position, dir), warnings);
+  const std::string& first = slices.front().file;
+  v.addInfo("modality", chosen->modality.empty() ? "(none)" : chosen->modality);
+  v.addInfo("series", describe(*chosen) + (chosen->number.empty() ? "" : ", number " + chosen->number));
+  if (const std::string pp = scan.value(first, kPatientPosition); !pp.empty()) v.addInfo("position", pp + " (Patient Position)");
+  if (const std::string t = scan.value(first, kThickness); !t.empty()) v.addInfo("thickness", t + " mm (Slice Thickness; slices " +
+                                                                                   detail::concat(zSpacing) + " mm apart)");
+  v.addInfo("rescale", detail::concat("slope ", slopeFirst, ", intercept ", interceptFirst, rescaled ? " (applied)" : ""));
+  return v;
 }
 
 // ---------------------------------------------------------------------------------------------
 // InVesalius 3 project: a gzip tar holding main.plist (matrix shape, dtype, spacing) and the
 // matrix as raw samples in C order (z, y, x), native (little-endian) byte order.
+
+namespace {
+
+// The patient frame of an InVesalius project. Projects keep no orientation of their own (format 1;
+// Cranium.inv3 among them): InVesalius builds the matrix from DICOM with the columns as they
+// come (towards the patient's left in axial CT), the rows flipped (posterior to anterior) and the
+// slices ordered inferior to superior, whatever the acquisition's plane, so the matrix is LAS.
+// Projects made from NIfTI (InVesalius 3.1+) store "affine": the inverse of the rigid part of the
+// RAS+ canonical image's affine, whose rows InVesalius flipped into its matrix; it is undone here.
+PatientFrame inv3Frame(const detail::PlistValue& plist, const glm::ivec3& dims, const glm::dvec3& spacing, const std::string& path,
+                       std::vector<std::string>* warnings) {
+  const glm::dmat3 las(glm::dvec3(1, 0, 0), glm::dvec3(0, -1, 0), glm::dvec3(0, 0, 1));
+  const detail::PlistValue* affine = plist.find("affine");
+  std::vector<double> m;
+  if (affine && affine->kind == detail::PlistValue::Kind::Array) {
+    for (const detail::PlistValue& row : affine->items) {
+      double x;
+      if (row.kind == detail::PlistValue::Kind::Array) {
+        for (const detail::PlistValue& e : row.items)
+          if (e.number(&x)) m.push_back(x);
+      } else if (row.number(&x)) {
+        m.push_back(x);
+      }
+    }
+    if (m.size() != 16) HYB_THROW(IoError, path, ": main.plist affine has ", m.size(), " numbers (expected a 4x4 matrix)");
+  }
+  glm::dmat4 a(1.0);
+  for (size_t r = 0; r < m.size() / 4; ++r)
+    for (int c = 0; c < 4; ++c) a[c][int(r)] = m[r * 4 + size_t(c)];
+  if (m.empty() || a == glm::dmat4(1.0)) return makePatientFrame(las, glm::dvec3(0.0), path);
+  // Canonical RAS voxel (i, ny−1−j, k) of the NIfTI InVesalius read is our voxel (i, j, k).
+  const glm::dmat4 rigid = glm::inverse(a);
+  const glm::dmat3 r(rigid);
+  const glm::dvec3 t(rigid[3]);
+  const glm::dmat3 flip(glm::dvec3(1, 0, 0), glm::dvec3(0, -1, 0), glm::dvec3(0, 0, 1));
+  const glm::dvec3 shift(0.0, double(dims.y - 1) * spacing.y, 0.0);
+  const glm::dmat3 toLps(glm::dvec3(-1, 0, 0), glm::dvec3(0, -1, 0), glm::dvec3(0, 0, 1));
+  warnings->push_back(path + ": the project's affine is read as InVesalius's NIfTI import writes it (the inverse of the source's rigid RAS transform)");
+  return makePatientFrame(toLps * r * flip, toLps * (r * shift + t), path + ":main.plist affine");
+}
+
+}  // namespace
 
 Volume readInv3(const std::string& path) {
   std::error_code ec;
@@ -638,8 +972,15 @@ Volume readInv3(const std::string& path) {
   const auto blob = blobs.find(matrixName);
   if (blob == blobs.end()) HYB_THROW(IoError, path, ": archive has no matrix file '", matrixName, "'");
   checkByteCount(path + ":" + matrixName, expectedBytes(dims, typeIt->second), blob->second.size(), dims, typeIt->second);
-  return Volume(dims, spacing, typeIt->second,
-                decodeSamples(blob->second.data(), size_t(dims.x) * dims.y * dims.z, typeIt->second, false), path);
+  std::vector<std::string> warnings;
+  const PatientFrame frame = inv3Frame(plist, dims, spacing, path, &warnings);
+  Volume v = placed(Volume(dims, spacing, typeIt->second,
+                           decodeSamples(blob->second.data(), size_t(dims.x) * dims.y * dims.z, typeIt->second, false), path),
+                    frame, warnings);
+  for (const char* key : {"modality", "name"})
+    if (const detail::PlistValue* value = plist.find(key); value && value->kind == detail::PlistValue::Kind::String)
+      v.addInfo(key, value->text);
+  return v;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -654,15 +995,18 @@ Volume readRaw(const std::string& path, const RawLayout& layout) {
   const uint64_t expected = expectedBytes(layout.dims, layout.type);
   checkByteCount(path, expected, bytes.size() - layout.headerBytes, layout.dims, layout.type);
   const size_t count = size_t(layout.dims.x) * layout.dims.y * layout.dims.z;
-  return Volume(layout.dims, layout.spacing, layout.type,
-                decodeSamples(bytes.data() + layout.headerBytes, count, layout.type, layout.bigEndian), path);
+  Volume v(layout.dims, layout.spacing, layout.type, decodeSamples(bytes.data() + layout.headerBytes, count, layout.type, layout.bigEndian),
+           path);
+  v.addWarning(path + ": raw samples carry no orientation: the grid's axes are taken as LPS with the origin at 0");
+  return v;
 }
 
-Volume readVolume(const std::string& path, const RawLayout* raw) {
+Volume readVolume(const std::string& path, const RawLayout* raw, const std::string& series) {
   if (raw) return readRaw(path, *raw);
   std::error_code ec;
   if (!fs::exists(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
-  if (fs::is_directory(path, ec)) return readDicomSeries(path);
+  if (fs::is_directory(path, ec)) return readDicomSeries(path, series);
+  if (!series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", path, " is a file)");
   const std::string ext = fileExtension(path);
   if (ext == ".nrrd" || ext == ".nhdr") return readNrrd(path);
   if (ext == ".mhd" || ext == ".mha") return readMetaImage(path);

@@ -2,13 +2,16 @@
 //
 // Every reader validates at the boundary (STYLE 5): dims, type, byte counts and sample values are
 // checked, and any problem is thrown as IoError/ValueError with a one-line message that starts
-// with the offending file and says what was expected.
+// with the offending file and says what was expected. Every reader also places the grid in the
+// patient (Volume::frame, LPS mm), converting its format's convention; what it had to assume is
+// in Volume::warnings.
 #pragma once
 
 #include <glm/glm.hpp>
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "volume/volume.h"
 
@@ -27,22 +30,44 @@ struct RawLayout {
 };
 
 /// Reads any supported volume, chosen by extension (.nrrd .nhdr .mhd .mha .nii .nii.gz .inv3), by
-/// being a directory (DICOM series), or by @p raw being non-null (raw samples).
+/// being a directory (DICOM series: @p series names one by its Series Instance UID), or by @p raw
+/// being non-null (raw samples).
 /// @throw IoError / ValueError with a message naming @p path.
-Volume readVolume(const std::string& path, const RawLayout* raw = nullptr);
+Volume readVolume(const std::string& path, const RawLayout* raw = nullptr, const std::string& series = "");
 
 /// NRRD with attached (.nrrd) or detached (.nhdr) data; raw, gzip or ascii encoding; 3 dimensions.
+/// Geometry from "space", "space directions", "space origin" and "space units" (RAS, LAS and
+/// LPS spaces; scanner-xyz and 3D-right-handed taken as LPS with a warning), or "spacings" alone.
 Volume readNrrd(const std::string& path);
-/// MetaImage (.mhd with a data file, .mha with LOCAL data); raw or zlib-compressed data.
+/// MetaImage (.mhd with a data file, .mha with LOCAL data); raw or zlib-compressed data. Geometry
+/// from Offset and TransformMatrix (rows: the axes' directions, LPS) as ITK reads them, or
+/// AnatomicalOrientation when no matrix is given.
 Volume readMetaImage(const std::string& path);
 /// NIfTI-1 or NIfTI-2 (.nii, .nii.gz, .hdr/.img) through nifti_clib; scl_slope/scl_inter applied.
+/// Geometry from the sform, else the qform, else method 1 (ITK's and nibabel's precedence), RAS
+/// converted to LPS.
 Volume readNifti(const std::string& path);
-/// A directory holding one DICOM series (the largest if there are several), sorted by image
-/// position along the slice normal, rescale slope/intercept applied (CT comes out in HU).
-Volume readDicomSeries(const std::string& dir);
-/// An InVesalius 3 project (.inv3: gzip tar with main.plist and the raw matrix).
+
+/// One series of a DICOM directory.
+struct DicomSeriesInfo {
+  std::string uid, number, description, modality;
+  size_t slices = 0;
+  int columns = 0, rows = 0;
+};
+/// The series in @p dir, largest first. @throw IoError when it holds no DICOM file.
+std::vector<DicomSeriesInfo> listDicomSeries(const std::string& dir);
+/// One DICOM series of @p dir: the one whose Series Instance UID is @p seriesUid, or the largest
+/// (a warning names it when there are several). Slices are ordered along the normal of Image
+/// Orientation (Patient), which must hold every Image Position (Patient) at one spacing (a gantry
+/// tilt is refused); rescale slope/intercept applied (CT comes out in HU). The frame: i along the
+/// rows' direction, j along the columns', k along the normal, the origin at the first slice's
+/// position. Info: modality, series, patient position, slice thickness, rescale.
+Volume readDicomSeries(const std::string& dir, const std::string& seriesUid = "");
+/// An InVesalius 3 project (.inv3: gzip tar with main.plist and the raw matrix). InVesalius keeps
+/// its matrix LAS (its DICOM import's layout) unless the project stores an affine (NIfTI import).
 Volume readInv3(const std::string& path);
-/// Headerless samples with the given layout; the file size must match exactly.
+/// Headerless samples with the given layout; the file size must match exactly. No orientation:
+/// identity frame, with a warning.
 Volume readRaw(const std::string& path, const RawLayout& layout);
 
 }  // namespace hyb
