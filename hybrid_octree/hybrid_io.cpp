@@ -95,6 +95,13 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
   vol.put(volume.spacing());
   vol.put(uint32_t(volume.sourceType()));
   vol.putArray(volume.samples());
+  vol.put(volume.frame().direction);
+  vol.put(volume.frame().origin);
+  vol.put(uint64_t(volume.info().size()));
+  for (const auto& [key, value] : volume.info()) {
+    vol.putArray(std::vector<char>(key.begin(), key.end()));
+    vol.putArray(std::vector<char>(value.begin(), value.end()));
+  }
   Writer oct;
   oct.put(int32_t(octree.leafEdge()));
   oct.put(uint32_t(octree.prefiltered()));
@@ -137,8 +144,11 @@ Scene loadScene(const std::string& path) {
   Reader header(bytes.data() + 8, bytes.size() - 8, path);
   const uint32_t version = header.get<uint32_t>();
   const uint32_t count = header.get<uint32_t>();
-  if (version == 0 || version > kSceneVersion)
-    HYB_THROW(IoError, path, ": scene file version ", version, " unsupported (this build reads version 1..", kSceneVersion, ")");
+  if (version > 0 && version < 3)
+    HYB_THROW(IoError, path, ": scene file version ", version, " has no patient orientation (this build reads version ", kSceneVersion,
+              "); build the scene again from its volume with hybrid-octree build");
+  if (version != kSceneVersion)
+    HYB_THROW(IoError, path, ": scene file version ", version, " unsupported (this build reads version ", kSceneVersion, ")");
   std::map<uint32_t, std::vector<uint8_t>> sections;
   size_t pos = 16;
   for (uint32_t s = 0; s < count; ++s) {
@@ -172,12 +182,24 @@ Scene loadScene(const std::string& path) {
     if (type > uint32_t(ScalarType::Float64)) HYB_THROW(IoError, path, ": unknown sample type code ", type);
     validateDims(dims, path);
     scene.volume = Volume(dims, spacing, ScalarType(type), r.getArray<float>(), path);
+    const glm::dmat3 direction = r.get<glm::dmat3>();
+    const glm::dvec3 origin = r.get<glm::dvec3>();
+    const PatientFrame frame = makePatientFrame(direction, origin, path);
+    if (glm::length(frame.direction[0] - direction[0]) + glm::length(frame.direction[1] - direction[1]) +
+            glm::length(frame.direction[2] - direction[2]) > 1e-9)
+      HYB_THROW(IoError, path, ": corrupt scene file (the volume's direction matrix is not orthonormal)");
+    scene.volume.setFrame(frame);
+    const uint64_t entries = r.get<uint64_t>();
+    for (uint64_t e = 0; e < entries; ++e) {
+      const std::vector<char> key = r.getArray<char>(), value = r.getArray<char>();
+      scene.volume.addInfo(std::string(key.begin(), key.end()), std::string(value.begin(), value.end()));
+    }
   }
   {
     const auto& b = section(kOctreeTag, "volume octree");
     Reader r(b.data(), b.size(), path);
     const int32_t leafEdge = r.get<int32_t>();
-    const uint32_t prefiltered = version >= 2 ? r.get<uint32_t>() : 0;  // version 1: point-subsampled knots
+    const uint32_t prefiltered = r.get<uint32_t>();
     if (prefiltered > 1) HYB_THROW(IoError, path, ": octree knot mode ", prefiltered, " unknown (expected 0 or 1)");
     std::vector<OctreeNode> nodes = r.getArray<OctreeNode>();
     std::vector<float> errors = r.getArray<float>();

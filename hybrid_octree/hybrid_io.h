@@ -1,9 +1,11 @@
 // Scene files (.hoct): the volume and its Hybrid Octree in one versioned binary.
 //
 // Layout (little-endian): magic "HYBOCT\x1a\n", u32 version, u32 section count, then per section
-// a u32 tag, u64 payload size, u32 CRC-32 of the payload, and the payload. Sections: VOLM (volume),
-// VOCT (Volume Octree), SURF (Surface Octree, optional). Readers reject a foreign magic, a newer
-// version, truncation and CRC mismatches; unknown sections are skipped.
+// a u32 tag, u64 payload size, u32 CRC-32 of the payload, and the payload. Sections: VOLM (volume:
+// dims, spacing, type, samples, patient frame, info), VOCT (Volume Octree), SURF (Surface Octree,
+// optional). Readers reject a foreign magic, another version (files before version 3 have no
+// patient frame: rebuilding them is the safe answer), truncation and CRC mismatches; unknown
+// sections are skipped.
 #pragma once
 
 #include <optional>
@@ -16,7 +18,7 @@
 namespace hyb {
 
 /// Current scene-file version.
-inline constexpr uint32_t kSceneVersion = 2;  // 2: the octree records whether its coarse knots are prefiltered
+inline constexpr uint32_t kSceneVersion = 3;  // 2: the octree records its knot mode; 3: the volume its patient frame and info
 
 /// A loaded scene: the volume, its Volume Octree and, when built with an isovalue, its Surface Octree.
 struct Scene {
@@ -31,7 +33,7 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
                const SurfaceOctree* surface = nullptr);
 
 /// Reads a scene written by saveScene.
-/// @throw IoError naming @p path for foreign, newer, truncated or corrupt files.
+/// @throw IoError naming @p path for foreign, older, newer, truncated or corrupt files.
 Scene loadScene(const std::string& path);
 
 /// True when @p path starts with the scene-file magic.

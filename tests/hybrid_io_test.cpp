@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <zlib.h>
 
+#include <cmath>
 #include <cstring>
 
 #include "test_util.h"
@@ -39,7 +40,7 @@ TEST(SceneFile, RoundTripIsExact) {
   EXPECT_EQ(s.octree.errorData(), t.errorData());
 }
 
-TEST(SceneFile, KnotModeRoundTripsAndVersionOneIsPointSubsampled) {
+TEST(SceneFile, KnotModeRoundTrips) {
   test::TempDir dir;
   const Volume v = test::randomVolume({33, 20, 9}, 5);
   for (const bool prefilter : {true, false}) {
@@ -51,27 +52,27 @@ TEST(SceneFile, KnotModeRoundTripsAndVersionOneIsPointSubsampled) {
     for (const glm::ivec3 knot : {glm::ivec3(0, 0, 0), glm::ivec3(8, 16, 8), glm::ivec3(32, 19, 8)})
       EXPECT_EQ(s.octree.knotValue(s.volume, 8, knot), t.knotValue(v, 8, knot));
   }
-  // A version-1 file (no knot mode in the octree section) loads with point-subsampled knots.
-  std::vector<uint8_t> bytes = test::readBytes(dir.file("s.hoct"));  // the point-subsampled one
-  uint32_t version = 1;
-  std::memcpy(&bytes[8], &version, 4);
-  size_t pos = 16;
-  for (int section = 0; section < 2; ++section) {
-    uint64_t size;
-    std::memcpy(&size, &bytes[pos + 4], 8);
-    if (section == 1) {  // the octree: drop the u32 knot mode after the leaf edge, fix size and CRC
-      bytes.erase(bytes.begin() + ptrdiff_t(pos + 16 + 4), bytes.begin() + ptrdiff_t(pos + 16 + 8));
-      size -= 4;
-      std::memcpy(&bytes[pos + 4], &size, 8);
-      const uint32_t crc = uint32_t(crc32(0L, &bytes[pos + 16], uInt(size)));
-      std::memcpy(&bytes[pos + 12], &crc, 4);
-    }
-    pos += 16 + size;
+}
+
+TEST(SceneFile, PatientFrameAndInfoRoundTripAndOlderVersionsAreRefused) {
+  test::TempDir dir;
+  Volume v = test::randomVolume({9, 8, 7}, 11);
+  const double c = std::cos(0.3), s = std::sin(0.3);
+  v.setFrame(makePatientFrame(glm::dmat3(glm::dvec3(c, s, 0), glm::dvec3(0, 0, -1), glm::dvec3(-s, c, 0)), glm::dvec3(-12.5, 40, 3), "t"));
+  v.addInfo("modality", "CT");
+  v.addInfo("series", "'1.2.3' (CT, head)");
+  saveScene(dir.file("s.hoct"), v, VolumeOctree::build(v));
+  const Scene loaded = loadScene(dir.file("s.hoct"));
+  EXPECT_EQ(loaded.volume.frame(), v.frame());
+  EXPECT_EQ(loaded.volume.info(), v.info());
+  // Versions 1 and 2 knew no patient frame: refused, with what to do.
+  std::vector<uint8_t> bytes = test::readBytes(dir.file("s.hoct"));
+  for (uint32_t version : {1u, 2u}) {
+    std::memcpy(&bytes[8], &version, 4);
+    test::writeBytes(dir.file("old.hoct"), bytes);
+    expectLoadFails(dir.file("old.hoct"), "version " + std::to_string(version) + " has no patient orientation");
+    expectLoadFails(dir.file("old.hoct"), "hybrid-octree build");
   }
-  test::writeBytes(dir.file("v1.hoct"), bytes);
-  const Scene old = loadScene(dir.file("v1.hoct"));
-  EXPECT_FALSE(old.octree.prefiltered());
-  EXPECT_EQ(old.octree.errorData(), VolumeOctree::build(v, VolumeOctreeOptions{8, false}).errorData());
 }
 
 TEST(SceneFile, SurfaceOctreeRoundTrip) {
