@@ -125,7 +125,7 @@ void BenchOptions::add(CLI::App* cmd) {
   cmd->add_flag("!--no-plot", plot, "skip the gnuplot plot");
 }
 
-int runBench(const BenchOptions& o, std::ostream& out) {
+int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   namespace fs = std::filesystem;
   // Bad lists or a bad volume leave no output directory behind: it is created last.
   const std::vector<double> budgets =
@@ -134,7 +134,7 @@ int runBench(const BenchOptions& o, std::ostream& out) {
   if (!o.epsilons.empty())
     epsilons = parseList(o.epsilons, "--epsilons", [](double x) { return std::isfinite(x) && x >= 0.0; }, "finite values >= 0");
   Frame f;
-  prepareFrame(o.render, out, &f);
+  prepareFrame(o.render, out, err, &f);
   const Volume& v = f.scene.volume;
   if (o.epsilons.empty())
     for (double fraction : {0.0025, 0.005, 0.01, 0.025, 0.05, 0.1}) epsilons.push_back(fraction * double(v.maxValue() - v.minValue()));

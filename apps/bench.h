@@ -41,8 +41,9 @@ std::vector<std::string> monotonicityBreaks(const std::vector<TradePoint>& sweep
 /// Sweeps ε_u (blending on) and the budget (blending on and off), and for each point records the
 /// texture bytes, bricks, select time, frame time (the best warm frame) and first frame (the brick
 /// textures' upload included) and PSNR/SSIM against the reference into
-/// outDir/trade.csv, with the images and a plot outDir/trade.png. Prints progress and a summary.
+/// outDir/trade.csv, with the images and a plot outDir/trade.png. Prints progress and a summary on
+/// @p out, warnings on @p err.
 /// @throw ValueError / IoError for bad flags or unwritable outputs; RuntimeError when gnuplot fails.
-int runBench(const BenchOptions& o, std::ostream& out);
+int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err);
 
 }  // namespace hyb::app

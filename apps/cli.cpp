@@ -4,6 +4,7 @@
 #include "apps/frame.h"
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include <chrono>
 #include <filesystem>
@@ -18,6 +19,7 @@
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
+#include "render/orientation_marker.h"
 #include "render/raycast.h"
 #include "render/slices.h"
 #include "surface/cgal_geometry.h"
@@ -55,8 +57,8 @@ struct InfoOptions {
   std::string validate() const { return bins < 1 || bins > 4096 ? "--bins must be in 1..4096" : ""; }
 };
 
-int runInfo(const InfoOptions& o, std::ostream& out) {
-  const Volume v = o.input.read();
+int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
+  const Volume v = o.input.read(err);
   out << "file     " << o.input.path << "\n" << v.toString();
   out << "histogram (" << o.bins << " bins)\n" << formatHistogram(computeHistogram(v, o.bins));
   return 0;
@@ -90,8 +92,8 @@ std::string surfaceSummary(const SurfaceOctree& so, std::optional<double> buildM
   return s.str() + "\n";
 }
 
-int runBuild(const BuildOptions& o, std::ostream& out) {
-  const Volume v = o.input.read();
+int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
+  const Volume v = o.input.read(err);
   const auto t0 = Clock::now();
   const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{o.leafEdge, o.prefilter == "on"});
   const double ms = msSince(t0);
@@ -117,7 +119,7 @@ std::string progressivePath(const std::string& output, int k) {
 
 int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   Frame f;
-  prepareFrame(o, out, &f);
+  prepareFrame(o, out, err, &f);
   // A budget in percent is of this view's full-resolution texels (every visible brick exact), at
   // least one texel.
   const Budget budget = o.budget.empty() ? Budget{} : *parseBudget(o.budget);
@@ -210,23 +212,38 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     out << "render   raycast " << size.x << "x" << size.y << ", " << rs.rays << " rays (" << std::setprecision(1) << 100.0 * double(rs.rays) / pixels
         << " % of the pixels), " << rs.samples << " samples, " << rs.skippedLeaves << " empty-space skips, " << rs.surfaceHits << " surface crossings, "
         << timing.str() << "\n";
-  if (!o.output.empty()) {
-    if (o.progressive > 1) writePng(progressivePath(o.output, o.progressive), image, f.background);
-    writePng(o.output, image, f.background);
-    out << "wrote    " << o.output << "\n";
-  }
+  if (o.marker == "on") drawOrientationMarker(f.patientCamera, &image);
+  if (o.progressive > 1) writePng(progressivePath(o.output, o.progressive), image, f.background);
+  writePng(o.output, image, f.background);
+  out << "wrote    " << o.output << "\n";
   if (!o.stats.empty()) {
-    writeFileAtomically(o.stats, [&](std::ostream& s) {
-      s << std::setprecision(9) << "{\n  \"renderer\": \"" << o.renderer << "\",\n  \"nodes_selected\": " << sel.bricks.size()
-        << ",\n  \"nodes_hidden\": " << hidden << ",\n  \"texels\": " << sel.texels << ",\n  \"blended_bricks\": " << sel.blendedBricks
-        << ",\n  \"texture_bytes\": " << (o.renderer == "slices" ? ss.textureBytes : sel.texels * bytesPerTexel(o.bits())) << ",\n  \"slices\": " << ss.slices
-        << ",\n  \"surface_polygons\": " << f.polygons << ",\n  \"surface_triangles\": " << f.mesh.triangles.size()
-        << ",\n  \"slab_polygon_draws\": " << ss.slabPolygonDraws << ",\n  \"fragments\": " << ss.fragments << ",\n  \"shell_bricks\": " << ss.shellBricks
-        << ",\n  \"cut_polygons\": " << ss.cutPolygons << ",\n  \"cut_line_segments\": " << ss.cutLineSegments << ",\n  \"build_ms\": " << f.buildMs + f.surfaceMs << ",\n  \"surface_polygons_ms\": " << f.polygonsMs
-        << ",\n  \"select_ms\": " << selectMs << ",\n  \"render_ms\": " << renderMs << ",\n  \"first_render_ms\": " << firstMs << ",\n  \"samples\": " << rs.samples << ",\n  \"rays\": " << rs.rays
-        << ",\n  \"epsilon\": " << o.epsilon << ",\n  \"max_nodal_error_used\": " << sel.maxError
-        << ",\n  \"budget_met\": " << (sel.budgetMet ? "true" : "false") << "\n}\n";
-    });
+    nlohmann::ordered_json j;
+    j["renderer"] = o.renderer;
+    j["nodes_selected"] = sel.bricks.size();
+    j["nodes_hidden"] = hidden;
+    j["texels"] = sel.texels;
+    j["blended_bricks"] = sel.blendedBricks;
+    j["texture_bytes"] = o.renderer == "slices" ? ss.textureBytes : sel.texels * bytesPerTexel(o.bits());
+    j["slices"] = ss.slices;
+    j["surface_polygons"] = f.polygons;
+    j["surface_triangles"] = f.mesh.triangles.size();
+    j["slab_polygon_draws"] = ss.slabPolygonDraws;
+    j["fragments"] = ss.fragments;
+    j["shell_bricks"] = ss.shellBricks;
+    j["cut_polygons"] = ss.cutPolygons;
+    j["cut_line_segments"] = ss.cutLineSegments;
+    j["build_ms"] = f.buildMs + f.surfaceMs;
+    j["surface_polygons_ms"] = f.polygonsMs;
+    j["select_ms"] = selectMs;
+    j["render_ms"] = renderMs;
+    j["first_render_ms"] = firstMs;
+    j["samples"] = rs.samples;
+    j["rays"] = rs.rays;
+    j["epsilon"] = o.epsilon;
+    j["max_nodal_error_used"] = sel.maxError;
+    j["budget_met"] = sel.budgetMet;
+    j["camera"] = nlohmann::ordered_json::parse(cameraJson(f.patientCamera));
+    writeFileAtomically(o.stats, [&](std::ostream& s) { s << j.dump(2) << "\n"; });
   }
   return 0;
 }
@@ -250,13 +267,13 @@ struct ExportOptions {
   }
 };
 
-int runExport(const ExportOptions& o, std::ostream& out) {
+int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   double buildMs = 0;
-  const Scene scene = loadOrBuild(o.input, out, &buildMs);
+  const Scene scene = loadOrBuild(o.input, out, err, &buildMs);
   const Volume& v = scene.volume;
   const float iso = float(*o.iso);
   if (iso <= v.minValue() || iso > v.maxValue())
-    out << "note: --iso " << iso << " is outside the data's crossing range (" << v.minValue() << ", " << v.maxValue()
+    err << "hybrid-octree: warning: --iso " << iso << " is outside the data's crossing range (" << v.minValue() << ", " << v.maxValue()
         << "]: the surface is empty\n";
   const std::vector<VoxelBlock> blocks = isoBlocks(scene.octree, iso);
   auto t0 = Clock::now();
@@ -438,11 +455,15 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     auto check = [&](const std::string& msg) {
       if (!msg.empty()) throw ValueError(msg);
     };
-    if (infoCmd->parsed()) return check(info.validate()), runInfo(info, out);
-    if (buildCmd->parsed()) return check(build.validate()), runBuild(build, out);
-    if (renderCmd->parsed()) return check(render.validate()), runRender(render, out, err);
-    if (exportCmd->parsed()) return check(exportOpts.validate()), runExport(exportOpts, out);
-    if (benchCmd->parsed()) return check(bench.validate()), runBench(bench, out);
+    if (infoCmd->parsed()) return check(info.validate()), runInfo(info, out, err);
+    if (buildCmd->parsed()) return check(build.validate()), runBuild(build, out, err);
+    if (renderCmd->parsed()) {
+      check(render.validate());
+      if (render.output.empty()) check("-o missing (expected the PNG to write, e.g. -o out.png)");
+      return runRender(render, out, err);
+    }
+    if (exportCmd->parsed()) return check(exportOpts.validate()), runExport(exportOpts, out, err);
+    if (benchCmd->parsed()) return check(bench.validate()), runBench(bench, out, err);
     if (compareCmd->parsed()) return check(compare.validate()), runCompare(compare, out);
     return 2;
   } catch (const IoError& e) {

@@ -9,12 +9,9 @@
 #include "hybrid_octree/surface_octree.h"
 #include "render/bvh.h"
 
+#include <nlohmann/json.hpp>
+
 namespace hyb::app {
-
-namespace {
-
-
-}  // namespace
 
 std::vector<double> parseNumbers(const std::string& text, const std::string& flag, size_t n, const char* expected) {
   std::string t = text;
@@ -43,22 +40,90 @@ glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
   return {x[0], x[1], x[2]};
 }
 
-Scene loadOrBuild(const VolumeInput& in, std::ostream& out, double* buildMs, const VolumeOctreeOptions& options) {
+Volume VolumeInput::read(std::ostream& err) const {
+  const std::optional<RawLayout> raw = rawLayout();
+  Volume v = readVolume(path, raw ? &*raw : nullptr, series);
+  printWarnings(v, err);
+  return v;
+}
+
+void printWarnings(const Volume& v, std::ostream& err) {
+  for (const std::string& w : v.warnings()) err << "hybrid-octree: warning: " << w << "\n";
+}
+
+Scene loadOrBuild(const VolumeInput& in, std::ostream& out, std::ostream& err, double* buildMs, const VolumeOctreeOptions& options) {
   const auto t0 = Clock::now();
   Scene scene;
   if (!in.rawLayout() && isSceneFile(in.path)) {
+    if (!in.series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", in.path, " is a scene file)");
     scene = loadScene(in.path);
     *buildMs = 0.0;
     out << "loaded scene " << in.path << " in " << std::fixed << std::setprecision(1) << msSince(t0) << " ms\n";
     return scene;
   }
-  scene.volume = in.read();
+  scene.volume = in.read(err);
   const auto t1 = Clock::now();
   scene.octree = VolumeOctree::build(scene.volume, options);
   *buildMs = msSince(t1);
   out << "read " << in.path << " in " << std::fixed << std::setprecision(1) << msSince(t0) - *buildMs
       << " ms, built volume octree in " << *buildMs << " ms\n";
   return scene;
+}
+
+std::string cameraJson(const Camera& c, int indent) {
+  nlohmann::ordered_json j;
+  j["space"] = "LPS";
+  j["eye"] = {c.eye.x, c.eye.y, c.eye.z};
+  j["center"] = {c.center.x, c.center.y, c.center.z};
+  j["up"] = {c.up.x, c.up.y, c.up.z};
+  j["fov_deg"] = c.fovDeg;
+  j["ortho"] = c.ortho;
+  j["ortho_height"] = c.orthoHeight;
+  j["width"] = c.width;
+  j["height"] = c.height;
+  return j.dump(indent);
+}
+
+Camera readCameraFile(const std::string& path) {
+  const std::vector<uint8_t> bytes = readFileBytes(path);
+  nlohmann::json j = nlohmann::json::parse(bytes.begin(), bytes.end(), nullptr, false);
+  if (j.is_discarded() || !j.is_object()) HYB_THROW(IoError, path, ": not a JSON object (expected a camera written by --stats)");
+  if (j.contains("camera")) j = j["camera"];
+  auto number = [&](const char* key) {
+    if (!j.contains(key) || !j[key].is_number() || !std::isfinite(j[key].get<double>()))
+      HYB_THROW(IoError, path, ": camera field '", key, "' missing or not a finite number");
+    return j[key].get<double>();
+  };
+  auto vector = [&](const char* key) {
+    if (!j.contains(key) || !j[key].is_array() || j[key].size() != 3)
+      HYB_THROW(IoError, path, ": camera field '", key, "' missing or not three numbers");
+    glm::dvec3 v;
+    for (int a = 0; a < 3; ++a) {
+      if (!j[key][size_t(a)].is_number() || !std::isfinite(j[key][size_t(a)].get<double>()))
+        HYB_THROW(IoError, path, ": camera field '", key, "' missing or not three numbers");
+      v[a] = j[key][size_t(a)].get<double>();
+    }
+    return v;
+  };
+  if (j.contains("space") && j["space"] != "LPS") HYB_THROW(IoError, path, ": camera space ", j["space"].dump(), " unsupported (expected \"LPS\")");
+  Camera c;
+  c.eye = vector("eye");
+  c.center = vector("center");
+  c.up = vector("up");
+  c.fovDeg = number("fov_deg");
+  if (!j.contains("ortho") || !j["ortho"].is_boolean()) HYB_THROW(IoError, path, ": camera field 'ortho' missing or not true/false");
+  c.ortho = j["ortho"].get<bool>();
+  c.orthoHeight = number("ortho_height");
+  const double w = number("width"), h = number("height");
+  if (w != std::floor(w) || h != std::floor(h) || w < 1 || h < 1 || w > 16384 || h > 16384)
+    HYB_THROW(IoError, path, ": camera width and height must be whole numbers of pixels in 1..16384");
+  c.width = int(w);
+  c.height = int(h);
+  if (!(c.fovDeg > 0 && c.fovDeg < 179)) HYB_THROW(IoError, path, ": camera field 'fov_deg' must be in (0, 179) degrees");
+  if (!(c.orthoHeight > 0)) HYB_THROW(IoError, path, ": camera field 'ortho_height' must be positive");
+  if (glm::length(c.eye - c.center) == 0 || glm::length(glm::cross(c.center - c.eye, c.up)) == 0)
+    HYB_THROW(IoError, path, ": camera eye, center and up must give a view direction not parallel to up");
+  return c;
 }
 
 glm::ivec2 parseSize(const std::string& text) {
@@ -85,17 +150,18 @@ glm::vec4 parseColor(const std::string& text, const std::string& flag, int n) {
   return c;
 }
 
-void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
+void prepareFrame(const RenderOptions& o, std::ostream& out, std::ostream& err, Frame* f) {
   // Flags that need no data first, so that a typo fails before the volume is read.
   f->surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
+  std::optional<CutPlane> cut;
   if (!o.cut.empty()) {
-    const char* expected = "px,py,pz,nx,ny,nz: a point and a non-zero normal, finite mm";
+    const char* expected = "px,py,pz,nx,ny,nz: a point and a non-zero normal, finite patient mm";
     const std::vector<double> x = parseNumbers(o.cut, "--cut", 6, expected);
     if (x[3] == 0 && x[4] == 0 && x[5] == 0) HYB_THROW(ValueError, "--cut '", o.cut, "' invalid (expected ", expected, ")");
-    f->cut = CutPlane{glm::dvec3(x[0], x[1], x[2]), glm::dvec3(x[3], x[4], x[5])};
+    cut = CutPlane{glm::dvec3(x[0], x[1], x[2]), glm::dvec3(x[3], x[4], x[5])};
   }
   if (!o.voi.empty()) {
-    const char* expected = "x0,y0,z0,x1,y1,z1: the box's corners in mm, x0 < x1, y0 < y1, z0 < z1";
+    const char* expected = "x0,y0,z0,x1,y1,z1: the box's corners in patient mm, x0 < x1, y0 < y1, z0 < z1";
     const std::vector<double> x = parseNumbers(o.voi, "--voi", 6, expected);
     VolumeOfInterest voi;
     voi.lo = glm::dvec3(x[0], x[1], x[2]);
@@ -106,34 +172,34 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
     voi.ramp = o.voiRamp;
     f->voi = voi;
   }
+  std::optional<glm::dvec3> focus;
+  if (!o.focus.empty()) focus = parseVec3(o.focus, "--focus");
   f->background = glm::vec3(parseColor(o.background, "--background", 3));
-  const glm::ivec2 size = parseSize(o.size);
-  const std::vector<double> orbit = parseNumbers(o.orbit, "--orbit", 2, "two finite numbers azimuth,elevation in degrees");
+  std::optional<glm::ivec2> size;
+  if (!o.size.empty()) size = parseSize(o.size);
+  std::optional<Camera> fromFile;
+  if (!o.cameraFile.empty()) fromFile = readCameraFile(o.cameraFile);
+  ViewDirection direction = viewDirection(AnatomicalView::Anterior);
+  if (!o.orbit.empty()) {
+    const std::vector<double> orbit = parseNumbers(o.orbit, "--orbit", 2, "two finite numbers azimuth,elevation in degrees");
+    direction = orbitDirection(orbit[0], orbit[1]);
+  } else if (AnatomicalView view; parseAnatomicalView(o.view, &view)) {
+    direction = viewDirection(view);
+  }
   VolumeOctreeOptions octree;
   octree.prefilter = o.prefilter == "on";
-  f->scene = loadOrBuild(o.input, out, &f->buildMs, octree);
+  f->scene = loadOrBuild(o.input, out, err, &f->buildMs, octree);
   const Volume& v = f->scene.volume;
+  const PatientFrame& frame = v.frame();
   // Transfer function: file, preset, or a default chosen from the data's range.
   f->tf = !o.tfFile.empty()   ? TransferFunction::fromFile(o.tfFile)
           : !o.preset.empty() ? TransferFunction::preset(o.preset)
                               : TransferFunction::defaultFor(v.minValue(), v.maxValue());
-  Camera& camera = f->camera;
-  if (!o.eye.empty()) {
-    camera.eye = parseVec3(o.eye, "--eye");
-    camera.center = o.center.empty() ? 0.5 * v.extentMm() : parseVec3(o.center, "--center");
-    camera.up = parseVec3(o.up, "--up");
-    if (glm::length(camera.eye - camera.center) == 0 || glm::length(glm::cross(camera.center - camera.eye, camera.up)) == 0)
-      HYB_THROW(ValueError, "--eye, --center and --up must give a view direction not parallel to up");
-    camera.fovDeg = o.fov;
-    camera.ortho = o.ortho;
-    camera.orthoHeight = glm::length(v.extentMm()) * 1.05;
-    camera.width = size.x;
-    camera.height = size.y;
-  } else {
-    camera = Camera::orbit(glm::dvec3(0.0), v.extentMm(), orbit[0], orbit[1], o.fov, o.ortho, size.x, size.y);
-  }
   // Surface: the scene's when the isovalue matches, else built now.
   if (o.iso) {
+    if (*o.iso <= v.minValue() || *o.iso > v.maxValue())
+      err << "hybrid-octree: warning: --iso " << *o.iso << " is outside the data's crossing range (" << v.minValue() << ", " << v.maxValue()
+          << "]: the surface is empty\n";
     if (f->scene.surface && f->scene.surface->isovalue() == float(*o.iso)) {
       f->so = &*f->scene.surface;
     } else {
@@ -156,6 +222,39 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f) {
     line << ", " << f->polygons << " polygons (" << f->mesh.triangles.size() << " triangles) reconstructed in " << f->polygonsMs << " ms\n";
     out << line.str();
   }
+  // The camera, in patient space: from a file, explicit, or the view framing what is visible.
+  Camera& camera = f->patientCamera;
+  const glm::ivec2 pixels = size.value_or(fromFile ? glm::ivec2(fromFile->width, fromFile->height) : glm::ivec2(512, 512));
+  const glm::dvec3 volumeCentre = frame.toPatient(0.5 * v.extentMm());
+  if (fromFile) {
+    camera = *fromFile;
+  } else if (!o.eye.empty()) {
+    camera.eye = parseVec3(o.eye, "--eye");
+    camera.center = o.center.empty() ? volumeCentre : parseVec3(o.center, "--center");
+    camera.up = parseVec3(o.up, "--up");
+    if (glm::length(camera.eye - camera.center) == 0 || glm::length(glm::cross(camera.center - camera.eye, camera.up)) == 0)
+      HYB_THROW(ValueError, "--eye, --center and --up must give a view direction not parallel to up");
+    camera.fovDeg = o.fov;
+    camera.ortho = o.ortho;
+    camera.orthoHeight = glm::length(v.extentMm()) * 1.05;
+  } else {
+    std::vector<glm::dvec3> points =
+        visiblePoints(v, f->scene.octree, f->tf, o.iso ? std::optional<float>(float(*o.iso)) : std::nullopt);
+    if (points.empty())  // nothing visible: the data's box
+      for (int c = 0; c < 8; ++c) points.push_back(frame.toPatient(glm::dvec3(c & 1, (c >> 1) & 1, (c >> 2) & 1) * v.extentMm()));
+    camera = fitCamera(points, direction, o.fov, o.ortho, pixels.x, pixels.y);
+  }
+  camera.width = pixels.x;
+  camera.height = pixels.y;
+  if (o.zoom != 1.0) zoomCamera(&camera, o.zoom);
+  f->camera = toGridCamera(camera, frame);
+  // The user's other coordinates, patient mm, into the grid frame.
+  if (cut) f->cut = CutPlane{frame.toGrid(cut->point), frame.vectorToGrid(cut->normal)};
+  if (focus) f->focus = frame.toGrid(*focus);
+  if (f->voi) {
+    f->voi->toBox = frame.direction;
+    f->voi->offset = frame.origin;
+  }
 }
 
 SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double epsilon, double budgetMb) {
@@ -164,7 +263,7 @@ SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double e
   params.epsilon = float(epsilon);
   params.spacing = v.spacing();
   params.maxBrickEdge = o.maxBrick;
-  if (!o.focus.empty()) params.focus = parseVec3(o.focus, "--focus");
+  params.focus = f.focus;
   params.eye = f.camera.eye;
   // Texture memory is counted at the bricks' bytes a texel (value and gradient; the extrapolated
   // texels included).

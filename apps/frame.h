@@ -17,6 +17,7 @@
 #include "render/brick_error.h"
 #include "render/camera.h"
 #include "render/image.h"
+#include "render/patient_view.h"
 #include "render/raycast.h"
 #include "render/slices.h"
 #include "render/transfer_function.h"
@@ -47,11 +48,13 @@ struct Budget {
 /// Parses --budget: "MB" (>= 0) or "P%" (0 < P <= 100); none when @p text is neither.
 std::optional<Budget> parseBudget(const std::string& text);
 
-/// Where the volume comes from: a path (default: the Debian CT) and an optional raw layout.
+/// Where the volume comes from: a path (default: the Debian CT), an optional raw layout, and the
+/// series of a DICOM directory.
 struct VolumeInput {
   std::string path = kDefaultVolumePath;
   std::string rawDims, rawType, rawSpacing, rawEndian = "little";
   uint64_t rawHeader = 0;
+  std::string series;  // DICOM Series Instance UID; empty: the largest series
 
   void add(CLI::App* cmd) {
     cmd->add_option("volume", path, "volume file (.nrrd .nhdr .mhd .mha .nii .nii.gz .inv3), DICOM directory, raw file, or scene.hoct")
@@ -61,6 +64,7 @@ struct VolumeInput {
     cmd->add_option("--raw-spacing", rawSpacing, "raw input: voxel spacing sx,sy,sz in mm (default 1,1,1)");
     cmd->add_option("--raw-endian", rawEndian, "raw input: little|big (default little)");
     cmd->add_option("--raw-header", rawHeader, "raw input: bytes to skip before the samples");
+    cmd->add_option("--series", series, "DICOM directory: the Series Instance UID to read (default: the largest series; info lists them)");
   }
 
   // Builds the raw layout when any raw flag is given (then --raw-dims and --raw-type are required).
@@ -85,21 +89,31 @@ struct VolumeInput {
     return l;
   }
 
-  Volume read() const {
-    const std::optional<RawLayout> raw = rawLayout();
-    return readVolume(path, raw ? &*raw : nullptr);
-  }
+  /// Reads the volume, printing what the reader had to assume on @p err as warnings.
+  Volume read(std::ostream& err) const;
 };
 
+/// Prints @p v's reader warnings on @p err, one "hybrid-octree: warning:" line each.
+void printWarnings(const Volume& v, std::ostream& err);
 
-/// Loads a scene file, or reads a volume and builds its octree (printing what it did on @p out).
-Scene loadOrBuild(const VolumeInput& in, std::ostream& out, double* buildMs, const VolumeOctreeOptions& options = {});
+/// Loads a scene file, or reads a volume and builds its octree (printing what it did on @p out,
+/// warnings on @p err).
+Scene loadOrBuild(const VolumeInput& in, std::ostream& out, std::ostream& err, double* buildMs, const VolumeOctreeOptions& options = {});
+
+/// The camera as JSON (patient space, LPS mm): space, eye, center, up, fov_deg, ortho,
+/// ortho_height, width, height. --stats records it; --camera-file reads it back.
+std::string cameraJson(const Camera& patientCamera, int indent = 2);
+/// Reads a camera from @p path: a file of cameraJson's form, or a --stats file holding one under
+/// "camera". @throw IoError naming the file and the field when it is not one.
+Camera readCameraFile(const std::string& path);
 
 /// Render flags (DESIGN 2), shared by render and bench.
 struct RenderOptions {
   VolumeInput input;
   std::string output, stats, focus, renderer = "slices", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
-  std::string eye, center, up = "0,0,1", orbit = "180,10", size = "512x512", background = "0,0,0", shading = "on";
+  std::string eye, center, up = "0,0,1", orbit, view, size, background = "0,0,0", shading = "on";
+  std::string cameraFile, marker = "off";
+  double zoom = 1.0;
   std::string blend = "on", cut, cutLine = "on", voi, proxy = "planes", prefilter = "on";
   double voiInside = 1.0, voiOutside = 0.1, voiRamp = 4.0, lodPixels = 0.0;
   std::optional<double> iso;
@@ -125,6 +139,12 @@ struct RenderOptions {
     if (prefilter != "on" && prefilter != "off") return "--prefilter must be on or off";
     if (proxy != "planes" && proxy != "shells") return "--proxy '" + proxy + "' invalid (expected planes or shells)";
     if (cutLine != "on" && cutLine != "off") return "--cut-line must be on or off";
+    if (marker != "on" && marker != "off") return "--marker must be on or off";
+    if (AnatomicalView v; !view.empty() && !parseAnatomicalView(view, &v))
+      return "--view '" + view + "' invalid (expected " + anatomicalViewNames() + ")";
+    if (!(std::isfinite(zoom) && zoom > 0 && zoom <= 1000)) return "--zoom must be a magnification in (0, 1000]";
+    if (!cameraFile.empty() && (!eye.empty() || !orbit.empty() || !view.empty()))
+      return "--camera-file sets the whole camera (it excludes --eye, --orbit and --view)";
     if (progressive < 1 || progressive > 8) return "--progressive must be in 1..8 images";
     if (repeat < 1 || repeat > 100) return "--repeat must be in 1..100 frames";
     if (texelBits != 8 && texelBits != 16) return "--texel-bits must be 8 or 16";
@@ -152,15 +172,26 @@ struct RenderOptions {
     cmd->add_option("--surface-color", surfaceColor, "surface r,g,b,a in [0,1]; a < 1 is translucent")->capture_default_str();
     cmd->add_option("--tf", tfFile, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm");
     cmd->add_option("--preset", preset, "ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone (default for CT; other data: a ramp)");
-    cmd->add_option("--focus", focus, "region of interest x,y,z in world mm");
-    CLI::Option* eyeOption = cmd->add_option("--eye", eye, "camera position x,y,z in mm (with --center, --up)");
+    cmd->add_option("--focus", focus, "region of interest x,y,z, patient mm (LPS)");
+    CLI::Option* eyeOption = cmd->add_option("--eye", eye, "camera position x,y,z, patient mm (LPS: x left, y posterior, z superior; with --center, --up)");
     // Without --eye the camera orbits, and a --center or --up would be silently ignored.
-    cmd->add_option("--center", center, "point looked at, x,y,z in mm (default: the volume centre); needs --eye")->needs(eyeOption);
-    cmd->add_option("--up", up, "up direction x,y,z; needs --eye")->capture_default_str()->needs(eyeOption);
-    cmd->add_option("--orbit", orbit, "azimuth,elevation in degrees around the volume centre")->capture_default_str()->excludes(eyeOption);
+    cmd->add_option("--center", center, "point looked at, x,y,z, patient mm (default: the volume's centre); needs --eye")->needs(eyeOption);
+    cmd->add_option("--up", up, "up direction x,y,z in patient axes (LPS); needs --eye")->capture_default_str()->needs(eyeOption);
+    CLI::Option* viewOption = cmd->add_option("--view", view,
+                                              "anatomical view: anterior (default; the patient's left on the image's right), posterior, "
+                                              "left, right, superior, inferior")->excludes(eyeOption);
+    cmd->add_option("--orbit", orbit,
+                    "azimuth,elevation in degrees from the anterior view: azimuth towards the patient's left (90 = left view), "
+                    "elevation towards superior")
+        ->excludes(eyeOption)
+        ->excludes(viewOption);
+    cmd->add_option("--zoom", zoom, "magnify the image about its centre (2 = twice as large; default framing fits what is visible)")
+        ->capture_default_str();
+    cmd->add_option("--camera-file", cameraFile, "read the camera from a JSON file written by --stats (or its \"camera\" object alone)");
+    cmd->add_option("--marker", marker, "orientation marker (patient axes L/R, P/A, S/I) in the lower-left corner: on|off")->capture_default_str();
     cmd->add_option("--fov", fov, "vertical field of view in degrees")->capture_default_str();
     cmd->add_flag("--ortho", ortho, "orthographic projection");
-    cmd->add_option("--size", size, "image size WxH")->capture_default_str();
+    cmd->add_option("--size", size, "image size WxH (default 512x512, or the camera file's)");
     cmd->add_option("--background", background, "background r,g,b in [0,1]")->capture_default_str();
     cmd->add_option("--shading", shading, "gradient shading of the volume: on|off")->capture_default_str();
     cmd->add_option("--proxy", proxy, "slice geometry: planes (view-aligned) or shells (spherical around the eye, perspective)")
@@ -197,22 +228,25 @@ struct Frame {
   Scene scene;
   double buildMs = 0, surfaceMs = 0, polygonsMs = 0;  // octrees built; the surface's polygons reconstructed
   TransferFunction tf;
-  Camera camera;
+  Camera patientCamera;  // as the user sees it: patient space (LPS mm)
+  Camera camera;         // the renderers' (grid frame)
   std::optional<SurfaceOctree> builtSurface;
   const SurfaceOctree* so = nullptr;
   TriangleMesh mesh;
   size_t polygons = 0;
   glm::vec4 surfaceColor{1.0f};
   glm::vec3 background{0.0f};
-  std::optional<CutPlane> cut;
-  std::optional<VolumeOfInterest> voi;
+  std::optional<CutPlane> cut;            // grid frame
+  std::optional<VolumeOfInterest> voi;    // its box in patient axes, placed in the grid frame
+  std::optional<glm::dvec3> focus;        // grid frame
   /// The bricks' image errors for this view and transfer function, made on the first budgeted
   /// selection and shared by the later ones (bench's sweep, progressive levels).
   mutable std::shared_ptr<BrickImageError> brickError;
 };
 
-/// Loads the scene and sets up the transfer function, camera and surface of @p o.
-void prepareFrame(const RenderOptions& o, std::ostream& out, Frame* f);
+/// Loads the scene and sets up the transfer function, camera and surface of @p o, converting the
+/// user's patient coordinates (camera, cut, volume of interest, focus) into the grid frame.
+void prepareFrame(const RenderOptions& o, std::ostream& out, std::ostream& err, Frame* f);
 
 /// Selection parameters for a frame: ε, budget (MB), focus, the eye, the transfer function's opacity
 /// and slope, frustum culling and blending.

@@ -27,8 +27,7 @@ Camera Camera::orbit(const glm::dvec3& lo, const glm::dvec3& hi, double azimuthD
 
 bool Camera::seesBox(const glm::dvec3& lo, const glm::dvec3& hi) const {
   const glm::dvec3 f = forward();
-  const glm::dvec3 r = glm::normalize(glm::cross(f, up));
-  const glm::dvec3 u = glm::cross(r, f);
+  const glm::dvec3 r = right(), u = trueUp();
   const double aspect = double(width) / double(height);
   const double ty = ortho ? 0.5 * orthoHeight : std::tan(glm::radians(fovDeg) * 0.5), tx = ty * aspect;
   // Signed distances to the side planes, positive outside: x − tx·z (perspective) or x − tx (ortho).
@@ -50,8 +49,7 @@ bool Camera::seesBox(const glm::dvec3& lo, const glm::dvec3& hi) const {
 
 void Camera::ray(double px, double py, glm::dvec3* origin, glm::dvec3* dir) const {
   const glm::dvec3 f = forward();
-  const glm::dvec3 r = glm::normalize(glm::cross(f, up));
-  const glm::dvec3 u = glm::cross(r, f);
+  const glm::dvec3 r = right(), u = trueUp();
   const double sx = (2.0 * px / width - 1.0), sy = (1.0 - 2.0 * py / height);
   const double aspect = double(width) / double(height);
   if (ortho) {

@@ -5,13 +5,18 @@
 
 namespace hyb {
 
-/// A camera looking from eye to center; pixel (0, 0) is the top-left corner.
+/// A camera looking from eye to center; pixel (0, 0) is the top-left corner. The renderers take it
+/// in the grid frame; the user gives it in the patient's (render/patient_view.h converts).
 struct Camera {
   glm::dvec3 eye{0, 0, 1}, center{0}, up{0, 1, 0};
   double fovDeg = 30.0;      ///< vertical field of view (perspective)
   bool ortho = false;
   double orthoHeight = 1.0;  ///< world height of the view (orthographic), mm
   int width = 512, height = 512;
+  /// The image's right is −(forward × up) instead of forward × up: a camera set up in the patient
+  /// looking at a grid stored left-handed there (the grid frame is then a mirror image of the
+  /// patient's, and so must the camera be).
+  bool mirrored = false;
 
   /// Camera around the box [lo, hi] (mm): azimuth about +z from −y, elevation towards +z, degrees,
   /// at a distance where the box's bounding sphere fills the view.
@@ -19,6 +24,13 @@ struct Camera {
                       bool ortho, int width, int height);
 
   glm::dvec3 forward() const { return glm::normalize(center - eye); }
+  /// The unit direction of the image's x axis (to the right).
+  glm::dvec3 right() const {
+    const glm::dvec3 r = glm::normalize(glm::cross(forward(), up));
+    return mirrored ? -r : r;
+  }
+  /// The unit direction of the image's y axis (up), orthogonal to forward.
+  glm::dvec3 trueUp() const { return glm::cross(glm::normalize(glm::cross(forward(), up)), forward()); }
   /// Whether any part of the box [lo, hi] (mm) may be seen: false only when all eight corners lie
   /// outside one side of the view frustum (the near side being the eye plane; ortho: no near side).
   bool seesBox(const glm::dvec3& lo, const glm::dvec3& hi) const;

@@ -101,12 +101,13 @@ uniform vec3 eye, forward;
 uniform float sliceSpacing;  // mm between this brick's slice planes along forward (radii: shells)
 uniform int shells;  // 1: this brick's proxies are spherical shells around the eye
 uniform vec3 boxLo, boxHi;  // this brick's box, world mm (SEGMENTS)
-uniform vec3 voiCentre, voiHalf;
+uniform vec3 voiCentre, voiHalf, voiOffset;  // the box in its own axes; the grid origin there
+uniform mat3 voiToBox;  // grid axes to the box's
 uniform float voiInside, voiOutside, voiRamp;
 
 // Levoy's volume of interest: the opacity factor, smooth across the box's surface.
 float voiFactor(vec3 x) {
-  vec3 q = abs(x - voiCentre) - voiHalf;
+  vec3 q = abs(voiToBox * x + voiOffset - voiCentre) - voiHalf;
   float d = length(max(q, vec3(0.0))) + min(max(q.x, max(q.y, q.z)), 0.0);
   float t = voiRamp > 0.0 ? clamp(0.5 - d / voiRamp, 0.0, 1.0) : (d <= 0.0 ? 1.0 : 0.0);
   return mix(voiOutside, voiInside, t * t * (3.0 - 2.0 * t));

@@ -666,7 +666,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   const double zNear = camera.ortho ? dmin - 0.01 * diag : std::max(dmin - 0.01 * diag, 1e-4 * diag);
   const double zFar = dmax + 0.01 * diag;
   const double aspect = double(W) / double(H);
-  const glm::dmat4 view = glm::lookAt(camera.eye, camera.center, camera.up);
+  // A mirrored camera flips the image's x axis (no face culling: winding does not matter).
+  const glm::dmat4 view = glm::scale(glm::dmat4(1.0), glm::dvec3(camera.mirrored ? -1.0 : 1.0, 1.0, 1.0)) *
+                          glm::lookAt(camera.eye, camera.center, camera.up);
   const glm::dmat4 proj = camera.ortho ? glm::ortho(-0.5 * camera.orthoHeight * aspect, 0.5 * camera.orthoHeight * aspect,
                                                     -0.5 * camera.orthoHeight, 0.5 * camera.orthoHeight, zNear, zFar)
                                        : glm::perspective(glm::radians(camera.fovDeg), aspect, zNear, zFar);
@@ -754,6 +756,10 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       const glm::vec3 centre(0.5 * (options.voi->lo + options.voi->hi)), half(0.5 * (options.voi->hi - options.voi->lo));
       glUniform3fv(uniform("voiCentre"), 1, glm::value_ptr(centre));
       glUniform3fv(uniform("voiHalf"), 1, glm::value_ptr(half));
+      const glm::mat3 toBox(options.voi->toBox);
+      const glm::vec3 offset(options.voi->offset);
+      glUniformMatrix3fv(uniform("voiToBox"), 1, GL_FALSE, glm::value_ptr(toBox));
+      glUniform3fv(uniform("voiOffset"), 1, glm::value_ptr(offset));
       glUniform1f(uniform("voiInside"), float(options.voi->inside));
       glUniform1f(uniform("voiOutside"), float(options.voi->outside));
       glUniform1f(uniform("voiRamp"), float(options.voi->ramp));

@@ -9,6 +9,7 @@ packages=(
   libnifti2-dev                                  # NIfTI-1/2 reader (nifti_clib), .nii and .nii.gz
   libgdcm-dev                                    # DICOM series: parsing, decompression, rescale tags
   libcli11-dev                                   # command-line parsing with subcommands
+  nlohmann-json3-dev                             # JSON: --stats, camera files
   libpng-dev                                     # PNG output
   libcgal-dev libopenmesh-dev                    # exact mesh checks; mesh storage and IO
   libosmesa6-dev                                 # off-screen OpenGL 4.5 core through llvmpipe

@@ -29,7 +29,8 @@ std::string writeNrrd(const test::TempDir& dir, const std::string& name, const s
   return dir.file(name + ".nhdr");
 }
 
-const std::string kHeader = "NRRD0004\ntype: float\ndimension: 3\nsizes: 9 7 5\nspacings: 1 1 2\nendian: little\nencoding: raw\n";
+const std::string kHeader =
+    "NRRD0004\ntype: float\ndimension: 3\nsizes: 9 7 5\nspace: LPS\nspace directions: (1,0,0) (0,1,0) (0,0,2)\nendian: little\nencoding: raw\n";
 
 // The number after "key": in a --stats JSON file, or -1 when the key is missing.
 double jsonNumber(const std::string& file, const std::string& key) {
@@ -58,7 +59,7 @@ TEST(Cli, InfoBuildAndSelect) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("coarse knots point-subsampled"));
 
-  r = run({"render", dir.file("s.hoct"), "--epsilon", "0", "--stats", dir.file("st.json")});
+  r = run({"render", dir.file("s.hoct"), "--epsilon", "0", "--stats", dir.file("st.json"), "-o", dir.file("r.png")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("max nodal error used 0.00"));
   const auto json = test::readBytes(dir.file("st.json"));
@@ -67,11 +68,11 @@ TEST(Cli, InfoBuildAndSelect) {
   const double texels = jsonNumber(dir.file("st.json"), "texels");
   EXPECT_GT(texels, 0.0);
   EXPECT_EQ(jsonNumber(dir.file("st.json"), "texture_bytes"), 4.0 * texels);
-  r = run({"render", dir.file("s.hoct"), "--texel-bits", "16", "--stats", dir.file("st16.json")});
+  r = run({"render", dir.file("s.hoct"), "--texel-bits", "16", "--stats", dir.file("st16.json"), "-o", dir.file("r.png")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(jsonNumber(dir.file("st16.json"), "texture_bytes"), 8.0 * texels);
 
-  r = run({"render", nhdr, "--epsilon", "100"});
+  r = run({"render", nhdr, "--epsilon", "100", "-o", dir.file("r.png")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("1 bricks, 8 texels"));
 }
@@ -81,7 +82,7 @@ TEST(Cli, BudgetInPercentOfTheFullResolutionBytes) {
   const std::string header = "NRRD0004\ntype: float\ndimension: 3\nsizes: 33 33 33\nspacings: 1 1 1\nendian: little\nencoding: raw\n";
   const std::string nhdr = writeNrrd(dir, "b", header, test::toBytes(test::sphereVolume({33, 33, 33}, 12.0).samples()));
   auto texels = [&](const std::string& budget, std::string* out) {
-    std::vector<std::string> args{"render", nhdr, "--size", "16x16", "--max-brick", "4", "--stats", dir.file("t.json")};
+    std::vector<std::string> args{"render", nhdr, "--size", "16x16", "--max-brick", "4", "--stats", dir.file("t.json"), "-o", dir.file("t.png")};
     if (!budget.empty()) args.insert(args.end(), {"--budget", budget});
     const CliRun r = run(args);
     EXPECT_EQ(r.status, 0) << r.err;
@@ -167,42 +168,51 @@ TEST(Cli, MalformedInputExitsTwoWithOneLine) {
   test::writeText(dir.file("nofile.nhdr"), kHeader + "data file: gone.raw\n");
   expectBadInput({"info", dir.file("nofile.nhdr")}, "gone.raw");
   expectBadInput({"info", dir.file("absent.nrrd")}, "absent.nrrd");
-  expectBadInput({"render", dir.file("absent.hoct")}, "absent.hoct");
+  expectBadInput({"render", dir.file("absent.hoct"), "-o", dir.file("a.png")}, "absent.hoct");
 }
 
 TEST(Cli, BadFlagsExitTwo) {
   test::TempDir dir;
   const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
-  expectBadInput({"render", nhdr, "--epsilon", "-1"}, "--epsilon");
-  expectBadInput({"render", nhdr, "--epsilon", "abc"}, "--epsilon");
-  expectBadInput({"render", nhdr, "--focus", "1,2"}, "--focus");
-  expectBadInput({"render", nhdr, "--orbit", "10"}, "azimuth,elevation");
-  expectBadInput({"render", nhdr, "--texel-bits", "12"}, "--texel-bits");
-  expectBadInput({"render", nhdr, "--max-brick", "3"}, "--max-brick 3");
+  const std::string png = dir.file("o.png");
+  expectBadInput({"render", nhdr}, "-o missing");  // nothing to write: refused, not a silent no-op
+  expectBadInput({"render", nhdr, "-o", png, "--epsilon", "-1"}, "--epsilon");
+  expectBadInput({"render", nhdr, "-o", png, "--epsilon", "abc"}, "--epsilon");
+  expectBadInput({"render", nhdr, "-o", png, "--focus", "1,2"}, "--focus");
+  expectBadInput({"render", nhdr, "-o", png, "--orbit", "10"}, "azimuth,elevation");
+  expectBadInput({"render", nhdr, "-o", png, "--texel-bits", "12"}, "--texel-bits");
+  expectBadInput({"render", nhdr, "-o", png, "--max-brick", "3"}, "--max-brick 3");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--max-brick", "512"}, "--max-brick 512");
-  expectBadInput({"render", nhdr, "--orbit", "10,20,30"}, "azimuth,elevation");
-  expectBadInput({"render", nhdr, "--up", "0,1,0"}, "--up requires --eye");  // an orbit would ignore it
-  expectBadInput({"render", nhdr, "--center", "1,2,3"}, "--center requires --eye");
-  expectBadInput({"render", nhdr, "--eye", "1,2,3", "--orbit", "10,20"}, "--orbit");
-  expectBadInput({"render", nhdr, "--budget", "-3"}, "--budget");
-  for (const char* budget : {"0%", "150%", "x%", "5%%", "%"}) expectBadInput({"render", nhdr, "--budget", budget}, "--budget");
-  expectBadInput({"render", nhdr, "--no-such-flag"}, "--no-such-flag");
+  expectBadInput({"render", nhdr, "-o", png, "--orbit", "10,20,30"}, "azimuth,elevation");
+  expectBadInput({"render", nhdr, "-o", png, "--up", "0,1,0"}, "--up requires --eye");  // an orbit would ignore it
+  expectBadInput({"render", nhdr, "-o", png, "--center", "1,2,3"}, "--center requires --eye");
+  expectBadInput({"render", nhdr, "-o", png, "--eye", "1,2,3", "--orbit", "10,20"}, "--orbit");
+  expectBadInput({"render", nhdr, "-o", png, "--budget", "-3"}, "--budget");
+  for (const char* budget : {"0%", "150%", "x%", "5%%", "%"}) expectBadInput({"render", nhdr, "-o", png, "--budget", budget}, "--budget");
+  expectBadInput({"render", nhdr, "-o", png, "--no-such-flag"}, "--no-such-flag");
   expectBadInput({"build", nhdr}, "-o");
   expectBadInput({"build", nhdr, "-o", dir.file("x.hoct"), "--leaf-edge", "6"}, "--leaf-edge");
-  expectBadInput({"render", nhdr, "--cut", "1,2,3,0,0,0"}, "--cut");
-  expectBadInput({"render", nhdr, "--cut", "1,2,3"}, "--cut");
-  expectBadInput({"render", nhdr, "--voi", "5,5,5,1,9,9"}, "--voi");
-  expectBadInput({"render", nhdr, "--voi-outside", "-1"}, "--voi-outside");
-  expectBadInput({"render", nhdr, "--blend", "maybe"}, "--blend");
-  expectBadInput({"render", nhdr, "--prefilter", "yes"}, "--prefilter");
+  expectBadInput({"render", nhdr, "-o", png, "--cut", "1,2,3,0,0,0"}, "--cut");
+  expectBadInput({"render", nhdr, "-o", png, "--cut", "1,2,3"}, "--cut");
+  expectBadInput({"render", nhdr, "-o", png, "--voi", "5,5,5,1,9,9"}, "--voi");
+  expectBadInput({"render", nhdr, "-o", png, "--voi-outside", "-1"}, "--voi-outside");
+  expectBadInput({"render", nhdr, "-o", png, "--blend", "maybe"}, "--blend");
+  expectBadInput({"render", nhdr, "-o", png, "--prefilter", "yes"}, "--prefilter");
   expectBadInput({"build", nhdr, "-o", dir.file("x.hoct"), "--prefilter", "1"}, "--prefilter");
-  expectBadInput({"render", nhdr, "--progressive", "3"}, "--progressive");
+  expectBadInput({"render", nhdr, "-o", png, "--progressive", "9"}, "--progressive");
+  expectBadInput({"render", nhdr, "-o", png, "--view", "frontal"}, "--view 'frontal' invalid");
+  expectBadInput({"render", nhdr, "-o", png, "--view", "left", "--orbit", "10,20"}, "--orbit");
+  expectBadInput({"render", nhdr, "-o", png, "--zoom", "0"}, "--zoom");
+  expectBadInput({"render", nhdr, "-o", png, "--marker", "yes"}, "--marker");
+  expectBadInput({"render", nhdr, "-o", png, "--camera-file", dir.file("none.json")}, "none.json");
+  expectBadInput({"render", nhdr, "-o", png, "--camera-file", dir.file("none.json"), "--view", "left"}, "--camera-file");
   expectBadInput({"render", nhdr, "--progressive", "0", "-o", dir.file("a.png")}, "--progressive");
-  expectBadInput({"render", nhdr, "--repeat", "0"}, "--repeat");
+  expectBadInput({"render", nhdr, "-o", png, "--repeat", "0"}, "--repeat");
   expectBadInput({"render", nhdr, "-o", dir.file("image.txt")}, ".png");
-  expectBadInput({"render", nhdr, "--adaptive", "2"}, "--adaptive");  // the slice renderer has no rays to refine
-  for (const char* t : {"-1", "300", "nan"}) expectBadInput({"render", nhdr, "--renderer", "raycast", "--adaptive", t}, "--adaptive");
+  expectBadInput({"render", nhdr, "-o", png, "--adaptive", "2"}, "--adaptive");  // the slice renderer has no rays to refine
+  for (const char* t : {"-1", "300", "nan"}) expectBadInput({"render", nhdr, "-o", png, "--renderer", "raycast", "--adaptive", t}, "--adaptive");
   EXPECT_FALSE(std::filesystem::exists(dir.file("image.txt")));
+  EXPECT_FALSE(std::filesystem::exists(png));
   expectBadInput({"bench", nhdr}, "-o");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--budgets", "0.5,2"}, "--budgets");
   expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--epsilons", "1,x"}, "--epsilons");
@@ -211,7 +221,7 @@ TEST(Cli, BadFlagsExitTwo) {
   // An output whose directory does not exist is refused before any work, naming the flag.
   const std::string missing = dir.file("no/such/dir");
   expectBadInput({"render", nhdr, "-o", missing + "/a.png"}, "-o '" + missing + "/a.png': directory");
-  expectBadInput({"render", nhdr, "--stats", missing + "/s.json"}, "--stats");
+  expectBadInput({"render", nhdr, "-o", png, "--stats", missing + "/s.json"}, "--stats");
   expectBadInput({"build", nhdr, "-o", missing + "/s.hoct"}, "does not exist");
   expectBadInput({"export", nhdr, "--iso", "0.5", "-o", missing + "/m.ply"}, "does not exist");
   expectBadInput({"compare", nhdr, nhdr, "--diff", missing + "/d.png"}, "--diff");
@@ -343,7 +353,7 @@ TEST(Cli, BenchSeparatesFirstFramesAndMergesCoincidingLabels) {
 TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
   test::TempDir dir;
   // A sphere that fits inside its volume, so its surface is closed.
-  const std::string nhdr = writeNrrd(dir, "s", "NRRD0004\ntype: float\ndimension: 3\nsizes: 11 11 11\nendian: little\nencoding: raw\n",
+  const std::string nhdr = writeNrrd(dir, "s", "NRRD0004\ntype: float\ndimension: 3\nsizes: 11 11 11\nspacings: 1 1 1\nendian: little\nencoding: raw\n",
                                      test::toBytes(test::sphereVolume(glm::ivec3(11), 3.5).samples()));
   CliRun r = run({"export", nhdr, "--iso", "0", "-o", dir.file("s.off"), "--check"});
   ASSERT_EQ(r.status, 0) << r.err;
@@ -371,7 +381,10 @@ TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
   EXPECT_THAT(r.out, HasSubstr("triangles ratio 1.000"));
   r = run({"export", nhdr, "--iso", "1000", "-o", dir.file("empty.ply")});
   ASSERT_EQ(r.status, 0) << r.err;
-  EXPECT_THAT(r.out, HasSubstr("the surface is empty"));
+  EXPECT_EQ(lines(r.err), 2u) << r.err;  // the file's missing orientation, and the isovalue
+  EXPECT_THAT(r.err, HasSubstr("no 'space directions': orientation unknown"));
+  EXPECT_THAT(r.err, HasSubstr("warning: --iso 1000 is outside the data's crossing range"));
+  EXPECT_THAT(r.err, HasSubstr("the surface is empty"));
   expectBadInput({"export", nhdr, "-o", dir.file("x.ply")}, "--iso");
   expectBadInput({"export", nhdr, "--iso", "0", "-o", dir.file("x.vtk")}, "x.vtk");
   expectBadInput({"export", nhdr, "--iso", "0"}, "-o");
@@ -384,7 +397,8 @@ TEST(Cli, UnwritableOutputLeavesNothing) {
   const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
   expectBadInput({"build", nhdr, "-o", dir.file("missing/dir/s.hoct")}, "missing/dir/s.hoct");
   test::writeText(dir.file("bad.hoct"), "HYBOCT\x1a\ntruncated");
-  expectBadInput({"render", dir.file("bad.hoct")}, "bad.hoct");
+  expectBadInput({"render", dir.file("bad.hoct"), "-o", dir.file("b.png")}, "bad.hoct");
+  EXPECT_FALSE(std::filesystem::exists(dir.file("b.png")));
 }
 
 }  // namespace

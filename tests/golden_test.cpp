@@ -5,6 +5,7 @@
 // HYB_WRITE_GOLDEN=1 rewrites the PNGs instead of comparing.
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <string>
@@ -67,6 +68,7 @@ void expectGolden(const std::string& name, std::vector<std::string> input, const
     largest = std::max(largest, std::abs(int(image[i]) - int(expected[i])));
   }
   // Bit-identical here; llvmpipe on another CPU may round a few channels differently.
+  if (differing) std::printf("golden %s: %zu channels differ, largest by %d\n", name.c_str(), differing, largest);
   EXPECT_LE(double(differing) / double(image.size()), 0.002) << name << ": " << differing << " channels differ, largest by " << largest;
   EXPECT_LE(largest, 3) << name;
 }
