@@ -77,6 +77,49 @@ TEST(Cli, InfoBuildAndSelect) {
   EXPECT_THAT(r.out, HasSubstr("1 bricks, 8 texels"));
 }
 
+TEST(Cli, InfoPrintsThePatientFrameAndExactPercentiles) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "r",
+                                     "NRRD0004\ntype: float\ndimension: 3\nsizes: 9 7 5\nspace: right-anterior-superior\n"
+                                     "space directions: (1,0,0) (0,0,-1.5) (0,2,0)\nspace origin: (10,20,30)\nendian: little\nencoding: raw\n",
+                                     sphereBytes());
+  const CliRun r = run({"info", nhdr});
+  ASSERT_EQ(r.status, 0) << r.err;
+  // In LPS: i towards the right, j towards inferior, k towards anterior; the origin's x and y negated.
+  EXPECT_THAT(r.out, HasSubstr("origin   -10, -20, 30 mm"));
+  EXPECT_THAT(r.out, HasSubstr("direction  -1.000000   0.000000   0.000000"));
+  EXPECT_THAT(r.out, HasSubstr("            0.000000   0.000000  -1.000000"));
+  EXPECT_THAT(r.out, HasSubstr("            0.000000  -1.000000   0.000000"));
+  EXPECT_THAT(r.out, HasSubstr("orient   RIA"));
+  EXPECT_THAT(r.out, HasSubstr("spacing  1 x 1.5 x 2 mm"));
+  // The percentiles are samples of the data (nearest rank), not bin centres.
+  const std::vector<float> s = test::sphereVolume({9, 7, 5}, 3.0).samples();
+  std::vector<float> sorted = s;
+  std::sort(sorted.begin(), sorted.end());
+  std::ostringstream median;
+  median << std::fixed << std::setprecision(2) << "median " << sorted[size_t(std::ceil(0.5 * double(s.size()))) - 1];
+  EXPECT_THAT(r.out, HasSubstr(median.str()));
+}
+
+TEST(Cli, CameraRecordedByStatsRendersTheSameImageAgain) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  CliRun r = run({"render", nhdr, "--orbit", "30,20", "--zoom", "1.5", "--size", "32x24", "--iso", "0.5", "-o", dir.file("a.png"),
+                  "--stats", dir.file("a.json"), "--marker", "on"});
+  ASSERT_EQ(r.status, 0) << r.err;
+  r = run({"render", nhdr, "--camera-file", dir.file("a.json"), "--iso", "0.5", "-o", dir.file("b.png"), "--marker", "on"});
+  ASSERT_EQ(r.status, 0) << r.err;
+  int w = 0, h = 0;
+  EXPECT_EQ(readPng(dir.file("a.png"), &w, &h), readPng(dir.file("b.png"), &w, &h));
+  EXPECT_EQ(w, 32);
+  EXPECT_EQ(h, 24);
+  // A camera file that is not one is refused naming the field.
+  test::writeText(dir.file("bad.json"), "{\"camera\": {\"eye\": [0, 0], \"center\": [0, 0, 0]}}");
+  expectBadInput({"render", nhdr, "--camera-file", dir.file("bad.json"), "-o", dir.file("c.png")}, "camera field 'eye'");
+  test::writeText(dir.file("text.json"), "not json");
+  expectBadInput({"render", nhdr, "--camera-file", dir.file("text.json"), "-o", dir.file("c.png")}, "text.json: not a JSON object");
+}
+
 TEST(Cli, BudgetInPercentOfTheFullResolutionBytes) {
   test::TempDir dir;
   const std::string header = "NRRD0004\ntype: float\ndimension: 3\nsizes: 33 33 33\nspacings: 1 1 1\nendian: little\nencoding: raw\n";
