@@ -8,6 +8,7 @@
 
 #include "hybrid_octree/surface_octree.h"
 #include "render/bvh.h"
+#include "surface/mesh_ops.h"
 
 #include <nlohmann/json.hpp>
 
@@ -212,6 +213,7 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, std::ostream& err, 
     const DiscreteMesh d = f->so->reconstruct();
     f->polygons = d.faceCount();
     f->mesh = fineMeshToTriangles(d, v.spacing());
+    if (o.surfaceNormals == "gradient") setGradientNormals(v, &f->mesh);
     f->polygonsMs = msSince(t0);
     std::ostringstream line;
     line << std::fixed << std::setprecision(1) << "surface  iso " << *o.iso << ": Surface Octree ";

@@ -112,7 +112,7 @@ struct RenderOptions {
   VolumeInput input;
   std::string output, stats, focus, renderer = "slices", tfFile, preset, surfaceColor = "0.95,0.92,0.85,1";
   std::string eye, center, up = "0,0,1", orbit, view, size, background = "0,0,0", shading = "on";
-  std::string cameraFile, marker = "off";
+  std::string cameraFile, marker = "off", surfaceNormals = "gradient";
   double zoom = 1.0;
   std::string blend = "on", cut, cutLine = "on", voi, proxy = "planes", prefilter = "on";
   double voiInside = 1.0, voiOutside = 0.1, voiRamp = 4.0, lodPixels = 0.0;
@@ -140,6 +140,7 @@ struct RenderOptions {
     if (proxy != "planes" && proxy != "shells") return "--proxy '" + proxy + "' invalid (expected planes or shells)";
     if (cutLine != "on" && cutLine != "off") return "--cut-line must be on or off";
     if (marker != "on" && marker != "off") return "--marker must be on or off";
+    if (surfaceNormals != "gradient" && surfaceNormals != "facet") return "--surface-normals '" + surfaceNormals + "' invalid (expected gradient or facet)";
     if (AnatomicalView v; !view.empty() && !parseAnatomicalView(view, &v))
       return "--view '" + view + "' invalid (expected " + anatomicalViewNames() + ")";
     if (!(std::isfinite(zoom) && zoom > 0 && zoom <= 1000)) return "--zoom must be a magnification in (0, 1000]";
@@ -170,6 +171,9 @@ struct RenderOptions {
     input.add(cmd);
     cmd->add_option("--iso", iso, "isovalue of the embedded surface (data units; none = volume only)");
     cmd->add_option("--surface-color", surfaceColor, "surface r,g,b,a in [0,1]; a < 1 is translucent")->capture_default_str();
+    cmd->add_option("--surface-normals", surfaceNormals,
+                    "surface shading: gradient (smooth, the volume's gradient at each vertex) or facet (each polygon's own plane)")
+        ->capture_default_str();
     cmd->add_option("--tf", tfFile, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm");
     cmd->add_option("--preset", preset, "ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone (default for CT; other data: a ramp)");
     cmd->add_option("--focus", focus, "region of interest x,y,z, patient mm (LPS)");

@@ -96,7 +96,14 @@ void Bvh::allHits(const glm::dvec3& o, const glm::dvec3& d, double tMin, double 
       if (v < 0.0 || u + v > 1.0) continue;
       const double t = glm::dot(e2, qv) * invDet;
       if (t <= tMin || t >= tMax) continue;
-      hits->push_back({t, glm::normalize(glm::cross(e1, e2))});
+      if (mMesh->normals.empty()) {
+        hits->push_back({t, glm::normalize(glm::cross(e1, e2))});
+      } else {
+        const glm::dvec3 n = (1.0 - u - v) * glm::dvec3(mMesh->normals[tri.x]) + u * glm::dvec3(mMesh->normals[tri.y]) +
+                             v * glm::dvec3(mMesh->normals[tri.z]);
+        const double len = glm::length(n);
+        hits->push_back({t, len > 0.0 ? n / len : glm::normalize(glm::cross(e1, e2))});
+      }
     }
   }
   std::sort(hits->begin(), hits->end(), [](const Hit& a, const Hit& b) { return a.t < b.t; });

@@ -9,7 +9,8 @@
 
 namespace hyb {
 
-/// A ray hit: distance along the (unit) ray and the geometric normal of the triangle.
+/// A ray hit: distance along the (unit) ray and the shading normal: the mesh's vertex normals
+/// interpolated at the hit, or the triangle's own when the mesh has none.
 struct Hit {
   double t;
   glm::dvec3 normal;

@@ -23,7 +23,7 @@ void main() {
 /// kind 1: a surface triangle in its slab [slab.x, slab.y] (SlabPolygon; clipped to planar slabs
 /// on the CPU, to shells per fragment). All are clipped by the cutting plane. Compiled after the
 /// same #defines as kSliceFragment: llvmpipe sets up every varying of every triangle, so the face
-/// normal is flat and the slab goes only to shells.
+/// normal is flat unless the surface has vertex normals (SMOOTH), and the slab goes only to shells.
 inline constexpr const char* kStreamVertex = R"(
 layout(location = 0) in vec3 position;
 layout(location = 1) in vec3 normal;
@@ -31,7 +31,11 @@ layout(location = 2) in vec3 kindSlab;  // kind, slab near depth, slab far depth
 uniform mat4 viewProj;
 uniform vec4 cutPlane;  // kept where dot(cutPlane.xyz, x) + cutPlane.w >= 0
 out vec3 vWorld;
+#if SMOOTH
+out vec3 vNormal;  // vertex normals, interpolated
+#else
 flat out vec3 vNormal;
+#endif
 flat out float vKind;
 #if SHELLS
 flat out vec2 vSlab;
@@ -85,11 +89,16 @@ void main() {
 /// is compiled out: the source follows "#version 450 core\n" and a #define of SHADING (headlight
 /// shading by the brick's stored gradient), SURFACE (translucent triangles in the stream), CUT (a
 /// cutting plane clips the stream), SHELLS (spherical-shell bricks may occur), VOI, ORTHO,
-/// TEXEL16 (16-bit brick texels) and SEGMENTS (each fragment's segment cut to the brick's box:
-/// bricks sliced coarser than the base spacing), each 0 or 1.
+/// TEXEL16 (16-bit brick texels), SMOOTH (the surface's vertex normals interpolated) and SEGMENTS
+/// (each fragment's segment cut to the brick's box: bricks sliced coarser than the base spacing),
+/// each 0 or 1.
 inline constexpr const char* kSliceFragment = R"(
 in vec3 vWorld;
+#if SMOOTH
+in vec3 vNormal;  // a surface triangle's vertex normals, interpolated
+#else
 flat in vec3 vNormal;  // a surface triangle's face normal
+#endif
 flat in float vKind;
 #if SHELLS
 flat in vec2 vSlab;

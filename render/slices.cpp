@@ -542,7 +542,8 @@ double distanceToTriangle(const glm::dvec3& p, const glm::dvec3& a, const glm::d
   return glm::length(p - (a + ab * (vb * denom) + ac * (vc * denom)));
 }
 
-// Draws @p surface opaque with depth writes, headlight-shaded, clipped by @p cutPlane.
+// Draws @p surface opaque with depth writes, headlight-shaded (by its vertex normals when it has
+// them), clipped by @p cutPlane.
 void drawOpaqueSurface(const TriangleMesh& surface, const glm::mat4& viewProj, const Camera& camera, const glm::vec3& color,
                        const glm::vec4& cutPlane) {
   const Program surf(shaders::kWorldVertex, shaders::kSurfaceFragment);
@@ -551,8 +552,11 @@ void drawOpaqueSurface(const TriangleMesh& surface, const glm::mat4& viewProj, c
   data.reserve(surface.triangles.size() * 18);
   for (const glm::uvec3& t : surface.triangles) {
     const glm::vec3 a = surface.vertices[t.x], b = surface.vertices[t.y], c = surface.vertices[t.z];
-    const glm::vec3 n = glm::normalize(glm::cross(b - a, c - a));
-    for (const glm::vec3& p : {a, b, c}) data.insert(data.end(), {p.x, p.y, p.z, n.x, n.y, n.z});
+    const glm::vec3 face = glm::normalize(glm::cross(b - a, c - a));
+    for (int k = 0; k < 3; ++k) {
+      const glm::vec3 p = surface.vertices[t[k]], n = surface.normals.empty() ? face : surface.normals[t[k]];
+      data.insert(data.end(), {p.x, p.y, p.z, n.x, n.y, n.z});
+    }
   }
   const glm::vec3 f(camera.forward());
   glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(data.size() * sizeof(float)), data.data(), GL_STATIC_DRAW);
@@ -710,7 +714,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   std::string defines = "#version 450 core\n";
   for (const auto& [name, on] : {std::pair{"SHADING", options.shading}, {"SURFACE", translucent}, {"CUT", bool(options.cut)},
                                  {"SHELLS", options.proxy == Proxy::Shells && !camera.ortho}, {"VOI", bool(options.voi)}, {"ORTHO", camera.ortho},
-                                 {"TEXEL16", options.texelBits == TexelBits::Sixteen}})
+                                 {"TEXEL16", options.texelBits == TexelBits::Sixteen},
+                                 {"SMOOTH", translucent && !options.surface->normals.empty()}})
     defines += std::string("#define ") + name + (on ? " 1\n" : " 0\n");
   // The slice program, kept with the brick textures across frames when there is a cache: llvmpipe
   // compiles a new program's shaders again at its first draw (~5 % of a volume-only frame).
@@ -953,7 +958,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     std::vector<std::array<int32_t, 2>> polygonSpans;  // per polygon of the brick: the slabs it covers
     std::vector<uint32_t> firstSpan;                   // per polygon of the brick: its first triangle's span
     std::vector<std::array<int32_t, 2>> spans;         // the slabs each of those triangles covers
-    std::vector<glm::dvec3> piece, kept;               // a piece being cut to its slab
+    std::vector<std::pair<glm::dvec3, glm::vec3>> piece, kept;  // a piece being cut to its slab: positions, normals
     std::vector<float> one;
     std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes;
   };
@@ -979,28 +984,35 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     // triangle); shell slabs are clipped per fragment. The convex planar piece in scratch.piece is
     // cut to slab [slab·delta, (slab+1)·delta) (Sutherland and Hodgman, two parallel planes; it
     // stays convex) and fanned.
-    auto emitClipped = [&](int32_t slab, const glm::vec3& n) {
-      std::vector<glm::dvec3>& piece = scratch.piece;
-      std::vector<glm::dvec3>& kept = scratch.kept;
+    auto emitClipped = [&](int32_t slab) {
+      auto& piece = scratch.piece;
+      auto& kept = scratch.kept;
       const double lo = double(slab) * d.delta, hi = double(slab + 1) * d.delta;
       for (const auto& [sign, bound] : {std::pair{1.0, lo}, std::pair{-1.0, -hi}}) {  // depth ≥ lo, then −depth ≥ −hi
         kept.clear();
         for (size_t v = 0; v < piece.size(); ++v) {
-          const glm::dvec3 &p = piece[v], &q = piece[(v + 1) % piece.size()];
+          const auto &[p, np] = piece[v];
+          const auto &[q, nq] = piece[(v + 1) % piece.size()];
           const double dp = sign * glm::dot(f, p) - bound, dq = sign * glm::dot(f, q) - bound;
-          if (dp >= 0) kept.push_back(p);
-          if ((dp >= 0) != (dq >= 0)) kept.push_back(p + (q - p) * (dp / (dp - dq)));
+          if (dp >= 0) kept.push_back(piece[v]);
+          if ((dp >= 0) != (dq >= 0)) {
+            const double t = dp / (dp - dq);
+            kept.emplace_back(p + (q - p) * t, np + (nq - np) * float(t));
+          }
         }
         piece.swap(kept);
       }
       for (size_t v = 1; v + 1 < piece.size(); ++v)
-        for (const glm::dvec3& p : {piece[0], piece[v], piece[v + 1]}) put(glm::vec3(p), n, 1.0f, -1e30f, 1e30f);
+        for (const auto& [p, n] : {piece[0], piece[v], piece[v + 1]}) put(glm::vec3(p), n, 1.0f, -1e30f, 1e30f);
     };
     auto faceNormal = [&](uint32_t triangle) {
       const glm::uvec3 tr = options.surface->triangles[triangle];
       const glm::vec3 a = options.surface->vertices[tr.x], b = options.surface->vertices[tr.y], c = options.surface->vertices[tr.z];
       return glm::normalize(glm::cross(b - a, c - a));
     };
+    // The shading normal of vertex @p v of a triangle whose own normal is @p face.
+    const bool smooth = withTriangles && !options.surface->normals.empty();
+    auto vertexNormal = [&](uint32_t v, const glm::vec3& face) { return smooth ? options.surface->normals[v] : face; };
     // A triangle in one slab, cut to it when it covers more than one.
     auto emitTriangle = [&](uint32_t triangle, int32_t slab, bool clip) {
       const glm::uvec3 tr = options.surface->triangles[triangle];
@@ -1008,12 +1020,12 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       ++d.counts.slabPolygonDraws;
       if (!clip || d.shell) {
         const float lo = clip ? float(double(slab) * d.delta) : -1e30f, hi = clip ? float(double(slab + 1) * d.delta) : 1e30f;
-        for (int k = 0; k < 3; ++k) put(options.surface->vertices[tr[k]], n, 1.0f, lo, hi);
+        for (int k = 0; k < 3; ++k) put(options.surface->vertices[tr[k]], vertexNormal(tr[k], n), 1.0f, lo, hi);
         return;
       }
-      scratch.piece.assign({glm::dvec3(options.surface->vertices[tr.x]), glm::dvec3(options.surface->vertices[tr.y]),
-                            glm::dvec3(options.surface->vertices[tr.z])});
-      emitClipped(slab, n);
+      scratch.piece.clear();
+      for (int k = 0; k < 3; ++k) scratch.piece.emplace_back(glm::dvec3(options.surface->vertices[tr[k]]), vertexNormal(tr[k], n));
+      emitClipped(slab);
     };
     // A polygon's part in one slab: a convex polygon that covers several slabs is cut to the slab
     // whole (one piece, fanned); otherwise each of its triangles that reaches the slab goes in, cut
@@ -1024,8 +1036,10 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       if (p1 > p0 && !d.shell && pi + 1 < loopStarts.size() && loopStarts[pi + 1] > loopStarts[pi]) {
         ++d.counts.slabPolygonDraws;
         scratch.piece.clear();
-        for (uint32_t l = loopStarts[pi]; l < loopStarts[pi + 1]; ++l) scratch.piece.push_back(glm::dvec3(options.surface->vertices[loops[l]]));
-        emitClipped(in.slab, faceNormal(polygonStarts[pi]));
+        const glm::vec3 n = faceNormal(polygonStarts[pi]);
+        for (uint32_t l = loopStarts[pi]; l < loopStarts[pi + 1]; ++l)
+          scratch.piece.emplace_back(glm::dvec3(options.surface->vertices[loops[l]]), vertexNormal(loops[l], n));
+        emitClipped(in.slab);
         return;
       }
       size_t j = scratch.firstSpan[in.polygon];

@@ -1,6 +1,7 @@
 // Discretized Marching Cubes: C. Montani, R. Scateni, R. Scopigno, "Discretized Marching Cubes",
 // Visualization '94, 281–287. Classic Marching Cubes: W. Lorensen, H. Cline, SIGGRAPH '87.
 #include "surface/dmc.h"
+#include "surface/mesh_ops.h"
 
 #include <algorithm>
 #include <bit>
@@ -195,6 +196,7 @@ TriangleMesh toTriangleMesh(const DiscreteMesh& mesh, const glm::dvec3& spacing,
     if (isConvex(mesh.vertices, loop, n, mesh.planes[f].normal())) out.loops.insert(out.loops.end(), loop, loop + n);
     out.loopStarts.push_back(uint32_t(out.loops.size()));
   }
+  removeUnreferencedVertices(&out);
   return out;
 }
 

@@ -40,8 +40,9 @@ void appendSurfaceCells(const Volume& volume, float iso, const VoxelBlock& block
 /// each loop fan-triangulated.
 TriangleMesh extractMarchingCubes(const Volume& volume, float iso, std::span<const VoxelBlock> blocks = {});
 
-/// Triangulates @p mesh (exact ear clipping) and maps its integer vertices to world millimetres:
+/// Triangulates @p mesh (exact ear clipping) and maps its integer vertices to grid millimetres:
 /// voxel coordinates are vertices / @p unitsPerVoxel (2 for DiscMC's doubled grid), times @p spacing.
+/// Vertices no face uses are dropped.
 TriangleMesh toTriangleMesh(const DiscreteMesh& mesh, const glm::dvec3& spacing, double unitsPerVoxel = 2.0);
 
 /// Scales a voxel-coordinate triangle mesh to world millimetres.

@@ -38,6 +38,8 @@ struct DiscreteMesh {
 struct TriangleMesh {
   std::vector<glm::vec3> vertices;
   std::vector<glm::uvec3> triangles;
+  /// Per-vertex shading normals (unit, outward), or empty: shade each triangle by its own plane.
+  std::vector<glm::vec3> normals;
   /// When the triangles come from planar polygons (a triangulated DiscreteMesh): polygon f's
   /// triangles are [polygonStarts[f], polygonStarts[f + 1]), and, when the polygon is convex, its
   /// boundary (vertex indices in order) is loops[loopStarts[f] .. loopStarts[f + 1]) (empty for a

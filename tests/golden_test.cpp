@@ -49,7 +49,8 @@ void expectGolden(const std::string& name, std::vector<std::string> input, const
   std::vector<std::string> cmd = {"render"};
   cmd.insert(cmd.end(), input.begin(), input.end());
   cmd.insert(cmd.end(), args.begin(), args.end());
-  cmd.insert(cmd.end(), {"-o", out.file("image.png")});
+  // The goldens predate gradient normals: facet shading must stay as it was.
+  cmd.insert(cmd.end(), {"-o", out.file("image.png"), "--surface-normals", "facet"});
   const test::CliRun r = test::run(cmd);
   ASSERT_EQ(r.status, 0) << r.err;
   const std::string golden = kGoldenDir + name + ".png";

@@ -1,0 +1,60 @@
+#include "surface/mesh_ops.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <utility>
+
+namespace hyb {
+
+void removeUnreferencedVertices(TriangleMesh* mesh) {
+  constexpr uint32_t kUnused = UINT32_MAX;
+  std::vector<uint32_t> remap(mesh->vertices.size(), kUnused);
+  for (const glm::uvec3& t : mesh->triangles)
+    for (int k = 0; k < 3; ++k) remap[t[k]] = 0;
+  uint32_t next = 0;
+  for (size_t v = 0; v < remap.size(); ++v) {
+    if (remap[v] == kUnused) continue;
+    remap[v] = next;
+    mesh->vertices[next] = mesh->vertices[v];
+    if (!mesh->normals.empty()) mesh->normals[next] = mesh->normals[v];
+    ++next;
+  }
+  if (next == mesh->vertices.size()) return;
+  mesh->vertices.resize(next);
+  if (!mesh->normals.empty()) mesh->normals.resize(next);
+  for (glm::uvec3& t : mesh->triangles)
+    for (int k = 0; k < 3; ++k) t[k] = remap[t[k]];
+  for (uint32_t& v : mesh->loops) v = remap[v];  // a loop's vertices are its triangles' vertices
+}
+
+void setGradientNormals(const Volume& volume, TriangleMesh* mesh) {
+  const size_t n = mesh->vertices.size();
+  std::vector<glm::dvec3> faceSum(n, glm::dvec3(0.0));  // area-weighted: |cross| is twice the area
+  for (const glm::uvec3& t : mesh->triangles) {
+    const glm::dvec3 a(mesh->vertices[t.x]), b(mesh->vertices[t.y]), c(mesh->vertices[t.z]);
+    const glm::dvec3 w = glm::cross(b - a, c - a);
+    for (int k = 0; k < 3; ++k) faceSum[t[k]] += w;
+  }
+  mesh->normals.resize(n);
+  const glm::dvec3 toVoxel = 1.0 / volume.spacing();
+#pragma omp parallel for schedule(static)
+  for (size_t v = 0; v < n; ++v) {
+    const glm::dvec3 g(volume.sampleGradient(glm::vec3(glm::dvec3(mesh->vertices[v]) * toVoxel)));
+    const double len = glm::length(g);
+    const double faces = glm::length(faceSum[v]);
+    mesh->normals[v] = len > 0.0 && std::isfinite(len) ? glm::vec3(-g / len) : faces > 0.0 ? glm::vec3(faceSum[v] / faces) : glm::vec3(0, 0, 1);
+  }
+}
+
+void toPatientSpace(const PatientFrame& frame, TriangleMesh* mesh) {
+  for (glm::vec3& p : mesh->vertices) p = glm::vec3(frame.toPatient(glm::dvec3(p)));
+  for (glm::vec3& nrm : mesh->normals) nrm = glm::vec3(frame.vectorToPatient(glm::dvec3(nrm)));
+  if (!frame.mirrored()) return;
+  for (glm::uvec3& t : mesh->triangles) std::swap(t.y, t.z);
+  // Loops run the other way too.
+  for (size_t f = 0; f + 1 < mesh->loopStarts.size(); ++f)
+    std::reverse(mesh->loops.begin() + mesh->loopStarts[f], mesh->loops.begin() + mesh->loopStarts[f + 1]);
+}
+
+}  // namespace hyb
