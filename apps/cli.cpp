@@ -25,6 +25,7 @@
 #include "surface/cgal_geometry.h"
 #include "surface/dmc.h"
 #include "surface/mesh_io.h"
+#include "surface/mesh_ops.h"
 #include "volume/file_util.h"
 #include "volume/volume_io.h"
 
@@ -252,7 +253,7 @@ struct ExportOptions {
   VolumeInput input;
   std::string output, surface = "dmc";
   std::optional<double> iso;
-  bool check = false;
+  bool check = false, closed = false, normals = false;
   std::string validate() const {
     if (!iso) return "--iso missing (expected the isovalue in data units)";
     if (!std::isfinite(*iso)) return "--iso must be a finite number";
@@ -260,6 +261,7 @@ struct ExportOptions {
     const std::string ext = fileExtension(output);
     if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".off")
       return "-o '" + output + "' has an unknown extension (expected .ply, .obj, .stl or .off)";
+    if (normals && ext != ".ply" && ext != ".obj") return "--normals needs a .ply or .obj file (STL keeps facet normals, OFF none)";
     if (std::string e = outputPathError(output, "-o"); !e.empty()) return e;
     if (surface != "dmc" && surface != "mc" && surface != "octree")
       return "--surface '" + surface + "' invalid (expected dmc, octree or mc)";
@@ -267,17 +269,36 @@ struct ExportOptions {
   }
 };
 
+// One line of a mesh check.
+std::string checkLine(const MeshCheck& c) {
+  return std::string("check    manifold ") + (c.manifold ? "yes" : "no") + ", closed " + (c.closed ? "yes" : "no") + " (" +
+         std::to_string(c.boundaryEdges) + " boundary edges), self-intersections " +
+         (c.manifold ? (c.selfIntersecting ? "yes" : "no") : "not tested") + (c.closed ? std::string(", outward ") + (c.outward ? "yes" : "no") : "") +
+         "\n";
+}
+
 int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   double buildMs = 0;
   const Scene scene = loadOrBuild(o.input, out, err, &buildMs);
-  const Volume& v = scene.volume;
   const float iso = float(*o.iso);
-  if (iso <= v.minValue() || iso > v.maxValue())
-    err << "hybrid-octree: warning: --iso " << iso << " is outside the data's crossing range (" << v.minValue() << ", " << v.maxValue()
-        << "]: the surface is empty\n";
-  const std::vector<VoxelBlock> blocks = isoBlocks(scene.octree, iso);
+  if (iso <= scene.volume.minValue() || iso > scene.volume.maxValue())
+    err << "hybrid-octree: warning: --iso " << iso << " is outside the data's crossing range (" << scene.volume.minValue() << ", "
+        << scene.volume.maxValue() << "]: the surface is empty\n";
+  // --closed: the volume padded by one sample well below the isovalue on every face, so the
+  // surface is capped where it meets them (half a voxel outside the data, DiscMC's midpoints).
+  std::optional<Volume> padded;
+  std::optional<VolumeOctree> paddedOctree;
+  if (o.closed) {
+    const Volume& v = scene.volume;
+    padded = paddedVolume(v, std::min(v.minValue(), iso) - std::max(1.0f, v.maxValue() - v.minValue()));
+    paddedOctree = VolumeOctree::build(*padded);
+  }
+  const Volume& v = o.closed ? *padded : scene.volume;
+  const VolumeOctree& octree = o.closed ? *paddedOctree : scene.octree;
+  const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
   auto t0 = Clock::now();
-  const TriangleMesh mc = extractMarchingCubes(v, iso, blocks);
+  TriangleMesh mc = extractMarchingCubes(v, iso, blocks);
+  scaleToMillimetres(&mc, v.spacing());
   const double mcMs = msSince(t0);
   t0 = Clock::now();
   TriangleMesh mesh;
@@ -285,41 +306,39 @@ int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   if (o.surface == "mc") {
     mesh = mc;
     polygons = mc.triangles.size();
-    scaleToMillimetres(&mesh, v.spacing());
   } else if (o.surface == "dmc") {
     const DiscreteMesh d = extractDiscMC(v, iso, blocks);
     polygons = d.faceCount();
     mesh = toTriangleMesh(d, v.spacing());
   } else {
-    const bool stored = scene.surface && scene.surface->isovalue() == iso;
+    const bool stored = !o.closed && scene.surface && scene.surface->isovalue() == iso;
     const auto ts = Clock::now();
-    const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, scene.octree, iso);
+    const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, octree, iso);
     out << surfaceSummary(so, stored ? std::nullopt : std::optional<double>(msSince(ts)));
     const DiscreteMesh d = so.reconstruct(kMaxDim);  // one mesh: merge coplanar polygons across bricks too
     polygons = d.faceCount();
     mesh = fineMeshToTriangles(d, v.spacing());
   }
+  if (o.normals) setGradientNormals(v, &mesh);
+  // Files hold patient coordinates (LPS mm), as the volume's own.
+  toPatientSpace(v.frame(), &mesh);
+  toPatientSpace(v.frame(), &mc);
   const double ms = o.surface == "mc" ? mcMs : msSince(t0);
-  out << std::fixed << std::setprecision(1) << "surface  " << o.surface << " at iso " << iso << ": " << polygons << " polygons, "
-      << mesh.triangles.size() << " triangles, " << mesh.vertices.size() << " vertices, " << ms << " ms\n";
+  out << std::fixed << std::setprecision(1) << "surface  " << o.surface << " at iso " << iso << (o.closed ? " (closed)" : "") << ": " << polygons
+      << " polygons, " << mesh.triangles.size() << " triangles, " << mesh.vertices.size() << " vertices, " << ms << " ms\n";
   out << "vs mc    " << mc.triangles.size() << " triangles in " << mcMs << " ms; triangles ratio "
       << std::setprecision(3) << (mc.triangles.empty() ? 1.0 : double(mesh.triangles.size()) / double(mc.triangles.size())) << "\n";
-  writeMesh(o.output, mesh);
-  out << "wrote    " << o.output << "\n";
+  writeMesh(o.output, mesh, MeshWriteOptions{o.normals, "LPS"});
+  out << "wrote    " << o.output << " (patient coordinates, LPS mm" << (o.normals ? ", with vertex normals" : "") << ")\n";
   if (o.check) {
-    const MeshCheck c = checkMesh(mesh);
-    out << "check    manifold " << (c.manifold ? "yes" : "no") << ", closed " << (c.closed ? "yes" : "no") << " ("
-        << c.boundaryEdges << " boundary edges), self-intersections " << (c.manifold ? (c.selfIntersecting ? "yes" : "no") : "not tested")
-        << (c.closed ? std::string(", outward ") + (c.outward ? "yes" : "no") : std::string()) << "\n";
+    out << checkLine(checkMesh(mesh));
     if (o.surface != "mc") {
-      TriangleMesh mcMm = mc;
-      scaleToMillimetres(&mcMm, v.spacing());
       // Within a hundredth of a voxel, or as close as 40 M triangle bisections get (about a minute on
       // two cores; the clinical-size stand-in's bone needs ~8 M, 20 s in all).
       const glm::dvec3 voxel = v.spacing();
       const double bound = 0.01 * std::max({voxel.x, voxel.y, voxel.z});
       const auto th = Clock::now();
-      const HausdorffBracket h = hausdorffDistance(mesh, mcMm, bound, 40'000'000);
+      const HausdorffBracket h = hausdorffDistance(mesh, mc, bound, 40'000'000);
       out << "check    Hausdorff distance to mc " << std::setprecision(4) << h.lower << " mm (at most " << h.upper
           << (h.upper - h.lower > bound ? ", the work limit reached before the 0.01-voxel bound" : "") << "; voxels " << std::setprecision(3)
           << voxel.x << " x " << voxel.y << " x " << voxel.z << " mm), " << std::setprecision(1) << msSince(th) / 1000.0 << " s\n";
@@ -428,6 +447,9 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   exportCmd->add_option("--surface", exportOpts.surface, "dmc (Discretized Marching Cubes), octree (Surface Octree, merged) or mc (classic)")
       ->capture_default_str();
   exportCmd->add_flag("--check", exportOpts.check, "check manifold, closed, self-intersections and Hausdorff distance to mc (CGAL)");
+  exportCmd->add_flag("--closed", exportOpts.closed,
+                      "cap the surface where it meets the volume's faces (as if the volume were padded below the isovalue): a closed mesh to print");
+  exportCmd->add_flag("--normals", exportOpts.normals, "write vertex normals from the volume's gradient (.ply and .obj)");
 
   CompareOptions compare;
   CLI::App* compareCmd = app.add_subcommand("compare", "PSNR and SSIM of an image against a reference image, and where they differ");

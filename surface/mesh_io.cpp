@@ -4,6 +4,7 @@
 
 #include "surface/mesh_io.h"
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 
@@ -15,6 +16,27 @@ namespace hyb {
 namespace {
 
 using OMesh = OpenMesh::TriMesh_ArrayKernelT<>;
+
+// Silences OpenMesh's logs while it lives: its readers and writers print what they do, and its
+// mesh reports rejected faces; failures reach us as return values, reported in our own words.
+class Quiet {
+ public:
+  Quiet() : mLog(omlog().is_enabled()), mOut(omout().is_enabled()), mErr(omerr().is_enabled()) {
+    omlog().disable();
+    omout().disable();
+    omerr().disable();
+  }
+  Quiet(const Quiet&) = delete;
+  Quiet& operator=(const Quiet&) = delete;
+  ~Quiet() {
+    if (mLog) omlog().enable();
+    if (mOut) omout().enable();
+    if (mErr) omerr().enable();
+  }
+
+ private:
+  bool mLog, mOut, mErr;
+};
 
 bool supported(const std::string& ext) { return ext == ".ply" || ext == ".obj" || ext == ".stl" || ext == ".off"; }
 
@@ -37,25 +59,55 @@ void writeEmpty(const std::string& path, const std::string& ext) {
   });
 }
 
+// Records the coordinates' space where 3D Slicer looks for it: a PLY "comment SPACE=LPS" header
+// line, an OBJ "# SPACE=LPS" line, or the STL's 80-byte header.
+void recordSpace(const std::string& file, const std::string& ext, const std::string& space, const std::string& path) {
+  if (ext == ".off") return;
+  std::vector<uint8_t> bytes = readFileBytes(file);
+  const std::string tag = "SPACE=" + space;
+  if (ext == ".stl") {
+    if (bytes.size() < 84) HYB_THROW(IoError, path, ": the STL writer produced ", bytes.size(), " bytes (expected at least 84)");
+    std::string header = "hybrid-octree " + tag;
+    header.resize(80, ' ');
+    std::copy(header.begin(), header.end(), bytes.begin());
+  } else {
+    const std::string line = ext == ".ply" ? "comment " + tag + "\n" : "# " + tag + "\n";
+    size_t at = 0;
+    if (ext == ".ply") {  // after "ply" and the "format" line
+      for (int l = 0; l < 2; ++l) {
+        const auto nl = std::find(bytes.begin() + ptrdiff_t(at), bytes.end(), uint8_t('\n'));
+        if (nl == bytes.end()) HYB_THROW(IoError, path, ": the PLY writer produced no header");
+        at = size_t(nl - bytes.begin()) + 1;
+      }
+    }
+    bytes.insert(bytes.begin() + ptrdiff_t(at), line.begin(), line.end());
+  }
+  writeFileAtomically(file, [&](std::ostream& out) { out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size())); });
+}
+
 }  // namespace
 
-void writeMesh(const std::string& path, const TriangleMesh& mesh) {
+void writeMesh(const std::string& path, const TriangleMesh& mesh, const MeshWriteOptions& options) {
   const std::string ext = fileExtension(path);
   if (!supported(ext)) HYB_THROW(IoError, path, ": unknown mesh format '", ext, "' (expected .ply, .obj, .stl or .off)");
+  const bool normals = options.normals && !mesh.normals.empty();
+  if (options.normals && ext != ".ply" && ext != ".obj")
+    HYB_THROW(IoError, path, ": vertex normals can be written to .ply and .obj files only (STL keeps facet normals, OFF none)");
   if (mesh.triangles.empty()) return writeEmpty(path, ext);
   OMesh om;
+  if (normals) om.request_vertex_normals();
   om.reserve(mesh.vertices.size(), mesh.triangles.size() * 3 / 2, mesh.triangles.size());
   std::vector<OMesh::VertexHandle> vh;
   vh.reserve(mesh.vertices.size());
-  for (const glm::vec3& p : mesh.vertices) vh.push_back(om.add_vertex(OMesh::Point(p.x, p.y, p.z)));
+  for (size_t i = 0; i < mesh.vertices.size(); ++i) {
+    const glm::vec3& p = mesh.vertices[i];
+    vh.push_back(om.add_vertex(OMesh::Point(p.x, p.y, p.z)));
+    if (normals) om.set_normal(vh.back(), OMesh::Normal(mesh.normals[i].x, mesh.normals[i].y, mesh.normals[i].z));
+  }
   {
     // OpenMesh reports each face its half-edge structure rejects on omerr; those are expected here
-    // (classic MC's non-manifold edges) and handled below, so the report is silenced meanwhile.
-    struct Quiet {
-      bool was = omerr().is_enabled();
-      Quiet() { omerr().disable(); }
-      ~Quiet() { if (was) omerr().enable(); }
-    } quiet;
+    // (classic MC's non-manifold edges) and handled below.
+    const Quiet quiet;
     for (const glm::uvec3& t : mesh.triangles)
       if (!om.add_face(vh[t.x], vh[t.y], vh[t.z]).is_valid()) {
         // A face OpenMesh's half-edge structure cannot take (non-manifold): keep it with own vertices.
@@ -63,14 +115,18 @@ void writeMesh(const std::string& path, const TriangleMesh& mesh) {
         for (int k = 0; k < 3; ++k) {
           const OMesh::Point p = om.point(vh[t[k]]);  // a copy: adding a vertex may move the points
           copy[k] = om.add_vertex(p);
+          if (normals) om.set_normal(copy[k], OMesh::Normal(mesh.normals[t[k]].x, mesh.normals[t[k]].y, mesh.normals[t[k]].z));
         }
         om.add_face(copy[0], copy[1], copy[2]);
       }
   }
-  OpenMesh::IO::Options options;
-  if (ext == ".ply" || ext == ".stl") options += OpenMesh::IO::Options::Binary;
+  OpenMesh::IO::Options io;
+  if (ext == ".ply" || ext == ".stl") io += OpenMesh::IO::Options::Binary;
+  if (normals) io += OpenMesh::IO::Options::VertexNormal;
   writeFileAtomicallyByName(path, [&](const std::string& tmp) {
-    if (!OpenMesh::IO::write_mesh(om, tmp, options)) HYB_THROW(IoError, path, ": OpenMesh could not write the mesh");
+    const Quiet quiet;  // the writers log what they write ("[STLWriter] : write binary file")
+    if (!OpenMesh::IO::write_mesh(om, tmp, io)) HYB_THROW(IoError, path, ": OpenMesh could not write the mesh");
+    if (!options.space.empty()) recordSpace(tmp, ext, options.space, path);
   });
 }
 
@@ -86,11 +142,18 @@ TriangleMesh readMesh(const std::string& path) {
       return out;
   }
   OMesh om;
-  OpenMesh::IO::Options options;
+  om.request_vertex_normals();
+  OpenMesh::IO::Options options = OpenMesh::IO::Options::VertexNormal;
+  const Quiet quiet;
   if (!OpenMesh::IO::read_mesh(om, path, options)) HYB_THROW(IoError, path, ": OpenMesh could not read the mesh");
+  const bool normals = options.check(OpenMesh::IO::Options::VertexNormal);
   for (const auto& v : om.vertices()) {
     const auto p = om.point(v);
     out.vertices.push_back({p[0], p[1], p[2]});
+    if (normals) {
+      const auto n = om.normal(v);
+      out.normals.push_back({n[0], n[1], n[2]});
+    }
   }
   for (const auto& f : om.faces()) {
     glm::uvec3 t;

@@ -9,6 +9,7 @@
 
 #include "apps/bench.h"
 #include "render/image.h"
+#include "surface/mesh_io.h"
 #include "cli_util.h"
 #include "test_util.h"
 
@@ -433,6 +434,43 @@ TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
   expectBadInput({"export", nhdr, "--iso", "0"}, "-o");
   expectBadInput({"export", nhdr, "--iso", "0", "-o", dir.file("x.ply"), "--surface", "voxels"}, "--surface");
   expectBadInput({"export", nhdr, "--iso", "nan", "-o", dir.file("x.ply")}, "--iso");
+}
+
+// Exported meshes hold patient coordinates, use every vertex they list, and with --closed are
+// capped into printable solids; on the cranium's bone that is closed, manifold, outward and free
+// of self-intersections.
+TEST(Cli, ExportsArePatientSpaceCompactAndClosedOnTheCranium) {
+  test::TempDir dir;
+  // A RAS volume: i towards the right, so the mesh's x runs negative from the origin's.
+  const std::string nhdr = writeNrrd(dir, "r",
+                                     "NRRD0004\ntype: float\ndimension: 3\nsizes: 11 11 11\nspace: right-anterior-superior\n"
+                                     "space directions: (1,0,0) (0,1,0) (0,0,1)\nspace origin: (100,0,0)\nendian: little\nencoding: raw\n",
+                                     test::toBytes(test::sphereVolume(glm::ivec3(11), 3.5).samples()));
+  for (const char* surface : {"dmc", "octree", "mc"})
+    for (const char* ext : {".ply", ".obj", ".stl", ".off"}) {
+      const std::string path = dir.file(std::string(surface) + ext);
+      const CliRun r = run({"export", nhdr, "--iso", "0", "--surface", surface, "-o", path});
+      ASSERT_EQ(r.status, 0) << r.err;
+      const TriangleMesh m = readMesh(path);
+      ASSERT_FALSE(m.triangles.empty());
+      std::vector<bool> used(m.vertices.size(), false);
+      for (const glm::uvec3& t : m.triangles)
+        for (int k = 0; k < 3; ++k) used[t[k]] = true;
+      EXPECT_EQ(std::count(used.begin(), used.end(), false), 0) << surface << ext;
+      float lo = 1e9f, hi = -1e9f;
+      for (const glm::vec3& p : m.vertices) lo = std::min(lo, p.x), hi = std::max(hi, p.x);
+      EXPECT_NEAR(0.5f * (lo + hi), -105.0f, 0.1f) << surface << ext;  // LPS x of the sphere's centre: −(100 + 5)
+    }
+  const CliRun r = run({"export", "--iso", "400", "--surface", "octree", "--closed", "--check", "-o", dir.file("bone.ply")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(r.err, "");  // no library chatter
+  EXPECT_THAT(r.out, HasSubstr("check    manifold yes, closed yes (0 boundary edges), self-intersections no, outward yes"));
+  const TriangleMesh bone = readMesh(dir.file("bone.ply"));
+  std::vector<bool> used(bone.vertices.size(), false);
+  for (const glm::uvec3& t : bone.triangles)
+    for (int k = 0; k < 3; ++k) used[t[k]] = true;
+  EXPECT_EQ(std::count(used.begin(), used.end(), false), 0);
+  expectBadInput({"export", nhdr, "--iso", "0", "--normals", "-o", dir.file("n.stl")}, "--normals");
 }
 
 TEST(Cli, UnwritableOutputLeavesNothing) {

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include "surface/dmc.h"
+#include "surface/mesh_ops.h"
 #include "test_util.h"
 
 namespace hyb {
@@ -59,6 +60,27 @@ TEST(MeshIo, NonManifoldTrianglesAreWrittenWholeWithoutWarnings) {
   ASSERT_EQ(back.triangles.size(), size_t(3));
   for (size_t i = 0; i < 3; ++i)
     for (int k = 0; k < 3; ++k) EXPECT_EQ(back.vertices[back.triangles[i][k]], book.vertices[book.triangles[i][k]]) << i << " " << k;
+}
+
+TEST(MeshIo, NormalsAndTheCoordinateSpaceAreRecorded) {
+  test::TempDir dir;
+  const Volume v = test::sphereVolume(glm::ivec3(13), 4.2);
+  TriangleMesh mesh = toTriangleMesh(extractDiscMC(v, 0.0f), v.spacing());
+  setGradientNormals(v, &mesh);
+  for (const char* ext : {".ply", ".obj"}) {
+    const std::string path = dir.file(std::string("n") + ext);
+    writeMesh(path, mesh, MeshWriteOptions{true, "LPS"});
+    const TriangleMesh back = readMesh(path);
+    ASSERT_EQ(back.normals.size(), mesh.normals.size()) << ext;
+    for (size_t i = 0; i < mesh.normals.size(); i += 17) EXPECT_LT(glm::length(back.normals[i] - mesh.normals[i]), 1e-5f) << ext;
+    const std::string text = test::readText(path).substr(0, 200);
+    EXPECT_NE(text.find(std::string(ext) == ".ply" ? "comment SPACE=LPS\n" : "# SPACE=LPS\n"), std::string::npos) << text;
+  }
+  writeMesh(dir.file("s.stl"), mesh, MeshWriteOptions{false, "LPS"});
+  EXPECT_EQ(test::readText(dir.file("s.stl")).substr(0, 23), "hybrid-octree SPACE=LPS");
+  EXPECT_EQ(readMesh(dir.file("s.stl")).triangles.size(), mesh.triangles.size());
+  EXPECT_THROW(writeMesh(dir.file("n.stl"), mesh, MeshWriteOptions{true, ""}), IoError);
+  EXPECT_THROW(writeMesh(dir.file("n.off"), mesh, MeshWriteOptions{true, ""}), IoError);
 }
 
 TEST(MeshIo, RejectsUnknownFormatsAndUnwritablePaths) {

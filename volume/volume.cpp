@@ -163,6 +163,19 @@ std::string Volume::toString() const {
   return s.str();
 }
 
+Volume paddedVolume(const Volume& v, float value) {
+  const glm::ivec3 d = v.dims() + 2;
+  std::vector<float> samples(size_t(d.x) * size_t(d.y) * size_t(d.z), value);
+  for (int k = 0; k < v.dims().z; ++k)
+    for (int j = 0; j < v.dims().y; ++j)
+      std::copy_n(&v.samples()[v.index(0, j, k)], size_t(v.dims().x), &samples[size_t(1) + size_t(d.x) * (size_t(j + 1) + size_t(d.y) * size_t(k + 1))]);
+  Volume out(d, v.spacing(), v.sourceType(), std::move(samples), "padded volume");
+  PatientFrame frame = v.frame();
+  frame.origin = v.frame().toPatient(-v.spacing());
+  out.setFrame(frame);
+  return out;
+}
+
 Histogram computeHistogram(const Volume& v, int bins) {
   HYB_CHECK(bins >= 1);
   Histogram h;

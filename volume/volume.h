@@ -125,6 +125,11 @@ class Volume {
   std::vector<std::string> mWarnings;
 };
 
+/// @p v with one sample of @p value added on each of its six faces, placed so that every old
+/// sample keeps its patient position (the frame's origin moves one voxel back along each axis).
+/// An isosurface of the padded volume at an isovalue above @p value is closed.
+Volume paddedVolume(const Volume& v, float value);
+
 /// Value histogram with summary statistics, for `hybrid-octree info`.
 struct Histogram {
   double minValue = 0, maxValue = 0, mean = 0, stddev = 0;
