@@ -2,11 +2,15 @@
 
 #include "apps/bench.h"
 #include "apps/frame.h"
+#include "apps/progress_display.h"
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include <unistd.h>
+
 #include <chrono>
+#include <iostream>
 #include <filesystem>
 #include <cmath>
 #include <iomanip>
@@ -96,7 +100,7 @@ std::string surfaceSummary(const SurfaceOctree& so, std::optional<double> buildM
 int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
   const Volume v = o.input.read(err);
   const auto t0 = Clock::now();
-  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{o.leafEdge, o.prefilter == "on"});
+  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{o.leafEdge, o.prefilter == "on", o.input.progress});
   const double ms = msSince(t0);
   out << v.toString() << octreeSummary(v, t);
   out << "build    " << std::fixed << std::setprecision(1) << ms << " ms (" << double(v.voxelCount()) / (ms * 1e3)
@@ -291,7 +295,7 @@ int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   if (o.closed) {
     const Volume& v = scene.volume;
     padded = paddedVolume(v, std::min(v.minValue(), iso) - std::max(1.0f, v.maxValue() - v.minValue()));
-    paddedOctree = VolumeOctree::build(*padded);
+    paddedOctree = VolumeOctree::build(*padded, VolumeOctreeOptions{8, true, o.input.progress});
   }
   const Volume& v = o.closed ? *padded : scene.volume;
   const VolumeOctree& octree = o.closed ? *paddedOctree : scene.octree;
@@ -315,7 +319,7 @@ int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
     const auto ts = Clock::now();
     const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, octree, iso);
     out << surfaceSummary(so, stored ? std::nullopt : std::optional<double>(msSince(ts)));
-    const DiscreteMesh d = so.reconstruct(kMaxDim);  // one mesh: merge coplanar polygons across bricks too
+    const DiscreteMesh d = so.reconstruct(kMaxDim, o.input.progress);  // one mesh: merge coplanar polygons across bricks too
     polygons = d.faceCount();
     mesh = fineMeshToTriangles(d, v.spacing());
   }
@@ -338,7 +342,7 @@ int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
       const glm::dvec3 voxel = v.spacing();
       const double bound = 0.01 * std::max({voxel.x, voxel.y, voxel.z});
       const auto th = Clock::now();
-      const HausdorffBracket h = hausdorffDistance(mesh, mc, bound, 40'000'000);
+      const HausdorffBracket h = hausdorffDistance(mesh, mc, bound, 40'000'000, o.input.progress);
       out << "check    Hausdorff distance to mc " << std::setprecision(4) << h.lower << " mm (at most " << h.upper
           << (h.upper - h.lower > bound ? ", the work limit reached before the 0.01-voxel bound" : "") << "; voxels " << std::setprecision(3)
           << voxel.x << " x " << voxel.y << " x " << voxel.z << " mm), " << std::setprecision(1) << msSince(th) / 1000.0 << " s\n";
@@ -399,6 +403,11 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   CLI::App app("hybrid-octree: CT volume and isosurface rendering with the Hybrid Octree", "hybrid-octree");
   app.require_subcommand(1);
   app.set_help_all_flag("--help-all", "show help for every subcommand");
+  app.fallthrough();  // --progress may follow the subcommand
+  std::string progressMode = "auto";
+  app.add_option("--progress", progressMode,
+                 "progress of long steps on stderr: auto (a bar on a terminal, lines when piped), bar, lines, off")
+      ->capture_default_str();
 
   InfoOptions info;
   CLI::App* infoCmd = app.add_subcommand("info", "print dims, spacing, type, value range and a histogram");
@@ -477,6 +486,12 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     auto check = [&](const std::string& msg) {
       if (!msg.empty()) throw ValueError(msg);
     };
+    ProgressMode mode;
+    if (!parseProgressMode(progressMode, &mode)) check("--progress '" + progressMode + "' invalid (expected auto, bar, lines or off)");
+    // Auto shows progress only on the process's own stderr (not on a caller's stream).
+    const bool ownStderr = &err == &std::cerr;
+    const ProgressDisplay display(mode == ProgressMode::Auto && !ownStderr ? ProgressMode::Off : mode, err, ownStderr && ::isatty(2));
+    for (VolumeInput* in : {&info.input, &build.input, &render.input, &bench.render.input, &exportOpts.input}) in->progress = display.progress();
     if (infoCmd->parsed()) return check(info.validate()), runInfo(info, out, err);
     if (buildCmd->parsed()) return check(build.validate()), runBuild(build, out, err);
     if (renderCmd->parsed()) {

@@ -43,7 +43,7 @@ glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
 
 Volume VolumeInput::read(std::ostream& err) const {
   const std::optional<RawLayout> raw = rawLayout();
-  Volume v = readVolume(path, raw ? &*raw : nullptr, series);
+  Volume v = readVolume(path, raw ? &*raw : nullptr, series, progress);
   printWarnings(v, err);
   return v;
 }
@@ -64,7 +64,9 @@ Scene loadOrBuild(const VolumeInput& in, std::ostream& out, std::ostream& err, d
   }
   scene.volume = in.read(err);
   const auto t1 = Clock::now();
-  scene.octree = VolumeOctree::build(scene.volume, options);
+  VolumeOctreeOptions withProgress = options;
+  withProgress.progress = in.progress;
+  scene.octree = VolumeOctree::build(scene.volume, withProgress);
   *buildMs = msSince(t1);
   out << "read " << in.path << " in " << std::fixed << std::setprecision(1) << msSince(t0) - *buildMs
       << " ms, built volume octree in " << *buildMs << " ms\n";
@@ -210,7 +212,7 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, std::ostream& err, 
       f->so = &*f->builtSurface;
     }
     const auto t0 = Clock::now();
-    const DiscreteMesh d = f->so->reconstruct();
+    const DiscreteMesh d = f->so->reconstruct(0, o.input.progress);
     f->polygons = d.faceCount();
     f->mesh = fineMeshToTriangles(d, v.spacing());
     if (o.surfaceNormals == "gradient") setGradientNormals(v, &f->mesh);
@@ -334,6 +336,7 @@ Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, 
   ro.refineLevels = o.progressive > 1 ? o.progressive : o.adaptive > 0 ? 4 : 1;
   ro.refineTolerance = float(o.adaptive / 255.0);
   ro.onLevel = onLevel;
+  ro.progress = o.input.progress;
   return raycast(v, f.scene.octree, f.tf, f.camera, ro, rs);
 }
 

@@ -55,6 +55,7 @@ struct VolumeInput {
   std::string rawDims, rawType, rawSpacing, rawEndian = "little";
   uint64_t rawHeader = 0;
   std::string series;  // DICOM Series Instance UID; empty: the largest series
+  const Progress* progress = nullptr;  // where long steps report (runMain's display of --progress)
 
   void add(CLI::App* cmd) {
     cmd->add_option("volume", path, "volume file (.nrrd .nhdr .mhd .mha .nii .nii.gz .inv3), DICOM directory, raw file, or scene.hoct")

@@ -619,7 +619,7 @@ Poly clipToBox(const Plane& pl, const Box& box) {
 bool lexLess(const V64& a, const V64& b) { return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z); }
 }  // namespace
 
-DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
+DiscreteMesh SurfaceOctree::reconstruct(int mergeCube, const Progress* progress) const {
   if (mergeCube <= 0) mergeCube = mMergeEdge;
   HYB_CHECK((mergeCube & (mergeCube - 1)) == 0);
   struct OutPoly {
@@ -713,15 +713,19 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
     }
   };
   const size_t chunks = std::min<size_t>(mNodes.size(), 64), per = chunks ? (mNodes.size() + chunks - 1) / chunks : 0;
+  // Progress: the nodes' chunks, then the three stages after them, a chunk's worth each.
+  ProgressTask task(progress, "surface polygons", chunks + 3 * std::max<size_t>(1, chunks / 8));
   std::vector<std::vector<OutPoly>> parts(chunks);
 #pragma omp parallel for schedule(dynamic)
   for (size_t c = 0; c < chunks; ++c) {
     Poly pos, neg;
     for (size_t k = c * per; k < std::min(mNodes.size(), (c + 1) * per); ++k) polygonsOf(mNodes[k], pos, neg, parts[c]);
+    task.advance();
   }
   std::vector<OutPoly> polys;
   for (std::vector<OutPoly>& part : parts) std::move(part.begin(), part.end(), std::back_inserter(polys));
 
+  task.advance(std::max<size_t>(1, chunks / 8));
   // T-junctions: vertices on the same line in a node face are inserted into every edge on that line.
   // A line is keyed exactly in 64 bits: the face's axis and coordinate, the reduced direction within
   // the face (components in {-1, 0, 1}: the line lies on one of the 13 planes and an axis plane) and
@@ -797,6 +801,7 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
       }
     }
   }
+  task.advance(std::max<size_t>(1, chunks / 8));
   // Merge polygons of different nodes that lie on the same plane with the same facing and share an
   // edge, within one merge cube of edge @p mergeCube cells (a volume leaf by default, so that every
   // polygon stays inside one brick): union-find over shared edges, then the union's boundary replaces
@@ -862,6 +867,7 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube) const {
     }
   }
 
+  task.advance(std::max<size_t>(1, chunks / 8));
   // Drop straight-through vertices that no other polygon uses: they only add triangles. A vertex
   // another polygon references is kept, so no T-junction can open.
   std::vector<uint32_t> uses(mesh.vertices.size(), 0);

@@ -31,6 +31,7 @@
 
 #include "hybrid_octree/volume_octree.h"
 #include "surface/mesh.h"
+#include "volume/progress.h"
 #include "volume/volume.h"
 
 namespace hyb {
@@ -99,8 +100,9 @@ class SurfaceOctree {
   /// Polygons of every terminal node, merged per plane and facing inside each node and then across
   /// nodes inside each aligned cube of @p mergeCube cells (0 = mergeEdge(), so every polygon lies in
   /// one volume leaf; export passes the whole volume), with T-junction vertices inserted; vertices
-  /// in fine coordinates (12 × doubled). Watertight where DiscMC is.
-  DiscreteMesh reconstruct(int mergeCube = 0) const;
+  /// in fine coordinates (12 × doubled). Watertight where DiscMC is. @p progress hears of it
+  /// ("surface polygons").
+  DiscreteMesh reconstruct(int mergeCube = 0, const Progress* progress = nullptr) const;
 
  private:
   std::vector<SurfaceNode> mNodes;

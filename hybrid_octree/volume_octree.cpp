@@ -302,12 +302,16 @@ VolumeOctree VolumeOctree::build(const Volume& volume, const VolumeOctreeOptions
   HYB_CHECK(!volume.empty());
   const Geometry g = geometryFor(volume.dims(), options.leafEdge);
 
+  ProgressTask task(options.progress, "volume octree", 4);  // knots, leaves, direct errors, levels
   KnotPyramid knots = options.prefilter ? KnotPyramid(volume) : KnotPyramid();
+  task.advance();
 
   // Bottom-up over the dense per-level grids.
   std::vector<LevelData> levels(size_t(g.leafLevel) + 1);
   buildLeaves(volume, g, knots, &levels[size_t(g.leafLevel)]);
+  task.advance();
   const std::vector<std::vector<float>> upperErrors = directNodalErrors(volume, g, knots);
+  task.advance();
   for (int k = g.leafLevel - 1; k >= 0; --k) {
     LevelData& d = levels[size_t(k)];
     const LevelData& c = levels[size_t(k) + 1];

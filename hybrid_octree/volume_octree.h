@@ -34,6 +34,7 @@
 #include "hybrid_octree/knot_pyramid.h"
 #include "hybrid_octree/octree_node.h"
 #include "surface/mesh.h"
+#include "volume/progress.h"
 #include "volume/volume.h"
 
 namespace hyb {
@@ -55,6 +56,7 @@ struct KnotLattice {
 struct VolumeOctreeOptions {
   int leafEdge = 8;        ///< edge in cells of the smallest stored nodes (power of two, 1…256)
   bool prefilter = true;   ///< coarse lattices (≥ kPrefilterSpacing apart) hold tent-prefiltered knots
+  const Progress* progress = nullptr;  ///< hears of the build's stages ("volume octree"), or none
 };
 
 /// The Volume Octree, built once and stored as one pointer-free node array.

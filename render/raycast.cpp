@@ -36,7 +36,8 @@ double headlight(const glm::dvec3& n, const glm::dvec3& dir) { return 0.25 + 0.7
 // Traces pixels pixel(0) … pixel(count − 1) into @p out on all cores, chunk pixels at a time.
 template <class Pixel>
 void tracePixels(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-                 const RaycastOptions& options, size_t count, size_t chunk, const Pixel& pixel, Image* out, RaycastStats* stats) {
+                 const RaycastOptions& options, size_t count, size_t chunk, const Pixel& pixel, Image* out, RaycastStats* stats,
+                 ProgressTask* progress) {
   Image& image = *out;
   const glm::dvec3 spacing = volume.spacing();
   const glm::dvec3 boxHi = volume.extentMm();
@@ -79,6 +80,7 @@ void tracePixels(const Volume& volume, const VolumeOctree& octree, const Transfe
     std::vector<Hit> hits;
 #pragma omp for schedule(dynamic, chunk)
     for (size_t i = 0; i < count; ++i) {
+      progress->advance();
       const glm::ivec2 px = pixel(i);
       const int x = px.x, y = px.y;
       glm::dvec3 o, d;
@@ -178,7 +180,7 @@ void tracePixels(const Volume& volume, const VolumeOctree& octree, const Transfe
 // tolerance; the other squares keep the bilinear interpolation of their corners. With tolerance 0
 // the last level traces every pixel not traced yet: the image is the exact one.
 Image refine(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-             const RaycastOptions& options, RaycastStats* stats) {
+             const RaycastOptions& options, RaycastStats* stats, ProgressTask* progress) {
   const int W = camera.width, H = camera.height, levels = options.refineLevels;
   Image image(W, H);
   std::vector<uint8_t> traced(size_t(W) * size_t(H), 0);
@@ -189,7 +191,7 @@ Image refine(const Volume& volume, const VolumeOctree& octree, const TransferFun
     t = 1;
   };
   auto trace = [&] {
-    tracePixels(volume, octree, tf, camera, options, todo.size(), 64, [&](size_t i) { return todo[i]; }, &image, stats);
+    tracePixels(volume, octree, tf, camera, options, todo.size(), 64, [&](size_t i) { return todo[i]; }, &image, stats, progress);
     todo.clear();
   };
   // Squares [x0, x1] × [y0, y1] whose corners are traced: the first grid's, then their quarters.
@@ -262,12 +264,13 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
   HYB_CHECK(options.refineLevels >= 1 && options.refineLevels <= 16 && options.refineTolerance >= 0.0f);
   RaycastStats counts;
   Image image(camera.width, camera.height);
+  ProgressTask progress(options.progress, "ray tracing", uint64_t(camera.width) * uint64_t(camera.height));
   if (options.refineLevels > 1) {
-    image = refine(volume, octree, tf, camera, options, &counts);
+    image = refine(volume, octree, tf, camera, options, &counts, &progress);
   } else {
     const size_t W = size_t(camera.width);
     tracePixels(volume, octree, tf, camera, options, W * size_t(camera.height), W,
-                [W](size_t i) { return glm::ivec2(int(i % W), int(i / W)); }, &image, &counts);
+                [W](size_t i) { return glm::ivec2(int(i % W), int(i / W)); }, &image, &counts, &progress);
   }
   if (stats) *stats = counts;
   return image;

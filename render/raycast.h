@@ -13,6 +13,7 @@
 #include "render/voi.h"
 #include "render/image.h"
 #include "render/transfer_function.h"
+#include "volume/progress.h"
 #include "volume/volume.h"
 
 namespace hyb {
@@ -36,6 +37,7 @@ struct RaycastOptions {
   float refineTolerance = 0.0f;
   /// Receives the image after each level of refinement, and the rays traced so far.
   std::function<void(int level, const Image& image, uint64_t rays)> onLevel;
+  const Progress* progress = nullptr;  ///< hears of the rays traced ("ray tracing"), or none
 };
 
 /// Per-pixel statistics of a render.

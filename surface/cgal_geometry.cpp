@@ -123,7 +123,7 @@ class OneSidedHausdorff {
   }
 
   // The bracket [lower, upper] of the one-sided distance from @p source to the target.
-  std::array<double, 2> from(const TriangleMesh& source) const {
+  std::array<double, 2> from(const TriangleMesh& source, ProgressTask* progress) const {
     // The corners first: their largest distance is the bar most triangles are settled against.
     // (Vertices no triangle uses are not on the surface.)
     const size_t n = source.vertices.size();
@@ -144,6 +144,7 @@ class OneSidedHausdorff {
     const int chunk = int(std::clamp(count / 64, 1LL, 256LL));  // neighbours together (the tree's cache), yet all threads busy
 #pragma omp parallel for schedule(dynamic, chunk) reduction(max : lower, upper)
     for (long long f = 0; f < count; ++f) {
+      progress->advance();
       const glm::uvec3 t = source.triangles[size_t(f)];
       std::array<double, 2> b{std::max(lower, bar), upper};
       settle({toPoint(source.vertices[t.x]), toPoint(source.vertices[t.y]), toPoint(source.vertices[t.z])},
@@ -234,12 +235,15 @@ class OneSidedHausdorff {
 
 }  // namespace
 
-HausdorffBracket hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, double errorBound, uint64_t maxSplits) {
+HausdorffBracket hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, double errorBound, uint64_t maxSplits,
+                                   const Progress* progress) {
   if (!(errorBound > 0.0)) HYB_THROW(ValueError, "Hausdorff distance: error bound ", errorBound, " must be positive");
   if (a.triangles.empty() && b.triangles.empty()) return {0.0, 0.0};
   if (a.triangles.empty() || b.triangles.empty()) return {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
   try {
-    const std::array<double, 2> ab = OneSidedHausdorff(b, errorBound, maxSplits / 2).from(a), ba = OneSidedHausdorff(a, errorBound, maxSplits / 2).from(b);
+    ProgressTask task(progress, "Hausdorff distance", a.triangles.size() + b.triangles.size());
+    const std::array<double, 2> ab = OneSidedHausdorff(b, errorBound, maxSplits / 2).from(a, &task),
+                                ba = OneSidedHausdorff(a, errorBound, maxSplits / 2).from(b, &task);
     return {std::max(ab[0], ba[0]), std::max(ab[1], ba[1])};
   } catch (const Error&) {
     throw;

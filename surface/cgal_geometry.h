@@ -6,6 +6,7 @@
 #include <limits>
 
 #include "surface/mesh.h"
+#include "volume/progress.h"
 
 namespace hyb {
 
@@ -36,8 +37,9 @@ struct HausdorffBracket {
 /// bisections (one closest-point query each; ~35 M a minute on two cores): past it the bracket is still
 /// true but may be wider than the bound. Zero for two empty meshes, infinite when only one is
 /// empty. Any triangle soup is measured as it is (non-manifold MC, degenerate triangles).
+/// @p progress hears of the triangles settled ("Hausdorff distance").
 /// @throw ValueError when the bound is not positive.
 HausdorffBracket hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, double errorBound,
-                                   uint64_t maxSplits = std::numeric_limits<uint64_t>::max());
+                                   uint64_t maxSplits = std::numeric_limits<uint64_t>::max(), const Progress* progress = nullptr);
 
 }  // namespace hyb

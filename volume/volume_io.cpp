@@ -716,7 +716,7 @@ std::vector<DicomSeriesInfo> listDicomSeries(const std::string& dir) {
   return out;
 }
 
-Volume readDicomSeries(const std::string& dir, const std::string& seriesUid) {
+Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, const Progress* progress) {
   DicomScan scan;
   scanDicom(dir, &scan);
   std::vector<std::string> warnings;
@@ -801,7 +801,8 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid) {
   std::vector<float> samples;
   bool rescaled = false;
   double slopeFirst = 1.0, interceptFirst = 0.0;
-  for (size_t s = 0; s < slices.size(); ++s) {
+  ProgressTask task(progress, "DICOM slices", slices.size());
+  for (size_t s = 0; s < slices.size(); ++s, task.advance()) {
     const std::string& file = slices[s].file;
     gdcm::ImageReader reader;
     reader.SetFileName(file.c_str());
@@ -1001,11 +1002,11 @@ Volume readRaw(const std::string& path, const RawLayout& layout) {
   return v;
 }
 
-Volume readVolume(const std::string& path, const RawLayout* raw, const std::string& series) {
+Volume readVolume(const std::string& path, const RawLayout* raw, const std::string& series, const Progress* progress) {
   if (raw) return readRaw(path, *raw);
   std::error_code ec;
   if (!fs::exists(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
-  if (fs::is_directory(path, ec)) return readDicomSeries(path, series);
+  if (fs::is_directory(path, ec)) return readDicomSeries(path, series, progress);
   if (!series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", path, " is a file)");
   const std::string ext = fileExtension(path);
   if (ext == ".nrrd" || ext == ".nhdr") return readNrrd(path);

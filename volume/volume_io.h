@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "volume/progress.h"
 #include "volume/volume.h"
 
 namespace hyb {
@@ -33,7 +34,7 @@ struct RawLayout {
 /// being a directory (DICOM series: @p series names one by its Series Instance UID), or by @p raw
 /// being non-null (raw samples).
 /// @throw IoError / ValueError with a message naming @p path.
-Volume readVolume(const std::string& path, const RawLayout* raw = nullptr, const std::string& series = "");
+Volume readVolume(const std::string& path, const RawLayout* raw = nullptr, const std::string& series = "", const Progress* progress = nullptr);
 
 /// NRRD with attached (.nrrd) or detached (.nhdr) data; raw, gzip or ascii encoding; 3 dimensions.
 /// Geometry from "space", "space directions", "space origin" and "space units" (RAS, LAS and
@@ -61,8 +62,9 @@ std::vector<DicomSeriesInfo> listDicomSeries(const std::string& dir);
 /// Orientation (Patient), which must hold every Image Position (Patient) at one spacing (a gantry
 /// tilt is refused); rescale slope/intercept applied (CT comes out in HU). The frame: i along the
 /// rows' direction, j along the columns', k along the normal, the origin at the first slice's
-/// position. Info: modality, series, patient position, slice thickness, rescale.
-Volume readDicomSeries(const std::string& dir, const std::string& seriesUid = "");
+/// position. Info: modality, series, patient position, slice thickness, rescale. @p progress
+/// hears of the slices read ("DICOM slices").
+Volume readDicomSeries(const std::string& dir, const std::string& seriesUid = "", const Progress* progress = nullptr);
 /// An InVesalius 3 project (.inv3: gzip tar with main.plist and the raw matrix). InVesalius keeps
 /// its matrix LAS (its DICOM import's layout) unless the project stores an affine (NIfTI import).
 Volume readInv3(const std::string& path);

@@ -1,0 +1,70 @@
+#include "volume/progress.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+
+#include <sstream>
+#include <thread>
+#include <vector>
+
+#include "apps/progress_display.h"
+
+namespace hyb {
+namespace {
+
+using ::testing::HasSubstr;
+
+TEST(Progress, TasksReportWholePercentsInOrderFromAnyThread) {
+  std::vector<std::pair<std::string, double>> seen;
+  const Progress progress([&](const std::string& task, double f) { seen.emplace_back(task, f); });
+  {
+    ProgressTask task(&progress, "work", 1000);
+    std::vector<std::thread> threads;
+    for (int t = 0; t < 4; ++t)
+      threads.emplace_back([&] {
+        for (int i = 0; i < 250; ++i) task.advance();
+      });
+    for (std::thread& t : threads) t.join();
+  }
+  ASSERT_GE(seen.size(), 3u);
+  EXPECT_EQ(seen.front(), std::make_pair(std::string("work"), 0.0));
+  EXPECT_EQ(seen.back(), std::make_pair(std::string("work"), 1.0));
+  // Each whole percent once (the end's 100 % apart): 0, 1 ... 99 reported at most once each.
+  EXPECT_LE(seen.size(), 101u);
+  for (size_t i = 1; i < seen.size(); ++i) {
+    EXPECT_NEAR(seen[i].second * 100, std::round(seen[i].second * 100), 1e-9);
+    EXPECT_GT(seen[i].second, seen[i - 1].second);
+  }
+  ProgressTask none(nullptr, "nothing", 10);  // no progress: a no-op
+  none.advance(5);
+}
+
+TEST(Progress, DisplayDrawsABarOrLinesOnlyForTasksThatTakeTime) {
+  for (const app::ProgressMode mode : {app::ProgressMode::Lines, app::ProgressMode::Bar}) {
+    std::ostringstream err;
+    const app::ProgressDisplay display(mode, err, false);
+    { ProgressTask quick(display.progress(), "quick", 2); quick.advance(2); }
+    EXPECT_EQ(err.str(), "");  // short tasks stay silent
+    {
+      ProgressTask slow(display.progress(), "slow", 4);
+      std::this_thread::sleep_for(std::chrono::milliseconds(1050));
+      slow.advance(2);
+    }
+    if (mode == app::ProgressMode::Lines) {
+      EXPECT_THAT(err.str(), HasSubstr("progress slow: 50 %\n"));
+      EXPECT_THAT(err.str(), HasSubstr("progress slow: done in 1."));
+    } else {
+      EXPECT_THAT(err.str(), HasSubstr("\rslow                 [###############               ]  50 %"));
+      EXPECT_THAT(err.str(), HasSubstr("] 100 %, 1."));
+    }
+  }
+  std::ostringstream err;
+  const app::ProgressDisplay off(app::ProgressMode::Off, err, true);
+  EXPECT_EQ(off.progress(), nullptr);
+}
+
+}  // namespace
+}  // namespace hyb
