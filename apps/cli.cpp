@@ -63,6 +63,13 @@ struct InfoOptions {
 };
 
 int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
+  if (std::error_code ec; std::filesystem::is_directory(o.input.path, ec) && !o.input.rawLayout()) {
+    const std::vector<DicomSeriesInfo> series = listDicomSeries(o.input.path);
+    out << "series   " << series.size() << " in " << o.input.path << " (largest first; --series UID reads another):\n";
+    for (const DicomSeriesInfo& s : series)
+      out << "  " << s.uid << "  " << (s.modality.empty() ? "?" : s.modality) << "  " << s.slices << " slices of " << s.columns << "x" << s.rows
+          << (s.description.empty() ? "" : "  " + s.description) << "\n";
+  }
   const Volume v = o.input.read(err);
   out << "file     " << o.input.path << "\n" << v.toString();
   out << "histogram (" << o.bins << " bins)\n" << formatHistogram(computeHistogram(v, o.bins));

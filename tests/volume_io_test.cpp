@@ -5,6 +5,7 @@
 #include <gdcmAttribute.h>
 #include <gdcmImageWriter.h>
 #include <gdcmMediaStorage.h>
+#include <gdcmTrace.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <nifti1.h>
@@ -13,6 +14,7 @@
 #include <iomanip>
 #include <sstream>
 
+#include "cli_util.h"
 #include "test_util.h"
 #include "volume/file_util.h"
 
@@ -428,6 +430,7 @@ TEST(Inv3Reader, RealCraniumLoadsInHounsfieldUnits) {
 // @p cosines (rows' direction, then columns').
 void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels, const glm::dvec3& position, const std::string& seriesUid,
                      const double (&cosines)[6] = {1, 0, 0, 0, 1, 0}, const std::string& description = "") {
+  gdcm::Trace::WarningOff();  // the writer warns of the tags it fills in itself
   gdcm::ImageWriter w;
   gdcm::Image& im = w.GetImage();
   im.SetNumberOfDimensions(2);
@@ -561,6 +564,34 @@ TEST(DicomReader, SeveralSeriesAreListedAndOneIsChosen) {
     EXPECT_THAT(e.what(), HasSubstr("--series '9.9': no such series"));
     EXPECT_THAT(e.what(), HasSubstr("1.2.3.200"));
   }
+}
+
+// The command line: info lists every series; render reads the largest and says so in one
+// warning line, or the one --series names.
+TEST(DicomReader, InfoListsTheSeriesAndRenderNamesTheOneItReads) {
+  TempDir dir;
+  for (int k = 0; k < kDims.z; ++k)
+    writeDicomSlice(dir.file("a" + std::to_string(k) + ".dcm"), storedSlice(k), glm::dvec3(0.0, 0.0, 2.5 * k), "1.2.3.100", {1, 0, 0, 0, 1, 0}, "head");
+  for (int k = 0; k < 2; ++k)
+    writeDicomSlice(dir.file("b" + std::to_string(k) + ".dcm"), storedSlice(k), glm::dvec3(0.0, 0.0, 1.0 * k), "1.2.3.200", {1, 0, 0, 0, 1, 0}, "scout");
+  test::CliRun r = test::run({"info", dir.path().string()});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("series   2 in "));
+  EXPECT_THAT(r.out, HasSubstr("  1.2.3.100  CT  5 slices of 4x3  head\n"));
+  EXPECT_THAT(r.out, HasSubstr("  1.2.3.200  CT  2 slices of 4x3  scout\n"));
+  EXPECT_THAT(r.out, HasSubstr("modality CT\n"));
+  EXPECT_THAT(r.out, HasSubstr("series   '1.2.3.100' (CT, head, 5 slices of 4x3)\n"));
+  EXPECT_THAT(r.out, HasSubstr("thickness 2 mm (Slice Thickness; slices 2.5 mm apart)\n"));
+  EXPECT_THAT(r.out, HasSubstr("rescale  slope 1, intercept -1024 (applied)\n"));
+  r = test::run({"render", dir.path().string(), "--size", "8x8", "-o", dir.file("r.png")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(test::lines(r.err), 1u) << r.err;
+  EXPECT_THAT(r.err, HasSubstr("warning: " + dir.path().string() + ": 2 series; reading the largest, '1.2.3.100'"));
+  r = test::run({"render", dir.path().string(), "--series", "1.2.3.200", "--size", "8x8", "-o", dir.file("s.png")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(r.err, "");
+  test::expectBadInput({"render", dir.path().string(), "--series", "7.7", "--size", "8x8", "-o", dir.file("t.png")}, "--series '7.7'");
+  test::expectBadInput({"info", dir.file("a0.dcm"), "--series", "1.2.3.100"}, "--series needs a DICOM directory");
 }
 
 TEST(DicomReader, RejectsDirectoryWithoutDicom) {

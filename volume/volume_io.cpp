@@ -6,6 +6,7 @@
 #include <gdcmIPPSorter.h>
 #include <gdcmImageReader.h>
 #include <gdcmScanner.h>
+#include <gdcmTrace.h>
 #include <nifti2_io.h>
 #include <zlib.h>
 
@@ -674,7 +675,16 @@ struct DicomScan {
   }
 };
 
+// GDCM prints its warnings (a missing Photometric Interpretation, say) and errors on stderr; the
+// reader reports what matters in its own one-line errors instead.
+void silenceGdcm() {
+  gdcm::Trace::WarningOff();
+  gdcm::Trace::ErrorOff();
+  gdcm::Trace::DebugOff();
+}
+
 void scanDicom(const std::string& dir, DicomScan* scan) {
+  silenceGdcm();
   gdcm::Directory directory;
   if (directory.Load(dir, false) == 0) HYB_THROW(IoError, dir, ": directory holds no files (expected a DICOM series)");
   for (const gdcm::Tag& t : {kSeriesUid, kSeriesNumber, kSeriesDescription, kModality, kRows, kColumns, kPosition, kOrientation, kThickness,
