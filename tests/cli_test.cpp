@@ -76,6 +76,11 @@ TEST(Cli, InfoBuildAndSelect) {
   r = run({"render", nhdr, "--epsilon", "100", "-o", dir.file("r.png")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("1 bricks, 8 texels"));
+  // An isovalue the data never crosses renders, with one warning saying the surface is empty.
+  r = run({"render", nhdr, "--iso", "50", "-o", dir.file("i.png")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(lines(r.err), 1u) << r.err;
+  EXPECT_THAT(r.err, HasSubstr("warning: --iso 50 is outside the data's crossing range"));
 }
 
 TEST(Cli, InfoPrintsThePatientFrameAndExactPercentiles) {

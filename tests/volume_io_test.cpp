@@ -421,6 +421,12 @@ TEST(Inv3Reader, RealCraniumLoadsInHounsfieldUnits) {
   EXPECT_EQ(v.minValue(), -1024.0f);
   EXPECT_EQ(v.maxValue(), 2986.0f);
   EXPECT_EQ(v.sourceBytes(), size_t(256 * 256 * 108 * 2));
+  // Exact percentiles (nearest rank), not histogram bin centres (those were -940 and -940).
+  const Histogram h = computeHistogram(v, 24);
+  EXPECT_EQ(h.p01, -1024.0);
+  EXPECT_EQ(h.p50, -994.0);
+  EXPECT_EQ(h.p99, 1210.0);
+  EXPECT_EQ(orientationCode(v.frame().direction), "LAS");
 }
 
 // ---------------------------------------------------------------------------------------------
