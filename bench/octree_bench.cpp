@@ -18,6 +18,7 @@
 
 #include <omp.h>
 
+#include "bench/plain_quads.h"
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/surface_octree.h"
 #include "render/raycast.h"
@@ -188,7 +189,7 @@ int main(int argc, char** argv) {
         uint64_t plainFragments = 0;
         double plainS = 1e300;
         for (int r = 0; r < std::max(1, runs / 3); ++r)
-          plainS = std::min(plainS, hyb::plainQuadSeconds(v, 512, 512, 200, &plainFragments, brickFormat));
+          plainS = std::min(plainS, hyb::bench::plainQuadSeconds(v, 512, 512, 200, &plainFragments, brickFormat));
         const double rate = double(plainFragments) / plainS / 1e6;
         std::printf("%-34s %10.1f M fragments/s (%llu fragments)\n", label, rate, (unsigned long long)plainFragments);
         return rate;

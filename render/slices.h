@@ -10,14 +10,11 @@
 // every view.
 #pragma once
 
-#include <array>
 #include <cstdint>
-#include <string>
-#include <unordered_map>
-#include <vector>
 
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
+#include "render/brick_textures.h"
 #include "render/camera.h"
 #include "render/cut_plane.h"
 #include "render/voi.h"
@@ -25,6 +22,7 @@
 #include "render/image.h"
 #include "render/transfer_function.h"
 #include "surface/mesh.h"
+#include "volume/progress.h"
 #include "volume/volume.h"
 
 namespace hyb {
@@ -34,68 +32,6 @@ enum class Proxy {
   Planes,  ///< view-aligned planes f·x = kΔ, globally aligned
   Shells,  ///< spherical shells |x − eye| = kΔ around the eye (perspective; bricks the eye is too close
            ///< to, and orthographic views, use planes)
-};
-
-/// Value ranges of a brick's texels over blocks of 2×2×2 knot cells, as the span of transfer-function
-/// lookup entries each block can read. The field inside a cell lies within its eight texels, so the
-/// spans bound, for any transfer function, the part of the brick that can be visible.
-struct BrickRanges {
-  glm::ivec3 blocks{0};                         ///< blocks per axis
-  std::vector<std::array<uint16_t, 2>> entries;  ///< per block (x fastest): first and last entry
-};
-
-/// Precision of the brick textures' value and gradient: 8 bits (RGBA8, which llvmpipe filters in
-/// fixed point) or 16 bits (RGBA16: twice the bytes, slower frames, for transfer functions whose
-/// features are narrow against a brick's range of values, e.g. soft tissue next to air and bone).
-enum class TexelBits { Eight = 8, Sixteen = 16 };
-/// Bytes of one brick texel: value and three gradient components.
-inline constexpr uint64_t bytesPerTexel(TexelBits bits) { return bits == TexelBits::Sixteen ? 8 : 4; }
-/// Bytes of one texel of the 16-bit value textures made for 8-bit bricks a cutting plane crosses.
-inline constexpr uint64_t kBytesPerCutTexel = 2;
-
-/// A brick's texture, the mapping of its normalised values back to data units, and the ranges of
-/// its texels.
-struct CachedBrick {
-  unsigned texture = 0;
-  unsigned cutTexture = 0;  ///< 8-bit bricks: its values at 16 bits, made once a cutting plane crosses it
-  float valueOffset = 0.0f, valueScale = 1.0f;  ///< value = offset + scale · (2·texel − 1)
-  BrickRanges ranges;
-};
-
-/// Brick textures kept across frames of one volume and octree: a view that is rendered again (an
-/// interactive viewer, progressive refinement, a benchmark) uploads only bricks it has not drawn
-/// before. Keyed by node, level and blended corners. Also keeps the slice shader programs, keyed
-/// by their sources' feature defines. Owns GL objects: destroy it, or clear() it, while its
-/// GlContext is current.
-class BrickTextureCache {
- public:
-  BrickTextureCache() = default;
-  BrickTextureCache(const BrickTextureCache&) = delete;
-  BrickTextureCache& operator=(const BrickTextureCache&) = delete;
-  ~BrickTextureCache() { clear(); }
-
-  /// Brick @p b's entry, or null.
-  CachedBrick* find(const Brick& b);
-  /// Takes ownership of @p brick's textures.
-  CachedBrick& insert(const Brick& b, CachedBrick brick);
-  size_t size() const { return mTextures.size(); }
-  /// The value range of the transfer function's lookup table, to which the bricks' block ranges
-  /// refer (it follows the transfer function's domain), and the texels' precision: a frame with
-  /// another range or precision drops the bricks.
-  void setLayout(float lutMin, float lutMax, TexelBits bits);
-  /// The linked program kept under @p key, or 0.
-  unsigned program(const std::string& key) const;
-  /// Takes ownership of @p program.
-  void insertProgram(const std::string& key, unsigned program);
-  void clear();
-
- private:
-  static uint64_t key(const Brick& b) { return uint64_t(b.node) | uint64_t(uint8_t(b.p)) << 32 | uint64_t(b.coarseCorners) << 40; }
-  void clearBricks();
-  std::unordered_map<uint64_t, CachedBrick> mTextures;
-  float mLutMin = 0.0f, mLutMax = 0.0f;
-  TexelBits mBits = TexelBits::Eight;
-  std::unordered_map<std::string, unsigned> mPrograms;
 };
 
 /// Options of the slice renderer.
@@ -117,6 +53,7 @@ struct SlicesOptions {
                                         ///< function can make visible (false: the whole brick; same image)
   bool slabOrder = true;                  ///< false: draw each brick's surface after its slices (a
                                           ///< deliberately wrong order, to show the tests catch it)
+  const Progress* progress = nullptr;     ///< hears of the bricks drawn ("slices"); may throw to stop the frame
 };
 
 /// What a frame used.
@@ -133,12 +70,6 @@ struct SlicesStats {
   uint64_t cutPolygons = 0;       ///< pieces of the cutting plane drawn (one per textured brick it crosses)
   uint64_t cutLineSegments = 0;   ///< segments of the surface's intersection with the cutting plane
 };
-
-/// Throughput baseline: seconds llvmpipe takes to blend @p quads full-screen quads that sample a
-/// 3D texture of @p volume into a float framebuffer of @p width x @p height, and the fragments it
-/// shaded. The texture is R32F, or with @p brickFormat the bricks' default RGBA8 (value and
-/// gradient), to tell the cost of the format from that of the shader. Requires a current GlContext.
-double plainQuadSeconds(const Volume& volume, int width, int height, int quads, uint64_t* fragments, bool brickFormat = false);
 
 /// Renders the bricks of @p selection. Requires a current GlContext.
 /// @throw RuntimeError when OpenGL fails (shader compilation, framebuffer).

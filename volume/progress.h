@@ -16,7 +16,8 @@ namespace hyb {
 class Progress {
  public:
   /// Receives a task's name and the fraction of it done, in whole percents from 0 to 1 (1 once,
-  /// when the task ends); never called by two threads at once.
+  /// when the task ends); never called by two threads at once. It may throw to stop the work (an
+  /// exception from the end's report is dropped).
   using Callback = std::function<void(const std::string& task, double fraction)>;
   explicit Progress(Callback callback) : mCallback(std::move(callback)) {}
 
@@ -49,7 +50,11 @@ class ProgressTask {
   ProgressTask(const ProgressTask&) = delete;
   ProgressTask& operator=(const ProgressTask&) = delete;
   ~ProgressTask() {
-    if (mProgress) mProgress->report(mName, 1.0);
+    if (!mProgress) return;
+    try {
+      mProgress->report(mName, 1.0);
+    } catch (...) {  // a callback that throws stops the task where it was: not again while unwinding
+    }
   }
   /// Records @p units more done.
   void advance(uint64_t units = 1) {

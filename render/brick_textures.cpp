@@ -1,0 +1,235 @@
+// Brick textures: knot lattices as textures, Carmona et al.'s blend bake, packing, and the cache.
+#include "render/brick_textures.h"
+
+#include <algorithm>
+#include <limits>
+
+namespace hyb {
+
+namespace {
+
+// The texels of a knot lattice (DESIGN 3.3): value(knot position) at each knot, with the overhanging
+// last texel extrapolated so that uniform trilinear filtering reproduces the lattice's
+// position-clamped trilinear field exactly.
+template <class Value>
+auto latticeTexels(const KnotLattice& L, const Value& value) {
+  using T = decltype(value(glm::ivec3()));
+  const glm::ivec3 d = L.dims;
+  const int s = L.step;
+  std::vector<T> out(size_t(L.count()));
+  auto at = [&](int i, int j, int k) -> T& { return out[size_t(i) + size_t(d.x) * (size_t(j) + size_t(d.y) * size_t(k))]; };
+  for (int k = 0; k < d.z; ++k)
+    for (int j = 0; j < d.y; ++j)
+      for (int i = 0; i < d.x; ++i) at(i, j, k) = value(glm::ivec3(L.knot(0, i), L.knot(1, j), L.knot(2, k)));
+  for (int a = 0; a < 3; ++a) {
+    const int m = d[a] - 1;
+    if (m < 1 || L.origin[a] + m * s <= L.last[a]) continue;  // the last knot sits where a uniform texel would
+    const float scale = float(s) / float(L.last[a] - (L.origin[a] + (m - 1) * s));
+    for (int k = 0; k < d.z; ++k)
+      for (int j = 0; j < d.y; ++j)
+        for (int i = 0; i < d.x; ++i) {
+          glm::ivec3 q(i, j, k);
+          if (q[a] != m) continue;
+          glm::ivec3 r = q;
+          r[a] = m - 1;
+          T& last = at(q.x, q.y, q.z);
+          const T prev = at(r.x, r.y, r.z);
+          last = prev + (last - prev) * scale;
+        }
+  }
+  return out;
+}
+
+// How fast a blended brick reaches its own data: w = min(1, kBlendSteepness · trilinear corner
+// weight), so the field agrees with the coarser neighbour on their shared face (w = 0 there, as in
+// Carmona et al.) and is the brick's own from halfway across (Carmona's ramp over the whole brick,
+// 1, pulls half of every blended brick towards the coarse data; docs/multires.md measures both).
+constexpr float kBlendSteepness = 2.0f;
+
+// @p value mapped to [0, 1] over @p brick's range.
+float unitValue(const CachedBrick& brick, float value) {
+  return std::clamp(0.5f + 0.5f * ((value - brick.valueOffset) / brick.valueScale), 0.0f, 1.0f);
+}
+
+// Texels at T's precision. Eight-bit formats take llvmpipe's fixed-point filtering path, about
+// twice as fast a fetch as the float path of every other format (docs/renderer.md).
+template <class T>
+void packTexels(const std::vector<glm::vec4>& texels, float toGradient, PackedBrick* out) {
+  constexpr float kTop = float(std::numeric_limits<T>::max()), kZero = float(std::numeric_limits<T>::max() / 2 + 1);
+  // Rounded by truncating x + 0.5 (x >= 0 here): std::lround was a fifth of a first frame.
+  auto gradient = [&](float g) { return T(kZero + 0.5f + std::clamp(g * toGradient, 1.0f - kZero, kZero - 1.0f)); };
+  out->bytes.resize(texels.size() * 4 * sizeof(T));
+  T* q = reinterpret_cast<T*>(out->bytes.data());
+  for (const glm::vec4& t : texels) {
+    *q++ = T(unitValue(out->brick, t.x) * kTop + 0.5f);
+    *q++ = gradient(t.y);
+    *q++ = gradient(t.z);
+    *q++ = gradient(t.w);
+  }
+}
+
+}  // namespace
+
+// The coarse field is read from the coarse lattice's knots once (each serves up to eight of the
+// brick's); a coarse brick keeps the full-resolution gradients at its knots, interpolated between
+// them, as a simplified mesh keeps its original normals (docs/multires.md).
+std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const Brick& b) {
+  const OctreeNode& n = t.nodes()[b.node];
+  const KnotLattice fine = t.lattice(n, b.p);
+  const KnotLattice coarse = b.coarseCorners ? t.coarseLattice(n, b.p) : fine;
+  const glm::vec3 origin(n.origin);
+  const float edge = float(t.edge(n));
+  auto knot = [&](const KnotLattice& L, const glm::ivec3& p) { return glm::vec4(t.knotValue(v, L.step, p), v.gradientAt(p.x, p.y, p.z)); };
+  // The coarse lattice's knots, read once (each serves up to eight of the brick's knots).
+  std::vector<glm::vec4> low;
+  if (b.coarseCorners) {
+    low.reserve(size_t(coarse.count()));
+    for (int k = 0; k < coarse.dims.z; ++k)
+      for (int j = 0; j < coarse.dims.y; ++j)
+        for (int i = 0; i < coarse.dims.x; ++i) low.push_back(knot(coarse, glm::ivec3(coarse.knot(0, i), coarse.knot(1, j), coarse.knot(2, k))));
+  }
+  auto lowAt = [&](const glm::ivec3& q) {
+    glm::ivec3 j;
+    for (int a = 0; a < 3; ++a) j[a] = q[a] >= coarse.last[a] ? coarse.dims[a] - 1 : (q[a] - coarse.origin[a]) / coarse.step;
+    return low[size_t(j.x) + size_t(coarse.dims.x) * (size_t(j.y) + size_t(coarse.dims.y) * size_t(j.z))];
+  };
+  return latticeTexels(fine, [&](const glm::ivec3& p) {
+    const glm::vec4 own = knot(fine, p);
+    if (!b.coarseCorners) return own;
+    const glm::vec3 u = glm::clamp((glm::vec3(p) - origin) / edge, 0.0f, 1.0f);
+    float w = 0.0f;
+    for (int c = 0; c < 8; ++c)
+      if (!((b.coarseCorners >> c) & 1))
+        w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
+    w = std::min(1.0f, kBlendSteepness * w);
+    return glm::mix(t.latticeField(coarse.step, glm::clamp(p, coarse.origin, coarse.last), lowAt), own, w);
+  });
+}
+
+PackedBrick packBrick(const std::vector<glm::vec4>& texels, TexelBits bits) {
+  float lo = std::numeric_limits<float>::max(), hi = std::numeric_limits<float>::lowest(), gmax = 0.0f;
+  for (const glm::vec4& t : texels) {
+    lo = std::min(lo, t.x);
+    hi = std::max(hi, t.x);
+    gmax = std::max({gmax, std::abs(t.y), std::abs(t.z), std::abs(t.w)});
+  }
+  PackedBrick out;
+  out.brick.valueOffset = 0.5f * lo + 0.5f * hi;  // halves first: no overflow near the float range's ends
+  out.brick.valueScale = hi > lo ? 0.5f * hi - 0.5f * lo : 1.0f;
+  const float unit = gmax > 0.0f ? 1.0f / gmax : 0.0f;
+  if (bits == TexelBits::Sixteen)
+    packTexels<uint16_t>(texels, 32767.0f * unit, &out);
+  else
+    packTexels<uint8_t>(texels, 127.0f * unit, &out);
+  return out;
+}
+
+CachedBrick uploadBrick(PackedBrick&& packed, const glm::ivec3& dims, TexelBits bits) {
+  packed.brick.texture = gl::volumeTexture();
+  const bool wide = bits == TexelBits::Sixteen;
+  glTexImage3D(GL_TEXTURE_3D, 0, wide ? GL_RGBA16 : GL_RGBA8, dims.x, dims.y, dims.z, 0, GL_RGBA, wide ? GL_UNSIGNED_SHORT : GL_UNSIGNED_BYTE,
+               packed.bytes.data());
+  packed.brick.bytes = uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z) * bytesPerTexel(bits);
+  return std::move(packed.brick);
+}
+
+void uploadCutTexture(const std::vector<glm::vec4>& texels, const glm::ivec3& dims, CachedBrick* brick) {
+  std::vector<uint16_t> values;
+  values.reserve(texels.size());
+  for (const glm::vec4& t : texels) values.push_back(uint16_t(unitValue(*brick, t.x) * 65535.0f + 0.5f));
+  brick->cutTexture = gl::volumeTexture();
+  glTexImage3D(GL_TEXTURE_3D, 0, GL_R16, dims.x, dims.y, dims.z, 0, GL_RED, GL_UNSIGNED_SHORT, values.data());
+  brick->bytes += uint64_t(texels.size()) * kBytesPerCutTexel;
+}
+
+BrickRanges texelRanges(const std::vector<glm::vec4>& texels, const glm::ivec3& dims) {
+  BrickRanges r;
+  r.blocks = (glm::max(dims - 1, 1) + 1) / 2;
+  r.values.reserve(size_t(r.blocks.x) * r.blocks.y * r.blocks.z);
+  for (int bz = 0; bz < r.blocks.z; ++bz)
+    for (int by = 0; by < r.blocks.y; ++by)
+      for (int bx = 0; bx < r.blocks.x; ++bx) {
+        const glm::ivec3 lo = 2 * glm::ivec3(bx, by, bz), hi = glm::min(lo + 2, dims - 1);
+        float least = std::numeric_limits<float>::max(), greatest = std::numeric_limits<float>::lowest();
+        for (int k = lo.z; k <= hi.z; ++k)
+          for (int j = lo.y; j <= hi.y; ++j)
+            for (int i = lo.x; i <= hi.x; ++i) {
+              const float t = texels[size_t(i) + size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k))].x;
+              least = std::min(least, t);
+              greatest = std::max(greatest, t);
+            }
+        r.values.push_back({least, greatest});
+      }
+  return r;
+}
+
+void BrickTextureCache::touch(Entry& e, uint64_t k) {
+  e.frame = mFrame;
+  mOrder.erase(e.age);
+  e.age = mOrder.insert(mOrder.end(), k);
+}
+
+CachedBrick* BrickTextureCache::find(const Brick& b) {
+  const uint64_t k = key(b);
+  const auto it = mEntries.find(k);
+  if (it == mEntries.end()) return nullptr;
+  touch(it->second, k);
+  return &it->second.brick;
+}
+
+CachedBrick& BrickTextureCache::insert(const Brick& b, CachedBrick brick) {
+  const uint64_t k = key(b);
+  auto [it, fresh] = mEntries.try_emplace(k);
+  Entry& e = it->second;
+  if (fresh) {
+    e.age = mOrder.insert(mOrder.end(), k);
+  } else {
+    mBytes -= e.brick.bytes;
+    touch(e, k);
+  }
+  e.frame = mFrame;
+  e.brick = std::move(brick);
+  mBytes += e.brick.bytes;
+  return e.brick;
+}
+
+void BrickTextureCache::grew(const Brick& b, uint64_t bytes) {
+  if (mEntries.count(key(b))) mBytes += bytes;
+}
+
+void BrickTextureCache::evict() {
+  while (mLimit > 0 && mBytes > mLimit && !mOrder.empty()) {
+    const auto it = mEntries.find(mOrder.front());
+    if (it->second.frame == mFrame) break;  // the rest are this frame's
+    mBytes -= it->second.brick.bytes;
+    mOrder.pop_front();
+    mEntries.erase(it);
+    ++mEvicted;
+  }
+}
+
+void BrickTextureCache::setBits(TexelBits bits) {
+  if (bits == mBits) return;
+  clearBricks();
+  mBits = bits;
+}
+
+GLuint BrickTextureCache::program(const std::string& key) const {
+  const auto it = mPrograms.find(key);
+  return it == mPrograms.end() ? 0 : it->second.id();
+}
+
+void BrickTextureCache::insertProgram(const std::string& key, gl::Program program) { mPrograms[key] = std::move(program); }
+
+void BrickTextureCache::clearBricks() {
+  mEntries.clear();
+  mOrder.clear();
+  mBytes = 0;
+}
+
+void BrickTextureCache::clear() {
+  mPrograms.clear();
+  clearBricks();
+}
+
+}  // namespace hyb

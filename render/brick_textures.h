@@ -1,0 +1,134 @@
+// Brick textures of the slice renderer: one 3D texture per selected brick at its level p (DESIGN
+// 3.3: (2^p + 1)³ knots, a non-power-of-two texture a brick), holding the value and the shading
+// gradient; Carmona et al.'s blending towards coarser neighbours baked into the texels; and the
+// cache that keeps them across frames, bounded by a texture-memory limit (least recently used
+// bricks evicted). docs/renderer.md and docs/multires.md hold the measurements behind the choices.
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <array>
+#include <cstdint>
+#include <list>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "hybrid_octree/selection.h"
+#include "hybrid_octree/volume_octree.h"
+#include "render/gl_objects.h"
+#include "volume/volume.h"
+
+namespace hyb {
+
+/// Precision of the brick textures' value and gradient: 8 bits (RGBA8, which llvmpipe filters in
+/// fixed point) or 16 bits (RGBA16: twice the bytes, slower frames, for transfer functions whose
+/// features are narrow against a brick's range of values, e.g. soft tissue next to air and bone).
+enum class TexelBits { Eight = 8, Sixteen = 16 };
+/// Bytes of one brick texel: value and three gradient components.
+inline constexpr uint64_t bytesPerTexel(TexelBits bits) { return bits == TexelBits::Sixteen ? 8 : 4; }
+/// Bytes of one texel of the 16-bit value textures made for 8-bit bricks a cutting plane crosses.
+inline constexpr uint64_t kBytesPerCutTexel = 2;
+
+/// Value ranges of a brick's texels over blocks of 2×2×2 knot cells (data units). The field inside
+/// a cell lies within its eight texels, so the ranges bound, for any transfer function, the part of
+/// the brick that can be visible.
+struct BrickRanges {
+  glm::ivec3 blocks{0};                      ///< blocks per axis
+  std::vector<std::array<float, 2>> values;  ///< per block (x fastest): smallest and largest texel value
+};
+
+/// A brick's texture, the mapping of its normalised values back to data units, and its ranges.
+struct CachedBrick {
+  gl::Texture texture;
+  gl::Texture cutTexture;  ///< 8-bit bricks: its values at 16 bits, made once a cutting plane crosses it
+  float valueOffset = 0.0f, valueScale = 1.0f;  ///< value = offset + scale · (2·texel − 1)
+  BrickRanges ranges;
+  uint64_t bytes = 0;  ///< texture memory held (both textures)
+};
+
+/// A brick ready for upload: its value mapping and texels (the CPU half of an upload, made on all
+/// cores before the frame's GL work).
+struct PackedBrick {
+  CachedBrick brick;  ///< textures not made yet
+  std::vector<uint8_t> bytes;
+};
+
+/// The texels of brick @p b, value and gradient: its lattice's knot values (samples, or prefiltered
+/// ones on coarse lattices) with the volume's own gradient at each knot, or where a corner blends
+/// (Carmona et al.) mix(coarse field, own field, w), w reaching 1 halfway across the node from the
+/// corners that touch a coarser brick. The overhanging last texel of a cropped lattice is
+/// extrapolated, so that uniform trilinear filtering reproduces the lattice's field exactly.
+std::vector<glm::vec4> brickTexels(const Volume& volume, const VolumeOctree& octree, const Brick& b);
+
+/// The ranges of @p texels (a lattice of @p dims knots) over blocks of 2×2×2 cells.
+BrickRanges texelRanges(const std::vector<glm::vec4>& texels, const glm::ivec3& dims);
+
+/// Packs @p texels for an RGBA8 or RGBA16 texture: the value mapped from its range to [0, 1], the
+/// gradient divided by its largest component (zero exact at the middle code).
+PackedBrick packBrick(const std::vector<glm::vec4>& texels, TexelBits bits);
+
+/// Makes @p packed's texture (on unit 0, left bound) and hands its brick over. Needs a current
+/// GlContext.
+CachedBrick uploadBrick(PackedBrick&& packed, const glm::ivec3& dims, TexelBits bits);
+
+/// Uploads @p brick's values alone at 16 bits (R16, the same mapping as its own texture): a
+/// cutting plane shows the data to 1/65535 of the brick's range.
+void uploadCutTexture(const std::vector<glm::vec4>& texels, const glm::ivec3& dims, CachedBrick* brick);
+
+/// Brick textures kept across frames of one volume and octree: a view rendered again (an
+/// interactive viewer, progressive refinement, a benchmark) uploads only bricks it has not drawn
+/// before. Keyed by node, level and blended corners. A texture-memory limit bounds what it keeps:
+/// after a frame, the least recently used bricks are evicted until it holds no more than the limit
+/// (a frame's own bricks stay while it draws, whatever their size). Also keeps the slice shader
+/// programs, keyed by their sources' feature defines. Owns GL objects: destroy it, or clear() it,
+/// while its GlContext is current.
+class BrickTextureCache {
+ public:
+  /// @p limitBytes: texture memory kept between frames; 0 = no limit.
+  explicit BrickTextureCache(uint64_t limitBytes = 0) : mLimit(limitBytes) {}
+  BrickTextureCache(const BrickTextureCache&) = delete;
+  BrickTextureCache& operator=(const BrickTextureCache&) = delete;
+
+  /// Brick @p b's entry (marked as used by this frame), or null.
+  CachedBrick* find(const Brick& b);
+  /// Takes ownership of @p brick's textures; the entry is used by this frame.
+  CachedBrick& insert(const Brick& b, CachedBrick brick);
+  /// Records @p bytes more held by brick @p b's entry (a cut texture made for it).
+  void grew(const Brick& b, uint64_t bytes);
+  /// Starts a frame: bricks found or inserted from now on are this frame's.
+  void beginFrame() { ++mFrame; }
+  /// Evicts least recently used bricks of earlier frames until at most the limit is held.
+  void evict();
+  /// The texels' precision: a frame with another precision drops the bricks.
+  void setBits(TexelBits bits);
+  size_t size() const { return mEntries.size(); }
+  /// Texture memory held by the kept bricks.
+  uint64_t bytes() const { return mBytes; }
+  uint64_t limit() const { return mLimit; }
+  void setLimit(uint64_t bytes) { mLimit = bytes; }
+  /// Bricks evicted so far.
+  uint64_t evicted() const { return mEvicted; }
+  /// The linked program kept under @p key, or 0.
+  GLuint program(const std::string& key) const;
+  /// Takes ownership of @p program.
+  void insertProgram(const std::string& key, gl::Program program);
+  void clear();
+
+ private:
+  struct Entry {
+    CachedBrick brick;
+    uint64_t frame = 0;                 // the last frame that used it
+    std::list<uint64_t>::iterator age;  // its place in mOrder
+  };
+  static uint64_t key(const Brick& b) { return uint64_t(b.node) | uint64_t(uint8_t(b.p)) << 32 | uint64_t(b.coarseCorners) << 40; }
+  void touch(Entry& e, uint64_t k);
+  void clearBricks();
+  std::unordered_map<uint64_t, Entry> mEntries;
+  std::list<uint64_t> mOrder;  // keys, least recently used first
+  uint64_t mLimit = 0, mBytes = 0, mFrame = 0, mEvicted = 0;
+  TexelBits mBits = TexelBits::Eight;
+  std::unordered_map<std::string, gl::Program> mPrograms;
+};
+
+}  // namespace hyb

@@ -1,0 +1,128 @@
+#include "render/slab_polygons.h"
+
+#include <gtest/gtest.h>
+
+#include <vector>
+
+namespace hyb {
+namespace {
+
+// The pieces of a stream: each a triangle of three positions (kind 1 vertices).
+std::vector<std::array<glm::vec3, 3>> triangles(const std::vector<float>& stream) {
+  std::vector<std::array<glm::vec3, 3>> out;
+  for (size_t v = 0; v + 3 * kStreamFloats <= stream.size(); v += 3 * kStreamFloats) {
+    std::array<glm::vec3, 3> t;
+    for (int k = 0; k < 3; ++k) {
+      const float* p = &stream[v + size_t(k) * kStreamFloats];
+      EXPECT_EQ(p[6], 1.0f);  // a surface piece
+      t[size_t(k)] = glm::vec3(p[0], p[1], p[2]);
+    }
+    out.push_back(t);
+  }
+  return out;
+}
+
+// One triangle from z = 0.5 to z = 2.5 against planes z = k (Δ = 1, seen along +z): it covers
+// slabs 0, 1 and 2, and its pieces come far to near (slab 2 first), each cut exactly at the planes.
+TEST(SlabPolygons, ATriangleIsCutIntoTheSlabsItCoversFarToNear) {
+  TriangleMesh mesh;
+  mesh.vertices = {{0, 0, 0.5f}, {2, 0, 2.5f}, {0, 2, 0.5f}};
+  mesh.triangles = {{0, 1, 2}};
+  const SurfacePolygons surface(mesh);
+  const uint32_t polygons[] = {0};
+  SlabPolygonList list;
+  const ProxyDepth depth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)};
+  list.build(surface, polygons, depth, 1.0, true);
+  EXPECT_EQ(list.firstSlab(), 0);
+  EXPECT_EQ(list.lastSlab(), 2);
+  EXPECT_EQ(list.triangles(), 1u);
+  std::vector<float> stream;
+  list.emitDownTo(2, &stream);  // slab 2: the tip above z = 2, one triangle
+  std::vector<std::array<glm::vec3, 3>> t = triangles(stream);
+  ASSERT_EQ(t.size(), 1u);
+  EXPECT_EQ(t[0][0], glm::vec3(1.5f, 0, 2));
+  EXPECT_EQ(t[0][1], glm::vec3(2, 0, 2.5f));
+  EXPECT_EQ(t[0][2], glm::vec3(1.5f, 0.5f, 2));
+  stream.clear();
+  list.emitDownTo(1, &stream);  // slab 1: the band 1 <= z < 2, a quadrilateral fanned in two
+  t = triangles(stream);
+  ASSERT_EQ(t.size(), 2u);
+  EXPECT_EQ(t[0][0], glm::vec3(0.5f, 0, 1));
+  EXPECT_EQ(t[0][1], glm::vec3(1.5f, 0, 2));
+  EXPECT_EQ(t[0][2], glm::vec3(1.5f, 0.5f, 2));
+  EXPECT_EQ(t[1][2], glm::vec3(0.5f, 1.5f, 1));
+  stream.clear();
+  list.emitRest(&stream);  // slab 0: the base, a quadrilateral
+  t = triangles(stream);
+  ASSERT_EQ(t.size(), 2u);
+  EXPECT_EQ(t[0][0], glm::vec3(0, 0, 0.5f));
+  EXPECT_EQ(t[0][1], glm::vec3(0.5f, 0, 1));
+  EXPECT_EQ(t[0][2], glm::vec3(0.5f, 1.5f, 1));
+  EXPECT_EQ(t[1][2], glm::vec3(0, 2, 0.5f));
+  EXPECT_EQ(list.draws(), 3u);
+  stream.clear();
+  list.emitRest(&stream);
+  EXPECT_TRUE(stream.empty());  // everything was emitted once
+}
+
+// Inside one slab the pieces go far to near by their centroid's depth; a brick without slices
+// sorts its polygons only.
+TEST(SlabPolygons, PiecesInOneSlabAreSortedByDepth) {
+  TriangleMesh mesh;
+  mesh.vertices = {{0, 0, 0.2f}, {1, 0, 0.2f}, {0, 1, 0.2f}, {0, 0, 0.8f}, {1, 0, 0.8f}, {0, 1, 0.8f}};
+  mesh.triangles = {{0, 1, 2}, {3, 4, 5}};
+  const SurfacePolygons surface(mesh);
+  const uint32_t polygons[] = {0, 1};
+  const ProxyDepth depth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)};
+  for (const bool sliced : {true, false}) {
+    SlabPolygonList list;
+    list.build(surface, polygons, depth, 1.0, sliced);
+    std::vector<float> stream;
+    list.emitRest(&stream);
+    const std::vector<std::array<glm::vec3, 3>> t = triangles(stream);
+    ASSERT_EQ(t.size(), 2u);
+    EXPECT_EQ(t[0][0].z, 0.8f);  // the farther first
+    EXPECT_EQ(t[1][0].z, 0.2f);
+  }
+}
+
+// A convex polygon that spans slabs is cut whole (one piece a slab), its vertex normals
+// interpolated where the planes cut its edges.
+TEST(SlabPolygons, ConvexPolygonsAreCutWholeWithTheirNormalsInterpolated) {
+  TriangleMesh mesh;  // the square x = 0, 0 <= y, z <= 2, normals tilting from -z to +z
+  mesh.vertices = {{0, 0, 0}, {0, 2, 0}, {0, 2, 2}, {0, 0, 2}};
+  mesh.normals = {{1, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 1, 0}};
+  mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
+  mesh.polygonStarts = {0, 2};
+  mesh.loopStarts = {0, 4};
+  mesh.loops = {0, 1, 2, 3};
+  const SurfacePolygons surface(mesh);
+  const uint32_t polygons[] = {0};
+  SlabPolygonList list;
+  list.build(surface, polygons, ProxyDepth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)}, 1.0, true);
+  std::vector<float> stream;
+  list.emitDownTo(1, &stream);  // slab 1 (1 <= z < 2; z = 2 falls in slab 2, which gets a sliver of nothing)
+  std::vector<float> slabTwoAndOne = stream;
+  ASSERT_FALSE(slabTwoAndOne.empty());
+  // Every vertex at z = 1 carries the normal halfway between the bottom's and the top's.
+  bool found = false;
+  for (size_t v = 0; v < stream.size(); v += kStreamFloats)
+    if (stream[v + 2] == 1.0f) {
+      found = true;
+      EXPECT_FLOAT_EQ(stream[v + 3], 0.5f);
+      EXPECT_FLOAT_EQ(stream[v + 4], 0.5f);
+    }
+  EXPECT_TRUE(found);
+  EXPECT_EQ(list.draws(), 2u);  // one piece in slab 2 (the edge at z = 2), one in slab 1
+}
+
+TEST(SlabPolygons, DistanceToATriangleFromEachRegion) {
+  const glm::dvec3 a(0, 0, 0), b(4, 0, 0), c(0, 4, 0);
+  EXPECT_DOUBLE_EQ(distanceToTriangle(glm::dvec3(1, 1, 3), a, b, c), 3.0);   // over the face
+  EXPECT_DOUBLE_EQ(distanceToTriangle(glm::dvec3(-3, -4, 0), a, b, c), 5.0);  // nearest a corner
+  EXPECT_DOUBLE_EQ(distanceToTriangle(glm::dvec3(2, -2, 0), a, b, c), 2.0);   // nearest an edge
+  EXPECT_NEAR(distanceToTriangle(glm::dvec3(3, 3, 0), a, b, c), std::sqrt(2.0), 1e-12);  // beyond the hypotenuse
+}
+
+}  // namespace
+}  // namespace hyb
