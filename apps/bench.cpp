@@ -133,9 +133,8 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   std::vector<double> epsilons;
   if (!o.epsilons.empty())
     epsilons = parseList(o.epsilons, "--epsilons", [](double x) { return std::isfinite(x) && x >= 0.0; }, "finite values >= 0");
-  Frame f;
-  prepareFrame(o.render, out, err, &f);
-  const Volume& v = f.scene.volume;
+  RenderJob job = prepareRender(o.render, out, err);
+  const Volume& v = job.renderer->volume();
   if (o.epsilons.empty())
     for (double fraction : {0.0025, 0.005, 0.01, 0.025, 0.05, 0.1}) epsilons.push_back(fraction * double(v.maxValue() - v.minValue()));
   std::error_code ec;
@@ -144,71 +143,70 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   const std::string dir = fs::path(o.outDir).string();
   auto file = [&](const std::string& name) { return (fs::path(dir) / name).string(); };
 
+  if (job.look.iso) out << surfaceLine(job.renderer->prepare(job.look), *job.look.iso, false);
   // The reference: the CPU hybrid ray tracer at full resolution.
-  RenderOptions refOptions = o.render;
-  refOptions.renderer = "raycast";
-  refOptions.step.reset();
+  Quality reference = job.quality;
+  reference.renderer = Renderer::Raycast;
+  reference.step.reset();
+  reference.progressive = 1;
+  reference.adaptive = 0;
   auto t0 = Clock::now();
-  RaycastStats rs;
-  const Image reference = renderFrame(refOptions, f, Selection{}, nullptr, &rs);
+  const Image referenceImage = job.renderer->render(job.view, job.look, reference).image;
   const double referenceMs = msSince(t0);
-  writePng(file("reference.png"), reference, f.background);
-  const std::vector<uint8_t> refRgba = toRgba8(reference, f.background);
+  writePng(file("reference.png"), referenceImage, job.background);
+  const std::vector<uint8_t> refRgba = toRgba8(referenceImage, job.background);
   out << "reference ray tracer: " << std::fixed << std::setprecision(1) << referenceMs << " ms -> " << file("reference.png") << "\n";
 
-  const GlContext gl;
-  RenderOptions slices = o.render;
-  slices.renderer = "slices";
   const size_t total = 1 + size_t(std::count_if(epsilons.begin(), epsilons.end(), [](double e) { return e > 0.0; })) + 2 * budgets.size();
   std::vector<Point> points;
-  std::vector<Selection> selections;  // the points', for the later rounds
-  auto optionsOf = [&](const Point& p) {
-    RenderOptions ro = slices;
-    ro.blend = p.blend ? "on" : "off";
-    return ro;
+  auto qualityOf = [&](const Point& p) {
+    Quality q = job.quality;
+    q.renderer = Renderer::Slices;
+    q.epsilon = p.epsilon;
+    q.budgetMb = p.budgetMb;
+    q.budgetPercent = 0.0;
+    q.blend = p.blend;
+    q.progressive = 1;
+    return q;
   };
   // The point's frames: the first packs and uploads the brick textures (and compiles the program);
   // the frames after it reuse them, and the fastest of those is the point's frame time.
-  auto frames = [&](const Selection& sel, Point* p, SlicesStats* ss) {
-    Image img;
-    BrickTextureCache textures;
+  auto frames = [&](Point* p) {
+    RenderedFrame f;
     for (int r = 0; r < o.repeat; ++r) {
-      const auto s0 = Clock::now();
-      img = renderFrame(optionsOf(*p), f, sel, ss, nullptr, &textures);
-      const double ms = msSince(s0);
-      if (r == 0) p->firstFrameMs = std::min(p->firstFrameMs, ms);
+      if (r == 0) job.renderer->dropTextures();
+      f = job.renderer->render(job.view, job.look, qualityOf(*p));
+      const double ms = f.stats.renderMs;
+      if (r == 0) {
+        p->firstFrameMs = std::min(p->firstFrameMs, ms);
+        p->selectMs = std::min(p->selectMs, f.stats.selectMs);
+      }
       if (r > 0 || o.repeat == 1) p->frameMs = std::min(p->frameMs, ms);
     }
-    return img;
+    return f;
   };
   auto measure = [&](Point p) {
-    const RenderOptions ro = optionsOf(p);
-    const auto s0 = Clock::now();
-    const Selection sel = selectNodes(f.scene.octree, selectionParams(ro, f, p.epsilon, p.budgetMb));
-    p.selectMs = msSince(s0);
-    SlicesStats ss;
-    p.frameMs = p.firstFrameMs = std::numeric_limits<double>::infinity();
-    const Image img = frames(sel, &p, &ss);
-    const std::vector<uint8_t> rgba = toRgba8(img, f.background);
+    p.frameMs = p.firstFrameMs = p.selectMs = std::numeric_limits<double>::infinity();
+    const RenderedFrame f = frames(&p);
+    const std::vector<uint8_t> rgba = toRgba8(f.image, job.background);
     p.psnrDb = std::min(99.0, psnr(rgba, refRgba));  // 99: identical
-    p.ssim = ssim(rgba, refRgba, img.width, img.height);
-    p.bricks = sel.bricks.size();
-    p.textured = ss.bricks;
-    p.blended = ss.blendedBricks;
-    p.textureBytes = ss.textureBytes;
-    p.maxError = sel.maxError;
+    p.ssim = ssim(rgba, refRgba, f.image.width, f.image.height);
+    p.bricks = f.selection.bricks.size();
+    p.textured = f.stats.slices.bricks;
+    p.blended = f.stats.slices.blendedBricks;
+    p.textureBytes = f.stats.slices.textureBytes;
+    p.maxError = f.selection.maxError;
     std::ostringstream name;
     name << p.sweep;
     if (p.sweep == "epsilon") name << "_" << p.epsilon;
-    if (p.sweep == "budget") name << "_" << p.budgetFraction << "_blend_" << ro.blend;
+    if (p.sweep == "budget") name << "_" << p.budgetFraction << "_blend_" << (p.blend ? "on" : "off");
     p.image = name.str() + ".png";
-    writePng(file(p.image), img, f.background);
+    writePng(file(p.image), f.image, job.background);
     points.push_back(p);
-    selections.push_back(sel);
     out << "[" << points.size() << "/" << total << "] " << std::left << std::setw(28) << name.str() << std::right << std::setprecision(2)
         << std::setw(8) << double(p.textureBytes) / 1048576.0 << " MB " << std::setw(5) << p.textured << " bricks " << std::setprecision(1)
-        << std::setw(8) << p.frameMs << " ms (first " << std::setw(6) << p.firstFrameMs << ") " << std::setprecision(2) << std::setw(6) << p.psnrDb << " dB  SSIM " << std::setprecision(4)
-        << p.ssim << std::endl;
+        << std::setw(8) << p.frameMs << " ms (first " << std::setw(6) << p.firstFrameMs << ") " << std::setprecision(2) << std::setw(6) << p.psnrDb
+        << " dB  SSIM " << std::setprecision(4) << p.ssim << std::endl;
   };
   Point full;
   full.sweep = "full";
@@ -233,10 +231,7 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
 
   // Later rounds take every point's frames again, in the same order.
   for (int round = 2; round <= o.rounds; ++round) {
-    for (size_t i = 0; i < points.size(); ++i) {
-      SlicesStats ss;
-      frames(selections[i], &points[i], &ss);
-    }
+    for (Point& p : points) frames(&p);
     out << "round " << round << "/" << o.rounds << ": fastest frames so far, full resolution " << std::setprecision(1) << points[0].frameMs
         << " ms, last point " << points.back().frameMs << " ms" << std::endl;
   }
@@ -276,8 +271,9 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   for (const std::string& b : breaks) out << "  not monotonic: " << b << "\n";
   if (o.plot) {
     std::ostringstream title;
-    title << "hybrid-octree speed/accuracy: " << fs::path(o.render.input.path).filename().string() << ", " << f.camera.width << "x"
-          << f.camera.height << (f.camera.ortho ? ", orthographic" : ", perspective");
+    const Camera& camera = job.view.camera;
+    title << "hybrid-octree speed/accuracy: " << fs::path(o.render.input.path).filename().string() << ", " << camera.width << "x"
+          << camera.height << (camera.ortho ? ", orthographic" : ", perspective");
     const std::string png = file("trade.png"), tmp = file(".trade.png.tmp");
     writeFileAtomically(file("trade.gp"), [&](std::ostream& s) { s << plotScript(file("trade.csv"), tmp, title.str(), points); });
     if (!runGnuplot(file("trade.gp"))) {

@@ -129,26 +129,10 @@ std::string progressivePath(const std::string& output, int k) {
   return (p.parent_path() / (p.stem().string() + "_" + std::to_string(k) + p.extension().string())).string();
 }
 
-int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
-  Frame f;
-  prepareFrame(o, out, err, &f);
-  // A budget in percent is of this view's full-resolution texels (every visible brick exact), at
-  // least one texel.
-  const Budget budget = o.budget.empty() ? Budget{} : *parseBudget(o.budget);
-  SelectionParams params = selectionParams(o, f, o.epsilon, budget.percent ? 0.0 : budget.value);
-  if (budget.percent) {
-    const uint64_t fullTexels = selectNodes(f.scene.octree, selectionParams(o, f, 0.0, 0.0)).texels;
-    params.texelBudget = std::max<uint64_t>(1, uint64_t(budget.value / 100.0 * double(fullTexels)));
-    auto mb = [&](uint64_t texels) { return double(texels * bytesPerTexel(o.bits())) / (1024.0 * 1024.0); };
-    std::ostringstream line;
-    line << "budget:  " << budget.value << " % of the full-resolution " << std::fixed << std::setprecision(2) << mb(fullTexels)
-         << " MB = " << mb(params.texelBudget) << " MB\n";
-    out << line.str();
-  }
-  auto t0 = Clock::now();
-  const Selection sel = selectNodes(f.scene.octree, params);
-  const double selectMs = msSince(t0);
-
+// The selection's summary: bricks, texels, the largest nodal error used, and per voxel-to-texel
+// ratio the visible bricks and their texels.
+void printSelection(const RenderJob& job, const RenderedFrame& f, std::ostream& out) {
+  const Selection& sel = f.selection;
   std::map<int, std::pair<int, uint64_t>> perLevel;  // voxel-to-texel ratio -> (visible bricks, texels)
   size_t hidden = 0;
   for (const Brick& b : sel.bricks) {
@@ -156,105 +140,106 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
       ++hidden;
       continue;
     }
-    auto& e = perLevel[1 << resolutionLevel(f.scene.octree, b)];
+    auto& e = perLevel[1 << resolutionLevel(job.renderer->octree(), b)];
     ++e.first;
     e.second += b.texelCount();
   }
-  out << "selection: epsilon " << o.epsilon << ", " << sel.bricks.size() << " bricks (" << hidden << " transparent or culled), "
-      << sel.texels << " texels (" << std::fixed << std::setprecision(2) << double(sel.texels * bytesPerTexel(o.bits())) / (1024.0 * 1024.0)
-      << " MB; " << sel.blendedBricks << " bricks blend), max nodal error used " << sel.maxError << ", " << std::setprecision(3) << selectMs
-      << " ms\n";
-  for (const auto& [ratio, e] : perLevel)
-    out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
-  if (!sel.budgetMet)
-    err << "hybrid-octree: warning: --budget " << o.budget << (budget.percent ? "" : " MB") << " cannot be met; using " << sel.texels << " texels\n";
+  const uint64_t bytesPerT = bytesPerTexel(job.quality.texelBits);
+  out << "selection: epsilon " << job.quality.epsilon << ", " << sel.bricks.size() << " bricks (" << hidden << " transparent or culled), " << sel.texels
+      << " texels (" << std::fixed << std::setprecision(2) << double(sel.texels * bytesPerT) / (1024.0 * 1024.0) << " MB; " << sel.blendedBricks
+      << " bricks blend), max nodal error used " << sel.maxError << ", " << std::setprecision(3) << f.stats.selectMs << " ms\n";
+  for (const auto& [ratio, e] : perLevel) out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
+}
 
-  const glm::ivec2 size(f.camera.width, f.camera.height);
-  RaycastStats rs;
-  SlicesStats ss;
-  std::optional<GlContext> gl;
-  std::optional<BrickTextureCache> textures;  // destroyed before the context
-  if (o.renderer == "slices") {
-    gl.emplace();
-    textures.emplace();
-  }
-  BrickTextureCache* cache = textures ? &*textures : nullptr;
-  // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
-  // texels (one level coarser), the last being the requested selection. Early images of a long
-  // sequence bottom out at the coarsest selection the octree has (at least one texel is asked for).
-  for (int k = 1; k < o.progressive && o.renderer == "slices"; ++k) {
-    const int shift = 3 * (o.progressive - k);
-    SelectionParams coarser = params;
-    coarser.texelBudget = std::max<uint64_t>(1, shift < 64 ? sel.texels >> shift : 0);
-    const auto p0 = Clock::now();
-    const Selection coarse = selectNodes(f.scene.octree, coarser);
-    const Image preview = renderFrame(o, f, coarse, &ss, &rs, cache);
-    const std::string path = progressivePath(o.output, k);
-    writePng(path, preview, f.background);
-    out << "progressive " << k << "/" << o.progressive << ": " << std::setprecision(2) << double(ss.textureBytes) / 1048576.0 << " MB, "
-        << std::setprecision(1) << msSince(p0) << " ms -> " << path << "\n";
-  }
-  // The reference's progressive refinement (Levoy): its levels are the images, rays reused.
-  const int pixels = size.x * size.y;
-  const std::function<void(int, const Image&, uint64_t)> onLevel = [&](int level, const Image& preview, uint64_t rays) {
-    if (level >= o.progressive) return;
+int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
+  RenderJob job = prepareRender(o, out, err);
+  const bool slices = job.quality.renderer == Renderer::Slices;
+  const bool fromScene = job.renderer->scene().surface && job.look.iso && job.renderer->scene().surface->isovalue() == *job.look.iso;
+  const int pixels = job.view.camera.width * job.view.camera.height;
+  const FrameStats surface = job.renderer->prepare(job.look);
+  if (job.look.iso) out << surfaceLine(surface, *job.look.iso, fromScene);
+  // Progressive refinement: the images before the last (slices: coarser selections; the reference:
+  // rays on sparser grids).
+  const LevelCallback onLevel = [&](int level, int levels, const Image& image, const FrameStats& st) {
     const std::string path = progressivePath(o.output, level);
-    writePng(path, preview, f.background);
-    out << "progressive " << level << "/" << o.progressive << ": " << rays << " rays (" << std::setprecision(1) << 100.0 * double(rays) / pixels
-        << " % of the pixels), " << msSince(t0) << " ms -> " << path << "\n";
+    Image shown = image;
+    if (o.marker) drawOrientationMarker(job.view.camera, &shown);
+    writePng(path, shown, job.background);
+    out << "progressive " << level << "/" << levels << ": " << std::fixed;
+    if (slices)
+      out << std::setprecision(2) << double(st.slices.textureBytes) / 1048576.0 << " MB, " << std::setprecision(1) << st.renderMs << " ms -> " << path << "\n";
+    else
+      out << st.rays.rays << " rays (" << std::setprecision(1) << 100.0 * double(st.rays.rays) / pixels << " % of the pixels), " << st.renderMs
+          << " ms -> " << path << "\n";
   };
   // --repeat: the same view again; brick textures are uploaded once (as an interactive viewer would).
-  Image image;
+  RenderedFrame frame;
   double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0;
   for (int r = 0; r < o.repeat; ++r) {
-    t0 = Clock::now();
-    image = renderFrame(o, f, sel, &ss, &rs, cache, r == 0 && o.progressive > 1 ? onLevel : nullptr);
-    renderMs = std::min(renderMs, msSince(t0));
-    if (r == 0) firstMs = renderMs;
+    frame = job.renderer->render(job.view, job.look, job.quality, r == 0 && job.quality.progressive > 1 ? onLevel : LevelCallback{});
+    if (r == 0) {
+      if (job.quality.budgetPercent > 0) {
+        auto mb = [&](uint64_t texels) { return double(texels * bytesPerTexel(job.quality.texelBits)) / (1024.0 * 1024.0); };
+        std::ostringstream line;
+        line << "budget:  " << job.quality.budgetPercent << " % of the full-resolution " << std::fixed << std::setprecision(2)
+             << mb(frame.stats.fullTexels) << " MB = " << mb(frame.stats.budgetTexels) << " MB\n";
+        out << line.str();
+      }
+      if (slices) printSelection(job, frame, out);
+      if (slices && !frame.selection.budgetMet)
+        err << "hybrid-octree: warning: --budget " << o.budgetText << (job.quality.budgetPercent > 0 ? "" : " MB") << " cannot be met; using "
+            << frame.selection.texels << " texels\n";
+      firstMs = frame.stats.renderMs;
+    }
+    renderMs = std::min(renderMs, frame.stats.renderMs);
   }
+  const FrameStats& st = frame.stats;
   std::ostringstream timing;
   timing << std::fixed << std::setprecision(1);
   if (o.repeat > 1) timing << "first frame " << firstMs << " ms, best of " << o.repeat << " ";
   timing << renderMs << " ms";
-  if (o.renderer == "slices")
-    out << "render   slices " << size.x << "x" << size.y << ", " << ss.bricks << " textured bricks (" << ss.blendedBricks << " blended), "
-        << ss.textureBytes << " texture bytes, " << ss.slices << " slices, " << ss.slabPolygonDraws << " slab polygon draws, "
+  const glm::ivec2 size(job.view.camera.width, job.view.camera.height);
+  if (slices)
+    out << "render   slices " << size.x << "x" << size.y << ", " << st.slices.bricks << " textured bricks (" << st.slices.blendedBricks << " blended), "
+        << st.slices.textureBytes << " texture bytes, " << st.slices.slices << " slices, " << st.slices.slabPolygonDraws << " slab polygon draws, "
         << timing.str() << "\n";
   else
-    out << "render   raycast " << size.x << "x" << size.y << ", " << rs.rays << " rays (" << std::setprecision(1) << 100.0 * double(rs.rays) / pixels
-        << " % of the pixels), " << rs.samples << " samples, " << rs.skippedLeaves << " empty-space skips, " << rs.surfaceHits << " surface crossings, "
-        << timing.str() << "\n";
-  if (o.marker == "on") drawOrientationMarker(f.patientCamera, &image);
-  if (o.progressive > 1) writePng(progressivePath(o.output, o.progressive), image, f.background);
-  writePng(o.output, image, f.background);
+    out << "render   raycast " << size.x << "x" << size.y << ", " << st.rays.rays << " rays (" << std::setprecision(1)
+        << 100.0 * double(st.rays.rays) / pixels << " % of the pixels), " << st.rays.samples << " samples, " << st.rays.skippedLeaves
+        << " empty-space skips, " << st.rays.surfaceHits << " surface crossings, " << timing.str() << "\n";
+  Image image = std::move(frame.image);
+  if (o.marker) drawOrientationMarker(job.view.camera, &image);
+  if (job.quality.progressive > 1) writePng(progressivePath(o.output, job.quality.progressive), image, job.background);
+  writePng(o.output, image, job.background);
   out << "wrote    " << o.output << "\n";
   if (!o.stats.empty()) {
+    const Selection& sel = frame.selection;
     nlohmann::ordered_json j;
-    j["renderer"] = o.renderer;
+    j["renderer"] = slices ? "slices" : "raycast";
     j["nodes_selected"] = sel.bricks.size();
-    j["nodes_hidden"] = hidden;
+    j["nodes_hidden"] = std::count_if(sel.bricks.begin(), sel.bricks.end(), [](const Brick& b) { return b.hidden; });
     j["texels"] = sel.texels;
     j["blended_bricks"] = sel.blendedBricks;
-    j["texture_bytes"] = o.renderer == "slices" ? ss.textureBytes : sel.texels * bytesPerTexel(o.bits());
-    j["slices"] = ss.slices;
-    j["surface_polygons"] = f.polygons;
-    j["surface_triangles"] = f.mesh.triangles.size();
-    j["slab_polygon_draws"] = ss.slabPolygonDraws;
-    j["fragments"] = ss.fragments;
-    j["shell_bricks"] = ss.shellBricks;
-    j["cut_polygons"] = ss.cutPolygons;
-    j["cut_line_segments"] = ss.cutLineSegments;
-    j["build_ms"] = f.buildMs + f.surfaceMs;
-    j["surface_polygons_ms"] = f.polygonsMs;
-    j["select_ms"] = selectMs;
+    j["texture_bytes"] = slices ? st.slices.textureBytes : sel.texels * bytesPerTexel(job.quality.texelBits);
+    j["slices"] = st.slices.slices;
+    j["surface_polygons"] = st.surfacePolygons;
+    j["surface_triangles"] = st.surfaceTriangles;
+    j["slab_polygon_draws"] = st.slices.slabPolygonDraws;
+    j["fragments"] = st.slices.fragments;
+    j["shell_bricks"] = st.slices.shellBricks;
+    j["cut_polygons"] = st.slices.cutPolygons;
+    j["cut_line_segments"] = st.slices.cutLineSegments;
+    j["build_ms"] = job.buildMs + surface.surfaceBuildMs;
+    j["surface_polygons_ms"] = surface.surfacePolygonsMs;
+    j["select_ms"] = st.selectMs;
     j["render_ms"] = renderMs;
     j["first_render_ms"] = firstMs;
-    j["samples"] = rs.samples;
-    j["rays"] = rs.rays;
-    j["epsilon"] = o.epsilon;
+    j["samples"] = st.rays.samples;
+    j["rays"] = st.rays.rays;
+    j["epsilon"] = job.quality.epsilon;
     j["max_nodal_error_used"] = sel.maxError;
     j["budget_met"] = sel.budgetMet;
-    j["camera"] = nlohmann::ordered_json::parse(cameraJson(f.patientCamera));
+    j["camera"] = nlohmann::ordered_json::parse(cameraJson(job.view.camera));
     writeFileAtomically(o.stats, [&](std::ostream& s) { s << j.dump(2) << "\n"; });
   }
   return 0;
@@ -435,16 +420,12 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   CLI::App* renderCmd = app.add_subcommand("render", "render one image (slice renderer or reference ray tracer)");
   render.add(renderCmd);
   renderCmd->add_option("-o,--output", render.output, "PNG to write");
-  renderCmd->add_option("--epsilon", render.epsilon, "user error epsilon_u in data units (0 = exact)")->capture_default_str();
-  renderCmd->add_option("--budget", render.budget,
-                         "texture memory budget in MB, blend textures included (0 = unlimited), or P% of this view's full-resolution bytes");
-  renderCmd->add_option("--renderer", render.renderer, "slices|raycast")->capture_default_str();
   renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
-  renderCmd->add_option("--progressive", render.progressive,
+  renderCmd->add_option("--progressive", render.quality.progressive,
                          "write N images coarse to fine (out_1.png ... out_N.png, and out.png): slices one level coarser each, the "
                          "reference's rays on a grid 2^(N-k) pixels apart, refined where colours differ")
       ->capture_default_str();
-  renderCmd->add_option("--adaptive", render.adaptive,
+  renderCmd->add_option("--adaptive", render.quality.adaptive,
                          "reference only: Levoy's adaptive refinement, rays 8 pixels apart first and more only where neighbouring "
                          "colours differ by more than T/255, the rest interpolated (0 = every pixel, exact)")
       ->capture_default_str();

@@ -41,6 +41,37 @@ glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
   return {x[0], x[1], x[2]};
 }
 
+void VolumeInput::add(CLI::App* cmd) {
+  cmd->add_option("volume", path, "volume file (.nrrd .nhdr .mhd .mha .nii .nii.gz .inv3), DICOM directory, raw file, or scene.hoct")
+      ->capture_default_str();
+  cmd->add_option("--raw-dims", rawDims, "raw input: samples per axis X,Y,Z");
+  cmd->add_option("--raw-type", rawType, "raw input: int16|uint16|uint8|int8|int32|uint32|float32|float64");
+  cmd->add_option("--raw-spacing", rawSpacing, "raw input: voxel spacing sx,sy,sz in mm (default 1,1,1)");
+  cmd->add_option("--raw-endian", rawEndian, "raw input: little|big (default little)");
+  cmd->add_option("--raw-header", rawHeader, "raw input: bytes to skip before the samples");
+  cmd->add_option("--series", series, "DICOM directory: the Series Instance UID to read (default: the largest series; info lists them)");
+}
+
+std::optional<RawLayout> VolumeInput::rawLayout() const {
+  if (rawDims.empty() && rawType.empty() && rawSpacing.empty()) return std::nullopt;
+  if (rawDims.empty()) HYB_THROW(ValueError, "--raw-dims missing (expected X,Y,Z with --raw-type)");
+  if (rawType.empty()) HYB_THROW(ValueError, "--raw-type missing (expected int16|uint16|uint8|float32...)");
+  RawLayout l;
+  const glm::dvec3 d = parseVec3(rawDims, "--raw-dims");
+  for (int a = 0; a < 3; ++a)
+    if (d[a] != std::floor(d[a]) || d[a] < 1 || d[a] > kMaxDim)
+      HYB_THROW(ValueError, "--raw-dims '", rawDims, "' invalid (expected positive integers up to ", kMaxDim, ")");
+  l.dims = glm::ivec3(d);
+  if (!parseScalarName(rawType, &l.type))
+    HYB_THROW(ValueError, "--raw-type '", rawType, "' unknown (expected int16|uint16|uint8|int8|int32|uint32|float32|float64)");
+  if (!rawSpacing.empty()) l.spacing = parseVec3(rawSpacing, "--raw-spacing");
+  validateSpacing(l.spacing, "--raw-spacing");
+  if (rawEndian != "little" && rawEndian != "big") HYB_THROW(ValueError, "--raw-endian '", rawEndian, "' invalid (expected little or big)");
+  l.bigEndian = rawEndian == "big";
+  l.headerBytes = rawHeader;
+  return l;
+}
+
 Volume VolumeInput::read(std::ostream& err) const {
   const std::optional<RawLayout> raw = rawLayout();
   Volume v = readVolume(path, raw ? &*raw : nullptr, series, progress);
@@ -153,97 +184,204 @@ glm::vec4 parseColor(const std::string& text, const std::string& flag, int n) {
   return c;
 }
 
-void prepareFrame(const RenderOptions& o, std::ostream& out, std::ostream& err, Frame* f) {
-  // Flags that need no data first, so that a typo fails before the volume is read.
-  f->surfaceColor = parseColor(o.surfaceColor, "--surface-color", 4);
-  std::optional<CutPlane> cut;
-  if (!o.cut.empty()) {
-    const char* expected = "px,py,pz,nx,ny,nz: a point and a non-zero normal, finite patient mm";
-    const std::vector<double> x = parseNumbers(o.cut, "--cut", 6, expected);
-    if (x[3] == 0 && x[4] == 0 && x[5] == 0) HYB_THROW(ValueError, "--cut '", o.cut, "' invalid (expected ", expected, ")");
-    cut = CutPlane{glm::dvec3(x[0], x[1], x[2]), glm::dvec3(x[3], x[4], x[5])};
-  }
-  if (!o.voi.empty()) {
-    const char* expected = "x0,y0,z0,x1,y1,z1: the box's corners in patient mm, x0 < x1, y0 < y1, z0 < z1";
-    const std::vector<double> x = parseNumbers(o.voi, "--voi", 6, expected);
-    VolumeOfInterest voi;
-    voi.lo = glm::dvec3(x[0], x[1], x[2]);
-    voi.hi = glm::dvec3(x[3], x[4], x[5]);
-    if (!glm::all(glm::lessThan(voi.lo, voi.hi))) HYB_THROW(ValueError, "--voi '", o.voi, "' invalid (expected ", expected, ")");
-    voi.inside = o.voiInside;
-    voi.outside = o.voiOutside;
-    voi.ramp = o.voiRamp;
-    f->voi = voi;
-  }
-  std::optional<glm::dvec3> focus;
-  if (!o.focus.empty()) focus = parseVec3(o.focus, "--focus");
-  f->background = glm::vec3(parseColor(o.background, "--background", 3));
-  std::optional<glm::ivec2> size;
-  if (!o.size.empty()) size = parseSize(o.size);
+namespace {
+
+// Options that parse their text into a type when they are read: a bad value is refused right there,
+// in one message naming the flag.
+template <class T>
+CLI::Option* addChoice(CLI::App* cmd, const std::string& name, T* field, std::vector<std::pair<std::string, T>> choices, const std::string& help) {
+  std::string names;
+  for (const auto& [word, value] : choices) names += (names.empty() ? "" : "|") + word;
+  return cmd->add_option_function<std::string>(
+      name,
+      [=](const std::string& text) {
+        for (const auto& [word, value] : choices)
+          if (text == word) return void(*field = value);
+        std::string expected;
+        for (size_t i = 0; i < choices.size(); ++i)
+          expected += (i == 0 ? "" : i + 1 == choices.size() ? " or " : ", ") + choices[i].first;
+        HYB_THROW(ValueError, name, " '", text, "' invalid (expected ", expected, ")");
+      },
+      help + " (" + names + ")");
+}
+CLI::Option* addSwitch(CLI::App* cmd, const std::string& name, bool* field, const std::string& help) {
+  return addChoice<bool>(cmd, name, field, {{"on", true}, {"off", false}}, help);
+}
+CLI::Option* addVec3(CLI::App* cmd, const std::string& name, std::optional<glm::dvec3>* field, const std::string& help) {
+  return cmd->add_option_function<std::string>(name, [=](const std::string& text) { *field = parseVec3(text, name); }, help);
+}
+
+}  // namespace
+
+std::string RenderOptions::validate() const {
+  if (std::string e = quality.validate(); !e.empty()) return e;
+  if (!(fov > 0 && fov < 179)) return "--fov must be in (0, 179) degrees";
+  if (!(std::isfinite(zoom) && zoom > 0 && zoom <= 1000)) return "--zoom must be a magnification in (0, 1000]";
+  if (!(std::isfinite(voiInside) && voiInside >= 0)) return "--voi-inside must be a finite factor >= 0";
+  if (!(std::isfinite(voiOutside) && voiOutside >= 0)) return "--voi-outside must be a finite factor >= 0";
+  if (!(std::isfinite(voiRamp) && voiRamp >= 0)) return "--voi-ramp must be a finite width >= 0 mm";
+  if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
+  if (repeat < 1 || repeat > 100) return "--repeat must be in 1..100 frames";
+  if (!tfFile.empty() && !preset.empty()) return "--tf and --preset are exclusive";
+  if (!cameraFile.empty() && (eye || orbit || view)) return "--camera-file sets the whole camera (it excludes --eye, --orbit and --view)";
+  if (!output.empty() && fileExtension(output) != ".png") return "-o '" + output + "' must be a .png file (render writes PNG images)";
+  for (const auto& [path, flag] : {std::pair{&output, "-o"}, std::pair{&stats, "--stats"}})
+    if (std::string e = outputPathError(*path, flag); !e.empty()) return e;
+  return "";
+}
+
+void RenderOptions::add(CLI::App* cmd) {
+  input.add(cmd);
+  // What is shown.
+  cmd->add_option("--iso", iso, "isovalue of the embedded surface (data units; none = volume only)");
+  cmd->add_option_function<std::string>("--surface-color", [this](const std::string& t) { surfaceColor = parseColor(t, "--surface-color", 4); },
+                                        "surface r,g,b,a in [0,1]; a < 1 is translucent (default 0.95,0.92,0.85,1)");
+  addChoice<SurfaceNormals>(cmd, "--surface-normals", &surfaceNormals, {{"gradient", SurfaceNormals::Gradient}, {"facet", SurfaceNormals::Facet}},
+                            "surface shading: the volume's gradient at each vertex (smooth, default) or each polygon's own plane");
+  cmd->add_option("--tf", tfFile, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm");
+  cmd->add_option("--preset", preset, "ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone (default for CT; other data: a ramp)");
+  cmd->add_option_function<std::string>("--background", [this](const std::string& t) { background = glm::vec3(parseColor(t, "--background", 3)); },
+                                        "background r,g,b in [0,1] (default 0,0,0)");
+  addSwitch(cmd, "--shading", &shading, "gradient shading of the volume (default on)");
+  cmd->add_option_function<std::string>(
+      "--cut",
+      [this](const std::string& t) {
+        const char* expected = "px,py,pz,nx,ny,nz: a point and a non-zero normal, finite patient mm";
+        const std::vector<double> x = parseNumbers(t, "--cut", 6, expected);
+        if (x[3] == 0 && x[4] == 0 && x[5] == 0) HYB_THROW(ValueError, "--cut '", t, "' invalid (expected ", expected, ")");
+        cut = CutPlane{glm::dvec3(x[0], x[1], x[2]), glm::dvec3(x[3], x[4], x[5])};
+      },
+      "cutting plane px,py,pz,nx,ny,nz (point and normal, patient mm): removes the eye's side, shows the data on it");
+  addSwitch(cmd, "--cut-line", &cutLine, "draw the isosurface's intersection with the cutting plane (default on)");
+  cmd->add_option_function<std::string>(
+      "--voi",
+      [this](const std::string& t) {
+        const char* expected = "x0,y0,z0,x1,y1,z1: the box's corners in patient mm, x0 < x1, y0 < y1, z0 < z1";
+        const std::vector<double> x = parseNumbers(t, "--voi", 6, expected);
+        const glm::dvec3 lo(x[0], x[1], x[2]), hi(x[3], x[4], x[5]);
+        if (!glm::all(glm::lessThan(lo, hi))) HYB_THROW(ValueError, "--voi '", t, "' invalid (expected ", expected, ")");
+        voiBox = std::pair{lo, hi};
+      },
+      "volume of interest x0,y0,z0,x1,y1,z1 (patient mm): opacity scaled inside/outside the box (Levoy)");
+  cmd->add_option("--voi-inside", voiInside, "opacity factor inside the volume of interest")->capture_default_str();
+  cmd->add_option("--voi-outside", voiOutside, "opacity factor outside the volume of interest")->capture_default_str();
+  cmd->add_option("--voi-ramp", voiRamp, "width of the smooth transition across the box's surface, mm")->capture_default_str();
+  // Where from.
+  CLI::Option* eyeOption = addVec3(cmd, "--eye", &eye, "camera position x,y,z, patient mm (LPS: x left, y posterior, z superior; with --center, --up)");
+  // Without --eye the camera orbits, and a --center or --up would be silently ignored.
+  addVec3(cmd, "--center", &center, "point looked at, x,y,z, patient mm (default: the volume's centre); needs --eye")->needs(eyeOption);
+  cmd->add_option_function<std::string>("--up", [this](const std::string& t) { up = parseVec3(t, "--up"); },
+                                        "up direction x,y,z in patient axes (LPS, default 0,0,1); needs --eye")
+      ->needs(eyeOption);
+  CLI::Option* viewOption = cmd->add_option_function<std::string>(
+                      "--view",
+                      [this](const std::string& t) {
+                        AnatomicalView v;
+                        if (!parseAnatomicalView(t, &v)) HYB_THROW(ValueError, "--view '", t, "' invalid (expected ", anatomicalViewNames(), ")");
+                        view = v;
+                      },
+                      "anatomical view: anterior (default; the patient's left on the image's right), posterior, left, right, superior, inferior")
+                   ->excludes(eyeOption);
+  cmd->add_option_function<std::string>(
+         "--orbit",
+         [this](const std::string& t) {
+           const std::vector<double> x = parseNumbers(t, "--orbit", 2, "two finite numbers azimuth,elevation in degrees");
+           orbit = glm::dvec2(x[0], x[1]);
+         },
+         "azimuth,elevation in degrees from the anterior view: azimuth towards the patient's left (90 = left view), elevation towards superior")
+      ->excludes(eyeOption)
+      ->excludes(viewOption);
+  cmd->add_option("--zoom", zoom, "magnify the image about its centre (2 = twice as large; default framing fits what is visible)")->capture_default_str();
+  cmd->add_option("--camera-file", cameraFile, "read the camera from a JSON file written by --stats (or its \"camera\" object alone)");
+  addSwitch(cmd, "--marker", &marker, "orientation marker (patient axes L/R, P/A, S/I) in the lower-left corner (default off)");
+  cmd->add_option("--fov", fov, "vertical field of view in degrees")->capture_default_str();
+  cmd->add_flag("--ortho", ortho, "orthographic projection");
+  cmd->add_option_function<std::string>("--size", [this](const std::string& t) { size = parseSize(t); },
+                                        "image size WxH (default 512x512, or the camera file's)");
+  // How well.
+  addChoice<Renderer>(cmd, "--renderer", &quality.renderer, {{"slices", Renderer::Slices}, {"raycast", Renderer::Raycast}},
+                      "the slice renderer (default) or the reference ray tracer");
+  cmd->add_option("--epsilon", quality.epsilon, "user error epsilon_u in data units (0 = exact)")->capture_default_str();
+  cmd->add_option_function<std::string>(
+      "--budget",
+      [this](const std::string& t) {
+        const std::optional<Budget> b = parseBudget(t);
+        if (!b)
+          HYB_THROW(ValueError, "--budget '", t,
+                    "' invalid (expected megabytes >= 0, or a percentage of the full-resolution texture bytes: 0 < P <= 100 followed by %)");
+        budgetText = t;
+        (b->percent ? quality.budgetPercent : quality.budgetMb) = b->value;
+      },
+      "texture memory budget in MB, blend textures included (0 = unlimited), or P% of this view's full-resolution bytes");
+  addChoice<Proxy>(cmd, "--proxy", &quality.proxy, {{"planes", Proxy::Planes}, {"shells", Proxy::Shells}},
+                   "slice geometry: view-aligned planes (default) or spherical shells around the eye (perspective)");
+  addSwitch(cmd, "--blend", &quality.blend, "blend bricks towards coarser neighbours, Carmona et al. (default on)");
+  addSwitch(cmd, "--prefilter", &prefilter,
+            "coarse levels (texels 4+ voxels apart) hold the data smoothed by their tent filter instead of point samples; a scene file "
+            "keeps the choice it was built with (default on)");
+  cmd->add_option("--step", quality.step, "slice / sample spacing in voxels (default 0.5 for slices, 0.25 for raycast)");
+  cmd->add_option("--lod-pixels", quality.lodPixels, "stop refining where texels are at most this many pixels apart on screen (0 = off)")
+      ->capture_default_str();
+  cmd->add_option("--max-brick", quality.maxBrickEdge, "brick edge in texels (power of two)")->capture_default_str();
+  addChoice<TexelBits>(cmd, "--texel-bits", &quality.texelBits, {{"8", TexelBits::Eight}, {"16", TexelBits::Sixteen}},
+                       "brick precision: value and gradient in 8 bits (default, fastest) or 16 (twice the memory, slower frames; for "
+                       "transfer functions narrow against a brick's values, e.g. soft tissue)");
+  addVec3(cmd, "--focus", &quality.focus, "region of interest x,y,z, patient mm (LPS)");
+}
+
+RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   std::optional<Camera> fromFile;
   if (!o.cameraFile.empty()) fromFile = readCameraFile(o.cameraFile);
-  ViewDirection direction = viewDirection(AnatomicalView::Anterior);
-  if (!o.orbit.empty()) {
-    const std::vector<double> orbit = parseNumbers(o.orbit, "--orbit", 2, "two finite numbers azimuth,elevation in degrees");
-    direction = orbitDirection(orbit[0], orbit[1]);
-  } else if (AnatomicalView view; parseAnatomicalView(o.view, &view)) {
-    direction = viewDirection(view);
-  }
+  RenderJob job;
   VolumeOctreeOptions octree;
-  octree.prefilter = o.prefilter == "on";
-  f->scene = loadOrBuild(o.input, out, err, &f->buildMs, octree);
-  const Volume& v = f->scene.volume;
+  octree.prefilter = o.prefilter;
+  Scene scene = loadOrBuild(o.input, out, err, &job.buildMs, octree);
+  const Volume& v = scene.volume;
   const PatientFrame& frame = v.frame();
-  // Transfer function: file, preset, or a default chosen from the data's range.
-  f->tf = !o.tfFile.empty()   ? TransferFunction::fromFile(o.tfFile)
-          : !o.preset.empty() ? TransferFunction::preset(o.preset)
-                              : TransferFunction::defaultFor(v.minValue(), v.maxValue());
-  // Surface: the scene's when the isovalue matches, else built now.
+  // What is shown: the transfer function from a file, a preset, or chosen for the data's range.
+  Look& look = job.look;
+  look.tf = !o.tfFile.empty()   ? TransferFunction::fromFile(o.tfFile)
+            : !o.preset.empty() ? TransferFunction::preset(o.preset)
+                                : TransferFunction::defaultFor(v.minValue(), v.maxValue());
   if (o.iso) {
+    look.iso = float(*o.iso);
     if (*o.iso <= v.minValue() || *o.iso > v.maxValue())
       err << "hybrid-octree: warning: --iso " << *o.iso << " is outside the data's crossing range (" << v.minValue() << ", " << v.maxValue()
           << "]: the surface is empty\n";
-    if (f->scene.surface && f->scene.surface->isovalue() == float(*o.iso)) {
-      f->so = &*f->scene.surface;
-    } else {
-      const auto t0 = Clock::now();
-      f->builtSurface = SurfaceOctree::build(v, f->scene.octree, float(*o.iso));
-      f->surfaceMs = msSince(t0);
-      f->so = &*f->builtSurface;
-    }
-    const auto t0 = Clock::now();
-    const DiscreteMesh d = f->so->reconstruct(0, o.input.progress);
-    f->polygons = d.faceCount();
-    f->mesh = fineMeshToTriangles(d, v.spacing());
-    if (o.surfaceNormals == "gradient") setGradientNormals(v, &f->mesh);
-    f->polygonsMs = msSince(t0);
-    std::ostringstream line;
-    line << std::fixed << std::setprecision(1) << "surface  iso " << *o.iso << ": Surface Octree ";
-    if (f->builtSurface)
-      line << "built in " << f->surfaceMs << " ms";
-    else
-      line << "from the scene";
-    line << ", " << f->polygons << " polygons (" << f->mesh.triangles.size() << " triangles) reconstructed in " << f->polygonsMs << " ms\n";
-    out << line.str();
   }
-  // The camera, in patient space: from a file, explicit, or the view framing what is visible.
-  Camera& camera = f->patientCamera;
-  const glm::ivec2 pixels = size.value_or(fromFile ? glm::ivec2(fromFile->width, fromFile->height) : glm::ivec2(512, 512));
-  const glm::dvec3 volumeCentre = frame.toPatient(0.5 * v.extentMm());
+  look.surfaceColor = o.surfaceColor;
+  look.normals = o.surfaceNormals;
+  look.shading = o.shading;
+  look.cut = o.cut;
+  look.cutLine = o.cutLine;
+  if (o.voiBox) {
+    VolumeOfInterest voi;
+    voi.lo = o.voiBox->first;
+    voi.hi = o.voiBox->second;
+    voi.inside = o.voiInside;
+    voi.outside = o.voiOutside;
+    voi.ramp = o.voiRamp;
+    look.voi = voi;
+  }
+  // Where from, in patient space: a camera file's, the --eye given, or the view framing what the
+  // transfer function (or the isosurface) makes visible.
+  Camera& camera = job.view.camera;
+  const glm::ivec2 pixels = o.size.value_or(fromFile ? glm::ivec2(fromFile->width, fromFile->height) : glm::ivec2(512, 512));
   if (fromFile) {
     camera = *fromFile;
-  } else if (!o.eye.empty()) {
-    camera.eye = parseVec3(o.eye, "--eye");
-    camera.center = o.center.empty() ? volumeCentre : parseVec3(o.center, "--center");
-    camera.up = parseVec3(o.up, "--up");
+  } else if (o.eye) {
+    camera.eye = *o.eye;
+    camera.center = o.center.value_or(frame.toPatient(0.5 * v.extentMm()));
+    camera.up = o.up;
     if (glm::length(camera.eye - camera.center) == 0 || glm::length(glm::cross(camera.center - camera.eye, camera.up)) == 0)
       HYB_THROW(ValueError, "--eye, --center and --up must give a view direction not parallel to up");
     camera.fovDeg = o.fov;
     camera.ortho = o.ortho;
     camera.orthoHeight = glm::length(v.extentMm()) * 1.05;
   } else {
-    std::vector<glm::dvec3> points =
-        visiblePoints(v, f->scene.octree, f->tf, o.iso ? std::optional<float>(float(*o.iso)) : std::nullopt);
+    const ViewDirection direction =
+        o.orbit ? orbitDirection(o.orbit->x, o.orbit->y) : viewDirection(o.view.value_or(AnatomicalView::Anterior));
+    std::vector<glm::dvec3> points = visiblePoints(v, scene.octree, look.tf, look.iso);
     if (points.empty())  // nothing visible: the data's box
       for (int c = 0; c < 8; ++c) points.push_back(frame.toPatient(glm::dvec3(c & 1, (c >> 1) & 1, (c >> 2) & 1) * v.extentMm()));
     camera = fitCamera(points, direction, o.fov, o.ortho, pixels.x, pixels.y);
@@ -251,93 +389,23 @@ void prepareFrame(const RenderOptions& o, std::ostream& out, std::ostream& err, 
   camera.width = pixels.x;
   camera.height = pixels.y;
   if (o.zoom != 1.0) zoomCamera(&camera, o.zoom);
-  f->camera = toGridCamera(camera, frame);
-  // The user's other coordinates, patient mm, into the grid frame.
-  if (cut) f->cut = CutPlane{frame.toGrid(cut->point), frame.vectorToGrid(cut->normal)};
-  if (focus) f->focus = frame.toGrid(*focus);
-  if (f->voi) {
-    f->voi->toBox = frame.direction;
-    f->voi->offset = frame.origin;
-  }
+  job.quality = o.quality;
+  job.background = o.background;
+  job.renderer = std::make_unique<SceneRenderer>(std::move(scene), SceneRenderer::Options{0, o.input.progress});
+  return job;
 }
 
-SelectionParams selectionParams(const RenderOptions& o, const Frame& f, double epsilon, double budgetMb) {
-  const Volume& v = f.scene.volume;
-  SelectionParams params;
-  params.epsilon = float(epsilon);
-  params.spacing = v.spacing();
-  params.maxBrickEdge = o.maxBrick;
-  params.focus = f.focus;
-  params.eye = f.camera.eye;
-  // Texture memory is counted at the bricks' bytes a texel (value and gradient; the extrapolated
-  // texels included).
-  // A budget beyond 2^62 texels limits nothing (and would overflow the count): unlimited.
-  const double texels = budgetMb * 1024.0 * 1024.0 / double(bytesPerTexel(o.bits()));
-  params.texelBudget = texels < 0x1p62 ? uint64_t(texels) : 0;
-  if (budgetMb > 0 && texels < 1.0) HYB_THROW(ValueError, "--budget ", budgetMb, " MB is smaller than one texel");
-  params.blend = o.blend == "on";
-  const TransferFunction* tf = &f.tf;
-  const Camera* camera = &f.camera;
-  params.opacity = [tf](float lo, float hi) { return tf->maxAlpha(lo, hi); };
-  // LaMar's screen-space stop: the size of a pixel at a box's nearest point.
-  params.lodPixels = o.lodPixels;
-  params.pixelSize = [camera](const glm::dvec3& lo, const glm::dvec3& hi) {
-    if (camera->ortho) return camera->orthoHeight / camera->height;
-    const double d = glm::length(camera->eye - glm::clamp(camera->eye, lo, hi));
-    return 2.0 * d * std::tan(glm::radians(camera->fovDeg) * 0.5) / camera->height;
-  };
-  params.distortion = [tf](float lo, float hi, float error) { return tf->distortion(lo, hi, error); };
-  // Frustum culling, and nodes wholly on the removed side of the cutting plane.
-  const glm::dvec4 cut = f.cut ? f.cut->keptSide(f.camera) : glm::dvec4(0, 0, 0, 1);
-  // And nodes the volume of interest scales to zero opacity.
-  const VolumeOfInterest* voi = f.voi ? &*f.voi : nullptr;
-  // Within a budget, texels go where they change this image most (measured per brick, on first use).
-  auto estimate = [frame = &f, cut, voi]() -> BrickImageError& {
-    if (!frame->brickError)
-      frame->brickError = std::make_shared<BrickImageError>(frame->scene.volume, frame->scene.octree, frame->tf, frame->camera, cut, voi);
-    return *frame->brickError;
-  };
-  params.brickError = [estimate](uint32_t node, int p) { return estimate()(node, p); };
-  params.prefetchBrickErrors = [estimate](const std::vector<std::pair<uint32_t, int>>& bricks) { estimate().prefetch(bricks); };
-  params.inView = [camera, cut, voi](const glm::dvec3& lo, const glm::dvec3& hi) {
-    const glm::dvec3 far = glm::mix(lo, hi, glm::dvec3(glm::greaterThan(glm::dvec3(cut), glm::dvec3(0.0))));
-    return glm::dot(glm::dvec3(cut), far) + cut.w >= 0.0 && camera->seesBox(lo, hi) && !(voi && voi->hides(lo, hi));
-  };
-  return params;
-}
-
-Image renderFrame(const RenderOptions& o, const Frame& f, const Selection& sel, SlicesStats* ss, RaycastStats* rs,
-                  BrickTextureCache* textures, const std::function<void(int, const Image&, uint64_t)>& onLevel) {
-  const Volume& v = f.scene.volume;
-  if (o.renderer == "slices") {
-    SlicesOptions opt;
-    opt.stepVoxels = o.step.value_or(0.5);
-    opt.shading = o.shading == "on";
-    opt.texelBits = o.bits();
-    opt.surface = f.so ? &f.mesh : nullptr;
-    opt.surfaceColor = f.surfaceColor;
-    opt.cut = f.cut ? &*f.cut : nullptr;
-    opt.cutLine = o.cutLine == "on";
-    opt.voi = f.voi ? &*f.voi : nullptr;
-    opt.proxy = o.proxy == "shells" ? Proxy::Shells : Proxy::Planes;
-    opt.textures = textures;
-    return renderSlices(v, f.scene.octree, sel, f.tf, f.camera, opt, ss);
-  }
-  const Bvh bvh(f.mesh);
-  RaycastOptions ro;
-  ro.stepVoxels = o.step.value_or(0.25);
-  ro.shading = o.shading == "on";
-  ro.surface = f.so ? &bvh : nullptr;
-  ro.surfaceColor = f.surfaceColor;
-  ro.cut = f.cut ? &*f.cut : nullptr;
-  ro.voi = f.voi ? &*f.voi : nullptr;
-  // Levoy's refinement: --progressive N levels (the first grid 2^(N−1) pixels apart), or four with
-  // --adaptive alone; the last level is exact unless --adaptive is given.
-  ro.refineLevels = o.progressive > 1 ? o.progressive : o.adaptive > 0 ? 4 : 1;
-  ro.refineTolerance = float(o.adaptive / 255.0);
-  ro.onLevel = onLevel;
-  ro.progress = o.input.progress;
-  return raycast(v, f.scene.octree, f.tf, f.camera, ro, rs);
+std::string surfaceLine(const FrameStats& stats, float iso, bool fromScene) {
+  if (stats.surfacePolygonsMs == 0 && !stats.surfaceBuilt) return "";
+  std::ostringstream line;
+  line << std::fixed << std::setprecision(1) << "surface  iso " << iso << ": Surface Octree ";
+  if (stats.surfaceBuilt)
+    line << "built in " << stats.surfaceBuildMs << " ms";
+  else
+    line << (fromScene ? "from the scene" : "kept");
+  line << ", " << stats.surfacePolygons << " polygons (" << stats.surfaceTriangles << " triangles) reconstructed in " << stats.surfacePolygonsMs
+       << " ms\n";
+  return line.str();
 }
 
 }  // namespace hyb::app

@@ -26,6 +26,12 @@ GlContext::GlContext() : mImpl(std::make_unique<Impl>()) {
   }
 }
 
+void GlContext::makeCurrent() {
+  if (OSMesaGetCurrentContext() == mImpl->context) return;
+  if (!OSMesaMakeCurrent(mImpl->context, mImpl->buffer.data(), GL_UNSIGNED_BYTE, 1, 1))
+    HYB_THROW(RuntimeError, "OSMesa could not make the OpenGL context current");
+}
+
 GlContext::~GlContext() {
   if (mImpl && mImpl->context) OSMesaDestroyContext(mImpl->context);
 }

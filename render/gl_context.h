@@ -6,8 +6,9 @@
 
 namespace hyb {
 
-/// An OpenGL 4.5 core context current on this thread for its lifetime. Rendering goes to
-/// framebuffer objects; the OSMesa buffer itself is a 1x1 placeholder.
+/// An OpenGL 4.5 core context, made current on this thread when it is created. Rendering goes to
+/// framebuffer objects; the OSMesa buffer itself is a 1x1 placeholder. With several contexts on one
+/// thread, makeCurrent() before drawing with one (a destroyed context leaves none current).
 class GlContext {
  public:
   /// @throw RuntimeError when no 4.5 core context can be created.
@@ -16,6 +17,8 @@ class GlContext {
   GlContext(const GlContext&) = delete;
   GlContext& operator=(const GlContext&) = delete;
 
+  /// Makes this context current on the calling thread. @throw RuntimeError when OSMesa refuses.
+  void makeCurrent();
   /// GL_RENDERER and GL_VERSION.
   std::string description() const;
 

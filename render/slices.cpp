@@ -269,7 +269,7 @@ struct BrickPlan {
   std::vector<CutPiece> cut;
   std::deque<BrickRanges> frameRanges;  // block ranges of bricks no cache keeps
   std::vector<gl::Texture> frameTextures;  // textures no cache keeps
-  uint64_t texels = 0, cutTexels = 0, bricks = 0, blended = 0, shellBricks = 0;
+  uint64_t texels = 0, cutTexels = 0, bricks = 0, blended = 0, shellBricks = 0, uploaded = 0;
 };
 BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
                      const Camera& camera, const SlicesOptions& options, const TransferTable& table, const std::vector<uint32_t>& order,
@@ -291,6 +291,7 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
       packedOf[i] = int32_t(toPack.size());
       toPack.push_back(i);
     }
+  plan.uploaded = toPack.size();
   std::vector<PackedBrick> packed(toPack.size());
 #pragma omp parallel for schedule(dynamic) if (toPack.size() > 1)
   for (size_t k = 0; k < toPack.size(); ++k) {
@@ -564,6 +565,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glGetQueryObjectuiv(query.id(), GL_QUERY_RESULT, &fragments);
   st.fragments = fragments;
   st.bricks = plan.bricks;
+  st.uploadedBricks = plan.uploaded;
   st.blendedBricks = plan.blended;
   st.texels = plan.texels;
   st.shellBricks = plan.shellBricks;

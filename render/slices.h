@@ -59,6 +59,7 @@ struct SlicesOptions {
 /// What a frame used.
 struct SlicesStats {
   size_t bricks = 0;               ///< textured bricks
+  size_t uploadedBricks = 0;       ///< of which packed and uploaded by this frame (the others were cached)
   size_t blendedBricks = 0;        ///< of which blend towards coarser data at some corner
   uint64_t texels = 0;             ///< texels uploaded, blend textures included
   uint64_t textureBytes = 0;       ///< texels' bytes and those of the cutting plane's 16-bit values

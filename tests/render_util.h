@@ -9,9 +9,11 @@
 
 namespace hyb::test {
 
-/// One OpenGL context for the whole test binary (creating one costs a few milliseconds on llvmpipe).
+/// One OpenGL context for the tests that draw directly (creating one costs a few milliseconds on
+/// llvmpipe), made current again on each call: a scene renderer makes (and destroys) its own.
 inline GlContext& gl() {
   static GlContext context;
+  context.makeCurrent();
   return context;
 }
 

@@ -1,0 +1,321 @@
+#include "render/scene_renderer.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "hybrid_octree/surface_octree.h"
+#include "render/patient_view.h"
+#include "surface/mesh_ops.h"
+#include "volume/error.h"
+
+namespace hyb {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
+
+bool sameCamera(const Camera& a, const Camera& b) {
+  return a.eye == b.eye && a.center == b.center && a.up == b.up && a.fovDeg == b.fovDeg && a.ortho == b.ortho &&
+         a.orthoHeight == b.orthoHeight && a.width == b.width && a.height == b.height && a.mirrored == b.mirrored;
+}
+bool sameTf(const TransferFunction& a, const TransferFunction& b) {
+  const auto &p = a.points(), &q = b.points();
+  if (p.size() != q.size()) return false;
+  for (size_t i = 0; i < p.size(); ++i)
+    if (p[i].value != q[i].value || p[i].color != q[i].color || p[i].alpha != q[i].alpha) return false;
+  return true;
+}
+bool sameCut(const std::optional<CutPlane>& a, const std::optional<CutPlane>& b) {
+  return a.has_value() == b.has_value() && (!a || (a->point == b->point && a->normal == b->normal));
+}
+bool sameVoi(const std::optional<VolumeOfInterest>& a, const std::optional<VolumeOfInterest>& b) {
+  return a.has_value() == b.has_value() &&
+         (!a || (a->lo == b->lo && a->hi == b->hi && a->inside == b->inside && a->outside == b->outside && a->ramp == b->ramp &&
+                 a->toBox == b->toBox && a->offset == b->offset));
+}
+
+}  // namespace
+
+// An isosurface as the renderers take it: the Surface Octree (the scene's, or built), its polygons
+// triangulated (grid mm), with gradient normals made on first use, and a BVH for the reference.
+struct SceneRenderer::Surface {
+  float iso = 0.0f;
+  std::optional<SurfaceOctree> built;
+  const SurfaceOctree* octree = nullptr;
+  size_t polygons = 0;
+  TriangleMesh facet;
+  std::optional<TriangleMesh> smooth;
+  std::unique_ptr<Bvh> bvh[2];  // facet, smooth
+  const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? *smooth : facet; }
+};
+
+// The image errors of the last view, with the inputs they were measured for.
+struct SceneRenderer::Errors {
+  Camera camera;
+  TransferFunction tf;
+  std::optional<CutPlane> cut;
+  std::optional<VolumeOfInterest> voi;
+  std::unique_ptr<ViewErrors> errors;
+};
+
+std::string View::validate() const {
+  const Camera& c = camera;
+  auto finite = [](const glm::dvec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); };
+  if (!finite(c.eye) || !finite(c.center) || !finite(c.up)) return "camera eye, center and up must be finite (patient mm)";
+  if (glm::length(c.eye - c.center) == 0 || glm::length(glm::cross(c.center - c.eye, c.up)) == 0)
+    return "camera eye, center and up must give a view direction not parallel to up";
+  if (c.width < 1 || c.height < 1 || c.width > 16384 || c.height > 16384)
+    return detail::concat("--size ", c.width, "x", c.height, " invalid (expected 1..16384 pixels each)");
+  if (!(c.fovDeg > 0 && c.fovDeg < 179)) return "--fov must be in (0, 179) degrees";
+  if (!(std::isfinite(c.orthoHeight) && c.orthoHeight > 0)) return "camera orthographic height must be a finite positive size (mm)";
+  return "";
+}
+
+std::string Look::validate() const {
+  for (int k = 0; k < 4; ++k)
+    if (!(surfaceColor[k] >= 0.0f && surfaceColor[k] <= 1.0f)) return "--surface-color components must be in [0, 1]";
+  if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
+  if (cut) {
+    const glm::dvec3 p = cut->point, n = cut->normal;
+    if (!(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z) && std::isfinite(n.x) && std::isfinite(n.y) && std::isfinite(n.z)) ||
+        glm::length(n) == 0.0)
+      return "--cut needs a finite point and a finite non-zero normal (patient mm)";
+  }
+  if (voi) {
+    if (!glm::all(glm::lessThan(voi->lo, voi->hi))) return "--voi box must have x0 < x1, y0 < y1, z0 < z1";
+    if (!(std::isfinite(voi->inside) && voi->inside >= 0)) return "--voi-inside must be a finite factor >= 0";
+    if (!(std::isfinite(voi->outside) && voi->outside >= 0)) return "--voi-outside must be a finite factor >= 0";
+    if (!(std::isfinite(voi->ramp) && voi->ramp >= 0)) return "--voi-ramp must be a finite width >= 0 mm";
+  }
+  return "";
+}
+
+std::string Quality::validate() const {
+  if (!std::isfinite(epsilon) || epsilon < 0) return "--epsilon must be a finite value >= 0 (data units)";
+  if (!(std::isfinite(budgetMb) && budgetMb >= 0)) return "--budget must be megabytes >= 0";
+  if (!(std::isfinite(budgetPercent) && budgetPercent >= 0 && budgetPercent <= 100)) return "--budget percentage must be in (0, 100]";
+  if (step && !(*step > 0.01 && *step <= 4)) return "--step must be in (0.01, 4] voxels";
+  if (progressive < 1 || progressive > 8) return "--progressive must be in 1..8 images";
+  if (!(std::isfinite(adaptive) && adaptive >= 0 && adaptive <= 255)) return "--adaptive must be a colour difference in [0, 255] (units of 1/255)";
+  if (adaptive > 0 && renderer != Renderer::Raycast) return "--adaptive needs --renderer raycast (Levoy's adaptive refinement of the reference's rays)";
+  if (focus && !(std::isfinite(focus->x) && std::isfinite(focus->y) && std::isfinite(focus->z))) return "--focus must be three finite coordinates";
+  SelectionParams limits;  // the selection's own checks: the brick edge and the screen-space stop
+  limits.maxBrickEdge = maxBrickEdge;
+  limits.lodPixels = lodPixels;
+  return limits.validate();
+}
+
+SceneRenderer::SceneRenderer(Scene scene, const Options& options) : mScene(std::move(scene)), mOptions(options) {}
+
+SceneRenderer::~SceneRenderer() {
+  if (mGl) mGl->makeCurrent();  // the textures and programs are deleted in their own context
+}
+
+void SceneRenderer::ensureGl() {
+  if (!mGl) mGl.emplace();
+  mGl->makeCurrent();  // another renderer's context may have been made (or destroyed) since
+  if (!mTextures) mTextures = std::make_unique<BrickTextureCache>(mOptions.textureLimitBytes);
+}
+
+void SceneRenderer::dropTextures() {
+  if (!mTextures) return;
+  mGl->makeCurrent();
+  mTextures->clear();
+}
+
+SceneRenderer::Surface& SceneRenderer::surfaceEntry(float iso, FrameStats* stats) {
+  const auto it = std::find_if(mSurfaces.begin(), mSurfaces.end(), [&](const Surface& s) { return s.iso == iso; });
+  if (it != mSurfaces.end()) {
+    mSurfaces.splice(mSurfaces.begin(), mSurfaces, it);
+    return mSurfaces.front();
+  }
+  // A new isovalue: the Surface Octree (the scene's when it matches), its polygons triangulated.
+  // Two are kept: a viewer flipping between two isovalues rebuilds neither.
+  if (mSurfaces.size() >= 2) mSurfaces.pop_back();
+  Surface& s = mSurfaces.emplace_front();
+  s.iso = iso;
+  const Volume& v = mScene.volume;
+  if (mScene.surface && mScene.surface->isovalue() == iso) {
+    s.octree = &*mScene.surface;
+  } else {
+    const auto t0 = Clock::now();
+    s.built = SurfaceOctree::build(v, mScene.octree, iso);
+    s.octree = &*s.built;
+    if (stats) {
+      stats->surfaceBuilt = true;
+      stats->surfaceBuildMs = msSince(t0);
+    }
+  }
+  const auto t0 = Clock::now();
+  const DiscreteMesh d = s.octree->reconstruct(0, mOptions.progress);
+  s.polygons = d.faceCount();
+  s.facet = fineMeshToTriangles(d, v.spacing());
+  if (stats) stats->surfacePolygonsMs = msSince(t0);
+  return s;
+}
+
+const TriangleMesh& SceneRenderer::surface(float iso, SurfaceNormals normals) {
+  Surface& s = surfaceEntry(iso, nullptr);
+  if (normals == SurfaceNormals::Gradient && !s.smooth) {
+    s.smooth = s.facet;
+    setGradientNormals(mScene.volume, &*s.smooth);
+  }
+  return s.mesh(normals);
+}
+
+FrameStats SceneRenderer::prepare(const Look& look) {
+  FrameStats st;
+  if (!look.iso) return st;
+  surfaceEntry(*look.iso, &st);
+  const auto t0 = Clock::now();
+  const TriangleMesh& mesh = surface(*look.iso, look.normals);
+  st.surfacePolygonsMs += msSince(t0);
+  st.surfacePolygons = surfacePolygons(*look.iso);
+  st.surfaceTriangles = mesh.triangles.size();
+  return st;
+}
+
+size_t SceneRenderer::surfacePolygons(float iso) const {
+  for (const Surface& s : mSurfaces)
+    if (s.iso == iso) return s.polygons;
+  return 0;
+}
+
+ViewErrors& SceneRenderer::viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
+                                      const std::optional<VolumeOfInterest>& voi) {
+  if (mErrors && sameCamera(mErrors->camera, gridCamera) && sameTf(mErrors->tf, tf) && sameCut(mErrors->cut, cut) && sameVoi(mErrors->voi, voi))
+    return *mErrors->errors;
+  mErrors = std::make_unique<Errors>(Errors{gridCamera, tf, cut, voi, nullptr});
+  Errors& e = *mErrors;
+  e.errors = std::make_unique<ViewErrors>(mScene.volume, mScene.octree, e.tf, e.camera, e.cut ? &*e.cut : nullptr, e.voi ? &*e.voi : nullptr);
+  return *e.errors;
+}
+
+RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Quality& quality, const LevelCallback& onLevel) {
+  for (const std::string& problem : {view.validate(), look.validate(), quality.validate()})
+    if (!problem.empty()) throw ValueError(problem);
+  const Volume& v = mScene.volume;
+  const PatientFrame& frame = v.frame();
+  RenderedFrame out;
+  FrameStats& st = out.stats;
+  st.renderer = quality.renderer;
+  // Patient space to the grid frame.
+  const Camera camera = toGridCamera(view.camera, frame);
+  std::optional<CutPlane> cut;
+  if (look.cut) cut = CutPlane{frame.toGrid(look.cut->point), frame.vectorToGrid(look.cut->normal)};
+  std::optional<VolumeOfInterest> voi = look.voi;
+  if (voi) {
+    voi->toBox = frame.direction;
+    voi->offset = frame.origin;
+  }
+  // The surface: kept from earlier frames, or built now.
+  const TriangleMesh* mesh = nullptr;
+  if (look.iso) {
+    const FrameStats prepared = prepare(look);
+    st.surfaceBuilt = prepared.surfaceBuilt;
+    st.surfaceBuildMs = prepared.surfaceBuildMs;
+    st.surfacePolygonsMs = prepared.surfacePolygonsMs;
+    st.surfacePolygons = prepared.surfacePolygons;
+    st.surfaceTriangles = prepared.surfaceTriangles;
+    mesh = &surface(*look.iso, look.normals);
+  }
+
+  if (quality.renderer == Renderer::Raycast) {
+    const Bvh* bvh = nullptr;
+    if (mesh) {
+      Surface& s = mSurfaces.front();  // this frame's
+      std::unique_ptr<Bvh>& kept = s.bvh[look.normals == SurfaceNormals::Gradient ? 1 : 0];
+      if (!kept) kept = std::make_unique<Bvh>(*mesh);
+      bvh = kept.get();
+    }
+    RaycastOptions ro;
+    ro.stepVoxels = quality.step.value_or(0.25);
+    ro.shading = look.shading;
+    ro.surface = bvh;
+    ro.surfaceColor = look.surfaceColor;
+    ro.cut = cut ? &*cut : nullptr;
+    ro.voi = voi ? &*voi : nullptr;
+    // Levoy's refinement: progressive levels (the first grid 2^(N−1) pixels apart), or four with
+    // an adaptive tolerance alone; the last level is exact unless the tolerance is given.
+    ro.refineLevels = quality.progressive > 1 ? quality.progressive : quality.adaptive > 0 ? 4 : 1;
+    ro.refineTolerance = float(quality.adaptive / 255.0);
+    ro.progress = mOptions.progress;
+    const auto t0 = Clock::now();
+    if (onLevel)
+      ro.onLevel = [&](int level, const Image& image, uint64_t rays) {
+        if (level >= ro.refineLevels) return;
+        FrameStats ls = st;
+        ls.rays.rays = rays;
+        ls.renderMs = msSince(t0);
+        onLevel(level, ro.refineLevels, image, ls);
+      };
+    out.image = raycast(v, mScene.octree, look.tf, camera, ro, &st.rays);
+    st.renderMs = msSince(t0);
+    return out;
+  }
+
+  // The selection: ε and the budget for this view.
+  SelectionChoice choice;
+  choice.epsilon = quality.epsilon;
+  if (quality.focus) choice.focus = frame.toGrid(*quality.focus);
+  choice.maxBrickEdge = quality.maxBrickEdge;
+  choice.blend = quality.blend;
+  choice.lodPixels = quality.lodPixels;
+  ViewErrors& errors = viewErrors(camera, look.tf, cut, voi);
+  auto paramsOf = [&](const SelectionChoice& c) { return viewSelectionParams(v, look.tf, camera, cut ? &*cut : nullptr, voi ? &*voi : nullptr, c, &errors); };
+  const auto s0 = Clock::now();
+  if (quality.budgetPercent > 0.0) {
+    // A percentage is of this view's full-resolution texels (every visible brick exact), at least one.
+    SelectionChoice full = choice;
+    full.epsilon = 0.0;
+    st.fullTexels = selectNodes(mScene.octree, paramsOf(full)).texels;
+    choice.texelBudget = std::max<uint64_t>(1, uint64_t(quality.budgetPercent / 100.0 * double(st.fullTexels)));
+  } else if (quality.budgetMb > 0.0) {
+    // A budget beyond 2^62 texels limits nothing (and would overflow the count): unlimited.
+    const double texels = quality.budgetMb * 1024.0 * 1024.0 / double(bytesPerTexel(quality.texelBits));
+    if (texels < 1.0) HYB_THROW(ValueError, "texture budget ", quality.budgetMb, " MB is smaller than one texel");
+    choice.texelBudget = texels < 0x1p62 ? uint64_t(texels) : 0;
+  }
+  st.budgetTexels = choice.texelBudget;
+  const SelectionParams params = paramsOf(choice);
+  out.selection = selectNodes(mScene.octree, params);
+  st.selectMs = msSince(s0);
+
+  ensureGl();
+  SlicesOptions so;
+  so.stepVoxels = quality.step.value_or(0.5);
+  so.shading = look.shading;
+  so.texelBits = quality.texelBits;
+  so.surface = mesh;
+  so.surfaceColor = look.surfaceColor;
+  so.cut = cut ? &*cut : nullptr;
+  so.cutLine = look.cutLine;
+  so.voi = voi ? &*voi : nullptr;
+  so.proxy = quality.proxy;
+  so.textures = mTextures.get();
+  // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
+  // texels (one level coarser), the last being the requested selection. Early images of a long
+  // sequence bottom out at the coarsest selection the octree has (at least one texel is asked for).
+  for (int k = 1; k < quality.progressive; ++k) {
+    const int shift = 3 * (quality.progressive - k);
+    SelectionParams coarser = params;
+    coarser.texelBudget = std::max<uint64_t>(1, shift < 64 ? out.selection.texels >> shift : 0);
+    FrameStats ls = st;
+    const auto p0 = Clock::now();
+    const Selection coarse = selectNodes(mScene.octree, coarser);
+    const Image preview = renderSlices(v, mScene.octree, coarse, look.tf, camera, so, &ls.slices);
+    ls.renderMs = msSince(p0);
+    if (onLevel) onLevel(k, quality.progressive, preview, ls);
+  }
+  so.progress = mOptions.progress;
+  const auto r0 = Clock::now();
+  out.image = renderSlices(v, mScene.octree, out.selection, look.tf, camera, so, &st.slices);
+  st.renderMs = msSince(r0);
+  st.brickErrorsMeasured = errors.measured();
+  st.textureBytesKept = mTextures->bytes();
+  return out;
+}
+
+}  // namespace hyb

@@ -1,0 +1,167 @@
+// The scene renderer: the one object the command line, the benchmark and the viewer render
+// through. Built once from a scene (volume, Volume Octree, optional Surface Octree) and kept alive,
+// it owns what frames share: the OpenGL context (made at the first slice frame), the brick texture
+// cache (bounded by a texture-memory limit), the shader programs, the isosurfaces reconstructed so
+// far and the image errors of the last view. A frame is asked for by a view (the camera and the
+// image's size), a look (transfer function, surface, cut, volume of interest) and a quality (the
+// renderer, ε, budget, step, proxy), and only what depends on what changed is redone: a new camera
+// keeps the bricks; a new transfer function keeps the textures (their value ranges are in data
+// units) and rebuilds the visible blocks; a new isovalue rebuilds the surface only.
+//
+// Coordinates the caller gives are patient millimetres (LPS); the renderers work in the grid frame.
+// Use one SceneRenderer from one thread (the OpenGL context is current on the thread that made it).
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <cstdint>
+#include <functional>
+#include <list>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "hybrid_octree/hybrid_io.h"
+#include "hybrid_octree/selection.h"
+#include "render/bvh.h"
+#include "render/camera.h"
+#include "render/cut_plane.h"
+#include "render/gl_context.h"
+#include "render/image.h"
+#include "render/raycast.h"
+#include "render/selection_policy.h"
+#include "render/slices.h"
+#include "render/transfer_function.h"
+#include "render/voi.h"
+#include "volume/progress.h"
+
+namespace hyb {
+
+/// The renderer of a frame: the hybrid slice renderer, or the reference ray tracer (ground truth).
+enum class Renderer { Slices, Raycast };
+/// How the isosurface is shaded: by the volume's gradient at its vertices, or by each polygon's plane.
+enum class SurfaceNormals { Gradient, Facet };
+
+/// Where a frame is seen from: the camera in patient space (LPS mm), with the image's size.
+struct View {
+  Camera camera;
+
+  /// Empty when valid, else a message saying what of the camera is impossible.
+  std::string validate() const;
+};
+
+/// What a frame shows. Cut and volume of interest in patient space (LPS mm).
+struct Look {
+  TransferFunction tf;
+  std::optional<float> iso;                      ///< the isosurface's value, or none
+  glm::vec4 surfaceColor{0.95f, 0.92f, 0.85f, 1.0f};  ///< straight RGBA; a < 1 is translucent
+  SurfaceNormals normals = SurfaceNormals::Gradient;
+  bool shading = true;                            ///< gradient shading of the volume
+  std::optional<CutPlane> cut;
+  bool cutLine = true;                            ///< the surface's outline on the cutting plane
+  std::optional<VolumeOfInterest> voi;            ///< its box along the patient's axes
+
+  /// Empty when valid, else a message naming the offending flag (--surface-color, --cut, --voi...).
+  std::string validate() const;
+};
+
+/// How well a frame is made.
+struct Quality {
+  Renderer renderer = Renderer::Slices;
+  double epsilon = 0.0;             ///< ε_u, data units
+  double budgetMb = 0.0;            ///< texture budget, MB (0 = unlimited) ...
+  double budgetPercent = 0.0;       ///< ... or a percentage of this view's full-resolution texels (0 = none)
+  std::optional<double> step;       ///< sample spacing in voxels (default: 0.5 slices, 0.25 reference)
+  Proxy proxy = Proxy::Planes;
+  bool blend = true;
+  TexelBits texelBits = TexelBits::Eight;
+  int maxBrickEdge = 16;
+  double lodPixels = 0.0;
+  std::optional<glm::dvec3> focus;  ///< region of interest, patient mm
+  /// Images of one frame, coarse to fine (Levoy's progressive refinement): slices render 1/8 of
+  /// the next image's texels each; the reference traces rays 2^(levels − 1) pixels apart first.
+  int progressive = 1;
+  double adaptive = 0.0;            ///< reference: refine where colours differ by more than this (1/255 units)
+
+  /// Empty when valid, else a message naming the offending flag (--epsilon, --step, --budget...).
+  std::string validate() const;
+};
+
+/// What a frame used and how long each stage took.
+struct FrameStats {
+  Renderer renderer = Renderer::Slices;
+  uint64_t budgetTexels = 0;  ///< the budget as texels (0 = unlimited)
+  uint64_t fullTexels = 0;    ///< this view's full-resolution texels (when the budget is a percentage)
+  SlicesStats slices;
+  RaycastStats rays;
+  size_t surfacePolygons = 0, surfaceTriangles = 0;
+  bool surfaceBuilt = false;  ///< the surface was built for this frame (not from the scene or an earlier frame)
+  double surfaceBuildMs = 0, surfacePolygonsMs = 0;  ///< this frame's work on the surface (0 when kept)
+  double selectMs = 0, renderMs = 0;
+  size_t brickErrorsMeasured = 0;  ///< the view's bricks whose image error has been measured
+  uint64_t textureBytesKept = 0;   ///< the brick texture cache after the frame
+};
+
+/// A frame: its image (premultiplied RGBA), the selection it drew (slices) and its stats.
+struct RenderedFrame {
+  Image image;
+  Selection selection;
+  FrameStats stats;
+};
+
+/// Receives each image of a progressive frame before the last: level (1-based), levels, image, and
+/// the stats of that level.
+using LevelCallback = std::function<void(int level, int levels, const Image& image, const FrameStats& stats)>;
+
+class SceneRenderer {
+ public:
+  struct Options {
+    uint64_t textureLimitBytes = 0;      ///< brick textures kept between frames; 0 = no limit
+    const Progress* progress = nullptr;  ///< hears of long steps (surfaces, reference frames, slices)
+  };
+  explicit SceneRenderer(Scene scene, const Options& options);
+  explicit SceneRenderer(Scene scene) : SceneRenderer(std::move(scene), Options{}) {}
+  SceneRenderer(const SceneRenderer&) = delete;
+  SceneRenderer& operator=(const SceneRenderer&) = delete;
+  ~SceneRenderer();
+
+  const Scene& scene() const { return mScene; }
+  const Volume& volume() const { return mScene.volume; }
+  const VolumeOctree& octree() const { return mScene.octree; }
+
+  /// Renders one frame (the last of a progressive sequence; @p onLevel hears of the others).
+  /// @throw ValueError for impossible parameters; RuntimeError when OpenGL fails.
+  RenderedFrame render(const View& view, const Look& look, const Quality& quality, const LevelCallback& onLevel = {});
+
+  /// Builds what @p look needs before its first frame (its isosurface, with the normals it asks
+  /// for) and reports that work; render() does it too when it was not done.
+  FrameStats prepare(const Look& look);
+
+  /// The isosurface of @p iso in the grid frame, built (or taken from the scene) on first use and
+  /// kept: its triangles with the @p normals asked for.
+  const TriangleMesh& surface(float iso, SurfaceNormals normals);
+  /// The polygons of the surface of @p iso (0 before it is built).
+  size_t surfacePolygons(float iso) const;
+
+  /// Drops the brick textures and programs: the next frame packs, uploads and compiles anew.
+  void dropTextures();
+  /// Texture memory the cache holds.
+  uint64_t textureBytes() const { return mTextures ? mTextures->bytes() : 0; }
+
+ private:
+  struct Surface;
+  struct Errors;
+  Surface& surfaceEntry(float iso, FrameStats* stats);
+  ViewErrors& viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
+                         const std::optional<VolumeOfInterest>& voi);
+  void ensureGl();
+
+  Scene mScene;
+  Options mOptions;
+  std::optional<GlContext> mGl;                  // made at the first slice frame
+  std::unique_ptr<BrickTextureCache> mTextures;  // destroyed before the context
+  std::list<Surface> mSurfaces;                  // most recently used first
+  std::unique_ptr<Errors> mErrors;               // the last view's
+};
+
+}  // namespace hyb

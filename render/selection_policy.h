@@ -1,0 +1,66 @@
+// The selection policy of a view (DESIGN 3.3 and 7): what hybrid_octree/selection.h's refinement
+// weighs for one camera and transfer function. Importance by the focus and the eye (Boada, Navazo
+// and Scopigno's OTcut), LaMar's distance filter and screen-space stop, culling by the frustum, the
+// cutting plane and the volume of interest, and within a texture budget Carmona et al.'s greedy
+// refinement by the image error each refinement removes, measured for this view
+// (render/brick_error.h).
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+
+#include "hybrid_octree/selection.h"
+#include "hybrid_octree/volume_octree.h"
+#include "render/brick_error.h"
+#include "render/brick_textures.h"
+#include "render/camera.h"
+#include "render/cut_plane.h"
+#include "render/transfer_function.h"
+#include "render/voi.h"
+#include "volume/volume.h"
+
+namespace hyb {
+
+/// The view-independent part of a selection: what the user chose.
+struct SelectionChoice {
+  double epsilon = 0.0;               ///< ε_u, data units (≥ 0)
+  uint64_t texelBudget = 0;           ///< texels; 0 = unlimited
+  std::optional<glm::dvec3> focus;    ///< region of interest, grid mm
+  int maxBrickEdge = 16;              ///< B_max
+  bool blend = true;                  ///< Carmona's blending towards coarser neighbours
+  double lodPixels = 0.0;             ///< LaMar's screen-space stop, pixels; 0 = off
+};
+
+/// The image errors of one view, made on first use and shared by the selections of that view
+/// (a budget sweep, progressive levels, repeated frames).
+class ViewErrors {
+ public:
+  /// @p volume, @p octree, @p tf, @p camera, @p cut and @p voi must outlive this object (grid frame).
+  ViewErrors(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera, const CutPlane* cut,
+             const VolumeOfInterest* voi)
+      : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera), mCut(cut), mVoi(voi) {}
+  BrickImageError& get();
+  size_t measured() const { return mErrors ? mErrors->measured() : 0; }
+
+ private:
+  const Volume& mVolume;
+  const VolumeOctree& mOctree;
+  const TransferFunction& mTf;
+  const Camera& mCamera;
+  const CutPlane* mCut;
+  const VolumeOfInterest* mVoi;
+  std::unique_ptr<BrickImageError> mErrors;
+};
+
+/// The selection parameters of @p choice for the grid-frame @p camera: importance by the focus and
+/// the eye, the transfer function's opacity (transparent nodes cost nothing) and distortion, the
+/// screen-space stop, culling by the frustum, the cut's removed side and a volume of interest that
+/// hides a node, and within a budget the priority measured by @p errors. Every pointer and
+/// reference must outlive the parameters' use.
+SelectionParams viewSelectionParams(const Volume& volume, const TransferFunction& tf, const Camera& camera, const CutPlane* cut,
+                                    const VolumeOfInterest* voi, const SelectionChoice& choice, ViewErrors* errors);
+
+}  // namespace hyb

@@ -1,0 +1,142 @@
+// The scene renderer: one object kept alive across frames, redoing only what a change needs.
+#include "render/scene_renderer.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+
+#include "render/patient_view.h"
+#include "render_util.h"
+#include "test_util.h"
+
+namespace hyb {
+namespace {
+
+using ::testing::HasSubstr;
+
+Scene sphereScene() {
+  Scene s;
+  s.volume = test::sphereVolume({40, 36, 32}, 13.0);
+  s.octree = VolumeOctree::build(s.volume);
+  return s;
+}
+
+TransferFunction warm() { return TransferFunction({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "warm"); }
+// The same support (values above 0) over another domain: another lookup table.
+TransferFunction cool() { return TransferFunction({{0.0f, {1, 1, 1}, 0.0f}, {3.0f, {0.2f, 0.5f, 1.0f}, 0.2f}, {20.0f, {0.9f, 0.9f, 0.9f}, 0.1f}}, "cool"); }
+
+View viewFrom(double azimuth, const Volume& v, int pixels = 48) {
+  View view;
+  view.camera = fitCamera(visiblePoints(v, VolumeOctree::build(v), warm()), orbitDirection(azimuth, 15), 30, false, pixels, pixels);
+  return view;
+}
+
+TEST(SceneRenderer, ChangesRedoOnlyWhatDependsOnThem) {
+  test::gl();
+  SceneRenderer r(sphereScene());
+  Look look;
+  look.tf = warm();
+  Quality q;
+  const View front = viewFrom(0, r.volume()), side = viewFrom(70, r.volume());
+  const RenderedFrame first = r.render(front, look, q);
+  EXPECT_GT(first.stats.slices.uploadedBricks, 0u);
+  EXPECT_EQ(first.stats.slices.uploadedBricks, first.stats.slices.bricks);
+  // The same view again: nothing uploaded, the same image.
+  const RenderedFrame again = r.render(front, look, q);
+  EXPECT_EQ(again.stats.slices.uploadedBricks, 0u);
+  EXPECT_EQ(again.image.pixels, first.image.pixels);
+  // A new camera keeps the bricks: the full-resolution bricks it shares are not uploaded again.
+  const RenderedFrame turned = r.render(side, look, q);
+  EXPECT_LT(turned.stats.slices.uploadedBricks, turned.stats.slices.bricks / 2);
+  // A new transfer function keeps the textures (their ranges are values) and shows what a fresh
+  // renderer shows.
+  Look other = look;
+  other.tf = cool();
+  const RenderedFrame recoloured = r.render(front, other, q);
+  EXPECT_EQ(recoloured.stats.slices.uploadedBricks, 0u);
+  SceneRenderer fresh(sphereScene());
+  EXPECT_EQ(recoloured.image.pixels, fresh.render(front, other, q).image.pixels);
+  // A new isovalue builds its surface once; the textures stay.
+  Look withSurface = look;
+  withSurface.iso = 4.0f;
+  withSurface.surfaceColor = glm::vec4(0.9f, 0.9f, 0.9f, 0.5f);
+  const RenderedFrame surfaced = r.render(front, withSurface, q);
+  EXPECT_TRUE(surfaced.stats.surfaceBuilt);
+  EXPECT_GT(surfaced.stats.surfaceTriangles, 0u);
+  EXPECT_EQ(surfaced.stats.slices.uploadedBricks, 0u);
+  EXPECT_FALSE(r.render(side, withSurface, q).stats.surfaceBuilt);
+  // The reference sees the same scene through the same object.
+  Quality reference;
+  reference.renderer = Renderer::Raycast;
+  const Image ref = r.render(front, withSurface, reference).image;
+  if (const char* d = std::getenv("HYB_DEBUG_IMAGES")) {
+    writePng(std::string(d) + "/ref.png", ref, glm::vec3(0));
+    writePng(std::string(d) + "/slices.png", surfaced.image, glm::vec3(0));
+    Look facet = withSurface;
+    facet.normals = SurfaceNormals::Facet;
+    writePng(std::string(d) + "/ref_facet.png", r.render(front, facet, reference).image, glm::vec3(0));
+    writePng(std::string(d) + "/slices_facet.png", r.render(front, facet, q).image, glm::vec3(0));
+  }
+  EXPECT_GE(test::psnrOf(ref, surfaced.image), 35.0);
+}
+
+TEST(SceneRenderer, TextureMemoryStaysWithinItsLimitAcrossFrames) {
+  test::gl();
+  Look look;
+  look.tf = warm();
+  Quality coarse;  // budgets, so that each frame picks its own levels and bricks
+  coarse.budgetPercent = 40;
+  SceneRenderer unlimited(sphereScene());
+  const View front = viewFrom(0, unlimited.volume());
+  const RenderedFrame full = unlimited.render(front, look, coarse);
+  const uint64_t limit = unlimited.textureBytes() / 2;
+  SceneRenderer limited(sphereScene(), SceneRenderer::Options{limit, nullptr});
+  for (const double percent : {100.0, 25.0, 60.0, 12.5, 40.0}) {
+    const View view = viewFrom(percent, limited.volume());
+    Quality q = coarse;
+    q.budgetPercent = percent;
+    const RenderedFrame f = limited.render(view, look, q);
+    unlimited.render(view, look, q);
+    // A frame draws all its bricks; afterwards the least recently used go until the limit holds.
+    EXPECT_LE(limited.textureBytes(), std::max(limit, f.stats.slices.textureBytes)) << percent;
+  }
+  EXPECT_LT(limited.textureBytes(), unlimited.textureBytes());  // the unlimited one kept every view's bricks
+  // The limit changes which bricks stay, never the image.
+  EXPECT_EQ(limited.render(front, look, coarse).image.pixels, full.image.pixels);
+}
+
+TEST(SceneRenderer, ProgressiveFramesAndValidation) {
+  test::gl();
+  SceneRenderer r(sphereScene());
+  Look look;
+  look.tf = warm();
+  Quality q;
+  q.progressive = 3;
+  std::vector<uint64_t> texels;
+  const RenderedFrame last = r.render(viewFrom(30, r.volume()), look, q, [&](int level, int levels, const Image&, const FrameStats& st) {
+    EXPECT_EQ(levels, 3);
+    EXPECT_EQ(level, int(texels.size()) + 1);
+    texels.push_back(st.slices.texels);
+  });
+  ASSERT_EQ(texels.size(), 2u);
+  EXPECT_LE(texels[0], texels[1]);
+  EXPECT_LE(texels[1], last.stats.slices.texels);
+  Quality bad;
+  bad.step = 9.0;
+  try {
+    r.render(viewFrom(30, r.volume()), look, bad);
+    ADD_FAILURE() << "a step of 9 voxels was accepted";
+  } catch (const ValueError& e) {
+    EXPECT_THAT(e.what(), HasSubstr("--step"));
+  }
+  Look dark = look;
+  dark.surfaceColor.a = 2.0f;
+  EXPECT_THROW(r.render(viewFrom(30, r.volume()), dark, Quality{}), ValueError);
+  View tiny = viewFrom(30, r.volume());
+  tiny.camera.width = 0;
+  EXPECT_THROW(r.render(tiny, look, Quality{}), ValueError);
+}
+
+}  // namespace
+}  // namespace hyb
