@@ -1,0 +1,394 @@
+// Surface Octree, reconstruction (DESIGN 3.2): from the terminal nodes' codes back to polygons, in
+// four stages: each node's polygons (its planes clipped to its box and split by each other, kept
+// where the solid changes, merged per plane and facing), T-junction vertices inserted where a
+// polygon meets finer neighbours along a node face, coplanar polygons merged within a merge cube,
+// and straight-through vertices no other polygon uses dropped. Exact: fine integer coordinates.
+#include <algorithm>
+#include <array>
+#include <iterator>
+#include <numeric>
+#include <tuple>
+
+#include "hybrid_octree/discrete_geometry.h"
+#include "hybrid_octree/surface_octree.h"
+#include "surface/dmc.h"
+#include "surface/flat_map.h"
+#include "volume/error.h"
+
+namespace hyb {
+
+namespace {
+
+using namespace detail;  // fine-coordinate geometry
+
+// A convex polygon on one plane, vertices in fine coordinates, counter-clockwise around +normal.
+using Poly = std::vector<V64>;
+
+I64 evalFine(const Plane& pl, const V64& p) { return dot64(pl.n, p) - I64(kFine) * pl.d; }
+
+// Splits convex @p poly by @p pl into its parts with eval ≥ 0 and ≤ 0 (exact: intersection points
+// are arrangement vertices, integral in fine coordinates).
+void split(const Poly& poly, const Plane& pl, Poly* pos, Poly* neg) {
+  pos->clear();
+  neg->clear();
+  const size_t n = poly.size();
+  for (size_t i = 0; i < n; ++i) {
+    const V64& a = poly[i];
+    const V64& b = poly[(i + 1) % n];
+    const I64 ea = evalFine(pl, a), eb = evalFine(pl, b);
+    if (ea >= 0) pos->push_back(a);
+    if (ea <= 0) neg->push_back(a);
+    if ((ea > 0 && eb < 0) || (ea < 0 && eb > 0)) {
+      const V64 num = a * eb - b * ea;
+      const I64 den = eb - ea;
+      HYB_CHECK(num.x % den == 0 && num.y % den == 0 && num.z % den == 0);
+      const V64 x = num / den;
+      pos->push_back(x);
+      neg->push_back(x);
+    }
+  }
+}
+
+// Plane ∩ box as a convex polygon counter-clockwise around the plane's normal.
+Poly clipToBox(const Plane& pl, const Box& box) {
+  // Start from the box's face polygon cut: intersect the plane with the 12 box edges.
+  std::vector<V64> pts;
+  const auto faces = box.faces();
+  for (int a = 0; a < 6; ++a)
+    for (int b = a + 1; b < 6; ++b) {
+      if (a / 2 == b / 2) continue;  // parallel faces
+      V64 p;
+      if (!intersect3(pl, faces[size_t(a)], faces[size_t(b)], &p) || !box.contains(p)) continue;
+      if (std::find(pts.begin(), pts.end(), p) == pts.end()) pts.push_back(p);
+    }
+  if (pts.size() < 3) return {};
+  // Sort counter-clockwise around the normal: project, gift-wrap (points are in convex position).
+  int axis = 0;
+  for (int a = 1; a < 3; ++a)
+    if (std::abs(pl.n[a]) > std::abs(pl.n[axis])) axis = a;
+  const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+  const bool flip = pl.n[axis] < 0;
+  auto cross2 = [&](const V64& o, const V64& p, const V64& q) {
+    const I64 c = (p[u] - o[u]) * (q[v] - o[v]) - (p[v] - o[v]) * (q[u] - o[u]);
+    return flip ? -c : c;
+  };
+  size_t start = 0;
+  for (size_t i = 1; i < pts.size(); ++i)
+    if (pts[i][u] < pts[start][u] || (pts[i][u] == pts[start][u] && pts[i][v] < pts[start][v])) start = i;
+  Poly hull;
+  size_t cur = start;
+  do {
+    hull.push_back(pts[cur]);
+    size_t cand = (cur + 1) % pts.size();
+    for (size_t i = 0; i < pts.size(); ++i) {
+      if (i == cur) continue;
+      const I64 c = cross2(pts[cur], pts[cand], pts[i]);
+      if (c < 0) cand = i;  // i is more clockwise: wrap tighter
+    }
+    cur = cand;
+  } while (cur != start && hull.size() <= pts.size());
+  return hull;
+}
+
+bool lexLess(const V64& a, const V64& b) { return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z); }
+// A polygon of one node: its loop (fine coordinates), plane (d in fine units), and the node's box
+// and origin.
+struct OutPoly {
+  std::vector<V64> loop;
+  PlaneId plane;
+  Box box;
+  glm::u16vec3 origin;
+};
+
+// Stage 1, one node: each plane clipped to the node's box and split by the node's other planes; the
+// convex pieces where the truth value changes across the plane are the surface, oriented outward,
+// and the pieces on one plane with one facing are merged into polygons (@p pos and @p neg are
+// scratch).
+void nodePolygons(const SurfaceNode& node, const glm::ivec3& dims, Poly& pos, Poly& neg, std::vector<OutPoly>& polys) {
+  const Box box = nodeBox(glm::ivec3(node.origin), node.edge, dims);
+  const int np = node.planeCount;
+  for (int i = 0; i < np; ++i) {
+    const Plane pi = toPlane(node.planes[size_t(i)]);
+    std::vector<Poly> pieces{clipToBox(pi, box)};
+    if (pieces[0].size() < 3) continue;
+    for (int j = 0; j < np; ++j) {
+      if (j == i) continue;
+      const Plane pj = toPlane(node.planes[size_t(j)]);
+      std::vector<Poly> out;
+      for (const Poly& p : pieces) {
+        split(p, pj, &pos, &neg);
+        if (pos.size() >= 3) out.push_back(pos);
+        if (neg.size() >= 3) out.push_back(neg);
+      }
+      pieces.swap(out);
+    }
+    // Keep the pieces where the solid changes across plane i; group by facing.
+    std::array<std::vector<Poly>, 2> kept;  // [0]: outward = +normal, [1]: outward = −normal
+    for (Poly& p : pieces) {
+      V64 c(0);
+      for (const V64& x : p) c += x;
+      const I64 m = I64(p.size());
+      uint32_t sigma = 0;
+      bool interior = true;
+      for (int j = 0; j < np && interior; ++j) {
+        if (j == i) continue;
+        const int s = sideOf(toPlane(node.planes[size_t(j)]), c, m);
+        interior = s != 0;
+        if (s > 0) sigma |= 1u << j;
+      }
+      if (!interior) continue;  // a degenerate sliver
+      const uint32_t sp = sigma | (1u << i), sn = sigma;
+      if (!((node.occurs >> sp) & 1) || !((node.occurs >> sn) & 1)) continue;
+      const uint32_t inPos = (node.inside >> sp) & 1u, inNeg = (node.inside >> sn) & 1u;
+      if (inPos == inNeg) continue;
+      if (inPos) std::reverse(p.begin(), p.end());  // outside on the negative side: face −normal
+      kept[inPos].push_back(std::move(p));
+    }
+    for (int facing = 0; facing < 2; ++facing) {
+      if (kept[size_t(facing)].empty()) continue;
+      PlaneId id{node.planes[size_t(i)].orientation, int8_t(facing ? -1 : 1), 0};
+      id.d = int32_t((facing ? -1 : 1) * I64(kFine) * pi.d);
+      // Merge pieces sharing edges: cancel opposite directed edges, chain the rest. A vertex with
+      // two outgoing edges (pieces touching at a point) or several loops (holes) keeps the pieces.
+      // Few edges per group: small vectors with linear search beat node-based maps here.
+      std::vector<std::pair<V64, V64>> edges;
+      for (const Poly& p : kept[size_t(facing)])
+        for (size_t k = 0; k < p.size(); ++k) {
+          const V64 a = p[k], b = p[(k + 1) % p.size()];
+          if (a == b) continue;
+          const auto rev = std::find(edges.begin(), edges.end(), std::make_pair(b, a));
+          if (rev != edges.end()) {
+            *rev = edges.back();
+            edges.pop_back();
+          } else {
+            edges.emplace_back(a, b);
+          }
+        }
+      bool branching = false;
+      for (size_t x = 0; x < edges.size() && !branching; ++x)
+        for (size_t y = x + 1; y < edges.size() && !branching; ++y) branching = edges[x].first == edges[y].first;
+      std::vector<Poly> loops;
+      while (!branching && !edges.empty()) {
+        Poly loop;
+        V64 v = edges.back().first;
+        for (auto it = edges.end() - 1;;) {
+          loop.push_back(v);
+          v = it->second;
+          *it = edges.back();
+          edges.pop_back();
+          it = std::find_if(edges.begin(), edges.end(), [&](const auto& e) { return e.first == v; });
+          if (it == edges.end()) break;
+        }
+        loops.push_back(std::move(loop));
+      }
+      const std::vector<Poly>& emit = (!branching && loops.size() == 1) ? loops : kept[size_t(facing)];
+      for (const Poly& p : emit) polys.push_back({p, id, box, node.origin});
+    }
+  }
+}
+
+// The key of the line through @p a and @p b when both lie on a face of @p box: exact in 64 bits, the
+// face's axis and coordinate, the reduced direction within the face (components in {-1, 0, 1}: the
+// line lies on one of the 13 planes and an axis plane) and its offset.
+bool faceLine(const Box& box, const V64& a, const V64& b, uint64_t* key) {
+  for (int axis = 0; axis < 3; ++axis)
+    for (I64 c : {I64(kFine) * box.lo[axis], I64(kFine) * box.hi[axis]})
+      if (a[axis] == c && b[axis] == c) {
+        const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+        I64 du = b[u] - a[u], dv = b[v] - a[v];
+        const I64 g = std::gcd(std::llabs(du), std::llabs(dv));
+        du /= g;
+        dv /= g;
+        if (du < 0 || (du == 0 && dv < 0)) du = -du, dv = -dv;
+        HYB_DCHECK(std::llabs(du) <= 1 && std::llabs(dv) <= 1);
+        const I64 offset = dv * a[u] - du * a[v];  // fine coordinates are < 2^21, so |offset| < 2^22
+        *key = uint64_t(axis) | uint64_t(c) << 2 | uint64_t(du + 1) << 23 | uint64_t(dv + 1) << 25 | uint64_t(offset + (I64(1) << 23)) << 27;
+        return true;
+      }
+  return false;
+}
+
+// Stage 2, T-junctions: every polygon's loop as vertex ids of @p mesh, with the vertices that lie on
+// one of its edges along a node face (a finer neighbour's) inserted in order, so the surface is
+// watertight.
+std::vector<std::vector<uint32_t>> insertTJunctions(const std::vector<OutPoly>& polys, DiscreteMesh* out) {
+  DiscreteMesh& mesh = *out;
+  // The points of every line, sorted by line and then lexicographically (their order along it).
+  std::vector<std::pair<uint64_t, V64>> linePoints;
+  for (const OutPoly& p : polys)
+    for (size_t k = 0; k < p.loop.size(); ++k) {
+      uint64_t key;
+      const V64 &a = p.loop[k], &b = p.loop[(k + 1) % p.loop.size()];
+      if (faceLine(p.box, a, b, &key)) {
+        linePoints.emplace_back(key, a);
+        linePoints.emplace_back(key, b);
+      }
+    }
+  std::sort(linePoints.begin(), linePoints.end(),
+            [](const auto& x, const auto& y) { return x.first != y.first ? x.first < y.first : lexLess(x.second, y.second); });
+  linePoints.erase(std::unique(linePoints.begin(), linePoints.end()), linePoints.end());
+  FlatMap lineStart(linePoints.size() / 2);
+  for (size_t k = linePoints.size(); k-- > 0;) lineStart[linePoints[k].first] = uint32_t(k);
+
+  FlatMap ids(polys.size() * 2);
+  auto vertexId = [&](const V64& p) {
+    const uint64_t key = gridKey(glm::ivec3(p));
+    const uint32_t id = ids.findOrInsert(key, [&] {
+      mesh.vertices.push_back(glm::ivec3(p));
+      return uint32_t(mesh.vertices.size() - 1);
+    });
+    HYB_DCHECK(V64(mesh.vertices[id]) == p);
+    return id;
+  };
+  std::vector<std::vector<uint32_t>> loops(polys.size());
+  for (size_t pi = 0; pi < polys.size(); ++pi) {
+    const OutPoly& p = polys[pi];
+    std::vector<uint32_t>& loop = loops[pi];
+    for (size_t k = 0; k < p.loop.size(); ++k) {
+      const V64 &a = p.loop[k], &b = p.loop[(k + 1) % p.loop.size()];
+      loop.push_back(vertexId(a));
+      uint64_t key;
+      if (!faceLine(p.box, a, b, &key)) continue;
+      // Insert the line's vertices strictly between a and b, in order from a to b.
+      const bool forward = lexLess(a, b);
+      const V64& lo = forward ? a : b;
+      const V64& hi = forward ? b : a;
+      auto first = linePoints.begin() + *lineStart.find(key);
+      while (lexLess(first->second, lo) || first->second == lo) ++first;  // lo and hi are on the line
+      auto last = first;
+      while (lexLess(last->second, hi)) ++last;
+      if (forward) {
+        for (auto it = first; it != last; ++it) loop.push_back(vertexId(it->second));
+      } else {
+        for (auto it = last; it != first;) loop.push_back(vertexId((--it)->second));
+      }
+    }
+  }
+  return loops;
+}
+
+// Stage 3: polygons of different nodes on the same plane with the same facing that share an edge,
+// within one merge cube of @p mergeCube cells, become one where their union's boundary is a single
+// loop (union-find over shared edges; the surface is unchanged).
+void mergeCoplanar(const std::vector<OutPoly>& polys, int mergeCube, std::vector<std::vector<uint32_t>>* loopsOut) {
+  std::vector<std::vector<uint32_t>>& loops = *loopsOut;
+
+  std::vector<uint32_t> parent(polys.size());
+  std::iota(parent.begin(), parent.end(), 0u);
+  auto find = [&](uint32_t x) {
+    while (parent[x] != x) x = parent[x] = parent[parent[x]];
+    return x;
+  };
+  auto cellOf = [&](size_t pi) { return gridKey(glm::ivec3(polys[pi].origin) / mergeCube); };
+  auto edgeKey = [](uint32_t from, uint32_t to) { return uint64_t(from) << 32 | to; };
+  FlatMap owner(polys.size() * 4);
+  for (size_t pi = 0; pi < polys.size(); ++pi)
+    for (size_t k = 0; k < loops[pi].size(); ++k) owner[edgeKey(loops[pi][k], loops[pi][(k + 1) % loops[pi].size()])] = uint32_t(pi);
+  for (size_t pi = 0; pi < polys.size(); ++pi)
+    for (size_t k = 0; k < loops[pi].size(); ++k) {
+      const uint32_t* q = owner.find(edgeKey(loops[pi][(k + 1) % loops[pi].size()], loops[pi][k]));
+      if (!q || *q == pi) continue;
+      if (polys[*q].plane == polys[pi].plane && cellOf(*q) == cellOf(pi)) parent[find(uint32_t(pi))] = find(*q);
+    }
+  // The sets, as runs of (root, polygon) pairs; each set's boundary from its sorted directed edges.
+  std::vector<std::pair<uint32_t, uint32_t>> bySet(polys.size());
+  for (uint32_t pi = 0; pi < polys.size(); ++pi) bySet[pi] = {find(pi), pi};
+  std::sort(bySet.begin(), bySet.end());
+  std::vector<uint64_t> edges, boundary;
+  std::vector<uint8_t> used;
+  for (size_t b = 0, e; b < bySet.size(); b = e) {
+    for (e = b + 1; e < bySet.size() && bySet[e].first == bySet[b].first; ++e) {
+    }
+    if (e - b < 2) continue;
+    const uint32_t root = bySet[b].first;
+    edges.clear();
+    for (size_t m = b; m < e; ++m) {
+      const std::vector<uint32_t>& loop = loops[bySet[m].second];
+      for (size_t k = 0; k < loop.size(); ++k) edges.push_back(edgeKey(loop[k], loop[(k + 1) % loop.size()]));
+    }
+    std::sort(edges.begin(), edges.end());
+    edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
+    // Boundary: directed edges whose reverse is not in the set; sorted by their first vertex.
+    boundary.clear();
+    for (uint64_t x : edges)
+      if (!std::binary_search(edges.begin(), edges.end(), edgeKey(uint32_t(x), uint32_t(x >> 32)))) boundary.push_back(x);
+    bool branching = boundary.empty();
+    for (size_t k = 1; k < boundary.size() && !branching; ++k) branching = boundary[k] >> 32 == boundary[k - 1] >> 32;
+    if (branching) continue;
+    // Walk the boundary from its first edge; a single loop replaces the members.
+    std::vector<uint32_t> merged;
+    used.assign(boundary.size(), 0);
+    uint32_t v = uint32_t(boundary[0] >> 32);
+    for (;;) {
+      const auto it = std::lower_bound(boundary.begin(), boundary.end(), uint64_t(v) << 32);
+      if (it == boundary.end() || uint32_t(*it >> 32) != v || used[size_t(it - boundary.begin())]) break;
+      used[size_t(it - boundary.begin())] = 1;
+      merged.push_back(v);
+      v = uint32_t(*it);
+    }
+    if (merged.size() != boundary.size()) continue;  // several loops (a hole): keep the members
+    loops[root] = std::move(merged);
+    for (size_t m = b; m < e; ++m)
+      if (bySet[m].second != root) loops[bySet[m].second].clear();
+  }
+}
+
+// Stage 4: drops straight-through vertices no other polygon uses (they only add triangles; a vertex
+// another polygon references is kept, so no T-junction opens), and adds the faces to @p mesh.
+void dropStraightVertices(const std::vector<OutPoly>& polys, std::vector<std::vector<uint32_t>>& loops, DiscreteMesh* out) {
+  DiscreteMesh& mesh = *out;
+  std::vector<uint32_t> uses(mesh.vertices.size(), 0);
+  for (const auto& loop : loops)
+    for (uint32_t v : loop) ++uses[v];
+  for (size_t pi = 0; pi < polys.size(); ++pi) {
+    std::vector<uint32_t>& loop = loops[pi];
+    if (loop.empty()) continue;  // merged into another polygon
+    for (bool removed = true; removed && loop.size() > 3;) {
+      removed = false;
+      for (size_t k = 0; k < loop.size() && loop.size() > 3; ++k) {
+        const uint32_t prev = loop[(k + loop.size() - 1) % loop.size()], cur = loop[k], next = loop[(k + 1) % loop.size()];
+        if (uses[cur] != 1) continue;
+        const V64 u = V64(mesh.vertices[cur]) - V64(mesh.vertices[prev]), w = V64(mesh.vertices[next]) - V64(mesh.vertices[cur]);
+        const V64 x(u.y * w.z - u.z * w.y, u.z * w.x - u.x * w.z, u.x * w.y - u.y * w.x);
+        if (x != V64(0) || u.x * w.x + u.y * w.y + u.z * w.z <= 0) continue;  // a corner, or a spike
+        loop.erase(loop.begin() + ptrdiff_t(k));
+        uses[cur] = 0;
+        removed = true;
+      }
+    }
+    mesh.addFace(loop.data(), loop.size(), polys[pi].plane);
+  }
+}
+
+}  // namespace
+
+DiscreteMesh SurfaceOctree::reconstruct(int mergeCube, const Progress* progress) const {
+  if (mergeCube <= 0) mergeCube = mMergeEdge;
+  HYB_CHECK((mergeCube & (mergeCube - 1)) == 0);
+  // A node's polygons depend on the node alone: nodes are processed in parallel, in contiguous
+  // chunks whose polygons are concatenated in node order (the output does not depend on threads).
+  const size_t chunks = std::min<size_t>(mNodes.size(), 64), per = chunks ? (mNodes.size() + chunks - 1) / chunks : 0;
+  const size_t stage = std::max<size_t>(1, chunks / 8);  // progress: a later stage counts as this many chunks
+  ProgressTask task(progress, "surface polygons", chunks + 3 * stage);
+  std::vector<std::vector<OutPoly>> parts(chunks);
+#pragma omp parallel for schedule(dynamic)
+  for (size_t c = 0; c < chunks; ++c) {
+    Poly pos, neg;
+    for (size_t k = c * per; k < std::min(mNodes.size(), (c + 1) * per); ++k) nodePolygons(mNodes[k], mDims, pos, neg, parts[c]);
+    task.advance();
+  }
+  std::vector<OutPoly> polys;
+  for (std::vector<OutPoly>& part : parts) std::move(part.begin(), part.end(), std::back_inserter(polys));
+  task.advance(stage);
+  DiscreteMesh mesh;
+  std::vector<std::vector<uint32_t>> loops = insertTJunctions(polys, &mesh);
+  task.advance(stage);
+  mergeCoplanar(polys, mergeCube, &loops);
+  task.advance(stage);
+  dropStraightVertices(polys, loops, &mesh);
+  return mesh;
+}
+
+TriangleMesh fineMeshToTriangles(const DiscreteMesh& mesh, const glm::dvec3& spacing) { return toTriangleMesh(mesh, spacing, 2.0 * kFine); }
+
+}  // namespace hyb
