@@ -128,28 +128,163 @@ std::string vec(const glm::dvec3& v, const char* open = "(", const char* sep = "
 const char* kNrrdHeader =
     "NRRD0004\n# a comment\ntype: short\ndimension: 3\nsizes: 4 3 5\nspacings: 0.5 0.75 2.5\n";
 
-// ---------------------------------------------------------------------------------------------
-// NRRD
+std::vector<uint8_t> niftiFile(float slope, float inter, const std::vector<uint8_t>& data) {
+  nifti_1_header h{};
+  h.sizeof_hdr = 348;
+  h.dim[0] = 3;
+  h.dim[1] = short(kDims.x);
+  h.dim[2] = short(kDims.y);
+  h.dim[3] = short(kDims.z);
+  for (int d = 4; d < 8; ++d) h.dim[d] = 1;
+  h.datatype = DT_INT16;
+  h.bitpix = 16;
+  h.pixdim[0] = 1.0f;
+  h.pixdim[1] = 0.5f;
+  h.pixdim[2] = 0.75f;
+  h.pixdim[3] = 2.5f;
+  h.vox_offset = 352.0f;
+  h.scl_slope = slope;
+  h.scl_inter = inter;
+  std::memcpy(h.magic, "n+1\0", 4);
+  std::vector<uint8_t> b(352 + data.size(), 0);
+  std::memcpy(b.data(), &h, sizeof h);
+  if (!data.empty()) std::memcpy(b.data() + 352, data.data(), data.size());
+  return b;
+}
 
-TEST(Volume, GradientsAreVoxelCentralDifferencesInterpolated) {
-  // A linear field: every estimate is exact, on the faces too, in data units per mm.
-  const Volume lin = test::makeVolume({5, 4, 3}, [](int i, int j, int k) { return 2.0f * i + 3.0f * j - k; }, glm::dvec3(0.5, 1, 2));
-  for (const glm::ivec3 p : {glm::ivec3(0, 0, 0), glm::ivec3(2, 1, 1), glm::ivec3(4, 3, 2)}) {
-    const glm::vec3 g = lin.gradientAt(p.x, p.y, p.z);
-    EXPECT_FLOAT_EQ(g.x, 4.0f);
-    EXPECT_FLOAT_EQ(g.y, 3.0f);
-    EXPECT_FLOAT_EQ(g.z, -0.5f);
+void writeInv3(const std::string& path, const std::string& plist, const std::vector<uint8_t>& matrix) {
+  archive* a = archive_write_new();
+  archive_write_add_filter_gzip(a);
+  archive_write_set_format_pax_restricted(a);
+  archive_write_open_filename(a, path.c_str());
+  auto add = [&](const std::string& name, const void* data, size_t size) {
+    archive_entry* e = archive_entry_new();
+    archive_entry_set_pathname(e, name.c_str());
+    archive_entry_set_size(e, la_int64_t(size));
+    archive_entry_set_filetype(e, AE_IFREG);
+    archive_entry_set_perm(e, 0644);
+    archive_write_header(a, e);
+    archive_write_data(a, data, size);
+    archive_entry_free(e);
+  };
+  add("proj/main.plist", plist.data(), plist.size());
+  add("proj/matrix.dat", matrix.data(), matrix.size());
+  archive_write_close(a);
+  archive_write_free(a);
+}
+
+std::string inv3Plist(const std::string& shape) {
+  return "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<plist version=\"1.0\">\n<dict>\n"
+         "<key>matrix</key><dict><key>dtype</key><string>int16</string><key>filename</key><string>matrix.dat</string>"
+         "<key>shape</key><array>" + shape + "</array></dict>\n"
+         "<key>modality</key><string>CT</string>\n"
+         "<key>spacing</key><array><real>0.5</real><real>0.75</real><real>2.5</real></array>\n</dict>\n</plist>\n";
+}
+
+// One CT slice of kDims.x x kDims.y pixels at Image Position @p position with Image Orientation
+// @p cosines (rows' direction, then columns').
+void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels, const glm::dvec3& position, const std::string& seriesUid,
+                     const double (&cosines)[6] = {1, 0, 0, 0, 1, 0}, const std::string& description = "") {
+  gdcm::Trace::WarningOff();  // the writer warns of the tags it fills in itself
+  gdcm::ImageWriter w;
+  gdcm::Image& im = w.GetImage();
+  im.SetNumberOfDimensions(2);
+  im.SetDimension(0, unsigned(kDims.x));
+  im.SetDimension(1, unsigned(kDims.y));
+  im.SetSpacing(0, 0.5);
+  im.SetSpacing(1, 0.75);
+  for (unsigned a = 0; a < 3; ++a) im.SetOrigin(a, position[int(a)]);
+  im.SetDirectionCosines(cosines);
+  im.SetPixelFormat(gdcm::PixelFormat::INT16);
+  im.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
+  im.SetSlope(1.0);
+  im.SetIntercept(-1024.0);
+  gdcm::DataElement pixelData(gdcm::Tag(0x7fe0, 0x0010));
+  pixelData.SetByteValue(reinterpret_cast<const char*>(pixels.data()), uint32_t(pixels.size() * 2));
+  im.SetDataElement(pixelData);
+  gdcm::DataSet& ds = w.GetFile().GetDataSet();
+  gdcm::Attribute<0x0008, 0x0016> sopClass;
+  sopClass.SetValue(gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::CTImageStorage));
+  ds.Replace(sopClass.GetAsDataElement());
+  gdcm::Attribute<0x0008, 0x0060> modality;
+  modality.SetValue("CT");
+  ds.Replace(modality.GetAsDataElement());
+  gdcm::Attribute<0x0020, 0x000e> series;
+  series.SetValue(seriesUid);
+  ds.Replace(series.GetAsDataElement());
+  if (!description.empty()) {
+    gdcm::Attribute<0x0008, 0x103e> text;
+    text.SetValue(description);
+    ds.Replace(text.GetAsDataElement());
   }
-  EXPECT_NEAR(lin.sampleGradient(glm::vec3(1.3f, 2.7f, 0.4f)).x, 4.0f, 1e-5f);
-  // f = i²: central differences 2i inside, one-sided (f(1) − f(0)) = 1 on the face, interpolated
-  // linearly between voxels; an axis of one sample has no gradient.
-  const Volume sq = test::makeVolume({6, 2, 1}, [](int i, int, int) { return float(i * i); });
-  EXPECT_FLOAT_EQ(sq.gradientAt(0, 0, 0).x, 1.0f);
-  EXPECT_FLOAT_EQ(sq.gradientAt(3, 1, 0).x, 6.0f);
-  EXPECT_FLOAT_EQ(sq.gradientAt(5, 0, 0).x, 9.0f);  // (25 − 16) / 1, one-sided
-  EXPECT_FLOAT_EQ(sq.gradientAt(3, 1, 0).z, 0.0f);
-  EXPECT_FLOAT_EQ(sq.sampleGradient(glm::vec3(2.5f, 0.5f, 0.0f)).x, 5.0f);
-  EXPECT_FLOAT_EQ(sq.sampleGradient(glm::vec3(-3.0f, 0.0f, 0.0f)).x, 1.0f);  // clamped to the grid
+  gdcm::Attribute<0x0018, 0x0050> thickness;
+  thickness.SetValue(2.0);
+  ds.Replace(thickness.GetAsDataElement());
+  w.SetFileName(path.c_str());
+  ASSERT_TRUE(w.Write()) << path;
+}
+
+// Slice k of the expected samples, stored as HU + 1024.
+// "a3.dcm" (built by ostream: GCC 12's -Wrestrict misfires on "a" + std::to_string(k) when inlined).
+std::string sliceName(const char* prefix, int k) {
+  std::ostringstream name;
+  name << prefix << k << ".dcm";
+  return name.str();
+}
+
+std::vector<int16_t> storedSlice(int k) {
+  const auto all = expectedSamples();
+  const size_t slice = size_t(kDims.x) * kDims.y;
+  std::vector<int16_t> px(all.begin() + ptrdiff_t(size_t(k) * slice), all.begin() + ptrdiff_t(size_t(k + 1) * slice));
+  for (int16_t& p : px) p = int16_t(p + 1024);
+  return px;
+}
+
+// A NIfTI-1 header with the given sform (RAS rows, code 1) and/or qform (code 1).
+std::vector<uint8_t> orientedNifti(const std::vector<uint8_t>& data, const glm::dmat3* sformDirection, const glm::dvec3& sformOrigin,
+                                   const glm::dmat3* qformDirection, const glm::dvec3& qformOrigin) {
+  std::vector<uint8_t> b = niftiFile(0.0f, 0.0f, data);
+  nifti_1_header h;
+  std::memcpy(&h, b.data(), sizeof h);
+  h.xyzt_units = NIFTI_UNITS_MM;
+  if (sformDirection) {
+    h.sform_code = NIFTI_XFORM_SCANNER_ANAT;
+    float* rows[3] = {h.srow_x, h.srow_y, h.srow_z};
+    const glm::dvec3 o = rasToLps(sformOrigin);
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) rows[r][c] = float(rasToLps((*sformDirection)[c])[r] * kSpacing[c]);
+      rows[r][3] = float(o[r]);
+    }
+  }
+  if (qformDirection) {
+    // The quaternion of the RAS rotation; a left-handed one stores qfac = −1 and its third column negated.
+    glm::dmat3 r;
+    for (int c = 0; c < 3; ++c) r[c] = rasToLps((*qformDirection)[c]);
+    h.pixdim[0] = glm::determinant(r) < 0 ? -1.0f : 1.0f;
+    if (h.pixdim[0] < 0) r[2] = -r[2];
+    // (a, b, c, d) from the largest of the four diagonal combinations (R[row][col] = r[col][row]).
+    auto R = [&](int row, int col) { return r[col][row]; };
+    const double t[4] = {1 + R(0, 0) + R(1, 1) + R(2, 2), 1 + R(0, 0) - R(1, 1) - R(2, 2), 1 - R(0, 0) + R(1, 1) - R(2, 2),
+                         1 - R(0, 0) - R(1, 1) + R(2, 2)};
+    const int k = int(std::max_element(t, t + 4) - t);
+    const double s = 0.5 / std::sqrt(t[k]);
+    double q[4] = {0, 0, 0, 0};  // a, b, c, d
+    if (k == 0) q[0] = 0.25 / s, q[1] = (R(2, 1) - R(1, 2)) * s, q[2] = (R(0, 2) - R(2, 0)) * s, q[3] = (R(1, 0) - R(0, 1)) * s;
+    if (k == 1) q[1] = 0.25 / s, q[0] = (R(2, 1) - R(1, 2)) * s, q[2] = (R(0, 1) + R(1, 0)) * s, q[3] = (R(0, 2) + R(2, 0)) * s;
+    if (k == 2) q[2] = 0.25 / s, q[0] = (R(0, 2) - R(2, 0)) * s, q[1] = (R(0, 1) + R(1, 0)) * s, q[3] = (R(1, 2) + R(2, 1)) * s;
+    if (k == 3) q[3] = 0.25 / s, q[0] = (R(1, 0) - R(0, 1)) * s, q[1] = (R(0, 2) + R(2, 0)) * s, q[2] = (R(1, 2) + R(2, 1)) * s;
+    const double sign = q[0] < 0 ? -1.0 : 1.0;  // NIfTI keeps a >= 0
+    h.qform_code = NIFTI_XFORM_SCANNER_ANAT;
+    h.quatern_b = float(sign * q[1]);
+    h.quatern_c = float(sign * q[2]);
+    h.quatern_d = float(sign * q[3]);
+    const glm::dvec3 o = rasToLps(qformOrigin);
+    h.qoffset_x = float(o.x);
+    h.qoffset_y = float(o.y);
+    h.qoffset_z = float(o.z);
+  }
+  std::memcpy(b.data(), &h, sizeof h);
+  return b;
 }
 
 TEST(NrrdReader, AttachedRawLittleEndian) {
@@ -242,9 +377,6 @@ TEST(NrrdReader, RejectsMalformedFiles) {
   expectRejected(dir.file("x.vtk"), "x.vtk", "unknown volume format");
 }
 
-// ---------------------------------------------------------------------------------------------
-// MetaImage
-
 TEST(MetaImageReader, DetachedLocalAndCompressed) {
   TempDir dir;
   const auto data = toBytes(expectedSamples());
@@ -280,33 +412,6 @@ TEST(MetaImageReader, RejectsMalformedFiles) {
   expectRejected(dir.file("s.mhd"), "s.mhd", "spacing");
 }
 
-// ---------------------------------------------------------------------------------------------
-// NIfTI (header written by hand from nifti1.h, read through nifti_clib)
-
-std::vector<uint8_t> niftiFile(float slope, float inter, const std::vector<uint8_t>& data) {
-  nifti_1_header h{};
-  h.sizeof_hdr = 348;
-  h.dim[0] = 3;
-  h.dim[1] = short(kDims.x);
-  h.dim[2] = short(kDims.y);
-  h.dim[3] = short(kDims.z);
-  for (int d = 4; d < 8; ++d) h.dim[d] = 1;
-  h.datatype = DT_INT16;
-  h.bitpix = 16;
-  h.pixdim[0] = 1.0f;
-  h.pixdim[1] = 0.5f;
-  h.pixdim[2] = 0.75f;
-  h.pixdim[3] = 2.5f;
-  h.vox_offset = 352.0f;
-  h.scl_slope = slope;
-  h.scl_inter = inter;
-  std::memcpy(h.magic, "n+1\0", 4);
-  std::vector<uint8_t> b(352 + data.size(), 0);
-  std::memcpy(b.data(), &h, sizeof h);
-  if (!data.empty()) std::memcpy(b.data() + 352, data.data(), data.size());
-  return b;
-}
-
 TEST(NiftiReader, PlainGzipAndScaling) {
   TempDir dir;
   const auto data = toBytes(expectedSamples());
@@ -327,9 +432,6 @@ TEST(NiftiReader, RejectsTruncatedAndGarbage) {
   writeText(dir.file("g.nii"), std::string(400, 'x'));
   expectRejected(dir.file("g.nii"), "g.nii", "NIfTI");
 }
-
-// ---------------------------------------------------------------------------------------------
-// Raw
 
 TEST(RawReader, LayoutsAndSizeChecks) {
   TempDir dir;
@@ -352,38 +454,6 @@ TEST(RawReader, LayoutsAndSizeChecks) {
   expectRejected(dir.file("v.raw"), "v.raw", "does not exist");
   writeText(dir.file("v.raw"), "x");
   expectRejected(dir.file("v.raw"), "v.raw", "--raw-dims");
-}
-
-// ---------------------------------------------------------------------------------------------
-// InVesalius .inv3 (synthetic archive written with libarchive, and the real CT)
-
-void writeInv3(const std::string& path, const std::string& plist, const std::vector<uint8_t>& matrix) {
-  archive* a = archive_write_new();
-  archive_write_add_filter_gzip(a);
-  archive_write_set_format_pax_restricted(a);
-  archive_write_open_filename(a, path.c_str());
-  auto add = [&](const std::string& name, const void* data, size_t size) {
-    archive_entry* e = archive_entry_new();
-    archive_entry_set_pathname(e, name.c_str());
-    archive_entry_set_size(e, la_int64_t(size));
-    archive_entry_set_filetype(e, AE_IFREG);
-    archive_entry_set_perm(e, 0644);
-    archive_write_header(a, e);
-    archive_write_data(a, data, size);
-    archive_entry_free(e);
-  };
-  add("proj/main.plist", plist.data(), plist.size());
-  add("proj/matrix.dat", matrix.data(), matrix.size());
-  archive_write_close(a);
-  archive_write_free(a);
-}
-
-std::string inv3Plist(const std::string& shape) {
-  return "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<plist version=\"1.0\">\n<dict>\n"
-         "<key>matrix</key><dict><key>dtype</key><string>int16</string><key>filename</key><string>matrix.dat</string>"
-         "<key>shape</key><array>" + shape + "</array></dict>\n"
-         "<key>modality</key><string>CT</string>\n"
-         "<key>spacing</key><array><real>0.5</real><real>0.75</real><real>2.5</real></array>\n</dict>\n</plist>\n";
 }
 
 TEST(Inv3Reader, SyntheticProjectInCOrder) {
@@ -429,68 +499,13 @@ TEST(Inv3Reader, RealCraniumLoadsInHounsfieldUnits) {
   EXPECT_EQ(orientationCode(v.frame().direction), "LAS");
 }
 
-// ---------------------------------------------------------------------------------------------
-// DICOM series (written with GDCM, shuffled file names, rescale to HU)
-
-// One CT slice of kDims.x x kDims.y pixels at Image Position @p position with Image Orientation
-// @p cosines (rows' direction, then columns').
-void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels, const glm::dvec3& position, const std::string& seriesUid,
-                     const double (&cosines)[6] = {1, 0, 0, 0, 1, 0}, const std::string& description = "") {
-  gdcm::Trace::WarningOff();  // the writer warns of the tags it fills in itself
-  gdcm::ImageWriter w;
-  gdcm::Image& im = w.GetImage();
-  im.SetNumberOfDimensions(2);
-  im.SetDimension(0, unsigned(kDims.x));
-  im.SetDimension(1, unsigned(kDims.y));
-  im.SetSpacing(0, 0.5);
-  im.SetSpacing(1, 0.75);
-  for (unsigned a = 0; a < 3; ++a) im.SetOrigin(a, position[int(a)]);
-  im.SetDirectionCosines(cosines);
-  im.SetPixelFormat(gdcm::PixelFormat::INT16);
-  im.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
-  im.SetSlope(1.0);
-  im.SetIntercept(-1024.0);
-  gdcm::DataElement pixelData(gdcm::Tag(0x7fe0, 0x0010));
-  pixelData.SetByteValue(reinterpret_cast<const char*>(pixels.data()), uint32_t(pixels.size() * 2));
-  im.SetDataElement(pixelData);
-  gdcm::DataSet& ds = w.GetFile().GetDataSet();
-  gdcm::Attribute<0x0008, 0x0016> sopClass;
-  sopClass.SetValue(gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::CTImageStorage));
-  ds.Replace(sopClass.GetAsDataElement());
-  gdcm::Attribute<0x0008, 0x0060> modality;
-  modality.SetValue("CT");
-  ds.Replace(modality.GetAsDataElement());
-  gdcm::Attribute<0x0020, 0x000e> series;
-  series.SetValue(seriesUid);
-  ds.Replace(series.GetAsDataElement());
-  if (!description.empty()) {
-    gdcm::Attribute<0x0008, 0x103e> text;
-    text.SetValue(description);
-    ds.Replace(text.GetAsDataElement());
-  }
-  gdcm::Attribute<0x0018, 0x0050> thickness;
-  thickness.SetValue(2.0);
-  ds.Replace(thickness.GetAsDataElement());
-  w.SetFileName(path.c_str());
-  ASSERT_TRUE(w.Write()) << path;
-}
-
-// Slice k of the expected samples, stored as HU + 1024.
-std::vector<int16_t> storedSlice(int k) {
-  const auto all = expectedSamples();
-  const size_t slice = size_t(kDims.x) * kDims.y;
-  std::vector<int16_t> px(all.begin() + ptrdiff_t(size_t(k) * slice), all.begin() + ptrdiff_t(size_t(k + 1) * slice));
-  for (int16_t& p : px) p = int16_t(p + 1024);
-  return px;
-}
-
 TEST(DicomReader, SeriesSortedByPositionWithRescale) {
   TempDir dir;
   // Stored value = HU + 1024; slices written in a shuffled order under names that do not sort.
   const int order[5] = {3, 0, 4, 1, 2};
   for (int f = 0; f < 5; ++f) {
     const int k = order[f];
-    writeDicomSlice(dir.file("img" + std::to_string(f) + ".dcm"), storedSlice(k), glm::dvec3(10.0, -5.0, 100.0 + 2.5 * k),
+    writeDicomSlice(dir.file(sliceName("img", f)), storedSlice(k), glm::dvec3(10.0, -5.0, 100.0 + 2.5 * k),
                     "1.2.826.0.1.3680043.2.1125.1");
   }
   writeText(dir.file("notes.txt"), "not dicom");
@@ -540,9 +555,9 @@ TEST(DicomReader, GantryTiltAndUnevenSpacingAreRefused) {
 TEST(DicomReader, SeveralSeriesAreListedAndOneIsChosen) {
   TempDir dir;
   for (int k = 0; k < kDims.z; ++k)
-    writeDicomSlice(dir.file("a" + std::to_string(k) + ".dcm"), storedSlice(k), glm::dvec3(0.0, 0.0, 2.5 * k), "1.2.3.100", {1, 0, 0, 0, 1, 0}, "head soft");
+    writeDicomSlice(dir.file(sliceName("a", k)), storedSlice(k), glm::dvec3(0.0, 0.0, 2.5 * k), "1.2.3.100", {1, 0, 0, 0, 1, 0}, "head soft");
   for (int k = 0; k < 3; ++k)
-    writeDicomSlice(dir.file("b" + std::to_string(k) + ".dcm"), storedSlice(k), glm::dvec3(0.0, 0.0, 1.0 * k), "1.2.3.200", {1, 0, 0, 0, 1, 0}, "scout");
+    writeDicomSlice(dir.file(sliceName("b", k)), storedSlice(k), glm::dvec3(0.0, 0.0, 1.0 * k), "1.2.3.200", {1, 0, 0, 0, 1, 0}, "scout");
   const std::vector<DicomSeriesInfo> all = listDicomSeries(dir.path().string());
   ASSERT_EQ(all.size(), 2u);
   EXPECT_EQ(all[0].uid, "1.2.3.100");
@@ -577,9 +592,9 @@ TEST(DicomReader, SeveralSeriesAreListedAndOneIsChosen) {
 TEST(DicomReader, InfoListsTheSeriesAndRenderNamesTheOneItReads) {
   TempDir dir;
   for (int k = 0; k < kDims.z; ++k)
-    writeDicomSlice(dir.file("a" + std::to_string(k) + ".dcm"), storedSlice(k), glm::dvec3(0.0, 0.0, 2.5 * k), "1.2.3.100", {1, 0, 0, 0, 1, 0}, "head");
+    writeDicomSlice(dir.file(sliceName("a", k)), storedSlice(k), glm::dvec3(0.0, 0.0, 2.5 * k), "1.2.3.100", {1, 0, 0, 0, 1, 0}, "head");
   for (int k = 0; k < 2; ++k)
-    writeDicomSlice(dir.file("b" + std::to_string(k) + ".dcm"), storedSlice(k), glm::dvec3(0.0, 0.0, 1.0 * k), "1.2.3.200", {1, 0, 0, 0, 1, 0}, "scout");
+    writeDicomSlice(dir.file(sliceName("b", k)), storedSlice(k), glm::dvec3(0.0, 0.0, 1.0 * k), "1.2.3.200", {1, 0, 0, 0, 1, 0}, "scout");
   test::CliRun r = test::run({"info", dir.path().string()});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("series   2 in "));
@@ -605,9 +620,6 @@ TEST(DicomReader, RejectsDirectoryWithoutDicom) {
   writeText(dir.file("a.txt"), "hello");
   expectRejected(dir.path().string(), dir.path().string(), "no DICOM files");
 }
-
-// ---------------------------------------------------------------------------------------------
-// Patient space in the readers (geometries() above)
 
 TEST(NrrdReader, SpaceDirectionsAndOriginInRasLasAndLps) {
   TempDir dir;
@@ -674,53 +686,6 @@ TEST(MetaImageReader, OffsetTransformMatrixAndAnatomicalOrientation) {
   expectRejected(dir.file("b.mhd"), "b.mhd", "TransformMatrix '1 0 0 0 1' malformed");
 }
 
-// A NIfTI-1 header with the given sform (RAS rows, code 1) and/or qform (code 1).
-std::vector<uint8_t> orientedNifti(const std::vector<uint8_t>& data, const glm::dmat3* sformDirection, const glm::dvec3& sformOrigin,
-                                   const glm::dmat3* qformDirection, const glm::dvec3& qformOrigin) {
-  std::vector<uint8_t> b = niftiFile(0.0f, 0.0f, data);
-  nifti_1_header h;
-  std::memcpy(&h, b.data(), sizeof h);
-  h.xyzt_units = NIFTI_UNITS_MM;
-  if (sformDirection) {
-    h.sform_code = NIFTI_XFORM_SCANNER_ANAT;
-    float* rows[3] = {h.srow_x, h.srow_y, h.srow_z};
-    const glm::dvec3 o = rasToLps(sformOrigin);
-    for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c < 3; ++c) rows[r][c] = float(rasToLps((*sformDirection)[c])[r] * kSpacing[c]);
-      rows[r][3] = float(o[r]);
-    }
-  }
-  if (qformDirection) {
-    // The quaternion of the RAS rotation; a left-handed one stores qfac = −1 and its third column negated.
-    glm::dmat3 r;
-    for (int c = 0; c < 3; ++c) r[c] = rasToLps((*qformDirection)[c]);
-    h.pixdim[0] = glm::determinant(r) < 0 ? -1.0f : 1.0f;
-    if (h.pixdim[0] < 0) r[2] = -r[2];
-    // (a, b, c, d) from the largest of the four diagonal combinations (R[row][col] = r[col][row]).
-    auto R = [&](int row, int col) { return r[col][row]; };
-    const double t[4] = {1 + R(0, 0) + R(1, 1) + R(2, 2), 1 + R(0, 0) - R(1, 1) - R(2, 2), 1 - R(0, 0) + R(1, 1) - R(2, 2),
-                         1 - R(0, 0) - R(1, 1) + R(2, 2)};
-    const int k = int(std::max_element(t, t + 4) - t);
-    const double s = 0.5 / std::sqrt(t[k]);
-    double q[4] = {0, 0, 0, 0};  // a, b, c, d
-    if (k == 0) q[0] = 0.25 / s, q[1] = (R(2, 1) - R(1, 2)) * s, q[2] = (R(0, 2) - R(2, 0)) * s, q[3] = (R(1, 0) - R(0, 1)) * s;
-    if (k == 1) q[1] = 0.25 / s, q[0] = (R(2, 1) - R(1, 2)) * s, q[2] = (R(0, 1) + R(1, 0)) * s, q[3] = (R(0, 2) + R(2, 0)) * s;
-    if (k == 2) q[2] = 0.25 / s, q[0] = (R(0, 2) - R(2, 0)) * s, q[1] = (R(0, 1) + R(1, 0)) * s, q[3] = (R(1, 2) + R(2, 1)) * s;
-    if (k == 3) q[3] = 0.25 / s, q[0] = (R(1, 0) - R(0, 1)) * s, q[1] = (R(0, 2) + R(2, 0)) * s, q[2] = (R(1, 2) + R(2, 1)) * s;
-    const double sign = q[0] < 0 ? -1.0 : 1.0;  // NIfTI keeps a >= 0
-    h.qform_code = NIFTI_XFORM_SCANNER_ANAT;
-    h.quatern_b = float(sign * q[1]);
-    h.quatern_c = float(sign * q[2]);
-    h.quatern_d = float(sign * q[3]);
-    const glm::dvec3 o = rasToLps(qformOrigin);
-    h.qoffset_x = float(o.x);
-    h.qoffset_y = float(o.y);
-    h.qoffset_z = float(o.z);
-  }
-  std::memcpy(b.data(), &h, sizeof h);
-  return b;
-}
-
 TEST(NiftiReader, SformThenQformThenMethodOne) {
   TempDir dir;
   const auto data = toBytes(expectedSamples());
@@ -785,25 +750,6 @@ TEST(Inv3Reader, MatrixIsLasAndAStoredAffineIsUndone) {
     const glm::dvec3 got = n.frame().toPatient(glm::dvec3(ijk) * n.spacing());
     for (int a = 0; a < 3; ++a) EXPECT_NEAR(got[a], expected[a], 1e-9) << ijk.x << "," << ijk.y << "," << ijk.z;
   }
-}
-
-TEST(FileUtil, AtomicWriteLeavesNothingBehindOnFailure) {
-  TempDir dir;
-  const std::string path = dir.file("out.bin");
-  writeFileAtomically(path, [](std::ostream& o) { o << "complete"; });
-  EXPECT_EQ(test::readBytes(path).size(), size_t(8));
-  EXPECT_THROW(writeFileAtomically(path, [](std::ostream& o) {
-                 o << "half";
-                 throw IoError("simulated failure");
-               }),
-               IoError);
-  EXPECT_EQ(test::readBytes(path).size(), size_t(8));  // old content intact
-  size_t files = 0;
-  for (const auto& e : std::filesystem::directory_iterator(dir.path())) files += e.is_regular_file();
-  EXPECT_EQ(files, size_t(1));  // no temporary left behind
-  EXPECT_THROW(writeFileAtomically(dir.file("no/such/dir/x.bin"), [](std::ostream& o) { o << "x"; }), IoError);
-  EXPECT_EQ(fileExtension("/a/b/Scan.NII.GZ"), ".nii.gz");
-  EXPECT_EQ(fileExtension("/a/b.c/scan"), "");
 }
 
 }  // namespace
