@@ -1,4 +1,4 @@
-// `hybrid-octree bench`: the speed/accuracy trade, measured (DESIGN 6; issue "multiresolution").
+// `hybrid-octree bench`: the speed/accuracy trade, measured (DESIGN 6).
 #pragma once
 
 #include <cstdint>

@@ -102,7 +102,7 @@ int main(int argc, char** argv) {
                   double(sel.maxError));
     }
 
-    // Surfaces, single thread (the comparison the issue asks for is against single-thread MC codes).
+    // Surfaces, single thread: the baselines (our MC, VTK flying edges) are single-thread codes.
     omp_set_num_threads(1);
     std::printf("\n%-30s %10s %10s %10s %10s\n", "surface (single thread)", "polygons", "triangles", "ms", "vs MC");
     for (float iso : isovalues) {

@@ -19,11 +19,9 @@
 
 namespace hyb {
 
-/// Lattices spaced kPrefilterSpacing…kPrefilterMaxSpacing voxels apart hold prefiltered knots. At
-/// 2 voxels the tent blurred bone edges more than aliasing cost (cranium, 512²: −1.2 dB at half
-/// the texture bytes). Lattices beyond 32 voxels (a few knots per axis: the coarsest bricks of
-/// the very smallest budgets, and the ε_0 of large nodes) keep point samples: filtering up to 128
-/// gave the same images on the cranium (down to 1/64 of the bytes) for a longer build.
+/// Lattices spaced kPrefilterSpacing…kPrefilterMaxSpacing voxels apart hold prefiltered knots: at 2
+/// voxels the tent blurs bone edges more than aliasing costs, and beyond 32 (a few knots per axis)
+/// filtering changes no image but lengthens the build (docs/volume-octree.md).
 inline constexpr int kPrefilterSpacing = 4;
 inline constexpr int kPrefilterMaxSpacing = 32;
 

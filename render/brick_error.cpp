@@ -252,10 +252,8 @@ double BrickImageError::measure(const OctreeNode& n, int p) const {
     pmin = glm::min(pmin, pc);
     pmax = glm::max(pmax, pc);
   }
-  // Rays an eighth of the node's edge apart (four voxels for the nodes of 32 whose level the budget
-  // decides most: on the cranium the selections match those of rays one voxel apart within
-  // ±0.3 dB, for a sixteenth of the work; a quarter of the edge loses up to 1.5 dB), one sample
-  // per voxel spacing along them (coarser in large nodes).
+  // Rays an eighth of the node's edge apart choose as rays a voxel apart do, for a fraction of the
+  // work (docs/multires.md); one sample per voxel spacing along them (coarser in large nodes).
   const float minSpacing = std::min({spacing.x, spacing.y, spacing.z});
   const float h = minSpacing * std::max(1.0f, float(mOctree.edge(n)) / 8.0f);
   const float ds = minSpacing * std::max(1.0f, float(mOctree.edge(n)) / 64.0f);

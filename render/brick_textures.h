@@ -38,12 +38,22 @@ struct BrickRanges {
   std::vector<std::array<float, 2>> values;  ///< per block (x fastest): smallest and largest texel value
 };
 
+/// The blocks of a brick that a transfer function can show, found once per transfer function (a
+/// new camera reuses them): one bit a block (x fastest) and the blocks' bounding box.
+struct VisibleBlocks {
+  uint64_t key = 0;  ///< the VisibleValues::key() they were found for; 0: not yet
+  glm::ivec3 blocks{0}, lo{0}, hi{-1};
+  std::vector<uint64_t> bits;
+  bool empty() const { return hi.x < 0; }
+};
+
 /// A brick's texture, the mapping of its normalised values back to data units, and its ranges.
 struct CachedBrick {
   gl::Texture texture;
   gl::Texture cutTexture;  ///< 8-bit bricks: its values at 16 bits, made once a cutting plane crosses it
   float valueOffset = 0.0f, valueScale = 1.0f;  ///< value = offset + scale · (2·texel − 1)
   BrickRanges ranges;
+  VisibleBlocks visible;
   uint64_t bytes = 0;  ///< texture memory held (both textures)
 };
 

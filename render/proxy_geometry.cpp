@@ -1,6 +1,7 @@
 #include "render/proxy_geometry.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <limits>
 
@@ -8,14 +9,15 @@ namespace hyb {
 
 namespace {
 
-// Calls visit(block) for every block of @p r whose values @p visible can show.
+// Calls visit(block) for every block set in @p v.
 template <class Visit>
-void forEachVisibleBlock(const BrickRanges& r, const VisibleValues& visible, const Visit& visit) {
-  size_t index = 0;
-  for (int bz = 0; bz < r.blocks.z; ++bz)
-    for (int by = 0; by < r.blocks.y; ++by)
-      for (int bx = 0; bx < r.blocks.x; ++bx, ++index)
-        if (visible.any(r.values[index][0], r.values[index][1])) visit(glm::ivec3(bx, by, bz));
+void forEachVisibleBlock(const VisibleBlocks& v, const Visit& visit) {
+  const uint32_t nx = uint32_t(v.blocks.x), nxy = nx * uint32_t(v.blocks.y);
+  for (size_t w = 0; w < v.bits.size(); ++w)
+    for (uint64_t word = v.bits[w]; word != 0; word &= word - 1) {
+      const uint32_t index = uint32_t(w * 64 + size_t(std::countr_zero(word)));
+      visit(glm::ivec3(int(index % nx), int(index % nxy / nx), int(index / nxy)));
+    }
 }
 
 // The box (voxel units) of blocks @p b0 to @p b1 of lattice @p L (blocks are 2×2×2 cells).
@@ -30,6 +32,30 @@ void blockBox(const KnotLattice& L, const glm::ivec3& b0, const glm::ivec3& b1, 
 
 VisibleValues::VisibleValues(const std::vector<glm::vec4>& lut, const LutLayout& layout) : mLayout(layout), mPrefix(lut.size() + 1, 0) {
   for (size_t i = 0; i < lut.size(); ++i) mPrefix[i + 1] = mPrefix[i] + (lut[i].a > 0.0f);
+  // FNV-1a over the layout and which entries are visible.
+  uint64_t h = 1469598103934665603ull;
+  auto mix = [&](uint64_t x) { h = (h ^ x) * 1099511628211ull; };
+  for (float f : {layout.vmin, layout.vmax, layout.scale}) mix(std::bit_cast<uint32_t>(f));
+  for (const glm::vec4& e : lut) mix(e.a > 0.0f);
+  mKey = h == 0 ? 1 : h;
+}
+
+void findVisibleBlocks(const BrickRanges& r, const VisibleValues& visible, VisibleBlocks* v) {
+  if (v->key == visible.key() && v->blocks == r.blocks) return;
+  v->key = visible.key();
+  v->blocks = r.blocks;
+  v->lo = glm::ivec3(std::numeric_limits<int>::max());
+  v->hi = glm::ivec3(-1);
+  v->bits.assign((r.values.size() + 63) / 64, 0);
+  size_t index = 0;
+  for (int bz = 0; bz < r.blocks.z; ++bz)
+    for (int by = 0; by < r.blocks.y; ++by)
+      for (int bx = 0; bx < r.blocks.x; ++bx, ++index)
+        if (visible.any(r.values[index][0], r.values[index][1])) {
+          v->bits[index / 64] |= uint64_t(1) << (index % 64);
+          v->lo = glm::min(v->lo, glm::ivec3(bx, by, bz));
+          v->hi = glm::max(v->hi, glm::ivec3(bx, by, bz));
+        }
 }
 
 bool VisibleValues::any(float lo, float hi) const {
@@ -47,22 +73,16 @@ std::pair<double, double> ProxyDepth::range(const glm::dvec3& lo, const glm::dve
   return {glm::length(eye - glm::clamp(eye, lo, hi)), far};
 }
 
-bool visibleBox(const BrickRanges& r, const KnotLattice& L, const VisibleValues& visible, glm::dvec3* lo, glm::dvec3* hi) {
-  glm::ivec3 b0(std::numeric_limits<int>::max()), b1(-1);
-  forEachVisibleBlock(r, visible, [&](const glm::ivec3& b) {
-    b0 = glm::min(b0, b);
-    b1 = glm::max(b1, b);
-  });
-  if (b1.x < 0) return false;
-  blockBox(L, b0, b1, lo, hi);
+bool visibleBox(const VisibleBlocks& v, const KnotLattice& L, glm::dvec3* lo, glm::dvec3* hi) {
+  if (v.empty()) return false;
+  blockBox(L, v.lo, v.hi, lo, hi);
   return true;
 }
 
-void proxyBoxes(const BrickRanges& r, const KnotLattice& L, const VisibleValues& visible, const glm::dvec3& spacing, const ProxyDepth& depth,
-                double delta, long long kLo, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes) {
+void proxyBoxes(const VisibleBlocks& v, const KnotLattice& L, const glm::dvec3& spacing, const ProxyDepth& depth, double delta, long long kLo, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes) {
   const long long count = (long long)boxes->size();
   std::fill(boxes->begin(), boxes->end(), std::pair{glm::dvec3(1e300), glm::dvec3(-1e300)});
-  forEachVisibleBlock(r, visible, [&](const glm::ivec3& b) {
+  forEachVisibleBlock(v, [&](const glm::ivec3& b) {
     glm::dvec3 lo, hi;
     blockBox(L, b, b, &lo, &hi);
     lo *= spacing;

@@ -24,11 +24,17 @@ class VisibleValues {
   VisibleValues(const std::vector<glm::vec4>& lut, const LutLayout& layout);
   /// Whether some value in [lo, hi] reads an entry with a non-zero opacity.
   bool any(float lo, float hi) const;
+  /// Equal for transfer tables that show the same values (never 0).
+  uint64_t key() const { return mKey; }
 
  private:
   LutLayout mLayout;
   std::vector<int> mPrefix;  // visible entries before each entry
+  uint64_t mKey = 0;
 };
+
+/// Refreshes @p blocks to those of @p ranges that @p visible can show, unless they are already.
+void findVisibleBlocks(const BrickRanges& ranges, const VisibleValues& visible, VisibleBlocks* blocks);
 
 /// The depth the proxies are laid out along: planes f·x = kΔ ("depth" is f·x) or shells
 /// |x − eye| = kΔ ("depth" is the distance to the eye).
@@ -42,14 +48,12 @@ struct ProxyDepth {
   std::pair<double, double> range(const glm::dvec3& lo, const glm::dvec3& hi) const;
 };
 
-/// The box (voxel units) of the cells of lattice @p lattice whose ranges @p visible can show;
-/// false when there is none.
-bool visibleBox(const BrickRanges& ranges, const KnotLattice& lattice, const VisibleValues& visible, glm::dvec3* lo, glm::dvec3* hi);
+/// The box (voxel units) of the visible blocks @p blocks of lattice @p lattice; false when there is none.
+bool visibleBox(const VisibleBlocks& blocks, const KnotLattice& lattice, glm::dvec3* lo, glm::dvec3* hi);
 
 /// For proxies at depth k·delta, k in [kLo, kLo + boxes->size()): the box (mm) of the visible blocks
 /// each proxy meets (empty boxes have lo > hi); a block meets the proxies its depth range spans.
-void proxyBoxes(const BrickRanges& ranges, const KnotLattice& lattice, const VisibleValues& visible, const glm::dvec3& spacing,
-                const ProxyDepth& depth, double delta, long long kLo, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes);
+void proxyBoxes(const VisibleBlocks& blocks, const KnotLattice& lattice, const glm::dvec3& spacing, const ProxyDepth& depth, double delta, long long kLo, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes);
 
 /// Appends plane f·x = depth ∩ box [lo, hi] as a triangle fan (mm, xyz a vertex) to @p out;
 /// returns whether the plane cuts the box in a polygon.

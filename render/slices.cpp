@@ -150,8 +150,8 @@ struct TransferTable {
 };
 
 // The frame's programs: the slice program in two variants, bricks sliced at the base spacing and
-// bricks sliced coarser (SEGMENTS: each fragment's segment cut to the brick's box, 6–14 % of a
-// fragment's time that full resolution need not pay), and the cutting plane's. Kept with the brick
+// bricks sliced coarser (SEGMENTS: each fragment's segment cut to the brick's box, a cost full
+// resolution need not pay; docs/multires.md), and the cutting plane's. Kept with the brick
 // textures across frames when there is a cache: llvmpipe compiles a new program's shaders again at
 // its first draw.
 class FramePrograms {
@@ -253,7 +253,7 @@ struct BrickDraw {
   double delta = 0.0;  // this brick's slice spacing
   glm::dvec3 blo{0.0}, bhi{0.0}, slo{0.0}, shi{0.0};  // the brick's box and the box it slices
   ShellFrame frame{};
-  const BrickRanges* ranges = nullptr;  // each slice or shell is cut from the box of the blocks it meets
+  const VisibleBlocks* blocks = nullptr;  // each slice or shell is cut from the box of the visible blocks it meets
   KnotLattice lattice{};
   // Built by the worker:
   std::vector<float> stream;  // kStreamFloats a vertex
@@ -267,7 +267,7 @@ struct BrickDraw {
 struct BrickPlan {
   std::vector<BrickDraw> draws;
   std::vector<CutPiece> cut;
-  std::deque<BrickRanges> frameRanges;  // block ranges of bricks no cache keeps
+  std::deque<VisibleBlocks> frameBlocks;  // visible blocks of bricks no cache keeps
   std::vector<gl::Texture> frameTextures;  // textures no cache keeps
   uint64_t texels = 0, cutTexels = 0, bricks = 0, blended = 0, shellBricks = 0, uploaded = 0;
 };
@@ -347,11 +347,12 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
       plan.blended += b.coarseCorners != 0;
       if (options.visibleBoxes) {
         glm::dvec3 vlo(0.0), vhi(0.0);
-        d.sliced = visibleBox(brick.ranges, fine, table.visible, &vlo, &vhi);
+        findVisibleBlocks(brick.ranges, table.visible, &brick.visible);
+        d.sliced = visibleBox(brick.visible, fine, &vlo, &vhi);
         d.slo = glm::max(d.blo, vlo * spacing);
         d.shi = glm::min(d.bhi, vhi * spacing);
         if (d.sliced) {
-          d.ranges = cached ? &cached->ranges : &plan.frameRanges.emplace_back(std::move(made.ranges));
+          d.blocks = cached ? &cached->visible : &plan.frameBlocks.emplace_back(std::move(made.visible));
           d.lattice = fine;
         }
       }
@@ -387,7 +388,7 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
 // Brick @p d's vertex stream: its slices far to near, each slab's SlabPolygon list before the slice
 // that closes the slab.
 void buildStream(BrickDraw& d, const SurfacePolygons* surface, const BrickPolygons& polygonsOf, const Camera& camera, const FrameCamera& frame,
-                 const VisibleValues& visible, const glm::dvec3& spacing, bool slabOrder, SlabPolygonList& list,
+                 const glm::dvec3& spacing, bool slabOrder, SlabPolygonList& list,
                  std::vector<std::pair<glm::dvec3, glm::dvec3>>& boxes, std::vector<float>& one) {
   const ProxyDepth depth{d.shell, frame.forward, camera.eye};
   // This brick owns the proxies with depth in [bmin, bmax).
@@ -401,16 +402,16 @@ void buildStream(BrickDraw& d, const SurfacePolygons* surface, const BrickPolygo
     }
     d.surfaceTriangles = list.triangles();
   }
-  if (d.ranges) {
+  if (d.blocks) {
     boxes.resize(size_t(kHi - kLo + 1));
-    proxyBoxes(*d.ranges, d.lattice, visible, spacing, depth, d.delta, kLo, &boxes);
+    proxyBoxes(*d.blocks, d.lattice, spacing, depth, d.delta, kLo, &boxes);
   }
   for (long long k = kHi; k >= kLo; --k) {
     if (surface && slabOrder) list.emitDownTo(k, &d.stream);
     const double plane = double(k) * d.delta;
     one.clear();
     glm::dvec3 lo = d.slo, hi = d.shi;
-    if (d.ranges) {
+    if (d.blocks) {
       lo = glm::max(lo, boxes[size_t(k - kLo)].first);
       hi = glm::min(hi, boxes[size_t(k - kLo)].second);
     }
@@ -506,7 +507,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     std::vector<float> one;
     try {
       for (BrickDraw& d : draws) {
-        buildStream(d, translucent ? &*polygons : nullptr, polygonsOf, camera, frame, table.visible, spacing, options.slabOrder, list, boxes, one);
+        buildStream(d, translucent ? &*polygons : nullptr, polygonsOf, camera, frame, spacing, options.slabOrder, list, boxes, one);
         built.fetch_add(1, std::memory_order_release);
         built.notify_one();
       }

@@ -173,9 +173,8 @@ bool triangulatePolygon(const std::vector<glm::ivec3>& points, const uint32_t* l
     }
   }
   if (orient(p[idx[0]], p[idx[1]], p[idx[2]]) > 0) tris.push_back({idx[0], idx[1], idx[2]});
-  // Ear clipping from the first corner fans a large polygon from one vertex: slivers across its
-  // whole length (a merged polygon of a clinical-size CT: 13 % of the triangles more than 100 times
-  // longer than wide, up to 158 mm long). The flips make them as round as the corners allow.
+  // Ear clipping fans a large polygon from one corner into slivers across its whole length; the
+  // flips make them as round as the corners allow (docs/surface.md).
   if (tris.size() > 1) delaunayFlips(points, loop, p, normal, &tris);
   for (const auto& t : tris) out->push_back({loop[t[0]], loop[t[1]], loop[t[2]]});
   return true;

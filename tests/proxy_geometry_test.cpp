@@ -70,5 +70,40 @@ TEST(ProxyGeometry, ShellsStayOnTheirSphereInsideTheBox) {
   EXPECT_FALSE(shellFrame(glm::dvec3(-1.0), glm::dvec3(1.0), glm::dvec3(0.0), &frame));
 }
 
+TEST(ProxyGeometry, VisibleBlocksAreFoundOncePerTransferFunction) {
+  BrickRanges ranges;
+  ranges.blocks = glm::ivec3(5, 3, 2);
+  for (int i = 0; i < 30; ++i) ranges.values.push_back({10.0f * float(i), 10.0f * float(i) + 5.0f});  // block i: [10i, 10i + 5]
+  auto visibleOf = [](float from, float to) {
+    const TransferFunction tf({{from - 1, {1, 1, 1}, 0.0f}, {from, {1, 1, 1}, 0.5f}, {to, {1, 1, 1}, 0.5f}, {to + 1, {1, 1, 1}, 0.0f}}, "window");
+    const LutLayout layout(0.0f, 300.0f, tf);
+    std::vector<glm::vec4> lut(LutLayout::kSize);
+    for (int e = 0; e < LutLayout::kSize; ++e) lut[size_t(e)] = tf.lookup(layout.value(e));
+    return VisibleValues(lut, layout);
+  };
+  const VisibleValues window = visibleOf(98, 142);  // opaque over (97, 143): blocks 10 to 14, the row y = 2 of layer z = 0
+  VisibleBlocks blocks;
+  findVisibleBlocks(ranges, window, &blocks);
+  ASSERT_EQ(blocks.bits.size(), 1u);
+  EXPECT_EQ(blocks.bits[0], uint64_t(0b11111) << 10);
+  EXPECT_EQ(blocks.lo, glm::ivec3(0, 2, 0));
+  EXPECT_EQ(blocks.hi, glm::ivec3(4, 2, 0));
+  EXPECT_EQ(blocks.key, window.key());
+  // The same transfer function again (a new camera): kept as they are, not searched again.
+  blocks.bits[0] = 0;
+  findVisibleBlocks(ranges, visibleOf(98, 142), &blocks);
+  EXPECT_EQ(blocks.bits[0], 0u);
+  // Another one: found anew. Nothing visible: empty.
+  const VisibleValues upper = visibleOf(238, 262);  // blocks 24 (240–245, at x 4 y 1) to 26 (x 1 y 2), layer z = 1
+  EXPECT_NE(upper.key(), window.key());
+  findVisibleBlocks(ranges, upper, &blocks);
+  EXPECT_EQ(blocks.bits[0], uint64_t(0b111) << 24);
+  EXPECT_EQ(blocks.lo, glm::ivec3(0, 1, 1));
+  EXPECT_EQ(blocks.hi, glm::ivec3(4, 2, 1));
+  findVisibleBlocks(ranges, visibleOf(500, 600), &blocks);
+  EXPECT_TRUE(blocks.empty());
+  EXPECT_EQ(blocks.bits[0], 0u);
+}
+
 }  // namespace
 }  // namespace hyb

@@ -221,7 +221,7 @@ TEST(VolumeOctreeCranium, ExactSelectionAndSmallOverhead) {
   EXPECT_EQ(t.depth(), 8);
   EXPECT_EQ(t.root().minValue, -1024.0f);
   EXPECT_EQ(t.root().maxValue, 2986.0f);
-  EXPECT_LE(double(t.bytesUsed()), 0.15 * double(v.sourceBytes()));  // overhead target of the issue
+  EXPECT_LE(double(t.bytesUsed()), 0.15 * double(v.sourceBytes()));  // the octree may cost at most 15 % of the volume
   SelectionParams params;
   const Selection exact = selectNodes(t, params);
   EXPECT_EQ(exact.maxError, 0.0f);
