@@ -21,7 +21,6 @@ namespace hyb {
 namespace {
 
 using test::gl;
-using test::psnrOf;
 
 // A faint haze growing linearly along x (reproduced exactly at every level, and visible, so every
 // node of 32 costs eight bricks to refine) with a rod of bone-like material seen end-on near the eye

@@ -21,7 +21,6 @@ namespace hyb {
 namespace {
 
 using test::gl;
-using test::psnrOf;
 
 // Bricks at p = 3 on the nodes whose edge is edgeFor(node): a hand-made cut with forced levels.
 Selection cutAt(const VolumeOctree& t, const std::function<int(const OctreeNode&)>& edgeFor) {

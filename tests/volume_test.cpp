@@ -1,6 +1,5 @@
 #include "volume/volume.h"
 
-#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -11,12 +10,6 @@
 
 namespace hyb {
 namespace {
-
-using ::testing::HasSubstr;
-using test::TempDir;
-using test::toBytes;
-using test::writeBytes;
-using test::writeText;
 
 TEST(Volume, GradientsAreVoxelCentralDifferencesInterpolated) {
   // A linear field: every estimate is exact, on the faces too, in data units per mm.
@@ -40,7 +33,7 @@ TEST(Volume, GradientsAreVoxelCentralDifferencesInterpolated) {
 }
 
 TEST(FileUtil, AtomicWriteLeavesNothingBehindOnFailure) {
-  TempDir dir;
+  test::TempDir dir;
   const std::string path = dir.file("out.bin");
   writeFileAtomically(path, [](std::ostream& o) { o << "complete"; });
   EXPECT_EQ(test::readBytes(path).size(), size_t(8));
