@@ -62,6 +62,18 @@ struct InfoOptions {
   std::string validate() const { return bins < 1 || bins > 4096 ? "--bins must be in 1..4096" : ""; }
 };
 
+// One line on a Surface Octree, with its build time when it was just built.
+std::string surfaceSummary(const SurfaceOctree& so, std::optional<double> buildMs) {
+  std::ostringstream s;
+  size_t planes = 0;
+  for (const SurfaceNode& n : so.nodes()) planes += n.planeCount;
+  s << "surface  iso " << so.isovalue() << ": " << so.cellCount() << " DiscMC cells merged into " << so.nodes().size()
+    << " terminal nodes (" << planes << " plane ids, " << so.bytesUsed() << " bytes)";
+  if (buildMs) s << ", " << std::fixed << std::setprecision(1) << *buildMs << " ms";
+  else s << " (from the scene)";
+  return s.str() + "\n";
+}
+
 int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
   if (std::error_code ec; std::filesystem::is_directory(o.input.path, ec) && !o.input.rawLayout()) {
     const std::vector<DicomSeriesInfo> series = listDicomSeries(o.input.path);
@@ -69,6 +81,15 @@ int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
     for (const DicomSeriesInfo& s : series)
       out << "  " << s.uid << "  " << (s.modality.empty() ? "?" : s.modality) << "  " << s.slices << " slices of " << s.columns << "x" << s.rows
           << (s.description.empty() ? "" : "  " + s.description) << "\n";
+  }
+  if (!o.input.rawLayout() && isSceneFile(o.input.path)) {
+    if (!o.input.series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", o.input.path, " is a scene file)");
+    const Scene scene = loadScene(o.input.path);
+    out << "file     " << o.input.path << " (scene)\n" << scene.volume.toString();
+    out << "octree   " << scene.octree.nodes().size() << " nodes, " << scene.octree.bytesUsed() << " bytes\n";
+    out << (scene.surface ? surfaceSummary(*scene.surface, std::nullopt) : "surface  none (build --iso adds one)\n");
+    out << "histogram (" << o.bins << " bins)\n" << formatHistogram(computeHistogram(scene.volume, o.bins));
+    return 0;
   }
   const Volume v = o.input.read(err);
   out << "file     " << o.input.path << "\n" << v.toString();
@@ -92,17 +113,6 @@ struct BuildOptions {
   }
 };
 
-// One line on a Surface Octree, with its build time when it was just built.
-std::string surfaceSummary(const SurfaceOctree& so, std::optional<double> buildMs) {
-  std::ostringstream s;
-  size_t planes = 0;
-  for (const SurfaceNode& n : so.nodes()) planes += n.planeCount;
-  s << "surface  iso " << so.isovalue() << ": " << so.cellCount() << " DiscMC cells merged into " << so.nodes().size()
-    << " terminal nodes (" << planes << " plane ids, " << so.bytesUsed() << " bytes)";
-  if (buildMs) s << ", " << std::fixed << std::setprecision(1) << *buildMs << " ms";
-  else s << " (from the scene)";
-  return s.str() + "\n";
-}
 
 int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
   const Volume v = o.input.read(err);

@@ -59,6 +59,17 @@ TEST(Cli, InfoBuildAndSelect) {
   r = run({"build", nhdr, "-o", dir.file("point.hoct"), "--prefilter", "off"});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("coarse knots point-subsampled"));
+  // info reads a scene as it reads a volume, and says what the scene holds.
+  r = run({"info", dir.file("s.hoct")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("9 x 7 x 5"));
+  EXPECT_THAT(r.out, HasSubstr("surface  none"));
+  r = run({"build", nhdr, "--iso", "0.5", "-o", dir.file("iso.hoct")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  r = run({"info", dir.file("iso.hoct")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("surface  iso 0.5: "));
+  expectBadInput({"info", dir.file("iso.hoct"), "--series", "1.2.3"}, "--series");
 
   r = run({"render", dir.file("s.hoct"), "--epsilon", "0", "--stats", dir.file("st.json"), "-o", dir.file("r.png")});
   ASSERT_EQ(r.status, 0) << r.err;
