@@ -102,11 +102,10 @@ struct BuildOptions {
   std::string output;
   std::optional<double> iso;
   int leafEdge = 8;
-  std::string prefilter = "on";
+  bool prefilter = true;
   std::string validate() const {
     if (output.empty()) return "-o missing (expected the scene file to write, e.g. -o scene.hoct)";
     if (std::string e = outputPathError(output, "-o"); !e.empty()) return e;
-    if (prefilter != "on" && prefilter != "off") return "--prefilter must be on or off";
     if (leafEdge < 1 || leafEdge > 256 || (leafEdge & (leafEdge - 1))) return "--leaf-edge must be a power of two in 1..256";
     if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
     return "";
@@ -117,7 +116,7 @@ struct BuildOptions {
 int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
   const Volume v = o.input.read(err);
   const auto t0 = Clock::now();
-  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{o.leafEdge, o.prefilter == "on", o.input.progress});
+  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{o.leafEdge, o.prefilter, o.input.progress});
   const double ms = msSince(t0);
   out << v.toString() << octreeSummary(v, t);
   out << "build    " << std::fixed << std::setprecision(1) << ms << " ms (" << double(v.voxelCount()) / (ms * 1e3)
@@ -422,9 +421,8 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   buildCmd->add_option("-o,--output", build.output, "scene file to write (.hoct)");
   buildCmd->add_option("--iso", build.iso, "isovalue of the Surface Octree to build (data units; none = volume only)");
   buildCmd->add_option("--leaf-edge", build.leafEdge, "edge in voxels of the smallest octree nodes")->capture_default_str();
-  buildCmd->add_option("--prefilter", build.prefilter,
-                       "coarse levels (texels 4+ voxels apart) hold the data smoothed by their tent filter: on|off")
-      ->capture_default_str();
+  addSwitch(buildCmd, "--prefilter", &build.prefilter,
+            "coarse levels (texels 4+ voxels apart) hold the data smoothed by their tent filter (default on)");
 
   RenderOptions render;
   CLI::App* renderCmd = app.add_subcommand("render", "render one image (slice renderer or reference ray tracer)");

@@ -204,14 +204,15 @@ CLI::Option* addChoice(CLI::App* cmd, const std::string& name, T* field, std::ve
       },
       help + " (" + names + ")");
 }
-CLI::Option* addSwitch(CLI::App* cmd, const std::string& name, bool* field, const std::string& help) {
-  return addChoice<bool>(cmd, name, field, {{"on", true}, {"off", false}}, help);
-}
 CLI::Option* addVec3(CLI::App* cmd, const std::string& name, std::optional<glm::dvec3>* field, const std::string& help) {
   return cmd->add_option_function<std::string>(name, [=](const std::string& text) { *field = parseVec3(text, name); }, help);
 }
 
 }  // namespace
+
+CLI::Option* addSwitch(CLI::App* cmd, const std::string& name, bool* field, const std::string& help) {
+  return addChoice<bool>(cmd, name, field, {{"on", true}, {"off", false}}, help);
+}
 
 std::string RenderOptions::validate() const {
   if (std::string e = quality.validate(); !e.empty()) return e;

@@ -47,6 +47,9 @@ struct Budget {
 /// Parses --budget: "MB" (>= 0) or "P%" (0 < P <= 100); none when @p text is neither.
 std::optional<Budget> parseBudget(const std::string& text);
 
+/// Adds flag @p name taking on|off into @p field; anything else is refused naming the flag.
+CLI::Option* addSwitch(CLI::App* cmd, const std::string& name, bool* field, const std::string& help);
+
 /// Where the volume comes from: a path (default: the Debian CT), an optional raw layout, and the
 /// series of a DICOM directory.
 struct VolumeInput {

@@ -251,6 +251,7 @@ TEST(Cli, BadFlagsExitTwo) {
   for (const char* budget : {"0%", "150%", "x%", "5%%", "%"}) expectBadInput({"render", nhdr, "-o", png, "--budget", budget}, "--budget");
   expectBadInput({"render", nhdr, "-o", png, "--no-such-flag"}, "--no-such-flag");
   expectBadInput({"build", nhdr}, "-o");
+  expectBadInput({"build", nhdr, "-o", dir.file("b.hoct"), "--prefilter", "maybe"}, "--prefilter");
   expectBadInput({"build", nhdr, "-o", dir.file("x.hoct"), "--leaf-edge", "6"}, "--leaf-edge");
   expectBadInput({"render", nhdr, "-o", png, "--cut", "1,2,3,0,0,0"}, "--cut");
   expectBadInput({"render", nhdr, "-o", png, "--cut", "1,2,3"}, "--cut");
