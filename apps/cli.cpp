@@ -3,10 +3,13 @@
 #include "apps/bench.h"
 #include "apps/frame.h"
 #include "apps/progress_display.h"
+#include "apps/viewer_server.h"
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include <pthread.h>
+#include <signal.h>
 #include <unistd.h>
 
 #include <chrono>
@@ -398,6 +401,61 @@ int runCompare(const CompareOptions& o, std::ostream& out) {
   return 0;
 }
 
+struct ViewOptions {
+  VolumeInput input;
+  bool volumeGiven = false;
+  std::string host = "127.0.0.1";
+  int port = 8080;
+  std::string dataDir, token;
+  double frameMs = 60.0, textureMb = 512.0;
+  std::string validate() const {
+    if (port < 0 || port > 65535) return "--port must be in 0..65535 (0: any free port)";
+    if (!dataDir.empty() && !std::filesystem::is_directory(dataDir)) return "--data-dir " + dataDir + ": not a directory";
+    if (!(frameMs >= 10.0 && frameMs <= 1000.0)) return "--frame-ms must be in [10, 1000]";
+    if (!(textureMb >= 16.0 && textureMb <= 65536.0)) return "--texture-mb must be in [16, 65536]";
+    if (!token.empty() && (token.size() < 16 || token.find_first_not_of("0123456789abcdefABCDEF") != std::string::npos))
+      return "--token must be at least 16 hexadecimal digits";
+    return "";
+  }
+};
+
+int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
+  viewer::ServerOptions so;
+  so.host = o.host;
+  so.port = uint16_t(o.port);
+  so.dataDir = o.dataDir;
+  so.token = o.token;
+  so.frameTargetMs = o.frameMs;
+  so.textureLimitBytes = uint64_t(o.textureMb * 1024 * 1024);
+  if (o.volumeGiven || o.dataDir.empty()) {
+    so.volume = o.input.path;
+    so.series = o.input.series;
+  }
+  so.loader = [&o, &err](const std::string& path, const std::string& series) {
+    VolumeInput in = o.input;
+    in.path = path;
+    in.series = series;
+    std::ostringstream quiet;
+    double ms = 0;
+    return loadOrBuild(in, quiet, err, &ms);
+  };
+  so.log = &out;
+  // SIGINT and SIGTERM end the server: blocked in every thread, awaited here.
+  sigset_t stopSignals;
+  sigemptyset(&stopSignals);
+  sigaddset(&stopSignals, SIGINT);
+  sigaddset(&stopSignals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &stopSignals, nullptr);
+  viewer::Server server(std::move(so));
+  server.start();
+  out << "view     open " << server.url() << " in a browser (Ctrl+C stops the server)" << std::endl;
+  int signal = 0;
+  sigwait(&stopSignals, &signal);
+  server.stop();
+  out << "view     stopped" << std::endl;
+  return 0;
+}
+
 }  // namespace
 
 int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& err) {
@@ -462,12 +520,22 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   compareCmd->add_option("image", compare.image, "PNG to compare, of the same size");
   compareCmd->add_option("--diff", compare.diff, "write the per-pixel difference as a grey PNG (8x the RMS difference over RGB)");
 
+  ViewOptions view;
+  CLI::App* viewCmd = app.add_subcommand("view", "serve the interactive viewer: open the printed URL in a browser");
+  view.input.add(viewCmd);
+  viewCmd->add_option("--host", view.host, "address to listen on (127.0.0.1: this machine only)")->capture_default_str();
+  viewCmd->add_option("--port", view.port, "TCP port (0: any free port)")->capture_default_str();
+  viewCmd->add_option("--data-dir", view.dataDir, "the page lists the volumes and DICOM series under this directory and opens them");
+  viewCmd->add_option("--token", view.token, "access token (default: a random one, printed in the URL)");
+  viewCmd->add_option("--frame-ms", view.frameMs, "frame time interactive frames aim at, ms")->capture_default_str();
+  viewCmd->add_option("--texture-mb", view.textureMb, "brick textures kept between frames, MB per volume")->capture_default_str();
+
   try {
     try {
       const auto known = app.get_subcommands([](const CLI::App*) { return true; });
       if (argc > 1 && argv[1][0] != '-' &&
           std::none_of(known.begin(), known.end(), [&](const CLI::App* c) { return c->get_name() == argv[1]; }))
-        HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build, render, export, bench or compare; see --help)");
+        HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build, render, export, bench, compare or view; see --help)");
       app.parse(argc, argv);
     } catch (const CLI::CallForHelp&) {
       out << app.help();
@@ -487,7 +555,8 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     // Auto shows progress only on the process's own stderr (not on a caller's stream).
     const bool ownStderr = &err == &std::cerr;
     const ProgressDisplay display(mode == ProgressMode::Auto && !ownStderr ? ProgressMode::Off : mode, err, ownStderr && ::isatty(2));
-    for (VolumeInput* in : {&info.input, &build.input, &render.input, &bench.render.input, &exportOpts.input}) in->progress = display.progress();
+    for (VolumeInput* in : {&info.input, &build.input, &render.input, &bench.render.input, &exportOpts.input, &view.input})
+      in->progress = display.progress();
     if (infoCmd->parsed()) return check(info.validate()), runInfo(info, out, err);
     if (buildCmd->parsed()) return check(build.validate()), runBuild(build, out, err);
     if (renderCmd->parsed()) {
@@ -498,6 +567,10 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     if (exportCmd->parsed()) return check(exportOpts.validate()), runExport(exportOpts, out, err);
     if (benchCmd->parsed()) return check(bench.validate()), runBench(bench, out, err);
     if (compareCmd->parsed()) return check(compare.validate()), runCompare(compare, out);
+    if (viewCmd->parsed()) {
+      view.volumeGiven = viewCmd->get_option("volume")->count() > 0;
+      return check(view.validate()), runView(view, out, err);
+    }
     return 2;
   } catch (const IoError& e) {
     err << "hybrid-octree: error: " << e.what() << "\n";

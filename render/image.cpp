@@ -47,6 +47,32 @@ void writePng(const std::string& path, const Image& image, const glm::vec3& back
   });
 }
 
+std::vector<uint8_t> encodePng(const std::vector<uint8_t>& rgba, int width, int height) {
+  std::vector<uint8_t> out;
+  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
+  png_infop info = png ? png_create_info_struct(png) : nullptr;
+  if (!png || !info || setjmp(png_jmpbuf(png))) {
+    png_destroy_write_struct(&png, &info);
+    HYB_THROW(RuntimeError, "PNG encoding failed");
+  }
+  png_set_write_fn(
+      png, &out,
+      [](png_structp p, png_bytep data, png_size_t n) {
+        auto* o = static_cast<std::vector<uint8_t>*>(png_get_io_ptr(p));
+        o->insert(o->end(), data, data + n);
+      },
+      nullptr);
+  // Fast compression: a viewer sends this while the user waits (a file written once takes the default).
+  png_set_compression_level(png, 2);
+  png_set_IHDR(png, info, png_uint_32(width), png_uint_32(height), 8, PNG_COLOR_TYPE_RGBA, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
+               PNG_FILTER_TYPE_DEFAULT);
+  png_write_info(png, info);
+  for (int y = 0; y < height; ++y) png_write_row(png, &rgba[size_t(y) * size_t(width) * 4]);
+  png_write_end(png, nullptr);
+  png_destroy_write_struct(&png, &info);
+  return out;
+}
+
 std::vector<uint8_t> readPng(const std::string& path, int* width, int* height) {
   png_image img{};
   img.version = PNG_IMAGE_VERSION;

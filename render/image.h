@@ -26,6 +26,10 @@ std::vector<uint8_t> toRgba8(const Image& image, const glm::vec3& background);
 /// @throw IoError naming @p path when it cannot be written.
 void writePng(const std::string& path, const Image& image, const glm::vec3& background);
 
+/// The PNG bytes of 8-bit RGBA pixels @p rgba (width × height), written in memory.
+/// @throw RuntimeError when libpng fails.
+std::vector<uint8_t> encodePng(const std::vector<uint8_t>& rgba, int width, int height);
+
 /// Reads an 8-bit PNG (RGB or RGBA) into RGBA bytes. For tests and comparisons.
 /// @throw IoError naming @p path when it cannot be read.
 std::vector<uint8_t> readPng(const std::string& path, int* width, int* height);

@@ -40,16 +40,6 @@ bool sameVoi(const std::optional<VolumeOfInterest>& a, const std::optional<Volum
 
 // An isosurface as the renderers take it: the Surface Octree (the scene's, or built), its polygons
 // triangulated (grid mm), with gradient normals made on first use, and a BVH for the reference.
-struct SceneRenderer::Surface {
-  float iso = 0.0f;
-  std::optional<SurfaceOctree> built;
-  const SurfaceOctree* octree = nullptr;
-  size_t polygons = 0;
-  TriangleMesh facet;
-  std::optional<TriangleMesh> smooth;
-  std::unique_ptr<Bvh> bvh[2];  // facet, smooth
-  const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? *smooth : facet; }
-};
 
 // The image errors of the last view, with the inputs they were measured for.
 struct SceneRenderer::Errors {
@@ -125,62 +115,66 @@ void SceneRenderer::dropTextures() {
   mTextures->clear();
 }
 
-SceneRenderer::Surface& SceneRenderer::surfaceEntry(float iso, FrameStats* stats) {
-  const auto it = std::find_if(mSurfaces.begin(), mSurfaces.end(), [&](const Surface& s) { return s.iso == iso; });
-  if (it != mSurfaces.end()) {
-    mSurfaces.splice(mSurfaces.begin(), mSurfaces, it);
-    return mSurfaces.front();
-  }
-  // A new isovalue: the Surface Octree (the scene's when it matches), its polygons triangulated.
-  // Two are kept: a viewer flipping between two isovalues rebuilds neither.
-  if (mSurfaces.size() >= 2) mSurfaces.pop_back();
-  Surface& s = mSurfaces.emplace_front();
-  s.iso = iso;
-  const Volume& v = mScene.volume;
-  if (mScene.surface && mScene.surface->isovalue() == iso) {
-    s.octree = &*mScene.surface;
-  } else {
-    const auto t0 = Clock::now();
-    s.built = SurfaceOctree::build(v, mScene.octree, iso);
-    s.octree = &*s.built;
+std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats) {
+  // The Surface Octree (the scene's when it matches), its polygons triangulated, shaded both ways.
+  auto s = std::make_unique<PreparedSurface>();
+  s->iso = iso;
+  const Volume& v = scene.volume;
+  const bool fromScene = scene.surface && scene.surface->isovalue() == iso;
+  auto t0 = Clock::now();
+  if (!fromScene) {
+    s->built = SurfaceOctree::build(v, scene.octree, iso);
     if (stats) {
       stats->surfaceBuilt = true;
       stats->surfaceBuildMs = msSince(t0);
     }
   }
-  const auto t0 = Clock::now();
-  const DiscreteMesh d = s.octree->reconstruct(0, mOptions.progress);
-  s.polygons = d.faceCount();
-  s.facet = fineMeshToTriangles(d, v.spacing());
+  t0 = Clock::now();
+  const DiscreteMesh d = (fromScene ? *scene.surface : *s->built).reconstruct(0, progress);
+  s->polygons = d.faceCount();
+  s->facet = fineMeshToTriangles(d, v.spacing());
+  s->smooth = s->facet;
+  setGradientNormals(v, &s->smooth);
   if (stats) stats->surfacePolygonsMs = msSince(t0);
   return s;
 }
 
-const TriangleMesh& SceneRenderer::surface(float iso, SurfaceNormals normals) {
-  Surface& s = surfaceEntry(iso, nullptr);
-  if (normals == SurfaceNormals::Gradient && !s.smooth) {
-    s.smooth = s.facet;
-    setGradientNormals(mScene.volume, &*s.smooth);
-  }
-  return s.mesh(normals);
+PreparedSurface& SceneRenderer::keep(std::unique_ptr<PreparedSurface> surface) {
+  // Two are kept: a viewer flipping between two isovalues rebuilds neither.
+  std::erase_if(mSurfaces, [&](const auto& s) { return s->iso == surface->iso; });
+  if (mSurfaces.size() >= 2) mSurfaces.pop_back();
+  mSurfaces.push_front(std::move(surface));
+  return *mSurfaces.front();
 }
+
+void SceneRenderer::adoptSurface(std::unique_ptr<PreparedSurface> surface) { keep(std::move(surface)); }
+
+PreparedSurface& SceneRenderer::surfaceEntry(float iso, FrameStats* stats) {
+  const auto it = std::find_if(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == iso; });
+  if (it == mSurfaces.end()) return keep(prepareSurface(mScene, iso, mOptions.progress, stats));
+  mSurfaces.splice(mSurfaces.begin(), mSurfaces, it);
+  return *mSurfaces.front();
+}
+
+const TriangleMesh& SceneRenderer::surface(float iso, SurfaceNormals normals) { return surfaceEntry(iso, nullptr).mesh(normals); }
 
 FrameStats SceneRenderer::prepare(const Look& look) {
   FrameStats st;
   if (!look.iso) return st;
-  surfaceEntry(*look.iso, &st);
-  const auto t0 = Clock::now();
-  const TriangleMesh& mesh = surface(*look.iso, look.normals);
-  st.surfacePolygonsMs += msSince(t0);
-  st.surfacePolygons = surfacePolygons(*look.iso);
-  st.surfaceTriangles = mesh.triangles.size();
+  const PreparedSurface& s = surfaceEntry(*look.iso, &st);
+  st.surfacePolygons = s.polygons;
+  st.surfaceTriangles = s.mesh(look.normals).triangles.size();
   return st;
 }
 
 size_t SceneRenderer::surfacePolygons(float iso) const {
-  for (const Surface& s : mSurfaces)
-    if (s.iso == iso) return s.polygons;
+  for (const auto& s : mSurfaces)
+    if (s->iso == iso) return s->polygons;
   return 0;
+}
+
+bool SceneRenderer::hasSurface(float iso) const {
+  return std::any_of(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == iso; });
 }
 
 ViewErrors& SceneRenderer::viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
@@ -225,7 +219,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   if (quality.renderer == Renderer::Raycast) {
     const Bvh* bvh = nullptr;
     if (mesh) {
-      Surface& s = mSurfaces.front();  // this frame's
+      PreparedSurface& s = *mSurfaces.front();  // this frame's
       std::unique_ptr<Bvh>& kept = s.bvh[look.normals == SurfaceNormals::Gradient ? 1 : 0];
       if (!kept) kept = std::make_unique<Bvh>(*mesh);
       bvh = kept.get();

@@ -113,6 +113,17 @@ struct RenderedFrame {
 /// the stats of that level.
 using LevelCallback = std::function<void(int level, int levels, const Image& image, const FrameStats& stats)>;
 
+/// An isosurface ready to draw: its Surface Octree, its polygons triangulated, with both kinds of
+/// normals. Made by SceneRenderer::prepareSurface (on any thread), kept by a renderer.
+struct PreparedSurface {
+  float iso = 0.0f;
+  std::optional<SurfaceOctree> built;  ///< none when the scene's own surface has this isovalue
+  size_t polygons = 0;
+  TriangleMesh facet, smooth;          ///< grid frame, mm
+  std::unique_ptr<Bvh> bvh[2];         ///< facet, smooth; made by the first reference frame
+  const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? smooth : facet; }
+};
+
 class SceneRenderer {
  public:
   struct Options {
@@ -142,6 +153,16 @@ class SceneRenderer {
   const TriangleMesh& surface(float iso, SurfaceNormals normals);
   /// The polygons of the surface of @p iso (0 before it is built).
   size_t surfacePolygons(float iso) const;
+  /// Whether the surface of @p iso is ready: a frame showing it builds nothing.
+  bool hasSurface(float iso) const;
+
+  /// Makes the isosurface of @p iso of @p scene, touching no renderer: it only reads the scene, so
+  /// it may run on another thread while a renderer of the same scene draws (a viewer keeps showing
+  /// the old surface meanwhile). @p stats, when given, receives the build and polygon times.
+  static std::unique_ptr<PreparedSurface> prepareSurface(const Scene& scene, float iso, const Progress* progress = nullptr,
+                                                         FrameStats* stats = nullptr);
+  /// Keeps @p surface (made from this renderer's scene) as the surface of its isovalue.
+  void adoptSurface(std::unique_ptr<PreparedSurface> surface);
 
   /// Drops the brick textures and programs: the next frame packs, uploads and compiles anew.
   void dropTextures();
@@ -149,9 +170,9 @@ class SceneRenderer {
   uint64_t textureBytes() const { return mTextures ? mTextures->bytes() : 0; }
 
  private:
-  struct Surface;
   struct Errors;
-  Surface& surfaceEntry(float iso, FrameStats* stats);
+  PreparedSurface& surfaceEntry(float iso, FrameStats* stats);
+  PreparedSurface& keep(std::unique_ptr<PreparedSurface> surface);
   ViewErrors& viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
                          const std::optional<VolumeOfInterest>& voi);
   void ensureGl();
@@ -160,7 +181,7 @@ class SceneRenderer {
   Options mOptions;
   std::optional<GlContext> mGl;                  // made at the first slice frame
   std::unique_ptr<BrickTextureCache> mTextures;  // destroyed before the context
-  std::list<Surface> mSurfaces;                  // most recently used first
+  std::list<std::unique_ptr<PreparedSurface>> mSurfaces;  // most recently used first
   std::unique_ptr<Errors> mErrors;               // the last view's
 };
 

@@ -9,13 +9,15 @@ packages=(
   libnifti2-dev                                  # NIfTI-1/2 reader (nifti_clib), .nii and .nii.gz
   libgdcm-dev                                    # DICOM series: parsing, decompression, rescale tags
   libcli11-dev                                   # command-line parsing with subcommands
-  nlohmann-json3-dev                             # JSON: --stats, camera files
+  nlohmann-json3-dev                             # JSON: --stats, camera files, the viewer's messages
+  libboost-dev libturbojpeg0-dev                 # the viewer's server: Boost.Beast (HTTP, WebSocket); JPEG frames
   libpng-dev                                     # PNG output
   libcgal-dev libopenmesh-dev                    # exact mesh checks; mesh storage and IO
   libosmesa6-dev                                 # off-screen OpenGL 4.5 core through llvmpipe
   libgtest-dev libbenchmark-dev                  # tests and micro-benchmarks
   gnuplot-nox                                    # the plot of `hybrid-octree bench` (speed/accuracy trade)
   invesalius-examples                            # the real CT used by the demo and the tests
+  chromium                                       # the viewer's end-to-end test drives the page in it
 )
 missing=()
 for p in "${packages[@]}"; do
@@ -25,4 +27,15 @@ if ((${#missing[@]})); then
   SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   $SUDO apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
+
+# Node.js and npm for the end-to-end test (Debian's, unless a node with npm is there already), and
+# puppeteer-core at the version the lock file pins.
+if ! command -v node > /dev/null || ! command -v npm > /dev/null; then
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends nodejs npm
+fi
+here="$(cd "$(dirname "$0")/.." && pwd)"
+if [ ! -d "$here/tests/e2e/node_modules/puppeteer-core" ]; then
+  npm ci --prefix "$here/tests/e2e" --no-audit --no-fund --loglevel=error > /dev/null
 fi

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdlib>
+#include <thread>
 
 #include "render/patient_view.h"
 #include "render_util.h"
@@ -30,6 +31,33 @@ View viewFrom(double azimuth, const Volume& v, int pixels = 48) {
   View view;
   view.camera = fitCamera(visiblePoints(v, VolumeOctree::build(v), warm()), orbitDirection(azimuth, 15), 30, false, pixels, pixels);
   return view;
+}
+
+TEST(SceneRenderer, ASurfaceMadeOnAnotherThreadIsAdoptedAndDrawnAsIfBuiltHere) {
+  test::gl();
+  SceneRenderer r(sphereScene()), sync(sphereScene());
+  Look look;
+  look.tf = warm();
+  const View view = viewFrom(20, r.volume());
+  EXPECT_FALSE(r.hasSurface(5.0f));
+  // Built beside frames of the same renderer, which read the same scene.
+  std::unique_ptr<PreparedSurface> made;
+  std::thread builder([&] { made = SceneRenderer::prepareSurface(r.scene(), 5.0f); });
+  for (int i = 0; i < 3; ++i) r.render(view, look, Quality{});
+  builder.join();
+  ASSERT_TRUE(made);
+  EXPECT_GT(made->polygons, 0u);
+  EXPECT_EQ(made->facet.triangles.size(), made->smooth.triangles.size());
+  r.adoptSurface(std::move(made));
+  EXPECT_TRUE(r.hasSurface(5.0f));
+  look.iso = 5.0f;
+  look.surfaceColor = glm::vec4(0.9f, 0.8f, 0.7f, 0.5f);
+  const RenderedFrame adopted = r.render(view, look, Quality{});
+  EXPECT_FALSE(adopted.stats.surfaceBuilt);  // nothing built for this frame
+  const RenderedFrame built = sync.render(view, look, Quality{});
+  EXPECT_TRUE(built.stats.surfaceBuilt);
+  EXPECT_EQ(adopted.stats.surfaceTriangles, built.stats.surfaceTriangles);
+  EXPECT_EQ(adopted.image.pixels, built.image.pixels);
 }
 
 TEST(SceneRenderer, ChangesRedoOnlyWhatDependsOnThem) {

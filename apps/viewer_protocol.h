@@ -1,0 +1,68 @@
+// The viewer's messages: what the page asks for over its WebSocket, parsed into typed requests and
+// validated field by field (unknown fields, wrong types, non-finite or out-of-range numbers and
+// oversized arrays are refused with a message naming the field), and what the server sends back.
+// Pure functions: no sockets, no rendering, so that every rule is tested in-process.
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "render/camera.h"
+#include "render/cut_plane.h"
+#include "render/transfer_function.h"
+#include "render/voi.h"
+
+namespace hyb::viewer {
+
+/// Limits of what a client may ask for.
+inline constexpr size_t kMaxMessageBytes = 64 * 1024;
+inline constexpr int kMaxImageEdge = 2048, kMinImageEdge = 16;
+inline constexpr size_t kMaxTfPoints = 64;
+inline constexpr size_t kMaxPathBytes = 4096;
+
+/// A frame to render: the page's whole state, so the server keeps no per-field history and a lost
+/// message loses nothing. Coordinates are patient millimetres (LPS).
+struct FrameRequest {
+  uint64_t seq = 0;         ///< echoed in the frame that answers it
+  bool interacting = false;  ///< the user is dragging: hold the frame rate; false: refine to the final frame
+  Camera camera;             ///< eye, center, up, fov or ortho height, and the image size
+  std::string preset;        ///< a transfer-function preset, or empty when points are given
+  std::vector<TransferFunction::Point> points;
+  float opacityScale = 1.0f;  ///< multiplies every opacity, [0, 10]
+  bool shading = true;
+  std::optional<float> iso;  ///< the isosurface, or none
+  glm::vec4 surfaceColor{0.95f, 0.92f, 0.85f, 1.0f};
+  std::optional<CutPlane> cut;
+  std::optional<VolumeOfInterest> voi;
+
+  /// The transfer function asked for, opacities scaled. @throw ValueError naming the preset.
+  TransferFunction transferFunction() const;
+};
+
+/// Open a volume of the data directory (its path relative to that directory) and, for a DICOM
+/// directory, one series.
+struct OpenRequest {
+  std::string path;
+  std::string series;
+};
+
+using Request = std::variant<FrameRequest, OpenRequest>;
+
+/// Parses one text message. @throw ValueError with a message naming the field and what was expected.
+Request parseRequest(const std::string& text);
+
+/// A server → client text message {"type":"error","message":...}, and with the request's seq when known.
+std::string errorMessage(const std::string& message, std::optional<uint64_t> seq = std::nullopt);
+
+/// A binary frame message: a 4-byte little-endian length, that many bytes of JSON header, the image.
+std::string frameMessage(const std::string& headerJson, const std::vector<uint8_t>& image);
+
+/// Splits a binary frame message into header and image; false when it is not one.
+bool splitFrameMessage(const std::string& message, std::string* headerJson, std::string* image);
+
+}  // namespace hyb::viewer

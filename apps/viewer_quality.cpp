@@ -1,0 +1,53 @@
+#include "apps/viewer_quality.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+namespace hyb::viewer {
+
+double QualityLevel::cost() const {
+  // Fragments follow the pixels and the planes; a budget shares the texels, which frame time
+  // follows less than linearly (coarse bricks are sliced at fewer planes: docs/multires.md).
+  return scale * scale * (0.5 / step) * std::pow(budgetPercent / 100.0, 0.4);
+}
+
+std::string QualityLevel::describe() const {
+  std::ostringstream s;
+  s << "size " << int(std::lround(scale * 100)) << " %, budget " << budgetPercent << " %, step " << step;
+  return s.str();
+}
+
+double AdaptiveQuality::estimateMs(int level) const {
+  if (mMeasured[size_t(level)] >= 0.0) return mMeasured[size_t(level)];
+  if (mMeasured[size_t(mLast)] < 0.0) return 0.0;  // nothing measured yet
+  return mMeasured[size_t(mLast)] * kLadder[size_t(level)].cost() / kLadder[size_t(mLast)].cost();
+}
+
+void AdaptiveQuality::record(int level, double ms) {
+  double& m = mMeasured[size_t(level)];
+  m = m < 0.0 ? ms : 0.6 * m + 0.4 * ms;  // smoothed: one slow frame of a shared machine moves it a little
+  mLast = level;
+}
+
+int AdaptiveQuality::chooseInteractiveLevel() {
+  const int n = int(kLadder.size());
+  int level = n - 1;
+  for (int k = 1; k < n; ++k) {
+    // Moving to a better level than the current needs a margin; staying or going coarser does not.
+    const double allowed = k < mCurrent ? 0.8 * mTargetMs : mTargetMs;
+    if (estimateMs(k) <= allowed) {
+      level = k;
+      break;
+    }
+  }
+  mCurrent = level;
+  return level;
+}
+
+std::vector<int> AdaptiveQuality::refinement() const {
+  if (mCurrent > 2) return {2, 0};
+  return {0};
+}
+
+}  // namespace hyb::viewer

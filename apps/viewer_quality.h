@@ -1,0 +1,57 @@
+// The viewer's adaptive quality: while the user drags, each frame is made at the best level of a
+// fixed ladder whose measured (or predicted) time holds a frame-time target; when the input stops,
+// better levels follow up to the final one (full resolution, ε = 0, the default step, full size),
+// as ParaView's and Neuroglancer's interactive renderers do. Pure logic, fed with measured times.
+#pragma once
+
+#include <array>
+#include <string>
+#include <vector>
+
+namespace hyb::viewer {
+
+/// One rung: render size (fraction of the page's canvas), texture budget (percent of the view's
+/// full-resolution bytes; 100 = no budget) and slice spacing (voxels).
+struct QualityLevel {
+  double scale;
+  double budgetPercent;
+  double step;
+  /// Relative cost against the final level (pixels × planes × texel share), for predictions.
+  double cost() const;
+  std::string describe() const;
+};
+
+/// Best first; level 0 is the final frame's.
+inline constexpr std::array<QualityLevel, 7> kLadder{{
+    {1.0, 100.0, 0.5},
+    {1.0, 50.0, 1.0},
+    {1.0, 25.0, 1.6},
+    {0.75, 25.0, 1.6},
+    {0.5, 12.5, 2.0},
+    {0.5, 6.25, 3.0},
+    {0.35, 6.25, 4.0},
+}};
+
+class AdaptiveQuality {
+ public:
+  explicit AdaptiveQuality(double targetMs = 60.0) : mTargetMs(targetMs) { mMeasured.fill(-1.0); }
+
+  /// The level for the next interactive frame: the best whose time fits the target (with a margin
+  /// to move to a better one, so that the level does not flicker).
+  int chooseInteractiveLevel();
+  /// The levels after the input stops, ending with 0.
+  std::vector<int> refinement() const;
+  /// Records that a frame at @p level took @p ms (render and encode).
+  void record(int level, double ms);
+  /// The measured time of @p level, or one predicted from the last measured level's.
+  double estimateMs(int level) const;
+  double targetMs() const { return mTargetMs; }
+
+ private:
+  double mTargetMs;
+  std::array<double, kLadder.size()> mMeasured;  // smoothed ms per level, -1 unknown
+  int mLast = 4;                                 // the level measured last
+  int mCurrent = 4;                              // the interactive level in use
+};
+
+}  // namespace hyb::viewer

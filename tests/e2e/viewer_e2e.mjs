@@ -1,0 +1,129 @@
+// End-to-end test of `hybrid-octree view` in Debian's headless chromium (puppeteer-core): the page
+// loads the cranium, a drag orbits it, a preset and the isovalue change, frames arrive, the final
+// frame after the motion equals `hybrid-octree render` of the command line the page shows
+// (PSNR >= 40 dB), requests without the token fail, and the console stays clean.
+//
+// usage: node tests/e2e/viewer_e2e.mjs BUILD/hybrid-octree [--screenshot page.png]
+import { spawn, execFileSync } from 'node:child_process';
+import fs from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
+
+let puppeteer;
+try {
+  puppeteer = (await import('puppeteer-core')).default;
+} catch {
+  console.error('viewer_e2e: puppeteer-core is missing (npm ci --prefix tests/e2e; scripts/setup.sh does it)');
+  process.exit(1);
+}
+
+const exe = path.resolve(process.argv[2] || 'build/hybrid-octree');
+const shotAt = process.argv.indexOf('--screenshot');
+const screenshot = shotAt > 0 ? process.argv[shotAt + 1] : null;
+const volume = '/usr/share/doc/invesalius-examples/examples/Cranium.inv3';
+const chromium = process.env.CHROMIUM || '/usr/bin/chromium';
+const tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'hyb-e2e-'));
+let failures = 0;
+function check(ok, what) {
+  console.log(`${ok ? 'ok  ' : 'FAIL'} ${what}`);
+  if (!ok) failures++;
+}
+
+// The server, on a free port; its first line names the URL with the token.
+const server = spawn(exe, ['view', volume, '--port', '0', '--progress', 'off'], { stdio: ['ignore', 'pipe', 'inherit'] });
+const url = await new Promise((resolve, reject) => {
+  let out = '';
+  const timer = setTimeout(() => reject(new Error('the server printed no URL within 120 s')), 120000);
+  server.stdout.on('data', (d) => {
+    out += d;
+    const m = out.match(/(http:\/\/\S+\?token=[0-9a-f]+)/);
+    if (m) { clearTimeout(timer); resolve(m[1]); }
+  });
+  server.on('exit', (code) => reject(new Error(`the server exited (${code}) before printing its URL`)));
+});
+const base = url.slice(0, url.indexOf('?'));
+let browser;
+try {
+  // Without the token: refused, for the page and for its assets.
+  check((await fetch(base)).status === 403, 'the page without the token is refused (403)');
+  check((await fetch(`${base}viewer.js?token=0000000000000000`)).status === 403, 'an asset with a wrong token is refused (403)');
+
+  browser = await puppeteer.launch({
+    executablePath: chromium,
+    headless: true,
+    args: ['--no-sandbox', '--disable-gpu', '--disable-dev-shm-usage'],
+  });
+  const page = await browser.newPage();
+  await page.setViewport({ width: 900, height: 720 });
+  const consoleErrors = [];
+  page.on('console', (m) => { if (m.type() === 'error') consoleErrors.push(m.text()); });
+  page.on('pageerror', (e) => consoleErrors.push(e.message));
+  const response = await page.goto(url);
+  check(response.status() === 200, 'the page loads with the token');
+  const finalCount = () => page.evaluate(() => window.hybViewer.metrics().filter((m) => m.quality === 'final').length);
+  await page.waitForFunction(() => window.hybViewer && window.hybViewer.lastFinal(), { timeout: 120000 });
+  check(true, 'a first final frame arrives');
+
+  // Orbit: a drag across the canvas.
+  const box = await (await page.$('#view')).boundingBox();
+  const before = (await page.evaluate(() => window.hybViewer.metrics())).length;
+  await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+  await page.mouse.down();
+  for (let i = 1; i <= 25; ++i) {
+    await page.mouse.move(box.x + box.width / 2 + 6 * i, box.y + box.height / 2 + 2 * i);
+    await new Promise((r) => setTimeout(r, 40));
+  }
+  await page.mouse.up();
+  await page.waitForFunction((n) => window.hybViewer.metrics().length > n + 2, { timeout: 60000 }, before);
+  const interactive = (await page.evaluate(() => window.hybViewer.metrics())).slice(before).filter((m) => m.quality === 'interactive');
+  check(interactive.length >= 2, `interactive frames arrive while dragging (${interactive.length})`);
+
+  // A preset and the isosurface at another value.
+  await page.select('#preset', 'ct-bone');
+  await page.click('#surface-on');
+  await page.evaluate(() => {
+    const iso = document.getElementById('iso');
+    iso.value = 300;
+    iso.dispatchEvent(new Event('input'));
+    iso.dispatchEvent(new Event('change'));
+  });
+  await page.waitForFunction(() => {
+    const f = window.hybViewer.lastFinal();
+    return f && f.command && f.command.includes('--iso 300') && f.command.includes('--preset ct-bone');
+  }, { timeout: 120000 });
+  const final = await page.evaluate(() => window.hybViewer.lastFinal());
+  check(final.format === 'png', 'the final frame is lossless (PNG)');
+  check(final.camera.eye.length === 3, 'the final frame carries its camera');
+  const png = await page.evaluate(() => window.hybViewer.lastFinalPng());
+  fs.writeFileSync(path.join(tmp, 'viewer.png'), Buffer.from(png, 'base64'));
+
+  // The command line the page shows renders the same image.
+  const args = final.command.match(/'[^']*'|\S+/g).map((a) => a.replace(/^'|'$/g, ''));
+  check(args[0] === 'hybrid-octree' && args[1] === 'render', 'the page shows a render command');
+  args[args.indexOf('-o') + 1] = path.join(tmp, 'render.png');
+  execFileSync(exe, [...args.slice(1), '--progress', 'off'], { stdio: ['ignore', 'ignore', 'inherit'] });
+  const compare = execFileSync(exe, ['compare', path.join(tmp, 'render.png'), path.join(tmp, 'viewer.png')]).toString();
+  const m = compare.match(/PSNR (\S+) dB/);
+  const psnr = compare.includes('identical') ? Infinity : m ? Number(m[1]) : NaN;
+  check(psnr >= 40, `the final frame equals hybrid-octree render of the same command (PSNR ${psnr} dB, at least 40)`);
+  check((await finalCount()) >= 2, 'a final frame follows each settled change');
+
+  // Another browser context without the cookie: the page is refused.
+  const other = await browser.createBrowserContext();
+  const stranger = await other.newPage();
+  const refused = await stranger.goto(base);
+  check(refused.status() === 403, 'a browser without the token gets 403');
+  await other.close();
+
+  if (screenshot) await page.screenshot({ path: screenshot });
+  check(consoleErrors.length === 0, `the console shows no errors${consoleErrors.length ? ': ' + consoleErrors.join(' | ') : ''}`);
+} catch (e) {
+  console.log(`FAIL ${e.message}`);
+  failures++;
+} finally {
+  if (browser) await browser.close();
+  server.kill('SIGTERM');
+  fs.rmSync(tmp, { recursive: true, force: true });
+}
+console.log(failures ? `viewer_e2e: ${failures} failed` : 'viewer_e2e: all passed');
+process.exit(failures ? 1 : 0);

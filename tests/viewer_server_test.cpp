@@ -1,0 +1,278 @@
+#include "apps/viewer_server.h"
+
+#include <sys/socket.h>
+
+#include <boost/asio.hpp>
+#include <boost/beast/core.hpp>
+#include <boost/beast/http.hpp>
+#include <boost/beast/websocket.hpp>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <atomic>
+#include <string>
+
+#include "apps/viewer_protocol.h"
+#include "render/image.h"
+#include "render/scene_renderer.h"
+#include "test_util.h"
+
+namespace hyb::viewer {
+namespace {
+
+namespace net = boost::asio;
+namespace beast = boost::beast;
+namespace http = beast::http;
+namespace websocket = beast::websocket;
+using tcp = net::ip::tcp;
+using nlohmann::json;
+using ::testing::HasSubstr;
+
+Scene sphereScene() {
+  Scene s;
+  s.volume = test::sphereVolume({40, 36, 32}, 13.0);
+  s.octree = VolumeOctree::build(s.volume);
+  return s;
+}
+
+// A server of the analytic sphere on a free port, for the test's duration.
+struct TestServer {
+  std::atomic<int> loads{0};
+  std::unique_ptr<Server> server;
+  explicit TestServer(double frameMs = 60.0) {
+    ServerOptions o;
+    o.port = 0;
+    o.volume = "sphere";
+    o.frameTargetMs = frameMs;
+    o.loader = [this](const std::string&, const std::string&) {
+      ++loads;
+      return sphereScene();
+    };
+    server = std::make_unique<Server>(std::move(o));
+    server->start();
+  }
+  uint16_t port() const { return server->port(); }
+  std::string token() const { return server->token(); }
+};
+
+// Reads on the socket give up after 60 s instead of hanging a failing test.
+void limitReads(tcp::socket& socket) {
+  timeval tv{60, 0};
+  ::setsockopt(socket.native_handle(), SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+}
+
+struct Reply {
+  unsigned status = 0;
+  std::string body, cookie;
+};
+
+Reply httpRequest(uint16_t port, const std::string& target, const std::string& cookie = "", http::verb verb = http::verb::get) {
+  net::io_context io;
+  tcp::socket socket(io);
+  socket.connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port));
+  limitReads(socket);
+  http::request<http::string_body> req(verb, target, 11);
+  req.set(http::field::host, "127.0.0.1:" + std::to_string(port));
+  if (!cookie.empty()) req.set(http::field::cookie, cookie);
+  http::write(socket, req);
+  beast::flat_buffer buffer;
+  http::response<http::string_body> res;
+  http::read(socket, buffer, res);
+  Reply r{res.result_int(), res.body(), ""};
+  if (res.count(http::field::set_cookie)) r.cookie = std::string(res[http::field::set_cookie]);
+  return r;
+}
+
+// A WebSocket client of the viewer.
+struct Socket {
+  net::io_context io;
+  websocket::stream<tcp::socket> ws{io};
+  Socket(uint16_t port, const std::string& target, const std::string& origin = "") {
+    ws.next_layer().connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port));
+    limitReads(ws.next_layer());
+    ws.set_option(websocket::stream_base::decorator([origin](websocket::request_type& req) {
+      if (!origin.empty()) req.set(http::field::origin, origin);
+    }));
+    ws.read_message_max(64 << 20);
+    ws.handshake("127.0.0.1:" + std::to_string(port), target);
+  }
+  // The next message: a text message's JSON, or a frame's header with its image.
+  json next(std::string* image = nullptr) {
+    beast::flat_buffer buffer;
+    ws.read(buffer);
+    const std::string data = beast::buffers_to_string(buffer.data());
+    if (ws.got_text()) return json::parse(data);
+    std::string header, bytes;
+    EXPECT_TRUE(splitFrameMessage(data, &header, &bytes));
+    if (image) *image = bytes;
+    return json::parse(header);
+  }
+  // Skips text messages other than errors until a frame (or an error) arrives.
+  json nextFrameOrError(std::string* image = nullptr) {
+    for (;;) {
+      json m = next(image);
+      if (m["type"] == "frame" || m["type"] == "error") return m;
+    }
+  }
+  void send(const std::string& text) {
+    ws.text(true);
+    ws.write(net::buffer(text));
+  }
+};
+
+json frameRequest(uint64_t seq, bool interacting, int pixels = 64, double azimuth = 0.0) {
+  const double a = azimuth * 3.14159265358979 / 180.0;
+  return {{"type", "frame"},
+          {"seq", seq},
+          {"interacting", interacting},
+          {"camera", {{"eye", {19.5 + 60 * std::sin(a), 17.5 - 60 * std::cos(a), 25}}, {"center", {19.5, 17.5, 15.5}}, {"up", {0, 0, 1}}, {"fov", 40}, {"pixels", {pixels, pixels}}}},
+          {"tf", {{"points", {{0, 1, 1, 1, 0}, {2, 1, 0.6, 0.3, 0.3}, {15, 0.3, 0.6, 1, 0.05}}}}},
+          {"surface", {{"iso", 4.0}, {"color", {0.9, 0.9, 0.8, 0.5}}}}};
+}
+
+TEST(ViewerServer, EveryRequestNeedsTheTokenAndOnlyAssetsAreServed) {
+  TestServer s;
+  const uint16_t port = s.port();
+  EXPECT_EQ(httpRequest(port, "/").status, 403u);
+  EXPECT_EQ(httpRequest(port, "/viewer.js?token=0123456789abcdef0123456789abcdef").status, 403u);
+  const Reply page = httpRequest(port, "/?token=" + s.token());
+  EXPECT_EQ(page.status, 200u);
+  EXPECT_THAT(page.body, HasSubstr("viewer.js"));
+  EXPECT_THAT(page.cookie, HasSubstr("hyb_token=" + s.token()));
+  EXPECT_THAT(page.cookie, HasSubstr("HttpOnly"));
+  const std::string cookie = "hyb_token=" + s.token();
+  EXPECT_EQ(httpRequest(port, "/viewer.js", cookie).status, 200u);
+  EXPECT_EQ(httpRequest(port, "/viewer.js", "hyb_token=nope").status, 403u);
+  for (const char* path : {"/../CMakeLists.txt", "/%2e%2e/%2e%2e/etc/passwd", "//etc/passwd", "/web/index.html", "/api/../CMakeLists.txt"})
+    EXPECT_EQ(httpRequest(port, path, cookie).status, 404u) << path;
+  EXPECT_EQ(httpRequest(port, "/", cookie, http::verb::post).status, 405u);
+  // The mesh of an isosurface, in patient coordinates; a bad isovalue or format is refused.
+  const Reply mesh = httpRequest(port, "/api/mesh?iso=4&format=ply", cookie);
+  EXPECT_EQ(mesh.status, 200u);
+  EXPECT_EQ(mesh.body.rfind("ply", 0), 0u);
+  EXPECT_THAT(mesh.body, HasSubstr("SPACE=LPS"));
+  EXPECT_EQ(httpRequest(port, "/api/mesh?iso=abc&format=ply", cookie).status, 400u);
+  EXPECT_EQ(httpRequest(port, "/api/mesh?iso=4&format=exe", cookie).status, 400u);
+  EXPECT_EQ(httpRequest(port, "/api/mesh?iso=4&format=ply").status, 403u);
+  // The socket needs the token, and its own page's origin.
+  EXPECT_THROW(Socket(port, "/ws"), beast::system_error);
+  EXPECT_THROW(Socket(port, "/ws?token=" + s.token(), "http://evil.example"), beast::system_error);
+  EXPECT_THROW(Socket(port, "/other?token=" + s.token()), beast::system_error);
+  Socket ok(port, "/ws?token=" + s.token(), "http://127.0.0.1:" + std::to_string(port));
+  EXPECT_EQ(ok.next()["type"], "info");
+}
+
+TEST(ViewerServer, BadMessagesGetTheirErrorAndTheServerKeepsServing) {
+  TestServer s;
+  Socket c(s.port(), "/ws?token=" + s.token());
+  const json info = c.next();
+  ASSERT_EQ(info["type"], "info");
+  EXPECT_EQ(info["dims"], json::array({40, 36, 32}));
+  EXPECT_EQ(info["views"].size(), 6u);
+  const std::pair<std::string, std::string> bad[] = {
+      {"{", "not JSON"},
+      {R"({"type":"frame","seq":1})", "'camera'"},
+      {R"({"type":"open","path":"x.nrrd"})", "no data directory"},
+      {frameRequest(2, false).dump().replace(1, 0, R"("extra":1,)"), "'extra'"},
+  };
+  for (const auto& [text, expected] : bad) {
+    c.send(text);
+    const json e = c.next();
+    EXPECT_EQ(e["type"], "error") << text;
+    EXPECT_THAT(e["message"].get<std::string>(), HasSubstr(expected)) << text;
+  }
+  json huge = frameRequest(3, false, 4096);
+  c.send(huge.dump());
+  EXPECT_THAT(c.next()["message"].get<std::string>(), HasSubstr("camera.pixels[0]"));
+  c.ws.binary(true);
+  c.ws.write(net::buffer(std::string("\x01\x02", 2)));
+  EXPECT_THAT(c.next()["message"].get<std::string>(), HasSubstr("not binary"));
+  // Still serving: a valid request gets its frames.
+  c.send(frameRequest(4, false).dump());
+  json f = c.nextFrameOrError();
+  EXPECT_EQ(f["type"], "frame");
+  EXPECT_EQ(f["seq"], 4);
+  // A message over the size limit closes that socket only.
+  c.send(std::string(kMaxMessageBytes + 10, ' '));
+  beast::flat_buffer sink;
+  beast::error_code ec;
+  for (int i = 0; i < 10 && !ec; ++i) c.ws.read(sink, ec);
+  EXPECT_TRUE(ec);
+  Socket again(s.port(), "/ws?token=" + s.token());
+  EXPECT_EQ(again.next()["type"], "info");
+}
+
+TEST(ViewerServer, TheFinalFrameIsTheEnginesImageLossless) {
+  TestServer s;
+  Socket c(s.port(), "/ws?token=" + s.token());
+  c.next();  // info
+  c.send(frameRequest(9, false, 80, 30).dump());
+  // Refining frames (JPEG), then the final one (PNG) once the surface is ready.
+  std::string image;
+  json f;
+  for (int i = 0; i < 20; ++i) {
+    f = c.nextFrameOrError(&image);
+    ASSERT_EQ(f["type"], "frame") << f.dump();
+    EXPECT_EQ(f["seq"], 9);
+    if (f["quality"] == "final" && f["iso"] == 4.0) break;
+  }
+  ASSERT_EQ(f["quality"], "final");
+  EXPECT_EQ(f["format"], "png");
+  EXPECT_EQ(f["width"], 80);
+  EXPECT_THAT(f["command"].get<std::string>(), HasSubstr("--iso 4 --surface-color"));
+  EXPECT_THAT(f["command"].get<std::string>(), HasSubstr(" --tf view.tf"));
+  EXPECT_THAT(f["tfText"].get<std::string>(), HasSubstr("15 0.300000012 0.600000024 1 0.0500000007"));
+  test::TempDir dir;
+  test::writeBytes(dir.file("f.png"), std::vector<uint8_t>(image.begin(), image.end()));
+  int w = 0, h = 0;
+  const std::vector<uint8_t> got = readPng(dir.file("f.png"), &w, &h);
+  // The same request through an engine of its own.
+  SceneRenderer engine(sphereScene());
+  const FrameRequest r = std::get<FrameRequest>(parseRequest(frameRequest(9, false, 80, 30).dump()));
+  View view;
+  view.camera = r.camera;
+  Look look;
+  look.tf = r.transferFunction();
+  look.iso = r.iso;
+  look.surfaceColor = r.surfaceColor;
+  const RenderedFrame want = engine.render(view, look, Quality{});
+  EXPECT_EQ(got, toRgba8(want.image, glm::vec3(0.0f)));
+}
+
+TEST(ViewerServer, ClientsKeepTheirOwnViewsAndStaleRequestsAreDropped) {
+  TestServer s(1000.0);  // a generous target: interactive frames at the first rung
+  Socket a(s.port(), "/ws?token=" + s.token()), b(s.port(), "/ws?token=" + s.token());
+  a.next();
+  b.next();
+  // Twenty requests in a burst: fewer frames come back than were asked for, the last answers the last.
+  for (uint64_t seq = 1; seq <= 20; ++seq) a.send(frameRequest(seq, true, 64, double(seq)).dump());
+  b.send(frameRequest(100, false, 48).dump());
+  int frames = 0;
+  json last;
+  while (last.is_null() || last["seq"] != 20) {
+    last = a.nextFrameOrError();
+    ASSERT_EQ(last["type"], "frame");
+    EXPECT_EQ(last["width"], 64);
+    EXPECT_EQ(last["quality"], "interactive");
+    ++frames;
+  }
+  EXPECT_LT(frames, 20);
+  const json fb = b.nextFrameOrError();
+  EXPECT_EQ(fb["seq"], 100);
+  EXPECT_EQ(fb["width"], 48);  // b's own size, not a's
+  // A client that leaves mid-frame harms nothing: the next one is served.
+  {
+    Socket gone(s.port(), "/ws?token=" + s.token());
+    gone.next();
+    gone.send(frameRequest(1, false, 256).dump());
+  }
+  Socket next(s.port(), "/ws?token=" + s.token());
+  next.next();
+  next.send(frameRequest(5, true).dump());
+  EXPECT_EQ(next.nextFrameOrError()["seq"], 5);
+  EXPECT_EQ(s.loads, 1);  // the volume was loaded once for every client
+}
+
+}  // namespace
+}  // namespace hyb::viewer

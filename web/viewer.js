@@ -1,0 +1,525 @@
+// The hybrid-octree viewer page: sends the whole view state over a WebSocket whenever it changes
+// and paints the frames the server renders. Coordinates are patient millimetres (LPS).
+'use strict';
+
+const $ = (id) => document.getElementById(id);
+
+// ---- small vector maths ---------------------------------------------------------------------
+const add = (a, b) => [a[0] + b[0], a[1] + b[1], a[2] + b[2]];
+const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+const mul = (a, s) => [a[0] * s, a[1] * s, a[2] * s];
+const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+const norm = (a) => Math.hypot(a[0], a[1], a[2]);
+const unit = (a) => mul(a, 1 / norm(a));
+// Rodrigues: v turned by angle (radians) about unit axis k.
+function rotate(v, k, angle) {
+  const c = Math.cos(angle), s = Math.sin(angle);
+  return add(add(mul(v, c), mul(cross(k, v), s)), mul(k, dot(k, v) * (1 - c)));
+}
+
+// ---- state ----------------------------------------------------------------------------------
+const state = {
+  info: null,               // the open volume (from the server)
+  camera: null,             // {eye, center, up, fov}
+  preset: '',
+  basePoints: [],           // the preset's (or the edited) control points
+  window: 1, level: 0,      // of basePoints, as window/level: values mapped linearly
+  baseWindow: 1, baseLevel: 0,
+  edited: false,
+  opacity: 1,
+  seq: 0,
+  sent: new Map(),          // seq -> time sent
+  metrics: [],              // one entry per painted frame
+  lastFinal: null,          // {header, blob}
+  surfaceStates: {},
+  errors: [],
+};
+
+const canvas = $('view');
+const ctx = canvas.getContext('2d');
+let socket = null;
+
+function imageSize() { return Number($('size').value); }
+
+// The control points sent: the base points through window/level.
+function currentPoints() {
+  const scale = state.window / state.baseWindow;
+  return state.basePoints.map(([v, r, g, b, a]) => [state.level + (v - state.baseLevel) * scale, r, g, b, a]);
+}
+
+function tfMessage() {
+  const plain = !state.edited && state.window === state.baseWindow && state.level === state.baseLevel && state.preset;
+  const tf = plain ? { preset: state.preset } : { points: currentPoints() };
+  if (state.opacity !== 1) tf.opacity = state.opacity;
+  return tf;
+}
+
+function surfaceMessage() {
+  if (!$('surface-on').checked) return null;
+  const hex = $('surface-color').value;
+  const rgb = [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16) / 255);
+  return { iso: Number($('iso').value), color: [...rgb, Number($('surface-alpha').value)] };
+}
+
+function cutMessage() {
+  if (!$('cut-on').checked || !state.info) return null;
+  const axis = Number($('cut-axis').value);
+  const point = state.info.center.slice();
+  point[axis] = Number($('cut-pos').value);
+  const normal = [0, 0, 0];
+  normal[axis] = $('cut-flip').checked ? -1 : 1;
+  return { point, normal };
+}
+
+function voiMessage() {
+  if (!$('voi-on').checked || !state.info) return null;
+  const lo = [0, 1, 2].map((a) => Number($(`voi-min-${a}`).value));
+  const hi = [0, 1, 2].map((a) => Number($(`voi-max-${a}`).value));
+  for (let a = 0; a < 3; ++a) if (hi[a] <= lo[a]) hi[a] = lo[a] + 1;
+  return { min: lo, max: hi, inside: 1, outside: Number($('voi-outside').value), ramp: 4 };
+}
+
+// ---- talking to the server ------------------------------------------------------------------
+let pendingInteractive = false;
+
+// Asks for a frame of the current state: while interacting at most one an animation frame.
+function request(interacting) {
+  if (!socket || socket.readyState !== WebSocket.OPEN || !state.camera) return;
+  if (interacting) {
+    if (pendingInteractive) return;
+    pendingInteractive = true;
+    requestAnimationFrame(() => { pendingInteractive = false; send(true); });
+  } else {
+    send(false);
+  }
+}
+
+function send(interacting) {
+  const size = imageSize();
+  const c = state.camera;
+  const message = {
+    type: 'frame',
+    seq: ++state.seq,
+    interacting,
+    camera: { eye: c.eye, center: c.center, up: c.up, fov: c.fov, pixels: [size, size] },
+    tf: tfMessage(),
+    shading: true,
+    surface: surfaceMessage(),
+    cut: cutMessage(),
+    voi: voiMessage(),
+  };
+  state.sent.set(message.seq, performance.now());
+  if (state.sent.size > 500) state.sent.delete(state.sent.keys().next().value);
+  socket.send(JSON.stringify(message));
+}
+
+let settleTimer = 0;
+// Input that comes in bursts (wheel, slider drags): interactive frames, then the final one.
+function burst() {
+  request(true);
+  clearTimeout(settleTimer);
+  settleTimer = setTimeout(() => request(false), 200);
+}
+
+function connect() {
+  const url = `${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.host}/ws`;
+  socket = new WebSocket(url);
+  socket.binaryType = 'arraybuffer';
+  socket.onopen = () => setState('connected');
+  socket.onclose = () => setState('disconnected');
+  socket.onerror = () => setState('disconnected');
+  socket.onmessage = (event) => {
+    if (typeof event.data === 'string') onText(JSON.parse(event.data));
+    else onFrame(event.data);
+  };
+}
+
+function onText(m) {
+  if (m.type === 'info') openInfo(m);
+  else if (m.type === 'volumes') listVolumes(m.volumes);
+  else if (m.type === 'loading') setState(`loading ${m.path}`);
+  else if (m.type === 'surface') onSurface(m);
+  else if (m.type === 'error') showError(m.message);
+}
+
+async function onFrame(buffer) {
+  const bytes = new Uint8Array(buffer);
+  const headerLength = bytes[0] | (bytes[1] << 8) | (bytes[2] << 16) | (bytes[3] << 24);
+  const header = JSON.parse(new TextDecoder().decode(bytes.subarray(4, 4 + headerLength)));
+  const blob = new Blob([bytes.subarray(4 + headerLength)], { type: header.format === 'png' ? 'image/png' : 'image/jpeg' });
+  const bitmap = await createImageBitmap(blob);
+  ctx.imageSmoothingEnabled = true;
+  ctx.imageSmoothingQuality = 'high';
+  ctx.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
+  bitmap.close();
+  const painted = performance.now();
+  const sentAt = state.sent.get(header.seq);
+  state.metrics.push({
+    seq: header.seq, quality: header.quality, level: header.level, levelText: header.levelText,
+    width: header.width, height: header.height, bytes: buffer.byteLength, renderMs: header.renderMs,
+    encodeMs: header.encodeMs, latencyMs: sentAt === undefined ? null : painted - sentAt, paintedAt: painted,
+  });
+  if (state.metrics.length > 5000) state.metrics.shift();
+  state.displayed = header;
+  setState(header.quality);
+  $('numbers').textContent = `${(header.renderMs + header.encodeMs).toFixed(0)} ms · ${(header.textureBytes / 1048576).toFixed(1)} MB · ` +
+    `max error ${header.maxError.toFixed(1)} · ${header.levelText}`;
+  if (header.quality === 'final') {
+    state.lastFinal = { header, blob };
+    $('command').value = header.command || '(the isosurface asked for is still being built)';
+    const tfLink = $('save-tf');
+    tfLink.hidden = !header.tfText;
+    if (header.tfText) tfLink.href = URL.createObjectURL(new Blob([header.tfText], { type: 'text/plain' }));
+  }
+}
+
+function setState(text) {
+  const el = $('state');
+  el.textContent = text;
+  el.className = text === 'final' ? 'final' : '';
+}
+
+function showError(text) {
+  state.errors.push(text);
+  const el = $('message');
+  el.textContent = text;
+  el.hidden = false;
+  clearTimeout(showError.timer);
+  showError.timer = setTimeout(() => { el.hidden = true; }, 6000);
+}
+
+function onSurface(m) {
+  state.surfaceStates[m.iso] = m.state;
+  $('surface-state').textContent = m.state === 'building' ? `building ${m.iso} (${Math.round(100 * m.progress)} %)`
+    : m.state === 'ready' ? `${m.iso} ready` : `${m.iso} failed`;
+}
+
+// ---- a volume opened ------------------------------------------------------------------------
+function listVolumes(volumes) {
+  const select = $('volumes');
+  $('volumes-row').hidden = volumes.length === 0;
+  select.replaceChildren(new Option('choose a volume…', ''));
+  for (const v of volumes) select.add(new Option(v.label, JSON.stringify({ path: v.path, series: v.series })));
+  if (!state.info) setState(volumes.length ? 'choose a volume' : 'no volumes in the data directory');
+}
+
+function cloneCamera(c) { return { eye: c.eye.slice(), center: c.center.slice(), up: c.up.slice(), fov: c.fov }; }
+
+function openInfo(info) {
+  state.info = info;
+  $('volume-name').textContent = `${info.name} · ${info.dims.join('×')} · ${info.orientation}`;
+  if (info.volumes) listVolumes(info.volumes);
+  const presets = $('preset');
+  presets.replaceChildren();
+  for (const name of Object.keys(info.presets)) presets.add(new Option(name, name));
+  if (!info.defaultPreset) presets.add(new Option('ramp (data range)', ''));
+  setPreset(info.defaultPreset);
+  const [lo, hi] = info.range;
+  for (const id of ['iso', 'iso-number']) { $(id).min = lo; $(id).max = hi; }
+  const iso = info.iso !== null ? info.iso : (lo < -500 && hi > 300 ? 400 : (lo + hi) / 2);
+  $('iso').value = $('iso-number').value = iso;
+  // Cut and VOI sliders over the volume's patient bounds.
+  const b = info.bounds;
+  buildVoiSliders(b);
+  setCutRange();
+  state.camera = cloneCamera(info.views.anterior);
+  drawTfEditor();
+  request(false);
+}
+
+function setPreset(name) {
+  const points = name ? state.info.presets[name] : state.info.defaultTf;
+  state.preset = name;
+  state.basePoints = points.map((p) => p.slice());
+  const values = points.map((p) => p[0]);
+  state.baseWindow = Math.max(1e-6, Math.max(...values) - Math.min(...values));
+  state.baseLevel = (Math.max(...values) + Math.min(...values)) / 2;
+  state.window = state.baseWindow;
+  state.level = state.baseLevel;
+  state.edited = false;
+  $('preset').value = name;
+  showWindowLevel();
+}
+
+function showWindowLevel() {
+  $('wl-value').textContent = `window ${state.window.toFixed(0)} · level ${state.level.toFixed(0)}`;
+}
+
+function setCutRange() {
+  if (!state.info) return;
+  const axis = Number($('cut-axis').value);
+  const b = state.info.bounds;
+  const pos = $('cut-pos');
+  pos.min = b.min[axis];
+  pos.max = b.max[axis];
+  pos.value = state.info.center[axis];
+  $('cut-value').textContent = `${Number(pos.value).toFixed(0)} mm`;
+}
+
+function buildVoiSliders(b) {
+  const box = $('voi-axes');
+  box.replaceChildren();
+  const names = ['x (R→L)', 'y (A→P)', 'z (I→S)'];
+  for (let a = 0; a < 3; ++a) {
+    const third = (b.max[a] - b.min[a]) / 4;
+    for (const [kind, value] of [['min', b.min[a] + third], ['max', b.max[a] - third]]) {
+      const row = document.createElement('div');
+      row.className = 'row';
+      const label = document.createElement('label');
+      label.textContent = kind === 'min' ? names[a] : '';
+      label.htmlFor = `voi-${kind}-${a}`;
+      const input = document.createElement('input');
+      Object.assign(input, { type: 'range', id: `voi-${kind}-${a}`, min: b.min[a], max: b.max[a], step: 0.5, value });
+      input.addEventListener('input', () => { if ($('voi-on').checked) burst(); });
+      row.append(label, input);
+      box.append(row);
+    }
+  }
+}
+
+// ---- mouse: trackball, zoom, pan, window/level ----------------------------------------------
+let drag = null;
+
+canvas.addEventListener('contextmenu', (e) => e.preventDefault());
+canvas.addEventListener('pointerdown', (e) => {
+  if (!state.camera) return;
+  canvas.setPointerCapture(e.pointerId);
+  const mode = document.querySelector('input[name=mode]:checked').value;
+  const kind = e.button === 2 || e.shiftKey ? 'pan' : mode === 'wl' ? 'wl' : 'rotate';
+  drag = { kind, x: e.clientX, y: e.clientY };
+});
+canvas.addEventListener('pointermove', (e) => {
+  if (!drag) return;
+  const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
+  drag.x = e.clientX;
+  drag.y = e.clientY;
+  if (dx === 0 && dy === 0) return;
+  const c = state.camera;
+  const forward = unit(sub(c.center, c.eye));
+  const right = unit(cross(forward, c.up));
+  const up = cross(right, forward);
+  if (drag.kind === 'rotate') {
+    // The scene turns with the pointer: the camera orbits the other way about the centre.
+    const angle = (Math.hypot(dx, dy) / canvas.clientHeight) * Math.PI;
+    const axis = unit(add(mul(up, -dx), mul(right, -dy)));
+    const offset = rotate(sub(c.eye, c.center), axis, angle);
+    c.eye = add(c.center, offset);
+    c.up = unit(rotate(up, axis, angle));
+  } else if (drag.kind === 'pan') {
+    const distance = norm(sub(c.eye, c.center));
+    const mmPerPixel = (2 * distance * Math.tan((c.fov * Math.PI) / 360)) / canvas.clientHeight;
+    const shift = add(mul(right, -dx * mmPerPixel), mul(up, dy * mmPerPixel));
+    c.eye = add(c.eye, shift);
+    c.center = add(c.center, shift);
+  } else {
+    // As in 3D Slicer: horizontal drags the window, vertical the level.
+    state.window = Math.max(1, state.window * Math.exp(dx * 0.005));
+    state.level += dy * state.window * 0.003;
+    showWindowLevel();
+    drawTfEditor();
+  }
+  request(true);
+});
+const endDrag = () => {
+  if (!drag) return;
+  drag = null;
+  request(false);
+};
+canvas.addEventListener('pointerup', endDrag);
+canvas.addEventListener('pointercancel', endDrag);
+canvas.addEventListener('wheel', (e) => {
+  if (!state.camera) return;
+  e.preventDefault();
+  const c = state.camera;
+  const offset = sub(c.eye, c.center);
+  c.eye = add(c.center, mul(offset, Math.exp(Math.sign(e.deltaY) * Math.min(Math.abs(e.deltaY), 200) * 0.002)));
+  burst();
+}, { passive: false });
+
+// ---- the transfer-function editor: the histogram, the opacity curve, its points ------------
+const tfCanvas = $('tf-editor');
+const tfCtx = tfCanvas.getContext('2d');
+let tfDrag = -1;
+
+function tfRange() {
+  const [lo, hi] = state.info.range;
+  return [lo, hi];
+}
+const tfX = (v) => { const [lo, hi] = tfRange(); return ((v - lo) / (hi - lo)) * tfCanvas.width; };
+const tfValue = (x) => { const [lo, hi] = tfRange(); return lo + (x / tfCanvas.width) * (hi - lo); };
+const tfY = (a) => tfCanvas.height - 4 - a * (tfCanvas.height - 8);
+const tfAlpha = (y) => Math.min(1, Math.max(0, (tfCanvas.height - 4 - y) / (tfCanvas.height - 8)));
+
+function drawTfEditor() {
+  if (!state.info) return;
+  const w = tfCanvas.width, h = tfCanvas.height;
+  tfCtx.clearRect(0, 0, w, h);
+  const counts = state.info.histogram.counts;
+  const top = Math.log1p(Math.max(...counts));
+  tfCtx.fillStyle = '#3a3f47';
+  counts.forEach((n, i) => {
+    const bh = (Math.log1p(n) / top) * (h - 8);
+    tfCtx.fillRect((i / counts.length) * w, h - 4 - bh, w / counts.length + 0.5, bh);
+  });
+  const points = currentPoints();
+  tfCtx.strokeStyle = '#e8c37a';
+  tfCtx.lineWidth = 1.5;
+  tfCtx.beginPath();
+  points.forEach(([v, , , , a], i) => {
+    const scaled = Math.min(1, a * state.opacity);
+    if (i === 0) tfCtx.moveTo(tfX(v), tfY(scaled));
+    else tfCtx.lineTo(tfX(v), tfY(scaled));
+  });
+  tfCtx.stroke();
+  for (const [v, r, g, b, a] of points) {
+    tfCtx.fillStyle = `rgb(${r * 255}, ${g * 255}, ${b * 255})`;
+    tfCtx.beginPath();
+    tfCtx.arc(tfX(v), tfY(Math.min(1, a * state.opacity)), 4, 0, 2 * Math.PI);
+    tfCtx.fill();
+    tfCtx.strokeStyle = '#000';
+    tfCtx.stroke();
+  }
+}
+
+// Editing makes the current points the new base (window/level start again from them).
+function editPoints(points) {
+  state.basePoints = points;
+  const values = points.map((p) => p[0]);
+  state.baseWindow = state.window = Math.max(1e-6, Math.max(...values) - Math.min(...values));
+  state.baseLevel = state.level = (Math.max(...values) + Math.min(...values)) / 2;
+  state.edited = true;
+  showWindowLevel();
+  drawTfEditor();
+}
+
+function pointerInTf(e) {
+  const r = tfCanvas.getBoundingClientRect();
+  return [((e.clientX - r.left) / r.width) * tfCanvas.width, ((e.clientY - r.top) / r.height) * tfCanvas.height];
+}
+function nearestPoint(x, y) {
+  let best = -1, bestD = 9;
+  currentPoints().forEach(([v, , , , a], i) => {
+    const d = Math.hypot(tfX(v) - x, tfY(Math.min(1, a * state.opacity)) - y);
+    if (d < bestD) { best = i; bestD = d; }
+  });
+  return best;
+}
+tfCanvas.addEventListener('pointerdown', (e) => {
+  if (!state.info || e.button !== 0) return;
+  const [x, y] = pointerInTf(e);
+  tfDrag = nearestPoint(x, y);
+  if (tfDrag >= 0) tfCanvas.setPointerCapture(e.pointerId);
+});
+tfCanvas.addEventListener('pointermove', (e) => {
+  if (tfDrag < 0) return;
+  const [x, y] = pointerInTf(e);
+  const points = currentPoints();
+  const lo = tfDrag > 0 ? points[tfDrag - 1][0] : -Infinity, hi = tfDrag + 1 < points.length ? points[tfDrag + 1][0] : Infinity;
+  points[tfDrag][0] = Math.min(hi, Math.max(lo, tfValue(x)));
+  points[tfDrag][4] = Math.min(1, tfAlpha(y) / Math.max(state.opacity, 1e-6));
+  editPoints(points);
+  request(true);
+});
+tfCanvas.addEventListener('pointerup', () => { if (tfDrag >= 0) { tfDrag = -1; request(false); } });
+tfCanvas.addEventListener('dblclick', (e) => {
+  if (!state.info) return;
+  const [x, y] = pointerInTf(e);
+  const v = tfValue(x);
+  const points = currentPoints();
+  let i = points.findIndex((p) => p[0] > v);
+  if (i < 0) i = points.length;
+  const near = points[Math.min(i, points.length - 1)];
+  points.splice(i, 0, [v, near[1], near[2], near[3], Math.min(1, tfAlpha(y) / Math.max(state.opacity, 1e-6))]);
+  if (points.length <= 64) { editPoints(points); request(false); }
+});
+tfCanvas.addEventListener('contextmenu', (e) => {
+  e.preventDefault();
+  if (!state.info) return;
+  const [x, y] = pointerInTf(e);
+  const i = nearestPoint(x, y);
+  const points = currentPoints();
+  if (i >= 0 && points.length > 2) { points.splice(i, 1); editPoints(points); request(false); }
+});
+
+// ---- controls -------------------------------------------------------------------------------
+for (const b of document.querySelectorAll('#views button[data-view]'))
+  b.addEventListener('click', () => { if (state.info) { state.camera = cloneCamera(state.info.views[b.dataset.view]); request(false); } });
+$('reset').addEventListener('click', () => {
+  if (!state.info) return;
+  state.camera = cloneCamera(state.info.views.anterior);
+  setPreset(state.info.defaultPreset);
+  state.opacity = 1;
+  $('opacity').value = 1;
+  $('opacity-value').textContent = '1.00';
+  drawTfEditor();
+  request(false);
+});
+$('preset').addEventListener('change', () => { setPreset($('preset').value); drawTfEditor(); request(false); });
+$('opacity').addEventListener('input', () => {
+  state.opacity = Number($('opacity').value);
+  $('opacity-value').textContent = state.opacity.toFixed(2);
+  drawTfEditor();
+  burst();
+});
+$('size').addEventListener('change', () => {
+  const s = imageSize();
+  canvas.width = canvas.height = s;
+  canvas.style.width = canvas.style.height = `${s}px`;
+  request(false);
+});
+$('surface-on').addEventListener('change', () => request(false));
+$('iso').addEventListener('input', () => { $('iso-number').value = $('iso').value; });
+$('iso').addEventListener('change', () => request(false));
+$('iso-number').addEventListener('change', () => { $('iso').value = $('iso-number').value; request(false); });
+$('surface-color').addEventListener('input', () => burst());
+$('surface-alpha').addEventListener('input', () => burst());
+$('cut-on').addEventListener('change', () => request(false));
+$('cut-axis').addEventListener('change', () => { setCutRange(); request(false); });
+$('cut-flip').addEventListener('change', () => request(false));
+$('cut-pos').addEventListener('input', () => { $('cut-value').textContent = `${Number($('cut-pos').value).toFixed(0)} mm`; if ($('cut-on').checked) burst(); });
+$('voi-on').addEventListener('change', () => request(false));
+$('voi-outside').addEventListener('input', () => { if ($('voi-on').checked) burst(); });
+$('volumes').addEventListener('change', () => {
+  const v = $('volumes').value;
+  if (v && socket) socket.send(JSON.stringify({ type: 'open', ...JSON.parse(v) }));
+});
+$('save-png').addEventListener('click', () => {
+  const save = (blob) => {
+    const a = document.createElement('a');
+    a.href = URL.createObjectURL(blob);
+    a.download = 'view.png';
+    a.click();
+  };
+  if (state.lastFinal) save(state.lastFinal.blob);
+  else canvas.toBlob(save, 'image/png');
+});
+for (const [id, format] of [['save-ply', 'ply'], ['save-stl', 'stl']])
+  $(id).addEventListener('click', (e) => {
+    if (!state.info || !$('surface-on').checked) { e.preventDefault(); showError('turn the isosurface on first'); return; }
+    $(id).href = `/api/mesh?iso=${encodeURIComponent($('iso').value)}&format=${format}&scene=${encodeURIComponent(state.info.scene)}`;
+    $(id).download = `surface-${$('iso').value}.${format}`;
+  });
+$('copy-command').addEventListener('click', async () => {
+  const text = $('command').value;
+  try { await navigator.clipboard.writeText(text); } catch { $('command').select(); document.execCommand('copy'); }
+});
+
+// For tests and benchmarks: what was painted, and ways to wait for it.
+window.hybViewer = {
+  state,
+  metrics: () => state.metrics.slice(),
+  request,
+  lastFinal: () => state.lastFinal && state.lastFinal.header,
+  // What the canvas shows now: the header of the frame painted last, and the canvas as PNG.
+  snapshot: () => ({ header: state.displayed, png: canvas.toDataURL('image/png') }),
+  async lastFinalPng() {
+    if (!state.lastFinal) return null;
+    const bytes = new Uint8Array(await state.lastFinal.blob.arrayBuffer());
+    let s = '';
+    for (let i = 0; i < bytes.length; i += 0x8000) s += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+    return btoa(s);
+  },
+};
+
+connect();
