@@ -9,7 +9,7 @@ namespace hyb::viewer {
 double QualityLevel::cost() const {
   // Fragments follow the pixels and the planes; a budget shares the texels, which frame time
   // follows less than linearly (coarse bricks are sliced at fewer planes: docs/multires.md).
-  return scale * scale * (0.5 / step) * std::pow(budgetPercent / 100.0, 0.4);
+  return scale * scale * (0.5 / step) * std::pow(budgetPercent / 100.0, 0.75);
 }
 
 std::string QualityLevel::describe() const {
@@ -41,7 +41,12 @@ int AdaptiveQuality::chooseInteractiveLevel() {
       break;
     }
   }
+  mStay = level == mCurrent ? mStay + 1 : 0;
   mCurrent = level;
+  if (level > 1 && mStay >= kProbeAfter) {
+    mStay = 0;
+    return level - 1;  // a probe: its measured time decides whether the level moves up
+  }
   return level;
 }
 

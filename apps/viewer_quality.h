@@ -21,15 +21,19 @@ struct QualityLevel {
   std::string describe() const;
 };
 
-/// Best first; level 0 is the final frame's.
-inline constexpr std::array<QualityLevel, 7> kLadder{{
+/// Best first; level 0 is the final frame's. Size and spacing first, budgets last: on the cranium a
+/// coarser spacing or a smaller image loses less accuracy for the time it saves than a budget does,
+/// and a budget combined with a coarse spacing compounds (docs/viewer.md).
+inline constexpr std::array<QualityLevel, 9> kLadder{{
     {1.0, 100.0, 0.5},
-    {1.0, 50.0, 1.0},
-    {1.0, 25.0, 1.6},
-    {0.75, 25.0, 1.6},
-    {0.5, 12.5, 2.0},
-    {0.5, 6.25, 3.0},
-    {0.35, 6.25, 4.0},
+    {1.0, 100.0, 1.0},
+    {0.75, 100.0, 1.0},
+    {0.75, 100.0, 1.6},
+    {0.5, 100.0, 1.6},
+    {0.5, 50.0, 1.0},
+    {0.4, 100.0, 1.6},
+    {0.35, 100.0, 2.5},
+    {0.25, 100.0, 2.5},
 }};
 
 class AdaptiveQuality {
@@ -37,8 +41,10 @@ class AdaptiveQuality {
   explicit AdaptiveQuality(double targetMs = 60.0) : mTargetMs(targetMs) { mMeasured.fill(-1.0); }
 
   /// The level for the next interactive frame: the best whose time fits the target (with a margin
-  /// to move to a better one, so that the level does not flicker).
+  /// to move to a better one, so that the level does not flicker). After kProbeAfter frames at one
+  /// level the next better one is tried once: its time may have been measured on a slow frame.
   int chooseInteractiveLevel();
+  static constexpr int kProbeAfter = 12;
   /// The levels after the input stops, ending with 0.
   std::vector<int> refinement() const;
   /// Records that a frame at @p level took @p ms (render and encode).
@@ -50,8 +56,9 @@ class AdaptiveQuality {
  private:
   double mTargetMs;
   std::array<double, kLadder.size()> mMeasured;  // smoothed ms per level, -1 unknown
-  int mLast = 4;                                 // the level measured last
-  int mCurrent = 4;                              // the interactive level in use
+  int mLast = 4;     // the level measured last
+  int mCurrent = 4;  // the interactive level in use
+  int mStay = 0;     // frames at mCurrent since it was chosen or probed
 };
 
 }  // namespace hyb::viewer

@@ -271,6 +271,8 @@ struct ServerState {
         client->send(json{{"type", "loading"}, {"path", request.path}}.dump(), false);
         slot = makeSlot(real.string(), request.series, request.path);
         slot->key = key;
+        slot->info["scene"] = key;
+        slot->info["open"] = {{"path", request.path}, {"series", request.series}};
       } catch (const std::exception& e) {
         error = e.what();
       }
@@ -465,6 +467,8 @@ struct ServerState {
     if (level > 0) {
       quality.budgetPercent = q.budgetPercent < 100.0 ? q.budgetPercent : 0.0;
       quality.step = q.step;
+      quality.reuseViewErrors = r.interacting;
+      quality.coarseSurface = r.interacting;
     }
     const RenderedFrame frame = slot.renderer->render(view, look, quality);
     const double renderMs = msSince(t0);
@@ -538,8 +542,10 @@ struct ServerState {
     return c && tokenMatches(*c, token);
   }
 
-  void addClient(const std::shared_ptr<Client>& c) {
+  // False when the server has its maximum of clients already.
+  bool addClient(const std::shared_ptr<Client>& c) {
     const std::lock_guard<std::mutex> lock(mutex);
+    if (int(clients.size()) >= options.maxClients) return false;
     clients.push_back(c);
     if (!options.volume.empty()) {
       const std::string key = keyOf(options.volume, options.series);
@@ -548,6 +554,7 @@ struct ServerState {
     } else {
       c->send(json{{"type", "volumes"}, {"volumes", volumesJson()}}.dump(), false);
     }
+    return true;
   }
 
   void removeClient(const std::shared_ptr<Client>& c) {
@@ -615,7 +622,17 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
         if (auto s = self.lock()) s->queue(std::move(message), binary);
       });
     };
-    mServer.addClient(mClient);
+    if (!mServer.addClient(mClient)) {
+      // Told why, then closed once the message is out.
+      mClient.reset();
+      auto me = shared_from_this();
+      auto text = std::make_shared<std::string>(errorMessage("the viewer serves " + std::to_string(mServer.options.maxClients) + " clients at most"));
+      mWs.text(true);
+      mWs.async_write(net::buffer(*text), [me, text](beast::error_code, size_t) {
+        me->mWs.async_close(websocket::close_code::try_again_later, [me](beast::error_code) {});
+      });
+      return;
+    }
     mServer.log("client connected");
     read();
   }

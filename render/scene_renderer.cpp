@@ -115,6 +115,35 @@ void SceneRenderer::dropTextures() {
   mTextures->clear();
 }
 
+namespace {
+
+// The isosurface of @p v averaged over 2×2×2 voxels, in @p v's grid frame, shaded by @p v's gradient.
+TriangleMesh halfResolutionSurface(const Volume& v, float iso) {
+  const glm::ivec3 d = v.dims(), h = (d + 1) / 2;
+  std::vector<float> samples(size_t(h.x) * size_t(h.y) * size_t(h.z));
+  for (int k = 0; k < h.z; ++k)
+    for (int j = 0; j < h.y; ++j)
+      for (int i = 0; i < h.x; ++i) {
+        float sum = 0.0f;
+        int n = 0;
+        for (int c = 0; c < 8; ++c) {
+          const glm::ivec3 p(2 * i + (c & 1), 2 * j + ((c >> 1) & 1), 2 * k + ((c >> 2) & 1));
+          if (glm::all(glm::lessThan(p, d))) sum += v.at(p.x, p.y, p.z), ++n;
+        }
+        samples[size_t(i) + size_t(h.x) * (size_t(j) + size_t(h.y) * size_t(k))] = sum / float(n);
+      }
+  const Volume half(h, 2.0 * v.spacing(), v.sourceType(), std::move(samples), "half resolution");
+  const VolumeOctree octree = VolumeOctree::build(half);
+  TriangleMesh mesh = fineMeshToTriangles(SurfaceOctree::build(half, octree, iso).reconstruct(0), half.spacing());
+  // A coarse sample stands for the centre of its 2×2×2 voxels: half a voxel along each axis.
+  const glm::vec3 shift(0.5 * v.spacing());
+  for (glm::vec3& p : mesh.vertices) p += shift;
+  setGradientNormals(v, &mesh);
+  return mesh;
+}
+
+}  // namespace
+
 std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats) {
   // The Surface Octree (the scene's when it matches), its polygons triangulated, shaded both ways.
   auto s = std::make_unique<PreparedSurface>();
@@ -135,6 +164,7 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   s->facet = fineMeshToTriangles(d, v.spacing());
   s->smooth = s->facet;
   setGradientNormals(v, &s->smooth);
+  s->coarse = halfResolutionSurface(v, iso);
   if (stats) stats->surfacePolygonsMs = msSince(t0);
   return s;
 }
@@ -178,8 +208,9 @@ bool SceneRenderer::hasSurface(float iso) const {
 }
 
 ViewErrors& SceneRenderer::viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
-                                      const std::optional<VolumeOfInterest>& voi) {
-  if (mErrors && sameCamera(mErrors->camera, gridCamera) && sameTf(mErrors->tf, tf) && sameCut(mErrors->cut, cut) && sameVoi(mErrors->voi, voi))
+                                      const std::optional<VolumeOfInterest>& voi, bool anyCamera) {
+  if (mErrors && (anyCamera || sameCamera(mErrors->camera, gridCamera)) && sameTf(mErrors->tf, tf) && sameCut(mErrors->cut, cut) &&
+      sameVoi(mErrors->voi, voi))
     return *mErrors->errors;
   mErrors = std::make_unique<Errors>(Errors{gridCamera, tf, cut, voi, nullptr});
   Errors& e = *mErrors;
@@ -213,7 +244,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     st.surfacePolygonsMs = prepared.surfacePolygonsMs;
     st.surfacePolygons = prepared.surfacePolygons;
     st.surfaceTriangles = prepared.surfaceTriangles;
-    mesh = &surface(*look.iso, look.normals);
+    mesh = quality.coarseSurface && quality.renderer == Renderer::Slices ? &surfaceEntry(*look.iso, nullptr).coarse : &surface(*look.iso, look.normals);
   }
 
   if (quality.renderer == Renderer::Raycast) {
@@ -257,7 +288,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   choice.maxBrickEdge = quality.maxBrickEdge;
   choice.blend = quality.blend;
   choice.lodPixels = quality.lodPixels;
-  ViewErrors& errors = viewErrors(camera, look.tf, cut, voi);
+  ViewErrors& errors = viewErrors(camera, look.tf, cut, voi, quality.reuseViewErrors);
   auto paramsOf = [&](const SelectionChoice& c) { return viewSelectionParams(v, look.tf, camera, cut ? &*cut : nullptr, voi ? &*voi : nullptr, c, &errors); };
   const auto s0 = Clock::now();
   if (quality.budgetPercent > 0.0) {

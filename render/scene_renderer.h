@@ -74,6 +74,13 @@ struct Quality {
   std::optional<double> step;       ///< sample spacing in voxels (default: 0.5 slices, 0.25 reference)
   Proxy proxy = Proxy::Planes;
   bool blend = true;
+  /// Budgets rank bricks by the image errors measured for the last view even when the camera has
+  /// moved since (same look): while a viewer's camera moves, measuring every view costs more than
+  /// its frame, and the ranking changes little from one view to the next.
+  bool reuseViewErrors = false;
+  /// Draws the isosurface extracted from the volume at half resolution (about a quarter of the
+  /// triangles): a frame's surface costs follow its triangles, whatever the image size.
+  bool coarseSurface = false;
   TexelBits texelBits = TexelBits::Eight;
   int maxBrickEdge = 16;
   double lodPixels = 0.0;
@@ -120,6 +127,7 @@ struct PreparedSurface {
   std::optional<SurfaceOctree> built;  ///< none when the scene's own surface has this isovalue
   size_t polygons = 0;
   TriangleMesh facet, smooth;          ///< grid frame, mm
+  TriangleMesh coarse;                 ///< of the volume at half resolution, smooth: for frames while the view moves
   std::unique_ptr<Bvh> bvh[2];         ///< facet, smooth; made by the first reference frame
   const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? smooth : facet; }
 };
@@ -174,7 +182,7 @@ class SceneRenderer {
   PreparedSurface& surfaceEntry(float iso, FrameStats* stats);
   PreparedSurface& keep(std::unique_ptr<PreparedSurface> surface);
   ViewErrors& viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
-                         const std::optional<VolumeOfInterest>& voi);
+                         const std::optional<VolumeOfInterest>& voi, bool anyCamera);
   void ensureGl();
 
   Scene mScene;

@@ -1,11 +1,13 @@
 // Scene pieces shared by the renderer tests (the ray tracer's and the slice renderer's).
 #pragma once
 
+#include "hybrid_octree/hybrid_io.h"
 #include "render/camera.h"
 #include "render/gl_context.h"
 #include "render/image.h"
 #include "render/transfer_function.h"
 #include "surface/mesh.h"
+#include "test_util.h"
 
 namespace hyb::test {
 
@@ -15,6 +17,14 @@ inline GlContext& gl() {
   static GlContext context;
   context.makeCurrent();
   return context;
+}
+
+/// A scene of the analytic sphere (radius 13 voxels in 40×36×32) with its Volume Octree.
+inline Scene sphereScene() {
+  Scene s;
+  s.volume = sphereVolume({40, 36, 32}, 13.0);
+  s.octree = VolumeOctree::build(s.volume);
+  return s;
 }
 
 /// PSNR of two float images composited over black, in dB.

@@ -16,12 +16,7 @@ namespace {
 
 using ::testing::HasSubstr;
 
-Scene sphereScene() {
-  Scene s;
-  s.volume = test::sphereVolume({40, 36, 32}, 13.0);
-  s.octree = VolumeOctree::build(s.volume);
-  return s;
-}
+using test::sphereScene;
 
 TransferFunction warm() { return TransferFunction({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "warm"); }
 // The same support (values above 0) over another domain: another lookup table.

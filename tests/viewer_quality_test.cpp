@@ -26,10 +26,22 @@ TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLev
   q.record(level, 0.9 * 60.0);
   q.record(level - 1, 55.0);  // the better level fits now, though not within 80 %
   EXPECT_EQ(q.chooseInteractiveLevel(), level);
-  q.record(level - 1, 20.0);
-  q.record(level - 1, 20.0);
-  q.record(level - 1, 20.0);
-  EXPECT_EQ(q.chooseInteractiveLevel(), level - 1);
+  for (int i = 0; i < 4; ++i) q.record(level - 1, 20.0);
+  const int better = q.chooseInteractiveLevel();
+  EXPECT_LT(better, level);
+  EXPECT_LE(q.estimateMs(better), 0.8 * 60.0);
+  // Held at one level, the next better one is probed once every kProbeAfter frames.
+  AdaptiveQuality held(60.0);
+  held.record(1, 1000.0);
+  const int base = held.chooseInteractiveLevel();
+  int probes = 0;
+  for (int i = 0; i < 3 * AdaptiveQuality::kProbeAfter; ++i) {
+    const int l = held.chooseInteractiveLevel();
+    EXPECT_TRUE(l == base || l == base - 1);
+    probes += l == base - 1;
+    held.record(l, l == base ? 40.0 : 200.0);  // the probe is too slow: back to base
+  }
+  EXPECT_EQ(probes, 3);  // after 12, 24 and 36 frames
   // A coarse interactive level refines in two steps, a fine one in one; both end at 0.
   AdaptiveQuality slow(60.0);
   slow.record(1, 5000.0);

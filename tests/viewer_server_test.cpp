@@ -16,6 +16,7 @@
 #include "apps/viewer_protocol.h"
 #include "render/image.h"
 #include "render/scene_renderer.h"
+#include "render_util.h"
 #include "test_util.h"
 
 namespace hyb::viewer {
@@ -29,20 +30,16 @@ using tcp = net::ip::tcp;
 using nlohmann::json;
 using ::testing::HasSubstr;
 
-Scene sphereScene() {
-  Scene s;
-  s.volume = test::sphereVolume({40, 36, 32}, 13.0);
-  s.octree = VolumeOctree::build(s.volume);
-  return s;
-}
+using test::sphereScene;
 
 // A server of the analytic sphere on a free port, for the test's duration.
 struct TestServer {
   std::atomic<int> loads{0};
   std::unique_ptr<Server> server;
-  explicit TestServer(double frameMs = 60.0) {
+  explicit TestServer(double frameMs = 60.0, int maxClients = 8) {
     ServerOptions o;
     o.port = 0;
+    o.maxClients = maxClients;
     o.volume = "sphere";
     o.frameTargetMs = frameMs;
     o.loader = [this](const std::string&, const std::string&) {
@@ -258,8 +255,12 @@ TEST(ViewerServer, ClientsKeepTheirOwnViewsAndStaleRequestsAreDropped) {
     ++frames;
   }
   EXPECT_LT(frames, 20);
-  const json fb = b.nextFrameOrError();
-  EXPECT_EQ(fb["seq"], 100);
+  json fb;
+  do {
+    fb = b.nextFrameOrError();
+    ASSERT_EQ(fb["type"], "frame");
+    EXPECT_EQ(fb["seq"], 100);
+  } while (fb["quality"] != "final");
   EXPECT_EQ(fb["width"], 48);  // b's own size, not a's
   // A client that leaves mid-frame harms nothing: the next one is served.
   {
@@ -272,6 +273,22 @@ TEST(ViewerServer, ClientsKeepTheirOwnViewsAndStaleRequestsAreDropped) {
   next.send(frameRequest(5, true).dump());
   EXPECT_EQ(next.nextFrameOrError()["seq"], 5);
   EXPECT_EQ(s.loads, 1);  // the volume was loaded once for every client
+}
+
+TEST(ViewerServer, ClientsBeyondTheLimitAreToldAndClosed) {
+  TestServer s(60.0, 1);
+  Socket first(s.port(), "/ws?token=" + s.token());
+  EXPECT_EQ(first.next()["type"], "info");
+  Socket second(s.port(), "/ws?token=" + s.token());
+  const json m = second.next();
+  EXPECT_EQ(m["type"], "error");
+  EXPECT_THAT(m["message"].get<std::string>(), HasSubstr("1 clients at most"));
+  beast::flat_buffer sink;
+  beast::error_code ec;
+  second.ws.read(sink, ec);
+  EXPECT_EQ(ec, websocket::error::closed);
+  first.send(frameRequest(1, true).dump());  // the first is still served
+  EXPECT_EQ(first.nextFrameOrError()["seq"], 1);
 }
 
 }  // namespace

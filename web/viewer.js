@@ -162,6 +162,7 @@ async function onFrame(buffer) {
   });
   if (state.metrics.length > 5000) state.metrics.shift();
   state.displayed = header;
+  state.displayedBlob = blob;
   setState(header.quality);
   $('numbers').textContent = `${(header.renderMs + header.encodeMs).toFixed(0)} ms · ${(header.textureBytes / 1048576).toFixed(1)} MB · ` +
     `max error ${header.maxError.toFixed(1)} · ${header.levelText}`;
@@ -210,6 +211,7 @@ function openInfo(info) {
   state.info = info;
   $('volume-name').textContent = `${info.name} · ${info.dims.join('×')} · ${info.orientation}`;
   if (info.volumes) listVolumes(info.volumes);
+  if (info.open) $('volumes').value = JSON.stringify({ path: info.open.path, series: info.open.series });
   const presets = $('preset');
   presets.replaceChildren();
   for (const name of Object.keys(info.presets)) presets.add(new Option(name, name));
@@ -505,20 +507,31 @@ $('copy-command').addEventListener('click', async () => {
   try { await navigator.clipboard.writeText(text); } catch { $('command').select(); document.execCommand('copy'); }
 });
 
+async function base64(blob) {
+  const bytes = new Uint8Array(await blob.arrayBuffer());
+  let s = '';
+  for (let i = 0; i < bytes.length; i += 0x8000) s += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+  return btoa(s);
+}
+
 // For tests and benchmarks: what was painted, and ways to wait for it.
 window.hybViewer = {
   state,
   metrics: () => state.metrics.slice(),
   request,
   lastFinal: () => state.lastFinal && state.lastFinal.header,
-  // What the canvas shows now: the header of the frame painted last, and the canvas as PNG.
-  snapshot: () => ({ header: state.displayed, png: canvas.toDataURL('image/png') }),
+  // What the canvas shows now: the header of the frame painted last, the canvas as PNG and the
+  // frame as it came, decoded at its own size, as PNG (base64).
+  async snapshot() {
+    const header = state.displayed, png = canvas.toDataURL('image/png');
+    const bitmap = await createImageBitmap(state.displayedBlob);
+    const own = new OffscreenCanvas(bitmap.width, bitmap.height);
+    own.getContext('2d').drawImage(bitmap, 0, 0);
+    return { header, png, frame: await base64(await own.convertToBlob({ type: 'image/png' })) };
+  },
   async lastFinalPng() {
     if (!state.lastFinal) return null;
-    const bytes = new Uint8Array(await state.lastFinal.blob.arrayBuffer());
-    let s = '';
-    for (let i = 0; i < bytes.length; i += 0x8000) s += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
-    return btoa(s);
+    return base64(state.lastFinal.blob);
   },
 };
 

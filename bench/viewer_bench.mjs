@@ -1,0 +1,125 @@
+// The viewer's targets, measured from a real browser: a scripted five-second orbit of the cranium
+// (512² view), volume only and with the translucent bone surface. Reports the frames per second
+// painted, the latency from the input message to the frame painted (p50, p95), the quality levels
+// used, the bytes per frame, the PSNR of interactive frames (as painted, upscaled) against the
+// reference ray tracer, and the time from the end of the motion to the final frame painted.
+//
+// usage (after scripts/setup.sh): node bench/viewer_bench.mjs build/hybrid-octree [--seconds 5] [--samples 4] [--frame-ms 60]
+import { spawn, execFileSync } from 'node:child_process';
+import { createRequire } from 'node:module';
+import fs from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
+
+const require = createRequire(path.resolve('tests/e2e/package.json'));
+const puppeteer = require('puppeteer-core');
+
+const exe = path.resolve(process.argv[2] || 'build/hybrid-octree');
+const arg = (name, dflt) => { const i = process.argv.indexOf(name); return i > 0 ? Number(process.argv[i + 1]) : dflt; };
+const seconds = arg('--seconds', 5), samples = arg('--samples', 4), frameMs = arg('--frame-ms', 60);
+const volume = '/usr/share/doc/invesalius-examples/examples/Cranium.inv3';
+const tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'hyb-viewer-bench-'));
+
+const server = spawn(exe, ['view', volume, '--port', '0', '--progress', 'off', '--frame-ms', String(frameMs)], { stdio: ['ignore', 'pipe', 'inherit'] });
+const url = await new Promise((resolve, reject) => {
+  let out = '';
+  server.stdout.on('data', (d) => { out += d; const m = out.match(/(http:\/\/\S+\?token=[0-9a-f]+)/); if (m) resolve(m[1]); });
+  server.on('exit', (code) => reject(new Error(`server exited (${code})`)));
+});
+const browser = await puppeteer.launch({ executablePath: '/usr/bin/chromium', headless: true, args: ['--no-sandbox', '--disable-gpu'] });
+const page = await browser.newPage();
+await page.setViewport({ width: 900, height: 720 });
+await page.goto(url);
+await page.waitForFunction(() => window.hybViewer && window.hybViewer.lastFinal(), { timeout: 120000 });
+
+const quantile = (xs, q) => { const s = [...xs].sort((a, b) => a - b); return s[Math.min(s.length - 1, Math.floor(q * s.length))]; };
+
+async function waitFinal(predicate = 'true') {
+  const before = await page.evaluate(() => window.hybViewer.metrics().filter((m) => m.quality === 'final').length);
+  await page.waitForFunction(`window.hybViewer.metrics().filter((m) => m.quality === 'final').length > ${before} && (${predicate})`, { timeout: 120000 });
+}
+
+function reference(header, withSurface, file, size) {
+  const c = header.camera;
+  const args = ['render', volume, '--renderer', 'raycast', '--eye', c.eye.join(','), '--center', c.center.join(','), '--up', c.up.join(','),
+    '--fov', String(c.fov), '--size', size, '--preset', 'ct-skin-bone', '--progress', 'off', '-o', file];
+  if (withSurface) args.push('--iso', '400', '--surface-color', '0.9490196078431372,0.9215686274509803,0.8509803921568627,0.5');
+  execFileSync(exe, args, { stdio: 'ignore' });
+}
+
+function psnrOf(a, b) {
+  const out = execFileSync(exe, ['compare', a, b]).toString();
+  if (out.includes('identical')) return Infinity;
+  return Number(out.match(/PSNR (\S+) dB/)[1]);
+}
+
+async function orbit(label, withSurface) {
+  const box = await (await page.$('#view')).boundingBox();
+  const cx = box.x + box.width / 2, cy = box.y + box.height / 2;
+  await page.mouse.move(cx, cy);
+  await page.mouse.down();
+  const t0 = await page.evaluate(() => performance.now());
+  const start = Date.now();
+  const shots = [];
+  let nextShot = 1000 * seconds / (samples + 1);
+  for (let i = 0; Date.now() - start < 1000 * seconds; ++i) {
+    // A steady drag: 4 px every 16 ms, swinging back and forth so the head stays in view.
+    const phase = ((Date.now() - start) / 1000) * Math.PI * 0.8;
+    await page.mouse.move(cx + 160 * Math.sin(phase), cy + 30 * Math.sin(2 * phase), { steps: 1 });
+    await new Promise((r) => setTimeout(r, 16));
+    if (Date.now() - start > nextShot && shots.length < samples) {
+      shots.push(await page.evaluate(async () => window.hybViewer.snapshot()));
+      nextShot += 1000 * seconds / (samples + 1);
+    }
+  }
+  const tUp = await page.evaluate(() => performance.now());
+  await page.mouse.up();
+  await waitFinal();
+  const metrics = await page.evaluate(() => window.hybViewer.metrics());
+  const during = metrics.filter((m) => m.paintedAt > t0 && m.paintedAt <= tUp + 1);
+  const interactive = during.filter((m) => m.quality === 'interactive');
+  const final = metrics.filter((m) => m.quality === 'final' && m.paintedAt > tUp).at(0);
+  const latencies = interactive.map((m) => m.latencyMs).filter((x) => x !== null);
+  const levels = {};
+  for (const m of interactive) {
+    const l = (levels[m.levelText] ||= { n: 0, ms: 0 });
+    l.n++;
+    l.ms += m.renderMs + m.encodeMs;
+  }
+  const painted = [], sent = [];
+  for (const [k, s] of shots.entries()) {
+    if (!s.header || s.header.quality !== 'interactive') continue;
+    const shot = path.join(tmp, `${label}-${k}.png`), ref = path.join(tmp, `${label}-${k}-ref.png`);
+    fs.writeFileSync(shot, Buffer.from(s.png.split(',')[1], 'base64'));
+    reference(s.header, withSurface, ref, `${s.header.camera.pixels[0]}x${s.header.camera.pixels[1]}`);
+    painted.push(psnrOf(ref, shot));
+    // The frame as sent, at its own size, against the reference at that size.
+    const own = path.join(tmp, `${label}-${k}-own.png`), ownRef = path.join(tmp, `${label}-${k}-ownref.png`);
+    fs.writeFileSync(own, Buffer.from(s.frame, 'base64'));
+    reference(s.header, withSurface, ownRef, `${s.header.width}x${s.header.height}`);
+    sent.push(`${psnrOf(ownRef, own).toFixed(1)} (${s.header.width}²)`);
+  }
+  const bytes = interactive.map((m) => m.bytes);
+  console.log(`${label}:`);
+  console.log(`  frames painted in ${seconds} s: ${during.length} (${(during.length / seconds).toFixed(1)} frames/s; target >= 10)`);
+  console.log(`  latency input -> painted: p50 ${quantile(latencies, 0.5).toFixed(0)} ms, p95 ${quantile(latencies, 0.95).toFixed(0)} ms (target p95 <= 150)`);
+  console.log(`  levels used: ${Object.entries(levels).map(([k, l]) => `${k}: ${l.n} frames, ${(l.ms / l.n).toFixed(0)} ms`).join('; ')}`);
+  console.log(`  bytes per interactive frame: mean ${(bytes.reduce((a, b) => a + b, 0) / Math.max(1, bytes.length) / 1024).toFixed(1)} KiB; final ${final ? (final.bytes / 1024).toFixed(1) : '?'} KiB`);
+  console.log(`  interactive frames against the reference, as painted (512²): ${painted.map((p) => p.toFixed(1)).join(', ')} dB (target >= 30)`);
+  console.log(`  the same frames as sent, at their own size: ${sent.join(', ')} dB`);
+  console.log(`  final frame painted ${final ? (final.paintedAt - tUp).toFixed(0) : '?'} ms after the motion stopped (target <= 2000)`);
+}
+
+try {
+  await page.evaluate(() => { document.getElementById('surface-on').checked = false; });
+  await page.evaluate(() => window.hybViewer.request(false));
+  await waitFinal();
+  await orbit('volume only', false);
+  await page.click('#surface-on');
+  await waitFinal('window.hybViewer.lastFinal().iso === 400');
+  await orbit('volume + translucent bone surface (400 HU, alpha 0.5)', true);
+} finally {
+  await browser.close();
+  server.kill('SIGTERM');
+  fs.rmSync(tmp, { recursive: true, force: true });
+}
