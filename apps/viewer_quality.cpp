@@ -24,7 +24,9 @@ double AdaptiveQuality::estimateMs(int level) const {
   return mMeasured[size_t(mLast)] * kLadder[size_t(level)].cost() / kLadder[size_t(mLast)].cost();
 }
 
-void AdaptiveQuality::record(int level, double ms) {
+void AdaptiveQuality::record(int level, double ms, bool cold) {
+  mCold = cold ? mCold + 1 : 0;
+  if (cold && mCold < kColdFramesTrusted) return;
   double& m = mMeasured[size_t(level)];
   m = m < 0.0 ? ms : 0.6 * m + 0.4 * ms;  // smoothed: one slow frame of a shared machine moves it a little
   mLast = level;

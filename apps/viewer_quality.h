@@ -36,6 +36,11 @@ inline constexpr std::array<QualityLevel, 9> kLadder{{
     {0.25, 100.0, 2.5},
 }};
 
+/// Brick edge (texels) of interactive frames: an eighth of the bricks of the default 16 at the same
+/// resolution, a third less time a frame on the cranium at the same accuracy (docs/viewer.md); the
+/// refining and final frames keep the default, as `hybrid-octree render` does.
+inline constexpr int kInteractiveBrickEdge = 32;
+
 class AdaptiveQuality {
  public:
   explicit AdaptiveQuality(double targetMs = 60.0) : mTargetMs(targetMs) { mMeasured.fill(-1.0); }
@@ -47,8 +52,11 @@ class AdaptiveQuality {
   static constexpr int kProbeAfter = 12;
   /// The levels after the input stops, ending with 0.
   std::vector<int> refinement() const;
-  /// Records that a frame at @p level took @p ms (render and encode).
-  void record(int level, double ms);
+  /// Records that a frame at @p level took @p ms (render and encode). A @p cold frame, one that
+  /// uploaded most of its textures, is not taken as the level's time (later frames do not pay for
+  /// the upload) unless frames keep being cold (a texture cache too small for the view).
+  void record(int level, double ms, bool cold = false);
+  static constexpr int kColdFramesTrusted = 3;
   /// The measured time of @p level, or one predicted from the last measured level's.
   double estimateMs(int level) const;
   double targetMs() const { return mTargetMs; }
@@ -59,6 +67,7 @@ class AdaptiveQuality {
   int mLast = 4;     // the level measured last
   int mCurrent = 4;  // the interactive level in use
   int mStay = 0;     // frames at mCurrent since it was chosen or probed
+  int mCold = 0;     // cold frames in a row
 };
 
 }  // namespace hyb::viewer

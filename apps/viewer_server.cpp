@@ -427,14 +427,15 @@ struct ServerState {
       lock.unlock();
       std::string message;
       double ms = 0.0;
+      bool cold = false;
       try {
-        message = renderFrame(*slot, request, level, final, iso, &ms);
+        message = renderFrame(*slot, request, level, final, iso, &ms, &cold);
       } catch (const std::exception& e) {
         message.clear();
         client->send(errorMessage(e.what(), request.seq), false);
       }
       lock.lock();
-      client->quality.record(level, ms);
+      client->quality.record(level, ms, cold);
       if (!message.empty()) client->send(std::move(message), true);
     }
     // The renderers' OpenGL contexts are this thread's: they are destroyed here, the lock released
@@ -448,8 +449,9 @@ struct ServerState {
     old.clear();
   }
 
-  // One frame at @p level of the ladder, encoded with its header (render thread, unlocked).
-  std::string renderFrame(SceneSlot& slot, const FrameRequest& r, int level, bool final, std::optional<float> iso, double* ms) {
+  // One frame at @p level of the ladder, encoded with its header (render thread, unlocked); @p cold
+  // says whether it uploaded most of its textures.
+  std::string renderFrame(SceneSlot& slot, const FrameRequest& r, int level, bool final, std::optional<float> iso, double* ms, bool* cold) {
     const auto t0 = Clock::now();
     const QualityLevel& q = kLadder[size_t(level)];
     View view;
@@ -469,6 +471,7 @@ struct ServerState {
       quality.step = q.step;
       quality.reuseViewErrors = r.interacting;
       quality.coarseSurface = r.interacting;
+      if (r.interacting) quality.maxBrickEdge = kInteractiveBrickEdge;
     }
     const RenderedFrame frame = slot.renderer->render(view, look, quality);
     const double renderMs = msSince(t0);
@@ -479,6 +482,7 @@ struct ServerState {
     const double encodeMs = msSince(t1);
     *ms = msSince(t0);
     const FrameStats& st = frame.stats;
+    *cold = 2 * st.slices.uploadedBricks > st.slices.bricks;
     json header = {{"type", "frame"},
                    {"seq", r.seq},
                    {"quality", r.interacting ? "interactive" : final ? "final" : "refining"},

@@ -53,5 +53,19 @@ TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLev
   EXPECT_EQ(fast.refinement(), (std::vector<int>{0}));
 }
 
+TEST(ViewerQuality, AFrameThatUploadedItsTexturesIsNotTheLevelsTime) {
+  AdaptiveQuality q(60.0);
+  q.record(4, 300.0, true);  // the first frame at larger bricks: its textures uploaded
+  EXPECT_EQ(q.estimateMs(4), 0.0);
+  q.record(4, 40.0, false);
+  EXPECT_EQ(q.estimateMs(4), 40.0);
+  // Frames that stay cold (a cache too small for the view) are trusted from the third on.
+  AdaptiveQuality thrashing(60.0);
+  for (int i = 1; i < AdaptiveQuality::kColdFramesTrusted; ++i) thrashing.record(4, 300.0, true);
+  EXPECT_EQ(thrashing.estimateMs(4), 0.0);
+  thrashing.record(4, 300.0, true);
+  EXPECT_EQ(thrashing.estimateMs(4), 300.0);
+}
+
 }  // namespace
 }  // namespace hyb::viewer

@@ -14,6 +14,7 @@
 #include <string>
 
 #include "apps/viewer_protocol.h"
+#include "apps/viewer_quality.h"
 #include "render/image.h"
 #include "render/scene_renderer.h"
 #include "render_util.h"
@@ -235,6 +236,29 @@ TEST(ViewerServer, TheFinalFrameIsTheEnginesImageLossless) {
   look.surfaceColor = r.surfaceColor;
   const RenderedFrame want = engine.render(view, look, Quality{});
   EXPECT_EQ(got, toRgba8(want.image, glm::vec3(0.0f)));
+}
+
+TEST(ViewerServer, InteractiveFramesUseLargerBricks) {
+  TestServer s;
+  Socket c(s.port(), "/ws?token=" + s.token());
+  c.next();  // info
+  c.send(frameRequest(1, true, 64).dump());
+  const json f = c.nextFrameOrError();
+  ASSERT_EQ(f["type"], "frame") << f.dump();
+  ASSERT_EQ(f["level"], 1);  // nothing measured yet: the best interactive level, no budget
+  SceneRenderer engine(sphereScene());
+  const FrameRequest r = std::get<FrameRequest>(parseRequest(frameRequest(1, true, 64).dump()));
+  View view;
+  view.camera = r.camera;
+  Look look;
+  look.tf = r.transferFunction();
+  Quality quality;
+  quality.maxBrickEdge = kInteractiveBrickEdge;
+  const size_t large = engine.render(view, look, quality).stats.slices.bricks;
+  quality.maxBrickEdge = Quality{}.maxBrickEdge;
+  const size_t small = engine.render(view, look, quality).stats.slices.bricks;
+  EXPECT_LT(large, small);
+  EXPECT_EQ(f["bricks"], large);
 }
 
 TEST(ViewerServer, ClientsKeepTheirOwnViewsAndStaleRequestsAreDropped) {
