@@ -3,6 +3,7 @@
 #include <cstdlib>
 
 #include "volume/error.h"
+#include "volume/file_util.h"
 
 namespace hyb::detail {
 
@@ -93,11 +94,14 @@ class PlistParser {
   }
 
   PlistValue parseValue(const std::string& tag) {
+    // Recursion depth is bounded: a small file of nested <array>s must not overflow the stack.
+    if (mDepth == kMaxPlistDepth) fail(detail::concat("nested deeper than ", kMaxPlistDepth, " levels (expected a shallow document)"));
+    const DepthGuard guard(&mDepth);
     PlistValue v;
     if (tag == "dict") {
       v.kind = PlistValue::Kind::Dict;
       for (std::string t = nextTag(); t != "/dict"; t = nextTag()) {
-        if (t != "key") fail("expected <key> in <dict>, found <" + t + ">");
+        if (t != "key") fail("expected <key> in <dict>, found <" + quotedExcerpt(t) + ">");
         const std::string key = textUntil("key");
         v.dict[key] = parseValue(nextTag());
       }
@@ -116,13 +120,20 @@ class PlistParser {
       v.kind = PlistValue::Kind::Bool;
       v.text = tag == "true/" ? "true" : "false";
     } else {
-      fail("unexpected <" + tag + ">");
+      fail("unexpected <" + quotedExcerpt(tag) + ">");
     }
     return v;
   }
 
+  struct DepthGuard {
+    explicit DepthGuard(int* d) : depth(d) { ++*depth; }
+    ~DepthGuard() { --*depth; }
+    int* depth;
+  };
+
   const std::string& mXml;
   const std::string& mSource;
+  int mDepth = 0;
   size_t mPos = 0;
   std::string mText;
 };
@@ -130,6 +141,9 @@ class PlistParser {
 }  // namespace
 
 PlistValue parsePlist(const std::string& xml, const std::string& source) {
+  if (xml.size() > kMaxPlistBytes)
+    HYB_THROW(IoError, source, ": property list of ", xml.size(), " bytes is longer than the limit of ", kMaxPlistBytes,
+              " (expected project metadata)");
   return PlistParser(xml, source).parseDocument();
 }
 

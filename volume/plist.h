@@ -22,8 +22,14 @@ struct PlistValue {
   bool number(double* out) const;
 };
 
+/// Deepest nesting of dicts and arrays accepted (InVesalius writes 3 or 4 levels).
+inline constexpr int kMaxPlistDepth = 64;
+/// Longest document accepted, in bytes.
+inline constexpr size_t kMaxPlistBytes = size_t(16) << 20;
+
 /// Parses the XML plist in @p xml; @p source names it in error messages.
-/// @throw IoError naming @p source when the document is not a well-formed plist.
+/// @throw IoError naming @p source when the document is not a well-formed plist, is longer than
+///        kMaxPlistBytes or nests deeper than kMaxPlistDepth.
 PlistValue parsePlist(const std::string& xml, const std::string& source);
 
 }  // namespace hyb::detail

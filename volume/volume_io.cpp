@@ -19,11 +19,15 @@
 #include <iomanip>
 #include <map>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 #include "volume/file_util.h"
+#include "volume/inflate.h"
+#include "volume/memory_limit.h"
 #include "volume/patient_frame.h"
 #include "volume/plist.h"
+#include "volume/reader_util.h"
 
 namespace hyb {
 
@@ -31,20 +35,13 @@ namespace fs = std::filesystem;
 
 namespace {
 
+using detail::decodeSamples;
+using detail::lower;
+using detail::placed;
+using detail::trim;
+
 // ---------------------------------------------------------------------------------------------
 // Shared helpers
-
-std::string trim(const std::string& s) {
-  const size_t b = s.find_first_not_of(" \t\r\n");
-  if (b == std::string::npos) return "";
-  const size_t e = s.find_last_not_of(" \t\r\n");
-  return s.substr(b, e - b + 1);
-}
-
-std::string lower(std::string s) {
-  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
-  return s;
-}
 
 // Parses exactly @p n whitespace-separated numbers from @p text.
 template <typename T>
@@ -60,30 +57,6 @@ uint64_t expectedBytes(const glm::ivec3& dims, ScalarType t) {
   return uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z) * scalarSize(t);
 }
 
-// Converts @p count samples of type @p t at @p data (any alignment) to float.
-std::vector<float> decodeSamples(const uint8_t* data, size_t count, ScalarType t, bool bigEndian) {
-  const size_t size = scalarSize(t);
-  std::vector<float> out(count);
-  const bool swap = bigEndian != (std::endian::native == std::endian::big);
-#pragma omp parallel for schedule(static)
-  for (size_t i = 0; i < count; ++i) {
-    uint8_t b[8];
-    std::memcpy(b, data + i * size, size);
-    if (swap) std::reverse(b, b + size);
-    switch (t) {
-      case ScalarType::UInt8: out[i] = b[0]; break;
-      case ScalarType::Int8: out[i] = static_cast<int8_t>(b[0]); break;
-      case ScalarType::UInt16: { uint16_t v; std::memcpy(&v, b, 2); out[i] = v; break; }
-      case ScalarType::Int16: { int16_t v; std::memcpy(&v, b, 2); out[i] = v; break; }
-      case ScalarType::UInt32: { uint32_t v; std::memcpy(&v, b, 4); out[i] = float(v); break; }
-      case ScalarType::Int32: { int32_t v; std::memcpy(&v, b, 4); out[i] = float(v); break; }
-      case ScalarType::Float32: { float v; std::memcpy(&v, b, 4); out[i] = v; break; }
-      case ScalarType::Float64: { double v; std::memcpy(&v, b, 8); out[i] = float(v); break; }
-    }
-  }
-  return out;
-}
-
 // Checks that exactly @p expected bytes of samples are present, with messages naming the file.
 void checkByteCount(const std::string& file, uint64_t expected, uint64_t actual, const glm::ivec3& dims,
                     ScalarType t) {
@@ -95,98 +68,145 @@ void checkByteCount(const std::string& file, uint64_t expected, uint64_t actual,
             actual);
 }
 
-// Skips @p skip header bytes of raw data (-1: the samples are the file's last bytes), then checks
-// that exactly @p expected bytes remain. @p field names the header field in messages.
-void skipToSamples(const uint8_t** data, size_t* size, long long skip, uint64_t expected, const std::string& file,
-                   const char* field, const glm::ivec3& dims, ScalarType t) {
+// "4x3x5 int16", for messages.
+std::string layoutName(const glm::ivec3& dims, ScalarType t) {
+  return detail::concat(dims.x, "x", dims.y, "x", dims.z, " ", scalarName(t));
+}
+
+// Checks memory for @p extra bytes of file data held while decoding plus the float samples.
+void checkSampleMemory(const std::string& file, uint64_t extra, const glm::ivec3& dims, ScalarType t) {
+  const uint64_t count = uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z);
+  checkMemory(file, extra + count * sizeof(float), layoutName(dims, t) + " samples");
+}
+
+// The raw samples of @p f from byte @p offset on: @p skip bytes are skipped first (-1: the
+// samples are the file's last bytes) and exactly the samples must remain. Sizes are checked
+// against the file before anything is allocated. @p field names the skip in messages.
+std::vector<float> readRawSamples(const InputFile& f, uint64_t offset, long long skip, const char* field, const glm::ivec3& dims,
+                                  ScalarType t, bool bigEndian) {
+  const uint64_t expected = expectedBytes(dims, t);
+  const uint64_t present = f.size() - std::min(offset, f.size());
   if (skip == -1) {
-    if (*size < expected) checkByteCount(file, expected, *size, dims, t);
-    *data += *size - expected;
-    *size = size_t(expected);
-  } else if (skip < 0 || uint64_t(skip) > *size) {
-    HYB_THROW(IoError, file, ": ", field, " ", skip, " invalid for a ", *size, "-byte file");
+    if (present < expected) checkByteCount(f.path(), expected, present, dims, t);
+    offset = f.size() - expected;
+  } else if (skip < 0 || uint64_t(skip) > present) {
+    HYB_THROW(IoError, f.path(), ": ", field, " ", skip, " invalid for the ", present, " bytes of data (expected 0 to ", present, ", or -1)");
   } else {
-    *data += skip;
-    *size -= size_t(skip);
+    offset += uint64_t(skip);
   }
-  checkByteCount(file, expected, *size, dims, t);
+  checkByteCount(f.path(), expected, f.size() - offset, dims, t);
+  checkSampleMemory(f.path(), expected, dims, t);
+  const std::vector<uint8_t> bytes = f.bytes(offset, expected);
+  return decodeSamples(bytes.data(), size_t(expected / scalarSize(t)), t, bigEndian);
 }
 
-// Inflates a gzip or zlib stream (auto-detected) of unknown length.
-std::vector<uint8_t> inflateAll(const uint8_t* data, size_t size, uint64_t sizeHint, const std::string& file) {
-  z_stream z{};
-  if (inflateInit2(&z, 15 + 32) != Z_OK) HYB_THROW(RuntimeError, file, ": zlib initialisation failed");
-  std::vector<uint8_t> out(std::max<uint64_t>(sizeHint, 1024));
-  z.next_in = const_cast<uint8_t*>(data);
-  z.avail_in = static_cast<uInt>(std::min<size_t>(size, UINT32_MAX));
-  size_t inLeft = size - z.avail_in;
-  size_t produced = 0;
-  int rc = Z_OK;
-  while (rc != Z_STREAM_END) {
-    if (produced == out.size()) out.resize(out.size() * 2);
-    z.next_out = out.data() + produced;
-    z.avail_out = static_cast<uInt>(std::min<size_t>(out.size() - produced, UINT32_MAX));
-    const uInt before = z.avail_out;
-    rc = inflate(&z, Z_NO_FLUSH);
-    produced += before - z.avail_out;
-    if (rc == Z_BUF_ERROR && z.avail_in == 0 && inLeft > 0) {
-      const size_t chunk = std::min<size_t>(inLeft, UINT32_MAX);
-      z.avail_in = static_cast<uInt>(chunk);
-      inLeft -= chunk;
-      continue;
-    }
-    if (rc == Z_BUF_ERROR && z.avail_in == 0) {
-      inflateEnd(&z);
-      HYB_THROW(IoError, file, ": truncated compressed data: stream ends after ", produced, " bytes");
-    }
-    if (rc != Z_OK && rc != Z_STREAM_END && rc != Z_BUF_ERROR) {
-      const std::string msg = z.msg ? z.msg : "unknown error";
-      inflateEnd(&z);
-      HYB_THROW(IoError, file, ": corrupt compressed data (", msg, ")");
-    }
-  }
-  inflateEnd(&z);
-  out.resize(produced);
-  return out;
+// The samples of the gzip or zlib stream that makes up @p f from byte @p offset on, after
+// @p skip decompressed bytes; inflation is capped at what the header declares.
+std::vector<float> readCompressedSamples(const InputFile& f, uint64_t offset, long long skip, const glm::ivec3& dims, ScalarType t,
+                                         bool bigEndian) {
+  if (skip < 0) HYB_THROW(IoError, f.path(), ": byte skip ", skip, " invalid for compressed data (expected 0 or more)");
+  const uint64_t expected = expectedBytes(dims, t), total = expected + uint64_t(skip);
+  const uint64_t compressed = f.size() - std::min(offset, f.size());
+  if (detail::maxInflatedBytes(compressed) < total)
+    HYB_THROW(IoError, f.path(), ": ", compressed, " bytes of compressed data cannot hold the ", total, " bytes of ", layoutName(dims, t),
+              " samples the header declares (expected at least ", (total - 1024) / detail::kMaxDeflateRatio,
+              " bytes: deflate inflates at most ", detail::kMaxDeflateRatio, ":1)");
+  checkSampleMemory(f.path(), compressed + total, dims, t);
+  const std::vector<uint8_t> packed = f.bytes(offset, compressed);
+  const std::vector<uint8_t> raw = detail::inflateExactly(packed.data(), packed.size(), total, f.path() + " (compressed data)");
+  return decodeSamples(raw.data() + skip, size_t(expected / scalarSize(t)), t, bigEndian);
 }
 
-// Parses whitespace-separated ASCII samples.
-std::vector<float> parseAsciiSamples(const char* begin, const char* end, size_t count, const std::string& file) {
+// Whitespace- or comma-separated ASCII samples of @p f from byte @p offset on.
+std::vector<float> readAsciiSamples(const InputFile& f, uint64_t offset, const glm::ivec3& dims, ScalarType t) {
+  const uint64_t count = uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z);
+  const uint64_t present = f.size() - std::min(offset, f.size());
+  if (present < 2 * count - 1)  // a digit each, separated
+    HYB_THROW(IoError, f.path(), ": truncated ASCII data: ", present, " bytes cannot hold the ", count, " samples of ", layoutName(dims, t),
+              " (expected at least ", 2 * count - 1, " bytes)");
+  checkSampleMemory(f.path(), present, dims, t);
+  const std::vector<uint8_t> text = f.bytes(offset, present);
+  const char* p = reinterpret_cast<const char*>(text.data());
+  const char* end = p + text.size();
   std::vector<float> out;
-  out.reserve(count);
-  const char* p = begin;
+  out.reserve(size_t(count));
+  auto separator = [](char c) { return std::isspace(static_cast<unsigned char>(c)) || c == ','; };
   while (p < end) {
-    while (p < end && (std::isspace(static_cast<unsigned char>(*p)) || *p == ',')) ++p;
+    while (p < end && separator(*p)) ++p;
     if (p >= end) break;
+    const std::string token(p, std::find_if(p, end, separator));
     char* next = nullptr;
-    const std::string token(p, std::find_if(p, end, [](char c) { return std::isspace(static_cast<unsigned char>(c)) || c == ','; }));
     const double v = std::strtod(token.c_str(), &next);
-    if (next == token.c_str()) HYB_THROW(IoError, file, ": expected a number in ASCII data, found '", token, "'");
+    if (next == token.c_str() || *next) HYB_THROW(IoError, f.path(), ": expected a number in ASCII data, found ", quotedExcerpt(token));
+    if (out.size() == count) HYB_THROW(IoError, f.path(), ": ASCII data holds more than the ", count, " samples the header declares");
     out.push_back(float(v));
     p += token.size();
   }
-  if (out.size() != count)
-    HYB_THROW(IoError, file, ": ASCII data holds ", out.size(), " samples, expected ", count);
+  if (out.size() != count) HYB_THROW(IoError, f.path(), ": ASCII data holds ", out.size(), " samples, expected ", count);
   return out;
+}
+
+// The offset just past @p lines line ends in @p f from @p offset on (NRRD "line skip").
+uint64_t skipLines(const InputFile& f, uint64_t offset, long long lines) {
+  uint8_t buf[1 << 16];
+  for (long long l = 0; l < lines;) {
+    if (offset >= f.size()) HYB_THROW(IoError, f.path(), ": cannot skip ", lines, " lines (file too short)");
+    const uint64_t n = std::min<uint64_t>(sizeof buf, f.size() - offset);
+    f.read(offset, n, buf);
+    uint64_t i = 0;
+    for (; i < n && l < lines; ++i)
+      if (buf[i] == '\n') ++l;
+    offset += i;
+  }
+  return offset;
+}
+
+// Longest text header and header line accepted (NRRD, MetaImage): real ones are a few KB.
+constexpr uint64_t kMaxHeaderBytes = uint64_t(1) << 20;
+constexpr size_t kMaxHeaderLine = size_t(64) << 10;
+
+// The header lines of @p f up to the line @p last accepts (NRRD: the blank line, dropped;
+// MetaImage: ElementDataFile, kept) or the end of the file, with the offset of the data after
+// them. '\r' before '\n' is dropped. Read within kMaxHeaderBytes and kMaxHeaderLine.
+template <class Last>
+std::vector<std::string> readHeaderLines(const InputFile& f, const Last& last, uint64_t* dataOffset) {
+  const uint64_t n = std::min(f.size(), kMaxHeaderBytes);
+  std::vector<uint8_t> head(static_cast<size_t>(n));
+  f.read(0, n, head.data());
+  std::vector<std::string> lines;
+  size_t pos = 0;
+  while (pos < head.size()) {
+    const uint8_t* nl = static_cast<const uint8_t*>(std::memchr(head.data() + pos, '\n', head.size() - pos));
+    if (!nl && f.size() > n)
+      HYB_THROW(IoError, f.path(), ": header is longer than ", kMaxHeaderBytes, " bytes (expected a text header that ends before the data)");
+    const size_t end = nl ? size_t(nl - head.data()) : head.size();
+    if (end - pos > kMaxHeaderLine)
+      HYB_THROW(IoError, f.path(), ": header line ", lines.size() + 1, " is longer than ", kMaxHeaderLine, " bytes (expected a text header)");
+    std::string line(reinterpret_cast<const char*>(head.data() + pos), end - pos);
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    pos = nl ? end + 1 : end;
+    bool keep = true;
+    if (last(line, &keep)) {
+      if (keep) lines.push_back(std::move(line));
+      *dataOffset = pos;
+      return lines;
+    }
+    lines.push_back(std::move(line));
+  }
+  *dataOffset = f.size();
+  return lines;
 }
 
 // Three sample counts from header field @p field, each in 1..kMaxDim, with a product in range.
 glm::ivec3 parseDims(const std::string& text, const char* field, const std::string& path) {
   long long sizes[3];
   if (!parseNumbers(text, 3, sizes))
-    HYB_THROW(IoError, path, ": ", field, " '", text, "' malformed (expected three integers)");
+    HYB_THROW(IoError, path, ": ", field, " ", quotedExcerpt(text), " malformed (expected three integers)");
   for (long long s : sizes)
-    if (s <= 0 || s > kMaxDim) HYB_THROW(IoError, path, ": ", field, " '", text, "' invalid (expected 1..", kMaxDim, " per axis)");
+    if (s <= 0 || s > kMaxDim) HYB_THROW(IoError, path, ": ", field, " ", quotedExcerpt(text), " invalid (expected 1..", kMaxDim, " per axis)");
   const glm::ivec3 dims{int(sizes[0]), int(sizes[1]), int(sizes[2])};
   validateDims(dims, path);
   return dims;
-}
-
-// @p v with the patient frame and the reader's warnings.
-Volume placed(Volume v, const PatientFrame& frame, const std::vector<std::string>& warnings) {
-  v.setFrame(frame);
-  for (const std::string& w : warnings) v.addWarning(w);
-  return v;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -256,7 +276,7 @@ void nrrdGeometry(const Field& field, const std::string& path, glm::dvec3* spaci
   if (!directions) {
     *spacing = glm::dvec3(1.0);
     if (spacings && !parseNumbers(*spacings, 3, &spacing->x))
-      HYB_THROW(IoError, path, ": spacings '", *spacings, "' malformed (expected three numbers)");
+      HYB_THROW(IoError, path, ": spacings ", quotedExcerpt(*spacings), " malformed (expected three numbers)");
     validateSpacing(*spacing, path);
     if (field("space origin")) HYB_THROW(IoError, path, ": space origin without space directions (expected both, or neither)");
     warnings->push_back(path + ": no 'space directions': orientation unknown, the grid's axes are taken as LPS with the origin at 0");
@@ -267,21 +287,21 @@ void nrrdGeometry(const Field& field, const std::string& path, glm::dvec3* spaci
   glm::dvec3 sign(1.0);
   bool assumed = true;
   if (spaceField && !nrrdSpaceToLps(space, &sign, &assumed))
-    HYB_THROW(IoError, path, ": space '", *spaceField, "' unsupported (expected right-anterior-superior, left-anterior-superior, "
+    HYB_THROW(IoError, path, ": space ", quotedExcerpt(*spaceField), " unsupported (expected right-anterior-superior, left-anterior-superior, "
               "left-posterior-superior or scanner-xyz: a 3D volume)");
   if (assumed)
     warnings->push_back(path + ": space '" + (spaceField ? *spaceField : std::string("(none)")) +
                         "' is not anatomical: its axes are taken as LPS (x left, y posterior, z superior)");
   double v[9];
   if (!parseVectors(*directions, 3, v))
-    HYB_THROW(IoError, path, ": space directions '", *directions, "' malformed (expected three 3-vectors such as (0.9,0,0))");
+    HYB_THROW(IoError, path, ": space directions ", quotedExcerpt(*directions), " malformed (expected three 3-vectors such as (0.9,0,0))");
   glm::dvec3 units(1.0);  // millimetres per unit of each space axis
   if (const std::string* u = field("space units")) {
     std::istringstream in(*u);
     for (int a = 0; a < 3; ++a) {
-      std::string quoted;
-      if (!(in >> std::quoted(quoted)) || (units[a] = unitMillimetres(lower(quoted))) == 0.0)
-        HYB_THROW(IoError, path, ": space units '", *u, "' unsupported (expected three of \"mm\", \"cm\", \"m\", \"um\")");
+      std::string unit;
+      if (!(in >> std::quoted(unit)) || (units[a] = unitMillimetres(lower(unit))) == 0.0)
+        HYB_THROW(IoError, path, ": space units ", hyb::quotedExcerpt(*u), " unsupported (expected three of \"mm\", \"cm\", \"m\", \"um\")");
     }
   }
   glm::dmat3 d;
@@ -292,36 +312,23 @@ void nrrdGeometry(const Field& field, const std::string& path, glm::dvec3* spaci
   validateSpacing(*spacing, path + " (lengths of the space directions)");
   glm::dvec3 origin(0.0);
   if (const std::string* o = field("space origin")) {
-    if (!parseVectors(*o, 1, &origin.x)) HYB_THROW(IoError, path, ": space origin '", *o, "' malformed (expected one 3-vector (x,y,z))");
+    if (!parseVectors(*o, 1, &origin.x)) HYB_THROW(IoError, path, ": space origin ", quotedExcerpt(*o), " malformed (expected one 3-vector (x,y,z))");
     origin *= sign * units;
   }
   *frame = makePatientFrame(d, origin, path);
 }
 
-// Offset of the first byte after the header's blank line (or the end of the bytes).
-size_t headerEnd(const std::vector<uint8_t>& bytes, std::vector<std::string>* lines) {
-  size_t pos = 0;
-  while (pos < bytes.size()) {
-    const uint8_t* nl = static_cast<const uint8_t*>(std::memchr(bytes.data() + pos, '\n', bytes.size() - pos));
-    const size_t end = nl ? size_t(nl - bytes.data()) : bytes.size();
-    std::string line(reinterpret_cast<const char*>(bytes.data() + pos), end - pos);
-    if (!line.empty() && line.back() == '\r') line.pop_back();
-    pos = nl ? end + 1 : end;
-    if (line.empty()) return pos;
-    lines->push_back(line);
-  }
-  return bytes.size();
-}
-
 }  // namespace
 
 Volume readNrrd(const std::string& path) {
-  const std::vector<uint8_t> bytes = readFileBytes(path);
-  std::vector<std::string> lines;
-  const size_t dataStart = headerEnd(bytes, &lines);
-  if (lines.empty() || lines[0].rfind("NRRD000", 0) != 0)
+  const InputFile file(path);
+  uint8_t magic[7] = {};
+  if (file.size() >= sizeof magic) file.read(0, sizeof magic, magic);
+  if (std::memcmp(magic, "NRRD000", sizeof magic) != 0)
     HYB_THROW(IoError, path, ": not a NRRD file (expected magic 'NRRD000x' on the first line)");
-
+  uint64_t dataStart = 0;
+  const std::vector<std::string> lines = readHeaderLines(
+      file, [](const std::string& line, bool* keep) { return !(*keep = !line.empty()); }, &dataStart);
   std::map<std::string, std::string> fields;
   for (size_t i = 1; i < lines.size(); ++i) {
     const std::string& line = lines[i];
@@ -329,7 +336,7 @@ Volume readNrrd(const std::string& path) {
     const size_t colon = line.find(": ");
     if (colon == std::string::npos) {
       if (line.find(":=") != std::string::npos) continue;  // key/value pairs carry no layout
-      HYB_THROW(IoError, path, ": malformed header line ", i + 1, " '", line, "' (expected 'field: value')");
+      HYB_THROW(IoError, path, ": malformed header line ", i + 1, " ", quotedExcerpt(line), " (expected 'field: value')");
     }
     fields[lower(trim(line.substr(0, colon)))] = trim(line.substr(colon + 2));
   }
@@ -339,17 +346,17 @@ Volume readNrrd(const std::string& path) {
   };
   auto required = [&](const char* name) -> const std::string& {
     const std::string* v = field(name);
-    if (!v) HYB_THROW(IoError, path, ": missing required field '", name, "'");
+    if (!v) HYB_THROW(IoError, path, ": missing required field ", quotedExcerpt(name), "");
     return *v;
   };
 
   ScalarType type;
   if (!nrrdType(lower(required("type")), &type))
-    HYB_THROW(IoError, path, ": unknown or unsupported type '", required("type"),
-              "' (expected int8/uint8/int16/uint16/int32/uint32/float/double)");
+    HYB_THROW(IoError, path, ": unknown or unsupported type ", quotedExcerpt(required("type")),
+              " (expected int8/uint8/int16/uint16/int32/uint32/float/double)");
   int dimension = 0;
   if (!parseNumbers(required("dimension"), 1, &dimension) || dimension != 3)
-    HYB_THROW(IoError, path, ": dimension '", required("dimension"), "' unsupported (expected 3)");
+    HYB_THROW(IoError, path, ": dimension ", quotedExcerpt(required("dimension")), " unsupported (expected 3)");
   const glm::ivec3 dims = parseDims(required("sizes"), "sizes", path);
 
   glm::dvec3 spacing(1.0);
@@ -363,18 +370,15 @@ Volume readNrrd(const std::string& path) {
     HYB_THROW(IoError, path, ": missing field 'endian' (required for multi-byte ", scalarName(type), " samples)");
   const std::string endian = endianField ? lower(*endianField) : "little";
   if (endian != "little" && endian != "big")
-    HYB_THROW(IoError, path, ": endian '", endian, "' invalid (expected little or big)");
+    HYB_THROW(IoError, path, ": endian ", quotedExcerpt(endian), " invalid (expected little or big)");
   long long byteSkip = 0, lineSkip = 0;
   if (const std::string* s = field("byte skip"); s && !parseNumbers(*s, 1, &byteSkip))
-    HYB_THROW(IoError, path, ": byte skip '", *s, "' malformed");
+    HYB_THROW(IoError, path, ": byte skip ", quotedExcerpt(*s), " malformed");
   if (const std::string* s = field("line skip"); s && (!parseNumbers(*s, 1, &lineSkip) || lineSkip < 0))
-    HYB_THROW(IoError, path, ": line skip '", *s, "' malformed");
+    HYB_THROW(IoError, path, ": line skip ", quotedExcerpt(*s), " malformed");
 
   // Data: detached file or attached after the blank line.
-  std::vector<uint8_t> detached;
-  std::string dataName = path;
-  const uint8_t* data = bytes.data() + dataStart;
-  size_t dataSize = bytes.size() - dataStart;
+  std::optional<InputFile> detached;
   const std::string* dataFile = field("data file") ? field("data file") : field("datafile");
   if (dataFile) {
     if (dataFile->rfind("LIST", 0) == 0 || dataFile->find('%') != std::string::npos ||
@@ -382,41 +386,25 @@ Volume readNrrd(const std::string& path) {
       HYB_THROW(IoError, path, ": multi-file 'data file' lists are not supported (expected one file)");
     fs::path p(*dataFile);
     if (p.is_relative()) p = fs::path(path).parent_path() / p;
-    dataName = p.string();
     std::error_code ec;
-    if (!fs::exists(p, ec)) HYB_THROW(IoError, path, ": data file '", dataName, "' does not exist");
-    detached = readFileBytes(dataName);
-    data = detached.data();
-    dataSize = detached.size();
+    if (!fs::exists(p, ec)) HYB_THROW(IoError, path, ": data file ", quotedExcerpt(p.string(), 4096), " does not exist");
+    detached.emplace(p.string());
+    dataStart = 0;
   } else if (fileExtension(path) == ".nhdr") {
     HYB_THROW(IoError, path, ": detached header has no 'data file' field");
   }
-  for (long long l = 0; l < lineSkip; ++l) {
-    const void* nl = std::memchr(data, '\n', dataSize);
-    if (!nl) HYB_THROW(IoError, dataName, ": cannot skip ", lineSkip, " lines (file too short)");
-    const size_t skip = size_t(static_cast<const uint8_t*>(nl) - data) + 1;
-    data += skip;
-    dataSize -= skip;
-  }
+  const InputFile& data = detached ? *detached : file;
+  dataStart = skipLines(data, dataStart, lineSkip);
 
-  const uint64_t expected = expectedBytes(dims, type);
-  const size_t count = size_t(dims.x) * dims.y * dims.z;
   std::vector<float> samples;
-  if (encoding == "raw") {
-    skipToSamples(&data, &dataSize, byteSkip, expected, dataName, "byte skip", dims, type);
-    samples = decodeSamples(data, count, type, endian == "big");
-  } else if (encoding == "gzip" || encoding == "gz") {
-    std::vector<uint8_t> raw = inflateAll(data, dataSize, expected, dataName);
-    if (byteSkip < 0 || uint64_t(byteSkip) > raw.size())
-      HYB_THROW(IoError, dataName, ": byte skip ", byteSkip, " invalid for gzip data");
-    checkByteCount(dataName + " (decompressed)", expected, raw.size() - size_t(byteSkip), dims, type);
-    samples = decodeSamples(raw.data() + byteSkip, count, type, endian == "big");
-  } else if (encoding == "ascii" || encoding == "text" || encoding == "txt") {
-    samples = parseAsciiSamples(reinterpret_cast<const char*>(data), reinterpret_cast<const char*>(data) + dataSize,
-                                count, dataName);
-  } else {
-    HYB_THROW(IoError, path, ": encoding '", encoding, "' unsupported (expected raw, gzip or ascii)");
-  }
+  if (encoding == "raw")
+    samples = readRawSamples(data, dataStart, byteSkip, "byte skip", dims, type, endian == "big");
+  else if (encoding == "gzip" || encoding == "gz")
+    samples = readCompressedSamples(data, dataStart, byteSkip, dims, type, endian == "big");
+  else if (encoding == "ascii" || encoding == "text" || encoding == "txt")
+    samples = readAsciiSamples(data, dataStart, dims, type);
+  else
+    HYB_THROW(IoError, path, ": encoding ", quotedExcerpt(encoding), " unsupported (expected raw, gzip or ascii)");
   return placed(Volume(dims, spacing, type, std::move(samples), path), frame, warnings);
 }
 
@@ -438,7 +426,7 @@ PatientFrame metaImageFrame(const std::map<std::string, std::string>& fields, co
   };
   glm::dvec3 origin(0.0);
   if (const auto [key, value] = first({"Offset", "Position", "Origin"}); key && !parseNumbers(*value, 3, &origin.x))
-    HYB_THROW(IoError, path, ": ", key, " '", *value, "' malformed (expected three numbers)");
+    HYB_THROW(IoError, path, ": ", key, " ", quotedExcerpt(*value), " malformed (expected three numbers)");
   // AnatomicalOrientation names where each axis comes from: its opposite letters are where it points.
   glm::dmat3 fromCode(1.0);
   bool haveCode = false;
@@ -451,13 +439,13 @@ PatientFrame metaImageFrame(const std::map<std::string, std::string>& fields, co
       to += it == kOpposite.end() ? '?' : it->second;
     }
     if (!directionFromCode(to, &fromCode))
-      HYB_THROW(IoError, path, ": AnatomicalOrientation '", *value, "' malformed (expected three letters, one of R/L, A/P, S/I each, e.g. RAI)");
+      HYB_THROW(IoError, path, ": AnatomicalOrientation ", quotedExcerpt(*value), " malformed (expected three letters, one of R/L, A/P, S/I each, e.g. RAI)");
     haveCode = true;
   }
   glm::dmat3 direction(1.0);
   if (const auto [key, value] = first({"TransformMatrix", "Rotation", "Orientation"}); key) {
     double m[9];
-    if (!parseNumbers(*value, 9, m)) HYB_THROW(IoError, path, ": ", key, " '", *value, "' malformed (expected nine numbers)");
+    if (!parseNumbers(*value, 9, m)) HYB_THROW(IoError, path, ": ", key, " ", quotedExcerpt(*value), " malformed (expected nine numbers)");
     for (int a = 0; a < 3; ++a) direction[a] = glm::dvec3(m[3 * a], m[3 * a + 1], m[3 * a + 2]);
     const PatientFrame frame = makePatientFrame(direction, origin, path);
     if (haveCode && orientationCode(frame.direction) != orientationCode(fromCode))
@@ -473,36 +461,28 @@ PatientFrame metaImageFrame(const std::map<std::string, std::string>& fields, co
 
 
 Volume readMetaImage(const std::string& path) {
-  const std::vector<uint8_t> bytes = readFileBytes(path);
+  const InputFile file(path);
   std::map<std::string, std::string> fields;
-  size_t pos = 0;
-  size_t dataStart = std::string::npos;
-  while (pos < bytes.size()) {
-    const uint8_t* nl = static_cast<const uint8_t*>(std::memchr(bytes.data() + pos, '\n', bytes.size() - pos));
-    const size_t end = nl ? size_t(nl - bytes.data()) : bytes.size();
-    const std::string line(reinterpret_cast<const char*>(bytes.data() + pos), end - pos);
-    pos = nl ? end + 1 : end;
+  uint64_t dataStart = 0;
+  const std::vector<std::string> lines = readHeaderLines(
+      file, [](const std::string& line, bool*) { return trim(line.substr(0, line.find('='))) == "ElementDataFile"; }, &dataStart);
+  for (const std::string& line : lines) {
     if (trim(line).empty()) continue;
     const size_t eq = line.find('=');
     if (eq == std::string::npos)
-      HYB_THROW(IoError, path, ": malformed header line '", trim(line), "' (expected 'Key = Value')");
-    const std::string key = trim(line.substr(0, eq));
-    fields[key] = trim(line.substr(eq + 1));
-    if (key == "ElementDataFile") {
-      dataStart = pos;
-      break;
-    }
+      HYB_THROW(IoError, path, ": malformed header line ", quotedExcerpt(trim(line)), " (expected 'Key = Value')");
+    fields[trim(line.substr(0, eq))] = trim(line.substr(eq + 1));
   }
   auto required = [&](const char* name) -> const std::string& {
     const auto it = fields.find(name);
-    if (it == fields.end()) HYB_THROW(IoError, path, ": missing required field '", name, "'");
+    if (it == fields.end()) HYB_THROW(IoError, path, ": missing required field ", quotedExcerpt(name), "");
     return it->second;
   };
   if (fields.count("ObjectType") && fields["ObjectType"] != "Image")
-    HYB_THROW(IoError, path, ": ObjectType '", fields["ObjectType"], "' unsupported (expected Image)");
+    HYB_THROW(IoError, path, ": ObjectType ", quotedExcerpt(fields["ObjectType"]), " unsupported (expected Image)");
   int ndims = 0;
   if (!parseNumbers(required("NDims"), 1, &ndims) || ndims != 3)
-    HYB_THROW(IoError, path, ": NDims '", required("NDims"), "' unsupported (expected 3)");
+    HYB_THROW(IoError, path, ": NDims ", quotedExcerpt(required("NDims")), " unsupported (expected 3)");
   const glm::ivec3 dims = parseDims(required("DimSize"), "DimSize", path);
   if (fields.count("ElementNumberOfChannels") && trim(fields["ElementNumberOfChannels"]) != "1")
     HYB_THROW(IoError, path, ": ElementNumberOfChannels ", fields["ElementNumberOfChannels"], " unsupported (expected 1)");
@@ -513,14 +493,14 @@ Volume readMetaImage(const std::string& path) {
       {"MET_FLOAT", ScalarType::Float32}, {"MET_DOUBLE", ScalarType::Float64}};
   const auto typeIt = kTypes.find(required("ElementType"));
   if (typeIt == kTypes.end())
-    HYB_THROW(IoError, path, ": ElementType '", required("ElementType"), "' unsupported (expected MET_UCHAR, MET_CHAR, ",
+    HYB_THROW(IoError, path, ": ElementType ", quotedExcerpt(required("ElementType")), " unsupported (expected MET_UCHAR, MET_CHAR, ",
               "MET_USHORT, MET_SHORT, MET_UINT, MET_INT, MET_FLOAT or MET_DOUBLE)");
   const ScalarType type = typeIt->second;
 
   glm::dvec3 spacing(1.0);
   const char* spacingKey = fields.count("ElementSpacing") ? "ElementSpacing" : (fields.count("ElementSize") ? "ElementSize" : nullptr);
   if (spacingKey && !parseNumbers(fields[spacingKey], 3, &spacing.x))
-    HYB_THROW(IoError, path, ": ", spacingKey, " '", fields[spacingKey], "' malformed (expected three numbers)");
+    HYB_THROW(IoError, path, ": ", spacingKey, " ", quotedExcerpt(fields[spacingKey]), " malformed (expected three numbers)");
   validateSpacing(spacing, path);
   std::vector<std::string> warnings;
   const PatientFrame frame = metaImageFrame(fields, path, &warnings);
@@ -530,38 +510,24 @@ Volume readMetaImage(const std::string& path) {
   const bool compressed = isTrue("CompressedData");
 
   const std::string& dataFile = required("ElementDataFile");
-  std::vector<uint8_t> detached;
-  std::string dataName = path;
-  const uint8_t* data = nullptr;
-  size_t dataSize = 0;
-  if (dataFile == "LOCAL") {
-    data = bytes.data() + dataStart;
-    dataSize = bytes.size() - dataStart;
-  } else {
+  std::optional<InputFile> detached;
+  if (dataFile != "LOCAL") {
     if (dataFile.rfind("LIST", 0) == 0 || dataFile.find('%') != std::string::npos)
       HYB_THROW(IoError, path, ": multi-file ElementDataFile is not supported (expected one file or LOCAL)");
     fs::path p(dataFile);
     if (p.is_relative()) p = fs::path(path).parent_path() / p;
-    dataName = p.string();
     std::error_code ec;
-    if (!fs::exists(p, ec)) HYB_THROW(IoError, path, ": data file '", dataName, "' does not exist");
-    detached = readFileBytes(dataName);
-    data = detached.data();
-    dataSize = detached.size();
+    if (!fs::exists(p, ec)) HYB_THROW(IoError, path, ": data file ", quotedExcerpt(p.string(), 4096), " does not exist");
+    detached.emplace(p.string());
+    dataStart = 0;
   }
+  const InputFile& data = detached ? *detached : file;
   long long headerSize = 0;
   if (fields.count("HeaderSize") && !parseNumbers(fields["HeaderSize"], 1, &headerSize))
-    HYB_THROW(IoError, path, ": HeaderSize '", fields["HeaderSize"], "' malformed");
-
-  const uint64_t expected = expectedBytes(dims, type);
-  const size_t count = size_t(dims.x) * dims.y * dims.z;
-  if (compressed) {
-    const std::vector<uint8_t> raw = inflateAll(data, dataSize, expected, dataName);
-    checkByteCount(dataName + " (decompressed)", expected, raw.size(), dims, type);
-    return placed(Volume(dims, spacing, type, decodeSamples(raw.data(), count, type, bigEndian), path), frame, warnings);
-  }
-  skipToSamples(&data, &dataSize, headerSize, expected, dataName, "HeaderSize", dims, type);
-  return placed(Volume(dims, spacing, type, decodeSamples(data, count, type, bigEndian), path), frame, warnings);
+    HYB_THROW(IoError, path, ": HeaderSize ", quotedExcerpt(fields["HeaderSize"]), " malformed");
+  std::vector<float> samples = compressed ? readCompressedSamples(data, dataStart, 0, dims, type, bigEndian)
+                                          : readRawSamples(data, dataStart, headerSize, "HeaderSize", dims, type, bigEndian);
+  return placed(Volume(dims, spacing, type, std::move(samples), path), frame, warnings);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -599,19 +565,52 @@ PatientFrame niftiFrame(const nifti_image& nim, const std::string& path, glm::dv
 
 }  // namespace
 
+namespace {
+
+// Checks the data file nifti_clib will read against the header's claim before it allocates:
+// a plain file must hold the bytes, a gzip one must be able to inflate to them.
+void checkNiftiData(const nifti_image& nim, const std::string& path) {
+  if (!nim.iname) HYB_THROW(IoError, path, ": NIfTI header names no data file");
+  const InputFile data(nim.iname);
+  const uint64_t offset = uint64_t(std::max<int64_t>(0, nim.iname_offset));
+  const uint64_t bytes = uint64_t(nim.nvox) * uint64_t(nim.nbyper);
+  const uint64_t needed = offset + bytes;
+  const bool gz = fileExtension(nim.iname).ends_with(".gz");
+  if (!gz && data.size() < needed)
+    HYB_THROW(IoError, data.path(), ": truncated NIfTI data: expected ", bytes, " bytes of samples from byte ", offset, ", found ",
+              data.size() > offset ? data.size() - offset : 0);
+  if (gz && detail::maxInflatedBytes(data.size()) < needed)
+    HYB_THROW(IoError, data.path(), ": ", data.size(), " bytes of compressed data cannot hold the ", needed,
+              " bytes the header declares (expected more: deflate inflates at most ", detail::kMaxDeflateRatio, ":1)");
+  checkMemory(path, bytes + uint64_t(nim.nvox) * sizeof(float), detail::concat(nim.nvox, " NIfTI samples"));
+}
+
+}  // namespace
+
 Volume readNifti(const std::string& path) {
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
+  const InputFile header(path);  // refuses FIFOs and directories before nifti_clib opens them
   nifti_set_debug_level(0);  // we report errors ourselves, in one line
-  std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nifti_image_read(path.c_str(), 1), nifti_image_free);
-  if (!nim) HYB_THROW(IoError, path, ": not a readable NIfTI-1/2 image (bad header, or data missing or truncated)");
-  if (!nim->data) HYB_THROW(IoError, path, ": NIfTI data could not be read (missing or truncated)");
-  for (int d = 4; d <= nim->ndim; ++d)
+  // The header first: the data is loaded only once its size is proven by the file. nifti_clib
+  // prints some errors whatever its debug level; they are captured and quoted in ours.
+  detail::StderrCapture capture;
+  std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nifti_image_read(path.c_str(), 0), nifti_image_free);
+  const std::string said = capture.finish();
+  if (!nim)
+    HYB_THROW(IoError, path, ": not a readable NIfTI-1/2 image", said.empty() ? "" : " (nifti_clib: " + quotedExcerpt(said, 120) + ")",
+              " (expected a NIfTI-1 or NIfTI-2 header)");
+  for (int d = 4; d <= nim->ndim && d < 8; ++d)
     if (nim->dim[d] > 1)
       HYB_THROW(IoError, path, ": NIfTI image has ", nim->ndim, " dimensions with extent ", nim->dim[d],
                 " along axis ", d, " (expected one 3D volume)");
-  if (nim->nx > kMaxDim || nim->ny > kMaxDim || nim->nz > kMaxDim)
-    HYB_THROW(IoError, path, ": NIfTI dims exceed ", kMaxDim, " per axis");
+  if (nim->nx < 1 || nim->nx > kMaxDim || nim->ny > kMaxDim || nim->nz > kMaxDim || nim->nvox < 1 || nim->nbyper < 1 || nim->nbyper > 32)
+    HYB_THROW(IoError, path, ": NIfTI dims ", nim->nx, "x", nim->ny, "x", nim->nz, " invalid (expected 1..", kMaxDim, " per axis)");
+  checkNiftiData(*nim, path);
+  detail::StderrCapture loadCapture;
+  const bool loaded = nifti_image_load(nim.get()) == 0 && nim->data;
+  const std::string loadSaid = loadCapture.finish();
+  if (!loaded)
+    HYB_THROW(IoError, path, ": NIfTI data could not be read", loadSaid.empty() ? "" : " (nifti_clib: " + quotedExcerpt(loadSaid, 120) + ")",
+              " (expected ", uint64_t(nim->nvox) * uint64_t(nim->nbyper), " bytes of samples)");
   const glm::ivec3 dims(int(nim->nx), int(std::max<int64_t>(1, nim->ny)), int(std::max<int64_t>(1, nim->nz)));
   validateDims(dims, path);
   ScalarType type;
@@ -641,237 +640,6 @@ Volume readNifti(const std::string& path) {
     type = ScalarType::Float32;
   }
   return placed(Volume(dims, spacing, type, std::move(samples), path), frame, warnings);
-}
-
-// ---------------------------------------------------------------------------------------------
-// DICOM series through GDCM
-
-namespace {
-
-const gdcm::Tag kSeriesUid(0x0020, 0x000e), kSeriesNumber(0x0020, 0x0011), kSeriesDescription(0x0008, 0x103e), kModality(0x0008, 0x0060),
-    kRows(0x0028, 0x0010), kColumns(0x0028, 0x0011), kPosition(0x0020, 0x0032), kOrientation(0x0020, 0x0037), kThickness(0x0018, 0x0050),
-    kSlope(0x0028, 0x1053), kIntercept(0x0028, 0x1052), kPatientPosition(0x0018, 0x5100);
-
-// Backslash-separated decimal strings (DICOM's multi-valued DS).
-std::vector<double> decimals(const char* text) {
-  std::vector<double> out;
-  if (!text) return out;
-  std::string t(text);
-  for (char& c : t)
-    if (c == '\\') c = ' ';
-  std::istringstream in(t);
-  double v;
-  while (in >> v) out.push_back(v);
-  return out;
-}
-
-// The DICOM files of @p dir scanned for the tags the series need.
-struct DicomScan {
-  gdcm::Scanner scanner;
-  std::map<std::string, std::vector<std::string>> series;  // series UID -> files
-  std::string value(const std::string& file, const gdcm::Tag& t) const {
-    const char* v = scanner.GetValue(file.c_str(), t);
-    return v ? trim(v) : std::string();
-  }
-};
-
-// GDCM prints its warnings (a missing Photometric Interpretation, say) and errors on stderr; the
-// reader reports what matters in its own one-line errors instead.
-void silenceGdcm() {
-  gdcm::Trace::WarningOff();
-  gdcm::Trace::ErrorOff();
-  gdcm::Trace::DebugOff();
-}
-
-void scanDicom(const std::string& dir, DicomScan* scan) {
-  silenceGdcm();
-  gdcm::Directory directory;
-  if (directory.Load(dir, false) == 0) HYB_THROW(IoError, dir, ": directory holds no files (expected a DICOM series)");
-  for (const gdcm::Tag& t : {kSeriesUid, kSeriesNumber, kSeriesDescription, kModality, kRows, kColumns, kPosition, kOrientation, kThickness,
-                             kSlope, kIntercept, kPatientPosition})
-    scan->scanner.AddTag(t);
-  if (!scan->scanner.Scan(directory.GetFilenames())) HYB_THROW(IoError, dir, ": cannot scan the directory for DICOM files");
-  for (const std::string& f : directory.GetFilenames())
-    if (scan->scanner.IsKey(f.c_str())) scan->series[scan->value(f, kSeriesUid)].push_back(f);
-  if (scan->series.empty()) HYB_THROW(IoError, dir, ": no DICOM files found (expected a directory holding one series)");
-}
-
-DicomSeriesInfo seriesInfo(const DicomScan& scan, const std::string& uid, const std::vector<std::string>& files) {
-  DicomSeriesInfo s;
-  s.uid = uid;
-  s.slices = files.size();
-  const std::string& f = files.front();
-  s.number = scan.value(f, kSeriesNumber);
-  s.description = scan.value(f, kSeriesDescription);
-  s.modality = scan.value(f, kModality);
-  s.columns = std::atoi(scan.value(f, kColumns).c_str());
-  s.rows = std::atoi(scan.value(f, kRows).c_str());
-  return s;
-}
-
-// One line naming series @p s.
-std::string describe(const DicomSeriesInfo& s) {
-  return detail::concat("'", s.uid, "' (", s.modality.empty() ? "?" : s.modality, s.description.empty() ? "" : ", " + s.description, ", ",
-                        s.slices, " slices of ", s.columns, "x", s.rows, ")");
-}
-
-}  // namespace
-
-std::vector<DicomSeriesInfo> listDicomSeries(const std::string& dir) {
-  DicomScan scan;
-  scanDicom(dir, &scan);
-  std::vector<DicomSeriesInfo> out;
-  for (const auto& [uid, files] : scan.series) out.push_back(seriesInfo(scan, uid, files));
-  std::stable_sort(out.begin(), out.end(), [](const DicomSeriesInfo& a, const DicomSeriesInfo& b) { return a.slices > b.slices; });
-  return out;
-}
-
-Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, const Progress* progress) {
-  DicomScan scan;
-  scanDicom(dir, &scan);
-  std::vector<std::string> warnings;
-  // The series: the one named, or the largest (with a line naming it when there are several).
-  std::vector<DicomSeriesInfo> all;
-  for (const auto& [uid, files] : scan.series) all.push_back(seriesInfo(scan, uid, files));
-  std::stable_sort(all.begin(), all.end(), [](const DicomSeriesInfo& a, const DicomSeriesInfo& b) { return a.slices > b.slices; });
-  std::string listing;
-  for (const DicomSeriesInfo& s : all) listing += (listing.empty() ? "" : "; ") + describe(s);
-  const DicomSeriesInfo* chosen = &all.front();
-  if (!seriesUid.empty()) {
-    const auto it = std::find_if(all.begin(), all.end(), [&](const DicomSeriesInfo& s) { return s.uid == seriesUid; });
-    if (it == all.end()) HYB_THROW(ValueError, "--series '", seriesUid, "': no such series in ", dir, " (it holds ", listing, ")");
-    chosen = &*it;
-  } else if (all.size() > 1) {
-    warnings.push_back(detail::concat(dir, ": ", all.size(), " series; reading the largest, ", describe(*chosen),
-                                      " (choose another with --series UID: ", listing, ")"));
-  }
-  std::vector<std::string> files = scan.series.at(chosen->uid);
-
-  // Geometry (DICOM PS3.3 C.7.6.2): the rows' and columns' directions from Image Orientation
-  // (Patient), the slices ordered by Image Position (Patient) along their normal, which must hold
-  // every position (no gantry tilt) at one spacing.
-  const std::vector<double> iop = decimals(scan.scanner.GetValue(files.front().c_str(), kOrientation));
-  glm::dmat3 direction(1.0);
-  const bool oriented = iop.size() == 6;
-  if (oriented) {
-    direction[0] = glm::dvec3(iop[0], iop[1], iop[2]);
-    direction[1] = glm::dvec3(iop[3], iop[4], iop[5]);
-    direction[2] = glm::cross(direction[0], direction[1]);
-  } else if (files.size() > 1) {
-    HYB_THROW(IoError, files.front(), ": Image Orientation (Patient) missing or malformed (expected six cosines to order the slices)");
-  } else {
-    warnings.push_back(files.front() + ": no Image Orientation (Patient): the slice's axes are taken as LPS");
-  }
-  const PatientFrame axes = makePatientFrame(direction, glm::dvec3(0.0), files.front() + " (Image Orientation (Patient))");
-  struct Slice {
-    std::string file;
-    glm::dvec3 position;
-    double depth;
-  };
-  std::vector<Slice> slices;
-  for (const std::string& f : files) {
-    const std::vector<double> ipp = decimals(scan.scanner.GetValue(f.c_str(), kPosition));
-    if (ipp.size() != 3 && files.size() > 1)
-      HYB_THROW(IoError, f, ": Image Position (Patient) missing or malformed (expected three numbers to order the slices)");
-    const glm::dvec3 p = ipp.size() == 3 ? glm::dvec3(ipp[0], ipp[1], ipp[2]) : glm::dvec3(0.0);
-    if (oriented && f != files.front()) {
-      const std::vector<double> other = decimals(scan.scanner.GetValue(f.c_str(), kOrientation));
-      bool same = other.size() == 6;
-      for (size_t c = 0; same && c < 6; ++c) same = std::abs(other[c] - iop[c]) <= 1e-4;
-      if (!same) HYB_THROW(IoError, f, ": Image Orientation (Patient) differs from ", files.front(), "'s (expected one orientation for the series)");
-    }
-    slices.push_back({f, p, glm::dot(p, axes.direction[2])});
-  }
-  std::sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.depth < b.depth; });
-  double zSpacing = 1.0;
-  if (slices.size() > 1) {
-    zSpacing = (slices.back().depth - slices.front().depth) / double(slices.size() - 1);
-    for (size_t k = 1; k < slices.size(); ++k) {
-      const double step = slices[k].depth - slices[k - 1].depth;
-      if (step <= 1e-3 * std::max(zSpacing, 1e-3))
-        HYB_THROW(IoError, slices[k].file, ": at the same position as ", slices[k - 1].file, " along the slice normal (expected one slice per position)");
-      if (std::abs(step - zSpacing) > std::max(1e-3, 1e-2 * zSpacing))
-        HYB_THROW(IoError, dir, ": slices are not evenly spaced along the normal (", slices[k - 1].file, " to ", slices[k].file, ": ", step,
-                  " mm, the series' mean ", zSpacing, " mm; expected a regular grid)");
-      // Positions must run along the normal: a gantry tilt moves them across the image plane.
-      const glm::dvec3 offset = slices[k].position - slices.front().position;
-      const double across = glm::length(offset - glm::dot(offset, axes.direction[2]) * axes.direction[2]);
-      if (across > std::max(1e-2, 1e-3 * glm::length(offset)))
-        HYB_THROW(IoError, dir, ": slice positions move ", across, " mm across the image plane by ", slices[k].file,
-                  " (gantry tilt or a sheared series: the grid is not orthogonal); resample it to an orthogonal grid first "
-                  "(e.g. Slicer or ITK), it is refused rather than drawn sheared");
-    }
-  } else if (const std::vector<double> t = decimals(scan.scanner.GetValue(slices.front().file.c_str(), kThickness)); t.size() == 1 && t[0] > 0) {
-    zSpacing = t[0];
-  }
-
-  glm::ivec3 dims(0, 0, int(slices.size()));
-  glm::dvec3 spacing(1.0, 1.0, zSpacing);
-  ScalarType type = ScalarType::Int16;
-  std::vector<float> samples;
-  bool rescaled = false;
-  double slopeFirst = 1.0, interceptFirst = 0.0;
-  ProgressTask task(progress, "DICOM slices", slices.size());
-  for (size_t s = 0; s < slices.size(); ++s, task.advance()) {
-    const std::string& file = slices[s].file;
-    gdcm::ImageReader reader;
-    reader.SetFileName(file.c_str());
-    if (!reader.Read()) HYB_THROW(IoError, file, ": not a readable DICOM image");
-    const gdcm::Image& image = reader.GetImage();
-    const gdcm::PixelFormat& pf = image.GetPixelFormat();
-    if (pf.GetSamplesPerPixel() != 1)
-      HYB_THROW(IoError, file, ": ", pf.GetSamplesPerPixel(), " samples per pixel (expected 1, greyscale)");
-    if (image.GetNumberOfDimensions() == 3 && image.GetDimension(2) > 1)
-      HYB_THROW(IoError, file, ": multi-frame images are not supported (expected one slice per file)");
-    const glm::ivec2 size(int(image.GetDimension(0)), int(image.GetDimension(1)));
-    ScalarType sliceType;
-    switch (pf.GetScalarType()) {
-      case gdcm::PixelFormat::UINT8: sliceType = ScalarType::UInt8; break;
-      case gdcm::PixelFormat::INT8: sliceType = ScalarType::Int8; break;
-      case gdcm::PixelFormat::UINT16: sliceType = ScalarType::UInt16; break;
-      case gdcm::PixelFormat::INT16: sliceType = ScalarType::Int16; break;
-      case gdcm::PixelFormat::UINT32: sliceType = ScalarType::UInt32; break;
-      case gdcm::PixelFormat::INT32: sliceType = ScalarType::Int32; break;
-      case gdcm::PixelFormat::FLOAT32: sliceType = ScalarType::Float32; break;
-      case gdcm::PixelFormat::FLOAT64: sliceType = ScalarType::Float64; break;
-      default: HYB_THROW(IoError, file, ": unsupported pixel format ", pf.GetScalarTypeAsString());
-    }
-    if (s == 0) {
-      dims.x = size.x;
-      dims.y = size.y;
-      validateDims(dims, dir);
-      const double* sp = image.GetSpacing();  // column spacing, row spacing (Pixel Spacing's second and first)
-      spacing.x = sp[0];
-      spacing.y = sp[1];
-      type = sliceType;
-      samples.resize(size_t(dims.x) * dims.y * dims.z);
-      slopeFirst = image.GetSlope();
-      interceptFirst = image.GetIntercept();
-    } else if (size.x != dims.x || size.y != dims.y) {
-      HYB_THROW(IoError, file, ": slice is ", size.x, "x", size.y, ", expected ", dims.x, "x", dims.y, " like the first slice");
-    }
-    const size_t sliceCount = size_t(dims.x) * dims.y;
-    std::vector<char> buffer(image.GetBufferLength());
-    if (buffer.size() < sliceCount * scalarSize(sliceType) || !image.GetBuffer(buffer.data()))
-      HYB_THROW(IoError, file, ": pixel data missing or truncated");
-    std::vector<float> slice = decodeSamples(reinterpret_cast<const uint8_t*>(buffer.data()), sliceCount, sliceType,
-                                             std::endian::native == std::endian::big);
-    const double slopeValue = image.GetSlope(), intercept = image.GetIntercept();
-    if (slopeValue != 1.0 || intercept != 0.0) rescaled = true;
-    for (size_t i = 0; i < sliceCount; ++i) samples[s * sliceCount + i] = float(slice[i] * slopeValue + intercept);
-  }
-  if (rescaled && type != ScalarType::Float32 && type != ScalarType::Float64) type = ScalarType::Int32;
-  validateSpacing(spacing, dir);
-  Volume v = placed(Volume(dims, spacing, type, std::move(samples), dir),
-                    makePatientFrame(axes.direction, slices.front().position, dir), warnings);
-  const std::string& first = slices.front().file;
-  v.addInfo("modality", chosen->modality.empty() ? "(none)" : chosen->modality);
-  v.addInfo("series", describe(*chosen) + (chosen->number.empty() ? "" : ", number " + chosen->number));
-  if (const std::string pp = scan.value(first, kPatientPosition); !pp.empty()) v.addInfo("position", pp + " (Patient Position)");
-  if (const std::string t = scan.value(first, kThickness); !t.empty()) v.addInfo("thickness", t + " mm (Slice Thickness; slices " +
-                                                                                   detail::concat(zSpacing) + " mm apart)");
-  v.addInfo("rescale", detail::concat("slope ", slopeFirst, ", intercept ", interceptFirst, rescaled ? " (applied)" : ""));
-  return v;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -920,37 +688,77 @@ PatientFrame inv3Frame(const detail::PlistValue& plist, const glm::ivec3& dims, 
 
 }  // namespace
 
-Volume readInv3(const std::string& path) {
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
-  std::unique_ptr<archive, int (*)(archive*)> ar(archive_read_new(), archive_read_free);
+namespace {
+
+using ArchivePtr = std::unique_ptr<archive, int (*)(archive*)>;
+
+// The .inv3 at @p path opened as a (gzip) tar; @p file proved it a regular file.
+ArchivePtr openInv3(const InputFile& file) {
+  ArchivePtr ar(archive_read_new(), archive_read_free);
   archive_read_support_filter_all(ar.get());
   archive_read_support_format_tar(ar.get());
-  if (archive_read_open_filename(ar.get(), path.c_str(), 1 << 16) != ARCHIVE_OK)
-    HYB_THROW(IoError, path, ": not an InVesalius project (expected a gzip tar archive: ", archive_error_string(ar.get()), ")");
-  // Keep main.plist and every .dat entry that may be the matrix; masks are skipped by name later.
-  std::string mainPlist;
-  std::map<std::string, std::vector<uint8_t>> blobs;
+  if (archive_read_open_filename(ar.get(), file.path().c_str(), 1 << 16) != ARCHIVE_OK)
+    HYB_THROW(IoError, file.path(), ": not an InVesalius project (expected a gzip tar archive: ", archive_error_string(ar.get()), ")");
+  return ar;
+}
+
+// The current entry's data, exactly @p size bytes (its declared size, checked by the caller):
+// an entry that yields more or fewer is refused.
+std::vector<uint8_t> readEntry(archive* ar, const std::string& path, const std::string& name, uint64_t size) {
+  checkMemory(path + ":" + name, size, "the archive entry");
+  std::vector<uint8_t> content(static_cast<size_t>(size));
+  uint64_t got = 0;
+  for (;;) {
+    uint8_t spill;  // reading one byte past the size proves a longer entry
+    uint8_t* out = got < size ? content.data() + got : &spill;
+    const la_ssize_t n = archive_read_data(ar, out, got < size ? size_t(std::min<uint64_t>(size - got, 1 << 20)) : 1);
+    if (n < 0)
+      HYB_THROW(IoError, path, ": truncated or corrupt archive entry ", quotedExcerpt(name), " (", archive_error_string(ar), ")");
+    if (n == 0) break;
+    if (got == size) HYB_THROW(IoError, path, ": archive entry ", quotedExcerpt(name), " holds more than its declared ", size, " bytes");
+    got += uint64_t(n);
+  }
+  if (got != size) HYB_THROW(IoError, path, ": archive entry ", quotedExcerpt(name), " ends after ", got, " of its declared ", size, " bytes");
+  return content;
+}
+
+// One pass over the archive: main.plist (when @p plist is empty) and the entry named
+// @p matrixName (when given and @p matrix is empty), whose declared size must be that of @p dims
+// samples of @p type; every other entry is skipped unread. Returns whether the matrix was found.
+bool scanInv3(const InputFile& file, std::string* plist, const std::string& matrixName, const glm::ivec3& dims, ScalarType type,
+              std::vector<uint8_t>* matrix) {
+  const ArchivePtr ar = openInv3(file);
+  const std::string& path = file.path();
   archive_entry* entry = nullptr;
   int rc;
   while ((rc = archive_read_next_header(ar.get(), &entry)) == ARCHIVE_OK) {
-    const std::string name = fs::path(archive_entry_pathname(entry)).filename().string();
-    const bool wanted = name == "main.plist" || (name.size() > 4 && name.rfind("mask_", 0) != 0 &&
-                                                 name.compare(name.size() - 4, 4, ".dat") == 0);
-    if (!wanted) continue;
-    std::vector<uint8_t> content;
+    const char* entryPath = archive_entry_pathname(entry);
+    const std::string name = entryPath ? fs::path(entryPath).filename().string() : std::string();
     const la_int64_t declared = archive_entry_size(entry);
-    if (declared > 0) content.reserve(size_t(declared));
-    char buf[1 << 16];
-    la_ssize_t n;
-    while ((n = archive_read_data(ar.get(), buf, sizeof buf)) > 0) content.insert(content.end(), buf, buf + n);
-    if (n < 0) HYB_THROW(IoError, path, ": truncated or corrupt archive entry '", name, "' (", archive_error_string(ar.get()), ")");
-    if (name == "main.plist")
-      mainPlist.assign(content.begin(), content.end());
-    else
-      blobs[name] = std::move(content);
+    if (plist->empty() && name == "main.plist") {
+      if (declared < 0 || uint64_t(declared) > detail::kMaxPlistBytes)
+        HYB_THROW(IoError, path, ": main.plist declares ", declared, " bytes (expected at most ", detail::kMaxPlistBytes, ")");
+      const std::vector<uint8_t> text = readEntry(ar.get(), path, name, uint64_t(declared));
+      plist->assign(text.begin(), text.end());
+      if (plist->empty()) HYB_THROW(IoError, path, ": main.plist is empty (expected an InVesalius 3 project)");
+    } else if (!matrixName.empty() && matrix->empty() && name == matrixName) {
+      const uint64_t expected = expectedBytes(dims, type);
+      checkByteCount(path + ":" + name, expected, uint64_t(std::max<la_int64_t>(declared, 0)), dims, type);
+      *matrix = readEntry(ar.get(), path, name, expected);
+      if (!plist->empty()) return true;
+    }
   }
   if (rc != ARCHIVE_EOF) HYB_THROW(IoError, path, ": truncated or corrupt archive (", archive_error_string(ar.get()), ")");
+  return !matrix->empty();
+}
+
+}  // namespace
+
+Volume readInv3(const std::string& path) {
+  const InputFile file(path);
+  std::string mainPlist;
+  std::vector<uint8_t> matrixBytes;
+  scanInv3(file, &mainPlist, "", glm::ivec3(1), ScalarType::UInt8, &matrixBytes);
   if (mainPlist.empty()) HYB_THROW(IoError, path, ": archive has no main.plist (expected an InVesalius 3 project)");
 
   const detail::PlistValue plist = detail::parsePlist(mainPlist, path + ":main.plist");
@@ -978,15 +786,17 @@ Volume readInv3(const std::string& path) {
       {"float32", ScalarType::Float32}, {"float64", ScalarType::Float64}};
   const std::string dtype = matrix->find("dtype")->text;
   const auto typeIt = kTypes.find(dtype);
-  if (typeIt == kTypes.end()) HYB_THROW(IoError, path, ": matrix dtype '", dtype, "' unsupported");
+  if (typeIt == kTypes.end()) HYB_THROW(IoError, path, ": matrix dtype ", quotedExcerpt(dtype), " unsupported");
   const std::string matrixName = fs::path(matrix->find("filename")->text).filename().string();
-  const auto blob = blobs.find(matrixName);
-  if (blob == blobs.end()) HYB_THROW(IoError, path, ": archive has no matrix file '", matrixName, "'");
-  checkByteCount(path + ":" + matrixName, expectedBytes(dims, typeIt->second), blob->second.size(), dims, typeIt->second);
+  const ScalarType type = typeIt->second;
+  const uint64_t expected = expectedBytes(dims, type);
+  checkSampleMemory(path, expected, dims, type);
+  // A second pass reads the matrix alone, now that its name and size are known.
+  if (matrixName.empty() || !scanInv3(file, &mainPlist, matrixName, dims, type, &matrixBytes))
+    HYB_THROW(IoError, path, ": archive has no matrix file ", quotedExcerpt(matrixName), "");
   std::vector<std::string> warnings;
   const PatientFrame frame = inv3Frame(plist, dims, spacing, path, &warnings);
-  Volume v = placed(Volume(dims, spacing, typeIt->second,
-                           decodeSamples(blob->second.data(), size_t(dims.x) * dims.y * dims.z, typeIt->second, false), path),
+  Volume v = placed(Volume(dims, spacing, type, decodeSamples(matrixBytes.data(), size_t(dims.x) * dims.y * dims.z, type, false), path),
                     frame, warnings);
   for (const char* key : {"modality", "name"})
     if (const detail::PlistValue* value = plist.find(key); value && value->kind == detail::PlistValue::Kind::String)
@@ -1000,19 +810,34 @@ Volume readInv3(const std::string& path) {
 Volume readRaw(const std::string& path, const RawLayout& layout) {
   validateDims(layout.dims, "--raw-dims");
   validateSpacing(layout.spacing, "--raw-spacing");
-  const std::vector<uint8_t> bytes = readFileBytes(path);
-  if (layout.headerBytes > bytes.size())
-    HYB_THROW(IoError, path, ": header of ", layout.headerBytes, " bytes is longer than the ", bytes.size(), "-byte file");
-  const uint64_t expected = expectedBytes(layout.dims, layout.type);
-  checkByteCount(path, expected, bytes.size() - layout.headerBytes, layout.dims, layout.type);
-  const size_t count = size_t(layout.dims.x) * layout.dims.y * layout.dims.z;
-  Volume v(layout.dims, layout.spacing, layout.type, decodeSamples(bytes.data() + layout.headerBytes, count, layout.type, layout.bigEndian),
-           path);
+  const InputFile file(path);
+  if (layout.headerBytes > file.size())
+    HYB_THROW(IoError, path, ": header of ", layout.headerBytes, " bytes is longer than the ", file.size(), "-byte file");
+  Volume v(layout.dims, layout.spacing, layout.type,
+           readRawSamples(file, layout.headerBytes, 0, "header", layout.dims, layout.type, layout.bigEndian), path);
   v.addWarning(path + ": raw samples carry no orientation: the grid's axes are taken as LPS with the origin at 0");
   return v;
 }
 
-Volume readVolume(const std::string& path, const RawLayout* raw, const std::string& series, const Progress* progress) {
+namespace {
+
+// @p message with control characters escaped: a reader's error stays one line whatever it quotes.
+std::string oneLine(const std::string& message) {
+  std::string out;
+  for (const char c : message) {
+    if (static_cast<unsigned char>(c) >= 0x20 && c != 0x7f) {
+      out += c;
+    } else {
+      static const char* kHex = "0123456789abcdef";
+      out += "\\x";
+      out += kHex[static_cast<unsigned char>(c) >> 4];
+      out += kHex[c & 15];
+    }
+  }
+  return out;
+}
+
+Volume readByFormat(const std::string& path, const RawLayout* raw, const std::string& series, const Progress* progress) {
   if (raw) return readRaw(path, *raw);
   std::error_code ec;
   if (!fs::exists(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
@@ -1027,6 +852,22 @@ Volume readVolume(const std::string& path, const RawLayout* raw, const std::stri
     HYB_THROW(ValueError, path, ": raw data needs --raw-dims X,Y,Z and --raw-type (and optionally --raw-spacing, --raw-endian)");
   HYB_THROW(IoError, path, ": unknown volume format '", ext,
             "' (expected .nrrd .nhdr .mhd .mha .nii .nii.gz .inv3, a DICOM directory, or raw with --raw-dims)");
+}
+
+}  // namespace
+
+Volume readVolume(const std::string& path, const RawLayout* raw, const std::string& series, const Progress* progress) {
+  try {
+    return readByFormat(path, raw, series, progress);
+  } catch (const IoError& e) {
+    throw IoError(oneLine(e.what()));
+  } catch (const ValueError& e) {
+    throw ValueError(oneLine(e.what()));
+  } catch (const RuntimeError& e) {
+    throw RuntimeError(oneLine(e.what()));
+  } catch (const std::bad_alloc&) {
+    HYB_THROW(RuntimeError, oneLine(path), ": out of memory while reading (expected a volume that fits; lower the memory limit to refuse it early)");
+  }
 }
 
 }  // namespace hyb

@@ -1,0 +1,424 @@
+// DICOM series through GDCM, behind a firewall: GDCM asserts (aborting the process) on some
+// malformed files and prints to the terminal, so every file is checked here first (its file meta
+// information byte by byte, then the pixel module's tags and the pixel data's length) and GDCM's
+// output is captured; what GDCM still refuses becomes one line naming the file and the slice.
+#include <gdcmDirectory.h>
+#include <gdcmImageReader.h>
+#include <gdcmReader.h>
+#include <gdcmScanner.h>
+#include <gdcmStringFilter.h>
+#include <gdcmTrace.h>
+#include <sys/stat.h>
+
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <sstream>
+
+#include "volume/file_util.h"
+#include "volume/memory_limit.h"
+#include "volume/reader_util.h"
+#include "volume/volume_io.h"
+
+namespace hyb {
+
+using detail::decodeSamples;
+using detail::placed;
+using detail::trim;
+
+namespace {
+
+const gdcm::Tag kSeriesUid(0x0020, 0x000e), kSeriesNumber(0x0020, 0x0011), kSeriesDescription(0x0008, 0x103e), kModality(0x0008, 0x0060),
+    kRows(0x0028, 0x0010), kColumns(0x0028, 0x0011), kPosition(0x0020, 0x0032), kOrientation(0x0020, 0x0037), kThickness(0x0018, 0x0050),
+    kSlope(0x0028, 0x1053), kIntercept(0x0028, 0x1052), kPatientPosition(0x0018, 0x5100);
+
+// Backslash-separated decimal strings (DICOM's multi-valued DS).
+std::vector<double> decimals(const char* text) {
+  std::vector<double> out;
+  if (!text) return out;
+  std::string t(text);
+  for (char& c : t)
+    if (c == '\\') c = ' ';
+  std::istringstream in(t);
+  double v;
+  while (in >> v) out.push_back(v);
+  return out;
+}
+
+// The DICOM files of @p dir scanned for the tags the series need.
+struct DicomScan {
+  gdcm::Scanner scanner;
+  std::map<std::string, std::vector<std::string>> series;  // series UID -> files
+  std::string value(const std::string& file, const gdcm::Tag& t) const {
+    const char* v = scanner.GetValue(file.c_str(), t);
+    return v ? trim(v) : std::string();
+  }
+};
+
+// GDCM prints its warnings (a missing Photometric Interpretation, say) and errors on stderr; the
+// reader reports what matters in its own one-line errors instead, so GDCM writes to a stream
+// without a buffer, which drops everything (and cannot race between threads).
+void silenceGdcm() {
+  static std::ostream sink(nullptr);
+  gdcm::Trace::SetStream(sink);
+  gdcm::Trace::WarningOff();
+  gdcm::Trace::ErrorOff();
+  gdcm::Trace::DebugOff();
+}
+
+// ---------------------------------------------------------------------------------------------
+// File meta information (PS3.10 7.1), checked before GDCM parses it: GDCM asserts on an undefined
+// length, a sequence or a value running past the file in group 0002.
+
+enum class DicomKind { NotDicom, Dicom };
+
+uint16_t le16(const uint8_t* p) { return uint16_t(p[0] | p[1] << 8); }
+uint32_t le32(const uint8_t* p) { return uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24; }
+
+bool isVr(const uint8_t* p) { return p[0] >= 'A' && p[0] <= 'Z' && p[1] >= 'A' && p[1] <= 'Z'; }
+
+// Explicit VRs whose length takes 4 bytes after 2 reserved ones (PS3.5 7.1.2).
+bool longVr(const uint8_t* p) {
+  static const char* kLong[] = {"OB", "OW", "OF", "OD", "OL", "OV", "SQ", "UT", "UN", "UC", "UR", "SV", "UV"};
+  return std::any_of(std::begin(kLong), std::end(kLong), [&](const char* v) { return p[0] == v[0] && p[1] == v[1]; });
+}
+
+// Longest file meta information accepted (real ones are a few hundred bytes).
+constexpr size_t kMaxMetaBytes = 64 << 10;
+
+// Whether @p file looks like DICOM (the "DICM" prefix, or a data set starting at group 0002 or
+// 0008 as old files do); throws when it is DICOM whose file meta information would make GDCM
+// assert.
+DicomKind checkFileMeta(const InputFile& file) {
+  std::vector<uint8_t> head(size_t(std::min<uint64_t>(file.size(), 132 + kMaxMetaBytes)));
+  file.read(0, head.size(), head.data());
+  size_t pos = 0;
+  if (head.size() >= 132 && std::memcmp(head.data() + 128, "DICM", 4) == 0) pos = 132;
+  else if (head.size() < 8 || (le16(head.data()) != 0x0002 && le16(head.data()) != 0x0008)) return DicomKind::NotDicom;
+  auto damaged = [&](const std::string& what) {
+    HYB_THROW(IoError, file.path(), ": damaged DICOM file meta information: ", what, " at byte ", pos,
+              " (expected group 0002 elements of defined length within the file)");
+  };
+  while (pos + 8 <= head.size() && le16(head.data() + pos) == 0x0002) {
+    const uint8_t* e = head.data() + pos;
+    size_t headerBytes = 8;
+    uint64_t length;
+    if (isVr(e + 4) && longVr(e + 4)) {
+      if (e[4] == 'S' && e[5] == 'Q') damaged("a sequence");
+      if (pos + 12 > head.size()) damaged("an element cut short");
+      length = le32(e + 8);
+      headerBytes = 12;
+    } else {
+      length = isVr(e + 4) ? le16(e + 6) : le32(e + 4);  // explicit short form, else implicit
+    }
+    if (length == 0xffffffffu) damaged("an undefined length");
+    if (pos + headerBytes + length > file.size()) damaged(detail::concat("a length of ", length, " past the end of the file"));
+    if (pos + headerBytes + length > head.size()) damaged(detail::concat("more than ", kMaxMetaBytes, " bytes of meta information"));
+    pos += headerBytes + size_t(length);
+  }
+  return DicomKind::Dicom;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Pixel module, checked before GDCM decodes it: GDCM asserts on palette colour without its
+// tables, 1-bit pixels, unused bits in 8- or 32-bit pixels, zero samples per pixel; a length that
+// is not the image's lets a small file claim a huge slice.
+
+const gdcm::Tag kPixelData(0x7fe0, 0x0010), kSamplesPerPixel(0x0028, 0x0002), kPhotometric(0x0028, 0x0004), kFrames(0x0028, 0x0008),
+    kBitsAllocated(0x0028, 0x0100), kBitsStored(0x0028, 0x0101), kHighBit(0x0028, 0x0102), kPixelRepresentation(0x0028, 0x0103);
+
+// What one slice's pixel module declares.
+struct PixelModule {
+  int rows = 0, columns = 0, bitsAllocated = 0;
+};
+
+// An unsigned integer tag of @p ds as text (GDCM's StringFilter swaps and formats it); -1 when absent.
+long tagNumber(const gdcm::StringFilter& sf, const gdcm::DataSet& ds, const gdcm::Tag& t) {
+  if (!ds.FindDataElement(t) || ds.GetDataElement(t).IsEmpty()) return -1;
+  const std::string text = trim(sf.ToString(t));
+  char* end = nullptr;
+  const long v = std::strtol(text.c_str(), &end, 10);
+  return end == text.c_str() ? -1 : v;
+}
+
+// The length of the Pixel Data element whose value starts at @p valueStart, read from the file;
+// -1 when it is not there, 0xffffffff for encapsulated (compressed) data.
+int64_t pixelDataLength(const InputFile& file, uint64_t valueStart, const gdcm::TransferSyntax& ts) {
+  const uint64_t headerBytes = ts.IsImplicit() ? 8 : 12;
+  if (valueStart < headerBytes || valueStart > file.size()) return -1;
+  uint8_t h[12];
+  file.read(valueStart - headerBytes, headerBytes, h);
+  const bool big = ts.GetSwapCode() == gdcm::SwapCode::BigEndian;
+  auto u16 = [&](const uint8_t* q) { return big ? uint16_t(q[0] << 8 | q[1]) : le16(q); };
+  if (u16(h) != 0x7fe0 || u16(h + 2) != 0x0010) return -1;
+  const uint8_t* l = h + headerBytes - 4;
+  return big ? int64_t(uint32_t(l[0]) << 24 | uint32_t(l[1]) << 16 | uint32_t(l[2]) << 8 | l[3]) : int64_t(le32(l));
+}
+
+// Checks what GDCM needs to decode @p file without asserting; @p where names it and its slice.
+PixelModule checkPixelModule(const InputFile& file, const std::string& where) {
+  gdcm::Reader reader;
+  reader.SetFileName(file.path().c_str());
+  if (!reader.ReadUpToTag(kPixelData, {kPixelData})) HYB_THROW(IoError, where, ": not a readable DICOM file (expected a DICOM image)");
+  const gdcm::DataSet& ds = reader.GetFile().GetDataSet();
+  gdcm::StringFilter sf;
+  sf.SetFile(reader.GetFile());
+  auto number = [&](const gdcm::Tag& t) { return tagNumber(sf, ds, t); };
+  auto refuse = [&](const char* name, long v, const char* expected) {
+    HYB_THROW(IoError, where, ": ", name, " ", v < 0 ? std::string("missing") : std::to_string(v), " unsupported (expected ", expected, ")");
+  };
+  const long spp = number(kSamplesPerPixel);
+  if (spp != 1) refuse("Samples per Pixel", spp, "1, greyscale");
+  const std::string photometric = trim(sf.ToString(kPhotometric));
+  if (photometric != "MONOCHROME1" && photometric != "MONOCHROME2")
+    HYB_THROW(IoError, where, ": Photometric Interpretation ", quotedExcerpt(photometric), " unsupported (expected MONOCHROME1 or MONOCHROME2, greyscale)");
+  const long allocated = number(kBitsAllocated), stored = number(kBitsStored), high = number(kHighBit);
+  if (allocated != 8 && allocated != 16 && allocated != 32) refuse("Bits Allocated", allocated, "8, 16 or 32");
+  // GDCM masks unused bits only in 16-bit pixels; 8- and 32-bit ones must use every bit.
+  if (stored < 1 || stored > allocated || (allocated != 16 && stored != allocated))
+    refuse("Bits Stored", stored, allocated == 16 ? "1 to 16 with 16 bits allocated" : "equal to Bits Allocated for 8- or 32-bit pixels");
+  if (high < stored - 1 || high >= allocated) refuse("High Bit", high, "from Bits Stored - 1 to Bits Allocated - 1");
+  const long representation = number(kPixelRepresentation);
+  if (representation != 0 && representation != 1) refuse("Pixel Representation", representation, "0 or 1");
+  const long frames = number(kFrames);
+  if (frames > 1) HYB_THROW(IoError, where, ": multi-frame images are not supported (expected one slice per file)");
+  PixelModule m;
+  const long rows = number(kRows), columns = number(kColumns);
+  if (rows < 1 || rows > kMaxDim) refuse("Rows", rows, "1 to 32768");
+  if (columns < 1 || columns > kMaxDim) refuse("Columns", columns, "1 to 32768");
+  m.rows = int(rows);
+  m.columns = int(columns);
+  m.bitsAllocated = int(allocated);
+  // The pixel data's length must be the image's (odd lengths padded by one byte, PS3.5 7.1.1).
+  const gdcm::TransferSyntax& ts = reader.GetFile().GetHeader().GetDataSetTransferSyntax();
+  if (ts == gdcm::TransferSyntax::DeflatedExplicitVRLittleEndian) return m;  // positions are in the inflated stream
+  const uint64_t expected = uint64_t(rows) * uint64_t(columns) * uint64_t(allocated / 8);
+  const int64_t length = pixelDataLength(file, reader.GetStreamCurrentPosition(), ts);
+  if (length < 0) HYB_THROW(IoError, where, ": no Pixel Data (expected a DICOM image)");
+  if (length == 0xffffffff) {
+    if (!ts.IsEncapsulated()) HYB_THROW(IoError, where, ": Pixel Data of undefined length in an uncompressed transfer syntax");
+    return m;
+  }
+  if (uint64_t(length) != expected && uint64_t(length) != expected + (expected & 1))
+    HYB_THROW(IoError, where, ": Pixel Data holds ", length, " bytes (expected ", expected, " for ", columns, "x", rows, " pixels of ", allocated,
+              " bits)");
+  if (reader.GetStreamCurrentPosition() + uint64_t(length) > file.size())
+    HYB_THROW(IoError, where, ": Pixel Data of ", length, " bytes runs past the end of the file (expected ", expected, " bytes in the file)");
+  return m;
+}
+
+void scanDicom(const std::string& dir, DicomScan* scan) {
+  silenceGdcm();
+  gdcm::Directory directory;
+  if (directory.Load(dir, false) == 0) HYB_THROW(IoError, dir, ": directory holds no files (expected a DICOM series)");
+  // Only regular files that pass the meta check reach GDCM (a FIFO would block its open).
+  std::vector<std::string> candidates;
+  for (const std::string& f : directory.GetFilenames()) {
+    struct stat st {};
+    if (::stat(f.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) continue;
+    if (checkFileMeta(InputFile(f)) == DicomKind::Dicom) candidates.push_back(f);
+  }
+  for (const gdcm::Tag& t : {kSeriesUid, kSeriesNumber, kSeriesDescription, kModality, kRows, kColumns, kPosition, kOrientation, kThickness,
+                             kSlope, kIntercept, kPatientPosition})
+    scan->scanner.AddTag(t);
+  if (!scan->scanner.Scan(candidates)) HYB_THROW(IoError, dir, ": cannot scan the directory for DICOM files");
+  for (const std::string& f : candidates)
+    if (scan->scanner.IsKey(f.c_str())) scan->series[scan->value(f, kSeriesUid)].push_back(f);
+  if (scan->series.empty()) HYB_THROW(IoError, dir, ": no DICOM files found (expected a directory holding one series)");
+}
+
+DicomSeriesInfo seriesInfo(const DicomScan& scan, const std::string& uid, const std::vector<std::string>& files) {
+  DicomSeriesInfo s;
+  s.uid = uid;
+  s.slices = files.size();
+  const std::string& f = files.front();
+  s.number = scan.value(f, kSeriesNumber);
+  s.description = scan.value(f, kSeriesDescription);
+  s.modality = scan.value(f, kModality);
+  s.columns = std::atoi(scan.value(f, kColumns).c_str());
+  s.rows = std::atoi(scan.value(f, kRows).c_str());
+  return s;
+}
+
+// One line naming series @p s.
+std::string describe(const DicomSeriesInfo& s) {
+  return detail::concat("", quotedExcerpt(s.uid), " (", s.modality.empty() ? "?" : s.modality, s.description.empty() ? "" : ", " + s.description, ", ",
+                        s.slices, " slices of ", s.columns, "x", s.rows, ")");
+}
+
+}  // namespace
+
+std::vector<DicomSeriesInfo> listDicomSeries(const std::string& dir) {
+  DicomScan scan;
+  scanDicom(dir, &scan);
+  std::vector<DicomSeriesInfo> out;
+  for (const auto& [uid, files] : scan.series) out.push_back(seriesInfo(scan, uid, files));
+  std::stable_sort(out.begin(), out.end(), [](const DicomSeriesInfo& a, const DicomSeriesInfo& b) { return a.slices > b.slices; });
+  return out;
+}
+
+Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, const Progress* progress) {
+  DicomScan scan;
+  scanDicom(dir, &scan);
+  std::vector<std::string> warnings;
+  // The series: the one named, or the largest (with a line naming it when there are several).
+  std::vector<DicomSeriesInfo> all;
+  for (const auto& [uid, files] : scan.series) all.push_back(seriesInfo(scan, uid, files));
+  std::stable_sort(all.begin(), all.end(), [](const DicomSeriesInfo& a, const DicomSeriesInfo& b) { return a.slices > b.slices; });
+  std::string listing;
+  for (const DicomSeriesInfo& s : all) listing += (listing.empty() ? "" : "; ") + describe(s);
+  const DicomSeriesInfo* chosen = &all.front();
+  if (!seriesUid.empty()) {
+    const auto it = std::find_if(all.begin(), all.end(), [&](const DicomSeriesInfo& s) { return s.uid == seriesUid; });
+    if (it == all.end()) HYB_THROW(ValueError, "--series ", quotedExcerpt(seriesUid), ": no such series in ", dir, " (it holds ", listing, ")");
+    chosen = &*it;
+  } else if (all.size() > 1) {
+    warnings.push_back(detail::concat(dir, ": ", all.size(), " series; reading the largest, ", describe(*chosen),
+                                      " (choose another with --series UID: ", listing, ")"));
+  }
+  std::vector<std::string> files = scan.series.at(chosen->uid);
+
+  // Geometry (DICOM PS3.3 C.7.6.2): the rows' and columns' directions from Image Orientation
+  // (Patient), the slices ordered by Image Position (Patient) along their normal, which must hold
+  // every position (no gantry tilt) at one spacing.
+  const std::vector<double> iop = decimals(scan.scanner.GetValue(files.front().c_str(), kOrientation));
+  glm::dmat3 direction(1.0);
+  const bool oriented = iop.size() == 6;
+  if (oriented) {
+    direction[0] = glm::dvec3(iop[0], iop[1], iop[2]);
+    direction[1] = glm::dvec3(iop[3], iop[4], iop[5]);
+    direction[2] = glm::cross(direction[0], direction[1]);
+  } else if (files.size() > 1) {
+    HYB_THROW(IoError, files.front(), ": Image Orientation (Patient) missing or malformed (expected six cosines to order the slices)");
+  } else {
+    warnings.push_back(files.front() + ": no Image Orientation (Patient): the slice's axes are taken as LPS");
+  }
+  const PatientFrame axes = makePatientFrame(direction, glm::dvec3(0.0), files.front() + " (Image Orientation (Patient))");
+  struct Slice {
+    std::string file;
+    glm::dvec3 position;
+    double depth;
+  };
+  std::vector<Slice> slices;
+  for (const std::string& f : files) {
+    const std::vector<double> ipp = decimals(scan.scanner.GetValue(f.c_str(), kPosition));
+    if (ipp.size() != 3 && files.size() > 1)
+      HYB_THROW(IoError, f, ": Image Position (Patient) missing or malformed (expected three numbers to order the slices)");
+    const glm::dvec3 p = ipp.size() == 3 ? glm::dvec3(ipp[0], ipp[1], ipp[2]) : glm::dvec3(0.0);
+    if (oriented && f != files.front()) {
+      const std::vector<double> other = decimals(scan.scanner.GetValue(f.c_str(), kOrientation));
+      bool same = other.size() == 6;
+      for (size_t c = 0; same && c < 6; ++c) same = std::abs(other[c] - iop[c]) <= 1e-4;
+      if (!same) HYB_THROW(IoError, f, ": Image Orientation (Patient) differs from ", files.front(), "'s (expected one orientation for the series)");
+    }
+    slices.push_back({f, p, glm::dot(p, axes.direction[2])});
+  }
+  std::sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.depth < b.depth; });
+  double zSpacing = 1.0;
+  if (slices.size() > 1) {
+    zSpacing = (slices.back().depth - slices.front().depth) / double(slices.size() - 1);
+    for (size_t k = 1; k < slices.size(); ++k) {
+      const double step = slices[k].depth - slices[k - 1].depth;
+      if (step <= 1e-3 * std::max(zSpacing, 1e-3))
+        HYB_THROW(IoError, slices[k].file, ": at the same position as ", slices[k - 1].file, " along the slice normal (expected one slice per position)");
+      if (std::abs(step - zSpacing) > std::max(1e-3, 1e-2 * zSpacing))
+        HYB_THROW(IoError, dir, ": slices are not evenly spaced along the normal (", slices[k - 1].file, " to ", slices[k].file, ": ", step,
+                  " mm, the series' mean ", zSpacing, " mm; expected a regular grid)");
+      // Positions must run along the normal: a gantry tilt moves them across the image plane.
+      const glm::dvec3 offset = slices[k].position - slices.front().position;
+      const double across = glm::length(offset - glm::dot(offset, axes.direction[2]) * axes.direction[2]);
+      if (across > std::max(1e-2, 1e-3 * glm::length(offset)))
+        HYB_THROW(IoError, dir, ": slice positions move ", across, " mm across the image plane by ", slices[k].file,
+                  " (gantry tilt or a sheared series: the grid is not orthogonal); resample it to an orthogonal grid first "
+                  "(e.g. Slicer or ITK), it is refused rather than drawn sheared");
+    }
+  } else if (const std::vector<double> t = decimals(scan.scanner.GetValue(slices.front().file.c_str(), kThickness)); t.size() == 1 && t[0] > 0) {
+    zSpacing = t[0];
+  }
+
+  glm::ivec3 dims(0, 0, int(slices.size()));
+  glm::dvec3 spacing(1.0, 1.0, zSpacing);
+  ScalarType type = ScalarType::Int16;
+  std::vector<float> samples;
+  bool rescaled = false;
+  double slopeFirst = 1.0, interceptFirst = 0.0;
+  ProgressTask task(progress, "DICOM slices", slices.size());
+  for (size_t s = 0; s < slices.size(); ++s, task.advance()) {
+    const std::string& file = slices[s].file;
+    const std::string where = detail::concat(file, " (slice ", s + 1, " of ", slices.size(), ")");
+    const PixelModule module = checkPixelModule(InputFile(file), where);
+    if (s == 0)  // the whole series is allocated up front: what its first slice claims must fit
+      checkMemory(where, uint64_t(module.columns) * uint64_t(module.rows) * (slices.size() * sizeof(float) + 2 * sizeof(double)),
+                  detail::concat(slices.size(), " slices of ", module.columns, "x", module.rows, " samples"));
+    else if (module.columns != dims.x || module.rows != dims.y)
+      HYB_THROW(IoError, where, ": slice is ", module.columns, "x", module.rows, ", expected ", dims.x, "x", dims.y, " like the first slice");
+    gdcm::ImageReader reader;
+    reader.SetFileName(file.c_str());
+    if (!reader.Read()) HYB_THROW(IoError, where, ": not a readable DICOM image (GDCM refused its data set; expected a well-formed DICOM file)");
+    const gdcm::Image& image = reader.GetImage();
+    const gdcm::PixelFormat& pf = image.GetPixelFormat();
+    if (pf.GetSamplesPerPixel() != 1)
+      HYB_THROW(IoError, where, ": ", pf.GetSamplesPerPixel(), " samples per pixel (expected 1, greyscale)");
+    if (image.GetNumberOfDimensions() == 3 && image.GetDimension(2) > 1)
+      HYB_THROW(IoError, where, ": multi-frame images are not supported (expected one slice per file)");
+    const glm::ivec2 size(int(image.GetDimension(0)), int(image.GetDimension(1)));
+    if (size.x != module.columns || size.y != module.rows)
+      HYB_THROW(IoError, where, ": GDCM decodes ", size.x, "x", size.y, " pixels (expected the ", module.columns, "x", module.rows,
+                " of Columns and Rows)");
+    ScalarType sliceType;
+    switch (pf.GetScalarType()) {
+      case gdcm::PixelFormat::UINT8: sliceType = ScalarType::UInt8; break;
+      case gdcm::PixelFormat::INT8: sliceType = ScalarType::Int8; break;
+      case gdcm::PixelFormat::UINT16: sliceType = ScalarType::UInt16; break;
+      case gdcm::PixelFormat::INT16: sliceType = ScalarType::Int16; break;
+      case gdcm::PixelFormat::UINT32: sliceType = ScalarType::UInt32; break;
+      case gdcm::PixelFormat::INT32: sliceType = ScalarType::Int32; break;
+      case gdcm::PixelFormat::FLOAT32: sliceType = ScalarType::Float32; break;
+      case gdcm::PixelFormat::FLOAT64: sliceType = ScalarType::Float64; break;
+      default: HYB_THROW(IoError, where, ": unsupported pixel format ", pf.GetScalarTypeAsString());
+    }
+    if (s == 0) {
+      dims.x = size.x;
+      dims.y = size.y;
+      validateDims(dims, dir);
+      const double* sp = image.GetSpacing();  // column spacing, row spacing (Pixel Spacing's second and first)
+      spacing.x = sp[0];
+      spacing.y = sp[1];
+      type = sliceType;
+      samples.resize(size_t(dims.x) * dims.y * dims.z);
+      slopeFirst = image.GetSlope();
+      interceptFirst = image.GetIntercept();
+    } else if (size.x != dims.x || size.y != dims.y) {
+      HYB_THROW(IoError, where, ": slice is ", size.x, "x", size.y, ", expected ", dims.x, "x", dims.y, " like the first slice");
+    }
+    const size_t sliceCount = size_t(dims.x) * dims.y;
+    if (image.GetBufferLength() != sliceCount * scalarSize(sliceType))
+      HYB_THROW(IoError, where, ": decoded pixel data holds ", image.GetBufferLength(), " bytes (expected ", sliceCount * scalarSize(sliceType),
+                ")");
+    std::vector<char> buffer(image.GetBufferLength());
+    if (!image.GetBuffer(buffer.data()))
+      HYB_THROW(IoError, where, ": pixel data missing or truncated");
+    std::vector<float> slice = decodeSamples(reinterpret_cast<const uint8_t*>(buffer.data()), sliceCount, sliceType,
+                                             std::endian::native == std::endian::big);
+    const double slopeValue = image.GetSlope(), intercept = image.GetIntercept();
+    if (slopeValue != 1.0 || intercept != 0.0) rescaled = true;
+    for (size_t i = 0; i < sliceCount; ++i) samples[s * sliceCount + i] = float(slice[i] * slopeValue + intercept);
+  }
+  if (rescaled && type != ScalarType::Float32 && type != ScalarType::Float64) type = ScalarType::Int32;
+  validateSpacing(spacing, dir);
+  Volume v = placed(Volume(dims, spacing, type, std::move(samples), dir),
+                    makePatientFrame(axes.direction, slices.front().position, dir), warnings);
+  const std::string& first = slices.front().file;
+  v.addInfo("modality", chosen->modality.empty() ? "(none)" : chosen->modality);
+  v.addInfo("series", describe(*chosen) + (chosen->number.empty() ? "" : ", number " + chosen->number));
+  if (const std::string pp = scan.value(first, kPatientPosition); !pp.empty()) v.addInfo("position", pp + " (Patient Position)");
+  if (const std::string t = scan.value(first, kThickness); !t.empty()) v.addInfo("thickness", t + " mm (Slice Thickness; slices " +
+                                                                                   detail::concat(zSpacing) + " mm apart)");
+  v.addInfo("rescale", detail::concat("slope ", slopeFirst, ", intercept ", interceptFirst, rescaled ? " (applied)" : ""));
+  return v;
+}
+
+
+}  // namespace hyb
