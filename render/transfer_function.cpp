@@ -2,10 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
-#include <fstream>
 #include <sstream>
 
 #include "volume/error.h"
+#include "volume/file_util.h"
 
 namespace hyb {
 
@@ -21,8 +21,8 @@ TransferFunction::TransferFunction(std::vector<Point> points, const std::string&
 }
 
 TransferFunction TransferFunction::fromFile(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) HYB_THROW(IoError, path, ": cannot open transfer function");
+  // A regular file of bounded size and lines: a FIFO would block, a huge file be read whole.
+  std::istringstream in(readTextFile(path, kMaxFileBytes, kMaxLineBytes, "transfer function"));
   std::vector<Point> pts;
   std::string line;
   for (int n = 1; std::getline(in, line); ++n) {

@@ -26,8 +26,14 @@ class TransferFunction {
   /// @throw ValueError naming @p source when points are unsorted, empty, or outside [0, 1].
   TransferFunction(std::vector<Point> points, const std::string& source = "transfer function");
 
-  /// Reads "value r g b a" lines ('#' comments).
-  /// @throw IoError / ValueError naming @p path and the line.
+  /// Longest transfer-function file accepted, and longest line in it.
+  static constexpr uint64_t kMaxFileBytes = uint64_t(1) << 20;
+  static constexpr size_t kMaxLineBytes = 4096;
+
+  /// Reads "value r g b a" lines ('#' comments) from a regular file of at most kMaxFileBytes with
+  /// lines of at most kMaxLineBytes.
+  /// @throw IoError / ValueError naming @p path and the line; IoError when @p path is not a
+  ///        regular file (a FIFO, a directory) or is longer than the limits.
   static TransferFunction fromFile(const std::string& path);
   /// Presets in Hounsfield units: ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone.
   /// @throw ValueError listing the presets when @p name is unknown.
