@@ -2,6 +2,7 @@
 
 #include "apps/bench.h"
 #include "apps/frame.h"
+#include "apps/outputs.h"
 #include "apps/progress_display.h"
 #include "apps/viewer_server.h"
 
@@ -108,9 +109,9 @@ struct BuildOptions {
   bool prefilter = true;
   std::string validate() const {
     if (output.empty()) return "-o missing (expected the scene file to write, e.g. -o scene.hoct)";
-    if (std::string e = outputPathError(output, "-o"); !e.empty()) return e;
+    if (std::string e = outputsError({{output, "-o"}}, {input.path}); !e.empty()) return e;
     if (leafEdge < 1 || leafEdge > 256 || (leafEdge & (leafEdge - 1))) return "--leaf-edge must be a power of two in 1..256";
-    if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
+    if (iso && !isFloat(*iso)) return "--iso must be a finite number within the float range (|x| <= 3.4e38)";
     return "";
   }
 };
@@ -165,6 +166,7 @@ void printSelection(const RenderJob& job, const RenderedFrame& f, std::ostream& 
 
 int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   RenderJob job = prepareRender(o, out, err);
+  CommandOutputs outputs;  // the images and --stats, renamed into place together at the end
   const bool slices = job.quality.renderer == Renderer::Slices;
   const bool fromScene = job.renderer->scene().surface && job.look.iso && job.renderer->scene().surface->isovalue() == *job.look.iso;
   const int pixels = job.view.camera.width * job.view.camera.height;
@@ -176,7 +178,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     const std::string path = progressivePath(o.output, level);
     Image shown = image;
     if (o.marker) drawOrientationMarker(job.view.camera, &shown);
-    writePng(path, shown, job.background);
+    outputs.write(path, [&](const std::string& to) { writePng(to, shown, job.background); });
     out << "progressive " << level << "/" << levels << ": " << std::fixed;
     if (slices)
       out << std::setprecision(2) << double(st.slices.textureBytes) / 1048576.0 << " MB, " << std::setprecision(1) << st.renderMs << " ms -> " << path << "\n";
@@ -221,9 +223,9 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
         << " empty-space skips, " << st.rays.surfaceHits << " surface crossings, " << timing.str() << "\n";
   Image image = std::move(frame.image);
   if (o.marker) drawOrientationMarker(job.view.camera, &image);
-  if (job.quality.progressive > 1) writePng(progressivePath(o.output, job.quality.progressive), image, job.background);
-  writePng(o.output, image, job.background);
-  out << "wrote    " << o.output << "\n";
+  if (job.quality.progressive > 1)
+    outputs.write(progressivePath(o.output, job.quality.progressive), [&](const std::string& to) { writePng(to, image, job.background); });
+  outputs.write(o.output, [&](const std::string& to) { writePng(to, image, job.background); });
   if (!o.stats.empty()) {
     const Selection& sel = frame.selection;
     nlohmann::ordered_json j;
@@ -252,8 +254,10 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     j["max_nodal_error_used"] = sel.maxError;
     j["budget_met"] = sel.budgetMet;
     j["camera"] = nlohmann::ordered_json::parse(cameraJson(job.view.camera));
-    writeFileAtomically(o.stats, [&](std::ostream& s) { s << j.dump(2) << "\n"; });
+    outputs.write(o.stats, [&](const std::string& to) { writeFileAtomically(to, [&](std::ostream& s) { s << j.dump(2) << "\n"; }); });
   }
+  outputs.commit();
+  out << "wrote    " << o.output << "\n";
   return 0;
 }
 
@@ -264,13 +268,13 @@ struct ExportOptions {
   bool check = false, closed = false, normals = false;
   std::string validate() const {
     if (!iso) return "--iso missing (expected the isovalue in data units)";
-    if (!std::isfinite(*iso)) return "--iso must be a finite number";
+    if (!isFloat(*iso)) return "--iso must be a finite number within the float range (|x| <= 3.4e38)";
     if (output.empty()) return "-o missing (expected mesh.ply, .obj, .stl or .off)";
     const std::string ext = fileExtension(output);
     if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".off")
       return "-o '" + output + "' has an unknown extension (expected .ply, .obj, .stl or .off)";
     if (normals && ext != ".ply" && ext != ".obj") return "--normals needs a .ply or .obj file (STL keeps facet normals, OFF none)";
-    if (std::string e = outputPathError(output, "-o"); !e.empty()) return e;
+    if (std::string e = outputsError({{output, "-o"}}, {input.path}); !e.empty()) return e;
     if (surface != "dmc" && surface != "mc" && surface != "octree")
       return "--surface '" + surface + "' invalid (expected dmc, octree or mc)";
     return "";
@@ -360,7 +364,7 @@ struct CompareOptions {
   std::string validate() const {
     if (reference.empty() || image.empty()) return "compare needs two PNG files (expected: compare REFERENCE.png IMAGE.png)";
     if (!diff.empty() && fileExtension(diff) != ".png") return "--diff '" + diff + "' must be a .png file";
-    if (std::string e = outputPathError(diff, "--diff"); !e.empty()) return e;
+    if (std::string e = outputsError({{diff, "--diff"}}, {reference, image}); !e.empty()) return e;
     return "";
   }
 };
@@ -464,6 +468,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   app.set_help_all_flag("--help-all", "show help for every subcommand");
   app.fallthrough();  // --progress may follow the subcommand
   std::string progressMode = "auto";
+  std::string subject;  // the subcommand and its input, for the messages that have no file of their own
   app.add_option("--progress", progressMode,
                  "progress of long steps on stderr: auto (a bar on a terminal, lines when piped), bar, lines, off")
       ->capture_default_str();
@@ -557,6 +562,9 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     const ProgressDisplay display(mode == ProgressMode::Auto && !ownStderr ? ProgressMode::Off : mode, err, ownStderr && ::isatty(2));
     for (VolumeInput* in : {&info.input, &build.input, &render.input, &bench.render.input, &exportOpts.input, &view.input})
       in->progress = display.progress();
+    for (const auto& [cmd, in] : {std::pair{infoCmd, &info.input}, {buildCmd, &build.input}, {renderCmd, &render.input},
+                                  {benchCmd, &bench.render.input}, {exportCmd, &exportOpts.input}, {viewCmd, &view.input}})
+      if (cmd->parsed()) subject = cmd->get_name() + " of " + in->path;
     if (infoCmd->parsed()) return check(info.validate()), runInfo(info, out, err);
     if (buildCmd->parsed()) return check(build.validate()), runBuild(build, out, err);
     if (renderCmd->parsed()) {
@@ -579,7 +587,8 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     err << "hybrid-octree: error: " << e.what() << "\n";
     return 2;
   } catch (const std::bad_alloc&) {
-    err << "hybrid-octree: error: out of memory\n";
+    err << "hybrid-octree: error: out of memory" << (subject.empty() ? "" : " (" + subject + ")")
+        << "; a smaller --size, a --budget or a smaller volume needs less\n";
     return 1;
   } catch (const std::exception& e) {
     err << "hybrid-octree: error: " << e.what() << "\n";

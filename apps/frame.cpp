@@ -6,6 +6,7 @@
 #include <ostream>
 #include <sstream>
 
+#include "apps/outputs.h"
 #include "hybrid_octree/surface_octree.h"
 #include "render/bvh.h"
 #include "surface/mesh_ops.h"
@@ -153,8 +154,10 @@ Camera readCameraFile(const std::string& path) {
     HYB_THROW(IoError, path, ": camera width and height must be whole numbers of pixels in 1..16384");
   c.width = int(w);
   c.height = int(h);
-  if (!(c.fovDeg > 0 && c.fovDeg < 179)) HYB_THROW(IoError, path, ": camera field 'fov_deg' must be in (0, 179) degrees");
-  if (!(c.orthoHeight > 0)) HYB_THROW(IoError, path, ": camera field 'ortho_height' must be positive");
+  if (!(c.fovDeg >= kMinFovDeg && c.fovDeg < kMaxFovDeg)) HYB_THROW(IoError, path, ": camera field 'fov_deg' must be in [0.1, 179) degrees");
+  if (!(c.orthoHeight >= 1e-3 && c.orthoHeight <= kMaxCameraMm)) HYB_THROW(IoError, path, ": camera field 'ortho_height' must be in [0.001, 1e6] mm");
+  for (const auto& [p, key] : {std::pair{c.eye, "eye"}, std::pair{c.center, "center"}})
+    if (!withinCameraRange(p)) HYB_THROW(IoError, path, ": camera field '", key, "' must be within 1e6 mm of the patient origin");
   if (glm::length(c.eye - c.center) == 0 || glm::length(glm::cross(c.center - c.eye, c.up)) == 0)
     HYB_THROW(IoError, path, ": camera eye, center and up must give a view direction not parallel to up");
   return c;
@@ -216,19 +219,24 @@ CLI::Option* addSwitch(CLI::App* cmd, const std::string& name, bool* field, cons
 
 std::string RenderOptions::validate() const {
   if (std::string e = quality.validate(); !e.empty()) return e;
-  if (!(fov > 0 && fov < 179)) return "--fov must be in (0, 179) degrees";
+  if (!(fov >= kMinFovDeg && fov < kMaxFovDeg)) return "--fov must be in [0.1, 179) degrees";
+  const auto far = [](const std::optional<glm::dvec3>& p) { return p && !withinCameraRange(*p); };
+  const std::string range = " must be within 1e6 mm (1 km) of the patient origin in each coordinate";
+  if (far(eye)) return "--eye" + range;
+  if (far(center)) return "--center" + range;
+  if (far(quality.focus)) return "--focus" + range;
+  if (cut && !withinCameraRange(cut->point)) return "--cut's point" + range;
+  if (voiBox && (!withinCameraRange(voiBox->first) || !withinCameraRange(voiBox->second))) return "--voi" + range;
   if (!(std::isfinite(zoom) && zoom > 0 && zoom <= 1000)) return "--zoom must be a magnification in (0, 1000]";
   if (!(std::isfinite(voiInside) && voiInside >= 0)) return "--voi-inside must be a finite factor >= 0";
   if (!(std::isfinite(voiOutside) && voiOutside >= 0)) return "--voi-outside must be a finite factor >= 0";
   if (!(std::isfinite(voiRamp) && voiRamp >= 0)) return "--voi-ramp must be a finite width >= 0 mm";
-  if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
+  if (iso && !isFloat(*iso)) return "--iso must be a finite number within the float range (|x| <= 3.4e38)";
   if (repeat < 1 || repeat > 100) return "--repeat must be in 1..100 frames";
   if (!tfFile.empty() && !preset.empty()) return "--tf and --preset are exclusive";
   if (!cameraFile.empty() && (eye || orbit || view)) return "--camera-file sets the whole camera (it excludes --eye, --orbit and --view)";
   if (!output.empty() && fileExtension(output) != ".png") return "-o '" + output + "' must be a .png file (render writes PNG images)";
-  for (const auto& [path, flag] : {std::pair{&output, "-o"}, std::pair{&stats, "--stats"}})
-    if (std::string e = outputPathError(*path, flag); !e.empty()) return e;
-  return "";
+  return outputsError({{output, "-o"}, {stats, "--stats"}}, {input.path, tfFile, cameraFile});
 }
 
 void RenderOptions::add(CLI::App* cmd) {

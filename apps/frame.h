@@ -6,7 +6,9 @@
 #include <CLI/CLI.hpp>
 
 #include <chrono>
+#include <cmath>
 #include <iosfwd>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -28,6 +30,9 @@ namespace hyb::app {
 using Clock = std::chrono::steady_clock;
 /// Milliseconds since @p t0.
 inline double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
+
+/// Whether @p x is finite as a float too (an isovalue or ε beyond 3.4e38 would become infinite).
+inline bool isFloat(double x) { return std::abs(x) <= double(std::numeric_limits<float>::max()); }
 
 /// Parses "a,b,c" into three finite numbers. @throw ValueError naming @p flag.
 glm::dvec3 parseVec3(const std::string& text, const std::string& flag);

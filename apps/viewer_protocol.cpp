@@ -16,8 +16,7 @@ using nlohmann::json;
 
 // Nesting deeper than any valid message is refused while parsing, before it is built.
 constexpr int kMaxDepth = 6;
-// Coordinates beyond a kilometre are no patient's.
-constexpr double kMaxCoordinate = 1e6;
+constexpr double kMaxCoordinate = kMaxCameraMm;
 
 [[noreturn]] void fail(const std::string& field, const std::string& expected) {
   throw ValueError("message field '" + field + "': expected " + expected);

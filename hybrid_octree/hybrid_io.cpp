@@ -62,10 +62,14 @@ class Reader {
     mPos += sizeof(T);
     return v;
   }
+  /// Throws unless @p n items of @p each bytes remain.
+  void needItems(uint64_t n, size_t each) {
+    if (n > (mSize - mPos) / each) fail(n * each);
+  }
   template <typename T>
   std::vector<T> getArray() {
     const uint64_t n = get<uint64_t>();
-    if (n > (mSize - mPos) / sizeof(T)) fail(n * sizeof(T));
+    needItems(n, sizeof(T));
     std::vector<T> v(static_cast<size_t>(n));
     std::memcpy(v.data(), mData + mPos, size_t(n) * sizeof(T));
     mPos += size_t(n) * sizeof(T);
@@ -85,7 +89,65 @@ class Reader {
   std::string mWhat;
 };
 
+std::vector<SurfaceNode> getSurfaceNodes(Reader& r) {
+  constexpr size_t kBytes = 6 + 2 + 1 + std::tuple_size_v<decltype(SurfaceNode::planes)> * 5 + 4 + 4;  // as putSurfaceNodes writes one
+  const uint64_t n = r.get<uint64_t>();
+  r.needItems(n, kBytes);
+  std::vector<SurfaceNode> nodes(static_cast<size_t>(n));
+  for (SurfaceNode& s : nodes) {
+    s.origin = r.get<glm::u16vec3>();
+    s.edge = r.get<uint16_t>();
+    s.planeCount = r.get<uint8_t>();
+    for (GeoPlane& p : s.planes) {
+      p.orientation = r.get<int8_t>();
+      p.d = r.get<int32_t>();
+    }
+    s.inside = r.get<uint32_t>();
+    s.occurs = r.get<uint32_t>();
+  }
+  return nodes;
+}
+
 uint32_t crc(const std::vector<uint8_t>& b) { return uint32_t(crc32(0L, b.data(), uInt(b.size()))); }
+
+// A 64-bit content hash (murmur3's finaliser over 8-byte words; not cryptographic): the identity of
+// the volume section that the octree sections were built from.
+uint64_t contentHash(const std::vector<uint8_t>& b) {
+  const auto mix = [](uint64_t h) {
+    h ^= h >> 33;
+    h *= 0xff51afd7ed558ccdULL;
+    h ^= h >> 33;
+    h *= 0xc4ceb9fe1a85ec53ULL;
+    return h ^ (h >> 33);
+  };
+  uint64_t h = 0x9e3779b97f4a7c15ULL ^ b.size();
+  size_t i = 0;
+  for (; i + 8 <= b.size(); i += 8) {
+    uint64_t w;
+    std::memcpy(&w, b.data() + i, 8);
+    h = mix(h ^ w) + 0x9e3779b97f4a7c15ULL;
+  }
+  uint64_t tail = 0;
+  if (i < b.size()) std::memcpy(&tail, b.data() + i, b.size() - i);
+  return mix(h ^ tail);
+}
+
+// Surface nodes field by field: the struct's padding would make the file's bytes differ between
+// two saves of the same scene.
+void putSurfaceNodes(Writer* w, const std::vector<SurfaceNode>& nodes) {
+  w->put(uint64_t(nodes.size()));
+  for (const SurfaceNode& n : nodes) {
+    w->put(n.origin);
+    w->put(n.edge);
+    w->put(n.planeCount);
+    for (const GeoPlane& p : n.planes) {
+      w->put(p.orientation);
+      w->put(p.d);
+    }
+    w->put(n.inside);
+    w->put(n.occurs);
+  }
+}
 
 }  // namespace
 
@@ -102,7 +164,9 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
     vol.putArray(std::vector<char>(key.begin(), key.end()));
     vol.putArray(std::vector<char>(value.begin(), value.end()));
   }
+  const uint64_t volumeHash = contentHash(vol.bytes());
   Writer oct;
+  oct.put(volumeHash);
   oct.put(int32_t(octree.leafEdge()));
   oct.put(uint32_t(octree.prefiltered()));
   oct.putArray(octree.nodes());
@@ -110,10 +174,11 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
   std::vector<std::pair<uint32_t, const Writer*>> sections = {{kVolumeTag, &vol}, {kOctreeTag, &oct}};
   Writer surf;
   if (surface) {
+    surf.put(volumeHash);
     surf.put(surface->isovalue());
     surf.put(uint64_t(surface->cellCount()));
     surf.put(int32_t(surface->mergeEdge()));
-    surf.putArray(surface->nodes());
+    putSurfaceNodes(&surf, surface->nodes());
     sections.push_back({kSurfaceTag, &surf});
   }
   writeFileAtomically(path, [&](std::ostream& out) {
@@ -147,6 +212,9 @@ Scene loadScene(const std::string& path) {
   if (version > 0 && version < 3)
     HYB_THROW(IoError, path, ": scene file version ", version, " has no patient orientation (this build reads version ", kSceneVersion,
               "); build the scene again from its volume with hybrid-octree build");
+  if (version == 3)
+    HYB_THROW(IoError, path, ": scene file version 3 does not tie its octrees to its volume (this build reads version ", kSceneVersion,
+              "); build the scene again from its volume with hybrid-octree build");
   if (version != kSceneVersion)
     HYB_THROW(IoError, path, ": scene file version ", version, " unsupported (this build reads version ", kSceneVersion, ")");
   std::map<uint32_t, std::vector<uint8_t>> sections;
@@ -173,6 +241,12 @@ Scene loadScene(const std::string& path) {
     return it->second;
   };
   Scene scene;
+  const uint64_t volumeHash = contentHash(section(kVolumeTag, "volume"));
+  // Sections spliced from another scene of the same size would otherwise load and show the wrong data.
+  const auto sameVolume = [&](Reader& r, const char* name) {
+    if (r.get<uint64_t>() != volumeHash)
+      HYB_THROW(IoError, path, ": the ", name, " section was built from another volume than the scene's (content hash mismatch)");
+  };
   {
     const auto& b = section(kVolumeTag, "volume");
     Reader r(b.data(), b.size(), path);
@@ -198,6 +272,7 @@ Scene loadScene(const std::string& path) {
   {
     const auto& b = section(kOctreeTag, "volume octree");
     Reader r(b.data(), b.size(), path);
+    sameVolume(r, "volume octree");
     const int32_t leafEdge = r.get<int32_t>();
     const uint32_t prefiltered = r.get<uint32_t>();
     if (prefiltered > 1) HYB_THROW(IoError, path, ": octree knot mode ", prefiltered, " unknown (expected 0 or 1)");
@@ -205,13 +280,15 @@ Scene loadScene(const std::string& path) {
     std::vector<float> errors = r.getArray<float>();
     scene.octree = VolumeOctree::fromParts(scene.volume.dims(), leafEdge, std::move(nodes), std::move(errors), path,
                                            prefiltered ? &scene.volume : nullptr);
+    scene.octree.validateAgainst(scene.volume, path);
   }
   if (const auto it = sections.find(kSurfaceTag); it != sections.end()) {
     Reader r(it->second.data(), it->second.size(), path);
+    sameVolume(r, "surface octree");
     const float iso = r.get<float>();
     const uint64_t cells = r.get<uint64_t>();
     const int32_t mergeEdge = r.get<int32_t>();
-    scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), mergeEdge, r.getArray<SurfaceNode>(), path);
+    scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), mergeEdge, getSurfaceNodes(r), path);
   }
   return scene;
 }

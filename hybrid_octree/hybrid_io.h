@@ -3,9 +3,11 @@
 // Layout (little-endian): magic "HYBOCT\x1a\n", u32 version, u32 section count, then per section
 // a u32 tag, u64 payload size, u32 CRC-32 of the payload, and the payload. Sections: VOLM (volume:
 // dims, spacing, type, samples, patient frame, info), VOCT (Volume Octree), SURF (Surface Octree,
-// optional). Readers reject a foreign magic, another version (files before version 3 have no
-// patient frame: rebuilding them is the safe answer), truncation and CRC mismatches; unknown
-// sections are skipped.
+// optional). VOCT and SURF begin with a 64-bit hash of the VOLM payload they were built from. The
+// bytes are deterministic: a scene saved twice is the same file. Readers reject a foreign magic,
+// another version (files before version 4: rebuilding them is the safe answer), truncation, CRC
+// mismatches, sections of another volume, and an octree whose min/max disagree with the samples;
+// unknown sections are skipped.
 #pragma once
 
 #include <optional>
@@ -18,7 +20,9 @@
 namespace hyb {
 
 /// Current scene-file version.
-inline constexpr uint32_t kSceneVersion = 3;  // 2: the octree records its knot mode; 3: the volume its patient frame and info
+// 2: the octree records its knot mode; 3: the volume its patient frame and info; 4: the octree
+// sections the volume's content hash, surface nodes field by field (deterministic bytes).
+inline constexpr uint32_t kSceneVersion = 4;
 
 /// A loaded scene: the volume, its Volume Octree and, when built with an isovalue, its Surface Octree.
 struct Scene {

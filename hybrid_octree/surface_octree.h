@@ -58,6 +58,7 @@ struct SurfaceNode {
   std::array<GeoPlane, 5> planes{};
   uint32_t inside = 0;          ///< bit σ: region σ is inside the solid (bit j of σ: positive side of plane j)
   uint32_t occurs = 0;          ///< bit σ: region σ meets the node's box in a solid
+  friend bool operator==(const SurfaceNode&, const SurfaceNode&) = default;
 };
 
 /// Build options.

@@ -418,6 +418,42 @@ KnotLattice VolumeOctree::coarseLattice(const OctreeNode& n, int p) const {
   return makeLattice(lo, step, hi, mDims);
 }
 
+void VolumeOctree::validateAgainst(const Volume& volume, const std::string& source) const {
+  HYB_CHECK(volume.dims() == mDims);
+  const auto fail = [&](size_t i, const char* what) {
+    HYB_THROW(IoError, source, ": octree node ", i, " ", what, " (the scene's octree does not describe its volume)");
+  };
+  std::vector<uint8_t> wrong(mNodes.size(), 0);
+#pragma omp parallel for schedule(dynamic, 64)
+  for (size_t i = 0; i < mNodes.size(); ++i) {
+    const OctreeNode& n = mNodes[i];
+    if (!n.isLeaf()) continue;
+    glm::ivec3 lo, hi;
+    voxelBox(n, &lo, &hi);
+    float mn = volume.at(lo.x, lo.y, lo.z), mx = mn;
+    for (int z = lo.z; z <= hi.z; ++z)
+      for (int y = lo.y; y <= hi.y; ++y)
+        for (int x = lo.x; x <= hi.x; ++x) {
+          const float v = volume.at(x, y, z);
+          mn = std::min(mn, v);
+          mx = std::max(mx, v);
+        }
+    wrong[i] = mn != n.minValue || mx != n.maxValue;
+  }
+  for (size_t i = mNodes.size(); i-- > 0;) {
+    const OctreeNode& n = mNodes[i];
+    if (wrong[i]) fail(i, "has a min/max other than its samples'");
+    if (errors(n).back() != 0.0f) fail(i, "has a non-zero error at full resolution");
+    if (n.isLeaf()) continue;
+    float mn = std::numeric_limits<float>::infinity(), mx = -mn;
+    for (int c = 0; c < n.childCount(); ++c) {
+      mn = std::min(mn, mNodes[n.firstChild + uint32_t(c)].minValue);
+      mx = std::max(mx, mNodes[n.firstChild + uint32_t(c)].maxValue);
+    }
+    if (mn != n.minValue || mx != n.maxValue) fail(i, "has a min/max other than its children's");
+  }
+}
+
 void VolumeOctree::voxelBox(const OctreeNode& n, glm::ivec3* lo, glm::ivec3* hi) const {
   *lo = glm::ivec3(n.origin);
   *hi = glm::min(*lo + edge(n), mDims - 1);

@@ -77,6 +77,12 @@ class VolumeOctree {
                                 std::vector<float> errors, const std::string& source,
                                 const Volume* prefilteredFrom = nullptr);
 
+  /// Checks a reassembled octree against the samples it claims to describe: every leaf's min/max
+  /// equals its box's, every inner node's its children's, and every node's finest error is 0 (its
+  /// full resolution is the samples). The other errors are not rebuilt (that is the build's cost).
+  /// @throw IoError naming @p source at the first node that disagrees.
+  void validateAgainst(const Volume& volume, const std::string& source) const;
+
   /// L: the root's edge is 2^L cells.
   int depth() const { return mDepth; }
   /// Edge in cells of the leaves.

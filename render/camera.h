@@ -5,6 +5,16 @@
 
 namespace hyb {
 
+/// Limits of a camera a user gives: coordinates within ±kMaxCameraMm of the patient origin (1 km;
+/// beyond it depths overflow the renderers' float and slab arithmetic) and a field of view in
+/// [kMinFovDeg, kMaxFovDeg).
+inline constexpr double kMaxCameraMm = 1e6, kMinFovDeg = 0.1, kMaxFovDeg = 179.0;
+
+/// Whether every coordinate of @p p is finite and within ±kMaxCameraMm.
+inline bool withinCameraRange(const glm::dvec3& p) {
+  return glm::all(glm::lessThanEqual(glm::abs(p), glm::dvec3(kMaxCameraMm)));  // false for NaN
+}
+
 /// A camera looking from eye to center; pixel (0, 0) is the top-left corner. The renderers take it
 /// in the grid frame; the user gives it in the patient's (render/patient_view.h converts).
 struct Camera {

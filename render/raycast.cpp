@@ -262,6 +262,9 @@ Image refine(const Volume& volume, const VolumeOctree& octree, const TransferFun
 Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
               const RaycastOptions& options, RaycastStats* stats) {
   HYB_CHECK(options.refineLevels >= 1 && options.refineLevels <= 16 && options.refineTolerance >= 0.0f);
+  // Rays from farther away lose the sample positions' precision (and NaN ones index nothing).
+  if (!withinCameraRange(camera.eye) || !withinCameraRange(camera.center))
+    HYB_THROW(ValueError, "camera eye and center must lie within ", kMaxCameraMm, " mm of the origin");
   RaycastStats counts;
   Image image(camera.width, camera.height);
   ProgressTask progress(options.progress, "ray tracing", uint64_t(camera.width) * uint64_t(camera.height));

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 
 #include "hybrid_octree/surface_octree.h"
 #include "render/patient_view.h"
@@ -83,7 +84,7 @@ std::string Look::validate() const {
 }
 
 std::string Quality::validate() const {
-  if (!std::isfinite(epsilon) || epsilon < 0) return "--epsilon must be a finite value >= 0 (data units)";
+  if (!(epsilon >= 0 && epsilon <= double(std::numeric_limits<float>::max()))) return "--epsilon must be a finite value >= 0 within the float range (data units)";
   if (!(std::isfinite(budgetMb) && budgetMb >= 0)) return "--budget must be megabytes >= 0";
   if (!(std::isfinite(budgetPercent) && budgetPercent >= 0 && budgetPercent <= 100)) return "--budget percentage must be in (0, 100]";
   if (step && !(*step > 0.01 && *step <= 4)) return "--step must be in (0.01, 4] voxels";

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 
 #include "volume/error.h"
 #include "volume/file_util.h"
@@ -61,28 +62,25 @@ void writeEmpty(const std::string& path, const std::string& ext) {
 
 // Records the coordinates' space where 3D Slicer looks for it: a PLY "comment SPACE=LPS" header
 // line, an OBJ "# SPACE=LPS" line, or the STL's 80-byte header.
-void recordSpace(const std::string& file, const std::string& ext, const std::string& space, const std::string& path) {
+void recordSpace(std::string* bytes, const std::string& ext, const std::string& space, const std::string& path) {
   if (ext == ".off") return;
-  std::vector<uint8_t> bytes = readFileBytes(file);
   const std::string tag = "SPACE=" + space;
   if (ext == ".stl") {
-    if (bytes.size() < 84) HYB_THROW(IoError, path, ": the STL writer produced ", bytes.size(), " bytes (expected at least 84)");
+    if (bytes->size() < 84) HYB_THROW(IoError, path, ": the STL writer produced ", bytes->size(), " bytes (expected at least 84)");
     std::string header = "hybrid-octree " + tag;
     header.resize(80, ' ');
-    std::copy(header.begin(), header.end(), bytes.begin());
-  } else {
-    const std::string line = ext == ".ply" ? "comment " + tag + "\n" : "# " + tag + "\n";
-    size_t at = 0;
-    if (ext == ".ply") {  // after "ply" and the "format" line
-      for (int l = 0; l < 2; ++l) {
-        const auto nl = std::find(bytes.begin() + ptrdiff_t(at), bytes.end(), uint8_t('\n'));
-        if (nl == bytes.end()) HYB_THROW(IoError, path, ": the PLY writer produced no header");
-        at = size_t(nl - bytes.begin()) + 1;
-      }
-    }
-    bytes.insert(bytes.begin() + ptrdiff_t(at), line.begin(), line.end());
+    bytes->replace(0, 80, header);
+    return;
   }
-  writeFileAtomically(file, [&](std::ostream& out) { out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size())); });
+  size_t at = 0;
+  if (ext == ".ply") {  // after "ply" and the "format" line
+    for (int l = 0; l < 2; ++l) {
+      const size_t nl = bytes->find('\n', at);
+      if (nl == std::string::npos) HYB_THROW(IoError, path, ": the PLY writer produced no header");
+      at = nl + 1;
+    }
+  }
+  bytes->insert(at, ext == ".ply" ? "comment " + tag + "\n" : "# " + tag + "\n");
 }
 
 }  // namespace
@@ -123,11 +121,18 @@ void writeMesh(const std::string& path, const TriangleMesh& mesh, const MeshWrit
   OpenMesh::IO::Options io;
   if (ext == ".ply" || ext == ".stl") io += OpenMesh::IO::Options::Binary;
   if (normals) io += OpenMesh::IO::Options::VertexNormal;
-  writeFileAtomicallyByName(path, [&](const std::string& tmp) {
+  // Written to memory, then to the file by our own stream: OpenMesh's file writers report success
+  // on a full disk.
+  std::ostringstream made(std::ios::binary);
+  if (ext == ".obj") made << std::fixed;  // as OpenMesh's OBJ file writer formats its numbers
+  {
     const Quiet quiet;  // the writers log what they write ("[STLWriter] : write binary file")
-    if (!OpenMesh::IO::write_mesh(om, tmp, io)) HYB_THROW(IoError, path, ": OpenMesh could not write the mesh");
-    if (!options.space.empty()) recordSpace(tmp, ext, options.space, path);
-  });
+    if (!OpenMesh::IO::write_mesh(om, made, ext.substr(1), io) || !made)
+      HYB_THROW(IoError, path, ": OpenMesh could not write the mesh");
+  }
+  std::string bytes = std::move(made).str();
+  if (!options.space.empty()) recordSpace(&bytes, ext, options.space, path);
+  writeFileAtomically(path, [&](std::ostream& out) { out.write(bytes.data(), std::streamsize(bytes.size())); });
 }
 
 TriangleMesh readMesh(const std::string& path) {

@@ -3,7 +3,14 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+
+#include <algorithm>
 #include <cmath>
+#include <csignal>
+#include <filesystem>
 #include <iomanip>
 #include <sstream>
 
@@ -497,6 +504,115 @@ TEST(Cli, UnwritableOutputLeavesNothing) {
   test::writeText(dir.file("bad.hoct"), "HYBOCT\x1a\ntruncated");
   expectBadInput({"render", dir.file("bad.hoct"), "-o", dir.file("b.png")}, "bad.hoct");
   EXPECT_FALSE(std::filesystem::exists(dir.file("b.png")));
+}
+
+// Writes beyond @p bytes fail with EFBIG while it lives, as they would on a full disk.
+class FileSizeLimit {
+ public:
+  explicit FileSizeLimit(rlim_t bytes) : mSignal(std::signal(SIGXFSZ, SIG_IGN)) {
+    ::getrlimit(RLIMIT_FSIZE, &mOld);
+    rlimit l = mOld;
+    l.rlim_cur = bytes;
+    ::setrlimit(RLIMIT_FSIZE, &l);
+  }
+  ~FileSizeLimit() {
+    ::setrlimit(RLIMIT_FSIZE, &mOld);
+    std::signal(SIGXFSZ, mSignal);
+  }
+
+ private:
+  rlimit mOld{};
+  void (*mSignal)(int);
+};
+
+// The names in @p dir, sorted.
+std::vector<std::string> namesIn(const test::TempDir& dir) {
+  std::vector<std::string> names;
+  for (const auto& e : std::filesystem::directory_iterator(dir.file("")))
+    names.push_back(e.path().filename().string());
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+TEST(Cli, AFailedWriteLeavesNoFileBehind) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  const std::vector<std::string> inputs = namesIn(dir);
+  {  // a mesh larger than the disk takes: exit 2, one line naming the file and the reason, no file
+    const FileSizeLimit full(2048);
+    const CliRun r = run({"export", nhdr, "--iso", "0.5", "-o", dir.file("m.ply")});
+    EXPECT_EQ(r.status, 2);
+    EXPECT_EQ(lines(r.err), size_t(1)) << r.err;
+    EXPECT_THAT(r.err, HasSubstr("m.ply: write failed (File too large)"));
+  }
+  EXPECT_EQ(namesIn(dir), inputs);
+  // render: the PNGs fit, --stats does not; none of the images is left.
+  const std::vector<std::string> args = {"render", nhdr, "--size", "16x16", "--progressive", "2", "-o", dir.file("r.png"), "--stats", dir.file("r.json")};
+  CliRun r = run(args);
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto png = std::filesystem::file_size(dir.file("r.png")), json = std::filesystem::file_size(dir.file("r.json"));
+  ASSERT_LT(png, json);
+  for (const char* f : {"r.png", "r_1.png", "r_2.png", "r.json"}) std::filesystem::remove(dir.file(f));
+  {
+    const FileSizeLimit full((png + json) / 2);
+    r = run(args);
+  }
+  EXPECT_EQ(r.status, 2);
+  EXPECT_EQ(lines(r.err), size_t(1)) << r.err;
+  EXPECT_THAT(r.err, HasSubstr("r.json: write failed"));
+  EXPECT_EQ(namesIn(dir), inputs);
+}
+
+TEST(Cli, OutputsNeverReplaceInputsDevicesOrEachOther) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  ASSERT_EQ(run({"build", nhdr, "-o", dir.file("s.hoct")}).status, 0);
+  const std::vector<uint8_t> scene = test::readBytes(dir.file("s.hoct"));
+  expectBadInput({"build", dir.file("s.hoct"), "-o", dir.file("s.hoct")}, "-o '" + dir.file("s.hoct") + "' is the input");
+  std::filesystem::create_symlink(dir.file("s.hoct"), dir.file("link.hoct"));
+  expectBadInput({"build", dir.file("s.hoct"), "-o", dir.file("link.hoct")}, "is the input");
+  expectBadInput({"export", dir.file("s.raw"), "--raw-dims", "9,7,5", "--raw-type", "float32", "--iso", "0", "-o", dir.file("s.raw")}, "-o");
+  EXPECT_EQ(test::readBytes(dir.file("s.hoct")), scene);
+  // A FIFO and a link to a device, under each command's extension.
+  for (const char* ext : {".png", ".hoct", ".ply", ".json"}) {
+    ASSERT_EQ(::mkfifo(dir.file(std::string("fifo") + ext).c_str(), 0600), 0);
+    std::filesystem::create_symlink("/dev/null", dir.file(std::string("null") + ext));
+  }
+  for (const char* device : {"fifo", "null"}) {
+    const std::string d = dir.file(device);
+    expectBadInput({"render", nhdr, "-o", d + ".png"}, "-o '" + d + ".png' is a device, FIFO or socket, not a regular file");
+    expectBadInput({"build", nhdr, "-o", d + ".hoct"}, "not a regular file");
+    expectBadInput({"export", nhdr, "--iso", "0", "-o", d + ".ply"}, "not a regular file");
+    expectBadInput({"render", nhdr, "-o", dir.file("a.png"), "--stats", d + ".json"}, "--stats");
+  }
+  expectBadInput({"render", nhdr, "-o", dir.file("a.png"), "--stats", dir.file("a.png")}, "--stats '" + dir.file("a.png") + "' is also -o's file");
+  expectBadInput({"render", nhdr, "-o", dir.file("d")}, "-o");
+  std::filesystem::create_directory(dir.file("d.png"));
+  expectBadInput({"render", nhdr, "-o", dir.file("d.png")}, "is a directory");
+}
+
+TEST(Cli, ExtremeNumbersAreRefusedNamingTheirFlagOrRenderSanely) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  const std::string png = dir.file("x.png");
+  expectBadInput({"render", nhdr, "--fov", "1e-6", "-o", png}, "--fov must be in [0.1, 179)");
+  expectBadInput({"render", nhdr, "--eye", "1e30,0,0", "-o", png}, "--eye must be within 1e6 mm");
+  expectBadInput({"render", nhdr, "--eye", "0,-50,0", "--center", "0,0,1e300", "-o", png}, "--center");
+  expectBadInput({"render", nhdr, "--focus", "1e7,0,0", "-o", png}, "--focus");
+  expectBadInput({"render", nhdr, "--cut", "0,0,1e7,0,0,1", "-o", png}, "--cut");
+  expectBadInput({"render", nhdr, "--voi", "-1e300,0,0,1,1,1", "-o", png}, "--voi");
+  expectBadInput({"render", nhdr, "--iso", "1e39", "-o", png}, "--iso must be a finite number within the float range");
+  expectBadInput({"export", nhdr, "--iso", "-1e39", "-o", dir.file("m.ply")}, "--iso");
+  expectBadInput({"build", nhdr, "--iso", "1e39", "-o", dir.file("s.hoct")}, "--iso");
+  expectBadInput({"render", nhdr, "--epsilon", "1e39", "-o", png}, "--epsilon");
+  test::writeText(dir.file("cam.json"),
+                  R"({"eye": [1e300, 0, 0], "center": [0, 0, 0], "up": [0, 0, 1], "fov_deg": 30, "ortho": false, "ortho_height": 1, "width": 16, "height": 16})");
+  expectBadInput({"render", nhdr, "--camera-file", dir.file("cam.json"), "-o", png}, "cam.json: camera field 'eye' must be within 1e6 mm");
+  // At the limits, both renderers make an image (the volume a few pixels across, or none).
+  for (const char* renderer : {"slices", "raycast"}) {
+    const CliRun r = run({"render", nhdr, "--renderer", renderer, "--eye", "0,-1e6,0", "--fov", "0.1", "--size", "16x16", "-o", png});
+    EXPECT_EQ(r.status, 0) << renderer << ": " << r.err;
+  }
 }
 
 }  // namespace

@@ -67,10 +67,10 @@ TEST(SceneFile, PatientFrameAndInfoRoundTripAndOlderVersionsAreRefused) {
   EXPECT_EQ(loaded.volume.info(), v.info());
   // Versions 1 and 2 knew no patient frame: refused, with what to do.
   std::vector<uint8_t> bytes = test::readBytes(dir.file("s.hoct"));
-  for (uint32_t version : {1u, 2u}) {
+  for (uint32_t version : {1u, 2u, 3u}) {
     std::memcpy(&bytes[8], &version, 4);
     test::writeBytes(dir.file("old.hoct"), bytes);
-    expectLoadFails(dir.file("old.hoct"), "version " + std::to_string(version) + " has no patient orientation");
+    expectLoadFails(dir.file("old.hoct"), "version " + std::to_string(version) + (version < 3 ? " has no patient orientation" : " does not tie"));
     expectLoadFails(dir.file("old.hoct"), "hybrid-octree build");
   }
 }
@@ -85,8 +85,7 @@ TEST(SceneFile, SurfaceOctreeRoundTrip) {
   ASSERT_TRUE(s.surface.has_value());
   EXPECT_EQ(s.surface->isovalue(), 0.0f);
   EXPECT_EQ(s.surface->cellCount(), so.cellCount());
-  ASSERT_EQ(s.surface->nodes().size(), so.nodes().size());
-  EXPECT_EQ(std::memcmp(s.surface->nodes().data(), so.nodes().data(), so.nodes().size() * sizeof(SurfaceNode)), 0);
+  EXPECT_EQ(s.surface->nodes(), so.nodes());
   EXPECT_EQ(s.surface->reconstruct().indices, so.reconstruct().indices);
   // A scene without a surface loads without one.
   saveScene(dir.file("v.hoct"), v, t);
@@ -121,6 +120,78 @@ TEST(SceneFile, RejectsForeignTruncatedCorruptAndNewer) {
   newer[8] = uint8_t(kSceneVersion + 1);
   test::writeBytes(dir.file("newer.hoct"), newer);
   expectLoadFails(dir.file("newer.hoct"), "version " + std::to_string(kSceneVersion + 1) + " unsupported");
+}
+
+// A scene file's section records (tag, size, CRC, payload), after its 16-byte header.
+std::vector<std::vector<uint8_t>> sectionRecords(const std::vector<uint8_t>& file) {
+  std::vector<std::vector<uint8_t>> records;
+  for (size_t pos = 16; pos < file.size();) {
+    uint64_t size;
+    std::memcpy(&size, &file[pos + 4], 8);
+    records.emplace_back(file.begin() + ptrdiff_t(pos), file.begin() + ptrdiff_t(pos + 16 + size));
+    pos += 16 + size_t(size);
+  }
+  return records;
+}
+
+TEST(SceneFile, SavedTwiceTheBytesAreTheSame) {
+  test::TempDir dir;
+  const Volume v = test::sphereVolume(glm::ivec3(21, 19, 17), 7.3);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const SurfaceOctree a = SurfaceOctree::build(v, t, 0.0f), b = SurfaceOctree::build(v, t, 0.0f);
+  saveScene(dir.file("a.hoct"), v, t, &a);
+  saveScene(dir.file("b.hoct"), v, VolumeOctree::build(v), &b);
+  EXPECT_EQ(test::readBytes(dir.file("a.hoct")), test::readBytes(dir.file("b.hoct")));
+}
+
+TEST(SceneFile, SectionsOfAnotherVolumeAreRefused) {
+  test::TempDir dir;
+  // Two volumes of one size: octree sections of either fit the other's shape.
+  const Volume a = test::sphereVolume(glm::ivec3(21, 19, 17), 7.3), b = test::sphereVolume(glm::ivec3(21, 19, 17), 6.1);
+  const VolumeOctree ta = VolumeOctree::build(a), tb = VolumeOctree::build(b);
+  const SurfaceOctree sa = SurfaceOctree::build(a, ta, 0.0f), sb = SurfaceOctree::build(b, tb, 0.0f);
+  saveScene(dir.file("a.hoct"), a, ta, &sa);
+  saveScene(dir.file("b.hoct"), b, tb, &sb);
+  const std::vector<uint8_t> fa = test::readBytes(dir.file("a.hoct")), fb = test::readBytes(dir.file("b.hoct"));
+  const auto ra = sectionRecords(fa), rb = sectionRecords(fb);
+  ASSERT_EQ(ra.size(), size_t(3));  // VOLM, VOCT, SURF
+  for (size_t swapped : {size_t(1), size_t(2)}) {
+    std::vector<uint8_t> mixed(fa.begin(), fa.begin() + 16);
+    for (size_t s = 0; s < ra.size(); ++s) {
+      const auto& r = s == swapped ? rb[s] : ra[s];
+      mixed.insert(mixed.end(), r.begin(), r.end());
+    }
+    test::writeBytes(dir.file("mixed.hoct"), mixed);
+    expectLoadFails(dir.file("mixed.hoct"), std::string("the ") + (swapped == 1 ? "volume octree" : "surface octree") +
+                                                " section was built from another volume");
+  }
+}
+
+TEST(SceneFile, AnOctreeThatDisagreesWithItsSamplesIsRefused) {
+  const Volume v = test::randomVolume({17, 9, 5}, 4);
+  const VolumeOctree t = VolumeOctree::build(v);
+  EXPECT_NO_THROW(t.validateAgainst(v, "x"));
+  const auto check = [&](std::vector<OctreeNode> nodes, std::vector<float> errors, const std::string& what) {
+    const VolumeOctree bad = VolumeOctree::fromParts(v.dims(), 8, std::move(nodes), std::move(errors), "x");  // well formed
+    try {
+      bad.validateAgainst(v, "x.hoct");
+      ADD_FAILURE() << what;
+    } catch (const IoError& e) {
+      EXPECT_THAT(e.what(), HasSubstr("x.hoct: octree node"));
+      EXPECT_THAT(e.what(), HasSubstr(what));
+    }
+  };
+  const size_t leaf = t.nodes().size() - 1;
+  ASSERT_TRUE(t.nodes()[leaf].isLeaf());
+  auto nodes = t.nodes();
+  nodes[leaf].minValue -= 1.0f;  // still a valid range, but not its samples'
+  check(nodes, t.errorData(), "min/max other than its samples'");
+  nodes = t.nodes();
+  nodes[0].maxValue += 1.0f;
+  check(nodes, t.errorData(), "min/max other than its children's");
+  auto errors = t.errorData();
+  errors[t.nodes()[0].errorOffset + size_t(t.maxLevel(t.nodes()[0]))] = 0.5f;
+  check(t.nodes(), errors, "non-zero error at full resolution");
 }
 
 TEST(SceneFile, FromPartsRejectsInconsistentOctrees) {
