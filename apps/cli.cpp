@@ -35,6 +35,7 @@
 #include "surface/mesh_io.h"
 #include "surface/mesh_ops.h"
 #include "volume/file_util.h"
+#include "volume/memory_limit.h"
 #include "volume/volume_io.h"
 
 namespace hyb::app {
@@ -469,6 +470,9 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   app.fallthrough();  // --progress may follow the subcommand
   std::string progressMode = "auto";
   std::string subject;  // the subcommand and its input, for the messages that have no file of their own
+  std::optional<double> memoryMb;
+  app.add_option("--memory-limit", memoryMb,
+                 "most memory reading one input may take, MB; a file claiming more is refused (default: half the physical memory)");
   app.add_option("--progress", progressMode,
                  "progress of long steps on stderr: auto (a bar on a terminal, lines when piped), bar, lines, off")
       ->capture_default_str();
@@ -555,6 +559,8 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     auto check = [&](const std::string& msg) {
       if (!msg.empty()) throw ValueError(msg);
     };
+    if (memoryMb && !(*memoryMb > 0 && *memoryMb <= 1e9)) check("--memory-limit must be megabytes in (0, 1e9]");
+    setMemoryLimit(memoryMb ? uint64_t(std::max(1.0, *memoryMb * 1024 * 1024)) : 0);  // per run: tests run many in one process
     ProgressMode mode;
     if (!parseProgressMode(progressMode, &mode)) check("--progress '" + progressMode + "' invalid (expected auto, bar, lines or off)");
     // Auto shows progress only on the process's own stderr (not on a caller's stream).

@@ -615,5 +615,14 @@ TEST(Cli, ExtremeNumbersAreRefusedNamingTheirFlagOrRenderSanely) {
   }
 }
 
+TEST(Cli, MemoryLimitRefusesAFileClaimingMore) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());  // 9x7x5 float: 1,260 bytes
+  expectBadInput({"--memory-limit", "0.001", "info", nhdr}, "more than the memory limit of");
+  expectBadInput({"--memory-limit", "-1", "info", nhdr}, "--memory-limit must be megabytes");
+  // The limit holds for its own run only.
+  EXPECT_EQ(run({"info", nhdr}).status, 0);
+}
+
 }  // namespace
 }  // namespace hyb
