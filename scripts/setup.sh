@@ -15,6 +15,7 @@ packages=(
   libcgal-dev libopenmesh-dev                    # exact mesh checks; mesh storage and IO
   libosmesa6-dev                                 # off-screen OpenGL 4.5 core through llvmpipe
   libgtest-dev libbenchmark-dev                  # tests and micro-benchmarks
+  clang-14 libfuzzer-14-dev                      # the fuzz targets (tests/fuzz) and their regression run
   gnuplot-nox                                    # the plot of `hybrid-octree bench` (speed/accuracy trade)
   invesalius-examples                            # the real CT used by the demo and the tests
   chromium                                       # the viewer's end-to-end test drives the page in it

@@ -6,3 +6,4 @@ bash scripts/setup.sh
 cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release -DHYB_WERROR=ON > /dev/null
 cmake --build build --parallel 2
 ctest --test-dir build --output-on-failure -j2
+bash scripts/fuzz.sh --regress  # every fuzz target over its corpus and the crashes found, under ASan+UBSan

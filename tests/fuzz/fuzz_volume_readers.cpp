@@ -1,0 +1,18 @@
+// libFuzzer target: every volume reader. The first byte picks the format, the rest is the file.
+#include "fuzz_util.h"
+#include "volume/volume_io.h"
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  if (size < 1) return 0;
+  static const char* const kNames[] = {"v.nrrd", "v.mha", "v.nii", "v.nii.gz", "v.inv3", "dicom/slice.dcm"};
+  const std::string name = kNames[data[0] % 6];
+  if (name.rfind("dicom/", 0) == 0) std::filesystem::create_directories(hyb::fuzz::scratch() / "dicom");
+  const std::string path = hyb::fuzz::writeInput(name, data + 1, size - 1);
+  hyb::fuzz::refuseOrSucceed([&] {
+    if (name.rfind("dicom/", 0) == 0)
+      hyb::readDicomSeries((hyb::fuzz::scratch() / "dicom").string());
+    else
+      hyb::readVolume(path);
+  });
+  return 0;
+}
