@@ -3,6 +3,8 @@
 #include <png.h>
 
 #include <algorithm>
+#include <cerrno>
+#include <cstring>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -27,14 +29,16 @@ std::vector<uint8_t> toRgba8(const Image& image, const glm::vec3& background) {
 void writePng(const std::string& path, const Image& image, const glm::vec3& background) {
   const std::vector<uint8_t> rgba = toRgba8(image, background);
   writeFileAtomicallyByName(path, [&](const std::string& tmp) {
+    errno = 0;
     FILE* f = std::fopen(tmp.c_str(), "wb");
-    if (!f) HYB_THROW(IoError, path, ": cannot create file");
+    if (!f) HYB_THROW(IoError, path, ": cannot create file (", std::strerror(errno), ")");
     png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
     png_infop info = png ? png_create_info_struct(png) : nullptr;
     if (!png || !info || setjmp(png_jmpbuf(png))) {
       png_destroy_write_struct(&png, &info);
+      const int err = errno;  // libpng stops here on a short write too (a full disk)
       std::fclose(f);
-      HYB_THROW(IoError, path, ": PNG encoding failed");
+      HYB_THROW(IoError, path, ": PNG encoding or writing failed (", err ? std::strerror(err) : "libpng error", ")");
     }
     png_init_io(png, f);
     png_set_IHDR(png, info, png_uint_32(image.width), png_uint_32(image.height), 8, PNG_COLOR_TYPE_RGBA, PNG_INTERLACE_NONE,
@@ -43,7 +47,7 @@ void writePng(const std::string& path, const Image& image, const glm::vec3& back
     for (int y = 0; y < image.height; ++y) png_write_row(png, &rgba[size_t(y) * size_t(image.width) * 4]);
     png_write_end(png, nullptr);
     png_destroy_write_struct(&png, &info);
-    if (std::fclose(f) != 0) HYB_THROW(IoError, path, ": write failed");
+    if (std::fclose(f) != 0) HYB_THROW(IoError, path, ": write failed (", std::strerror(errno), ")");
   });
 }
 

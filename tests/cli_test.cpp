@@ -546,6 +546,15 @@ TEST(Cli, AFailedWriteLeavesNoFileBehind) {
     EXPECT_THAT(r.err, HasSubstr("m.ply: write failed (File too large)"));
   }
   EXPECT_EQ(namesIn(dir), inputs);
+  {  // a PNG larger than the disk takes
+    const FileSizeLimit full(64);
+    const CliRun r = run({"render", nhdr, "--size", "16x16", "-o", dir.file("p.png")});
+    EXPECT_EQ(r.status, 2);
+    EXPECT_EQ(lines(r.err), size_t(1)) << r.err;
+    EXPECT_THAT(r.err, HasSubstr("p.png: "));  // at the last row or at the close: the stream is buffered
+    EXPECT_THAT(r.err, HasSubstr(" failed (File too large)"));
+  }
+  EXPECT_EQ(namesIn(dir), inputs);
   // render: the PNGs fit, --stats does not; none of the images is left.
   const std::vector<std::string> args = {"render", nhdr, "--size", "16x16", "--progressive", "2", "-o", dir.file("r.png"), "--stats", dir.file("r.json")};
   CliRun r = run(args);
