@@ -17,6 +17,7 @@
 #include <unistd.h>
 #include <zlib.h>
 
+#include <algorithm>
 #include <functional>
 #include <sstream>
 
@@ -447,7 +448,20 @@ TEST(HostileInputs, DamagedDicomMetaAndAppendedBytesAreRefused) {
     std::ofstream f(d + "/s0.dcm", std::ios::app | std::ios::binary);
     f << std::string(37, '\x7f') << "garbage\x01\x02";
   }
-  expectVolumeRefused(d, "s0.dcm (slice 1 of 2)", "not a readable DICOM image");
+  expectVolumeRefused(d, "s0.dcm", "damaged DICOM data set: a value representation that is not two letters");
+  // An element declaring more bytes than the file holds (GDCM would allocate them first: 2 GB for a
+  // 545-byte slice the fuzzer made) is refused before GDCM reads the file.
+  const std::string big = series(dir, "long", PixelShape{});
+  {
+    std::vector<uint8_t> b = test::readBytes(big + "/s1.dcm");
+    const std::string mono = "MONOCHROME2";
+    const auto at = std::search(b.begin(), b.end(), mono.begin(), mono.end());
+    ASSERT_NE(at, b.end());
+    at[-2] = 0xff;  // the element's 16-bit length: 65,535 bytes
+    at[-1] = 0xff;
+    test::writeBytes(big + "/s1.dcm", b);
+  }
+  expectVolumeRefused(big, "s1.dcm", "damaged DICOM data set: element (0028,0004) declaring 65535 bytes where");
   // A FIFO among the slices is not opened.
   const std::string withFifo = series(dir, "fifo", PixelShape{});
   ASSERT_EQ(::mkfifo((withFifo + "/pipe.dcm").c_str(), 0600), 0);

@@ -88,6 +88,110 @@ bool longVr(const uint8_t* p) {
 // Longest file meta information accepted (real ones are a few hundred bytes).
 constexpr size_t kMaxMetaBytes = 64 << 10;
 
+// The data set after the file meta information, walked element by element before GDCM reads it:
+// GDCM allocates what an element declares before it finds the file shorter (a 545-byte slice
+// made it allocate 2 GB), so every declared length must fit in the bytes left. Sequences and
+// encapsulated pixel data of undefined length are walked item by item, 16 levels deep at most.
+class DataSetWalk {
+ public:
+  DataSetWalk(const std::vector<uint8_t>& bytes, bool explicitVr, bool bigEndian, const std::string& file)
+      : mB(bytes), mExplicit(explicitVr), mBig(bigEndian), mFile(file) {}
+  // Walks elements from @p pos to @p end (or to an item delimiter when @p inItem); returns where it stopped.
+  size_t elements(size_t pos, size_t end, int depth, bool inItem) {
+    if (depth > 16) fail(pos, "sequences nested more than 16 deep");
+    while (pos + 8 <= end) {
+      const uint16_t group = u16(pos), element = u16(pos + 2);
+      if (group == 0xfffe) {
+        if (element == 0xe00d && inItem) return pos + 8;  // item delimiter
+        fail(pos, "an item tag outside a sequence");
+      }
+      const bool explicitHere = mExplicit && group != 0xfffe;
+      size_t header = 8;
+      uint64_t length;
+      bool sequence = false, maySequence = !explicitHere;
+      if (explicitHere) {
+        const uint8_t* vr = mB.data() + pos + 4;
+        if (!isVr(vr)) fail(pos, "a value representation that is not two letters");
+        sequence = vr[0] == 'S' && vr[1] == 'Q';
+        maySequence = sequence || (vr[0] == 'U' && vr[1] == 'N') || (vr[0] == 'O' && vr[1] == 'B') || (vr[0] == 'O' && vr[1] == 'W');
+        if (longVr(vr)) {
+          if (pos + 12 > end) fail(pos, "an element cut short");
+          length = u32(pos + 8);
+          header = 12;
+        } else {
+          length = u16(pos + 6);
+        }
+      } else {
+        length = u32(pos + 4);
+      }
+      pos += header;
+      if (length == 0xffffffffu) {
+        if (!maySequence) fail(pos - header, "an undefined length on a value that cannot hold items");
+        pos = items(pos, end, depth + 1, group == 0x7fe0 && element == 0x0010);
+        continue;
+      }
+      if (length > end - pos) fail(pos - header, detail::concat("element (", hex(group), ",", hex(element), ") declaring ", length,
+                                                               " bytes where ", end - pos, " are left"));
+      if (sequence) elementsOfItems(pos, pos + size_t(length), depth + 1);
+      pos += size_t(length);
+    }
+    if (inItem) fail(pos, "an item without its delimiter");
+    return pos;
+  }
+
+ private:
+  // Items of a sequence (data sets, walked) or @p fragments of encapsulated pixel data, up to the
+  // sequence delimiter.
+  size_t items(size_t pos, size_t end, int depth, bool fragments) {
+    for (;;) {
+      if (pos + 8 > end) fail(pos, "a sequence without its delimiter");
+      const uint16_t group = u16(pos), element = u16(pos + 2);
+      const uint32_t length = u32(pos + 4);
+      pos += 8;
+      if (group != 0xfffe) fail(pos - 8, "a sequence holding something other than items");
+      if (element == 0xe0dd) return pos;  // sequence delimiter
+      if (element != 0xe000) fail(pos - 8, "an unknown item tag");
+      if (length == 0xffffffffu) {
+        pos = elements(pos, end, depth, true);
+        continue;
+      }
+      if (length > end - pos) fail(pos - 8, detail::concat("an item declaring ", length, " bytes where ", end - pos, " are left"));
+      if (!fragments) elements(pos, pos + length, depth, false);
+      pos += length;
+    }
+  }
+  // A sequence of defined length: its items, each checked.
+  void elementsOfItems(size_t pos, size_t end, int depth) {
+    while (pos + 8 <= end) {
+      if (u16(pos) != 0xfffe || u16(pos + 2) != 0xe000) fail(pos, "a sequence holding something other than items");
+      const uint32_t length = u32(pos + 4);
+      pos += 8;
+      if (length == 0xffffffffu) {
+        pos = elements(pos, end, depth, true);
+        continue;
+      }
+      if (length > end - pos) fail(pos - 8, detail::concat("an item declaring ", length, " bytes where ", end - pos, " are left"));
+      elements(pos, pos + length, depth, false);
+      pos += length;
+    }
+  }
+  uint16_t u16(size_t at) const { return mBig ? uint16_t(mB[at] << 8 | mB[at + 1]) : le16(mB.data() + at); }
+  uint32_t u32(size_t at) const {
+    return mBig ? uint32_t(mB[at]) << 24 | uint32_t(mB[at + 1]) << 16 | uint32_t(mB[at + 2]) << 8 | mB[at + 3] : le32(mB.data() + at);
+  }
+  static std::string hex(uint16_t v) {
+    char s[5];
+    std::snprintf(s, sizeof s, "%04x", v);
+    return s;
+  }
+  [[noreturn]] void fail(size_t at, const std::string& what) const {
+    HYB_THROW(IoError, mFile, ": damaged DICOM data set: ", what, " at byte ", at, " (expected elements whose lengths fit in the file)");
+  }
+  const std::vector<uint8_t>& mB;
+  bool mExplicit, mBig;
+  std::string mFile;
+};
+
 // Whether @p file looks like DICOM (the "DICM" prefix, or a data set starting at group 0002 or
 // 0008 as old files do); throws when it is DICOM whose file meta information would make GDCM
 // assert.
@@ -101,6 +205,7 @@ DicomKind checkFileMeta(const InputFile& file) {
     HYB_THROW(IoError, file.path(), ": damaged DICOM file meta information: ", what, " at byte ", pos,
               " (expected group 0002 elements of defined length within the file)");
   };
+  std::string syntax;  // the Transfer Syntax UID (0002,0010)
   while (pos + 8 <= head.size() && le16(head.data() + pos) == 0x0002) {
     const uint8_t* e = head.data() + pos;
     size_t headerBytes = 8;
@@ -116,8 +221,14 @@ DicomKind checkFileMeta(const InputFile& file) {
     if (length == 0xffffffffu) damaged("an undefined length");
     if (pos + headerBytes + length > file.size()) damaged(detail::concat("a length of ", length, " past the end of the file"));
     if (pos + headerBytes + length > head.size()) damaged(detail::concat("more than ", kMaxMetaBytes, " bytes of meta information"));
+    if (le16(e + 2) == 0x0010) syntax.assign(reinterpret_cast<const char*>(e + headerBytes), size_t(length));
     pos += headerBytes + size_t(length);
   }
+  while (!syntax.empty() && (syntax.back() == '\0' || syntax.back() == ' ')) syntax.pop_back();
+  if (syntax == "1.2.840.10008.1.2.1.99") return DicomKind::Dicom;  // deflated: lengths are inside the compressed stream
+  const std::vector<uint8_t> bytes = file.bytes(0, file.size());
+  const bool explicitVr = syntax.empty() ? pos + 6 <= bytes.size() && isVr(bytes.data() + pos + 4) : syntax != "1.2.840.10008.1.2";
+  DataSetWalk(bytes, explicitVr, syntax == "1.2.840.10008.1.2.2", file.path()).elements(pos, bytes.size(), 0, false);
   return DicomKind::Dicom;
 }
 
