@@ -150,8 +150,8 @@ Camera readCameraFile(const std::string& path) {
   c.ortho = j["ortho"].get<bool>();
   c.orthoHeight = number("ortho_height");
   const double w = number("width"), h = number("height");
-  if (w != std::floor(w) || h != std::floor(h) || w < 1 || h < 1 || w > 16384 || h > 16384)
-    HYB_THROW(IoError, path, ": camera width and height must be whole numbers of pixels in 1..16384");
+  if (w != std::floor(w) || h != std::floor(h) || w < 1 || h < 1 || w > kMaxRenderEdge || h > kMaxRenderEdge)
+    HYB_THROW(IoError, path, ": camera width and height must be whole numbers of pixels in 1..", kMaxRenderEdge);
   c.width = int(w);
   c.height = int(h);
   if (!(c.fovDeg >= kMinFovDeg && c.fovDeg < kMaxFovDeg)) HYB_THROW(IoError, path, ": camera field 'fov_deg' must be in [0.1, 179) degrees");
@@ -168,8 +168,8 @@ glm::ivec2 parseSize(const std::string& text) {
   char x = 0;
   std::istringstream s(text);
   std::string rest;
-  if (!(s >> w >> x >> h) || (x != 'x' && x != 'X') || (s >> rest) || w < 1 || h < 1 || w > 16384 || h > 16384)
-    HYB_THROW(ValueError, "--size '", text, "' invalid (expected WxH, 1..16384 each)");
+  if (!(s >> w >> x >> h) || (x != 'x' && x != 'X') || (s >> rest) || w < 1 || h < 1 || w > kMaxRenderEdge || h > kMaxRenderEdge)
+    HYB_THROW(ValueError, "--size '", text, "' invalid (expected WxH, 1..", kMaxRenderEdge, " each)");
   return {w, h};
 }
 
@@ -398,6 +398,8 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
   camera.width = pixels.x;
   camera.height = pixels.y;
   if (o.zoom != 1.0) zoomCamera(&camera, o.zoom);
+  if (!camera.ortho && !(camera.fovDeg >= kMinFovDeg && camera.fovDeg < kMaxFovDeg))
+    HYB_THROW(ValueError, "--zoom ", o.zoom, " makes a field of view of ", camera.fovDeg, " degrees (expected a zoom keeping it in [0.1, 179))");
   job.quality = o.quality;
   job.background = o.background;
   job.renderer = std::make_unique<SceneRenderer>(std::move(scene), SceneRenderer::Options{0, o.input.progress});

@@ -9,6 +9,9 @@ namespace hyb {
 /// beyond it depths overflow the renderers' float and slab arithmetic) and a field of view in
 /// [kMinFovDeg, kMaxFovDeg).
 inline constexpr double kMaxCameraMm = 1e6, kMinFovDeg = 0.1, kMaxFovDeg = 179.0;
+/// Largest image edge, pixels: the renderers' float framebuffer of 16384² would take 4 GiB, more
+/// than llvmpipe allocates.
+inline constexpr int kMaxRenderEdge = 8192;
 
 /// Whether every coordinate of @p p is finite and within ±kMaxCameraMm.
 inline bool withinCameraRange(const glm::dvec3& p) {

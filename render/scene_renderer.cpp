@@ -57,9 +57,9 @@ std::string View::validate() const {
   if (!finite(c.eye) || !finite(c.center) || !finite(c.up)) return "camera eye, center and up must be finite (patient mm)";
   if (glm::length(c.eye - c.center) == 0 || glm::length(glm::cross(c.center - c.eye, c.up)) == 0)
     return "camera eye, center and up must give a view direction not parallel to up";
-  if (c.width < 1 || c.height < 1 || c.width > 16384 || c.height > 16384)
-    return detail::concat("--size ", c.width, "x", c.height, " invalid (expected 1..16384 pixels each)");
-  if (!(c.fovDeg > 0 && c.fovDeg < 179)) return "--fov must be in (0, 179) degrees";
+  if (c.width < 1 || c.height < 1 || c.width > kMaxRenderEdge || c.height > kMaxRenderEdge)
+    return detail::concat("--size ", c.width, "x", c.height, " invalid (expected 1..", kMaxRenderEdge, " pixels each)");
+  if (!(c.fovDeg >= kMinFovDeg && c.fovDeg < kMaxFovDeg)) return "the field of view (--fov, narrowed by --zoom) must be in [0.1, 179) degrees";
   if (!(std::isfinite(c.orthoHeight) && c.orthoHeight > 0)) return "camera orthographic height must be a finite positive size (mm)";
   return "";
 }
@@ -301,7 +301,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   } else if (quality.budgetMb > 0.0) {
     // A budget beyond 2^62 texels limits nothing (and would overflow the count): unlimited.
     const double texels = quality.budgetMb * 1024.0 * 1024.0 / double(bytesPerTexel(quality.texelBits));
-    if (texels < 1.0) HYB_THROW(ValueError, "texture budget ", quality.budgetMb, " MB is smaller than one texel");
+    if (texels < 1.0) HYB_THROW(ValueError, "--budget ", quality.budgetMb, " MB is smaller than one texel");
     choice.texelBudget = texels < 0x1p62 ? uint64_t(texels) : 0;
   }
   st.budgetTexels = choice.texelBudget;

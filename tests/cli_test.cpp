@@ -614,6 +614,10 @@ TEST(Cli, ExtremeNumbersAreRefusedNamingTheirFlagOrRenderSanely) {
   expectBadInput({"export", nhdr, "--iso", "-1e39", "-o", dir.file("m.ply")}, "--iso");
   expectBadInput({"build", nhdr, "--iso", "1e39", "-o", dir.file("s.hoct")}, "--iso");
   expectBadInput({"render", nhdr, "--epsilon", "1e39", "-o", png}, "--epsilon");
+  expectBadInput({"render", nhdr, "--zoom", "1e-300", "-o", png}, "--zoom 1e-300 makes a field of view of 180 degrees");
+  expectBadInput({"render", nhdr, "--zoom", "1000", "--fov", "1", "-o", png}, "--zoom 1000 makes a field of view of");
+  expectBadInput({"render", nhdr, "--budget", "1e-300", "-o", png}, "--budget 1e-300 MB is smaller than one texel");
+  expectBadInput({"render", nhdr, "--size", "16384x16384", "-o", png}, "--size '16384x16384' invalid (expected WxH, 1..8192 each)");
   test::writeText(dir.file("cam.json"),
                   R"({"eye": [1e300, 0, 0], "center": [0, 0, 0], "up": [0, 0, 1], "fov_deg": 30, "ortho": false, "ortho_height": 1, "width": 16, "height": 16})");
   expectBadInput({"render", nhdr, "--camera-file", dir.file("cam.json"), "-o", png}, "cam.json: camera field 'eye' must be within 1e6 mm");
