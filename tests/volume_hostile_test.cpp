@@ -448,7 +448,7 @@ TEST(HostileInputs, DamagedDicomMetaAndAppendedBytesAreRefused) {
     std::ofstream f(d + "/s0.dcm", std::ios::app | std::ios::binary);
     f << std::string(37, '\x7f') << "garbage\x01\x02";
   }
-  expectVolumeRefused(d, "s0.dcm", "damaged DICOM data set: a value representation that is not two letters");
+  expectVolumeRefused(d, "s0.dcm", "damaged DICOM data set: an unknown value representation");
   // An element declaring more bytes than the file holds (GDCM would allocate them first: 2 GB for a
   // 545-byte slice the fuzzer made) is refused before GDCM reads the file.
   const std::string big = series(dir, "long", PixelShape{});
@@ -462,6 +462,36 @@ TEST(HostileInputs, DamagedDicomMetaAndAppendedBytesAreRefused) {
     test::writeBytes(big + "/s1.dcm", b);
   }
   expectVolumeRefused(big, "s1.dcm", "damaged DICOM data set: element (0028,0004) declaring 65535 bytes where");
+  // A value representation that is not one (GDCM would read its value bytes as a 32-bit length).
+  const std::string unknown = series(dir, "vr", PixelShape{});
+  {
+    std::vector<uint8_t> b = test::readBytes(unknown + "/s1.dcm");
+    const std::string mono = "MONOCHROME2";
+    const auto at = std::search(b.begin(), b.end(), mono.begin(), mono.end());
+    ASSERT_NE(at, b.end());
+    at[-4] = 'F';  // CS -> FS
+    test::writeBytes(unknown + "/s1.dcm", b);
+  }
+  expectVolumeRefused(unknown, "s1.dcm", "damaged DICOM data set: an unknown value representation 'FS'");
+  // Five bytes after the last element: a partial element header (GDCM asserts reading it).
+  const std::string partial = series(dir, "partial", PixelShape{});
+  {
+    std::ofstream f(partial + "/s1.dcm", std::ios::app | std::ios::binary);
+    f.write("\x28\x00\x30\x00\x44", 5);
+  }
+  expectVolumeRefused(partial, "s1.dcm", "damaged DICOM data set: an element cut short");
+  // Meta information and nothing after it (GDCM asserts reading the next tag).
+  const std::string bare = series(dir, "bare", PixelShape{});
+  {
+    const std::vector<uint8_t> b = test::readBytes(bare + "/s0.dcm");
+    size_t end = 132;
+    while (end + 8 <= b.size() && b[end] == 0x02 && b[end + 1] == 0x00) {
+      const bool longForm = (b[end + 4] == 'O' && b[end + 5] == 'B') || (b[end + 4] == 'U' && b[end + 5] == 'N');
+      end += longForm ? 12 + (b[end + 8] | b[end + 9] << 8) : 8 + (b[end + 6] | b[end + 7] << 8);
+    }
+    test::writeBytes(bare + "/s0.dcm", std::vector<uint8_t>(b.begin(), b.begin() + ptrdiff_t(end)));
+  }
+  expectVolumeRefused(bare, "s0.dcm", "no data set after the file meta information");
   // A FIFO among the slices is not opened.
   const std::string withFifo = series(dir, "fifo", PixelShape{});
   ASSERT_EQ(::mkfifo((withFifo + "/pipe.dcm").c_str(), 0600), 0);

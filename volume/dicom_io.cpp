@@ -79,6 +79,14 @@ uint32_t le32(const uint8_t* p) { return uint32_t(p[0]) | uint32_t(p[1]) << 8 | 
 
 bool isVr(const uint8_t* p) { return p[0] >= 'A' && p[0] <= 'Z' && p[1] >= 'A' && p[1] <= 'Z'; }
 
+// The value representations of PS3.5 6.2: GDCM reads an element of any other as implicit, taking
+// its value bytes for a 32-bit length (a 545-byte slice made it allocate 825 MB that way).
+bool knownVr(const uint8_t* p) {
+  static const char* kVrs[] = {"AE", "AS", "AT", "CS", "DA", "DS", "DT", "FL", "FD", "IS", "LO", "LT", "OB", "OD", "OF", "OL", "OV",
+                               "OW", "PN", "SH", "SL", "SQ", "SS", "ST", "SV", "TM", "UC", "UI", "UL", "UN", "UR", "US", "UT", "UV"};
+  return std::any_of(std::begin(kVrs), std::end(kVrs), [&](const char* v) { return p[0] == v[0] && p[1] == v[1]; });
+}
+
 // Explicit VRs whose length takes 4 bytes after 2 reserved ones (PS3.5 7.1.2).
 bool longVr(const uint8_t* p) {
   static const char* kLong[] = {"OB", "OW", "OF", "OD", "OL", "OV", "SQ", "UT", "UN", "UC", "UR", "SV", "UV"};
@@ -111,7 +119,7 @@ class DataSetWalk {
       bool sequence = false, maySequence = !explicitHere;
       if (explicitHere) {
         const uint8_t* vr = mB.data() + pos + 4;
-        if (!isVr(vr)) fail(pos, "a value representation that is not two letters");
+        if (!knownVr(vr)) fail(pos, detail::concat("an unknown value representation ", quotedExcerpt(std::string_view(reinterpret_cast<const char*>(vr), 2))));
         sequence = vr[0] == 'S' && vr[1] == 'Q';
         maySequence = sequence || (vr[0] == 'U' && vr[1] == 'N') || (vr[0] == 'O' && vr[1] == 'B') || (vr[0] == 'O' && vr[1] == 'W');
         if (longVr(vr)) {
@@ -136,6 +144,7 @@ class DataSetWalk {
       pos += size_t(length);
     }
     if (inItem) fail(pos, "an item without its delimiter");
+    if (pos < end) fail(pos, "an element cut short");  // GDCM asserts on a partial element header
     return pos;
   }
 
@@ -210,6 +219,7 @@ DicomKind checkFileMeta(const InputFile& file) {
     const uint8_t* e = head.data() + pos;
     size_t headerBytes = 8;
     uint64_t length;
+    if (isVr(e + 4) && !knownVr(e + 4)) damaged("an unknown value representation");
     if (isVr(e + 4) && longVr(e + 4)) {
       if (e[4] == 'S' && e[5] == 'Q') damaged("a sequence");
       if (pos + 12 > head.size()) damaged("an element cut short");
@@ -224,6 +234,8 @@ DicomKind checkFileMeta(const InputFile& file) {
     if (le16(e + 2) == 0x0010) syntax.assign(reinterpret_cast<const char*>(e + headerBytes), size_t(length));
     pos += headerBytes + size_t(length);
   }
+  // GDCM asserts when it finds the end of the file where the element after the meta information should be.
+  if (pos + 8 > file.size()) damaged("no data set after the file meta information");
   while (!syntax.empty() && (syntax.back() == '\0' || syntax.back() == ' ')) syntax.pop_back();
   if (syntax == "1.2.840.10008.1.2.1.99") return DicomKind::Dicom;  // deflated: lengths are inside the compressed stream
   const std::vector<uint8_t> bytes = file.bytes(0, file.size());

@@ -69,8 +69,13 @@ try {
   const before = (await page.evaluate(() => window.hybViewer.metrics())).length;
   await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
   await page.mouse.down();
-  for (let i = 1; i <= 25; ++i) {
-    await page.mouse.move(box.x + box.width / 2 + 6 * i, box.y + box.height / 2 + 2 * i);
+  // 25 moves 40 ms apart, then on (back and forth) until two interactive frames came: a slow build
+  // (sanitizers) makes fewer frames in the same time.
+  const interactiveSince = () => page.evaluate((n) => window.hybViewer.metrics().slice(n).filter((m) => m.quality === 'interactive').length, before);
+  const dragStart = Date.now();
+  for (let i = 1; i <= 25 || ((await interactiveSince()) < 2 && Date.now() - dragStart < 60000); ++i) {
+    const k = 1 + ((i - 1) % 50 < 25 ? (i - 1) % 25 : 24 - ((i - 1) % 25));
+    await page.mouse.move(box.x + box.width / 2 + 6 * k, box.y + box.height / 2 + 2 * k);
     await new Promise((r) => setTimeout(r, 40));
   }
   await page.mouse.up();
