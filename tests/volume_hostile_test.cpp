@@ -473,6 +473,16 @@ TEST(HostileInputs, DamagedDicomMetaAndAppendedBytesAreRefused) {
     test::writeBytes(unknown + "/s1.dcm", b);
   }
   expectVolumeRefused(unknown, "s1.dcm", "damaged DICOM data set: an unknown value representation 'FS'");
+  // Meta information without value representations (GDCM's implicit reading of it asserts).
+  const std::string implicitMeta = series(dir, "implicit", PixelShape{});
+  {
+    std::vector<uint8_t> b = test::readBytes(implicitMeta + "/s0.dcm");
+    ASSERT_EQ(b[136], 'U');  // (0002,0000) UL
+    b[136] = 0x4c;
+    b[137] = 0x00;
+    test::writeBytes(implicitMeta + "/s0.dcm", b);
+  }
+  expectVolumeRefused(implicitMeta, "s0.dcm", "damaged DICOM file meta information: an element without a known value representation");
   // Five bytes after the last element: a partial element header (GDCM asserts reading it).
   const std::string partial = series(dir, "partial", PixelShape{});
   {

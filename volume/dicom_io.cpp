@@ -219,14 +219,15 @@ DicomKind checkFileMeta(const InputFile& file) {
     const uint8_t* e = head.data() + pos;
     size_t headerBytes = 8;
     uint64_t length;
-    if (isVr(e + 4) && !knownVr(e + 4)) damaged("an unknown value representation");
-    if (isVr(e + 4) && longVr(e + 4)) {
+    // PS3.10 7.1: the meta information is explicit VR (GDCM's reading of implicit meta asserts).
+    if (!knownVr(e + 4)) damaged("an element without a known value representation");
+    if (longVr(e + 4)) {
       if (e[4] == 'S' && e[5] == 'Q') damaged("a sequence");
       if (pos + 12 > head.size()) damaged("an element cut short");
       length = le32(e + 8);
       headerBytes = 12;
     } else {
-      length = isVr(e + 4) ? le16(e + 6) : le32(e + 4);  // explicit short form, else implicit
+      length = le16(e + 6);
     }
     if (length == 0xffffffffu) damaged("an undefined length");
     if (pos + headerBytes + length > file.size()) damaged(detail::concat("a length of ", length, " past the end of the file"));
