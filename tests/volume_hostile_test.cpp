@@ -473,6 +473,18 @@ TEST(HostileInputs, DamagedDicomMetaAndAppendedBytesAreRefused) {
     test::writeBytes(unknown + "/s1.dcm", b);
   }
   expectVolumeRefused(unknown, "s1.dcm", "damaged DICOM data set: an unknown value representation 'FS'");
+  // An image-module tag of another value representation (GDCM's typed attributes assert on it).
+  const std::string otherVr = series(dir, "othervr", PixelShape{});
+  {
+    std::vector<uint8_t> b = test::readBytes(otherVr + "/s0.dcm");
+    const std::string mono = "MONOCHROME2";
+    const auto at = std::search(b.begin(), b.end(), mono.begin(), mono.end());
+    ASSERT_NE(at, b.end());
+    at[-4] = 'A';  // CS -> AS, a valid VR but not this tag's
+    at[-3] = 'S';
+    test::writeBytes(otherVr + "/s0.dcm", b);
+  }
+  expectVolumeRefused(otherVr, "s0.dcm", "element (0028,0004) of value representation 'AS' where the standard says CS");
   // Meta information without value representations (GDCM's implicit reading of it asserts).
   const std::string implicitMeta = series(dir, "implicit", PixelShape{});
   {

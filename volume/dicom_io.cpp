@@ -96,6 +96,19 @@ bool longVr(const uint8_t* p) {
 // Longest file meta information accepted (real ones are a few hundred bytes).
 constexpr size_t kMaxMetaBytes = 64 << 10;
 
+// The value representation GDCM's typed reading of the image module expects of a tag (its
+// attributes assert on another), or null for tags it reads as they come.
+const char* imageModuleVr(uint16_t group, uint16_t element) {
+  static const struct { uint16_t g, e; const char* vr; } kTags[] = {
+      {0x0008, 0x0060, "CS"}, {0x0018, 0x0050, "DS"}, {0x0018, 0x0088, "DS"}, {0x0020, 0x0032, "DS"}, {0x0020, 0x0037, "DS"},
+      {0x0028, 0x0002, "US"}, {0x0028, 0x0004, "CS"}, {0x0028, 0x0006, "US"}, {0x0028, 0x0008, "IS"}, {0x0028, 0x0010, "US"},
+      {0x0028, 0x0011, "US"}, {0x0028, 0x0030, "DS"}, {0x0028, 0x0100, "US"}, {0x0028, 0x0101, "US"}, {0x0028, 0x0102, "US"},
+      {0x0028, 0x0103, "US"}, {0x0028, 0x1050, "DS"}, {0x0028, 0x1051, "DS"}, {0x0028, 0x1052, "DS"}, {0x0028, 0x1053, "DS"}};
+  for (const auto& t : kTags)
+    if (t.g == group && t.e == element) return t.vr;
+  return nullptr;
+}
+
 // The data set after the file meta information, walked element by element before GDCM reads it:
 // GDCM allocates what an element declares before it finds the file shorter (a 545-byte slice
 // made it allocate 2 GB), so every declared length must fit in the bytes left. Sequences and
@@ -120,6 +133,9 @@ class DataSetWalk {
       if (explicitHere) {
         const uint8_t* vr = mB.data() + pos + 4;
         if (!knownVr(vr)) fail(pos, detail::concat("an unknown value representation ", quotedExcerpt(std::string_view(reinterpret_cast<const char*>(vr), 2))));
+        if (const char* want = imageModuleVr(group, element); want && (vr[0] != want[0] || vr[1] != want[1]))
+          fail(pos, detail::concat("element (", hex(group), ",", hex(element), ") of value representation ",
+                                   quotedExcerpt(std::string_view(reinterpret_cast<const char*>(vr), 2)), " where the standard says ", want));
         sequence = vr[0] == 'S' && vr[1] == 'Q';
         maySequence = sequence || (vr[0] == 'U' && vr[1] == 'N') || (vr[0] == 'O' && vr[1] == 'B') || (vr[0] == 'O' && vr[1] == 'W');
         if (longVr(vr)) {
