@@ -495,6 +495,14 @@ TEST(HostileInputs, DamagedDicomMetaAndAppendedBytesAreRefused) {
     test::writeBytes(implicitMeta + "/s0.dcm", b);
   }
   expectVolumeRefused(implicitMeta, "s0.dcm", "damaged DICOM file meta information: an element without a known value representation");
+  // The DICM prefix followed by something other than meta information.
+  const std::string noMeta = series(dir, "nometa", PixelShape{});
+  {
+    std::vector<uint8_t> b = test::readBytes(noMeta + "/s0.dcm");
+    b[132] = 0x06;  // group 0006
+    test::writeBytes(noMeta + "/s0.dcm", b);
+  }
+  expectVolumeRefused(noMeta, "s0.dcm", "damaged DICOM file meta information: no group 0002 after the DICM prefix");
   // Five bytes after the last element: a partial element header (GDCM asserts reading it).
   const std::string partial = series(dir, "partial", PixelShape{});
   {
