@@ -18,7 +18,7 @@ if [ "${1:-}" = "--regress" ]; then
     [ -d tests/fuzz/crashes/"$t" ] && inputs+=(tests/fuzz/crashes/"$t")
     build-fuzz/fuzz_"$t" -runs=0 -rss_limit_mb=2048 -timeout=30 "${inputs[@]}" 2> "build-fuzz/$t.regress.log" ||
       { cat "build-fuzz/$t.regress.log"; echo "fuzz_$t: a corpus or crash input fails (log above)"; exit 1; }
-    echo "fuzz_$t: $(grep -c . <(ls "${inputs[@]}")) inputs pass"
+    echo "fuzz_$t: $(find "${inputs[@]}" -type f | wc -l) inputs pass"
   done
   exit 0
 fi
