@@ -20,6 +20,7 @@
 #include <algorithm>
 #include <functional>
 #include <sstream>
+#include <stdexcept>
 
 #include "render/transfer_function.h"
 #include "test_util.h"
@@ -405,6 +406,25 @@ std::string series(const TempDir& dir, const std::string& name, const PixelShape
   return d;
 }
 
+// A two-slice series whose slice @p file is changed in place by @p patch.
+std::string patchedSeries(const TempDir& dir, const std::string& name, const std::string& file,
+                          const std::function<void(std::vector<uint8_t>&)>& patch) {
+  const std::string d = series(dir, name, PixelShape{});
+  std::vector<uint8_t> b = test::readBytes(d + "/" + file);
+  patch(b);
+  test::writeBytes(d + "/" + file, b);
+  return d;
+}
+
+// Where the value of Photometric Interpretation ("MONOCHROME2") starts in @p b: its VR is 4 bytes
+// before, its 16-bit length 2 bytes before.
+size_t photometricAt(const std::vector<uint8_t>& b) {
+  const std::string mono = "MONOCHROME2";
+  const auto at = std::search(b.begin(), b.end(), mono.begin(), mono.end());
+  if (at == b.end()) throw std::runtime_error("the test slice holds no MONOCHROME2");
+  return size_t(at - b.begin());
+}
+
 TEST(HostileInputs, DicomShapesThatMadeGdcmAssertAreRefused) {
   TempDir dir;
   EXPECT_EQ(readVolume(series(dir, "good", PixelShape{})).dims(), glm::ivec3(4, 3, 2));
@@ -451,57 +471,30 @@ TEST(HostileInputs, DamagedDicomMetaAndAppendedBytesAreRefused) {
   expectVolumeRefused(d, "s0.dcm", "damaged DICOM data set: an unknown value representation");
   // An element declaring more bytes than the file holds (GDCM would allocate them first: 2 GB for a
   // 545-byte slice the fuzzer made) is refused before GDCM reads the file.
-  const std::string big = series(dir, "long", PixelShape{});
-  {
-    std::vector<uint8_t> b = test::readBytes(big + "/s1.dcm");
-    const std::string mono = "MONOCHROME2";
-    const auto at = std::search(b.begin(), b.end(), mono.begin(), mono.end());
-    ASSERT_NE(at, b.end());
-    at[-2] = 0xff;  // the element's 16-bit length: 65,535 bytes
-    at[-1] = 0xff;
-    test::writeBytes(big + "/s1.dcm", b);
-  }
+  const std::string big = patchedSeries(dir, "long", "s1.dcm", [](std::vector<uint8_t>& b) {
+    const size_t at = photometricAt(b);
+    b[at - 2] = b[at - 1] = 0xff;  // the element's 16-bit length: 65,535 bytes
+  });
   expectVolumeRefused(big, "s1.dcm", "damaged DICOM data set: element (0028,0004) declaring 65535 bytes where");
   // A value representation that is not one (GDCM would read its value bytes as a 32-bit length).
-  const std::string unknown = series(dir, "vr", PixelShape{});
-  {
-    std::vector<uint8_t> b = test::readBytes(unknown + "/s1.dcm");
-    const std::string mono = "MONOCHROME2";
-    const auto at = std::search(b.begin(), b.end(), mono.begin(), mono.end());
-    ASSERT_NE(at, b.end());
-    at[-4] = 'F';  // CS -> FS
-    test::writeBytes(unknown + "/s1.dcm", b);
-  }
+  const std::string unknown = patchedSeries(dir, "vr", "s1.dcm", [](std::vector<uint8_t>& b) { b[photometricAt(b) - 4] = 'F'; });  // CS -> FS
   expectVolumeRefused(unknown, "s1.dcm", "damaged DICOM data set: an unknown value representation 'FS'");
   // An image-module tag of another value representation (GDCM's typed attributes assert on it).
-  const std::string otherVr = series(dir, "othervr", PixelShape{});
-  {
-    std::vector<uint8_t> b = test::readBytes(otherVr + "/s0.dcm");
-    const std::string mono = "MONOCHROME2";
-    const auto at = std::search(b.begin(), b.end(), mono.begin(), mono.end());
-    ASSERT_NE(at, b.end());
-    at[-4] = 'A';  // CS -> AS, a valid VR but not this tag's
-    at[-3] = 'S';
-    test::writeBytes(otherVr + "/s0.dcm", b);
-  }
+  const std::string otherVr = patchedSeries(dir, "othervr", "s0.dcm", [](std::vector<uint8_t>& b) {
+    const size_t at = photometricAt(b);
+    b[at - 4] = 'A';  // CS -> AS, a valid VR but not this tag's
+    b[at - 3] = 'S';
+  });
   expectVolumeRefused(otherVr, "s0.dcm", "element (0028,0004) of value representation 'AS' where the standard says CS");
   // Meta information without value representations (GDCM's implicit reading of it asserts).
-  const std::string implicitMeta = series(dir, "implicit", PixelShape{});
-  {
-    std::vector<uint8_t> b = test::readBytes(implicitMeta + "/s0.dcm");
+  const std::string implicitMeta = patchedSeries(dir, "implicit", "s0.dcm", [](std::vector<uint8_t>& b) {
     ASSERT_EQ(b[136], 'U');  // (0002,0000) UL
     b[136] = 0x4c;
     b[137] = 0x00;
-    test::writeBytes(implicitMeta + "/s0.dcm", b);
-  }
+  });
   expectVolumeRefused(implicitMeta, "s0.dcm", "damaged DICOM file meta information: an element without a known value representation");
   // The DICM prefix followed by something other than meta information.
-  const std::string noMeta = series(dir, "nometa", PixelShape{});
-  {
-    std::vector<uint8_t> b = test::readBytes(noMeta + "/s0.dcm");
-    b[132] = 0x06;  // group 0006
-    test::writeBytes(noMeta + "/s0.dcm", b);
-  }
+  const std::string noMeta = patchedSeries(dir, "nometa", "s0.dcm", [](std::vector<uint8_t>& b) { b[132] = 0x06; });  // group 0006
   expectVolumeRefused(noMeta, "s0.dcm", "damaged DICOM file meta information: no group 0002 after the DICM prefix");
   // Five bytes after the last element: a partial element header (GDCM asserts reading it).
   const std::string partial = series(dir, "partial", PixelShape{});
