@@ -45,6 +45,9 @@ using Clock = std::chrono::steady_clock;
 namespace {
 
 double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
+// Wall-clock milliseconds since the epoch: the page compares them with its own clock (same machine)
+// to tell the time a message spends between the two.
+double epochMs() { return std::chrono::duration<double, std::milli>(std::chrono::system_clock::now().time_since_epoch()).count(); }
 
 std::vector<uint8_t> encodeJpeg(const std::vector<uint8_t>& rgba, int width, int height, int quality) {
   tjhandle tj = tjInitCompress();
@@ -122,6 +125,8 @@ struct Client {
   uint64_t id = 0;
   std::string sceneKey;                 // the volume it shows; empty before one is open
   std::optional<FrameRequest> pending;  // the newest request not yet rendered
+  Clock::time_point pendingSince;       // when it came
+  double pendingEpochMs = 0.0;          // the same, wall clock
   std::optional<FrameRequest> current;  // the request being refined
   std::vector<int> refine;              // levels still to render for it, next last
   AdaptiveQuality quality;
@@ -404,7 +409,9 @@ struct ServerState {
       }
       // The newest request replaces whatever refinement was under way.
       int level = 0;
+      Arrival arrival;
       if (client->pending) {
+        arrival = {msSince(client->pendingSince), client->pendingEpochMs};
         client->current = std::move(client->pending);
         client->pending.reset();
         if (client->current->interacting) {
@@ -429,7 +436,7 @@ struct ServerState {
       double ms = 0.0;
       bool cold = false;
       try {
-        message = renderFrame(*slot, request, level, final, iso, &ms, &cold);
+        message = renderFrame(*slot, request, level, final, iso, arrival, &ms, &cold);
       } catch (const std::exception& e) {
         message.clear();
         client->send(errorMessage(e.what(), request.seq), false);
@@ -451,7 +458,13 @@ struct ServerState {
 
   // One frame at @p level of the ladder, encoded with its header (render thread, unlocked); @p cold
   // says whether it uploaded most of its textures.
-  std::string renderFrame(SceneSlot& slot, const FrameRequest& r, int level, bool final, std::optional<float> iso, double* ms, bool* cold) {
+  // When a frame's request came: its wait for the render thread, and its arrival's wall clock.
+  struct Arrival {
+    double waitMs = 0.0, epochMs = 0.0;
+  };
+
+  std::string renderFrame(SceneSlot& slot, const FrameRequest& r, int level, bool final, std::optional<float> iso, const Arrival& arrival,
+                          double* ms, bool* cold) {
     const auto t0 = Clock::now();
     const QualityLevel& q = kLadder[size_t(level)];
     View view;
@@ -491,6 +504,9 @@ struct ServerState {
                    {"format", final ? "png" : "jpeg"},
                    {"width", frame.image.width},
                    {"height", frame.image.height},
+                   {"waitMs", arrival.waitMs},
+                   {"requestEpochMs", arrival.epochMs},
+                   {"sentEpochMs", epochMs()},
                    {"renderMs", renderMs},
                    {"encodeMs", encodeMs},
                    {"textureBytes", st.slices.textureBytes},
@@ -582,6 +598,8 @@ struct ServerState {
         return;
       }
       c->pending = std::move(*frame);  // replaces an older one not yet rendered
+      c->pendingSince = Clock::now();
+      c->pendingEpochMs = epochMs();
     } else {
       const auto& open = std::get<OpenRequest>(request);
       if (options.dataDir.empty()) {
@@ -822,6 +840,10 @@ void accept(ServerState& s) {
       if (!s.stopping) accept(s);
       return;
     }
+    // Frames go out as written: Nagle's algorithm would hold a frame's last segment for the
+    // client's delayed acknowledgement.
+    beast::error_code ignored;
+    socket.set_option(tcp::no_delay(true), ignored);
     std::make_shared<HttpSession>(std::move(socket), s)->run();
     accept(s);
   });

@@ -103,11 +103,16 @@ async function orbit(label, withSurface) {
   console.log(`${label}:`);
   console.log(`  frames painted in ${seconds} s: ${during.length} (${(during.length / seconds).toFixed(1)} frames/s; target >= 10)`);
   console.log(`  latency input -> painted: p50 ${quantile(latencies, 0.5).toFixed(0)} ms, p95 ${quantile(latencies, 0.95).toFixed(0)} ms (target p95 <= 150)`);
+  const med = (f) => quantile(interactive.map(f), 0.5).toFixed(0);
+  console.log(`  latency parts (medians): request to the server ${med((m) => m.upMs)} ms, waiting for the render thread ${med((m) => m.waitMs)}, ` +
+    `render ${med((m) => m.renderMs)}, encode ${med((m) => m.encodeMs)}, frame to the page ${med((m) => m.downMs)}, decode and paint ${med((m) => m.paintMs)}`);
   console.log(`  levels used: ${Object.entries(levels).map(([k, l]) => `${k}: ${l.n} frames, ${(l.ms / l.n).toFixed(0)} ms`).join('; ')}`);
   console.log(`  bytes per interactive frame: mean ${(bytes.reduce((a, b) => a + b, 0) / Math.max(1, bytes.length) / 1024).toFixed(1)} KiB; final ${final ? (final.bytes / 1024).toFixed(1) : '?'} KiB`);
   console.log(`  interactive frames against the reference, as painted (512²): ${painted.map((p) => p.toFixed(1)).join(', ')} dB (target >= 30)`);
   console.log(`  the same frames as sent, at their own size: ${sent.join(', ')} dB`);
   console.log(`  final frame painted ${final ? (final.paintedAt - tUp).toFixed(0) : '?'} ms after the motion stopped (target <= 2000)`);
+  const after = metrics.filter((m) => m.paintedAt > tUp && m.paintedAt <= (final ? final.paintedAt : Infinity));
+  console.log(`  frames after the motion: ${after.map((m) => `${m.quality} ${m.levelText} at +${(m.paintedAt - tUp).toFixed(0)} ms (render ${m.renderMs.toFixed(0)} + encode ${m.encodeMs.toFixed(0)} ms)`).join('; ')}`);
 }
 
 try {

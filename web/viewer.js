@@ -144,6 +144,7 @@ function onText(m) {
 }
 
 async function onFrame(buffer) {
+  const received = performance.now();
   const bytes = new Uint8Array(buffer);
   const headerLength = bytes[0] | (bytes[1] << 8) | (bytes[2] << 16) | (bytes[3] << 24);
   const header = JSON.parse(new TextDecoder().decode(bytes.subarray(4, 4 + headerLength)));
@@ -158,7 +159,10 @@ async function onFrame(buffer) {
   state.metrics.push({
     seq: header.seq, quality: header.quality, level: header.level, levelText: header.levelText,
     width: header.width, height: header.height, bytes: buffer.byteLength, renderMs: header.renderMs,
-    encodeMs: header.encodeMs, latencyMs: sentAt === undefined ? null : painted - sentAt, paintedAt: painted,
+    encodeMs: header.encodeMs, waitMs: header.waitMs, paintMs: painted - received,
+    upMs: sentAt === undefined ? null : header.requestEpochMs - (performance.timeOrigin + sentAt),
+    downMs: performance.timeOrigin + received - header.sentEpochMs,
+    latencyMs: sentAt === undefined ? null : painted - sentAt, paintedAt: painted,
   });
   if (state.metrics.length > 5000) state.metrics.shift();
   state.displayed = header;
