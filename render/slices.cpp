@@ -95,12 +95,11 @@ FrameCamera frameCamera(const Volume& volume, const Camera& camera, double baseD
   return c;
 }
 
-// Draws @p surface opaque with depth writes, headlight-shaded (by its vertex normals when it has
-// them), clipped by @p cutPlane. The frame's vertex buffer is bound.
-void drawOpaqueSurface(const TriangleMesh& surface, const glm::mat4& viewProj, const Camera& camera, const glm::vec3& color,
+// Draws @p surface opaque with depth writes by @p program (kSurfaceFragment), headlight-shaded (by
+// its vertex normals when it has them), clipped by @p cutPlane. The frame's vertex buffer is bound.
+void drawOpaqueSurface(GLuint program, const TriangleMesh& surface, const glm::mat4& viewProj, const Camera& camera, const glm::vec3& color,
                        const glm::vec4& cutPlane) {
-  const gl::Program surf = gl::linkProgram(shaders::kWorldVertex, shaders::kSurfaceFragment);
-  glUseProgram(surf.id());
+  glUseProgram(program);
   std::vector<float> data;
   data.reserve(surface.triangles.size() * 18);
   for (const glm::uvec3& t : surface.triangles) {
@@ -112,7 +111,7 @@ void drawOpaqueSurface(const TriangleMesh& surface, const glm::mat4& viewProj, c
     }
   }
   const glm::vec3 f(camera.forward());
-  auto at = [&](const char* name) { return glGetUniformLocation(surf.id(), name); };
+  auto at = [&](const char* name) { return glGetUniformLocation(program, name); };
   glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(data.size() * sizeof(float)), data.data(), GL_STATIC_DRAW);
   glEnableVertexAttribArray(0);
   glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), nullptr);
@@ -149,9 +148,10 @@ struct TransferTable {
   }
 };
 
-// The frame's programs: the slice program in two variants, bricks sliced at the base spacing and
-// bricks sliced coarser (SEGMENTS: each fragment's segment cut to the brick's box, a cost full
-// resolution need not pay; docs/multires.md), and the cutting plane's. Kept with the brick
+// The frame's programs: the slice program in variants, bricks sliced at the base spacing or coarser
+// (SEGMENTS: each fragment's segment cut to the brick's box, a cost full resolution need not pay;
+// docs/multires.md) and bricks whose stream holds translucent surface pieces or not (SURFACE:
+// llvmpipe runs the surface's branch for every slice fragment too), and the cutting plane's. Kept with the brick
 // textures across frames when there is a cache: llvmpipe compiles a new program's shaders again at
 // its first draw.
 class FramePrograms {
@@ -162,20 +162,22 @@ class FramePrograms {
   };
   FramePrograms(const SlicesOptions& options, const Camera& camera, const FrameCamera& frame, const TransferTable& table, bool translucent,
                 const glm::vec4& cutPlane)
-      : mOptions(options), mCamera(camera), mFrame(frame), mTable(table), mCutPlane(cutPlane) {
+      : mOptions(options), mCamera(camera), mFrame(frame), mTable(table), mCutPlane(cutPlane),
+      mSmooth(translucent && !options.surface->normals.empty()) {
     mDefines = "#version 450 core\n";
-    for (const auto& [name, on] : {std::pair{"SHADING", options.shading}, {"SURFACE", translucent}, {"CUT", bool(options.cut)},
+    for (const auto& [name, on] : {std::pair{"SHADING", options.shading}, {"CUT", bool(options.cut)},
                                    {"SHELLS", options.proxy == Proxy::Shells && !camera.ortho}, {"VOI", bool(options.voi)}, {"ORTHO", camera.ortho},
-                                   {"TEXEL16", options.texelBits == TexelBits::Sixteen},
-                                   {"SMOOTH", translucent && !options.surface->normals.empty()}})
+                                   {"TEXEL16", options.texelBits == TexelBits::Sixteen}})
       mDefines += std::string("#define ") + name + (on ? " 1\n" : " 0\n");
   }
 
-  // The slice program for bricks sliced at the base spacing or coarser (@p segments).
-  const Slice& slice(bool segments) {
-    Slice& p = mSlice[segments];
+  // The slice program for bricks sliced at the base spacing or coarser (@p segments), whose stream
+  // holds surface pieces (@p surface) or not.
+  const Slice& slice(bool segments, bool surface) {
+    Slice& p = mSlice[size_t(segments) + 2 * size_t(surface)];
     if (p.id) return p;
-    const std::string head = mDefines + "#define SEGMENTS " + (segments ? "1\n" : "0\n");
+    const std::string head = mDefines + "#define SEGMENTS " + (segments ? "1\n" : "0\n") + "#define SURFACE " + (surface ? "1\n" : "0\n") +
+                             "#define SMOOTH " + (surface && mSmooth ? "1\n" : "0\n");
     p.id = program(head, head + shaders::kStreamVertex, head + shaders::kClassify + shaders::kSliceFragment);
     auto uniform = [&](const char* name) { return glGetUniformLocation(p.id, name); };
     setShared(p.id);
@@ -202,6 +204,9 @@ class FramePrograms {
     p.boxLo = uniform("boxLo"), p.boxHi = uniform("boxHi");
     return p;
   }
+
+  // The opaque surface's program.
+  GLuint surface() { return program("surface", shaders::kWorldVertex, shaders::kSurfaceFragment); }
 
   // The cutting plane's program, its shared uniforms set.
   GLuint cut() {
@@ -236,8 +241,9 @@ class FramePrograms {
   const FrameCamera& mFrame;
   const TransferTable& mTable;
   glm::vec4 mCutPlane;
+  bool mSmooth;  // the translucent surface has vertex normals
   std::string mDefines;
-  std::array<Slice, 2> mSlice;
+  std::array<Slice, 4> mSlice;
   std::vector<gl::Program> mOwn;  // without a cache: the frame's own
 };
 
@@ -456,18 +462,19 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   const glm::vec4 cutPlane(cut);
   if (options.cut) glEnable(GL_CLIP_DISTANCE0);
 
-  // 1. The opaque surface first, writing depth.
+  // 1. The transfer function's table and the programs.
   const bool withTriangles = options.surface && !options.surface->triangles.empty();
   const bool translucent = withTriangles && options.surfaceColor.a < 1.0f;
-  if (withTriangles && !translucent) drawOpaqueSurface(*options.surface, frame.viewProj, camera, glm::vec3(options.surfaceColor), cutPlane);
-
-  // 2. The transfer function's table and the programs.
   const TransferTable table(volume, tf);
   if (options.textures) {
     options.textures->setBits(options.texelBits);
     options.textures->beginFrame();
   }
   FramePrograms programs(options, camera, frame, table, translucent, cutPlane);
+
+  // 2. The opaque surface first, writing depth.
+  if (withTriangles && !translucent)
+    drawOpaqueSurface(programs.surface(), *options.surface, frame.viewProj, camera, glm::vec3(options.surfaceColor), cutPlane);
   glEnableVertexAttribArray(0);
   glEnableVertexAttribArray(1);
   glEnableVertexAttribArray(2);
@@ -533,7 +540,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     st.surfaceTriangles += d.surfaceTriangles;
     st.slabPolygonDraws += d.slabPolygonDraws;
     if (d.stream.empty()) continue;
-    const FramePrograms::Slice& sp = programs.slice(d.delta > baseDelta);
+    const FramePrograms::Slice& sp = programs.slice(d.delta > baseDelta, d.surfaceTriangles > 0);
     if (sp.id != bound) glUseProgram(bound = sp.id);
     if (d.visible) {
       glActiveTexture(GL_TEXTURE0);
