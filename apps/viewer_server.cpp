@@ -42,6 +42,10 @@ using tcp = net::ip::tcp;
 using nlohmann::json;
 using Clock = std::chrono::steady_clock;
 
+// Interactive frames draw the surface simplified within blocks of this edge: with bricks no smaller,
+// each of its triangles lies inside one brick and is drawn in the right order.
+static_assert(kInteractiveBrickEdge == kSimplifiedBlockVoxels);
+
 namespace {
 
 double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
@@ -483,7 +487,8 @@ struct ServerState {
       quality.budgetPercent = q.budgetPercent < 100.0 ? q.budgetPercent : 0.0;
       quality.step = q.step;
       quality.reuseViewErrors = r.interacting;
-      quality.coarseSurface = r.interacting;
+      quality.simplifiedSurface = r.interacting;
+      quality.cutToSlabs = !r.interacting;
       if (r.interacting) quality.maxBrickEdge = kInteractiveBrickEdge;
     }
     const RenderedFrame frame = slot.renderer->render(view, look, quality);

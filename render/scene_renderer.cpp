@@ -8,6 +8,7 @@
 #include "hybrid_octree/surface_octree.h"
 #include "render/patient_view.h"
 #include "surface/mesh_ops.h"
+#include "surface/mesh_simplify.h"
 #include "volume/error.h"
 
 namespace hyb {
@@ -116,35 +117,6 @@ void SceneRenderer::dropTextures() {
   mTextures->clear();
 }
 
-namespace {
-
-// The isosurface of @p v averaged over 2×2×2 voxels, in @p v's grid frame, shaded by @p v's gradient.
-TriangleMesh halfResolutionSurface(const Volume& v, float iso) {
-  const glm::ivec3 d = v.dims(), h = (d + 1) / 2;
-  std::vector<float> samples(size_t(h.x) * size_t(h.y) * size_t(h.z));
-  for (int k = 0; k < h.z; ++k)
-    for (int j = 0; j < h.y; ++j)
-      for (int i = 0; i < h.x; ++i) {
-        float sum = 0.0f;
-        int n = 0;
-        for (int c = 0; c < 8; ++c) {
-          const glm::ivec3 p(2 * i + (c & 1), 2 * j + ((c >> 1) & 1), 2 * k + ((c >> 2) & 1));
-          if (glm::all(glm::lessThan(p, d))) sum += v.at(p.x, p.y, p.z), ++n;
-        }
-        samples[size_t(i) + size_t(h.x) * (size_t(j) + size_t(h.y) * size_t(k))] = sum / float(n);
-      }
-  const Volume half(h, 2.0 * v.spacing(), v.sourceType(), std::move(samples), "half resolution");
-  const VolumeOctree octree = VolumeOctree::build(half);
-  TriangleMesh mesh = fineMeshToTriangles(SurfaceOctree::build(half, octree, iso).reconstruct(0), half.spacing());
-  // A coarse sample stands for the centre of its 2×2×2 voxels: half a voxel along each axis.
-  const glm::vec3 shift(0.5 * v.spacing());
-  for (glm::vec3& p : mesh.vertices) p += shift;
-  setGradientNormals(v, &mesh);
-  return mesh;
-}
-
-}  // namespace
-
 std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats) {
   // The Surface Octree (the scene's when it matches), its polygons triangulated, shaded both ways.
   auto s = std::make_unique<PreparedSurface>();
@@ -165,7 +137,9 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   s->facet = fineMeshToTriangles(d, v.spacing());
   s->smooth = s->facet;
   setGradientNormals(v, &s->smooth);
-  s->coarse = halfResolutionSurface(v, iso);
+  const glm::dvec3 spacing = v.spacing();
+  s->simplified = simplifyWithinBlocks(s->smooth, double(kSimplifiedBlockVoxels) * spacing, std::min({spacing.x, spacing.y, spacing.z}));
+  setGradientNormals(v, &s->simplified);
   if (stats) stats->surfacePolygonsMs = msSince(t0);
   return s;
 }
@@ -245,7 +219,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     st.surfacePolygonsMs = prepared.surfacePolygonsMs;
     st.surfacePolygons = prepared.surfacePolygons;
     st.surfaceTriangles = prepared.surfaceTriangles;
-    mesh = quality.coarseSurface && quality.renderer == Renderer::Slices ? &surfaceEntry(*look.iso, nullptr).coarse : &surface(*look.iso, look.normals);
+    mesh = quality.simplifiedSurface && quality.renderer == Renderer::Slices ? &surfaceEntry(*look.iso, nullptr).simplified : &surface(*look.iso, look.normals);
   }
 
   if (quality.renderer == Renderer::Raycast) {
@@ -321,6 +295,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   so.voi = voi ? &*voi : nullptr;
   so.proxy = quality.proxy;
   so.textures = mTextures.get();
+  so.cutToSlabs = quality.cutToSlabs;
   // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
   // texels (one level coarser), the last being the requested selection. Early images of a long
   // sequence bottom out at the coarsest selection the octree has (at least one texel is asked for).

@@ -78,9 +78,13 @@ struct Quality {
   /// moved since (same look): while a viewer's camera moves, measuring every view costs more than
   /// its frame, and the ranking changes little from one view to the next.
   bool reuseViewErrors = false;
-  /// Draws the isosurface extracted from the volume at half resolution (about a quarter of the
-  /// triangles): a frame's surface costs follow its triangles, whatever the image size.
-  bool coarseSurface = false;
+  /// Draws the isosurface simplified to a voxel's error (PreparedSurface::simplified, about a
+  /// seventh of the triangles on CT bone): a frame's surface costs follow its triangles, whatever
+  /// the image size. Exact in brick order when bricks are at least kSimplifiedBlockVoxels wide.
+  bool simplifiedSurface = false;
+  /// Cuts translucent polygons to the slabs between slices (SlicesOptions::cutToSlabs); false
+  /// places each whole in its centroid's slab.
+  bool cutToSlabs = true;
   TexelBits texelBits = TexelBits::Eight;
   int maxBrickEdge = 16;
   double lodPixels = 0.0;
@@ -120,14 +124,19 @@ struct RenderedFrame {
 /// the stats of that level.
 using LevelCallback = std::function<void(int level, int levels, const Image& image, const FrameStats& stats)>;
 
+/// The blocks (voxels a side) within which PreparedSurface::simplified is simplified: each of its
+/// triangles lies inside one block, hence inside one brick of edge at least this many voxels.
+inline constexpr int kSimplifiedBlockVoxels = 32;
+
 /// An isosurface ready to draw: its Surface Octree, its polygons triangulated, with both kinds of
-/// normals. Made by SceneRenderer::prepareSurface (on any thread), kept by a renderer.
+/// normals, and a simplified copy. Made by SceneRenderer::prepareSurface (on any thread), kept by
+/// a renderer.
 struct PreparedSurface {
   float iso = 0.0f;
   std::optional<SurfaceOctree> built;  ///< none when the scene's own surface has this isovalue
   size_t polygons = 0;
   TriangleMesh facet, smooth;          ///< grid frame, mm
-  TriangleMesh coarse;                 ///< of the volume at half resolution, smooth: for frames while the view moves
+  TriangleMesh simplified;             ///< smooth, simplified to a voxel within blocks: for frames while the view moves
   std::unique_ptr<Bvh> bvh[2];         ///< facet, smooth; made by the first reference frame
   const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? smooth : facet; }
 };

@@ -55,7 +55,7 @@ BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, 
   return out;
 }
 
-void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const ProxyDepth& depth, double delta, bool sliced) {
+void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const ProxyDepth& depth, double delta, bool sliced, bool cut) {
   mSurface = &surface;
   mDepth = depth;
   mDelta = delta;
@@ -96,6 +96,10 @@ void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint
       ++mTriangles;
     }
     centroid /= double(surface.starts[pi + 1] - surface.starts[pi]);
+    if (!cut && sliced) {  // whole, in its centroid's slab
+      p0 = p1 = (long long)std::floor(centroid / delta);
+      for (size_t j = mFirstSpan.back(); j < mSpans.size(); ++j) mSpans[j] = {int32_t(p0), int32_t(p0)};
+    }
     mPolygonSpans.push_back({int32_t(p0), int32_t(p1)});
     for (long long k = p0; k <= p1; ++k)
       mInstances.push_back({sliced ? std::clamp(centroid, double(k) * delta, double(k + 1) * delta) : centroid, int32_t(k), local});

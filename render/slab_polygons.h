@@ -58,8 +58,9 @@ class SlabPolygonList {
  public:
   /// Buckets @p polygons of @p surface into the slabs of width @p delta along @p depth that their
   /// depth ranges cover, and sorts the instances far to near. With @p sliced false (a brick without
-  /// slices) every polygon is one instance in slab 0, sorted back to front by its centroid.
-  void build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const ProxyDepth& depth, double delta, bool sliced);
+  /// slices) every polygon is one instance in slab 0, sorted back to front by its centroid; with
+  /// @p cut false every polygon is one instance, whole, in the slab of its centroid's depth.
+  void build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const ProxyDepth& depth, double delta, bool sliced, bool cut = true);
   /// Whether no polygon was placed.
   bool empty() const { return mInstances.empty(); }
   /// The first and last slab the polygons cover (when sliced and not empty).

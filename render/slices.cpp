@@ -394,14 +394,14 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
 // Brick @p d's vertex stream: its slices far to near, each slab's SlabPolygon list before the slice
 // that closes the slab.
 void buildStream(BrickDraw& d, const SurfacePolygons* surface, const BrickPolygons& polygonsOf, const Camera& camera, const FrameCamera& frame,
-                 const glm::dvec3& spacing, bool slabOrder, SlabPolygonList& list,
+                 const glm::dvec3& spacing, bool slabOrder, bool cutToSlabs, SlabPolygonList& list,
                  std::vector<std::pair<glm::dvec3, glm::dvec3>>& boxes, std::vector<float>& one) {
   const ProxyDepth depth{d.shell, frame.forward, camera.eye};
   // This brick owns the proxies with depth in [bmin, bmax).
   const auto [bmin, bmax] = depth.range(d.blo, d.bhi);
   long long kLo = (long long)std::floor(bmin / d.delta) - 1, kHi = (long long)std::ceil(bmax / d.delta);
   if (surface) {
-    list.build(*surface, polygonsOf.of(d.brick), depth, d.delta, d.sliced);
+    list.build(*surface, polygonsOf.of(d.brick), depth, d.delta, d.sliced, cutToSlabs);
     if (d.sliced && !list.empty()) {
       kLo = std::min(kLo, list.firstSlab());
       kHi = std::max(kHi, list.lastSlab());
@@ -514,7 +514,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     std::vector<float> one;
     try {
       for (BrickDraw& d : draws) {
-        buildStream(d, translucent ? &*polygons : nullptr, polygonsOf, camera, frame, spacing, options.slabOrder, list, boxes, one);
+        buildStream(d, translucent ? &*polygons : nullptr, polygonsOf, camera, frame, spacing, options.slabOrder, options.cutToSlabs, list, boxes, one);
         built.fetch_add(1, std::memory_order_release);
         built.notify_one();
       }

@@ -53,6 +53,11 @@ struct SlicesOptions {
                                         ///< function can make visible (false: the whole brick; same image)
   bool slabOrder = true;                  ///< false: draw each brick's surface after its slices (a
                                           ///< deliberately wrong order, to show the tests catch it)
+  /// Cut each translucent polygon to every slab its depth range covers (exact order); false puts
+  /// it whole in the slab of its centroid's depth, misplacing what lies in the neighbouring slabs
+  /// (frames while the view moves: llvmpipe's cost of the cut pieces, not the misplacement, is
+  /// what shows; docs/viewer.md).
+  bool cutToSlabs = true;
   const Progress* progress = nullptr;     ///< hears of the bricks drawn ("slices"); may throw to stop the frame
 };
 

@@ -104,6 +104,34 @@ TEST(SceneRenderer, ChangesRedoOnlyWhatDependsOnThem) {
   EXPECT_GE(test::psnrOf(ref, surfaced.image), 35.0);
 }
 
+// Frames while the view moves: the surface simplified within blocks and placed uncut draws fewer
+// triangles and pieces, and stays close to the exact frame and to the reference.
+TEST(SceneRenderer, TheSimplifiedUncutSurfaceStaysCloseToTheExactOne) {
+  test::gl();
+  SceneRenderer r(sphereScene());
+  Look look;
+  look.tf = warm();
+  look.iso = 4.0f;
+  look.surfaceColor = glm::vec4(0.9f, 0.9f, 0.9f, 0.5f);
+  const View view = viewFrom(30, r.volume(), 96);
+  Quality exact;
+  exact.step = 1.0;
+  exact.maxBrickEdge = kSimplifiedBlockVoxels;
+  Quality moving = exact;
+  moving.simplifiedSurface = true;
+  moving.cutToSlabs = false;
+  const RenderedFrame e = r.render(view, look, exact), m = r.render(view, look, moving);
+  EXPECT_LT(3 * m.stats.slices.surfaceTriangles, e.stats.slices.surfaceTriangles);
+  EXPECT_EQ(m.stats.slices.slabPolygonDraws, m.stats.slices.surfaceTriangles);  // one piece a triangle
+  EXPECT_GT(e.stats.slices.slabPolygonDraws, e.stats.slices.surfaceTriangles);
+  Quality reference;
+  reference.renderer = Renderer::Raycast;
+  const Image ref = r.render(view, look, reference).image;
+  EXPECT_GE(test::psnrOf(ref, e.image), 48.0);
+  EXPECT_GE(test::psnrOf(ref, m.image), 42.0);  // 45.4 dB: the simplified sphere is 86 triangles
+  EXPECT_GE(test::psnrOf(e.image, m.image), 42.0);
+}
+
 TEST(SceneRenderer, TextureMemoryStaysWithinItsLimitAcrossFrames) {
   test::gl();
   Look look;

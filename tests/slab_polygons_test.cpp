@@ -86,6 +86,37 @@ TEST(SlabPolygons, PiecesInOneSlabAreSortedByDepth) {
   }
 }
 
+// Uncut (frames while the view moves): the triangle of the first test goes whole into the slab of
+// its centroid's depth (z = 7/6, slab 1), one draw, its vertices unchanged; the polygons of a brick
+// still come far to near by slab.
+TEST(SlabPolygons, UncutPolygonsGoWholeIntoTheSlabOfTheirCentroid) {
+  TriangleMesh mesh;
+  mesh.vertices = {{0, 0, 0.5f}, {2, 0, 2.5f}, {0, 2, 0.5f}, {0, 0, 3.2f}, {1, 0, 3.2f}, {0, 1, 3.9f}};
+  mesh.triangles = {{0, 1, 2}, {3, 4, 5}};
+  const SurfacePolygons surface(mesh);
+  const uint32_t polygons[] = {0, 1};
+  SlabPolygonList list;
+  list.build(surface, polygons, ProxyDepth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)}, 1.0, true, false);
+  EXPECT_EQ(list.firstSlab(), 1);
+  EXPECT_EQ(list.lastSlab(), 3);  // the second's centroid is at z = 3.43
+  std::vector<float> stream;
+  list.emitDownTo(2, &stream);
+  std::vector<std::array<glm::vec3, 3>> t = triangles(stream);
+  ASSERT_EQ(t.size(), 1u);
+  EXPECT_EQ(t[0][2], glm::vec3(0, 1, 3.9f));
+  stream.clear();
+  list.emitDownTo(1, &stream);
+  t = triangles(stream);
+  ASSERT_EQ(t.size(), 1u);
+  EXPECT_EQ(t[0][0], glm::vec3(0, 0, 0.5f));
+  EXPECT_EQ(t[0][1], glm::vec3(2, 0, 2.5f));
+  EXPECT_EQ(t[0][2], glm::vec3(0, 2, 0.5f));
+  stream.clear();
+  list.emitRest(&stream);
+  EXPECT_TRUE(stream.empty());
+  EXPECT_EQ(list.draws(), 2u);
+}
+
 // A convex polygon that spans slabs is cut whole (one piece a slab), its vertex normals
 // interpolated where the planes cut its edges.
 TEST(SlabPolygons, ConvexPolygonsAreCutWholeWithTheirNormalsInterpolated) {

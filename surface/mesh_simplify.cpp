@@ -1,0 +1,177 @@
+// meshoptimizer lives in this translation unit only (STYLE 6).
+#include "surface/mesh_simplify.h"
+
+#include <meshoptimizer.h>
+
+#include <algorithm>
+#include <iterator>
+#include <cmath>
+#include <cstdint>
+#include <utility>
+#include <vector>
+
+#include "surface/mesh_ops.h"
+#include "volume/error.h"
+
+namespace hyb {
+
+namespace {
+
+using Edge = std::pair<uint32_t, uint32_t>;  // vertex indices, the smaller first
+
+// How many triangles of @p triangles use each edge, sorted by edge.
+std::vector<std::pair<Edge, int>> edgeCounts(const std::vector<glm::uvec3>& triangles) {
+  std::vector<Edge> edges;
+  edges.reserve(3 * triangles.size());
+  for (const glm::uvec3& t : triangles)
+    for (int k = 0; k < 3; ++k) edges.push_back({std::min(t[k], t[(k + 1) % 3]), std::max(t[k], t[(k + 1) % 3])});
+  std::sort(edges.begin(), edges.end());
+  std::vector<std::pair<Edge, int>> counts;
+  for (const Edge& e : edges)
+    if (!counts.empty() && counts.back().first == e)
+      ++counts.back().second;
+    else
+      counts.push_back({e, 1});
+  return counts;
+}
+
+// The edges used by other than two triangles: where a surface is open (or not manifold).
+std::vector<std::pair<Edge, int>> openEdges(const std::vector<glm::uvec3>& triangles) {
+  std::vector<std::pair<Edge, int>> open = edgeCounts(triangles);
+  std::erase_if(open, [](const auto& e) { return e.second == 2; });
+  return open;
+}
+
+glm::dvec3 centroid(const TriangleMesh& mesh, const glm::uvec3& t) {
+  return (glm::dvec3(mesh.vertices[t.x]) + glm::dvec3(mesh.vertices[t.y]) + glm::dvec3(mesh.vertices[t.z])) / 3.0;
+}
+
+// @p triangles (of @p mesh) simplified by meshoptimizer within @p errorMm, their border locked.
+std::vector<glm::uvec3> simplifyLocked(const TriangleMesh& mesh, const std::vector<glm::uvec3>& triangles, double errorMm) {
+  std::vector<uint32_t> global;  // their vertices, sorted
+  for (const glm::uvec3& t : triangles) global.insert(global.end(), {t.x, t.y, t.z});
+  std::sort(global.begin(), global.end());
+  global.erase(std::unique(global.begin(), global.end()), global.end());
+  auto local = [&](uint32_t v) { return uint32_t(std::lower_bound(global.begin(), global.end(), v) - global.begin()); };
+  std::vector<uint32_t> indices;
+  indices.reserve(3 * triangles.size());
+  for (const glm::uvec3& t : triangles) indices.insert(indices.end(), {local(t.x), local(t.y), local(t.z)});
+  std::vector<float> positions;
+  positions.reserve(3 * global.size());
+  for (uint32_t v : global) positions.insert(positions.end(), {mesh.vertices[v].x, mesh.vertices[v].y, mesh.vertices[v].z});
+  // meshoptimizer's error is relative to the sub-mesh's extent.
+  const float scale = meshopt_simplifyScale(positions.data(), global.size(), 3 * sizeof(float));
+  if (!(scale > 0.0f)) return triangles;
+  std::vector<uint32_t> out(indices.size());
+  out.resize(meshopt_simplify(out.data(), indices.data(), indices.size(), positions.data(), global.size(), 3 * sizeof(float), 0,
+                              float(errorMm / double(scale)), meshopt_SimplifyLockBorder, nullptr));
+  std::vector<glm::uvec3> simplified;
+  simplified.reserve(out.size() / 3);
+  for (size_t i = 0; i + 2 < out.size(); i += 3) simplified.push_back({global[out[i]], global[out[i + 1]], global[out[i + 2]]});
+  return simplified;
+}
+
+// Adds to @p fixed the vertices of the edges that @p after, simplified from @p before, uses a
+// different number of times; returns whether there were any.
+bool fixChangedEdges(const std::vector<glm::uvec3>& before, const std::vector<glm::uvec3>& after, std::vector<uint32_t>* fixed) {
+  std::vector<std::pair<Edge, int>> changed;
+  const std::vector<std::pair<Edge, int>> a = openEdges(before), b = openEdges(after);
+  std::set_symmetric_difference(a.begin(), a.end(), b.begin(), b.end(), std::back_inserter(changed));
+  for (const auto& [edge, count] : changed) fixed->insert(fixed->end(), {edge.first, edge.second});
+  std::sort(fixed->begin(), fixed->end());
+  fixed->erase(std::unique(fixed->begin(), fixed->end()), fixed->end());
+  return !changed.empty();
+}
+
+// One block's triangles simplified within @p errorMm, those touching a @p fixed vertex (sorted) kept
+// as they are. meshoptimizer does not check the link condition: a collapse beside locked vertices
+// can stack triangles on their edge. Where it did, the vertices of the edges concerned are fixed
+// too and the block is done again (twelve tries, then it stays as it came).
+std::vector<glm::uvec3> simplifyBlock(const TriangleMesh& mesh, const std::vector<glm::uvec3>& triangles, double errorMm, std::vector<uint32_t> fixed) {
+  for (int attempt = 0; attempt < 12; ++attempt) {
+    std::vector<glm::uvec3> kept, free;
+    for (const glm::uvec3& t : triangles) {
+      const bool touches = std::binary_search(fixed.begin(), fixed.end(), t.x) || std::binary_search(fixed.begin(), fixed.end(), t.y) ||
+                           std::binary_search(fixed.begin(), fixed.end(), t.z);
+      (touches ? kept : free).push_back(t);
+    }
+    std::vector<glm::uvec3> result = simplifyLocked(mesh, free, errorMm);
+    if (!fixChangedEdges(free, result, &fixed)) {
+      result.insert(result.end(), kept.begin(), kept.end());
+      return result;
+    }
+  }
+  return triangles;
+}
+
+}  // namespace
+
+TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& blockMm, double maxErrorMm) {
+  const bool blockOk = std::isfinite(blockMm.x) && std::isfinite(blockMm.y) && std::isfinite(blockMm.z) && glm::all(glm::greaterThan(blockMm, glm::dvec3(0.0)));
+  if (!blockOk) HYB_THROW(ValueError, "simplification block must be a finite positive size (mm)");
+  if (!(std::isfinite(maxErrorMm) && maxErrorMm > 0.0)) HYB_THROW(ValueError, "simplification error must be a finite positive distance (mm)");
+
+  // The triangles by the block holding their centroid (21 bits a block coordinate, offset so that
+  // a mesh a little outside the grid's positive octant keeps its order).
+  std::vector<std::pair<uint64_t, uint32_t>> keyed(mesh.triangles.size());
+  for (size_t t = 0; t < keyed.size(); ++t) {
+    const glm::dvec3 b = glm::clamp(glm::floor(centroid(mesh, mesh.triangles[t]) / blockMm) + double(1 << 20), glm::dvec3(0.0), glm::dvec3((1 << 21) - 1));
+    keyed[t] = {uint64_t(b.x) | uint64_t(b.y) << 21 | uint64_t(b.z) << 42, uint32_t(t)};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  std::vector<std::vector<glm::uvec3>> input;
+  for (size_t t = 0; t < keyed.size(); ++t) {
+    if (t == 0 || keyed[t].first != keyed[t - 1].first) input.emplace_back();
+    input.back().push_back(mesh.triangles[keyed[t].second]);
+  }
+
+  // Each block on its own, then across blocks: a collapse onto a border vertex can span three of
+  // them with a triangle in the block's face, and the neighbour may make one there too, over it.
+  // Where an edge is used by more or fewer triangles than in the input, its two vertices are fixed
+  // in the blocks that use it (triangles touching them stay) and those blocks are done again; after
+  // four rounds a block still at fault keeps its whole border, after five it stays as it came.
+  const size_t blocks = input.size();
+  std::vector<std::vector<glm::uvec3>> kept(blocks);
+  std::vector<std::vector<uint32_t>> fixed(blocks);
+  std::vector<char> redo(blocks, 1);
+  const std::vector<std::pair<Edge, int>> counts = edgeCounts(mesh.triangles);
+  for (int round = 0; round < 6; ++round) {
+    if (round == 4)
+      for (size_t b = 0; b < blocks; ++b)
+        if (redo[b])
+          for (const auto& [edge, count] : openEdges(input[b])) fixed[b].insert(fixed[b].end(), {edge.first, edge.second});
+    for (std::vector<uint32_t>& f : fixed) {
+      std::sort(f.begin(), f.end());
+      f.erase(std::unique(f.begin(), f.end()), f.end());
+    }
+#pragma omp parallel for schedule(dynamic)
+    for (size_t b = 0; b < blocks; ++b)
+      if (redo[b]) kept[b] = round < 5 ? simplifyBlock(mesh, input[b], maxErrorMm, fixed[b]) : input[b];
+    std::vector<std::pair<Edge, uint32_t>> edges;  // each edge of the result, with its block
+    for (size_t b = 0; b < blocks; ++b)
+      for (const glm::uvec3& t : kept[b])
+        for (int k = 0; k < 3; ++k) edges.push_back({{std::min(t[k], t[(k + 1) % 3]), std::max(t[k], t[(k + 1) % 3])}, uint32_t(b)});
+    std::sort(edges.begin(), edges.end());
+    std::fill(redo.begin(), redo.end(), 0);
+    bool any = false;
+    for (size_t i = 0, j = 0; i < edges.size(); i = j) {
+      while (j < edges.size() && edges[j].first == edges[i].first) ++j;
+      const auto in = std::lower_bound(counts.begin(), counts.end(), std::pair{edges[i].first, 0});
+      if (int(j - i) == (in != counts.end() && in->first == edges[i].first ? in->second : 2)) continue;
+      for (size_t k = i; k < j; ++k) {
+        redo[edges[k].second] = 1;
+        fixed[edges[k].second].insert(fixed[edges[k].second].end(), {edges[k].first.first, edges[k].first.second});
+      }
+      any = true;
+    }
+    if (!any) break;
+  }
+
+  TriangleMesh result;
+  result.vertices = mesh.vertices;
+  for (const std::vector<glm::uvec3>& k : kept) result.triangles.insert(result.triangles.end(), k.begin(), k.end());
+  removeUnreferencedVertices(&result);
+  return result;
+}
+
+}  // namespace hyb

@@ -1,0 +1,25 @@
+// Simplification of an isosurface for frames drawn while the view moves: fewer triangles, each
+// still inside one block of a regular grid, so that a renderer that places every triangle in the
+// brick holding it (the slice renderer's SlabPolygon lists) draws the simplified surface in the
+// right order as it does the exact one. meshoptimizer (Kapoulkine) does the edge collapses.
+#pragma once
+
+#include "surface/mesh.h"
+
+namespace hyb {
+
+/// Simplifies @p mesh (grid-frame mm, welded: triangles share their vertices) block by block:
+/// the triangles whose centroid lies in one cube of @p blockMm (mm per axis) are simplified
+/// together, the vertices where the surface leaves the block kept, so each output triangle lies
+/// inside the block its input triangles did. Collapses stop where the surface would move by more
+/// than @p maxErrorMm (meshoptimizer's quadric distance). Every edge is used by as many triangles
+/// as in the input (closed stays closed, nothing is stacked or folded onto a neighbour's face):
+/// where a collapse broke that, the vertices concerned are kept and the block is simplified again.
+/// Self-intersections are not prevented, and three border vertices in a line may be spanned by a
+/// triangle of no area (drawn as nothing).
+/// Vertices keep their input positions (a collapse moves one onto another); normals are not set
+/// (the caller sets them, e.g. setGradientNormals) and the polygon structure is dropped.
+/// @throw ValueError if blockMm or maxErrorMm is not positive and finite.
+TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& blockMm, double maxErrorMm);
+
+}  // namespace hyb

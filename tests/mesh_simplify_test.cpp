@@ -1,0 +1,94 @@
+#include "surface/mesh_simplify.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <set>
+#include <tuple>
+
+#include "hybrid_octree/surface_octree.h"
+#include "surface/cgal_geometry.h"
+#include "surface/dmc.h"
+#include "test_util.h"
+
+namespace hyb {
+namespace {
+
+// Every triangle of @p m lies inside the block (edge @p block) holding its centroid.
+void expectInsideBlocks(const TriangleMesh& m, const glm::dvec3& block) {
+  constexpr double kSlack = 1e-4;  // mm: float positions on a block's face
+  for (const glm::uvec3& t : m.triangles) {
+    const glm::dvec3 a(m.vertices[t.x]), b(m.vertices[t.y]), c(m.vertices[t.z]);
+    const glm::dvec3 lo = glm::floor((a + b + c) / 3.0 / block) * block, hi = lo + block;
+    for (const glm::dvec3& p : {a, b, c})
+      ASSERT_TRUE(glm::all(glm::greaterThanEqual(p, lo - kSlack)) && glm::all(glm::lessThanEqual(p, hi + kSlack)))
+          << "a vertex at " << p.x << "," << p.y << "," << p.z << " outside its triangle's block";
+  }
+}
+
+// The enclosed volume of a closed mesh (divergence theorem), whatever its self-intersections.
+double enclosedVolume(const TriangleMesh& m) {
+  double v = 0.0;
+  for (const glm::uvec3& t : m.triangles) v += glm::dot(glm::dvec3(m.vertices[t.x]), glm::cross(glm::dvec3(m.vertices[t.y]), glm::dvec3(m.vertices[t.z]))) / 6.0;
+  return v;
+}
+
+// The Surface Octree's mesh of a sphere of radius 8 mm (anisotropic spacing), over blocks of 8
+// voxels. Within a quarter of a voxel it stays closed with its volume; within a voxel, closed with
+// fewer than half the triangles. Every triangle lies inside its block, every vertex is one of the
+// input's, and the surface moves by about the error (Hausdorff: the quadric error is no bound).
+TEST(MeshSimplify, ASphereStaysClosedWithEachTriangleInsideItsBlock) {
+  const glm::dvec3 spacing(0.8, 0.8, 1.5);
+  const Volume v = test::makeVolume({40, 40, 24}, [&](int i, int j, int k) {
+    return 10.0 - glm::length((glm::dvec3(i, j, k) - glm::dvec3(19.5, 19.5, 11.5)) * spacing / 0.8);
+  }, spacing);
+  const TriangleMesh in = fineMeshToTriangles(SurfaceOctree::build(v, VolumeOctree::build(v), 0.0f).reconstruct(0), v.spacing());
+  const MeshCheck before = checkMesh(in);
+  ASSERT_TRUE(before.closed);
+  std::set<std::tuple<float, float, float>> inputs;
+  for (const glm::vec3& p : in.vertices) inputs.insert({p.x, p.y, p.z});
+  const glm::dvec3 block = 8.0 * spacing;
+
+  const TriangleMesh fine = simplifyWithinBlocks(in, block, 0.2);
+  EXPECT_LT(fine.triangles.size() * 5, in.triangles.size() * 4);
+  EXPECT_TRUE(checkMesh(fine).closed);
+  EXPECT_NEAR(enclosedVolume(fine), before.volume, 2e-3 * before.volume);
+  EXPECT_LT(hausdorffDistance(in, fine, 0.02).upper, 0.5);
+
+  const TriangleMesh coarse = simplifyWithinBlocks(in, block, 0.8);
+  EXPECT_LT(coarse.triangles.size() * 2, in.triangles.size());
+  EXPECT_TRUE(checkMesh(coarse).closed);
+  EXPECT_LT(hausdorffDistance(in, coarse, 0.02).upper, 1.5 * 0.8);
+  for (const TriangleMesh* out : {&fine, &coarse}) {
+    expectInsideBlocks(*out, block);
+    for (const glm::vec3& p : out->vertices) EXPECT_TRUE(inputs.count({p.x, p.y, p.z}));
+  }
+}
+
+// A box's surface (planes, chamfered edges) over blocks of 4 voxels: within a thousandth of a voxel
+// only planar parts collapse, onto their blocks' borders, which stay where they were, so the
+// enclosed volume is the input's.
+TEST(MeshSimplify, PlanarPiecesCollapseToTheirBlocksBorders) {
+  const Volume v = test::boxVolume({20, 20, 20}, {3, 3, 3}, {15, 15, 15}, 1.0f, 0.0f);
+  const TriangleMesh in = toTriangleMesh(extractDiscMC(v, 0.5f), v.spacing());
+  const TriangleMesh out = simplifyWithinBlocks(in, glm::dvec3(4.0), 1e-3);
+  EXPECT_LT(out.triangles.size() * 3, in.triangles.size() * 2);  // 1,026 of 2,024
+  expectInsideBlocks(out, glm::dvec3(4.0));
+  const MeshCheck before = checkMesh(in), after = checkMesh(out);
+  EXPECT_TRUE(after.closed);
+  EXPECT_NEAR(enclosedVolume(out), before.volume, 1e-6 * before.volume);
+  // Nothing to simplify: an empty mesh stays empty.
+  EXPECT_TRUE(simplifyWithinBlocks(TriangleMesh{}, glm::dvec3(4.0), 1.0).triangles.empty());
+}
+
+TEST(MeshSimplify, ImpossibleParametersAreRefused) {
+  const TriangleMesh none;
+  EXPECT_THROW(simplifyWithinBlocks(none, glm::dvec3(0.0, 1.0, 1.0), 1.0), ValueError);
+  EXPECT_THROW(simplifyWithinBlocks(none, glm::dvec3(NAN, 1.0, 1.0), 1.0), ValueError);
+  EXPECT_THROW(simplifyWithinBlocks(none, glm::dvec3(1.0), 0.0), ValueError);
+  EXPECT_THROW(simplifyWithinBlocks(none, glm::dvec3(1.0), INFINITY), ValueError);
+}
+
+}  // namespace
+}  // namespace hyb
