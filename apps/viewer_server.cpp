@@ -334,11 +334,11 @@ struct ServerState {
     slot.builder = std::thread([this, &slot, iso] {
       std::unique_ptr<PreparedSurface> s;
       try {
-        const Progress progress([&](const std::string&, double f) {
+        const Progress progress([&](const std::string& task, double f) {
           const std::lock_guard<std::mutex> lock(mutex);
-          broadcast(slot, json{{"type", "surface"}, {"iso", iso}, {"state", "building"}, {"progress", f}}.dump());
+          broadcast(slot, json{{"type", "surface"}, {"iso", iso}, {"state", "building"}, {"task", task}, {"progress", f}}.dump());
         });
-        s = SceneRenderer::prepareSurface(slot.renderer->scene(), iso, &progress);
+        s = SceneRenderer::prepareSurface(slot.renderer->scene(), iso, &progress, nullptr, true);
       } catch (const std::exception& e) {
         log(std::string("surface build failed: ") + e.what());
       }

@@ -117,7 +117,16 @@ void SceneRenderer::dropTextures() {
   mTextures->clear();
 }
 
-std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats) {
+void SceneRenderer::simplify(const Volume& volume, PreparedSurface* surface, const Progress* progress) {
+  if (surface->simplified) return;
+  const glm::dvec3 spacing = volume.spacing();
+  surface->simplified =
+      simplifyWithinBlocks(surface->smooth, double(kSimplifiedBlockVoxels) * spacing, std::min({spacing.x, spacing.y, spacing.z}), progress);
+  setGradientNormals(volume, &*surface->simplified);
+}
+
+std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats,
+                                                               bool simplified) {
   // The Surface Octree (the scene's when it matches), its polygons triangulated, shaded both ways.
   auto s = std::make_unique<PreparedSurface>();
   s->iso = iso;
@@ -137,9 +146,7 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   s->facet = fineMeshToTriangles(d, v.spacing());
   s->smooth = s->facet;
   setGradientNormals(v, &s->smooth);
-  const glm::dvec3 spacing = v.spacing();
-  s->simplified = simplifyWithinBlocks(s->smooth, double(kSimplifiedBlockVoxels) * spacing, std::min({spacing.x, spacing.y, spacing.z}));
-  setGradientNormals(v, &s->simplified);
+  if (simplified) simplify(v, s.get(), progress);
   if (stats) stats->surfacePolygonsMs = msSince(t0);
   return s;
 }
@@ -219,7 +226,13 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     st.surfacePolygonsMs = prepared.surfacePolygonsMs;
     st.surfacePolygons = prepared.surfacePolygons;
     st.surfaceTriangles = prepared.surfaceTriangles;
-    mesh = quality.simplifiedSurface && quality.renderer == Renderer::Slices ? &surfaceEntry(*look.iso, nullptr).simplified : &surface(*look.iso, look.normals);
+    if (quality.simplifiedSurface && quality.renderer == Renderer::Slices) {
+      PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
+      simplify(v, &s, mOptions.progress);
+      mesh = &*s.simplified;
+    } else {
+      mesh = &surface(*look.iso, look.normals);
+    }
   }
 
   if (quality.renderer == Renderer::Raycast) {

@@ -136,7 +136,9 @@ struct PreparedSurface {
   std::optional<SurfaceOctree> built;  ///< none when the scene's own surface has this isovalue
   size_t polygons = 0;
   TriangleMesh facet, smooth;          ///< grid frame, mm
-  TriangleMesh simplified;             ///< smooth, simplified to a voxel within blocks: for frames while the view moves
+  /// Smooth, simplified to a voxel within blocks: for frames while the view moves; made when one
+  /// first asks for it (SceneRenderer::simplify), unless prepareSurface was asked to.
+  std::optional<TriangleMesh> simplified;
   std::unique_ptr<Bvh> bvh[2];         ///< facet, smooth; made by the first reference frame
   const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? smooth : facet; }
 };
@@ -176,8 +178,12 @@ class SceneRenderer {
   /// Makes the isosurface of @p iso of @p scene, touching no renderer: it only reads the scene, so
   /// it may run on another thread while a renderer of the same scene draws (a viewer keeps showing
   /// the old surface meanwhile). @p stats, when given, receives the build and polygon times.
+  /// @p simplified: make PreparedSurface::simplified too (a viewer's builder thread does, so that
+  /// its render thread never waits for it).
   static std::unique_ptr<PreparedSurface> prepareSurface(const Scene& scene, float iso, const Progress* progress = nullptr,
-                                                         FrameStats* stats = nullptr);
+                                                         FrameStats* stats = nullptr, bool simplified = false);
+  /// Sets @p surface's simplified mesh from @p volume (its scene's) when it has none.
+  static void simplify(const Volume& volume, PreparedSurface* surface, const Progress* progress = nullptr);
   /// Keeps @p surface (made from this renderer's scene) as the surface of its isovalue.
   void adoptSurface(std::unique_ptr<PreparedSurface> surface);
 

@@ -106,7 +106,7 @@ std::vector<glm::uvec3> simplifyBlock(const TriangleMesh& mesh, const std::vecto
 
 }  // namespace
 
-TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& blockMm, double maxErrorMm) {
+TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& blockMm, double maxErrorMm, const Progress* progress) {
   const bool blockOk = std::isfinite(blockMm.x) && std::isfinite(blockMm.y) && std::isfinite(blockMm.z) && glm::all(glm::greaterThan(blockMm, glm::dvec3(0.0)));
   if (!blockOk) HYB_THROW(ValueError, "simplification block must be a finite positive size (mm)");
   if (!(std::isfinite(maxErrorMm) && maxErrorMm > 0.0)) HYB_THROW(ValueError, "simplification error must be a finite positive distance (mm)");
@@ -135,6 +135,7 @@ TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& bl
   std::vector<std::vector<uint32_t>> fixed(blocks);
   std::vector<char> redo(blocks, 1);
   const std::vector<std::pair<Edge, int>> counts = edgeCounts(mesh.triangles);
+  ProgressTask task(progress, "simplified surface", blocks);
   for (int round = 0; round < 6; ++round) {
     if (round == 4)
       for (size_t b = 0; b < blocks; ++b)
@@ -146,7 +147,10 @@ TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& bl
     }
 #pragma omp parallel for schedule(dynamic)
     for (size_t b = 0; b < blocks; ++b)
-      if (redo[b]) kept[b] = round < 5 ? simplifyBlock(mesh, input[b], maxErrorMm, fixed[b]) : input[b];
+      if (redo[b]) {
+        kept[b] = round < 5 ? simplifyBlock(mesh, input[b], maxErrorMm, fixed[b]) : input[b];
+        if (round == 0) task.advance();
+      }
     std::vector<std::pair<Edge, uint32_t>> edges;  // each edge of the result, with its block
     for (size_t b = 0; b < blocks; ++b)
       for (const glm::uvec3& t : kept[b])

@@ -5,6 +5,7 @@
 #pragma once
 
 #include "surface/mesh.h"
+#include "volume/progress.h"
 
 namespace hyb {
 
@@ -19,7 +20,8 @@ namespace hyb {
 /// triangle of no area (drawn as nothing).
 /// Vertices keep their input positions (a collapse moves one onto another); normals are not set
 /// (the caller sets them, e.g. setGradientNormals) and the polygon structure is dropped.
+/// @p progress hears of the blocks done ("simplified surface").
 /// @throw ValueError if blockMm or maxErrorMm is not positive and finite.
-TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& blockMm, double maxErrorMm);
+TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& blockMm, double maxErrorMm, const Progress* progress = nullptr);
 
 }  // namespace hyb

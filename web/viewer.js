@@ -196,7 +196,7 @@ function showError(text) {
 
 function onSurface(m) {
   state.surfaceStates[m.iso] = m.state;
-  $('surface-state').textContent = m.state === 'building' ? `building ${m.iso} (${Math.round(100 * m.progress)} %)`
+  $('surface-state').textContent = m.state === 'building' ? `building ${m.iso}: ${m.task || 'surface'} ${Math.round(100 * m.progress)} %`
     : m.state === 'ready' ? `${m.iso} ready` : `${m.iso} failed`;
 }
 
