@@ -412,7 +412,7 @@ struct ViewOptions {
   std::string host = "127.0.0.1";
   int port = 8080;
   std::string dataDir, token;
-  double frameMs = 60.0, textureMb = 512.0;
+  double frameMs = 80.0, textureMb = 512.0;
   std::string validate() const {
     if (port < 0 || port > 65535) return "--port must be in 0..65535 (0: any free port)";
     if (!dataDir.empty() && !std::filesystem::is_directory(dataDir)) return "--data-dir " + dataDir + ": not a directory";

@@ -21,7 +21,7 @@ std::string QualityLevel::describe() const {
 double AdaptiveQuality::estimateMs(int level) const {
   if (mMeasured[size_t(level)] >= 0.0) return mMeasured[size_t(level)];
   if (mMeasured[size_t(mLast)] < 0.0) return 0.0;  // nothing measured yet
-  return mMeasured[size_t(mLast)] * kLadder[size_t(level)].cost() / kLadder[size_t(mLast)].cost();
+  return mMeasured[size_t(mLast)] * mLadder[size_t(level)].cost() / mLadder[size_t(mLast)].cost();
 }
 
 void AdaptiveQuality::record(int level, double ms, bool cold) {
@@ -33,14 +33,19 @@ void AdaptiveQuality::record(int level, double ms, bool cold) {
 }
 
 int AdaptiveQuality::chooseInteractiveLevel() {
-  const int n = int(kLadder.size());
-  int level = n - 1;
-  for (int k = 1; k < n; ++k) {
+  const int n = int(mLadder.size());
+  int level = -1;
+  for (int k = 1; k < n && level < 0; ++k) {
     // Moving to a better level than the current needs a margin; staying or going coarser does not.
     const double allowed = k < mCurrent ? 0.8 * mTargetMs : mTargetMs;
-    if (estimateMs(k) <= allowed) {
-      level = k;
-      break;
+    if (estimateMs(k) <= allowed) level = k;
+  }
+  if (level < 0) {
+    // None fits: the best of those within a tenth of the fastest. Where a frame's cost does not
+    // follow its pixels (a surface's triangles), the cheapest levels save nothing.
+    double fastest = estimateMs(n - 1);
+    for (int k = 1; k < n; ++k) fastest = std::min(fastest, estimateMs(k));
+    for (level = 1; estimateMs(level) > kNearFastest * fastest; ++level) {
     }
   }
   mStay = level == mCurrent ? mStay + 1 : 0;
@@ -53,7 +58,9 @@ int AdaptiveQuality::chooseInteractiveLevel() {
 }
 
 std::vector<int> AdaptiveQuality::refinement() const {
-  if (mCurrent > 2) return {2, 0};
+  if (mMeasured[size_t(mLast)] < 0.0) return {0};  // nothing measured: nothing to predict from
+  for (int k = 1; k < mCurrent; ++k)
+    if (estimateMs(k) <= kRefineFactor * mTargetMs) return {k, 0};
   return {0};
 }
 

@@ -21,19 +21,40 @@ struct QualityLevel {
   std::string describe() const;
 };
 
-/// Best first; level 0 is the final frame's. Size and spacing first, budgets last: on the cranium a
-/// coarser spacing or a smaller image loses less accuracy for the time it saves than a budget does,
-/// and a budget combined with a coarse spacing compounds (docs/viewer.md).
-inline constexpr std::array<QualityLevel, 9> kLadder{{
+/// A ladder: best first, level 0 the final frame's. Measured on the cranium against the reference
+/// (docs/viewer.md), the volume alone loses accuracy mostly to the slice spacing (woodgrain: 512²
+/// at 2.5 voxels is 26 dB, 128² at 1.3 voxels 31 dB), a translucent surface mostly to the image
+/// size (its edges; the spacing matters little there): so the volume's ladder shrinks the image
+/// before it spaces the slices, the surface's the other way round. A budget comes last in both: it
+/// compounds badly with a coarse spacing.
+using Ladder = std::array<QualityLevel, 12>;
+inline constexpr Ladder kVolumeLadder{{
     {1.0, 100.0, 0.5},
     {1.0, 100.0, 1.0},
     {0.75, 100.0, 1.0},
-    {0.75, 100.0, 1.6},
+    {0.5, 100.0, 1.0},
+    {0.5, 100.0, 1.3},
+    {0.375, 100.0, 1.3},
+    {0.3125, 100.0, 1.3},
+    {0.25, 100.0, 1.3},
+    {0.25, 100.0, 1.6},
+    {0.1875, 100.0, 1.6},
+    {0.1875, 100.0, 2.5},
+    {0.1875, 50.0, 2.5},
+}};
+inline constexpr Ladder kSurfaceLadder{{
+    {1.0, 100.0, 0.5},
+    {1.0, 100.0, 1.0},
+    {0.75, 100.0, 1.3},
     {0.5, 100.0, 1.6},
-    {0.5, 50.0, 1.0},
-    {0.4, 100.0, 1.6},
-    {0.35, 100.0, 2.5},
+    {0.5, 100.0, 2.5},
+    {0.375, 100.0, 2.0},
+    {0.375, 100.0, 2.5},
+    {0.3125, 100.0, 2.5},
     {0.25, 100.0, 2.5},
+    {0.1875, 100.0, 2.5},
+    {0.1875, 50.0, 2.5},
+    {0.125, 50.0, 2.5},
 }};
 
 /// Brick edge (texels) of interactive frames: an eighth of the bricks of the default 16 at the same
@@ -41,17 +62,24 @@ inline constexpr std::array<QualityLevel, 9> kLadder{{
 /// refining and final frames keep the default, as `hybrid-octree render` does.
 inline constexpr int kInteractiveBrickEdge = 32;
 
+/// One ladder's levels for one client: which to render while the user drags, and after.
 class AdaptiveQuality {
  public:
-  explicit AdaptiveQuality(double targetMs = 60.0) : mTargetMs(targetMs) { mMeasured.fill(-1.0); }
+  explicit AdaptiveQuality(const Ladder& ladder, double targetMs = 80.0) : mLadder(ladder), mTargetMs(targetMs) { mMeasured.fill(-1.0); }
+  const Ladder& ladder() const { return mLadder; }
 
   /// The level for the next interactive frame: the best whose time fits the target (with a margin
-  /// to move to a better one, so that the level does not flicker). After kProbeAfter frames at one
-  /// level the next better one is tried once: its time may have been measured on a slow frame.
+  /// to move to a better one, so that the level does not flicker), or when none does, the best
+  /// whose time is within kNearFastest of the fastest. After kProbeAfter frames at one level the
+  /// next better one is tried once: its time may have been measured on a slow frame.
   int chooseInteractiveLevel();
   static constexpr int kProbeAfter = 12;
-  /// The levels after the input stops, ending with 0.
+  static constexpr double kNearFastest = 1.1;
+  /// The levels after the input stops, ending with 0: first, when it is better than the
+  /// interactive one, the best level whose time fits kRefineFactor times the target (an image
+  /// sharper soon, and the final frame not much later).
   std::vector<int> refinement() const;
+  static constexpr double kRefineFactor = 2.0;
   /// Records that a frame at @p level took @p ms (render and encode). A @p cold frame, one that
   /// uploaded most of its textures, is not taken as the level's time (later frames do not pay for
   /// the upload) unless frames keep being cold (a texture cache too small for the view).
@@ -62,8 +90,9 @@ class AdaptiveQuality {
   double targetMs() const { return mTargetMs; }
 
  private:
+  const Ladder& mLadder;
   double mTargetMs;
-  std::array<double, kLadder.size()> mMeasured;  // smoothed ms per level, -1 unknown
+  std::array<double, Ladder().size()> mMeasured;  // smoothed ms per level, -1 unknown
   int mLast = 4;     // the level measured last
   int mCurrent = 4;  // the interactive level in use
   int mStay = 0;     // frames at mCurrent since it was chosen or probed

@@ -133,10 +133,13 @@ struct Client {
   double pendingEpochMs = 0.0;          // the same, wall clock
   std::optional<FrameRequest> current;  // the request being refined
   std::vector<int> refine;              // levels still to render for it, next last
-  AdaptiveQuality quality;
+  bool refineSurface = false;           // ... of the surface's ladder
+  AdaptiveQuality volumeQuality{kVolumeLadder}, surfaceQuality{kSurfaceLadder};
   std::atomic<bool> open{true};
   std::function<void(std::string message, bool binary)> send;  // posts to the socket; drops when closed
-  explicit Client(double targetMs) : quality(targetMs) {}
+  explicit Client(double targetMs) : volumeQuality(kVolumeLadder, targetMs), surfaceQuality(kSurfaceLadder, targetMs) {}
+  // The ladder of frames with a translucent surface or without: they cost and lose accuracy differently.
+  AdaptiveQuality& quality(bool surface) { return surface ? surfaceQuality : volumeQuality; }
   bool hasWork() const { return open && !sceneKey.empty() && (pending || !refine.empty()); }
 };
 
@@ -414,15 +417,21 @@ struct ServerState {
       // The newest request replaces whatever refinement was under way.
       int level = 0;
       Arrival arrival;
+      bool surface = client->refineSurface;
       if (client->pending) {
         arrival = {msSince(client->pendingSince), client->pendingEpochMs};
         client->current = std::move(client->pending);
         client->pending.reset();
-        if (client->current->interacting) {
-          level = client->quality.chooseInteractiveLevel();
+        const FrameRequest& r = *client->current;
+        if (r.iso) requestSurface(*slot, *r.iso);
+        surface = r.iso && slot->shownIso;
+        AdaptiveQuality& quality = client->quality(surface);
+        if (r.interacting) {
+          level = quality.chooseInteractiveLevel();
           client->refine.clear();
         } else {
-          client->refine = client->quality.refinement();
+          client->refine = quality.refinement();
+          client->refineSurface = surface;
           std::reverse(client->refine.begin(), client->refine.end());
           level = client->refine.back();
           client->refine.pop_back();
@@ -433,20 +442,20 @@ struct ServerState {
       }
       const FrameRequest request = *client->current;
       const bool final = !request.interacting && client->refine.empty() && level == 0;
-      if (request.iso) requestSurface(*slot, *request.iso);
       const std::optional<float> iso = request.iso && slot->shownIso ? slot->shownIso : std::nullopt;
+      const QualityLevel& rung = client->quality(surface).ladder()[size_t(level)];
       lock.unlock();
       std::string message;
       double ms = 0.0;
       bool cold = false;
       try {
-        message = renderFrame(*slot, request, level, final, iso, arrival, &ms, &cold);
+        message = renderFrame(*slot, request, rung, level, final, iso, arrival, &ms, &cold);
       } catch (const std::exception& e) {
         message.clear();
         client->send(errorMessage(e.what(), request.seq), false);
       }
       lock.lock();
-      client->quality.record(level, ms, cold);
+      client->quality(surface).record(level, ms, cold);
       if (!message.empty()) client->send(std::move(message), true);
     }
     // The renderers' OpenGL contexts are this thread's: they are destroyed here, the lock released
@@ -467,10 +476,9 @@ struct ServerState {
     double waitMs = 0.0, epochMs = 0.0;
   };
 
-  std::string renderFrame(SceneSlot& slot, const FrameRequest& r, int level, bool final, std::optional<float> iso, const Arrival& arrival,
-                          double* ms, bool* cold) {
+  std::string renderFrame(SceneSlot& slot, const FrameRequest& r, const QualityLevel& q, int level, bool final, std::optional<float> iso,
+                          const Arrival& arrival, double* ms, bool* cold) {
     const auto t0 = Clock::now();
-    const QualityLevel& q = kLadder[size_t(level)];
     View view;
     view.camera = r.camera;
     view.camera.width = std::max(kMinImageEdge, int(std::lround(r.camera.width * q.scale)));
@@ -505,6 +513,7 @@ struct ServerState {
                    {"seq", r.seq},
                    {"quality", r.interacting ? "interactive" : final ? "final" : "refining"},
                    {"level", level},
+                   {"ladder", iso ? "surface" : "volume"},
                    {"levelText", q.describe()},
                    {"format", final ? "png" : "jpeg"},
                    {"width", frame.image.width},

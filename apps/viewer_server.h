@@ -31,7 +31,7 @@ struct ServerOptions {
   std::filesystem::path dataDir;       ///< the page lists and opens volumes under it; empty: none
   std::string token;                   ///< empty: a random one
   uint64_t textureLimitBytes = 1ull << 29;  ///< brick textures each scene keeps between frames
-  double frameTargetMs = 60.0;         ///< interactive frames aim at this time (render and encode)
+  double frameTargetMs = 80.0;         ///< interactive frames aim at this time (render and encode)
   int maxClients = 8;
   SceneLoader loader;
   std::ostream* log = nullptr;         ///< one line per connection and error; null: silent

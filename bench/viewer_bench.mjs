@@ -4,7 +4,7 @@
 // used, the bytes per frame, the PSNR of interactive frames (as painted, upscaled) against the
 // reference ray tracer, and the time from the end of the motion to the final frame painted.
 //
-// usage (after scripts/setup.sh): node bench/viewer_bench.mjs build/hybrid-octree [--seconds 5] [--samples 4] [--frame-ms 60]
+// usage (after scripts/setup.sh): node bench/viewer_bench.mjs build/hybrid-octree [--seconds 5] [--samples 4] [--frame-ms 80]
 import { spawn, execFileSync } from 'node:child_process';
 import { createRequire } from 'node:module';
 import fs from 'node:fs';
@@ -16,7 +16,7 @@ const puppeteer = require('puppeteer-core');
 
 const exe = path.resolve(process.argv[2] || 'build/hybrid-octree');
 const arg = (name, dflt) => { const i = process.argv.indexOf(name); return i > 0 ? Number(process.argv[i + 1]) : dflt; };
-const seconds = arg('--seconds', 5), samples = arg('--samples', 4), frameMs = arg('--frame-ms', 60);
+const seconds = arg('--seconds', 5), samples = arg('--samples', 4), frameMs = arg('--frame-ms', 80);
 const volume = '/usr/share/doc/invesalius-examples/examples/Cranium.inv3';
 const tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'hyb-viewer-bench-'));
 

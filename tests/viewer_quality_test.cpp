@@ -5,15 +5,25 @@
 namespace hyb::viewer {
 namespace {
 
-TEST(ViewerQuality, TheLadderGoesFromTheFinalFrameToCheaperOnes) {
-  EXPECT_EQ(kLadder[0].scale, 1.0);
-  EXPECT_EQ(kLadder[0].budgetPercent, 100.0);
-  EXPECT_EQ(kLadder[0].step, 0.5);
-  for (size_t k = 1; k < kLadder.size(); ++k) EXPECT_LT(kLadder[k].cost(), kLadder[k - 1].cost()) << k;
+TEST(ViewerQuality, TheLaddersGoFromTheFinalFrameToCheaperOnes) {
+  for (const Ladder* ladder : {&kVolumeLadder, &kSurfaceLadder}) {
+    EXPECT_EQ((*ladder)[0].scale, 1.0);
+    EXPECT_EQ((*ladder)[0].budgetPercent, 100.0);
+    EXPECT_EQ((*ladder)[0].step, 0.5);
+    for (size_t k = 1; k < ladder->size(); ++k) EXPECT_LT((*ladder)[k].cost(), (*ladder)[k - 1].cost()) << k;
+  }
+  // At one image size the surface's ladder spaces slices at least as coarsely as the volume's.
+  for (const QualityLevel& s : kSurfaceLadder) {
+    for (const QualityLevel& v : kVolumeLadder) {
+      if (s.scale == v.scale && s.budgetPercent == v.budgetPercent && s.scale < 1.0) {
+        EXPECT_GE(s.step, v.step);
+      }
+    }
+  }
 }
 
 TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLevel) {
-  AdaptiveQuality q(60.0);
+  AdaptiveQuality q(kVolumeLadder, 60.0);
   // Nothing measured: every estimate is 0, so the best interactive level is tried.
   EXPECT_EQ(q.chooseInteractiveLevel(), 1);
   // Level 1 is slow: 240 ms. Predictions scale by cost: the first level under 60 ms is chosen.
@@ -31,7 +41,7 @@ TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLev
   EXPECT_LT(better, level);
   EXPECT_LE(q.estimateMs(better), 0.8 * 60.0);
   // Held at one level, the next better one is probed once every kProbeAfter frames.
-  AdaptiveQuality held(60.0);
+  AdaptiveQuality held(kVolumeLadder, 60.0);
   held.record(1, 1000.0);
   const int base = held.chooseInteractiveLevel();
   int probes = 0;
@@ -42,25 +52,47 @@ TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLev
     held.record(l, l == base ? 40.0 : 200.0);  // the probe is too slow: back to base
   }
   EXPECT_EQ(probes, 3);  // after 12, 24 and 36 frames
-  // A coarse interactive level refines in two steps, a fine one in one; both end at 0.
-  AdaptiveQuality slow(60.0);
+  // A coarse interactive level refines through the best level that fits twice the target,
+  // a fine one (or one with nothing measured) straight to the final one.
+  AdaptiveQuality slow(kVolumeLadder, 60.0);
+  EXPECT_EQ(slow.refinement(), (std::vector<int>{0}));
   slow.record(1, 5000.0);
-  EXPECT_EQ(slow.chooseInteractiveLevel(), int(kLadder.size()) - 1);
-  EXPECT_EQ(slow.refinement(), (std::vector<int>{2, 0}));
-  AdaptiveQuality fast(60.0);
+  EXPECT_EQ(slow.chooseInteractiveLevel(), int(kVolumeLadder.size()) - 1);
+  const std::vector<int> steps = slow.refinement();
+  ASSERT_EQ(steps.size(), 2u);
+  EXPECT_LE(slow.estimateMs(steps[0]), AdaptiveQuality::kRefineFactor * 60.0);
+  EXPECT_GT(slow.estimateMs(steps[0] - 1), AdaptiveQuality::kRefineFactor * 60.0);
+  EXPECT_EQ(steps[1], 0);
+  AdaptiveQuality fast(kSurfaceLadder, 60.0);
   fast.record(1, 10.0);
   EXPECT_EQ(fast.chooseInteractiveLevel(), 1);
   EXPECT_EQ(fast.refinement(), (std::vector<int>{0}));
 }
 
+// When no level fits the target and the cheapest save nothing (a surface's triangles cost the same
+// at any size), the best level within a tenth of the fastest is kept.
+TEST(ViewerQuality, WhenNothingFitsTheBestOfTheFastestIsKept) {
+  AdaptiveQuality q(kSurfaceLadder, 60.0);
+  const int last = int(kSurfaceLadder.size()) - 1;
+  q.record(last - 2, 100.0);
+  q.record(last - 1, 104.0);
+  q.record(last, 98.0);
+  EXPECT_EQ(q.chooseInteractiveLevel(), last - 2);
+  // A level that is much faster is taken, though it is not fast enough either.
+  q.record(last, 70.0);
+  q.record(last, 70.0);
+  q.record(last, 70.0);
+  EXPECT_EQ(q.chooseInteractiveLevel(), last);
+}
+
 TEST(ViewerQuality, AFrameThatUploadedItsTexturesIsNotTheLevelsTime) {
-  AdaptiveQuality q(60.0);
+  AdaptiveQuality q(kVolumeLadder, 60.0);
   q.record(4, 300.0, true);  // the first frame at larger bricks: its textures uploaded
   EXPECT_EQ(q.estimateMs(4), 0.0);
   q.record(4, 40.0, false);
   EXPECT_EQ(q.estimateMs(4), 40.0);
   // Frames that stay cold (a cache too small for the view) are trusted from the third on.
-  AdaptiveQuality thrashing(60.0);
+  AdaptiveQuality thrashing(kVolumeLadder, 60.0);
   for (int i = 1; i < AdaptiveQuality::kColdFramesTrusted; ++i) thrashing.record(4, 300.0, true);
   EXPECT_EQ(thrashing.estimateMs(4), 0.0);
   thrashing.record(4, 300.0, true);
