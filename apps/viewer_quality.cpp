@@ -37,7 +37,7 @@ int AdaptiveQuality::chooseInteractiveLevel() {
   int level = -1;
   for (int k = 1; k < n && level < 0; ++k) {
     // Moving to a better level than the current needs a margin; staying or going coarser does not.
-    const double allowed = k < mCurrent ? 0.8 * mTargetMs : mTargetMs;
+    const double allowed = k < mCurrent ? kUpMargin * mTargetMs : mTargetMs;
     if (estimateMs(k) <= allowed) level = k;
   }
   if (level < 0) {

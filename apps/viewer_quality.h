@@ -38,7 +38,7 @@ inline constexpr Ladder kVolumeLadder{{
     {0.3125, 100.0, 1.3},
     {0.25, 100.0, 1.3},
     {0.25, 100.0, 1.6},
-    {0.1875, 100.0, 1.6},
+    {0.21875, 100.0, 1.6},
     {0.1875, 100.0, 2.5},
     {0.1875, 50.0, 2.5},
 }};
@@ -75,6 +75,7 @@ class AdaptiveQuality {
   int chooseInteractiveLevel();
   static constexpr int kProbeAfter = 12;
   static constexpr double kNearFastest = 1.1;
+  static constexpr double kUpMargin = 0.9;  ///< a better level than the current must fit this share of the target
   /// The levels after the input stops, ending with 0: first, when it is better than the
   /// interactive one, the best level whose time fits kRefineFactor times the target (an image
   /// sharper soon, and the final frame not much later).

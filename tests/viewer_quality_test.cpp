@@ -31,15 +31,15 @@ TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLev
   const int level = q.chooseInteractiveLevel();
   EXPECT_GT(level, 1);
   EXPECT_LE(q.estimateMs(level), 60.0);
-  EXPECT_GT(q.estimateMs(level - 1), 60.0 * 0.8);
+  EXPECT_GT(q.estimateMs(level - 1), 60.0 * AdaptiveQuality::kUpMargin);
   // Measured faster than predicted, but not by the margin: the level stays.
   q.record(level, 0.9 * 60.0);
-  q.record(level - 1, 55.0);  // the better level fits now, though not within 80 %
+  q.record(level - 1, 58.0);  // the better level fits now, though not within the margin
   EXPECT_EQ(q.chooseInteractiveLevel(), level);
   for (int i = 0; i < 4; ++i) q.record(level - 1, 20.0);
   const int better = q.chooseInteractiveLevel();
   EXPECT_LT(better, level);
-  EXPECT_LE(q.estimateMs(better), 0.8 * 60.0);
+  EXPECT_LE(q.estimateMs(better), AdaptiveQuality::kUpMargin * 60.0);
   // Held at one level, the next better one is probed once every kProbeAfter frames.
   AdaptiveQuality held(kVolumeLadder, 60.0);
   held.record(1, 1000.0);
