@@ -41,7 +41,7 @@ int AdaptiveQuality::chooseInteractiveLevel() {
     if (estimateMs(k) <= allowed) level = k;
   }
   if (level < 0) {
-    // None fits: the best of those within a tenth of the fastest. Where a frame's cost does not
+    // None fits: the best of those within a quarter of the fastest. Where a frame's cost does not
     // follow its pixels (a surface's triangles), the cheapest levels save nothing.
     double fastest = estimateMs(n - 1);
     for (int k = 1; k < n; ++k) fastest = std::min(fastest, estimateMs(k));

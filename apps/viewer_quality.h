@@ -25,8 +25,9 @@ struct QualityLevel {
 /// (docs/viewer.md), the volume alone loses accuracy mostly to the slice spacing (woodgrain: 512²
 /// at 2.5 voxels is 26 dB, 128² at 1.3 voxels 31 dB), a translucent surface mostly to the image
 /// size (its edges; the spacing matters little there): so the volume's ladder shrinks the image
-/// before it spaces the slices, the surface's the other way round. A budget comes last in both: it
-/// compounds badly with a coarse spacing.
+/// before it spaces the slices, the surface's the other way round. A budget comes last in the
+/// volume's (it compounds badly with a coarse spacing) and not in the surface's: a surface's
+/// frames cost their triangles, and a budget rung's first frames upload new textures.
 using Ladder = std::array<QualityLevel, 12>;
 inline constexpr Ladder kVolumeLadder{{
     {1.0, 100.0, 0.5},
@@ -52,9 +53,9 @@ inline constexpr Ladder kSurfaceLadder{{
     {0.375, 100.0, 2.5},
     {0.3125, 100.0, 2.5},
     {0.25, 100.0, 2.5},
+    {0.21875, 100.0, 2.5},
     {0.1875, 100.0, 2.5},
-    {0.1875, 50.0, 2.5},
-    {0.125, 50.0, 2.5},
+    {0.15625, 100.0, 2.5},
 }};
 
 /// Brick edge (texels) of interactive frames: an eighth of the bricks of the default 16 at the same
@@ -70,11 +71,11 @@ class AdaptiveQuality {
 
   /// The level for the next interactive frame: the best whose time fits the target (with a margin
   /// to move to a better one, so that the level does not flicker), or when none does, the best
-  /// whose time is within kNearFastest of the fastest. After kProbeAfter frames at one level the
+  /// whose time is within kNearFastest of the fastest (a quarter: the cheapest levels lose 2-3 dB). After kProbeAfter frames at one level the
   /// next better one is tried once: its time may have been measured on a slow frame.
   int chooseInteractiveLevel();
   static constexpr int kProbeAfter = 12;
-  static constexpr double kNearFastest = 1.1;
+  static constexpr double kNearFastest = 1.25;
   static constexpr double kUpMargin = 0.9;  ///< a better level than the current must fit this share of the target
   /// The levels after the input stops, ending with 0: first, when it is better than the
   /// interactive one, the best level whose time fits kRefineFactor times the target (an image
