@@ -79,8 +79,9 @@ struct Quality {
   /// its frame, and the ranking changes little from one view to the next.
   bool reuseViewErrors = false;
   /// Draws the isosurface simplified to a voxel's error (PreparedSurface::simplified, about a
-  /// seventh of the triangles on CT bone): a frame's surface costs follow its triangles, whatever
-  /// the image size. Exact in brick order when bricks are at least kSimplifiedBlockVoxels wide.
+  /// fifth of the triangles on CT bone, shaded smoothly whatever Look::normals asks): a frame's
+  /// surface costs follow its triangles, whatever the image size. In brick order exactly when the
+  /// bricks are at least kSimplifiedBlockVoxels wide.
   bool simplifiedSurface = false;
   /// Cuts translucent polygons to the slabs between slices (SlicesOptions::cutToSlabs); false
   /// places each whole in its centroid's slab.
