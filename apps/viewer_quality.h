@@ -58,9 +58,9 @@ inline constexpr Ladder kSurfaceLadder{{
     {0.15625, 100.0, 2.5},
 }};
 
-/// Brick edge (texels) of interactive frames: an eighth of the bricks of the default 16 at the same
-/// resolution, a third less time a frame on the cranium at the same accuracy (docs/viewer.md); the
-/// refining and final frames keep the default, as `hybrid-octree render` does.
+/// Brick edge (texels) of the frames before the final one: an eighth of the bricks of the default
+/// 16 at the same resolution, a third less time a frame on the cranium at the same accuracy
+/// (docs/viewer.md); the final frame keeps the default, as `hybrid-octree render` does.
 inline constexpr int kInteractiveBrickEdge = 32;
 
 /// One ladder's levels for one client: which to render while the user drags, and after.

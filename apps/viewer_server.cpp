@@ -496,9 +496,10 @@ struct ServerState {
       quality.budgetPercent = q.budgetPercent < 100.0 ? q.budgetPercent : 0.0;
       quality.step = q.step;
       quality.reuseViewErrors = r.interacting;
-      quality.simplifiedSurface = r.interacting;
-      quality.cutToSlabs = !r.interacting;
-      if (r.interacting) quality.maxBrickEdge = kInteractiveBrickEdge;
+      // The refining frame too: it comes between the motion and the final frame, which it delays.
+      quality.simplifiedSurface = true;
+      quality.cutToSlabs = false;
+      quality.maxBrickEdge = kInteractiveBrickEdge;
     }
     const RenderedFrame frame = slot.renderer->render(view, look, quality);
     const double renderMs = msSince(t0);
