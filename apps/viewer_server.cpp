@@ -42,7 +42,7 @@ using tcp = net::ip::tcp;
 using nlohmann::json;
 using Clock = std::chrono::steady_clock;
 
-// Interactive frames draw the surface simplified within blocks of this edge: with bricks no smaller,
+// Frames before the final one draw the surface simplified within blocks of this edge: with bricks no smaller,
 // each of its triangles lies inside one brick and is drawn in the right order.
 static_assert(kInteractiveBrickEdge == kSimplifiedBlockVoxels);
 
@@ -130,16 +130,17 @@ struct Client {
   uint64_t id = 0;
   std::string sceneKey;                 // the volume it shows; empty before one is open
   std::optional<FrameRequest> pending;  // the newest request not yet rendered
-  Clock::time_point pendingSince;       // when it came
+  std::optional<Clock::time_point> pendingSince;  // when the page sent it (none: the server asks again)
   double pendingEpochMs = 0.0;          // the same, wall clock
   std::optional<FrameRequest> current;  // the request being refined
   std::vector<int> refine;              // levels still to render for it, next last
   bool refineSurface = false;           // ... of the surface's ladder
-  AdaptiveQuality volumeQuality{kVolumeLadder}, surfaceQuality{kSurfaceLadder};
+  std::optional<float> shownIso;        // the surface its frames draw: the one asked for once it is ready
+  AdaptiveQuality volumeQuality, surfaceQuality;
   std::atomic<bool> open{true};
   std::function<void(std::string message, bool binary)> send;  // posts to the socket; drops when closed
   explicit Client(double targetMs) : volumeQuality(kVolumeLadder, targetMs), surfaceQuality(kSurfaceLadder, targetMs) {}
-  // The ladder of frames with a translucent surface or without: they cost and lose accuracy differently.
+  // The ladder of frames with a surface or without: they cost and lose accuracy differently.
   AdaptiveQuality& quality(bool surface) { return surface ? surfaceQuality : volumeQuality; }
   bool hasWork() const { return open && !sceneKey.empty() && (pending || !refine.empty()); }
 };
@@ -149,7 +150,7 @@ struct SceneSlot {
   std::string key, path, series, name;
   std::unique_ptr<SceneRenderer> renderer;
   json info;                        // what the page needs to know of the volume
-  std::optional<float> shownIso;    // the newest surface ready: drawn while another is built
+  std::optional<float> shownIso;    // the newest surface ready: drawn by a client whose own is not
   std::optional<float> buildingIso;
   std::optional<float> wantedIso;   // asked for while another was being built
   std::thread builder;
@@ -326,7 +327,11 @@ struct ServerState {
 
   // Starts building the surface of @p iso in the background (under the lock).
   void requestSurface(SceneSlot& slot, float iso) {
-    if (slot.renderer->hasSurface(iso) || slot.buildingIso == iso) return;
+    if (slot.renderer->hasSurface(iso)) {
+      slot.wantedIso.reset();  // (a client still wanting it asks again when the build in flight ends)
+      return;
+    }
+    if (slot.buildingIso == iso) return;
     if (slot.buildingIso) {
       slot.wantedIso = iso;
       return;
@@ -378,6 +383,7 @@ struct ServerState {
         if (c->sceneKey == key && c->current && !c->pending) {
           c->pending = c->current;
           c->pending->interacting = false;
+          c->pendingSince.reset();
         }
     }
   }
@@ -417,15 +423,23 @@ struct ServerState {
       }
       // The newest request replaces whatever refinement was under way.
       int level = 0;
-      Arrival arrival;
+      std::optional<Arrival> arrival;
       bool surface = client->refineSurface;
       if (client->pending) {
-        arrival = {msSince(client->pendingSince), client->pendingEpochMs};
+        if (client->pendingSince) arrival = Arrival{msSince(*client->pendingSince), client->pendingEpochMs};
+        client->pendingSince.reset();
         client->current = std::move(client->pending);
         client->pending.reset();
         const FrameRequest& r = *client->current;
-        if (r.iso) requestSurface(*slot, *r.iso);
-        surface = r.iso && slot->shownIso;
+        if (r.iso) {
+          requestSurface(*slot, *r.iso);
+          // The surface asked for once it is ready; until then the one shown before, if still kept.
+          if (slot->renderer->hasSurface(*r.iso))
+            client->shownIso = r.iso;
+          else if (!client->shownIso || !slot->renderer->hasSurface(*client->shownIso))
+            client->shownIso = slot->shownIso;
+        }
+        surface = r.iso && client->shownIso;
         AdaptiveQuality& quality = client->quality(surface);
         if (r.interacting) {
           level = quality.chooseInteractiveLevel();
@@ -443,7 +457,7 @@ struct ServerState {
       }
       const FrameRequest request = *client->current;
       const bool final = !request.interacting && client->refine.empty() && level == 0;
-      const std::optional<float> iso = request.iso && slot->shownIso ? slot->shownIso : std::nullopt;
+      const std::optional<float> iso = request.iso ? client->shownIso : std::nullopt;
       const QualityLevel& rung = client->quality(surface).ladder()[size_t(level)];
       lock.unlock();
       std::string message;
@@ -456,8 +470,10 @@ struct ServerState {
         client->send(errorMessage(e.what(), request.seq), false);
       }
       lock.lock();
-      client->quality(surface).record(level, ms, cold);
-      if (!message.empty()) client->send(std::move(message), true);
+      if (!message.empty()) {  // (a failed frame's time says nothing of its level)
+        client->quality(surface).record(level, ms, cold);
+        client->send(std::move(message), true);
+      }
     }
     // The renderers' OpenGL contexts are this thread's: they are destroyed here, the lock released
     // for builders that still want it.
@@ -470,15 +486,16 @@ struct ServerState {
     old.clear();
   }
 
-  // One frame at @p level of the ladder, encoded with its header (render thread, unlocked); @p cold
-  // says whether it uploaded most of its textures.
-  // When a frame's request came: its wait for the render thread, and its arrival's wall clock.
+  // When a frame's request came from the page: its wait for the render thread, and its arrival's
+  // wall clock.
   struct Arrival {
     double waitMs = 0.0, epochMs = 0.0;
   };
 
+  // One frame at @p level of the ladder, encoded with its header (render thread, unlocked); @p cold
+  // says whether it uploaded most of its textures.
   std::string renderFrame(SceneSlot& slot, const FrameRequest& r, const QualityLevel& q, int level, bool final, std::optional<float> iso,
-                          const Arrival& arrival, double* ms, bool* cold) {
+                          const std::optional<Arrival>& arrival, double* ms, bool* cold) {
     const auto t0 = Clock::now();
     View view;
     view.camera = r.camera;
@@ -520,8 +537,8 @@ struct ServerState {
                    {"format", final ? "png" : "jpeg"},
                    {"width", frame.image.width},
                    {"height", frame.image.height},
-                   {"waitMs", arrival.waitMs},
-                   {"requestEpochMs", arrival.epochMs},
+                   {"waitMs", arrival ? json(arrival->waitMs) : json(nullptr)},
+                   {"requestEpochMs", arrival ? json(arrival->epochMs) : json(nullptr)},
                    {"sentEpochMs", epochMs()},
                    {"renderMs", renderMs},
                    {"encodeMs", encodeMs},

@@ -108,7 +108,7 @@ async function orbit(label, withSurface) {
     l.n++;
     l.ms += m.renderMs + m.encodeMs;
   }
-  const painted = [], sent = [], floor = [];
+  const painted = [], sent = [], bound = [];
   for (const [k, s] of shots.entries()) {
     if (!s.header || s.header.quality !== 'interactive') continue;
     const shot = path.join(tmp, `${label}-${k}.png`), ref = path.join(tmp, `${label}-${k}-ref.png`);
@@ -122,7 +122,7 @@ async function orbit(label, withSurface) {
     sent.push(`${psnrOf(ownRef, own).toFixed(1)} (${s.header.width}²)`);
     const ownRefMagnified = path.join(tmp, `${label}-${k}-ownref-magnified.png`);
     await magnified(ownRef, ownRefMagnified, s.header.camera.pixels[0], s.header.camera.pixels[1]);
-    floor.push(psnrOf(ref, ownRefMagnified));
+    bound.push(psnrOf(ref, ownRefMagnified));
   }
   const bytes = interactive.map((m) => m.bytes);
   console.log(`${label}:`);
@@ -135,7 +135,7 @@ async function orbit(label, withSurface) {
   console.log(`  bytes per interactive frame: mean ${(bytes.reduce((a, b) => a + b, 0) / Math.max(1, bytes.length) / 1024).toFixed(1)} KiB; final ${final ? (final.bytes / 1024).toFixed(1) : '?'} KiB`);
   console.log(`  interactive frames against the reference, as painted (512²): ${painted.map((p) => p.toFixed(1)).join(', ')} dB (target >= 30)`);
   console.log(`  the same frames as sent, at their own size: ${sent.join(', ')} dB`);
-  console.log(`  the reference at each frame's size, magnified as painted (the most a frame of that size can score): ${floor.map((p) => p.toFixed(1)).join(', ')} dB`);
+  console.log(`  the reference at each frame's size, magnified as painted (the most a frame of that size can score): ${bound.map((p) => p.toFixed(1)).join(', ')} dB`);
   console.log(`  final frame painted ${final ? (final.paintedAt - tUp).toFixed(0) : '?'} ms after the motion stopped (target <= 2000)`);
   const after = metrics.filter((m) => m.paintedAt > tUp && m.paintedAt <= (final ? final.paintedAt : Infinity));
   console.log(`  frames after the motion: ${after.map((m) => `${m.quality} ${m.levelText} at +${(m.paintedAt - tUp).toFixed(0)} ms (render ${m.renderMs.toFixed(0)} + encode ${m.encodeMs.toFixed(0)} ms)`).join('; ')}`);

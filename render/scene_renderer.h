@@ -137,8 +137,8 @@ struct PreparedSurface {
   std::optional<SurfaceOctree> built;  ///< none when the scene's own surface has this isovalue
   size_t polygons = 0;
   TriangleMesh facet, smooth;          ///< grid frame, mm
-  /// Smooth, simplified to a voxel within blocks: for frames while the view moves; made when one
-  /// first asks for it (SceneRenderer::simplify), unless prepareSurface was asked to.
+  /// Smooth, simplified to a voxel within blocks: for the viewer's frames before the final one; made
+  /// when one first asks for it (SceneRenderer::simplify), unless prepareSurface was asked to.
   std::optional<TriangleMesh> simplified;
   std::unique_ptr<Bvh> bvh[2];         ///< facet, smooth; made by the first reference frame
   const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? smooth : facet; }

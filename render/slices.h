@@ -55,8 +55,8 @@ struct SlicesOptions {
                                           ///< deliberately wrong order, to show the tests catch it)
   /// Cut each translucent polygon to every slab its depth range covers (exact order); false puts
   /// it whole in the slab of its centroid's depth, misplacing what lies in the neighbouring slabs
-  /// (frames while the view moves: llvmpipe's cost of the cut pieces, not the misplacement, is
-  /// what shows; docs/viewer.md).
+  /// (the viewer's frames before the final one: llvmpipe's cost of the cut pieces, not the
+  /// misplacement, is what shows; docs/viewer.md).
   bool cutToSlabs = true;
   const Progress* progress = nullptr;     ///< hears of the bricks drawn ("slices"); may throw to stop the frame
 };

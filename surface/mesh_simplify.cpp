@@ -4,6 +4,8 @@
 #include <meshoptimizer.h>
 
 #include <algorithm>
+#include <atomic>
+#include <exception>
 #include <iterator>
 #include <cmath>
 #include <cstdint>
@@ -19,12 +21,20 @@ namespace {
 
 using Edge = std::pair<uint32_t, uint32_t>;  // vertex indices, the smaller first
 
+// Edge @p k of triangle @p t (from its corner k to the next).
+Edge edgeOf(const glm::uvec3& t, int k) { return std::minmax(t[k], t[(k + 1) % 3]); }
+
+void sortUnique(std::vector<uint32_t>* v) {
+  std::sort(v->begin(), v->end());
+  v->erase(std::unique(v->begin(), v->end()), v->end());
+}
+
 // How many triangles of @p triangles use each edge, sorted by edge.
 std::vector<std::pair<Edge, int>> edgeCounts(const std::vector<glm::uvec3>& triangles) {
   std::vector<Edge> edges;
   edges.reserve(3 * triangles.size());
   for (const glm::uvec3& t : triangles)
-    for (int k = 0; k < 3; ++k) edges.push_back({std::min(t[k], t[(k + 1) % 3]), std::max(t[k], t[(k + 1) % 3])});
+    for (int k = 0; k < 3; ++k) edges.push_back(edgeOf(t, k));
   std::sort(edges.begin(), edges.end());
   std::vector<std::pair<Edge, int>> counts;
   for (const Edge& e : edges)
@@ -50,8 +60,7 @@ glm::dvec3 centroid(const TriangleMesh& mesh, const glm::uvec3& t) {
 std::vector<glm::uvec3> simplifyLocked(const TriangleMesh& mesh, const std::vector<glm::uvec3>& triangles, double errorMm) {
   std::vector<uint32_t> global;  // their vertices, sorted
   for (const glm::uvec3& t : triangles) global.insert(global.end(), {t.x, t.y, t.z});
-  std::sort(global.begin(), global.end());
-  global.erase(std::unique(global.begin(), global.end()), global.end());
+  sortUnique(&global);
   auto local = [&](uint32_t v) { return uint32_t(std::lower_bound(global.begin(), global.end(), v) - global.begin()); };
   std::vector<uint32_t> indices;
   indices.reserve(3 * triangles.size());
@@ -78,8 +87,7 @@ bool fixChangedEdges(const std::vector<glm::uvec3>& before, const std::vector<gl
   const std::vector<std::pair<Edge, int>> a = openEdges(before), b = openEdges(after);
   std::set_symmetric_difference(a.begin(), a.end(), b.begin(), b.end(), std::back_inserter(changed));
   for (const auto& [edge, count] : changed) fixed->insert(fixed->end(), {edge.first, edge.second});
-  std::sort(fixed->begin(), fixed->end());
-  fixed->erase(std::unique(fixed->begin(), fixed->end()), fixed->end());
+  sortUnique(fixed);
   return !changed.empty();
 }
 
@@ -141,20 +149,28 @@ TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& bl
       for (size_t b = 0; b < blocks; ++b)
         if (redo[b])
           for (const auto& [edge, count] : openEdges(input[b])) fixed[b].insert(fixed[b].end(), {edge.first, edge.second});
-    for (std::vector<uint32_t>& f : fixed) {
-      std::sort(f.begin(), f.end());
-      f.erase(std::unique(f.begin(), f.end()), f.end());
-    }
+    for (std::vector<uint32_t>& f : fixed) sortUnique(&f);
+    // An exception cannot leave an OpenMP loop (the process would end): the first is kept, the
+    // other blocks skipped, and it is thrown after the loop.
+    std::exception_ptr failure;
+    std::atomic<bool> failed{false};
 #pragma omp parallel for schedule(dynamic)
     for (size_t b = 0; b < blocks; ++b)
-      if (redo[b]) {
-        kept[b] = round < 5 ? simplifyBlock(mesh, input[b], maxErrorMm, fixed[b]) : input[b];
-        if (round == 0) task.advance();
+      if (redo[b] && !failed.load(std::memory_order_relaxed)) {
+        try {
+          kept[b] = round < 5 ? simplifyBlock(mesh, input[b], maxErrorMm, fixed[b]) : input[b];
+          if (round == 0) task.advance();
+        } catch (...) {
+#pragma omp critical(hyb_simplify_failure)
+          if (!failure) failure = std::current_exception();
+          failed.store(true, std::memory_order_relaxed);
+        }
       }
+    if (failure) std::rethrow_exception(failure);
     std::vector<std::pair<Edge, uint32_t>> edges;  // each edge of the result, with its block
     for (size_t b = 0; b < blocks; ++b)
       for (const glm::uvec3& t : kept[b])
-        for (int k = 0; k < 3; ++k) edges.push_back({{std::min(t[k], t[(k + 1) % 3]), std::max(t[k], t[(k + 1) % 3])}, uint32_t(b)});
+        for (int k = 0; k < 3; ++k) edges.push_back({edgeOf(t, k), uint32_t(b)});
     std::sort(edges.begin(), edges.end());
     std::fill(redo.begin(), redo.end(), 0);
     bool any = false;

@@ -1,4 +1,4 @@
-// Simplification of an isosurface for frames drawn while the view moves: fewer triangles, each
+// Simplification of an isosurface for the viewer's frames before the final one: fewer triangles, each
 // still inside one block of a regular grid, so that a renderer that places every triangle in the
 // brick holding it (the slice renderer's SlabPolygon lists) draws the simplified surface in the
 // right order as it does the exact one. meshoptimizer (Kapoulkine) does the edge collapses.

@@ -82,6 +82,22 @@ TEST(MeshSimplify, PlanarPiecesCollapseToTheirBlocksBorders) {
   EXPECT_TRUE(simplifyWithinBlocks(TriangleMesh{}, glm::dvec3(4.0), 1.0).triangles.empty());
 }
 
+// A progress callback that stops the work part way (as a closing viewer would) is heard as an
+// exception from the call, though the blocks are simplified on OpenMP's threads.
+TEST(MeshSimplify, AProgressCallbackThatThrowsStopsTheWork) {
+  const Volume v = test::boxVolume({20, 20, 20}, {3, 3, 3}, {15, 15, 15}, 1.0f, 0.0f);
+  const TriangleMesh in = toTriangleMesh(extractDiscMC(v, 0.5f), v.spacing());
+  struct Stop {};
+  int heard = 0;
+  const Progress stop([&](const std::string& task, double fraction) {
+    EXPECT_EQ(task, "simplified surface");
+    ++heard;
+    if (fraction > 0.0 && fraction < 1.0) throw Stop{};
+  });
+  EXPECT_THROW(simplifyWithinBlocks(in, glm::dvec3(4.0), 1e-3, &stop), Stop);
+  EXPECT_GE(heard, 2);  // the start, then the percent that threw
+}
+
 TEST(MeshSimplify, ImpossibleParametersAreRefused) {
   const TriangleMesh none;
   EXPECT_THROW(simplifyWithinBlocks(none, glm::dvec3(0.0, 1.0, 1.0), 1.0), ValueError);

@@ -104,7 +104,7 @@ TEST(SceneRenderer, ChangesRedoOnlyWhatDependsOnThem) {
   EXPECT_GE(test::psnrOf(ref, surfaced.image), 35.0);
 }
 
-// Frames while the view moves: the surface simplified within blocks and placed uncut draws fewer
+// The viewer's frames before the final one: the surface simplified within blocks and placed uncut draws fewer
 // triangles and pieces, and stays close to the exact frame and to the reference.
 TEST(SceneRenderer, TheSimplifiedUncutSurfaceStaysCloseToTheExactOne) {
   test::gl();

@@ -79,7 +79,9 @@ TEST(ViewerQuality, WhenNothingFitsTheBestOfTheFastestIsKept) {
   q.record(last, 85.0);
   EXPECT_EQ(q.chooseInteractiveLevel(), last - 2);
   // A level that is much faster is taken, though it is not fast enough either.
-  for (int i = 0; i < 4; ++i) q.record(last, 50.0);
+  for (int i = 0; i < 2; ++i) q.record(last, 50.0);
+  ASSERT_GT(q.estimateMs(last), 60.0);
+  ASSERT_LT(q.estimateMs(last) * AdaptiveQuality::kNearFastest, 100.0);
   EXPECT_EQ(q.chooseInteractiveLevel(), last);
 }
 

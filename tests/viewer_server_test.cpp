@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include <atomic>
+#include <set>
 #include <string>
 
 #include "apps/viewer_protocol.h"
@@ -236,6 +237,46 @@ TEST(ViewerServer, TheFinalFrameIsTheEnginesImageLossless) {
   look.surfaceColor = r.surfaceColor;
   const RenderedFrame want = engine.render(view, look, Quality{});
   EXPECT_EQ(got, toRgba8(want.image, glm::vec3(0.0f)));
+}
+
+// Each client draws the isosurface it asked for once it is ready (the one it drew before until
+// then), whatever another client asks, and going back to a surface still kept shows it at once.
+TEST(ViewerServer, EachClientDrawsItsOwnIsosurface) {
+  TestServer s(1000.0);
+  Socket a(s.port(), "/ws?token=" + s.token()), b(s.port(), "/ws?token=" + s.token());
+  a.next();
+  b.next();
+  auto ask = [](Socket& c, uint64_t seq, double iso) {
+    json r = frameRequest(seq, false, 48);
+    r["surface"]["iso"] = iso;
+    c.send(r.dump());
+  };
+  // The final frame of request @p seq with isovalue @p iso; every frame before it draws one of @p drawn.
+  auto finalOf = [](Socket& c, uint64_t seq, double iso, const std::set<double>& drawn) {
+    for (int i = 0; i < 40; ++i) {
+      const json f = c.nextFrameOrError();
+      if (f["type"] != "frame") return f;
+      if (f["seq"] != seq) continue;
+      if (!f["iso"].is_null() && !drawn.count(f["iso"].get<double>())) return f;
+      if (f["quality"] == "final" && f["iso"] == iso) return f;
+    }
+    return json{{"type", "error"}, {"message", "no final frame"}};
+  };
+  ask(a, 1, 4.0);
+  EXPECT_EQ(finalOf(a, 1, 4.0, {4.0})["iso"], 4.0);
+  ask(b, 1, 6.0);
+  EXPECT_EQ(finalOf(b, 1, 6.0, {4.0, 6.0})["iso"], 6.0);
+  // a asks again with its own isovalue: 4 still, not b's newer 6.
+  ask(a, 2, 4.0);
+  json again;
+  do again = a.nextFrameOrError();  // (b's surface made the server refine a's last request again)
+  while (again["type"] == "frame" && again["seq"] != 2);
+  EXPECT_EQ(again["iso"], 4.0) << again.dump();
+  // a goes to 6 (kept) and back to 4 (kept): each shown from the first frame.
+  ask(a, 3, 6.0);
+  EXPECT_EQ(finalOf(a, 3, 6.0, {6.0})["iso"], 6.0);
+  ask(a, 4, 4.0);
+  EXPECT_EQ(finalOf(a, 4, 4.0, {4.0})["iso"], 4.0);
 }
 
 TEST(ViewerServer, InteractiveFramesUseLargerBricks) {

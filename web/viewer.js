@@ -161,7 +161,8 @@ async function onFrame(buffer) {
     seq: header.seq, quality: header.quality, level: header.level, levelText: header.levelText,
     width: header.width, height: header.height, bytes: buffer.byteLength, renderMs: header.renderMs,
     encodeMs: header.encodeMs, waitMs: header.waitMs, paintMs: painted - received,
-    upMs: sentAt === undefined ? null : header.requestEpochMs - (performance.timeOrigin + sentAt),
+    // (a frame the server made without a new request, refining or after a surface came, has no arrival)
+    upMs: sentAt === undefined || header.requestEpochMs === null ? null : header.requestEpochMs - (performance.timeOrigin + sentAt),
     downMs: performance.timeOrigin + received - header.sentEpochMs,
     latencyMs: sentAt === undefined ? null : painted - sentAt, paintedAt: painted,
   });
