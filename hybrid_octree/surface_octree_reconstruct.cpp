@@ -14,6 +14,7 @@
 #include "surface/dmc.h"
 #include "surface/flat_map.h"
 #include "volume/error.h"
+#include "volume/parallel.h"
 
 namespace hyb {
 
@@ -371,12 +372,15 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube, const Progress* progress)
   const size_t stage = std::max<size_t>(1, chunks / 8);  // progress: a later stage counts as this many chunks
   ProgressTask task(progress, "surface polygons", chunks + 3 * stage);
   std::vector<std::vector<OutPoly>> parts(chunks);
+  ParallelFailure failure;
 #pragma omp parallel for schedule(dynamic)
-  for (size_t c = 0; c < chunks; ++c) {
-    Poly pos, neg;
-    for (size_t k = c * per; k < std::min(mNodes.size(), (c + 1) * per); ++k) nodePolygons(mNodes[k], mDims, pos, neg, parts[c]);
-    task.advance();
-  }
+  for (size_t c = 0; c < chunks; ++c)
+    failure.run([&] {
+      Poly pos, neg;
+      for (size_t k = c * per; k < std::min(mNodes.size(), (c + 1) * per); ++k) nodePolygons(mNodes[k], mDims, pos, neg, parts[c]);
+      task.advance();
+    });
+  failure.rethrow();
   std::vector<OutPoly> polys;
   for (std::vector<OutPoly>& part : parts) std::move(part.begin(), part.end(), std::back_inserter(polys));
   task.advance(stage);

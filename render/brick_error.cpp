@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "volume/parallel.h"
+
 namespace hyb {
 
 namespace {
@@ -156,8 +158,10 @@ void BrickImageError::prefetch(const std::vector<std::pair<uint32_t, int>>& bric
   todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
   if (todo.size() < 2) return;  // not worth the threads; operator() measures it
   std::vector<double> errors(todo.size());
+  ParallelFailure failure;
 #pragma omp parallel for schedule(dynamic, 1)
-  for (size_t k = 0; k < todo.size(); ++k) errors[k] = measure(mOctree.nodes()[todo[k].first], todo[k].second);
+  for (size_t k = 0; k < todo.size(); ++k) failure.run([&] { errors[k] = measure(mOctree.nodes()[todo[k].first], todo[k].second); });
+  failure.rethrow();
   for (size_t k = 0; k < todo.size(); ++k) mMemo.emplace(brickKey(todo[k].first, todo[k].second), errors[k]);
 }
 

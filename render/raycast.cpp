@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include "volume/error.h"
+#include "volume/parallel.h"
 
 namespace hyb {
 
@@ -75,12 +76,13 @@ void tracePixels(const Volume& volume, const VolumeOctree& octree, const Transfe
   const glm::dvec4 cut = options.cut ? options.cut->keptSide(camera) : glm::dvec4(0, 0, 0, 1);
 
   uint64_t samples = 0, skipped = 0, crossings = 0;
+  ParallelFailure failure;  // a progress callback that stops the frame
 #pragma omp parallel reduction(+ : samples, skipped, crossings)
   {
     std::vector<Hit> hits;
 #pragma omp for schedule(dynamic, chunk)
     for (size_t i = 0; i < count; ++i) {
-      progress->advance();
+      if (!failure.run([&] { progress->advance(); })) continue;
       const glm::ivec2 px = pixel(i);
       const int x = px.x, y = px.y;
       glm::dvec3 o, d;
@@ -169,6 +171,7 @@ void tracePixels(const Volume& volume, const VolumeOctree& octree, const Transfe
       image.at(x, y) = glm::vec4(acc);
     }
   }
+  failure.rethrow();
   stats->samples += samples;
   stats->skippedLeaves += skipped;
   stats->surfaceHits += crossings;

@@ -25,6 +25,7 @@
 #include "render/shaders.h"
 #include "render/slab_polygons.h"
 #include "volume/error.h"
+#include "volume/parallel.h"
 
 namespace hyb {
 
@@ -299,14 +300,17 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
     }
   plan.uploaded = toPack.size();
   std::vector<PackedBrick> packed(toPack.size());
+  ParallelFailure failure;
 #pragma omp parallel for schedule(dynamic) if (toPack.size() > 1)
-  for (size_t k = 0; k < toPack.size(); ++k) {
-    const uint32_t i = toPack[k];
-    const Brick& b = selection.bricks[size_t(brickOf[i])];
-    const std::vector<glm::vec4> texels = brickTexels(volume, octree, b);
-    packed[k] = packBrick(texels, options.texelBits);
-    packed[k].brick.ranges = texelRanges(texels, octree.lattice(octree.nodes()[i], b.p).dims);
-  }
+  for (size_t k = 0; k < toPack.size(); ++k)
+    failure.run([&] {
+      const uint32_t i = toPack[k];
+      const Brick& b = selection.bricks[size_t(brickOf[i])];
+      const std::vector<glm::vec4> texels = brickTexels(volume, octree, b);
+      packed[k] = packBrick(texels, options.texelBits);
+      packed[k].brick.ranges = texelRanges(texels, octree.lattice(octree.nodes()[i], b.p).dims);
+    });
+  failure.rethrow();
   plan.draws.reserve(order.size());
   for (uint32_t i : order) {
     const Brick& b = selection.bricks[size_t(brickOf[i])];

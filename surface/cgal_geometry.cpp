@@ -20,6 +20,7 @@
 #include <map>
 
 #include "volume/error.h"
+#include "volume/parallel.h"
 
 namespace hyb {
 
@@ -142,16 +143,19 @@ class OneSidedHausdorff {
     double upper = lower;
     const long long count = (long long)source.triangles.size();
     const int chunk = int(std::clamp(count / 64, 1LL, 256LL));  // neighbours together (the tree's cache), yet all threads busy
+    ParallelFailure failure;  // a progress callback that stops the work, or CGAL's exceptions
 #pragma omp parallel for schedule(dynamic, chunk) reduction(max : lower, upper)
-    for (long long f = 0; f < count; ++f) {
-      progress->advance();
-      const glm::uvec3 t = source.triangles[size_t(f)];
-      std::array<double, 2> b{std::max(lower, bar), upper};
-      settle({toPoint(source.vertices[t.x]), toPoint(source.vertices[t.y]), toPoint(source.vertices[t.z])},
-             {corners[t.x], corners[t.y], corners[t.z]}, &b);
-      lower = std::max(lower, b[0]);
-      upper = std::max(upper, b[1]);
-    }
+    for (long long f = 0; f < count; ++f)
+      failure.run([&] {
+        progress->advance();
+        const glm::uvec3 t = source.triangles[size_t(f)];
+        std::array<double, 2> b{std::max(lower, bar), upper};
+        settle({toPoint(source.vertices[t.x]), toPoint(source.vertices[t.y]), toPoint(source.vertices[t.z])},
+               {corners[t.x], corners[t.y], corners[t.z]}, &b);
+        lower = std::max(lower, b[0]);
+        upper = std::max(upper, b[1]);
+      });
+    failure.rethrow();
     return {lower, std::max(upper, lower)};
   }
 

@@ -4,8 +4,6 @@
 #include <meshoptimizer.h>
 
 #include <algorithm>
-#include <atomic>
-#include <exception>
 #include <iterator>
 #include <cmath>
 #include <cstdint>
@@ -14,6 +12,7 @@
 
 #include "surface/mesh_ops.h"
 #include "volume/error.h"
+#include "volume/parallel.h"
 
 namespace hyb {
 
@@ -150,23 +149,15 @@ TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& bl
         if (redo[b])
           for (const auto& [edge, count] : openEdges(input[b])) fixed[b].insert(fixed[b].end(), {edge.first, edge.second});
     for (std::vector<uint32_t>& f : fixed) sortUnique(&f);
-    // An exception cannot leave an OpenMP loop (the process would end): the first is kept, the
-    // other blocks skipped, and it is thrown after the loop.
-    std::exception_ptr failure;
-    std::atomic<bool> failed{false};
+    ParallelFailure failure;
 #pragma omp parallel for schedule(dynamic)
     for (size_t b = 0; b < blocks; ++b)
-      if (redo[b] && !failed.load(std::memory_order_relaxed)) {
-        try {
+      if (redo[b])
+        failure.run([&] {
           kept[b] = round < 5 ? simplifyBlock(mesh, input[b], maxErrorMm, fixed[b]) : input[b];
           if (round == 0) task.advance();
-        } catch (...) {
-#pragma omp critical(hyb_simplify_failure)
-          if (!failure) failure = std::current_exception();
-          failed.store(true, std::memory_order_relaxed);
-        }
-      }
-    if (failure) std::rethrow_exception(failure);
+        });
+    failure.rethrow();
     std::vector<std::pair<Edge, uint32_t>> edges;  // each edge of the result, with its block
     for (size_t b = 0; b < blocks; ++b)
       for (const glm::uvec3& t : kept[b])

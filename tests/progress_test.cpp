@@ -3,19 +3,51 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
 #include <sstream>
+#include <stdexcept>
 #include <thread>
 #include <vector>
 
 #include "apps/progress_display.h"
+#include "volume/parallel.h"
 
 namespace hyb {
 namespace {
 
 using ::testing::HasSubstr;
+
+// The first exception of an OpenMP loop's iterations comes out of it after the loop; the
+// iterations after it are skipped, those before it done.
+TEST(ParallelFailure, TheFirstExceptionOfALoopIsThrownAfterIt) {
+  constexpr int kCount = 10000, kThrowAt = 100;
+  std::vector<char> done(kCount, 0);
+  ParallelFailure failure;
+#pragma omp parallel for schedule(static, 1)
+  for (int i = 0; i < kCount; ++i)
+    failure.run([&] {
+      if (i == kThrowAt) throw std::out_of_range("iteration 100");
+      done[size_t(i)] = 1;
+    });
+  try {
+    failure.rethrow();
+    ADD_FAILURE() << "nothing thrown";
+  } catch (const std::out_of_range& e) {
+    EXPECT_STREQ(e.what(), "iteration 100");
+  }
+  EXPECT_EQ(done[kThrowAt], 0);
+  EXPECT_LT(std::count(done.begin(), done.end(), 1), kCount - 1);  // some skipped
+  // Without a failure, every iteration runs and nothing is thrown.
+  ParallelFailure none;
+  int ran = 0;
+#pragma omp parallel for reduction(+ : ran)
+  for (int i = 0; i < kCount; ++i) EXPECT_TRUE(none.run([&] { ++ran; }));
+  EXPECT_NO_THROW(none.rethrow());
+  EXPECT_EQ(ran, kCount);
+}
 
 TEST(Progress, TasksReportWholePercentsInOrderFromAnyThread) {
   std::vector<std::pair<std::string, double>> seen;

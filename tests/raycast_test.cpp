@@ -117,6 +117,24 @@ TEST(Raycast, EmptySpaceSkippingDoesNotChangeTheImage) {
   EXPECT_LT(with.samples, without.samples / 2);
 }
 
+// A progress callback that stops the frame part way is heard as an exception from raycast(),
+// though the rays are traced on OpenMP's threads; the next frame is as before.
+TEST(Raycast, AProgressCallbackThatThrowsStopsTheFrame) {
+  const Volume v = test::sphereVolume({40, 36, 30}, 11.0);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {12.0f, {1, 1, 1}, 0.6f}}, "sphere");
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 35, 20, 30, false, 48, 40);
+  RaycastOptions o;
+  const Image before = raycast(v, t, tf, cam, o);
+  const Progress stop([](const std::string&, double fraction) {
+    if (fraction >= 0.5 && fraction < 1.0) throw std::runtime_error("stopped");
+  });
+  o.progress = &stop;
+  EXPECT_THROW(raycast(v, t, tf, cam, o), std::runtime_error);
+  o.progress = nullptr;
+  EXPECT_EQ(raycast(v, t, tf, cam, o).pixels, before.pixels);
+}
+
 TEST(Raycast, ProgressiveRefinementEndsWithTheExactImage) {
   // Levoy's progressive refinement with tolerance 0: the first level traces the grid 2^(L−1)
   // pixels apart (and the last row and column), each level traces more, the last every pixel, and
