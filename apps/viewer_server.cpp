@@ -546,6 +546,7 @@ struct ServerState {
                    {"bricks", st.slices.bricks},
                    {"maxError", frame.selection.maxError},
                    {"iso", iso ? json(*iso) : json(nullptr)},
+                   {"surfaceReady", iso == r.iso},  // false: the surface asked for is still being built
                    {"camera", cameraToJson(r.camera)}};
     if (final && iso == r.iso) {  // (while the surface asked for is built, the frame is not the command's)
       header["command"] = renderCommand(slot.path, slot.series, r, "view.tf");

@@ -258,6 +258,7 @@ TEST(ViewerServer, EachClientDrawsItsOwnIsosurface) {
       if (f["type"] != "frame") return f;
       if (f["seq"] != seq) continue;
       if (!f["iso"].is_null() && !drawn.count(f["iso"].get<double>())) return f;
+      EXPECT_EQ(f["surfaceReady"], f["iso"] == iso) << f.dump();
       if (f["quality"] == "final" && f["iso"] == iso) return f;
     }
     return json{{"type", "error"}, {"message", "no final frame"}};

@@ -169,7 +169,7 @@ async function onFrame(buffer) {
   if (state.metrics.length > 5000) state.metrics.shift();
   state.displayed = header;
   state.displayedBlob = blob;
-  setState(header.quality);
+  setState(header.quality === 'final' && header.surfaceReady === false ? 'final without the surface (building)' : header.quality);
   $('numbers').textContent = `${(header.renderMs + header.encodeMs).toFixed(0)} ms · ${(header.textureBytes / 1048576).toFixed(1)} MB · ` +
     `max error ${header.maxError.toFixed(1)} · ${header.levelText}`;
   if (header.quality === 'final') {
@@ -198,6 +198,8 @@ function showError(text) {
 
 function onSurface(m) {
   state.surfaceStates[m.iso] = m.state;
+  // Every page of the volume hears of every build; this one shows its own isovalue's.
+  if (m.iso !== Number($('iso').value)) return;
   $('surface-state').textContent = m.state === 'building' ? `building ${m.iso}: ${m.task || 'surface'} ${Math.round(100 * m.progress)} %`
     : m.state === 'ready' ? `${m.iso} ready` : `${m.iso} failed`;
 }
@@ -279,8 +281,21 @@ function buildVoiSliders(b) {
       label.htmlFor = `voi-${kind}-${a}`;
       const input = document.createElement('input');
       Object.assign(input, { type: 'range', id: `voi-${kind}-${a}`, min: b.min[a], max: b.max[a], step: 0.5, value });
-      input.addEventListener('input', () => { if ($('voi-on').checked) burst(); });
-      row.append(label, input);
+      const shown = document.createElement('output');
+      const show = () => { shown.textContent = `${Number(input.value).toFixed(0)} mm`; };
+      input.addEventListener('input', () => {
+        // A minimum past its maximum pushes it along (and the other way).
+        const other = $(`voi-${kind === 'min' ? 'max' : 'min'}-${a}`);
+        if (other && (kind === 'min' ? Number(input.value) > Number(other.value) : Number(input.value) < Number(other.value))) {
+          other.value = input.value;
+          other.dispatchEvent(new Event('voi-moved'));
+        }
+        show();
+        if ($('voi-on').checked) burst();
+      });
+      input.addEventListener('voi-moved', show);
+      show();
+      row.append(label, input, shown);
       box.append(row);
     }
   }
@@ -371,19 +386,27 @@ function drawTfEditor() {
     tfCtx.fillRect((i / counts.length) * w, h - 4 - bh, w / counts.length + 0.5, bh);
   });
   const points = currentPoints();
+  // The points' own opacities (what a click sets); dashed, as scaled by the opacity slider.
+  const curve = (scale) => {
+    tfCtx.beginPath();
+    points.forEach(([v, , , , a], i) => {
+      if (i === 0) tfCtx.moveTo(tfX(v), tfY(Math.min(1, a * scale)));
+      else tfCtx.lineTo(tfX(v), tfY(Math.min(1, a * scale)));
+    });
+    tfCtx.stroke();
+  };
   tfCtx.strokeStyle = '#e8c37a';
   tfCtx.lineWidth = 1.5;
-  tfCtx.beginPath();
-  points.forEach(([v, , , , a], i) => {
-    const scaled = Math.min(1, a * state.opacity);
-    if (i === 0) tfCtx.moveTo(tfX(v), tfY(scaled));
-    else tfCtx.lineTo(tfX(v), tfY(scaled));
-  });
-  tfCtx.stroke();
+  if (state.opacity !== 1) {
+    tfCtx.setLineDash([3, 3]);
+    curve(state.opacity);
+    tfCtx.setLineDash([]);
+  }
+  curve(1);
   for (const [v, r, g, b, a] of points) {
     tfCtx.fillStyle = `rgb(${r * 255}, ${g * 255}, ${b * 255})`;
     tfCtx.beginPath();
-    tfCtx.arc(tfX(v), tfY(Math.min(1, a * state.opacity)), 4, 0, 2 * Math.PI);
+    tfCtx.arc(tfX(v), tfY(a), 4, 0, 2 * Math.PI);
     tfCtx.fill();
     tfCtx.strokeStyle = '#000';
     tfCtx.stroke();
@@ -408,7 +431,7 @@ function pointerInTf(e) {
 function nearestPoint(x, y) {
   let best = -1, bestD = 9;
   currentPoints().forEach(([v, , , , a], i) => {
-    const d = Math.hypot(tfX(v) - x, tfY(Math.min(1, a * state.opacity)) - y);
+    const d = Math.hypot(tfX(v) - x, tfY(a) - y);
     if (d < bestD) { best = i; bestD = d; }
   });
   return best;
@@ -425,7 +448,7 @@ tfCanvas.addEventListener('pointermove', (e) => {
   const points = currentPoints();
   const lo = tfDrag > 0 ? points[tfDrag - 1][0] : -Infinity, hi = tfDrag + 1 < points.length ? points[tfDrag + 1][0] : Infinity;
   points[tfDrag][0] = Math.min(hi, Math.max(lo, tfValue(x)));
-  points[tfDrag][4] = Math.min(1, tfAlpha(y) / Math.max(state.opacity, 1e-6));
+  points[tfDrag][4] = tfAlpha(y);
   editPoints(points);
   request(true);
 });
@@ -438,7 +461,7 @@ tfCanvas.addEventListener('dblclick', (e) => {
   let i = points.findIndex((p) => p[0] > v);
   if (i < 0) i = points.length;
   const near = points[Math.min(i, points.length - 1)];
-  points.splice(i, 0, [v, near[1], near[2], near[3], Math.min(1, tfAlpha(y) / Math.max(state.opacity, 1e-6))]);
+  points.splice(i, 0, [v, near[1], near[2], near[3], tfAlpha(y)]);
   if (points.length <= 64) { editPoints(points); request(false); }
 });
 tfCanvas.addEventListener('contextmenu', (e) => {
@@ -473,13 +496,25 @@ $('opacity').addEventListener('input', () => {
 $('size').addEventListener('change', () => {
   const s = imageSize();
   canvas.width = canvas.height = s;
-  canvas.style.width = canvas.style.height = `${s}px`;
+  // Shown smaller than its pixels when the window is (the panel stays in view).
+  canvas.style.width = canvas.style.height = `min(${s}px, calc(100vw - 354px), calc(100vh - 24px))`;
   request(false);
 });
 $('surface-on').addEventListener('change', () => request(false));
 $('iso').addEventListener('input', () => { $('iso-number').value = $('iso').value; });
 $('iso').addEventListener('change', () => request(false));
-$('iso-number').addEventListener('change', () => { $('iso').value = $('iso-number').value; request(false); });
+$('iso-number').addEventListener('change', () => {
+  const typed = $('iso-number').value, v = Number(typed);
+  if (typed.trim() === '' || !Number.isFinite(v)) {
+    showError(`isovalue: '${typed}' is not a number`);
+    $('iso-number').value = $('iso').value;  // the surface shown stays
+    return;
+  }
+  $('iso').value = v;  // clamped to the data's range and rounded to the slider's step
+  if (Number($('iso').value) !== v) showError(`isovalue ${typed}: the data's values are ${$('iso').min} to ${$('iso').max} in steps of 1: using ${$('iso').value}`);
+  $('iso-number').value = $('iso').value;
+  request(false);
+});
 $('surface-color').addEventListener('input', () => burst());
 $('surface-alpha').addEventListener('input', () => burst());
 $('cut-on').addEventListener('change', () => request(false));
@@ -526,6 +561,7 @@ window.hybViewer = {
   metrics: () => state.metrics.slice(),
   request,
   lastFinal: () => state.lastFinal && state.lastFinal.header,
+  tfPoints: () => currentPoints(),
   // What the canvas shows now: the header of the frame painted last, the canvas as PNG and the
   // frame as it came, decoded at its own size, as PNG (base64).
   async snapshot() {

@@ -113,6 +113,37 @@ try {
   check(psnr >= 40, `the final frame equals hybrid-octree render of the same command (PSNR ${psnr} dB, at least 40)`);
   check((await finalCount()) >= 2, 'a final frame follows each settled change');
 
+  // The controls refuse what they cannot use and say so.
+  const form = await page.evaluate(() => {
+    const $ = (id) => document.getElementById(id);
+    const out = {};
+    const typeIso = (text) => { $('iso-number').value = text; $('iso-number').dispatchEvent(new Event('change')); };
+    typeIso('');  // what a number box holds after letters are typed
+    out.emptyKept = $('iso').value === '300' && $('iso-number').value === '300';
+    out.emptyMessage = $('message').textContent;
+    typeIso('99999');
+    out.clamped = $('iso-number').value === $('iso').max && $('iso').value === $('iso').max;
+    out.clampMessage = $('message').textContent;
+    // A volume-of-interest minimum moved past its maximum pushes it along.
+    const min = $('voi-min-0'), max = $('voi-max-0');
+    min.value = Number(max.value) + 20;
+    min.dispatchEvent(new Event('input'));
+    out.voiOrdered = Number(max.value) === Number(min.value);
+    return out;
+  });
+  check(form.emptyKept && form.emptyMessage.includes('is not a number'), `an isovalue that is not a number is refused and the old one kept (${form.emptyMessage})`);
+  check(form.clamped && form.clampMessage.includes('using'), `an isovalue beyond the data is clamped and the box shows it (${form.clampMessage})`);
+  check(form.voiOrdered, 'the volume of interest keeps its minimum below its maximum');
+  // The transfer-function editor puts a point where it is double-clicked, whatever the opacity scale.
+  await page.evaluate(() => { const o = document.getElementById('opacity'); o.value = 0.3; o.dispatchEvent(new Event('input')); });
+  const tfBox = await (await page.$('#tf-editor')).boundingBox();
+  const pointsBefore = (await page.evaluate(() => window.hybViewer.tfPoints())).length;
+  await page.mouse.click(tfBox.x + tfBox.width * 0.37, tfBox.y + tfBox.height * 0.25, { clickCount: 2 });
+  const added = (await page.evaluate(() => window.hybViewer.tfPoints())).map((p) => p[4]);
+  const expected = (110 - 4 - 0.25 * 110) / (110 - 8);  // the editor's y of that click, as an opacity
+  check(added.length === pointsBefore + 1 && added.some((a) => Math.abs(a - expected) < 0.02),
+    `a double-click adds a point at the clicked opacity with the opacity scale at 0.3 (${added.map((a) => a.toFixed(2)).join(' ')}; ${expected.toFixed(2)} expected)`);
+
   // Another browser context without the cookie: the page is refused.
   const other = await browser.createBrowserContext();
   const stranger = await other.newPage();
