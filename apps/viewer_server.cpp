@@ -571,6 +571,11 @@ struct ServerState {
       const bool stored = scene.surface && scene.surface->isovalue() == e.iso;
       const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, scene.octree, e.iso);
       TriangleMesh mesh = fineMeshToTriangles(so.reconstruct(kMaxDim), v.spacing());
+      if (mesh.triangles.empty()) {
+        std::ostringstream s;
+        s << "iso: no surface at " << e.iso << " (the data's values are " << v.minValue() << " to " << v.maxValue() << ")";
+        throw ValueError(s.str());
+      }
       toPatientSpace(v.frame(), &mesh);
       const std::filesystem::path tmp =
           std::filesystem::temp_directory_path() / ("hybrid-octree-view-" + makeToken() + "." + e.format);
@@ -830,10 +835,12 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
     }
     auto self = shared_from_this();
     net::any_io_executor executor = mStream.get_executor();
-    mServer.queueExport(scene, float(value), format, [self, executor, version, keepAlive, format](std::string body, std::string error) {
-      net::post(executor, [self, body = std::move(body), error = std::move(error), version, keepAlive, format]() {
+    std::ostringstream name;  // the file's name says its isovalue
+    name << "surface-" << float(value) << "." << format;
+    mServer.queueExport(scene, float(value), format, [self, executor, version, keepAlive, file = name.str()](std::string body, std::string error) {
+      net::post(executor, [self, body = std::move(body), error = std::move(error), version, keepAlive, file]() {
         if (!error.empty()) self->respond(http::status::bad_request, "text/plain", "400: " + error + "\n", keepAlive, version);
-        else self->respond(http::status::ok, "application/octet-stream", body, keepAlive, version, false, false, "surface." + format);
+        else self->respond(http::status::ok, "application/octet-stream", body, keepAlive, version, false, false, file);
       });
     });
   }

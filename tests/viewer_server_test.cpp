@@ -63,7 +63,7 @@ void limitReads(tcp::socket& socket) {
 
 struct Reply {
   unsigned status = 0;
-  std::string body, cookie;
+  std::string body, cookie, disposition;
 };
 
 Reply httpRequest(uint16_t port, const std::string& target, const std::string& cookie = "", http::verb verb = http::verb::get) {
@@ -78,8 +78,9 @@ Reply httpRequest(uint16_t port, const std::string& target, const std::string& c
   beast::flat_buffer buffer;
   http::response<http::string_body> res;
   http::read(socket, buffer, res);
-  Reply r{res.result_int(), res.body(), ""};
+  Reply r{res.result_int(), res.body(), "", ""};
   if (res.count(http::field::set_cookie)) r.cookie = std::string(res[http::field::set_cookie]);
+  if (res.count(http::field::content_disposition)) r.disposition = std::string(res[http::field::content_disposition]);
   return r;
 }
 
@@ -151,6 +152,11 @@ TEST(ViewerServer, EveryRequestNeedsTheTokenAndOnlyAssetsAreServed) {
   EXPECT_EQ(mesh.status, 200u);
   EXPECT_EQ(mesh.body.rfind("ply", 0), 0u);
   EXPECT_THAT(mesh.body, HasSubstr("SPACE=LPS"));
+  EXPECT_THAT(mesh.disposition, HasSubstr("filename=\"surface-4.ply\""));
+  // An isovalue beyond the data has no surface: said, not an empty file.
+  const Reply none = httpRequest(port, "/api/mesh?iso=1e9&format=stl", cookie);
+  EXPECT_EQ(none.status, 400u);
+  EXPECT_THAT(none.body, HasSubstr("iso: no surface at 1e+09 (the data's values are"));
   EXPECT_EQ(httpRequest(port, "/api/mesh?iso=abc&format=ply", cookie).status, 400u);
   EXPECT_EQ(httpRequest(port, "/api/mesh?iso=4&format=exe", cookie).status, 400u);
   EXPECT_EQ(httpRequest(port, "/api/mesh?iso=4&format=ply").status, 403u);
