@@ -169,6 +169,7 @@ async function onFrame(buffer) {
   if (state.metrics.length > 5000) state.metrics.shift();
   state.displayed = header;
   state.displayedBlob = blob;
+  drawMarker(header.camera);
   setState(header.quality === 'final' && header.surfaceReady === false ? 'final without the surface (building)' : header.quality);
   $('numbers').textContent = `${(header.renderMs + header.encodeMs).toFixed(0)} ms · ${(header.textureBytes / 1048576).toFixed(1)} MB · ` +
     `max error ${header.maxError.toFixed(1)} · ${header.levelText}`;
@@ -178,6 +179,43 @@ async function onFrame(buffer) {
     const tfLink = $('save-tf');
     tfLink.hidden = !header.tfText;
     if (header.tfText) tfLink.href = URL.createObjectURL(new Blob([header.tfText], { type: 'text/plain' }));
+  }
+}
+
+// ---- the orientation marker: the patient's axes as the painted frame's camera shows them -----
+// (as `hybrid-octree render --marker on` draws it: L/R red, P/A green, S/I blue, far ends dimmed)
+function markerLabels(camera) {
+  const f = unit(sub(camera.center, camera.eye));
+  const r = unit(cross(f, camera.up));
+  const u = cross(r, f);
+  const half = 84 / 2, reach = 28;
+  const axes = [[[1, 0, 0], 'L', 'R', [242, 77, 64]], [[0, 1, 0], 'P', 'A', [89, 217, 89]], [[0, 0, 1], 'S', 'I', [89, 140, 255]]];
+  const labels = [];
+  for (const [axis, plus, minus, colour] of axes)
+    for (const [sign, letter] of [[1, plus], [-1, minus]]) {
+      const a = mul(axis, sign);
+      labels.push({ letter, colour, x: half + reach * dot(a, r), y: half - reach * dot(a, u), depth: dot(a, f) });
+    }
+  return labels;
+}
+
+function drawMarker(camera) {
+  const g = $('marker').getContext('2d');
+  g.clearRect(0, 0, 84, 84);
+  g.font = 'bold 12px system-ui, sans-serif';
+  g.textAlign = 'center';
+  g.textBaseline = 'middle';
+  for (const l of markerLabels(camera).sort((a, b) => b.depth - a.depth)) {  // far ends first
+    const shade = l.depth > 0 ? 0.55 : 1;
+    const rgb = `rgb(${l.colour.map((c) => Math.round(c * shade)).join(',')})`;
+    g.strokeStyle = rgb;
+    g.lineWidth = 2;
+    g.beginPath();
+    g.moveTo(42, 42);
+    g.lineTo(42 + 0.72 * (l.x - 42), 42 + 0.72 * (l.y - 42));
+    g.stroke();
+    g.fillStyle = rgb;
+    g.fillText(l.letter, l.x, l.y);
   }
 }
 
@@ -562,6 +600,7 @@ window.hybViewer = {
   request,
   lastFinal: () => state.lastFinal && state.lastFinal.header,
   tfPoints: () => currentPoints(),
+  marker: () => state.displayed && markerLabels(state.displayed.camera),
   // What the canvas shows now: the header of the frame painted last, the canvas as PNG and the
   // frame as it came, decoded at its own size, as PNG (base64).
   async snapshot() {

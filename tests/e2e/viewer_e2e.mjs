@@ -63,6 +63,11 @@ try {
   const finalCount = () => page.evaluate(() => window.hybViewer.metrics().filter((m) => m.quality === 'final').length);
   await page.waitForFunction(() => window.hybViewer && window.hybViewer.lastFinal(), { timeout: 120000 });
   check(true, 'a first final frame arrives');
+  // The first view is anterior: the marker puts the patient's left on the right, superior up,
+  // anterior towards the viewer (as DICOM's LPS and `render --marker on` have it).
+  const marker = Object.fromEntries((await page.evaluate(() => window.hybViewer.marker())).map((l) => [l.letter, l]));
+  check(marker.L.x > 60 && Math.abs(marker.L.y - 42) < 1 && marker.S.y < 20 && marker.A.depth < -0.99,
+    `the orientation marker of the anterior view (L at ${marker.L.x.toFixed(0)},${marker.L.y.toFixed(0)}, S at y ${marker.S.y.toFixed(0)}, A's depth ${marker.A.depth.toFixed(2)})`);
 
   // Orbit: a drag across the canvas.
   const box = await (await page.$('#view')).boundingBox();
@@ -113,6 +118,8 @@ try {
   check(psnr >= 40, `the final frame equals hybrid-octree render of the same command (PSNR ${psnr} dB, at least 40)`);
   check((await finalCount()) >= 2, 'a final frame follows each settled change');
 
+  if (screenshot) await page.screenshot({ path: screenshot });
+
   // The controls refuse what they cannot use and say so.
   const form = await page.evaluate(() => {
     const $ = (id) => document.getElementById(id);
@@ -151,7 +158,6 @@ try {
   check(refused.status() === 403, 'a browser without the token gets 403');
   await other.close();
 
-  if (screenshot) await page.screenshot({ path: screenshot });
   check(consoleErrors.length === 0, `the console shows no errors${consoleErrors.length ? ': ' + consoleErrors.join(' | ') : ''}`);
 } catch (e) {
   console.log(`FAIL ${e.message}`);
