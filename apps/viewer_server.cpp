@@ -571,11 +571,8 @@ struct ServerState {
       const bool stored = scene.surface && scene.surface->isovalue() == e.iso;
       const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, scene.octree, e.iso);
       TriangleMesh mesh = fineMeshToTriangles(so.reconstruct(kMaxDim), v.spacing());
-      if (mesh.triangles.empty()) {
-        std::ostringstream s;
-        s << "iso: no surface at " << e.iso << " (the data's values are " << v.minValue() << " to " << v.maxValue() << ")";
-        throw ValueError(s.str());
-      }
+      if (mesh.triangles.empty())
+        HYB_THROW(ValueError, "iso: no surface at ", e.iso, " (the data's values are ", v.minValue(), " to ", v.maxValue(), ")");
       toPatientSpace(v.frame(), &mesh);
       const std::filesystem::path tmp =
           std::filesystem::temp_directory_path() / ("hybrid-octree-view-" + makeToken() + "." + e.format);

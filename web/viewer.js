@@ -189,7 +189,7 @@ function markerLabels(camera) {
   const f = unit(sub(camera.center, camera.eye));
   const r = unit(cross(f, camera.up));
   const u = cross(r, f);
-  const half = 84 / 2, reach = 28;
+  const half = $('marker').width / 2, reach = half * 2 / 3;
   const axes = [[[1, 0, 0], 'L', 'R', [242, 77, 64]], [[0, 1, 0], 'P', 'A', [89, 217, 89]], [[0, 0, 1], 'S', 'I', [89, 140, 255]]];
   const labels = [];
   for (const [axis, plus, minus, colour] of axes)
@@ -201,8 +201,8 @@ function markerLabels(camera) {
 }
 
 function drawMarker(camera) {
-  const g = $('marker').getContext('2d');
-  g.clearRect(0, 0, 84, 84);
+  const marker = $('marker'), g = marker.getContext('2d'), half = marker.width / 2;
+  g.clearRect(0, 0, marker.width, marker.height);
   g.font = 'bold 12px system-ui, sans-serif';
   g.textAlign = 'center';
   g.textBaseline = 'middle';
@@ -212,8 +212,8 @@ function drawMarker(camera) {
     g.strokeStyle = rgb;
     g.lineWidth = 2;
     g.beginPath();
-    g.moveTo(42, 42);
-    g.lineTo(42 + 0.72 * (l.x - 42), 42 + 0.72 * (l.y - 42));
+    g.moveTo(half, half);
+    g.lineTo(half + 0.72 * (l.x - half), half + 0.72 * (l.y - half));
     g.stroke();
     g.fillStyle = rgb;
     g.fillText(l.letter, l.x, l.y);
@@ -535,8 +535,7 @@ $('opacity').addEventListener('input', () => {
 $('size').addEventListener('change', () => {
   const s = imageSize();
   canvas.width = canvas.height = s;
-  // Shown smaller than its pixels when the window is (the panel stays in view).
-  canvas.style.width = canvas.style.height = `min(${s}px, calc(100vw - 354px), calc(100vh - 24px))`;
+  canvas.style.setProperty('--size', `${s}px`);  // its shown size (viewer.css)
   request(false);
 });
 $('surface-on').addEventListener('change', () => request(false));
