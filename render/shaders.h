@@ -140,7 +140,9 @@ void main() {
       if (r < vSlab.x || r >= vSlab.y) discard;
     }
 #endif
-    float shade = 0.25 + 0.75 * abs(dot(normalize(vNormal), rayDirection()));
+    // Vertex normals on either side of a thin plate can cancel inside a triangle: unshaded there.
+    float nn = dot(vNormal, vNormal);
+    float shade = nn > 0.0 ? 0.25 + 0.75 * abs(dot(vNormal, rayDirection())) * inversesqrt(nn) : 1.0;
     fragColor = vec4(surfaceColor.rgb * shade * surfaceColor.a, surfaceColor.a);
     return;
   }
@@ -220,7 +222,8 @@ uniform int ortho;
 uniform vec3 color;
 void main() {
   vec3 dir = ortho == 1 ? forward : normalize(vWorld - eye);
-  fragColor = vec4(color * (0.25 + 0.75 * abs(dot(normalize(vNormal), dir))), 1.0);
+  float nn = dot(vNormal, vNormal);  // vertex normals may cancel inside a triangle: unshaded there
+  fragColor = vec4(color * (nn > 0.0 ? 0.25 + 0.75 * abs(dot(vNormal, dir)) * inversesqrt(nn) : 1.0), 1.0);
 }
 )";
 

@@ -5,6 +5,7 @@
 #include <limits>
 #include <numeric>
 
+#include "surface/mesh_ops.h"
 #include "volume/error.h"
 
 namespace hyb {
@@ -162,26 +163,57 @@ void SlabPolygonList::emitTriangle(uint32_t triangle, int32_t slab, bool clip, s
 }
 
 // The convex planar piece in mPiece cut to slab [slab·Δ, (slab+1)·Δ) (Sutherland and Hodgman, two
-// parallel planes: it stays convex), normals interpolated along the cut edges, and fanned.
+// parallel planes: it stays convex), normals interpolated along the cut edges, and triangulated
+// without a flat triangle (flatTriangle: llvmpipe draws those as NaN colours, black specks). So
+// distances below the float resolution of the coordinates count as none: a vertex that near a
+// plane lies on it (kept, no intersection beside it), vertices that near the previous one are
+// merged, and a piece with collinear vertices (the T-junctions of the Surface Octree's loops) is
+// fanned from its centroid, not from a corner whose edges hold them.
 void SlabPolygonList::emitClipped(int32_t slab, std::vector<float>* stream) {
+  double scale = 0.0;
+  for (const auto& [p, n] : mPiece) scale = std::max({scale, std::abs(p.x), std::abs(p.y), std::abs(p.z)});
+  const double eps = floatResolutionMm(scale);
   const glm::dvec3 f = mDepth.forward;
   const double lo = double(slab) * mDelta, hi = double(slab + 1) * mDelta;
   for (const auto& [sign, bound] : {std::pair{1.0, lo}, std::pair{-1.0, -hi}}) {  // depth ≥ lo, then −depth ≥ −hi
+    auto side = [&](const glm::dvec3& p) {
+      const double d = sign * glm::dot(f, p) - bound;
+      return std::abs(d) <= eps ? 0.0 : d;
+    };
     mKept.clear();
     for (size_t v = 0; v < mPiece.size(); ++v) {
       const auto& [p, np] = mPiece[v];
       const auto& [q, nq] = mPiece[(v + 1) % mPiece.size()];
-      const double dp = sign * glm::dot(f, p) - bound, dq = sign * glm::dot(f, q) - bound;
+      const double dp = side(p), dq = side(q);
       if (dp >= 0) mKept.push_back(mPiece[v]);
-      if ((dp >= 0) != (dq >= 0)) {
+      if ((dp > 0 && dq < 0) || (dp < 0 && dq > 0)) {
         const double t = dp / (dp - dq);
         mKept.emplace_back(p + (q - p) * t, np + (nq - np) * float(t));
       }
     }
     mPiece.swap(mKept);
   }
-  for (size_t v = 1; v + 1 < mPiece.size(); ++v)
-    for (const auto& [p, n] : {mPiece[0], mPiece[v], mPiece[v + 1]}) putVertex(stream, glm::vec3(p), n, 1.0f, -1e30f, 1e30f);
+  mKept.clear();
+  for (const auto& vertex : mPiece)
+    if (mKept.empty() || glm::length(vertex.first - mKept.back().first) > eps) mKept.push_back(vertex);
+  while (mKept.size() > 1 && glm::length(mKept.back().first - mKept.front().first) <= eps) mKept.pop_back();
+  mPiece.swap(mKept);
+  const size_t n = mPiece.size();
+  size_t corners = 0;
+  for (size_t v = 0; v < n; ++v) corners += !flatTriangle(mPiece[(v + n - 1) % n].first, mPiece[v].first, mPiece[(v + 1) % n].first);
+  if (corners < 3) return;  // a segment: it covers nothing
+  auto triangle = [&](const std::pair<glm::dvec3, glm::vec3>& a, const std::pair<glm::dvec3, glm::vec3>& b, const std::pair<glm::dvec3, glm::vec3>& c) {
+    for (const auto& [p, nrm] : {a, b, c}) putVertex(stream, glm::vec3(p), nrm, 1.0f, -1e30f, 1e30f);
+  };
+  if (corners == n) {
+    for (size_t v = 1; v + 1 < n; ++v) triangle(mPiece[0], mPiece[v], mPiece[v + 1]);
+    return;
+  }
+  glm::dvec3 centre(0.0);
+  glm::vec3 normal(0.0f);
+  for (const auto& [p, nrm] : mPiece) centre += p, normal += nrm;
+  const std::pair<glm::dvec3, glm::vec3> mid{centre / double(n), normal / float(n)};
+  for (size_t v = 0; v < n; ++v) triangle(mid, mPiece[v], mPiece[(v + 1) % n]);
 }
 
 double distanceToTriangle(const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {

@@ -7,6 +7,13 @@
 
 namespace hyb {
 
+bool flatTriangle(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {
+  const double longest = std::max({glm::length(b - a), glm::length(c - b), glm::length(a - c)});
+  const double scale = std::max({std::abs(a.x), std::abs(a.y), std::abs(a.z), std::abs(b.x), std::abs(b.y), std::abs(b.z), std::abs(c.x),
+                                 std::abs(c.y), std::abs(c.z)});
+  return glm::length(glm::cross(b - a, c - a)) <= floatResolutionMm(scale) * longest;
+}
+
 void removeUnreferencedVertices(TriangleMesh* mesh) {
   constexpr uint32_t kUnused = UINT32_MAX;
   std::vector<uint32_t> remap(mesh->vertices.size(), kUnused);

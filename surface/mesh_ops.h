@@ -2,6 +2,9 @@
 // normals from the volume's gradient, and placing a grid-frame mesh in the patient.
 #pragma once
 
+#include <algorithm>
+#include <limits>
+
 #include "surface/mesh.h"
 #include "volume/patient_frame.h"
 #include "volume/volume.h"
@@ -12,6 +15,16 @@ namespace hyb {
 /// straight-through vertices it dropped from polygons), renumbering triangles, polygon loops and
 /// normals. Keeps the order of the vertices that remain.
 void removeUnreferencedVertices(TriangleMesh* mesh);
+
+/// The distance below which float coordinates of magnitude up to @p scale mm (taken as at least 1)
+/// no longer tell points apart once rounded: 16 ulps.
+inline double floatResolutionMm(double scale) { return 16.0 * double(std::numeric_limits<float>::epsilon()) * std::max(scale, 1.0); }
+
+/// Whether the triangle (a, b, c) (mm) is flat: its corner opposite the longest edge lies within
+/// floatResolutionMm of that edge's line. Such a triangle shows no area, but llvmpipe rasterises
+/// it once its float corners snap apart, with attributes interpolated through the reciprocal of
+/// its area (NaN colours: black specks), so nothing drawn may hold one.
+bool flatTriangle(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c);
 
 /// Sets @p mesh's per-vertex normals (grid-frame mesh, mm) from @p volume's gradient: outward is
 /// towards lower values (samples ≥ the isovalue are inside), so n = −∇f/|∇f|, with the gradient

@@ -7,6 +7,7 @@
 #include <iterator>
 #include <cmath>
 #include <cstdint>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -90,10 +91,60 @@ bool fixChangedEdges(const std::vector<glm::uvec3>& before, const std::vector<gl
   return !changed.empty();
 }
 
+// Flips away the flat triangles of @p tris (of @p mesh's vertices), which meshoptimizer leaves
+// where it collapses along a straight line (e.g. onto three locked border vertices in a line): a
+// flat (a, b, c), b on the edge ca, and its neighbour (a, c, d) become (a, b, d) and (b, c, d),
+// which cover exactly the neighbour (so they stay inside its block) and use every other edge as
+// before. Adds to @p fixed the vertices of those it cannot flip (no neighbour, a flat neighbour, or
+// an edge bd there already) and returns whether there were any.
+bool flipFlatTriangles(const TriangleMesh& mesh, std::vector<glm::uvec3>* triangles, std::vector<uint32_t>* fixed) {
+  std::vector<glm::uvec3>& tris = *triangles;
+  auto flatCorner = [&](const glm::uvec3& t) {  // the corner opposite the longest edge of a flat t, else -1
+    const glm::dvec3 p[3] = {glm::dvec3(mesh.vertices[t.x]), glm::dvec3(mesh.vertices[t.y]), glm::dvec3(mesh.vertices[t.z])};
+    if (!flatTriangle(p[0], p[1], p[2])) return -1;
+    int k = 0;
+    for (int j = 1; j < 3; ++j)
+      if (glm::length(p[(j + 2) % 3] - p[(j + 1) % 3]) > glm::length(p[(k + 2) % 3] - p[(k + 1) % 3])) k = j;
+    return k;
+  };
+  std::unordered_map<uint64_t, uint32_t> owner;  // directed edge (from << 32 | to) -> triangle
+  auto key = [](uint32_t from, uint32_t to) { return uint64_t(from) << 32 | to; };
+  auto own = [&](uint32_t t, bool add) {
+    for (int e = 0; e < 3; ++e) {
+      const uint64_t k = key(tris[t][e], tris[t][(e + 1) % 3]);
+      if (add) owner[k] = t; else owner.erase(k);
+    }
+  };
+  for (uint32_t t = 0; t < tris.size(); ++t) own(t, true);
+  const size_t before = fixed->size();
+  for (uint32_t i = 0; i < tris.size(); ++i) {
+    const int k = flatCorner(tris[i]);
+    if (k < 0) continue;
+    const uint32_t b = tris[i][k], c = tris[i][(k + 1) % 3], a = tris[i][(k + 2) % 3];  // the long edge c -> a
+    const auto across = owner.find(key(a, c));
+    const uint32_t j = across == owner.end() ? 0 : across->second;
+    const glm::uvec3 n = tris[j];
+    const uint32_t d = n.x == a ? n.z : n.y == a ? n.x : n.y;  // n is (a, c, d) rotated
+    if (across == owner.end() || flatCorner(n) >= 0 || owner.count(key(b, d)) || owner.count(key(d, b))) {
+      fixed->insert(fixed->end(), {a, b, c});
+      continue;
+    }
+    own(i, false);
+    own(j, false);
+    tris[i] = {a, b, d};
+    tris[j] = {b, c, d};
+    own(i, true);
+    own(j, true);
+  }
+  sortUnique(fixed);
+  return fixed->size() != before;
+}
+
 // One block's triangles simplified within @p errorMm, those touching a @p fixed vertex (sorted) kept
 // as they are. meshoptimizer does not check the link condition: a collapse beside locked vertices
-// can stack triangles on their edge. Where it did, the vertices of the edges concerned are fixed
-// too and the block is done again (twelve tries, then it stays as it came).
+// can stack triangles on their edge; nor does it avoid flat triangles, which are flipped away.
+// Where it stacked triangles or left a flat one that cannot be flipped, the vertices concerned are
+// fixed too and the block is done again (twelve tries, then it stays as it came).
 std::vector<glm::uvec3> simplifyBlock(const TriangleMesh& mesh, const std::vector<glm::uvec3>& triangles, double errorMm, std::vector<uint32_t> fixed) {
   for (int attempt = 0; attempt < 12; ++attempt) {
     std::vector<glm::uvec3> kept, free;
@@ -103,7 +154,8 @@ std::vector<glm::uvec3> simplifyBlock(const TriangleMesh& mesh, const std::vecto
       (touches ? kept : free).push_back(t);
     }
     std::vector<glm::uvec3> result = simplifyLocked(mesh, free, errorMm);
-    if (!fixChangedEdges(free, result, &fixed)) {
+    const bool changedEdges = fixChangedEdges(free, result, &fixed);
+    if (!flipFlatTriangles(mesh, &result, &fixed) && !changedEdges) {
       result.insert(result.end(), kept.begin(), kept.end());
       return result;
     }

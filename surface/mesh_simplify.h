@@ -16,8 +16,8 @@ namespace hyb {
 /// than @p maxErrorMm (meshoptimizer's quadric distance). Every edge is used by as many triangles
 /// as in the input (closed stays closed, nothing is stacked or folded onto a neighbour's face):
 /// where a collapse broke that, the vertices concerned are kept and the block is simplified again.
-/// Self-intersections are not prevented, and three border vertices in a line may be spanned by a
-/// triangle of no area (drawn as nothing).
+/// No output triangle is flat (flatTriangle) where the input had none: where a collapse made one,
+/// its vertices are kept and the block simplified again. Self-intersections are not prevented.
 /// Vertices keep their input positions (a collapse moves one onto another); normals are not set
 /// (the caller sets them, e.g. setGradientNormals) and the polygon structure is dropped.
 /// @p progress hears of the blocks done ("simplified surface").

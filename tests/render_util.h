@@ -1,6 +1,10 @@
 // Scene pieces shared by the renderer tests (the ray tracer's and the slice renderer's).
 #pragma once
 
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
 #include "hybrid_octree/hybrid_io.h"
 #include "render/camera.h"
 #include "render/gl_context.h"
@@ -29,6 +33,31 @@ inline Scene sphereScene() {
 
 /// PSNR of two float images composited over black, in dB.
 inline double psnrOf(const Image& a, const Image& b) { return psnr(toRgba8(a, glm::vec3(0)), toRgba8(b, glm::vec3(0))); }
+
+/// Isolated black pixels of @p image composited over black (x, y): a pixel whose brightest channel
+/// is at most a tenth of the dimmest of its 8 neighbours', those at least 30/255 (a darker pixel
+/// among bright ones is aliasing, not a hole), or whose colour is not finite. A pixel also dark in @p reference (the same view's ray-traced image, when given) is
+/// content, not a speck, and is not counted.
+inline std::vector<glm::ivec2> isolatedBlackPixels(const Image& image, const Image* reference = nullptr) {
+  auto brightest = [](const Image& im, int x, int y) {
+    const glm::vec4 p = im.at(std::clamp(x, 0, im.width - 1), std::clamp(y, 0, im.height - 1));
+    return std::max({p.r, p.g, p.b});
+  };
+  auto dark = [&](const Image& im, int x, int y) {
+    const glm::vec4 p = im.at(x, y);
+    if (!(std::isfinite(p.r) && std::isfinite(p.g) && std::isfinite(p.b) && std::isfinite(p.a))) return true;
+    float around = 1e30f;
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx)
+        if (dx || dy) around = std::min(around, brightest(im, x + dx, y + dy));
+    return around >= 30.0f / 255.0f && brightest(im, x, y) <= 0.1f * around;
+  };
+  std::vector<glm::ivec2> out;
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x)
+      if (dark(image, x, y) && !(reference && dark(*reference, x, y))) out.emplace_back(x, y);
+  return out;
+}
 
 /// One material for every value in [0, 2]: colour (0.8, 0.5, 0.2), opacity @p a per mm.
 inline TransferFunction constantTf(float a) {
