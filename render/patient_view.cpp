@@ -111,28 +111,64 @@ void zoomCamera(Camera* camera, double zoom) {
   camera->fovDeg = glm::degrees(2.0 * std::atan(std::tan(glm::radians(camera->fovDeg) * 0.5) / zoom));
 }
 
+// The visible cells (the 8 samples' range is given an opacity, or spans the isovalue) are a set
+// of places in the patient, whatever order the grid stores them in, and so is their convex hull,
+// which is all a camera fit depends on: the first and last visible cell of every row of cells
+// along x carry that hull. The octree only says where to look: rows are scanned inward from each
+// end through the leaves whose range can be visible, and stop at the first visible cell.
 std::vector<glm::dvec3> visiblePoints(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, std::optional<float> iso) {
-  std::vector<glm::dvec3> points;
-  const glm::dvec3 spacing = volume.spacing();
-  auto visible = [&](const OctreeNode& n) {
-    return tf.maxAlpha(n.minValue, n.maxValue) > 0.0f || (iso && n.minValue < *iso && *iso <= n.maxValue);
-  };
+  auto visible = [&](float lo, float hi) { return tf.maxAlpha(lo, hi) > 0.0f || (iso && lo < *iso && *iso <= hi); };
+  const glm::ivec3 dims = volume.dims(), cells = glm::max(dims - 1, glm::ivec3(1));
+  const int leaf = octree.leafEdge();
+  const glm::ivec3 grid = (cells + leaf - 1) / leaf;
+  // Which leaves can hold a visible cell.
+  std::vector<char> leafVisible(size_t(grid.x) * size_t(grid.y) * size_t(grid.z), 0);
   std::vector<uint32_t> stack{0};
   while (!stack.empty()) {
-    const uint32_t i = stack.back();
+    const OctreeNode& n = octree.nodes()[stack.back()];
     stack.pop_back();
-    const OctreeNode& n = octree.nodes()[i];
-    if (!visible(n)) continue;  // nor is any node inside it
+    if (!visible(n.minValue, n.maxValue)) continue;  // nor is any node inside it
     if (n.isLeaf()) {
-      glm::ivec3 lo, hi;
-      octree.voxelBox(n, &lo, &hi);
-      for (int c = 0; c < 8; ++c)
-        points.push_back(volume.frame().toPatient(glm::dvec3(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z) * spacing));
+      const glm::ivec3 lo = glm::ivec3(n.origin) / leaf, hi = glm::min((glm::ivec3(n.origin) + octree.edge(n) + leaf - 1) / leaf, grid);
+      for (int z = lo.z; z < hi.z; ++z)
+        for (int y = lo.y; y < hi.y; ++y)
+          for (int x = lo.x; x < hi.x; ++x) leafVisible[size_t(x) + size_t(grid.x) * (size_t(y) + size_t(grid.y) * size_t(z))] = 1;
       continue;
     }
     for (int slot = 0; slot < 8; ++slot)
       if (n.childMask & (1u << slot)) stack.push_back(childIndex(n, slot));
   }
+  // The range of cell (i, j, k): its corners, clamped to the grid (a grid one sample thick has
+  // cells of one sample along that axis).
+  auto cellVisible = [&](int i, int j, int k) {
+    float lo = 1e30f, hi = -1e30f;
+    for (int c = 0; c < 8; ++c) {
+      const float v = volume.at(std::min(i + (c & 1), dims.x - 1), std::min(j + (c >> 1 & 1), dims.y - 1), std::min(k + (c >> 2 & 1), dims.z - 1));
+      lo = std::min(lo, v);
+      hi = std::max(hi, v);
+    }
+    return visible(lo, hi);
+  };
+  std::vector<std::vector<glm::dvec3>> rows(size_t(cells.z));
+#pragma omp parallel for schedule(dynamic)
+  for (int k = 0; k < cells.z; ++k)
+    for (int j = 0; j < cells.y; ++j) {
+      const char* leaves = &leafVisible[size_t(grid.x) * (size_t(j / leaf) + size_t(grid.y) * size_t(k / leaf))];
+      int first = -1, last = -1;
+      for (int lx = 0; lx < grid.x && first < 0; ++lx)
+        for (int i = lx * leaf; leaves[lx] && i < std::min((lx + 1) * leaf, cells.x) && first < 0; ++i)
+          if (cellVisible(i, j, k)) first = i;
+      if (first < 0) continue;
+      for (int lx = grid.x - 1; lx >= 0 && last < 0; --lx)
+        for (int i = std::min((lx + 1) * leaf, cells.x) - 1; leaves[lx] && i >= lx * leaf && last < 0; --i)
+          if (cellVisible(i, j, k)) last = i;
+      const int x0 = first, x1 = std::min(last + 1, dims.x - 1), y1 = std::min(j + 1, dims.y - 1), z1 = std::min(k + 1, dims.z - 1);
+      for (const int x : {x0, x1})
+        for (const int y : {j, y1})
+          for (const int z : {k, z1}) rows[size_t(k)].push_back(volume.frame().toPatient(glm::dvec3(x, y, z) * volume.spacing()));
+    }
+  std::vector<glm::dvec3> points;
+  for (const std::vector<glm::dvec3>& row : rows) points.insert(points.end(), row.begin(), row.end());
   return points;
 }
 

@@ -51,8 +51,10 @@ Camera fitCamera(const std::vector<glm::dvec3>& points, const ViewDirection& dir
 /// smaller orthographic height): the eye does not move.
 void zoomCamera(Camera* camera, double zoom);
 
-/// What the transfer function can make visible, in patient mm: the corners of the octree leaves
-/// whose value range it gives an opacity or, with an isovalue, that the surface crosses. Empty when
+/// What the transfer function can make visible, in patient mm: the corners of the cells (8
+/// samples) whose value range it gives an opacity or, with an isovalue, that the surface crosses,
+/// enough of them to carry their convex hull (the first and last such cell of each row). The
+/// same anatomy stored in another order gives the same hull, hence the same fitCamera. Empty when
 /// nothing is visible.
 std::vector<glm::dvec3> visiblePoints(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf,
                                       std::optional<float> iso = std::nullopt);

@@ -229,6 +229,33 @@ TEST(PatientView, TheSameAnatomyInAnyStoredOrientationRendersTheSameImage) {
   }
 }
 
+// The default camera frames what is visible in the patient, so copies of the anatomy stored
+// flipped or with their axes permuted get the same camera for every view (an octree's leaves
+// follow the storage order: framing their corners moved the camera by a millimetre).
+TEST(PatientView, TheDefaultCameraDoesNotDependOnTheStorageOrder) {
+  const TransferFunction tf({{0.3f, {1, 1, 1}, 0.0f}, {0.5f, {1, 1, 1}, 0.1f}, {3.0f, {1, 1, 1}, 0.1f}}, "ball");
+  const TransferFunction clear({{0.0f, {1, 1, 1}, 0.0f}, {1.0f, {1, 1, 1}, 0.0f}}, "clear");  // the isosurface alone
+  std::vector<std::vector<Camera>> cameras;  // per copy: the six views framing the transfer function's, then the isosurface's
+  for (const Copy& c : copies()) {
+    Volume v = test::makeVolume(c.dims, [&](int a, int b, int k) { return phantom(c.origin + c.direction * (glm::dvec3(a, b, k) * c.spacing)); }, c.spacing);
+    v.setFrame(makePatientFrame(c.direction, c.origin, c.name));
+    const VolumeOctree octree = VolumeOctree::build(v);
+    const std::vector<glm::dvec3> byTf = visiblePoints(v, octree, tf), byIso = visiblePoints(v, octree, clear, 1.5f);
+    ASSERT_FALSE(byTf.empty());
+    ASSERT_FALSE(byIso.empty());
+    cameras.emplace_back();
+    for (const std::vector<glm::dvec3>* points : {&byTf, &byIso})
+      for (int view = 0; view < 6; ++view) cameras.back().push_back(fitCamera(*points, viewDirection(AnatomicalView(view)), 30.0, false, 64, 48));
+  }
+  for (size_t c = 1; c < cameras.size(); ++c)
+    for (size_t k = 0; k < cameras[0].size(); ++k) {
+      const Camera &a = cameras[0][k], &b = cameras[c][k];
+      EXPECT_LT(glm::length(a.eye - b.eye), 1e-6) << copies()[c].name << " camera " << k << ": " << vec(a.eye) << " vs " << vec(b.eye);
+      EXPECT_LT(glm::length(a.center - b.center), 1e-6) << copies()[c].name << " camera " << k;
+      EXPECT_LT(glm::length(a.up - b.up), 1e-9) << copies()[c].name << " camera " << k;
+    }
+}
+
 TEST(PatientView, TheLeftMarkerIsOnTheImagesRightFromTheFrontAndLeftFromBehind) {
   test::TempDir dir;
   writeTf(dir.file("tf.txt"));

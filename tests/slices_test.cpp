@@ -506,13 +506,14 @@ std::vector<std::pair<std::string, ViewDirection>> sixViewsAndTwoOrbits() {
   return views;
 }
 
-// What the viewer draws while the view moves: the simplified surface, whole in its slabs.
+// What the viewer draws while the view moves: the simplified surface, whole in its slabs, in
+// larger bricks (slices a voxel apart: coarser ones alias the skin's edges into dark pixels).
 Quality moving() {
   Quality q;
   q.simplifiedSurface = true;
   q.cutToSlabs = false;
   q.maxBrickEdge = kSimplifiedBlockVoxels;
-  q.step = 2.0;
+  q.step = 1.0;
   return q;
 }
 
