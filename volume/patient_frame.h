@@ -19,6 +19,9 @@ namespace hyb {
 struct PatientFrame {
   glm::dmat3 direction{1.0};  ///< columns: unit LPS directions of the i, j and k axes (orthonormal)
   glm::dvec3 origin{0.0};     ///< LPS position of voxel (0, 0, 0)'s centre, mm
+  /// The file carries no orientation: direction and origin are its reader's convention (the grid's
+  /// axes taken as LPS, or NIfTI's method 1), not where the patient lies.
+  bool assumed = false;
 
   /// Patient (LPS mm) position of grid point @p grid (mm, voxel (i,j,k) at (i·sx, j·sy, k·sz)).
   glm::dvec3 toPatient(const glm::dvec3& grid) const { return origin + direction * grid; }

@@ -158,7 +158,8 @@ std::string Volume::toString() const {
   }
   s << std::setprecision(7) << "bounds   x " << lo.x << " .. " << hi.x << ", y " << lo.y << " .. " << hi.y << ", z " << lo.z << " .. " << hi.z
     << " mm (LPS: x towards the patient's left, y posterior, z superior)\n";
-  s << "orient   " << orientationCode(d) << " (each index increases towards: L/R left/right, P/A posterior/anterior, S/I superior/inferior)\n";
+  s << "orient   " << orientationCode(d) << (mFrame.assumed ? " (orientation unknown: the file carries none; the reader's convention)" : "")
+    << " (each index increases towards: L/R left/right, P/A posterior/anterior, S/I superior/inferior)\n";
   for (const auto& [k, v] : mInfo) s << std::left << std::setw(8) << k << std::right << " " << v << "\n";
   return s.str();
 }

@@ -280,6 +280,7 @@ void nrrdGeometry(const Field& field, const std::string& path, glm::dvec3* spaci
     validateSpacing(*spacing, path);
     if (field("space origin")) HYB_THROW(IoError, path, ": space origin without space directions (expected both, or neither)");
     warnings->push_back(path + ": no 'space directions': orientation unknown, the grid's axes are taken as LPS with the origin at 0");
+    frame->assumed = true;
     return;
   }
   const std::string* spaceField = field("space");
@@ -316,6 +317,7 @@ void nrrdGeometry(const Field& field, const std::string& path, glm::dvec3* spaci
     origin *= sign * units;
   }
   *frame = makePatientFrame(d, origin, path);
+  frame->assumed = assumed;
 }
 
 }  // namespace
@@ -454,7 +456,9 @@ PatientFrame metaImageFrame(const std::map<std::string, std::string>& fields, co
     return frame;
   }
   if (!haveCode) warnings->push_back(path + ": no TransformMatrix or AnatomicalOrientation: the grid's axes are taken as LPS, as ITK does");
-  return makePatientFrame(haveCode ? fromCode : direction, origin, path);
+  PatientFrame frame = makePatientFrame(haveCode ? fromCode : direction, origin, path);
+  frame.assumed = !haveCode;
+  return frame;
 }
 
 }  // namespace
@@ -560,7 +564,9 @@ PatientFrame niftiFrame(const nifti_image& nim, const std::string& path, glm::dv
   if (nim.qform_code > 0) return fromMatrix(nim.qto_xyz, "qform");
   warnings->push_back(path + ": qform_code and sform_code are 0 (no orientation): read as NIfTI's method 1 does, RAS axes with the origin at 0");
   *spacing *= unit;
-  return makePatientFrame(glm::dmat3(glm::dvec3(-1, 0, 0), glm::dvec3(0, -1, 0), glm::dvec3(0, 0, 1)), glm::dvec3(0.0), path);
+  PatientFrame frame = makePatientFrame(glm::dmat3(glm::dvec3(-1, 0, 0), glm::dvec3(0, -1, 0), glm::dvec3(0, 0, 1)), glm::dvec3(0.0), path);
+  frame.assumed = true;
+  return frame;
 }
 
 }  // namespace
@@ -816,6 +822,9 @@ Volume readRaw(const std::string& path, const RawLayout& layout) {
   Volume v(layout.dims, layout.spacing, layout.type,
            readRawSamples(file, layout.headerBytes, 0, "header", layout.dims, layout.type, layout.bigEndian), path);
   v.addWarning(path + ": raw samples carry no orientation: the grid's axes are taken as LPS with the origin at 0");
+  PatientFrame frame;
+  frame.assumed = true;
+  v.setFrame(frame);
   return v;
 }
 
