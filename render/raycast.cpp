@@ -265,18 +265,20 @@ Image refine(const Volume& volume, const VolumeOctree& octree, const TransferFun
 Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
               const RaycastOptions& options, RaycastStats* stats) {
   HYB_CHECK(options.refineLevels >= 1 && options.refineLevels <= 16 && options.refineTolerance >= 0.0f);
+  const glm::ivec2 rows = options.rows.value_or(glm::ivec2(0, camera.height));
+  HYB_CHECK(rows.x >= 0 && rows.x < rows.y && rows.y <= camera.height && (!options.rows || options.refineLevels == 1));
   // Rays from farther away lose the sample positions' precision (and NaN ones index nothing).
   if (!withinCameraRange(camera.eye) || !withinCameraRange(camera.center))
     HYB_THROW(ValueError, "camera eye and center must lie within ", kMaxCameraMm, " mm of the origin");
   RaycastStats counts;
   Image image(camera.width, camera.height);
-  ProgressTask progress(options.progress, "ray tracing", uint64_t(camera.width) * uint64_t(camera.height));
+  ProgressTask progress(options.progress, "ray tracing", uint64_t(camera.width) * uint64_t(rows.y - rows.x));
   if (options.refineLevels > 1) {
     image = refine(volume, octree, tf, camera, options, &counts, &progress);
   } else {
     const size_t W = size_t(camera.width);
-    tracePixels(volume, octree, tf, camera, options, W * size_t(camera.height), W,
-                [W](size_t i) { return glm::ivec2(int(i % W), int(i / W)); }, &image, &counts, &progress);
+    tracePixels(volume, octree, tf, camera, options, W * size_t(rows.y - rows.x), W,
+                [W, first = rows.x](size_t i) { return glm::ivec2(int(i % W), first + int(i / W)); }, &image, &counts, &progress);
   }
   if (stats) *stats = counts;
   return image;

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <functional>
+#include <optional>
 
 #include "hybrid_octree/volume_octree.h"
 #include "render/bvh.h"
@@ -38,6 +39,9 @@ struct RaycastOptions {
   /// Receives the image after each level of refinement, and the rays traced so far.
   std::function<void(int level, const Image& image, uint64_t rays)> onLevel;
   const Progress* progress = nullptr;  ///< hears of the rays traced ("ray tracing"), or none
+  /// Traces only the image rows [rows.x, rows.y) (from the top; the others stay transparent).
+  /// Needs refineLevels 1.
+  std::optional<glm::ivec2> rows;
 };
 
 /// Per-pixel statistics of a render.

@@ -152,11 +152,21 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
 }
 
 PreparedSurface& SceneRenderer::keep(std::unique_ptr<PreparedSurface> surface) {
-  // Two are kept: a viewer flipping between two isovalues rebuilds neither.
   std::erase_if(mSurfaces, [&](const auto& s) { return s->iso == surface->iso; });
-  if (mSurfaces.size() >= 2) mSurfaces.pop_back();
   mSurfaces.push_front(std::move(surface));
+  trimSurfaces();
   return *mSurfaces.front();
+}
+
+void SceneRenderer::pinSurfaces(std::vector<float> isos) {
+  mPinned = std::move(isos);
+  trimSurfaces();
+}
+
+// The pinned surfaces and two others are kept: a user flipping between two isovalues rebuilds neither.
+void SceneRenderer::trimSurfaces() {
+  int unpinned = 0;
+  std::erase_if(mSurfaces, [&](const auto& s) { return std::find(mPinned.begin(), mPinned.end(), s->iso) == mPinned.end() && ++unpinned > 2; });
 }
 
 void SceneRenderer::adoptSurface(std::unique_ptr<PreparedSurface> surface) { keep(std::move(surface)); }
@@ -185,6 +195,12 @@ size_t SceneRenderer::surfacePolygons(float iso) const {
   return 0;
 }
 
+std::vector<float> SceneRenderer::surfaceIsos() const {
+  std::vector<float> isos;
+  for (const auto& s : mSurfaces) isos.push_back(s->iso);
+  return isos;
+}
+
 bool SceneRenderer::hasSurface(float iso) const {
   return std::any_of(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == iso; });
 }
@@ -203,6 +219,12 @@ ViewErrors& SceneRenderer::viewErrors(const Camera& gridCamera, const TransferFu
 RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Quality& quality, const LevelCallback& onLevel) {
   for (const std::string& problem : {view.validate(), look.validate(), quality.validate()})
     if (!problem.empty()) throw ValueError(problem);
+  if (quality.rows) {
+    const glm::ivec2 rows = *quality.rows;
+    if (!(rows.x >= 0 && rows.x < rows.y && rows.y <= view.camera.height))
+      HYB_THROW(ValueError, "rows ", rows.x, "..", rows.y, " invalid (expected 0 <= first < last <= ", view.camera.height, ")");
+    if (quality.progressive > 1 || quality.adaptive > 0) HYB_THROW(ValueError, "a band of rows cannot be rendered progressively");
+  }
   const Volume& v = mScene.volume;
   const PatientFrame& frame = v.frame();
   RenderedFrame out;
@@ -255,6 +277,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     ro.refineLevels = quality.progressive > 1 ? quality.progressive : quality.adaptive > 0 ? 4 : 1;
     ro.refineTolerance = float(quality.adaptive / 255.0);
     ro.progress = mOptions.progress;
+    ro.rows = quality.rows;
     const auto t0 = Clock::now();
     if (onLevel)
       ro.onLevel = [&](int level, const Image& image, uint64_t rays) {
@@ -324,6 +347,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     if (onLevel) onLevel(k, quality.progressive, preview, ls);
   }
   so.progress = mOptions.progress;
+  so.rows = quality.rows;
   const auto r0 = Clock::now();
   out.image = renderSlices(v, mScene.octree, out.selection, look.tf, camera, so, &st.slices);
   st.renderMs = msSince(r0);

@@ -20,6 +20,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/selection.h"
@@ -94,6 +95,9 @@ struct Quality {
   /// the next image's texels each; the reference traces rays 2^(levels − 1) pixels apart first.
   int progressive = 1;
   double adaptive = 0.0;            ///< reference: refine where colours differ by more than this (1/255 units)
+  /// Renders only the image rows [rows.x, rows.y) (from the top), exactly as the whole frame has
+  /// them; the other rows stay transparent. Not with progressive or adaptive refinement.
+  std::optional<glm::ivec2> rows;
 
   /// Empty when valid, else a message naming the offending flag (--epsilon, --step, --budget...).
   std::string validate() const;
@@ -175,6 +179,8 @@ class SceneRenderer {
   size_t surfacePolygons(float iso) const;
   /// Whether the surface of @p iso is ready: a frame showing it builds nothing.
   bool hasSurface(float iso) const;
+  /// The isovalues of the surfaces kept, most recently used first.
+  std::vector<float> surfaceIsos() const;
 
   /// Makes the isosurface of @p iso of @p scene, touching no renderer: it only reads the scene, so
   /// it may run on another thread while a renderer of the same scene draws (a viewer keeps showing
@@ -187,6 +193,9 @@ class SceneRenderer {
   static void simplify(const Volume& volume, PreparedSurface* surface, const Progress* progress = nullptr);
   /// Keeps @p surface (made from this renderer's scene) as the surface of its isovalue.
   void adoptSurface(std::unique_ptr<PreparedSurface> surface);
+  /// Surfaces kept: those of the isovalues pinned here (a viewer's clients draw them) and, of the
+  /// others, the two used most recently. Unpinned surfaces beyond those are dropped now.
+  void pinSurfaces(std::vector<float> isos);
 
   /// Drops the brick textures and programs: the next frame packs, uploads and compiles anew.
   void dropTextures();
@@ -197,6 +206,7 @@ class SceneRenderer {
   struct Errors;
   PreparedSurface& surfaceEntry(float iso, FrameStats* stats);
   PreparedSurface& keep(std::unique_ptr<PreparedSurface> surface);
+  void trimSurfaces();
   ViewErrors& viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
                          const std::optional<VolumeOfInterest>& voi, bool anyCamera);
   void ensureGl();
@@ -206,6 +216,7 @@ class SceneRenderer {
   std::optional<GlContext> mGl;                  // made at the first slice frame
   std::unique_ptr<BrickTextureCache> mTextures;  // destroyed before the context
   std::list<std::unique_ptr<PreparedSurface>> mSurfaces;  // most recently used first
+  std::vector<float> mPinned;                             // kept whatever else is built
   std::unique_ptr<Errors> mErrors;               // the last view's
 };
 

@@ -96,6 +96,25 @@ FrameCamera frameCamera(const Volume& volume, const Camera& camera, double baseD
   return c;
 }
 
+// Whether node @p n's box may cover a pixel of image rows [rows.x, rows.y) (from the top) of an
+// image @p height pixels tall seen through @p viewProj: its corners' projection, two pixels wider,
+// meets them, or a corner lies at or behind the eye's plane (then it may cover anything).
+bool meetsRows(const VolumeOctree& octree, const OctreeNode& n, const glm::dvec3& spacing, const glm::mat4& viewProj, int height,
+               const glm::ivec2& rows) {
+  glm::ivec3 lo, hi;
+  octree.voxelBox(n, &lo, &hi);
+  const glm::dmat4 m(viewProj);
+  double y0 = 1e300, y1 = -1e300;  // window rows from the top
+  for (int c = 0; c < 8; ++c) {
+    const glm::dvec4 clip = m * glm::dvec4(glm::dvec3(c & 1 ? hi.x : lo.x, c & 2 ? hi.y : lo.y, c & 4 ? hi.z : lo.z) * spacing, 1.0);
+    if (clip.w <= 0.0) return true;
+    const double y = (0.5 - 0.5 * clip.y / clip.w) * double(height);
+    y0 = std::min(y0, y);
+    y1 = std::max(y1, y);
+  }
+  return y1 + 2.0 >= double(rows.x) && y0 - 2.0 <= double(rows.y);
+}
+
 // Draws @p surface opaque with depth writes by @p program (kSurfaceFragment), headlight-shaded (by
 // its vertex normals when it has them), clipped by @p cutPlane. The frame's vertex buffer is bound.
 void drawOpaqueSurface(GLuint program, const TriangleMesh& surface, const glm::mat4& viewProj, const Camera& camera, const glm::vec3& color,
@@ -447,8 +466,16 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   const double baseDelta = options.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
   SlicesStats st;
 
-  // Framebuffer: float colour (premultiplied), depth for opaque surfaces.
+  // Framebuffer: float colour (premultiplied), depth for opaque surfaces; a band's rows only.
   const gl::FloatTarget target(W, H);
+  const glm::ivec2 rows = options.rows.value_or(glm::ivec2(0, H));
+  HYB_CHECK(rows.x >= 0 && rows.x < rows.y && rows.y <= H);
+  if (options.rows) {
+    glEnable(GL_SCISSOR_TEST);
+    glScissor(0, H - rows.y, W, rows.y - rows.x);
+  } else {
+    glDisable(GL_SCISSOR_TEST);
+  }
   glDepthMask(GL_TRUE);  // a previous frame may have left depth writes off, which would skip the clear
   glDisable(GL_BLEND);
   glClearColor(0, 0, 0, 0);
@@ -493,8 +520,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   std::vector<int> brickOf(octree.nodes().size(), -1);
   for (size_t b = 0; b < selection.bricks.size(); ++b) brickOf[selection.bricks[b].node] = int(b);
   const glm::dvec3 eyeVoxel = (camera.ortho ? camera.eye - frame.forward * 1e9 * frame.diag : camera.eye) / spacing;
-  const std::vector<uint32_t> order = bricksBackToFront(octree, brickOf, eyeVoxel);
+  std::vector<uint32_t> order = bricksBackToFront(octree, brickOf, eyeVoxel);
   HYB_CHECK(order.size() == selection.bricks.size());
+  if (options.rows) std::erase_if(order, [&](uint32_t node) { return !meetsRows(octree, octree.nodes()[node], spacing, frame.viewProj, H, rows); });
   const std::optional<SurfacePolygons> polygons = withTriangles ? std::optional<SurfacePolygons>(*options.surface) : std::nullopt;
   const BrickPolygons polygonsOf =
       polygons ? polygonsByBrick(volume, octree, selection, *polygons) : BrickPolygons{std::vector<uint32_t>(selection.bricks.size() + 1, 0), {}};
@@ -585,15 +613,16 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
 
   // 8. Read back.
   Image image(W, H);
-  std::vector<float> rgba(size_t(W) * H * 4);
-  glReadPixels(0, 0, W, H, GL_RGBA, GL_FLOAT, rgba.data());
-  for (int y = 0; y < H; ++y)
+  std::vector<float> rgba(size_t(W) * size_t(rows.y - rows.x) * 4);
+  glReadPixels(0, H - rows.y, W, rows.y - rows.x, GL_RGBA, GL_FLOAT, rgba.data());
+  for (int y = rows.x; y < rows.y; ++y)
     for (int x = 0; x < W; ++x) {
-      const float* p = &rgba[(size_t(H - 1 - y) * W + x) * 4];
+      const float* p = &rgba[(size_t(rows.y - 1 - y) * W + x) * 4];
       image.at(x, y) = glm::vec4(p[0], p[1], p[2], p[3]);
     }
   const GLenum err = glGetError();
   glDisable(GL_CLIP_DISTANCE0);
+  glDisable(GL_SCISSOR_TEST);
   if (options.textures) options.textures->evict();
   if (err != GL_NO_ERROR) HYB_THROW(RuntimeError, "OpenGL error 0x", std::hex, err, " while rendering slices");
   if (stats) *stats = st;

@@ -11,6 +11,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
@@ -59,6 +60,10 @@ struct SlicesOptions {
   /// misplacement, is what shows; docs/viewer.md).
   bool cutToSlabs = true;
   const Progress* progress = nullptr;     ///< hears of the bricks drawn ("slices"); may throw to stop the frame
+  /// Renders only the image rows [rows.x, rows.y) (from the top; the others stay transparent), with
+  /// exactly the pixels a whole frame has there: a scissor, and bricks whose projection misses the
+  /// band skipped. A large frame drawn band by band lets other work run between its bands.
+  std::optional<glm::ivec2> rows;
 };
 
 /// What a frame used.

@@ -132,6 +132,60 @@ TEST(SceneRenderer, TheSimplifiedUncutSurfaceStaysCloseToTheExactOne) {
   EXPECT_GE(test::psnrOf(e.image, m.image), 42.0);
 }
 
+// A frame rendered band by band (a viewer's large final frame, between whose bands other clients'
+// frames are drawn) is the whole frame, bit for bit: both renderers, the translucent surface cut
+// into slabs, perspective and orthographic, with a cutting plane; a band that misses part of the
+// volume skips its bricks.
+TEST(SceneRenderer, AFrameInBandsIsTheWholeFrame) {
+  test::gl();
+  SceneRenderer r(sphereScene());
+  Look look;
+  look.tf = warm();
+  look.iso = 4.0f;
+  look.surfaceColor = glm::vec4(0.9f, 0.8f, 0.7f, 0.5f);
+  for (const bool ortho : {false, true})
+    for (const bool cut : {false, true})
+      for (const Renderer renderer : {Renderer::Slices, Renderer::Raycast}) {
+        View view = viewFrom(40, r.volume(), 61);
+        view.camera.height = 53;
+        view.camera.ortho = ortho;
+        view.camera.orthoHeight = 40.0;
+        Look l = look;
+        if (cut) l.cut = CutPlane{glm::dvec3(19.5, 17.5, 15.5), glm::dvec3(0.3, 1.0, 0.2)};
+        Quality whole;
+        whole.renderer = renderer;
+        const RenderedFrame all = r.render(view, l, whole);
+        Image merged(61, 53);
+        size_t fewest = SIZE_MAX;  // bricks of the band that meets fewest
+        for (int y = 0; y < 53; y += 10) {
+          Quality band = whole;
+          band.rows = glm::ivec2(y, std::min(y + 10, 53));
+          const RenderedFrame part = r.render(view, l, band);
+          for (int row = 0; row < 53; ++row)
+            for (int x = 0; x < 61; ++x) {
+              if (row >= band.rows->x && row < band.rows->y)
+                merged.at(x, row) = part.image.at(x, row);
+              else
+                ASSERT_EQ(part.image.at(x, row), glm::vec4(0.0f)) << "a row outside the band";
+            }
+          fewest = std::min(fewest, part.stats.slices.bricks);
+        }
+        EXPECT_EQ(merged.pixels, all.image.pixels) << "ortho " << ortho << " cut " << cut << " renderer " << int(renderer);
+        if (renderer == Renderer::Slices) {
+          EXPECT_LT(fewest, all.stats.slices.bricks) << "a band draws the bricks it meets";
+        }
+      }
+  View view = viewFrom(40, r.volume());
+  Quality bad;
+  bad.rows = glm::ivec2(10, 10);
+  EXPECT_THROW(r.render(view, look, bad), ValueError);
+  bad.rows = glm::ivec2(0, 49);
+  EXPECT_THROW(r.render(view, look, bad), ValueError);
+  bad.rows = glm::ivec2(0, 8);
+  bad.progressive = 2;
+  EXPECT_THROW(r.render(view, look, bad), ValueError);
+}
+
 TEST(SceneRenderer, TextureMemoryStaysWithinItsLimitAcrossFrames) {
   test::gl();
   Look look;
