@@ -436,10 +436,11 @@ int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
     so.volume = o.input.path;
     so.series = o.input.series;
   }
-  so.loader = [&o, &err](const std::string& path, const std::string& series) {
+  so.loader = [&o, &err](const std::string& path, const std::string& series, const Progress* progress) {
     VolumeInput in = o.input;
     in.path = path;
     in.series = series;
+    in.progress = progress ? progress : o.input.progress;  // the page hears of a load it waits for
     std::ostringstream quiet;
     double ms = 0;
     return loadOrBuild(in, quiet, err, &ms);

@@ -106,10 +106,11 @@ std::vector<TransferFunction::Point> pointsAt(const json& j) {
 }
 
 FrameRequest frameAt(const json& j) {
-  onlyFields(j, "", {"type", "seq", "interacting", "camera", "tf", "shading", "surface", "cut", "voi"});
+  onlyFields(j, "", {"type", "seq", "scene", "interacting", "camera", "tf", "shading", "surface", "cut", "voi"});
   FrameRequest r;
   if (!j.contains("seq") || !j["seq"].is_number_unsigned()) fail("seq", "a whole number ≥ 0");
   r.seq = j["seq"].get<uint64_t>();
+  if (j.contains("scene")) r.scene = stringAt(j["scene"], "scene", kMaxPathBytes + 256);
   if (j.contains("interacting")) r.interacting = boolAt(j["interacting"], "interacting");
   if (!j.contains("camera")) fail("camera", "a value (missing)");
   r.camera = cameraAt(j["camera"]);

@@ -29,6 +29,9 @@ inline constexpr size_t kMaxPathBytes = 4096;
 /// message loses nothing. Coordinates are patient millimetres (LPS).
 struct FrameRequest {
   uint64_t seq = 0;         ///< echoed in the frame that answers it
+  /// The scene the page shows (its info's "scene"): a request for another is stale and dropped;
+  /// empty: the one the client shows.
+  std::string scene;
   bool interacting = false;  ///< the user is dragging: hold the frame rate; false: refine to the final frame
   Camera camera;             ///< eye, center, up, fov or ortho height, and the image size
   std::string preset;        ///< a transfer-function preset, or empty when points are given

@@ -32,8 +32,15 @@ void AdaptiveQuality::record(int level, double ms, bool cold) {
   mLast = level;
 }
 
+void AdaptiveQuality::reset() {
+  mMeasured.fill(-1.0);
+  mLast = mCurrent = int(mLadder.size()) - 1;
+  mStay = mCold = 0;
+}
+
 int AdaptiveQuality::chooseInteractiveLevel() {
   const int n = int(mLadder.size());
+  if (mMeasured[size_t(mLast)] < 0.0) return mCurrent = n - 1;  // nothing measured: nothing to predict from
   int level = -1;
   for (int k = 1; k < n && level < 0; ++k) {
     // Moving to a better level than the current needs a margin; staying or going coarser does not.
@@ -58,7 +65,8 @@ int AdaptiveQuality::chooseInteractiveLevel() {
 }
 
 std::vector<int> AdaptiveQuality::refinement() const {
-  if (mMeasured[size_t(mLast)] < 0.0) return {0};  // nothing measured: nothing to predict from
+  const int n = int(mLadder.size());
+  if (mMeasured[size_t(mLast)] < 0.0) return {n - 1, 0};  // nothing measured: a coarse frame first
   for (int k = 1; k < mCurrent; ++k)
     if (estimateMs(k) <= kRefineFactor * mTargetMs) return {k, 0};
   return {0};

@@ -66,21 +66,27 @@ inline constexpr int kInteractiveBrickEdge = 32;
 /// One ladder's levels for one client: which to render while the user drags, and after.
 class AdaptiveQuality {
  public:
-  explicit AdaptiveQuality(const Ladder& ladder, double targetMs = 80.0) : mLadder(ladder), mTargetMs(targetMs) { mMeasured.fill(-1.0); }
+  explicit AdaptiveQuality(const Ladder& ladder, double targetMs = 80.0) : mLadder(ladder), mTargetMs(targetMs) { reset(); }
   const Ladder& ladder() const { return mLadder; }
 
   /// The level for the next interactive frame: the best whose time fits the target (with a margin
   /// to move to a better one, so that the level does not flicker), or when none does, the best
-  /// whose time is within kNearFastest of the fastest (a quarter: the cheapest levels lose 2-3 dB). After kProbeAfter frames at one level the
-  /// next better one is tried once: its time may have been measured on a slow frame.
+  /// whose time is within kNearFastest of the fastest (a quarter: the cheapest levels lose 2-3 dB).
+  /// After kProbeAfter frames at one level the next better one is tried once: its time may have
+  /// been measured on a slow frame. With nothing measured (a volume just opened), the cheapest: its
+  /// time then predicts the others' for this volume and image (a full-size frame of a large
+  /// volume took seconds).
   int chooseInteractiveLevel();
   static constexpr int kProbeAfter = 12;
   static constexpr double kNearFastest = 1.25;
   static constexpr double kUpMargin = 0.9;  ///< a better level than the current must fit this share of the target
   /// The levels after the input stops, ending with 0: first, when it is better than the
   /// interactive one, the best level whose time fits kRefineFactor times the target (an image
-  /// sharper soon, and the final frame not much later).
+  /// sharper soon, and the final frame not much later); with nothing measured, the cheapest (a
+  /// volume just opened shows a coarse frame first).
   std::vector<int> refinement() const;
+  /// Forgets every time measured: another volume is shown, whose frames cost differently.
+  void reset();
   static constexpr double kRefineFactor = 2.0;
   /// Records that a frame at @p level took @p ms (render and encode). A @p cold frame, one that
   /// uploaded most of its textures, is not taken as the level's time (later frames do not pay for
@@ -95,8 +101,8 @@ class AdaptiveQuality {
   const Ladder& mLadder;
   double mTargetMs;
   std::array<double, Ladder().size()> mMeasured;  // smoothed ms per level, -1 unknown
-  int mLast = 4;     // the level measured last
-  int mCurrent = 4;  // the interactive level in use
+  int mLast = 0;     // the level measured last
+  int mCurrent = 0;  // the interactive level in use
   int mStay = 0;     // frames at mCurrent since it was chosen or probed
   int mCold = 0;     // cold frames in a row
 };

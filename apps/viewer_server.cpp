@@ -26,6 +26,7 @@
 #include "apps/viewer_protocol.h"
 #include "apps/viewer_quality.h"
 #include "render/patient_view.h"
+#include "render/scene_pool.h"
 #include "render/scene_renderer.h"
 #include "surface/mesh_io.h"
 #include "surface/mesh_ops.h"
@@ -124,41 +125,57 @@ std::string tfText(const TransferFunction& tf) {
 
 // ---------------------------------------------------------------------------------------------
 // A client: what its page asked for last, and how well its frames are made. Shared by its socket
-// (network thread) and the render thread, under the server's work mutex.
+// (network thread) and the render thread, under the server's mutex.
+
+// When a frame's request came from the page: its wait for the render thread, and its arrival's
+// wall clock.
+struct Arrival {
+  double waitMs = 0.0, epochMs = 0.0;
+};
+
+// A final frame larger than kBandPixels is drawn band by band, other clients' frames between its
+// bands, so that it holds the render thread for one band at a time (the pixels are the whole
+// frame's: SlicesOptions::rows).
+inline constexpr int kBandPixels = 512 * 512;
+struct BandedFrame {
+  FrameRequest request;
+  std::optional<float> iso;
+  bool surfaceReady = true;
+  std::optional<Arrival> arrival;
+  Image image;
+  int next = 0;           // the first row not drawn yet
+  int rowsPerBand = 0;
+  double renderMs = 0.0;  // the bands' render times so far
+  FrameStats stats;       // the last band's
+  double maxError = 0.0;
+};
 
 struct Client {
   uint64_t id = 0;
-  std::string sceneKey;                 // the volume it shows; empty before one is open
+  std::string sceneKey;                 // the scene its frames are of; empty before one is open
   std::optional<FrameRequest> pending;  // the newest request not yet rendered
   std::optional<Clock::time_point> pendingSince;  // when the page sent it (none: the server asks again)
   double pendingEpochMs = 0.0;          // the same, wall clock
   std::optional<FrameRequest> current;  // the request being refined
   std::vector<int> refine;              // levels still to render for it, next last
   bool refineSurface = false;           // ... of the surface's ladder
-  std::optional<float> shownIso;        // the surface its frames draw: the one asked for once it is ready
+  std::optional<BandedFrame> banded;    // its final frame, part drawn
   AdaptiveQuality volumeQuality, surfaceQuality;
   std::atomic<bool> open{true};
   std::function<void(std::string message, bool binary)> send;  // posts to the socket; drops when closed
   explicit Client(double targetMs) : volumeQuality(kVolumeLadder, targetMs), surfaceQuality(kSurfaceLadder, targetMs) {}
   // The ladder of frames with a surface or without: they cost and lose accuracy differently.
   AdaptiveQuality& quality(bool surface) { return surface ? surfaceQuality : volumeQuality; }
-  bool hasWork() const { return open && !sceneKey.empty() && (pending || !refine.empty()); }
-};
-
-// One open volume and its renderer (made and used on the render thread only).
-struct SceneSlot {
-  std::string key, path, series, name;
-  std::unique_ptr<SceneRenderer> renderer;
-  json info;                        // what the page needs to know of the volume
-  std::optional<float> shownIso;    // the newest surface ready: drawn by a client whose own is not
-  std::optional<float> buildingIso;
-  std::optional<float> wantedIso;   // asked for while another was being built
-  std::thread builder;
-  std::unique_ptr<PreparedSurface> built;  // handed over by the builder, adopted by the render thread
-  bool buildFailed = false;
-  std::atomic<int> busy{0};         // exports in flight
-  ~SceneSlot() {
-    if (builder.joinable()) builder.join();
+  bool hasWork() const { return open && !sceneKey.empty() && (pending || !refine.empty() || banded); }
+  // A new scene: nothing of the last one's requests, refinement or measured times applies to it.
+  void showScene(const std::string& key) {
+    sceneKey = key;
+    pending.reset();
+    current.reset();
+    refine.clear();
+    banded.reset();
+    volumeQuality.reset();
+    surfaceQuality.reset();
   }
 };
 
@@ -167,16 +184,17 @@ struct ServerState {
   std::string token;
   net::io_context io{1};
   tcp::acceptor acceptor{io};
-  std::thread netThread, renderThread, loaderThread;
+  std::thread netThread, renderThread, exportThread;
   std::atomic<bool> stopping{false};
   bool started = false;
+  bool othersStopped = false;  // the network and export threads have ended (under the mutex)
 
-  // Work shared with the render thread.
+  // Work shared by the threads, and the pool's state: under this mutex.
   std::mutex mutex;
   std::condition_variable wake;
-  std::list<std::shared_ptr<Client>> clients;
-  std::map<std::string, std::unique_ptr<SceneSlot>> scenes;
-  std::deque<std::pair<std::shared_ptr<Client>, OpenRequest>> opens;  // waiting for the loader
+  std::map<uint64_t, std::shared_ptr<Client>> clients;
+  std::unique_ptr<ScenePool> pool;
+  std::string defaultScene;  // the --volume scene's key, or empty
   struct Export {
     std::string sceneKey;
     float iso;
@@ -191,352 +209,309 @@ struct ServerState {
     if (options.log) *options.log << "view     " << line << std::endl;
   }
 
-  // ---- scenes -------------------------------------------------------------------------------
-
   static std::string keyOf(const std::string& path, const std::string& series) { return series.empty() ? path : path + "#" + series; }
 
-  std::unique_ptr<SceneSlot> makeSlot(const std::string& path, const std::string& series, const std::string& name) {
-    Scene scene = options.loader(path, series);
-    auto slot = std::make_unique<SceneSlot>();
-    slot->key = keyOf(path, series);
-    slot->path = path;
-    slot->series = series;
-    slot->name = name;
-    const bool hasSceneIso = scene.surface.has_value();
-    const double sceneIso = hasSceneIso ? double(scene.surface->isovalue()) : 0.0;
-    SceneRenderer::Options ro;
-    ro.textureLimitBytes = options.textureLimitBytes;
-    slot->renderer = std::make_unique<SceneRenderer>(std::move(scene), ro);
-    const Volume& vol = slot->renderer->volume();
-    // The anatomical views framed to what the default transfer function shows.
-    const TransferFunction tf = TransferFunction::defaultFor(vol.minValue(), vol.maxValue());
-    const std::vector<glm::dvec3> points = visiblePoints(vol, slot->renderer->octree(), tf, std::nullopt);
-    json views = json::object();
-    const std::pair<const char*, AnatomicalView> named[] = {{"anterior", AnatomicalView::Anterior}, {"posterior", AnatomicalView::Posterior},
-                                                            {"left", AnatomicalView::Left},         {"right", AnatomicalView::Right},
-                                                            {"superior", AnatomicalView::Superior}, {"inferior", AnatomicalView::Inferior}};
-    for (const auto& [label, view] : named) views[label] = cameraToJson(fitCamera(points, viewDirection(view), 30.0, false, 512, 512));
-    const Histogram h = computeHistogram(vol, 128);
-    glm::dvec3 lo(1e300), hi(-1e300);
-    const glm::dvec3 extent = glm::dvec3(vol.dims() - 1) * vol.spacing();
-    for (int c = 0; c < 8; ++c) {
-      const glm::dvec3 p = vol.frame().toPatient(glm::dvec3(c & 1 ? extent.x : 0, c & 2 ? extent.y : 0, c & 4 ? extent.z : 0));
-      lo = glm::min(lo, p);
-      hi = glm::max(hi, p);
-    }
-    json presets = json::object();
-    for (const std::string& p : TransferFunction::presetNames()) {
-      json pts = json::array();
-      const TransferFunction preset = TransferFunction::preset(p);
-      for (const TransferFunction::Point& q : preset.points())
-        pts.push_back(json::array({q.value, q.color.r, q.color.g, q.color.b, q.alpha}));
-      presets[p] = pts;
-    }
-    slot->info = {{"type", "info"},
-                  {"scene", slot->key},
-                  {"name", name},
-                  {"dims", json::array({vol.dims().x, vol.dims().y, vol.dims().z})},
-                  {"spacing", vec3Json(vol.spacing())},
-                  {"range", json::array({vol.minValue(), vol.maxValue()})},
-                  {"histogram", {{"min", h.minValue}, {"max", h.maxValue}, {"counts", h.counts}}},
-                  {"orientation", orientationCode(vol.frame().direction)},
-                  {"bounds", {{"min", vec3Json(lo)}, {"max", vec3Json(hi)}}},
-                  {"center", vec3Json(0.5 * (lo + hi))},
-                  {"views", views},
-                  {"presets", presets},
-                  {"defaultPreset", vol.minValue() < -500.0f && vol.maxValue() > 300.0f ? "ct-skin-bone" : ""},
-                  {"defaultTf", json::array()},
-                  {"iso", nullptr}};
-    if (hasSceneIso) slot->info["iso"] = sceneIso;
-    for (const TransferFunction::Point& q : tf.points()) slot->info["defaultTf"].push_back(json::array({q.value, q.color.r, q.color.g, q.color.b, q.alpha}));
-    return slot;
+  void send(uint64_t viewer, const std::string& message) {
+    if (const auto c = clients.find(viewer); c != clients.end()) c->second->send(message, false);
   }
+
+  // ---- what the page is told -----------------------------------------------------------------
 
   json volumesJson() const {
     json list = json::array();
     for (const DataEntry& e : listing) list.push_back({{"path", e.path}, {"series", e.series}, {"label", e.label}});
     return list;
   }
-  json infoFor(const SceneSlot& slot) const {
-    json info = slot.info;
-    info["volumes"] = volumesJson();
+
+  json infoJson(const SceneSummary& s) const {
+    json views = json::object();
+    const char* names[] = {"anterior", "posterior", "left", "right", "superior", "inferior"};
+    for (int v = 0; v < 6; ++v) views[names[v]] = cameraToJson(s.views[size_t(v)]);
+    const Histogram& h = s.histogram;
+    json presets = json::object();
+    auto pointsJson = [](const TransferFunction& tf) {
+      json pts = json::array();
+      for (const TransferFunction::Point& q : tf.points()) pts.push_back(json::array({q.value, q.color.r, q.color.g, q.color.b, q.alpha}));
+      return pts;
+    };
+    for (const std::string& p : TransferFunction::presetNames()) presets[p] = pointsJson(TransferFunction::preset(p));
+    const json defaultTf = pointsJson(TransferFunction::defaultFor(s.minValue, s.maxValue));
+    json info = {{"type", "info"},
+                 {"scene", s.key},
+                 {"name", s.name},
+                 {"dims", json::array({s.dims.x, s.dims.y, s.dims.z})},
+                 {"spacing", vec3Json(s.spacing)},
+                 {"range", json::array({s.minValue, s.maxValue})},
+                 {"histogram", {{"min", h.minValue}, {"max", h.maxValue}, {"counts", h.counts}}},
+                 {"orientation", s.orientation},
+                 {"orientationAssumed", s.orientationAssumed},
+                 {"bounds", {{"min", vec3Json(s.boundsLo)}, {"max", vec3Json(s.boundsHi)}}},
+                 {"center", vec3Json(0.5 * (s.boundsLo + s.boundsHi))},
+                 {"views", views},
+                 {"presets", presets},
+                 {"defaultPreset", s.minValue < -500.0f && s.maxValue > 300.0f ? "ct-skin-bone" : ""},
+                 {"defaultTf", defaultTf},
+                 {"iso", s.sceneIso ? json(*s.sceneIso) : json(nullptr)},
+                 {"surfaces", pool->readySurfaces(s.key)},
+                 {"volumes", volumesJson()}};
+    if (!options.dataDir.empty()) info["open"] = {{"path", s.name}, {"series", s.series}};
     return info;
   }
 
-  // Loads the volumes clients asked to open, one at a time, off the render thread.
-  void loaderLoop() {
-    std::unique_lock<std::mutex> lock(mutex);
-    while (!stopping) {
-      wake.wait(lock, [&] { return stopping || !opens.empty(); });
-      if (stopping) break;
-      auto [client, request] = opens.front();
-      opens.pop_front();
-      const std::string key = keyOf(request.path, request.series);
-      if (scenes.count(key)) {
-        client->sceneKey = key;
-        client->send(infoFor(*scenes[key]).dump(), false);
-        continue;
+  // The pool's events: each goes to the client it concerns only (under the mutex).
+  ScenePool::Events poolEvents() {
+    ScenePool::Events e;
+    e.loading = [this](uint64_t viewer, const std::string& key, const std::string& task, double fraction) {
+      send(viewer, json{{"type", "loading"}, {"scene", key}, {"task", task}, {"progress", fraction}}.dump());
+    };
+    e.opened = [this](uint64_t viewer, const std::string& key, const SceneSummary* summary, const std::string& error) {
+      const auto c = clients.find(viewer);
+      if (c == clients.end()) return;
+      if (!summary) {
+        json m = json::parse(errorMessage("open " + key + ": " + error));
+        m["scene"] = key;
+        c->second->send(m.dump(-1, ' ', false, json::error_handler_t::replace), false);
+        return;
       }
-      lock.unlock();
-      std::unique_ptr<SceneSlot> slot;
-      std::string error;
-      try {
-        const std::filesystem::path real = resolveInDataDir(options.dataDir, request.path);
-        client->send(json{{"type", "loading"}, {"path", request.path}}.dump(), false);
-        slot = makeSlot(real.string(), request.series, request.path);
-        slot->key = key;
-        slot->info["scene"] = key;
-        slot->info["open"] = {{"path", request.path}, {"series", request.series}};
-      } catch (const std::exception& e) {
-        error = e.what();
-      }
-      lock.lock();
-      if (!slot) {
-        client->send(errorMessage(error), false);
-        continue;
-      }
-      evictUnused();
-      client->sceneKey = key;
-      client->pending.reset();
-      client->refine.clear();
-      client->send(infoFor(*slot).dump(), false);
-      scenes[key] = std::move(slot);
-      wake.notify_all();
-    }
+      c->second->showScene(key);
+      c->second->send(infoJson(*summary).dump(-1, ' ', false, json::error_handler_t::replace), false);
+    };
+    e.surface = [this](uint64_t viewer, const std::string& key, float iso, ScenePool::SurfaceState state, const std::string& task, double fraction) {
+      const char* name = state == ScenePool::SurfaceState::Building ? "building" : state == ScenePool::SurfaceState::Ready ? "ready" : "failed";
+      json m = {{"type", "surface"}, {"scene", key}, {"iso", iso}, {"state", name}};
+      if (state == ScenePool::SurfaceState::Building) m["task"] = task, m["progress"] = fraction;
+      send(viewer, m.dump());
+    };
+    e.wake = [this] { wake.notify_all(); };
+    return e;
   }
-
-  // Keeps at most two volumes no client shows (under the lock; joins their builders).
-  void evictUnused() {
-    std::set<std::string> used;
-    for (const auto& c : clients) used.insert(c->sceneKey);
-    size_t idle = 0;
-    for (auto it = scenes.begin(); it != scenes.end();) {
-      const bool free = !used.count(it->first) && it->second->busy == 0 && !it->second->buildingIso;
-      if (free && ++idle > 1) {
-        // Destroying a renderer frees its OpenGL context, which the render thread made: hand it over.
-        retired.push_back(std::move(it->second));
-        it = scenes.erase(it);
-      } else {
-        ++it;
-      }
-    }
-  }
-  std::vector<std::unique_ptr<SceneSlot>> retired;  // destroyed by the render thread
 
   // ---- rendering ----------------------------------------------------------------------------
 
-  // Starts building the surface of @p iso in the background (under the lock).
-  void requestSurface(SceneSlot& slot, float iso) {
-    if (slot.renderer->hasSurface(iso)) {
-      slot.wantedIso.reset();  // (a client still wanting it asks again when the build in flight ends)
-      return;
-    }
-    if (slot.buildingIso == iso) return;
-    if (slot.buildingIso) {
-      slot.wantedIso = iso;
-      return;
-    }
-    slot.buildingIso = iso;
-    slot.wantedIso.reset();
-    if (slot.builder.joinable()) slot.builder.join();
-    broadcast(slot, json{{"type", "surface"}, {"iso", iso}, {"state", "building"}, {"progress", 0.0}}.dump());
-    slot.builder = std::thread([this, &slot, iso] {
-      std::unique_ptr<PreparedSurface> s;
-      try {
-        const Progress progress([&](const std::string& task, double f) {
-          const std::lock_guard<std::mutex> lock(mutex);
-          broadcast(slot, json{{"type", "surface"}, {"iso", iso}, {"state", "building"}, {"task", task}, {"progress", f}}.dump());
-        });
-        s = SceneRenderer::prepareSurface(slot.renderer->scene(), iso, &progress, nullptr, true);
-      } catch (const std::exception& e) {
-        log(std::string("surface build failed: ") + e.what());
+  // Clients showing scene @p key refine again (a surface they asked for may have come).
+  void refineAgain(const std::string& key) {
+    for (const auto& [id, c] : clients)
+      if (c->sceneKey == key && c->current && !c->pending) {
+        c->pending = c->current;
+        c->pending->interacting = false;
+        c->pendingSince.reset();
       }
-      const std::lock_guard<std::mutex> lock(mutex);
-      slot.built = std::move(s);
-      slot.buildFailed = !slot.built;
-      wake.notify_all();
-    });
-  }
-
-  void broadcast(const SceneSlot& slot, const std::string& message) {
-    for (const auto& c : clients)
-      if (c->sceneKey == slot.key) c->send(message, false);
-  }
-
-  // Adopts finished surfaces and starts the builds asked for meanwhile (under the lock).
-  void collectSurfaces() {
-    for (auto& [key, slot] : scenes) {
-      if (!slot->buildingIso || (!slot->built && !slot->buildFailed)) continue;
-      const float iso = *slot->buildingIso;
-      if (slot->built) {
-        slot->renderer->adoptSurface(std::move(slot->built));
-        slot->shownIso = iso;
-        broadcast(*slot, json{{"type", "surface"}, {"iso", iso}, {"state", "ready"}}.dump());
-      } else {
-        broadcast(*slot, json{{"type", "surface"}, {"iso", iso}, {"state", "failed"}}.dump());
-      }
-      slot->buildingIso.reset();
-      slot->buildFailed = false;
-      if (slot->wantedIso) requestSurface(*slot, *slot->wantedIso);
-      // Clients showing this scene refine again with the new surface.
-      for (const auto& c : clients)
-        if (c->sceneKey == key && c->current && !c->pending) {
-          c->pending = c->current;
-          c->pending->interacting = false;
-          c->pendingSince.reset();
-        }
-    }
   }
 
   void renderLoop() {
     std::unique_lock<std::mutex> lock(mutex);
     size_t turn = 0;
+    auto ready = [&] {
+      if (stopping || pool->hasWork()) return true;
+      for (const auto& [id, c] : clients)
+        if (c->hasWork()) return true;
+      return false;
+    };
     while (!stopping) {
-      wake.wait(lock, [&] {
-        if (stopping || !retired.empty() || !exports.empty()) return true;
-        for (auto& [k, s] : scenes)
-          if (s->built || s->buildFailed) return true;
-        for (const auto& c : clients)
-          if (c->hasWork()) return true;
-        return false;
-      });
+      if (const std::optional<ScenePool::Clock::time_point> due = pool->nextRelease())
+        wake.wait_until(lock, *due, ready);
+      else
+        wake.wait(lock, ready);
       if (stopping) break;
-      retired.clear();
-      collectSurfaces();
-      if (!exports.empty()) {
-        Export e = std::move(exports.front());
-        exports.pop_front();
-        runExport(e, lock);
-        continue;
-      }
-      // The clients with work, in turn.
-      std::vector<std::shared_ptr<Client>> ready;
-      for (const auto& c : clients)
-        if (c->hasWork()) ready.push_back(c);
-      if (ready.empty()) continue;
-      std::shared_ptr<Client> client = ready[turn++ % ready.size()];
-      SceneSlot* slot = scenes.count(client->sceneKey) ? scenes[client->sceneKey].get() : nullptr;
-      if (!slot) {
-        client->pending.reset();
-        client->refine.clear();
-        continue;
-      }
-      // The newest request replaces whatever refinement was under way.
-      int level = 0;
-      std::optional<Arrival> arrival;
-      bool surface = client->refineSurface;
-      if (client->pending) {
-        if (client->pendingSince) arrival = Arrival{msSince(*client->pendingSince), client->pendingEpochMs};
-        client->pendingSince.reset();
-        client->current = std::move(client->pending);
-        client->pending.reset();
-        const FrameRequest& r = *client->current;
-        if (r.iso) {
-          requestSurface(*slot, *r.iso);
-          // The surface asked for once it is ready; until then the one shown before, if still kept.
-          if (slot->renderer->hasSurface(*r.iso))
-            client->shownIso = r.iso;
-          else if (!client->shownIso || !slot->renderer->hasSurface(*client->shownIso))
-            client->shownIso = slot->shownIso;
-        }
-        surface = r.iso && client->shownIso;
-        AdaptiveQuality& quality = client->quality(surface);
-        if (r.interacting) {
-          level = quality.chooseInteractiveLevel();
-          client->refine.clear();
-        } else {
-          client->refine = quality.refinement();
-          client->refineSurface = surface;
-          std::reverse(client->refine.begin(), client->refine.end());
-          level = client->refine.back();
-          client->refine.pop_back();
-        }
-      } else {
-        level = client->refine.back();
-        client->refine.pop_back();
-      }
-      const FrameRequest request = *client->current;
-      const bool final = !request.interacting && client->refine.empty() && level == 0;
-      const std::optional<float> iso = request.iso ? client->shownIso : std::nullopt;
-      const QualityLevel& rung = client->quality(surface).ladder()[size_t(level)];
-      lock.unlock();
-      std::string message;
-      double ms = 0.0;
-      bool cold = false;
-      try {
-        message = renderFrame(*slot, request, rung, level, final, iso, arrival, &ms, &cold);
-      } catch (const std::exception& e) {
-        message.clear();
-        client->send(errorMessage(e.what(), request.seq), false);
-      }
-      lock.lock();
-      if (!message.empty()) {  // (a failed frame's time says nothing of its level)
-        client->quality(surface).record(level, ms, cold);
-        client->send(std::move(message), true);
-      }
+      for (const std::string& key : pool->collect(lock)) refineAgain(key);
+      // The clients with work, in turn: a large final frame gives way between its bands.
+      std::vector<std::shared_ptr<Client>> waiting;
+      for (const auto& [id, c] : clients)
+        if (c->hasWork()) waiting.push_back(c);
+      if (!waiting.empty()) serve(*waiting[turn++ % waiting.size()], lock);
     }
-    // The renderers' OpenGL contexts are this thread's: they are destroyed here, the lock released
-    // for builders that still want it.
-    std::map<std::string, std::unique_ptr<SceneSlot>> gone = std::move(scenes);
-    std::vector<std::unique_ptr<SceneSlot>> old = std::move(retired);
-    scenes.clear();
-    retired.clear();
+    // The renderers' OpenGL contexts are this thread's: destroyed here once the network and export
+    // threads, which use the pool, have ended, and without the mutex (the pool's threads still want
+    // it while they stop).
+    wake.wait(lock, [&] { return othersStopped; });
+    std::unique_ptr<ScenePool> gone = std::move(pool);
     lock.unlock();
-    gone.clear();
-    old.clear();
+    gone.reset();
   }
 
-  // When a frame's request came from the page: its wait for the render thread, and its arrival's
-  // wall clock.
-  struct Arrival {
-    double waitMs = 0.0, epochMs = 0.0;
-  };
-
-  // One frame at @p level of the ladder, encoded with its header (render thread, unlocked); @p cold
-  // says whether it uploaded most of its textures.
-  std::string renderFrame(SceneSlot& slot, const FrameRequest& r, const QualityLevel& q, int level, bool final, std::optional<float> iso,
-                          const std::optional<Arrival>& arrival, double* ms, bool* cold) {
-    const auto t0 = Clock::now();
-    View view;
-    view.camera = r.camera;
-    view.camera.width = std::max(kMinImageEdge, int(std::lround(r.camera.width * q.scale)));
-    view.camera.height = std::max(kMinImageEdge, int(std::lround(r.camera.height * q.scale)));
-    Look look;
-    look.tf = r.transferFunction();
-    look.iso = iso;
-    look.surfaceColor = r.surfaceColor;
-    look.shading = r.shading;
-    look.cut = r.cut;
-    look.voi = r.voi;
-    Quality quality;
-    if (level > 0) {
-      quality.budgetPercent = q.budgetPercent < 100.0 ? q.budgetPercent : 0.0;
-      quality.step = q.step;
-      quality.reuseViewErrors = r.interacting;
-      // The refining frame too: it comes between the motion and the final frame, which it delays.
-      quality.simplifiedSurface = true;
-      quality.cutToSlabs = false;
-      quality.maxBrickEdge = kInteractiveBrickEdge;
+  // One step of @p client's work: its newest request's first frame, the next refinement, or the
+  // next band of its final frame (called and returning with @p lock held; unlocked to render).
+  void serve(Client& client, std::unique_lock<std::mutex>& lock) {
+    int level = 0;
+    std::optional<Arrival> arrival;
+    bool surface = client.refineSurface;
+    if (client.pending) {
+      if (client.pendingSince) arrival = Arrival{msSince(*client.pendingSince), client.pendingEpochMs};
+      client.pendingSince.reset();
+      client.current = std::move(client.pending);
+      client.pending.reset();
+      client.banded.reset();
+      client.refine.clear();
+      const FrameRequest& r = *client.current;
+      if (!r.scene.empty() && r.scene != client.sceneKey) {  // asked of the scene shown before this one
+        client.current.reset();
+        return;
+      }
+      surface = pool->forFrame(client.id, r.iso).iso.has_value();
+      AdaptiveQuality& quality = client.quality(surface);
+      if (r.interacting) {
+        level = quality.chooseInteractiveLevel();
+      } else {
+        client.refine = quality.refinement();
+        client.refineSurface = surface;
+        std::reverse(client.refine.begin(), client.refine.end());
+        level = client.refine.back();
+        client.refine.pop_back();
+      }
+    } else if (!client.banded) {
+      level = client.refine.back();
+      client.refine.pop_back();
     }
-    const RenderedFrame frame = slot.renderer->render(view, look, quality);
-    const double renderMs = msSince(t0);
+    const ScenePool::Frame scene = pool->forFrame(client.id, client.current->iso);
+    if (!scene.renderer) {
+      client.refine.clear();
+      client.banded.reset();
+      return;
+    }
+    const FrameRequest request = client.banded ? client.banded->request : *client.current;
+    const bool final = !request.interacting && client.refine.empty() && level == 0;
+    if (final && !client.banded && int64_t(request.camera.width) * request.camera.height > kBandPixels) {
+      BandedFrame b;
+      b.request = request;
+      b.iso = scene.iso;
+      b.surfaceReady = scene.surfaceReady;
+      b.arrival = arrival;
+      b.image = Image(request.camera.width, request.camera.height);
+      b.rowsPerBand = std::max(16, kBandPixels / request.camera.width);
+      client.banded = std::move(b);
+    }
+    if (client.banded) {
+      serveBand(client, *scene.renderer, *scene.summary, lock);
+      return;
+    }
+    const QualityLevel& rung = client.quality(surface).ladder()[size_t(level)];
+    const std::optional<float> iso = request.iso ? scene.iso : std::nullopt;
+    const SceneSummary summary = *scene.summary;
+    lock.unlock();
+    std::string message;
+    double ms = 0.0;
+    bool cold = false;
+    try {
+      const auto t0 = Clock::now();
+      const FrameParts parts = frameParts(request, rung, level, iso);
+      const RenderedFrame frame = scene.renderer->render(parts.view, parts.look, parts.quality);
+      const double renderMs = msSince(t0);
+      const FrameStats& st = frame.stats;
+      cold = 2 * st.slices.uploadedBricks > st.slices.bricks;
+      message = encodeFrame(summary, request, parts.look, rung, level, final, iso, scene.surfaceReady, arrival, frame.image, st,
+                            frame.selection.maxError, renderMs, t0, &ms);
+    } catch (const std::exception& e) {
+      message.clear();
+      client.send(errorMessage(e.what(), request.seq), false);
+    }
+    lock.lock();
+    if (!message.empty()) {  // (a failed frame's time says nothing of its level)
+      client.quality(surface).record(level, ms, cold);
+      client.send(std::move(message), true);
+    }
+  }
+
+  // The next band of @p client's final frame; the frame goes out with its last.
+  void serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, std::unique_lock<std::mutex>& lock) {
+    BandedFrame& b = *client.banded;
+    const glm::ivec2 rows(b.next, std::min(b.next + b.rowsPerBand, b.image.height));
+    const QualityLevel& rung = client.quality(b.iso.has_value()).ladder()[0];
+    const FrameRequest request = b.request;
+    const std::optional<float> iso = request.iso ? b.iso : std::nullopt;
+    const SceneSummary summary = scene;
+    lock.unlock();
+    std::string message, error;
+    RenderedFrame frame;
+    const auto t0 = Clock::now();
+    try {
+      FrameParts parts = frameParts(request, rung, 0, iso);
+      parts.quality.rows = rows;
+      frame = renderer.render(parts.view, parts.look, parts.quality);
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+    const double ms = msSince(t0);
+    lock.lock();
+    if (!client.banded || client.banded->request.seq != request.seq) return;  // replaced meanwhile
+    if (!error.empty()) {
+      client.banded.reset();
+      client.send(errorMessage(error, request.seq), false);
+      return;
+    }
+    for (int y = rows.x; y < rows.y; ++y)
+      std::copy_n(&frame.image.at(0, y), b.image.width, &b.image.at(0, y));
+    b.renderMs += ms;
+    b.stats = frame.stats;
+    b.maxError = std::max(b.maxError, double(frame.selection.maxError));
+    b.next = rows.y;
+    if (b.next < b.image.height) return;
+    BandedFrame done = std::move(b);
+    client.banded.reset();
+    lock.unlock();
+    double total = 0.0;
+    try {
+      const FrameParts parts = frameParts(done.request, rung, 0, iso);
+      message = encodeFrame(summary, done.request, parts.look, rung, 0, true, iso, done.surfaceReady, done.arrival, done.image, done.stats,
+                            done.maxError, done.renderMs, Clock::now(), &total);
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+    lock.lock();
+    if (!message.empty())
+      client.send(std::move(message), true);
+    else
+      client.send(errorMessage(error, done.request.seq), false);
+  }
+
+  // What a frame of @p r at @p level of the ladder (rung @p q) draws and how.
+  struct FrameParts {
+    View view;
+    Look look;
+    Quality quality;
+  };
+  static FrameParts frameParts(const FrameRequest& r, const QualityLevel& q, int level, std::optional<float> iso) {
+    FrameParts p;
+    p.view.camera = r.camera;
+    p.view.camera.width = std::max(kMinImageEdge, int(std::lround(r.camera.width * q.scale)));
+    p.view.camera.height = std::max(kMinImageEdge, int(std::lround(r.camera.height * q.scale)));
+    p.look.tf = r.transferFunction();
+    p.look.iso = iso;
+    p.look.surfaceColor = r.surfaceColor;
+    p.look.shading = r.shading;
+    p.look.cut = r.cut;
+    p.look.voi = r.voi;
+    if (level > 0) {
+      p.quality.budgetPercent = q.budgetPercent < 100.0 ? q.budgetPercent : 0.0;
+      p.quality.step = q.step;
+      p.quality.reuseViewErrors = r.interacting;
+      // The refining frame too: it comes between the motion and the final frame, which it delays.
+      p.quality.simplifiedSurface = true;
+      p.quality.cutToSlabs = false;
+      p.quality.maxBrickEdge = kInteractiveBrickEdge;
+    }
+    return p;
+  }
+
+  // A frame's message: its header and the image, JPEG before the final frame, PNG for it (render
+  // thread, unlocked); @p ms receives the frame's time from @p t0, encoding included.
+  std::string encodeFrame(const SceneSummary& scene, const FrameRequest& r, const Look& look, const QualityLevel& q, int level, bool final,
+                          std::optional<float> iso, bool surfaceReady, const std::optional<Arrival>& arrival, const Image& image,
+                          const FrameStats& st, double maxError, double renderMs, Clock::time_point t0, double* ms) const {
     const auto t1 = Clock::now();
-    const std::vector<uint8_t> rgba = toRgba8(frame.image, glm::vec3(0.0f));
-    const std::vector<uint8_t> bytes = final ? encodePng(rgba, frame.image.width, frame.image.height)
-                                             : encodeJpeg(rgba, frame.image.width, frame.image.height, 95);
+    const std::vector<uint8_t> rgba = toRgba8(image, glm::vec3(0.0f));
+    const std::vector<uint8_t> bytes = final ? encodePng(rgba, image.width, image.height) : encodeJpeg(rgba, image.width, image.height, 95);
     const double encodeMs = msSince(t1);
     *ms = msSince(t0);
-    const FrameStats& st = frame.stats;
-    *cold = 2 * st.slices.uploadedBricks > st.slices.bricks;
     json header = {{"type", "frame"},
+                   {"scene", scene.key},
                    {"seq", r.seq},
                    {"quality", r.interacting ? "interactive" : final ? "final" : "refining"},
                    {"level", level},
                    {"ladder", iso ? "surface" : "volume"},
                    {"levelText", q.describe()},
                    {"format", final ? "png" : "jpeg"},
-                   {"width", frame.image.width},
-                   {"height", frame.image.height},
+                   {"width", image.width},
+                   {"height", image.height},
                    {"waitMs", arrival ? json(arrival->waitMs) : json(nullptr)},
                    {"requestEpochMs", arrival ? json(arrival->epochMs) : json(nullptr)},
                    {"sentEpochMs", epochMs()},
@@ -544,48 +519,59 @@ struct ServerState {
                    {"encodeMs", encodeMs},
                    {"textureBytes", st.slices.textureBytes},
                    {"bricks", st.slices.bricks},
-                   {"maxError", frame.selection.maxError},
+                   {"maxError", maxError},
                    {"iso", iso ? json(*iso) : json(nullptr)},
-                   {"surfaceReady", iso == r.iso},  // false: the surface asked for is still being built
+                   {"surfaceReady", !r.iso || surfaceReady},  // false: the surface asked for is still being built
                    {"camera", cameraToJson(r.camera)}};
-    if (final && iso == r.iso) {  // (while the surface asked for is built, the frame is not the command's)
-      header["command"] = renderCommand(slot.path, slot.series, r, "view.tf");
+    if (final && (!r.iso || surfaceReady)) {  // (while the surface asked for is built, the frame is not the command's)
+      header["command"] = renderCommand(scene.path, scene.series, r, "view.tf");
       if (r.preset.empty() || r.opacityScale != 1.0f) header["tfText"] = tfText(look.tf);
     }
     return frameMessage(header.dump(-1, ' ', false, json::error_handler_t::replace), bytes);
   }
 
-  // A mesh of the scene's isosurface in patient coordinates, as `export --surface octree` writes.
-  void runExport(const Export& e, std::unique_lock<std::mutex>& lock) {
-    SceneSlot* slot = scenes.count(e.sceneKey) ? scenes[e.sceneKey].get() : nullptr;
-    if (!slot) {
-      e.reply("", "no such scene");
-      return;
+  // ---- exports ------------------------------------------------------------------------------
+
+  // A mesh of a scene's isosurface in patient coordinates, as `export --surface octree` writes,
+  // made on a thread of its own (frames go on meanwhile).
+  void exportLoop() {
+    std::unique_lock<std::mutex> lock(mutex);
+    while (!stopping) {
+      wake.wait(lock, [&] { return stopping || !exports.empty(); });
+      if (stopping) break;
+      Export e = std::move(exports.front());
+      exports.pop_front();
+      const Scene* scene = pool->pin(e.sceneKey);
+      if (!scene) {
+        e.reply("", "no such scene");
+        continue;
+      }
+      lock.unlock();
+      std::string body, error;
+      try {
+        body = meshFile(*scene, e.iso, e.format);
+      } catch (const std::exception& ex) {
+        error = ex.what();
+      }
+      lock.lock();
+      pool->unpin(e.sceneKey);
+      e.reply(std::move(body), std::move(error));
     }
-    ++slot->busy;
-    lock.unlock();
-    std::string body, error;
-    try {
-      const Scene& scene = slot->renderer->scene();
-      const Volume& v = scene.volume;
-      const bool stored = scene.surface && scene.surface->isovalue() == e.iso;
-      const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, scene.octree, e.iso);
-      TriangleMesh mesh = fineMeshToTriangles(so.reconstruct(kMaxDim), v.spacing());
-      if (mesh.triangles.empty())
-        HYB_THROW(ValueError, "iso: no surface at ", e.iso, " (the data's values are ", v.minValue(), " to ", v.maxValue(), ")");
-      toPatientSpace(v.frame(), &mesh);
-      const std::filesystem::path tmp =
-          std::filesystem::temp_directory_path() / ("hybrid-octree-view-" + makeToken() + "." + e.format);
-      writeMesh(tmp.string(), mesh, MeshWriteOptions{false, "LPS"});
-      std::ifstream in(tmp, std::ios::binary);
-      body.assign(std::istreambuf_iterator<char>(in), {});
-      std::filesystem::remove(tmp);
-    } catch (const std::exception& ex) {
-      error = ex.what();
-    }
-    lock.lock();
-    --slot->busy;
-    e.reply(std::move(body), std::move(error));
+  }
+
+  static std::string meshFile(const Scene& scene, float iso, const std::string& format) {
+    const Volume& v = scene.volume;
+    const bool stored = scene.surface && scene.surface->isovalue() == iso;
+    const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, scene.octree, iso);
+    TriangleMesh mesh = fineMeshToTriangles(so.reconstruct(kMaxDim), v.spacing());
+    if (mesh.triangles.empty()) HYB_THROW(ValueError, "iso: no surface at ", iso, " (the data's values are ", v.minValue(), " to ", v.maxValue(), ")");
+    toPatientSpace(v.frame(), &mesh);
+    const std::filesystem::path tmp = std::filesystem::temp_directory_path() / ("hybrid-octree-view-" + makeToken() + "." + format);
+    writeMesh(tmp.string(), mesh, MeshWriteOptions{false, "LPS"});
+    std::ifstream in(tmp, std::ios::binary);
+    std::string body((std::istreambuf_iterator<char>(in)), {});
+    std::filesystem::remove(tmp);
+    return body;
   }
 
   // ---- network ------------------------------------------------------------------------------
@@ -602,11 +588,11 @@ struct ServerState {
   bool addClient(const std::shared_ptr<Client>& c) {
     const std::lock_guard<std::mutex> lock(mutex);
     if (int(clients.size()) >= options.maxClients) return false;
-    clients.push_back(c);
-    if (!options.volume.empty()) {
-      const std::string key = keyOf(options.volume, options.series);
-      c->sceneKey = key;
-      c->send(infoFor(*scenes[key]).dump(), false);
+    c->id = nextClient++;
+    clients[c->id] = c;
+    if (!defaultScene.empty()) {
+      // Told at once while it is open; read again if it was released while no client showed it.
+      pool->open(c->id, defaultScene, options.volume, options.series, std::filesystem::path(options.volume).filename().string());
     } else {
       c->send(json{{"type", "volumes"}, {"volumes", volumesJson()}}.dump(), false);
     }
@@ -616,7 +602,8 @@ struct ServerState {
   void removeClient(const std::shared_ptr<Client>& c) {
     const std::lock_guard<std::mutex> lock(mutex);
     c->open = false;
-    clients.remove(c);
+    clients.erase(c->id);
+    pool->leave(c->id);
   }
 
   void onMessage(const std::shared_ptr<Client>& c, const std::string& text) {
@@ -627,23 +614,32 @@ struct ServerState {
       c->send(errorMessage(e.what()), false);
       return;
     }
-    const std::lock_guard<std::mutex> lock(mutex);
-    if (auto* frame = std::get_if<FrameRequest>(&request)) {
-      if (c->sceneKey.empty()) {
-        c->send(errorMessage("no volume is open (send an open message first)", frame->seq), false);
-        return;
-      }
-      c->pending = std::move(*frame);  // replaces an older one not yet rendered
-      c->pendingSince = Clock::now();
-      c->pendingEpochMs = epochMs();
-    } else {
-      const auto& open = std::get<OpenRequest>(request);
+    if (const auto* open = std::get_if<OpenRequest>(&request)) {
       if (options.dataDir.empty()) {
         c->send(errorMessage("open: the server has no data directory (start it with --data-dir)"), false);
         return;
       }
-      opens.emplace_back(c, open);
+      std::filesystem::path real;
+      try {
+        real = resolveInDataDir(options.dataDir, open->path);
+      } catch (const Error& e) {
+        c->send(errorMessage(e.what()), false);
+        return;
+      }
+      const std::lock_guard<std::mutex> lock(mutex);
+      pool->open(c->id, keyOf(open->path, open->series), real.string(), open->series, open->path);
+      return;
     }
+    auto& frame = std::get<FrameRequest>(request);
+    const std::lock_guard<std::mutex> lock(mutex);
+    if (c->sceneKey.empty()) {
+      c->send(errorMessage("no volume is open (send an open message first)", frame.seq), false);
+      return;
+    }
+    if (!frame.scene.empty() && frame.scene != c->sceneKey) return;  // for the scene shown before: stale
+    c->pending = std::move(frame);  // replaces an older one not yet rendered
+    c->pendingSince = Clock::now();
+    c->pendingEpochMs = epochMs();
     wake.notify_all();
   }
 
@@ -652,8 +648,6 @@ struct ServerState {
     exports.push_back(Export{sceneKey, iso, format, std::move(reply)});
     wake.notify_all();
   }
-
-  std::string defaultSceneKey() const { return options.volume.empty() ? "" : keyOf(options.volume, options.series); }
 };
 
 namespace {
@@ -695,14 +689,34 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     read();
   }
 
-  void read() { mWs.async_read(mBuffer, beast::bind_front_handler(&WsSession::onRead, shared_from_this())); }
+  // A message is read in parts as they come: one whose first part came more than
+  // ServerOptions::messageTimeout ago closes the socket (a client trickling bytes would otherwise
+  // keep its slot for good); an idle socket is left alone (Beast's pings find a peer that is gone).
+  void read() { mWs.async_read_some(mBuffer, kMaxMessageBytes, beast::bind_front_handler(&WsSession::onRead, shared_from_this())); }
 
   void onRead(beast::error_code ec, size_t) {
     if (ec) {
       if (ec == websocket::error::message_too_big) mServer.log("client sent a message over the limit: closed");
+      mDeadline.cancel();
       close();
       return;
     }
+    if (!mInMessage) {
+      mInMessage = true;
+      mDeadline.expires_after(mServer.options.messageTimeout);
+      mDeadline.async_wait([self = shared_from_this()](beast::error_code e) {
+        if (e || !self->mInMessage) return;
+        self->mServer.log("client took longer than the message timeout to send a message: closed");
+        beast::error_code ignored;
+        beast::get_lowest_layer(self->mWs).socket().close(ignored);
+      });
+    }
+    if (!mWs.is_message_done()) {
+      read();
+      return;
+    }
+    mInMessage = false;
+    mDeadline.cancel();
     if (!mWs.got_text()) {
       queue(errorMessage("message: expected JSON text, not binary"), false);
     } else {
@@ -749,6 +763,8 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
   websocket::stream<beast::tcp_stream> mWs;
   ServerState& mServer;
   beast::flat_buffer mBuffer;
+  net::steady_timer mDeadline{mWs.get_executor()};  // the message being read must be complete by then
+  bool mInMessage = false;
   std::shared_ptr<Client> mClient;
   std::deque<std::pair<std::string, bool>> mQueue;
   bool mWriting = false;
@@ -785,10 +801,11 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
       return;
     }
     if (websocket::is_upgrade(req)) {
-      // Pages of other origins may not drive the viewer with the cookie this one holds.
+      // Only this server's page may drive the viewer with the cookie it holds: browsers send the
+      // page's origin with a socket; one without (not a browser's page) or of another is refused.
       const auto origin = req.find(http::field::origin);
       const auto host = req.find(http::field::host);
-      if (path != "/ws" || (origin != req.end() && (host == req.end() || std::string(origin->value()) != "http://" + std::string(host->value())))) {
+      if (path != "/ws" || origin == req.end() || host == req.end() || std::string(origin->value()) != "http://" + std::string(host->value())) {
         respond(http::status::forbidden, "text/plain", "403: not this page's socket\n", false, req.version());
         return;
       }
@@ -816,7 +833,7 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
   void exportMesh(const std::string& target, unsigned version, bool keepAlive) {
     const auto iso = queryParam(target, "iso");
     const auto format = queryParam(target, "format").value_or("ply");
-    std::string scene = queryParam(target, "scene").value_or(mServer.defaultSceneKey());
+    std::string scene = queryParam(target, "scene").value_or(mServer.defaultScene);
     double value = 0;
     try {
       size_t used = 0;
@@ -896,9 +913,14 @@ Server::Server(ServerOptions options) : mImpl(std::make_unique<ServerState>()) {
   if (!s.options.loader) HYB_THROW(ValueError, "view: no volume loader");
   if (s.options.volume.empty() && s.options.dataDir.empty()) HYB_THROW(ValueError, "view: expected a volume or --data-dir");
   if (!s.options.dataDir.empty()) s.listing = listDataDir(s.options.dataDir);
+  ScenePool::Options po;
+  po.loader = s.options.loader;
+  po.textureLimitBytes = s.options.textureLimitBytes;
+  po.releaseAfter = s.options.releaseAfter;
+  s.pool = std::make_unique<ScenePool>(s.mutex, std::move(po), s.poolEvents());
   if (!s.options.volume.empty()) {
-    auto slot = s.makeSlot(s.options.volume, s.options.series, std::filesystem::path(s.options.volume).filename().string());
-    s.scenes[slot->key] = std::move(slot);
+    s.defaultScene = ServerState::keyOf(s.options.volume, s.options.series);
+    s.pool->preload(s.defaultScene, s.options.volume, s.options.series, std::filesystem::path(s.options.volume).filename().string());
   }
   beast::error_code ec;
   const net::ip::address address = net::ip::make_address(s.options.host, ec);
@@ -926,7 +948,7 @@ void Server::start() {
   s.started = true;
   accept(s);
   s.renderThread = std::thread([&s] { s.renderLoop(); });
-  s.loaderThread = std::thread([&s] { s.loaderLoop(); });
+  s.exportThread = std::thread([&s] { s.exportLoop(); });
   s.netThread = std::thread([&s] { s.io.run(); });
 }
 
@@ -947,9 +969,15 @@ void Server::stop() {
     s.acceptor.close(ignored);
   });
   s.io.stop();
-  for (std::thread* t : {&s.netThread, &s.renderThread, &s.loaderThread})
+  for (std::thread* t : {&s.netThread, &s.exportThread})
     if (t->joinable() && t->get_id() != std::this_thread::get_id()) t->join();
-  s.scenes.clear();  // never started: no context was made
+  {
+    const std::lock_guard<std::mutex> lock(s.mutex);
+    s.othersStopped = true;
+    s.wake.notify_all();
+  }
+  if (s.renderThread.joinable() && s.renderThread.get_id() != std::this_thread::get_id()) s.renderThread.join();
+  s.pool.reset();  // never started (the render thread destroys it otherwise): no context was made
 }
 
 }  // namespace hyb::viewer

@@ -9,6 +9,7 @@
 // Every HTTP request and the socket need the access token (as ?token= or the cookie the page gets).
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <filesystem>
 #include <functional>
@@ -17,11 +18,13 @@
 #include <string>
 
 #include "hybrid_octree/hybrid_io.h"
+#include "render/scene_pool.h"
 
 namespace hyb::viewer {
 
-/// Reads a volume (or scene file) and builds what the renderer needs: path and DICOM series.
-using SceneLoader = std::function<Scene(const std::string& path, const std::string& series)>;
+/// Reads a volume (or scene file) and builds what the renderer needs: path and DICOM series, with
+/// the load's progress (which throws to stop it when nobody waits for it any more).
+using SceneLoader = ScenePool::Loader;
 
 struct ServerOptions {
   std::string host = "127.0.0.1";
@@ -33,6 +36,10 @@ struct ServerOptions {
   uint64_t textureLimitBytes = 1ull << 29;  ///< brick textures each scene keeps between frames
   double frameTargetMs = 80.0;         ///< interactive frames aim at this time (render and encode)
   int maxClients = 8;
+  /// A volume no client shows is released this long after the last one left it.
+  std::chrono::milliseconds releaseAfter{10000};
+  /// A message whose first bytes came this long ago and is not complete closes its socket.
+  std::chrono::milliseconds messageTimeout{10000};
   SceneLoader loader;
   std::ostream* log = nullptr;         ///< one line per connection and error; null: silent
 };

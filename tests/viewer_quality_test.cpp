@@ -24,8 +24,10 @@ TEST(ViewerQuality, TheLaddersGoFromTheFinalFrameToCheaperOnes) {
 
 TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLevel) {
   AdaptiveQuality q(kVolumeLadder, 60.0);
-  // Nothing measured: every estimate is 0, so the best interactive level is tried.
-  EXPECT_EQ(q.chooseInteractiveLevel(), 1);
+  // Nothing measured (a volume just opened): the cheapest level, whose time predicts the others'.
+  const int cheapest = int(kVolumeLadder.size()) - 1;
+  EXPECT_EQ(q.chooseInteractiveLevel(), cheapest);
+  EXPECT_EQ(q.refinement(), (std::vector<int>{cheapest, 0}));  // a coarse frame first
   // Level 1 is slow: 240 ms. Predictions scale by cost: the first level under 60 ms is chosen.
   q.record(1, 240.0);
   const int level = q.chooseInteractiveLevel();
@@ -55,7 +57,6 @@ TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLev
   // A coarse interactive level refines through the best level that fits twice the target,
   // a fine one (or one with nothing measured) straight to the final one.
   AdaptiveQuality slow(kVolumeLadder, 60.0);
-  EXPECT_EQ(slow.refinement(), (std::vector<int>{0}));
   slow.record(1, 5000.0);
   EXPECT_EQ(slow.chooseInteractiveLevel(), int(kVolumeLadder.size()) - 1);
   const std::vector<int> steps = slow.refinement();
@@ -67,6 +68,10 @@ TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLev
   fast.record(1, 10.0);
   EXPECT_EQ(fast.chooseInteractiveLevel(), 1);
   EXPECT_EQ(fast.refinement(), (std::vector<int>{0}));
+  // Another volume: what was measured on this one says nothing of it.
+  fast.reset();
+  EXPECT_EQ(fast.chooseInteractiveLevel(), int(kSurfaceLadder.size()) - 1);
+  EXPECT_EQ(fast.estimateMs(1), 0.0);
 }
 
 // When no level fits the target and the cheapest save little (a surface's triangles cost the same

@@ -11,6 +11,12 @@
 #include <nlohmann/json.hpp>
 
 #include <atomic>
+#include <chrono>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <thread>
+#include <optional>
 #include <set>
 #include <string>
 
@@ -18,6 +24,7 @@
 #include "apps/viewer_quality.h"
 #include "render/image.h"
 #include "render/scene_renderer.h"
+#include "volume/progress.h"
 #include "render_util.h"
 #include "test_util.h"
 
@@ -34,25 +41,39 @@ using ::testing::HasSubstr;
 
 using test::sphereScene;
 
-// A server of the analytic sphere on a free port, for the test's duration.
+// A server of the analytic sphere on a free port, for the test's duration; with @p dataDir, of the
+// volumes there instead (any file's scene is the sphere, or the one @p scenes names for it).
 struct TestServer {
   std::atomic<int> loads{0};
+  std::map<std::string, int> loadsOf;  // by file name (under the loader's own count)
+  std::mutex loadsMutex;
   std::unique_ptr<Server> server;
-  explicit TestServer(double frameMs = 60.0, int maxClients = 8) {
+  explicit TestServer(double frameMs = 60.0, int maxClients = 8, std::function<void(ServerOptions&)> more = {}) {
     ServerOptions o;
     o.port = 0;
     o.maxClients = maxClients;
     o.volume = "sphere";
     o.frameTargetMs = frameMs;
-    o.loader = [this](const std::string&, const std::string&) {
+    o.loader = [this](const std::string& path, const std::string&, const Progress* progress) {
       ++loads;
+      {
+        const std::lock_guard<std::mutex> lock(loadsMutex);
+        ++loadsOf[std::filesystem::path(path).filename().string()];
+      }
+      ProgressTask task(progress, "reading", 4);
+      for (int i = 0; i < 4; ++i) task.advance();
       return sphereScene();
     };
+    if (more) more(o);
     server = std::make_unique<Server>(std::move(o));
     server->start();
   }
   uint16_t port() const { return server->port(); }
   std::string token() const { return server->token(); }
+  int loadsOfFile(const std::string& name) {
+    const std::lock_guard<std::mutex> lock(loadsMutex);
+    return loadsOf[name];
+  }
 };
 
 // Reads on the socket give up after 60 s instead of hanging a failing test.
@@ -84,15 +105,17 @@ Reply httpRequest(uint16_t port, const std::string& target, const std::string& c
   return r;
 }
 
-// A WebSocket client of the viewer.
+// A WebSocket client of the viewer: the server's own page by default (its origin, as a browser
+// sends it), another origin, or none ("").
 struct Socket {
   net::io_context io;
   websocket::stream<tcp::socket> ws{io};
-  Socket(uint16_t port, const std::string& target, const std::string& origin = "") {
+  Socket(uint16_t port, const std::string& target, std::optional<std::string> origin = std::nullopt) {
     ws.next_layer().connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port));
     limitReads(ws.next_layer());
-    ws.set_option(websocket::stream_base::decorator([origin](websocket::request_type& req) {
-      if (!origin.empty()) req.set(http::field::origin, origin);
+    const std::string sent = origin.value_or("http://127.0.0.1:" + std::to_string(port));
+    ws.set_option(websocket::stream_base::decorator([sent](websocket::request_type& req) {
+      if (!sent.empty()) req.set(http::field::origin, sent);
     }));
     ws.read_message_max(64 << 20);
     ws.handshake("127.0.0.1:" + std::to_string(port), target);
@@ -160,9 +183,10 @@ TEST(ViewerServer, EveryRequestNeedsTheTokenAndOnlyAssetsAreServed) {
   EXPECT_EQ(httpRequest(port, "/api/mesh?iso=abc&format=ply", cookie).status, 400u);
   EXPECT_EQ(httpRequest(port, "/api/mesh?iso=4&format=exe", cookie).status, 400u);
   EXPECT_EQ(httpRequest(port, "/api/mesh?iso=4&format=ply").status, 403u);
-  // The socket needs the token, and its own page's origin.
+  // The socket needs the token, and its own page's origin (a client without one is no browser's page).
   EXPECT_THROW(Socket(port, "/ws"), beast::system_error);
   EXPECT_THROW(Socket(port, "/ws?token=" + s.token(), "http://evil.example"), beast::system_error);
+  EXPECT_THROW(Socket(port, "/ws?token=" + s.token(), ""), beast::system_error);
   EXPECT_THROW(Socket(port, "/other?token=" + s.token()), beast::system_error);
   Socket ok(port, "/ws?token=" + s.token(), "http://127.0.0.1:" + std::to_string(port));
   EXPECT_EQ(ok.next()["type"], "info");
@@ -286,14 +310,31 @@ TEST(ViewerServer, EachClientDrawsItsOwnIsosurface) {
   EXPECT_EQ(finalOf(a, 4, 4.0, {4.0})["iso"], 4.0);
 }
 
+// Interactive frames until one comes at the best interactive level (full size, no budget): the
+// first of a volume just opened are the cheapest (nothing measured predicts the others), the
+// first of them uploading its textures (not taken as the level's time). Returns that frame.
+json warmUp(Socket& c, int pixels) {
+  for (uint64_t seq = 1000; seq < 1010; ++seq) {
+    c.send(frameRequest(seq, true, pixels).dump());
+    json f;
+    do f = c.nextFrameOrError();
+    while (f["type"] == "frame" && f["seq"] != seq);
+    EXPECT_EQ(f["type"], "frame") << f.dump();
+    if (seq == 1000) {
+      EXPECT_EQ(f["level"], int(kVolumeLadder.size()) - 1) << "the first frame: the cheapest";
+    }
+    if (f["type"] != "frame" || f["level"] == 1) return f;
+  }
+  ADD_FAILURE() << "no interactive frame at the best level";
+  return {};
+}
+
 TEST(ViewerServer, InteractiveFramesUseLargerBricks) {
-  TestServer s;
+  TestServer s(1000.0);
   Socket c(s.port(), "/ws?token=" + s.token());
   c.next();  // info
-  c.send(frameRequest(1, true, 64).dump());
-  const json f = c.nextFrameOrError();
-  ASSERT_EQ(f["type"], "frame") << f.dump();
-  ASSERT_EQ(f["level"], 1);  // nothing measured yet: the best interactive level, no budget
+  const json f = warmUp(c, 64);
+  ASSERT_EQ(f["level"], 1);
   SceneRenderer engine(sphereScene());
   const FrameRequest r = std::get<FrameRequest>(parseRequest(frameRequest(1, true, 64).dump()));
   View view;
@@ -314,6 +355,7 @@ TEST(ViewerServer, ClientsKeepTheirOwnViewsAndStaleRequestsAreDropped) {
   Socket a(s.port(), "/ws?token=" + s.token()), b(s.port(), "/ws?token=" + s.token());
   a.next();
   b.next();
+  warmUp(a, 64);
   // Twenty requests in a burst: fewer frames come back than were asked for, the last answers the last.
   for (uint64_t seq = 1; seq <= 20; ++seq) a.send(frameRequest(seq, true, 64, double(seq)).dump());
   b.send(frameRequest(100, false, 48).dump());
@@ -361,6 +403,189 @@ TEST(ViewerServer, ClientsBeyondTheLimitAreToldAndClosed) {
   EXPECT_EQ(ec, websocket::error::closed);
   first.send(frameRequest(1, true).dump());  // the first is still served
   EXPECT_EQ(first.nextFrameOrError()["seq"], 1);
+}
+
+// A client's 2048² final frame is drawn band by band, the other clients' frames between its bands:
+// another client dragging meanwhile waits at most a band for each of its frames (a second here,
+// where the whole frame takes about two), and the large frame still arrives whole.
+TEST(ViewerServer, ALargeFinalFrameDoesNotHoldOtherClientsFrames) {
+  TestServer s(60.0);
+  Socket big(s.port(), "/ws?token=" + s.token()), mover(s.port(), "/ws?token=" + s.token());
+  big.next();
+  mover.next();
+  warmUp(mover, 64);
+  json close = frameRequest(1, false, 2048);
+  close["camera"]["eye"] = {19.5, -10.0, 20.0};  // near: the sphere fills the frame
+  const auto sent = std::chrono::steady_clock::now();
+  big.send(close.dump());
+  std::atomic<bool> done{false};
+  json final;
+  std::thread reader([&] {
+    for (;;) {
+      const json f = big.nextFrameOrError();
+      if (f["type"] != "frame" || f["quality"] == "final") {
+        final = f;
+        break;
+      }
+    }
+    done = true;
+  });
+  double worst = 0.0;
+  int frames = 0;
+  for (uint64_t seq = 10; !done && seq < 400; ++seq) {
+    const auto t0 = std::chrono::steady_clock::now();
+    mover.send(frameRequest(seq, true, 64, double(seq)).dump());
+    json f;
+    do f = mover.nextFrameOrError();
+    while (f["type"] == "frame" && f["seq"] != seq);
+    ASSERT_EQ(f["type"], "frame") << f.dump();
+    worst = std::max(worst, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    ++frames;
+  }
+  reader.join();
+  const double wholeMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - sent).count();
+  ASSERT_EQ(final["type"], "frame") << final.dump();
+  EXPECT_EQ(final["width"], 2048);
+  EXPECT_EQ(final["format"], "png");
+  EXPECT_GT(frames, 3) << "the mover was served while the large frame was drawn (" << wholeMs << " ms)";
+  EXPECT_LE(worst, 1000.0) << "a moving frame waited " << worst << " ms behind the large frame (" << wholeMs << " ms in all)";
+}
+
+// Four clients with four isovalues (and one without a surface) each draw their own surface once it
+// is ready, never another's; each hears of its own surface's build only; the surfaces they show are
+// all kept, so asking again draws each at once.
+TEST(ViewerServer, FourClientsWithFourIsovaluesEachSeeTheirOwnSurface) {
+  TestServer s(1000.0);
+  const double isos[] = {2.0, 4.0, 6.0, 8.0};
+  std::vector<std::unique_ptr<Socket>> clients;
+  for (int k = 0; k < 5; ++k) {
+    clients.push_back(std::make_unique<Socket>(s.port(), "/ws?token=" + s.token()));
+    clients.back()->next();
+  }
+  auto ask = [&](int k, uint64_t seq) {
+    json r = frameRequest(seq, false, 40);
+    if (k < 4)
+      r["surface"]["iso"] = isos[k];
+    else
+      r["surface"] = nullptr;
+    clients[size_t(k)]->send(r.dump());
+  };
+  for (int k = 0; k < 5; ++k) ask(k, 1);
+  // Each until its final frame with its own surface; everything it hears on the way is its own.
+  for (int k = 0; k < 5; ++k) {
+    for (int i = 0; i < 60; ++i) {
+      const json m = clients[size_t(k)]->next();
+      if (m["type"] == "surface") {
+        EXPECT_LT(k, 4) << "a client without a surface heard of a build: " << m.dump();
+        if (k < 4) {
+          EXPECT_EQ(m["iso"], isos[k]) << "client " << k << " heard of another's build: " << m.dump();
+        }
+        continue;
+      }
+      ASSERT_EQ(m["type"], "frame") << m.dump();
+      if (k == 4) {
+        EXPECT_TRUE(m["iso"].is_null()) << m.dump();
+      } else if (!m["iso"].is_null()) {
+        EXPECT_EQ(m["iso"], isos[k]) << "client " << k << " was shown another's surface";
+      }
+      if (m["quality"] == "final" && (k == 4 || m["iso"] == isos[k])) break;
+    }
+  }
+  // Asked again: every surface is still there, drawn from the first frame on.
+  for (int k = 0; k < 4; ++k) {
+    ask(k, 2);
+    json f;
+    do f = clients[size_t(k)]->nextFrameOrError();
+    while (f["type"] == "frame" && f["seq"] != 2);
+    EXPECT_EQ(f["iso"], isos[k]) << f.dump();
+    EXPECT_EQ(f["surfaceReady"], true) << "client " << k << "'s surface was dropped and built again";
+  }
+}
+
+// A socket that sends a message a byte at a time, too slowly, is closed once the message timeout
+// (here 600 ms) has passed since its first byte; a socket idle for longer is not, and is served.
+TEST(ViewerServer, ATricklingSocketIsClosedAnIdleOneIsNot) {
+  TestServer s(60.0, 8, [](ServerOptions& o) { o.messageTimeout = std::chrono::milliseconds(600); });
+  Socket trickle(s.port(), "/ws?token=" + s.token()), idle(s.port(), "/ws?token=" + s.token());
+  trickle.next();
+  idle.next();
+  const std::string text = frameRequest(1, true).dump();
+  trickle.ws.text(true);
+  const auto t0 = std::chrono::steady_clock::now();
+  beast::error_code ec;
+  for (size_t i = 0; i < text.size() && !ec; ++i) {
+    trickle.ws.write_some(false, net::buffer(text.data() + i, 1), ec);
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  beast::flat_buffer sink;
+  for (int i = 0; i < 10 && !ec; ++i) trickle.ws.read(sink, ec);
+  const double closedAfter = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_TRUE(ec) << "the trickling socket stayed open";
+  EXPECT_GE(closedAfter, 500.0);
+  EXPECT_LE(closedAfter, 3000.0);
+  // The idle socket waited as long, and is still served.
+  idle.send(frameRequest(2, true).dump());
+  EXPECT_EQ(idle.nextFrameOrError()["seq"], 2);
+}
+
+// Volumes opened from the data directory: every message names its volume, a request for the one
+// shown before is dropped, the load's progress is told to the client waiting for it, and a volume
+// no client shows is released after the stated delay (opened again, it is read again).
+TEST(ViewerServer, SwitchingVolumesTagsEveryMessageAndReleasesTheOneLeft) {
+  test::TempDir dir;
+  for (const char* name : {"a.nrrd", "b.nrrd"}) test::writeText(dir.file(name), "NRRD0004\n");
+  TestServer s(60.0, 8, [&](ServerOptions& o) {
+    o.volume.clear();
+    o.dataDir = dir.path();
+    o.releaseAfter = std::chrono::milliseconds(300);
+  });
+  Socket c(s.port(), "/ws?token=" + s.token());
+  EXPECT_EQ(c.next()["type"], "volumes");
+  // Opens @p name: until its info comes, the client hears of its load, or of the volume it showed
+  // (@p shown), each message saying which.
+  auto open = [&](const std::string& name, const std::string& shown) {
+    c.send(json{{"type", "open"}, {"path", name}}.dump());
+    std::vector<json> loading;
+    for (;;) {
+      const json m = c.next();
+      if (m["type"] == "info") {
+        EXPECT_EQ(m["scene"], name);
+        return loading;
+      }
+      if (m["type"] == "loading") {
+        EXPECT_EQ(m["scene"], name);
+        loading.push_back(m);
+      } else {
+        EXPECT_EQ(m["scene"], shown) << m.dump();
+      }
+    }
+  };
+  const std::vector<json> loads = open("a.nrrd", "");
+  ASSERT_GE(loads.size(), 2u);  // the start and the loader's own task
+  EXPECT_EQ(loads.back()["task"], "reading");
+  json r = frameRequest(1, false, 32);
+  r["scene"] = "a.nrrd";
+  c.send(r.dump());
+  json f;
+  do f = c.nextFrameOrError();
+  while (f["type"] == "frame" && f["quality"] != "final");
+  EXPECT_EQ(f["scene"], "a.nrrd");
+  open("b.nrrd", "a.nrrd");
+  r["seq"] = 2;  // still of a: dropped
+  c.send(r.dump());
+  r["seq"] = 3;
+  r["scene"] = "b.nrrd";
+  c.send(r.dump());
+  do f = c.nextFrameOrError();
+  while (f["type"] == "frame" && f["scene"] == "a.nrrd");  // (a frame of a under way when b opened)
+  EXPECT_EQ(f["seq"], 3) << "the request of the volume shown before was answered";
+  EXPECT_EQ(f["scene"], "b.nrrd");
+  // a is released 300 ms after the client left it: opened again, it is read again.
+  std::this_thread::sleep_for(std::chrono::milliseconds(700));
+  EXPECT_EQ(s.loadsOfFile("a.nrrd"), 1);
+  open("a.nrrd", "b.nrrd");
+  EXPECT_EQ(s.loadsOfFile("a.nrrd"), 2);
+  EXPECT_EQ(s.loadsOfFile("b.nrrd"), 1);
 }
 
 }  // namespace

@@ -32,7 +32,10 @@ const state = {
   sent: new Map(),          // seq -> time sent
   metrics: [],              // one entry per painted frame
   lastFinal: null,          // {header, blob}
-  surfaceStates: {},
+  surfaceStates: {},         // isovalue -> 'building' | 'ready' | 'failed', of the volume shown
+  opening: null,             // the scene key of a volume asked for and not shown yet
+  loads: [],                 // the loading messages heard: {scene, task, progress}
+  opened: [],                // the volumes shown, in order: {scene, at}
   errors: [],
 };
 
@@ -101,6 +104,7 @@ function send(interacting) {
   const message = {
     type: 'frame',
     seq: ++state.seq,
+    scene: state.info.scene,  // a request of the volume shown before is dropped by the server
     interacting,
     camera: { eye: c.eye, center: c.center, up: c.up, fov: c.fov, pixels: [size, size] },
     tf: tfMessage(),
@@ -135,12 +139,30 @@ function connect() {
   };
 }
 
+// Every message about a volume names it: what is not about the volume shown (or being opened) is
+// dropped, so one volume's state never shows under another's name.
+const shown = (scene) => state.info && scene === state.info.scene;
 function onText(m) {
   if (m.type === 'info') openInfo(m);
   else if (m.type === 'volumes') listVolumes(m.volumes);
-  else if (m.type === 'loading') setState(`loading ${m.path}`);
-  else if (m.type === 'surface') onSurface(m);
-  else if (m.type === 'error') showError(m.message);
+  else if (m.type === 'loading') onLoading(m);
+  else if (m.type === 'surface') { if (shown(m.scene)) onSurface(m); }
+  else if (m.type === 'error') {
+    if (m.scene !== undefined && m.scene === state.opening) {  // the open failed: the volume shown stays
+      state.opening = null;
+      setState(state.info ? `failed to open ${m.scene}` : 'choose a volume');
+    } else if (m.scene !== undefined && !shown(m.scene)) {
+      return;
+    }
+    showError(m.message);
+  }
+}
+
+function onLoading(m) {
+  if (m.scene !== state.opening) return;
+  state.loads.push({ scene: m.scene, task: m.task, progress: m.progress });
+  if (state.loads.length > 1000) state.loads.shift();
+  setState(`loading ${m.scene}: ${m.task} ${Math.round(100 * m.progress)} %`);
 }
 
 async function onFrame(buffer) {
@@ -148,6 +170,7 @@ async function onFrame(buffer) {
   const bytes = new Uint8Array(buffer);
   const headerLength = bytes[0] | (bytes[1] << 8) | (bytes[2] << 16) | (bytes[3] << 24);
   const header = JSON.parse(new TextDecoder().decode(bytes.subarray(4, 4 + headerLength)));
+  if (!shown(header.scene)) return;  // a frame of the volume shown before
   const blob = new Blob([bytes.subarray(4 + headerLength)], { type: header.format === 'png' ? 'image/png' : 'image/jpeg' });
   const bitmap = await createImageBitmap(blob);
   ctx.imageSmoothingEnabled = true;
@@ -158,7 +181,7 @@ async function onFrame(buffer) {
   const painted = performance.now();
   const sentAt = state.sent.get(header.seq);
   state.metrics.push({
-    seq: header.seq, quality: header.quality, level: header.level, levelText: header.levelText,
+    scene: header.scene, iso: header.iso, seq: header.seq, quality: header.quality, level: header.level, levelText: header.levelText,
     width: header.width, height: header.height, bytes: buffer.byteLength, renderMs: header.renderMs,
     encodeMs: header.encodeMs, waitMs: header.waitMs, paintMs: painted - received,
     // (a frame the server made without a new request, refining or after a surface came, has no arrival)
@@ -169,6 +192,7 @@ async function onFrame(buffer) {
   if (state.metrics.length > 5000) state.metrics.shift();
   state.displayed = header;
   state.displayedBlob = blob;
+  if (header.iso !== null && header.surfaceReady) onSurface({ iso: header.iso, state: 'ready' });
   drawMarker(header.camera);
   setState(header.quality === 'final' && header.surfaceReady === false ? 'final without the surface (building)' : header.quality);
   $('numbers').textContent = `${(header.renderMs + header.encodeMs).toFixed(0)} ms · ${(header.textureBytes / 1048576).toFixed(1)} MB · ` +
@@ -237,10 +261,15 @@ function showError(text) {
 
 function onSurface(m) {
   state.surfaceStates[m.iso] = m.state;
-  // Every page of the volume hears of every build; this one shows its own isovalue's.
-  if (m.iso !== Number($('iso').value)) return;
-  $('surface-state').textContent = m.state === 'building' ? `building ${m.iso}: ${m.task || 'surface'} ${Math.round(100 * m.progress)} %`
-    : m.state === 'ready' ? `${m.iso} ready` : `${m.iso} failed`;
+  showSurfaceState();
+  if (m.iso !== Number($('iso').value) || m.state !== 'building') return;
+  $('surface-state').textContent = `building ${m.iso}: ${m.task || 'surface'} ${Math.round(100 * m.progress)} %`;
+}
+
+// The state of the isovalue asked for, in the volume shown.
+function showSurfaceState() {
+  const iso = Number($('iso').value), s = state.surfaceStates[iso];
+  $('surface-state').textContent = !$('surface-on').checked || s === undefined ? '' : s === 'ready' ? `${iso} ready` : s === 'failed' ? `${iso} failed` : `building ${iso}`;
 }
 
 // ---- a volume opened ------------------------------------------------------------------------
@@ -256,7 +285,14 @@ function cloneCamera(c) { return { eye: c.eye.slice(), center: c.center.slice(),
 
 function openInfo(info) {
   state.info = info;
-  $('volume-name').textContent = `${info.name} · ${info.dims.join('×')} · ${info.orientation}`;
+  state.opening = null;
+  state.opened.push({ scene: info.scene, at: performance.now() });
+  state.surfaceStates = {};
+  for (const iso of info.surfaces) state.surfaceStates[iso] = 'ready';
+  // The name may wrap anywhere; the dimensions and the orientation never inside themselves.
+  const piece = (text) => { const s = document.createElement('span'); s.className = 'nowrap'; s.textContent = text; return s; };
+  $('volume-name').replaceChildren(info.name, ' · ', piece(info.dims.join('×')), ' · ',
+    piece(info.orientationAssumed ? `orientation unknown: grid axes taken as ${info.orientation}` : info.orientation));
   if (info.volumes) listVolumes(info.volumes);
   if (info.open) $('volumes').value = JSON.stringify({ path: info.open.path, series: info.open.series });
   const presets = $('preset');
@@ -274,6 +310,9 @@ function openInfo(info) {
   setCutRange();
   state.camera = cloneCamera(info.views.anterior);
   drawTfEditor();
+  showSurfaceState();
+  state.opened[state.opened.length - 1].surfaceLabel = $('surface-state').textContent;  // what the page said of the surface at once
+  setState(`opened ${info.name}`);
   request(false);
 }
 
@@ -538,9 +577,9 @@ $('size').addEventListener('change', () => {
   canvas.style.setProperty('--size', `${s}px`);  // its shown size (viewer.css)
   request(false);
 });
-$('surface-on').addEventListener('change', () => request(false));
+$('surface-on').addEventListener('change', () => { showSurfaceState(); request(false); });
 $('iso').addEventListener('input', () => { $('iso-number').value = $('iso').value; });
-$('iso').addEventListener('change', () => request(false));
+$('iso').addEventListener('change', () => { showSurfaceState(); request(false); });
 $('iso-number').addEventListener('change', () => {
   const typed = $('iso-number').value, v = Number(typed);
   if (typed.trim() === '' || !Number.isFinite(v)) {
@@ -551,6 +590,7 @@ $('iso-number').addEventListener('change', () => {
   $('iso').value = v;  // clamped to the data's range and rounded to the slider's step
   if (Number($('iso').value) !== v) showError(`isovalue ${typed}: the data's values are ${$('iso').min} to ${$('iso').max} in steps of 1: using ${$('iso').value}`);
   $('iso-number').value = $('iso').value;
+  showSurfaceState();
   request(false);
 });
 $('surface-color').addEventListener('input', () => burst());
@@ -563,7 +603,11 @@ $('voi-on').addEventListener('change', () => request(false));
 $('voi-outside').addEventListener('input', () => { if ($('voi-on').checked) burst(); });
 $('volumes').addEventListener('change', () => {
   const v = $('volumes').value;
-  if (v && socket) socket.send(JSON.stringify({ type: 'open', ...JSON.parse(v) }));
+  if (!v || !socket) return;
+  const open = JSON.parse(v);
+  state.opening = open.series ? `${open.path}#${open.series}` : open.path;  // the scene key the server gives it
+  socket.send(JSON.stringify({ type: 'open', ...open }));
+  setState(`loading ${open.path}`);
 });
 $('save-png').addEventListener('click', () => {
   const save = (blob) => {
@@ -600,6 +644,9 @@ window.hybViewer = {
   request,
   lastFinal: () => state.lastFinal && state.lastFinal.header,
   tfPoints: () => currentPoints(),
+  loads: () => state.loads.slice(),
+  opened: () => state.opened.slice(),
+  surfaceLabel: () => $('surface-state').textContent,
   marker: () => state.displayed && markerLabels(state.displayed.camera),
   // What the canvas shows now: the header of the frame painted last, the canvas as PNG and the
   // frame as it came, decoded at its own size, as PNG (base64).

@@ -4,43 +4,24 @@
 // (PSNR >= 40 dB), requests without the token fail, and the console stays clean.
 //
 // usage: node tests/e2e/viewer_e2e.mjs BUILD/hybrid-octree [--screenshot page.png]
-import { spawn, execFileSync } from 'node:child_process';
+import { execFileSync } from 'node:child_process';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
+import { checklist, launch, loadPuppeteer, startServer, watchConsole } from './lib.mjs';
 
-let puppeteer;
-try {
-  puppeteer = (await import('puppeteer-core')).default;
-} catch {
-  console.error('viewer_e2e: puppeteer-core is missing (npm ci --prefix tests/e2e; scripts/setup.sh does it)');
-  process.exit(1);
-}
-
+const puppeteer = await loadPuppeteer();
 const exe = path.resolve(process.argv[2] || 'build/hybrid-octree');
 const shotAt = process.argv.indexOf('--screenshot');
 const screenshot = shotAt > 0 ? process.argv[shotAt + 1] : null;
 const volume = '/usr/share/doc/invesalius-examples/examples/Cranium.inv3';
-const chromium = process.env.CHROMIUM || '/usr/bin/chromium';
 const tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'hyb-e2e-'));
-let failures = 0;
-function check(ok, what) {
-  console.log(`${ok ? 'ok  ' : 'FAIL'} ${what}`);
-  if (!ok) failures++;
-}
+const { check, failures } = checklist();
 
 // The server, on a free port; its first line names the URL with the token.
-const server = spawn(exe, ['view', volume, '--port', '0', '--progress', 'off'], { stdio: ['ignore', 'pipe', 'inherit'] });
-const url = await new Promise((resolve, reject) => {
-  let out = '';
-  const timer = setTimeout(() => reject(new Error('the server printed no URL within 120 s')), 120000);
-  server.stdout.on('data', (d) => {
-    out += d;
-    const m = out.match(/(http:\/\/\S+\?token=[0-9a-f]+)/);
-    if (m) { clearTimeout(timer); resolve(m[1]); }
-  });
-  server.on('exit', (code) => reject(new Error(`the server exited (${code}) before printing its URL`)));
-});
+const started = startServer(exe, [volume]);
+const server = started.server;
+const url = await started.url;
 const base = url.slice(0, url.indexOf('?'));
 let browser;
 try {
@@ -48,16 +29,10 @@ try {
   check((await fetch(base)).status === 403, 'the page without the token is refused (403)');
   check((await fetch(`${base}viewer.js?token=0000000000000000`)).status === 403, 'an asset with a wrong token is refused (403)');
 
-  browser = await puppeteer.launch({
-    executablePath: chromium,
-    headless: true,
-    args: ['--no-sandbox', '--disable-gpu', '--disable-dev-shm-usage'],
-  });
+  browser = await launch(puppeteer);
   const page = await browser.newPage();
   await page.setViewport({ width: 900, height: 720 });
-  const consoleErrors = [];
-  page.on('console', (m) => { if (m.type() === 'error') consoleErrors.push(m.text()); });
-  page.on('pageerror', (e) => consoleErrors.push(e.message));
+  const consoleErrors = watchConsole(page);
   const response = await page.goto(url);
   check(response.status() === 200, 'the page loads with the token');
   const finalCount = () => page.evaluate(() => window.hybViewer.metrics().filter((m) => m.quality === 'final').length);
@@ -160,12 +135,11 @@ try {
 
   check(consoleErrors.length === 0, `the console shows no errors${consoleErrors.length ? ': ' + consoleErrors.join(' | ') : ''}`);
 } catch (e) {
-  console.log(`FAIL ${e.message}`);
-  failures++;
+  check(false, e.message);
 } finally {
   if (browser) await browser.close();
   server.kill('SIGTERM');
   fs.rmSync(tmp, { recursive: true, force: true });
 }
-console.log(failures ? `viewer_e2e: ${failures} failed` : 'viewer_e2e: all passed');
-process.exit(failures ? 1 : 0);
+console.log(failures() ? `viewer_e2e: ${failures()} failed` : 'viewer_e2e: all passed');
+process.exit(failures() ? 1 : 0);

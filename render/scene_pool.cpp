@@ -1,0 +1,384 @@
+#include "render/scene_pool.h"
+
+#include <malloc.h>
+
+#include <algorithm>
+
+#include "render/patient_view.h"
+#include "render/transfer_function.h"
+#include "volume/error.h"
+
+namespace hyb {
+
+namespace {
+
+// Thrown by a progress callback to stop a load or build that nobody waits for any more.
+struct Cancelled {};
+
+// Progress messages of one task go out at most this often (and at its start and end).
+constexpr auto kProgressInterval = std::chrono::milliseconds(100);
+
+}  // namespace
+
+SceneSummary summarizeScene(const Scene& scene, const std::string& key, const std::string& path, const std::string& series,
+                            const std::string& name) {
+  const Volume& v = scene.volume;
+  SceneSummary s;
+  s.key = key;
+  s.path = path;
+  s.series = series;
+  s.name = name;
+  s.dims = v.dims();
+  s.spacing = v.spacing();
+  s.minValue = v.minValue();
+  s.maxValue = v.maxValue();
+  s.histogram = computeHistogram(v, 128);
+  s.orientation = orientationCode(v.frame().direction);
+  s.orientationAssumed = v.frame().assumed;
+  s.boundsLo = glm::dvec3(1e300);
+  s.boundsHi = glm::dvec3(-1e300);
+  const glm::dvec3 extent = v.extentMm();
+  for (int c = 0; c < 8; ++c) {
+    const glm::dvec3 p = v.frame().toPatient(glm::dvec3(c & 1 ? extent.x : 0, c & 2 ? extent.y : 0, c & 4 ? extent.z : 0));
+    s.boundsLo = glm::min(s.boundsLo, p);
+    s.boundsHi = glm::max(s.boundsHi, p);
+  }
+  std::vector<glm::dvec3> points = visiblePoints(v, scene.octree, TransferFunction::defaultFor(v.minValue(), v.maxValue()));
+  if (points.empty())  // nothing visible: the data's box
+    for (int c = 0; c < 8; ++c) points.push_back(glm::dvec3(c & 1 ? s.boundsHi.x : s.boundsLo.x, c & 2 ? s.boundsHi.y : s.boundsLo.y, c & 4 ? s.boundsHi.z : s.boundsLo.z));
+  for (int view = 0; view < 6; ++view) s.views[size_t(view)] = fitCamera(points, viewDirection(AnatomicalView(view)), 30.0, false, 512, 512);
+  if (scene.surface) s.sceneIso = scene.surface->isovalue();
+  return s;
+}
+
+// An open scene: its renderer, the surfaces on their way, and who holds it.
+struct ScenePool::Entry {
+  SceneSummary summary;
+  std::unique_ptr<SceneRenderer> renderer;
+  std::vector<float> ready;                // the renderer's surfaces (readable without touching it)
+  std::deque<float> queued;                // isovalues asked for, waiting for the builder
+  std::optional<float> building;
+  std::thread builder;
+  std::unique_ptr<PreparedSurface> built;  // handed over by the builder
+  bool buildDone = false;                  // the builder has ended (built is null when it failed or stopped)
+  bool buildStopped = false;               // ... because no viewer wanted its surface any more
+  Clock::time_point lastProgress{};
+  bool repin = true;                       // the viewers' isovalues changed since the renderer was told
+  int pins = 0;
+  std::optional<Clock::time_point> unusedSince;  // no viewer has shown it since
+  ~Entry() {
+    if (builder.joinable()) builder.join();
+  }
+};
+
+// A scene being read for the viewers waiting for it.
+struct ScenePool::Load {
+  std::string key, path, series, name;
+  std::set<uint64_t> waiters;
+  Clock::time_point lastProgress{};
+};
+
+ScenePool::ScenePool(std::mutex& mutex, Options options, Events events) : mMutex(mutex), mOptions(std::move(options)), mEvents(std::move(events)) {
+  HYB_CHECK(mOptions.loader && mEvents.loading && mEvents.opened && mEvents.surface && mEvents.wake);
+  mLoader = std::thread([this] { loaderLoop(); });
+}
+
+ScenePool::~ScenePool() {
+  {
+    const std::lock_guard<std::mutex> lock(mMutex);
+    mStopping = true;  // a load or build in progress stops at its next progress report
+  }
+  mLoadWake.notify_all();
+  if (mLoader.joinable()) mLoader.join();
+  for (auto& [key, e] : mScenes)
+    if (e->builder.joinable()) e->builder.join();
+  mScenes.clear();  // the renderers, on this (the render) thread
+}
+
+std::unique_ptr<ScenePool::Entry> ScenePool::makeEntry(Scene scene, const std::string& key, const std::string& path, const std::string& series,
+                                                       const std::string& name) const {
+  auto e = std::make_unique<Entry>();
+  e->summary = summarizeScene(scene, key, path, series, name);
+  SceneRenderer::Options ro;
+  ro.textureLimitBytes = mOptions.textureLimitBytes;
+  e->renderer = std::make_unique<SceneRenderer>(std::move(scene), ro);  // its OpenGL context comes with its first frame
+  return e;
+}
+
+const SceneSummary& ScenePool::preload(const std::string& key, const std::string& path, const std::string& series, const std::string& name) {
+  std::unique_ptr<Entry> e = makeEntry(mOptions.loader(path, series, nullptr), key, path, series, name);
+  const std::lock_guard<std::mutex> lock(mMutex);
+  e->unusedSince = Clock::now();
+  return (mScenes[key] = std::move(e))->summary;
+}
+
+void ScenePool::dropLoadWaiter(uint64_t viewer) {
+  for (const auto& load : mLoads) load->waiters.erase(viewer);  // a load left without waiters stops
+  if (auto it = mViewers.find(viewer); it != mViewers.end()) it->second.loading.clear();
+}
+
+void ScenePool::open(uint64_t viewer, const std::string& key, const std::string& path, const std::string& series, const std::string& name) {
+  dropLoadWaiter(viewer);
+  Viewer& v = mViewers[viewer];
+  if (const auto it = mScenes.find(key); it != mScenes.end()) {
+    if (!v.key.empty() && v.key != key && mScenes.count(v.key)) mScenes[v.key]->repin = true;
+    v = Viewer{key, "", std::nullopt, std::nullopt};
+    it->second->unusedSince.reset();
+    it->second->repin = true;
+    mEvents.opened(viewer, key, &it->second->summary, "");
+    mEvents.wake();  // (the scene it left may be due for release)
+    return;
+  }
+  v.loading = key;
+  for (const auto& load : mLoads)
+    if (load->key == key) {
+      load->waiters.insert(viewer);
+      return;
+    }
+  mLoads.push_back(std::make_unique<Load>(Load{key, path, series, name, {viewer}, {}}));
+  mLoadWake.notify_all();
+}
+
+void ScenePool::leave(uint64_t viewer) {
+  dropLoadWaiter(viewer);
+  const auto it = mViewers.find(viewer);
+  if (it == mViewers.end()) return;
+  if (const auto e = mScenes.find(it->second.key); e != mScenes.end()) e->second->repin = true;
+  mViewers.erase(it);
+  mEvents.wake();
+}
+
+const SceneSummary* ScenePool::shown(uint64_t viewer) const {
+  const auto v = mViewers.find(viewer);
+  return v == mViewers.end() ? nullptr : summary(v->second.key);
+}
+
+const SceneSummary* ScenePool::summary(const std::string& key) const {
+  const auto e = mScenes.find(key);
+  return e == mScenes.end() ? nullptr : &e->second->summary;
+}
+
+std::vector<float> ScenePool::readySurfaces(const std::string& key) const {
+  const auto e = mScenes.find(key);
+  return e == mScenes.end() ? std::vector<float>{} : e->second->ready;
+}
+
+void ScenePool::loaderLoop() {
+  std::unique_lock<std::mutex> lock(mMutex);
+  for (;;) {
+    mLoadWake.wait(lock, [&] { return mStopping || !mLoads.empty(); });
+    if (mStopping) return;
+    Load& load = *mLoads.front();  // stays in the queue while it is read, so that viewers can join it
+    if (load.waiters.empty()) {
+      mLoads.pop_front();
+      continue;
+    }
+    const Progress progress([&](const std::string& task, double fraction) {
+      const std::lock_guard<std::mutex> guard(mMutex);
+      if (mStopping || load.waiters.empty()) throw Cancelled{};
+      const auto now = Clock::now();
+      if (fraction > 0.0 && fraction < 1.0 && now - load.lastProgress < kProgressInterval) return;
+      load.lastProgress = now;
+      for (const uint64_t viewer : load.waiters) mEvents.loading(viewer, load.key, task, fraction);
+    });
+    const std::string key = load.key, path = load.path, series = load.series, name = load.name;
+    for (const uint64_t viewer : load.waiters) mEvents.loading(viewer, key, "reading", 0.0);
+    lock.unlock();
+    std::unique_ptr<Entry> entry;
+    std::string error;
+    bool stopped = false;
+    try {
+      entry = makeEntry(mOptions.loader(path, series, &progress), key, path, series, name);
+    } catch (const Cancelled&) {
+      stopped = true;
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+    lock.lock();
+    const std::unique_ptr<Load> done = std::move(mLoads.front());
+    mLoads.pop_front();
+    if (mStopping) return;
+    if (!entry) {
+      for (const uint64_t viewer : done->waiters) {
+        mViewers[viewer].loading.clear();
+        if (!stopped) mEvents.opened(viewer, key, nullptr, error);
+      }
+      continue;
+    }
+    Entry& e = *(mScenes[key] = std::move(entry));
+    for (const uint64_t viewer : done->waiters) {
+      Viewer& v = mViewers[viewer];
+      if (const auto old = mScenes.find(v.key); old != mScenes.end()) old->second->repin = true;
+      v = Viewer{key, "", std::nullopt, std::nullopt};
+      mEvents.opened(viewer, key, &e.summary, "");
+    }
+    if (done->waiters.empty()) e.unusedSince = Clock::now();
+    mEvents.wake();
+  }
+}
+
+void ScenePool::sendSurface(const Entry& e, float iso, SurfaceState state, const std::string& task, double fraction) {
+  for (const auto& [id, v] : mViewers)
+    if (v.key == e.summary.key && v.asked == iso) mEvents.surface(id, e.summary.key, iso, state, task, fraction);
+}
+
+void ScenePool::startBuild(Entry& e, float iso) {
+  if (e.builder.joinable()) e.builder.join();  // (ended: its result was collected)
+  e.building = iso;
+  e.buildDone = e.buildStopped = false;
+  e.lastProgress = Clock::now();
+  sendSurface(e, iso, SurfaceState::Building, "surface", 0.0);
+  e.builder = std::thread([this, &e, iso] {
+    const std::string key = e.summary.key;
+    auto wanted = [&] {
+      return std::any_of(mViewers.begin(), mViewers.end(), [&](const auto& v) { return v.second.key == key && v.second.asked == iso; });
+    };
+    const Progress progress([&](const std::string& task, double fraction) {
+      const std::lock_guard<std::mutex> guard(mMutex);
+      if (mStopping || !wanted()) throw Cancelled{};
+      const auto now = Clock::now();
+      if (fraction > 0.0 && fraction < 1.0 && now - e.lastProgress < kProgressInterval) return;
+      e.lastProgress = now;
+      sendSurface(e, iso, SurfaceState::Building, task, fraction);
+    });
+    std::unique_ptr<PreparedSurface> s;
+    bool stopped = false;
+    try {
+      // Only reads the scene: the render thread keeps drawing with the renderer meanwhile.
+      s = SceneRenderer::prepareSurface(e.renderer->scene(), iso, &progress, nullptr, true);
+    } catch (const Cancelled&) {
+      stopped = true;
+    } catch (const std::exception&) {
+    }
+    const std::lock_guard<std::mutex> guard(mMutex);
+    e.built = std::move(s);
+    e.buildDone = true;
+    e.buildStopped = stopped;
+    mEvents.wake();
+  });
+}
+
+ScenePool::Frame ScenePool::forFrame(uint64_t viewer, std::optional<float> iso) {
+  const auto it = mViewers.find(viewer);
+  if (it == mViewers.end() || !mScenes.count(it->second.key)) return {};
+  Viewer& v = it->second;
+  Entry& e = *mScenes[v.key];
+  Frame f{e.renderer.get(), &e.summary, std::nullopt, true};
+  if (v.asked != iso) e.repin = true;
+  v.asked = iso;
+  if (iso && e.renderer->hasSurface(*iso)) {
+    v.drawn = iso;
+  } else if (iso) {
+    f.surfaceReady = false;
+    if (!(v.drawn && e.renderer->hasSurface(*v.drawn))) v.drawn.reset();  // the one drawn before, while it is kept; never another's
+    if (e.building != iso && std::find(e.queued.begin(), e.queued.end(), *iso) == e.queued.end()) {
+      if (e.building) {
+        e.queued.push_back(*iso);
+        sendSurface(e, *iso, SurfaceState::Building, "waiting", 0.0);
+      } else {
+        startBuild(e, *iso);
+      }
+    }
+  } else {
+    v.drawn.reset();
+  }
+  f.iso = v.drawn;
+  if (e.repin) repin(e);
+  return f;
+}
+
+void ScenePool::repin(Entry& e) {
+  std::vector<float> isos;
+  for (const auto& [id, v] : mViewers)
+    if (v.key == e.summary.key)
+      for (const std::optional<float>& iso : {v.asked, v.drawn})
+        if (iso) isos.push_back(*iso);
+  e.renderer->pinSurfaces(std::move(isos));
+  e.ready = e.renderer->surfaceIsos();
+  e.repin = false;
+}
+
+bool ScenePool::hasWork() const {
+  const auto now = Clock::now();
+  for (const auto& [key, e] : mScenes)
+    if (e->buildDone || e->repin) return true;
+  const std::optional<Clock::time_point> due = nextRelease();
+  return due && *due <= now;
+}
+
+std::optional<ScenePool::Clock::time_point> ScenePool::nextRelease() const {
+  std::optional<Clock::time_point> next;
+  for (const auto& [key, e] : mScenes) {
+    const bool shown = std::any_of(mViewers.begin(), mViewers.end(), [&](const auto& v) { return v.second.key == key; });
+    if (shown || e->pins > 0 || e->building) continue;
+    const Clock::time_point due = e->unusedSince.value_or(Clock::now()) + mOptions.releaseAfter;
+    if (!next || due < *next) next = due;
+  }
+  return next;
+}
+
+std::vector<std::string> ScenePool::collect(std::unique_lock<std::mutex>& lock) {
+  std::vector<std::string> changed;
+  const auto now = Clock::now();
+  std::vector<std::unique_ptr<Entry>> gone;
+  for (auto it = mScenes.begin(); it != mScenes.end();) {
+    Entry& e = *it->second;
+    if (e.buildDone) {
+      e.builder.join();
+      const float iso = *e.building;
+      e.building.reset();
+      e.buildDone = false;
+      if (e.built) {
+        e.renderer->adoptSurface(std::move(e.built));
+        e.repin = true;
+        sendSurface(e, iso, SurfaceState::Ready, "", 1.0);
+        changed.push_back(it->first);
+      } else if (!e.buildStopped) {
+        sendSurface(e, iso, SurfaceState::Failed, "", 0.0);
+      }
+      // The next isovalue still asked for.
+      while (!e.queued.empty() && !e.building) {
+        const float next = e.queued.front();
+        e.queued.pop_front();
+        const bool asked = std::any_of(mViewers.begin(), mViewers.end(), [&](const auto& v) { return v.second.key == it->first && v.second.asked == next; });
+        if (asked && !e.renderer->hasSurface(next)) startBuild(e, next);
+      }
+    }
+    if (e.repin) repin(e);
+    const bool shown = std::any_of(mViewers.begin(), mViewers.end(), [&](const auto& v) { return v.second.key == it->first; });
+    if (shown) {
+      e.unusedSince.reset();
+    } else if (!e.unusedSince) {
+      e.unusedSince = now;
+    }
+    if (!shown && e.pins == 0 && !e.building && now - *e.unusedSince >= mOptions.releaseAfter) {
+      gone.push_back(std::move(it->second));
+      it = mScenes.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  if (!gone.empty()) {
+    // Its renderer's OpenGL context is this thread's; the memory it held goes back to the system.
+    lock.unlock();
+    gone.clear();
+    malloc_trim(0);
+    lock.lock();
+  }
+  return changed;
+}
+
+const Scene* ScenePool::pin(const std::string& key) {
+  const auto e = mScenes.find(key);
+  if (e == mScenes.end()) return nullptr;
+  ++e->second->pins;
+  return &e->second->renderer->scene();
+}
+
+void ScenePool::unpin(const std::string& key) {
+  const auto e = mScenes.find(key);
+  HYB_CHECK(e != mScenes.end() && e->second->pins > 0);
+  if (--e->second->pins == 0) mEvents.wake();
+}
+
+}  // namespace hyb
