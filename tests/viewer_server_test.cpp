@@ -364,6 +364,7 @@ TEST(ViewerServer, ClientsKeepTheirOwnViewsAndStaleRequestsAreDropped) {
   while (last.is_null() || last["seq"] != 20) {
     last = a.nextFrameOrError();
     ASSERT_EQ(last["type"], "frame");
+    if (last["seq"] >= 1000) continue;  // the warm-up's last request, refined again (a surface came)
     EXPECT_EQ(last["width"], 64);
     EXPECT_EQ(last["quality"], "interactive");
     ++frames;
