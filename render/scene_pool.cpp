@@ -308,7 +308,9 @@ bool ScenePool::hasWork() const {
 
 std::optional<ScenePool::Clock::time_point> ScenePool::nextRelease() const {
   std::optional<Clock::time_point> next;
-  for (const auto& [key, e] : mScenes) {
+  for (const auto& scene : mScenes) {
+    const std::string& key = scene.first;  // (not a structured binding: clang 14 cannot capture one)
+    const auto& e = scene.second;
     const bool shown = std::any_of(mViewers.begin(), mViewers.end(), [&](const auto& v) { return v.second.key == key; });
     if (shown || e->pins > 0 || e->building) continue;
     const Clock::time_point due = e->unusedSince.value_or(Clock::now()) + mOptions.releaseAfter;
