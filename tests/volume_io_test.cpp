@@ -752,5 +752,43 @@ TEST(Inv3Reader, MatrixIsLasAndAStoredAffineIsUndone) {
   }
 }
 
+// A spacing whose reciprocal is not finite (1e-320 mm) or that float cannot hold is refused by
+// every reader, naming the file or flag: it used to pass and make gradients read out of bounds.
+TEST(VolumeReaders, ASpacingWithoutAFiniteReciprocalIsRefusedByEveryReader) {
+  TempDir dir;
+  const auto data = toBytes(expectedSamples());
+  writeBytes(dir.file("v.raw"), data);
+  for (const char* s : {"1e-320", "1e-7", "1e300"}) {
+    writeBytes(dir.file("n.nhdr"), concat(std::string("NRRD0004\ntype: short\ndimension: 3\nsizes: 4 3 5\nspacings: 0.5 ") + s +
+                                              " 2.5\nencoding: raw\nendian: little\ndata file: v.raw\n",
+                                          {}));
+    expectRejected(dir.file("n.nhdr"), "n.nhdr", "spacing");
+    writeText(dir.file("m.mhd"), std::string("NDims = 3\nDimSize = 4 3 5\nElementSpacing = 0.5 0.75 ") + s +
+                                     "\nElementType = MET_SHORT\nElementDataFile = v.raw\n");
+    expectRejected(dir.file("m.mhd"), "m.mhd", "spacing");
+    writeInv3(dir.file("p.inv3"),
+              "<plist><dict><key>matrix</key><dict><key>dtype</key><string>int16</string><key>filename</key><string>matrix.dat</string>"
+              "<key>shape</key><array><integer>5</integer><integer>3</integer><integer>4</integer></array></dict>"
+              "<key>spacing</key><array><real>" + std::string(s) + "</real><real>0.75</real><real>2.5</real></array></dict></plist>",
+              data);
+    expectRejected(dir.file("p.inv3"), "p.inv3", "spacing");
+    RawLayout l;
+    l.dims = kDims;
+    l.type = ScalarType::Int16;
+    l.spacing = {0.5, std::strtod(s, nullptr), 2.5};  // (std::stod refuses a denormal)
+    expectRejected(dir.file("v.raw"), "--raw-spacing", "spacing", &l);
+  }
+  std::vector<uint8_t> nifti = niftiFile(0.0f, 0.0f, data);
+  const float tiny = 1e-40f;  // a float denormal: its reciprocal overflows float
+  std::memcpy(nifti.data() + offsetof(nifti_1_header, pixdim) + 2 * sizeof(float), &tiny, sizeof tiny);
+  writeBytes(dir.file("t.nii"), nifti);
+  expectRejected(dir.file("t.nii"), "t.nii", "spacing");
+  TempDir series;
+  for (int k = 0; k < kDims.z; ++k)
+    writeDicomSlice(series.file(sliceName("s", k)), storedSlice(k), glm::dvec3(0.0, 0.0, 1e7 * k), "1.2.3");  // (positions hold 16 characters: none nearer)
+  expectRejected(series.path().string(), series.path().string(), "spacing");
+  EXPECT_THROW(Volume(kDims, {1.0, 1e-320, 1.0}, ScalarType::Float32, std::vector<float>(60, 0.0f), "scene.hoct"), ValueError);
+}
+
 }  // namespace
 }  // namespace hyb

@@ -53,6 +53,12 @@ void validateSpacing(const glm::dvec3& s, const std::string& what) {
   for (int a = 0; a < 3; ++a)
     if (!std::isfinite(s[a]) || s[a] <= 0.0)
       HYB_THROW(ValueError, what, ": spacing ", s.x, ",", s.y, ",", s.z, " must be finite and positive");
+  // Positions, gradients and distances divide by the spacing and hold it in float: beyond this
+  // range they overflow (a reciprocal of 1e-320 mm is infinite) or lose every digit.
+  for (int a = 0; a < 3; ++a)
+    if (s[a] < kMinSpacingMm || s[a] > kMaxSpacingMm)
+      HYB_THROW(ValueError, what, ": spacing ", s.x, ",", s.y, ",", s.z, " out of range (expected ", kMinSpacingMm, " to ",
+                kMaxSpacingMm, " mm per axis, a spacing whose reciprocal is finite in float)");
 }
 
 Volume::Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, std::vector<float> samples,

@@ -39,7 +39,10 @@ inline constexpr uint64_t kMaxVoxels = uint64_t(1) << 32;
 /// Checks dims for positivity, the per-axis limit and overflow of the sample count.
 /// @throw ValueError naming @p what (a file or flag) with the offending dims.
 void validateDims(const glm::ivec3& dims, const std::string& what);
-/// Checks spacing for finite positive values.
+/// Smallest and largest accepted spacing, mm: a nanometre to a kilometre.
+inline constexpr double kMinSpacingMm = 1e-6;
+inline constexpr double kMaxSpacingMm = 1e6;
+/// Checks spacing for finite positive values within [kMinSpacingMm, kMaxSpacingMm].
 /// @throw ValueError naming @p what.
 void validateSpacing(const glm::dvec3& spacing, const std::string& what);
 
