@@ -176,7 +176,7 @@ void SlabPolygonList::emitClipped(int32_t slab, std::vector<float>* stream) {
   const glm::dvec3 f = mDepth.forward;
   const double lo = double(slab) * mDelta, hi = double(slab + 1) * mDelta;
   for (const std::pair<double, double>& plane : {std::pair{1.0, lo}, std::pair{-1.0, -hi}}) {  // depth ≥ lo, then −depth ≥ −hi
-    const double sign = plane.first, bound = plane.second;  // (lambdas cannot capture structured bindings in C++17 clang)
+    const double sign = plane.first, bound = plane.second;  // (not a structured binding: clang 14 cannot capture one)
     auto side = [&](const glm::dvec3& p) {
       const double d = sign * glm::dot(f, p) - bound;
       return std::abs(d) <= eps ? 0.0 : d;
