@@ -1,4 +1,4 @@
-// Helpers the volume readers share (volume_io.cpp, dicom_io.cpp); internal to volume/.
+// Helpers every volume reader shares (volume/*_io.cpp); internal to volume/.
 #pragma once
 
 #include <cstdint>

@@ -1,0 +1,139 @@
+// The volume reader for NIfTI through nifti_clib
+#include "volume/volume_io.h"
+
+#include <nifti2_io.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <memory>
+#include <optional>
+#include <filesystem>
+#include <iomanip>
+#include <sstream>
+
+#include "volume/file_util.h"
+#include "volume/inflate.h"
+#include "volume/memory_limit.h"
+#include "volume/patient_frame.h"
+#include "volume/reader_util.h"
+#include "volume/text_reader.h"
+
+namespace hyb {
+
+namespace fs = std::filesystem;
+using namespace detail;  // the readers' shared helpers
+
+namespace {
+
+// The patient frame of a NIfTI image, with the precedence of ITK (5.x) and nibabel: the sform when
+// its code is set and its axes are orthogonal (spacing: its columns' lengths), else the qform
+// (nifti_clib's qto_xyz: quaternion, qfac and pixdim), else NIfTI's method 1 (RAS axes, origin 0)
+// with a warning. NIfTI's world is RAS; the frame is LPS.
+PatientFrame niftiFrame(const nifti_image& nim, const std::string& path, glm::dvec3* spacing, std::vector<std::string>* warnings) {
+  const double unit = nim.xyz_units == NIFTI_UNITS_METER ? 1000.0 : nim.xyz_units == NIFTI_UNITS_MICRON ? 1e-3 : 1.0;
+  auto fromMatrix = [&](const nifti_dmat44& m, const char* name) {
+    glm::dmat3 d;
+    for (int c = 0; c < 3; ++c) {
+      d[c] = rasToLps(glm::dvec3(m.m[0][c], m.m[1][c], m.m[2][c]) * unit);
+      (*spacing)[c] = glm::length(d[c]);
+    }
+    return makePatientFrame(d, rasToLps(glm::dvec3(m.m[0][3], m.m[1][3], m.m[2][3]) * unit), path + " (" + name + ")");
+  };
+  if (nim.sform_code > 0) {
+    try {
+      return fromMatrix(nim.sto_xyz, "sform");
+    } catch (const ValueError& e) {
+      if (nim.qform_code <= 0) throw;
+      warnings->push_back(std::string(e.what()) + "; the qform is used instead, as ITK does");
+    }
+  }
+  if (nim.qform_code > 0) return fromMatrix(nim.qto_xyz, "qform");
+  warnings->push_back(path + ": qform_code and sform_code are 0 (no orientation): read as NIfTI's method 1 does, RAS axes with the origin at 0");
+  *spacing *= unit;
+  PatientFrame frame = makePatientFrame(glm::dmat3(glm::dvec3(-1, 0, 0), glm::dvec3(0, -1, 0), glm::dvec3(0, 0, 1)), glm::dvec3(0.0), path);
+  frame.assumed = true;
+  return frame;
+}
+
+}  // namespace
+
+namespace {
+
+// Checks the data file nifti_clib will read against the header's claim before it allocates:
+// a plain file must hold the bytes, a gzip one must be able to inflate to them.
+void checkNiftiData(const nifti_image& nim, const std::string& path) {
+  if (!nim.iname) HYB_THROW(IoError, path, ": NIfTI header names no data file");
+  const InputFile data(nim.iname);
+  const uint64_t offset = uint64_t(std::max<int64_t>(0, nim.iname_offset));
+  const uint64_t bytes = uint64_t(nim.nvox) * uint64_t(nim.nbyper);
+  const uint64_t needed = offset + bytes;
+  const bool gz = fileExtension(nim.iname).ends_with(".gz");
+  if (!gz && data.size() < needed)
+    HYB_THROW(IoError, data.path(), ": truncated NIfTI data: expected ", bytes, " bytes of samples from byte ", offset, ", found ",
+              data.size() > offset ? data.size() - offset : 0);
+  if (gz && detail::maxInflatedBytes(data.size()) < needed)
+    HYB_THROW(IoError, data.path(), ": ", data.size(), " bytes of compressed data cannot hold the ", needed,
+              " bytes the header declares (expected more: deflate inflates at most ", detail::kMaxDeflateRatio, ":1)");
+  checkMemory(path, bytes + uint64_t(nim.nvox) * sizeof(float), detail::concat(nim.nvox, " NIfTI samples"));
+}
+
+}  // namespace
+
+Volume readNifti(const std::string& path) {
+  const InputFile header(path);  // refuses FIFOs and directories before nifti_clib opens them
+  nifti_set_debug_level(0);  // we report errors ourselves, in one line
+  // The header first: the data is loaded only once its size is proven by the file. nifti_clib
+  // prints some errors whatever its debug level; they are captured and quoted in ours.
+  detail::StderrCapture capture;
+  std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nifti_image_read(path.c_str(), 0), nifti_image_free);
+  const std::string said = capture.finish();
+  if (!nim)
+    HYB_THROW(IoError, path, ": not a readable NIfTI-1/2 image", said.empty() ? "" : " (nifti_clib: " + quotedExcerpt(said, 120) + ")",
+              " (expected a NIfTI-1 or NIfTI-2 header)");
+  for (int d = 4; d <= nim->ndim && d < 8; ++d)
+    if (nim->dim[d] > 1)
+      HYB_THROW(IoError, path, ": NIfTI image has ", nim->ndim, " dimensions with extent ", nim->dim[d],
+                " along axis ", d, " (expected one 3D volume)");
+  if (nim->nx < 1 || nim->nx > kMaxDim || nim->ny > kMaxDim || nim->nz > kMaxDim || nim->nvox < 1 || nim->nbyper < 1 || nim->nbyper > 32)
+    HYB_THROW(IoError, path, ": NIfTI dims ", nim->nx, "x", nim->ny, "x", nim->nz, " invalid (expected 1..", kMaxDim, " per axis)");
+  checkNiftiData(*nim, path);
+  detail::StderrCapture loadCapture;
+  const bool loaded = nifti_image_load(nim.get()) == 0 && nim->data;
+  const std::string loadSaid = loadCapture.finish();
+  if (!loaded)
+    HYB_THROW(IoError, path, ": NIfTI data could not be read", loadSaid.empty() ? "" : " (nifti_clib: " + quotedExcerpt(loadSaid, 120) + ")",
+              " (expected ", uint64_t(nim->nvox) * uint64_t(nim->nbyper), " bytes of samples)");
+  const glm::ivec3 dims(int(nim->nx), int(std::max<int64_t>(1, nim->ny)), int(std::max<int64_t>(1, nim->nz)));
+  validateDims(dims, path);
+  ScalarType type;
+  switch (nim->datatype) {
+    case DT_UINT8: type = ScalarType::UInt8; break;
+    case DT_INT8: type = ScalarType::Int8; break;
+    case DT_UINT16: type = ScalarType::UInt16; break;
+    case DT_INT16: type = ScalarType::Int16; break;
+    case DT_UINT32: type = ScalarType::UInt32; break;
+    case DT_INT32: type = ScalarType::Int32; break;
+    case DT_FLOAT32: type = ScalarType::Float32; break;
+    case DT_FLOAT64: type = ScalarType::Float64; break;
+    default:
+      HYB_THROW(IoError, path, ": NIfTI datatype ", nim->datatype, " unsupported (expected a real scalar type)");
+  }
+  glm::dvec3 spacing(std::fabs(nim->dx), std::fabs(nim->dy > 0 ? nim->dy : 1.0), std::fabs(nim->dz > 0 ? nim->dz : 1.0));
+  std::vector<std::string> warnings;
+  const PatientFrame frame = niftiFrame(*nim, path, &spacing, &warnings);
+  validateSpacing(spacing, path);
+  const size_t count = size_t(dims.x) * dims.y * dims.z;
+  // nifti_clib has already swapped to native byte order.
+  std::vector<float> samples = decodeSamples(static_cast<const uint8_t*>(nim->data), count, type,
+                                             std::endian::native == std::endian::big);
+  const double slope = nim->scl_slope, inter = nim->scl_inter;
+  if (std::isfinite(slope) && slope != 0.0 && std::isfinite(inter) && (slope != 1.0 || inter != 0.0)) {
+    for (float& v : samples) v = float(v * slope + inter);
+    type = ScalarType::Float32;
+  }
+  return placed(Volume(dims, spacing, type, std::move(samples), path), frame, warnings);
+}
+
+}  // namespace hyb
