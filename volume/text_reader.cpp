@@ -1,5 +1,8 @@
 #include "volume/text_reader.h"
 
+#include <cctype>
+#include <cstdlib>
+
 #include "volume/inflate.h"
 #include "volume/memory_limit.h"
 #include "volume/reader_util.h"
@@ -13,7 +16,7 @@ uint64_t expectedBytes(const glm::ivec3& dims, ScalarType t) {
 void checkByteCount(const std::string& file, uint64_t expected, uint64_t actual, const glm::ivec3& dims,
                     ScalarType t) {
   if (actual == expected) return;
-  const std::string layout = detail::concat(dims.x, "x", dims.y, "x", dims.z, " ", scalarName(t));
+  const std::string layout = layoutName(dims, t);
   if (actual < expected)
     HYB_THROW(IoError, file, ": truncated data: expected ", expected, " bytes for ", layout, ", found ", actual);
   HYB_THROW(IoError, file, ": header/data size mismatch: expected ", expected, " bytes for ", layout, ", found ",
