@@ -30,11 +30,13 @@ void main() { float v = texture(tex, uvw).r; fragColor = vec4(v, v, v, 1.0) * 0.
   if (brickFormat) {
     std::vector<glm::vec4> texels;
     texels.reserve(volume.voxelCount());
-    for (float v : volume.samples()) texels.emplace_back(v, 0.0f, 0.0f, 0.0f);
+    for (size_t i = 0; i < volume.voxelCount(); ++i) texels.emplace_back(volume.value(i), 0.0f, 0.0f, 0.0f);
     tex = uploadBrick(packBrick(texels, TexelBits::Eight), d, TexelBits::Eight).texture;
   } else {
     tex = gl::volumeTexture();
-    glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, d.x, d.y, d.z, 0, GL_RED, GL_FLOAT, volume.samples().data());
+    std::vector<float> values(volume.voxelCount());  // the baseline uploads the whole volume as float
+    for (size_t i = 0; i < values.size(); ++i) values[i] = volume.value(i);
+    glTexImage3D(GL_TEXTURE_3D, 0, GL_R32F, d.x, d.y, d.z, 0, GL_RED, GL_FLOAT, values.data());
   }
   const gl::Program program = gl::linkProgram(kVertex, kFragment);
   glUseProgram(program.id());

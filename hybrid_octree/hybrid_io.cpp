@@ -10,6 +10,8 @@
 
 #include "volume/error.h"
 #include "volume/file_util.h"
+#include "volume/memory_limit.h"
+#include "volume/reader_util.h"
 
 namespace hyb {
 
@@ -108,29 +110,73 @@ std::vector<SurfaceNode> getSurfaceNodes(Reader& r) {
   return nodes;
 }
 
-uint32_t crc(const std::vector<uint8_t>& b) { return uint32_t(crc32(0L, b.data(), uInt(b.size()))); }
+// A 64-bit content hash (murmur3's finaliser over 8-byte words; not cryptographic) of a byte
+// sequence fed in pieces: the identity of the volume section that the octree sections were built from.
+class ContentHash {
+ public:
+  explicit ContentHash(uint64_t size) : mH(kGolden ^ size) {}
+  void update(const uint8_t* p, size_t n) {
+    while (n) {
+      if (mFill == 0 && n >= 8) {
+        for (; n >= 8; p += 8, n -= 8) word(p);
+        continue;
+      }
+      const size_t take = std::min(n, 8 - mFill);
+      std::memcpy(mPending + mFill, p, take);
+      mFill += take;
+      p += take;
+      n -= take;
+      if (mFill == 8) {
+        word(mPending);
+        mFill = 0;
+      }
+    }
+  }
+  uint64_t finish() const {
+    uint64_t tail = 0;
+    std::memcpy(&tail, mPending, mFill);
+    return mix(mH ^ tail);
+  }
 
-// A 64-bit content hash (murmur3's finaliser over 8-byte words; not cryptographic): the identity of
-// the volume section that the octree sections were built from.
-uint64_t contentHash(const std::vector<uint8_t>& b) {
-  const auto mix = [](uint64_t h) {
+ private:
+  static constexpr uint64_t kGolden = 0x9e3779b97f4a7c15ULL;
+  static uint64_t mix(uint64_t h) {
     h ^= h >> 33;
     h *= 0xff51afd7ed558ccdULL;
     h ^= h >> 33;
     h *= 0xc4ceb9fe1a85ec53ULL;
     return h ^ (h >> 33);
-  };
-  uint64_t h = 0x9e3779b97f4a7c15ULL ^ b.size();
-  size_t i = 0;
-  for (; i + 8 <= b.size(); i += 8) {
-    uint64_t w;
-    std::memcpy(&w, b.data() + i, 8);
-    h = mix(h ^ w) + 0x9e3779b97f4a7c15ULL;
   }
-  uint64_t tail = 0;
-  if (i < b.size()) std::memcpy(&tail, b.data() + i, b.size() - i);
-  return mix(h ^ tail);
-}
+  void word(const uint8_t* p) {
+    uint64_t w;
+    std::memcpy(&w, p, 8);
+    mH = mix(mH ^ w) + kGolden;
+  }
+  uint64_t mH;
+  uint8_t mPending[8] = {};
+  size_t mFill = 0;
+};
+
+// A section's payload as the pieces it is written from (the samples are not copied).
+struct Section {
+  uint32_t tag = 0;
+  std::vector<std::pair<const uint8_t*, size_t>> pieces;
+  uint64_t size() const {
+    uint64_t n = 0;
+    for (const auto& piece : pieces) n += piece.second;
+    return n;
+  }
+  uint32_t crc() const {
+    uLong c = crc32_z(0L, Z_NULL, 0);
+    for (const auto& piece : pieces) c = crc32_z(c, piece.first, piece.second);
+    return uint32_t(c);
+  }
+  uint64_t hash() const {
+    ContentHash h(size());
+    for (const auto& piece : pieces) h.update(piece.first, piece.second);
+    return h.finish();
+  }
+};
 
 // Surface nodes field by field: the struct's padding would make the file's bytes differ between
 // two saves of the same scene.
@@ -152,26 +198,34 @@ void putSurfaceNodes(Writer* w, const std::vector<SurfaceNode>& nodes) {
 }  // namespace
 
 void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceOctree* surface) {
-  Writer vol;
-  vol.put(volume.dims());
-  vol.put(volume.spacing());
-  vol.put(uint32_t(volume.sourceType()));
-  vol.putArray(volume.samples());
-  vol.put(volume.frame().direction);
-  vol.put(volume.frame().origin);
-  vol.put(uint64_t(volume.info().size()));
+  Writer head, tail;
+  head.put(volume.dims());
+  head.put(volume.spacing());
+  head.put(uint32_t(volume.sourceType()));
+  head.put(uint32_t(volume.storedType()));
+  head.put(uint64_t(volume.voxelCount()));
+  const uint8_t* samples = volume.visitSamples([](const auto* d) { return reinterpret_cast<const uint8_t*>(d); });
+  tail.put(volume.frame().direction);
+  tail.put(volume.frame().origin);
+  tail.put(uint8_t(volume.frame().assumed));
+  tail.put(uint64_t(volume.info().size()));
   for (const auto& [key, value] : volume.info()) {
-    vol.putArray(std::vector<char>(key.begin(), key.end()));
-    vol.putArray(std::vector<char>(value.begin(), value.end()));
+    tail.putArray(std::vector<char>(key.begin(), key.end()));
+    tail.putArray(std::vector<char>(value.begin(), value.end()));
   }
-  const uint64_t volumeHash = contentHash(vol.bytes());
+  const auto whole = [](uint32_t t, const Writer& w) { return Section{t, {{w.bytes().data(), w.bytes().size()}}}; };
+  std::vector<Section> sections = {Section{kVolumeTag,
+                                           {{head.bytes().data(), head.bytes().size()},
+                                            {samples, volume.voxelCount() * scalarSize(volume.storedType())},
+                                            {tail.bytes().data(), tail.bytes().size()}}}};
+  const uint64_t volumeHash = sections[0].hash();
   Writer oct;
   oct.put(volumeHash);
   oct.put(int32_t(octree.leafEdge()));
   oct.put(uint32_t(octree.prefiltered()));
   oct.putArray(octree.nodes());
   oct.putArray(octree.errorData());
-  std::vector<std::pair<uint32_t, const Writer*>> sections = {{kVolumeTag, &vol}, {kOctreeTag, &oct}};
+  sections.push_back(whole(kOctreeTag, oct));
   Writer surf;
   if (surface) {
     surf.put(volumeHash);
@@ -179,19 +233,19 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
     surf.put(uint64_t(surface->cellCount()));
     surf.put(int32_t(surface->mergeEdge()));
     putSurfaceNodes(&surf, surface->nodes());
-    sections.push_back({kSurfaceTag, &surf});
+    sections.push_back(whole(kSurfaceTag, surf));
   }
   writeFileAtomically(path, [&](std::ostream& out) {
     out.write(kMagic, sizeof kMagic);
     const uint32_t header[2] = {kSceneVersion, uint32_t(sections.size())};
     out.write(reinterpret_cast<const char*>(header), sizeof header);
-    for (const auto& [t, w] : sections) {
-      const uint64_t size = w->bytes().size();
-      const uint32_t c = crc(w->bytes());
-      out.write(reinterpret_cast<const char*>(&t), 4);
+    for (const Section& section : sections) {
+      const uint64_t size = section.size();
+      const uint32_t c = section.crc();
+      out.write(reinterpret_cast<const char*>(&section.tag), 4);
       out.write(reinterpret_cast<const char*>(&size), 8);
       out.write(reinterpret_cast<const char*>(&c), 4);
-      out.write(reinterpret_cast<const char*>(w->bytes().data()), std::streamsize(size));
+      for (const auto& [data, n] : section.pieces) out.write(reinterpret_cast<const char*>(data), std::streamsize(n));
     }
   });
 }
@@ -203,10 +257,12 @@ bool isSceneFile(const std::string& path) {
 }
 
 Scene loadScene(const std::string& path) {
-  const std::vector<uint8_t> bytes = readFileBytes(path);
-  if (bytes.size() < 16 || std::memcmp(bytes.data(), kMagic, 8) != 0)
-    HYB_THROW(IoError, path, ": not a hybrid-octree scene file (expected magic HYBOCT)");
-  Reader header(bytes.data() + 8, bytes.size() - 8, path);
+  const InputFile file(path);
+  uint8_t top[16] = {};
+  if (file.size() < 16) HYB_THROW(IoError, path, ": not a hybrid-octree scene file (expected magic HYBOCT)");
+  file.read(0, 16, top);
+  if (std::memcmp(top, kMagic, 8) != 0) HYB_THROW(IoError, path, ": not a hybrid-octree scene file (expected magic HYBOCT)");
+  Reader header(top + 8, 8, path);
   const uint32_t version = header.get<uint32_t>();
   const uint32_t count = header.get<uint32_t>();
   if (version > 0 && version < 3)
@@ -215,62 +271,106 @@ Scene loadScene(const std::string& path) {
   if (version == 3)
     HYB_THROW(IoError, path, ": scene file version 3 does not tie its octrees to its volume (this build reads version ", kSceneVersion,
               "); build the scene again from its volume with hybrid-octree build");
+  if (version == 4)
+    HYB_THROW(IoError, path, ": scene file version 4 holds its samples as float (this build reads version ", kSceneVersion,
+              ", samples in their own type); build the scene again from its volume with hybrid-octree build");
   if (version != kSceneVersion)
     HYB_THROW(IoError, path, ": scene file version ", version, " unsupported (this build reads version ", kSceneVersion, ")");
-  std::map<uint32_t, std::vector<uint8_t>> sections;
-  size_t pos = 16;
+  struct Entry {
+    uint64_t offset = 0, size = 0;
+    uint32_t crc = 0, index = 0;
+  };
+  std::map<uint32_t, Entry> entries;  // by tag; a repeated tag: the last one
+  uint64_t pos = 16;
   for (uint32_t s = 0; s < count; ++s) {
-    if (bytes.size() - pos < 16)
-      HYB_THROW(IoError, path, ": truncated scene file (section ", s, " of ", count, " header missing)");
-    uint32_t t, c;
-    uint64_t size;
-    std::memcpy(&t, &bytes[pos], 4);
-    std::memcpy(&size, &bytes[pos + 4], 8);
-    std::memcpy(&c, &bytes[pos + 12], 4);
-    pos += 16;
-    if (size > bytes.size() - pos)
-      HYB_THROW(IoError, path, ": truncated scene file (section ", s, " needs ", size, " bytes, ", bytes.size() - pos, " left)");
-    std::vector<uint8_t> payload(bytes.begin() + ptrdiff_t(pos), bytes.begin() + ptrdiff_t(pos + size));
-    pos += size_t(size);
-    if (crc(payload) != c) HYB_THROW(IoError, path, ": corrupt scene file (checksum mismatch in section ", s, ")");
-    sections[t] = std::move(payload);
+    if (file.size() - pos < 16) HYB_THROW(IoError, path, ": truncated scene file (section ", s, " of ", count, " header missing)");
+    uint8_t h[16];
+    file.read(pos, 16, h);
+    uint32_t t;
+    Entry e;
+    std::memcpy(&t, h, 4);
+    std::memcpy(&e.size, h + 4, 8);
+    std::memcpy(&e.crc, h + 12, 4);
+    e.offset = pos + 16;
+    e.index = s;
+    if (e.size > file.size() - e.offset)
+      HYB_THROW(IoError, path, ": truncated scene file (section ", s, " needs ", e.size, " bytes, ", file.size() - e.offset, " left)");
+    entries[t] = e;
+    pos = e.offset + e.size;
   }
-  auto section = [&](uint32_t t, const char* name) -> const std::vector<uint8_t>& {
-    const auto it = sections.find(t);
-    if (it == sections.end()) HYB_THROW(IoError, path, ": scene file lacks the ", name, " section");
+  auto entry = [&](uint32_t t, const char* name) -> const Entry& {
+    const auto it = entries.find(t);
+    if (it == entries.end()) HYB_THROW(IoError, path, ": scene file lacks the ", name, " section");
     return it->second;
   };
+  const auto corrupt = [&](const Entry& e) {
+    HYB_THROW(IoError, path, ": corrupt scene file (checksum mismatch in section ", e.index, ")");
+  };
+  // A section other than the volume's: read whole and checked.
+  auto payload = [&](const Entry& e) {
+    std::vector<uint8_t> bytes = file.bytes(e.offset, e.size);
+    if (uint32_t(crc32_z(0L, bytes.data(), bytes.size())) != e.crc) corrupt(e);
+    return bytes;
+  };
+
   Scene scene;
-  const uint64_t volumeHash = contentHash(section(kVolumeTag, "volume"));
+  uint64_t volumeHash = 0;
+  {
+    // The samples are read straight into the volume's array; head and tail around them are small.
+    const Entry& e = entry(kVolumeTag, "volume");
+    constexpr uint64_t kHead = sizeof(glm::ivec3) + sizeof(glm::dvec3) + 4 + 4 + 8;
+    if (e.size < kHead) HYB_THROW(IoError, path, ": volume section too short (", e.size, " bytes; expected at least ", kHead, ")");
+    std::vector<uint8_t> head(kHead);
+    file.read(e.offset, kHead, head.data());
+    Reader r(head.data(), head.size(), path);
+    const glm::ivec3 dims = r.get<glm::ivec3>();
+    const glm::dvec3 spacing = r.get<glm::dvec3>();
+    const uint32_t type = r.get<uint32_t>(), stored = r.get<uint32_t>();
+    const uint64_t samples = r.get<uint64_t>();
+    if (type > uint32_t(ScalarType::Float64)) HYB_THROW(IoError, path, ": unknown sample type code ", type);
+    const ScalarType storedType = ScalarType(stored);
+    if (stored > uint32_t(ScalarType::Float64) || storageTypeFor(storedType, 0, 0) != storedType)
+      HYB_THROW(IoError, path, ": stored sample type code ", stored, " invalid (expected uint8, int8, uint16, int16 or float32)");
+    validateDims(dims, path);
+    if (samples != uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z))
+      HYB_THROW(IoError, path, ": volume section holds ", samples, " samples for dims ", dims.x, "x", dims.y, "x", dims.z);
+    const uint64_t bytes = samples * scalarSize(storedType);
+    if (bytes > e.size - kHead)
+      HYB_THROW(IoError, path, ": truncated volume section (", bytes, " bytes of samples declared, ", e.size - kHead, " present)");
+    checkMemory(path, bytes, "the scene's samples");
+    SampleArray array = detail::allocateSamples(storedType, size_t(samples));
+    uint8_t* data = std::visit([](auto& v) { return reinterpret_cast<uint8_t*>(v.data()); }, array);
+    file.read(e.offset + kHead, bytes, data);
+    std::vector<uint8_t> tail(size_t(e.size - kHead - bytes));
+    file.read(e.offset + kHead + bytes, tail.size(), tail.data());
+    const Section section{kVolumeTag, {{head.data(), head.size()}, {data, size_t(bytes)}, {tail.data(), tail.size()}}};
+    if (section.crc() != e.crc) corrupt(e);
+    volumeHash = section.hash();
+    scene.volume = Volume(dims, spacing, ScalarType(type), std::move(array), path);
+    Reader t(tail.data(), tail.size(), path);
+    const glm::dmat3 direction = t.get<glm::dmat3>();
+    const glm::dvec3 origin = t.get<glm::dvec3>();
+    PatientFrame frame = makePatientFrame(direction, origin, path);
+    if (glm::length(frame.direction[0] - direction[0]) + glm::length(frame.direction[1] - direction[1]) +
+            glm::length(frame.direction[2] - direction[2]) > 1e-9)
+      HYB_THROW(IoError, path, ": corrupt scene file (the volume's direction matrix is not orthonormal)");
+    const uint8_t assumed = t.get<uint8_t>();
+    if (assumed > 1) HYB_THROW(IoError, path, ": orientation flag ", int(assumed), " invalid (expected 0 or 1)");
+    frame.assumed = assumed == 1;
+    scene.volume.setFrame(frame);
+    const uint64_t infoCount = t.get<uint64_t>();
+    for (uint64_t i = 0; i < infoCount; ++i) {
+      const std::vector<char> key = t.getArray<char>(), value = t.getArray<char>();
+      scene.volume.addInfo(std::string(key.begin(), key.end()), std::string(value.begin(), value.end()));
+    }
+  }
   // Sections spliced from another scene of the same size would otherwise load and show the wrong data.
   const auto sameVolume = [&](Reader& r, const char* name) {
     if (r.get<uint64_t>() != volumeHash)
       HYB_THROW(IoError, path, ": the ", name, " section was built from another volume than the scene's (content hash mismatch)");
   };
   {
-    const auto& b = section(kVolumeTag, "volume");
-    Reader r(b.data(), b.size(), path);
-    const glm::ivec3 dims = r.get<glm::ivec3>();
-    const glm::dvec3 spacing = r.get<glm::dvec3>();
-    const uint32_t type = r.get<uint32_t>();
-    if (type > uint32_t(ScalarType::Float64)) HYB_THROW(IoError, path, ": unknown sample type code ", type);
-    validateDims(dims, path);
-    scene.volume = Volume(dims, spacing, ScalarType(type), r.getArray<float>(), path);
-    const glm::dmat3 direction = r.get<glm::dmat3>();
-    const glm::dvec3 origin = r.get<glm::dvec3>();
-    const PatientFrame frame = makePatientFrame(direction, origin, path);
-    if (glm::length(frame.direction[0] - direction[0]) + glm::length(frame.direction[1] - direction[1]) +
-            glm::length(frame.direction[2] - direction[2]) > 1e-9)
-      HYB_THROW(IoError, path, ": corrupt scene file (the volume's direction matrix is not orthonormal)");
-    scene.volume.setFrame(frame);
-    const uint64_t entries = r.get<uint64_t>();
-    for (uint64_t e = 0; e < entries; ++e) {
-      const std::vector<char> key = r.getArray<char>(), value = r.getArray<char>();
-      scene.volume.addInfo(std::string(key.begin(), key.end()), std::string(value.begin(), value.end()));
-    }
-  }
-  {
-    const auto& b = section(kOctreeTag, "volume octree");
+    const std::vector<uint8_t> b = payload(entry(kOctreeTag, "volume octree"));
     Reader r(b.data(), b.size(), path);
     sameVolume(r, "volume octree");
     const int32_t leafEdge = r.get<int32_t>();
@@ -282,8 +382,9 @@ Scene loadScene(const std::string& path) {
                                            prefiltered ? &scene.volume : nullptr);
     scene.octree.validateAgainst(scene.volume, path);
   }
-  if (const auto it = sections.find(kSurfaceTag); it != sections.end()) {
-    Reader r(it->second.data(), it->second.size(), path);
+  if (const auto it = entries.find(kSurfaceTag); it != entries.end()) {
+    const std::vector<uint8_t> b = payload(it->second);
+    Reader r(b.data(), b.size(), path);
     sameVolume(r, "surface octree");
     const float iso = r.get<float>();
     const uint64_t cells = r.get<uint64_t>();

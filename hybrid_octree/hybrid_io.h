@@ -2,10 +2,11 @@
 //
 // Layout (little-endian): magic "HYBOCT\x1a\n", u32 version, u32 section count, then per section
 // a u32 tag, u64 payload size, u32 CRC-32 of the payload, and the payload. Sections: VOLM (volume:
-// dims, spacing, type, samples, patient frame, info), VOCT (Volume Octree), SURF (Surface Octree,
+// dims, spacing, source type, stored type, sample count, the samples in the stored type, patient
+// frame, whether the frame was assumed, info), VOCT (Volume Octree), SURF (Surface Octree,
 // optional). VOCT and SURF begin with a 64-bit hash of the VOLM payload they were built from. The
 // bytes are deterministic: a scene saved twice is the same file. Readers reject a foreign magic,
-// another version (files before version 4: rebuilding them is the safe answer), truncation, CRC
+// another version (files before version 5: rebuilding them is the safe answer), truncation, CRC
 // mismatches, sections of another volume, and an octree whose min/max disagree with the samples;
 // unknown sections are skipped.
 #pragma once
@@ -21,8 +22,9 @@ namespace hyb {
 
 /// Current scene-file version.
 // 2: the octree records its knot mode; 3: the volume its patient frame and info; 4: the octree
-// sections the volume's content hash, surface nodes field by field (deterministic bytes).
-inline constexpr uint32_t kSceneVersion = 4;
+// sections the volume's content hash, surface nodes field by field (deterministic bytes); 5: the
+// samples in the type the volume holds them in, and whether its orientation was assumed.
+inline constexpr uint32_t kSceneVersion = 5;
 
 /// A loaded scene: the volume, its Volume Octree and, when built with an isovalue, its Surface Octree.
 struct Scene {

@@ -114,11 +114,16 @@ KnotPyramid::KnotPyramid(const Volume& volume) : mDims(volume.dims()) {
     std::vector<std::vector<float>> ax(levels);  // this slice's x-filtered rows, per spacing
     for (size_t l = 0; l < levels; ++l) ax[l].resize(size_t(mLevels[l].count.x) * n.y);
     const float* lines[L];
+    std::vector<float> rowValues(size_t(L) * size_t(n.x));  // this group's rows as float
 #pragma omp for schedule(dynamic, 1)
     for (int z = 0; z < n.z; ++z) {
       for (int first = 0; first < n.y; first += L) {
         const int count = std::min(L, n.y - first);
-        for (int r = 0; r < count; ++r) lines[r] = &volume.samples()[volume.index(0, first + r, z)];
+        for (int r = 0; r < count; ++r) {
+          float* row = &rowValues[size_t(r) * size_t(n.x)];
+          volume.readRow(0, first + r, z, n.x, row);
+          lines[r] = row;
+        }
         rows.secondPrefixSums(lines, count, 1, &p2);
         for (int r = 0; r < count; ++r)
           for (size_t l = 0; l < levels; ++l) {

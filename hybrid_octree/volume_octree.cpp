@@ -166,12 +166,11 @@ void buildLeaves(const Volume& v, const Geometry& g, const KnotPyramid& knots, L
       float lo = std::numeric_limits<float>::max(), hi = -lo;
       for (int z = 0; z <= lim.z; ++z)
         for (int y = 0; y <= lim.y; ++y) {
-          const float* row = &v.samples()[v.index(o.x, o.y + y, o.z + z)];
           float* dst = &at(block, 0, y, z);
+          v.readRow(o.x, o.y + y, o.z + z, lim.x + 1, dst);
           for (int x = 0; x <= lim.x; ++x) {
-            dst[x] = row[x];
-            lo = std::min(lo, row[x]);
-            hi = std::max(hi, row[x]);
+            lo = std::min(lo, dst[x]);
+            hi = std::max(hi, dst[x]);
           }
         }
       out->minV[li] = lo;
@@ -232,7 +231,6 @@ void buildLeaves(const Volume& v, const Geometry& g, const KnotPyramid& knots, L
 std::vector<std::vector<float>> directNodalErrors(const Volume& v, const Geometry& g, const KnotPyramid& knots) {
   const int levels = g.leafLevel;  // 0 … leafLevel − 1
   const glm::ivec3 dims = v.dims();
-  const float* s = v.samples().data();
   // Each node's corner knots (bit 0: x = hi.x, 1: y = hi.y, 2: z = hi.z).
   std::vector<std::vector<std::array<float, 8>>> corners(static_cast<size_t>(levels));
   for (int k = 0; k < levels; ++k) {
@@ -259,10 +257,12 @@ std::vector<std::vector<float>> directNodalErrors(const Volume& v, const Geometr
   {
     std::vector<std::vector<float>> err(static_cast<size_t>(levels));
     for (int k = 0; k < levels; ++k) err[size_t(k)].assign(g.countAt(k), 0.0f);
+    std::vector<float> rowValues(size_t(dims.x));
+    const float* row = rowValues.data();
 #pragma omp for schedule(dynamic, 1)
     for (int z = 0; z < dims.z; ++z)
       for (int y = 0; y < dims.y; ++y) {
-        const float* row = s + v.index(0, y, z);
+        v.readRow(0, y, z, dims.x, rowValues.data());
         for (int k = 0; k < levels; ++k) {
           const int E = g.edgeAt(k);
           int z0, z1, y0, y1;

@@ -318,18 +318,30 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
       toPack.push_back(i);
     }
   plan.uploaded = toPack.size();
-  std::vector<PackedBrick> packed(toPack.size());
-  ParallelFailure failure;
-#pragma omp parallel for schedule(dynamic) if (toPack.size() > 1)
-  for (size_t k = 0; k < toPack.size(); ++k)
-    failure.run([&] {
-      const uint32_t i = toPack[k];
-      const Brick& b = selection.bricks[size_t(brickOf[i])];
-      const std::vector<glm::vec4> texels = brickTexels(volume, octree, b);
-      packed[k] = packBrick(texels, options.texelBits);
-      packed[k].brick.ranges = texelRanges(texels, octree.lattice(octree.nodes()[i], b.p).dims);
-    });
-  failure.rethrow();
+  // Packed in batches on all cores, each batch uploaded when it is done: the packed texels held at
+  // once are a batch's, not the frame's.
+  constexpr size_t kBatch = 256;
+  std::vector<CachedBrick> uploaded(toPack.size());
+  for (size_t first = 0; first < toPack.size(); first += kBatch) {
+    const size_t count = std::min(kBatch, toPack.size() - first);
+    std::vector<PackedBrick> packed(count);
+    ParallelFailure failure;
+#pragma omp parallel for schedule(dynamic) if (count > 1)
+    for (size_t k = 0; k < count; ++k)
+      failure.run([&] {
+        const uint32_t i = toPack[first + k];
+        const Brick& b = selection.bricks[size_t(brickOf[i])];
+        const std::vector<glm::vec4> texels = brickTexels(volume, octree, b);
+        packed[k] = packBrick(texels, options.texelBits);
+        packed[k].brick.ranges = texelRanges(texels, octree.lattice(octree.nodes()[i], b.p).dims);
+      });
+    failure.rethrow();
+    for (size_t k = 0; k < count; ++k) {
+      const uint32_t i = toPack[first + k];
+      const glm::ivec3 dims = octree.lattice(octree.nodes()[i], selection.bricks[size_t(brickOf[i])].p).dims;
+      uploaded[first + k] = uploadBrick(std::move(packed[k]), dims, options.texelBits);
+    }
+  }
   plan.draws.reserve(order.size());
   for (uint32_t i : order) {
     const Brick& b = selection.bricks[size_t(brickOf[i])];
@@ -350,7 +362,7 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
       CachedBrick* cached = options.textures ? options.textures->find(b) : nullptr;
       CachedBrick made;
       if (!cached) {
-        made = uploadBrick(std::move(packed[size_t(packedOf[i])]), fine.dims, options.texelBits);
+        made = std::move(uploaded[size_t(packedOf[i])]);
         if (options.textures) cached = &options.textures->insert(b, std::move(made));
       }
       CachedBrick& brick = cached ? *cached : made;
@@ -535,18 +547,23 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   if (options.cut) st.cutPolygons = drawCutPlane(programs.cut(), plan.cut);
 
   // 6. Each brick's slices and SlabPolygon lists, built by a worker in draw order (it publishes how
-  // many are done) and drawn here.
+  // many are done) and drawn here. The worker stays at most kLookahead bricks ahead of the drawing,
+  // so the streams held at once stay a few bricks' worth however many bricks the frame has.
+  constexpr size_t kLookahead = 32;
   std::vector<BrickDraw>& draws = plan.draws;
   GLuint bound = 0;  // the slice program in use
-  std::atomic<size_t> built{0};
+  std::atomic<size_t> built{0}, drawn{0};
   std::exception_ptr failure;
   std::thread worker([&] {
     SlabPolygonList list;
     std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes;
     std::vector<float> one;
     try {
-      for (BrickDraw& d : draws) {
-        buildStream(d, translucent ? &*polygons : nullptr, polygonsOf, camera, frame, spacing, options.slabOrder, options.cutToSlabs, list, boxes, one);
+      for (size_t j = 0; j < draws.size(); ++j) {
+        for (size_t done = drawn.load(std::memory_order_acquire); done + kLookahead < j; done = drawn.load(std::memory_order_acquire))
+          drawn.wait(done);
+        buildStream(draws[j], translucent ? &*polygons : nullptr, polygonsOf, camera, frame, spacing, options.slabOrder, options.cutToSlabs, list,
+                    boxes, one);
         built.fetch_add(1, std::memory_order_release);
         built.notify_one();
       }
@@ -557,14 +574,20 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     }
   });
   // The worker is joined whatever happens here (an exception leaving this scope would otherwise
-  // terminate the process through its std::thread).
+  // terminate the process through its std::thread); it is released from waiting first.
   struct Join {
     std::thread& t;
-    ~Join() { if (t.joinable()) t.join(); }
-  } join{worker};
-  std::vector<gl::Buffer> buffers;
+    std::atomic<size_t>& drawn;
+    ~Join() {
+      drawn.store(std::numeric_limits<size_t>::max() / 2, std::memory_order_release);
+      drawn.notify_one();
+      if (t.joinable()) t.join();
+    }
+  } join{worker, drawn};
   ProgressTask progress(options.progress, "slices", draws.size());
   for (size_t j = 0; j < draws.size(); ++j, progress.advance()) {
+    drawn.store(j, std::memory_order_release);
+    drawn.notify_one();
     for (size_t seen = built.load(std::memory_order_acquire); seen <= j; seen = built.load(std::memory_order_acquire)) built.wait(seen);
     if (failure) break;
     BrickDraw& d = draws[j];
@@ -586,9 +609,10 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     }
     glUniform1f(sp.sliceSpacing, float(d.delta));
     glUniform1i(sp.shells, d.shell ? 1 : 0);
-    // A buffer object per brick: re-specifying one would make llvmpipe wait for the previous draws.
-    buffers.push_back(gl::Buffer::make());
-    glBindBuffer(GL_ARRAY_BUFFER, buffers.back().id());
+    // A buffer object per brick, deleted after its draw: re-specifying one would make llvmpipe wait
+    // for the previous draws, while llvmpipe is done with a draw's vertices when the call returns.
+    const gl::Buffer buffer = gl::Buffer::make();
+    glBindBuffer(GL_ARRAY_BUFFER, buffer.id());
     glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(d.stream.size() * sizeof(float)), d.stream.data(), GL_STREAM_DRAW);
     glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, kStreamFloats * sizeof(float), nullptr);
     glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, kStreamFloats * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
@@ -596,6 +620,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     glDrawArrays(GL_TRIANGLES, 0, GLsizei(d.stream.size() / kStreamFloats));
     std::vector<float>().swap(d.stream);
   }
+  drawn.store(draws.size(), std::memory_order_release);
+  drawn.notify_one();
   worker.join();
   if (failure) std::rethrow_exception(failure);
   // 7. The isosurface's outline on the cutting plane, on top.

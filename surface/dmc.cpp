@@ -83,8 +83,8 @@ void forEachActiveCell(const Volume& v, float iso, std::span<const VoxelBlock> b
         pieces.push_back({glm::ivec3(x, b.lo.y, b.lo.z), glm::ivec3(std::min(x + kMaxRun, b.hi.x), b.hi.y, b.hi.z)});
     blocks = pieces;
   }
-  const float* s = v.samples().data();
   std::vector<uint64_t> rows;  // bit i: sample i of a row is inside
+  std::vector<float> row(size_t(kMaxRun) + 1);
   for (const VoxelBlock& b : blocks) {
     HYB_DCHECK(glm::all(glm::greaterThanEqual(b.lo, glm::ivec3(0))) && glm::all(glm::lessThan(b.hi, v.dims())));
     const glm::ivec3 n = b.hi - b.lo + 1;  // samples a side
@@ -92,8 +92,8 @@ void forEachActiveCell(const Volume& v, float iso, std::span<const VoxelBlock> b
     rows.resize(size_t(n.y) * size_t(n.z));
     for (int k = 0; k < n.z; ++k)
       for (int j = 0; j < n.y; ++j) {
-        const float* row = s + v.index(b.lo.x, b.lo.y + j, b.lo.z + k);
-        rows[size_t(k) * size_t(n.y) + size_t(j)] = insideBits(row, n.x, iso);
+        v.readRow(b.lo.x, b.lo.y + j, b.lo.z + k, n.x, row.data());
+        rows[size_t(k) * size_t(n.y) + size_t(j)] = insideBits(row.data(), n.x, iso);
       }
     const uint64_t cellsOfRow = (uint64_t(1) << (n.x - 1)) - 1;
     for (int k = 0; k + 1 < n.z; ++k)

@@ -48,7 +48,7 @@ double jsonNumber(const std::string& file, const std::string& key) {
 }
 
 std::vector<uint8_t> sphereBytes() {
-  return test::toBytes(test::sphereVolume({9, 7, 5}, 3.0).samples());
+  return test::toBytes(test::floatSamples(test::sphereVolume({9, 7, 5}, 3.0)));
 }
 
 TEST(Cli, InfoBuildAndSelect) {
@@ -117,7 +117,7 @@ TEST(Cli, InfoPrintsThePatientFrameAndExactPercentiles) {
   EXPECT_THAT(r.out, HasSubstr("orient   RIA"));
   EXPECT_THAT(r.out, HasSubstr("spacing  1 x 1.5 x 2 mm"));
   // The percentiles are samples of the data (nearest rank), not bin centres.
-  const std::vector<float> s = test::sphereVolume({9, 7, 5}, 3.0).samples();
+  const std::vector<float> s = test::floatSamples(test::sphereVolume({9, 7, 5}, 3.0));
   std::vector<float> sorted = s;
   std::sort(sorted.begin(), sorted.end());
   std::ostringstream median;
@@ -147,7 +147,7 @@ TEST(Cli, CameraRecordedByStatsRendersTheSameImageAgain) {
 TEST(Cli, BudgetInPercentOfTheFullResolutionBytes) {
   test::TempDir dir;
   const std::string header = "NRRD0004\ntype: float\ndimension: 3\nsizes: 33 33 33\nspacings: 1 1 1\nendian: little\nencoding: raw\n";
-  const std::string nhdr = writeNrrd(dir, "b", header, test::toBytes(test::sphereVolume({33, 33, 33}, 12.0).samples()));
+  const std::string nhdr = writeNrrd(dir, "b", header, test::toBytes(test::floatSamples(test::sphereVolume({33, 33, 33}, 12.0))));
   auto texels = [&](const std::string& budget, std::string* out) {
     std::vector<std::string> args{"render", nhdr, "--size", "16x16", "--max-brick", "4", "--stats", dir.file("t.json"), "-o", dir.file("t.png")};
     if (!budget.empty()) args.insert(args.end(), {"--budget", budget});
@@ -422,7 +422,7 @@ TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
   test::TempDir dir;
   // A sphere that fits inside its volume, so its surface is closed.
   const std::string nhdr = writeNrrd(dir, "s", "NRRD0004\ntype: float\ndimension: 3\nsizes: 11 11 11\nspacings: 1 1 1\nendian: little\nencoding: raw\n",
-                                     test::toBytes(test::sphereVolume(glm::ivec3(11), 3.5).samples()));
+                                     test::toBytes(test::floatSamples(test::sphereVolume(glm::ivec3(11), 3.5))));
   CliRun r = run({"export", nhdr, "--iso", "0", "-o", dir.file("s.off"), "--check"});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("manifold yes, closed yes"));
@@ -469,7 +469,7 @@ TEST(Cli, ExportsArePatientSpaceCompactAndClosedOnTheCranium) {
   const std::string nhdr = writeNrrd(dir, "r",
                                      "NRRD0004\ntype: float\ndimension: 3\nsizes: 11 11 11\nspace: right-anterior-superior\n"
                                      "space directions: (1,0,0) (0,1,0) (0,0,1)\nspace origin: (100,0,0)\nendian: little\nencoding: raw\n",
-                                     test::toBytes(test::sphereVolume(glm::ivec3(11), 3.5).samples()));
+                                     test::toBytes(test::floatSamples(test::sphereVolume(glm::ivec3(11), 3.5))));
   for (const char* surface : {"dmc", "octree", "mc"})
     for (const char* ext : {".ply", ".obj", ".stl", ".off"}) {
       const std::string path = dir.file(std::string(surface) + ext);

@@ -27,10 +27,11 @@ struct Inputs {
   std::vector<std::string> cranium, sphere;
   Inputs() {
     const Volume v = readVolume(kDefaultVolumePath);
-    std::vector<int16_t> samples(v.samples().begin(), v.samples().end());
+    const std::vector<float> values = test::floatSamples(v);
+    std::vector<int16_t> samples(values.begin(), values.end());
     test::writeBytes(dir.file("cranium.raw"), test::toBytes(samples));
     cranium = {dir.file("cranium.raw"), "--raw-dims", "256,256,108", "--raw-type", "int16", "--raw-spacing", "0.9570312,0.9570312,1.5"};
-    test::writeBytes(dir.file("sphere.raw"), test::toBytes(test::sphereVolume({40, 36, 32}, 13.0).samples()));
+    test::writeBytes(dir.file("sphere.raw"), test::toBytes(test::floatSamples(test::sphereVolume({40, 36, 32}, 13.0))));
     sphere = {dir.file("sphere.raw"), "--raw-dims", "40,36,32", "--raw-type", "float32", "--raw-spacing", "1,1,1.25"};
   }
 };

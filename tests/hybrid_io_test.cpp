@@ -40,6 +40,37 @@ TEST(SceneFile, RoundTripIsExact) {
   EXPECT_EQ(s.octree.errorData(), t.errorData());
 }
 
+TEST(SceneFile, SamplesRoundTripInTheirStoredType) {
+  test::TempDir dir;
+  const glm::ivec3 dims(9, 5, 4);
+  const size_t n = size_t(dims.x) * dims.y * dims.z;
+  auto series = [&](auto first, int step) {
+    std::vector<decltype(first)> v(n);
+    for (size_t i = 0; i < n; ++i) v[i] = decltype(first)(int(first) + step * int(i % 97));
+    return v;
+  };
+  const std::vector<std::pair<ScalarType, SampleArray>> arrays = {
+      {ScalarType::UInt8, series(uint8_t(3), 2)},      {ScalarType::Int8, series(int8_t(-100), 2)},
+      {ScalarType::UInt16, series(uint16_t(100), 600)}, {ScalarType::Int32, series(int16_t(-30000), 600)},
+      {ScalarType::Float64, series(-7.25f, 3)}};
+  for (const auto& [source, samples] : arrays) {
+    SCOPED_TRACE(scalarName(storedType(samples)));
+    const Volume v(dims, glm::dvec3(0.5, 0.7, 1.25), source, samples, "typed");
+    saveScene(dir.file("t.hoct"), v, VolumeOctree::build(v, VolumeOctreeOptions{4}));
+    const Scene s = loadScene(dir.file("t.hoct"));
+    EXPECT_EQ(s.volume.sourceType(), source);
+    EXPECT_EQ(s.volume.samples(), samples);  // same type, bit-identical values
+    // The file holds the samples in their stored type, not widened.
+    EXPECT_LT(test::readBytes(dir.file("t.hoct")).size(), n * scalarSize(storedType(samples)) + 4096);
+  }
+  // A stored-type code that is not a storage type is refused by name.
+  std::vector<uint8_t> bytes = test::readBytes(dir.file("t.hoct"));
+  const uint32_t int32Code = uint32_t(ScalarType::Int32);
+  std::memcpy(&bytes[16 + 16 + 12 + 24 + 4], &int32Code, 4);
+  test::writeBytes(dir.file("bad.hoct"), bytes);
+  expectLoadFails(dir.file("bad.hoct"), "stored sample type code 5 invalid");
+}
+
 TEST(SceneFile, KnotModeRoundTrips) {
   test::TempDir dir;
   const Volume v = test::randomVolume({33, 20, 9}, 5);
@@ -64,13 +95,21 @@ TEST(SceneFile, PatientFrameAndInfoRoundTripAndOlderVersionsAreRefused) {
   saveScene(dir.file("s.hoct"), v, VolumeOctree::build(v));
   const Scene loaded = loadScene(dir.file("s.hoct"));
   EXPECT_EQ(loaded.volume.frame(), v.frame());
+  EXPECT_FALSE(loaded.volume.frame().assumed);
   EXPECT_EQ(loaded.volume.info(), v.info());
+  // A frame the reader assumed (no orientation in the file) stays marked as assumed.
+  PatientFrame assumed = v.frame();
+  assumed.assumed = true;
+  v.setFrame(assumed);
+  saveScene(dir.file("a.hoct"), v, VolumeOctree::build(v));
+  EXPECT_TRUE(loadScene(dir.file("a.hoct")).volume.frame().assumed);
   // Versions 1 and 2 knew no patient frame: refused, with what to do.
   std::vector<uint8_t> bytes = test::readBytes(dir.file("s.hoct"));
-  for (uint32_t version : {1u, 2u, 3u}) {
+  for (uint32_t version : {1u, 2u, 3u, 4u}) {
     std::memcpy(&bytes[8], &version, 4);
     test::writeBytes(dir.file("old.hoct"), bytes);
-    expectLoadFails(dir.file("old.hoct"), "version " + std::to_string(version) + (version < 3 ? " has no patient orientation" : " does not tie"));
+    expectLoadFails(dir.file("old.hoct"), "version " + std::to_string(version) +
+                                              (version < 3 ? " has no patient orientation" : version == 3 ? " does not tie" : " holds its samples as float"));
     expectLoadFails(dir.file("old.hoct"), "hybrid-octree build");
   }
 }

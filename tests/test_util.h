@@ -31,6 +31,13 @@ Volume makeVolume(glm::ivec3 dims, F f, glm::dvec3 spacing = glm::dvec3(1.0), Sc
   return Volume(dims, spacing, type, std::move(s), "test volume");
 }
 
+/// All samples of @p v as float, x fastest.
+inline std::vector<float> floatSamples(const Volume& v) {
+  std::vector<float> out(v.voxelCount());
+  for (size_t i = 0; i < out.size(); ++i) out[i] = v.value(i);
+  return out;
+}
+
 /// Signed distance-like sphere: radius − |x − centre| (positive inside), in voxels.
 inline Volume sphereVolume(glm::ivec3 dims, double radius) {
   const glm::dvec3 c = glm::dvec3(dims - 1) * 0.5;

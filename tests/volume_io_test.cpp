@@ -41,6 +41,8 @@ std::vector<int16_t> expectedSamples() {
 void expectExpectedVolume(const Volume& v, glm::dvec3 spacing, ScalarType type = ScalarType::Int16) {
   ASSERT_EQ(v.dims(), kDims);
   EXPECT_EQ(v.sourceType(), type);
+  EXPECT_EQ(v.storedType(), ScalarType::Int16);  // two bytes a sample, as in the file
+  EXPECT_EQ(v.bytesUsed(), v.voxelCount() * 2 + sizeof(Volume));
   EXPECT_DOUBLE_EQ(v.spacing().x, spacing.x);
   EXPECT_DOUBLE_EQ(v.spacing().y, spacing.y);
   EXPECT_DOUBLE_EQ(v.spacing().z, spacing.z);
@@ -422,6 +424,63 @@ TEST(NiftiReader, PlainGzipAndScaling) {
   writeBytes(dir.file("s.nii"), niftiFile(2.0f, -1024.0f, data));
   const Volume s = readVolume(dir.file("s.nii"));
   EXPECT_EQ(s.at(1, 2, 3), 2.0f * expectedValue(1, 2, 3) - 1024.0f);
+  EXPECT_EQ(s.storedType(), ScalarType::Int16);  // integer scaling of integers stays in 16 bits
+  writeBytes(dir.file("f.nii"), niftiFile(0.5f, 0.25f, data));
+  const Volume f = readVolume(dir.file("f.nii"));
+  EXPECT_EQ(f.at(1, 2, 3), 0.5f * expectedValue(1, 2, 3) + 0.25f);
+  EXPECT_EQ(f.storedType(), ScalarType::Float32);
+}
+
+// Every sample type is held in the narrowest of uint8, int8, uint16, int16 and float32 that keeps
+// its values exact (32-bit integers by their range), and reads back exactly.
+TEST(VolumeReaders, SamplesAreHeldInTheirOwnTypeOrTheNarrowestExactOne) {
+  TempDir dir;
+  struct Case {
+    const char* nrrdType;
+    std::vector<double> values;
+    ScalarType source, stored;
+  };
+  const std::vector<Case> cases = {
+      {"uint8", {0, 7, 255, 128}, ScalarType::UInt8, ScalarType::UInt8},
+      {"int8", {-128, 0, 127, -5}, ScalarType::Int8, ScalarType::Int8},
+      {"uint16", {0, 65535, 4095, 1}, ScalarType::UInt16, ScalarType::UInt16},
+      {"int16", {-32768, 32767, -1024, 3071}, ScalarType::Int16, ScalarType::Int16},
+      {"int32", {-1024, 3071, 0, 12}, ScalarType::Int32, ScalarType::Int16},
+      {"uint32", {0, 65535, 40000, 3}, ScalarType::UInt32, ScalarType::UInt16},
+      {"int32", {-70000, 5, 0, 16777216}, ScalarType::Int32, ScalarType::Float32},
+      {"float", {-0.5, 1e-3, 2.25, 3e5}, ScalarType::Float32, ScalarType::Float32},
+      {"double", {-0.5, 0.125, 2.25, 1024}, ScalarType::Float64, ScalarType::Float32},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(std::string(c.nrrdType) + " -> " + scalarName(c.stored));
+    std::vector<uint8_t> raw;
+    for (double v : c.values) {
+      uint8_t b[8];
+      switch (c.source) {
+        case ScalarType::UInt8: b[0] = uint8_t(v); break;
+        case ScalarType::Int8: { const int8_t x = int8_t(v); std::memcpy(b, &x, 1); break; }
+        case ScalarType::UInt16: { const uint16_t x = uint16_t(v); std::memcpy(b, &x, 2); break; }
+        case ScalarType::Int16: { const int16_t x = int16_t(v); std::memcpy(b, &x, 2); break; }
+        case ScalarType::UInt32: { const uint32_t x = uint32_t(v); std::memcpy(b, &x, 4); break; }
+        case ScalarType::Int32: { const int32_t x = int32_t(v); std::memcpy(b, &x, 4); break; }
+        case ScalarType::Float32: { const float x = float(v); std::memcpy(b, &x, 4); break; }
+        case ScalarType::Float64: std::memcpy(b, &v, 8); break;
+      }
+      raw.insert(raw.end(), b, b + scalarSize(c.source));
+    }
+    const std::string header = std::string("NRRD0004\ntype: ") + c.nrrdType + "\ndimension: 3\nsizes: 2 2 1\nendian: little\n";
+    writeBytes(dir.file("r.nrrd"), concat(header + "encoding: raw\n\n", raw));
+    writeBytes(dir.file("g.nrrd"), concat(header + "encoding: gzip\n\n", gzipBytes(raw, dir)));
+    std::string text;
+    for (double v : c.values) text += std::to_string(v) + " ";
+    writeText(dir.file("t.nrrd"), header + "encoding: ascii\n\n" + text);
+    for (const char* file : {"r.nrrd", "g.nrrd", "t.nrrd"}) {
+      const Volume v = readVolume(dir.file(file));
+      EXPECT_EQ(v.sourceType(), c.source) << file;
+      EXPECT_EQ(v.storedType(), c.stored) << file;
+      for (size_t i = 0; i < c.values.size(); ++i) EXPECT_EQ(v.value(i), float(c.values[i])) << file << " sample " << i;
+    }
+  }
 }
 
 TEST(NiftiReader, RejectsTruncatedAndGarbage) {
@@ -491,6 +550,8 @@ TEST(Inv3Reader, RealCraniumLoadsInHounsfieldUnits) {
   EXPECT_EQ(v.minValue(), -1024.0f);
   EXPECT_EQ(v.maxValue(), 2986.0f);
   EXPECT_EQ(v.sourceBytes(), size_t(256 * 256 * 108 * 2));
+  EXPECT_EQ(v.storedType(), ScalarType::Int16);
+  EXPECT_EQ(v.bytesUsed(), v.sourceBytes() + sizeof(Volume));
   // Exact percentiles (nearest rank), not histogram bin centres (those were -940 and -940).
   const Histogram h = computeHistogram(v, 24);
   EXPECT_EQ(h.p01, -1024.0);
@@ -523,6 +584,7 @@ TEST(DicomReader, SeriesSortedByPositionWithRescale) {
   EXPECT_THAT(v.infoValue("thickness"), HasSubstr("2 mm"));
   EXPECT_THAT(v.infoValue("rescale"), HasSubstr("intercept -1024"));
   EXPECT_TRUE(v.warnings().empty());
+  EXPECT_EQ(v.storedType(), ScalarType::Int16);  // Hounsfield units in two bytes, not widened to float
 }
 
 // Image Orientation gives i and j, the slices' order along their normal gives k, the first

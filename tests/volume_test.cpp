@@ -7,6 +7,7 @@
 
 #include "test_util.h"
 #include "volume/file_util.h"
+#include "volume/reader_util.h"
 
 namespace hyb {
 namespace {
@@ -30,6 +31,45 @@ TEST(Volume, GradientsAreVoxelCentralDifferencesInterpolated) {
   EXPECT_FLOAT_EQ(sq.gradientAt(3, 1, 0).z, 0.0f);
   EXPECT_FLOAT_EQ(sq.sampleGradient(glm::vec3(2.5f, 0.5f, 0.0f)).x, 5.0f);
   EXPECT_FLOAT_EQ(sq.sampleGradient(glm::vec3(-3.0f, 0.0f, 0.0f)).x, 1.0f);  // clamped to the grid
+}
+
+TEST(Volume, TypedSamplesReadExactlyAndCopiesShareThem) {
+  const glm::ivec3 dims(3, 2, 2);
+  const Volume v(dims, glm::dvec3(1.0), ScalarType::Int16, SampleArray(std::vector<int16_t>{-32768, -1024, 0, 1, 2, 3, 4, 5, 6, 7, 3071, 32767}));
+  EXPECT_EQ(v.storedType(), ScalarType::Int16);
+  EXPECT_EQ(v.bytesUsed(), 12 * 2 + sizeof(Volume));
+  EXPECT_EQ(v.minValue(), -32768.0f);
+  EXPECT_EQ(v.maxValue(), 32767.0f);
+  EXPECT_EQ(v.at(1, 0, 0), -1024.0f);
+  EXPECT_EQ(v.at(1, 1, 1), 3071.0f);
+  float row[3];
+  v.readRow(0, 1, 1, 3, row);
+  EXPECT_EQ(row[0], 7.0f);
+  EXPECT_EQ(row[2], 32767.0f);
+  EXPECT_FLOAT_EQ(v.sample(glm::vec3(0.5f, 0.0f, 0.0f)), (-32768.0f - 1024.0f) / 2);
+  const Volume copy = v;  // immutable: a copy shares the samples
+  EXPECT_EQ(&copy.samples(), &v.samples());
+  // Padding keeps the type when the padding value is one of its values, else holds float.
+  EXPECT_EQ(paddedVolume(v, -2000.0f).storedType(), ScalarType::Int16);
+  const Volume wide = paddedVolume(v, -40000.0f);
+  EXPECT_EQ(wide.storedType(), ScalarType::Float32);
+  EXPECT_EQ(wide.at(2, 1, 1), -1024.0f);
+  EXPECT_EQ(wide.at(0, 0, 0), -40000.0f);
+  EXPECT_THROW(Volume(dims, glm::dvec3(1.0), ScalarType::UInt8, SampleArray(std::vector<uint8_t>(11))), ValueError);
+}
+
+TEST(Volume, RescaledSlicesStayIn16BitsUntilAValueIsNotOneOfItsIntegers) {
+  SampleArray samples = detail::rescaleTarget(ScalarType::UInt16, 1.0, -1024.0, 6);
+  ASSERT_EQ(storedType(samples), ScalarType::Int16);
+  detail::rescaleSamples(&samples, 0, SampleArray(std::vector<uint16_t>{0, 1024, 4095}), 1.0, -1024.0);
+  EXPECT_EQ(storedType(samples), ScalarType::Int16);
+  // A later slice with a fractional slope: everything moves to float, the first slice's values kept.
+  detail::rescaleSamples(&samples, 3, SampleArray(std::vector<uint16_t>{1, 2, 3}), 0.5, -1024.0);
+  ASSERT_EQ(storedType(samples), ScalarType::Float32);
+  EXPECT_EQ(std::get<std::vector<float>>(samples), (std::vector<float>{-1024, 0, 3071, -1023.5f, -1023, -1022.5f}));
+  // Not rescaled: 8 and 16 bits stay as they are; a fractional slope is float from the start.
+  EXPECT_EQ(storedType(detail::rescaleTarget(ScalarType::UInt8, 1.0, 0.0, 1)), ScalarType::UInt8);
+  EXPECT_EQ(storedType(detail::rescaleTarget(ScalarType::Int16, 0.5, 0.0, 1)), ScalarType::Float32);
 }
 
 TEST(FileUtil, AtomicWriteLeavesNothingBehindOnFailure) {

@@ -483,7 +483,7 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
   glm::ivec3 dims(0, 0, int(slices.size()));
   glm::dvec3 spacing(1.0, 1.0, zSpacing);
   ScalarType type = ScalarType::Int16;
-  std::vector<float> samples;
+  SampleArray samples;
   bool rescaled = false;
   double slopeFirst = 1.0, interceptFirst = 0.0;
   ProgressTask task(progress, "DICOM slices", slices.size());
@@ -492,7 +492,7 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
     const std::string where = detail::concat(file, " (slice ", s + 1, " of ", slices.size(), ")");
     const PixelModule module = checkPixelModule(InputFile(file), where);
     if (s == 0)  // the whole series is allocated up front: what its first slice claims must fit
-      checkMemory(where, uint64_t(module.columns) * uint64_t(module.rows) * (slices.size() * sizeof(float) + 2 * sizeof(double)),
+      checkMemory(where, uint64_t(module.columns) * uint64_t(module.rows) * (slices.size() * sizeof(int16_t) + 2 * sizeof(double)),
                   detail::concat(slices.size(), " slices of ", module.columns, "x", module.rows, " samples"));
     else if (module.columns != dims.x || module.rows != dims.y)
       HYB_THROW(IoError, where, ": slice is ", module.columns, "x", module.rows, ", expected ", dims.x, "x", dims.y, " like the first slice");
@@ -529,9 +529,9 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
       spacing.x = sp[0];
       spacing.y = sp[1];
       type = sliceType;
-      samples.resize(size_t(dims.x) * dims.y * dims.z);
       slopeFirst = image.GetSlope();
       interceptFirst = image.GetIntercept();
+      samples = detail::rescaleTarget(type, slopeFirst, interceptFirst, size_t(dims.x) * dims.y * dims.z);
     } else if (size.x != dims.x || size.y != dims.y) {
       HYB_THROW(IoError, where, ": slice is ", size.x, "x", size.y, ", expected ", dims.x, "x", dims.y, " like the first slice");
     }
@@ -542,13 +542,14 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
     std::vector<char> buffer(image.GetBufferLength());
     if (!image.GetBuffer(buffer.data()))
       HYB_THROW(IoError, where, ": pixel data missing or truncated");
-    std::vector<float> slice = decodeSamples(reinterpret_cast<const uint8_t*>(buffer.data()), sliceCount, sliceType,
-                                             std::endian::native == std::endian::big);
+    const SampleArray slice = decodeSamples(reinterpret_cast<const uint8_t*>(buffer.data()), sliceCount, sliceType,
+                                            std::endian::native == std::endian::big);
     const double slopeValue = image.GetSlope(), intercept = image.GetIntercept();
     if (slopeValue != 1.0 || intercept != 0.0) rescaled = true;
-    for (size_t i = 0; i < sliceCount; ++i) samples[s * sliceCount + i] = float(slice[i] * slopeValue + intercept);
+    detail::rescaleSamples(&samples, s * sliceCount, slice, slopeValue, intercept);
   }
-  if (rescaled && type != ScalarType::Float32 && type != ScalarType::Float64) type = ScalarType::Int32;
+  if (rescaled && type != ScalarType::Float32 && type != ScalarType::Float64)
+    type = storedType(samples) == ScalarType::Float32 ? ScalarType::Float32 : ScalarType::Int32;
   validateSpacing(spacing, dir);
   Volume v = placed(Volume(dims, spacing, type, std::move(samples), dir),
                     makePatientFrame(axes.direction, slices.front().position, dir), warnings);

@@ -137,7 +137,7 @@ Volume readMetaImage(const std::string& path) {
   long long headerSize = 0;
   if (fields.count("HeaderSize") && !parseNumbers(fields["HeaderSize"], 1, &headerSize))
     HYB_THROW(IoError, path, ": HeaderSize ", quotedExcerpt(fields["HeaderSize"]), " malformed");
-  std::vector<float> samples = compressed ? readCompressedSamples(data, dataStart, 0, dims, type, bigEndian)
+  SampleArray samples = compressed ? readCompressedSamples(data, dataStart, 0, dims, type, bigEndian)
                                           : readRawSamples(data, dataStart, headerSize, "HeaderSize", dims, type, bigEndian);
   return placed(Volume(dims, spacing, type, std::move(samples), path), frame, warnings);
 }

@@ -126,12 +126,13 @@ Volume readNifti(const std::string& path) {
   validateSpacing(spacing, path);
   const size_t count = size_t(dims.x) * dims.y * dims.z;
   // nifti_clib has already swapped to native byte order.
-  std::vector<float> samples = decodeSamples(static_cast<const uint8_t*>(nim->data), count, type,
-                                             std::endian::native == std::endian::big);
+  SampleArray samples = decodeSamples(static_cast<const uint8_t*>(nim->data), count, type, std::endian::native == std::endian::big);
   const double slope = nim->scl_slope, inter = nim->scl_inter;
   if (std::isfinite(slope) && slope != 0.0 && std::isfinite(inter) && (slope != 1.0 || inter != 0.0)) {
-    for (float& v : samples) v = float(v * slope + inter);
-    type = ScalarType::Float32;
+    SampleArray values = detail::rescaleTarget(type, slope, inter, count);
+    detail::rescaleSamples(&values, 0, samples, slope, inter);
+    samples = std::move(values);
+    if (storedType(samples) == ScalarType::Float32) type = ScalarType::Float32;
   }
   return placed(Volume(dims, spacing, type, std::move(samples), path), frame, warnings);
 }

@@ -213,7 +213,7 @@ Volume readNrrd(const std::string& path) {
   const InputFile& data = detached ? *detached : file;
   dataStart = skipLines(data, dataStart, lineSkip);
 
-  std::vector<float> samples;
+  SampleArray samples;
   if (encoding == "raw")
     samples = readRawSamples(data, dataStart, byteSkip, "byte skip", dims, type, endian == "big");
   else if (encoding == "gzip" || encoding == "gz")

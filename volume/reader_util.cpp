@@ -1,6 +1,9 @@
 #include "volume/reader_util.h"
 
 #include <algorithm>
+#include <cmath>
+#include <limits>
+#include <type_traits>
 #include <bit>
 #include <cctype>
 #include <cstring>
@@ -22,28 +25,152 @@ std::string lower(std::string s) {
   return s;
 }
 
-// Converts @p count samples of type @p t at @p data (any alignment) to float.
-std::vector<float> decodeSamples(const uint8_t* data, size_t count, ScalarType t, bool bigEndian) {
-  const size_t size = scalarSize(t);
-  std::vector<float> out(count);
-  const bool swap = bigEndian != (std::endian::native == std::endian::big);
-#pragma omp parallel for schedule(static)
-  for (size_t i = 0; i < count; ++i) {
-    uint8_t b[8];
-    std::memcpy(b, data + i * size, size);
-    if (swap) std::reverse(b, b + size);
-    switch (t) {
-      case ScalarType::UInt8: out[i] = b[0]; break;
-      case ScalarType::Int8: out[i] = static_cast<int8_t>(b[0]); break;
-      case ScalarType::UInt16: { uint16_t v; std::memcpy(&v, b, 2); out[i] = v; break; }
-      case ScalarType::Int16: { int16_t v; std::memcpy(&v, b, 2); out[i] = v; break; }
-      case ScalarType::UInt32: { uint32_t v; std::memcpy(&v, b, 4); out[i] = float(v); break; }
-      case ScalarType::Int32: { int32_t v; std::memcpy(&v, b, 4); out[i] = float(v); break; }
-      case ScalarType::Float32: { float v; std::memcpy(&v, b, 4); out[i] = v; break; }
-      case ScalarType::Float64: { double v; std::memcpy(&v, b, 8); out[i] = float(v); break; }
-    }
+namespace {
+
+// Sample @p i of @p data (type T in the file, any alignment and byte order).
+template <class T>
+T fileSample(const uint8_t* data, size_t i, bool swap) {
+  uint8_t b[sizeof(T)];
+  std::memcpy(b, data + i * sizeof(T), sizeof(T));
+  if (swap) std::reverse(b, b + sizeof(T));
+  T v;
+  std::memcpy(&v, b, sizeof(T));
+  return v;
+}
+
+// Calls @p f with a value of @p t's C++ type.
+template <class F>
+decltype(auto) withFileType(ScalarType t, F&& f) {
+  switch (t) {
+    case ScalarType::UInt8: return f(uint8_t());
+    case ScalarType::Int8: return f(int8_t());
+    case ScalarType::UInt16: return f(uint16_t());
+    case ScalarType::Int16: return f(int16_t());
+    case ScalarType::UInt32: return f(uint32_t());
+    case ScalarType::Int32: return f(int32_t());
+    case ScalarType::Float32: return f(float());
+    case ScalarType::Float64: break;
   }
+  return f(double());
+}
+
+bool swapFor(bool bigEndian) { return bigEndian != (std::endian::native == std::endian::big); }
+
+}  // namespace
+
+void widenSampleRange(const uint8_t* data, size_t count, ScalarType t, bool bigEndian, double* lo, double* hi) {
+  const bool swap = swapFor(bigEndian);
+  withFileType(t, [&](auto zero) {
+    using T = decltype(zero);
+    for (size_t i = 0; i < count; ++i) {
+      const double v = double(fileSample<T>(data, i, swap));
+      *lo = std::min(*lo, v);
+      *hi = std::max(*hi, v);
+    }
+  });
+}
+
+SampleArray allocateSamples(ScalarType stored, size_t count) {
+  switch (stored) {
+    case ScalarType::UInt8: return std::vector<uint8_t>(count);
+    case ScalarType::Int8: return std::vector<int8_t>(count);
+    case ScalarType::UInt16: return std::vector<uint16_t>(count);
+    case ScalarType::Int16: return std::vector<int16_t>(count);
+    default: return std::vector<float>(count);
+  }
+}
+
+void decodeInto(const uint8_t* data, size_t count, ScalarType t, bool bigEndian, SampleArray* out, size_t first) {
+  HYB_CHECK(first + count <= sampleCount(*out));
+  const bool swap = swapFor(bigEndian);
+  withFileType(t, [&](auto zero) {
+    using T = decltype(zero);
+    std::visit(
+        [&](auto& dst) {
+          using U = typename std::remove_reference_t<decltype(dst)>::value_type;
+          U* o = dst.data() + first;
+#pragma omp parallel for schedule(static)
+          for (size_t i = 0; i < count; ++i) o[i] = U(fileSample<T>(data, i, swap));
+        },
+        *out);
+  });
+}
+
+SampleArray decodeSamples(const uint8_t* data, size_t count, ScalarType t, bool bigEndian) {
+  double lo = 0, hi = 0;
+  if (t == ScalarType::UInt32 || t == ScalarType::Int32) {
+    lo = std::numeric_limits<double>::max();
+    hi = -lo;
+    widenSampleRange(data, count, t, bigEndian, &lo, &hi);
+  }
+  SampleArray out = allocateSamples(storageTypeFor(t, lo, hi), count);
+  decodeInto(data, count, t, bigEndian, &out, 0);
   return out;
+}
+
+SampleArray samplesOfType(std::vector<float> values, ScalarType t) {
+  auto exactIn = [&](auto zero) {
+    using T = decltype(zero);
+    return std::all_of(values.begin(), values.end(), [](float v) {
+      return v >= float(std::numeric_limits<T>::min()) && v <= float(std::numeric_limits<T>::max()) && v == std::floor(v);
+    });
+  };
+  auto as = [&](auto zero) { return SampleArray(std::vector<decltype(zero)>(values.begin(), values.end())); };
+  switch (t) {
+    case ScalarType::UInt8: if (exactIn(uint8_t())) return as(uint8_t()); break;
+    case ScalarType::Int8: if (exactIn(int8_t())) return as(int8_t()); break;
+    case ScalarType::UInt16: if (exactIn(uint16_t())) return as(uint16_t()); break;
+    case ScalarType::Int16: if (exactIn(int16_t())) return as(int16_t()); break;
+    case ScalarType::UInt32:
+    case ScalarType::Int32: if (exactIn(int16_t())) return as(int16_t()); if (exactIn(uint16_t())) return as(uint16_t()); break;
+    default: break;
+  }
+  return values;
+}
+
+SampleArray rescaleTarget(ScalarType t, double slope, double intercept, size_t count) {
+  const bool integral = t != ScalarType::Float32 && t != ScalarType::Float64 && slope == std::floor(slope) && intercept == std::floor(intercept);
+  if (integral && slope == 1.0 && intercept == 0.0 && scalarSize(t) <= 2) return allocateSamples(t, count);
+  return allocateSamples(integral ? ScalarType::Int16 : ScalarType::Float32, count);
+}
+
+void rescaleSamples(SampleArray* samples, size_t first, const SampleArray& slice, double slope, double intercept) {
+  const size_t count = sampleCount(slice);
+  HYB_CHECK(first + count <= sampleCount(*samples));
+  // Rescaled values stay in a 16-bit array while they are integers it holds; the first that is not
+  // moves everything to float.
+  const auto exactIn = [](const auto* out, double v) {
+    using T = std::remove_pointer_t<decltype(out)>;
+    return std::is_same_v<T, float> ||
+           (v >= double(std::numeric_limits<T>::min()) && v <= double(std::numeric_limits<T>::max()) && v == std::floor(v));
+  };
+  const bool fits = std::visit(
+      [&](const auto& in) {
+        return std::visit(
+            [&](auto& out) {
+              for (size_t i = 0; i < count; ++i)
+                if (!exactIn(out.data(), double(in[i]) * slope + intercept)) return false;
+              return true;
+            },
+            *samples);
+      },
+      slice);
+  if (!fits) {
+    std::vector<float> wide(sampleCount(*samples));
+    std::visit([&](const auto& old) { std::copy(old.begin(), old.end(), wide.begin()); }, *samples);
+    *samples = SampleArray();  // frees the old array before the next slice
+    *samples = std::move(wide);
+  }
+  std::visit(
+      [&](const auto& in) {
+        std::visit(
+            [&](auto& out) {
+              using T = typename std::remove_reference_t<decltype(out)>::value_type;
+              for (size_t i = 0; i < count; ++i) out[first + i] = T(double(in[i]) * slope + intercept);
+            },
+            *samples);
+      },
+      slice);
 }
 
 // @p v with the patient frame and the reader's warnings.

@@ -14,8 +14,25 @@ namespace hyb::detail {
 std::string trim(const std::string& s);
 /// @p s in lower case (ASCII).
 std::string lower(std::string s);
-/// Converts @p count samples of type @p t at @p data (any alignment, @p bigEndian byte order) to float.
-std::vector<float> decodeSamples(const uint8_t* data, size_t count, ScalarType t, bool bigEndian);
+/// Widens [@p lo, @p hi] to the range of the @p count samples of type @p t at @p data.
+void widenSampleRange(const uint8_t* data, size_t count, ScalarType t, bool bigEndian, double* lo, double* hi);
+/// @p count zero samples held as @p stored (float unless an 8- or 16-bit integer type).
+SampleArray allocateSamples(ScalarType stored, size_t count);
+/// Converts the @p count samples of type @p t at @p data into @p out (whatever type it holds) from
+/// sample @p first on.
+void decodeInto(const uint8_t* data, size_t count, ScalarType t, bool bigEndian, SampleArray* out, size_t first);
+/// The @p count samples of type @p t at @p data (any alignment, @p bigEndian byte order) in the
+/// type a volume holds them in (storageTypeFor their type and range).
+SampleArray decodeSamples(const uint8_t* data, size_t count, ScalarType t, bool bigEndian);
+/// @p values (from text) held as type @p t where every value is one of its integers, else as float.
+SampleArray samplesOfType(std::vector<float> values, ScalarType t);
+/// @p count samples for values rescaled from type @p t: type @p t itself for 8- and 16-bit values
+/// not rescaled, int16 when @p slope and @p intercept are integers and @p t is an integer type (a
+/// CT's Hounsfield units), else float.
+SampleArray rescaleTarget(ScalarType t, double slope, double intercept, size_t count);
+/// Writes slice * slope + intercept into @p samples from sample @p first on. @p samples stays in its
+/// 16- or 8-bit type while every value is an integer of it; otherwise it becomes float first.
+void rescaleSamples(SampleArray* samples, size_t first, const SampleArray& slice, double slope, double intercept);
 /// Captures what C libraries print on stderr (file descriptor 2) while it lives, for libraries
 /// that print regardless of their settings (nifti_clib). Process-wide: other threads' stderr
 /// output in that time is captured too, so keep the scope to the library call. One at a time.

@@ -2,6 +2,7 @@
 
 #include <cctype>
 #include <cstdlib>
+#include <limits>
 
 #include "volume/inflate.h"
 #include "volume/memory_limit.h"
@@ -29,10 +30,11 @@ std::string layoutName(const glm::ivec3& dims, ScalarType t) {
 
 void checkSampleMemory(const std::string& file, uint64_t extra, const glm::ivec3& dims, ScalarType t) {
   const uint64_t count = uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z);
-  checkMemory(file, extra + count * sizeof(float), layoutName(dims, t) + " samples");
+  const uint64_t held = scalarSize(t) <= 2 ? scalarSize(t) : sizeof(float);  // what a Volume holds a sample in, at most
+  checkMemory(file, extra + count * held, layoutName(dims, t) + " samples");
 }
 
-std::vector<float> readRawSamples(const InputFile& f, uint64_t offset, long long skip, const char* field, const glm::ivec3& dims,
+SampleArray readRawSamples(const InputFile& f, uint64_t offset, long long skip, const char* field, const glm::ivec3& dims,
                                   ScalarType t, bool bigEndian) {
   const uint64_t expected = expectedBytes(dims, t);
   const uint64_t present = f.size() - std::min(offset, f.size());
@@ -45,12 +47,30 @@ std::vector<float> readRawSamples(const InputFile& f, uint64_t offset, long long
     offset += uint64_t(skip);
   }
   checkByteCount(f.path(), expected, f.size() - offset, dims, t);
-  checkSampleMemory(f.path(), expected, dims, t);
-  const std::vector<uint8_t> bytes = f.bytes(offset, expected);
-  return decodeSamples(bytes.data(), size_t(expected / scalarSize(t)), t, bigEndian);
+  // Read in pieces straight into the samples: a volume never sits in memory twice.
+  constexpr uint64_t kPiece = uint64_t(16) << 20;  // a multiple of every sample size
+  checkSampleMemory(f.path(), std::min(expected, kPiece), dims, t);
+  const uint64_t size = scalarSize(t);
+  std::vector<uint8_t> piece;
+  const auto eachPiece = [&](const auto& use) {
+    for (uint64_t done = 0; done < expected; done += kPiece) {
+      piece.resize(size_t(std::min(kPiece, expected - done)));
+      f.read(offset + done, piece.size(), piece.data());
+      use(size_t(done / size), piece.size() / size_t(size));
+    }
+  };
+  double lo = 0, hi = 0;
+  if (t == ScalarType::UInt32 || t == ScalarType::Int32) {  // held in 16 bits when their range allows
+    lo = std::numeric_limits<double>::max();
+    hi = -lo;
+    eachPiece([&](size_t, size_t n) { widenSampleRange(piece.data(), n, t, bigEndian, &lo, &hi); });
+  }
+  SampleArray out = allocateSamples(storageTypeFor(t, lo, hi), size_t(expected / size));
+  eachPiece([&](size_t first, size_t n) { decodeInto(piece.data(), n, t, bigEndian, &out, first); });
+  return out;
 }
 
-std::vector<float> readCompressedSamples(const InputFile& f, uint64_t offset, long long skip, const glm::ivec3& dims, ScalarType t,
+SampleArray readCompressedSamples(const InputFile& f, uint64_t offset, long long skip, const glm::ivec3& dims, ScalarType t,
                                          bool bigEndian) {
   if (skip < 0) HYB_THROW(IoError, f.path(), ": byte skip ", skip, " invalid for compressed data (expected 0 or more)");
   const uint64_t expected = expectedBytes(dims, t), total = expected + uint64_t(skip);
@@ -65,7 +85,7 @@ std::vector<float> readCompressedSamples(const InputFile& f, uint64_t offset, lo
   return decodeSamples(raw.data() + skip, size_t(expected / scalarSize(t)), t, bigEndian);
 }
 
-std::vector<float> readAsciiSamples(const InputFile& f, uint64_t offset, const glm::ivec3& dims, ScalarType t) {
+SampleArray readAsciiSamples(const InputFile& f, uint64_t offset, const glm::ivec3& dims, ScalarType t) {
   const uint64_t count = uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z);
   const uint64_t present = f.size() - std::min(offset, f.size());
   if (present < 2 * count - 1)  // a digit each, separated
@@ -90,7 +110,7 @@ std::vector<float> readAsciiSamples(const InputFile& f, uint64_t offset, const g
     p += token.size();
   }
   if (out.size() != count) HYB_THROW(IoError, f.path(), ": ASCII data holds ", out.size(), " samples, expected ", count);
-  return out;
+  return samplesOfType(std::move(out), t);
 }
 
 uint64_t skipLines(const InputFile& f, uint64_t offset, long long lines) {

@@ -37,22 +37,22 @@ void checkByteCount(const std::string& file, uint64_t expected, uint64_t actual,
 // "4x3x5 int16", for messages.
 std::string layoutName(const glm::ivec3& dims, ScalarType t);
 
-// Checks memory for @p extra bytes of file data held while decoding plus the float samples.
+// Checks memory for @p extra bytes of file data held while decoding plus the samples as a Volume holds them.
 void checkSampleMemory(const std::string& file, uint64_t extra, const glm::ivec3& dims, ScalarType t);
 
 // The raw samples of @p f from byte @p offset on: @p skip bytes are skipped first (-1: the
 // samples are the file's last bytes) and exactly the samples must remain. Sizes are checked
 // against the file before anything is allocated. @p field names the skip in messages.
-std::vector<float> readRawSamples(const InputFile& f, uint64_t offset, long long skip, const char* field, const glm::ivec3& dims,
+SampleArray readRawSamples(const InputFile& f, uint64_t offset, long long skip, const char* field, const glm::ivec3& dims,
                                   ScalarType t, bool bigEndian);
 
 // The samples of the gzip or zlib stream that makes up @p f from byte @p offset on, after
 // @p skip decompressed bytes; inflation is capped at what the header declares.
-std::vector<float> readCompressedSamples(const InputFile& f, uint64_t offset, long long skip, const glm::ivec3& dims, ScalarType t,
+SampleArray readCompressedSamples(const InputFile& f, uint64_t offset, long long skip, const glm::ivec3& dims, ScalarType t,
                                          bool bigEndian);
 
 // Whitespace- or comma-separated ASCII samples of @p f from byte @p offset on.
-std::vector<float> readAsciiSamples(const InputFile& f, uint64_t offset, const glm::ivec3& dims, ScalarType t);
+SampleArray readAsciiSamples(const InputFile& f, uint64_t offset, const glm::ivec3& dims, ScalarType t);
 
 // The offset just past @p lines line ends in @p f from @p offset on (NRRD "line skip").
 uint64_t skipLines(const InputFile& f, uint64_t offset, long long lines);

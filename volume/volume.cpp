@@ -5,6 +5,7 @@
 #include <cmath>
 #include <iomanip>
 #include <sstream>
+#include <type_traits>
 
 namespace hyb {
 
@@ -61,30 +62,55 @@ void validateSpacing(const glm::dvec3& s, const std::string& what) {
                 kMaxSpacingMm, " mm per axis, a spacing whose reciprocal is finite in float)");
 }
 
-Volume::Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, std::vector<float> samples,
-               const std::string& source)
-    : mDims(dims), mSpacing(spacing), mSourceType(sourceType), mSamples(std::move(samples)) {
+ScalarType storedType(const SampleArray& s) {
+  constexpr ScalarType kTypes[] = {ScalarType::UInt8, ScalarType::Int8, ScalarType::UInt16, ScalarType::Int16, ScalarType::Float32};
+  return kTypes[s.index()];
+}
+
+size_t sampleCount(const SampleArray& s) {
+  return std::visit([](const auto& v) { return v.size(); }, s);
+}
+
+ScalarType storageTypeFor(ScalarType t, double lo, double hi) {
+  switch (t) {
+    case ScalarType::UInt32:
+    case ScalarType::Int32:
+      if (lo >= std::numeric_limits<int16_t>::min() && hi <= std::numeric_limits<int16_t>::max()) return ScalarType::Int16;
+      if (lo >= 0 && hi <= std::numeric_limits<uint16_t>::max()) return ScalarType::UInt16;
+      return ScalarType::Float32;
+    case ScalarType::Float64: return ScalarType::Float32;
+    default: return t;
+  }
+}
+
+Volume::Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, SampleArray samples, const std::string& source)
+    : mDims(dims), mSpacing(spacing), mSourceType(sourceType) {
   validateDims(dims, source);
   validateSpacing(spacing, source);
   const size_t expected = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
-  if (mSamples.size() != expected)
-    HYB_THROW(ValueError, source, ": expected ", expected, " samples for dims ", dims.x, "x", dims.y, "x",
-              dims.z, ", got ", mSamples.size());
-  float lo = mSamples[0], hi = mSamples[0];
+  if (sampleCount(samples) != expected)
+    HYB_THROW(ValueError, source, ": expected ", expected, " samples for dims ", dims.x, "x", dims.y, "x", dims.z, ", got ",
+              sampleCount(samples));
+  mSamples = std::make_shared<const SampleArray>(std::move(samples));
+  mStored = hyb::storedType(*mSamples);
+  mCount = expected;
+  mData = visitSamples([](const auto* d) { return static_cast<const void*>(d); });
+  float lo = std::numeric_limits<float>::max(), hi = -lo;
   bool finite = true;
+  visitSamples([&](const auto* d) {
 #pragma omp parallel for reduction(min : lo) reduction(max : hi) reduction(&& : finite)
-  for (size_t i = 0; i < mSamples.size(); ++i) {
-    const float v = mSamples[i];
-    finite = finite && std::isfinite(v);
-    lo = std::min(lo, v);
-    hi = std::max(hi, v);
-  }
+    for (size_t i = 0; i < expected; ++i) {
+      const float v = float(d[i]);
+      finite = finite && std::isfinite(v);
+      lo = std::min(lo, v);
+      hi = std::max(hi, v);
+    }
+  });
   if (!finite) {
-    const size_t bad = size_t(std::find_if(mSamples.begin(), mSamples.end(), [](float v) { return !std::isfinite(v); }) -
-                              mSamples.begin());
+    size_t bad = 0;
+    while (std::isfinite(value(bad))) ++bad;
     const size_t i = bad % dims.x, j = (bad / dims.x) % dims.y, k = bad / (size_t(dims.x) * dims.y);
-    HYB_THROW(ValueError, source, ": sample (", i, ",", j, ",", k, ") is ", mSamples[bad],
-              "; expected finite values");
+    HYB_THROW(ValueError, source, ": sample (", i, ",", j, ",", k, ") is ", value(bad), "; expected finite values");
   }
   // Differences of samples (nodal errors, gradients, the lookup table's scale) must stay finite.
   if (!std::isfinite(hi - lo))
@@ -94,32 +120,59 @@ Volume::Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, std::
   mMax = hi;
 }
 
+void Volume::readRow(int i, int j, int k, int n, float* out) const {
+  HYB_DCHECK(n >= 0 && i + n <= mDims.x);
+  const size_t first = index(i, j, k);
+  visitSamples([&](const auto* d) {
+    for (int x = 0; x < n; ++x) out[x] = float(d[first + size_t(x)]);
+  });
+}
+
+namespace {
+
+// The sampling kernels over samples of type T: a call converts each value it reads and dispatches
+// on the type once, not once a sample.
+template <class T>
+struct Grid {
+  const T* d;
+  glm::ivec3 dims;
+  float at(int i, int j, int k) const { return float(d[size_t(i) + size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k))]); }
+  float sample(const glm::vec3& p) const {
+    const glm::vec3 q = glm::clamp(p, glm::vec3(0.0f), glm::vec3(dims - 1));
+    const glm::ivec3 i0 = glm::min(glm::ivec3(q), dims - 1);
+    const glm::ivec3 i1 = glm::min(i0 + 1, dims - 1);
+    const glm::vec3 t = q - glm::vec3(i0);
+    auto lerp = [](float a, float b, float w) { return a + (b - a) * w; };
+    const float c00 = lerp(at(i0.x, i0.y, i0.z), at(i1.x, i0.y, i0.z), t.x);
+    const float c10 = lerp(at(i0.x, i1.y, i0.z), at(i1.x, i1.y, i0.z), t.x);
+    const float c01 = lerp(at(i0.x, i0.y, i1.z), at(i1.x, i0.y, i1.z), t.x);
+    const float c11 = lerp(at(i0.x, i1.y, i1.z), at(i1.x, i1.y, i1.z), t.x);
+    return lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z);
+  }
+  glm::vec3 gradientAt(int i, int j, int k, const glm::dvec3& spacing) const {
+    const glm::ivec3 p(i, j, k);
+    glm::vec3 g(0.0f);
+    for (int a = 0; a < 3; ++a) {
+      glm::ivec3 lo = p, hi = p;
+      lo[a] = std::max(p[a] - 1, 0);
+      hi[a] = std::min(p[a] + 1, dims[a] - 1);
+      if (hi[a] > lo[a]) {
+        const double v = (double(at(hi.x, hi.y, hi.z)) - double(at(lo.x, lo.y, lo.z))) / (double(hi[a] - lo[a]) * spacing[a]);
+        g[a] = float(std::clamp(v, -double(std::numeric_limits<float>::max()), double(std::numeric_limits<float>::max())));
+      }
+    }
+    return g;
+  }
+};
+
+}  // namespace
+
 float Volume::sample(const glm::vec3& p) const {
-  const glm::vec3 q = glm::clamp(p, glm::vec3(0.0f), glm::vec3(mDims - 1));
-  const glm::ivec3 i0 = glm::min(glm::ivec3(q), mDims - 1);
-  const glm::ivec3 i1 = glm::min(i0 + 1, mDims - 1);
-  const glm::vec3 t = q - glm::vec3(i0);
-  auto lerp = [](float a, float b, float w) { return a + (b - a) * w; };
-  const float c00 = lerp(at(i0.x, i0.y, i0.z), at(i1.x, i0.y, i0.z), t.x);
-  const float c10 = lerp(at(i0.x, i1.y, i0.z), at(i1.x, i1.y, i0.z), t.x);
-  const float c01 = lerp(at(i0.x, i0.y, i1.z), at(i1.x, i0.y, i1.z), t.x);
-  const float c11 = lerp(at(i0.x, i1.y, i1.z), at(i1.x, i1.y, i1.z), t.x);
-  return lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z);
+  return visitSamples([&](const auto* d) { return Grid{d, mDims}.sample(p); });
 }
 
 glm::vec3 Volume::gradientAt(int i, int j, int k) const {
-  const glm::ivec3 p(i, j, k);
-  glm::vec3 g(0.0f);
-  for (int a = 0; a < 3; ++a) {
-    glm::ivec3 lo = p, hi = p;
-    lo[a] = std::max(p[a] - 1, 0);
-    hi[a] = std::min(p[a] + 1, mDims[a] - 1);
-    if (hi[a] > lo[a]) {
-      const double d = (double(at(hi.x, hi.y, hi.z)) - double(at(lo.x, lo.y, lo.z))) / (double(hi[a] - lo[a]) * mSpacing[a]);
-      g[a] = float(std::clamp(d, -double(std::numeric_limits<float>::max()), double(std::numeric_limits<float>::max())));
-    }
-  }
-  return g;
+  return visitSamples([&](const auto* d) { return Grid{d, mDims}.gradientAt(i, j, k, mSpacing); });
 }
 
 glm::vec3 Volume::sampleGradient(const glm::vec3& p) const {
@@ -127,10 +180,13 @@ glm::vec3 Volume::sampleGradient(const glm::vec3& p) const {
   const glm::ivec3 i0 = glm::min(glm::ivec3(q), mDims - 1);
   const glm::ivec3 i1 = glm::min(i0 + 1, mDims - 1);
   const glm::vec3 t = q - glm::vec3(i0);
-  auto g = [&](int c) { return gradientAt(c & 1 ? i1.x : i0.x, c & 2 ? i1.y : i0.y, c & 4 ? i1.z : i0.z); };
-  const glm::vec3 c00 = glm::mix(g(0), g(1), t.x), c10 = glm::mix(g(2), g(3), t.x);
-  const glm::vec3 c01 = glm::mix(g(4), g(5), t.x), c11 = glm::mix(g(6), g(7), t.x);
-  return glm::mix(glm::mix(c00, c10, t.y), glm::mix(c01, c11, t.y), t.z);
+  return visitSamples([&](const auto* d) {
+    const Grid grid{d, mDims};
+    auto g = [&](int c) { return grid.gradientAt(c & 1 ? i1.x : i0.x, c & 2 ? i1.y : i0.y, c & 4 ? i1.z : i0.z, mSpacing); };
+    const glm::vec3 c00 = glm::mix(g(0), g(1), t.x), c10 = glm::mix(g(2), g(3), t.x);
+    const glm::vec3 c01 = glm::mix(g(4), g(5), t.x), c11 = glm::mix(g(6), g(7), t.x);
+    return glm::mix(glm::mix(c00, c10, t.y), glm::mix(c01, c11, t.y), t.z);
+  });
 }
 
 std::string Volume::infoValue(const std::string& key) const {
@@ -172,10 +228,22 @@ std::string Volume::toString() const {
 
 Volume paddedVolume(const Volume& v, float value) {
   const glm::ivec3 d = v.dims() + 2;
-  std::vector<float> samples(size_t(d.x) * size_t(d.y) * size_t(d.z), value);
-  for (int k = 0; k < v.dims().z; ++k)
-    for (int j = 0; j < v.dims().y; ++j)
-      std::copy_n(&v.samples()[v.index(0, j, k)], size_t(v.dims().x), &samples[size_t(1) + size_t(d.x) * (size_t(j + 1) + size_t(d.y) * size_t(k + 1))]);
+  const size_t count = size_t(d.x) * size_t(d.y) * size_t(d.z);
+  SampleArray samples = v.visitSamples([&](const auto* src) -> SampleArray {
+    using T = std::remove_const_t<std::remove_pointer_t<decltype(src)>>;
+    // The padding value in the stored type when it is one of its values, else everything as float.
+    const bool fits = std::is_same_v<T, float> ||
+                      (value >= float(std::numeric_limits<T>::min()) && value <= float(std::numeric_limits<T>::max()) && value == std::floor(value));
+    auto copy = [&](auto pad) {
+      using U = decltype(pad);
+      std::vector<U> out(count, pad);
+      for (int k = 0; k < v.dims().z; ++k)
+        for (int j = 0; j < v.dims().y; ++j)
+          std::copy_n(src + v.index(0, j, k), size_t(v.dims().x), &out[size_t(1) + size_t(d.x) * (size_t(j + 1) + size_t(d.y) * size_t(k + 1))]);
+      return SampleArray(std::move(out));
+    };
+    return fits ? copy(T(value)) : copy(value);
+  });
   Volume out(d, v.spacing(), v.sourceType(), std::move(samples), "padded volume");
   PatientFrame frame = v.frame();
   frame.origin = v.frame().toPatient(-v.spacing());
@@ -191,7 +259,8 @@ Histogram computeHistogram(const Volume& v, int bins) {
   h.counts.assign(size_t(bins), 0);
   const double width = (h.maxValue - h.minValue) / bins;
   double sum = 0, sum2 = 0;
-  for (float x : v.samples()) {
+  for (size_t i = 0; i < v.voxelCount(); ++i) {
+    const float x = v.value(i);
     const int b = width > 0 ? std::min(bins - 1, int((x - h.minValue) / width)) : 0;
     ++h.counts[size_t(b)];
     sum += x;
@@ -206,7 +275,7 @@ Histogram computeHistogram(const Volume& v, int bins) {
   const double fineWidth = (h.maxValue - h.minValue) / fineBins;
   auto fineBin = [&](float x) { return fineWidth > 0 ? std::min(fineBins - 1, int((x - h.minValue) / fineWidth)) : 0; };
   std::vector<uint64_t> fine(size_t(fineBins), 0);
-  for (float x : v.samples()) ++fine[size_t(fineBin(x))];
+  for (size_t i = 0; i < v.voxelCount(); ++i) ++fine[size_t(fineBin(v.value(i)))];
   auto percentile = [&](double q) {
     const uint64_t rank = std::max<uint64_t>(1, uint64_t(std::ceil(q * double(v.voxelCount()))));  // 1-based
     uint64_t below = 0;
@@ -214,8 +283,8 @@ Histogram computeHistogram(const Volume& v, int bins) {
     while (below + fine[size_t(b)] < rank) below += fine[size_t(b++)];
     std::vector<float> in;
     in.reserve(size_t(fine[size_t(b)]));
-    for (float x : v.samples())
-      if (fineBin(x) == b) in.push_back(x);
+    for (size_t i = 0; i < v.voxelCount(); ++i)
+      if (const float x = v.value(i); fineBin(x) == b) in.push_back(x);
     std::nth_element(in.begin(), in.begin() + ptrdiff_t(rank - below - 1), in.end());
     return double(in[size_t(rank - below - 1)]);
   };

@@ -2,8 +2,9 @@
 //
 // The grid frame is millimetres with voxel (i,j,k) centred at (i*sx, j*sy, k*sz); the data domain
 // is the box spanned by the voxel centres (DESIGN 2). The volume's PatientFrame places that frame
-// in the patient (LPS mm). Samples are kept as float, which holds every 8- and 16-bit integer (so
-// CT Hounsfield units stay exact) and the source type is remembered.
+// in the patient (LPS mm). Samples are held in the type they were read in where that type is 8 or
+// 16 bits (a CT's Hounsfield units take two bytes a voxel, as on disk), else as float; every value
+// converts to float exactly where it is read.
 #pragma once
 
 #include <glm/glm.hpp>
@@ -12,8 +13,10 @@
 #include <cstddef>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <string>
 #include <utility>
+#include <variant>
 #include <vector>
 
 #include "volume/error.h"
@@ -30,6 +33,17 @@ size_t scalarSize(ScalarType t);
 const char* scalarName(ScalarType t);
 /// Parses a canonical name; returns false when @p name is not one.
 bool parseScalarName(const std::string& name, ScalarType* out);
+
+/// Samples as a volume holds them: 8- and 16-bit integers in their own type, all else as float.
+using SampleArray = std::variant<std::vector<uint8_t>, std::vector<int8_t>, std::vector<uint16_t>, std::vector<int16_t>, std::vector<float>>;
+/// The type @p s holds (UInt8, Int8, UInt16, Int16 or Float32).
+ScalarType storedType(const SampleArray& s);
+/// Number of samples in @p s.
+size_t sampleCount(const SampleArray& s);
+/// The type samples of file type @p t are held in given their range [@p lo, @p hi]: 8- and 16-bit
+/// types as they are; 32-bit integers in the narrowest 16-bit type that holds the range, else
+/// float (exact to 2^24); float64 as float.
+ScalarType storageTypeFor(ScalarType t, double lo, double hi);
 
 /// Largest accepted extent along one axis; keeps octree coordinates in 16 bits.
 inline constexpr int kMaxDim = 32768;
@@ -50,11 +64,14 @@ void validateSpacing(const glm::dvec3& spacing, const std::string& what);
 class Volume {
  public:
   Volume() = default;
-  /// Takes ownership of @p samples (x fastest, then y, then z).
+  /// Takes ownership of @p samples (x fastest, then y, then z), held in their own type.
   /// @throw ValueError when dims/spacing are invalid, the sample count does not match, or a sample
   ///        is NaN or infinite; the message starts with @p source (file name or description).
+  Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, SampleArray samples, const std::string& source = "volume");
+  /// Float samples (analytic volumes), held as float.
   Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, std::vector<float> samples,
-         const std::string& source = "volume");
+         const std::string& source = "volume")
+      : Volume(dims, spacing, sourceType, SampleArray(std::move(samples)), source) {}
 
   /// Samples per axis.
   const glm::ivec3& dims() const { return mDims; }
@@ -62,26 +79,47 @@ class Volume {
   const glm::dvec3& spacing() const { return mSpacing; }
   /// Type the samples had in the file they came from.
   ScalarType sourceType() const { return mSourceType; }
+  /// Type the samples are held in (storedType of samples()).
+  ScalarType storedType() const { return mStored; }
   /// Number of samples.
-  size_t voxelCount() const { return mSamples.size(); }
+  size_t voxelCount() const { return mCount; }
   /// Bytes the samples occupy in the source type (the size users know the data by).
   size_t sourceBytes() const { return voxelCount() * scalarSize(mSourceType); }
   /// Bytes held in memory by this object.
-  size_t bytesUsed() const { return mSamples.size() * sizeof(float) + sizeof(*this); }
+  size_t bytesUsed() const { return mCount * scalarSize(mStored) + sizeof(*this); }
   /// Smallest and largest sample.
   float minValue() const { return mMin; }
   float maxValue() const { return mMax; }
-  /// All samples, x fastest.
-  const std::vector<float>& samples() const { return mSamples; }
-  bool empty() const { return mSamples.empty(); }
+  /// All samples, x fastest, in the stored type (shared by copies of this volume).
+  const SampleArray& samples() const { return *mSamples; }
+  /// Calls @p f with a pointer to the samples in their stored type (const T*, T one of the
+  /// SampleArray types): a loop over many samples converts each where it reads it.
+  template <class F>
+  decltype(auto) visitSamples(F&& f) const {
+    return std::visit([&](const auto& s) -> decltype(auto) { return f(s.data()); }, *mSamples);
+  }
+  bool empty() const { return mCount == 0; }
 
   /// Linear index of voxel (i,j,k); no bounds check beyond a debug assertion.
   size_t index(int i, int j, int k) const {
     HYB_DCHECK(i >= 0 && j >= 0 && k >= 0 && i < mDims.x && j < mDims.y && k < mDims.z);
     return size_t(i) + size_t(mDims.x) * (size_t(j) + size_t(mDims.y) * size_t(k));
   }
+  /// Sample number @p n (x fastest) as float, exactly.
+  float value(size_t n) const {
+    HYB_DCHECK(n < mCount);
+    switch (mStored) {
+      case ScalarType::UInt8: return static_cast<const uint8_t*>(mData)[n];
+      case ScalarType::Int8: return static_cast<const int8_t*>(mData)[n];
+      case ScalarType::UInt16: return static_cast<const uint16_t*>(mData)[n];
+      case ScalarType::Int16: return static_cast<const int16_t*>(mData)[n];
+      default: return static_cast<const float*>(mData)[n];
+    }
+  }
   /// Sample at voxel (i,j,k), which must be inside the grid.
-  float at(int i, int j, int k) const { return mSamples[index(i, j, k)]; }
+  float at(int i, int j, int k) const { return value(index(i, j, k)); }
+  /// The @p n samples from voxel (i,j,k) on along x, as float, into @p out.
+  void readRow(int i, int j, int k, int n, float* out) const;
   /// Sample at voxel (i,j,k) with indices clamped to the grid (the logical padding of the octree).
   float atClamped(int i, int j, int k) const {
     return at(clampIndex(i, mDims.x), clampIndex(j, mDims.y), clampIndex(k, mDims.z));
@@ -120,7 +158,10 @@ class Volume {
   glm::ivec3 mDims{0};
   glm::dvec3 mSpacing{1.0};
   ScalarType mSourceType = ScalarType::Float32;
-  std::vector<float> mSamples;
+  std::shared_ptr<const SampleArray> mSamples;  // immutable, so copies share it
+  ScalarType mStored = ScalarType::Float32;
+  const void* mData = nullptr;  // mSamples' data, for value()'s switch
+  size_t mCount = 0;
   float mMin = 0.0f;
   float mMax = 0.0f;
   PatientFrame mFrame;
