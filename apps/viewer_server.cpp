@@ -488,6 +488,7 @@ struct ServerState {
       p.quality.simplifiedSurface = true;
       p.quality.cutToSlabs = false;
       p.quality.maxBrickEdge = kInteractiveBrickEdge;
+      p.quality.lodPixels = kInteractiveLodPixels;
     }
     return p;
   }

@@ -1,10 +1,11 @@
-// The viewer's targets, measured from a real browser: a scripted five-second orbit of the cranium
-// (512² view), volume only and with the translucent bone surface. Reports the frames per second
+// The viewer's targets, measured from a real browser: a scripted five-second orbit of a volume (the
+// cranium by default; 512² view), volume only and with a translucent isosurface. Reports the frames per second
 // painted, the latency from the input message to the frame painted (p50, p95), the quality levels
 // used, the bytes per frame, the PSNR of interactive frames (as painted, upscaled) against the
 // reference ray tracer, and the time from the end of the motion to the final frame painted.
 //
 // usage (after scripts/setup.sh): node bench/viewer_bench.mjs build/hybrid-octree [--seconds 5] [--samples 4] [--frame-ms 80]
+//                                  [--volume FILE] [--iso V]   (default: the cranium and 400 HU)
 import { spawn, execFileSync } from 'node:child_process';
 import { createRequire } from 'node:module';
 import fs from 'node:fs';
@@ -15,9 +16,12 @@ const require = createRequire(path.resolve('tests/e2e/package.json'));
 const puppeteer = require('puppeteer-core');
 
 const exe = path.resolve(process.argv[2] || 'build/hybrid-octree');
-const arg = (name, dflt) => { const i = process.argv.indexOf(name); return i > 0 ? Number(process.argv[i + 1]) : dflt; };
-const seconds = arg('--seconds', 5), samples = arg('--samples', 4), frameMs = arg('--frame-ms', 80);
-const volume = '/usr/share/doc/invesalius-examples/examples/Cranium.inv3';
+const text = (name, dflt) => { const i = process.argv.indexOf(name); return i > 0 ? process.argv[i + 1] : dflt; };
+const arg = (name, dflt) => Number(text(name, dflt));
+const seconds = arg('--seconds', 5), samples = arg('--samples', 4), frameMs = arg('--frame-ms', 80), iso = arg('--iso', 400);
+const volume = path.resolve(text('--volume', '/usr/share/doc/invesalius-examples/examples/Cranium.inv3'));
+if (!fs.existsSync(volume)) { console.error(`viewer_bench: --volume ${volume} does not exist`); process.exit(2); }
+if (!Number.isFinite(iso)) { console.error('viewer_bench: --iso must be a number (data units)'); process.exit(2); }
 const tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'hyb-viewer-bench-'));
 
 const server = spawn(exe, ['view', volume, '--port', '0', '--progress', 'off', '--frame-ms', String(frameMs)], { stdio: ['ignore', 'pipe', 'inherit'] });
@@ -43,7 +47,7 @@ function reference(header, withSurface, file, size) {
   const c = header.camera;
   const args = ['render', volume, '--renderer', 'raycast', '--eye', c.eye.join(','), '--center', c.center.join(','), '--up', c.up.join(','),
     '--fov', String(c.fov), '--size', size, '--preset', 'ct-skin-bone', '--progress', 'off', '-o', file];
-  if (withSurface) args.push('--iso', '400', '--surface-color', '0.9490196078431372,0.9215686274509803,0.8509803921568627,0.5');
+  if (withSurface) args.push('--iso', String(iso), '--surface-color', '0.9490196078431372,0.9215686274509803,0.8509803921568627,0.5');
   execFileSync(exe, args, { stdio: 'ignore' });
 }
 
@@ -146,9 +150,10 @@ try {
   await page.evaluate(() => window.hybViewer.request(false));
   await waitFinal();
   await orbit('volume only', false);
+  await page.evaluate((v) => { document.getElementById('iso').value = document.getElementById('iso-number').value = String(v); }, iso);
   await page.click('#surface-on');
-  await waitFinal('window.hybViewer.lastFinal().iso === 400');
-  await orbit('volume + translucent bone surface (400 HU, alpha 0.5)', true);
+  await waitFinal(`window.hybViewer.lastFinal().iso === ${iso}`);
+  await orbit(`volume + translucent surface (${iso}, alpha 0.5)`, true);
 } finally {
   await browser.close();
   server.kill('SIGTERM');

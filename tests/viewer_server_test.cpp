@@ -329,25 +329,41 @@ json warmUp(Socket& c, int pixels) {
   return {};
 }
 
-TEST(ViewerServer, InteractiveFramesUseLargerBricks) {
+TEST(ViewerServer, InteractiveFramesUseLargerBricksAndTheScreenSpaceLevelOfDetail) {
   TestServer s(1000.0);
   Socket c(s.port(), "/ws?token=" + s.token());
   c.next();  // info
-  const json f = warmUp(c, 64);
-  ASSERT_EQ(f["level"], 1);
+  // A small, wide view: a pixel spans about ten voxels, so texels of four voxels are finer than it.
+  auto wide = [](uint64_t seq) {
+    json q = frameRequest(seq, true, 16);
+    q["camera"]["fov"] = 120;
+    return q;
+  };
+  json f;
+  for (uint64_t seq = 1; seq < 10 && f["level"] != 1; ++seq) {
+    c.send(wide(seq).dump());
+    do f = c.nextFrameOrError();
+    while (f["type"] == "frame" && f["seq"] != seq);
+  }
+  ASSERT_EQ(f["level"], 1) << f.dump();
   SceneRenderer engine(sphereScene());
-  const FrameRequest r = std::get<FrameRequest>(parseRequest(frameRequest(1, true, 64).dump()));
+  const FrameRequest r = std::get<FrameRequest>(parseRequest(wide(1).dump()));
   View view;
   view.camera = r.camera;
   Look look;
   look.tf = r.transferFunction();
   Quality quality;
   quality.maxBrickEdge = kInteractiveBrickEdge;
-  const size_t large = engine.render(view, look, quality).stats.slices.bricks;
+  quality.lodPixels = kInteractiveLodPixels;
+  const FrameStats interactive = engine.render(view, look, quality).stats;
+  quality.lodPixels = 0.0;
+  const FrameStats fullResolution = engine.render(view, look, quality).stats;
   quality.maxBrickEdge = Quality{}.maxBrickEdge;
   const size_t small = engine.render(view, look, quality).stats.slices.bricks;
-  EXPECT_LT(large, small);
-  EXPECT_EQ(f["bricks"], large);
+  EXPECT_LT(fullResolution.slices.bricks, small);
+  EXPECT_LT(interactive.slices.textureBytes, fullResolution.slices.textureBytes / 2);  // coarser bricks where texels are finer than pixels
+  EXPECT_EQ(f["bricks"], interactive.slices.bricks);
+  EXPECT_EQ(f["textureBytes"], interactive.slices.textureBytes);
 }
 
 TEST(ViewerServer, ClientsKeepTheirOwnViewsAndStaleRequestsAreDropped) {

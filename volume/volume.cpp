@@ -165,14 +165,19 @@ struct Grid {
   }
 };
 
+template <class T>
+Grid<T> gridOf(const T* d, const glm::ivec3& dims) {  // (clang 14 deduces no aggregate's template arguments)
+  return Grid<T>{d, dims};
+}
+
 }  // namespace
 
 float Volume::sample(const glm::vec3& p) const {
-  return visitSamples([&](const auto* d) { return Grid{d, mDims}.sample(p); });
+  return visitSamples([&](const auto* d) { return gridOf(d, mDims).sample(p); });
 }
 
 glm::vec3 Volume::gradientAt(int i, int j, int k) const {
-  return visitSamples([&](const auto* d) { return Grid{d, mDims}.gradientAt(i, j, k, mSpacing); });
+  return visitSamples([&](const auto* d) { return gridOf(d, mDims).gradientAt(i, j, k, mSpacing); });
 }
 
 glm::vec3 Volume::sampleGradient(const glm::vec3& p) const {
@@ -181,7 +186,7 @@ glm::vec3 Volume::sampleGradient(const glm::vec3& p) const {
   const glm::ivec3 i1 = glm::min(i0 + 1, mDims - 1);
   const glm::vec3 t = q - glm::vec3(i0);
   return visitSamples([&](const auto* d) {
-    const Grid grid{d, mDims};
+    const auto grid = gridOf(d, mDims);
     auto g = [&](int c) { return grid.gradientAt(c & 1 ? i1.x : i0.x, c & 2 ? i1.y : i0.y, c & 4 ? i1.z : i0.z, mSpacing); };
     const glm::vec3 c00 = glm::mix(g(0), g(1), t.x), c10 = glm::mix(g(2), g(3), t.x);
     const glm::vec3 c01 = glm::mix(g(4), g(5), t.x), c11 = glm::mix(g(6), g(7), t.x);
