@@ -47,7 +47,7 @@ ScalarType storageTypeFor(ScalarType t, double lo, double hi);
 
 /// Largest accepted extent along one axis; keeps octree coordinates in 16 bits.
 inline constexpr int kMaxDim = 32768;
-/// Largest accepted sample count (16 GiB of float samples).
+/// Largest accepted sample count (8 GiB of int16 samples).
 inline constexpr uint64_t kMaxVoxels = uint64_t(1) << 32;
 
 /// Checks dims for positivity, the per-axis limit and overflow of the sample count.
