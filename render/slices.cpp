@@ -620,8 +620,6 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     glDrawArrays(GL_TRIANGLES, 0, GLsizei(d.stream.size() / kStreamFloats));
     std::vector<float>().swap(d.stream);
   }
-  drawn.store(draws.size(), std::memory_order_release);
-  drawn.notify_one();
   worker.join();
   if (failure) std::rethrow_exception(failure);
   // 7. The isosurface's outline on the cutting plane, on top.

@@ -491,8 +491,8 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
     const std::string& file = slices[s].file;
     const std::string where = detail::concat(file, " (slice ", s + 1, " of ", slices.size(), ")");
     const PixelModule module = checkPixelModule(InputFile(file), where);
-    if (s == 0)  // the whole series is allocated up front: what its first slice claims must fit
-      checkMemory(where, uint64_t(module.columns) * uint64_t(module.rows) * (slices.size() * sizeof(int16_t) + 2 * sizeof(double)),
+    if (s == 0)  // the whole series is allocated up front (float at worst): what its first slice claims must fit
+      checkMemory(where, uint64_t(module.columns) * uint64_t(module.rows) * (slices.size() * sizeof(float) + 2 * sizeof(double)),
                   detail::concat(slices.size(), " slices of ", module.columns, "x", module.rows, " samples"));
     else if (module.columns != dims.x || module.rows != dims.y)
       HYB_THROW(IoError, where, ": slice is ", module.columns, "x", module.rows, ", expected ", dims.x, "x", dims.y, " like the first slice");

@@ -97,35 +97,24 @@ void decodeInto(const uint8_t* data, size_t count, ScalarType t, bool bigEndian,
 }
 
 SampleArray decodeSamples(const uint8_t* data, size_t count, ScalarType t, bool bigEndian) {
-  double lo = 0, hi = 0;
-  if (t == ScalarType::UInt32 || t == ScalarType::Int32) {
-    lo = std::numeric_limits<double>::max();
-    hi = -lo;
-    widenSampleRange(data, count, t, bigEndian, &lo, &hi);
-  }
-  SampleArray out = allocateSamples(storageTypeFor(t, lo, hi), count);
-  decodeInto(data, count, t, bigEndian, &out, 0);
-  return out;
+  return decodePieces(t, bigEndian, count, [&](const auto& use) { use(data, size_t(0), count); });
 }
 
 SampleArray samplesOfType(std::vector<float> values, ScalarType t) {
-  auto exactIn = [&](auto zero) {
-    using T = decltype(zero);
-    return std::all_of(values.begin(), values.end(), [](float v) {
-      return v >= float(std::numeric_limits<T>::min()) && v <= float(std::numeric_limits<T>::max()) && v == std::floor(v);
-    });
-  };
-  auto as = [&](auto zero) { return SampleArray(std::vector<decltype(zero)>(values.begin(), values.end())); };
-  switch (t) {
-    case ScalarType::UInt8: if (exactIn(uint8_t())) return as(uint8_t()); break;
-    case ScalarType::Int8: if (exactIn(int8_t())) return as(int8_t()); break;
-    case ScalarType::UInt16: if (exactIn(uint16_t())) return as(uint16_t()); break;
-    case ScalarType::Int16: if (exactIn(int16_t())) return as(int16_t()); break;
-    case ScalarType::UInt32:
-    case ScalarType::Int32: if (exactIn(int16_t())) return as(int16_t()); if (exactIn(uint16_t())) return as(uint16_t()); break;
-    default: break;
-  }
-  return values;
+  // 32-bit integers narrow as decodeSamples narrows them; the text must hold integers of the type.
+  const auto [lo, hi] = std::minmax_element(values.begin(), values.end());
+  const ScalarType stored = values.empty() ? t : storageTypeFor(t, *lo, *hi);
+  if (stored == ScalarType::Float32 || stored == ScalarType::Float64) return values;
+  SampleArray out = allocateSamples(stored, values.size());
+  const bool exact = std::visit(
+      [&](auto& dst) {
+        using U = typename std::remove_reference_t<decltype(dst)>::value_type;
+        if (!std::all_of(values.begin(), values.end(), [](float v) { return holdsExactly<U>(v); })) return false;
+        std::copy(values.begin(), values.end(), dst.begin());
+        return true;
+      },
+      out);
+  return exact ? out : SampleArray(std::move(values));
 }
 
 SampleArray rescaleTarget(ScalarType t, double slope, double intercept, size_t count) {
@@ -137,40 +126,27 @@ SampleArray rescaleTarget(ScalarType t, double slope, double intercept, size_t c
 void rescaleSamples(SampleArray* samples, size_t first, const SampleArray& slice, double slope, double intercept) {
   const size_t count = sampleCount(slice);
   HYB_CHECK(first + count <= sampleCount(*samples));
-  // Rescaled values stay in a 16-bit array while they are integers it holds; the first that is not
-  // moves everything to float.
-  const auto exactIn = [](const auto* out, double v) {
-    using T = std::remove_pointer_t<decltype(out)>;
-    return std::is_same_v<T, float> ||
-           (v >= double(std::numeric_limits<T>::min()) && v <= double(std::numeric_limits<T>::max()) && v == std::floor(v));
+  // Writes the slice while its values are ones the array's type holds; false at the first that is not.
+  const auto write = [&] {
+    return std::visit(
+        [&](const auto& in, auto& out) {
+          using T = typename std::remove_reference_t<decltype(out)>::value_type;
+          for (size_t i = 0; i < count; ++i) {
+            const double v = double(in[i]) * slope + intercept;
+            if (!holdsExactly<T>(v)) return false;
+            out[first + i] = T(v);
+          }
+          return true;
+        },
+        slice, *samples);
   };
-  const bool fits = std::visit(
-      [&](const auto& in) {
-        return std::visit(
-            [&](auto& out) {
-              for (size_t i = 0; i < count; ++i)
-                if (!exactIn(out.data(), double(in[i]) * slope + intercept)) return false;
-              return true;
-            },
-            *samples);
-      },
-      slice);
-  if (!fits) {
-    std::vector<float> wide(sampleCount(*samples));
-    std::visit([&](const auto& old) { std::copy(old.begin(), old.end(), wide.begin()); }, *samples);
-    *samples = SampleArray();  // frees the old array before the next slice
-    *samples = std::move(wide);
-  }
-  std::visit(
-      [&](const auto& in) {
-        std::visit(
-            [&](auto& out) {
-              using T = typename std::remove_reference_t<decltype(out)>::value_type;
-              for (size_t i = 0; i < count; ++i) out[first + i] = T(double(in[i]) * slope + intercept);
-            },
-            *samples);
-      },
-      slice);
+  if (write()) return;
+  // A value the 8- or 16-bit array cannot hold: everything moves to float, and the slice is written again.
+  std::vector<float> wide(sampleCount(*samples));
+  std::visit([&](const auto& old) { std::copy(old.begin(), old.end(), wide.begin()); }, *samples);
+  *samples = SampleArray();  // frees the old array before the wide one is kept
+  *samples = std::move(wide);
+  write();
 }
 
 // @p v with the patient frame and the reader's warnings.

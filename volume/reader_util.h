@@ -3,6 +3,7 @@
 
 #include <cstdint>
 #include <cstdio>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -21,6 +22,21 @@ SampleArray allocateSamples(ScalarType stored, size_t count);
 /// Converts the @p count samples of type @p t at @p data into @p out (whatever type it holds) from
 /// sample @p first on.
 void decodeInto(const uint8_t* data, size_t count, ScalarType t, bool bigEndian, SampleArray* out, size_t first);
+/// The @p count samples of type @p t, fed in pieces by @p eachPiece (called with a function
+/// use(data, first, n) that it calls for every piece, in any order, twice for 32-bit integers),
+/// in the type a volume holds them in (storageTypeFor their type and range).
+template <class EachPiece>
+SampleArray decodePieces(ScalarType t, bool bigEndian, size_t count, const EachPiece& eachPiece) {
+  double lo = 0, hi = 0;
+  if (t == ScalarType::UInt32 || t == ScalarType::Int32) {  // held in 16 bits when their range allows
+    lo = std::numeric_limits<double>::max();
+    hi = -lo;
+    eachPiece([&](const uint8_t* data, size_t, size_t n) { widenSampleRange(data, n, t, bigEndian, &lo, &hi); });
+  }
+  SampleArray out = allocateSamples(storageTypeFor(t, lo, hi), count);
+  eachPiece([&](const uint8_t* data, size_t first, size_t n) { decodeInto(data, n, t, bigEndian, &out, first); });
+  return out;
+}
 /// The @p count samples of type @p t at @p data (any alignment, @p bigEndian byte order) in the
 /// type a volume holds them in (storageTypeFor their type and range).
 SampleArray decodeSamples(const uint8_t* data, size_t count, ScalarType t, bool bigEndian);

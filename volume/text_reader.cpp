@@ -2,7 +2,6 @@
 
 #include <cctype>
 #include <cstdlib>
-#include <limits>
 
 #include "volume/inflate.h"
 #include "volume/memory_limit.h"
@@ -52,22 +51,13 @@ SampleArray readRawSamples(const InputFile& f, uint64_t offset, long long skip, 
   checkSampleMemory(f.path(), std::min(expected, kPiece), dims, t);
   const uint64_t size = scalarSize(t);
   std::vector<uint8_t> piece;
-  const auto eachPiece = [&](const auto& use) {
+  return decodePieces(t, bigEndian, size_t(expected / size), [&](const auto& use) {
     for (uint64_t done = 0; done < expected; done += kPiece) {
       piece.resize(size_t(std::min(kPiece, expected - done)));
       f.read(offset + done, piece.size(), piece.data());
-      use(size_t(done / size), piece.size() / size_t(size));
+      use(piece.data(), size_t(done / size), piece.size() / size_t(size));
     }
-  };
-  double lo = 0, hi = 0;
-  if (t == ScalarType::UInt32 || t == ScalarType::Int32) {  // held in 16 bits when their range allows
-    lo = std::numeric_limits<double>::max();
-    hi = -lo;
-    eachPiece([&](size_t, size_t n) { widenSampleRange(piece.data(), n, t, bigEndian, &lo, &hi); });
-  }
-  SampleArray out = allocateSamples(storageTypeFor(t, lo, hi), size_t(expected / size));
-  eachPiece([&](size_t first, size_t n) { decodeInto(piece.data(), n, t, bigEndian, &out, first); });
-  return out;
+  });
 }
 
 SampleArray readCompressedSamples(const InputFile& f, uint64_t offset, long long skip, const glm::ivec3& dims, ScalarType t,

@@ -237,8 +237,7 @@ Volume paddedVolume(const Volume& v, float value) {
   SampleArray samples = v.visitSamples([&](const auto* src) -> SampleArray {
     using T = std::remove_const_t<std::remove_pointer_t<decltype(src)>>;
     // The padding value in the stored type when it is one of its values, else everything as float.
-    const bool fits = std::is_same_v<T, float> ||
-                      (value >= float(std::numeric_limits<T>::min()) && value <= float(std::numeric_limits<T>::max()) && value == std::floor(value));
+    const bool fits = holdsExactly<T>(value);
     auto copy = [&](auto pad) {
       using U = decltype(pad);
       std::vector<U> out(count, pad);

@@ -15,6 +15,7 @@
 #include <limits>
 #include <memory>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <variant>
 #include <vector>
@@ -44,6 +45,12 @@ size_t sampleCount(const SampleArray& s);
 /// types as they are; 32-bit integers in the narrowest 16-bit type that holds the range, else
 /// float (exact to 2^24); float64 as float.
 ScalarType storageTypeFor(ScalarType t, double lo, double hi);
+/// Whether a sample type T holds @p v exactly: an integer within T's range, or any value for float.
+template <class T>
+bool holdsExactly(double v) {
+  if constexpr (std::is_same_v<T, float>) return true;
+  else return v >= double(std::numeric_limits<T>::min()) && v <= double(std::numeric_limits<T>::max()) && v == double(int64_t(v));
+}
 
 /// Largest accepted extent along one axis; keeps octree coordinates in 16 bits.
 inline constexpr int kMaxDim = 32768;
