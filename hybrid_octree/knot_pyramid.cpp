@@ -9,9 +9,6 @@ namespace hyb {
 
 namespace {
 
-// Knots of spacing s along an axis of n samples: 0, s, 2s, … and n − 1.
-int knotCount(int n, int s) { return (n - 1) / s + 1 + ((n - 1) % s != 0); }
-
 // Lines of n samples extended by odd reflection about their end samples, pad samples either side:
 // extended sample i is a·line[0] + b·line[n − 1] + sign·line[index], the same terms for every line.
 // As second prefix sums (p2[k] = Σ_{m<k} Σ_{l<m} g[l], g[k] the extended sample k − pad) a tent sum
@@ -83,9 +80,6 @@ class OddExtension {
   std::vector<Term> mTerms;  // extended samples −pad…−1, then n…n + pad − 1
 };
 
-// Knot position j of spacing s on an axis of n samples with @p count knots.
-int knotAt(int j, int s, int n, int count) { return j == count - 1 ? n - 1 : j * s; }
-
 }  // namespace
 
 KnotPyramid::KnotPyramid(const Volume& volume) : mDims(volume.dims()) {
@@ -128,7 +122,7 @@ KnotPyramid::KnotPyramid(const Volume& volume) : mDims(volume.dims()) {
         for (int r = 0; r < count; ++r)
           for (size_t l = 0; l < levels; ++l) {
             const int s = mLevels[l].spacing, cx = mLevels[l].count.x;
-            for (int j = 0; j < cx; ++j) ax[l][size_t(first + r) * cx + j] = rows.tentAt(p2, r, knotAt(j, s, n.x, cx), s);
+            for (int j = 0; j < cx; ++j) ax[l][size_t(first + r) * cx + j] = rows.tentAt(p2, r, knotPosition(j, s, n.x), s);
           }
       }
       for (size_t l = 0; l < levels; ++l) {
@@ -140,7 +134,7 @@ KnotPyramid::KnotPyramid(const Volume& volume) : mDims(volume.dims()) {
           columns[l].secondPrefixSums(lines, count, c.x, &p2);
           for (int r = 0; r < count; ++r)
             for (int j = 0; j < c.y; ++j)
-              ay[l][size_t(first + r) + size_t(c.x) * (j + size_t(c.y) * z)] = columns[l].tentAt(p2, r, knotAt(j, s, n.y, c.y), s);
+              ay[l][size_t(first + r) + size_t(c.x) * (j + size_t(c.y) * z)] = columns[l].tentAt(p2, r, knotPosition(j, s, n.y), s);
         }
       }
     }
@@ -162,7 +156,7 @@ KnotPyramid::KnotPyramid(const Volume& volume) : mDims(volume.dims()) {
         for (int r = 0; r < count; ++r) lines[r] = &ay[l][size_t(first + r)];
         pillars.secondPrefixSums(lines, count, plane, &p2);
         for (int r = 0; r < count; ++r)
-          for (int j = 0; j < c.z; ++j) values[size_t(first + r) + size_t(plane) * j] = pillars.tentAt(p2, r, knotAt(j, s, n.z, c.z), s);
+          for (int j = 0; j < c.z; ++j) values[size_t(first + r) + size_t(plane) * j] = pillars.tentAt(p2, r, knotPosition(j, s, n.z), s);
       }
     }
     std::vector<float>().swap(ay[l]);

@@ -25,6 +25,13 @@ namespace hyb {
 inline constexpr int kPrefilterSpacing = 4;
 inline constexpr int kPrefilterMaxSpacing = 32;
 
+/// Knots of spacing s along an axis of @p n samples: 0, s, 2s, … and n − 1.
+inline int knotCount(int n, int s) { return (n - 1) / s + 1 + ((n - 1) % s != 0); }
+/// Voxel index of knot @p j of spacing @p s on an axis of @p n samples.
+inline int knotPosition(int j, int s, int n) { return j == knotCount(n, s) - 1 ? n - 1 : j * s; }
+/// Knots per axis at spacing @p s.
+inline glm::ivec3 knotCounts(const glm::ivec3& n, int s) { return {knotCount(n.x, s), knotCount(n.y, s), knotCount(n.z, s)}; }
+
 /// The prefiltered knot values of every lattice spacing kPrefilterSpacing…kPrefilterMaxSpacing:
 /// for spacing s, the positions {0, s, 2s, …} and the grid's last index along each axis (the knots
 /// of any position-clamped lattice of that spacing), in 16 bits over each spacing's range: about a

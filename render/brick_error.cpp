@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "hybrid_octree/knot_source.h"
 #include "volume/parallel.h"
 
 namespace hyb {
@@ -169,16 +170,14 @@ double BrickImageError::measure(const OctreeNode& n, int p) const {
   const int step = mOctree.edge(n) >> p;
   if (step <= 1) return 0.0;
   const KnotLattice L = mOctree.lattice(n, p);
-  // The level's knots: value and shading gradient (the volume's own at the knot, as the brick's texels hold).
+  // The level's knots: value and shading gradient, as the brick's texels hold them.
+  const std::vector<glm::vec4> both = latticeKnots(VolumeKnots(mVolume, mOctree), L);
   std::vector<float> knots(L.count());
   std::vector<glm::vec3> gradients(L.count());
-  for (int z = 0, i = 0; z < L.dims.z; ++z)
-    for (int y = 0; y < L.dims.y; ++y)
-      for (int x = 0; x < L.dims.x; ++x, ++i) {
-        const glm::ivec3 k(L.knot(0, x), L.knot(1, y), L.knot(2, z));
-        knots[size_t(i)] = mOctree.knotValue(mVolume, step, k);
-        gradients[size_t(i)] = mVolume.gradientAt(k.x, k.y, k.z);
-      }
+  for (size_t i = 0; i < both.size(); ++i) {
+    knots[i] = both[i].x;
+    gradients[i] = glm::vec3(both[i].y, both[i].z, both[i].w);
+  }
   const glm::ivec3 dims = mVolume.dims();
   const glm::vec3 spacing(mVolume.spacing());
 

@@ -8,19 +8,19 @@ namespace hyb {
 
 namespace {
 
-// The texels of a knot lattice (DESIGN 3.3): value(knot position) at each knot, with the overhanging
-// last texel extrapolated so that uniform trilinear filtering reproduces the lattice's
-// position-clamped trilinear field exactly.
+// The texels of a knot lattice (DESIGN 3.3): value(knot index, knot position) at each knot, with
+// the overhanging last texel extrapolated so that uniform trilinear filtering reproduces the
+// lattice's position-clamped trilinear field exactly.
 template <class Value>
 auto latticeTexels(const KnotLattice& L, const Value& value) {
-  using T = decltype(value(glm::ivec3()));
+  using T = decltype(value(glm::ivec3(), glm::ivec3()));
   const glm::ivec3 d = L.dims;
   const int s = L.step;
   std::vector<T> out(size_t(L.count()));
   auto at = [&](int i, int j, int k) -> T& { return out[size_t(i) + size_t(d.x) * (size_t(j) + size_t(d.y) * size_t(k))]; };
   for (int k = 0; k < d.z; ++k)
     for (int j = 0; j < d.y; ++j)
-      for (int i = 0; i < d.x; ++i) at(i, j, k) = value(glm::ivec3(L.knot(0, i), L.knot(1, j), L.knot(2, k)));
+      for (int i = 0; i < d.x; ++i) at(i, j, k) = value(glm::ivec3(i, j, k), glm::ivec3(L.knot(0, i), L.knot(1, j), L.knot(2, k)));
   for (int a = 0; a < 3; ++a) {
     const int m = d[a] - 1;
     if (m < 1 || L.origin[a] + m * s <= L.last[a]) continue;  // the last knot sits where a uniform texel would
@@ -73,36 +73,29 @@ void packTexels(const std::vector<glm::vec4>& texels, float toGradient, PackedBr
 // The coarse field is read from the coarse lattice's knots once (each serves up to eight of the
 // brick's); a coarse brick keeps the full-resolution gradients at its knots, interpolated between
 // them, as a simplified mesh keeps its original normals (docs/multires.md).
-std::vector<glm::vec4> brickTexels(const Volume& v, const VolumeOctree& t, const Brick& b) {
+std::vector<glm::vec4> brickTexels(const KnotSource& source, const VolumeOctree& t, const Brick& b) {
   const OctreeNode& n = t.nodes()[b.node];
   const KnotLattice fine = t.lattice(n, b.p);
-  const KnotLattice coarse = b.coarseCorners ? t.coarseLattice(n, b.p) : fine;
+  const std::vector<glm::vec4> own = latticeKnots(source, fine);
+  auto ownAt = [&](const glm::ivec3& j) { return own[size_t(j.x) + size_t(fine.dims.x) * (size_t(j.y) + size_t(fine.dims.y) * size_t(j.z))]; };
+  if (!b.coarseCorners) return latticeTexels(fine, [&](const glm::ivec3& j, const glm::ivec3&) { return ownAt(j); });
+  const KnotLattice coarse = t.coarseLattice(n, b.p);
+  const std::vector<glm::vec4> low = latticeKnots(source, coarse);
   const glm::vec3 origin(n.origin);
   const float edge = float(t.edge(n));
-  auto knot = [&](const KnotLattice& L, const glm::ivec3& p) { return glm::vec4(t.knotValue(v, L.step, p), v.gradientAt(p.x, p.y, p.z)); };
-  // The coarse lattice's knots, read once (each serves up to eight of the brick's knots).
-  std::vector<glm::vec4> low;
-  if (b.coarseCorners) {
-    low.reserve(size_t(coarse.count()));
-    for (int k = 0; k < coarse.dims.z; ++k)
-      for (int j = 0; j < coarse.dims.y; ++j)
-        for (int i = 0; i < coarse.dims.x; ++i) low.push_back(knot(coarse, glm::ivec3(coarse.knot(0, i), coarse.knot(1, j), coarse.knot(2, k))));
-  }
   auto lowAt = [&](const glm::ivec3& q) {
     glm::ivec3 j;
     for (int a = 0; a < 3; ++a) j[a] = q[a] >= coarse.last[a] ? coarse.dims[a] - 1 : (q[a] - coarse.origin[a]) / coarse.step;
     return low[size_t(j.x) + size_t(coarse.dims.x) * (size_t(j.y) + size_t(coarse.dims.y) * size_t(j.z))];
   };
-  return latticeTexels(fine, [&](const glm::ivec3& p) {
-    const glm::vec4 own = knot(fine, p);
-    if (!b.coarseCorners) return own;
+  return latticeTexels(fine, [&](const glm::ivec3& j, const glm::ivec3& p) {
     const glm::vec3 u = glm::clamp((glm::vec3(p) - origin) / edge, 0.0f, 1.0f);
     float w = 0.0f;
     for (int c = 0; c < 8; ++c)
       if (!((b.coarseCorners >> c) & 1))
         w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
     w = std::min(1.0f, kBlendSteepness * w);
-    return glm::mix(t.latticeField(coarse.step, glm::clamp(p, coarse.origin, coarse.last), lowAt), own, w);
+    return glm::mix(t.latticeField(coarse.step, glm::clamp(p, coarse.origin, coarse.last), lowAt), ownAt(j), w);
   });
 }
 

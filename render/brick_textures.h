@@ -14,6 +14,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "hybrid_octree/knot_source.h"
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
 #include "render/gl_objects.h"
@@ -65,11 +66,11 @@ struct PackedBrick {
 };
 
 /// The texels of brick @p b, value and gradient: its lattice's knot values (samples, or prefiltered
-/// ones on coarse lattices) with the volume's own gradient at each knot, or where a corner blends
+/// ones on coarse lattices) with the volume's own gradient at each knot (latticeKnots), or where a corner blends
 /// (Carmona et al.) mix(coarse field, own field, w), w reaching 1 halfway across the node from the
 /// corners that touch a coarser brick. The overhanging last texel of a cropped lattice is
 /// extrapolated, so that uniform trilinear filtering reproduces the lattice's field exactly.
-std::vector<glm::vec4> brickTexels(const Volume& volume, const VolumeOctree& octree, const Brick& b);
+std::vector<glm::vec4> brickTexels(const KnotSource& source, const VolumeOctree& octree, const Brick& b);
 
 /// The ranges of @p texels (a lattice of @p dims knots) over blocks of 2×2×2 cells.
 BrickRanges texelRanges(const std::vector<glm::vec4>& texels, const glm::ivec3& dims);

@@ -302,6 +302,8 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
                      const std::vector<int>& brickOf, const BrickPolygons& polygonsOf, bool translucent, const glm::dvec4& cut,
                      double baseDelta) {
   const glm::dvec3 spacing = volume.spacing();
+  const VolumeKnots inMemory(volume, octree);
+  const KnotSource& knots = options.knots ? *options.knots : inMemory;
   BrickPlan plan;
   // Hidden (transparent or culled) bricks cost no texels; their surface triangles are still drawn.
   auto textured = [&](uint32_t node) {
@@ -331,7 +333,7 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
       failure.run([&] {
         const uint32_t i = toPack[first + k];
         const Brick& b = selection.bricks[size_t(brickOf[i])];
-        const std::vector<glm::vec4> texels = brickTexels(volume, octree, b);
+        const std::vector<glm::vec4> texels = brickTexels(knots, octree, b);
         packed[k] = packBrick(texels, options.texelBits);
         packed[k].brick.ranges = texelRanges(texels, octree.lattice(octree.nodes()[i], b.p).dims);
       });
@@ -373,7 +375,7 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
         } else {
           if (!brick.cutTexture) {
             const uint64_t before = brick.bytes;
-            uploadCutTexture(brickTexels(volume, octree, b), fine.dims, &brick);
+            uploadCutTexture(brickTexels(knots, octree, b), fine.dims, &brick);
             if (cached) options.textures->grew(b, brick.bytes - before);
           }
           piece.texture = brick.cutTexture.id();

@@ -49,6 +49,9 @@ struct SlicesOptions {
   const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
   bool cutLine = true;                    ///< draw the surface's intersection with the cutting plane
   BrickTextureCache* textures = nullptr;  ///< brick textures reused across frames (none: uploaded per frame)
+  /// Where bricks read their knots (a scene's paged store), or none: the volume and octree in
+  /// memory. Both give bit-identical bricks.
+  const KnotSource* knots = nullptr;
   TexelBits texelBits = TexelBits::Eight;
   bool visibleBoxes = true;             ///< slice only the box of each brick's cells that the transfer
                                         ///< function can make visible (false: the whole brick; same image)

@@ -1,0 +1,71 @@
+#include "hybrid_octree/knot_source.h"
+
+#include <algorithm>
+#include <limits>
+
+#include "volume/error.h"
+
+namespace hyb {
+
+void VolumeKnots::read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const {
+  HYB_DCHECK((s == 1) == (gradients == nullptr));
+  const glm::ivec3 n = mVolume.dims();
+  std::vector<int> xs(size_t(count.x));
+  for (int i = 0; i < count.x; ++i) xs[size_t(i)] = knotPosition(lo.x + i, s, n.x);
+  for (int k = 0; k < count.z; ++k)
+    for (int j = 0; j < count.y; ++j) {
+      const int y = knotPosition(lo.y + j, s, n.y), z = knotPosition(lo.z + k, s, n.z);
+      if (s == 1) {
+        mVolume.readRow(lo.x, y, z, count.x, values);
+      } else {
+        for (int i = 0; i < count.x; ++i) {
+          values[i] = mOctree.knotValue(mVolume, s, glm::ivec3(xs[size_t(i)], y, z));
+          gradients[i] = mVolume.gradientAt(xs[size_t(i)], y, z);
+        }
+        gradients += count.x;
+      }
+      values += count.x;
+    }
+}
+
+std::vector<glm::vec4> latticeKnots(const KnotSource& source, const KnotLattice& L) {
+  const glm::ivec3 n = source.dims(), first = L.origin / L.step;
+  HYB_DCHECK(first * L.step == L.origin && glm::all(glm::lessThanEqual(first + L.dims, knotCounts(n, L.step))));
+  std::vector<glm::vec4> out;
+  out.reserve(size_t(L.count()));
+  if (L.step > 1) {
+    std::vector<float> values(size_t(L.count()));
+    std::vector<glm::vec3> gradients(size_t(L.count()));
+    source.read(L.step, first, L.dims, values.data(), gradients.data());
+    for (size_t i = 0; i < values.size(); ++i) out.emplace_back(values[i], gradients[i]);
+    return out;
+  }
+  const glm::dvec3 spacing = source.spacing();
+  // The lattice's samples with one neighbour either side where the grid has one.
+  const glm::ivec3 lo = glm::max(first - 1, glm::ivec3(0)), hi = glm::min(first + L.dims, n - 1);
+  const glm::ivec3 box = hi - lo + 1;
+  std::vector<float> values(size_t(box.x) * size_t(box.y) * size_t(box.z));
+  source.read(1, lo, box, values.data(), nullptr);
+  auto value = [&](const glm::ivec3& j) {
+    const glm::ivec3 q = j - lo;
+    return values[size_t(q.x) + size_t(box.x) * (size_t(q.y) + size_t(box.y) * size_t(q.z))];
+  };
+  for (int k = 0; k < L.dims.z; ++k)
+    for (int j = 0; j < L.dims.y; ++j)
+      for (int i = 0; i < L.dims.x; ++i) {
+        const glm::ivec3 g = first + glm::ivec3(i, j, k);
+        glm::vec4 t(value(g), 0.0f, 0.0f, 0.0f);
+        for (int a = 0; a < 3; ++a) {
+          glm::ivec3 below = g, above = g;
+          below[a] = std::max(g[a] - 1, 0);
+          above[a] = std::min(g[a] + 1, n[a] - 1);
+          if (above[a] == below[a]) continue;
+          const double d = (double(value(above)) - double(value(below))) / (double(above[a] - below[a]) * spacing[a]);
+          t[a + 1] = float(std::clamp(d, -double(std::numeric_limits<float>::max()), double(std::numeric_limits<float>::max())));
+        }
+        out.push_back(t);
+      }
+  return out;
+}
+
+}  // namespace hyb

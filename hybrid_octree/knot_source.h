@@ -1,0 +1,55 @@
+// Where bricks read their knots: the values of every lattice spacing s (the knots {0, s, 2s, …}
+// and the grid's last index along each axis, docs/volume-octree.md) and the shading gradient at
+// each knot. Two sources give the same numbers: the volume with its knot pyramid in memory
+// (VolumeKnots), and the paged knot store of a scene file (KnotStore). A brick made from either is
+// bit-identical, because both hand out the same numbers: the knots' values, and at spacings of two
+// voxels or more the volume's own gradient at each knot (a coarse brick shades with the data's
+// gradients, as a simplified mesh keeps its normals; docs/multires.md). At spacing 1 the gradient
+// is computed here from the knots, as Volume::gradientAt does.
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <cstdint>
+#include <vector>
+
+#include "hybrid_octree/volume_octree.h"
+#include "volume/volume.h"
+
+namespace hyb {
+
+/// The knot values of a sample grid at every power-of-two spacing.
+class KnotSource {
+ public:
+  virtual ~KnotSource() = default;
+  /// The sample grid.
+  virtual glm::ivec3 dims() const = 0;
+  /// Voxel spacing in mm.
+  virtual glm::dvec3 spacing() const = 0;
+  /// Writes the knots of spacing @p s with indices lo … lo + count − 1 per axis (inside
+  /// knotCounts(dims(), s)) to @p values, x fastest, and for s ≥ 2 the volume's gradient at each
+  /// (Volume::gradientAt, data units per mm) to @p gradients (null for s = 1). Thread-safe.
+  /// @throw IoError when a paged source cannot read them (a damaged file, named with its block).
+  virtual void read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const = 0;
+};
+
+/// The knots of a volume in memory: the samples, or the octree's prefiltered knots where it holds
+/// them. @p volume and @p octree must outlive it.
+class VolumeKnots final : public KnotSource {
+ public:
+  VolumeKnots(const Volume& volume, const VolumeOctree& octree) : mVolume(volume), mOctree(octree) {}
+  glm::ivec3 dims() const override { return mVolume.dims(); }
+  glm::dvec3 spacing() const override { return mVolume.spacing(); }
+  void read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const override;
+
+ private:
+  const Volume& mVolume;
+  const VolumeOctree& mOctree;
+};
+
+/// The knots of lattice @p L as value and gradient (data units per mm), x fastest: what
+/// KnotSource::read gives, the gradient at spacing 1 by central differences between the knot's
+/// neighbours (one-sided at the grid's faces), exactly as Volume::gradientAt computes it.
+std::vector<glm::vec4> latticeKnots(const KnotSource& source, const KnotLattice& L);
+
+}  // namespace hyb
