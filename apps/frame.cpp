@@ -10,6 +10,7 @@
 #include "hybrid_octree/surface_octree.h"
 #include "render/bvh.h"
 #include "surface/mesh_ops.h"
+#include "volume/memory_limit.h"
 
 #include <nlohmann/json.hpp>
 
@@ -84,12 +85,13 @@ void printWarnings(const Volume& v, std::ostream& err) {
   for (const std::string& w : v.warnings()) err << "hybrid-octree: warning: " << w << "\n";
 }
 
-Scene loadOrBuild(const VolumeInput& in, std::ostream& out, std::ostream& err, double* buildMs, const VolumeOctreeOptions& options) {
+Scene loadOrBuild(const VolumeInput& in, std::ostream& out, std::ostream& err, double* buildMs, const VolumeOctreeOptions& options,
+                  const SceneLoadOptions& load) {
   const auto t0 = Clock::now();
   Scene scene;
   if (!in.rawLayout() && isSceneFile(in.path)) {
     if (!in.series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", in.path, " is a scene file)");
-    scene = loadScene(in.path);
+    scene = loadScene(in.path, load);
     *buildMs = 0.0;
     out << "loaded scene " << in.path << " in " << std::fixed << std::setprecision(1) << msSince(t0) << " ms\n";
     return scene;
@@ -220,6 +222,7 @@ CLI::Option* addSwitch(CLI::App* cmd, const std::string& name, bool* field, cons
 std::string RenderOptions::validate() const {
   if (std::string e = quality.validate(); !e.empty()) return e;
   if (!(fov >= kMinFovDeg && fov < kMaxFovDeg)) return "--fov must be in [0.1, 179) degrees";
+  if (memoryMb && !(*memoryMb >= 1.0 && *memoryMb <= 1e9)) return "--memory must be megabytes in [1, 1e9]";
   const auto far = [](const std::optional<glm::dvec3>& p) { return p && !withinCameraRange(*p); };
   const std::string range = " must be within 1e6 mm (1 km) of the patient origin in each coordinate";
   if (far(eye)) return "--eye" + range;
@@ -243,6 +246,8 @@ void RenderOptions::add(CLI::App* cmd) {
   input.add(cmd);
   // What is shown.
   cmd->add_option("--iso", iso, "isovalue of the embedded surface (data units; none = volume only)");
+  cmd->add_option("--memory", memoryMb,
+                  "MB of decompressed blocks a scene file's knot store keeps in its cache (default: an eighth of the physical memory)");
   cmd->add_option_function<std::string>("--surface-color", [this](const std::string& t) { surfaceColor = parseColor(t, "--surface-color", 4); },
                                         "surface r,g,b,a in [0,1]; a < 1 is translucent (default 0.95,0.92,0.85,1)");
   addChoice<SurfaceNormals>(cmd, "--surface-normals", &surfaceNormals, {{"gradient", SurfaceNormals::Gradient}, {"facet", SurfaceNormals::Facet}},
@@ -344,7 +349,9 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
   RenderJob job;
   VolumeOctreeOptions octree;
   octree.prefilter = o.prefilter;
-  Scene scene = loadOrBuild(o.input, out, err, &job.buildMs, octree);
+  // A scene file is read paged: its bricks come through a cache of --memory megabytes.
+  const uint64_t cacheBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
+  Scene scene = loadOrBuild(o.input, out, err, &job.buildMs, octree, SceneLoadOptions{false, cacheBytes});
   const Volume& v = scene.volume;
   const PatientFrame& frame = v.frame();
   // What is shown: the transfer function from a file, a preset, or chosen for the data's range.
@@ -390,7 +397,7 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
   } else {
     const ViewDirection direction =
         o.orbit ? orbitDirection(o.orbit->x, o.orbit->y) : viewDirection(o.view.value_or(AnatomicalView::Anterior));
-    std::vector<glm::dvec3> points = visiblePoints(v, scene.octree, look.tf, look.iso);
+    std::vector<glm::dvec3> points = visiblePoints(v, scene.octree, look.tf, look.iso, scene.knots.get());
     if (points.empty())  // nothing visible: the data's box
       for (int c = 0; c < 8; ++c) points.push_back(frame.toPatient(glm::dvec3(c & 1, (c >> 1) & 1, (c >> 2) & 1) * v.extentMm()));
     camera = fitCamera(points, direction, o.fov, o.ortho, pixels.x, pixels.y);

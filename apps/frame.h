@@ -77,7 +77,9 @@ void printWarnings(const Volume& v, std::ostream& err);
 
 /// Loads a scene file, or reads a volume and builds its octree (printing what it did on @p out,
 /// warnings on @p err).
-Scene loadOrBuild(const VolumeInput& in, std::ostream& out, std::ostream& err, double* buildMs, const VolumeOctreeOptions& options = {});
+/// A scene file is loaded as @p load says (paged or whole).
+Scene loadOrBuild(const VolumeInput& in, std::ostream& out, std::ostream& err, double* buildMs, const VolumeOctreeOptions& options = {},
+                  const SceneLoadOptions& load = {});
 
 /// The camera as JSON (patient space, LPS mm): space, eye, center, up, fov_deg, ortho,
 /// ortho_height, width, height. --stats records it; --camera-file reads it back.
@@ -113,6 +115,7 @@ struct RenderOptions {
   Quality quality;
   std::string budgetText;  // as given, for messages
   bool prefilter = true;
+  std::optional<double> memoryMb;  // --memory: a scene's block cache (default: an eighth of physical memory)
   int repeat = 1;  // render: frames of the same view; brick textures are kept, the fastest counts
 
   /// Checks what the flags say together; empty when valid, else a message naming the flag.

@@ -8,6 +8,7 @@
 #include <map>
 #include <ostream>
 
+#include "hybrid_octree/knot_store.h"
 #include "volume/error.h"
 #include "volume/file_util.h"
 #include "volume/memory_limit.h"
@@ -26,6 +27,8 @@ constexpr uint32_t tag(const char (&s)[5]) {
 constexpr uint32_t kVolumeTag = tag("VOLM");
 constexpr uint32_t kOctreeTag = tag("VOCT");
 constexpr uint32_t kSurfaceTag = tag("SURF");
+constexpr uint32_t kBlocksTag = tag("KDAT");
+constexpr uint32_t kIndexTag = tag("KIDX");
 
 // Appends plain values and arrays to a byte buffer.
 class Writer {
@@ -198,54 +201,63 @@ void putSurfaceNodes(Writer* w, const std::vector<SurfaceNode>& nodes) {
 }  // namespace
 
 void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceOctree* surface) {
-  Writer head, tail;
-  head.put(volume.dims());
-  head.put(volume.spacing());
-  head.put(uint32_t(volume.sourceType()));
-  head.put(uint32_t(volume.storedType()));
-  head.put(uint64_t(volume.voxelCount()));
-  const uint8_t* samples = volume.visitSamples([](const auto* d) { return reinterpret_cast<const uint8_t*>(d); });
-  tail.put(volume.frame().direction);
-  tail.put(volume.frame().origin);
-  tail.put(uint8_t(volume.frame().assumed));
-  tail.put(uint64_t(volume.info().size()));
+  Writer vol;
+  vol.put(volume.dims());
+  vol.put(volume.spacing());
+  vol.put(uint32_t(volume.sourceType()));
+  vol.put(uint32_t(volume.storedType()));
+  vol.put(uint64_t(volume.voxelCount()));
+  vol.put(volume.minValue());
+  vol.put(volume.maxValue());
+  vol.put(volume.frame().direction);
+  vol.put(volume.frame().origin);
+  vol.put(uint8_t(volume.frame().assumed));
+  vol.put(uint64_t(volume.info().size()));
   for (const auto& [key, value] : volume.info()) {
-    tail.putArray(std::vector<char>(key.begin(), key.end()));
-    tail.putArray(std::vector<char>(value.begin(), value.end()));
-  }
-  const auto whole = [](uint32_t t, const Writer& w) { return Section{t, {{w.bytes().data(), w.bytes().size()}}}; };
-  std::vector<Section> sections = {Section{kVolumeTag,
-                                           {{head.bytes().data(), head.bytes().size()},
-                                            {samples, volume.voxelCount() * scalarSize(volume.storedType())},
-                                            {tail.bytes().data(), tail.bytes().size()}}}};
-  const uint64_t volumeHash = sections[0].hash();
-  Writer oct;
-  oct.put(volumeHash);
-  oct.put(int32_t(octree.leafEdge()));
-  oct.put(uint32_t(octree.prefiltered()));
-  oct.putArray(octree.nodes());
-  oct.putArray(octree.errorData());
-  sections.push_back(whole(kOctreeTag, oct));
-  Writer surf;
-  if (surface) {
-    surf.put(volumeHash);
-    surf.put(surface->isovalue());
-    surf.put(uint64_t(surface->cellCount()));
-    surf.put(int32_t(surface->mergeEdge()));
-    putSurfaceNodes(&surf, surface->nodes());
-    sections.push_back(whole(kSurfaceTag, surf));
+    vol.putArray(std::vector<char>(key.begin(), key.end()));
+    vol.putArray(std::vector<char>(value.begin(), value.end()));
   }
   writeFileAtomically(path, [&](std::ostream& out) {
-    out.write(kMagic, sizeof kMagic);
-    const uint32_t header[2] = {kSceneVersion, uint32_t(sections.size())};
-    out.write(reinterpret_cast<const char*>(header), sizeof header);
-    for (const Section& section : sections) {
-      const uint64_t size = section.size();
-      const uint32_t c = section.crc();
-      out.write(reinterpret_cast<const char*>(&section.tag), 4);
+    auto sectionHeader = [&](uint32_t t, uint64_t size, uint32_t c) {
+      out.write(reinterpret_cast<const char*>(&t), 4);
       out.write(reinterpret_cast<const char*>(&size), 8);
       out.write(reinterpret_cast<const char*>(&c), 4);
-      for (const auto& [data, n] : section.pieces) out.write(reinterpret_cast<const char*>(data), std::streamsize(n));
+    };
+    auto write = [&](uint32_t t, const std::vector<uint8_t>& bytes) {
+      const Section section{t, {{bytes.data(), bytes.size()}}};
+      sectionHeader(t, section.size(), section.crc());
+      out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+    };
+    out.write(kMagic, sizeof kMagic);
+    const uint32_t header[2] = {kSceneVersion, surface ? 5u : 4u};
+    out.write(reinterpret_cast<const char*>(header), sizeof header);
+    write(kVolumeTag, vol.bytes());
+    // The blocks stream out as they are compressed; their section's size is known at its end.
+    const std::streampos sizeAt = out.tellp() + std::streamoff(4);
+    sectionHeader(kBlocksTag, 0, 0);
+    const std::streampos start = out.tellp();
+    const std::vector<uint8_t> indexBytes = writeKnotStore(volume, octree, out);
+    const uint64_t blocksSize = uint64_t(out.tellp() - start);
+    out.seekp(sizeAt);
+    out.write(reinterpret_cast<const char*>(&blocksSize), 8);
+    out.seekp(0, std::ios::end);
+    write(kIndexTag, indexBytes);
+    const uint64_t volumeHash = Section{0, {{vol.bytes().data(), vol.bytes().size()}, {indexBytes.data(), indexBytes.size()}}}.hash();
+    Writer oct;
+    oct.put(volumeHash);
+    oct.put(int32_t(octree.leafEdge()));
+    oct.put(uint32_t(octree.prefiltered()));
+    oct.putArray(octree.nodes());
+    oct.putArray(octree.errorData());
+    write(kOctreeTag, oct.bytes());
+    if (surface) {
+      Writer surf;
+      surf.put(volumeHash);
+      surf.put(surface->isovalue());
+      surf.put(uint64_t(surface->cellCount()));
+      surf.put(int32_t(surface->mergeEdge()));
+      putSurfaceNodes(&surf, surface->nodes());
+      write(kSurfaceTag, surf.bytes());
     }
   });
 }
@@ -256,7 +268,7 @@ bool isSceneFile(const std::string& path) {
   return in.read(m, 8) && std::memcmp(m, kMagic, 8) == 0;
 }
 
-Scene loadScene(const std::string& path) {
+Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
   const InputFile file(path);
   uint8_t top[16] = {};
   if (file.size() < 16) HYB_THROW(IoError, path, ": not a hybrid-octree scene file (expected magic HYBOCT)");
@@ -274,6 +286,9 @@ Scene loadScene(const std::string& path) {
   if (version == 4)
     HYB_THROW(IoError, path, ": scene file version 4 holds its samples as float (this build reads version ", kSceneVersion,
               ", samples in their own type); build the scene again from its volume with hybrid-octree build");
+  if (version == 5)
+    HYB_THROW(IoError, path, ": scene file version 5 has no knot store (this build reads version ", kSceneVersion,
+              ", which pages its bricks); build the scene again from its volume with hybrid-octree build");
   if (version != kSceneVersion)
     HYB_THROW(IoError, path, ": scene file version ", version, " unsupported (this build reads version ", kSceneVersion, ")");
   struct Entry {
@@ -316,17 +331,14 @@ Scene loadScene(const std::string& path) {
   Scene scene;
   uint64_t volumeHash = 0;
   {
-    // The samples are read straight into the volume's array; head and tail around them are small.
-    const Entry& e = entry(kVolumeTag, "volume");
-    constexpr uint64_t kHead = sizeof(glm::ivec3) + sizeof(glm::dvec3) + 4 + 4 + 8;
-    if (e.size < kHead) HYB_THROW(IoError, path, ": volume section too short (", e.size, " bytes; expected at least ", kHead, ")");
-    std::vector<uint8_t> head(kHead);
-    file.read(e.offset, kHead, head.data());
-    Reader r(head.data(), head.size(), path);
+    const Entry& volumeEntry = entry(kVolumeTag, "volume");
+    const std::vector<uint8_t> vb = payload(volumeEntry);
+    Reader r(vb.data(), vb.size(), path);
     const glm::ivec3 dims = r.get<glm::ivec3>();
     const glm::dvec3 spacing = r.get<glm::dvec3>();
     const uint32_t type = r.get<uint32_t>(), stored = r.get<uint32_t>();
     const uint64_t samples = r.get<uint64_t>();
+    const float lo = r.get<float>(), hi = r.get<float>();
     if (type > uint32_t(ScalarType::Float64)) HYB_THROW(IoError, path, ": unknown sample type code ", type);
     const ScalarType storedType = ScalarType(stored);
     if (stored > uint32_t(ScalarType::Float64) || storageTypeFor(storedType, 0, 0) != storedType)
@@ -334,34 +346,37 @@ Scene loadScene(const std::string& path) {
     validateDims(dims, path);
     if (samples != uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z))
       HYB_THROW(IoError, path, ": volume section holds ", samples, " samples for dims ", dims.x, "x", dims.y, "x", dims.z);
-    const uint64_t bytes = samples * scalarSize(storedType);
-    if (bytes > e.size - kHead)
-      HYB_THROW(IoError, path, ": truncated volume section (", bytes, " bytes of samples declared, ", e.size - kHead, " present)");
-    checkMemory(path, bytes, "the scene's samples");
-    SampleArray array = detail::allocateSamples(storedType, size_t(samples));
-    uint8_t* data = std::visit([](auto& v) { return reinterpret_cast<uint8_t*>(v.data()); }, array);
-    file.read(e.offset + kHead, bytes, data);
-    std::vector<uint8_t> tail(size_t(e.size - kHead - bytes));
-    file.read(e.offset + kHead + bytes, tail.size(), tail.data());
-    const Section section{kVolumeTag, {{head.data(), head.size()}, {data, size_t(bytes)}, {tail.data(), tail.size()}}};
-    if (section.crc() != e.crc) corrupt(e);
-    volumeHash = section.hash();
-    scene.volume = Volume(dims, spacing, ScalarType(type), std::move(array), path);
-    Reader t(tail.data(), tail.size(), path);
-    const glm::dmat3 direction = t.get<glm::dmat3>();
-    const glm::dvec3 origin = t.get<glm::dvec3>();
+    scene.volume = Volume::withoutSamples(dims, spacing, ScalarType(type), storedType, lo, hi, path);
+    const glm::dmat3 direction = r.get<glm::dmat3>();
+    const glm::dvec3 origin = r.get<glm::dvec3>();
     PatientFrame frame = makePatientFrame(direction, origin, path);
     if (glm::length(frame.direction[0] - direction[0]) + glm::length(frame.direction[1] - direction[1]) +
             glm::length(frame.direction[2] - direction[2]) > 1e-9)
       HYB_THROW(IoError, path, ": corrupt scene file (the volume's direction matrix is not orthonormal)");
-    const uint8_t assumed = t.get<uint8_t>();
+    const uint8_t assumed = r.get<uint8_t>();
     if (assumed > 1) HYB_THROW(IoError, path, ": orientation flag ", int(assumed), " invalid (expected 0 or 1)");
     frame.assumed = assumed == 1;
     scene.volume.setFrame(frame);
-    const uint64_t infoCount = t.get<uint64_t>();
+    const uint64_t infoCount = r.get<uint64_t>();
     for (uint64_t i = 0; i < infoCount; ++i) {
-      const std::vector<char> key = t.getArray<char>(), value = t.getArray<char>();
+      const std::vector<char> key = r.getArray<char>(), value = r.getArray<char>();
       scene.volume.addInfo(std::string(key.begin(), key.end()), std::string(value.begin(), value.end()));
+    }
+    // The knot store: its index is checked here, each block when it is read.
+    const Entry& blocks = entry(kBlocksTag, "knot store data");
+    const std::vector<uint8_t> index = payload(entry(kIndexTag, "knot store index"));
+    volumeHash = Section{0, {{vb.data(), vb.size()}, {index.data(), index.size()}}}.hash();
+    scene.knots = KnotStore::open(path, dims, spacing, index, blocks.offset, blocks.size, options.cacheBytes);
+    if (scene.knots->storedType() != storedType)
+      HYB_THROW(IoError, path, ": the knot store holds ", scalarName(scene.knots->storedType()), " samples for a volume of ", scalarName(storedType));
+    if (options.samples) {
+      checkMemory(path, samples * scalarSize(storedType), "the scene's samples");
+      try {
+        scene.volume.attachSamples(scene.knots->samples(), path);
+      } catch (const ValueError& e) {
+        HYB_THROW(IoError, e.what(), " (corrupt scene file: its knot store disagrees with its volume section)");
+      }
+      scene.knots.reset();
     }
   }
   // Sections spliced from another scene of the same size would otherwise load and show the wrong data.
@@ -378,9 +393,16 @@ Scene loadScene(const std::string& path) {
     if (prefiltered > 1) HYB_THROW(IoError, path, ": octree knot mode ", prefiltered, " unknown (expected 0 or 1)");
     std::vector<OctreeNode> nodes = r.getArray<OctreeNode>();
     std::vector<float> errors = r.getArray<float>();
+    // Paged, the octree's prefiltered knots are the store's; in memory they are rebuilt, and the
+    // octree is checked against the samples.
+    const bool inMemory = scene.volume.hasSamples();
     scene.octree = VolumeOctree::fromParts(scene.volume.dims(), leafEdge, std::move(nodes), std::move(errors), path,
-                                           prefiltered ? &scene.volume : nullptr);
-    scene.octree.validateAgainst(scene.volume, path);
+                                           prefiltered && inMemory ? &scene.volume : nullptr);
+    if (inMemory) scene.octree.validateAgainst(scene.volume, path);
+    // Bricks read the spacings 1 … the root's edge: the store must hold each.
+    if (scene.knots && scene.knots->levels().size() != size_t(scene.octree.depth()) + 1)
+      HYB_THROW(IoError, path, ": the knot store holds ", scene.knots->levels().size(), " spacings for an octree of depth ", scene.octree.depth(),
+                " (expected ", scene.octree.depth() + 1, ")");
   }
   if (const auto it = entries.find(kSurfaceTag); it != entries.end()) {
     const std::vector<uint8_t> b = payload(it->second);

@@ -2,18 +2,22 @@
 //
 // Layout (little-endian): magic "HYBOCT\x1a\n", u32 version, u32 section count, then per section
 // a u32 tag, u64 payload size, u32 CRC-32 of the payload, and the payload. Sections: VOLM (volume:
-// dims, spacing, source type, stored type, sample count, the samples in the stored type, patient
-// frame, whether the frame was assumed, info), VOCT (Volume Octree), SURF (Surface Octree,
-// optional). VOCT and SURF begin with a 64-bit hash of the VOLM payload they were built from. The
-// bytes are deterministic: a scene saved twice is the same file. Readers reject a foreign magic,
-// another version (files before version 5: rebuilding them is the safe answer), truncation, CRC
-// mismatches, sections of another volume, and an octree whose min/max disagree with the samples;
+// dims, spacing, source type, stored type, sample count, value range, patient frame, whether the
+// frame was assumed, info), KDAT (the knot store's compressed blocks, knot_store.h; its section CRC
+// is 0, each block has its own), KIDX (the store's levels and block index), VOCT (Volume Octree),
+// SURF (Surface Octree, optional). VOCT and SURF begin with a 64-bit hash of the VOLM and KIDX
+// payloads they were built from (KIDX holds every block's CRC). The bytes are deterministic: a
+// scene saved twice is the same file. Readers reject a foreign magic, another version (files
+// before version 6: rebuilding them is the safe answer), truncation, CRC mismatches, sections of
+// another volume, and, when the samples are loaded, an octree whose min/max disagree with them;
 // unknown sections are skipped.
 #pragma once
 
+#include <memory>
 #include <optional>
 #include <string>
 
+#include "hybrid_octree/knot_store.h"
 #include "hybrid_octree/surface_octree.h"
 #include "hybrid_octree/volume_octree.h"
 #include "volume/volume.h"
@@ -23,14 +27,26 @@ namespace hyb {
 /// Current scene-file version.
 // 2: the octree records its knot mode; 3: the volume its patient frame and info; 4: the octree
 // sections the volume's content hash, surface nodes field by field (deterministic bytes); 5: the
-// samples in the type the volume holds them in, and whether its orientation was assumed.
-inline constexpr uint32_t kSceneVersion = 5;
+// samples in the type the volume holds them in, and whether its orientation was assumed; 6: the
+// samples in a paged, compressed knot store.
+inline constexpr uint32_t kSceneVersion = 6;
 
 /// A loaded scene: the volume, its Volume Octree and, when built with an isovalue, its Surface Octree.
 struct Scene {
-  Volume volume;
+  Volume volume;  ///< without its samples when loaded paged (see knots)
   VolumeOctree octree;
   std::optional<SurfaceOctree> surface;
+  /// Loaded paged: where the bricks read their knots, and the samples come from when a frame
+  /// needs them all (Volume::attachSamples). Null when the samples were loaded.
+  std::shared_ptr<KnotStore> knots;
+};
+
+/// How a scene is loaded.
+struct SceneLoadOptions {
+  /// Read every sample into the volume (true), or leave them in the file's knot store (paged).
+  bool samples = true;
+  /// Paged: bytes of decompressed blocks the store's cache keeps (0: no bound).
+  uint64_t cacheBytes = 0;
 };
 
 /// Writes @p volume, @p octree and, if given, @p surface to @p path atomically.
@@ -40,7 +56,7 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
 
 /// Reads a scene written by saveScene.
 /// @throw IoError naming @p path for foreign, older, newer, truncated or corrupt files.
-Scene loadScene(const std::string& path);
+Scene loadScene(const std::string& path, const SceneLoadOptions& options = SceneLoadOptions());
 
 /// True when @p path starts with the scene-file magic.
 bool isSceneFile(const std::string& path);

@@ -171,9 +171,13 @@ KnotPyramid::KnotPyramid(const Volume& volume) : mDims(volume.dims()) {
   }
 }
 
-float KnotPyramid::at(int s, const glm::ivec3& p) const {
+const KnotPyramid::Level& KnotPyramid::level(int s) const {
   HYB_DCHECK(covers(s) && std::has_single_bit(unsigned(s)));
-  const Level& level = mLevels[size_t(std::countr_zero(unsigned(s / kPrefilterSpacing)))];
+  return mLevels[size_t(std::countr_zero(unsigned(s / kPrefilterSpacing)))];
+}
+
+float KnotPyramid::at(int s, const glm::ivec3& p) const {
+  const Level& level = this->level(s);
   glm::ivec3 j;
   for (int a = 0; a < 3; ++a) {
     HYB_DCHECK(p[a] >= 0 && p[a] < mDims[a] && (p[a] % s == 0 || p[a] == mDims[a] - 1));

@@ -50,6 +50,14 @@ class KnotPyramid {
   float at(int s, const glm::ivec3& p) const;
   /// What a lattice of spacing @p s holds at its knot @p p: at(s, p) where covered, else the sample.
   float knotValue(const Volume& v, int s, const glm::ivec3& p) const { return covers(s) ? at(s, p) : v.at(p.x, p.y, p.z); }
+  /// The stored 16-bit code of knot index @p j (per axis, within the level's knot counts) of
+  /// spacing @p s, and the level's mapping: at() = offset(s) + scale(s) · code. Requires covers(s).
+  uint16_t code(int s, const glm::ivec3& j) const {
+    const Level& l = level(s);
+    return l.codes[size_t(j.x) + size_t(l.count.x) * (size_t(j.y) + size_t(l.count.y) * size_t(j.z))];
+  }
+  float offset(int s) const { return level(s).offset; }
+  float scale(int s) const { return level(s).scale; }
   size_t bytesUsed() const;
 
  private:
@@ -59,6 +67,7 @@ class KnotPyramid {
     float offset = 0.0f, scale = 0.0f;  // value = offset + scale · code
     std::vector<uint16_t> codes;
   };
+  const Level& level(int s) const;
   glm::ivec3 mDims{0};
   std::vector<Level> mLevels;  // spacing kPrefilterSpacing·2^i at index i
 };

@@ -20,7 +20,7 @@ void VolumeKnots::read(int s, const glm::ivec3& lo, const glm::ivec3& count, flo
       } else {
         for (int i = 0; i < count.x; ++i) {
           values[i] = mOctree.knotValue(mVolume, s, glm::ivec3(xs[size_t(i)], y, z));
-          gradients[i] = mVolume.gradientAt(xs[size_t(i)], y, z);
+          gradients[i] = bfloat16Rounded(mVolume.gradientAt(xs[size_t(i)], y, z));
         }
         gradients += count.x;
       }

@@ -4,19 +4,40 @@
 // (VolumeKnots), and the paged knot store of a scene file (KnotStore). A brick made from either is
 // bit-identical, because both hand out the same numbers: the knots' values, and at spacings of two
 // voxels or more the volume's own gradient at each knot (a coarse brick shades with the data's
-// gradients, as a simplified mesh keeps its normals; docs/multires.md). At spacing 1 the gradient
-// is computed here from the knots, as Volume::gradientAt does.
+// gradients, as a simplified mesh keeps its normals; docs/multires.md) rounded to bfloat16 (8
+// bits of mantissa, float's range: finer than the 8-bit texels it ends in, and half the store's
+// bytes of float). At spacing 1 the gradient is computed here from the knots, as
+// Volume::gradientAt does.
 #pragma once
 
 #include <glm/glm.hpp>
 
 #include <cstdint>
+#include <cstring>
 #include <vector>
 
 #include "hybrid_octree/volume_octree.h"
 #include "volume/volume.h"
 
 namespace hyb {
+
+/// @p x rounded to the nearest bfloat16 (ties to even; float's top 16 bits), the largest finite
+/// one where rounding would reach infinity.
+inline uint16_t toBfloat16(float x) {
+  uint32_t u;
+  std::memcpy(&u, &x, 4);
+  const uint32_t r = (u + 0x7fffu + ((u >> 16) & 1u)) >> 16;
+  return uint16_t((r & 0x7f80u) == 0x7f80u ? (u >> 16 & 0x8000u) | 0x7f7fu : r);
+}
+inline float fromBfloat16(uint16_t b) {
+  const uint32_t u = uint32_t(b) << 16;
+  float x;
+  std::memcpy(&x, &u, 4);
+  return x;
+}
+inline glm::vec3 bfloat16Rounded(const glm::vec3& g) {
+  return {fromBfloat16(toBfloat16(g.x)), fromBfloat16(toBfloat16(g.y)), fromBfloat16(toBfloat16(g.z))};
+}
 
 /// The knot values of a sample grid at every power-of-two spacing.
 class KnotSource {
@@ -28,7 +49,8 @@ class KnotSource {
   virtual glm::dvec3 spacing() const = 0;
   /// Writes the knots of spacing @p s with indices lo … lo + count − 1 per axis (inside
   /// knotCounts(dims(), s)) to @p values, x fastest, and for s ≥ 2 the volume's gradient at each
-  /// (Volume::gradientAt, data units per mm) to @p gradients (null for s = 1). Thread-safe.
+  /// (Volume::gradientAt, data units per mm, bfloat16Rounded) to @p gradients (null for s = 1).
+  /// Thread-safe.
   /// @throw IoError when a paged source cannot read them (a damaged file, named with its block).
   virtual void read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const = 0;
 };

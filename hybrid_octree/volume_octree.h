@@ -120,6 +120,8 @@ class VolumeOctree {
   /// The value a lattice of spacing @p step holds at its knot @p p (each coordinate a multiple of
   /// step or the grid's last index): the sample, or the prefiltered value.
   float knotValue(const Volume& v, int step, const glm::ivec3& p) const { return mKnots.knotValue(v, step, p); }
+  /// The prefiltered knots (empty unless prefiltered()).
+  const KnotPyramid& knots() const { return mKnots; }
   /// The trilinear interpolation at voxel @p p of @p at(knot) over the position-clamped lattice of
   /// spacing @p step whose knots are the multiples of step (and the grid's last index): with the
   /// knots' values, what a brick of that spacing shows there.

@@ -38,8 +38,8 @@ float shade(const glm::vec3& g, const glm::vec3& dir) {
 }  // namespace
 
 BrickImageError::BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-                                 const glm::dvec4& kept, const VolumeOfInterest* voi)
-    : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera), mKept(kept), mVoi(voi), mLayout(volume.minValue(), volume.maxValue(), tf) {
+                                 const glm::dvec4& kept, const VolumeOfInterest* voi, const KnotSource* knots)
+    : mVolume(volume), mOctree(octree), mKnots(knots), mTf(tf), mCamera(camera), mKept(kept), mVoi(voi), mLayout(volume.minValue(), volume.maxValue(), tf) {
   mTable.resize(LutLayout::kSize);
   for (int k = 0; k < LutLayout::kSize; ++k) {
     const glm::vec4 c = tf.lookup(mLayout.value(k));
@@ -171,7 +171,8 @@ double BrickImageError::measure(const OctreeNode& n, int p) const {
   if (step <= 1) return 0.0;
   const KnotLattice L = mOctree.lattice(n, p);
   // The level's knots: value and shading gradient, as the brick's texels hold them.
-  const std::vector<glm::vec4> both = latticeKnots(VolumeKnots(mVolume, mOctree), L);
+  const VolumeKnots inMemory(mVolume, mOctree);
+  const std::vector<glm::vec4> both = latticeKnots(mKnots ? *mKnots : inMemory, L);
   std::vector<float> knots(L.count());
   std::vector<glm::vec3> gradients(L.count());
   for (size_t i = 0; i < both.size(); ++i) {

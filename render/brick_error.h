@@ -22,6 +22,7 @@
 #include <utility>
 #include <vector>
 
+#include "hybrid_octree/knot_source.h"
 #include "hybrid_octree/volume_octree.h"
 #include "render/camera.h"
 #include "render/transfer_function.h"
@@ -34,10 +35,11 @@ class BrickImageError {
  public:
   /// Prepares one view: the transfer function's table and the transmittance grid. Only the half
   /// space @p kept (a·x + d ≥ 0, world mm; a cutting plane's CutPlane::keptSide) is drawn, and
-  /// @p voi, if any, scales opacity as the renderers do. @p volume, @p octree and @p voi must
-  /// outlive this object (the transfer function and the camera are copied).
+  /// @p voi, if any, scales opacity as the renderers do. Bricks read their knots from @p knots
+  /// (none: @p volume and @p octree). @p volume (with its samples), @p octree, @p voi and @p knots
+  /// must outlive this object (the transfer function and the camera are copied).
   BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-                  const glm::dvec4& kept = glm::dvec4(0, 0, 0, 1), const VolumeOfInterest* voi = nullptr);
+                  const glm::dvec4& kept = glm::dvec4(0, 0, 0, 1), const VolumeOfInterest* voi = nullptr, const KnotSource* knots = nullptr);
 
   /// The image error of node @p node at level @p p (0 where the level is exact: one texel per
   /// voxel). Memoized: each brick is measured once.
@@ -68,6 +70,7 @@ class BrickImageError {
 
   const Volume& mVolume;
   const VolumeOctree& mOctree;
+  const KnotSource* mKnots;
   const TransferFunction mTf;
   const Camera mCamera;
   glm::vec4 mKept;

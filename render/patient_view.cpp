@@ -1,10 +1,13 @@
 #include "render/patient_view.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
+#include <limits>
 
 #include "volume/error.h"
+#include "volume/parallel.h"
 
 namespace hyb {
 
@@ -116,59 +119,88 @@ void zoomCamera(Camera* camera, double zoom) {
 // which is all a camera fit depends on: the first and last visible cell of every row of cells
 // along x carry that hull. The octree only says where to look: rows are scanned inward from each
 // end through the leaves whose range can be visible, and stop at the first visible cell.
-std::vector<glm::dvec3> visiblePoints(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, std::optional<float> iso) {
+std::vector<glm::dvec3> visiblePoints(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, std::optional<float> iso,
+                                      const KnotSource* knots) {
   auto visible = [&](float lo, float hi) { return tf.maxAlpha(lo, hi) > 0.0f || (iso && lo < *iso && *iso <= hi); };
   const glm::ivec3 dims = volume.dims(), cells = glm::max(dims - 1, glm::ivec3(1));
   const int leaf = octree.leafEdge();
-  const glm::ivec3 grid = (cells + leaf - 1) / leaf;
-  // Which leaves can hold a visible cell.
-  std::vector<char> leafVisible(size_t(grid.x) * size_t(grid.y) * size_t(grid.z), 0);
+  // The leaves that can hold a visible cell.
+  std::vector<glm::ivec3> leaves;
   std::vector<uint32_t> stack{0};
   while (!stack.empty()) {
     const OctreeNode& n = octree.nodes()[stack.back()];
     stack.pop_back();
     if (!visible(n.minValue, n.maxValue)) continue;  // nor is any node inside it
     if (n.isLeaf()) {
-      const glm::ivec3 lo = glm::ivec3(n.origin) / leaf, hi = glm::min((glm::ivec3(n.origin) + octree.edge(n) + leaf - 1) / leaf, grid);
+      const glm::ivec3 lo = glm::ivec3(n.origin) / leaf, hi = glm::min((glm::ivec3(n.origin) + octree.edge(n) + leaf - 1) / leaf, (cells + leaf - 1) / leaf);
       for (int z = lo.z; z < hi.z; ++z)
         for (int y = lo.y; y < hi.y; ++y)
-          for (int x = lo.x; x < hi.x; ++x) leafVisible[size_t(x) + size_t(grid.x) * (size_t(y) + size_t(grid.y) * size_t(z))] = 1;
+          for (int x = lo.x; x < hi.x; ++x) leaves.emplace_back(x, y, z);
       continue;
     }
     for (int slot = 0; slot < 8; ++slot)
       if (n.childMask & (1u << slot)) stack.push_back(childIndex(n, slot));
   }
-  // The range of cell (i, j, k): its corners, clamped to the grid (a grid one sample thick has
-  // cells of one sample along that axis).
-  auto cellVisible = [&](int i, int j, int k) {
-    float lo = 1e30f, hi = -1e30f;
-    for (int c = 0; c < 8; ++c) {
-      const float v = volume.at(std::min(i + (c & 1), dims.x - 1), std::min(j + (c >> 1 & 1), dims.y - 1), std::min(k + (c >> 2 & 1), dims.z - 1));
-      lo = std::min(lo, v);
-      hi = std::max(hi, v);
+  // Per row of cells (j, k), the first and last visible cell: each leaf's, read from its samples
+  // alone (a paged scene reads the blocks of the visible leaves), then the smallest and largest.
+  const VolumeKnots inMemory(volume, octree);
+  const KnotSource& source = knots ? *knots : inMemory;
+  const size_t rowCount = size_t(cells.y) * size_t(cells.z);
+  std::vector<int> first(rowCount, std::numeric_limits<int>::max()), last(rowCount, -1);
+  ParallelFailure failure;
+#pragma omp parallel
+  {
+    std::vector<float> box;
+    std::vector<std::array<int, 3>> found;  // row, first, last
+#pragma omp for schedule(dynamic, 16)
+    for (size_t l = 0; l < leaves.size(); ++l)
+      failure.run([&] {
+        const glm::ivec3 lo = leaves[l] * leaf, hi = glm::min(lo + leaf, cells);  // cells [lo, hi)
+        const glm::ivec3 top = glm::min(hi, dims - 1), count = top - lo + 1;          // samples [lo, top]
+        box.resize(size_t(count.x) * size_t(count.y) * size_t(count.z));
+        source.read(1, lo, count, box.data(), nullptr);
+        auto at = [&](int i, int j, int k) {
+          return box[size_t(std::min(i, top.x) - lo.x) + size_t(count.x) * (size_t(std::min(j, top.y) - lo.y) + size_t(count.y) * size_t(std::min(k, top.z) - lo.z))];
+        };
+        // The range of cell (i, j, k): its corners, clamped to the grid (a grid one sample thick
+        // has cells of one sample along that axis).
+        auto cellVisible = [&](int i, int j, int k) {
+          float a = 1e30f, b = -1e30f;
+          for (int c = 0; c < 8; ++c) {
+            const float v = at(i + (c & 1), j + (c >> 1 & 1), k + (c >> 2 & 1));
+            a = std::min(a, v);
+            b = std::max(b, v);
+          }
+          return visible(a, b);
+        };
+        for (int k = lo.z; k < hi.z; ++k)
+          for (int j = lo.y; j < hi.y; ++j) {
+            int f = -1, e = -1;
+            for (int i = lo.x; i < hi.x && f < 0; ++i)
+              if (cellVisible(i, j, k)) f = i;
+            if (f < 0) continue;
+            for (int i = hi.x - 1; i >= f && e < 0; --i)
+              if (cellVisible(i, j, k)) e = i;
+            found.push_back({j + cells.y * k, f, e});
+          }
+      });
+#pragma omp critical
+    for (const auto& [row, f, e] : found) {
+      first[size_t(row)] = std::min(first[size_t(row)], f);
+      last[size_t(row)] = std::max(last[size_t(row)], e);
     }
-    return visible(lo, hi);
-  };
-  std::vector<std::vector<glm::dvec3>> rows(size_t(cells.z));
-#pragma omp parallel for schedule(dynamic)
+  }
+  failure.rethrow();
+  std::vector<glm::dvec3> points;
   for (int k = 0; k < cells.z; ++k)
     for (int j = 0; j < cells.y; ++j) {
-      const char* leaves = &leafVisible[size_t(grid.x) * (size_t(j / leaf) + size_t(grid.y) * size_t(k / leaf))];
-      int first = -1, last = -1;
-      for (int lx = 0; lx < grid.x && first < 0; ++lx)
-        for (int i = lx * leaf; leaves[lx] && i < std::min((lx + 1) * leaf, cells.x) && first < 0; ++i)
-          if (cellVisible(i, j, k)) first = i;
-      if (first < 0) continue;
-      for (int lx = grid.x - 1; lx >= 0 && last < 0; --lx)
-        for (int i = std::min((lx + 1) * leaf, cells.x) - 1; leaves[lx] && i >= lx * leaf && last < 0; --i)
-          if (cellVisible(i, j, k)) last = i;
-      const int x0 = first, x1 = std::min(last + 1, dims.x - 1), y1 = std::min(j + 1, dims.y - 1), z1 = std::min(k + 1, dims.z - 1);
+      const size_t row = size_t(j) + size_t(cells.y) * size_t(k);
+      if (last[row] < 0) continue;
+      const int x0 = first[row], x1 = std::min(last[row] + 1, dims.x - 1), y1 = std::min(j + 1, dims.y - 1), z1 = std::min(k + 1, dims.z - 1);
       for (const int x : {x0, x1})
         for (const int y : {j, y1})
-          for (const int z : {k, z1}) rows[size_t(k)].push_back(volume.frame().toPatient(glm::dvec3(x, y, z) * volume.spacing()));
+          for (const int z : {k, z1}) points.push_back(volume.frame().toPatient(glm::dvec3(x, y, z) * volume.spacing()));
     }
-  std::vector<glm::dvec3> points;
-  for (const std::vector<glm::dvec3>& row : rows) points.insert(points.end(), row.begin(), row.end());
   return points;
 }
 

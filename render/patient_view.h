@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "hybrid_octree/knot_source.h"
 #include "hybrid_octree/volume_octree.h"
 #include "render/camera.h"
 #include "render/transfer_function.h"
@@ -55,9 +56,10 @@ void zoomCamera(Camera* camera, double zoom);
 /// samples) whose value range it gives an opacity or, with an isovalue, that the surface crosses,
 /// enough of them to carry their convex hull (the first and last such cell of each row). The
 /// same anatomy stored in another order gives the same hull, hence the same fitCamera. Empty when
-/// nothing is visible.
+/// nothing is visible. The samples are read from @p knots where given (a paged scene), else from
+/// @p volume; only those of the leaves whose range can be visible are read.
 std::vector<glm::dvec3> visiblePoints(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf,
-                                      std::optional<float> iso = std::nullopt);
+                                      std::optional<float> iso = std::nullopt, const KnotSource* knots = nullptr);
 
 /// The grid-frame camera that sees what @p patientCamera sees in the patient.
 Camera toGridCamera(const Camera& patientCamera, const PatientFrame& frame);

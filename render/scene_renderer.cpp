@@ -99,7 +99,15 @@ std::string Quality::validate() const {
   return limits.validate();
 }
 
-SceneRenderer::SceneRenderer(Scene scene, const Options& options) : mScene(std::move(scene)), mOptions(options) {}
+SceneRenderer::SceneRenderer(Scene scene, const Options& options) : mScene(std::move(scene)), mOptions(options) {
+  HYB_CHECK(mScene.volume.hasSamples() || mScene.knots);
+}
+
+// A paged scene's samples are read whole only by what needs every sample: an isosurface's
+// extraction and normals, the reference ray tracer and the image errors a budget ranks by.
+void SceneRenderer::ensureSamples() {
+  if (!mScene.volume.hasSamples()) mScene.volume.attachSamples(mScene.knots->samples(), mScene.knots->path());
+}
 
 SceneRenderer::~SceneRenderer() {
   if (mGl) mGl->makeCurrent();  // the textures and programs are deleted in their own context
@@ -173,7 +181,10 @@ void SceneRenderer::adoptSurface(std::unique_ptr<PreparedSurface> surface) { kee
 
 PreparedSurface& SceneRenderer::surfaceEntry(float iso, FrameStats* stats) {
   const auto it = std::find_if(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == iso; });
-  if (it == mSurfaces.end()) return keep(prepareSurface(mScene, iso, mOptions.progress, stats));
+  if (it == mSurfaces.end()) {
+    ensureSamples();
+    return keep(prepareSurface(mScene, iso, mOptions.progress, stats));
+  }
   mSurfaces.splice(mSurfaces.begin(), mSurfaces, it);
   return *mSurfaces.front();
 }
@@ -212,7 +223,8 @@ ViewErrors& SceneRenderer::viewErrors(const Camera& gridCamera, const TransferFu
     return *mErrors->errors;
   mErrors = std::make_unique<Errors>(Errors{gridCamera, tf, cut, voi, nullptr});
   Errors& e = *mErrors;
-  e.errors = std::make_unique<ViewErrors>(mScene.volume, mScene.octree, e.tf, e.camera, e.cut ? &*e.cut : nullptr, e.voi ? &*e.voi : nullptr);
+  e.errors = std::make_unique<ViewErrors>(mScene.volume, mScene.octree, e.tf, e.camera, e.cut ? &*e.cut : nullptr, e.voi ? &*e.voi : nullptr,
+                                          mScene.knots.get(), [this] { ensureSamples(); });
   return *e.errors;
 }
 
@@ -258,6 +270,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   }
 
   if (quality.renderer == Renderer::Raycast) {
+    ensureSamples();
     const Bvh* bvh = nullptr;
     if (mesh) {
       PreparedSurface& s = *mSurfaces.front();  // this frame's
@@ -331,6 +344,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   so.voi = voi ? &*voi : nullptr;
   so.proxy = quality.proxy;
   so.textures = mTextures.get();
+  so.knots = mScene.knots.get();
   so.cutToSlabs = quality.cutToSlabs;
   // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
   // texels (one level coarser), the last being the requested selection. Early images of a long

@@ -210,6 +210,7 @@ class SceneRenderer {
   ViewErrors& viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
                          const std::optional<VolumeOfInterest>& voi, bool anyCamera);
   void ensureGl();
+  void ensureSamples();
 
   Scene mScene;
   Options mOptions;

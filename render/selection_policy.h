@@ -9,6 +9,7 @@
 #include <glm/glm.hpp>
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 
@@ -38,10 +39,12 @@ struct SelectionChoice {
 /// (a budget sweep, progressive levels, repeated frames).
 class ViewErrors {
  public:
-  /// @p volume, @p octree, @p tf, @p camera, @p cut and @p voi must outlive this object (grid frame).
+  /// @p volume, @p octree, @p tf, @p camera, @p cut, @p voi and @p knots must outlive this object
+  /// (grid frame). @p knots: where the bricks read their knots (none: the volume in memory).
+  /// @p prepare runs before the first error is measured (a paged scene reads its samples).
   ViewErrors(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera, const CutPlane* cut,
-             const VolumeOfInterest* voi)
-      : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera), mCut(cut), mVoi(voi) {}
+             const VolumeOfInterest* voi, const KnotSource* knots = nullptr, std::function<void()> prepare = {})
+      : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera), mCut(cut), mVoi(voi), mKnots(knots), mPrepare(std::move(prepare)) {}
   BrickImageError& get();
   size_t measured() const { return mErrors ? mErrors->measured() : 0; }
 
@@ -52,6 +55,8 @@ class ViewErrors {
   const Camera& mCamera;
   const CutPlane* mCut;
   const VolumeOfInterest* mVoi;
+  const KnotSource* mKnots;
+  std::function<void()> mPrepare;
   std::unique_ptr<BrickImageError> mErrors;
 };
 

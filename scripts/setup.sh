@@ -6,6 +6,7 @@ packages=(
   build-essential cmake ninja-build pkg-config   # toolchain
   libglm-dev                                     # vector maths shared by every module
   zlib1g-dev libarchive-dev                      # gzip NRRD/MetaImage data; InVesalius .inv3 (tar.gz)
+  libzstd-dev                                    # the scene file's compressed knot store
   libnifti2-dev                                  # NIfTI-1/2 reader (nifti_clib), .nii and .nii.gz
   libgdcm-dev                                    # DICOM series: parsing, decompression, rescale tags
   libcli11-dev                                   # command-line parsing with subcommands

@@ -120,6 +120,32 @@ Volume::Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, Sampl
   mMax = hi;
 }
 
+Volume Volume::withoutSamples(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, ScalarType storedType, float minValue,
+                              float maxValue, const std::string& source) {
+  validateDims(dims, source);
+  validateSpacing(spacing, source);
+  if (!(std::isfinite(minValue) && std::isfinite(maxValue) && minValue <= maxValue && std::isfinite(maxValue - minValue)))
+    HYB_THROW(ValueError, source, ": sample range [", minValue, ", ", maxValue, "] invalid (expected finite min <= max)");
+  Volume v;
+  v.mDims = dims;
+  v.mSpacing = spacing;
+  v.mSourceType = sourceType;
+  v.mStored = storedType;
+  v.mCount = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
+  v.mMin = minValue;
+  v.mMax = maxValue;
+  return v;
+}
+
+void Volume::attachSamples(SampleArray samples, const std::string& source) {
+  const Volume full(mDims, mSpacing, mSourceType, std::move(samples), source);
+  if (full.mStored != mStored || full.mMin != mMin || full.mMax != mMax)
+    HYB_THROW(ValueError, source, ": samples of type ", scalarName(full.mStored), " in [", full.mMin, ", ", full.mMax, "] for a volume of type ",
+              scalarName(mStored), " in [", mMin, ", ", mMax, "]");
+  mSamples = full.mSamples;
+  mData = full.mData;
+}
+
 void Volume::readRow(int i, int j, int k, int n, float* out) const {
   HYB_DCHECK(n >= 0 && i + n <= mDims.x);
   const size_t first = index(i, j, k);

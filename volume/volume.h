@@ -80,6 +80,17 @@ class Volume {
          const std::string& source = "volume")
       : Volume(dims, spacing, sourceType, SampleArray(std::move(samples)), source) {}
 
+  /// A volume whose samples are not in memory (a scene read through its knot store): its grid,
+  /// types and range only. Reading a sample before attachSamples() is a caller error.
+  /// @throw ValueError as the constructor, or for a range that is not finite.
+  static Volume withoutSamples(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, ScalarType storedType, float minValue,
+                               float maxValue, const std::string& source = "volume");
+  /// Whether the samples are in memory.
+  bool hasSamples() const { return mSamples != nullptr; }
+  /// Gives a volume made withoutSamples() its samples.
+  /// @throw ValueError naming @p source when their count, type or range differs from the volume's.
+  void attachSamples(SampleArray samples, const std::string& source);
+
   /// Samples per axis.
   const glm::ivec3& dims() const { return mDims; }
   /// Millimetres between neighbouring voxel centres, per axis.
@@ -93,7 +104,7 @@ class Volume {
   /// Bytes the samples occupy in the source type (the size users know the data by).
   size_t sourceBytes() const { return voxelCount() * scalarSize(mSourceType); }
   /// Bytes held in memory by this object.
-  size_t bytesUsed() const { return mCount * scalarSize(mStored) + sizeof(*this); }
+  size_t bytesUsed() const { return (hasSamples() ? mCount * scalarSize(mStored) : 0) + sizeof(*this); }
   /// Smallest and largest sample.
   float minValue() const { return mMin; }
   float maxValue() const { return mMax; }

@@ -1,0 +1,131 @@
+// The paged knot store of a scene file: every knot a brick can read (each lattice spacing 1, 2, 4,
+// … up to the root's edge), in blocks of kStoreBlock³ knots, each compressed with zstd and checked
+// by its own CRC-32, read on demand through a least-recently-used cache of decompressed blocks
+// bounded in bytes. A frame therefore reads what its selection needs, whatever the volume's size.
+//
+// Level s holds the knots of spacing s (docs/scale.md): at s = 1 the samples in their stored type;
+// at s ≥ 2 the lattice's knot values (the samples at the knots, or the octree's prefiltered 16-bit
+// codes with their level's offset and scale) and the volume's own gradient at each knot (bfloat16,
+// what a coarse brick shades with; computing it needs the samples around the knot, which is what
+// paging avoids reading). Values and gradients are stored as byte planes (Blosc's shuffle). Bricks of neighbouring nodes share their face knots, so a spacing's knots
+// are stored once rather than brick by brick. Blocks lie level by level, coarsest first (a cold
+// frame's coarse bricks are close together), each level in Morton order of its blocks (a subtree's
+// blocks are contiguous).
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <cstdint>
+#include <list>
+#include <memory>
+#include <mutex>
+#include <ostream>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "hybrid_octree/knot_source.h"
+#include "volume/file_util.h"
+
+namespace hyb {
+
+/// Knots per axis of a store block (64 KB of int16 samples): large enough for zstd to find the
+/// samples' redundancy, small enough that a 17³-knot brick reads little besides itself.
+inline constexpr int kStoreBlock = 32;
+/// Largest decompressed block: float values and bfloat16 gradients. The cache keeps the block a
+/// read needs even when it alone exceeds the cache's bound.
+inline constexpr uint64_t kMaxStoreBlockBytes = uint64_t(kStoreBlock) * kStoreBlock * kStoreBlock * (4 + 6);
+/// zstd's compression level for the blocks (docs/scale.md compares levels and codecs).
+inline constexpr int kStoreCompression = 1;
+
+/// One spacing's knots in the store.
+struct StoreLevel {
+  int spacing = 1;
+  glm::ivec3 counts{0};                         ///< knots per axis (knotCounts(dims, spacing))
+  ScalarType type = ScalarType::Int16;          ///< values' type: the stored sample type, or UInt16 codes
+  bool coded = false;                           ///< value = offset + scale · code (prefiltered levels)
+  float offset = 0.0f, scale = 1.0f;
+  bool gradients = false;                       ///< each block also holds three bfloat16 a knot
+  uint64_t firstBlock = 0;                      ///< index of its first block (x fastest, then y, z)
+  glm::ivec3 blocks() const { return (counts + kStoreBlock - 1) / kStoreBlock; }
+};
+
+/// Where one compressed block lies in the data section.
+struct StoreBlock {
+  uint64_t offset = 0;  ///< from the data section's start
+  uint32_t size = 0;    ///< compressed bytes
+  uint32_t crc = 0;     ///< CRC-32 of the compressed bytes
+};
+
+/// Writes the store of @p volume and @p octree (blocks compressed on all cores) to @p out, and
+/// returns its index: the bytes KnotStore::open reads back. Deterministic: the same volume gives
+/// the same bytes.
+std::vector<uint8_t> writeKnotStore(const Volume& volume, const VolumeOctree& octree, std::ostream& out);
+
+/// Counters of a store's cache.
+struct StoreCacheStats {
+  uint64_t hits = 0, misses = 0;   ///< block requests served from memory, and read from the file
+  uint64_t bytesRead = 0;          ///< compressed bytes read from the file
+  uint64_t bytesHeld = 0;          ///< decompressed bytes the cache holds now
+  uint64_t limit = 0;              ///< its bound: bytesHeld ≤ limit + kMaxStoreBlockBytes
+  uint64_t evicted = 0;            ///< blocks dropped to stay within it
+};
+
+/// A scene's knot store, read through its cache. Thread-safe.
+class KnotStore final : public KnotSource {
+ public:
+  /// Opens the store whose index is @p index and whose blocks are the @p dataSize bytes at
+  /// @p dataOffset of @p path, for a volume of @p dims and @p spacing; its cache holds at most
+  /// @p cacheBytes of decompressed blocks (a block a read needs stays while it is copied).
+  /// @throw IoError naming @p path when the index is inconsistent with the volume or the file.
+  static std::shared_ptr<KnotStore> open(const std::string& path, const glm::ivec3& dims, const glm::dvec3& spacing,
+                                         const std::vector<uint8_t>& index, uint64_t dataOffset, uint64_t dataSize,
+                                         uint64_t cacheBytes);
+
+  glm::ivec3 dims() const override { return mDims; }
+  glm::dvec3 spacing() const override { return mSpacing; }
+  /// @throw IoError naming the file, level and block when a block is corrupt.
+  void read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const override;
+  /// Every sample (level 1) as the array a Volume holds.
+  SampleArray samples() const;
+  /// The scene file.
+  const std::string& path() const { return mFile.path(); }
+  /// Type the samples are stored in.
+  ScalarType storedType() const { return mLevels.front().type; }
+  const std::vector<StoreLevel>& levels() const { return mLevels; }
+  /// Compressed bytes of all blocks.
+  uint64_t compressedBytes() const { return mDataSize; }
+
+  void setCacheLimit(uint64_t bytes);
+  StoreCacheStats cacheStats() const;
+
+ private:
+  struct Block {
+    std::vector<uint8_t> bytes;  // values, then gradients
+    glm::ivec3 dims{0};
+  };
+  KnotStore(const std::string& path) : mFile(path) {}
+  uint64_t key(size_t level, const glm::ivec3& b) const;  // the block's place in mIndex
+  /// Reads, checks and decompresses a block (not cached).
+  std::shared_ptr<const Block> load(size_t level, const glm::ivec3& b, uint64_t key) const;
+  /// The block through the cache.
+  std::shared_ptr<const Block> block(size_t level, const glm::ivec3& b) const;
+
+  InputFile mFile;
+  glm::ivec3 mDims{0};
+  glm::dvec3 mSpacing{1.0};
+  std::vector<StoreLevel> mLevels;
+  std::vector<StoreBlock> mIndex;
+  uint64_t mDataOffset = 0, mDataSize = 0;
+
+  mutable std::mutex mMutex;
+  struct Entry {
+    std::shared_ptr<const Block> block;
+    std::list<uint64_t>::iterator age;
+  };
+  mutable std::unordered_map<uint64_t, Entry> mCache;  // by index position
+  mutable std::list<uint64_t> mOrder;                  // least recently used first
+  mutable StoreCacheStats mStats;
+};
+
+}  // namespace hyb

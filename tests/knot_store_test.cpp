@@ -1,0 +1,182 @@
+// The paged knot store: bricks read back bit-exactly, damage refused by block, frames identical to
+// the in-memory ones whatever the cache's bound.
+#include "hybrid_octree/knot_store.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <random>
+
+#include "hybrid_octree/hybrid_io.h"
+#include "render/brick_textures.h"
+#include "render/patient_view.h"
+#include "render/scene_renderer.h"
+#include "render_util.h"
+#include "test_util.h"
+
+namespace hyb {
+namespace {
+
+using ::testing::HasSubstr;
+
+// A sphere of bone-like values in noisy soft tissue, @p dims spanning several store blocks, held as @p type.
+Volume noisyHead(glm::ivec3 dims, ScalarType type) {
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<int> noise(-20, 20);
+  const glm::dvec3 c = glm::dvec3(dims - 1) * 0.5;
+  const size_t n = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
+  std::vector<int16_t> s(n);
+  for (int k = 0, i = 0; k < dims.z; ++k)
+    for (int y = 0; y < dims.y; ++y)
+      for (int x = 0; x < dims.x; ++x, ++i) {
+        const double r = glm::length((glm::dvec3(x, y, k) - c) / (c + 1.0));
+        s[size_t(i)] = int16_t((r < 0.6 ? 90 : r < 0.75 ? 200 : 30) + noise(rng));
+      }
+  if (type == ScalarType::Int16) return Volume(dims, glm::dvec3(0.7, 0.8, 1.1), type, SampleArray(std::move(s)), "head");
+  if (type == ScalarType::UInt8) {
+    std::vector<uint8_t> u(n);
+    for (size_t i = 0; i < n; ++i) u[i] = uint8_t(std::max(0, int(s[i])));
+    return Volume(dims, glm::dvec3(0.7, 0.8, 1.1), type, SampleArray(std::move(u)), "head");
+  }
+  std::vector<float> f(n);
+  for (size_t i = 0; i < n; ++i) f[i] = float(s[i]) * 0.37f;
+  return Volume(dims, glm::dvec3(0.7, 0.8, 1.1), type, SampleArray(std::move(f)), "head");
+}
+
+bool sameBits(const std::vector<glm::vec4>& a, const std::vector<glm::vec4>& b) {
+  return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(glm::vec4)) == 0;
+}
+
+TEST(KnotStore, EveryBrickReadsBackAsTheBrickMadeInMemory) {
+  test::TempDir dir;
+  for (const ScalarType type : {ScalarType::Int16, ScalarType::UInt8, ScalarType::Float32})
+    for (const bool prefilter : {true, false}) {
+      SCOPED_TRACE(std::string(scalarName(type)) + (prefilter ? " prefiltered" : " point-subsampled"));
+      const Volume v = noisyHead({70, 45, 37}, type);
+      const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{8, prefilter});
+      saveScene(dir.file("h.hoct"), v, t);
+      const Scene paged = loadScene(dir.file("h.hoct"), SceneLoadOptions{false, 0});
+      ASSERT_TRUE(paged.knots);
+      EXPECT_FALSE(paged.volume.hasSamples());
+      EXPECT_EQ(paged.knots->samples(), v.samples());  // the samples, in their own type
+      const VolumeKnots memory(v, t);
+      // Every lattice of every node at every level, its coarse lattice, and its blended texels.
+      size_t lattices = 0, expected = 0;
+      for (uint32_t i = 0; i < t.nodes().size(); ++i) {
+        const OctreeNode& n = t.nodes()[i];
+        expected += size_t(t.maxLevel(n)) + 1;
+        for (int p = 0; p <= t.maxLevel(n); ++p) {
+          ASSERT_TRUE(sameBits(latticeKnots(*paged.knots, t.lattice(n, p)), latticeKnots(memory, t.lattice(n, p)))) << "node " << i << " p " << p;
+          if (i > 0) {
+            ASSERT_TRUE(sameBits(latticeKnots(*paged.knots, t.coarseLattice(n, p)), latticeKnots(memory, t.coarseLattice(n, p))));
+            Brick b;
+            b.node = i;
+            b.p = p;
+            b.coarseCorners = 0x5a;
+            ASSERT_TRUE(sameBits(brickTexels(*paged.knots, paged.octree, b), brickTexels(memory, t, b)));
+          }
+          ++lattices;
+        }
+      }
+      EXPECT_EQ(lattices, expected);
+      // The store is smaller than the samples it holds, in their type, for every level.
+      EXPECT_LT(paged.knots->compressedBytes(), v.voxelCount() * scalarSize(v.storedType()) * 2);
+    }
+}
+
+TEST(KnotStore, ADamagedBlockIsRefusedByName) {
+  test::TempDir dir;
+  const Volume v = noisyHead({70, 45, 37}, ScalarType::Int16);
+  saveScene(dir.file("h.hoct"), v, VolumeOctree::build(v));
+  const std::vector<uint8_t> good = test::readBytes(dir.file("h.hoct"));
+  uint64_t volumeBytes = 0, blockBytes = 0;
+  std::memcpy(&volumeBytes, &good[16 + 4], 8);
+  const size_t blocksAt = 16 + 16 + size_t(volumeBytes);  // KDAT's section header
+  std::memcpy(&blockBytes, &good[blocksAt + 4], 8);
+  ASSERT_EQ(std::string(good.begin() + ptrdiff_t(blocksAt), good.begin() + ptrdiff_t(blocksAt) + 4), "KDAT");
+  // One flipped bit in the last (finest) block: the file opens paged, and the block is refused when read.
+  std::vector<uint8_t> bad = good;
+  bad[blocksAt + 16 + size_t(blockBytes) - 5] ^= 0x10;
+  test::writeBytes(dir.file("bad.hoct"), bad);
+  const Scene paged = loadScene(dir.file("bad.hoct"), SceneLoadOptions{false, 0});
+  const glm::ivec3 d = v.dims();
+  std::vector<float> values(size_t(d.x) * d.y * d.z);
+  try {
+    paged.knots->read(1, glm::ivec3(0), d, values.data(), nullptr);
+    ADD_FAILURE() << "a corrupt block was read";
+  } catch (const IoError& e) {
+    EXPECT_THAT(e.what(), HasSubstr("bad.hoct: knot store block "));
+    EXPECT_THAT(e.what(), HasSubstr(" of spacing 1 is corrupt (checksum mismatch)"));
+  }
+  // Loading the samples whole reads every block: refused the same way.
+  EXPECT_THROW(
+      {
+        try {
+          loadScene(dir.file("bad.hoct"));
+        } catch (const IoError& e) {
+          EXPECT_THAT(e.what(), HasSubstr("of spacing 1 is corrupt"));
+          throw;
+        }
+      },
+      IoError);
+  // A file cut inside its blocks is refused before anything is read.
+  test::writeBytes(dir.file("cut.hoct"), std::vector<uint8_t>(good.begin(), good.begin() + ptrdiff_t(blocksAt + 16 + blockBytes / 2)));
+  try {
+    loadScene(dir.file("cut.hoct"), SceneLoadOptions{false, 0});
+    ADD_FAILURE() << "a truncated store was opened";
+  } catch (const IoError& e) {
+    EXPECT_THAT(e.what(), HasSubstr("truncated scene file (section 1 needs"));
+  }
+}
+
+TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
+  test::gl();
+  test::TempDir dir;
+  const Volume v = noisyHead({70, 45, 37}, ScalarType::Int16);
+  const VolumeOctree t = VolumeOctree::build(v);
+  saveScene(dir.file("h.hoct"), v, t);
+  const uint64_t tenth = v.voxelCount() * 2 / 10;
+  SceneRenderer paged(loadScene(dir.file("h.hoct"), SceneLoadOptions{false, tenth})), memory(loadScene(dir.file("h.hoct")));
+  const KnotStore& store = *paged.scene().knots;
+  Look look;
+  look.tf = TransferFunction({{60.0f, {1, 1, 1}, 0.0f}, {120.0f, {1.0f, 0.6f, 0.4f}, 0.05f}, {220.0f, {1.0f, 1.0f, 0.9f}, 0.4f}}, "head");
+  const std::vector<glm::dvec3> visible = visiblePoints(v, t, look.tf);
+  // Framed alike from the store's samples and from memory.
+  EXPECT_EQ(visiblePoints(paged.volume(), paged.octree(), look.tf, std::nullopt, &store), visible);
+  Quality coarse;
+  coarse.epsilon = 40.0;  // coarse bricks, blended towards coarser neighbours
+  Quality budget;
+  budget.budgetMb = 0.02;  // ranked by measured image errors, read through the store
+  const auto compare = [&](const std::vector<Quality>& qualities) {
+    for (const double azimuth : {0.0, 70.0, 150.0, 250.0}) {
+      SCOPED_TRACE(azimuth);
+      View view;
+      view.camera = fitCamera(visible, orbitDirection(azimuth, 20), 30, false, 40, 40, 0.05);
+      for (const Quality& q : qualities) {
+        const RenderedFrame a = paged.render(view, look, q), b = memory.render(view, look, q);
+        EXPECT_GT(a.stats.slices.bricks, 0u);
+        EXPECT_EQ(a.stats.slices.bricks, b.stats.slices.bricks);
+        EXPECT_EQ(a.image.pixels, b.image.pixels);
+        EXPECT_LE(store.cacheStats().bytesHeld, tenth + kMaxStoreBlockBytes);
+      }
+    }
+  };
+  // Volume frames read only the blocks their bricks need.
+  compare({Quality{}, coarse});
+  EXPECT_FALSE(paged.volume().hasSamples());
+  // The image errors a budget ranks by, and a translucent surface, need every sample.
+  compare({budget});
+  EXPECT_TRUE(paged.volume().hasSamples());
+  look.iso = 150.0f;
+  look.surfaceColor = glm::vec4(0.9f, 0.9f, 0.8f, 0.5f);
+  compare({Quality{}});
+  const StoreCacheStats stats = store.cacheStats();
+  EXPECT_GT(stats.hits, 0u);
+  EXPECT_GT(stats.misses, 0u);
+  EXPECT_GT(stats.evicted, 0u);
+  EXPECT_EQ(stats.limit, tenth);
+}
+
+}  // namespace
+}  // namespace hyb
