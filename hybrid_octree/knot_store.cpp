@@ -324,6 +324,11 @@ void KnotStore::read(int s, const glm::ivec3& lo, const glm::ivec3& count, float
   HYB_DCHECK(std::has_single_bit(unsigned(s)) && size_t(std::countr_zero(unsigned(s))) < mLevels.size());
   const size_t level = size_t(std::countr_zero(unsigned(s)));
   const StoreLevel& l = mLevels[level];
+  if (level == 0 && mSamples) {
+    for (int z = 0; z < count.z; ++z)
+      for (int y = 0; y < count.y; ++y, values += count.x) mSamples->readRow(lo.x, lo.y + y, lo.z + z, count.x, values);
+    return;
+  }
   HYB_DCHECK((gradients != nullptr) == l.gradients);
   const glm::ivec3 hi = lo + count - 1, b0 = lo / kStoreBlock, b1 = hi / kStoreBlock;
   for (int bz = b0.z; bz <= b1.z; ++bz)
@@ -376,6 +381,23 @@ SampleArray KnotStore::samples() const {
       });
   failure.rethrow();
   return out;
+}
+
+void KnotStore::useSamples(const Volume& volume) {
+  HYB_CHECK(volume.hasSamples() && volume.dims() == mDims && volume.storedType() == storedType());
+  const std::lock_guard lock(mMutex);
+  mSamples = &volume;
+  const uint64_t finest = mLevels.size() > 1 ? mLevels[1].firstBlock : mIndex.size();
+  for (auto it = mOrder.begin(); it != mOrder.end();) {
+    if (*it >= finest) {
+      ++it;
+      continue;
+    }
+    const auto entry = mCache.find(*it);
+    mStats.bytesHeld -= entry->second.block->bytes.size();
+    mCache.erase(entry);
+    it = mOrder.erase(it);
+  }
 }
 
 void KnotStore::setCacheLimit(uint64_t bytes) {

@@ -96,6 +96,11 @@ class KnotStore final : public KnotSource {
   /// Compressed bytes of all blocks.
   uint64_t compressedBytes() const { return mDataSize; }
 
+  /// Reads spacing 1 from @p volume's samples (the store's own, once a frame needed them all) and
+  /// drops the cached blocks of that spacing: the samples are not held twice. @p volume must
+  /// outlive the store, or be replaced by another call.
+  void useSamples(const Volume& volume);
+
   void setCacheLimit(uint64_t bytes);
   StoreCacheStats cacheStats() const;
 
@@ -117,6 +122,7 @@ class KnotStore final : public KnotSource {
   std::vector<StoreLevel> mLevels;
   std::vector<StoreBlock> mIndex;
   uint64_t mDataOffset = 0, mDataSize = 0;
+  const Volume* mSamples = nullptr;  // spacing 1 read from here when set
 
   mutable std::mutex mMutex;
   struct Entry {

@@ -106,7 +106,9 @@ SceneRenderer::SceneRenderer(Scene scene, const Options& options) : mScene(std::
 // A paged scene's samples are read whole only by what needs every sample: an isosurface's
 // extraction and normals, the reference ray tracer and the image errors a budget ranks by.
 void SceneRenderer::ensureSamples() {
-  if (!mScene.volume.hasSamples()) mScene.volume.attachSamples(mScene.knots->samples(), mScene.knots->path());
+  if (mScene.volume.hasSamples()) return;
+  mScene.volume.attachSamples(mScene.knots->samples(), mScene.knots->path());
+  mScene.knots->useSamples(mScene.volume);  // full-resolution bricks read them, not the store's blocks
 }
 
 SceneRenderer::~SceneRenderer() {
