@@ -87,6 +87,14 @@ TEST(Cli, InfoBuildAndSelect) {
   const double texels = jsonNumber(dir.file("st.json"), "texels");
   EXPECT_GT(texels, 0.0);
   EXPECT_EQ(jsonNumber(dir.file("st.json"), "texture_bytes"), 4.0 * texels);
+  // A scene is read paged: the frame read its blocks through a cache of --memory MB, not the samples.
+  r = run({"render", dir.file("s.hoct"), "--memory", "1", "--stats", dir.file("paged.json"), "-o", dir.file("r.png")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  const std::string paged = test::readText(dir.file("paged.json"));
+  EXPECT_THAT(paged, HasSubstr("\"cache_limit\": 1048576"));
+  EXPECT_THAT(paged, HasSubstr("\"samples_loaded\": false"));
+  EXPECT_THAT(paged, Not(HasSubstr("\"blocks_read\": 0,")));
+  expectBadInput({"render", dir.file("s.hoct"), "--memory", "0.5", "-o", dir.file("r.png")}, "--memory must be megabytes in [1, 1e9]");
   r = run({"render", dir.file("s.hoct"), "--texel-bits", "16", "--stats", dir.file("st16.json"), "-o", dir.file("r.png")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(jsonNumber(dir.file("st16.json"), "texture_bytes"), 8.0 * texels);
