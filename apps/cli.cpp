@@ -89,9 +89,15 @@ int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
   }
   if (!o.input.rawLayout() && isSceneFile(o.input.path)) {
     if (!o.input.series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", o.input.path, " is a scene file)");
-    const Scene scene = loadScene(o.input.path);
+    Scene scene = loadScene(o.input.path, SceneLoadOptions{false, 0});
+    const KnotStore& store = *scene.knots;
+    scene.volume.attachSamples(store.samples(), o.input.path);  // the histogram reads them all
+    const double stored = double(scene.volume.voxelCount() * scalarSize(scene.volume.storedType()));
     out << "file     " << o.input.path << " (scene)\n" << scene.volume.toString();
     out << "octree   " << scene.octree.nodes().size() << " nodes, " << scene.octree.bytesUsed() << " bytes\n";
+    out << "store    " << store.levels().size() << " spacings (1.." << store.levels().back().spacing << ") in blocks of " << kStoreBlock
+        << "^3 knots, " << formatBytes(store.compressedBytes()) << " compressed (" << std::fixed << std::setprecision(2)
+        << double(store.compressedBytes()) / stored << "x the samples)\n";
     out << (scene.surface ? surfaceSummary(*scene.surface, std::nullopt) : "surface  none (build --iso adds one)\n");
     out << "histogram (" << o.bins << " bins)\n" << formatHistogram(computeHistogram(scene.volume, o.bins));
     return 0;

@@ -71,6 +71,7 @@ TEST(Cli, InfoBuildAndSelect) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("9 x 7 x 5"));
   EXPECT_THAT(r.out, HasSubstr("surface  none"));
+  EXPECT_THAT(r.out, HasSubstr("store    4 spacings (1..8) in blocks of 32^3 knots, "));
   r = run({"build", nhdr, "--iso", "0.5", "-o", dir.file("iso.hoct")});
   ASSERT_EQ(r.status, 0) << r.err;
   r = run({"info", dir.file("iso.hoct")});
