@@ -139,17 +139,6 @@ float valueOf(const StoreLevel& l, const uint8_t* bytes, size_t i) {
   return float(v);
 }
 
-template <class F>
-decltype(auto) withType(ScalarType t, F&& f) {
-  switch (t) {
-    case ScalarType::UInt8: return f(uint8_t());
-    case ScalarType::Int8: return f(int8_t());
-    case ScalarType::UInt16: return f(uint16_t());
-    case ScalarType::Int16: return f(int16_t());
-    default: return f(float());
-  }
-}
-
 }  // namespace
 
 std::vector<uint8_t> writeKnotStore(const Volume& v, const VolumeOctree& t, std::ostream& out) {
@@ -339,7 +328,7 @@ void KnotStore::read(int s, const glm::ivec3& lo, const glm::ivec3& count, float
         const glm::ivec3 from = glm::max(lo, base), to = glm::min(hi, base + blk->dims - 1);
         const uint8_t* bytes = blk->bytes.data();
         const uint16_t* g = reinterpret_cast<const uint16_t*>(bytes + blockKnots(blk->dims) * scalarSize(l.type));
-        withType(l.type, [&](auto zero) {
+        detail::withFileType(l.type, [&](auto zero) {
           using T = decltype(zero);
           for (int z = from.z; z <= to.z; ++z)
             for (int y = from.y; y <= to.y; ++y) {

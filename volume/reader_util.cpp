@@ -38,22 +38,6 @@ T fileSample(const uint8_t* data, size_t i, bool swap) {
   return v;
 }
 
-// Calls @p f with a value of @p t's C++ type.
-template <class F>
-decltype(auto) withFileType(ScalarType t, F&& f) {
-  switch (t) {
-    case ScalarType::UInt8: return f(uint8_t());
-    case ScalarType::Int8: return f(int8_t());
-    case ScalarType::UInt16: return f(uint16_t());
-    case ScalarType::Int16: return f(int16_t());
-    case ScalarType::UInt32: return f(uint32_t());
-    case ScalarType::Int32: return f(int32_t());
-    case ScalarType::Float32: return f(float());
-    case ScalarType::Float64: break;
-  }
-  return f(double());
-}
-
 bool swapFor(bool bigEndian) { return bigEndian != (std::endian::native == std::endian::big); }
 
 }  // namespace

@@ -1,4 +1,4 @@
-// Helpers every volume reader shares (volume/*_io.cpp); internal to volume/.
+// Helpers the volume readers share (volume/*_io.cpp), and the scene file that stores samples too.
 #pragma once
 
 #include <cstdint>
@@ -19,6 +19,21 @@ std::string lower(std::string s);
 void widenSampleRange(const uint8_t* data, size_t count, ScalarType t, bool bigEndian, double* lo, double* hi);
 /// @p count zero samples held as @p stored (float unless an 8- or 16-bit integer type).
 SampleArray allocateSamples(ScalarType stored, size_t count);
+/// Calls @p f with a value of @p t's C++ type (uint8_t … double).
+template <class F>
+decltype(auto) withFileType(ScalarType t, F&& f) {
+  switch (t) {
+    case ScalarType::UInt8: return f(uint8_t());
+    case ScalarType::Int8: return f(int8_t());
+    case ScalarType::UInt16: return f(uint16_t());
+    case ScalarType::Int16: return f(int16_t());
+    case ScalarType::UInt32: return f(uint32_t());
+    case ScalarType::Int32: return f(int32_t());
+    case ScalarType::Float32: return f(float());
+    case ScalarType::Float64: break;
+  }
+  return f(double());
+}
 /// Converts the @p count samples of type @p t at @p data into @p out (whatever type it holds) from
 /// sample @p first on.
 void decodeInto(const uint8_t* data, size_t count, ScalarType t, bool bigEndian, SampleArray* out, size_t first);
