@@ -172,7 +172,8 @@ void printSelection(const RenderJob& job, const RenderedFrame& f, std::ostream& 
 }
 
 int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
-  RenderJob job = prepareRender(o, out, err);
+  // One frame keeps no brick texture beyond its draw; repeated frames reuse them.
+  RenderJob job = prepareRender(o, out, err, o.repeat > 1 || o.quality.progressive > 1);
   CommandOutputs outputs;  // the images and --stats, renamed into place together at the end
   const bool slices = job.quality.renderer == Renderer::Slices;
   const bool fromScene = job.renderer->scene().surface && job.look.iso && job.renderer->scene().surface->isovalue() == *job.look.iso;

@@ -343,7 +343,7 @@ void RenderOptions::add(CLI::App* cmd) {
   addVec3(cmd, "--focus", &quality.focus, "region of interest x,y,z, patient mm (LPS)");
 }
 
-RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
+RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream& err, bool keepTextures) {
   std::optional<Camera> fromFile;
   if (!o.cameraFile.empty()) fromFile = readCameraFile(o.cameraFile);
   RenderJob job;
@@ -409,7 +409,7 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
     HYB_THROW(ValueError, "--zoom ", o.zoom, " makes a field of view of ", camera.fovDeg, " degrees (expected a zoom keeping it in [0.1, 179))");
   job.quality = o.quality;
   job.background = o.background;
-  job.renderer = std::make_unique<SceneRenderer>(std::move(scene), SceneRenderer::Options{0, o.input.progress});
+  job.renderer = std::make_unique<SceneRenderer>(std::move(scene), SceneRenderer::Options{0, o.input.progress, keepTextures});
   return job;
 }
 

@@ -137,7 +137,8 @@ struct RenderJob {
 /// Loads the scene, chooses the transfer function (file, preset, or one for the data's range) and
 /// sets up the camera (a file's, the --eye given, or the view framing what is visible), printing
 /// what it did on @p out and warnings (the readers', an isovalue outside the data) on @p err.
-RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream& err);
+/// @p keepTextures: brick textures are kept for later frames (SceneRenderer::Options::keepTextures).
+RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream& err, bool keepTextures = true);
 
 /// One line on the surface of a frame that built or reconstructed it (empty when it was kept).
 std::string surfaceLine(const FrameStats& stats, float iso, bool fromScene);

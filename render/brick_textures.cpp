@@ -190,8 +190,10 @@ void BrickTextureCache::grew(const Brick& b, uint64_t bytes) {
   if (mEntries.count(key(b))) mBytes += bytes;
 }
 
-void BrickTextureCache::evict() {
-  while (mLimit > 0 && mBytes > mLimit && !mOrder.empty()) {
+void BrickTextureCache::evict() { makeRoom(0); }
+
+bool BrickTextureCache::makeRoom(uint64_t bytes) {
+  while (mLimit > 0 && mBytes + bytes > mLimit && !mOrder.empty()) {
     const auto it = mEntries.find(mOrder.front());
     if (it->second.frame == mFrame) break;  // the rest are this frame's
     mBytes -= it->second.brick.bytes;
@@ -199,6 +201,7 @@ void BrickTextureCache::evict() {
     mEntries.erase(it);
     ++mEvicted;
   }
+  return mLimit == 0 || mBytes + bytes <= mLimit;
 }
 
 void BrickTextureCache::setBits(TexelBits bits) {

@@ -90,8 +90,10 @@ void uploadCutTexture(const std::vector<glm::vec4>& texels, const glm::ivec3& di
 /// Brick textures kept across frames of one volume and octree: a view rendered again (an
 /// interactive viewer, progressive refinement, a benchmark) uploads only bricks it has not drawn
 /// before. Keyed by node, level and blended corners. A texture-memory limit bounds what it keeps:
-/// after a frame, the least recently used bricks are evicted until it holds no more than the limit
-/// (a frame's own bricks stay while it draws, whatever their size). Also keeps the slice shader
+/// a frame's new bricks are kept as they are drawn while they fit, earlier frames' least recently
+/// used bricks evicted to make room (those that do not fit are deleted after their draw), and after
+/// a frame the least recently used bricks of earlier frames are evicted until it holds no more than
+/// the limit (bricks the frame found here stay while it draws, whatever their size). Also keeps the slice shader
 /// programs, keyed by their sources' feature defines. Owns GL objects: destroy it, or clear() it,
 /// while its GlContext is current.
 class BrickTextureCache {
@@ -111,6 +113,9 @@ class BrickTextureCache {
   void beginFrame() { ++mFrame; }
   /// Evicts least recently used bricks of earlier frames until at most the limit is held.
   void evict();
+  /// Evicts least recently used bricks of earlier frames until @p bytes more fit within the
+  /// limit; whether they now fit (always, without a limit).
+  bool makeRoom(uint64_t bytes);
   /// The texels' precision: a frame with another precision drops the bricks.
   void setBits(TexelBits bits);
   size_t size() const { return mEntries.size(); }

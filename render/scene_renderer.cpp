@@ -345,7 +345,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   so.cutLine = look.cutLine;
   so.voi = voi ? &*voi : nullptr;
   so.proxy = quality.proxy;
-  so.textures = mTextures.get();
+  so.textures = mOptions.keepTextures ? mTextures.get() : nullptr;
   so.knots = mScene.knots.get();
   so.cutToSlabs = quality.cutToSlabs;
   // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's

@@ -153,6 +153,8 @@ class SceneRenderer {
   struct Options {
     uint64_t textureLimitBytes = 0;      ///< brick textures kept between frames; 0 = no limit
     const Progress* progress = nullptr;  ///< hears of long steps (surfaces, reference frames, slices)
+    /// false: no brick texture outlives its draw (one frame: the textures never all held at once)
+    bool keepTextures = true;
   };
   explicit SceneRenderer(Scene scene, const Options& options);
   explicit SceneRenderer(Scene scene) : SceneRenderer(std::move(scene), Options{}) {}

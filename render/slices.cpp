@@ -281,6 +281,8 @@ struct BrickDraw {
   ShellFrame frame{};
   const VisibleBlocks* blocks = nullptr;  // each slice or shell is cut from the box of the visible blocks it meets
   KnotLattice lattice{};
+  int32_t pending = -1;  // its packed texels in BrickPlan::pending, uploaded when it is drawn; -1: texture made
+  glm::ivec3 texels{0};  // its texture's size
   // Built by the worker:
   std::vector<float> stream;  // kStreamFloats a vertex
   uint64_t slices = 0, surfaceTriangles = 0, slabPolygonDraws = 0;
@@ -295,6 +297,10 @@ struct BrickPlan {
   std::vector<CutPiece> cut;
   std::deque<VisibleBlocks> frameBlocks;  // visible blocks of bricks no cache keeps
   std::vector<gl::Texture> frameTextures;  // textures no cache keeps
+  // Packed bricks whose textures are made when they are drawn and deleted after, unless the cache
+  // keeps them: llvmpipe holds a frame's textures at about twice their texels' bytes, and a frame
+  // that made them all first held them all at once.
+  std::vector<PackedBrick> pending;
   uint64_t texels = 0, cutTexels = 0, bricks = 0, blended = 0, shellBricks = 0, uploaded = 0;
 };
 BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
@@ -320,13 +326,20 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
       toPack.push_back(i);
     }
   plan.uploaded = toPack.size();
-  // Packed in batches on all cores, each batch uploaded when it is done: the packed texels held at
-  // once are a batch's, not the frame's.
+  // Packed in batches on all cores. The textures of bricks the cutting plane crosses are made now
+  // (the plane is drawn before the bricks); the others' when they are drawn.
+  auto crossesCut = [&](uint32_t i) {
+    if (!options.cut) return false;
+    glm::ivec3 lo, hi;
+    octree.voxelBox(octree.nodes()[i], &lo, &hi);
+    std::vector<float> polygon;
+    return slicePolygon(glm::dvec3(lo) * spacing, glm::dvec3(hi) * spacing, glm::dvec3(cut), -cut.w, &polygon);
+  };
   constexpr size_t kBatch = 256;
   std::vector<CachedBrick> uploaded(toPack.size());
+  plan.pending.resize(toPack.size());
   for (size_t first = 0; first < toPack.size(); first += kBatch) {
     const size_t count = std::min(kBatch, toPack.size() - first);
-    std::vector<PackedBrick> packed(count);
     ParallelFailure failure;
 #pragma omp parallel for schedule(dynamic) if (count > 1)
     for (size_t k = 0; k < count; ++k)
@@ -334,15 +347,17 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
         const uint32_t i = toPack[first + k];
         const Brick& b = selection.bricks[size_t(brickOf[i])];
         const std::vector<glm::vec4> texels = brickTexels(knots, octree, b);
-        packed[k] = packBrick(texels, options.texelBits);
-        packed[k].brick.ranges = texelRanges(texels, octree.lattice(octree.nodes()[i], b.p).dims);
+        PackedBrick& p = plan.pending[first + k];
+        p = packBrick(texels, options.texelBits);
+        p.brick.ranges = texelRanges(texels, octree.lattice(octree.nodes()[i], b.p).dims);
       });
     failure.rethrow();
-    for (size_t k = 0; k < count; ++k) {
-      const uint32_t i = toPack[first + k];
-      const glm::ivec3 dims = octree.lattice(octree.nodes()[i], selection.bricks[size_t(brickOf[i])].p).dims;
-      uploaded[first + k] = uploadBrick(std::move(packed[k]), dims, options.texelBits);
-    }
+    for (size_t k = first; k < first + count; ++k)
+      if (crossesCut(toPack[k])) {
+        const glm::ivec3 dims = octree.lattice(octree.nodes()[toPack[k]], selection.bricks[size_t(brickOf[toPack[k]])].p).dims;
+        uploaded[k] = uploadBrick(std::move(plan.pending[k]), dims, options.texelBits);
+        plan.pending[k] = PackedBrick{};
+      }
   }
   plan.draws.reserve(order.size());
   for (uint32_t i : order) {
@@ -365,9 +380,14 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
       CachedBrick made;
       if (!cached) {
         made = std::move(uploaded[size_t(packedOf[i])]);
-        if (options.textures) cached = &options.textures->insert(b, std::move(made));
+        if (!made.texture) {
+          d.pending = packedOf[i];
+          d.texels = fine.dims;
+        } else if (options.textures) {
+          cached = &options.textures->insert(b, std::move(made));
+        }
       }
-      CachedBrick& brick = cached ? *cached : made;
+      CachedBrick& brick = cached ? *cached : d.pending >= 0 ? plan.pending[size_t(d.pending)].brick : made;
       CutPiece piece;
       if (options.cut && slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &piece.polygon)) {
         if (options.texelBits == TexelBits::Sixteen) {
@@ -395,7 +415,7 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
         d.slo = glm::max(d.blo, vlo * spacing);
         d.shi = glm::min(d.bhi, vhi * spacing);
         if (d.sliced) {
-          d.blocks = cached ? &cached->visible : &plan.frameBlocks.emplace_back(std::move(made.visible));
+          d.blocks = cached || d.pending >= 0 ? &brick.visible : &plan.frameBlocks.emplace_back(std::move(made.visible));
           d.lattice = fine;
         }
       }
@@ -405,7 +425,7 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
       d.fineOffset = glm::vec3((0.5 - glm::dvec3(fine.origin) / double(fine.step)) / dims);
       piece.fineScale = d.fineScale, piece.fineOffset = d.fineOffset, piece.valueOffset = d.valueOffset, piece.valueScale = d.valueScale;
       if (!piece.polygon.empty()) plan.cut.push_back(std::move(piece));
-      if (!cached) {
+      if (!cached && d.pending < 0) {
         plan.frameTextures.push_back(std::move(made.texture));
         if (made.cutTexture) plan.frameTextures.push_back(std::move(made.cutTexture));
       }
@@ -596,6 +616,24 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     st.slices += d.slices;
     st.surfaceTriangles += d.surfaceTriangles;
     st.slabPolygonDraws += d.slabPolygonDraws;
+    // A packed brick's texture, made for its draw: kept by the cache if it has room (it evicts
+    // earlier frames' bricks for it), else deleted when this iteration ends.
+    CachedBrick drawing;
+    if (d.pending >= 0) {
+      PackedBrick& p = plan.pending[size_t(d.pending)];
+      drawing = uploadBrick(std::move(p), d.texels, options.texelBits);
+      std::vector<uint8_t>().swap(p.bytes);
+      d.texture = drawing.texture.id();
+    }
+    const Brick& kept = selection.bricks[d.brick];
+    struct Keep {  // after the draw, whichever way the iteration ends
+      CachedBrick& brick;
+      BrickTextureCache* cache;
+      const Brick& b;
+      ~Keep() {
+        if (brick.texture && cache && cache->makeRoom(brick.bytes)) cache->insert(b, std::move(brick));
+      }
+    } keep{drawing, options.textures, kept};
     if (d.stream.empty()) continue;
     const FramePrograms::Slice& sp = programs.slice(d.delta > baseDelta, d.surfaceTriangles > 0);
     if (sp.id != bound) glUseProgram(bound = sp.id);
