@@ -50,6 +50,25 @@ TEST(BrickTextures, CacheEvictsTheLeastRecentlyUsedBricksOfEarlierFrames) {
   EXPECT_EQ(unlimited.size(), 10u);
 }
 
+TEST(BrickTextures, RoomIsMadeFromEarlierFramesOnly) {
+  BrickTextureCache cache(250);
+  cache.beginFrame();
+  EXPECT_TRUE(cache.makeRoom(100));
+  cache.insert(brick(1), of(100));
+  EXPECT_TRUE(cache.makeRoom(100));
+  cache.insert(brick(2), of(100));
+  EXPECT_FALSE(cache.makeRoom(100));  // only this frame's bricks to give up: the third is not kept
+  EXPECT_EQ(cache.size(), 2u);
+  cache.beginFrame();
+  ASSERT_NE(cache.find(brick(2)), nullptr);
+  EXPECT_FALSE(cache.makeRoom(200));  // brick 1, of the frame before, goes; brick 2 is this frame's
+  EXPECT_TRUE(cache.makeRoom(150));
+  EXPECT_EQ(cache.find(brick(1)), nullptr);
+  EXPECT_EQ(cache.bytes(), 100u);
+  EXPECT_EQ(cache.evicted(), 1u);
+  EXPECT_TRUE(BrickTextureCache().makeRoom(uint64_t(1) << 40));  // no limit
+}
+
 TEST(BrickTextures, RangesAreTheTexelsValuesOverBlocksOfTwoCells) {
   // A 5x3x2 lattice whose value is its x knot: blocks of 2x2x2 cells, x blocks [0,2] and [2,4].
   const glm::ivec3 dims(5, 3, 2);

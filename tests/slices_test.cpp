@@ -136,6 +136,37 @@ TEST(Slices, CachedBrickTexturesGiveTheSameImage) {
   EXPECT_EQ(cache.size(), 0u);
 }
 
+// Textures are made as their bricks are drawn: a frame larger than the cache's limit keeps the
+// bricks that fit (evicting earlier frames' for them), deletes the others after their draw, and
+// draws what a frame without a cache draws.
+TEST(Slices, AFrameLargerThanTheTextureLimitKeepsWhatFits) {
+  gl();
+  const Volume v = test::makeVolume({40, 36, 33}, [](int i, int j, int k) { return 8.0 + 7.0 * std::sin(0.35 * i) * std::cos(0.3 * j) + 0.2 * k; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "s");
+  const Selection sel = selectNodes(t, SelectionParams{});
+  SlicesStats st;
+  const Image fresh = renderSlices(v, t, sel, tf, Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64), SlicesOptions{}, &st);
+  ASSERT_GT(st.bricks, 8u);
+  const uint64_t limit = st.textureBytes / 3;
+  BrickTextureCache cache(limit);
+  SlicesOptions kept;
+  kept.textures = &cache;
+  const double azimuths[] = {205.0, 205.0, 120.0};  // a view, the same again, another
+  for (int f = 0; f < 3; ++f) {
+    const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), azimuths[f], 20, 30, false, 64, 64);
+    SlicesStats ks;
+    const Image image = renderSlices(v, t, sel, tf, cam, kept, &ks);
+    EXPECT_EQ(image.pixels, renderSlices(v, t, sel, tf, cam, SlicesOptions{}).pixels);
+    EXPECT_LE(cache.bytes(), limit);  // not the whole frame's
+    EXPECT_GT(cache.size(), 0u);
+    if (f == 1) {
+      EXPECT_GT(ks.uploadedBricks, 0u);  // what was not kept is made again
+      EXPECT_LT(ks.uploadedBricks, ks.bricks);  // what was, is reused
+    }
+  }
+}
+
 TEST(Slices, VisibleBoxesCutOnlyTransparentSpace) {
   gl();
   // A shell of material around a transparent core, with a translucent quad through it, at full
