@@ -625,16 +625,14 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       std::vector<uint8_t>().swap(p.bytes);
       d.texture = drawing.texture.id();
     }
-    const Brick& kept = selection.bricks[d.brick];
-    struct Keep {  // after the draw, whichever way the iteration ends
-      CachedBrick& brick;
-      BrickTextureCache* cache;
-      const Brick& b;
-      ~Keep() {
-        if (brick.texture && cache && cache->makeRoom(brick.bytes)) cache->insert(b, std::move(brick));
-      }
-    } keep{drawing, options.textures, kept};
-    if (d.stream.empty()) continue;
+    auto keep = [&] {
+      if (drawing.texture && options.textures && options.textures->makeRoom(drawing.bytes))
+        options.textures->insert(selection.bricks[d.brick], std::move(drawing));
+    };
+    if (d.stream.empty()) {
+      keep();
+      continue;
+    }
     const FramePrograms::Slice& sp = programs.slice(d.delta > baseDelta, d.surfaceTriangles > 0);
     if (sp.id != bound) glUseProgram(bound = sp.id);
     if (d.visible) {
@@ -659,6 +657,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     glVertexAttribPointer(2, 3, GL_FLOAT, GL_FALSE, kStreamFloats * sizeof(float), reinterpret_cast<void*>(6 * sizeof(float)));
     glDrawArrays(GL_TRIANGLES, 0, GLsizei(d.stream.size() / kStreamFloats));
     std::vector<float>().swap(d.stream);
+    keep();
   }
   worker.join();
   if (failure) std::rethrow_exception(failure);
