@@ -229,7 +229,7 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
       out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
     };
     out.write(kMagic, sizeof kMagic);
-    const uint32_t header[2] = {kSceneVersion, surface ? 5u : 4u};
+    const uint32_t header[2] = {kSceneVersion, surface ? 5u : 4u};  // VOLM, KDAT, KIDX, VOCT and SURF
     out.write(reinterpret_cast<const char*>(header), sizeof header);
     write(kVolumeTag, vol.bytes());
     // The blocks stream out as they are compressed; their section's size is known at its end.
@@ -321,7 +321,7 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
   const auto corrupt = [&](const Entry& e) {
     HYB_THROW(IoError, path, ": corrupt scene file (checksum mismatch in section ", e.index, ")");
   };
-  // A section other than the volume's: read whole and checked.
+  // A section other than the store's blocks: read whole and checked.
   auto payload = [&](const Entry& e) {
     std::vector<uint8_t> bytes = file.bytes(e.offset, e.size);
     if (Section{0, {{bytes.data(), bytes.size()}}}.crc() != e.crc) corrupt(e);

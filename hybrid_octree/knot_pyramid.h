@@ -11,6 +11,7 @@
 
 #include <glm/glm.hpp>
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
@@ -27,8 +28,9 @@ inline constexpr int kPrefilterMaxSpacing = 32;
 
 /// Knots of spacing s along an axis of @p n samples: 0, s, 2s, … and n − 1.
 inline int knotCount(int n, int s) { return (n - 1) / s + 1 + ((n - 1) % s != 0); }
-/// Voxel index of knot @p j of spacing @p s on an axis of @p n samples.
-inline int knotPosition(int j, int s, int n) { return j == knotCount(n, s) - 1 ? n - 1 : j * s; }
+/// Voxel index of knot @p j of spacing @p s on an axis of @p n samples (j < knotCount(n, s)): j·s,
+/// the last knot moved onto the last sample.
+inline int knotPosition(int j, int s, int n) { return std::min(j * s, n - 1); }
 /// Knots per axis at spacing @p s.
 inline glm::ivec3 knotCounts(const glm::ivec3& n, int s) { return {knotCount(n.x, s), knotCount(n.y, s), knotCount(n.z, s)}; }
 

@@ -4,6 +4,7 @@
 #include <zstd.h>
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cstring>
 
@@ -64,6 +65,9 @@ std::vector<uint8_t> rawBlock(const Volume& v, const VolumeOctree& t, const Stor
   const glm::ivec3 d = blockDims(l, b), lo = b * kStoreBlock, n = v.dims();
   std::vector<uint8_t> out(rawBytes(l, d));
   const int s = l.spacing;
+  std::array<std::vector<int>, 3> at;  // the knots' voxel positions along each axis
+  for (int a = 0; a < 3; ++a)
+    for (int j = 0; j < d[a]; ++j) at[size_t(a)].push_back(knotPosition(lo[a] + j, s, n[a]));
   if (l.coded) {
     uint16_t* q = reinterpret_cast<uint16_t*>(out.data());
     for (int k = 0; k < d.z; ++k)
@@ -75,8 +79,7 @@ std::vector<uint8_t> rawBlock(const Volume& v, const VolumeOctree& t, const Stor
       T* q = reinterpret_cast<T*>(out.data());
       for (int k = 0; k < d.z; ++k)
         for (int j = 0; j < d.y; ++j)
-          for (int i = 0; i < d.x; ++i)
-            *q++ = data[v.index(knotPosition(lo.x + i, s, n.x), knotPosition(lo.y + j, s, n.y), knotPosition(lo.z + k, s, n.z))];
+          for (int i = 0; i < d.x; ++i) *q++ = data[v.index(at[0][size_t(i)], at[1][size_t(j)], at[2][size_t(k)])];
     });
   }
   if (l.gradients) {
@@ -84,7 +87,7 @@ std::vector<uint8_t> rawBlock(const Volume& v, const VolumeOctree& t, const Stor
     for (int k = 0; k < d.z; ++k)
       for (int j = 0; j < d.y; ++j)
         for (int i = 0; i < d.x; ++i) {
-          const glm::vec3 q = v.gradientAt(knotPosition(lo.x + i, s, n.x), knotPosition(lo.y + j, s, n.y), knotPosition(lo.z + k, s, n.z));
+          const glm::vec3 q = v.gradientAt(at[0][size_t(i)], at[1][size_t(j)], at[2][size_t(k)]);
           for (int a = 0; a < 3; ++a) *g++ = toBfloat16(q[a]);
         }
   }
@@ -93,32 +96,23 @@ std::vector<uint8_t> rawBlock(const Volume& v, const VolumeOctree& t, const Stor
 
 // Byte planes (Blosc's shuffle): the k-th bytes of every @p width-byte element together, so that
 // the high bytes of neighbouring samples, which barely vary, make long runs zstd compresses well.
-std::vector<uint8_t> shuffled(const std::vector<uint8_t>& raw, size_t width) {
-  std::vector<uint8_t> out(raw.size());
-  const size_t n = raw.size() / width;
-  for (size_t i = 0; i < n; ++i)
-    for (size_t b = 0; b < width; ++b) out[b * n + i] = raw[i * width + b];
-  return out;
-}
-void unshuffle(uint8_t* data, size_t size, size_t width) {
-  const std::vector<uint8_t> planes(data, data + size);
+// A block's values and its gradients are each shuffled by their own width.
+void toPlanes(const uint8_t* from, size_t size, size_t width, uint8_t* to) {
   const size_t n = size / width;
   for (size_t i = 0; i < n; ++i)
-    for (size_t b = 0; b < width; ++b) data[i * width + b] = planes[b * n + i];
+    for (size_t b = 0; b < width; ++b) to[b * n + i] = from[i * width + b];
 }
-
-// A block's values and gradients each as byte planes, and back.
-std::vector<uint8_t> planes(const StoreLevel& l, const std::vector<uint8_t>& raw) {
-  const size_t values = raw.size() / (scalarSize(l.type) + (l.gradients ? kGradientBytes : 0)) * scalarSize(l.type);
-  std::vector<uint8_t> out = shuffled(std::vector<uint8_t>(raw.begin(), raw.begin() + ptrdiff_t(values)), scalarSize(l.type));
-  const std::vector<uint8_t> g = shuffled(std::vector<uint8_t>(raw.begin() + ptrdiff_t(values), raw.end()), sizeof(uint16_t));
-  out.insert(out.end(), g.begin(), g.end());
-  return out;
+void fromPlanes(const uint8_t* from, size_t size, size_t width, uint8_t* to) {
+  const size_t n = size / width;
+  for (size_t i = 0; i < n; ++i)
+    for (size_t b = 0; b < width; ++b) to[i * width + b] = from[b * n + i];
 }
-void unplane(const StoreLevel& l, std::vector<uint8_t>* bytes) {
-  const size_t values = bytes->size() / (scalarSize(l.type) + (l.gradients ? kGradientBytes : 0)) * scalarSize(l.type);
-  unshuffle(bytes->data(), values, scalarSize(l.type));
-  unshuffle(bytes->data() + values, bytes->size() - values, sizeof(uint16_t));
+// Calls @p f(offset, bytes, width) for a block's values and its gradients.
+template <class F>
+void eachPart(const StoreLevel& l, size_t size, F&& f) {
+  const size_t values = size / (scalarSize(l.type) + (l.gradients ? kGradientBytes : 0)) * scalarSize(l.type);
+  f(size_t(0), values, scalarSize(l.type));
+  f(values, size - values, sizeof(uint16_t));
 }
 
 // Values and indices as the index's bytes hold them.
@@ -162,7 +156,9 @@ std::vector<uint8_t> writeKnotStore(const Volume& v, const VolumeOctree& t, std:
 #pragma omp parallel for schedule(dynamic) if (count > 1)
       for (size_t k = 0; k < count; ++k)
         failure.run([&] {
-          const std::vector<uint8_t> raw = planes(*l, rawBlock(v, t, *l, order[first + k]));
+          const std::vector<uint8_t> block = rawBlock(v, t, *l, order[first + k]);
+          std::vector<uint8_t> raw(block.size());
+          eachPart(*l, block.size(), [&](size_t at, size_t n, size_t width) { toPlanes(block.data() + at, n, width, raw.data() + at); });
           std::vector<uint8_t>& z = packed[k];
           z.resize(ZSTD_compressBound(raw.size()));
           const size_t n = ZSTD_compress(z.data(), z.size(), raw.data(), raw.size(), kStoreCompression);
@@ -265,11 +261,11 @@ std::shared_ptr<const KnotStore::Block> KnotStore::load(size_t level, const glm:
   if (crcOf(z.data(), z.size()) != e.crc) HYB_THROW(IoError, where(), " is corrupt (checksum mismatch)");
   auto made = std::make_shared<Block>();
   made->dims = blockDims(l, b);
-  made->bytes.resize(rawBytes(l, made->dims));
-  const size_t n = ZSTD_decompress(made->bytes.data(), made->bytes.size(), z.data(), z.size());
-  if (ZSTD_isError(n) || n != made->bytes.size())
-    HYB_THROW(IoError, where(), " does not decompress to its ", made->bytes.size(), " bytes");
-  unplane(l, &made->bytes);
+  std::vector<uint8_t> planes(rawBytes(l, made->dims));
+  const size_t n = ZSTD_decompress(planes.data(), planes.size(), z.data(), z.size());
+  if (ZSTD_isError(n) || n != planes.size()) HYB_THROW(IoError, where(), " does not decompress to its ", planes.size(), " bytes");
+  made->bytes.resize(planes.size());
+  eachPart(l, planes.size(), [&](size_t at, size_t size, size_t width) { fromPlanes(planes.data() + at, size, width, made->bytes.data() + at); });
   const std::lock_guard lock(mMutex);
   ++mStats.misses;
   mStats.bytesRead += e.size;

@@ -326,17 +326,9 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
       toPack.push_back(i);
     }
   plan.uploaded = toPack.size();
-  // Packed in batches on all cores. The textures of bricks the cutting plane crosses are made now
-  // (the plane is drawn before the bricks); the others' when they are drawn.
-  auto crossesCut = [&](uint32_t i) {
-    if (!options.cut) return false;
-    glm::ivec3 lo, hi;
-    octree.voxelBox(octree.nodes()[i], &lo, &hi);
-    std::vector<float> polygon;
-    return slicePolygon(glm::dvec3(lo) * spacing, glm::dvec3(hi) * spacing, glm::dvec3(cut), -cut.w, &polygon);
-  };
+  // Packed in batches on all cores; textures are made below for bricks the cutting plane crosses
+  // (the plane is drawn before the bricks), the others' when they are drawn.
   constexpr size_t kBatch = 256;
-  std::vector<CachedBrick> uploaded(toPack.size());
   plan.pending.resize(toPack.size());
   for (size_t first = 0; first < toPack.size(); first += kBatch) {
     const size_t count = std::min(kBatch, toPack.size() - first);
@@ -352,12 +344,6 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
         p.brick.ranges = texelRanges(texels, octree.lattice(octree.nodes()[i], b.p).dims);
       });
     failure.rethrow();
-    for (size_t k = first; k < first + count; ++k)
-      if (crossesCut(toPack[k])) {
-        const glm::ivec3 dims = octree.lattice(octree.nodes()[toPack[k]], selection.bricks[size_t(brickOf[toPack[k]])].p).dims;
-        uploaded[k] = uploadBrick(std::move(plan.pending[k]), dims, options.texelBits);
-        plan.pending[k] = PackedBrick{};
-      }
   }
   plan.draws.reserve(order.size());
   for (uint32_t i : order) {
@@ -377,19 +363,22 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
     d.sliced = d.visible;
     if (d.visible) {
       CachedBrick* cached = options.textures ? options.textures->find(b) : nullptr;
+      CutPiece piece;
+      const bool crossed = options.cut && slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &piece.polygon);
       CachedBrick made;
       if (!cached) {
-        made = std::move(uploaded[size_t(packedOf[i])]);
-        if (!made.texture) {
+        PackedBrick& packed = plan.pending[size_t(packedOf[i])];
+        if (crossed) {
+          made = uploadBrick(std::move(packed), fine.dims, options.texelBits);
+          packed = PackedBrick{};
+          if (options.textures) cached = &options.textures->insert(b, std::move(made));
+        } else {
           d.pending = packedOf[i];
           d.texels = fine.dims;
-        } else if (options.textures) {
-          cached = &options.textures->insert(b, std::move(made));
         }
       }
       CachedBrick& brick = cached ? *cached : d.pending >= 0 ? plan.pending[size_t(d.pending)].brick : made;
-      CutPiece piece;
-      if (options.cut && slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &piece.polygon)) {
+      if (crossed) {
         if (options.texelBits == TexelBits::Sixteen) {
           piece.texture = brick.texture.id();  // its value is 16 bits already
         } else {
