@@ -1,7 +1,6 @@
 #include "render/patient_view.h"
 
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -124,79 +123,91 @@ std::vector<glm::dvec3> visiblePoints(const Volume& volume, const VolumeOctree& 
   auto visible = [&](float lo, float hi) { return tf.maxAlpha(lo, hi) > 0.0f || (iso && lo < *iso && *iso <= hi); };
   const glm::ivec3 dims = volume.dims(), cells = glm::max(dims - 1, glm::ivec3(1));
   const int leaf = octree.leafEdge();
-  // The leaves that can hold a visible cell.
-  std::vector<glm::ivec3> leaves;
+  const glm::ivec3 grid = (cells + leaf - 1) / leaf;
+  // Which leaves can hold a visible cell.
+  std::vector<char> leafVisible(size_t(grid.x) * size_t(grid.y) * size_t(grid.z), 0);
   std::vector<uint32_t> stack{0};
   while (!stack.empty()) {
     const OctreeNode& n = octree.nodes()[stack.back()];
     stack.pop_back();
     if (!visible(n.minValue, n.maxValue)) continue;  // nor is any node inside it
     if (n.isLeaf()) {
-      const glm::ivec3 lo = glm::ivec3(n.origin) / leaf, hi = glm::min((glm::ivec3(n.origin) + octree.edge(n) + leaf - 1) / leaf, (cells + leaf - 1) / leaf);
+      const glm::ivec3 lo = glm::ivec3(n.origin) / leaf, hi = glm::min((glm::ivec3(n.origin) + octree.edge(n) + leaf - 1) / leaf, grid);
       for (int z = lo.z; z < hi.z; ++z)
         for (int y = lo.y; y < hi.y; ++y)
-          for (int x = lo.x; x < hi.x; ++x) leaves.emplace_back(x, y, z);
+          for (int x = lo.x; x < hi.x; ++x) leafVisible[size_t(x) + size_t(grid.x) * (size_t(y) + size_t(grid.y) * size_t(z))] = 1;
       continue;
     }
     for (int slot = 0; slot < 8; ++slot)
       if (n.childMask & (1u << slot)) stack.push_back(childIndex(n, slot));
   }
-  // Per row of cells (j, k), the first and last visible cell: each leaf's, read from its samples
-  // alone (a paged scene reads the blocks of the visible leaves), then the smallest and largest.
+  // Per row of cells (j, k), the first and last visible cell, found band by band (the rows of a
+  // line of leaves along x) from either end, reading only the samples of the visible leaves met
+  // before each row's first and last (a paged scene reads no other block).
   const VolumeKnots inMemory(volume, octree);
   const KnotSource& source = knots ? *knots : inMemory;
   const size_t rowCount = size_t(cells.y) * size_t(cells.z);
-  std::vector<int> first(rowCount, std::numeric_limits<int>::max()), last(rowCount, -1);
+  std::vector<int> first(rowCount, -1), last(rowCount, -1);
   ParallelFailure failure;
 #pragma omp parallel
   {
     std::vector<float> box;
-    std::vector<std::array<int, 3>> found;  // row, first, last
-#pragma omp for schedule(dynamic, 16)
-    for (size_t l = 0; l < leaves.size(); ++l)
+    glm::ivec3 lo{0}, top{0}, count{0};  // the leaf read: its samples [lo, top]
+    // The samples of leaf @p lx of the band whose rows start at (j0, k0).
+    auto read = [&](int lx, int j0, int k0) {
+      lo = glm::ivec3(lx * leaf, j0, k0);
+      top = glm::min(glm::min(lo + leaf, cells), dims - 1);
+      count = top - lo + 1;
+      box.resize(size_t(count.x) * size_t(count.y) * size_t(count.z));
+      source.read(1, lo, count, box.data(), nullptr);
+    };
+    // Whether the range of cell (i, j, k) of the leaf read can be visible: its corners, clamped to
+    // the grid (a grid one sample thick has cells of one sample along that axis).
+    auto cellVisible = [&](int i, int j, int k) {
+      float a = 1e30f, b = -1e30f;
+      for (int c = 0; c < 8; ++c) {
+        const glm::ivec3 q = glm::min(glm::ivec3(i + (c & 1), j + (c >> 1 & 1), k + (c >> 2 & 1)), top) - lo;
+        const float v = box[size_t(q.x) + size_t(count.x) * (size_t(q.y) + size_t(count.y) * size_t(q.z))];
+        a = std::min(a, v);
+        b = std::max(b, v);
+      }
+      return visible(a, b);
+    };
+#pragma omp for schedule(dynamic)
+    for (int band = 0; band < grid.y * grid.z; ++band)
       failure.run([&] {
-        const glm::ivec3 lo = leaves[l] * leaf, hi = glm::min(lo + leaf, cells);  // cells [lo, hi)
-        const glm::ivec3 top = glm::min(hi, dims - 1), count = top - lo + 1;          // samples [lo, top]
-        box.resize(size_t(count.x) * size_t(count.y) * size_t(count.z));
-        source.read(1, lo, count, box.data(), nullptr);
-        auto at = [&](int i, int j, int k) {
-          return box[size_t(std::min(i, top.x) - lo.x) + size_t(count.x) * (size_t(std::min(j, top.y) - lo.y) + size_t(count.y) * size_t(std::min(k, top.z) - lo.z))];
-        };
-        // The range of cell (i, j, k): its corners, clamped to the grid (a grid one sample thick
-        // has cells of one sample along that axis).
-        auto cellVisible = [&](int i, int j, int k) {
-          float a = 1e30f, b = -1e30f;
-          for (int c = 0; c < 8; ++c) {
-            const float v = at(i + (c & 1), j + (c >> 1 & 1), k + (c >> 2 & 1));
-            a = std::min(a, v);
-            b = std::max(b, v);
-          }
-          return visible(a, b);
-        };
-        for (int k = lo.z; k < hi.z; ++k)
-          for (int j = lo.y; j < hi.y; ++j) {
-            int f = -1, e = -1;
-            for (int i = lo.x; i < hi.x && f < 0; ++i)
-              if (cellVisible(i, j, k)) f = i;
-            if (f < 0) continue;
-            for (int i = hi.x - 1; i >= f && e < 0; --i)
-              if (cellVisible(i, j, k)) e = i;
-            found.push_back({j + cells.y * k, f, e});
-          }
+        const char* leaves = &leafVisible[size_t(grid.x) * size_t(band)];
+        const int j0 = band % grid.y * leaf, k0 = band / grid.y * leaf, j1 = std::min(j0 + leaf, cells.y), k1 = std::min(k0 + leaf, cells.z);
+        auto row = [&](int j, int k) { return size_t(j) + size_t(cells.y) * size_t(k); };
+        int open = (j1 - j0) * (k1 - k0);  // rows whose first visible cell is not found yet
+        for (int lx = 0; lx < grid.x && open > 0; ++lx) {
+          if (!leaves[lx]) continue;
+          read(lx, j0, k0);
+          for (int k = k0; k < k1; ++k)
+            for (int j = j0; j < j1; ++j)
+              for (int i = lo.x; first[row(j, k)] < 0 && i < std::min(lo.x + leaf, cells.x); ++i)
+                if (cellVisible(i, j, k)) first[row(j, k)] = i, --open;
+        }
+        open = 0;  // rows with a visible cell whose last is not found yet
+        for (int k = k0; k < k1; ++k)
+          for (int j = j0; j < j1; ++j) open += first[row(j, k)] >= 0;
+        for (int lx = grid.x - 1; lx >= 0 && open > 0; --lx) {
+          if (!leaves[lx]) continue;
+          read(lx, j0, k0);
+          for (int k = k0; k < k1; ++k)
+            for (int j = j0; j < j1; ++j)
+              for (int i = std::min(lo.x + leaf, cells.x) - 1; first[row(j, k)] >= 0 && last[row(j, k)] < 0 && i >= lo.x; --i)
+                if (cellVisible(i, j, k)) last[row(j, k)] = i, --open;
+        }
       });
-#pragma omp critical
-    for (const auto& [row, f, e] : found) {
-      first[size_t(row)] = std::min(first[size_t(row)], f);
-      last[size_t(row)] = std::max(last[size_t(row)], e);
-    }
   }
   failure.rethrow();
   std::vector<glm::dvec3> points;
   for (int k = 0; k < cells.z; ++k)
     for (int j = 0; j < cells.y; ++j) {
-      const size_t row = size_t(j) + size_t(cells.y) * size_t(k);
-      if (last[row] < 0) continue;
-      const int x0 = first[row], x1 = std::min(last[row] + 1, dims.x - 1), y1 = std::min(j + 1, dims.y - 1), z1 = std::min(k + 1, dims.z - 1);
+      const size_t r = size_t(j) + size_t(cells.y) * size_t(k);
+      if (last[r] < 0) continue;
+      const int x0 = first[r], x1 = std::min(last[r] + 1, dims.x - 1), y1 = std::min(j + 1, dims.y - 1), z1 = std::min(k + 1, dims.z - 1);
       for (const int x : {x0, x1})
         for (const int y : {j, y1})
           for (const int z : {k, z1}) points.push_back(volume.frame().toPatient(glm::dvec3(x, y, z) * volume.spacing()));
