@@ -6,6 +6,7 @@
 #include <limits>
 #include <queue>
 #include <string>
+#include <unordered_map>
 
 #include "volume/error.h"
 
@@ -53,29 +54,15 @@ glm::ivec3 nodeHi(const VolumeOctree& t, const OctreeNode& n) { return glm::ivec
 // refinement whose restriction closure overruns the budget can be taken back.
 class Refiner {
  public:
-  Refiner(const VolumeOctree& t, const SelectionParams& params)
-      : mT(t), mParams(params), mP(t.nodes().size(), -1), mHidden(t.nodes().size()), mNearEye(t.nodes().size()),
-        mImportance(t.nodes().size()), mPixelMm(t.nodes().size()) {
-    for (size_t i = 0; i < mHidden.size(); ++i) {
-      const OctreeNode& n = t.nodes()[i];
-      glm::dvec3 boxLo, boxHi;
-      worldBox(t, n, params.spacing, &boxLo, &boxHi);
-      const bool transparent = params.opacity && !(params.opacity(n.minValue, n.maxValue) > 0.0f);
-      const bool culled = params.inView && !params.inView(boxLo, boxHi);
-      mHidden[i] = transparent || culled;
-      mImportance[i] = nodeImportance(t, n, params);
-      // LaMar's distance filter: a node nearer to the eye than its own diagonal is too coarse.
-      mNearEye[i] = params.eye && distanceToBox(*params.eye, boxLo, boxHi) < glm::length(boxHi - boxLo);
-      mPixelMm[i] = params.pixelSize && params.lodPixels > 0.0 ? params.lodPixels * params.pixelSize(boxLo, boxHi) : 0.0;
-    }
+  Refiner(const VolumeOctree& t, const SelectionParams& params) : mT(t), mParams(params), mP(t.nodes().size(), -1) {
     mBrickLevel = std::max(0, std::countr_zero(unsigned(params.maxBrickEdge)));
     set(0, 0);
   }
 
   uint64_t texels() const { return mTexels; }
   const std::vector<int8_t>& levels() const { return mP; }
-  bool hidden(uint32_t i) const { return mHidden[i]; }
-  double importance(uint32_t i) const { return mImportance[i]; }
+  bool hidden(uint32_t i) const { return view(i).hidden; }
+  double importance(uint32_t i) const { return view(i).importance; }
 
   // Refines every brick that asks for it, best first, within the budget. A refinement that was
   // taken back may fit once others have happened (a free split whose restriction closure cost
@@ -120,15 +107,15 @@ class Refiner {
  private:
   int level(uint32_t i) const { return mT.maxLevel(mT.nodes()[i]) - mP[i]; }
 
-  float tolerance(uint32_t i) const { return float(double(mParams.epsilon) / mImportance[i]); }
+  float tolerance(uint32_t i) const { return float(double(mParams.epsilon) / view(i).importance); }
 
   bool overTolerance(uint32_t i) const { return mT.errors(mT.nodes()[i])[size_t(mP[i])] > tolerance(i); }
   // Refinement asked for by ε_u or by the distance filter (where it still changes anything).
   bool asked(uint32_t i) const {
     const OctreeNode& n = mT.nodes()[i];
     const double texelMm = double(mT.edge(n) >> mP[i]) * std::min({mParams.spacing.x, mParams.spacing.y, mParams.spacing.z});
-    if (texelMm <= mPixelMm[i]) return false;  // finer texels would not be seen
-    return overTolerance(i) || (mNearEye[i] && mT.errors(n)[size_t(mP[i])] > 0.0f);
+    if (texelMm <= view(i).pixelMm) return false;  // finer texels would not be seen
+    return overTolerance(i) || (view(i).nearEye && mT.errors(n)[size_t(mP[i])] > 0.0f);
   }
 
   // Whether splitting brick i costs no more texels than keeping it: its transparent or culled
@@ -143,7 +130,7 @@ class Refiner {
   }
 
   bool wantsRefinement(uint32_t i) const {
-    return mP[i] >= 0 && !mHidden[i] && level(i) > 0 && (asked(i) || splitIsFree(i));
+    return mP[i] >= 0 && !hidden(i) && level(i) > 0 && (asked(i) || splitIsFree(i));
   }
 
   // P = D·Imp with D the distortion of ε_p after the transfer function, or with brickError the
@@ -153,9 +140,9 @@ class Refiner {
     if (!asked(i)) return std::numeric_limits<double>::infinity();
     const OctreeNode& n = mT.nodes()[i];
     const float e = mT.errors(n)[size_t(mP[i])];
-    if (mParams.brickError && mParams.texelBudget > 0) return imageGain(i) * mImportance[i] + 1e-12 * double(e);
+    if (mParams.brickError && mParams.texelBudget > 0) return imageGain(i) * view(i).importance + 1e-12 * double(e);
     const double d = mParams.distortion ? mParams.distortion(n.minValue, n.maxValue, e) : double(e);
-    return d * mImportance[i] + 1e-12 * double(e);
+    return d * view(i).importance + 1e-12 * double(e);
   }
 
   // Has the image errors that the priorities of bricks @p nodes will read measured together.
@@ -178,7 +165,7 @@ class Refiner {
     const OctreeNode& n = mT.nodes()[i];
     std::vector<std::pair<uint32_t, int>> children;
     for (int slot = 0; slot < 8; ++slot)
-      if ((n.childMask & (1u << slot)) && !mHidden[childIndex(n, slot)]) children.push_back({childIndex(n, slot), mP[i]});
+      if ((n.childMask & (1u << slot)) && !hidden(childIndex(n, slot))) children.push_back({childIndex(n, slot), mP[i]});
     return children;
   }
 
@@ -195,7 +182,7 @@ class Refiner {
   }
 
   // Texels brick i costs at level p.
-  uint64_t cost(uint32_t i, int p) const { return p < 0 || mHidden[i] ? 0 : mT.lattice(mT.nodes()[i], p).count(); }
+  uint64_t cost(uint32_t i, int p) const { return p < 0 || hidden(i) ? 0 : mT.lattice(mT.nodes()[i], p).count(); }
 
   // Every change of the cut goes through here (journalled).
   void set(uint32_t i, int p) {
@@ -239,11 +226,11 @@ class Refiner {
     while (!work.empty()) {
       const uint32_t b = work.back();
       work.pop_back();
-      if (mP[b] < 0 || mHidden[b]) continue;
+      if (mP[b] < 0 || hidden(b)) continue;
       const OctreeNode& n = mT.nodes()[b];
       uint32_t coarse = UINT32_MAX;
       forEachBrickTouching(mT, nodeLo(n), nodeHi(mT, n), isBrick, [&](uint32_t j) {
-        if (coarse == UINT32_MAX && !mHidden[j] && level(j) > level(b) + 1) coarse = j;
+        if (coarse == UINT32_MAX && !hidden(j) && level(j) > level(b) + 1) coarse = j;
       });
       if (coarse == UINT32_MAX) continue;
       work.push_back(b);  // check b again once this neighbour is one level finer
@@ -254,9 +241,30 @@ class Refiner {
   const VolumeOctree& mT;
   const SelectionParams& mParams;
   std::vector<int8_t> mP;  // brick level per node, −1 when the node is not a brick
-  std::vector<uint8_t> mHidden, mNearEye;
-  std::vector<double> mImportance;
-  std::vector<double> mPixelMm;  // lodPixels pixels at the node, mm (0: no screen-space stop)
+  // What the view makes of a node, computed when the refinement first meets it: a frame meets a
+  // few thousand of a large study's millions of nodes.
+  struct NodeView {
+    bool hidden = false;   // transparent under the transfer function, or outside the view
+    bool nearEye = false;  // LaMar's distance filter: nearer to the eye than its own diagonal
+    double importance = 1.0;
+    double pixelMm = 0.0;  // lodPixels pixels at the node, mm (0: no screen-space stop)
+  };
+  const NodeView& view(uint32_t i) const {
+    const auto [it, added] = mViews.try_emplace(i);
+    if (added) {
+      NodeView& v = it->second;
+      const OctreeNode& n = mT.nodes()[i];
+      glm::dvec3 boxLo, boxHi;
+      worldBox(mT, n, mParams.spacing, &boxLo, &boxHi);
+      const bool transparent = mParams.opacity && !(mParams.opacity(n.minValue, n.maxValue) > 0.0f);
+      v.hidden = transparent || (mParams.inView && !mParams.inView(boxLo, boxHi));
+      v.importance = nodeImportance(mT, n, mParams);
+      v.nearEye = mParams.eye && distanceToBox(*mParams.eye, boxLo, boxHi) < glm::length(boxHi - boxLo);
+      v.pixelMm = mParams.pixelSize && mParams.lodPixels > 0.0 ? mParams.lodPixels * mParams.pixelSize(boxLo, boxHi) : 0.0;
+    }
+    return it->second;
+  }
+  mutable std::unordered_map<uint32_t, NodeView> mViews;
   int mBrickLevel = 6;
   uint64_t mTexels = 0;
   std::vector<std::pair<uint32_t, int8_t>> mJournal;  // (node, previous level)

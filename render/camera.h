@@ -3,6 +3,8 @@
 
 #include <glm/glm.hpp>
 
+#include <cmath>
+
 namespace hyb {
 
 /// Limits of a camera a user gives: coordinates within ±kMaxCameraMm of the patient origin (1 km;
@@ -47,6 +49,11 @@ struct Camera {
   /// Whether any part of the box [lo, hi] (mm) may be seen: false only when all eight corners lie
   /// outside one side of the view frustum (the near side being the eye plane; ortho: no near side).
   bool seesBox(const glm::dvec3& lo, const glm::dvec3& hi) const;
+  /// The size (mm) of a pixel at the nearest point of the box [lo, hi] to the eye.
+  double pixelMmAt(const glm::dvec3& lo, const glm::dvec3& hi) const {
+    if (ortho) return orthoHeight / height;
+    return 2.0 * glm::length(eye - glm::clamp(eye, lo, hi)) * std::tan(glm::radians(fovDeg) * 0.5) / height;
+  }
   /// Ray through the point (px, py) in pixel units (pixel centres at +0.5).
   void ray(double px, double py, glm::dvec3* origin, glm::dvec3* dir) const;
 };

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <limits>
 
+#include "volume/error.h"
+
 namespace hyb {
 
 namespace {
@@ -79,12 +81,13 @@ bool visibleBox(const VisibleBlocks& v, const KnotLattice& L, glm::dvec3* lo, gl
   return true;
 }
 
-void proxyBoxes(const VisibleBlocks& v, const KnotLattice& L, const glm::dvec3& spacing, const ProxyDepth& depth, double delta, long long kLo, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes) {
+void proxyBoxes(const VisibleBlocks& v, const KnotLattice& L, const glm::dvec3& spacing, const ProxyDepth& depth, double delta, long long kLo,
+                int merge, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes) {
   const long long count = (long long)boxes->size();
   std::fill(boxes->begin(), boxes->end(), std::pair{glm::dvec3(1e300), glm::dvec3(-1e300)});
-  forEachVisibleBlock(v, [&](const glm::ivec3& b) {
+  auto add = [&](const glm::ivec3& b0, const glm::ivec3& b1) {
     glm::dvec3 lo, hi;
-    blockBox(L, b, b, &lo, &hi);
+    blockBox(L, b0, b1, &lo, &hi);
     lo *= spacing;
     hi *= spacing;
     const auto [near, far] = depth.range(lo, hi);
@@ -95,7 +98,31 @@ void proxyBoxes(const VisibleBlocks& v, const KnotLattice& L, const glm::dvec3& 
       ulo = glm::min(ulo, lo);
       uhi = glm::max(uhi, hi);
     }
-  });
+  };
+  HYB_DCHECK(std::has_single_bit(unsigned(merge)));
+  if (merge == 1) {
+    forEachVisibleBlock(v, [&](const glm::ivec3& b) { add(b, b); });
+    return;
+  }
+  // Groups of merge³ blocks, each visible when any of its blocks is.
+  const glm::ivec3 groups = (v.blocks + merge - 1) / merge;
+  std::vector<uint8_t> any(size_t(groups.x) * size_t(groups.y) * size_t(groups.z), 0);
+  const int shift = std::countr_zero(unsigned(merge));
+  size_t index = 0;
+  for (int z = 0; z < v.blocks.z; ++z)
+    for (int y = 0; y < v.blocks.y; ++y) {
+      uint8_t* row = &any[size_t(groups.x) * (size_t(y >> shift) + size_t(groups.y) * size_t(z >> shift))];
+      for (int x = 0; x < v.blocks.x; ++x, ++index)
+        if (v.bits[index >> 6] >> (index & 63) & 1) row[x >> shift] = 1;
+    }
+  index = 0;
+  for (int z = 0; z < groups.z; ++z)
+    for (int y = 0; y < groups.y; ++y)
+      for (int x = 0; x < groups.x; ++x, ++index)
+        if (any[index]) {
+          const glm::ivec3 b0 = glm::ivec3(x, y, z) * merge;
+          add(b0, glm::min(b0 + merge - 1, v.blocks - 1));
+        }
 }
 
 bool slicePolygon(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& f, double depth, std::vector<float>* out) {

@@ -28,11 +28,7 @@ SelectionParams viewSelectionParams(const Volume& volume, const TransferFunction
   params.distortion = [f](float lo, float hi, float error) { return f->distortion(lo, hi, error); };
   // LaMar's screen-space stop: the size of a pixel at a box's nearest point.
   params.lodPixels = choice.lodPixels;
-  params.pixelSize = [c](const glm::dvec3& lo, const glm::dvec3& hi) {
-    if (c->ortho) return c->orthoHeight / c->height;
-    const double d = glm::length(c->eye - glm::clamp(c->eye, lo, hi));
-    return 2.0 * d * std::tan(glm::radians(c->fovDeg) * 0.5) / c->height;
-  };
+  params.pixelSize = [c](const glm::dvec3& lo, const glm::dvec3& hi) { return c->pixelMmAt(lo, hi); };
   // Within a budget, texels go where they change this image most (measured per brick, on first use).
   if (errors) {
     params.brickError = [errors](uint32_t node, int p) { return errors->get()(node, p); };

@@ -456,7 +456,12 @@ void buildStream(BrickDraw& d, const SurfacePolygons* surface, const BrickPolygo
   }
   if (d.blocks) {
     boxes.resize(size_t(kHi - kLo + 1));
-    proxyBoxes(*d.blocks, d.lattice, spacing, depth, d.delta, kLo, &boxes);
+    // Blocks are merged while a group spans at most two pixels: finer boxes would cut no
+    // fragment more, and a small frame of a large study has many blocks to each pixel.
+    const double blockMm = 2.0 * d.lattice.step * std::min({spacing.x, spacing.y, spacing.z}), pixelMm = camera.pixelMmAt(d.blo, d.bhi);
+    int merge = 1;
+    while (merge < 64 && 2 * merge * blockMm <= 2.0 * pixelMm) merge *= 2;
+    proxyBoxes(*d.blocks, d.lattice, spacing, depth, d.delta, kLo, merge, &boxes);
   }
   for (long long k = kHi; k >= kLo; --k) {
     if (surface && slabOrder) list.emitDownTo(k, &d.stream);

@@ -105,5 +105,46 @@ TEST(ProxyGeometry, VisibleBlocksAreFoundOncePerTransferFunction) {
   EXPECT_EQ(blocks.bits[0], 0u);
 }
 
+TEST(ProxyGeometry, ProxyBoxesHoldTheVisibleBlocksEachPlaneMeetsAlsoWhenMerged) {
+  // A lattice of 9 knots of step 1 per axis: 4 blocks of 2 cells per axis. Visible: block (0, 0, 0)
+  // (voxels 0–2 on each axis) and block (3, 0, 3) (x 6–8, y 0–2, z 6–8).
+  KnotLattice L;
+  L.dims = glm::ivec3(9);
+  L.last = glm::ivec3(8);
+  VisibleBlocks v;
+  v.blocks = glm::ivec3(4);
+  v.bits.assign(1, 0);
+  auto set = [&](int x, int y, int z) { const int i = x + 4 * (y + 4 * z); v.bits[size_t(i) / 64] |= uint64_t(1) << (i % 64); };
+  set(0, 0, 0);
+  set(3, 0, 3);
+  const ProxyDepth depth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)};  // planes z = k
+  std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes(9);
+  const glm::dvec3 spacing(0.5, 1.0, 2.0);
+  proxyBoxes(v, L, spacing, depth, 2.0, 0, 1, &boxes);  // planes z = 0, 2, …, 16 mm
+  // z = 0…4 mm meet the first block only, z = 12…16 mm the second, 6 and 10 mm neither.
+  for (int k = 0; k <= 2; ++k) {
+    EXPECT_EQ(boxes[size_t(k)].first, glm::dvec3(0.0)) << k;
+    EXPECT_EQ(boxes[size_t(k)].second, glm::dvec3(1.0, 2.0, 4.0)) << k;
+  }
+  for (int k = 3; k <= 5; ++k) EXPECT_GT(boxes[size_t(k)].first.x, boxes[size_t(k)].second.x) << k;
+  for (int k = 6; k <= 8; ++k) {
+    EXPECT_EQ(boxes[size_t(k)].first, glm::dvec3(3.0, 0.0, 12.0)) << k;
+    EXPECT_EQ(boxes[size_t(k)].second, glm::dvec3(4.0, 2.0, 16.0)) << k;
+  }
+  // Merged by 2: groups of 2³ blocks, visible where any block is: the boxes of the groups (0, 0, 0)
+  // (voxels 0–4) and (1, 0, 1) (x 4–8, y 0–4, z 4–8), each over the planes its group spans.
+  proxyBoxes(v, L, spacing, depth, 2.0, 0, 2, &boxes);
+  for (int k = 0; k <= 3; ++k) {
+    EXPECT_EQ(boxes[size_t(k)].first, glm::dvec3(0.0)) << k;
+    EXPECT_EQ(boxes[size_t(k)].second, glm::dvec3(2.0, 4.0, 8.0)) << k;
+  }
+  EXPECT_EQ(boxes[4].first, glm::dvec3(0.0));  // z = 8 mm: both groups' faces
+  EXPECT_EQ(boxes[4].second, glm::dvec3(4.0, 4.0, 16.0));
+  for (int k = 5; k <= 8; ++k) {
+    EXPECT_EQ(boxes[size_t(k)].first, glm::dvec3(2.0, 0.0, 8.0)) << k;
+    EXPECT_EQ(boxes[size_t(k)].second, glm::dvec3(4.0, 4.0, 16.0)) << k;
+  }
+}
+
 }  // namespace
 }  // namespace hyb
