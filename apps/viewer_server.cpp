@@ -43,8 +43,9 @@ using tcp = net::ip::tcp;
 using nlohmann::json;
 using Clock = std::chrono::steady_clock;
 
-// Frames before the final one draw the surface simplified within blocks of this edge: with bricks no smaller,
-// each of its triangles lies inside one brick and is drawn in the right order.
+// Frames before the final one draw the surface simplified, its finest level within blocks of this edge: with
+// bricks no smaller, each of its triangles lies inside one brick and is drawn in the right order (coarser
+// levels, drawn where pixels are larger than their error, are placed by their triangles' centroids).
 static_assert(kInteractiveBrickEdge == kSimplifiedBlockVoxels);
 
 namespace {
@@ -486,6 +487,7 @@ struct ServerState {
       p.quality.reuseViewErrors = r.interacting;
       // The refining frame too: it comes between the motion and the final frame, which it delays.
       p.quality.simplifiedSurface = true;
+      p.quality.surfaceErrorPixels = kInteractiveSurfaceErrorPixels;
       p.quality.cutToSlabs = false;
       p.quality.maxBrickEdge = kInteractiveBrickEdge;
       p.quality.lodPixels = kInteractiveLodPixels;

@@ -93,6 +93,7 @@ std::string Quality::validate() const {
   if (!(std::isfinite(adaptive) && adaptive >= 0 && adaptive <= 255)) return "--adaptive must be a colour difference in [0, 255] (units of 1/255)";
   if (adaptive > 0 && renderer != Renderer::Raycast) return "--adaptive needs --renderer raycast (Levoy's adaptive refinement of the reference's rays)";
   if (focus && !(std::isfinite(focus->x) && std::isfinite(focus->y) && std::isfinite(focus->z))) return "--focus must be three finite coordinates";
+  if (!(std::isfinite(surfaceErrorPixels) && surfaceErrorPixels >= 0)) return "surface error must be a finite number of pixels >= 0";
   SelectionParams limits;  // the selection's own checks: the brick edge and the screen-space stop
   limits.maxBrickEdge = maxBrickEdge;
   limits.lodPixels = lodPixels;
@@ -128,11 +129,19 @@ void SceneRenderer::dropTextures() {
 }
 
 void SceneRenderer::simplify(const Volume& volume, PreparedSurface* surface, const Progress* progress) {
-  if (surface->simplified) return;
+  if (!surface->simplified.empty()) return;
+  HYB_CHECK(volume.hasSamples());
   const glm::dvec3 spacing = volume.spacing();
-  surface->simplified =
-      simplifyWithinBlocks(surface->smooth, double(kSimplifiedBlockVoxels) * spacing, std::min({spacing.x, spacing.y, spacing.z}), progress);
-  setGradientNormals(volume, &*surface->simplified);
+  const double voxelMm = std::min({spacing.x, spacing.y, spacing.z});
+  std::vector<TriangleMesh> levels;
+  for (int k = 0; k < kSimplifiedLevels; ++k) {
+    // Level k from level k − 1 within 2^(k−1) voxels more: errors add up to 2^k voxels.
+    const double step = k == 0 ? 1.0 : double(1 << (k - 1));
+    levels.push_back(simplifyWithinBlocks(k == 0 ? surface->smooth : levels.back(), double(kSimplifiedBlockVoxels << k) * spacing,
+                                          step * voxelMm, progress));
+    setGradientNormals(volume, &levels.back());
+  }
+  surface->simplified = std::move(levels);
 }
 
 std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats,
@@ -141,6 +150,7 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   auto s = std::make_unique<PreparedSurface>();
   s->iso = iso;
   const Volume& v = scene.volume;
+  HYB_CHECK(v.hasSamples());  // a paged scene's samples are attached first (SceneRenderer::ensureSamples)
   const bool fromScene = scene.surface && scene.surface->isovalue() == iso;
   auto t0 = Clock::now();
   if (!fromScene) {
@@ -265,7 +275,13 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     if (quality.simplifiedSurface && quality.renderer == Renderer::Slices) {
       PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
       simplify(v, &s, mOptions.progress);
-      mesh = &*s.simplified;
+      // The coarsest level whose error (2^k voxels) is within the pixels asked where the volume is nearest.
+      const glm::dvec3 spacing = v.spacing();
+      const double pixelMm = camera.pixelMmAt(glm::dvec3(0.0), glm::dvec3(v.dims() - 1) * spacing);
+      const double voxelMm = std::min({spacing.x, spacing.y, spacing.z});
+      size_t k = 0;
+      while (k + 1 < s.simplified.size() && double(2 << k) * voxelMm <= quality.surfaceErrorPixels * pixelMm) ++k;
+      mesh = &s.simplified[k];
     } else {
       mesh = &surface(*look.iso, look.normals);
     }

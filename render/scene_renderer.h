@@ -79,11 +79,14 @@ struct Quality {
   /// moved since (same look): while a viewer's camera moves, measuring every view costs more than
   /// its frame, and the ranking changes little from one view to the next.
   bool reuseViewErrors = false;
-  /// Draws the isosurface simplified to a voxel's error (PreparedSurface::simplified, about a
-  /// fifth of the triangles on CT bone, shaded smoothly whatever Look::normals asks): a frame's
-  /// surface costs follow its triangles, whatever the image size. In brick order exactly when the
-  /// bricks are at least kSimplifiedBlockVoxels wide.
+  /// Draws the isosurface simplified (PreparedSurface::simplified, shaded smoothly whatever
+  /// Look::normals asks): the coarsest level whose error is at most surfaceErrorPixels pixels where
+  /// the volume comes nearest the eye, so a small frame of a large study draws as many triangles as
+  /// its pixels show. Level 0 (a voxel's error, about a fifth of the triangles on CT bone) is in brick order
+  /// exactly when the bricks are at least kSimplifiedBlockVoxels wide; a coarser level's triangle
+  /// crossing a brick's face is composited with the brick holding its centroid.
   bool simplifiedSurface = false;
+  double surfaceErrorPixels = 1.0;
   /// Cuts translucent polygons to the slabs between slices (SlicesOptions::cutToSlabs); false
   /// places each whole in its centroid's slab.
   bool cutToSlabs = true;
@@ -129,9 +132,12 @@ struct RenderedFrame {
 /// the stats of that level.
 using LevelCallback = std::function<void(int level, int levels, const Image& image, const FrameStats& stats)>;
 
-/// The blocks (voxels a side) within which PreparedSurface::simplified is simplified: each of its
-/// triangles lies inside one block, hence inside one brick of edge at least this many voxels.
+/// The blocks (voxels a side) within which PreparedSurface::simplified[0] is simplified: each of
+/// its triangles lies inside one block, hence inside one brick of edge at least this many voxels.
 inline constexpr int kSimplifiedBlockVoxels = 32;
+/// Levels of PreparedSurface::simplified: level k is simplified to 2^k voxels' error within blocks
+/// of kSimplifiedBlockVoxels·2^k voxels (from level k − 1, within 2^(k−1) voxels more).
+inline constexpr int kSimplifiedLevels = 4;
 
 /// An isosurface ready to draw: its Surface Octree, its polygons triangulated, with both kinds of
 /// normals, and a simplified copy. Made by SceneRenderer::prepareSurface (on any thread), kept by
@@ -141,9 +147,10 @@ struct PreparedSurface {
   std::optional<SurfaceOctree> built;  ///< none when the scene's own surface has this isovalue
   size_t polygons = 0;
   TriangleMesh facet, smooth;          ///< grid frame, mm
-  /// Smooth, simplified to a voxel within blocks: for the viewer's frames before the final one; made
-  /// when one first asks for it (SceneRenderer::simplify), unless prepareSurface was asked to.
-  std::optional<TriangleMesh> simplified;
+  /// Smooth, simplified to 1, 2, 4, … voxels' error within blocks (kSimplifiedLevels): for the
+  /// viewer's frames before the final one, each drawing the coarsest its pixels allow; made when one
+  /// first asks for them (SceneRenderer::simplify), unless prepareSurface was asked to.
+  std::vector<TriangleMesh> simplified;
   std::unique_ptr<Bvh> bvh[2];         ///< facet, smooth; made by the first reference frame
   const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? smooth : facet; }
 };

@@ -6,6 +6,7 @@
 
 #include <cstdlib>
 #include <thread>
+#include <tuple>
 
 #include "render/patient_view.h"
 #include "render_util.h"
@@ -130,6 +131,55 @@ TEST(SceneRenderer, TheSimplifiedUncutSurfaceStaysCloseToTheExactOne) {
   EXPECT_GE(test::psnrOf(ref, e.image), 48.0);
   EXPECT_GE(test::psnrOf(ref, m.image), 42.0);  // 44.3 dB: the simplified sphere is 86 triangles
   EXPECT_GE(test::psnrOf(e.image, m.image), 42.0);
+}
+
+// The simplified surface's levels: each coarser, within its error of the sphere (the vertices stay
+// on the input surface; a triangle's centroid falls inside the sphere by at most its error), and a
+// frame draws the coarsest level whose error fits its pixels (orthographic: a pixel is the view's
+// height over its rows, whatever the depth), level 0 when no error is allowed.
+TEST(SceneRenderer, SmallFramesDrawCoarserLevelsOfTheSimplifiedSurface) {
+  test::gl();
+  Scene scene;
+  scene.volume = test::sphereVolume({97, 97, 97}, 40.0);
+  scene.octree = VolumeOctree::build(scene.volume);
+  SceneRenderer r(std::move(scene));
+  std::unique_ptr<PreparedSurface> made = SceneRenderer::prepareSurface(r.scene(), 0.0f, nullptr, nullptr, true);
+  ASSERT_EQ(made->simplified.size(), size_t(kSimplifiedLevels));
+  std::vector<size_t> counts;
+  for (int k = 0; k < kSimplifiedLevels; ++k) {
+    const TriangleMesh& m = made->simplified[size_t(k)];
+    counts.push_back(m.triangles.size());
+    EXPECT_LT(counts.back(), k == 0 ? made->smooth.triangles.size() : counts[size_t(k) - 1]) << k;
+    EXPECT_EQ(m.normals.size(), m.vertices.size()) << k;
+    double sag = 0.0;
+    for (const glm::uvec3& t : m.triangles) {
+      const glm::dvec3 c = (glm::dvec3(m.vertices[t.x]) + glm::dvec3(m.vertices[t.y]) + glm::dvec3(m.vertices[t.z])) / 3.0;
+      sag = std::max(sag, 40.0 - glm::length(c - glm::dvec3(48.0)));
+    }
+    EXPECT_LE(sag, double(1 << k) + 0.1) << k;  // the 0.1: level 0's input lies within a tenth of a voxel
+  }
+  r.adoptSurface(std::move(made));
+  Look look;
+  look.tf = warm();
+  look.iso = 0.0f;
+  look.surfaceColor = glm::vec4(0.9f, 0.9f, 0.9f, 0.5f);
+  View view;
+  view.camera.eye = glm::dvec3(48.0, -200.0, 48.0);
+  view.camera.center = glm::dvec3(48.0);
+  view.camera.up = glm::dvec3(0, 0, 1);
+  view.camera.ortho = true;
+  view.camera.orthoHeight = 120.0;
+  Quality q;
+  q.simplifiedSurface = true;
+  q.cutToSlabs = false;
+  q.maxBrickEdge = kSimplifiedBlockVoxels;
+  // Pixels of 1, 3 and 8 voxels: levels 0, 1 and 3 at one pixel's error; level 2 at 3 voxels when
+  // the error may be two pixels.
+  for (const auto& [pixels, errorPixels, level] : {std::tuple{120, 1.0, 0}, {40, 1.0, 1}, {15, 1.0, 3}, {40, 2.0, 2}, {15, 0.0, 0}}) {
+    view.camera.width = view.camera.height = pixels;
+    q.surfaceErrorPixels = errorPixels;
+    EXPECT_EQ(r.render(view, look, q).stats.slices.surfaceTriangles, counts[size_t(level)]) << pixels << " pixels, " << errorPixels;
+  }
 }
 
 // A frame rendered band by band (a viewer's large final frame, between whose bands other clients'
