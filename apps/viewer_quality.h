@@ -71,10 +71,8 @@ inline constexpr int kInteractiveBrickEdge = 32;
 inline constexpr double kInteractiveLodPixels = 0.5;
 
 /// Simplification error of the surface in the frames before the final one, in pixels where the
-/// volume comes nearest the eye (Quality::surfaceErrorPixels): on the clinical-size CT at 112² a
-/// frame with the bone surface draws 63 k of its 2.3 M triangles at 2 pixels (39 ms, 25–28 dB
-/// against the reference at that size), 151 k at 1 pixel (53 ms, 27–29 dB), 448 k at level 0
-/// (132 ms, 29–30 dB); in the browser 2 pixels hold 10 frames/s where 1 pixel does not
+/// volume comes nearest the eye (Quality::surfaceErrorPixels): at two pixels the clinical-size
+/// CT's bone surface holds the frame rate at a small loss in PSNR, at one it does not
 /// (docs/scale.md).
 inline constexpr double kInteractiveSurfaceErrorPixels = 2.0;
 
