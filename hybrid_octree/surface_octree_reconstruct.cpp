@@ -7,6 +7,7 @@
 #include <array>
 #include <iterator>
 #include <numeric>
+#include <span>
 #include <tuple>
 
 #include "hybrid_octree/discrete_geometry.h"
@@ -92,20 +93,49 @@ Poly clipToBox(const Plane& pl, const Box& box) {
 }
 
 bool lexLess(const V64& a, const V64& b) { return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z); }
-// A polygon of one node: its loop (fine coordinates), plane (d in fine units), and the node's box
-// and origin.
-struct OutPoly {
-  std::vector<V64> loop;
-  PlaneId plane;
-  Box box;
-  glm::u16vec3 origin;
+// The polygons of the nodes, flat (a vector per polygon costs more than its vertices): polygon p's
+// loop is points[starts[p] .. starts[p + 1]) (fine coordinates, below 2^22: 32 bits), its plane
+// planes[p] (d in fine units), its node nodes[p].
+struct OutPolys {
+  std::vector<glm::ivec3> points;
+  std::vector<size_t> starts{0};
+  std::vector<PlaneId> planes;
+  std::vector<uint32_t> nodes;
+
+  size_t size() const { return planes.size(); }
+  std::span<const glm::ivec3> loop(size_t p) const { return {points.data() + starts[p], starts[p + 1] - starts[p]}; }
+  void add(const Poly& loop, const PlaneId& plane, uint32_t node) {
+    for (const V64& v : loop) points.emplace_back(v);
+    starts.push_back(points.size());
+    planes.push_back(plane);
+    nodes.push_back(node);
+  }
+  void append(const OutPolys& o) {
+    const size_t base = points.size();
+    points.insert(points.end(), o.points.begin(), o.points.end());
+    for (size_t p = 1; p < o.starts.size(); ++p) starts.push_back(base + o.starts[p]);
+    planes.insert(planes.end(), o.planes.begin(), o.planes.end());
+    nodes.insert(nodes.end(), o.nodes.begin(), o.nodes.end());
+  }
+};
+
+// Each polygon's loop as vertex ids of the mesh, flat: polygon p's is ids[start[p] .. start[p] +
+// size[p]); a merged loop is appended, a loop merged into another has size 0.
+struct Loops {
+  std::vector<uint32_t> ids;
+  std::vector<size_t> start;
+  std::vector<uint32_t> size;
+
+  std::span<uint32_t> of(size_t p) { return {ids.data() + start[p], size[p]}; }
+  std::span<const uint32_t> of(size_t p) const { return {ids.data() + start[p], size[p]}; }
+  void close(size_t p) { size[p] = uint32_t(ids.size() - start[p]); }
 };
 
 // Stage 1, one node: each plane clipped to the node's box and split by the node's other planes; the
 // convex pieces where the truth value changes across the plane are the surface, oriented outward,
 // and the pieces on one plane with one facing are merged into polygons (@p pos and @p neg are
 // scratch).
-void nodePolygons(const SurfaceNode& node, const glm::ivec3& dims, Poly& pos, Poly& neg, std::vector<OutPoly>& polys) {
+void nodePolygons(const SurfaceNode& node, uint32_t nodeIndex, const glm::ivec3& dims, Poly& pos, Poly& neg, OutPolys& polys) {
   const Box box = nodeBox(glm::ivec3(node.origin), node.edge, dims);
   const int np = node.planeCount;
   for (int i = 0; i < np; ++i) {
@@ -183,7 +213,7 @@ void nodePolygons(const SurfaceNode& node, const glm::ivec3& dims, Poly& pos, Po
         loops.push_back(std::move(loop));
       }
       const std::vector<Poly>& emit = (!branching && loops.size() == 1) ? loops : kept[size_t(facing)];
-      for (const Poly& p : emit) polys.push_back({p, id, box, node.origin});
+      for (const Poly& p : emit) polys.add(p, id, nodeIndex);
     }
   }
 }
@@ -212,58 +242,68 @@ bool faceLine(const Box& box, const V64& a, const V64& b, uint64_t* key) {
 // Stage 2, T-junctions: every polygon's loop as vertex ids of @p mesh, with the vertices that lie on
 // one of its edges along a node face (a finer neighbour's) inserted in order, so the surface is
 // watertight.
-std::vector<std::vector<uint32_t>> insertTJunctions(const std::vector<OutPoly>& polys, DiscreteMesh* out) {
+Loops insertTJunctions(const OutPolys& polys, const std::vector<SurfaceNode>& nodes, const glm::ivec3& dims, DiscreteMesh* out) {
   DiscreteMesh& mesh = *out;
+  auto boxOf = [&](size_t p) {
+    const SurfaceNode& n = nodes[polys.nodes[p]];
+    return nodeBox(glm::ivec3(n.origin), n.edge, dims);
+  };
   // The points of every line, sorted by line and then lexicographically (their order along it).
-  std::vector<std::pair<uint64_t, V64>> linePoints;
-  for (const OutPoly& p : polys)
-    for (size_t k = 0; k < p.loop.size(); ++k) {
+  std::vector<std::pair<uint64_t, glm::ivec3>> linePoints;
+  for (size_t pi = 0; pi < polys.size(); ++pi) {
+    const std::span<const glm::ivec3> loop = polys.loop(pi);
+    const Box box = boxOf(pi);
+    for (size_t k = 0; k < loop.size(); ++k) {
       uint64_t key;
-      const V64 &a = p.loop[k], &b = p.loop[(k + 1) % p.loop.size()];
-      if (faceLine(p.box, a, b, &key)) {
+      const glm::ivec3 &a = loop[k], &b = loop[(k + 1) % loop.size()];
+      if (faceLine(box, V64(a), V64(b), &key)) {
         linePoints.emplace_back(key, a);
         linePoints.emplace_back(key, b);
       }
     }
+  }
   std::sort(linePoints.begin(), linePoints.end(),
-            [](const auto& x, const auto& y) { return x.first != y.first ? x.first < y.first : lexLess(x.second, y.second); });
+            [](const auto& x, const auto& y) { return x.first != y.first ? x.first < y.first : lexLess(V64(x.second), V64(y.second)); });
   linePoints.erase(std::unique(linePoints.begin(), linePoints.end()), linePoints.end());
   FlatMap lineStart(linePoints.size() / 2);
   for (size_t k = linePoints.size(); k-- > 0;) lineStart[linePoints[k].first] = uint32_t(k);
 
-  FlatMap ids(polys.size() * 2);
-  auto vertexId = [&](const V64& p) {
-    const uint64_t key = gridKey(glm::ivec3(p));
-    const uint32_t id = ids.findOrInsert(key, [&] {
-      mesh.vertices.push_back(glm::ivec3(p));
+  FlatMap ids(polys.size());
+  auto vertexId = [&](const glm::ivec3& p) {
+    return ids.findOrInsert(gridKey(p), [&] {
+      mesh.vertices.push_back(p);
       return uint32_t(mesh.vertices.size() - 1);
     });
-    HYB_DCHECK(V64(mesh.vertices[id]) == p);
-    return id;
   };
-  std::vector<std::vector<uint32_t>> loops(polys.size());
+  Loops loops;
+  loops.start.reserve(polys.size());
+  loops.size.reserve(polys.size());
+  loops.ids.reserve(polys.points.size());
   for (size_t pi = 0; pi < polys.size(); ++pi) {
-    const OutPoly& p = polys[pi];
-    std::vector<uint32_t>& loop = loops[pi];
-    for (size_t k = 0; k < p.loop.size(); ++k) {
-      const V64 &a = p.loop[k], &b = p.loop[(k + 1) % p.loop.size()];
-      loop.push_back(vertexId(a));
+    const std::span<const glm::ivec3> loop = polys.loop(pi);
+    const Box box = boxOf(pi);
+    loops.start.push_back(loops.ids.size());
+    loops.size.push_back(0);
+    for (size_t k = 0; k < loop.size(); ++k) {
+      const V64 a(loop[k]), b(loop[(k + 1) % loop.size()]);
+      loops.ids.push_back(vertexId(loop[k]));
       uint64_t key;
-      if (!faceLine(p.box, a, b, &key)) continue;
+      if (!faceLine(box, a, b, &key)) continue;
       // Insert the line's vertices strictly between a and b, in order from a to b.
       const bool forward = lexLess(a, b);
       const V64& lo = forward ? a : b;
       const V64& hi = forward ? b : a;
       auto first = linePoints.begin() + *lineStart.find(key);
-      while (lexLess(first->second, lo) || first->second == lo) ++first;  // lo and hi are on the line
+      while (lexLess(V64(first->second), lo) || V64(first->second) == lo) ++first;  // lo and hi are on the line
       auto last = first;
-      while (lexLess(last->second, hi)) ++last;
+      while (lexLess(V64(last->second), hi)) ++last;
       if (forward) {
-        for (auto it = first; it != last; ++it) loop.push_back(vertexId(it->second));
+        for (auto it = first; it != last; ++it) loops.ids.push_back(vertexId(it->second));
       } else {
-        for (auto it = last; it != first;) loop.push_back(vertexId((--it)->second));
+        for (auto it = last; it != first;) loops.ids.push_back(vertexId((--it)->second));
       }
     }
+    loops.close(pi);
   }
   return loops;
 }
@@ -271,32 +311,43 @@ std::vector<std::vector<uint32_t>> insertTJunctions(const std::vector<OutPoly>& 
 // Stage 3: polygons of different nodes on the same plane with the same facing that share an edge,
 // within one merge cube of @p mergeCube cells, become one where their union's boundary is a single
 // loop (union-find over shared edges; the surface is unchanged).
-void mergeCoplanar(const std::vector<OutPoly>& polys, int mergeCube, std::vector<std::vector<uint32_t>>* loopsOut) {
-  std::vector<std::vector<uint32_t>>& loops = *loopsOut;
-
+void mergeCoplanar(const OutPolys& polys, const std::vector<SurfaceNode>& nodes, int mergeCube, Loops* loopsOut) {
+  Loops& loops = *loopsOut;
   std::vector<uint32_t> parent(polys.size());
   std::iota(parent.begin(), parent.end(), 0u);
   auto find = [&](uint32_t x) {
     while (parent[x] != x) x = parent[x] = parent[parent[x]];
     return x;
   };
-  auto cellOf = [&](size_t pi) { return gridKey(glm::ivec3(polys[pi].origin) / mergeCube); };
+  auto cellOf = [&](size_t pi) { return gridKey(glm::ivec3(nodes[polys.nodes[pi]].origin) / mergeCube); };
   auto edgeKey = [](uint32_t from, uint32_t to) { return uint64_t(from) << 32 | to; };
-  FlatMap owner(polys.size() * 4);
-  for (size_t pi = 0; pi < polys.size(); ++pi)
-    for (size_t k = 0; k < loops[pi].size(); ++k) owner[edgeKey(loops[pi][k], loops[pi][(k + 1) % loops[pi].size()])] = uint32_t(pi);
-  for (size_t pi = 0; pi < polys.size(); ++pi)
-    for (size_t k = 0; k < loops[pi].size(); ++k) {
-      const uint32_t* q = owner.find(edgeKey(loops[pi][(k + 1) % loops[pi].size()], loops[pi][k]));
-      if (!q || *q == pi) continue;
-      if (polys[*q].plane == polys[pi].plane && cellOf(*q) == cellOf(pi)) parent[find(uint32_t(pi))] = find(*q);
+  // Each directed edge's owner, the last polygon that has it: sorted (edge, polygon) pairs, a
+  // sixteenth of the memory of a hash table over them.
+  std::vector<std::pair<uint64_t, uint32_t>> owner;
+  owner.reserve(loops.ids.size());
+  for (size_t pi = 0; pi < polys.size(); ++pi) {
+    const std::span<const uint32_t> loop = loops.of(pi);
+    for (size_t k = 0; k < loop.size(); ++k) owner.emplace_back(edgeKey(loop[k], loop[(k + 1) % loop.size()]), uint32_t(pi));
+  }
+  std::sort(owner.begin(), owner.end());
+  for (size_t pi = 0; pi < polys.size(); ++pi) {
+    const std::span<const uint32_t> loop = loops.of(pi);
+    for (size_t k = 0; k < loop.size(); ++k) {
+      const uint64_t reverse = edgeKey(loop[(k + 1) % loop.size()], loop[k]);
+      auto it = std::upper_bound(owner.begin(), owner.end(), std::pair{reverse, UINT32_MAX});
+      if (it == owner.begin() || (--it)->first != reverse || it->second == pi) continue;
+      const uint32_t q = it->second;
+      if (polys.planes[q] == polys.planes[pi] && cellOf(q) == cellOf(pi)) parent[find(uint32_t(pi))] = find(q);
     }
+  }
+  std::vector<std::pair<uint64_t, uint32_t>>().swap(owner);
   // The sets, as runs of (root, polygon) pairs; each set's boundary from its sorted directed edges.
   std::vector<std::pair<uint32_t, uint32_t>> bySet(polys.size());
   for (uint32_t pi = 0; pi < polys.size(); ++pi) bySet[pi] = {find(pi), pi};
   std::sort(bySet.begin(), bySet.end());
   std::vector<uint64_t> edges, boundary;
   std::vector<uint8_t> used;
+  std::vector<uint32_t> merged;
   for (size_t b = 0, e; b < bySet.size(); b = e) {
     for (e = b + 1; e < bySet.size() && bySet[e].first == bySet[b].first; ++e) {
     }
@@ -304,7 +355,7 @@ void mergeCoplanar(const std::vector<OutPoly>& polys, int mergeCube, std::vector
     const uint32_t root = bySet[b].first;
     edges.clear();
     for (size_t m = b; m < e; ++m) {
-      const std::vector<uint32_t>& loop = loops[bySet[m].second];
+      const std::span<const uint32_t> loop = loops.of(bySet[m].second);
       for (size_t k = 0; k < loop.size(); ++k) edges.push_back(edgeKey(loop[k], loop[(k + 1) % loop.size()]));
     }
     std::sort(edges.begin(), edges.end());
@@ -317,7 +368,7 @@ void mergeCoplanar(const std::vector<OutPoly>& polys, int mergeCube, std::vector
     for (size_t k = 1; k < boundary.size() && !branching; ++k) branching = boundary[k] >> 32 == boundary[k - 1] >> 32;
     if (branching) continue;
     // Walk the boundary from its first edge; a single loop replaces the members.
-    std::vector<uint32_t> merged;
+    merged.clear();
     used.assign(boundary.size(), 0);
     uint32_t v = uint32_t(boundary[0] >> 32);
     for (;;) {
@@ -328,36 +379,40 @@ void mergeCoplanar(const std::vector<OutPoly>& polys, int mergeCube, std::vector
       v = uint32_t(*it);
     }
     if (merged.size() != boundary.size()) continue;  // several loops (a hole): keep the members
-    loops[root] = std::move(merged);
+    loops.start[root] = loops.ids.size();
+    loops.ids.insert(loops.ids.end(), merged.begin(), merged.end());
+    loops.close(root);
     for (size_t m = b; m < e; ++m)
-      if (bySet[m].second != root) loops[bySet[m].second].clear();
+      if (bySet[m].second != root) loops.size[bySet[m].second] = 0;
   }
 }
 
 // Stage 4: drops straight-through vertices no other polygon uses (they only add triangles; a vertex
 // another polygon references is kept, so no T-junction opens), and adds the faces to @p mesh.
-void dropStraightVertices(const std::vector<OutPoly>& polys, std::vector<std::vector<uint32_t>>& loops, DiscreteMesh* out) {
+void dropStraightVertices(const OutPolys& polys, Loops& loops, DiscreteMesh* out) {
   DiscreteMesh& mesh = *out;
   std::vector<uint32_t> uses(mesh.vertices.size(), 0);
-  for (const auto& loop : loops)
-    for (uint32_t v : loop) ++uses[v];
+  for (size_t pi = 0; pi < polys.size(); ++pi)
+    for (uint32_t v : loops.of(pi)) ++uses[v];
   for (size_t pi = 0; pi < polys.size(); ++pi) {
-    std::vector<uint32_t>& loop = loops[pi];
-    if (loop.empty()) continue;  // merged into another polygon
-    for (bool removed = true; removed && loop.size() > 3;) {
+    if (loops.size[pi] == 0) continue;  // merged into another polygon
+    uint32_t* loop = loops.of(pi).data();
+    uint32_t& n = loops.size[pi];
+    for (bool removed = true; removed && n > 3;) {
       removed = false;
-      for (size_t k = 0; k < loop.size() && loop.size() > 3; ++k) {
-        const uint32_t prev = loop[(k + loop.size() - 1) % loop.size()], cur = loop[k], next = loop[(k + 1) % loop.size()];
+      for (size_t k = 0; k < n && n > 3; ++k) {
+        const uint32_t prev = loop[(k + n - 1) % n], cur = loop[k], next = loop[(k + 1) % n];
         if (uses[cur] != 1) continue;
         const V64 u = V64(mesh.vertices[cur]) - V64(mesh.vertices[prev]), w = V64(mesh.vertices[next]) - V64(mesh.vertices[cur]);
         const V64 x(u.y * w.z - u.z * w.y, u.z * w.x - u.x * w.z, u.x * w.y - u.y * w.x);
         if (x != V64(0) || u.x * w.x + u.y * w.y + u.z * w.z <= 0) continue;  // a corner, or a spike
-        loop.erase(loop.begin() + ptrdiff_t(k));
+        std::copy(loop + k + 1, loop + n, loop + k);
+        --n;
         uses[cur] = 0;
         removed = true;
       }
     }
-    mesh.addFace(loop.data(), loop.size(), polys[pi].plane);
+    mesh.addFace(loop, n, polys.planes[pi]);
   }
 }
 
@@ -371,23 +426,26 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube, const Progress* progress)
   const size_t chunks = std::min<size_t>(mNodes.size(), 64), per = chunks ? (mNodes.size() + chunks - 1) / chunks : 0;
   const size_t stage = std::max<size_t>(1, chunks / 8);  // progress: a later stage counts as this many chunks
   ProgressTask task(progress, "surface polygons", chunks + 3 * stage);
-  std::vector<std::vector<OutPoly>> parts(chunks);
+  std::vector<OutPolys> parts(chunks);
   ParallelFailure failure;
 #pragma omp parallel for schedule(dynamic)
   for (size_t c = 0; c < chunks; ++c)
     failure.run([&] {
       Poly pos, neg;
-      for (size_t k = c * per; k < std::min(mNodes.size(), (c + 1) * per); ++k) nodePolygons(mNodes[k], mDims, pos, neg, parts[c]);
+      for (size_t k = c * per; k < std::min(mNodes.size(), (c + 1) * per); ++k) nodePolygons(mNodes[k], uint32_t(k), mDims, pos, neg, parts[c]);
       task.advance();
     });
   failure.rethrow();
-  std::vector<OutPoly> polys;
-  for (std::vector<OutPoly>& part : parts) std::move(part.begin(), part.end(), std::back_inserter(polys));
+  OutPolys polys;
+  for (OutPolys& part : parts) {
+    polys.append(part);
+    part = OutPolys();
+  }
   task.advance(stage);
   DiscreteMesh mesh;
-  std::vector<std::vector<uint32_t>> loops = insertTJunctions(polys, &mesh);
+  Loops loops = insertTJunctions(polys, mNodes, mDims, &mesh);
   task.advance(stage);
-  mergeCoplanar(polys, mergeCube, &loops);
+  mergeCoplanar(polys, mNodes, mergeCube, &loops);
   task.advance(stage);
   dropStraightVertices(polys, loops, &mesh);
   return mesh;
