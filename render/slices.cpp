@@ -17,6 +17,8 @@
 #include <optional>
 #include <string>
 #include <thread>
+
+#include <malloc.h>
 #include <utility>
 
 #include "render/cut_plane_pass.h"
@@ -568,6 +570,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   constexpr size_t kLookahead = 32;
   std::vector<BrickDraw>& draws = plan.draws;
   GLuint bound = 0;  // the slice program in use
+  constexpr size_t kTrimBytes = size_t(128) << 20;
+  size_t drawnBytes = 0;  // of streams and new textures since the heap was last trimmed
   std::atomic<size_t> built{0}, drawn{0};
   std::exception_ptr failure;
   std::thread worker([&] {
@@ -650,6 +654,13 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, kStreamFloats * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
     glVertexAttribPointer(2, 3, GL_FLOAT, GL_FALSE, kStreamFloats * sizeof(float), reinterpret_cast<void*>(6 * sizeof(float)));
     glDrawArrays(GL_TRIANGLES, 0, GLsizei(d.stream.size() / kStreamFloats));
+    // The frees of a frame's textures and streams leave the heap fragmented, its pages resident
+    // though unused: handed back every kTrimBytes drawn, a frame's memory follows what it holds.
+    drawnBytes += d.stream.size() * sizeof(float) + (d.pending >= 0 ? drawing.bytes : 0);
+    if (drawnBytes > kTrimBytes) {
+      malloc_trim(0);
+      drawnBytes = 0;
+    }
     std::vector<float>().swap(d.stream);
     keep();
   }
