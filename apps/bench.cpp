@@ -257,6 +257,15 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
         << " % frame time, " << 100.0 * (double(on.textureBytes) / double(std::max<uint64_t>(off.textureBytes, 1)) - 1.0)
         << " % texture bytes, " << std::setprecision(2) << on.psnrDb - off.psnrDb << " dB\n";
   }
+  if (const auto& store = job.renderer->scene().knots) {
+    // What the paged scene read through its cache over the whole run.
+    const StoreCacheStats c = store->cacheStats();
+    out << std::setprecision(1) << std::fixed << "store    " << c.misses << " blocks read (" << double(c.bytesRead) / 1048576.0
+        << " MB compressed), " << c.hits << " from the cache, " << c.evicted << " evicted; the cache holds "
+        << double(c.bytesHeld) / 1048576.0 << " of " << double(c.limit) / 1048576.0 << " MB"
+        << (job.renderer->volume().hasSamples() ? "; the samples were read whole (the reference frame needs them)" : "") << "\n"
+        << std::defaultfloat;
+  }
   // The trade should only lose accuracy and bytes along each sweep.
   std::vector<TradePoint> epsilonSweep{{"full resolution", base.psnrDb, base.textureBytes}}, budgetSweep = epsilonSweep;
   for (const Point& p : points) {

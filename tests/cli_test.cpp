@@ -3,6 +3,8 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <regex>
+
 #include <signal.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
@@ -96,6 +98,13 @@ TEST(Cli, InfoBuildAndSelect) {
   EXPECT_THAT(paged, HasSubstr("\"samples_loaded\": false"));
   EXPECT_THAT(paged, Not(HasSubstr("\"blocks_read\": 0,")));
   expectBadInput({"render", dir.file("s.hoct"), "--memory", "0.5", "-o", dir.file("r.png")}, "--memory must be megabytes in [1, 1e9]");
+  // bench says the same of its whole run.
+  r = run({"bench", dir.file("s.hoct"), "--memory", "1", "--size", "16x16", "--epsilons", "0", "--budgets", "0.5", "--repeat", "1",
+           "--rounds", "1", "--no-plot", "-o", dir.file("bench")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_TRUE(std::regex_search(r.out, std::regex("store    [1-9][0-9]* blocks read \\([0-9.]+ MB compressed\\), [0-9]+ from the cache, "
+                                                  "[0-9]+ evicted; the cache holds [0-9.]+ of 1\\.0 MB; the samples were read whole")))
+      << r.out;
   r = run({"render", dir.file("s.hoct"), "--texel-bits", "16", "--stats", dir.file("st16.json"), "-o", dir.file("r.png")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(jsonNumber(dir.file("st16.json"), "texture_bytes"), 8.0 * texels);
