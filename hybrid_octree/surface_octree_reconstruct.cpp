@@ -94,7 +94,7 @@ Poly clipToBox(const Plane& pl, const Box& box) {
 
 bool lexLess(const V64& a, const V64& b) { return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z); }
 // The polygons of the nodes, flat (a vector per polygon costs more than its vertices): polygon p's
-// loop is points[starts[p] .. starts[p + 1]) (fine coordinates, below 2^22: 32 bits), its plane
+// loop is points[starts[p] .. starts[p + 1]) (fine coordinates, below 2^21: 32 bits), its plane
 // planes[p] (d in fine units), its node nodes[p].
 struct OutPolys {
   std::vector<glm::ivec3> points;
