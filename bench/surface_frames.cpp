@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "apps/viewer_quality.h"
 #include "hybrid_octree/hybrid_io.h"
 #include "render/image.h"
 #include "render/patient_view.h"
@@ -62,7 +63,7 @@ int main(int argc, char** argv) {
     t0 = Clock::now();
     SceneRenderer::simplify(r.volume(), prepared.get());
     const double simplifyMs = msSince(t0);
-    std::printf("surface %g: %zu triangles, reconstructed in %.0f ms; simplified in %.0f ms to", iso, prepared->smooth.triangles.size(),
+    std::printf("surface %g: %zu triangles, built and reconstructed in %.0f ms; simplified in %.0f ms to", iso, prepared->smooth.triangles.size(),
                 reconstructMs, simplifyMs);
     for (const TriangleMesh& m : prepared->simplified) std::printf(" %zu", m.triangles.size());
     std::printf(" triangles\n");
@@ -72,8 +73,8 @@ int main(int argc, char** argv) {
     q.step = step;
     q.simplifiedSurface = true;
     q.cutToSlabs = false;
-    q.maxBrickEdge = kSimplifiedBlockVoxels;
-    q.lodPixels = 0.5;
+    q.maxBrickEdge = viewer::kInteractiveBrickEdge;
+    q.lodPixels = viewer::kInteractiveLodPixels;
     Quality reference;
     reference.renderer = Renderer::Raycast;
     std::vector<View> views(static_cast<size_t>(frames));

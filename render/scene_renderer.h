@@ -140,7 +140,7 @@ inline constexpr int kSimplifiedBlockVoxels = 32;
 inline constexpr int kSimplifiedLevels = 4;
 
 /// An isosurface ready to draw: its Surface Octree, its polygons triangulated, with both kinds of
-/// normals, and a simplified copy. Made by SceneRenderer::prepareSurface (on any thread), kept by
+/// normals, and its simplified levels. Made by SceneRenderer::prepareSurface (on any thread), kept by
 /// a renderer.
 struct PreparedSurface {
   float iso = 0.0f;
@@ -198,7 +198,7 @@ class SceneRenderer {
   /// its render thread never waits for it).
   static std::unique_ptr<PreparedSurface> prepareSurface(const Scene& scene, float iso, const Progress* progress = nullptr,
                                                          FrameStats* stats = nullptr, bool simplified = false);
-  /// Sets @p surface's simplified mesh from @p volume (its scene's) when it has none.
+  /// Makes @p surface's simplified levels from @p volume (its scene's) when it has none.
   static void simplify(const Volume& volume, PreparedSurface* surface, const Progress* progress = nullptr);
   /// Keeps @p surface (made from this renderer's scene) as the surface of its isovalue.
   void adoptSurface(std::unique_ptr<PreparedSurface> surface);

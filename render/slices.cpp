@@ -458,9 +458,9 @@ void buildStream(BrickDraw& d, const SurfacePolygons* surface, const BrickPolygo
   }
   if (d.blocks) {
     boxes.resize(size_t(kHi - kLo + 1));
-    // Blocks are merged while a group spans at most two pixels: finer boxes would cut no
-    // fragment more, and a small frame of a large study has many blocks to each pixel.
-    const double blockMm = 2.0 * d.lattice.step * std::min({spacing.x, spacing.y, spacing.z}), pixelMm = camera.pixelMmAt(d.blo, d.bhi);
+    // Blocks are merged while a group spans at most two pixels along every axis: a small frame
+    // of a large study has many blocks to each pixel, and finer boxes would save few fragments.
+    const double blockMm = 2.0 * d.lattice.step * std::max({spacing.x, spacing.y, spacing.z}), pixelMm = camera.pixelMmAt(d.blo, d.bhi);
     int merge = 1;
     while (merge < 64 && 2 * merge * blockMm <= 2.0 * pixelMm) merge *= 2;
     proxyBoxes(*d.blocks, d.lattice, spacing, depth, d.delta, kLo, merge, &boxes);
@@ -623,6 +623,13 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       std::vector<uint8_t>().swap(p.bytes);
       d.texture = drawing.texture.id();
     }
+    // The frees of a frame's textures and streams leave the heap fragmented, its pages resident
+    // though unused: handed back every kTrimBytes drawn, a frame's memory follows what it holds.
+    drawnBytes += d.stream.size() * sizeof(float) + (d.pending >= 0 ? drawing.bytes : 0);
+    if (drawnBytes > kTrimBytes) {
+      malloc_trim(0);
+      drawnBytes = 0;
+    }
     auto keep = [&] {
       if (drawing.texture && options.textures && options.textures->makeRoom(drawing.bytes))
         options.textures->insert(selection.bricks[d.brick], std::move(drawing));
@@ -654,13 +661,6 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, kStreamFloats * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
     glVertexAttribPointer(2, 3, GL_FLOAT, GL_FALSE, kStreamFloats * sizeof(float), reinterpret_cast<void*>(6 * sizeof(float)));
     glDrawArrays(GL_TRIANGLES, 0, GLsizei(d.stream.size() / kStreamFloats));
-    // The frees of a frame's textures and streams leave the heap fragmented, its pages resident
-    // though unused: handed back every kTrimBytes drawn, a frame's memory follows what it holds.
-    drawnBytes += d.stream.size() * sizeof(float) + (d.pending >= 0 ? drawing.bytes : 0);
-    if (drawnBytes > kTrimBytes) {
-      malloc_trim(0);
-      drawnBytes = 0;
-    }
     std::vector<float>().swap(d.stream);
     keep();
   }

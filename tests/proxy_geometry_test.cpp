@@ -144,6 +144,20 @@ TEST(ProxyGeometry, ProxyBoxesHoldTheVisibleBlocksEachPlaneMeetsAlsoWhenMerged) 
     EXPECT_EQ(boxes[size_t(k)].first, glm::dvec3(2.0, 0.0, 8.0)) << k;
     EXPECT_EQ(boxes[size_t(k)].second, glm::dvec3(4.0, 4.0, 16.0)) << k;
   }
+  // Five blocks along x (11 knots), the last visible, merged by 2: the third group holds that block
+  // alone and its box ends at the lattice's last knot.
+  KnotLattice row;
+  row.dims = glm::ivec3(11, 3, 3);
+  row.last = glm::ivec3(10, 2, 2);
+  VisibleBlocks last;
+  last.blocks = glm::ivec3(5, 1, 1);
+  last.bits.assign(1, uint64_t(1) << 4);
+  std::vector<std::pair<glm::dvec3, glm::dvec3>> one(1);
+  proxyBoxes(last, row, glm::dvec3(1.0), ProxyDepth{false, glm::dvec3(1, 0, 0), glm::dvec3(0.0)}, 100.0, 0, 2, &one);  // plane x = 0 only
+  EXPECT_GT(one[0].first.x, one[0].second.x);  // the group (x 8–10) does not reach x = 0
+  proxyBoxes(last, row, glm::dvec3(1.0), ProxyDepth{false, glm::dvec3(1, 0, 0), glm::dvec3(0.0)}, 9.0, 1, 2, &one);  // plane x = 9
+  EXPECT_EQ(one[0].first, glm::dvec3(8.0, 0.0, 0.0));
+  EXPECT_EQ(one[0].second, glm::dvec3(10.0, 2.0, 2.0));
 }
 
 }  // namespace

@@ -537,8 +537,9 @@ std::vector<std::pair<std::string, ViewDirection>> sixViewsAndTwoOrbits() {
   return views;
 }
 
-// What the viewer draws while the view moves: the simplified surface, whole in its slabs, in
-// larger bricks (slices a voxel apart: coarser ones alias the skin's edges into dark pixels).
+// Frames as the viewer draws them while the view moves: the simplified surface (here the levels
+// within a pixel; the viewer allows two), whole in its slabs, in larger bricks (slices a voxel
+// apart: coarser ones alias the skin's edges into dark pixels).
 Quality moving() {
   Quality q;
   q.simplifiedSurface = true;
