@@ -181,6 +181,12 @@ struct Section {
   }
 };
 
+// The hash the octree sections carry of the volume they were built from: its header and the
+// store's index, which holds every block's CRC.
+uint64_t volumeHashOf(const std::vector<uint8_t>& volume, const std::vector<uint8_t>& index) {
+  return Section{0, {{volume.data(), volume.size()}, {index.data(), index.size()}}}.hash();
+}
+
 // Surface nodes field by field: the struct's padding would make the file's bytes differ between
 // two saves of the same scene.
 void putSurfaceNodes(Writer* w, const std::vector<SurfaceNode>& nodes) {
@@ -242,7 +248,7 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
     out.write(reinterpret_cast<const char*>(&blocksSize), 8);
     out.seekp(0, std::ios::end);
     write(kIndexTag, indexBytes);
-    const uint64_t volumeHash = Section{0, {{vol.bytes().data(), vol.bytes().size()}, {indexBytes.data(), indexBytes.size()}}}.hash();
+    const uint64_t volumeHash = volumeHashOf(vol.bytes(), indexBytes);
     Writer oct;
     oct.put(volumeHash);
     oct.put(int32_t(octree.leafEdge()));
@@ -365,7 +371,7 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
     // The knot store: its index is checked here, each block when it is read.
     const Entry& blocks = entry(kBlocksTag, "knot store data");
     const std::vector<uint8_t> index = payload(entry(kIndexTag, "knot store index"));
-    volumeHash = Section{0, {{vb.data(), vb.size()}, {index.data(), index.size()}}}.hash();
+    volumeHash = volumeHashOf(vb, index);
     scene.knots = KnotStore::open(path, dims, spacing, index, blocks.offset, blocks.size, options.cacheBytes);
     if (scene.knots->storedType() != storedType)
       HYB_THROW(IoError, path, ": the knot store holds ", scalarName(scene.knots->storedType()), " samples for a volume of ", scalarName(storedType));

@@ -18,14 +18,6 @@ namespace {
 
 uint32_t crcOf(const uint8_t* p, size_t n) { return uint32_t(crc32_z(crc32_z(0L, Z_NULL, 0), p, n)); }
 
-// Bit-interleaved block coordinates: blocks sorted by it lie in Morton (Z) order.
-uint64_t morton(const glm::ivec3& b) {
-  uint64_t m = 0;
-  for (int bit = 0; bit < 21; ++bit)
-    for (int a = 0; a < 3; ++a) m |= uint64_t((b[a] >> bit) & 1) << (3 * bit + a);
-  return m;
-}
-
 glm::ivec3 blockDims(const StoreLevel& l, const glm::ivec3& b) { return glm::min(glm::ivec3(kStoreBlock), l.counts - b * kStoreBlock); }
 
 constexpr size_t kGradientBytes = 3 * sizeof(uint16_t);  // bfloat16 x, y, z
@@ -52,8 +44,7 @@ std::vector<StoreLevel> storeLevels(const Volume& v, const VolumeOctree& t) {
     }
     l.gradients = l.spacing > 1;
     l.firstBlock = first;
-    const glm::ivec3 b = l.blocks();
-    first += uint64_t(b.x) * uint64_t(b.y) * uint64_t(b.z);
+    first += l.blockCount();
     levels.push_back(l);
   }
   return levels;
@@ -137,8 +128,7 @@ float valueOf(const StoreLevel& l, const uint8_t* bytes, size_t i) {
 
 std::vector<uint8_t> writeKnotStore(const Volume& v, const VolumeOctree& t, std::ostream& out) {
   const std::vector<StoreLevel> levels = storeLevels(v, t);
-  const glm::ivec3 last = levels.back().blocks();
-  std::vector<StoreBlock> index(size_t(levels.back().firstBlock) + size_t(last.x) * last.y * last.z);
+  std::vector<StoreBlock> index(size_t(levels.back().firstBlock + levels.back().blockCount()));
   uint64_t offset = 0;
   for (auto l = levels.rbegin(); l != levels.rend(); ++l) {
     const glm::ivec3 nb = l->blocks();
@@ -168,7 +158,7 @@ std::vector<uint8_t> writeKnotStore(const Volume& v, const VolumeOctree& t, std:
       failure.rethrow();
       for (size_t k = 0; k < count; ++k) {
         const glm::ivec3 b = order[first + k];
-        StoreBlock& e = index[size_t(l->firstBlock) + size_t(b.x) + size_t(nb.x) * (size_t(b.y) + size_t(nb.y) * size_t(b.z))];
+        StoreBlock& e = index[size_t(l->blockIndex(b))];
         e = StoreBlock{offset, uint32_t(packed[k].size()), crcOf(packed[k].data(), packed[k].size())};
         out.write(reinterpret_cast<const char*>(packed[k].data()), std::streamsize(packed[k].size()));
         offset += packed[k].size();
@@ -236,8 +226,7 @@ std::shared_ptr<KnotStore> KnotStore::open(const std::string& path, const glm::i
     l.gradients = gradients == 1;
     if (j > 0 && l.type != s->mLevels.front().type && !l.coded) bad("level ", j, " holds samples of another type than level 0");
     l.firstBlock = blocks;
-    const glm::ivec3 b = l.blocks();
-    blocks += uint64_t(b.x) * uint64_t(b.y) * uint64_t(b.z);
+    blocks += l.blockCount();
     s->mLevels.push_back(l);
   }
   if (get((uint64_t*)nullptr) != blocks) bad("block count differs from the levels' ", blocks);
@@ -272,14 +261,8 @@ std::shared_ptr<const KnotStore::Block> KnotStore::load(size_t level, const glm:
   return made;
 }
 
-uint64_t KnotStore::key(size_t level, const glm::ivec3& b) const {
-  const StoreLevel& l = mLevels[level];
-  const glm::ivec3 nb = l.blocks();
-  return l.firstBlock + uint64_t(b.x) + uint64_t(nb.x) * (uint64_t(b.y) + uint64_t(nb.y) * uint64_t(b.z));
-}
-
 std::shared_ptr<const KnotStore::Block> KnotStore::block(size_t level, const glm::ivec3& b) const {
-  const uint64_t k = key(level, b);
+  const uint64_t k = mLevels[level].blockIndex(b);
   {
     const std::lock_guard lock(mMutex);
     if (const auto it = mCache.find(k); it != mCache.end()) {
@@ -355,7 +338,7 @@ SampleArray KnotStore::samples() const {
       failure.run([&] {
         for (int bx = 0; bx < nb.x; ++bx) {
           const glm::ivec3 b(bx, by, bz), base = b * kStoreBlock;
-          const std::shared_ptr<const Block> blk = load(0, b, key(0, b));
+          const std::shared_ptr<const Block> blk = load(0, b, l.blockIndex(b));
           for (int z = 0; z < blk->dims.z; ++z)
             for (int y = 0; y < blk->dims.y; ++y) {
               const size_t src = size_t(blk->dims.x) * (size_t(y) + size_t(blk->dims.y) * size_t(z));

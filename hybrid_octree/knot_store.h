@@ -48,6 +48,15 @@ struct StoreLevel {
   bool gradients = false;                       ///< each block also holds three bfloat16 a knot
   uint64_t firstBlock = 0;                      ///< index of its first block (x fastest, then y, z)
   glm::ivec3 blocks() const { return (counts + kStoreBlock - 1) / kStoreBlock; }
+  uint64_t blockCount() const {
+    const glm::ivec3 b = blocks();
+    return uint64_t(b.x) * uint64_t(b.y) * uint64_t(b.z);
+  }
+  /// Where block @p b lies in the store's index.
+  uint64_t blockIndex(const glm::ivec3& b) const {
+    const glm::ivec3 nb = blocks();
+    return firstBlock + uint64_t(b.x) + uint64_t(nb.x) * (uint64_t(b.y) + uint64_t(nb.y) * uint64_t(b.z));
+  }
 };
 
 /// Where one compressed block lies in the data section.
@@ -110,7 +119,6 @@ class KnotStore final : public KnotSource {
     glm::ivec3 dims{0};
   };
   KnotStore(const std::string& path) : mFile(path) {}
-  uint64_t key(size_t level, const glm::ivec3& b) const;  // the block's place in mIndex
   /// Reads, checks and decompresses a block (not cached).
   std::shared_ptr<const Block> load(size_t level, const glm::ivec3& b, uint64_t key) const;
   /// The block through the cache.

@@ -39,4 +39,19 @@ inline glm::ivec3 childOffset(int slot, int childEdge) {
   return glm::ivec3(slot & 1, (slot >> 1) & 1, (slot >> 2) & 1) * childEdge;
 }
 
+/// Morton (Z-order) code of a grid point with coordinates in [0, 2^21): the bits of x, y and z
+/// interleaved, x lowest. Points sorted by it put every aligned power-of-two box contiguously.
+inline uint64_t morton(const glm::ivec3& c) {
+  auto spread = [](uint64_t v) {
+    v &= 0x1fffff;  // 21 bits an axis
+    v = (v | (v << 32)) & 0x1f00000000ffffULL;
+    v = (v | (v << 16)) & 0x1f0000ff0000ffULL;
+    v = (v | (v << 8)) & 0x100f00f00f00f00fULL;
+    v = (v | (v << 4)) & 0x10c30c30c30c30c3ULL;
+    v = (v | (v << 2)) & 0x1249249249249249ULL;
+    return v;
+  };
+  return spread(uint64_t(c.x)) | spread(uint64_t(c.y)) << 1 | spread(uint64_t(c.z)) << 2;
+}
+
 }  // namespace hyb

@@ -224,20 +224,6 @@ class RegionCache {
   FlatMap mIndex{4096};
 };
 
-// Morton code of a cell index.
-uint64_t morton(const glm::ivec3& c) {
-  auto spread = [](uint64_t v) {
-    v &= 0x1fffff;  // 21 bits an axis
-    v = (v | (v << 32)) & 0x1f00000000ffffULL;
-    v = (v | (v << 16)) & 0x1f0000ff0000ffULL;
-    v = (v | (v << 8)) & 0x100f00f00f00f00fULL;
-    v = (v | (v << 4)) & 0x10c30c30c30c30c3ULL;
-    v = (v | (v << 2)) & 0x1249249249249249ULL;
-    return v;
-  };
-  return spread(uint64_t(c.x)) | spread(uint64_t(c.y)) << 1 | spread(uint64_t(c.z)) << 2;
-}
-
 // Merges the DiscMC cells of one volume-octree leaf bottom-up. A leaf is at least as large as the
 // merge limit, so leaves are independent: each one's cells are put in Morton order and merged while
 // they are in cache, and its nodes come out in Morton order after those of the leaves before it.

@@ -128,17 +128,22 @@ void SceneRenderer::dropTextures() {
   mTextures->clear();
 }
 
+namespace {
+
+// The error of simplified level @p k: 2^k of the smallest voxel edge.
+double simplifiedErrorMm(const glm::dvec3& spacing, int k) { return double(1 << k) * std::min({spacing.x, spacing.y, spacing.z}); }
+
+}  // namespace
+
 void SceneRenderer::simplify(const Volume& volume, PreparedSurface* surface, const Progress* progress) {
   if (!surface->simplified.empty()) return;
   HYB_CHECK(volume.hasSamples());
   const glm::dvec3 spacing = volume.spacing();
-  const double voxelMm = std::min({spacing.x, spacing.y, spacing.z});
   std::vector<TriangleMesh> levels;
   for (int k = 0; k < kSimplifiedLevels; ++k) {
-    // Level k from level k − 1 within 2^(k−1) voxels more: errors add up to 2^k voxels.
-    const double step = k == 0 ? 1.0 : double(1 << (k - 1));
-    levels.push_back(simplifyWithinBlocks(k == 0 ? surface->smooth : levels.back(), double(kSimplifiedBlockVoxels << k) * spacing,
-                                          step * voxelMm, progress));
+    // Level k from level k − 1 within what its error adds: errors add up to level k's.
+    const double step = simplifiedErrorMm(spacing, k) - (k == 0 ? 0.0 : simplifiedErrorMm(spacing, k - 1));
+    levels.push_back(simplifyWithinBlocks(k == 0 ? surface->smooth : levels.back(), double(kSimplifiedBlockVoxels << k) * spacing, step, progress));
     setGradientNormals(volume, &levels.back());
   }
   surface->simplified = std::move(levels);
@@ -275,13 +280,11 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     if (quality.simplifiedSurface && quality.renderer == Renderer::Slices) {
       PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
       simplify(v, &s, mOptions.progress);
-      // The coarsest level whose error (2^k voxels) is within the pixels asked where the volume is nearest.
-      const glm::dvec3 spacing = v.spacing();
-      const double pixelMm = camera.pixelMmAt(glm::dvec3(0.0), glm::dvec3(v.dims() - 1) * spacing);
-      const double voxelMm = std::min({spacing.x, spacing.y, spacing.z});
-      size_t k = 0;
-      while (k + 1 < s.simplified.size() && double(2 << k) * voxelMm <= quality.surfaceErrorPixels * pixelMm) ++k;
-      mesh = &s.simplified[k];
+      // The coarsest level whose error is within the pixels asked where the volume is nearest.
+      const double allowedMm = quality.surfaceErrorPixels * camera.pixelMmAt(glm::dvec3(0.0), glm::dvec3(v.dims() - 1) * v.spacing());
+      int k = 0;
+      while (k + 1 < int(s.simplified.size()) && simplifiedErrorMm(v.spacing(), k + 1) <= allowedMm) ++k;
+      mesh = &s.simplified[size_t(k)];
     } else {
       mesh = &surface(*look.iso, look.normals);
     }

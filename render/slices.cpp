@@ -4,6 +4,8 @@
 // proxy_geometry (planes and shells), slab_polygons (the SlabPolygon lists) and cut_plane_pass.
 #include "render/slices.h"
 
+#include <malloc.h>
+
 #include <glm/gtc/matrix_transform.hpp>
 #include <glm/gtc/type_ptr.hpp>
 
@@ -17,8 +19,6 @@
 #include <optional>
 #include <string>
 #include <thread>
-
-#include <malloc.h>
 #include <utility>
 
 #include "render/cut_plane_pass.h"
@@ -625,7 +625,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     }
     // The frees of a frame's textures and streams leave the heap fragmented, its pages resident
     // though unused: handed back every kTrimBytes drawn, a frame's memory follows what it holds.
-    drawnBytes += d.stream.size() * sizeof(float) + (d.pending >= 0 ? drawing.bytes : 0);
+    drawnBytes += d.stream.size() * sizeof(float) + drawing.bytes;
     if (drawnBytes > kTrimBytes) {
       malloc_trim(0);
       drawnBytes = 0;
