@@ -125,20 +125,30 @@ struct BuildOptions {
 
 
 int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
-  const Volume v = o.input.read(err);
+  // A volume-only build streams its input plane by plane (twice); an isosurface needs the samples whole.
+  std::optional<Volume> whole;
+  std::unique_ptr<PlaneSource> planes;
+  if (o.iso) {
+    whole = o.input.read(err);
+    planes = planesOf(*whole);
+  } else {
+    planes = o.input.openPlanes(err);
+  }
+  KnotStoreWriter store = storeWriterFor(o.output, *planes);
   const auto t0 = Clock::now();
-  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{o.leafEdge, o.prefilter, o.input.progress});
+  const VolumeOctree t = VolumeOctree::build(*planes, VolumeOctreeOptions{o.leafEdge, o.prefilter, o.input.progress}, &store);
   const double ms = msSince(t0);
+  const Volume v = planes->description().withRange(t.root().minValue, t.root().maxValue, planes->name());
   out << v.toString() << octreeSummary(v, t);
   out << "build    " << std::fixed << std::setprecision(1) << ms << " ms (" << double(v.voxelCount()) / (ms * 1e3)
-      << " Mvoxels/s)\n";
+      << " Mvoxels/s; " << (planes->whole() ? "read whole" : "streamed plane by plane") << ")\n";
   std::optional<SurfaceOctree> so;
   if (o.iso) {
     const auto t1 = Clock::now();
-    so = SurfaceOctree::build(v, t, float(*o.iso));
+    so = SurfaceOctree::build(*whole, t, float(*o.iso));
     out << surfaceSummary(*so, msSince(t1));
   }
-  saveScene(o.output, v, t, so ? &*so : nullptr);
+  saveScene(o.output, v, t, store, so ? &*so : nullptr);
   out << "wrote    " << o.output << "\n";
   return 0;
 }

@@ -81,6 +81,13 @@ Volume VolumeInput::read(std::ostream& err) const {
   return v;
 }
 
+std::unique_ptr<PlaneSource> VolumeInput::openPlanes(std::ostream& err) const {
+  const std::optional<RawLayout> raw = rawLayout();
+  std::unique_ptr<PlaneSource> planes = hyb::openPlanes(path, raw ? &*raw : nullptr, series, progress);
+  printWarnings(planes->description(), err);
+  return planes;
+}
+
 void printWarnings(const Volume& v, std::ostream& err) {
   for (const std::string& w : v.warnings()) err << "hybrid-octree: warning: " << w << "\n";
 }

@@ -22,6 +22,7 @@
 #include "render/scene_renderer.h"
 #include "render/transfer_function.h"
 #include "volume/file_util.h"
+#include "volume/plane_source.h"
 #include "volume/progress.h"
 #include "volume/volume_io.h"
 
@@ -70,6 +71,8 @@ struct VolumeInput {
   std::optional<RawLayout> rawLayout() const;
   /// Reads the volume, printing what the reader had to assume on @p err as warnings.
   Volume read(std::ostream& err) const;
+  /// Opens the volume plane by plane (openPlanes), printing its warnings on @p err.
+  std::unique_ptr<PlaneSource> openPlanes(std::ostream& err) const;
 };
 
 /// Prints @p v's reader warnings on @p err, one "hybrid-octree: warning:" line each.

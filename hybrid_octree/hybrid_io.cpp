@@ -4,6 +4,8 @@
 
 #include <bit>
 #include <cstring>
+#include <filesystem>
+#include <functional>
 #include <fstream>
 #include <map>
 #include <ostream>
@@ -206,7 +208,12 @@ void putSurfaceNodes(Writer* w, const std::vector<SurfaceNode>& nodes) {
 
 }  // namespace
 
-void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceOctree* surface) {
+namespace {
+
+// The scene of @p volume (its header: samples need not be held), whose knot store @p writeStore
+// writes to the stream and returns the index of.
+void writeScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceOctree* surface,
+                const std::function<std::vector<uint8_t>(std::ostream&)>& writeStore) {
   Writer vol;
   vol.put(volume.dims());
   vol.put(volume.spacing());
@@ -229,11 +236,11 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
       out.write(reinterpret_cast<const char*>(&size), 8);
       out.write(reinterpret_cast<const char*>(&c), 4);
     };
-    auto write = [&](uint32_t t, const std::vector<uint8_t>& bytes) {
-      const Section section{t, {{bytes.data(), bytes.size()}}};
-      sectionHeader(t, section.size(), section.crc());
-      out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+    auto writeSection = [&](const Section& section) {
+      sectionHeader(section.tag, section.size(), section.crc());
+      for (const auto& [data, size] : section.pieces) out.write(reinterpret_cast<const char*>(data), std::streamsize(size));
     };
+    auto write = [&](uint32_t t, const std::vector<uint8_t>& bytes) { writeSection(Section{t, {{bytes.data(), bytes.size()}}}); };
     out.write(kMagic, sizeof kMagic);
     const uint32_t header[2] = {kSceneVersion, surface ? 5u : 4u};  // VOLM, KDAT, KIDX, VOCT and SURF
     out.write(reinterpret_cast<const char*>(header), sizeof header);
@@ -242,20 +249,27 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
     const std::streampos sizeAt = out.tellp() + std::streamoff(4);
     sectionHeader(kBlocksTag, 0, 0);
     const std::streampos start = out.tellp();
-    const std::vector<uint8_t> indexBytes = writeKnotStore(volume, octree, out);
+    const std::vector<uint8_t> indexBytes = writeStore(out);
     const uint64_t blocksSize = uint64_t(out.tellp() - start);
     out.seekp(sizeAt);
     out.write(reinterpret_cast<const char*>(&blocksSize), 8);
     out.seekp(0, std::ios::end);
     write(kIndexTag, indexBytes);
     const uint64_t volumeHash = volumeHashOf(vol.bytes(), indexBytes);
-    Writer oct;
+    // The node and error arrays are written from where they lie (the phantom's are 390 MB): the
+    // section is its header fields, then each array as Writer::putArray lays it out.
+    Writer oct, nodeCount, errorCount;
     oct.put(volumeHash);
     oct.put(int32_t(octree.leafEdge()));
     oct.put(uint32_t(octree.prefiltered()));
-    oct.putArray(octree.nodes());
-    oct.putArray(octree.errorData());
-    write(kOctreeTag, oct.bytes());
+    nodeCount.put(uint64_t(octree.nodes().size()));
+    errorCount.put(uint64_t(octree.errorData().size()));
+    writeSection(Section{kOctreeTag,
+                         {{oct.bytes().data(), oct.bytes().size()},
+                          {nodeCount.bytes().data(), nodeCount.bytes().size()},
+                          {reinterpret_cast<const uint8_t*>(octree.nodes().data()), octree.nodes().size() * sizeof(OctreeNode)},
+                          {errorCount.bytes().data(), errorCount.bytes().size()},
+                          {reinterpret_cast<const uint8_t*>(octree.errorData().data()), octree.errorData().size() * sizeof(float)}}});
     if (surface) {
       Writer surf;
       surf.put(volumeHash);
@@ -266,6 +280,24 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
       write(kSurfaceTag, surf.bytes());
     }
   });
+}
+
+// The directory a scene is written in, where its store's blocks wait.
+std::string directoryOf(const std::string& path) { return std::filesystem::path(path).parent_path().string(); }
+
+}  // namespace
+
+void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceOctree* surface) {
+  writeScene(path, volume, octree, surface, [&](std::ostream& out) { return writeKnotStore(volume, octree, out, directoryOf(path)); });
+}
+
+void saveScene(const std::string& path, const Volume& description, const VolumeOctree& octree, KnotStoreWriter& store,
+               const SurfaceOctree* surface) {
+  writeScene(path, description, octree, surface, [&](std::ostream& out) { return store.finish(out); });
+}
+
+KnotStoreWriter storeWriterFor(const std::string& path, const PlaneSource& planes) {
+  return KnotStoreWriter(planes.dims(), planes.storedType(), directoryOf(path));
 }
 
 bool isSceneFile(const std::string& path) {

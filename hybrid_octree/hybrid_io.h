@@ -54,6 +54,16 @@ struct SceneLoadOptions {
 void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree,
                const SurfaceOctree* surface = nullptr);
 
+/// Writes the scene of the volume @p description describes (its grid, types, range, frame and info;
+/// no samples needed), whose knot store @p store made from its planes while @p octree was built
+/// (VolumeOctree::build with @p store as the visitor), atomically to @p path.
+/// @throw IoError naming @p path when it cannot be written.
+void saveScene(const std::string& path, const Volume& description, const VolumeOctree& octree, KnotStoreWriter& store,
+               const SurfaceOctree* surface = nullptr);
+
+/// The store writer of a scene to be saved at @p path from @p planes (its blocks wait beside it).
+KnotStoreWriter storeWriterFor(const std::string& path, const PlaneSource& planes);
+
 /// Reads a scene written by saveScene.
 /// @throw IoError naming @p path for foreign, older, newer, truncated or corrupt files.
 Scene loadScene(const std::string& path, const SceneLoadOptions& options = SceneLoadOptions());

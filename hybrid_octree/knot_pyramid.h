@@ -14,6 +14,8 @@
 #include <algorithm>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
+#include <memory>
 #include <vector>
 
 #include "volume/volume.h"
@@ -31,6 +33,9 @@ inline int knotCount(int n, int s) { return (n - 1) / s + 1 + ((n - 1) % s != 0)
 /// Voxel index of knot @p j of spacing @p s on an axis of @p n samples (j < knotCount(n, s)): j·s,
 /// the last knot moved onto the last sample.
 inline int knotPosition(int j, int s, int n) { return std::min(j * s, n - 1); }
+/// The knot index of position @p p on an axis of @p n samples at spacing @p s (the inverse of
+/// knotPosition), or −1 when no knot lies there.
+inline int knotIndexAt(int p, int s, int n) { return p == n - 1 ? knotCount(n, s) - 1 : (p % s == 0 ? p / s : -1); }
 /// Knots per axis at spacing @p s.
 inline glm::ivec3 knotCounts(const glm::ivec3& n, int s) { return {knotCount(n.x, s), knotCount(n.y, s), knotCount(n.z, s)}; }
 
@@ -43,6 +48,21 @@ class KnotPyramid {
   KnotPyramid() = default;
   /// Builds every spacing of @p volume on all cores.
   explicit KnotPyramid(const Volume& volume);
+
+  /// Builds a pyramid from a volume's planes, in order, without holding the volume.
+  class Builder {
+   public:
+    explicit Builder(const glm::ivec3& dims);
+    ~Builder();
+    /// Adds the next plane, whose row y @p readRow(y, out) reads as float (called from any thread).
+    void add(const std::function<void(int y, float* out)>& readRow);
+    /// The pyramid, once every plane was added.
+    KnotPyramid finish();
+
+   private:
+    struct Impl;
+    std::unique_ptr<Impl> mImpl;
+  };
 
   bool empty() const { return mLevels.empty(); }
   /// Whether lattices of spacing @p s read their knots here.
@@ -63,6 +83,7 @@ class KnotPyramid {
   size_t bytesUsed() const;
 
  private:
+  friend class Builder;
   struct Level {
     int spacing = 0;
     glm::ivec3 count{0};  // knots per axis

@@ -6,7 +6,11 @@
 #include <algorithm>
 #include <array>
 #include <bit>
+#include <cerrno>
 #include <cstring>
+#include <filesystem>
+
+#include <unistd.h>
 
 #include "volume/error.h"
 #include "volume/parallel.h"
@@ -26,63 +30,6 @@ uint64_t blockKnots(const glm::ivec3& d) { return uint64_t(d.x) * uint64_t(d.y) 
 
 uint64_t rawBytes(const StoreLevel& l, const glm::ivec3& d) {
   return blockKnots(d) * (scalarSize(l.type) + (l.gradients ? kGradientBytes : 0));
-}
-
-// The levels of a volume's store: spacing 1 up to the root's edge (a root brick at level 0).
-std::vector<StoreLevel> storeLevels(const Volume& v, const VolumeOctree& t) {
-  std::vector<StoreLevel> levels;
-  uint64_t first = 0;
-  for (int j = 0; j <= t.depth(); ++j) {
-    StoreLevel l;
-    l.spacing = 1 << j;
-    l.counts = knotCounts(v.dims(), l.spacing);
-    l.coded = l.spacing > 1 && t.prefilteredAt(l.spacing);
-    l.type = l.coded ? ScalarType::UInt16 : v.storedType();
-    if (l.coded) {
-      l.offset = t.knots().offset(l.spacing);
-      l.scale = t.knots().scale(l.spacing);
-    }
-    l.gradients = l.spacing > 1;
-    l.firstBlock = first;
-    first += l.blockCount();
-    levels.push_back(l);
-  }
-  return levels;
-}
-
-// The raw bytes of block @p b of level @p l: its knots' values in the level's type, then for
-// s ≥ 2 their gradients.
-std::vector<uint8_t> rawBlock(const Volume& v, const VolumeOctree& t, const StoreLevel& l, const glm::ivec3& b) {
-  const glm::ivec3 d = blockDims(l, b), lo = b * kStoreBlock, n = v.dims();
-  std::vector<uint8_t> out(rawBytes(l, d));
-  const int s = l.spacing;
-  std::array<std::vector<int>, 3> at;  // the knots' voxel positions along each axis
-  for (int a = 0; a < 3; ++a)
-    for (int j = 0; j < d[a]; ++j) at[size_t(a)].push_back(knotPosition(lo[a] + j, s, n[a]));
-  if (l.coded) {
-    uint16_t* q = reinterpret_cast<uint16_t*>(out.data());
-    for (int k = 0; k < d.z; ++k)
-      for (int j = 0; j < d.y; ++j)
-        for (int i = 0; i < d.x; ++i) *q++ = t.knots().code(s, lo + glm::ivec3(i, j, k));
-  } else {
-    v.visitSamples([&](const auto* data) {
-      using T = std::remove_cv_t<std::remove_pointer_t<decltype(data)>>;
-      T* q = reinterpret_cast<T*>(out.data());
-      for (int k = 0; k < d.z; ++k)
-        for (int j = 0; j < d.y; ++j)
-          for (int i = 0; i < d.x; ++i) *q++ = data[v.index(at[0][size_t(i)], at[1][size_t(j)], at[2][size_t(k)])];
-    });
-  }
-  if (l.gradients) {
-    uint16_t* g = reinterpret_cast<uint16_t*>(out.data() + blockKnots(d) * scalarSize(l.type));
-    for (int k = 0; k < d.z; ++k)
-      for (int j = 0; j < d.y; ++j)
-        for (int i = 0; i < d.x; ++i) {
-          const glm::vec3 q = v.gradientAt(at[0][size_t(i)], at[1][size_t(j)], at[2][size_t(k)]);
-          for (int a = 0; a < 3; ++a) *g++ = toBfloat16(q[a]);
-        }
-  }
-  return out;
 }
 
 // Byte planes (Blosc's shuffle): the k-th bytes of every @p width-byte element together, so that
@@ -126,64 +73,228 @@ float valueOf(const StoreLevel& l, const uint8_t* bytes, size_t i) {
 
 }  // namespace
 
-std::vector<uint8_t> writeKnotStore(const Volume& v, const VolumeOctree& t, std::ostream& out) {
-  const std::vector<StoreLevel> levels = storeLevels(v, t);
-  std::vector<StoreBlock> index(size_t(levels.back().firstBlock + levels.back().blockCount()));
+// A temporary file that is gone from the directory from the start: blocks wait in it in the order
+// the planes made them until they are copied into the scene in the store's order.
+class KnotStoreWriter::Spool {
+ public:
+  explicit Spool(const std::string& dir) {
+    std::string name = (std::filesystem::path(dir.empty() ? "." : dir) / ".hyb-spool-XXXXXX").string();
+    mFd = ::mkstemp(name.data());
+    if (mFd < 0) HYB_THROW(IoError, dir, ": cannot create a temporary file for the knot store (", std::strerror(errno), ")");
+    ::unlink(name.c_str());
+  }
+  ~Spool() { ::close(mFd); }
+  Spool(const Spool&) = delete;
+  Spool& operator=(const Spool&) = delete;
+  uint64_t append(const std::vector<uint8_t>& bytes) {
+    const uint64_t at = mSize;
+    for (size_t done = 0; done < bytes.size();) {
+      const ssize_t n = ::write(mFd, bytes.data() + done, bytes.size() - done);
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) HYB_THROW(IoError, "knot store: temporary file write failed (", std::strerror(errno), ")");
+      done += size_t(n);
+    }
+    mSize += bytes.size();
+    return at;
+  }
+  void read(uint64_t offset, size_t size, uint8_t* out) const {
+    for (size_t done = 0; done < size;) {
+      const ssize_t n = ::pread(mFd, out + done, size - done, off_t(offset + done));
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) HYB_THROW(IoError, "knot store: temporary file read failed (", std::strerror(errno), ")");
+      done += size_t(n);
+    }
+  }
+
+ private:
+  int mFd = -1;
+  uint64_t mSize = 0;
+};
+
+KnotStoreWriter::KnotStoreWriter(const glm::ivec3& dims, ScalarType storedType, const std::string& spoolDir, uint64_t rowBytes)
+    : mDims(dims), mStored(storedType), mRowBytes(std::max<uint64_t>(rowBytes, 1)), mSpool(std::make_unique<Spool>(spoolDir)) {}
+
+KnotStoreWriter::~KnotStoreWriter() = default;
+
+void KnotStoreWriter::begin(const KnotPyramid& knots, int depth) {
+  mKnots = &knots;
+  uint64_t first = 0;
+  for (int j = 0; j <= depth; ++j) {  // spacing 1 up to the root's edge (a root brick at level 0)
+    StoreLevel l;
+    l.spacing = 1 << j;
+    l.counts = knotCounts(mDims, l.spacing);
+    l.coded = l.spacing > 1 && knots.covers(l.spacing);
+    l.type = l.coded ? ScalarType::UInt16 : mStored;
+    if (l.coded) {
+      l.offset = knots.offset(l.spacing);
+      l.scale = knots.scale(l.spacing);
+    }
+    l.gradients = l.spacing > 1;
+    l.firstBlock = first;
+    first += l.blockCount();
+    mLevels.push_back(l);
+  }
+  mRows.resize(mLevels.size());
+  mSpooled.resize(size_t(first));
+  uint64_t rowBytes = 0;  // every level's widest row
+  for (const StoreLevel& l : mLevels) rowBytes += rawBytes(l, glm::ivec3(l.counts.x, l.counts.y, std::min(kStoreBlock, l.counts.z)));
+  mPasses = int(std::min<uint64_t>((rowBytes + mRowBytes - 1) / mRowBytes, uint64_t(mLevels.front().blocks().y)));
+}
+
+void KnotStoreWriter::strip(const StoreLevel& l, int* first, int* end) const {
+  const int nb = l.blocks().y;
+  *first = int(int64_t(nb) * mPass / mPasses);
+  *end = int(int64_t(nb) * (mPass + 1) / mPasses);
+}
+
+// Plane z's knots of every level that has a knot plane there go into their block row's raw
+// blocks (values, then for s ≥ 2 gradients); a row is compressed and spooled once its last knot
+// plane is in.
+void KnotStoreWriter::plane(const SampleWindow& w, int z) {
+  const glm::ivec3 n = mDims;
+  for (size_t li = 0; li < mLevels.size(); ++li) {
+    const StoreLevel& l = mLevels[li];
+    const int s = l.spacing;
+    const int k = knotIndexAt(z, s, n.z);  // the level's knot plane here, if any
+    if (k < 0) continue;
+    const glm::ivec3 nb = l.blocks();
+    int by0, by1;
+    strip(l, &by0, &by1);
+    if (by0 == by1) continue;
+    Row& row = mRows[li];
+    const int r = k / kStoreBlock, kk = k - r * kStoreBlock;
+    if (!row.open) {  // one buffer a level, kept from row to row (no churn of a thousand blocks' allocations)
+      row.offsets.assign(1, 0);
+      for (int by = by0; by < by1; ++by)
+        for (int bx = 0; bx < nb.x; ++bx) row.offsets.push_back(row.offsets.back() + rawBytes(l, blockDims(l, glm::ivec3(bx, by, r))));
+      row.bytes.resize(row.offsets.back());
+      row.open = true;
+    }
+    std::vector<int> px(size_t(l.counts.x)), py(size_t(l.counts.y));  // the knots' voxel positions
+    for (int i = 0; i < l.counts.x; ++i) px[size_t(i)] = knotPosition(i, s, n.x);
+    for (int j = 0; j < l.counts.y; ++j) py[size_t(j)] = knotPosition(j, s, n.y);
+    w.visitPlane(z, [&](const auto* plane) {
+      using T = std::remove_cv_t<std::remove_pointer_t<decltype(plane)>>;
+#pragma omp parallel for schedule(dynamic, 1) if (nb.x * (by1 - by0) > 1)
+      for (int b = 0; b < nb.x * (by1 - by0); ++b) {
+        const glm::ivec3 bi(b % nb.x, by0 + b / nb.x, r), d = blockDims(l, bi), lo = bi * kStoreBlock;
+        uint8_t* out = row.bytes.data() + row.offsets[size_t(b)];
+        const size_t first = size_t(kk) * size_t(d.x) * size_t(d.y);
+        if (l.coded) {
+          uint16_t* q = reinterpret_cast<uint16_t*>(out) + first;
+          for (int j = 0; j < d.y; ++j)
+            for (int i = 0; i < d.x; ++i) *q++ = mKnots->code(s, glm::ivec3(lo.x + i, lo.y + j, k));
+        } else {
+          T* q = reinterpret_cast<T*>(out) + first;
+          for (int j = 0; j < d.y; ++j)
+            for (int i = 0; i < d.x; ++i) *q++ = plane[size_t(px[size_t(lo.x + i)]) + size_t(n.x) * size_t(py[size_t(lo.y + j)])];
+        }
+        if (l.gradients) {
+          uint16_t* g = reinterpret_cast<uint16_t*>(out + blockKnots(d) * scalarSize(l.type)) + 3 * first;
+          for (int j = 0; j < d.y; ++j)
+            for (int i = 0; i < d.x; ++i) {
+              const glm::vec3 q = w.gradientAt(px[size_t(lo.x + i)], py[size_t(lo.y + j)], z);
+              for (int a = 0; a < 3; ++a) *g++ = toBfloat16(q[a]);
+            }
+        }
+      }
+    });
+    if (kk == blockDims(l, glm::ivec3(0, 0, r)).z - 1) spoolRow(li, r);
+  }
+  if (z == n.z - 1)  // the pass's end: the rows' buffers go before the octree is assembled
+    for (Row& row : mRows) std::vector<uint8_t>().swap(row.bytes);
+}
+
+// Compresses the raw blocks of level @p li's block row @p r on all cores, a batch at a time, and
+// appends them to the spool.
+void KnotStoreWriter::spoolRow(size_t li, int r) {
+  const StoreLevel& l = mLevels[li];
+  Row& row = mRows[li];
+  const glm::ivec3 nb = l.blocks();
+  int by0, by1;
+  strip(l, &by0, &by1);
+  const size_t blocks = row.offsets.size() - 1;
+  constexpr size_t kBatch = 64;
+  std::vector<std::vector<uint8_t>> packed(kBatch);
+  for (size_t first = 0; first < blocks; first += kBatch) {
+    const size_t count = std::min(kBatch, blocks - first);
+    ParallelFailure failure;
+#pragma omp parallel for schedule(dynamic) if (count > 1)
+    for (size_t k = 0; k < count; ++k)
+      failure.run([&] {
+        const uint8_t* block = row.bytes.data() + row.offsets[first + k];
+        const size_t size = row.offsets[first + k + 1] - row.offsets[first + k];
+        thread_local std::vector<uint8_t> raw;
+        raw.resize(size);
+        eachPart(l, size, [&](size_t at, size_t n, size_t width) { toPlanes(block + at, n, width, raw.data() + at); });
+        std::vector<uint8_t>& z = packed[k];
+        z.resize(ZSTD_compressBound(raw.size()));
+        const size_t n = ZSTD_compress(z.data(), z.size(), raw.data(), raw.size(), kStoreCompression);
+        if (ZSTD_isError(n)) HYB_THROW(RuntimeError, "zstd: ", ZSTD_getErrorName(n));
+        z.resize(n);
+      });
+    failure.rethrow();
+    for (size_t k = 0; k < count; ++k) {
+      const size_t b = first + k;
+      const glm::ivec3 bi(int(b % size_t(nb.x)), by0 + int(b / size_t(nb.x)), r);
+      mSpooled[size_t(l.blockIndex(bi))] =
+          StoreBlock{mSpool->append(packed[k]), uint32_t(packed[k].size()), crcOf(packed[k].data(), packed[k].size())};
+    }
+  }
+  row.open = false;
+}
+
+std::vector<uint8_t> KnotStoreWriter::finish(std::ostream& out) {
+  for (const Row& row : mRows) HYB_CHECK(!row.open);  // every plane was seen
+  for (const StoreBlock& b : mSpooled) HYB_CHECK(b.size > 0);  // in every pass
+  mRows.clear();
+  std::vector<StoreBlock> index(mSpooled.size());
   uint64_t offset = 0;
-  for (auto l = levels.rbegin(); l != levels.rend(); ++l) {
+  std::vector<uint8_t> bytes;
+  for (auto l = mLevels.rbegin(); l != mLevels.rend(); ++l) {  // coarsest first, each level in Morton order
     const glm::ivec3 nb = l->blocks();
     std::vector<glm::ivec3> order;
     for (int z = 0; z < nb.z; ++z)
       for (int y = 0; y < nb.y; ++y)
         for (int x = 0; x < nb.x; ++x) order.emplace_back(x, y, z);
     std::sort(order.begin(), order.end(), [](const glm::ivec3& a, const glm::ivec3& b) { return morton(a) < morton(b); });
-    // Compressed on all cores a batch at a time, written in order: the bytes held are a batch's.
-    constexpr size_t kBatch = 64;
-    for (size_t first = 0; first < order.size(); first += kBatch) {
-      const size_t count = std::min(kBatch, order.size() - first);
-      std::vector<std::vector<uint8_t>> packed(count);
-      ParallelFailure failure;
-#pragma omp parallel for schedule(dynamic) if (count > 1)
-      for (size_t k = 0; k < count; ++k)
-        failure.run([&] {
-          const std::vector<uint8_t> block = rawBlock(v, t, *l, order[first + k]);
-          std::vector<uint8_t> raw(block.size());
-          eachPart(*l, block.size(), [&](size_t at, size_t n, size_t width) { toPlanes(block.data() + at, n, width, raw.data() + at); });
-          std::vector<uint8_t>& z = packed[k];
-          z.resize(ZSTD_compressBound(raw.size()));
-          const size_t n = ZSTD_compress(z.data(), z.size(), raw.data(), raw.size(), kStoreCompression);
-          if (ZSTD_isError(n)) HYB_THROW(RuntimeError, "zstd: ", ZSTD_getErrorName(n));
-          z.resize(n);
-        });
-      failure.rethrow();
-      for (size_t k = 0; k < count; ++k) {
-        const glm::ivec3 b = order[first + k];
-        StoreBlock& e = index[size_t(l->blockIndex(b))];
-        e = StoreBlock{offset, uint32_t(packed[k].size()), crcOf(packed[k].data(), packed[k].size())};
-        out.write(reinterpret_cast<const char*>(packed[k].data()), std::streamsize(packed[k].size()));
-        offset += packed[k].size();
-      }
+    for (const glm::ivec3& b : order) {
+      const size_t i = size_t(l->blockIndex(b));
+      const StoreBlock& from = mSpooled[i];
+      bytes.resize(from.size);
+      mSpool->read(from.offset, from.size, bytes.data());
+      out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+      index[i] = StoreBlock{offset, from.size, from.crc};
+      offset += from.size;
     }
   }
-  std::vector<uint8_t> bytes;
-  put(&bytes, uint32_t(kStoreBlock));
-  put(&bytes, uint32_t(levels.size()));
-  for (const StoreLevel& l : levels) {
-    put(&bytes, int32_t(l.spacing));
-    put(&bytes, l.counts);
-    put(&bytes, uint32_t(l.type));
-    put(&bytes, uint8_t(l.coded));
-    put(&bytes, l.offset);
-    put(&bytes, l.scale);
-    put(&bytes, uint8_t(l.gradients));
+  std::vector<uint8_t> result;
+  put(&result, uint32_t(kStoreBlock));
+  put(&result, uint32_t(mLevels.size()));
+  for (const StoreLevel& l : mLevels) {
+    put(&result, int32_t(l.spacing));
+    put(&result, l.counts);
+    put(&result, uint32_t(l.type));
+    put(&result, uint8_t(l.coded));
+    put(&result, l.offset);
+    put(&result, l.scale);
+    put(&result, uint8_t(l.gradients));
   }
-  put(&bytes, uint64_t(index.size()));
+  put(&result, uint64_t(index.size()));
   for (const StoreBlock& e : index) {
-    put(&bytes, e.offset);
-    put(&bytes, e.size);
-    put(&bytes, e.crc);
+    put(&result, e.offset);
+    put(&result, e.size);
+    put(&result, e.crc);
   }
-  return bytes;
+  return result;
+}
+
+std::vector<uint8_t> writeKnotStore(const Volume& v, const VolumeOctree& t, std::ostream& out, const std::string& spoolDir) {
+  KnotStoreWriter writer(v.dims(), v.storedType(), spoolDir);
+  writer.begin(t.knots(), t.depth());
+  const std::unique_ptr<PlaneSource> planes = planesOf(v);
+  visitPlanes(*planes, writer, 0);
+  return writer.finish(out);
 }
 
 std::shared_ptr<KnotStore> KnotStore::open(const std::string& path, const glm::ivec3& dims, const glm::dvec3& spacing,

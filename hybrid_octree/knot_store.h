@@ -66,10 +66,56 @@ struct StoreBlock {
   uint32_t crc = 0;     ///< CRC-32 of the compressed bytes
 };
 
-/// Writes the store of @p volume and @p octree (blocks compressed on all cores) to @p out, and
-/// returns its index: the bytes KnotStore::open reads back. Deterministic: the same volume gives
-/// the same bytes.
-std::vector<uint8_t> writeKnotStore(const Volume& volume, const VolumeOctree& octree, std::ostream& out);
+/// Bytes of raw blocks a KnotStoreWriter holds at most, summed over its levels' rows.
+inline constexpr uint64_t kStoreRowBytes = uint64_t(128) << 20;
+
+/// Makes a volume's store from its planes, as a streamed build's second pass reads them (a
+/// PlaneVisitor of VolumeOctree::build): a level's block row is compressed (on all cores) once its
+/// last knot plane is in, and waits in a temporary file beside the scene (gone from its directory
+/// from the start) until finish() copies every block into the scene in the store's order. What it
+/// holds is a block row per level; where the rows of a wide volume would hold more than
+/// kStoreRowBytes, each pass over the planes makes a strip of them (along y), so as many passes.
+class KnotStoreWriter final : public PlaneVisitor {
+ public:
+  /// A store for a volume of @p dims whose samples are held as @p storedType; the temporary file
+  /// goes in @p spoolDir; the rows held stay within @p rowBytes.
+  KnotStoreWriter(const glm::ivec3& dims, ScalarType storedType, const std::string& spoolDir, uint64_t rowBytes = kStoreRowBytes);
+  ~KnotStoreWriter() override;
+  /// @p knots must live until finish().
+  void begin(const KnotPyramid& knots, int depth) override;
+  int passes() const override { return mPasses; }
+  void beginPass(int pass) override { mPass = pass; }
+  void plane(const SampleWindow& window, int z) override;
+  /// Writes the blocks to @p out, levels coarsest first and each in Morton order, and returns the
+  /// store's index: the bytes KnotStore::open reads back. Deterministic: the same volume gives the
+  /// same bytes. Every plane must have been seen.
+  std::vector<uint8_t> finish(std::ostream& out);
+
+ private:
+  class Spool;
+  void spoolRow(size_t level, int row);
+  /// The block rows (along y) of level @p l that the current pass makes: [*first, *end).
+  void strip(const StoreLevel& l, int* first, int* end) const;
+
+  glm::ivec3 mDims;
+  ScalarType mStored;
+  const KnotPyramid* mKnots = nullptr;
+  uint64_t mRowBytes;
+  int mPasses = 1, mPass = 0;
+  std::vector<StoreLevel> mLevels;
+  struct Row {  // a level's raw blocks of the row being filled, one after the other
+    std::vector<uint8_t> bytes;
+    std::vector<size_t> offsets;  // block b: [offsets[b], offsets[b + 1])
+    bool open = false;
+  };
+  std::vector<Row> mRows;  // per level
+  std::vector<StoreBlock> mSpooled;                      // per block: where it waits in the spool
+  std::unique_ptr<Spool> mSpool;
+};
+
+/// Writes the store of @p volume and @p octree to @p out (a KnotStoreWriter fed the volume's
+/// planes, its temporary file in @p spoolDir), and returns its index.
+std::vector<uint8_t> writeKnotStore(const Volume& volume, const VolumeOctree& octree, std::ostream& out, const std::string& spoolDir);
 
 /// Counters of a store's cache.
 struct StoreCacheStats {

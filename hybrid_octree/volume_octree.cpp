@@ -6,8 +6,13 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <memory>
+#include <optional>
+
+#include <omp.h>
 
 #include "volume/error.h"
+#include "volume/sample_window.h"
 
 namespace hyb {
 
@@ -145,14 +150,13 @@ struct AxisKnots {
   }
 };
 
-// Leaves: min/max over their samples and ε_p for every sub-level, computed inside a cached block.
-// The trilinear approximation of spacing e is evaluated separably (x, then y, then z).
-void buildLeaves(const Volume& v, const Geometry& g, const KnotPyramid& knots, LevelData* out) {
+// The leaves of one row (those whose origin has z = row · leaf edge): min/max over their samples
+// and ε_p for every sub-level, computed inside a cached block; the window holds their planes. The
+// trilinear approximation of spacing e is evaluated separably (x, then y, then z).
+void buildLeafRow(const SampleWindow& v, const Geometry& g, const KnotPyramid& knots, int row, LevelData* out) {
   const int E = g.leafEdge, B = E + 1, levels = g.depth - g.leafLevel + 1;
-  const size_t count = g.countAt(g.leafLevel);
-  out->minV.resize(count);
-  out->maxV.resize(count);
-  out->err.assign(count * size_t(levels), 0.0f);
+  const glm::ivec3 grid = g.grid[size_t(g.leafLevel)];
+  const size_t begin = size_t(row) * size_t(grid.x) * size_t(grid.y), end = begin + size_t(grid.x) * size_t(grid.y);
   const glm::ivec3 dims = v.dims();
 #pragma omp parallel
   {
@@ -160,7 +164,7 @@ void buildLeaves(const Volume& v, const Geometry& g, const KnotPyramid& knots, L
     AxisKnots kx, ky, kz;
     auto at = [B](std::vector<float>& a, int x, int y, int z) -> float& { return a[size_t(x) + size_t(B) * (y + size_t(B) * z)]; };
 #pragma omp for schedule(dynamic, 8)
-    for (size_t li = 0; li < count; ++li) {
+    for (size_t li = begin; li < end; ++li) {
       const glm::ivec3 o = g.unravel(g.leafLevel, li) * E;
       const glm::ivec3 lim = glm::min(glm::ivec3(E), dims - 1 - o);  // last local index of a real sample
       float lo = std::numeric_limits<float>::max(), hi = -lo;
@@ -223,57 +227,92 @@ void buildLeaves(const Volume& v, const Geometry& g, const KnotPyramid& knots, L
   }
 }
 
-// ε_0 of every node above the leaves, straight from the samples, all levels in one pass over the
-// volume (each row is read from memory once and scanned from cache for every level): along a row of
-// fixed (y, z) a node's trilinear approximation is linear in x, so each node's piece of a row costs
-// one bilinear pair and a vectorized scan. The far corners are the grid's last samples where a node
-// overhangs the grid (position clamping); samples on a face shared by two nodes count in both.
-std::vector<std::vector<float>> directNodalErrors(const Volume& v, const Geometry& g, const KnotPyramid& knots) {
-  const int levels = g.leafLevel;  // 0 … leafLevel − 1
-  const glm::ivec3 dims = v.dims();
-  // Each node's corner knots (bit 0: x = hi.x, 1: y = hi.y, 2: z = hi.z).
-  std::vector<std::vector<std::array<float, 8>>> corners(static_cast<size_t>(levels));
-  for (int k = 0; k < levels; ++k) {
-    const int E = g.edgeAt(k);
-    corners[size_t(k)].resize(g.countAt(k));
-    for (size_t node = 0; node < g.countAt(k); ++node) {
-      const glm::ivec3 o = g.unravel(k, node) * E, hi = glm::min(o + E, dims - 1);
-      for (int c = 0; c < 8; ++c) {
-        const glm::ivec3 q(c & 1 ? hi.x : o.x, c & 2 ? hi.y : o.y, c & 4 ? hi.z : o.z);
-        corners[size_t(k)][node][size_t(c)] = knots.knotValue(v, E, q);
+// The samples of the lattice of spacing s (positions that are multiples of s, or the grid's last
+// index): the corners of every node of edge s or more, kept while the volume streams past.
+struct CornerSamples {
+  int spacing = 0;
+  glm::ivec3 count{0};
+  std::vector<float> values;
+
+  CornerSamples(const glm::ivec3& dims, int s) : spacing(s) {
+    if (s == 0) return;
+    count = knotCounts(dims, s);
+    values.resize(size_t(count.x) * size_t(count.y) * size_t(count.z));
+  }
+  void addPlane(const SampleWindow& w, int z) {
+    const glm::ivec3 n = w.dims();
+    const int k = spacing ? knotIndexAt(z, spacing, n.z) : -1;
+    if (k < 0) return;
+    w.visitPlane(z, [&](const auto* d) {
+      for (int j = 0; j < count.y; ++j)
+        for (int i = 0; i < count.x; ++i)
+          values[size_t(i) + size_t(count.x) * (size_t(j) + size_t(count.y) * size_t(k))] =
+              float(d[size_t(knotPosition(i, spacing, n.x)) + size_t(n.x) * size_t(knotPosition(j, spacing, n.y))]);
+    });
+  }
+  float at(const glm::ivec3& q, const glm::ivec3& n) const {
+    const glm::ivec3 j(knotIndexAt(q.x, spacing, n.x), knotIndexAt(q.y, spacing, n.y), knotIndexAt(q.z, spacing, n.z));
+    return values[size_t(j.x) + size_t(count.x) * (size_t(j.y) + size_t(count.y) * size_t(j.z))];
+  }
+};
+
+// ε_0 of every node above the leaves, straight from the samples, all levels as each plane streams
+// past (each row is scanned from cache for every level): along a row of fixed (y, z) a node's
+// trilinear approximation is linear in x, so each node's piece of a row costs one bilinear pair and
+// a vectorized scan. The far corners are the grid's last samples where a node overhangs the grid
+// (position clamping); samples on a face shared by two nodes count in both.
+class DirectErrors {
+ public:
+  DirectErrors(const Geometry& g, const KnotPyramid& knots, const CornerSamples& samples) : mG(g), mLevels(g.leafLevel) {
+    const glm::ivec3 dims = g.dims;
+    mCorners.resize(size_t(mLevels));
+    for (int k = 0; k < mLevels; ++k) {
+      const int E = g.edgeAt(k);
+      mCorners[size_t(k)].resize(g.countAt(k));
+      for (size_t node = 0; node < g.countAt(k); ++node) {
+        const glm::ivec3 o = g.unravel(k, node) * E, hi = glm::min(o + E, dims - 1);
+        for (int c = 0; c < 8; ++c) {
+          const glm::ivec3 q(c & 1 ? hi.x : o.x, c & 2 ? hi.y : o.y, c & 4 ? hi.z : o.z);
+          mCorners[size_t(k)][node][size_t(c)] = knots.covers(E) ? knots.at(E, q) : samples.at(q, dims);
+        }
       }
     }
+    mErr.resize(size_t(omp_get_max_threads()));
+    for (auto& e : mErr) {
+      e.resize(size_t(mLevels));
+      for (int k = 0; k < mLevels; ++k) e[size_t(k)].assign(g.countAt(k), 0.0f);
+    }
   }
-  auto inverse = [](int d) { return d > 0 ? 1.0f / float(d) : 0.0f; };
-  // The nodes of level k along one axis whose closed extent [o, min(o + E, n − 1)] holds sample t.
-  auto nodesHolding = [&](int k, int a, int t, int* first, int* last) {
-    const int E = g.edgeAt(k);
-    *last = std::min(t / E, g.grid[size_t(k)][a] - 1);
-    *first = t % E == 0 && t > 0 ? std::max(t / E - 1, 0) : *last;
-  };
-  std::vector<std::vector<float>> result(static_cast<size_t>(levels));
-  for (int k = 0; k < levels; ++k) result[size_t(k)].assign(g.countAt(k), 0.0f);
+
+  void addPlane(const SampleWindow& v, int z) {
+    if (mLevels == 0) return;
+    const glm::ivec3 dims = mG.dims;
+    auto inverse = [](int d) { return d > 0 ? 1.0f / float(d) : 0.0f; };
+    // The nodes of level k along one axis whose closed extent [o, min(o + E, n − 1)] holds sample t.
+    auto nodesHolding = [&](int k, int a, int t, int* first, int* last) {
+      const int E = mG.edgeAt(k);
+      *last = std::min(t / E, mG.grid[size_t(k)][a] - 1);
+      *first = t % E == 0 && t > 0 ? std::max(t / E - 1, 0) : *last;
+    };
 #pragma omp parallel
-  {
-    std::vector<std::vector<float>> err(static_cast<size_t>(levels));
-    for (int k = 0; k < levels; ++k) err[size_t(k)].assign(g.countAt(k), 0.0f);
-    std::vector<float> rowValues(size_t(dims.x));
-    const float* row = rowValues.data();
-#pragma omp for schedule(dynamic, 1)
-    for (int z = 0; z < dims.z; ++z)
+    {
+      std::vector<std::vector<float>>& err = mErr[size_t(omp_get_thread_num())];
+      std::vector<float> rowValues(size_t(dims.x));
+      const float* row = rowValues.data();
+#pragma omp for schedule(dynamic, 8)
       for (int y = 0; y < dims.y; ++y) {
         v.readRow(0, y, z, dims.x, rowValues.data());
-        for (int k = 0; k < levels; ++k) {
-          const int E = g.edgeAt(k);
+        for (int k = 0; k < mLevels; ++k) {
+          const int E = mG.edgeAt(k);
           int z0, z1, y0, y1;
           nodesHolding(k, 2, z, &z0, &z1);
           nodesHolding(k, 1, y, &y0, &y1);
           for (int iz = z0; iz <= z1; ++iz)
             for (int iy = y0; iy <= y1; ++iy)
-              for (int ix = 0; ix < g.grid[size_t(k)].x; ++ix) {
-                const size_t node = g.dense(k, glm::ivec3(ix, iy, iz));
+              for (int ix = 0; ix < mG.grid[size_t(k)].x; ++ix) {
+                const size_t node = mG.dense(k, glm::ivec3(ix, iy, iz));
                 const glm::ivec3 o = glm::ivec3(ix, iy, iz) * E, hi = glm::min(o + E, dims - 1);
-                const std::array<float, 8>& c = corners[size_t(k)][node];
+                const std::array<float, 8>& c = mCorners[size_t(k)][node];
                 const float wz = float(z - o.z) * inverse(hi.z - o.z), wy = float(y - o.y) * inverse(hi.y - o.y);
                 auto bilerp = [&](int cx) {
                   const float a = c[size_t(cx)] + (c[size_t(cx | 2)] - c[size_t(cx)]) * wy;
@@ -286,32 +325,95 @@ std::vector<std::vector<float>> directNodalErrors(const Volume& v, const Geometr
               }
         }
       }
-#pragma omp critical
-    for (int k = 0; k < levels; ++k)
-      for (size_t node = 0; node < err[size_t(k)].size(); ++node)
-        result[size_t(k)][node] = std::max(result[size_t(k)][node], err[size_t(k)][node]);
+    }
   }
-  return result;
-}
+
+  // ε_0 per level and node (dense order), the largest over every thread's share.
+  std::vector<std::vector<float>> finish() {
+    std::vector<std::vector<float>> result = std::move(mErr.front());
+    for (size_t t = 1; t < mErr.size(); ++t)
+      for (int k = 0; k < mLevels; ++k)
+        for (size_t node = 0; node < result[size_t(k)].size(); ++node)
+          result[size_t(k)][node] = std::max(result[size_t(k)][node], mErr[t][size_t(k)][node]);
+    return result;
+  }
+
+ private:
+  const Geometry& mG;
+  int mLevels;  // 0 … leafLevel − 1
+  std::vector<std::vector<std::array<float, 8>>> mCorners;  // each node's corner knots (bit 0: x = hi.x, 1: y = hi.y, 2: z = hi.z)
+  std::vector<std::vector<std::vector<float>>> mErr;        // per thread, level and node
+};
 
 }  // namespace
 
 VolumeOctree VolumeOctree::build(const Volume& volume, const VolumeOctreeOptions& options) {
+  HYB_CHECK(!volume.empty());
+  const std::unique_ptr<PlaneSource> planes = planesOf(volume);
+  return build(*planes, options);
+}
+
+VolumeOctree VolumeOctree::build(PlaneSource& planes, const VolumeOctreeOptions& options, PlaneVisitor* visitor) {
   if (options.leafEdge < 1 || options.leafEdge > 256 || (options.leafEdge & (options.leafEdge - 1)))
     HYB_THROW(ValueError, "leaf edge ", options.leafEdge, " invalid (expected a power of two in 1..256)");
-  HYB_CHECK(!volume.empty());
-  const Geometry g = geometryFor(volume.dims(), options.leafEdge);
+  const glm::ivec3 dims = planes.dims();
+  const Geometry g = geometryFor(dims, options.leafEdge);
+  ProgressTask task(options.progress, "volume octree", 2 * uint64_t(dims.z));  // two passes over the planes
 
-  ProgressTask task(options.progress, "volume octree", 4);  // knots, leaves, direct errors, levels
-  KnotPyramid knots = options.prefilter ? KnotPyramid(volume) : KnotPyramid();
-  task.advance();
+  // First pass: the prefiltered knots (their 16-bit range is known only at the end) and the corner
+  // samples of the nodes above the leaves.
+  CornerSamples cornerSamples(dims, g.leafLevel > 0 ? g.edgeAt(g.leafLevel - 1) : 0);
+  KnotPyramid knots;
+  {
+    std::optional<KnotPyramid::Builder> pyramid;
+    if (options.prefilter) pyramid.emplace(dims);
+    planes.rewind();
+    SampleWindow w(planes, 1);
+    for (int z = 0; z < dims.z; ++z) {
+      w.load(planes);
+      if (pyramid) pyramid->add([&](int y, float* out) { w.readRow(0, y, z, dims.x, out); });
+      cornerSamples.addPlane(w, z);
+      task.advance();
+    }
+    if (pyramid) knots = pyramid->finish();
+  }
 
-  // Bottom-up over the dense per-level grids.
+  // Second pass: each plane's rows for the direct errors above the leaves, a row of leaves once its
+  // last plane is in, and the visitor's plane once the next one is (its gradients need it).
+  if (visitor) {
+    visitor->begin(knots, g.depth);
+    visitor->beginPass(0);
+  }
   std::vector<LevelData> levels(size_t(g.leafLevel) + 1);
-  buildLeaves(volume, g, knots, &levels[size_t(g.leafLevel)]);
-  task.advance();
-  const std::vector<std::vector<float>> upperErrors = directNodalErrors(volume, g, knots);
-  task.advance();
+  {
+    LevelData& leaves = levels[size_t(g.leafLevel)];
+    const size_t count = g.countAt(g.leafLevel);
+    leaves.minV.resize(count);
+    leaves.maxV.resize(count);
+    leaves.err.assign(count * size_t(g.depth - g.leafLevel + 1), 0.0f);
+  }
+  std::vector<std::vector<float>> upperErrors;
+  {
+    DirectErrors direct(g, knots, cornerSamples);
+    planes.rewind();
+    SampleWindow w(planes, std::max(g.leafEdge + 1, 3));
+    int row = 0;  // next row of leaves
+    for (int z = 0; z < dims.z; ++z) {
+      w.load(planes);
+      direct.addPlane(w, z);
+      for (; row < g.grid[size_t(g.leafLevel)].z && std::min(row * g.leafEdge + g.leafEdge, dims.z - 1) == z; ++row)
+        buildLeafRow(w, g, knots, row, &levels[size_t(g.leafLevel)]);
+      if (visitor && z > 0) visitor->plane(w, z - 1);
+      task.advance();
+    }
+    if (visitor) visitor->plane(w, dims.z - 1);
+    HYB_CHECK(row == g.grid[size_t(g.leafLevel)].z);
+    upperErrors = direct.finish();
+  }
+  if (visitor && visitor->passes() > 1) {
+    ProgressTask more(options.progress, "knot store", uint64_t(visitor->passes() - 1) * uint64_t(dims.z));
+    visitPlanes(planes, *visitor, 1, &more);
+  }
   for (int k = g.leafLevel - 1; k >= 0; --k) {
     LevelData& d = levels[size_t(k)];
     const LevelData& c = levels[size_t(k) + 1];
@@ -340,7 +442,7 @@ VolumeOctree VolumeOctree::build(const Volume& volume, const VolumeOctreeOptions
   // Flatten into the breadth-first array.
   Skeleton s = buildSkeleton(g);
   VolumeOctree t;
-  t.mDims = volume.dims();
+  t.mDims = dims;
   t.mDepth = g.depth;
   t.mLeafEdge = g.leafEdge;
   t.mErrors.resize(s.errorCount);
@@ -355,6 +457,21 @@ VolumeOctree VolumeOctree::build(const Volume& volume, const VolumeOctreeOptions
   t.mNodes = std::move(s.nodes);
   t.mKnots = std::move(knots);
   return t;
+}
+
+void visitPlanes(PlaneSource& planes, PlaneVisitor& visitor, int first, ProgressTask* progress) {
+  const int n = planes.dims().z;
+  for (int pass = first; pass < visitor.passes(); ++pass) {
+    visitor.beginPass(pass);
+    planes.rewind();
+    SampleWindow w(planes, 3);
+    for (int z = 0; z < n; ++z) {
+      w.load(planes);
+      if (z > 0) visitor.plane(w, z - 1);
+      if (progress) progress->advance();
+    }
+    visitor.plane(w, n - 1);
+  }
 }
 
 VolumeOctree VolumeOctree::fromParts(glm::ivec3 dims, int leafEdge, std::vector<OctreeNode> nodes,

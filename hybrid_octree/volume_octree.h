@@ -34,7 +34,9 @@
 #include "hybrid_octree/knot_pyramid.h"
 #include "hybrid_octree/octree_node.h"
 #include "surface/mesh.h"
+#include "volume/plane_source.h"
 #include "volume/progress.h"
+#include "volume/sample_window.h"
 #include "volume/volume.h"
 
 namespace hyb {
@@ -59,6 +61,24 @@ struct VolumeOctreeOptions {
   const Progress* progress = nullptr;  ///< hears of the build's stages ("volume octree"), or none
 };
 
+/// What sees the planes of a streamed build's second pass (the knot store's writer).
+class PlaneVisitor {
+ public:
+  virtual ~PlaneVisitor() = default;
+  /// Before the first plane: the octree's prefiltered knots (empty when not prefiltered) and depth.
+  virtual void begin(const KnotPyramid& knots, int depth) = 0;
+  /// Passes over the planes it needs (the build's second pass is its first); known after begin().
+  virtual int passes() const { return 1; }
+  /// Before pass @p pass (0 … passes() − 1).
+  virtual void beginPass(int /*pass*/) {}
+  /// Plane @p z, in order, with planes z − 1 and z + 1 (those within the grid) held by @p window.
+  virtual void plane(const SampleWindow& window, int z) = 0;
+};
+
+/// Runs @p visitor's passes @p first … passes() − 1 over @p planes, each plane once the next one is
+/// in; @p progress advances a plane at a time.
+void visitPlanes(PlaneSource& planes, PlaneVisitor& visitor, int first, ProgressTask* progress = nullptr);
+
 /// The Volume Octree, built once and stored as one pointer-free node array.
 class VolumeOctree {
  public:
@@ -67,6 +87,9 @@ class VolumeOctree {
   /// Builds the octree of @p volume on all available cores.
   /// @throw ValueError when options.leafEdge is not a power of two in 1…256.
   static VolumeOctree build(const Volume& volume, const VolumeOctreeOptions& options = VolumeOctreeOptions());
+  /// Builds the octree of the volume @p planes reads, in two passes over its planes, holding a few
+  /// planes at a time (leaf edge + 1), the knots and the nodes; @p visitor sees the second pass's.
+  static VolumeOctree build(PlaneSource& planes, const VolumeOctreeOptions& options, PlaneVisitor* visitor = nullptr);
 
   /// Reassembles an octree from stored parts (scene files), checking that the node array has exactly
   /// the shape @p dims and @p leafEdge imply and that every value is finite.

@@ -65,6 +65,7 @@ TEST(Cli, InfoBuildAndSelect) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_TRUE(std::filesystem::exists(dir.file("s.hoct")));
   EXPECT_THAT(r.out, HasSubstr("coarse knots prefiltered"));
+  EXPECT_THAT(r.out, HasSubstr("streamed plane by plane"));
   r = run({"build", nhdr, "-o", dir.file("point.hoct"), "--prefilter", "off"});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("coarse knots point-subsampled"));
@@ -76,6 +77,7 @@ TEST(Cli, InfoBuildAndSelect) {
   EXPECT_THAT(r.out, HasSubstr("store    4 spacings (1..8) in blocks of 32^3 knots, "));
   r = run({"build", nhdr, "--iso", "0.5", "-o", dir.file("iso.hoct")});
   ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("read whole"));  // the isosurface needs every sample at once
   r = run({"info", dir.file("iso.hoct")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("surface  iso 0.5: "));

@@ -6,8 +6,12 @@
 
 #include <cmath>
 #include <cstring>
+#include <filesystem>
+#include <random>
 
 #include "test_util.h"
+#include "volume/plane_source.h"
+#include "volume/volume_io.h"
 
 namespace hyb {
 namespace {
@@ -38,6 +42,71 @@ TEST(SceneFile, RoundTripIsExact) {
   ASSERT_EQ(s.octree.nodes().size(), t.nodes().size());
   EXPECT_EQ(std::memcmp(s.octree.nodes().data(), t.nodes().data(), t.nodes().size() * sizeof(OctreeNode)), 0);
   EXPECT_EQ(s.octree.errorData(), t.errorData());
+}
+
+// A scene built from a file read plane by plane (two passes, a few planes held at a time, the
+// store's blocks waiting in a temporary file) is, byte for byte, the scene of the volume read whole:
+// for leaf edges 1 to 32 (the window of planes a row of leaves needs) and without prefiltering, for
+// raw and gzip data. The temporary file is never seen in the directory.
+TEST(SceneFile, AVolumeStreamedPlaneByPlaneBuildsTheSceneOfTheWholeVolume) {
+  test::TempDir dir;
+  const glm::ivec3 dims(37, 70, 71);
+  std::mt19937 rng(5);
+  std::uniform_int_distribution<int> noise(-40, 40);
+  std::vector<int16_t> samples;
+  for (int k = 0; k < dims.z; ++k)
+    for (int j = 0; j < dims.y; ++j)
+      for (int i = 0; i < dims.x; ++i)
+        samples.push_back(int16_t((glm::length(glm::vec3(i - 18, j - 35, k - 35)) < 16.0f ? 1200 : -800) + noise(rng)));
+  test::writeBytes(dir.file("v.raw"), test::toBytes(samples));
+  const std::string header = "NRRD0004\ntype: int16\ndimension: 3\nsizes: 37 70 71\nspacings: 0.5 0.6 1.25\nendian: little\n";
+  test::writeText(dir.file("raw.nhdr"), header + "encoding: raw\ndata file: v.raw\n");
+  {
+    gzFile f = gzopen(dir.file("v.raw.gz").c_str(), "wb");
+    gzwrite(f, samples.data(), unsigned(samples.size() * sizeof(int16_t)));
+    gzclose(f);
+  }
+  test::writeText(dir.file("gz.nhdr"), header + "encoding: gzip\ndata file: v.raw.gz\n");
+  for (const std::string input : {"raw.nhdr", "gz.nhdr"})
+    for (const VolumeOctreeOptions options : {VolumeOctreeOptions{1}, VolumeOctreeOptions{4}, VolumeOctreeOptions{8},
+                                              VolumeOctreeOptions{32}, VolumeOctreeOptions{8, false}}) {
+      SCOPED_TRACE(input + ", leaf edge " + std::to_string(options.leafEdge) + (options.prefilter ? "" : ", not prefiltered"));
+      const Volume v = readVolume(dir.file(input));
+      saveScene(dir.file("whole.hoct"), v, VolumeOctree::build(v, options));
+      const std::unique_ptr<PlaneSource> planes = openPlanes(dir.file(input));
+      EXPECT_FALSE(planes->whole());
+      KnotStoreWriter store = storeWriterFor(dir.file("streamed.hoct"), *planes);
+      const VolumeOctree t = VolumeOctree::build(*planes, options, &store);
+      const Volume description = planes->description().withRange(t.root().minValue, t.root().maxValue, planes->name());
+      EXPECT_FALSE(description.hasSamples());
+      EXPECT_EQ(description.minValue(), v.minValue());
+      EXPECT_EQ(description.maxValue(), v.maxValue());
+      saveScene(dir.file("streamed.hoct"), description, t, store);
+      EXPECT_TRUE(test::readBytes(dir.file("streamed.hoct")) == test::readBytes(dir.file("whole.hoct")));
+      // Rows held within 20 KB: the store is made in strips along y, a pass over the planes each.
+      KnotStoreWriter strips(planes->dims(), planes->storedType(), dir.path().string(), 20000);
+      const VolumeOctree again = VolumeOctree::build(*planes, options, &strips);
+      EXPECT_EQ(strips.passes(), 3);  // as many as the samples have block rows
+      saveScene(dir.file("strips.hoct"), description, again, strips);
+      EXPECT_TRUE(test::readBytes(dir.file("strips.hoct")) == test::readBytes(dir.file("whole.hoct")));
+      size_t files = 0;
+      for (const auto& entry : std::filesystem::directory_iterator(dir.path())) files += entry.path().extension() != ".hoct";
+      EXPECT_EQ(files, 4u) << "only the inputs and the scenes are in the directory";
+    }
+  // The streamed build refuses a range whose differences overflow float, naming the file.
+  std::vector<float> wide(size_t(8), 0.0f);
+  wide[0] = -3e38f;
+  wide[7] = 3e38f;
+  test::writeBytes(dir.file("w.raw"), test::toBytes(wide));
+  test::writeText(dir.file("w.nhdr"), "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nendian: little\nencoding: raw\ndata file: w.raw\n");
+  const std::unique_ptr<PlaneSource> planes = openPlanes(dir.file("w.nhdr"));
+  const VolumeOctree t = VolumeOctree::build(*planes, VolumeOctreeOptions{});
+  try {
+    planes->description().withRange(t.root().minValue, t.root().maxValue, planes->name());
+    ADD_FAILURE() << "a range of 6e38 was accepted";
+  } catch (const ValueError& e) {
+    EXPECT_THAT(e.what(), HasSubstr(dir.file("w.nhdr") + ": samples span"));
+  }
 }
 
 TEST(SceneFile, SamplesRoundTripInTheirStoredType) {

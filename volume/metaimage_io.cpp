@@ -14,6 +14,7 @@
 #include "volume/file_util.h"
 #include "volume/memory_limit.h"
 #include "volume/patient_frame.h"
+#include "volume/plane_source.h"
 #include "volume/reader_util.h"
 #include "volume/text_reader.h"
 
@@ -72,7 +73,15 @@ PatientFrame metaImageFrame(const std::map<std::string, std::string>& fields, co
 
 }  // namespace
 
-Volume readMetaImage(const std::string& path) {
+namespace {
+
+// A MetaImage header: the volume it describes and where its samples lie.
+struct MetaImageLayout {
+  Volume description;
+  SampleData data;
+};
+
+MetaImageLayout parseMetaImage(const std::string& path) {
   const InputFile file(path);
   std::map<std::string, std::string> fields;
   uint64_t dataStart = 0;
@@ -137,9 +146,26 @@ Volume readMetaImage(const std::string& path) {
   long long headerSize = 0;
   if (fields.count("HeaderSize") && !parseNumbers(fields["HeaderSize"], 1, &headerSize))
     HYB_THROW(IoError, path, ": HeaderSize ", quotedExcerpt(fields["HeaderSize"]), " malformed");
-  SampleArray samples = compressed ? readCompressedSamples(data, dataStart, 0, dims, type, bigEndian)
-                                          : readRawSamples(data, dataStart, headerSize, "HeaderSize", dims, type, bigEndian);
-  return placed(Volume(dims, spacing, type, std::move(samples), path), frame, warnings);
+  return MetaImageLayout{placed(describedVolume(dims, spacing, type, path), frame, warnings),
+                         SampleData{data.path(), dataStart, compressed ? 0 : headerSize, "HeaderSize", compressed, type, bigEndian}};
+}
+
+}  // namespace
+
+Volume readMetaImage(const std::string& path) {
+  const MetaImageLayout l = parseMetaImage(path);
+  const SampleData& d = l.data;
+  const InputFile data(d.path);
+  const glm::ivec3 dims = l.description.dims();
+  SampleArray samples = d.compressed ? readCompressedSamples(data, d.offset, 0, dims, d.type, d.bigEndian)
+                                     : readRawSamples(data, d.offset, d.skip, d.skipField, dims, d.type, d.bigEndian);
+  return filled(l.description, std::move(samples), path);
+}
+
+std::unique_ptr<PlaneSource> detail::metaImagePlanes(const std::string& path) {
+  MetaImageLayout l = parseMetaImage(path);
+  if (!streams(l.data.type)) return nullptr;
+  return streamedPlanes(l.data, std::move(l.description), path);
 }
 
 }  // namespace hyb

@@ -16,6 +16,7 @@
 #include "volume/file_util.h"
 #include "volume/memory_limit.h"
 #include "volume/patient_frame.h"
+#include "volume/plane_source.h"
 #include "volume/inflate.h"
 #include "volume/reader_util.h"
 #include "volume/text_reader.h"
@@ -137,7 +138,16 @@ void nrrdGeometry(const Field& field, const std::string& path, glm::dvec3* spaci
 
 }  // namespace
 
-Volume readNrrd(const std::string& path) {
+namespace {
+
+// A NRRD header: the volume it describes and where its samples lie.
+struct NrrdLayout {
+  Volume description;
+  SampleData data;
+  std::string encoding;  // raw, gzip or ascii (and their synonyms)
+};
+
+NrrdLayout parseNrrd(const std::string& path) {
   const InputFile file(path);
   uint8_t magic[7] = {};
   if (file.size() >= sizeof magic) file.read(0, sizeof magic, magic);
@@ -213,16 +223,35 @@ Volume readNrrd(const std::string& path) {
   const InputFile& data = detached ? *detached : file;
   dataStart = skipLines(data, dataStart, lineSkip);
 
-  SampleArray samples;
-  if (encoding == "raw")
-    samples = readRawSamples(data, dataStart, byteSkip, "byte skip", dims, type, endian == "big");
-  else if (encoding == "gzip" || encoding == "gz")
-    samples = readCompressedSamples(data, dataStart, byteSkip, dims, type, endian == "big");
-  else if (encoding == "ascii" || encoding == "text" || encoding == "txt")
-    samples = readAsciiSamples(data, dataStart, dims, type);
-  else
+  const bool compressed = encoding == "gzip" || encoding == "gz";
+  if (encoding != "raw" && !compressed && encoding != "ascii" && encoding != "text" && encoding != "txt")
     HYB_THROW(IoError, path, ": encoding ", quotedExcerpt(encoding), " unsupported (expected raw, gzip or ascii)");
-  return placed(Volume(dims, spacing, type, std::move(samples), path), frame, warnings);
+  return NrrdLayout{placed(describedVolume(dims, spacing, type, path), frame, warnings),
+                    SampleData{data.path(), dataStart, byteSkip, "byte skip", compressed, type, endian == "big"}, encoding};
+}
+
+}  // namespace
+
+Volume readNrrd(const std::string& path) {
+  const NrrdLayout l = parseNrrd(path);
+  const SampleData& d = l.data;
+  const InputFile data(d.path);
+  const glm::ivec3 dims = l.description.dims();
+  SampleArray samples;
+  if (l.encoding == "raw")
+    samples = readRawSamples(data, d.offset, d.skip, d.skipField, dims, d.type, d.bigEndian);
+  else if (d.compressed)
+    samples = readCompressedSamples(data, d.offset, d.skip, dims, d.type, d.bigEndian);
+  else
+    samples = readAsciiSamples(data, d.offset, dims, d.type);
+  return filled(l.description, std::move(samples), path);
+}
+
+std::unique_ptr<PlaneSource> detail::nrrdPlanes(const std::string& path) {
+  NrrdLayout l = parseNrrd(path);
+  if (l.encoding != "raw" && !l.data.compressed) return nullptr;
+  if (!streams(l.data.type)) return nullptr;
+  return streamedPlanes(l.data, std::move(l.description), path);
 }
 
 }  // namespace hyb

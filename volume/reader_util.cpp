@@ -134,6 +134,18 @@ void rescaleSamples(SampleArray* samples, size_t first, const SampleArray& slice
 }
 
 // @p v with the patient frame and the reader's warnings.
+Volume describedVolume(const glm::ivec3& dims, const glm::dvec3& spacing, ScalarType t, const std::string& path) {
+  return Volume::withoutSamples(dims, spacing, t, storageTypeFor(t, 0.0, 0.0), 0.0f, 0.0f, path);
+}
+
+Volume filled(const Volume& description, SampleArray samples, const std::string& path) {
+  Volume v(description.dims(), description.spacing(), description.sourceType(), std::move(samples), path);
+  v.setFrame(description.frame());
+  for (const auto& [key, value] : description.info()) v.addInfo(key, value);
+  for (const std::string& w : description.warnings()) v.addWarning(w);
+  return v;
+}
+
 Volume placed(Volume v, const PatientFrame& frame, const std::vector<std::string>& warnings) {
   v.setFrame(frame);
   for (const std::string& w : warnings) v.addWarning(w);

@@ -9,6 +9,17 @@
 
 namespace hyb {
 
+namespace {
+
+// Differences of samples (nodal errors, gradients, the lookup table's scale) must stay finite.
+void checkRange(float lo, float hi, const std::string& source) {
+  if (!std::isfinite(hi - lo))
+    HYB_THROW(ValueError, source, ": samples span [", lo, ", ", hi, "]; expected a range (max - min) below ",
+              std::numeric_limits<float>::max(), " so that differences of samples stay finite");
+}
+
+}  // namespace
+
 size_t scalarSize(ScalarType t) {
   switch (t) {
     case ScalarType::UInt8:
@@ -112,10 +123,7 @@ Volume::Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, Sampl
     const size_t i = bad % dims.x, j = (bad / dims.x) % dims.y, k = bad / (size_t(dims.x) * dims.y);
     HYB_THROW(ValueError, source, ": sample (", i, ",", j, ",", k, ") is ", value(bad), "; expected finite values");
   }
-  // Differences of samples (nodal errors, gradients, the lookup table's scale) must stay finite.
-  if (!std::isfinite(hi - lo))
-    HYB_THROW(ValueError, source, ": samples span [", lo, ", ", hi, "]; expected a range (max - min) below ",
-              std::numeric_limits<float>::max(), " so that differences of samples stay finite");
+  checkRange(lo, hi, source);
   mMin = lo;
   mMax = hi;
 }
@@ -132,6 +140,15 @@ Volume Volume::withoutSamples(glm::ivec3 dims, glm::dvec3 spacing, ScalarType so
   v.mSourceType = sourceType;
   v.mStored = storedType;
   v.mCount = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
+  v.mMin = minValue;
+  v.mMax = maxValue;
+  return v;
+}
+
+Volume Volume::withRange(float minValue, float maxValue, const std::string& source) const {
+  HYB_CHECK(!hasSamples() && std::isfinite(minValue) && std::isfinite(maxValue) && minValue <= maxValue);
+  checkRange(minValue, maxValue, source);
+  Volume v = *this;
   v.mMin = minValue;
   v.mMax = maxValue;
   return v;
@@ -176,18 +193,7 @@ struct Grid {
     return lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z);
   }
   glm::vec3 gradientAt(int i, int j, int k, const glm::dvec3& spacing) const {
-    const glm::ivec3 p(i, j, k);
-    glm::vec3 g(0.0f);
-    for (int a = 0; a < 3; ++a) {
-      glm::ivec3 lo = p, hi = p;
-      lo[a] = std::max(p[a] - 1, 0);
-      hi[a] = std::min(p[a] + 1, dims[a] - 1);
-      if (hi[a] > lo[a]) {
-        const double v = (double(at(hi.x, hi.y, hi.z)) - double(at(lo.x, lo.y, lo.z))) / (double(hi[a] - lo[a]) * spacing[a]);
-        g[a] = float(std::clamp(v, -double(std::numeric_limits<float>::max()), double(std::numeric_limits<float>::max())));
-      }
-    }
-    return g;
+    return centralDifferences(glm::ivec3(i, j, k), dims, spacing, [this](int x, int y, int z) { return at(x, y, z); });
   }
 };
 

@@ -52,6 +52,23 @@ bool holdsExactly(double v) {
   else return v >= double(std::numeric_limits<T>::min()) && v <= double(std::numeric_limits<T>::max()) && v == double(int64_t(v));
 }
 
+/// Central differences at voxel @p p of a grid of @p dims (data units per mm), one-sided on the
+/// grid's faces, zero along an axis of one sample: @p at(i, j, k) reads a sample.
+template <class At>
+glm::vec3 centralDifferences(const glm::ivec3& p, const glm::ivec3& dims, const glm::dvec3& spacing, const At& at) {
+  glm::vec3 g(0.0f);
+  for (int a = 0; a < 3; ++a) {
+    glm::ivec3 lo = p, hi = p;
+    lo[a] = std::max(p[a] - 1, 0);
+    hi[a] = std::min(p[a] + 1, dims[a] - 1);
+    if (hi[a] > lo[a]) {
+      const double v = (double(at(hi.x, hi.y, hi.z)) - double(at(lo.x, lo.y, lo.z))) / (double(hi[a] - lo[a]) * spacing[a]);
+      g[a] = float(std::clamp(v, -double(std::numeric_limits<float>::max()), double(std::numeric_limits<float>::max())));
+    }
+  }
+  return g;
+}
+
 /// Largest accepted extent along one axis; keeps octree coordinates in 16 bits.
 inline constexpr int kMaxDim = 32768;
 /// Largest accepted sample count (8 GiB of int16 samples).
@@ -85,6 +102,10 @@ class Volume {
   /// @throw ValueError as the constructor, or for a range that is not finite.
   static Volume withoutSamples(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, ScalarType storedType, float minValue,
                                float maxValue, const std::string& source = "volume");
+  /// This volume without samples with the range [@p minValue, @p maxValue] (a streamed volume's,
+  /// known once its samples were read), checked as the constructor checks it. Requires !hasSamples().
+  /// @throw ValueError naming @p source.
+  Volume withRange(float minValue, float maxValue, const std::string& source) const;
   /// Whether the samples are in memory.
   bool hasSamples() const { return mSamples != nullptr; }
   /// Gives a volume made withoutSamples() its samples.

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "volume/file_util.h"
+#include "volume/plane_source.h"
 #include "volume/reader_util.h"
 #include "volume/text_reader.h"
 
@@ -19,19 +20,29 @@ using detail::readRawSamples;
 // ---------------------------------------------------------------------------------------------
 // Raw
 
-Volume readRaw(const std::string& path, const RawLayout& layout) {
+namespace {
+
+// A raw file's volume without its samples, and where they lie.
+Volume rawDescription(const std::string& path, const RawLayout& layout) {
   validateDims(layout.dims, "--raw-dims");
   validateSpacing(layout.spacing, "--raw-spacing");
   const InputFile file(path);
   if (layout.headerBytes > file.size())
     HYB_THROW(IoError, path, ": header of ", layout.headerBytes, " bytes is longer than the ", file.size(), "-byte file");
-  Volume v(layout.dims, layout.spacing, layout.type,
-           readRawSamples(file, layout.headerBytes, 0, "header", layout.dims, layout.type, layout.bigEndian), path);
+  Volume v = detail::describedVolume(layout.dims, layout.spacing, layout.type, path);
   v.addWarning(path + ": raw samples carry no orientation: the grid's axes are taken as LPS with the origin at 0");
   PatientFrame frame;
   frame.assumed = true;
   v.setFrame(frame);
   return v;
+}
+
+}  // namespace
+
+Volume readRaw(const std::string& path, const RawLayout& layout) {
+  const Volume description = rawDescription(path, layout);
+  const InputFile file(path);
+  return detail::filled(description, readRawSamples(file, layout.headerBytes, 0, "header", layout.dims, layout.type, layout.bigEndian), path);
 }
 
 namespace {
@@ -71,9 +82,13 @@ Volume readByFormat(const std::string& path, const RawLayout* raw, const std::st
 
 }  // namespace
 
-Volume readVolume(const std::string& path, const RawLayout* raw, const std::string& series, const Progress* progress) {
+namespace {
+
+// Runs @p read with every reader error made one line, and running out of memory said by name.
+template <class Read>
+auto oneLineErrors(const std::string& path, const Read& read) {
   try {
-    return readByFormat(path, raw, series, progress);
+    return read();
   } catch (const IoError& e) {
     throw IoError(oneLine(e.what()));
   } catch (const ValueError& e) {
@@ -83,6 +98,28 @@ Volume readVolume(const std::string& path, const RawLayout* raw, const std::stri
   } catch (const std::bad_alloc&) {
     HYB_THROW(RuntimeError, oneLine(path), ": out of memory while reading (expected a volume that fits; lower the memory limit to refuse it early)");
   }
+}
+
+}  // namespace
+
+Volume readVolume(const std::string& path, const RawLayout* raw, const std::string& series, const Progress* progress) {
+  return oneLineErrors(path, [&] { return readByFormat(path, raw, series, progress); });
+}
+
+std::unique_ptr<PlaneSource> detail::openStreamedPlanes(const std::string& path, const RawLayout* raw, const std::string& series) {
+  return oneLineErrors(path, [&]() -> std::unique_ptr<PlaneSource> {
+    std::error_code ec;
+    if (raw) {
+      if (!streams(raw->type)) return nullptr;
+      Volume description = rawDescription(path, *raw);
+      return streamedPlanes(SampleData{path, raw->headerBytes, 0, "header", false, raw->type, raw->bigEndian}, std::move(description), path);
+    }
+    if (!series.empty() || !fs::is_regular_file(path, ec)) return nullptr;  // readVolume says what is wrong
+    const std::string ext = fileExtension(path);
+    if (ext == ".nrrd" || ext == ".nhdr") return nrrdPlanes(path);
+    if (ext == ".mhd" || ext == ".mha") return metaImagePlanes(path);
+    return nullptr;
+  });
 }
 
 }  // namespace hyb

@@ -1,5 +1,7 @@
 // libFuzzer target: every volume reader. The first byte picks the format, the rest is the file.
 #include "fuzz_util.h"
+#include "volume/plane_source.h"
+#include "volume/sample_window.h"
 #include "volume/volume_io.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
@@ -13,6 +15,13 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       hyb::readDicomSeries((hyb::fuzz::scratch() / "dicom").string());
     else
       hyb::readVolume(path);
+  });
+  // The same file read plane by plane, as a streamed build reads it.
+  hyb::fuzz::refuseOrSucceed([&] {
+    if (name.rfind("dicom/", 0) == 0) return;
+    const std::unique_ptr<hyb::PlaneSource> planes = hyb::openPlanes(path);
+    hyb::SampleWindow window(*planes, 1);
+    for (int z = 0; z < planes->dims().z; ++z) window.load(*planes);
   });
   return 0;
 }

@@ -1,0 +1,87 @@
+// A volume's samples plane by plane (z slices, in order), for a build whose memory must not grow
+// with the volume: raw files and NRRD or MetaImage data (raw or gzip/zlib) are read as they are
+// needed; other inputs are read whole first.
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "volume/progress.h"
+#include "volume/volume.h"
+#include "volume/volume_io.h"
+
+namespace hyb {
+
+/// The samples of one volume, read forward plane by plane, as often as asked (rewind()).
+class PlaneSource {
+ public:
+  virtual ~PlaneSource() = default;
+  /// The volume without its samples: grid, types, patient frame, info and warnings. Its range is
+  /// unknown until the samples are read (it reads [0, 0]).
+  const Volume& description() const { return mDescription; }
+  /// The file read (or "volume" for one in memory), for messages.
+  const std::string& name() const { return mName; }
+  const glm::ivec3& dims() const { return mDescription.dims(); }
+  ScalarType storedType() const { return mDescription.storedType(); }
+  /// Samples in a plane.
+  size_t planeSize() const { return size_t(dims().x) * size_t(dims().y); }
+  /// Whether the volume was read whole (the input format does not stream).
+  virtual bool whole() const { return false; }
+  /// Starts again at plane 0.
+  virtual void rewind() = 0;
+  /// Decodes the next @p count planes into @p out (which holds storedType()) from sample @p first on.
+  /// @throw IoError naming the file when the data are short or corrupt.
+  virtual void read(int count, SampleArray* out, size_t first) = 0;
+
+ protected:
+  PlaneSource(Volume description, std::string name) : mDescription(std::move(description)), mName(std::move(name)) {}
+
+ private:
+  Volume mDescription;
+  std::string mName;
+};
+
+/// The planes of @p volume, which must outlive the source.
+std::unique_ptr<PlaneSource> planesOf(const Volume& volume);
+
+/// The planes of a volume file, by the rules of readVolume(): raw files, and NRRD and MetaImage
+/// files of 8- and 16-bit integer or float samples in raw or gzip/zlib encoding, are read plane by
+/// plane; anything else (DICOM, NIfTI, InVesalius, ASCII, 32-bit integers) is read whole.
+/// @throw IoError / ValueError naming @p path, as readVolume().
+std::unique_ptr<PlaneSource> openPlanes(const std::string& path, const RawLayout* raw = nullptr, const std::string& series = "",
+                                        const Progress* progress = nullptr);
+
+namespace detail {
+
+/// Where a file's samples lie: @p skip bytes after @p offset of @p data (−1: its last bytes; for
+/// compressed data the skip counts inflated bytes), raw or a gzip/zlib stream.
+struct SampleData {
+  std::string path;  ///< the file holding the samples
+  uint64_t offset = 0;
+  long long skip = 0;
+  const char* skipField = "byte skip";
+  bool compressed = false;
+  ScalarType type = ScalarType::UInt8;
+  bool bigEndian = false;
+};
+
+/// Planes streamed from @p data for the volume @p description (grid, stored type, frame, info) of
+/// the file @p path (its header). Sizes are checked against the file here, before anything is read.
+std::unique_ptr<PlaneSource> streamedPlanes(const SampleData& data, Volume description, const std::string& path);
+
+/// The streamed planes of a NRRD (raw or gzip) or MetaImage file, or null when its samples do not
+/// stream (ASCII, 32-bit integers).
+std::unique_ptr<PlaneSource> nrrdPlanes(const std::string& path);
+std::unique_ptr<PlaneSource> metaImagePlanes(const std::string& path);
+/// The streamed planes of @p path by the rules of readVolume(), or null when it is read whole.
+std::unique_ptr<PlaneSource> openStreamedPlanes(const std::string& path, const RawLayout* raw, const std::string& series);
+
+/// Whether samples of file type @p t stream: their stored type does not depend on their range.
+inline bool streams(ScalarType t) { return t != ScalarType::UInt32 && t != ScalarType::Int32; }
+
+}  // namespace detail
+
+}  // namespace hyb
