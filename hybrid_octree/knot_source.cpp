@@ -8,7 +8,7 @@
 namespace hyb {
 
 void VolumeKnots::read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const {
-  HYB_DCHECK((s == 1) == (gradients == nullptr));
+  HYB_DCHECK(s > 1 || gradients == nullptr);
   const glm::ivec3 n = mVolume.dims();
   std::vector<int> xs(size_t(count.x));
   for (int i = 0; i < count.x; ++i) xs[size_t(i)] = knotPosition(lo.x + i, s, n.x);
@@ -18,11 +18,11 @@ void VolumeKnots::read(int s, const glm::ivec3& lo, const glm::ivec3& count, flo
       if (s == 1) {
         mVolume.readRow(lo.x, y, z, count.x, values);
       } else {
-        for (int i = 0; i < count.x; ++i) {
-          values[i] = mOctree.knotValue(mVolume, s, glm::ivec3(xs[size_t(i)], y, z));
-          gradients[i] = bfloat16Rounded(mVolume.gradientAt(xs[size_t(i)], y, z));
+        for (int i = 0; i < count.x; ++i) values[i] = mOctree.knotValue(mVolume, s, glm::ivec3(xs[size_t(i)], y, z));
+        if (gradients) {
+          for (int i = 0; i < count.x; ++i) gradients[i] = bfloat16Rounded(mVolume.gradientAt(xs[size_t(i)], y, z));
+          gradients += count.x;
         }
-        gradients += count.x;
       }
       values += count.x;
     }

@@ -49,7 +49,8 @@ class KnotSource {
   virtual glm::dvec3 spacing() const = 0;
   /// Writes the knots of spacing @p s with indices lo … lo + count − 1 per axis (inside
   /// knotCounts(dims(), s)) to @p values, x fastest, and for s ≥ 2 the volume's gradient at each
-  /// (Volume::gradientAt, data units per mm, bfloat16Rounded) to @p gradients (null for s = 1).
+  /// (Volume::gradientAt, data units per mm, bfloat16Rounded) to @p gradients unless it is null
+  /// (always null for s = 1).
   /// Thread-safe.
   /// @throw IoError when a paged source cannot read them (a damaged file, named with its block).
   virtual void read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const = 0;

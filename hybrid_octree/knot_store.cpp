@@ -408,7 +408,7 @@ void KnotStore::read(int s, const glm::ivec3& lo, const glm::ivec3& count, float
       for (int y = 0; y < count.y; ++y, values += count.x) mSamples->readRow(lo.x, lo.y + y, lo.z + z, count.x, values);
     return;
   }
-  HYB_DCHECK((gradients != nullptr) == l.gradients);
+  HYB_DCHECK(gradients == nullptr || l.gradients);
   const glm::ivec3 hi = lo + count - 1, b0 = lo / kStoreBlock, b1 = hi / kStoreBlock;
   for (int bz = b0.z; bz <= b1.z; ++bz)
     for (int by = b0.y; by <= b1.y; ++by)

@@ -1,6 +1,7 @@
 #include "render/brick_error.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 
 #include "hybrid_octree/knot_source.h"
@@ -39,7 +40,7 @@ float shade(const glm::vec3& g, const glm::vec3& dir) {
 
 BrickImageError::BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
                                  const glm::dvec4& kept, const VolumeOfInterest* voi, const KnotSource* knots)
-    : mVolume(volume), mOctree(octree), mKnots(knots), mTf(tf), mCamera(camera), mKept(kept), mVoi(voi), mLayout(volume.minValue(), volume.maxValue(), tf) {
+    : mVolume(volume), mOctree(octree), mInMemory(volume, octree), mKnots(knots ? *knots : mInMemory), mTf(tf), mCamera(camera), mKept(kept), mVoi(voi), mLayout(volume.minValue(), volume.maxValue(), tf) {
   mTable.resize(LutLayout::kSize);
   for (int k = 0; k < LutLayout::kSize; ++k) {
     const glm::vec4 c = tf.lookup(mLayout.value(k));
@@ -75,24 +76,30 @@ const BrickImageError::Entry& BrickImageError::classify(float value) const {
 
 void BrickImageError::buildTransmittance() {
   const glm::ivec3 dims = mVolume.dims();
-  // Four voxels apart up to 256 voxels across, proportionally more beyond (the same grid points).
-  mGrid = 4 * std::max(1, (std::max({dims.x, dims.y, dims.z}) + 255) / 256);
+  // Four voxels apart up to 256 voxels across, a power of two times more beyond.
+  const int stride = int(std::bit_floor(unsigned(std::max(1, (std::max({dims.x, dims.y, dims.z}) + 255) / 256))));
+  mGrid = 4 * stride;
   const int kGrid = mGrid;
   mGridDims = (dims - 1 + kGrid - 1) / kGrid + 1;
   const size_t count = size_t(mGridDims.x) * mGridDims.y * mGridDims.z;
   auto index = [&](const glm::ivec3& g) { return linear(g, mGridDims); };
-  // Extinction per grid point: the mean over the voxels nearest to it (every voxel up to four
-  // apart, a quarter of the spacing's voxels per axis beyond).
+  // Extinction per grid point: the mean over the knots of spacing `stride` nearest to it (every
+  // voxel up to four apart; beyond, the knots of a lattice as a brick holds them), read a plane at
+  // a time through the knot source.
   std::vector<float> kappa(count, 0.0f);
   std::vector<uint32_t> voxels(count, 0);
-  const int stride = kGrid / 4;
-  for (int z = 0; z < dims.z; z += stride)
-    for (int y = 0; y < dims.y; y += stride)
-      for (int x = 0; x < dims.x; x += stride) {
-        const size_t g = index(glm::min((glm::ivec3(x, y, z) + kGrid / 2) / kGrid, mGridDims - 1));
-        kappa[g] += extinction(classify(mVolume.at(x, y, z)), glm::vec3(x, y, z) * glm::vec3(mVolume.spacing()));
+  const glm::ivec3 knots = (dims - 1) / stride + 1;  // those at multiples of the stride
+  std::vector<float> plane(size_t(knots.x) * size_t(knots.y));
+  for (int k = 0; k < knots.z; ++k) {
+    mKnots.read(stride, glm::ivec3(0, 0, k), glm::ivec3(knots.x, knots.y, 1), plane.data(), nullptr);
+    for (int j = 0; j < knots.y; ++j)
+      for (int i = 0; i < knots.x; ++i) {
+        const glm::ivec3 p = glm::ivec3(i, j, k) * stride;
+        const size_t g = index(glm::min((p + kGrid / 2) / kGrid, mGridDims - 1));
+        kappa[g] += extinction(classify(plane[size_t(i) + size_t(knots.x) * size_t(j)]), glm::vec3(p) * glm::vec3(mVolume.spacing()));
         ++voxels[g];
       }
+  }
   for (size_t g = 0; g < count; ++g) kappa[g] = voxels[g] > 0 ? kappa[g] / float(voxels[g]) : 0.0f;
   // March from every grid point towards the eye through the nearest points' extinction.
   const glm::dvec3 spacing = mVolume.spacing(), extent = mVolume.extentMm();
@@ -171,8 +178,7 @@ double BrickImageError::measure(const OctreeNode& n, int p) const {
   if (step <= 1) return 0.0;
   const KnotLattice L = mOctree.lattice(n, p);
   // The level's knots: value and shading gradient, as the brick's texels hold them.
-  const VolumeKnots inMemory(mVolume, mOctree);
-  const std::vector<glm::vec4> both = latticeKnots(mKnots ? *mKnots : inMemory, L);
+  const std::vector<glm::vec4> both = latticeKnots(mKnots, L);
   std::vector<float> knots(L.count());
   std::vector<glm::vec3> gradients(L.count());
   for (size_t i = 0; i < both.size(); ++i) {
@@ -182,19 +188,34 @@ double BrickImageError::measure(const OctreeNode& n, int p) const {
   const glm::ivec3 dims = mVolume.dims();
   const glm::vec3 spacing(mVolume.spacing());
 
-  // The samples' field and its gradient (per mm) at voxel position q.
+  // The reference field: the samples in a node up to 64 voxels across; beyond, the knots 1/64 of
+  // its edge apart (what rays that sample every 1/64 of the edge resolve), so that a brick's
+  // measure reads at most 66³ knots through the knot source whatever the node's size. Its knots
+  // reach one step past the node's far faces (a gradient there looks ahead, as the samples' does).
+  const int f = std::max(1, mOctree.edge(n) / 64);
+  KnotLattice F;
+  F.origin = glm::ivec3(n.origin);
+  F.step = f;
+  F.last = glm::min(F.origin + mOctree.edge(n) + f, dims - 1);
+  F.dims = (F.last - F.origin + f - 1) / f + 1;
+  std::vector<float> reference(size_t(F.count()));
+  mKnots.read(f, F.origin / f, F.dims, reference.data(), nullptr);
+  // The reference field and its gradient (per mm) at voxel position q.
   auto fine = [&](const glm::vec3& q, glm::vec3* g) {
     glm::ivec3 i0, i1;
-    glm::vec3 w;
+    glm::vec3 w, scale;
     for (int a = 0; a < 3; ++a) {
-      i0[a] = std::min(int(q[a]), std::max(dims[a] - 2, 0));
-      i1[a] = std::min(i0[a] + 1, dims[a] - 1);
-      w[a] = i1[a] > i0[a] ? q[a] - float(i0[a]) : 0.0f;
+      i0[a] = std::clamp(int((q[a] - float(F.origin[a])) / float(f)), 0, std::max(F.dims[a] - 2, 0));
+      i1[a] = std::min(i0[a] + 1, F.dims[a] - 1);
+      const int x0 = F.knot(a, i0[a]), x1 = F.knot(a, i1[a]);
+      w[a] = x1 > x0 ? (q[a] - float(x0)) / float(x1 - x0) : 0.0f;
+      scale[a] = x1 > x0 ? 1.0f / (float(x1 - x0) * spacing[a]) : 1.0f / spacing[a];
     }
     float c[8];
-    for (int s = 0; s < 8; ++s) c[s] = mVolume.at(s & 1 ? i1.x : i0.x, s & 2 ? i1.y : i0.y, s & 4 ? i1.z : i0.z);
+    for (int s = 0; s < 8; ++s)
+      c[s] = reference[linear(glm::ivec3(s & 1 ? i1.x : i0.x, s & 2 ? i1.y : i0.y, s & 4 ? i1.z : i0.z), F.dims)];
     const float v = trilinear(c, w, g);
-    *g /= spacing;
+    *g *= scale;
     return v;
   };
   // Which cell of the knots holds q.

@@ -35,9 +35,10 @@ class BrickImageError {
  public:
   /// Prepares one view: the transfer function's table and the transmittance grid. Only the half
   /// space @p kept (a·x + d ≥ 0, world mm; a cutting plane's CutPlane::keptSide) is drawn, and
-  /// @p voi, if any, scales opacity as the renderers do. Bricks read their knots from @p knots
-  /// (none: @p volume and @p octree). @p volume (with its samples), @p octree, @p voi and @p knots
-  /// must outlive this object (the transfer function and the camera are copied).
+  /// @p voi, if any, scales opacity as the renderers do. Knots and samples are read from @p knots
+  /// (none: @p volume's samples and @p octree), a node's worth at a time: a paged scene's samples
+  /// are never read whole. @p volume, @p octree, @p voi and @p knots must outlive this object (the
+  /// transfer function and the camera are copied).
   BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
                   const glm::dvec4& kept = glm::dvec4(0, 0, 0, 1), const VolumeOfInterest* voi = nullptr, const KnotSource* knots = nullptr);
 
@@ -68,9 +69,10 @@ class BrickImageError {
   void buildTransmittance();
   void buildVisibleBlocks();
 
-  const Volume& mVolume;
+  const Volume& mVolume;  // its grid and range: the knots are read through mKnots
   const VolumeOctree& mOctree;
-  const KnotSource* mKnots;
+  const VolumeKnots mInMemory;
+  const KnotSource& mKnots;
   const TransferFunction mTf;
   const Camera mCamera;
   glm::vec4 mKept;

@@ -105,7 +105,7 @@ SceneRenderer::SceneRenderer(Scene scene, const Options& options) : mScene(std::
 }
 
 // A paged scene's samples are read whole only by what needs every sample: an isosurface's
-// extraction and normals, the reference ray tracer and the image errors a budget ranks by.
+// extraction and normals, and the reference ray tracer.
 void SceneRenderer::ensureSamples() {
   if (mScene.volume.hasSamples()) return;
   mScene.volume.attachSamples(mScene.knots->samples(), mScene.knots->path());
@@ -241,7 +241,7 @@ ViewErrors& SceneRenderer::viewErrors(const Camera& gridCamera, const TransferFu
   mErrors = std::make_unique<Errors>(Errors{gridCamera, tf, cut, voi, nullptr});
   Errors& e = *mErrors;
   e.errors = std::make_unique<ViewErrors>(mScene.volume, mScene.octree, e.tf, e.camera, e.cut ? &*e.cut : nullptr, e.voi ? &*e.voi : nullptr,
-                                          mScene.knots.get(), [this] { ensureSamples(); });
+                                          mScene.knots.get());
   return *e.errors;
 }
 

@@ -5,10 +5,8 @@
 namespace hyb {
 
 BrickImageError& ViewErrors::get() {
-  if (!mErrors) {
-    if (mPrepare) mPrepare();
+  if (!mErrors)
     mErrors = std::make_unique<BrickImageError>(mVolume, mOctree, mTf, mCamera, mCut ? mCut->keptSide(mCamera) : glm::dvec4(0, 0, 0, 1), mVoi, mKnots);
-  }
   return *mErrors;
 }
 

@@ -40,11 +40,11 @@ struct SelectionChoice {
 class ViewErrors {
  public:
   /// @p volume, @p octree, @p tf, @p camera, @p cut, @p voi and @p knots must outlive this object
-  /// (grid frame). @p knots: where the bricks read their knots (none: the volume in memory).
-  /// @p prepare runs before the first error is measured (a paged scene reads its samples).
+  /// (grid frame). @p knots: where the bricks read their knots and samples (none: the volume in
+  /// memory).
   ViewErrors(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera, const CutPlane* cut,
-             const VolumeOfInterest* voi, const KnotSource* knots = nullptr, std::function<void()> prepare = {})
-      : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera), mCut(cut), mVoi(voi), mKnots(knots), mPrepare(std::move(prepare)) {}
+             const VolumeOfInterest* voi, const KnotSource* knots = nullptr)
+      : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera), mCut(cut), mVoi(voi), mKnots(knots) {}
   BrickImageError& get();
   size_t measured() const { return mErrors ? mErrors->measured() : 0; }
 
@@ -56,7 +56,6 @@ class ViewErrors {
   const CutPlane* mCut;
   const VolumeOfInterest* mVoi;
   const KnotSource* mKnots;
-  std::function<void()> mPrepare;
   std::unique_ptr<BrickImageError> mErrors;
 };
 
