@@ -91,7 +91,6 @@ int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
     if (!o.input.series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", o.input.path, " is a scene file)");
     Scene scene = loadScene(o.input.path, SceneLoadOptions{false, 0});
     const KnotStore& store = *scene.knots;
-    scene.volume.attachSamples(store.samples(), o.input.path);  // the histogram reads them all
     const double stored = double(scene.volume.voxelCount() * scalarSize(scene.volume.storedType()));
     out << "file     " << o.input.path << " (scene)\n" << scene.volume.toString();
     out << "octree   " << scene.octree.nodes().size() << " nodes, " << scene.octree.bytesUsed() << " bytes\n";
@@ -99,7 +98,10 @@ int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
         << "^3 knots, " << formatBytes(store.compressedBytes()) << " compressed (" << std::fixed << std::setprecision(2)
         << double(store.compressedBytes()) / stored << "x the samples)\n";
     out << (scene.surface ? surfaceSummary(*scene.surface, std::nullopt) : "surface  none (build --iso adds one)\n");
-    out << "histogram (" << o.bins << " bins)\n" << formatHistogram(computeHistogram(scene.volume, o.bins));
+    // Every sample, a block at a time: the samples are never held.
+    const Volume& v = scene.volume;
+    out << "histogram (" << o.bins << " bins)\n"
+        << formatHistogram(computeHistogram(v.voxelCount(), v.minValue(), v.maxValue(), o.bins, [&](const auto& use) { store.forEachValue(1, use); }));
     return 0;
   }
   const Volume v = o.input.read(err);
@@ -436,11 +438,13 @@ struct ViewOptions {
   int port = 8080;
   std::string dataDir, token;
   double frameMs = 80.0, textureMb = 512.0;
+  std::optional<double> memoryMb;  // a scene file's block cache, per scene
   std::string validate() const {
     if (port < 0 || port > 65535) return "--port must be in 0..65535 (0: any free port)";
     if (!dataDir.empty() && !std::filesystem::is_directory(dataDir)) return "--data-dir " + dataDir + ": not a directory";
     if (!(frameMs >= 10.0 && frameMs <= 1000.0)) return "--frame-ms must be in [10, 1000]";
     if (!(textureMb >= 16.0 && textureMb <= 65536.0)) return "--texture-mb must be in [16, 65536]";
+    if (memoryMb && !(*memoryMb >= 1.0 && *memoryMb <= 1e9)) return "--memory must be megabytes in [1, 1e9]";
     if (!token.empty() && (token.size() < 16 || token.find_first_not_of("0123456789abcdefABCDEF") != std::string::npos))
       return "--token must be at least 16 hexadecimal digits";
     return "";
@@ -466,7 +470,9 @@ int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
     in.progress = progress ? progress : o.input.progress;  // the page hears of a load it waits for
     std::ostringstream quiet;
     double ms = 0;
-    return loadOrBuild(in, quiet, err, &ms);
+    // A scene file is read paged, as render reads it: a study larger than memory opens.
+    const uint64_t cacheBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
+    return loadOrBuild(in, quiet, err, &ms, {}, SceneLoadOptions{false, cacheBytes});
   };
   so.log = &out;
   // SIGINT and SIGTERM end the server: blocked in every thread, awaited here.
@@ -562,6 +568,8 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   viewCmd->add_option("--token", view.token, "access token (default: a random one, printed in the URL)");
   viewCmd->add_option("--frame-ms", view.frameMs, "frame time interactive frames aim at, ms")->capture_default_str();
   viewCmd->add_option("--texture-mb", view.textureMb, "brick textures kept between frames, MB per volume")->capture_default_str();
+  viewCmd->add_option("--memory", view.memoryMb,
+                      "MB of decompressed blocks a scene file's knot store keeps in its cache, per scene (default: an eighth of the physical memory)");
 
   try {
     try {

@@ -435,6 +435,25 @@ void KnotStore::read(int s, const glm::ivec3& lo, const glm::ivec3& count, float
       }
 }
 
+void KnotStore::forEachValue(int s, const std::function<void(const float* values, size_t n)>& use) const {
+  HYB_CHECK(std::has_single_bit(unsigned(s)) && size_t(std::countr_zero(unsigned(s))) < mLevels.size());
+  const size_t level = size_t(std::countr_zero(unsigned(s)));
+  const StoreLevel& l = mLevels[level];
+  const glm::ivec3 nb = l.blocks();
+  std::vector<float> values;
+  for (int bz = 0; bz < nb.z; ++bz)
+    for (int by = 0; by < nb.y; ++by)
+      for (int bx = 0; bx < nb.x; ++bx) {
+        const glm::ivec3 b(bx, by, bz);
+        const std::shared_ptr<const Block> blk = load(level, b, l.blockIndex(b));
+        values.resize(size_t(blockKnots(blk->dims)));
+        detail::withFileType(l.type, [&](auto zero) {
+          for (size_t i = 0; i < values.size(); ++i) values[i] = valueOf<decltype(zero)>(l, blk->bytes.data(), i);
+        });
+        use(values.data(), values.size());
+      }
+}
+
 SampleArray KnotStore::samples() const {
   const StoreLevel& l = mLevels.front();
   SampleArray out = detail::allocateSamples(l.type, size_t(blockKnots(mDims)));

@@ -16,6 +16,7 @@
 #include <glm/glm.hpp>
 
 #include <cstdint>
+#include <functional>
 #include <list>
 #include <memory>
 #include <mutex>
@@ -143,6 +144,9 @@ class KnotStore final : public KnotSource {
   void read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const override;
   /// Every sample (level 1) as the array a Volume holds.
   SampleArray samples() const;
+  /// Passes the knots of spacing @p s (values, a block at a time, read past the cache) to @p use.
+  /// @throw IoError naming the file and the block when a block is corrupt.
+  void forEachValue(int s, const std::function<void(const float* values, size_t n)>& use) const;
   /// The scene file.
   const std::string& path() const { return mFile.path(); }
   /// Type the samples are stored in.

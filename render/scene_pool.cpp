@@ -32,7 +32,10 @@ SceneSummary summarizeScene(const Scene& scene, const std::string& key, const st
   s.spacing = v.spacing();
   s.minValue = v.minValue();
   s.maxValue = v.maxValue();
-  s.histogram = computeHistogram(v, 128);
+  // A paged scene's histogram reads its samples a block at a time, without holding them.
+  s.histogram = scene.knots ? computeHistogram(v.voxelCount(), v.minValue(), v.maxValue(), 128,
+                                               [&](const auto& use) { scene.knots->forEachValue(1, use); })
+                            : computeHistogram(v, 128);
   s.orientation = orientationCode(v.frame().direction);
   s.orientationAssumed = v.frame().assumed;
   s.boundsLo = glm::dvec3(1e300);
@@ -43,7 +46,8 @@ SceneSummary summarizeScene(const Scene& scene, const std::string& key, const st
     s.boundsLo = glm::min(s.boundsLo, p);
     s.boundsHi = glm::max(s.boundsHi, p);
   }
-  std::vector<glm::dvec3> points = visiblePoints(v, scene.octree, TransferFunction::defaultFor(v.minValue(), v.maxValue()));
+  std::vector<glm::dvec3> points =
+      visiblePoints(v, scene.octree, TransferFunction::defaultFor(v.minValue(), v.maxValue()), std::nullopt, scene.knots.get());
   if (points.empty())  // nothing visible: the data's box
     for (int c = 0; c < 8; ++c) points.push_back(glm::dvec3(c & 1 ? s.boundsHi.x : s.boundsLo.x, c & 2 ? s.boundsHi.y : s.boundsLo.y, c & 4 ? s.boundsHi.z : s.boundsLo.z));
   for (int view = 0; view < 6; ++view) s.views[size_t(view)] = fitCamera(points, viewDirection(AnatomicalView(view)), 30.0, false, 512, 512);

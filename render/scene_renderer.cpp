@@ -154,8 +154,15 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   // The Surface Octree (the scene's when it matches), its polygons triangulated, shaded both ways.
   auto s = std::make_unique<PreparedSurface>();
   s->iso = iso;
-  const Volume& v = scene.volume;
-  HYB_CHECK(v.hasSamples());  // a paged scene's samples are attached first (SceneRenderer::ensureSamples)
+  // A paged scene not given its samples (ensureSamples) lends them to this extraction only: a
+  // viewer's builder thread reads them while the scene itself stays paged.
+  Volume whole;
+  if (!scene.volume.hasSamples()) {
+    HYB_CHECK(scene.knots);
+    whole = scene.volume;
+    whole.attachSamples(scene.knots->samples(), scene.knots->path());
+  }
+  const Volume& v = scene.volume.hasSamples() ? scene.volume : whole;
   const bool fromScene = scene.surface && scene.surface->isovalue() == iso;
   auto t0 = Clock::now();
   if (!fromScene) {

@@ -100,6 +100,7 @@ TEST(Cli, InfoBuildAndSelect) {
   EXPECT_THAT(paged, HasSubstr("\"samples_loaded\": false"));
   EXPECT_THAT(paged, Not(HasSubstr("\"blocks_read\": 0,")));
   expectBadInput({"render", dir.file("s.hoct"), "--memory", "0.5", "-o", dir.file("r.png")}, "--memory must be megabytes in [1, 1e9]");
+  expectBadInput({"view", dir.file("s.hoct"), "--memory", "nan"}, "--memory must be megabytes in [1, 1e9]");  // the viewer pages too
   // bench says the same of its whole run.
   r = run({"bench", dir.file("s.hoct"), "--memory", "1", "--size", "16x16", "--epsilons", "0", "--budgets", "0.5", "--repeat", "1",
            "--rounds", "1", "--no-plot", "-o", dir.file("bench")});

@@ -8,7 +8,9 @@
 #include <thread>
 #include <tuple>
 
+#include "hybrid_octree/hybrid_io.h"
 #include "render/patient_view.h"
+#include "render/scene_pool.h"
 #include "render_util.h"
 #include "test_util.h"
 
@@ -54,6 +56,41 @@ TEST(SceneRenderer, ASurfaceMadeOnAnotherThreadIsAdoptedAndDrawnAsIfBuiltHere) {
   EXPECT_TRUE(built.stats.surfaceBuilt);
   EXPECT_EQ(adopted.stats.surfaceTriangles, built.stats.surfaceTriangles);
   EXPECT_EQ(adopted.image.pixels, built.image.pixels);
+}
+
+// A viewer keeps a scene file paged: a surface made on its builder thread reads the samples for
+// that extraction only, and the scene itself stays without them; what the viewer shows of it first
+// (the summary: histogram, framed views) is what the scene in memory gives.
+TEST(SceneRenderer, APagedSceneLendsItsSamplesToASurfaceAndStaysPaged) {
+  test::gl();
+  test::TempDir dir;
+  saveScene(dir.file("s.hoct"), sphereScene().volume, sphereScene().octree);
+  SceneRenderer paged(loadScene(dir.file("s.hoct"), SceneLoadOptions{false, 1 << 20})), memory(loadScene(dir.file("s.hoct")));
+  ASSERT_FALSE(paged.volume().hasSamples());
+  const SceneSummary a = summarizeScene(paged.scene(), "k", "p", "", "n"), b = summarizeScene(memory.scene(), "k", "p", "", "n");
+  EXPECT_EQ(a.histogram.counts, b.histogram.counts);
+  EXPECT_EQ(a.histogram.p01, b.histogram.p01);
+  EXPECT_EQ(a.histogram.p50, b.histogram.p50);
+  EXPECT_EQ(a.histogram.p99, b.histogram.p99);
+  EXPECT_EQ(a.histogram.mean, b.histogram.mean);
+  for (int v = 0; v < 6; ++v) EXPECT_EQ(a.views[size_t(v)].eye, b.views[size_t(v)].eye) << v;
+  Look look;
+  look.tf = warm();
+  const View view = viewFrom(20, memory.volume());
+  std::unique_ptr<PreparedSurface> made;
+  std::thread builder([&] { made = SceneRenderer::prepareSurface(paged.scene(), 5.0f, nullptr, nullptr, true); });
+  for (int i = 0; i < 2; ++i) paged.render(view, look, Quality{});
+  builder.join();
+  EXPECT_FALSE(paged.volume().hasSamples());
+  paged.adoptSurface(std::move(made));
+  memory.adoptSurface(SceneRenderer::prepareSurface(memory.scene(), 5.0f, nullptr, nullptr, true));
+  look.iso = 5.0f;
+  look.surfaceColor = glm::vec4(0.9f, 0.8f, 0.7f, 0.5f);
+  const RenderedFrame p = paged.render(view, look, Quality{}), m = memory.render(view, look, Quality{});
+  EXPECT_GT(p.stats.surfaceTriangles, 0u);
+  EXPECT_EQ(p.stats.surfaceTriangles, m.stats.surfaceTriangles);
+  EXPECT_EQ(p.image.pixels, m.image.pixels);
+  EXPECT_FALSE(paged.volume().hasSamples());
 }
 
 TEST(SceneRenderer, ChangesRedoOnlyWhatDependsOnThem) {

@@ -1,6 +1,8 @@
 #include "volume/volume.h"
 
 #include <algorithm>
+#include <functional>
+#include <array>
 #include <limits>
 #include <cmath>
 #include <iomanip>
@@ -287,47 +289,69 @@ Volume paddedVolume(const Volume& v, float value) {
   return out;
 }
 
-Histogram computeHistogram(const Volume& v, int bins) {
+Histogram computeHistogram(uint64_t count, float lo, float hi, int bins, const ValuePieces& pieces) {
   HYB_CHECK(bins >= 1);
   Histogram h;
-  h.minValue = v.minValue();
-  h.maxValue = v.maxValue();
+  h.minValue = lo;
+  h.maxValue = hi;
   h.counts.assign(size_t(bins), 0);
   const double width = (h.maxValue - h.minValue) / bins;
-  double sum = 0, sum2 = 0;
-  for (size_t i = 0; i < v.voxelCount(); ++i) {
-    const float x = v.value(i);
-    const int b = width > 0 ? std::min(bins - 1, int((x - h.minValue) / width)) : 0;
-    ++h.counts[size_t(b)];
-    sum += x;
-    sum2 += double(x) * x;
-  }
-  const double n = double(std::max<size_t>(1, v.voxelCount()));
-  h.mean = sum / n;
-  h.stddev = std::sqrt(std::max(0.0, sum2 / n - h.mean * h.mean));
   // Exact percentiles (nearest rank: the smallest sample with at least q·n samples at or below it):
   // a fine histogram finds the bin holding the rank, then only that bin's samples are ordered.
   const int fineBins = 1 << 16;
   const double fineWidth = (h.maxValue - h.minValue) / fineBins;
   auto fineBin = [&](float x) { return fineWidth > 0 ? std::min(fineBins - 1, int((x - h.minValue) / fineWidth)) : 0; };
   std::vector<uint64_t> fine(size_t(fineBins), 0);
-  for (size_t i = 0; i < v.voxelCount(); ++i) ++fine[size_t(fineBin(v.value(i)))];
-  auto percentile = [&](double q) {
-    const uint64_t rank = std::max<uint64_t>(1, uint64_t(std::ceil(q * double(v.voxelCount()))));  // 1-based
-    uint64_t below = 0;
-    int b = 0;
-    while (below + fine[size_t(b)] < rank) below += fine[size_t(b++)];
-    std::vector<float> in;
-    in.reserve(size_t(fine[size_t(b)]));
-    for (size_t i = 0; i < v.voxelCount(); ++i)
-      if (const float x = v.value(i); fineBin(x) == b) in.push_back(x);
-    std::nth_element(in.begin(), in.begin() + ptrdiff_t(rank - below - 1), in.end());
-    return double(in[size_t(rank - below - 1)]);
-  };
-  h.p01 = percentile(0.01);
-  h.p50 = percentile(0.50);
-  h.p99 = percentile(0.99);
+  double sum = 0, sum2 = 0;
+  pieces([&](const float* values, size_t n) {
+    for (size_t i = 0; i < n; ++i) {
+      const float x = values[i];
+      const int b = width > 0 ? std::min(bins - 1, int((x - h.minValue) / width)) : 0;
+      ++h.counts[size_t(b)];
+      ++fine[size_t(fineBin(x))];
+      sum += x;
+      sum2 += double(x) * x;
+    }
+  });
+  const double n = double(std::max<uint64_t>(1, count));
+  h.mean = sum / n;
+  h.stddev = std::sqrt(std::max(0.0, sum2 / n - h.mean * h.mean));
+  const std::array<double, 3> qs = {0.01, 0.50, 0.99};
+  std::array<uint64_t, 3> rank{}, below{};
+  std::array<int, 3> bin{};
+  std::array<std::vector<float>, 3> in;
+  for (size_t k = 0; k < qs.size(); ++k) {
+    rank[k] = std::max<uint64_t>(1, uint64_t(std::ceil(qs[k] * double(count))));  // 1-based
+    while (below[k] + fine[size_t(bin[k])] < rank[k]) below[k] += fine[size_t(bin[k]++)];
+    in[k].reserve(size_t(fine[size_t(bin[k])]));
+  }
+  pieces([&](const float* values, size_t m) {
+    for (size_t i = 0; i < m; ++i) {
+      const int b = fineBin(values[i]);
+      for (size_t k = 0; k < qs.size(); ++k)
+        if (b == bin[k]) in[k].push_back(values[i]);
+    }
+  });
+  std::array<double, 3> at{};
+  for (size_t k = 0; k < qs.size(); ++k) {
+    std::nth_element(in[k].begin(), in[k].begin() + ptrdiff_t(rank[k] - below[k] - 1), in[k].end());
+    at[k] = double(in[k][size_t(rank[k] - below[k] - 1)]);
+  }
+  h.p01 = at[0];
+  h.p50 = at[1];
+  h.p99 = at[2];
   return h;
+}
+
+Histogram computeHistogram(const Volume& v, int bins) {
+  return computeHistogram(v.voxelCount(), v.minValue(), v.maxValue(), bins, [&](const std::function<void(const float*, size_t)>& use) {
+    std::vector<float> piece(size_t(std::min<uint64_t>(v.voxelCount(), 1 << 16)));
+    for (size_t first = 0; first < v.voxelCount(); first += piece.size()) {
+      const size_t n = std::min(piece.size(), v.voxelCount() - first);
+      for (size_t i = 0; i < n; ++i) piece[i] = v.value(first + i);
+      use(piece.data(), n);
+    }
+  });
 }
 
 std::string formatHistogram(const Histogram& h) {

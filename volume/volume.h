@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <string>
@@ -222,6 +223,11 @@ struct Histogram {
 
 /// Histogram of @p v with @p bins equal-width bins (bins >= 1).
 Histogram computeHistogram(const Volume& v, int bins);
+/// Passes a set of values, in pieces, to the function it is given; called as often as needed.
+using ValuePieces = std::function<void(const std::function<void(const float* values, size_t n)>&)>;
+/// Histogram of the @p count values in [@p lo, @p hi] that @p pieces passes (twice), with @p bins
+/// equal-width bins (bins >= 1): a volume whose samples are read a piece at a time (a scene's store).
+Histogram computeHistogram(uint64_t count, float lo, float hi, int bins, const ValuePieces& pieces);
 
 /// Text report of a histogram, one line per bin with a proportional bar.
 std::string formatHistogram(const Histogram& h);
