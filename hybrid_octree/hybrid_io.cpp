@@ -423,14 +423,38 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
       HYB_THROW(IoError, path, ": the ", name, " section was built from another volume than the scene's (content hash mismatch)");
   };
   {
-    const std::vector<uint8_t> b = payload(entry(kOctreeTag, "volume octree"));
-    Reader r(b.data(), b.size(), path);
-    sameVolume(r, "volume octree");
+    // Read straight into the node and error arrays (no copy of the section: 390 MB on the phantom),
+    // the checksum over the pieces as they come.
+    const Entry& e = entry(kOctreeTag, "volume octree");
+    uint64_t at = e.offset, left = e.size;
+    uLong crc = crc32_z(0L, Z_NULL, 0);
+    auto piece = [&](void* to, uint64_t n) {
+      if (n > left) corrupt(e);  // a count its checksum would have refused
+      file.read(at, n, static_cast<uint8_t*>(to));
+      crc = crc32_z(crc, static_cast<const uint8_t*>(to), size_t(n));
+      at += n;
+      left -= n;
+    };
+    uint8_t head[16];
+    piece(head, sizeof head);
+    Reader r(head, sizeof head, path);
+    const uint64_t hash = r.get<uint64_t>();
     const int32_t leafEdge = r.get<int32_t>();
     const uint32_t prefiltered = r.get<uint32_t>();
+    auto array = [&]<class T>(std::vector<T>* v) {
+      uint64_t n = 0;
+      piece(&n, sizeof n);
+      if (n > left / sizeof(T)) corrupt(e);
+      v->resize(size_t(n));
+      piece(v->data(), n * sizeof(T));
+    };
+    std::vector<OctreeNode> nodes;
+    std::vector<float> errors;
+    array(&nodes);
+    array(&errors);
+    if (left != 0 || uint32_t(crc) != e.crc) corrupt(e);
+    if (hash != volumeHash) HYB_THROW(IoError, path, ": the volume octree section was built from another volume than the scene's (content hash mismatch)");
     if (prefiltered > 1) HYB_THROW(IoError, path, ": octree knot mode ", prefiltered, " unknown (expected 0 or 1)");
-    std::vector<OctreeNode> nodes = r.getArray<OctreeNode>();
-    std::vector<float> errors = r.getArray<float>();
     // Paged, the octree's prefiltered knots are the store's; in memory they are rebuilt, and the
     // octree is checked against the samples.
     const bool inMemory = scene.volume.hasSamples();

@@ -440,18 +440,27 @@ void KnotStore::forEachValue(int s, const std::function<void(const float* values
   const size_t level = size_t(std::countr_zero(unsigned(s)));
   const StoreLevel& l = mLevels[level];
   const glm::ivec3 nb = l.blocks();
-  std::vector<float> values;
-  for (int bz = 0; bz < nb.z; ++bz)
-    for (int by = 0; by < nb.y; ++by)
-      for (int bx = 0; bx < nb.x; ++bx) {
-        const glm::ivec3 b(bx, by, bz);
+  const uint64_t count = l.blockCount();
+  // Read and decoded on all cores a batch at a time, passed on in the index's order.
+  constexpr uint64_t kBatch = 64;
+  std::vector<std::vector<float>> values(kBatch);
+  for (uint64_t first = 0; first < count; first += kBatch) {
+    const size_t n = size_t(std::min(kBatch, count - first));
+    ParallelFailure failure;
+#pragma omp parallel for schedule(dynamic) if (n > 1)
+    for (size_t k = 0; k < n; ++k)
+      failure.run([&] {
+        const uint64_t i = first + k;
+        const glm::ivec3 b(int(i % uint64_t(nb.x)), int(i / uint64_t(nb.x) % uint64_t(nb.y)), int(i / (uint64_t(nb.x) * uint64_t(nb.y))));
         const std::shared_ptr<const Block> blk = load(level, b, l.blockIndex(b));
-        values.resize(size_t(blockKnots(blk->dims)));
+        values[k].resize(size_t(blockKnots(blk->dims)));
         detail::withFileType(l.type, [&](auto zero) {
-          for (size_t i = 0; i < values.size(); ++i) values[i] = valueOf<decltype(zero)>(l, blk->bytes.data(), i);
+          for (size_t j = 0; j < values[k].size(); ++j) values[k][j] = valueOf<decltype(zero)>(l, blk->bytes.data(), j);
         });
-        use(values.data(), values.size());
-      }
+      });
+    failure.rethrow();
+    for (size_t k = 0; k < n; ++k) use(values[k].data(), values[k].size());
+  }
 }
 
 SampleArray KnotStore::samples() const {

@@ -64,6 +64,17 @@ struct Skeleton {
   size_t errorCount = 0;
 };
 
+// Calls @p f(slot, child's dense index) for each child a node of @p level at @p origin has in the
+// grid g implies (every node whose cells overlap the grid exists).
+template <class F>
+void forEachChild(const Geometry& g, int level, const glm::ivec3& origin, F&& f) {
+  const glm::ivec3 idx = origin / g.edgeAt(level);
+  for (int slot = 0; slot < 8; ++slot) {
+    const glm::ivec3 c = idx * 2 + childOffset(slot, 1);
+    if (!glm::any(glm::greaterThanEqual(c, g.grid[size_t(level) + 1]))) f(slot, c);
+  }
+}
+
 Skeleton buildSkeleton(const Geometry& g) {
   Skeleton s;
   size_t total = 0;
@@ -78,22 +89,18 @@ Skeleton buildSkeleton(const Geometry& g) {
     n.errorOffset = uint32_t(s.errorCount);
     s.errorCount += size_t(g.depth - n.level + 1);
     if (n.level == g.leafLevel) continue;
-    const glm::ivec3 idx = glm::ivec3(n.origin) / g.edgeAt(n.level);
     const int childLevel = n.level + 1;
     uint8_t mask = 0;
     const uint32_t first = uint32_t(s.nodes.size());
-    const uint8_t level = n.level;
     const glm::ivec3 origin(n.origin);
-    for (int slot = 0; slot < 8; ++slot) {
-      const glm::ivec3 c = idx * 2 + childOffset(slot, 1);
-      if (glm::any(glm::greaterThanEqual(c, g.grid[childLevel]))) continue;
+    forEachChild(g, n.level, origin, [&](int slot, const glm::ivec3& c) {
       mask |= uint8_t(1u << slot);
       OctreeNode child;
-      child.level = uint8_t(level + 1);
+      child.level = uint8_t(childLevel);
       child.origin = glm::u16vec3(origin + childOffset(slot, g.edgeAt(childLevel)));
       s.nodes.push_back(child);  // may reallocate: `n` is not used after this loop
       s.dense.push_back(uint32_t(g.dense(childLevel, c)));
-    }
+    });
     s.nodes[i].childMask = mask;
     s.nodes[i].firstChild = mask ? first : 0;
   }
@@ -480,16 +487,39 @@ VolumeOctree VolumeOctree::fromParts(glm::ivec3 dims, int leafEdge, std::vector<
   if (leafEdge < 1 || leafEdge > 256 || (leafEdge & (leafEdge - 1)))
     HYB_THROW(IoError, source, ": stored leaf edge ", leafEdge, " invalid (expected a power of two in 1..256)");
   const Geometry g = geometryFor(dims, leafEdge);
-  const Skeleton s = buildSkeleton(g);
-  if (nodes.size() != s.nodes.size() || errors.size() != s.errorCount)
+  uint64_t expectedNodes = 0, expectedErrors = 0;
+  for (int k = 0; k <= g.leafLevel; ++k) {
+    expectedNodes += g.countAt(k);
+    expectedErrors += g.countAt(k) * uint64_t(g.depth - k + 1);
+  }
+  if (nodes.size() != expectedNodes || errors.size() != expectedErrors)
     HYB_THROW(IoError, source, ": octree holds ", nodes.size(), " nodes and ", errors.size(), " errors, expected ",
-              s.nodes.size(), " and ", s.errorCount, " for dims ", dims.x, "x", dims.y, "x", dims.z);
+              expectedNodes, " and ", expectedErrors, " for dims ", dims.x, "x", dims.y, "x", dims.z);
+  // The shape buildSkeleton makes, checked with the stored array as its own breadth-first queue
+  // (the expected array is never made: it would double the octree's memory on a large scene).
+  const auto mismatch = [&](size_t i) {
+    HYB_THROW(IoError, source, ": octree node ", i, " does not match the structure of a ", dims.x, "x", dims.y, "x", dims.z, " grid");
+  };
+  if (nodes[0].level != 0 || nodes[0].origin != glm::u16vec3(0)) mismatch(0);
+  uint64_t next = 1, errorOffset = 0;
   for (size_t i = 0; i < nodes.size(); ++i) {
-    const OctreeNode &a = nodes[i], &b = s.nodes[i];
-    if (a.level != b.level || a.origin != b.origin || a.childMask != b.childMask ||
-        (b.childMask && a.firstChild != b.firstChild) || a.errorOffset != b.errorOffset)
-      HYB_THROW(IoError, source, ": octree node ", i, " does not match the structure of a ", dims.x, "x", dims.y, "x",
-                dims.z, " grid");
+    const OctreeNode& a = nodes[i];
+    if (a.errorOffset != errorOffset) mismatch(i);
+    errorOffset += uint64_t(g.depth - a.level + 1);
+    uint8_t mask = 0;
+    const uint64_t first = next;
+    if (a.level != g.leafLevel)
+      forEachChild(g, a.level, glm::ivec3(a.origin), [&](int slot, const glm::ivec3&) {
+        mask |= uint8_t(1u << slot);
+        if (next >= nodes.size()) mismatch(i);
+        const OctreeNode& c = nodes[next++];
+        if (c.level != a.level + 1 || glm::ivec3(c.origin) != glm::ivec3(a.origin) + childOffset(slot, g.edgeAt(a.level + 1)))
+          mismatch(size_t(next - 1));
+      });
+    if (a.childMask != mask || (mask && a.firstChild != first)) mismatch(i);
+  }
+  for (size_t i = 0; i < nodes.size(); ++i) {
+    const OctreeNode& a = nodes[i];
     if (!std::isfinite(a.minValue) || !std::isfinite(a.maxValue) || a.minValue > a.maxValue)
       HYB_THROW(IoError, source, ": octree node ", i, " has an invalid value range");
   }

@@ -302,13 +302,17 @@ Histogram computeHistogram(uint64_t count, float lo, float hi, int bins, const V
   const double fineWidth = (h.maxValue - h.minValue) / fineBins;
   auto fineBin = [&](float x) { return fineWidth > 0 ? std::min(fineBins - 1, int((x - h.minValue) / fineWidth)) : 0; };
   std::vector<uint64_t> fine(size_t(fineBins), 0);
+  std::vector<float> fineLo(size_t(fineBins), std::numeric_limits<float>::max()), fineHi(size_t(fineBins), -std::numeric_limits<float>::max());
   double sum = 0, sum2 = 0;
   pieces([&](const float* values, size_t n) {
     for (size_t i = 0; i < n; ++i) {
       const float x = values[i];
       const int b = width > 0 ? std::min(bins - 1, int((x - h.minValue) / width)) : 0;
       ++h.counts[size_t(b)];
-      ++fine[size_t(fineBin(x))];
+      const size_t f = size_t(fineBin(x));
+      ++fine[f];
+      fineLo[f] = std::min(fineLo[f], x);
+      fineHi[f] = std::max(fineHi[f], x);
       sum += x;
       sum2 += double(x) * x;
     }
@@ -323,17 +327,23 @@ Histogram computeHistogram(uint64_t count, float lo, float hi, int bins, const V
   for (size_t k = 0; k < qs.size(); ++k) {
     rank[k] = std::max<uint64_t>(1, uint64_t(std::ceil(qs[k] * double(count))));  // 1-based
     while (below[k] + fine[size_t(bin[k])] < rank[k]) below[k] += fine[size_t(bin[k]++)];
-    in[k].reserve(size_t(fine[size_t(bin[k])]));
   }
-  pieces([&](const float* values, size_t m) {
-    for (size_t i = 0; i < m; ++i) {
-      const int b = fineBin(values[i]);
-      for (size_t k = 0; k < qs.size(); ++k)
-        if (b == bin[k]) in[k].push_back(values[i]);
-    }
-  });
+  // A bin of one value (integer samples: every bin) needs no second pass.
+  auto single = [&](size_t k) { return fineLo[size_t(bin[k])] == fineHi[size_t(bin[k])]; };
+  if (!single(0) || !single(1) || !single(2))
+    pieces([&](const float* values, size_t m) {
+      for (size_t i = 0; i < m; ++i) {
+        const int b = fineBin(values[i]);
+        for (size_t k = 0; k < qs.size(); ++k)
+          if (b == bin[k] && !single(k)) in[k].push_back(values[i]);
+      }
+    });
   std::array<double, 3> at{};
   for (size_t k = 0; k < qs.size(); ++k) {
+    if (single(k)) {
+      at[k] = double(fineLo[size_t(bin[k])]);
+      continue;
+    }
     std::nth_element(in[k].begin(), in[k].begin() + ptrdiff_t(rank[k] - below[k] - 1), in[k].end());
     at[k] = double(in[k][size_t(rank[k] - below[k] - 1)]);
   }

@@ -225,7 +225,8 @@ struct Histogram {
 Histogram computeHistogram(const Volume& v, int bins);
 /// Passes a set of values, in pieces, to the function it is given; called as often as needed.
 using ValuePieces = std::function<void(const std::function<void(const float* values, size_t n)>&)>;
-/// Histogram of the @p count values in [@p lo, @p hi] that @p pieces passes (twice), with @p bins
+/// Histogram of the @p count values in [@p lo, @p hi] that @p pieces passes (once, or twice for
+/// percentiles between distinct values closer than 1/65536 of the range), with @p bins
 /// equal-width bins (bins >= 1): a volume whose samples are read a piece at a time (a scene's store).
 Histogram computeHistogram(uint64_t count, float lo, float hi, int bins, const ValuePieces& pieces);
 
