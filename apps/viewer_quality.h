@@ -70,6 +70,12 @@ inline constexpr int kInteractiveBrickEdge = 32;
 /// more, warm and cold, and the cold ones (a new rung's textures) set the p95 (docs/scale.md).
 inline constexpr double kInteractiveLodPixels = 0.7;
 
+/// Screen-space level of detail of the final frame: texels half a pixel apart (the pixel grid's
+/// Nyquist rate), finer than any frame of the cranium or the clinical study at 512² has voxels, so
+/// those stay full resolution; a study whose voxels are smaller than that on the screen (the 8 GiB
+/// phantom's quarter-pixel voxels) stops there instead of drawing every voxel (docs/scale.md).
+inline constexpr double kFinalLodPixels = 0.5;
+
 /// Simplification error of the surface in the frames before the final one, in pixels where the
 /// volume comes nearest the eye (Quality::surfaceErrorPixels): at two pixels the clinical-size
 /// CT's bone surface holds the frame rate at a small loss in PSNR, at one it does not

@@ -491,6 +491,8 @@ struct ServerState {
       p.quality.cutToSlabs = false;
       p.quality.maxBrickEdge = kInteractiveBrickEdge;
       p.quality.lodPixels = kInteractiveLodPixels;
+    } else {
+      p.quality.lodPixels = kFinalLodPixels;
     }
     return p;
   }

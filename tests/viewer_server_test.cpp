@@ -364,6 +364,18 @@ TEST(ViewerServer, InteractiveFramesUseLargerBricksAndTheScreenSpaceLevelOfDetai
   EXPECT_LT(interactive.slices.textureBytes, fullResolution.slices.textureBytes / 2);  // coarser bricks where texels are finer than pixels
   EXPECT_EQ(f["bricks"], interactive.slices.bricks);
   EXPECT_EQ(f["textureBytes"], interactive.slices.textureBytes);
+  // The final frame of that view stops where texels are half a pixel apart: fewer texels than full
+  // resolution, where a pixel spans ten voxels.
+  json final = frameRequest(100, false, 16);
+  final["camera"]["fov"] = 120;
+  c.send(final.dump());
+  do f = c.nextFrameOrError();
+  while (f["type"] == "frame" && (f["seq"] != 100 || f["quality"] != "final"));
+  quality = Quality{};
+  quality.lodPixels = kFinalLodPixels;
+  const FrameStats finalStats = engine.render(view, look, quality).stats;
+  EXPECT_EQ(f["textureBytes"], finalStats.slices.textureBytes) << f.dump();
+  EXPECT_LT(finalStats.slices.textureBytes, engine.render(view, look, Quality{}).stats.slices.textureBytes);
 }
 
 TEST(ViewerServer, ClientsKeepTheirOwnViewsAndStaleRequestsAreDropped) {
