@@ -154,12 +154,7 @@ MetaImageLayout parseMetaImage(const std::string& path) {
 
 Volume readMetaImage(const std::string& path) {
   const MetaImageLayout l = parseMetaImage(path);
-  const SampleData& d = l.data;
-  const InputFile data(d.path);
-  const glm::ivec3 dims = l.description.dims();
-  SampleArray samples = d.compressed ? readCompressedSamples(data, d.offset, 0, dims, d.type, d.bigEndian)
-                                     : readRawSamples(data, d.offset, d.skip, d.skipField, dims, d.type, d.bigEndian);
-  return filled(l.description, std::move(samples), path);
+  return filled(l.description, readSampleData(l.data, l.description.dims()), path);
 }
 
 std::unique_ptr<PlaneSource> detail::metaImagePlanes(const std::string& path) {

@@ -234,17 +234,10 @@ NrrdLayout parseNrrd(const std::string& path) {
 
 Volume readNrrd(const std::string& path) {
   const NrrdLayout l = parseNrrd(path);
-  const SampleData& d = l.data;
-  const InputFile data(d.path);
   const glm::ivec3 dims = l.description.dims();
-  SampleArray samples;
-  if (l.encoding == "raw")
-    samples = readRawSamples(data, d.offset, d.skip, d.skipField, dims, d.type, d.bigEndian);
-  else if (d.compressed)
-    samples = readCompressedSamples(data, d.offset, d.skip, dims, d.type, d.bigEndian);
-  else
-    samples = readAsciiSamples(data, d.offset, dims, d.type);
-  return filled(l.description, std::move(samples), path);
+  const bool ascii = l.encoding != "raw" && !l.data.compressed;
+  return filled(l.description, ascii ? readAsciiSamples(InputFile(l.data.path), l.data.offset, dims, l.data.type) : readSampleData(l.data, dims),
+                path);
 }
 
 std::unique_ptr<PlaneSource> detail::nrrdPlanes(const std::string& path) {

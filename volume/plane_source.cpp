@@ -191,6 +191,12 @@ std::unique_ptr<PlaneSource> planesOf(const Volume& volume) { return std::make_u
 
 namespace detail {
 
+SampleArray readSampleData(const SampleData& d, const glm::ivec3& dims) {
+  const InputFile file(d.path);
+  return d.compressed ? readCompressedSamples(file, d.offset, d.skip, dims, d.type, d.bigEndian)
+                      : readRawSamples(file, d.offset, d.skip, d.skipField, dims, d.type, d.bigEndian);
+}
+
 std::unique_ptr<PlaneSource> streamedPlanes(const SampleData& data, Volume description, const std::string& path) {
   return std::make_unique<StreamedPlanes>(data, std::move(description), path);
 }

@@ -68,6 +68,9 @@ struct SampleData {
   bool bigEndian = false;
 };
 
+/// The samples @p data holds for a grid of @p dims, read whole (raw or compressed; not ASCII).
+SampleArray readSampleData(const SampleData& data, const glm::ivec3& dims);
+
 /// Planes streamed from @p data for the volume @p description (grid, stored type, frame, info) of
 /// the file @p path (its header). Sizes are checked against the file here, before anything is read.
 std::unique_ptr<PlaneSource> streamedPlanes(const SampleData& data, Volume description, const std::string& path);
