@@ -21,7 +21,7 @@ constexpr auto kProgressInterval = std::chrono::milliseconds(100);
 }  // namespace
 
 SceneSummary summarizeScene(const Scene& scene, const std::string& key, const std::string& path, const std::string& series,
-                            const std::string& name) {
+                            const std::string& name, uint64_t histogramSamples) {
   const Volume& v = scene.volume;
   SceneSummary s;
   s.key = key;
@@ -32,10 +32,7 @@ SceneSummary summarizeScene(const Scene& scene, const std::string& key, const st
   s.spacing = v.spacing();
   s.minValue = v.minValue();
   s.maxValue = v.maxValue();
-  // A paged scene's histogram reads its store a block at a time, without holding the samples:
-  // every sample, or beyond 2^27 of them the samples at even positions (an eighth, read in a few
-  // seconds where all of an 8 GiB study took half a minute).
-  const int spacing = v.voxelCount() > (uint64_t(1) << 27) ? 2 : 1;
+  const int spacing = v.voxelCount() > histogramSamples ? 2 : 1;
   const uint64_t count = spacing == 1 ? v.voxelCount() : [&] {
     const glm::ivec3 k = knotCounts(v.dims(), 2);
     return uint64_t(k.x) * uint64_t(k.y) * uint64_t(k.z);

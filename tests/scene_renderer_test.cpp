@@ -74,6 +74,19 @@ TEST(SceneRenderer, APagedSceneLendsItsSamplesToASurfaceAndStaysPaged) {
   EXPECT_EQ(a.histogram.p99, b.histogram.p99);
   EXPECT_EQ(a.histogram.mean, b.histogram.mean);
   for (int v = 0; v < 6; ++v) EXPECT_EQ(a.views[size_t(v)].eye, b.views[size_t(v)].eye) << v;
+  // Beyond its sample limit, the histogram of the samples at even positions, exactly.
+  const Volume& whole = memory.volume();
+  const glm::ivec3 n = whole.dims(), k = knotCounts(n, 2);
+  std::vector<float> even;
+  for (int z = 0; z < k.z; ++z)
+    for (int y = 0; y < k.y; ++y)
+      for (int x = 0; x < k.x; ++x) even.push_back(whole.at(knotPosition(x, 2, n.x), knotPosition(y, 2, n.y), knotPosition(z, 2, n.z)));
+  const Histogram expected = computeHistogram(even.size(), whole.minValue(), whole.maxValue(), 128,
+                                              [&](const auto& use) { use(even.data(), even.size()); });
+  const Histogram sub = summarizeScene(paged.scene(), "k", "p", "", "n", whole.voxelCount() - 1).histogram;
+  EXPECT_EQ(sub.counts, expected.counts);
+  EXPECT_EQ(sub.p50, expected.p50);
+  EXPECT_NE(sub.counts, a.histogram.counts);
   Look look;
   look.tf = warm();
   const View view = viewFrom(20, memory.volume());
