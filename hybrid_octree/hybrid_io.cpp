@@ -418,8 +418,8 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
     }
   }
   // Sections spliced from another scene of the same size would otherwise load and show the wrong data.
-  const auto sameVolume = [&](Reader& r, const char* name) {
-    if (r.get<uint64_t>() != volumeHash)
+  const auto sameVolume = [&](uint64_t hash, const char* name) {
+    if (hash != volumeHash)
       HYB_THROW(IoError, path, ": the ", name, " section was built from another volume than the scene's (content hash mismatch)");
   };
   {
@@ -453,7 +453,7 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
     array(&nodes);
     array(&errors);
     if (left != 0 || uint32_t(crc) != e.crc) corrupt(e);
-    if (hash != volumeHash) HYB_THROW(IoError, path, ": the volume octree section was built from another volume than the scene's (content hash mismatch)");
+    sameVolume(hash, "volume octree");
     if (prefiltered > 1) HYB_THROW(IoError, path, ": octree knot mode ", prefiltered, " unknown (expected 0 or 1)");
     // Paged, the octree's prefiltered knots are the store's; in memory they are rebuilt, and the
     // octree is checked against the samples.
@@ -469,7 +469,7 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
   if (const auto it = entries.find(kSurfaceTag); it != entries.end()) {
     const std::vector<uint8_t> b = payload(it->second);
     Reader r(b.data(), b.size(), path);
-    sameVolume(r, "surface octree");
+    sameVolume(r.get<uint64_t>(), "surface octree");
     const float iso = r.get<float>();
     const uint64_t cells = r.get<uint64_t>();
     const int32_t mergeEdge = r.get<int32_t>();

@@ -11,10 +11,6 @@ namespace hyb {
 
 namespace {
 
-// Lines of n samples extended by odd reflection about their end samples, pad samples either side:
-// extended sample i is a·line[0] + b·line[n − 1] + sign·line[index], the same terms for every line.
-// As second prefix sums (p2[k] = Σ_{m<k} Σ_{l<m} g[l], g[k] the extended sample k − pad) a tent sum
-// costs three reads whatever its width (the tent is a box convolved with a box).
 // Extended sample i of a line of n samples extended by odd reflection about its end samples:
 // a·line[0] + b·line[n − 1] + sign·line[index].
 struct OddTerm {
@@ -32,6 +28,10 @@ OddTerm oddTerm(int i, int n) {
   return t;
 }
 
+// Lines of n samples extended by odd reflection about their end samples, pad samples either side:
+// extended sample i is a·line[0] + b·line[n − 1] + sign·line[index], the same terms for every line.
+// As second prefix sums (p2[k] = Σ_{m<k} Σ_{l<m} g[l], g[k] the extended sample k − pad) a tent sum
+// costs three reads whatever its width (the tent is a box convolved with a box).
 class OddExtension {
  public:
   OddExtension(int n, int pad) : mN(n), mPad(pad) {

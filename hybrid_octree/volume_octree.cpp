@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <optional>
@@ -64,7 +65,7 @@ struct Skeleton {
   size_t errorCount = 0;
 };
 
-// Calls @p f(slot, child's dense index) for each child a node of @p level at @p origin has in the
+// Calls @p f(slot, child's grid index) for each child a node of @p level at @p origin has in the
 // grid g implies (every node whose cells overlap the grid exists).
 template <class F>
 void forEachChild(const Geometry& g, int level, const glm::ivec3& origin, F&& f) {
@@ -354,6 +355,26 @@ class DirectErrors {
 
 }  // namespace
 
+namespace {
+
+// One pass over @p planes, @p held of them at a time: @p each(window, z) once plane z is in, and
+// @p visitor's plane z − 1 then (its gradients need plane z), its last plane after the pass.
+void streamPlanes(PlaneSource& planes, int held, PlaneVisitor* visitor, const std::function<void(const SampleWindow&, int)>& each,
+                  ProgressTask* progress) {
+  const int n = planes.dims().z;
+  planes.rewind();
+  SampleWindow w(planes, visitor ? std::max(held, 3) : held);
+  for (int z = 0; z < n; ++z) {
+    w.load(planes);
+    if (each) each(w, z);
+    if (visitor && z > 0) visitor->plane(w, z - 1);
+    if (progress) progress->advance();
+  }
+  if (visitor) visitor->plane(w, n - 1);
+}
+
+}  // namespace
+
 VolumeOctree VolumeOctree::build(const Volume& volume, const VolumeOctreeOptions& options) {
   HYB_CHECK(!volume.empty());
   const std::unique_ptr<PlaneSource> planes = planesOf(volume);
@@ -374,14 +395,10 @@ VolumeOctree VolumeOctree::build(PlaneSource& planes, const VolumeOctreeOptions&
   {
     std::optional<KnotPyramid::Builder> pyramid;
     if (options.prefilter) pyramid.emplace(dims);
-    planes.rewind();
-    SampleWindow w(planes, 1);
-    for (int z = 0; z < dims.z; ++z) {
-      w.load(planes);
+    streamPlanes(planes, 1, nullptr, [&](const SampleWindow& w, int z) {
       if (pyramid) pyramid->add([&](int y, float* out) { w.readRow(0, y, z, dims.x, out); });
       cornerSamples.addPlane(w, z);
-      task.advance();
-    }
+    }, &task);
     if (pyramid) knots = pyramid->finish();
   }
 
@@ -402,18 +419,12 @@ VolumeOctree VolumeOctree::build(PlaneSource& planes, const VolumeOctreeOptions&
   std::vector<std::vector<float>> upperErrors;
   {
     DirectErrors direct(g, knots, cornerSamples);
-    planes.rewind();
-    SampleWindow w(planes, std::max(g.leafEdge + 1, 3));
     int row = 0;  // next row of leaves
-    for (int z = 0; z < dims.z; ++z) {
-      w.load(planes);
+    streamPlanes(planes, g.leafEdge + 1, visitor, [&](const SampleWindow& w, int z) {
       direct.addPlane(w, z);
       for (; row < g.grid[size_t(g.leafLevel)].z && std::min(row * g.leafEdge + g.leafEdge, dims.z - 1) == z; ++row)
         buildLeafRow(w, g, knots, row, &levels[size_t(g.leafLevel)]);
-      if (visitor && z > 0) visitor->plane(w, z - 1);
-      task.advance();
-    }
-    if (visitor) visitor->plane(w, dims.z - 1);
+    }, &task);
     HYB_CHECK(row == g.grid[size_t(g.leafLevel)].z);
     upperErrors = direct.finish();
   }
@@ -434,15 +445,13 @@ VolumeOctree VolumeOctree::build(PlaneSource& planes, const VolumeOctreeOptions&
       const glm::ivec3 idx = g.unravel(k, i);
       float* e = &d.err[i * nErr];
       e[0] = eps0[i];
-      for (int slot = 0; slot < 8; ++slot) {
-        const glm::ivec3 ci = idx * 2 + childOffset(slot, 1);
-        if (glm::any(glm::greaterThanEqual(ci, g.grid[size_t(k) + 1]))) continue;
+      forEachChild(g, k, idx * g.edgeAt(k), [&](int, const glm::ivec3& ci) {
         const size_t cd = g.dense(k + 1, ci);
         d.minV[i] = std::min(d.minV[i], c.minV[cd]);
         d.maxV[i] = std::max(d.maxV[i], c.maxV[cd]);
         const float* ce = &c.err[cd * (nErr - 1)];
         for (size_t p = 1; p < nErr; ++p) e[p] = std::max(e[p], ce[p - 1]);  // ε_p(n) = max_c ε_(p−1)(c)
-      }
+      });
     }
   }
 
@@ -467,17 +476,9 @@ VolumeOctree VolumeOctree::build(PlaneSource& planes, const VolumeOctreeOptions&
 }
 
 void visitPlanes(PlaneSource& planes, PlaneVisitor& visitor, int first, ProgressTask* progress) {
-  const int n = planes.dims().z;
   for (int pass = first; pass < visitor.passes(); ++pass) {
     visitor.beginPass(pass);
-    planes.rewind();
-    SampleWindow w(planes, 3);
-    for (int z = 0; z < n; ++z) {
-      w.load(planes);
-      if (z > 0) visitor.plane(w, z - 1);
-      if (progress) progress->advance();
-    }
-    visitor.plane(w, n - 1);
+    streamPlanes(planes, 3, &visitor, {}, progress);
   }
 }
 

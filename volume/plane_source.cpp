@@ -18,11 +18,7 @@ namespace {
 
 // @p v without its samples, its range unknown.
 Volume describe(const Volume& v) {
-  Volume d = Volume::withoutSamples(v.dims(), v.spacing(), v.sourceType(), v.storedType(), 0.0f, 0.0f, "volume");
-  d.setFrame(v.frame());
-  for (const auto& [key, value] : v.info()) d.addInfo(key, value);
-  for (const std::string& w : v.warnings()) d.addWarning(w);
-  return d;
+  return detail::placedAs(Volume::withoutSamples(v.dims(), v.spacing(), v.sourceType(), v.storedType(), 0.0f, 0.0f, "volume"), v);
 }
 
 // The planes of a volume in memory, copied out in its own type.

@@ -138,12 +138,15 @@ Volume describedVolume(const glm::ivec3& dims, const glm::dvec3& spacing, Scalar
   return Volume::withoutSamples(dims, spacing, t, storageTypeFor(t, 0.0, 0.0), 0.0f, 0.0f, path);
 }
 
-Volume filled(const Volume& description, SampleArray samples, const std::string& path) {
-  Volume v(description.dims(), description.spacing(), description.sourceType(), std::move(samples), path);
-  v.setFrame(description.frame());
-  for (const auto& [key, value] : description.info()) v.addInfo(key, value);
-  for (const std::string& w : description.warnings()) v.addWarning(w);
+Volume placedAs(Volume v, const Volume& from) {
+  v.setFrame(from.frame());
+  for (const auto& [key, value] : from.info()) v.addInfo(key, value);
+  for (const std::string& w : from.warnings()) v.addWarning(w);
   return v;
+}
+
+Volume filled(const Volume& description, SampleArray samples, const std::string& path) {
+  return placedAs(Volume(description.dims(), description.spacing(), description.sourceType(), std::move(samples), path), description);
 }
 
 Volume placed(Volume v, const PatientFrame& frame, const std::vector<std::string>& warnings) {

@@ -84,6 +84,8 @@ class StderrCapture {
 /// A volume of @p dims and @p spacing whose samples (file type @p t) are not read yet: its range
 /// reads [0, 0], its stored type is the one the samples will be held in.
 Volume describedVolume(const glm::ivec3& dims, const glm::dvec3& spacing, ScalarType t, const std::string& path);
+/// @p v with @p from's patient frame, info and warnings.
+Volume placedAs(Volume v, const Volume& from);
 /// The volume @p description describes, with its @p samples (frame, info and warnings kept).
 Volume filled(const Volume& description, SampleArray samples, const std::string& path);
 /// @p v with the patient frame and the reader's warnings.
