@@ -491,6 +491,7 @@ struct ServerState {
       p.quality.cutToSlabs = false;
       p.quality.maxBrickEdge = kInteractiveBrickEdge;
       p.quality.lodPixels = kInteractiveLodPixels;
+      p.quality.waitForBricks = false;  // a paged scene's bricks not cached yet are drawn coarser meanwhile
     } else {
       p.quality.lodPixels = kFinalLodPixels;
     }
@@ -525,6 +526,7 @@ struct ServerState {
                    {"textureBytes", st.slices.textureBytes},
                    {"bricks", st.slices.bricks},
                    {"maxError", maxError},
+                   {"bricksNotResident", st.bricksNotResident},  // > 0: bricks drawn coarser while the store loads theirs
                    {"iso", iso ? json(*iso) : json(nullptr)},
                    {"surfaceReady", !r.iso || surfaceReady},  // false: the surface asked for is still being built
                    {"camera", cameraToJson(r.camera)}};

@@ -28,22 +28,29 @@ void VolumeKnots::read(int s, const glm::ivec3& lo, const glm::ivec3& count, flo
     }
 }
 
+KnotBox latticeKnotBox(const glm::ivec3& dims, const KnotLattice& L) {
+  const glm::ivec3 first = L.origin / L.step;
+  HYB_DCHECK(first * L.step == L.origin && glm::all(glm::lessThanEqual(first + L.dims, knotCounts(dims, L.step))));
+  if (L.step > 1) return KnotBox{L.step, first, L.dims};
+  const glm::ivec3 lo = glm::max(first - 1, glm::ivec3(0)), hi = glm::min(first + L.dims, dims - 1);
+  return KnotBox{1, lo, hi - lo + 1};
+}
+
 std::vector<glm::vec4> latticeKnots(const KnotSource& source, const KnotLattice& L) {
   const glm::ivec3 n = source.dims(), first = L.origin / L.step;
-  HYB_DCHECK(first * L.step == L.origin && glm::all(glm::lessThanEqual(first + L.dims, knotCounts(n, L.step))));
+  const KnotBox reads = latticeKnotBox(n, L);
   std::vector<glm::vec4> out;
   out.reserve(size_t(L.count()));
   if (L.step > 1) {
     std::vector<float> values(size_t(L.count()));
     std::vector<glm::vec3> gradients(size_t(L.count()));
-    source.read(L.step, first, L.dims, values.data(), gradients.data());
+    source.read(reads.s, reads.lo, reads.count, values.data(), gradients.data());
     for (size_t i = 0; i < values.size(); ++i) out.emplace_back(values[i], gradients[i]);
     return out;
   }
   const glm::dvec3 spacing = source.spacing();
   // The lattice's samples with one neighbour either side where the grid has one.
-  const glm::ivec3 lo = glm::max(first - 1, glm::ivec3(0)), hi = glm::min(first + L.dims, n - 1);
-  const glm::ivec3 box = hi - lo + 1;
+  const glm::ivec3 lo = reads.lo, box = reads.count;
   std::vector<float> values(size_t(box.x) * size_t(box.y) * size_t(box.z));
   source.read(1, lo, box, values.data(), nullptr);
   auto value = [&](const glm::ivec3& j) {

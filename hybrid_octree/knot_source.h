@@ -39,6 +39,12 @@ inline glm::vec3 bfloat16Rounded(const glm::vec3& g) {
   return {fromBfloat16(toBfloat16(g.x)), fromBfloat16(toBfloat16(g.y)), fromBfloat16(toBfloat16(g.z))};
 }
 
+/// The knots of spacing s with indices lo … lo + count − 1 per axis: what one KnotSource::read reads.
+struct KnotBox {
+  int s = 1;
+  glm::ivec3 lo{0}, count{0};
+};
+
 /// The knot values of a sample grid at every power-of-two spacing.
 class KnotSource {
  public:
@@ -74,5 +80,8 @@ class VolumeKnots final : public KnotSource {
 /// KnotSource::read gives, the gradient at spacing 1 by central differences between the knot's
 /// neighbours (one-sided at the grid's faces), exactly as Volume::gradientAt computes it.
 std::vector<glm::vec4> latticeKnots(const KnotSource& source, const KnotLattice& L);
+/// The knots latticeKnots reads for @p L on a grid of @p dims: at spacing 1 with one neighbour
+/// either side where the grid has one (for the gradients).
+KnotBox latticeKnotBox(const glm::ivec3& dims, const KnotLattice& L);
 
 }  // namespace hyb

@@ -7,8 +7,12 @@
 #include <array>
 #include <bit>
 #include <cerrno>
+#include <condition_variable>
 #include <cstring>
+#include <deque>
 #include <filesystem>
+#include <thread>
+#include <unordered_set>
 
 #include <unistd.h>
 
@@ -297,6 +301,27 @@ std::vector<uint8_t> writeKnotStore(const Volume& v, const VolumeOctree& t, std:
   return writer.finish(out);
 }
 
+// The prefetch thread's queue: blocks (level, block) to load, front first.
+struct KnotStore::Prefetch {
+  std::mutex mutex;
+  std::condition_variable wake, idle;
+  std::deque<std::pair<size_t, glm::ivec3>> queue;
+  bool busy = false, stop = false;
+  std::function<void()> done;
+  std::thread thread;
+};
+
+KnotStore::KnotStore(const std::string& path) : mFile(path), mPrefetch(std::make_unique<Prefetch>()) {}
+
+KnotStore::~KnotStore() {
+  {
+    const std::lock_guard lock(mPrefetch->mutex);
+    mPrefetch->stop = true;
+  }
+  mPrefetch->wake.notify_all();
+  if (mPrefetch->thread.joinable()) mPrefetch->thread.join();
+}
+
 std::shared_ptr<KnotStore> KnotStore::open(const std::string& path, const glm::ivec3& dims, const glm::dvec3& spacing,
                                            const std::vector<uint8_t>& index, uint64_t dataOffset, uint64_t dataSize,
                                            uint64_t cacheBytes) {
@@ -385,6 +410,10 @@ std::shared_ptr<const KnotStore::Block> KnotStore::block(size_t level, const glm
   // Read and decompressed outside the lock: other threads' blocks go on.
   std::shared_ptr<const Block> made = load(level, b, k);
   const std::lock_guard lock(mMutex);
+  return insert(k, std::move(made));
+}
+
+std::shared_ptr<const KnotStore::Block> KnotStore::insert(uint64_t k, std::shared_ptr<const Block> made) const {
   if (const auto it = mCache.find(k); it != mCache.end()) return it->second.block;  // another thread was first
   mOrder.push_back(k);
   mCache.emplace(k, Entry{made, std::prev(mOrder.end())});
@@ -397,6 +426,119 @@ std::shared_ptr<const KnotStore::Block> KnotStore::block(size_t level, const glm
     ++mStats.evicted;
   }
   return made;
+}
+
+namespace {
+
+// Calls @p f(level, block) for each block of @p box.
+template <class F>
+void forEachBlock(const KnotBox& box, F&& f) {
+  const size_t level = size_t(std::countr_zero(unsigned(box.s)));
+  const glm::ivec3 b0 = box.lo / kStoreBlock, b1 = (box.lo + box.count - 1) / kStoreBlock;
+  for (int bz = b0.z; bz <= b1.z; ++bz)
+    for (int by = b0.y; by <= b1.y; ++by)
+      for (int bx = b0.x; bx <= b1.x; ++bx) f(level, glm::ivec3(bx, by, bz));
+}
+
+}  // namespace
+
+bool KnotStore::cached(const KnotBox& box) const {
+  const std::lock_guard lock(mMutex);
+  if (box.s == 1 && mSamples) return true;
+  bool all = true;
+  forEachBlock(box, [&](size_t level, const glm::ivec3& b) { all = all && mCache.contains(mLevels[level].blockIndex(b)); });
+  return all;
+}
+
+int KnotStore::coarseSpacing(uint64_t bytes) const {
+  size_t level = mLevels.size() - 1;
+  uint64_t held = 0;
+  for (size_t j = mLevels.size(); j-- > 0;) {
+    const StoreLevel& l = mLevels[j];
+    held += rawBytes(l, l.counts);
+    if (held > bytes) break;
+    level = j;
+  }
+  return mLevels[level].spacing;
+}
+
+void KnotStore::prefetch(const std::vector<KnotBox>& boxes) {
+  std::deque<std::pair<size_t, glm::ivec3>> queue;
+  {
+    const std::lock_guard lock(mMutex);
+    std::unordered_set<uint64_t> asked;
+    uint64_t bytes = 0;
+    for (const KnotBox& box : boxes)
+      forEachBlock(box, [&](size_t level, const glm::ivec3& b) {
+        const StoreLevel& l = mLevels[level];
+        const uint64_t k = l.blockIndex(b);
+        if (mCache.contains(k) || (level == 0 && mSamples) || !asked.insert(k).second) return;
+        bytes += rawBytes(l, blockDims(l, b));
+        if (!mStats.limit || 2 * bytes <= mStats.limit) queue.emplace_back(level, b);
+      });
+  }
+  Prefetch& p = *mPrefetch;
+  {
+    const std::lock_guard lock(p.mutex);
+    p.queue = std::move(queue);
+    if (!p.thread.joinable() && !p.queue.empty()) p.thread = std::thread([this] { prefetchLoop(); });
+  }
+  p.wake.notify_all();
+}
+
+// A block the prefetch thread cannot read is left to the frame that reads it, which names it.
+void KnotStore::prefetchLoop() {
+  Prefetch& p = *mPrefetch;
+  std::unique_lock lock(p.mutex);
+  for (;;) {
+    p.wake.wait(lock, [&] { return p.stop || !p.queue.empty(); });
+    if (p.stop) return;
+    const size_t level = p.queue.front().first;
+    const glm::ivec3 b = p.queue.front().second;
+    p.queue.pop_front();
+    p.busy = true;
+    lock.unlock();
+    const uint64_t k = mLevels[level].blockIndex(b);
+    bool have;
+    {
+      const std::lock_guard cacheLock(mMutex);
+      have = mCache.contains(k);
+    }
+    if (!have) {
+      try {
+        std::shared_ptr<const Block> made = load(level, b, k);
+        const std::lock_guard cacheLock(mMutex);
+        insert(k, std::move(made));
+      } catch (const std::exception&) {
+      }
+    }
+    lock.lock();
+    p.busy = false;
+    if (p.queue.empty()) {
+      p.idle.notify_all();
+      if (p.done) {
+        const std::function<void()> done = p.done;
+        lock.unlock();
+        done();
+        lock.lock();
+      }
+    }
+  }
+}
+
+size_t KnotStore::prefetchPending() const {
+  const std::lock_guard lock(mPrefetch->mutex);
+  return mPrefetch->queue.size() + (mPrefetch->busy ? 1 : 0);
+}
+
+void KnotStore::waitForPrefetch() const {
+  std::unique_lock lock(mPrefetch->mutex);
+  mPrefetch->idle.wait(lock, [&] { return mPrefetch->queue.empty() && !mPrefetch->busy; });
+}
+
+void KnotStore::onPrefetched(std::function<void()> done) {
+  const std::lock_guard lock(mPrefetch->mutex);
+  mPrefetch->done = std::move(done);
 }
 
 void KnotStore::read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const {

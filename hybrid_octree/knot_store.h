@@ -163,16 +163,41 @@ class KnotStore final : public KnotSource {
   void setCacheLimit(uint64_t bytes);
   StoreCacheStats cacheStats() const;
 
+  /// Whether every block @p box covers is cached (or, at spacing 1, read from lent samples): a
+  /// read of it would not touch the file.
+  bool cached(const KnotBox& box) const;
+  /// The finest spacing whose level and the coarser ones hold at most @p bytes of decompressed
+  /// blocks (the root's spacing when even its level holds more): small enough to read whenever a
+  /// frame asks, cached or not.
+  int coarseSpacing(uint64_t bytes) const;
+  /// Loads the blocks of @p boxes that are not cached, in order, on the store's prefetch thread
+  /// (Carmona et al. 3.5) while frames draw from what is; replaces what an earlier call asked for
+  /// and was not loaded yet. Asks for at most half the cache's bound (more would evict itself).
+  void prefetch(const std::vector<KnotBox>& boxes);
+  /// Blocks the prefetch thread has still to load (the one it is loading included).
+  size_t prefetchPending() const;
+  /// Waits until the prefetch thread has loaded all it was asked for.
+  void waitForPrefetch() const;
+  /// Called on the prefetch thread whenever it has loaded all it was asked for.
+  void onPrefetched(std::function<void()> done);
+
+  ~KnotStore() override;
+
  private:
   struct Block {
     std::vector<uint8_t> bytes;  // values, then gradients
     glm::ivec3 dims{0};
   };
-  KnotStore(const std::string& path) : mFile(path) {}
+  explicit KnotStore(const std::string& path);
   /// Reads, checks and decompresses a block (not cached).
   std::shared_ptr<const Block> load(size_t level, const glm::ivec3& b, uint64_t key) const;
   /// The block through the cache.
   std::shared_ptr<const Block> block(size_t level, const glm::ivec3& b) const;
+  /// Caches @p made as block @p key (its index position), evicting to stay within the bound;
+  /// returns the cached block (another thread's when it was first). Needs mMutex held.
+  std::shared_ptr<const Block> insert(uint64_t key, std::shared_ptr<const Block> made) const;
+  struct Prefetch;
+  void prefetchLoop();
 
   InputFile mFile;
   glm::ivec3 mDims{0};
@@ -190,6 +215,7 @@ class KnotStore final : public KnotSource {
   mutable std::unordered_map<uint64_t, Entry> mCache;  // by index position
   mutable std::list<uint64_t> mOrder;                  // least recently used first
   mutable StoreCacheStats mStats;
+  std::unique_ptr<Prefetch> mPrefetch;  // its thread starts at the first prefetch()
 };
 
 }  // namespace hyb

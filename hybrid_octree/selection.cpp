@@ -7,6 +7,7 @@
 #include <queue>
 #include <string>
 #include <unordered_map>
+#include <unordered_set>
 
 #include "volume/error.h"
 
@@ -375,6 +376,69 @@ bool isRestricted(const VolumeOctree& octree, const Selection& sel) {
     if (!ok) return false;
   }
   return true;
+}
+
+Selection residentSelection(const VolumeOctree& octree, const Selection& selection, const std::function<bool(const Brick&)>& resident,
+                            std::vector<Brick>* missing) {
+  const std::vector<OctreeNode>& nodes = octree.nodes();
+  // The nodes from the root down to @p n.
+  auto path = [&](const OctreeNode& n) {
+    std::vector<uint32_t> p{0};
+    while (nodes[p.back()].level < n.level) {
+      const OctreeNode& at = nodes[p.back()];
+      p.push_back(childIndex(at, childSlot(glm::ivec3(n.origin), octree.depth() - at.level - 1)));
+    }
+    return p;
+  };
+  auto brickOf = [&](uint32_t node, int p, float importance) {
+    Brick b;
+    b.node = node;
+    b.p = p;
+    b.error = octree.errors(nodes[node])[size_t(p)];
+    b.importance = importance;
+    b.texels = octree.texelDims(nodes[node], p);
+    return b;
+  };
+  std::unordered_map<uint32_t, Brick> replacing;  // by node: the brick drawing it and all below it
+  for (const Brick& b : selection.bricks) {
+    const OctreeNode& n = nodes[b.node];
+    if (b.hidden || (b.p == 0 && n.level == 0) || resident(b)) continue;
+    missing->push_back(b);
+    std::optional<Brick> r;
+    for (int q = b.p - 1; q >= 0 && !r; --q)
+      if (Brick c = brickOf(b.node, q, b.importance); resident(c)) r = c;
+    if (!r) {
+      const std::vector<uint32_t> up = path(n);
+      for (int level = n.level - 1; level >= 0 && !r; --level)
+        if (Brick c = brickOf(up[size_t(level)], 0, b.importance); level == 0 || resident(c)) r = c;
+    }
+    const auto [it, added] = replacing.emplace(r->node, *r);
+    if (!added) it->second.importance = std::max(it->second.importance, b.importance);
+  }
+  // The outermost replacing brick whose node is or holds brick @p b's (a replacement below another
+  // is dropped with the bricks it replaced), or null.
+  auto coveredBy = [&](const Brick& b) -> const Brick* {
+    for (uint32_t a : path(nodes[b.node]))
+      if (const auto it = replacing.find(a); it != replacing.end()) return &it->second;
+    return nullptr;
+  };
+  Selection out;
+  out.budgetMet = selection.budgetMet;
+  std::unordered_set<uint32_t> placed;
+  auto add = [&](const Brick& b) {
+    out.bricks.push_back(b);
+    if (b.hidden) return;
+    out.texels += b.texelCount();
+    out.blendedBricks += b.coarseCorners != 0;
+    out.maxError = std::max(out.maxError, b.error);
+  };
+  for (const Brick& b : selection.bricks) {
+    if (const Brick* r = coveredBy(b); !r)
+      add(b);
+    else if (placed.insert(r->node).second)
+      add(*r);
+  }
+  return out;
 }
 
 }  // namespace hyb

@@ -109,4 +109,14 @@ void assignBlendCorners(const VolumeOctree& octree, Selection* selection);
 /// Whether every two touching visible bricks differ by at most one resolution level.
 bool isRestricted(const VolumeOctree& octree, const Selection& selection);
 
+/// The selection a frame can draw now when only some bricks' knots are at hand (@p resident says
+/// which bricks are): each visible brick that is not is drawn from the finest resident brick of
+/// its node at a lower level, else from its smallest ancestor whose brick at level 0 is resident
+/// (the root's always is: a frame reads it), which replaces every brick below it. The spacings of
+/// the lattices tried double at each step, so no region is left without a brick (never a hole);
+/// bricks keep their blend corners (a seam may show where a neighbour became coarser). The bricks
+/// replaced are appended to @p missing, in the selection's order.
+Selection residentSelection(const VolumeOctree& octree, const Selection& selection, const std::function<bool(const Brick&)>& resident,
+                            std::vector<Brick>* missing);
+
 }  // namespace hyb

@@ -70,6 +70,13 @@ void packTexels(const std::vector<glm::vec4>& texels, float toGradient, PackedBr
 
 }  // namespace
 
+std::vector<KnotBox> brickKnotBoxes(const VolumeOctree& t, const Brick& b) {
+  const OctreeNode& n = t.nodes()[b.node];
+  std::vector<KnotBox> boxes{latticeKnotBox(t.dims(), t.lattice(n, b.p))};
+  if (b.coarseCorners) boxes.push_back(latticeKnotBox(t.dims(), t.coarseLattice(n, b.p)));
+  return boxes;
+}
+
 // The coarse field is read from the coarse lattice's knots once (each serves up to eight of the
 // brick's); a coarse brick keeps the full-resolution gradients at its knots, interpolated between
 // them, as a simplified mesh keeps its original normals (docs/multires.md).

@@ -71,6 +71,8 @@ struct PackedBrick {
 /// corners that touch a coarser brick. The overhanging last texel of a cropped lattice is
 /// extrapolated, so that uniform trilinear filtering reproduces the lattice's field exactly.
 std::vector<glm::vec4> brickTexels(const KnotSource& source, const VolumeOctree& octree, const Brick& b);
+/// The knots brickTexels reads for @p b: its lattice's, and where a corner blends its coarse lattice's.
+std::vector<KnotBox> brickKnotBoxes(const VolumeOctree& octree, const Brick& b);
 
 /// The ranges of @p texels (a lattice of @p dims knots) over blocks of 2×2×2 cells.
 BrickRanges texelRanges(const std::vector<glm::vec4>& texels, const glm::ivec3& dims);
@@ -105,6 +107,8 @@ class BrickTextureCache {
 
   /// Brick @p b's entry (marked as used by this frame), or null.
   CachedBrick* find(const Brick& b);
+  /// Whether brick @p b is kept (not marked as used).
+  bool contains(const Brick& b) const { return mEntries.contains(key(b)); }
   /// Takes ownership of @p brick's textures; the entry is used by this frame.
   CachedBrick& insert(const Brick& b, CachedBrick brick);
   /// Records @p bytes more held by brick @p b's entry (a cut texture made for it).

@@ -252,6 +252,37 @@ ViewErrors& SceneRenderer::viewErrors(const Camera& gridCamera, const TransferFu
   return *e.errors;
 }
 
+size_t SceneRenderer::drawResident(const Camera& camera, Selection* selection) {
+  KnotStore& store = *mScene.knots;
+  const VolumeOctree& octree = mScene.octree;
+  const int readAnyway = store.coarseSpacing(mOptions.readAnywayBytes);
+  const BrickTextureCache* textures = mOptions.keepTextures ? mTextures.get() : nullptr;
+  auto resident = [&](const Brick& b) {
+    if (textures && textures->contains(b)) return true;
+    const std::vector<KnotBox> boxes = brickKnotBoxes(octree, b);
+    return std::all_of(boxes.begin(), boxes.end(), [&](const KnotBox& k) { return k.s >= readAnyway || store.cached(k); });
+  };
+  std::vector<Brick> missing;
+  *selection = residentSelection(octree, *selection, resident, &missing);
+  // Coarse lattices first (a frame soon after draws them if the fine ones are not in yet), then
+  // the nearest to the eye.
+  const glm::dvec3 spacing = mScene.volume.spacing();
+  auto distance = [&](const Brick& b) {
+    glm::ivec3 lo, hi;
+    octree.voxelBox(octree.nodes()[b.node], &lo, &hi);
+    return glm::length(glm::clamp(camera.eye, glm::dvec3(lo) * spacing, glm::dvec3(hi) * spacing) - camera.eye);
+  };
+  auto spacingOf = [&](const Brick& b) { return octree.edge(octree.nodes()[b.node]) >> b.p; };
+  std::stable_sort(missing.begin(), missing.end(), [&](const Brick& a, const Brick& b) {
+    return spacingOf(a) != spacingOf(b) ? spacingOf(a) > spacingOf(b) : distance(a) < distance(b);
+  });
+  std::vector<KnotBox> boxes;
+  for (const Brick& b : missing)
+    for (const KnotBox& k : brickKnotBoxes(octree, b)) boxes.push_back(k);
+  store.prefetch(boxes);  // (also when empty: what an earlier view asked for is not needed now)
+  return missing.size();
+}
+
 RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Quality& quality, const LevelCallback& onLevel) {
   for (const std::string& problem : {view.validate(), look.validate(), quality.validate()})
     if (!problem.empty()) throw ValueError(problem);
@@ -358,6 +389,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   st.budgetTexels = choice.texelBudget;
   const SelectionParams params = paramsOf(choice);
   out.selection = selectNodes(mScene.octree, params);
+  if (!quality.waitForBricks && mScene.knots) st.bricksNotResident = drawResident(camera, &out.selection);
   st.selectMs = msSince(s0);
 
   ensureGl();

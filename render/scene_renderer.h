@@ -101,6 +101,11 @@ struct Quality {
   /// Renders only the image rows [rows.x, rows.y) (from the top), exactly as the whole frame has
   /// them; the other rows stay transparent. Not with progressive or adaptive refinement.
   std::optional<glm::ivec2> rows;
+  /// A paged scene's slice frames: true reads every block the selection needs (the exact frame);
+  /// false draws each brick whose knots are not cached from a coarser resident level
+  /// (residentSelection: never a hole) while the store's prefetch thread loads them, and the
+  /// frame says it is not final (FrameStats::bricksNotResident).
+  bool waitForBricks = true;
 
   /// Empty when valid, else a message naming the offending flag (--epsilon, --step, --budget...).
   std::string validate() const;
@@ -119,6 +124,9 @@ struct FrameStats {
   double selectMs = 0, renderMs = 0;
   size_t brickErrorsMeasured = 0;  ///< the view's bricks whose image error has been measured
   uint64_t textureBytesKept = 0;   ///< the brick texture cache after the frame
+  /// Bricks of the selection drawn from a coarser level because their knots were not cached
+  /// (Quality::waitForBricks false); the prefetch thread is loading them. 0: the frame is final.
+  size_t bricksNotResident = 0;
 };
 
 /// A frame: its image (premultiplied RGBA), the selection it drew (slices) and its stats.
@@ -155,6 +163,10 @@ struct PreparedSurface {
   const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? smooth : facet; }
 };
 
+/// Decompressed bytes of the store's coarse levels that a frame which does not wait for the store
+/// reads whether cached or not (the phantom's spacings of 16 and more; the clinical study's of 4).
+inline constexpr uint64_t kReadAnywayBytes = uint64_t(16) << 20;
+
 class SceneRenderer {
  public:
   struct Options {
@@ -162,6 +174,9 @@ class SceneRenderer {
     const Progress* progress = nullptr;  ///< hears of long steps (surfaces, reference frames, slices)
     /// false: no brick texture outlives its draw (one frame: the textures never all held at once)
     bool keepTextures = true;
+    /// Frames that do not wait for a paged store (Quality::waitForBricks) read its levels that
+    /// hold at most this many bytes whether cached or not (KnotStore::coarseSpacing).
+    uint64_t readAnywayBytes = kReadAnywayBytes;
   };
   explicit SceneRenderer(Scene scene, const Options& options);
   explicit SceneRenderer(Scene scene) : SceneRenderer(std::move(scene), Options{}) {}
@@ -220,6 +235,9 @@ class SceneRenderer {
                          const std::optional<VolumeOfInterest>& voi, bool anyCamera);
   void ensureGl();
   void ensureSamples();
+  /// Makes @p selection drawable from what is resident (Quality::waitForBricks false), asks the
+  /// store's prefetch thread for the rest, and returns how many bricks that is.
+  size_t drawResident(const Camera& gridCamera, Selection* selection);
 
   Scene mScene;
   Options mOptions;

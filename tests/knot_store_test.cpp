@@ -180,5 +180,56 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
   EXPECT_EQ(stats.limit, tenth);
 }
 
+TEST(KnotStore, AColdCacheDrawsCoarserBricksNeverAHoleWhileThePrefetchThreadLoadsTheRest) {
+  test::gl();
+  test::TempDir dir;
+  const Volume v = noisyHead({70, 45, 37}, ScalarType::Int16);
+  const VolumeOctree t = VolumeOctree::build(v);
+  saveScene(dir.file("h.hoct"), v, t);
+  SceneRenderer::Options options;
+  options.readAnywayBytes = 8192;  // the levels of spacing 8 and more are read uncached
+  SceneRenderer paged(loadScene(dir.file("h.hoct"), SceneLoadOptions{false, 0}), options), memory(loadScene(dir.file("h.hoct")));
+  KnotStore& store = *paged.scene().knots;
+  ASSERT_EQ(store.coarseSpacing(options.readAnywayBytes), 8);
+  Look look;
+  look.tf = TransferFunction({{60.0f, {1, 1, 1}, 0.0f}, {120.0f, {1.0f, 0.6f, 0.4f}, 0.05f}, {220.0f, {1.0f, 1.0f, 0.9f}, 0.4f}}, "head");
+  const std::vector<glm::dvec3> visible = visiblePoints(v, t, look.tf);
+  Quality now;
+  now.waitForBricks = false;
+  const glm::ivec3 cells = v.dims() - 1;
+  View view;
+  view.camera = fitCamera(visible, orbitDirection(0.0, 20), 30, false, 40, 40, 0.05);
+  const RenderedFrame want = memory.render(view, look, Quality{});
+  const RenderedFrame first = paged.render(view, look, now);
+  // Cold: coarser bricks where the knots are not cached, and still every cell drawn once.
+  EXPECT_GT(first.stats.bricksNotResident, 0u);
+  EXPECT_GT(first.selection.maxError, want.selection.maxError);
+  uint64_t covered = 0;
+  for (const Brick& b : first.selection.bricks) {
+    glm::ivec3 lo, hi;
+    t.voxelBox(t.nodes()[b.node], &lo, &hi);
+    covered += uint64_t(hi.x - lo.x) * uint64_t(hi.y - lo.y) * uint64_t(hi.z - lo.z);
+  }
+  EXPECT_EQ(covered, uint64_t(cells.x) * uint64_t(cells.y) * uint64_t(cells.z));
+  // Never a hole: wherever the exact frame is half opaque, the coarse one shows something. (Its
+  // lattices 8 voxels apart blur the 5-voxel shell: 12.1 dB.)
+  size_t holes = 0;
+  for (size_t i = 0; i < want.image.pixels.size(); ++i) holes += want.image.pixels[i].a >= 0.5f && first.image.pixels[i].a < 0.1f;
+  EXPECT_EQ(holes, 0u);
+  EXPECT_GT(test::psnrOf(first.image, want.image), 10.0);
+  // Once the prefetch thread has loaded the rest, the frame is the exact one.
+  store.waitForPrefetch();
+  EXPECT_EQ(store.prefetchPending(), 0u);
+  const RenderedFrame then = paged.render(view, look, now);
+  EXPECT_EQ(then.stats.bricksNotResident, 0u);
+  EXPECT_EQ(then.image.pixels, want.image.pixels);
+  // Another view of the same bricks finds them all.
+  view.camera = fitCamera(visible, orbitDirection(150.0, 20), 30, false, 40, 40, 0.05);
+  const RenderedFrame other = paged.render(view, look, now);
+  EXPECT_EQ(other.stats.bricksNotResident, 0u);
+  EXPECT_EQ(other.image.pixels, memory.render(view, look, Quality{}).image.pixels);
+  EXPECT_FALSE(paged.volume().hasSamples());
+}
+
 }  // namespace
 }  // namespace hyb

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <numeric>
 #include <set>
 
@@ -272,6 +273,63 @@ TEST(Selection, TexelDimsAreCroppedToTheGrid) {
   EXPECT_EQ(t.texelDims(t.root(), 0), glm::ivec3(2, 2, 2));
   // p = 2 (spacing 8): knots 0,8,16,19 in y and 0,8 in z.
   EXPECT_EQ(t.texelDims(t.root(), 2), glm::ivec3(5, 4, 2));
+}
+
+// How many bricks of @p sel cover each cell of the grid.
+std::vector<int> cellCoverage(const VolumeOctree& t, const Selection& sel) {
+  const glm::ivec3 c = t.dims() - 1;
+  std::vector<int> covered(size_t(c.x) * size_t(c.y) * size_t(c.z), 0);
+  for (const Brick& b : sel.bricks) {
+    glm::ivec3 lo, hi;
+    t.voxelBox(t.nodes()[b.node], &lo, &hi);
+    for (int z = lo.z; z < hi.z; ++z)
+      for (int y = lo.y; y < hi.y; ++y)
+        for (int x = lo.x; x < hi.x; ++x) ++covered[size_t(x) + size_t(c.x) * (size_t(y) + size_t(c.y) * size_t(z))];
+  }
+  return covered;
+}
+
+TEST(Selection, BricksNotResidentAreDrawnFromTheFinestResidentCoarserBrickWithoutAHole) {
+  const Volume v = test::randomVolume({70, 45, 33}, 11);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const Selection full = selectNodes(t, SelectionParams{});  // full resolution: bricks of edge 16 at spacing 1
+  const glm::ivec3 cells = t.dims() - 1;
+  auto spacing = [&](const Brick& b) { return t.edge(t.nodes()[b.node]) >> b.p; };
+  for (const int resident : {2, 8, 32, 64}) {  // lattices at least this far apart are at hand
+    SCOPED_TRACE(resident);
+    std::vector<Brick> missing;
+    const Selection drawn = residentSelection(t, full, [&](const Brick& b) { return spacing(b) >= resident; }, &missing);
+    EXPECT_EQ(missing.size(), full.bricks.size());
+    // The same nodes at a coarser level while their edge allows it, then their ancestors of that edge.
+    const int edge = std::max(resident, 16);
+    const glm::ivec3 nodes = (cells + edge - 1) / edge;
+    EXPECT_EQ(drawn.bricks.size(), size_t(nodes.x * nodes.y * nodes.z));
+    uint64_t texels = 0;
+    for (const Brick& b : drawn.bricks) {
+      EXPECT_EQ(spacing(b), resident);
+      EXPECT_EQ(t.edge(t.nodes()[b.node]), edge);
+      EXPECT_EQ(b.error, t.errors(t.nodes()[b.node])[size_t(b.p)]);
+      texels += b.texelCount();
+    }
+    EXPECT_EQ(drawn.texels, texels);
+    const std::vector<int> covered = cellCoverage(t, drawn);
+    EXPECT_TRUE(std::all_of(covered.begin(), covered.end(), [](int c) { return c == 1; }));  // every cell once: no hole, no overlap
+  }
+  // Half the bricks at hand: those keep their level, the others' ancestors of edge 32 replace them and their siblings.
+  std::vector<Brick> missing;
+  auto even = [&](const Brick& b) { return b.node % 2 == 0; };
+  const Selection drawn = residentSelection(t, full, [&](const Brick& b) { return spacing(b) == 1 ? even(b) : spacing(b) >= 32; }, &missing);
+  EXPECT_EQ(missing.size(), size_t(std::count_if(full.bricks.begin(), full.bricks.end(), [&](const Brick& b) { return !even(b); })));
+  const std::vector<int> covered = cellCoverage(t, drawn);
+  EXPECT_TRUE(std::all_of(covered.begin(), covered.end(), [](int c) { return c == 1; }));
+  for (const Brick& b : drawn.bricks) EXPECT_TRUE(spacing(b) == 1 ? even(b) : spacing(b) == 32);
+  // Everything at hand: the selection itself.
+  missing.clear();
+  const Selection same = residentSelection(t, full, [](const Brick&) { return true; }, &missing);
+  EXPECT_TRUE(missing.empty());
+  ASSERT_EQ(same.bricks.size(), full.bricks.size());
+  for (size_t i = 0; i < same.bricks.size(); ++i) EXPECT_EQ(same.bricks[i].node, full.bricks[i].node);
+  EXPECT_EQ(same.texels, full.texels);
 }
 
 TEST(Selection, RejectsInvalidParameters) {

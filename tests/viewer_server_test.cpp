@@ -364,6 +364,7 @@ TEST(ViewerServer, InteractiveFramesUseLargerBricksAndTheScreenSpaceLevelOfDetai
   EXPECT_LT(interactive.slices.textureBytes, fullResolution.slices.textureBytes / 2);  // coarser bricks where texels are finer than pixels
   EXPECT_EQ(f["bricks"], interactive.slices.bricks);
   EXPECT_EQ(f["textureBytes"], interactive.slices.textureBytes);
+  EXPECT_EQ(f["bricksNotResident"], 0);  // (samples in memory: every brick at hand)
   // The final frame of that view stops where texels are half a pixel apart: fewer texels than full
   // resolution, where a pixel spans ten voxels.
   json final = frameRequest(100, false, 16);
