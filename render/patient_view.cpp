@@ -118,6 +118,35 @@ void zoomCamera(Camera* camera, double zoom) {
 // which is all a camera fit depends on: the first and last visible cell of every row of cells
 // along x carry that hull. The octree only says where to look: rows are scanned inward from each
 // end through the leaves whose range can be visible, and stop at the first visible cell.
+namespace {
+
+// The vertices of the convex hull of @p points (ordered by y, then x; integer coordinates, so
+// exactly), collinear ones left out: Andrew's monotone chain.
+void convexHull2d(const std::vector<glm::i64vec2>& points, std::vector<glm::i64vec2>* hull) {
+  hull->clear();
+  if (points.size() < 3) {
+    *hull = points;
+    return;
+  }
+  auto cross = [](const glm::i64vec2& o, const glm::i64vec2& a, const glm::i64vec2& b) {
+    return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x);
+  };
+  std::vector<glm::i64vec2>& h = *hull;
+  h.resize(2 * points.size());
+  size_t n = 0;
+  for (size_t i = 0; i < points.size(); ++i) {  // one chain
+    while (n >= 2 && cross(h[n - 2], h[n - 1], points[i]) <= 0) --n;
+    h[n++] = points[i];
+  }
+  for (size_t i = points.size() - 1, lower = n + 1; i-- > 0;) {  // and the other, back
+    while (n >= lower && cross(h[n - 2], h[n - 1], points[i]) <= 0) --n;
+    h[n++] = points[i];
+  }
+  h.resize(n - 1);  // the first point closes the loop
+}
+
+}  // namespace
+
 std::vector<glm::dvec3> visiblePoints(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, std::optional<float> iso,
                                       const KnotSource* knots) {
   auto visible = [&](float lo, float hi) { return tf.maxAlpha(lo, hi) > 0.0f || (iso && lo < *iso && *iso <= hi); };
@@ -202,16 +231,37 @@ std::vector<glm::dvec3> visiblePoints(const Volume& volume, const VolumeOctree& 
       });
   }
   failure.rethrow();
-  std::vector<glm::dvec3> points;
+  // The rows' end cells' corners, reduced to what carries their hull: per line of samples (y, z),
+  // the least and greatest x of a corner on it; then per plane z, the vertices of the convex hull
+  // of those (a vertex of the hull in space is one of its plane's). A 2048² × 1024 study gives a
+  // few hundred thousand points rather than tens of millions.
+  const size_t lines = size_t(dims.y) * size_t(dims.z);
+  std::vector<int> xLo(lines, std::numeric_limits<int>::max()), xHi(lines, -1);
   for (int k = 0; k < cells.z; ++k)
     for (int j = 0; j < cells.y; ++j) {
       const size_t r = size_t(j) + size_t(cells.y) * size_t(k);
       if (last[r] < 0) continue;
       const int x0 = first[r], x1 = std::min(last[r] + 1, dims.x - 1), y1 = std::min(j + 1, dims.y - 1), z1 = std::min(k + 1, dims.z - 1);
-      for (const int x : {x0, x1})
-        for (const int y : {j, y1})
-          for (const int z : {k, z1}) points.push_back(volume.frame().toPatient(glm::dvec3(x, y, z) * volume.spacing()));
+      for (const int y : {j, y1})
+        for (const int z : {k, z1}) {
+          const size_t l = size_t(y) + size_t(dims.y) * size_t(z);
+          xLo[l] = std::min(xLo[l], x0);
+          xHi[l] = std::max(xHi[l], x1);
+        }
     }
+  std::vector<glm::dvec3> points;
+  std::vector<glm::i64vec2> plane, hull;
+  for (int z = 0; z < dims.z; ++z) {
+    plane.clear();  // ordered by y, then x: as the monotone chain needs them
+    for (int y = 0; y < dims.y; ++y) {
+      const size_t l = size_t(y) + size_t(dims.y) * size_t(z);
+      if (xHi[l] < 0) continue;
+      plane.push_back({xLo[l], y});
+      if (xHi[l] != xLo[l]) plane.push_back({xHi[l], y});
+    }
+    convexHull2d(plane, &hull);
+    for (const glm::i64vec2& p : hull) points.push_back(volume.frame().toPatient(glm::dvec3(double(p.x), double(p.y), double(z)) * volume.spacing()));
+  }
   return points;
 }
 

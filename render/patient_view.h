@@ -54,7 +54,7 @@ void zoomCamera(Camera* camera, double zoom);
 
 /// What the transfer function can make visible, in patient mm: the corners of the cells (8
 /// samples) whose value range it gives an opacity or, with an isovalue, that the surface crosses,
-/// enough of them to carry their convex hull (the first and last such cell of each row). The
+/// enough of them to carry their convex hull (its vertices within each plane of samples). The
 /// same anatomy stored in another order gives the same hull, hence the same fitCamera. Empty when
 /// nothing is visible. The samples are read from @p knots where given (a paged scene), else from
 /// @p volume; only those of the leaves whose range can be visible are read.

@@ -8,7 +8,9 @@
 #include <cmath>
 #include <functional>
 #include <iomanip>
+#include <set>
 #include <sstream>
+#include <tuple>
 
 #include "cli_util.h"
 #include "render/image.h"
@@ -254,6 +256,49 @@ TEST(PatientView, TheDefaultCameraDoesNotDependOnTheStorageOrder) {
       EXPECT_LT(glm::length(a.center - b.center), 1e-6) << copies()[c].name << " camera " << k;
       EXPECT_LT(glm::length(a.up - b.up), 1e-9) << copies()[c].name << " camera " << k;
     }
+}
+
+// visiblePoints keeps the vertices of the visible cells' hull plane by plane, not every row's end
+// corners: the default camera is the one every visible corner frames (each view, perspective and
+// orthographic), from far fewer points, each a corner of a visible cell.
+TEST(PatientView, VisiblePointsCarryTheHullOfEveryVisibleCorner) {
+  const TransferFunction tf({{0.3f, {1, 1, 1}, 0.0f}, {0.5f, {1, 1, 1}, 0.1f}, {3.0f, {1, 1, 1}, 0.1f}}, "ball");
+  const Copy& c = copies()[3];  // permuted and oblique to the grid's planes
+  Volume v = test::makeVolume(c.dims, [&](int a, int b, int k) { return phantom(c.origin + c.direction * (glm::dvec3(a, b, k) * c.spacing)); }, c.spacing);
+  v.setFrame(makePatientFrame(c.direction, c.origin, c.name));
+  const std::vector<glm::dvec3> hull = visiblePoints(v, VolumeOctree::build(v), tf);
+  // Every corner of every cell whose range the transfer function makes visible.
+  std::vector<glm::dvec3> corners;
+  std::set<std::tuple<double, double, double>> cornerSet;
+  const glm::ivec3 d = v.dims();
+  for (int k = 0; k + 1 < d.z; ++k)
+    for (int j = 0; j + 1 < d.y; ++j)
+      for (int i = 0; i + 1 < d.x; ++i) {
+        float lo = 1e30f, hi = -1e30f;
+        for (int q = 0; q < 8; ++q) {
+          const float x = v.at(i + (q & 1), j + (q >> 1 & 1), k + (q >> 2 & 1));
+          lo = std::min(lo, x);
+          hi = std::max(hi, x);
+        }
+        if (tf.maxAlpha(lo, hi) <= 0.0f) continue;
+        for (int q = 0; q < 8; ++q) {
+          const glm::dvec3 p = v.frame().toPatient(glm::dvec3(i + (q & 1), j + (q >> 1 & 1), k + (q >> 2 & 1)) * v.spacing());
+          if (cornerSet.insert({p.x, p.y, p.z}).second) corners.push_back(p);
+        }
+      }
+  ASSERT_GT(corners.size(), 1000u);
+  EXPECT_LT(hull.size() * 4, corners.size());
+  for (const glm::dvec3& p : hull) EXPECT_TRUE(cornerSet.contains({p.x, p.y, p.z})) << vec(p);
+  for (const bool ortho : {false, true})
+    for (int view = 0; view < 6; ++view)
+      for (const double azimuth : {0.0, 37.0}) {
+        ViewDirection dir = viewDirection(AnatomicalView(view));
+        if (azimuth != 0.0) dir = orbitDirection(azimuth, 21.0);
+        const Camera a = fitCamera(hull, dir, 30.0, ortho, 64, 48), b = fitCamera(corners, dir, 30.0, ortho, 64, 48);
+        EXPECT_LT(glm::length(a.eye - b.eye), 1e-9) << view << " " << ortho << ": " << vec(a.eye) << " vs " << vec(b.eye);
+        EXPECT_LT(glm::length(a.center - b.center), 1e-9) << view << " " << ortho;
+        EXPECT_NEAR(a.orthoHeight, b.orthoHeight, 1e-9);
+      }
 }
 
 TEST(PatientView, TheLeftMarkerIsOnTheImagesRightFromTheFrontAndLeftFromBehind) {
