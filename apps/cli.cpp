@@ -470,9 +470,9 @@ int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
     in.progress = progress ? progress : o.input.progress;  // the page hears of a load it waits for
     std::ostringstream quiet;
     double ms = 0;
-    // A scene file is read paged, as render reads it: a study larger than memory opens.
-    const uint64_t cacheBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
-    return loadOrBuild(in, quiet, err, &ms, {}, SceneLoadOptions{false, cacheBytes});
+    // A scene file is read paged within --memory, as render reads it: a study larger than memory opens.
+    const uint64_t memoryBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
+    return loadOrBuild(in, quiet, err, &ms, {}, SceneLoadOptions{false, memoryBytes});
   };
   so.log = &out;
   // SIGINT and SIGTERM end the server: blocked in every thread, awaited here.
@@ -569,7 +569,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   viewCmd->add_option("--frame-ms", view.frameMs, "frame time interactive frames aim at, ms")->capture_default_str();
   viewCmd->add_option("--texture-mb", view.textureMb, "brick textures kept between frames, MB per volume")->capture_default_str();
   viewCmd->add_option("--memory", view.memoryMb,
-                      "MB of decompressed blocks a scene file's knot store keeps in its cache, per scene (default: an eighth of the physical memory)");
+                      "MB a scene file read paged holds, per scene: its octree, and the cache of decompressed blocks its bricks are read through, which gets what the octree leaves, at least a quarter (default: an eighth of the physical memory)");
 
   try {
     try {

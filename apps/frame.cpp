@@ -254,7 +254,7 @@ void RenderOptions::add(CLI::App* cmd) {
   // What is shown.
   cmd->add_option("--iso", iso, "isovalue of the embedded surface (data units; none = volume only)");
   cmd->add_option("--memory", memoryMb,
-                  "MB of decompressed blocks a scene file's knot store keeps in its cache (default: an eighth of the physical memory)");
+                  "MB a scene file read paged holds: its octree, and the cache of decompressed blocks its bricks are read through, which gets what the octree leaves, at least a quarter (default: an eighth of the physical memory)");
   cmd->add_option_function<std::string>("--surface-color", [this](const std::string& t) { surfaceColor = parseColor(t, "--surface-color", 4); },
                                         "surface r,g,b,a in [0,1]; a < 1 is translucent (default 0.95,0.92,0.85,1)");
   addChoice<SurfaceNormals>(cmd, "--surface-normals", &surfaceNormals, {{"gradient", SurfaceNormals::Gradient}, {"facet", SurfaceNormals::Facet}},
@@ -356,9 +356,13 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
   RenderJob job;
   VolumeOctreeOptions octree;
   octree.prefilter = o.prefilter;
-  // A scene file is read paged: its bricks come through a cache of --memory megabytes.
-  const uint64_t cacheBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
-  Scene scene = loadOrBuild(o.input, out, err, &job.buildMs, octree, SceneLoadOptions{false, cacheBytes});
+  // A scene file is read paged: its octrees and the cache its bricks come through hold --memory.
+  const uint64_t memoryBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
+  Scene scene = loadOrBuild(o.input, out, err, &job.buildMs, octree, SceneLoadOptions{false, memoryBytes});
+  if (scene.knots && scene.knots->cacheStats().limit + scene.octree.bytesUsed() > memoryBytes)
+    err << "hybrid-octree: warning: --memory " << memoryBytes / (1024 * 1024) << " MB: the scene's octree alone takes "
+        << scene.octree.bytesUsed() / (1024 * 1024) << " MB; its block cache gets " << scene.knots->cacheStats().limit / (1024 * 1024)
+        << " MB, and the process more than --memory\n";
   const Volume& v = scene.volume;
   const PatientFrame& frame = v.frame();
   // What is shown: the transfer function from a file, a preset, or chosen for the data's range.

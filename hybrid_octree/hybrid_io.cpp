@@ -404,7 +404,7 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
     const Entry& blocks = entry(kBlocksTag, "knot store data");
     const std::vector<uint8_t> index = payload(entry(kIndexTag, "knot store index"));
     volumeHash = volumeHashOf(vb, index);
-    scene.knots = KnotStore::open(path, dims, spacing, index, blocks.offset, blocks.size, options.cacheBytes);
+    scene.knots = KnotStore::open(path, dims, spacing, index, blocks.offset, blocks.size, options.memoryBytes);
     if (scene.knots->storedType() != storedType)
       HYB_THROW(IoError, path, ": the knot store holds ", scalarName(scene.knots->storedType()), " samples for a volume of ", scalarName(storedType));
     if (options.samples) {
@@ -475,7 +475,13 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
     const int32_t mergeEdge = r.get<int32_t>();
     scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), mergeEdge, getSurfaceNodes(r), path);
   }
+  if (scene.knots)  // the octrees count against the scene's memory: the cache gets what they leave
+    scene.knots->setCacheLimit(sceneCacheBytes(options.memoryBytes, scene.octree.bytesUsed() + (scene.surface ? scene.surface->bytesUsed() : 0)));
   return scene;
+}
+
+uint64_t sceneCacheBytes(uint64_t memoryBytes, uint64_t octreeBytes) {
+  return std::max(memoryBytes / 4, memoryBytes > octreeBytes ? memoryBytes - octreeBytes : 0);
 }
 
 }  // namespace hyb

@@ -45,9 +45,15 @@ struct Scene {
 struct SceneLoadOptions {
   /// Read every sample into the volume (true), or leave them in the file's knot store (paged).
   bool samples = true;
-  /// Paged: bytes of decompressed blocks the store's cache keeps (0: no bound).
-  uint64_t cacheBytes = 0;
+  /// Paged: bytes the scene may hold (0: no bound): its octrees, and the store's cache of
+  /// decompressed blocks, which gets what the octrees leave, at least a quarter
+  /// (sceneCacheBytes).
+  uint64_t memoryBytes = 0;
 };
+
+/// The cache bound of a paged scene whose octrees hold @p octreeBytes within @p memoryBytes (0: no
+/// bound): what the octrees leave, at least a quarter of @p memoryBytes.
+uint64_t sceneCacheBytes(uint64_t memoryBytes, uint64_t octreeBytes);
 
 /// Writes @p volume, @p octree and, if given, @p surface to @p path atomically.
 /// @throw IoError naming @p path when it cannot be written.

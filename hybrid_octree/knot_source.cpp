@@ -75,4 +75,35 @@ std::vector<glm::vec4> latticeKnots(const KnotSource& source, const KnotLattice&
   return out;
 }
 
+KnotSampler::KnotSampler(const KnotSource& source, int tiles)
+    : mSource(source), mDims(source.dims()), mSpacing(source.spacing()), mTiles(size_t(std::max(tiles, 1))) {}
+
+const KnotSampler::Tile& KnotSampler::tileAt(const glm::vec3& p) {
+  // The voxel trilinearSample starts from; its tile covers kTile voxels from there on, and one
+  // more either side (a gradient reads i0 − 1 … i0 + 2).
+  const glm::ivec3 i0 = glm::min(glm::ivec3(glm::clamp(p, glm::vec3(0.0f), glm::vec3(mDims - 1))), mDims - 1);
+  const glm::ivec3 key = i0 / kTile;
+  const uint32_t h = uint32_t(key.x) * 73856093u ^ uint32_t(key.y) * 19349663u ^ uint32_t(key.z) * 83492791u;
+  Tile& t = mTiles[h % mTiles.size()];
+  if (t.key == key) return t;
+  t.key = glm::ivec3(-1);  // (a failed read leaves no tile half-made)
+  t.lo = glm::max(key * kTile - 1, glm::ivec3(0));
+  t.count = glm::min(key * kTile + kTile + 1, mDims - 1) - t.lo + 1;
+  t.values.resize(size_t(t.count.x) * size_t(t.count.y) * size_t(t.count.z));
+  mSource.read(1, t.lo, t.count, t.values.data(), nullptr);
+  t.key = key;
+  ++mTilesRead;
+  return t;
+}
+
+float KnotSampler::sample(const glm::vec3& p) {
+  const Tile& t = tileAt(p);
+  return trilinearSample(p, mDims, [&t](int i, int j, int k) { return t.at(i, j, k); });
+}
+
+glm::vec3 KnotSampler::sampleGradient(const glm::vec3& p) {
+  const Tile& t = tileAt(p);
+  return trilinearGradient(p, mDims, mSpacing, [&t](int i, int j, int k) { return t.at(i, j, k); });
+}
+
 }  // namespace hyb

@@ -76,6 +76,42 @@ class VolumeKnots final : public KnotSource {
   const VolumeOctree& mOctree;
 };
 
+/// The full-resolution field of a KnotSource (spacing 1) sampled as Volume::sample and
+/// Volume::sampleGradient sample a volume in memory, bit for bit: what a ray tracer reads from a
+/// paged scene, through the store's cache, without reading the samples whole. It reads tiles of
+/// kTile³ voxels (with the neighbour either side a gradient needs) and keeps the last few in a
+/// direct-mapped table, as neighbouring rays revisit them. One sampler per thread.
+class KnotSampler {
+ public:
+  static constexpr int kTile = 32;
+  /// @p source must outlive the sampler; @p tiles: how many tiles it keeps (each ≤ 171 KB: 22 MB
+  /// by default, what the rays of a few pixels' squares revisit).
+  explicit KnotSampler(const KnotSource& source, int tiles = 128);
+  /// @throw IoError as KnotSource::read.
+  float sample(const glm::vec3& p);
+  glm::vec3 sampleGradient(const glm::vec3& p);
+  /// Tiles read so far.
+  uint64_t tilesRead() const { return mTilesRead; }
+
+ private:
+  struct Tile {
+    glm::ivec3 key{-1};
+    glm::ivec3 lo{0}, count{0};
+    std::vector<float> values;
+    float at(int i, int j, int k) const {
+      return values[size_t(i - lo.x) + size_t(count.x) * (size_t(j - lo.y) + size_t(count.y) * size_t(k - lo.z))];
+    }
+  };
+  /// The tile holding every voxel a sample or gradient at @p p reads.
+  const Tile& tileAt(const glm::vec3& p);
+
+  const KnotSource& mSource;
+  glm::ivec3 mDims;
+  glm::dvec3 mSpacing;
+  std::vector<Tile> mTiles;
+  uint64_t mTilesRead = 0;
+};
+
 /// The knots of lattice @p L as value and gradient (data units per mm), x fastest: what
 /// KnotSource::read gives, the gradient at spacing 1 by central differences between the knot's
 /// neighbours (one-sided at the grid's faces), exactly as Volume::gradientAt computes it.

@@ -80,95 +80,103 @@ void tracePixels(const Volume& volume, const VolumeOctree& octree, const Transfe
 #pragma omp parallel reduction(+ : samples, skipped, crossings)
   {
     std::vector<Hit> hits;
+    std::optional<KnotSampler> paged;
+    if (options.knots) paged.emplace(*options.knots);
+    auto sampleAt = [&](const glm::vec3& q) { return paged ? paged->sample(q) : volume.sample(q); };
+    auto gradientAt = [&](const glm::vec3& q) { return paged ? paged->sampleGradient(q) : volume.sampleGradient(q); };
 #pragma omp for schedule(dynamic, chunk)
     for (size_t i = 0; i < count; ++i) {
-      if (!failure.run([&] { progress->advance(); })) continue;
-      const glm::ivec2 px = pixel(i);
-      const int x = px.x, y = px.y;
-      glm::dvec3 o, d;
-      camera.ray(x + 0.5, y + 0.5, &o, &d);
-      glm::dvec4 acc(0.0);  // premultiplied rgb, alpha
-      auto composite = [&](const glm::dvec3& rgb, double a) {
-        acc += glm::dvec4(rgb * a, a) * (1.0 - acc.a);
-      };
-      double t0 = 0, t1 = 0;
-      const bool inBox = slab(o, d, glm::dvec3(0.0), boxHi, &t0, &t1);
-      t0 = std::max(t0, 0.0);
-      // The cutting plane: only [keepLo, keepHi] of the ray is kept; where the ray enters the kept
-      // side inside the data box, the plane shows the data's colour, opaque.
-      double keepLo = 0.0, keepHi = 1e300;
-      if (options.cut) {
-        const double sd = glm::dot(glm::dvec3(cut), o) + cut.w, dn = glm::dot(glm::dvec3(cut), d);
-        if (dn > 0.0) {
-          keepLo = std::max(0.0, -sd / dn);
-          const double slack = 1e-9 * glm::length(boxHi);
-          if (inBox && keepLo >= t0 - slack && keepLo <= t1 + slack) {
-            const glm::vec4 c = tf.lookup(volume.sample(glm::vec3((o + d * keepLo) / spacing)));
-            if (c.a > 0.0f) {
-              image.at(x, y) = glm::vec4(glm::vec3(c), 1.0f);
-              continue;
-            }
-          }
-        } else if (sd < 0.0) {
-          keepHi = -1.0;  // the whole ray is on the removed side
-        } else if (dn < 0.0) {
-          keepHi = -sd / dn;
-        }
-      }
-      t0 = std::max(t0, keepLo);
-      t1 = std::min(t1, keepHi);
-      if (options.surface) options.surface->allHits(o, d, keepLo, std::max(keepLo, keepHi), &hits);
-      size_t nextHit = 0;
-      auto surfaceUntil = [&](double t) {  // composite surface crossings before distance t
-        while (nextHit < hits.size() && hits[nextHit].t <= t && acc.a < 0.999) {
-          const glm::vec4 c = options.surfaceColor;
-          composite(glm::dvec3(c) * headlight(hits[nextHit].normal, d), c.a);
-          ++nextHit;
-          ++crossings;
-        }
-      };
-      if (inBox && options.volume && t1 > t0) {
-        // Volume segments of length dt from t0, split at surface crossings.
-        for (double ta = t0; ta < t1 && acc.a < 0.999;) {
-          glm::dvec3 lo, hi;
-          const glm::dvec3 p = o + d * ta;
-          if (transparentBoxAt(p / spacing, &lo, &hi)) {
-            double e0, e1;
-            slab(o, d, lo, hi, &e0, &e1);
-            const double resume = t0 + std::ceil((std::max(e1, ta) - t0) / dt + 1e-9) * dt;
-            surfaceUntil(std::min(resume, t1));
-            ++skipped;
-            ta = resume;
-            continue;
-          }
-          double tb = std::min(ta + dt, t1);
-          for (double s = ta; s < tb && acc.a < 0.999;) {
-            const double e = (nextHit < hits.size() && hits[nextHit].t < tb) ? std::max(hits[nextHit].t, s) : tb;
-            if (e > s) {
-              const double tm = 0.5 * (s + e);
-              const glm::dvec3 q = (o + d * tm) / spacing;
-              glm::vec4 c = tf.lookup(volume.sample(glm::vec3(q)));
-              if (options.voi) c.a = float(std::min(1.0, double(c.a) * options.voi->factor(o + d * tm)));
-              ++samples;
-              const float a = TransferFunction::segmentAlpha(c.a, float(e - s));
-              if (a > 0.0f) {
-                double shade = 1.0;
-                if (options.shading) {
-                  const glm::dvec3 g(volume.sampleGradient(glm::vec3(q)));
-                  const double len = glm::length(g);
-                  if (len > 1e-6) shade = headlight(g / len, d);
-                }
-                composite(glm::dvec3(c) * shade, a);
+      // One iteration a pixel; what it throws (a progress callback that stops, a block that cannot
+      // be read) ends the frame.
+      failure.run([&] {
+        progress->advance();
+        const glm::ivec2 px = pixel(i);
+        const int x = px.x, y = px.y;
+        glm::dvec3 o, d;
+        camera.ray(x + 0.5, y + 0.5, &o, &d);
+        glm::dvec4 acc(0.0);  // premultiplied rgb, alpha
+        auto composite = [&](const glm::dvec3& rgb, double a) {
+          acc += glm::dvec4(rgb * a, a) * (1.0 - acc.a);
+        };
+        double t0 = 0, t1 = 0;
+        const bool inBox = slab(o, d, glm::dvec3(0.0), boxHi, &t0, &t1);
+        t0 = std::max(t0, 0.0);
+        // The cutting plane: only [keepLo, keepHi] of the ray is kept; where the ray enters the kept
+        // side inside the data box, the plane shows the data's colour, opaque.
+        double keepLo = 0.0, keepHi = 1e300;
+        if (options.cut) {
+          const double sd = glm::dot(glm::dvec3(cut), o) + cut.w, dn = glm::dot(glm::dvec3(cut), d);
+          if (dn > 0.0) {
+            keepLo = std::max(0.0, -sd / dn);
+            const double slack = 1e-9 * glm::length(boxHi);
+            if (inBox && keepLo >= t0 - slack && keepLo <= t1 + slack) {
+              const glm::vec4 c = tf.lookup(sampleAt(glm::vec3((o + d * keepLo) / spacing)));
+              if (c.a > 0.0f) {
+                image.at(x, y) = glm::vec4(glm::vec3(c), 1.0f);
+                return;
               }
             }
-            s = e;
-            surfaceUntil(s);
+          } else if (sd < 0.0) {
+            keepHi = -1.0;  // the whole ray is on the removed side
+          } else if (dn < 0.0) {
+            keepHi = -sd / dn;
           }
-          ta = tb;
         }
-      }
-      surfaceUntil(1e300);
-      image.at(x, y) = glm::vec4(acc);
+        t0 = std::max(t0, keepLo);
+        t1 = std::min(t1, keepHi);
+        if (options.surface) options.surface->allHits(o, d, keepLo, std::max(keepLo, keepHi), &hits);
+        size_t nextHit = 0;
+        auto surfaceUntil = [&](double t) {  // composite surface crossings before distance t
+          while (nextHit < hits.size() && hits[nextHit].t <= t && acc.a < 0.999) {
+            const glm::vec4 c = options.surfaceColor;
+            composite(glm::dvec3(c) * headlight(hits[nextHit].normal, d), c.a);
+            ++nextHit;
+            ++crossings;
+          }
+        };
+        if (inBox && options.volume && t1 > t0) {
+          // Volume segments of length dt from t0, split at surface crossings.
+          for (double ta = t0; ta < t1 && acc.a < 0.999;) {
+            glm::dvec3 lo, hi;
+            const glm::dvec3 p = o + d * ta;
+            if (transparentBoxAt(p / spacing, &lo, &hi)) {
+              double e0, e1;
+              slab(o, d, lo, hi, &e0, &e1);
+              const double resume = t0 + std::ceil((std::max(e1, ta) - t0) / dt + 1e-9) * dt;
+              surfaceUntil(std::min(resume, t1));
+              ++skipped;
+              ta = resume;
+              continue;
+            }
+            double tb = std::min(ta + dt, t1);
+            for (double s = ta; s < tb && acc.a < 0.999;) {
+              const double e = (nextHit < hits.size() && hits[nextHit].t < tb) ? std::max(hits[nextHit].t, s) : tb;
+              if (e > s) {
+                const double tm = 0.5 * (s + e);
+                const glm::dvec3 q = (o + d * tm) / spacing;
+                glm::vec4 c = tf.lookup(sampleAt(glm::vec3(q)));
+                if (options.voi) c.a = float(std::min(1.0, double(c.a) * options.voi->factor(o + d * tm)));
+                ++samples;
+                const float a = TransferFunction::segmentAlpha(c.a, float(e - s));
+                if (a > 0.0f) {
+                  double shade = 1.0;
+                  if (options.shading) {
+                    const glm::dvec3 g(gradientAt(glm::vec3(q)));
+                    const double len = glm::length(g);
+                    if (len > 1e-6) shade = headlight(g / len, d);
+                  }
+                  composite(glm::dvec3(c) * shade, a);
+                }
+              }
+              s = e;
+              surfaceUntil(s);
+            }
+            ta = tb;
+          }
+        }
+        surfaceUntil(1e300);
+        image.at(x, y) = glm::vec4(acc);
+      });
     }
   }
   failure.rethrow();
@@ -276,9 +284,17 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
   if (options.refineLevels > 1) {
     image = refine(volume, octree, tf, camera, options, &counts, &progress);
   } else {
-    const size_t W = size_t(camera.width);
-    tracePixels(volume, octree, tf, camera, options, W * size_t(rows.y - rows.x), W,
-                [W, first = rows.x](size_t i) { return glm::ivec2(int(i % W), first + int(i / W)); }, &image, &counts, &progress);
+    // Squares of 8² pixels: neighbouring rays read the same samples (and a paged scene's tiles)
+    // while they are at hand.
+    constexpr int kSquare = 8;
+    std::vector<glm::ivec2> order;
+    order.reserve(size_t(camera.width) * size_t(rows.y - rows.x));
+    for (int y0 = rows.x; y0 < rows.y; y0 += kSquare)
+      for (int x0 = 0; x0 < camera.width; x0 += kSquare)
+        for (int y = y0; y < std::min(y0 + kSquare, rows.y); ++y)
+          for (int x = x0; x < std::min(x0 + kSquare, camera.width); ++x) order.push_back({x, y});
+    tracePixels(volume, octree, tf, camera, options, order.size(), kSquare * kSquare, [&order](size_t i) { return order[i]; }, &image, &counts,
+                &progress);
   }
   if (stats) *stats = counts;
   return image;

@@ -7,6 +7,7 @@
 #include <functional>
 #include <optional>
 
+#include "hybrid_octree/knot_source.h"
 #include "hybrid_octree/volume_octree.h"
 #include "render/bvh.h"
 #include "render/camera.h"
@@ -29,6 +30,9 @@ struct RaycastOptions {
   bool skipEmptySpace = true;        ///< jump over nodes the transfer function makes transparent
   const CutPlane* cut = nullptr;     ///< cutting plane, or none
   const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
+  /// Where the samples are read: a paged scene's knot store, through its cache (the volume need
+  /// not hold its samples), or none: the volume's own.
+  const KnotSource* knots = nullptr;
   /// Levoy's progressive refinement: rays on a grid 2^(refineLevels − 1) pixels apart first, then,
   /// level by level, at half the spacing inside each square whose corners' colours (premultiplied
   /// RGBA) differ by more than refineTolerance; the other squares show the bilinear interpolation

@@ -105,7 +105,7 @@ SceneRenderer::SceneRenderer(Scene scene, const Options& options) : mScene(std::
 }
 
 // A paged scene's samples are read whole only by what needs every sample: an isosurface's
-// extraction and normals, and the reference ray tracer.
+// extraction and normals.
 void SceneRenderer::ensureSamples() {
   if (mScene.volume.hasSamples()) return;
   mScene.volume.attachSamples(mScene.knots->samples(), mScene.knots->path());
@@ -329,7 +329,6 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   }
 
   if (quality.renderer == Renderer::Raycast) {
-    ensureSamples();
     const Bvh* bvh = nullptr;
     if (mesh) {
       PreparedSurface& s = *mSurfaces.front();  // this frame's
@@ -344,6 +343,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     ro.surfaceColor = look.surfaceColor;
     ro.cut = cut ? &*cut : nullptr;
     ro.voi = voi ? &*voi : nullptr;
+    ro.knots = v.hasSamples() ? nullptr : mScene.knots.get();  // a paged scene's samples through its cache
     // Levoy's refinement: progressive levels (the first grid 2^(N−1) pixels apart), or four with
     // an adaptive tolerance alone; the last level is exact unless the tolerance is given.
     ro.refineLevels = quality.progressive > 1 ? quality.progressive : quality.adaptive > 0 ? 4 : 1;

@@ -130,6 +130,25 @@ TEST(KnotStore, ADamagedBlockIsRefusedByName) {
   }
 }
 
+// --memory bounds a paged scene's octrees and its block cache together: the cache gets what the
+// octrees leave, at least a quarter of the bound; no bound, no limit.
+TEST(KnotStore, TheOctreesCountAgainstAPagedScenesMemory) {
+  test::TempDir dir;
+  const Volume v = noisyHead({70, 45, 37}, ScalarType::Int16);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const SurfaceOctree surface = SurfaceOctree::build(v, t, 150.0f);
+  saveScene(dir.file("h.hoct"), v, t, &surface);
+  const Scene unbounded = loadScene(dir.file("h.hoct"), SceneLoadOptions{false, 0});
+  EXPECT_EQ(unbounded.knots->cacheStats().limit, 0u);
+  const uint64_t octrees = unbounded.octree.bytesUsed() + unbounded.surface->bytesUsed();
+  ASSERT_GT(octrees, 10000u);
+  EXPECT_EQ(loadScene(dir.file("h.hoct"), SceneLoadOptions{false, octrees + 300000}).knots->cacheStats().limit, 300000u);
+  EXPECT_EQ(loadScene(dir.file("h.hoct"), SceneLoadOptions{false, octrees}).knots->cacheStats().limit, octrees / 4);
+  EXPECT_EQ(sceneCacheBytes(1000, 900), 250u);
+  EXPECT_EQ(sceneCacheBytes(1000, 100), 900u);
+  EXPECT_EQ(sceneCacheBytes(0, 100), 0u);
+}
+
 TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
   test::gl();
   test::TempDir dir;
@@ -137,8 +156,9 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
   const VolumeOctree t = VolumeOctree::build(v);
   saveScene(dir.file("h.hoct"), v, t);
   const uint64_t tenth = v.voxelCount() * 2 / 10;
-  SceneRenderer paged(loadScene(dir.file("h.hoct"), SceneLoadOptions{false, tenth})), memory(loadScene(dir.file("h.hoct")));
-  const KnotStore& store = *paged.scene().knots;
+  SceneRenderer paged(loadScene(dir.file("h.hoct"), SceneLoadOptions{false, 0})), memory(loadScene(dir.file("h.hoct")));
+  KnotStore& store = *paged.scene().knots;
+  store.setCacheLimit(tenth);
   Look look;
   look.tf = TransferFunction({{60.0f, {1, 1, 1}, 0.0f}, {120.0f, {1.0f, 0.6f, 0.4f}, 0.05f}, {220.0f, {1.0f, 1.0f, 0.9f}, 0.4f}}, "head");
   const std::vector<glm::dvec3> visible = visiblePoints(v, t, look.tf);
@@ -155,8 +175,11 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
       view.camera = fitCamera(visible, orbitDirection(azimuth, 20), 30, false, 40, 40, 0.05);
       for (const Quality& q : qualities) {
         const RenderedFrame a = paged.render(view, look, q), b = memory.render(view, look, q);
-        EXPECT_GT(a.stats.slices.bricks, 0u);
+        if (q.renderer == Renderer::Slices) {
+          EXPECT_GT(a.stats.slices.bricks, 0u);
+        }
         EXPECT_EQ(a.stats.slices.bricks, b.stats.slices.bricks);
+        EXPECT_EQ(a.stats.rays.samples, b.stats.rays.samples);
         EXPECT_EQ(a.image.pixels, b.image.pixels);
         EXPECT_LE(store.cacheStats().bytesHeld, tenth + kMaxStoreBlockBytes);
       }
@@ -167,6 +190,16 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
   EXPECT_FALSE(paged.volume().hasSamples());
   // The image errors a budget ranks by read the store a node at a time, never the samples whole.
   compare({budget});
+  EXPECT_FALSE(paged.volume().hasSamples());
+  // The reference ray tracer reads the samples through the same cache, a tile at a time, the
+  // face of a cutting plane included.
+  Quality reference;
+  reference.renderer = Renderer::Raycast;
+  reference.step = 0.7;
+  compare({reference});
+  look.cut = CutPlane{glm::dvec3(24.0, 17.0, 20.0), glm::dvec3(0.3, 1.0, 0.2)};
+  compare({reference});
+  look.cut.reset();
   EXPECT_FALSE(paged.volume().hasSamples());
   // A translucent surface's extraction needs every sample.
   look.iso = 150.0f;

@@ -175,57 +175,24 @@ void Volume::readRow(int i, int j, int k, int n, float* out) const {
 
 namespace {
 
-// The sampling kernels over samples of type T: a call converts each value it reads and dispatches
-// on the type once, not once a sample.
+// A typed sample pointer read as float: a call dispatches on the type once, not once a sample.
 template <class T>
-struct Grid {
-  const T* d;
-  glm::ivec3 dims;
-  float at(int i, int j, int k) const { return float(d[size_t(i) + size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k))]); }
-  float sample(const glm::vec3& p) const {
-    const glm::vec3 q = glm::clamp(p, glm::vec3(0.0f), glm::vec3(dims - 1));
-    const glm::ivec3 i0 = glm::min(glm::ivec3(q), dims - 1);
-    const glm::ivec3 i1 = glm::min(i0 + 1, dims - 1);
-    const glm::vec3 t = q - glm::vec3(i0);
-    auto lerp = [](float a, float b, float w) { return a + (b - a) * w; };
-    const float c00 = lerp(at(i0.x, i0.y, i0.z), at(i1.x, i0.y, i0.z), t.x);
-    const float c10 = lerp(at(i0.x, i1.y, i0.z), at(i1.x, i1.y, i0.z), t.x);
-    const float c01 = lerp(at(i0.x, i0.y, i1.z), at(i1.x, i0.y, i1.z), t.x);
-    const float c11 = lerp(at(i0.x, i1.y, i1.z), at(i1.x, i1.y, i1.z), t.x);
-    return lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z);
-  }
-  glm::vec3 gradientAt(int i, int j, int k, const glm::dvec3& spacing) const {
-    return centralDifferences(glm::ivec3(i, j, k), dims, spacing, [this](int x, int y, int z) { return at(x, y, z); });
-  }
-};
-
-template <class T>
-Grid<T> gridOf(const T* d, const glm::ivec3& dims) {  // (clang 14 deduces no aggregate's template arguments)
-  return Grid<T>{d, dims};
+auto readerOf(const T* d, const glm::ivec3& dims) {
+  return [d, dims](int i, int j, int k) { return float(d[size_t(i) + size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k))]); };
 }
 
 }  // namespace
 
 float Volume::sample(const glm::vec3& p) const {
-  return visitSamples([&](const auto* d) { return gridOf(d, mDims).sample(p); });
+  return visitSamples([&](const auto* d) { return trilinearSample(p, mDims, readerOf(d, mDims)); });
 }
 
 glm::vec3 Volume::gradientAt(int i, int j, int k) const {
-  return visitSamples([&](const auto* d) { return gridOf(d, mDims).gradientAt(i, j, k, mSpacing); });
+  return visitSamples([&](const auto* d) { return centralDifferences(glm::ivec3(i, j, k), mDims, mSpacing, readerOf(d, mDims)); });
 }
 
 glm::vec3 Volume::sampleGradient(const glm::vec3& p) const {
-  const glm::vec3 q = glm::clamp(p, glm::vec3(0.0f), glm::vec3(mDims - 1));
-  const glm::ivec3 i0 = glm::min(glm::ivec3(q), mDims - 1);
-  const glm::ivec3 i1 = glm::min(i0 + 1, mDims - 1);
-  const glm::vec3 t = q - glm::vec3(i0);
-  return visitSamples([&](const auto* d) {
-    const auto grid = gridOf(d, mDims);
-    auto g = [&](int c) { return grid.gradientAt(c & 1 ? i1.x : i0.x, c & 2 ? i1.y : i0.y, c & 4 ? i1.z : i0.z, mSpacing); };
-    const glm::vec3 c00 = glm::mix(g(0), g(1), t.x), c10 = glm::mix(g(2), g(3), t.x);
-    const glm::vec3 c01 = glm::mix(g(4), g(5), t.x), c11 = glm::mix(g(6), g(7), t.x);
-    return glm::mix(glm::mix(c00, c10, t.y), glm::mix(c01, c11, t.y), t.z);
-  });
+  return visitSamples([&](const auto* d) { return trilinearGradient(p, mDims, mSpacing, readerOf(d, mDims)); });
 }
 
 std::string Volume::infoValue(const std::string& key) const {

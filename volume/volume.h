@@ -70,6 +70,36 @@ glm::vec3 centralDifferences(const glm::ivec3& p, const glm::ivec3& dims, const 
   return g;
 }
 
+/// Trilinear sample at @p p (voxel units, voxel centres at integers) of a grid of @p dims read
+/// through @p at(i, j, k), clamped to the grid: what Volume::sample computes, for any sample store.
+template <class At>
+float trilinearSample(const glm::vec3& p, const glm::ivec3& dims, const At& at) {
+  const glm::vec3 q = glm::clamp(p, glm::vec3(0.0f), glm::vec3(dims - 1));
+  const glm::ivec3 i0 = glm::min(glm::ivec3(q), dims - 1);
+  const glm::ivec3 i1 = glm::min(i0 + 1, dims - 1);
+  const glm::vec3 t = q - glm::vec3(i0);
+  auto lerp = [](float a, float b, float w) { return a + (b - a) * w; };
+  const float c00 = lerp(at(i0.x, i0.y, i0.z), at(i1.x, i0.y, i0.z), t.x);
+  const float c10 = lerp(at(i0.x, i1.y, i0.z), at(i1.x, i1.y, i0.z), t.x);
+  const float c01 = lerp(at(i0.x, i0.y, i1.z), at(i1.x, i0.y, i1.z), t.x);
+  const float c11 = lerp(at(i0.x, i1.y, i1.z), at(i1.x, i1.y, i1.z), t.x);
+  return lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z);
+}
+
+/// The voxels' central differences interpolated trilinearly at @p p (Levoy 1988), clamped like
+/// trilinearSample: what Volume::sampleGradient computes. Reads voxels i0 − 1 … i0 + 2 per axis.
+template <class At>
+glm::vec3 trilinearGradient(const glm::vec3& p, const glm::ivec3& dims, const glm::dvec3& spacing, const At& at) {
+  const glm::vec3 q = glm::clamp(p, glm::vec3(0.0f), glm::vec3(dims - 1));
+  const glm::ivec3 i0 = glm::min(glm::ivec3(q), dims - 1);
+  const glm::ivec3 i1 = glm::min(i0 + 1, dims - 1);
+  const glm::vec3 t = q - glm::vec3(i0);
+  auto g = [&](int c) { return centralDifferences(glm::ivec3(c & 1 ? i1.x : i0.x, c & 2 ? i1.y : i0.y, c & 4 ? i1.z : i0.z), dims, spacing, at); };
+  const glm::vec3 c00 = glm::mix(g(0), g(1), t.x), c10 = glm::mix(g(2), g(3), t.x);
+  const glm::vec3 c01 = glm::mix(g(4), g(5), t.x), c11 = glm::mix(g(6), g(7), t.x);
+  return glm::mix(glm::mix(c00, c10, t.y), glm::mix(c01, c11, t.y), t.z);
+}
+
 /// Largest accepted extent along one axis; keeps octree coordinates in 16 bits.
 inline constexpr int kMaxDim = 32768;
 /// Largest accepted sample count (8 GiB of int16 samples).
