@@ -6,6 +6,7 @@
 //
 // usage (after scripts/setup.sh): node bench/viewer_bench.mjs build/hybrid-octree [--seconds 5] [--samples 4] [--frame-ms 80]
 //                                  [--volume FILE] [--iso V]   (default: the cranium and 400 HU)
+//                                  [--volume-only]   (no surface orbit: a study too large to extract one from)
 import { spawn, execFileSync } from 'node:child_process';
 import { createRequire } from 'node:module';
 import fs from 'node:fs';
@@ -135,6 +136,9 @@ async function orbit(label, withSurface) {
   const med = (f) => quantile(interactive.map(f), 0.5).toFixed(0);
   console.log(`  latency parts (medians): request to the server ${med((m) => m.upMs)} ms, waiting for the render thread ${med((m) => m.waitMs)}, ` +
     `render ${med((m) => m.renderMs)}, encode ${med((m) => m.encodeMs)}, frame to the page ${med((m) => m.downMs)}, decode and paint ${med((m) => m.paintMs)}`);
+  const coarser = interactive.filter((m) => m.bricksNotResident > 0);
+  console.log(`  frames drawing bricks coarser while the store loads them: ${coarser.length} of ${interactive.length}` +
+    (coarser.length ? ` (median ${quantile(coarser.map((m) => m.bricksNotResident), 0.5).toFixed(0)} bricks)` : ''));
   console.log(`  levels used: ${Object.entries(levels).map(([k, l]) => `${k}: ${l.n} frames, ${(l.ms / l.n).toFixed(0)} ms`).join('; ')}`);
   console.log(`  bytes per interactive frame: mean ${(bytes.reduce((a, b) => a + b, 0) / Math.max(1, bytes.length) / 1024).toFixed(1)} KiB; final ${final ? (final.bytes / 1024).toFixed(1) : '?'} KiB`);
   console.log(`  interactive frames against the reference, as painted (512²): ${painted.map((p) => p.toFixed(1)).join(', ')} dB (target >= 30)`);
@@ -150,10 +154,12 @@ try {
   await page.evaluate(() => window.hybViewer.request(false));
   await waitFinal();
   await orbit('volume only', false);
-  await page.evaluate((v) => { document.getElementById('iso').value = document.getElementById('iso-number').value = String(v); }, iso);
-  await page.click('#surface-on');
-  await waitFinal(`window.hybViewer.lastFinal().iso === ${iso}`);
-  await orbit(`volume + translucent surface (${iso}, alpha 0.5)`, true);
+  if (!process.argv.includes('--volume-only')) {
+    await page.evaluate((v) => { document.getElementById('iso').value = document.getElementById('iso-number').value = String(v); }, iso);
+    await page.click('#surface-on');
+    await waitFinal(`window.hybViewer.lastFinal().iso === ${iso}`);
+    await orbit(`volume + translucent surface (${iso}, alpha 0.5)`, true);
+  }
 } finally {
   await browser.close();
   server.kill('SIGTERM');

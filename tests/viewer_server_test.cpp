@@ -435,9 +435,10 @@ TEST(ViewerServer, ClientsBeyondTheLimitAreToldAndClosed) {
   EXPECT_EQ(first.nextFrameOrError()["seq"], 1);
 }
 
-// A client's 2048² final frame is drawn band by band, the other clients' frames between its bands:
-// another client dragging meanwhile waits at most a band for each of its frames (a second here,
-// where the whole frame takes about two), and the large frame still arrives whole.
+// A client's 2048² final frame is drawn band by band (16 of them), the other clients' frames between
+// its bands: another client dragging meanwhile waits about a band for each of its frames, far less
+// than the whole frame (the bound is relative, as the machine's load scales both), and the large
+// frame still arrives whole.
 TEST(ViewerServer, ALargeFinalFrameDoesNotHoldOtherClientsFrames) {
   TestServer s(60.0);
   Socket big(s.port(), "/ws?token=" + s.token()), mover(s.port(), "/ws?token=" + s.token());
@@ -478,7 +479,7 @@ TEST(ViewerServer, ALargeFinalFrameDoesNotHoldOtherClientsFrames) {
   EXPECT_EQ(final["width"], 2048);
   EXPECT_EQ(final["format"], "png");
   EXPECT_GT(frames, 3) << "the mover was served while the large frame was drawn (" << wholeMs << " ms)";
-  EXPECT_LE(worst, 1000.0) << "a moving frame waited " << worst << " ms behind the large frame (" << wholeMs << " ms in all)";
+  EXPECT_LE(worst, wholeMs / 4) << "a moving frame waited " << worst << " ms behind the large frame (" << wholeMs << " ms in all)";
 }
 
 // Four clients with four isovalues (and one without a surface) each draw their own surface once it

@@ -187,7 +187,7 @@ async function onFrame(buffer) {
     // (a frame the server made without a new request, refining or after a surface came, has no arrival)
     upMs: sentAt === undefined || header.requestEpochMs === null ? null : header.requestEpochMs - (performance.timeOrigin + sentAt),
     downMs: performance.timeOrigin + received - header.sentEpochMs,
-    latencyMs: sentAt === undefined ? null : painted - sentAt, paintedAt: painted,
+    latencyMs: sentAt === undefined ? null : painted - sentAt, paintedAt: painted, bricksNotResident: header.bricksNotResident || 0,
   });
   if (state.metrics.length > 5000) state.metrics.shift();
   state.displayed = header;
