@@ -271,13 +271,6 @@ class Refiner {
   std::vector<std::pair<uint32_t, int8_t>> mJournal;  // (node, previous level)
 };
 
-// Brick index per node, −1 for nodes that are not bricks.
-std::vector<int> brickIndex(const VolumeOctree& t, const Selection& sel) {
-  std::vector<int> of(t.nodes().size(), -1);
-  for (size_t b = 0; b < sel.bricks.size(); ++b) of[sel.bricks[b].node] = int(b);
-  return of;
-}
-
 }  // namespace
 
 std::string SelectionParams::validate() const {
@@ -342,7 +335,7 @@ Selection selectNodes(const VolumeOctree& octree, const SelectionParams& params)
 }
 
 void assignBlendCorners(const VolumeOctree& octree, Selection* sel) {
-  const std::vector<int> of = brickIndex(octree, *sel);
+  const BrickIndex of(*sel);
   const auto isBrick = [&](uint32_t j) { return of[j] >= 0; };
   sel->blendedBricks = 0;
   for (Brick& b : sel->bricks) {
@@ -362,7 +355,7 @@ void assignBlendCorners(const VolumeOctree& octree, Selection* sel) {
 }
 
 bool isRestricted(const VolumeOctree& octree, const Selection& sel) {
-  const std::vector<int> of = brickIndex(octree, sel);
+  const BrickIndex of(sel);
   const auto isBrick = [&](uint32_t j) { return of[j] >= 0; };
   for (const Brick& b : sel.bricks) {
     if (b.hidden) continue;

@@ -44,7 +44,7 @@ int slicePeriod(int step) { return step == 1 ? 1 : step == 2 ? 3 : 2 * step; }
 
 // The bricks (nodes with brickOf ≥ 0) in back-to-front octree order: the octant farthest from the
 // eye first, then those one, two and three flips towards it (valid for perspective too).
-std::vector<uint32_t> bricksBackToFront(const VolumeOctree& octree, const std::vector<int>& brickOf, const glm::dvec3& eyeVoxel) {
+std::vector<uint32_t> bricksBackToFront(const VolumeOctree& octree, const BrickIndex& brickOf, const glm::dvec3& eyeVoxel) {
   std::vector<uint32_t> order;
   std::vector<uint32_t> stack{0};
   while (!stack.empty()) {
@@ -307,7 +307,7 @@ struct BrickPlan {
 };
 BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
                      const Camera& camera, const SlicesOptions& options, const TransferTable& table, const std::vector<uint32_t>& order,
-                     const std::vector<int>& brickOf, const BrickPolygons& polygonsOf, bool translucent, const glm::dvec4& cut,
+                     const BrickIndex& brickOf, const BrickPolygons& polygonsOf, bool translucent, const glm::dvec4& cut,
                      double baseDelta) {
   const glm::dvec3 spacing = volume.spacing();
   const VolumeKnots inMemory(volume, octree);
@@ -321,10 +321,10 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
   // Warm frames (nothing to pack) do not open the parallel region: its threads would spin for a
   // while after it (libgomp's default wait policy), taking a core from llvmpipe's rasterizer.
   std::vector<uint32_t> toPack;
-  std::vector<int32_t> packedOf(octree.nodes().size(), -1);
-  for (uint32_t i : order)
-    if (textured(i) && !(options.textures && options.textures->find(selection.bricks[size_t(brickOf[i])]))) {
-      packedOf[i] = int32_t(toPack.size());
+  std::vector<int32_t> packedOf(order.size(), -1);  // per position in `order`
+  for (size_t k = 0; k < order.size(); ++k)
+    if (const uint32_t i = order[k]; textured(i) && !(options.textures && options.textures->find(selection.bricks[size_t(brickOf[i])]))) {
+      packedOf[k] = int32_t(toPack.size());
       toPack.push_back(i);
     }
   plan.uploaded = toPack.size();
@@ -348,7 +348,8 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
     failure.rethrow();
   }
   plan.draws.reserve(order.size());
-  for (uint32_t i : order) {
+  for (size_t k = 0; k < order.size(); ++k) {
+    const uint32_t i = order[k];
     const Brick& b = selection.bricks[size_t(brickOf[i])];
     const OctreeNode& n = octree.nodes()[i];
     BrickDraw d;
@@ -369,13 +370,13 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
       const bool crossed = options.cut && slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &piece.polygon);
       CachedBrick made;
       if (!cached) {
-        PackedBrick& packed = plan.pending[size_t(packedOf[i])];
+        PackedBrick& packed = plan.pending[size_t(packedOf[k])];
         if (crossed) {
           made = uploadBrick(std::move(packed), fine.dims, options.texelBits);
           packed = PackedBrick{};
           if (options.textures) cached = &options.textures->insert(b, std::move(made));
         } else {
-          d.pending = packedOf[i];
+          d.pending = packedOf[k];
           d.texels = fine.dims;
         }
       }
@@ -547,8 +548,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
 
   // 3. Bricks back to front, and the surface polygons each brick holds.
-  std::vector<int> brickOf(octree.nodes().size(), -1);
-  for (size_t b = 0; b < selection.bricks.size(); ++b) brickOf[selection.bricks[b].node] = int(b);
+  const BrickIndex brickOf(selection);
   const glm::dvec3 eyeVoxel = (camera.ortho ? camera.eye - frame.forward * 1e9 * frame.diag : camera.eye) / spacing;
   std::vector<uint32_t> order = bricksBackToFront(octree, brickOf, eyeVoxel);
   HYB_CHECK(order.size() == selection.bricks.size());
