@@ -17,6 +17,7 @@
 #include "volume/inflate.h"
 #include "volume/memory_limit.h"
 #include "volume/patient_frame.h"
+#include "volume/plane_source.h"
 #include "volume/reader_util.h"
 #include "volume/text_reader.h"
 
@@ -76,19 +77,30 @@ void checkNiftiData(const nifti_image& nim, const std::string& path) {
   if (gz && detail::maxInflatedBytes(data.size()) < needed)
     HYB_THROW(IoError, data.path(), ": ", data.size(), " bytes of compressed data cannot hold the ", needed,
               " bytes the header declares (expected more: deflate inflates at most ", detail::kMaxDeflateRatio, ":1)");
-  checkMemory(path, bytes + uint64_t(nim.nvox) * sizeof(float), detail::concat(nim.nvox, " NIfTI samples"));
 }
 
-}  // namespace
+using NiftiImage = std::unique_ptr<nifti_image, void (*)(nifti_image*)>;
+constexpr int kMsbFirst = 2;  // nifti_image::byteorder of a big-endian file (MSB_FIRST, which nifti_clib keeps to itself)
 
-Volume readNifti(const std::string& path) {
+// A NIfTI file's header, checked, with the volume it describes (no samples) and where its samples lie.
+struct NiftiLayout {
+  NiftiImage nim{nullptr, nifti_image_free};
+  Volume description;
+  SampleData data;
+  double slope = 1.0, inter = 0.0;  // scl_slope and scl_inter where they rescale the samples
+  bool rescaled() const { return slope != 1.0 || inter != 0.0; }
+};
+
+NiftiLayout parseNifti(const std::string& path) {
   const InputFile header(path);  // refuses FIFOs and directories before nifti_clib opens them
   nifti_set_debug_level(0);  // we report errors ourselves, in one line
   // The header first: the data is loaded only once its size is proven by the file. nifti_clib
   // prints some errors whatever its debug level; they are captured and quoted in ours.
   detail::StderrCapture capture;
-  std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nifti_image_read(path.c_str(), 0), nifti_image_free);
+  NiftiLayout l;
+  l.nim.reset(nifti_image_read(path.c_str(), 0));
   const std::string said = capture.finish();
+  const nifti_image* nim = l.nim.get();
   if (!nim)
     HYB_THROW(IoError, path, ": not a readable NIfTI-1/2 image", said.empty() ? "" : " (nifti_clib: " + quotedExcerpt(said, 120) + ")",
               " (expected a NIfTI-1 or NIfTI-2 header)");
@@ -99,12 +111,6 @@ Volume readNifti(const std::string& path) {
   if (nim->nx < 1 || nim->nx > kMaxDim || nim->ny > kMaxDim || nim->nz > kMaxDim || nim->nvox < 1 || nim->nbyper < 1 || nim->nbyper > 32)
     HYB_THROW(IoError, path, ": NIfTI dims ", nim->nx, "x", nim->ny, "x", nim->nz, " invalid (expected 1..", kMaxDim, " per axis)");
   checkNiftiData(*nim, path);
-  detail::StderrCapture loadCapture;
-  const bool loaded = nifti_image_load(nim.get()) == 0 && nim->data;
-  const std::string loadSaid = loadCapture.finish();
-  if (!loaded)
-    HYB_THROW(IoError, path, ": NIfTI data could not be read", loadSaid.empty() ? "" : " (nifti_clib: " + quotedExcerpt(loadSaid, 120) + ")",
-              " (expected ", uint64_t(nim->nvox) * uint64_t(nim->nbyper), " bytes of samples)");
   const glm::ivec3 dims(int(nim->nx), int(std::max<int64_t>(1, nim->ny)), int(std::max<int64_t>(1, nim->nz)));
   validateDims(dims, path);
   ScalarType type;
@@ -124,17 +130,48 @@ Volume readNifti(const std::string& path) {
   std::vector<std::string> warnings;
   const PatientFrame frame = niftiFrame(*nim, path, &spacing, &warnings);
   validateSpacing(spacing, path);
+  l.description = placed(describedVolume(dims, spacing, type, path), frame, warnings);
+  // A .nii.gz is one gzip stream, the header inside it: the samples start vox_offset inflated bytes in.
+  const uint64_t offset = uint64_t(std::max<int64_t>(0, nim->iname_offset));
+  const bool gz = fileExtension(nim->iname).ends_with(".gz");
+  l.data = SampleData{nim->iname, gz ? 0 : offset, gz ? (long long)offset : 0, "vox_offset", gz, type, nim->byteorder == kMsbFirst};
+  if (std::isfinite(nim->scl_slope) && nim->scl_slope != 0.0 && std::isfinite(nim->scl_inter)) {
+    l.slope = nim->scl_slope;
+    l.inter = nim->scl_inter;
+  }
+  return l;
+}
+
+}  // namespace
+
+Volume readNifti(const std::string& path) {
+  NiftiLayout l = parseNifti(path);
+  nifti_image* nim = l.nim.get();
+  checkMemory(path, uint64_t(nim->nvox) * uint64_t(nim->nbyper) + uint64_t(nim->nvox) * sizeof(float), detail::concat(nim->nvox, " NIfTI samples"));
+  detail::StderrCapture loadCapture;
+  const bool loaded = nifti_image_load(nim) == 0 && nim->data;
+  const std::string loadSaid = loadCapture.finish();
+  if (!loaded)
+    HYB_THROW(IoError, path, ": NIfTI data could not be read", loadSaid.empty() ? "" : " (nifti_clib: " + quotedExcerpt(loadSaid, 120) + ")",
+              " (expected ", uint64_t(nim->nvox) * uint64_t(nim->nbyper), " bytes of samples)");
+  const glm::ivec3 dims = l.description.dims();
+  ScalarType type = l.description.sourceType();
   const size_t count = size_t(dims.x) * dims.y * dims.z;
   // nifti_clib has already swapped to native byte order.
   SampleArray samples = decodeSamples(static_cast<const uint8_t*>(nim->data), count, type, std::endian::native == std::endian::big);
-  const double slope = nim->scl_slope, inter = nim->scl_inter;
-  if (std::isfinite(slope) && slope != 0.0 && std::isfinite(inter) && (slope != 1.0 || inter != 0.0)) {
-    SampleArray values = detail::rescaleTarget(type, slope, inter, count);
-    detail::rescaleSamples(&values, 0, samples, slope, inter);
+  if (l.rescaled()) {
+    SampleArray values = detail::rescaleTarget(type, l.slope, l.inter, count);
+    detail::rescaleSamples(&values, 0, samples, l.slope, l.inter);
     samples = std::move(values);
     if (storedType(samples) == ScalarType::Float32) type = ScalarType::Float32;
   }
-  return placed(Volume(dims, spacing, type, std::move(samples), path), frame, warnings);
+  return placedAs(Volume(dims, l.description.spacing(), type, std::move(samples), path), l.description);
+}
+
+std::unique_ptr<PlaneSource> detail::niftiPlanes(const std::string& path) {
+  NiftiLayout l = parseNifti(path);
+  if (!streams(l.data.type) || l.rescaled()) return nullptr;  // a rescale may change the stored type: read whole
+  return streamedPlanes(l.data, std::move(l.description), path);
 }
 
 }  // namespace hyb

@@ -47,9 +47,10 @@ class PlaneSource {
 /// The planes of @p volume, which must outlive the source.
 std::unique_ptr<PlaneSource> planesOf(const Volume& volume);
 
-/// The planes of a volume file, by the rules of readVolume(): raw files, and NRRD and MetaImage
-/// files of 8- and 16-bit integer or float samples in raw or gzip/zlib encoding, are read plane by
-/// plane; anything else (DICOM, NIfTI, InVesalius, ASCII, 32-bit integers) is read whole.
+/// The planes of a volume file, by the rules of readVolume(): raw files, and NRRD, MetaImage and
+/// NIfTI files of 8- and 16-bit integer or float samples in raw or gzip/zlib encoding (NIfTI's not
+/// rescaled), are read plane by plane; anything else (DICOM, InVesalius, ASCII, 32-bit integers)
+/// is read whole.
 /// @throw IoError / ValueError naming @p path, as readVolume().
 std::unique_ptr<PlaneSource> openPlanes(const std::string& path, const RawLayout* raw = nullptr, const std::string& series = "",
                                         const Progress* progress = nullptr);
@@ -79,6 +80,9 @@ std::unique_ptr<PlaneSource> streamedPlanes(const SampleData& data, Volume descr
 /// stream (ASCII, 32-bit integers).
 std::unique_ptr<PlaneSource> nrrdPlanes(const std::string& path);
 std::unique_ptr<PlaneSource> metaImagePlanes(const std::string& path);
+/// The streamed planes of a NIfTI file (.nii, .nii.gz, .hdr with its .img), or null when its
+/// samples do not stream (32-bit integers, or rescaled by scl_slope and scl_inter).
+std::unique_ptr<PlaneSource> niftiPlanes(const std::string& path);
 /// The streamed planes of @p path by the rules of readVolume(), or null when it is read whole.
 std::unique_ptr<PlaneSource> openStreamedPlanes(const std::string& path, const RawLayout* raw, const std::string& series);
 

@@ -118,6 +118,7 @@ std::unique_ptr<PlaneSource> detail::openStreamedPlanes(const std::string& path,
     const std::string ext = fileExtension(path);
     if (ext == ".nrrd" || ext == ".nhdr") return nrrdPlanes(path);
     if (ext == ".mhd" || ext == ".mha") return metaImagePlanes(path);
+    if (ext == ".nii" || ext == ".nii.gz" || ext == ".hdr") return niftiPlanes(path);
     return nullptr;
   });
 }
