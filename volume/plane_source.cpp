@@ -78,7 +78,12 @@ class StreamedPlanes final : public PlaneSource {
       detail::checkByteCount(mFile.path(), mExpected, mFile.size() - offset, n, data.type);
       mStart = offset;
     }
-    rewind();
+    try {
+      rewind();  // (a compressed stream's skip is inflated here: it may be cut short)
+    } catch (...) {
+      if (mInflating) inflateEnd(&mZ);  // no destructor runs for a constructor that throws
+      throw;
+    }
   }
   ~StreamedPlanes() override {
     if (mInflating) inflateEnd(&mZ);
