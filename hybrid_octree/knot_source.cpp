@@ -61,16 +61,7 @@ std::vector<glm::vec4> latticeKnots(const KnotSource& source, const KnotLattice&
     for (int j = 0; j < L.dims.y; ++j)
       for (int i = 0; i < L.dims.x; ++i) {
         const glm::ivec3 g = first + glm::ivec3(i, j, k);
-        glm::vec4 t(value(g), 0.0f, 0.0f, 0.0f);
-        for (int a = 0; a < 3; ++a) {
-          glm::ivec3 below = g, above = g;
-          below[a] = std::max(g[a] - 1, 0);
-          above[a] = std::min(g[a] + 1, n[a] - 1);
-          if (above[a] == below[a]) continue;
-          const double d = (double(value(above)) - double(value(below))) / (double(above[a] - below[a]) * spacing[a]);
-          t[a + 1] = float(std::clamp(d, -double(std::numeric_limits<float>::max()), double(std::numeric_limits<float>::max())));
-        }
-        out.push_back(t);
+        out.push_back(glm::vec4(value(g), centralDifferences(g, n, spacing, [&](int x, int y, int z) { return value({x, y, z}); })));
       }
   return out;
 }
