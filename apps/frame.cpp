@@ -359,10 +359,12 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
   // A scene file is read paged: its octrees and the cache its bricks come through hold --memory.
   const uint64_t memoryBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
   Scene scene = loadOrBuild(o.input, out, err, &job.buildMs, octree, SceneLoadOptions{false, memoryBytes});
-  if (scene.knots && scene.knots->cacheStats().limit + scene.octree.bytesUsed() > memoryBytes)
-    err << "hybrid-octree: warning: --memory " << memoryBytes / (1024 * 1024) << " MB: the scene's octree alone takes "
-        << scene.octree.bytesUsed() / (1024 * 1024) << " MB; its block cache gets " << scene.knots->cacheStats().limit / (1024 * 1024)
-        << " MB, and the process more than --memory\n";
+  if (scene.knots) {
+    const uint64_t cache = scene.knots->cacheStats().limit, octreeBytes = scene.octree.bytesUsed();
+    if (cache + octreeBytes > memoryBytes)
+      err << "hybrid-octree: warning: --memory " << memoryBytes / (1024 * 1024) << " MB: the scene's octree alone takes " << octreeBytes / (1024 * 1024)
+          << " MB; its block cache gets " << cache / (1024 * 1024) << " MB, and the process more than --memory\n";
+  }
   const Volume& v = scene.volume;
   const PatientFrame& frame = v.frame();
   // What is shown: the transfer function from a file, a preset, or chosen for the data's range.

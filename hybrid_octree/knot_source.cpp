@@ -1,7 +1,6 @@
 #include "hybrid_octree/knot_source.h"
 
 #include <algorithm>
-#include <limits>
 
 #include "volume/error.h"
 
@@ -83,7 +82,6 @@ const KnotSampler::Tile& KnotSampler::tileAt(const glm::vec3& p) {
   t.values.resize(size_t(t.count.x) * size_t(t.count.y) * size_t(t.count.z));
   mSource.read(1, t.lo, t.count, t.values.data(), nullptr);
   t.key = key;
-  ++mTilesRead;
   return t;
 }
 

@@ -90,8 +90,6 @@ class KnotSampler {
   /// @throw IoError as KnotSource::read.
   float sample(const glm::vec3& p);
   glm::vec3 sampleGradient(const glm::vec3& p);
-  /// Tiles read so far.
-  uint64_t tilesRead() const { return mTilesRead; }
 
  private:
   struct Tile {
@@ -109,7 +107,6 @@ class KnotSampler {
   glm::ivec3 mDims;
   glm::dvec3 mSpacing;
   std::vector<Tile> mTiles;
-  uint64_t mTilesRead = 0;
 };
 
 /// The knots of lattice @p L as value and gradient (data units per mm), x fastest: what

@@ -113,11 +113,6 @@ void zoomCamera(Camera* camera, double zoom) {
   camera->fovDeg = glm::degrees(2.0 * std::atan(std::tan(glm::radians(camera->fovDeg) * 0.5) / zoom));
 }
 
-// The visible cells (the 8 samples' range is given an opacity, or spans the isovalue) are a set
-// of places in the patient, whatever order the grid stores them in, and so is their convex hull,
-// which is all a camera fit depends on: the first and last visible cell of every row of cells
-// along x carry that hull. The octree only says where to look: rows are scanned inward from each
-// end through the leaves whose range can be visible, and stop at the first visible cell.
 namespace {
 
 // The vertices of the convex hull of @p points (ordered by y, then x; integer coordinates, so
@@ -147,6 +142,11 @@ void convexHull2d(const std::vector<glm::i64vec2>& points, std::vector<glm::i64v
 
 }  // namespace
 
+// The visible cells (the 8 samples' range is given an opacity, or spans the isovalue) are a set
+// of places in the patient, whatever order the grid stores them in, and so is their convex hull,
+// which is all a camera fit depends on: the first and last visible cell of every row of cells
+// along x carry that hull. The octree only says where to look: rows are scanned inward from each
+// end through the leaves whose range can be visible, and stop at the first visible cell.
 std::vector<glm::dvec3> visiblePoints(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, std::optional<float> iso,
                                       const KnotSource* knots) {
   auto visible = [&](float lo, float hi) { return tf.maxAlpha(lo, hi) > 0.0f || (iso && lo < *iso && *iso <= hi); };
