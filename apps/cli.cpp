@@ -127,15 +127,9 @@ struct BuildOptions {
 
 
 int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
-  // A volume-only build streams its input plane by plane (twice); an isosurface needs the samples whole.
-  std::optional<Volume> whole;
-  std::unique_ptr<PlaneSource> planes;
-  if (o.iso) {
-    whole = o.input.read(err);
-    planes = planesOf(*whole);
-  } else {
-    planes = o.input.openPlanes(err);
-  }
+  // The build streams its input plane by plane: twice for the octree and its store, once more for
+  // an isosurface.
+  const std::unique_ptr<PlaneSource> planes = o.input.openPlanes(err);
   KnotStoreWriter store = storeWriterFor(o.output, *planes);
   const auto t0 = Clock::now();
   const VolumeOctree t = VolumeOctree::build(*planes, VolumeOctreeOptions{o.leafEdge, o.prefilter, o.input.progress}, &store);
@@ -147,7 +141,7 @@ int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
   std::optional<SurfaceOctree> so;
   if (o.iso) {
     const auto t1 = Clock::now();
-    so = SurfaceOctree::build(*whole, t, float(*o.iso));
+    so = SurfaceOctree::build(*planes, t, float(*o.iso), SurfaceOctreeOptions{kMaxNodePlanes, 0, o.input.progress});
     out << surfaceSummary(*so, msSince(t1));
   }
   saveScene(o.output, v, t, store, so ? &*so : nullptr);

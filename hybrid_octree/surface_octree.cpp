@@ -8,15 +8,23 @@
 #include <algorithm>
 #include <array>
 #include <bit>
+#include <functional>
+#include <span>
 #include <cmath>
 #include <iterator>
 #include <numeric>
 #include <tuple>
 
+#include "hybrid_octree/knot_source.h"
+#include "hybrid_octree/knot_store.h"
 #include "surface/dmc.h"
 #include "surface/dmc_table.h"
 #include "surface/flat_map.h"
 #include "volume/error.h"
+#include "volume/parallel.h"
+#include "volume/plane_source.h"
+#include "volume/progress.h"
+#include "volume/sample_window.h"
 
 namespace hyb {
 
@@ -229,13 +237,14 @@ class RegionCache {
 // they are in cache, and its nodes come out in Morton order after those of the leaves before it.
 class BlockMerger {
  public:
-  BlockMerger(const Volume& volume, float iso, int maxPlanes, int mergeEdge)
-      : mVolume(volume), mIso(iso), mMaxPlanes(maxPlanes), mMergeEdge(mergeEdge), mCodes(leafCodes()) {}
+  BlockMerger(float iso, int maxPlanes, int mergeEdge) : mIso(iso), mMaxPlanes(maxPlanes), mMergeEdge(mergeEdge), mCodes(leafCodes()) {}
 
-  /// Appends the terminal nodes of the cells of @p block to @p out; returns the number of cells.
-  size_t run(const VoxelBlock& block, std::vector<SurfaceNode>* out) {
+  /// Appends the terminal nodes of the cells of @p block to @p out, reading @p samples (at least
+  /// SampleBox::around(block)); returns the number of cells.
+  size_t run(const VoxelBlock& block, const SampleBox& samples, std::vector<SurfaceNode>* out) {
+    mSamples = &samples;
     mCells.clear();
-    appendSurfaceCells(mVolume, mIso, block, &mCells);
+    appendSurfaceCells(samples, mIso, block, &mCells);
     if (mCells.empty()) return 0;
     sortCells(block);
     mLevel.resize(mCells.size());
@@ -352,7 +361,7 @@ class BlockMerger {
         parent.node.inside = mLevel[i].node.inside;
         return parent;
       }
-    const Box box = nodeBox(origin, parentEdge, mVolume.dims());
+    const Box box = nodeBox(origin, parentEdge, mSamples->dims());
     const RegionCache::Compact r = mCache.get(u.data(), nu, box);
     const V64 corner = V64(box.lo) * I64(kFine);
     parent.node.occurs = r.occurs;
@@ -360,8 +369,8 @@ class BlockMerger {
     // centre sample, so one read classifies them all (octant origins where the centre lies
     // outside the grid).
     const glm::ivec3 centre = origin + edge;
-    const bool centreInGrid = glm::all(glm::lessThan(centre, mVolume.dims()));
-    const bool centreInside = centreInGrid && mVolume.at(centre.x, centre.y, centre.z) >= mIso;
+    const bool centreInGrid = glm::all(glm::lessThan(centre, mSamples->dims()));
+    const bool centreInside = centreInGrid && mSamples->at(centre.x, centre.y, centre.z) >= mIso;
     // Children by octant (slot bits x | y<<1 | z<<2), nullptr for uniform octants.
     std::array<const Entry*, 8> children{};
     for (size_t i = b; i < e; ++i) {
@@ -384,15 +393,15 @@ class BlockMerger {
       } else if (centreInGrid) {
         inside = centreInside;
       } else {  // a uniform octant: the class of any of its samples
-        const glm::ivec3 s = glm::min(childOrigin, mVolume.dims() - 1);
-        inside = mVolume.at(s.x, s.y, s.z) >= mIso;
+        const glm::ivec3 s = glm::min(childOrigin, mSamples->dims() - 1);
+        inside = mSamples->at(s.x, s.y, s.z) >= mIso;
       }
       if (inside) parent.node.inside |= 1u << sigma;
     }
     return parent;
   }
 
-  const Volume& mVolume;
+  const SampleBox* mSamples = nullptr;
   float mIso;
   int mMaxPlanes, mMergeEdge;
   const std::array<std::array<SurfaceNode, 2>, 256>& mCodes;
@@ -421,19 +430,115 @@ bool nodeContains(const SurfaceNode& node, const glm::i64vec3& p, int64_t scale)
   return (node.inside >> sigma) & 1;
 }
 
-SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& octree, float iso,
-                                   const SurfaceOctreeOptions& options) {
+namespace {
+
+// Reads the samples of a box (SampleBox::around a block) into it; called from several threads at once.
+using ReadBox = std::function<void(SampleBox*)>;
+
+// Merges @p blocks (volume-octree leaves) on all cores, block i's nodes into (*nodes)[i];
+// returns the cells extracted. Consecutive leaves in one aligned cube of kStoreBlock voxels (Morton
+// order keeps them together) are read as one box: a paged store reads each of its blocks about once.
+size_t mergeBlocks(std::span<const VoxelBlock> blocks, const glm::ivec3& dims, float iso, const SurfaceOctreeOptions& options,
+                   int mergeEdge, const ReadBox& read, std::vector<std::vector<SurfaceNode>>* nodes, ProgressTask* progress) {
+  std::vector<size_t> runs;  // where each run of leaves starts, and the end
+  for (size_t i = 0; i < blocks.size(); ++i)
+    if (i == 0 || blocks[i].lo / kStoreBlock != blocks[i - 1].lo / kStoreBlock) runs.push_back(i);
+  runs.push_back(blocks.size());
+  size_t cells = 0;
+  ParallelFailure failure;
+#pragma omp parallel reduction(+ : cells) if (runs.size() > 2)
+  {
+    BlockMerger merger(iso, options.maxPlanes, mergeEdge);
+#pragma omp for schedule(dynamic)
+    for (size_t r = 0; r < runs.size() - 1; ++r)
+      failure.run([&] {
+        VoxelBlock all = blocks[runs[r]];
+        for (size_t i = runs[r]; i < runs[r + 1]; ++i) {
+          all.lo = glm::min(all.lo, blocks[i].lo);
+          all.hi = glm::max(all.hi, blocks[i].hi);
+        }
+        SampleBox box = SampleBox::around(all, dims);
+        read(&box);
+        for (size_t i = runs[r]; i < runs[r + 1]; ++i) cells += merger.run(blocks[i], box, &(*nodes)[i]);
+        progress->advance(runs[r + 1] - runs[r]);
+      });
+  }
+  failure.rethrow();
+  return cells;
+}
+
+void checkOptions(const SurfaceOctreeOptions& options) {
   if (options.maxPlanes < 1 || options.maxPlanes > kMaxNodePlanes)
     HYB_THROW(ValueError, "maximum planes per node ", options.maxPlanes, " invalid (expected 1..", kMaxNodePlanes, ")");
   if (options.maxEdge < 0 || (options.maxEdge & (options.maxEdge - 1)))
     HYB_THROW(ValueError, "largest merged node edge ", options.maxEdge, " invalid (expected 0 or a power of two)");
+}
+
+}  // namespace
+
+SurfaceOctree SurfaceOctree::build(const KnotSource& knots, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options) {
+  checkOptions(options);
   SurfaceOctree so;
-  so.mDims = volume.dims();
+  so.mDims = knots.dims();
   so.mIso = iso;
   so.mMergeEdge = options.maxEdge > 0 ? std::min(options.maxEdge, octree.leafEdge()) : octree.leafEdge();
-  BlockMerger merger(volume, iso, options.maxPlanes, so.mMergeEdge);
-  for (const VoxelBlock& block : isoBlocks(octree, iso)) so.mCellCount += merger.run(block, &so.mNodes);
+  const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
+  std::vector<std::vector<SurfaceNode>> nodes(blocks.size());
+  ProgressTask progress(options.progress, "surface octree", blocks.size());
+  so.mCellCount = mergeBlocks(blocks, so.mDims, iso, options, so.mMergeEdge,
+                              [&](SampleBox* b) { knots.read(1, b->lo, b->count, b->values.data(), nullptr); }, &nodes, &progress);
+  so.gather(std::move(nodes));
   return so;
+}
+
+SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options) {
+  return build(VolumeKnots(volume, octree), octree, iso, options);
+}
+
+SurfaceOctree SurfaceOctree::build(PlaneSource& planes, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options) {
+  checkOptions(options);
+  SurfaceOctree so;
+  so.mDims = planes.dims();
+  so.mIso = iso;
+  so.mMergeEdge = options.maxEdge > 0 ? std::min(options.maxEdge, octree.leafEdge()) : octree.leafEdge();
+  // The leaves a slab at a time (their Morton order visits slabs back and forth): each reads the
+  // planes from one below its own to its top, leafEdge + 2 of them.
+  const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
+  std::vector<uint32_t> bySlab(blocks.size());
+  std::iota(bySlab.begin(), bySlab.end(), 0u);
+  std::stable_sort(bySlab.begin(), bySlab.end(), [&](uint32_t a, uint32_t b) { return blocks[a].lo.z < blocks[b].lo.z; });
+  std::vector<VoxelBlock> slab;
+  std::vector<std::vector<SurfaceNode>> nodes(blocks.size()), slabNodes;
+  SampleWindow window(planes, octree.leafEdge() + 2);
+  planes.rewind();
+  ProgressTask progress(options.progress, "surface octree", blocks.size());
+  for (size_t b = 0, e; b < bySlab.size(); b = e) {
+    const int z = blocks[bySlab[b]].lo.z;
+    for (e = b; e < bySlab.size() && blocks[bySlab[e]].lo.z == z; ++e) {}
+    slab.clear();
+    for (size_t i = b; i < e; ++i) slab.push_back(blocks[bySlab[i]]);
+    const int top = std::max_element(slab.begin(), slab.end(), [](const VoxelBlock& p, const VoxelBlock& q) { return p.hi.z < q.hi.z; })->hi.z;
+    while (window.next() <= top) window.load(planes);
+    slabNodes.assign(slab.size(), {});
+    so.mCellCount += mergeBlocks(slab, so.mDims, iso, options, so.mMergeEdge, [&](SampleBox* box) {
+      float* out = box->values.data();
+      for (int k = 0; k < box->count.z; ++k)
+        for (int j = 0; j < box->count.y; ++j, out += box->count.x) window.readRow(box->lo.x, box->lo.y + j, box->lo.z + k, box->count.x, out);
+    }, &slabNodes, &progress);
+    for (size_t i = b; i < e; ++i) nodes[bySlab[i]] = std::move(slabNodes[i - b]);
+  }
+  so.gather(std::move(nodes));
+  return so;
+}
+
+void SurfaceOctree::gather(std::vector<std::vector<SurfaceNode>> perBlock) {
+  size_t count = 0;
+  for (const auto& n : perBlock) count += n.size();
+  mNodes.reserve(count);
+  for (auto& n : perBlock) {
+    mNodes.insert(mNodes.end(), n.begin(), n.end());
+    std::vector<SurfaceNode>().swap(n);
+  }
 }
 
 std::pair<uint32_t, uint32_t> SurfaceOctree::rangeIn(const glm::ivec3& origin, int edge) const {

@@ -36,6 +36,9 @@
 
 namespace hyb {
 
+class KnotSource;
+class PlaneSource;
+
 /// A geometric discrete plane N_o·X = d in doubled coordinates (N_o the canonical normal).
 struct GeoPlane {
   int8_t orientation = 0;
@@ -68,6 +71,7 @@ struct SurfaceOctreeOptions {
   /// 0 = the leaf edge. Every surface node lies in exactly one volume leaf, so the renderer finds a
   /// brick's polygons by range and the build merges leaf by leaf.
   int maxEdge = 0;
+  const Progress* progress = nullptr;  ///< hears of the leaves merged ("surface octree")
 };
 
 /// The Surface Octree of one isovalue.
@@ -76,8 +80,18 @@ class SurfaceOctree {
   SurfaceOctree() = default;
 
   /// Extracts DiscMC cell codes over the cells @p octree's min/max say the isovalue crosses and
-  /// merges them bottom-up.
+  /// merges them bottom-up, leaf by leaf on all cores, each leaf reading its samples (spacing 1)
+  /// from @p knots: a paged scene's read through its cache, never whole.
+  /// @throw IoError as KnotSource::read.
+  static SurfaceOctree build(const KnotSource& knots, const VolumeOctree& octree, float iso,
+                             const SurfaceOctreeOptions& options = SurfaceOctreeOptions());
+  /// The same from a volume in memory.
   static SurfaceOctree build(const Volume& volume, const VolumeOctree& octree, float iso,
+                             const SurfaceOctreeOptions& options = SurfaceOctreeOptions());
+  /// The same from @p planes, read once more from the first (a streamed build): the leaves a slab
+  /// at a time, holding leafEdge + 2 planes.
+  /// @throw IoError as PlaneSource::read.
+  static SurfaceOctree build(PlaneSource& planes, const VolumeOctree& octree, float iso,
                              const SurfaceOctreeOptions& options = SurfaceOctreeOptions());
 
   /// Reassembles a stored octree, checking every node against @p dims.
@@ -106,6 +120,9 @@ class SurfaceOctree {
   DiscreteMesh reconstruct(int mergeCube = 0, const Progress* progress = nullptr) const;
 
  private:
+  // Appends the leaves' nodes in their order (Morton order: the leaves are).
+  void gather(std::vector<std::vector<SurfaceNode>> perBlock);
+
   std::vector<SurfaceNode> mNodes;
   glm::ivec3 mDims{0};
   float mIso = 0;

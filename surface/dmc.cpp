@@ -18,7 +18,8 @@ namespace hyb {
 
 namespace {
 
-unsigned cellMask(const Volume& v, float iso, int i, int j, int k) {
+template <class Grid>
+unsigned cellMask(const Grid& v, float iso, int i, int j, int k) {
   unsigned mask = 0;
   for (int c = 0; c < 8; ++c) mask |= unsigned(v.at(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)) >= iso) << c;
   return mask;
@@ -26,7 +27,8 @@ unsigned cellMask(const Volume& v, float iso, int i, int j, int k) {
 
 // Whether a DiscMC cell uses the centre-diagonal variant of its case: its fold lies on its low face
 // and the cell below folds onto the same diagonal (dmc_table.h).
-bool usesAlternative(const Volume& v, float iso, int i, int j, int k, unsigned mask) {
+template <class Grid>
+bool usesAlternative(const Grid& v, float iso, int i, int j, int k, unsigned mask) {
   const dmc::Case& c = dmc::caseTable()[mask];
   if (!c.hasFold()) return false;
   const glm::ivec3 a = dmc::edgeMidpoint(c.fold[0]), b = dmc::edgeMidpoint(c.fold[1]);
@@ -65,8 +67,8 @@ uint64_t insideBits(const float* row, int n, float iso) {
 // (all cells, in blocks of 16³, when @p blocks is empty), x fastest. Each row of a block's samples is
 // classified once into a bit mask (blocks wider than 63 cells are cut along x); a row of cells
 // combines four of them, and only its mixed cells are visited.
-template <typename Visit>
-void forEachActiveCell(const Volume& v, float iso, std::span<const VoxelBlock> blocks, Visit&& visit) {
+template <class Grid, typename Visit>
+void forEachActiveCell(const Grid& v, float iso, std::span<const VoxelBlock> blocks, Visit&& visit) {
   constexpr int kMaxRun = 63;  // cells a row: its samples fit a 64-bit mask
   std::vector<VoxelBlock> pieces;
   if (blocks.empty()) {
@@ -114,9 +116,11 @@ void forEachActiveCell(const Volume& v, float iso, std::span<const VoxelBlock> b
 
 }  // namespace
 
-void appendSurfaceCells(const Volume& volume, float iso, const VoxelBlock& block, std::vector<SurfaceCell>* cells) {
-  forEachActiveCell(volume, iso, std::span<const VoxelBlock>(&block, 1), [&](int i, int j, int k, unsigned mask) {
-    cells->push_back({glm::u16vec3(i, j, k), uint8_t(mask), usesAlternative(volume, iso, i, j, k, mask)});
+void appendSurfaceCells(const SampleBox& samples, float iso, const VoxelBlock& block, std::vector<SurfaceCell>* cells) {
+  HYB_DCHECK(glm::all(glm::lessThanEqual(samples.lo, glm::max(block.lo - 1, glm::ivec3(0)))) &&
+             glm::all(glm::lessThan(block.hi, samples.lo + samples.count)));
+  forEachActiveCell(samples, iso, std::span<const VoxelBlock>(&block, 1), [&](int i, int j, int k, unsigned mask) {
+    cells->push_back({glm::u16vec3(i, j, k), uint8_t(mask), usesAlternative(samples, iso, i, j, k, mask)});
   });
 }
 

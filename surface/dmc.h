@@ -4,6 +4,7 @@
 // A corner is inside the solid when its sample is ≥ the isovalue.
 #pragma once
 
+#include <algorithm>
 #include <span>
 #include <vector>
 
@@ -33,8 +34,28 @@ struct SurfaceCell {
   bool alternative;
 };
 
-/// Appends the cells of @p block the isosurface crosses to @p cells, x fastest.
-void appendSurfaceCells(const Volume& volume, float iso, const VoxelBlock& block, std::vector<SurfaceCell>* cells);
+/// The samples of the box lo … lo + count − 1 of a grid of gridDims, as float, x fastest: a part of
+/// a volume, read with the volume's accessors, for an extraction that does not hold the samples whole.
+struct SampleBox {
+  glm::ivec3 gridDims{0}, lo{0}, count{0};
+  std::vector<float> values;
+  /// The box of the samples the extraction of @p block reads: its own and, where the grid has them,
+  /// those one voxel below (a cell's DiscMC variant looks at the cell below it).
+  static SampleBox around(const VoxelBlock& block, const glm::ivec3& gridDims) {
+    SampleBox b{gridDims, glm::max(block.lo - 1, glm::ivec3(0)), glm::ivec3(0), {}};
+    b.count = block.hi - b.lo + 1;
+    b.values.resize(size_t(b.count.x) * size_t(b.count.y) * size_t(b.count.z));
+    return b;
+  }
+  const glm::ivec3& dims() const { return gridDims; }
+  const float* row(int j, int k) const { return values.data() + size_t(count.x) * (size_t(j - lo.y) + size_t(count.y) * size_t(k - lo.z)); }
+  float at(int i, int j, int k) const { return row(j, k)[i - lo.x]; }
+  void readRow(int i, int j, int k, int n, float* out) const { std::copy_n(row(j, k) + (i - lo.x), n, out); }
+};
+
+/// Appends the cells of @p block the isosurface crosses to @p cells, x fastest, reading @p samples
+/// (at least SampleBox::around(block)).
+void appendSurfaceCells(const SampleBox& samples, float iso, const VoxelBlock& block, std::vector<SurfaceCell>* cells);
 
 /// Classic Marching Cubes with vertices interpolated along the edges, in voxel coordinates,
 /// each loop fan-triangulated.

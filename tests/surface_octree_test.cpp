@@ -2,10 +2,13 @@
 
 #include <gtest/gtest.h>
 
+#include <random>
+
 #include "surface/cgal_geometry.h"
 #include "surface/dmc.h"
 #include "surface/dmc_table.h"
 #include "test_util.h"
+#include "volume/plane_source.h"
 #include "volume/volume_io.h"
 
 namespace hyb {
@@ -158,6 +161,25 @@ TEST(SurfaceOctree, MergeLimitsAndPlaneBudgetAreRespected) {
   const TriangleMesh bigMesh = fineMeshToTriangles(big.reconstruct(), plane.spacing());
   const TriangleMesh dmc = toTriangleMesh(extractDiscMC(plane, 0.0f), plane.spacing());
   EXPECT_NEAR(area(bigMesh), area(dmc), 1e-9 * area(dmc));
+}
+
+// A streamed build reads its planes once more, a slab of leaves at a time: the nodes of the build
+// from the volume in memory, for slabs that do not divide the grid and leaves of several sizes.
+TEST(SurfaceOctree, AStreamedBuildReadsThePlanesASlabOfLeavesAtATime) {
+  std::mt19937 rng(7);
+  const Volume v = test::makeVolume({37, 29, 45}, [&](int i, int j, int k) {
+    return float(16.0 - glm::length(glm::dvec3(i - 18, j - 14, k - 22)) + double(rng() % 5));
+  });
+  for (int leaf : {2, 4, 16}) {
+    const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{leaf, true, nullptr});
+    const SurfaceOctree whole = SurfaceOctree::build(v, t, 9.5f);
+    const std::unique_ptr<PlaneSource> planes = planesOf(v);
+    const SurfaceOctree streamed = SurfaceOctree::build(*planes, t, 9.5f);
+    EXPECT_GT(whole.nodes().size(), 500u) << leaf;
+    EXPECT_EQ(streamed.nodes(), whole.nodes()) << leaf;
+    EXPECT_EQ(streamed.cellCount(), whole.cellCount()) << leaf;
+    EXPECT_EQ(streamed.mergeEdge(), whole.mergeEdge()) << leaf;
+  }
 }
 
 TEST(SurfaceOctree, DegenerateInputs) {
