@@ -568,8 +568,7 @@ struct ServerState {
 
   static std::string meshFile(const Scene& scene, float iso, const std::string& format) {
     const Volume& v = scene.volume;
-    const bool stored = scene.surface && scene.surface->isovalue() == iso;
-    const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, scene.octree, iso);
+    const SurfaceOctree so = sceneSurface(scene, iso);
     TriangleMesh mesh = fineMeshToTriangles(so.reconstruct(kMaxDim), v.spacing());
     if (mesh.triangles.empty()) HYB_THROW(ValueError, "iso: no surface at ", iso, " (the data's values are ", v.minValue(), " to ", v.maxValue(), ")");
     toPatientSpace(v.frame(), &mesh);

@@ -11,6 +11,7 @@
 #include <ostream>
 
 #include "hybrid_octree/knot_store.h"
+#include "surface/mesh_ops.h"
 #include "volume/error.h"
 #include "volume/file_util.h"
 #include "volume/memory_limit.h"
@@ -482,6 +483,23 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
 
 uint64_t sceneCacheBytes(uint64_t memoryBytes, uint64_t octreeBytes) {
   return std::max(memoryBytes / 4, memoryBytes > octreeBytes ? memoryBytes - octreeBytes : 0);
+}
+
+SurfaceOctree sceneSurface(const Scene& scene, float iso, const Progress* progress) {
+  if (scene.surface && scene.surface->isovalue() == iso) return *scene.surface;
+  SurfaceOctreeOptions options;
+  options.progress = progress;
+  if (scene.volume.hasSamples()) return SurfaceOctree::build(scene.volume, scene.octree, iso, options);
+  HYB_CHECK(scene.knots);
+  return SurfaceOctree::build(*scene.knots, scene.octree, iso, options);
+}
+
+void setSceneNormals(const Scene& scene, TriangleMesh* mesh) {
+  if (scene.volume.hasSamples()) return setGradientNormals(scene.volume, mesh);
+  HYB_CHECK(scene.knots);
+  const KnotStore& knots = *scene.knots;
+  setGradientNormals(scene.volume.spacing(), [&](std::span<const glm::vec3> points, glm::vec3* gradients) { sampleGradients(knots, points, gradients); },
+                     mesh);
 }
 
 }  // namespace hyb

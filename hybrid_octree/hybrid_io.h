@@ -36,10 +36,19 @@ struct Scene {
   Volume volume;  ///< without its samples when loaded paged (see knots)
   VolumeOctree octree;
   std::optional<SurfaceOctree> surface;
-  /// Loaded paged: where the bricks read their knots, and the samples come from when a frame
-  /// needs them all (Volume::attachSamples). Null when the samples were loaded.
+  /// Loaded paged: where the bricks, the reference ray tracer and an isosurface's extraction read
+  /// their samples, through its cache. Null when the samples were loaded.
   std::shared_ptr<KnotStore> knots;
 };
+
+/// The Surface Octree of @p iso: the scene's own when it is of that isovalue, else extracted from
+/// the scene's samples (a paged scene's leaf by leaf through its cache, never whole).
+/// @throw IoError as KnotSource::read.
+SurfaceOctree sceneSurface(const Scene& scene, float iso, const Progress* progress = nullptr);
+
+/// Sets @p mesh's vertex normals from the scene's gradient (setGradientNormals; a paged scene's
+/// read through its cache, bit-identical to the samples' in memory).
+void setSceneNormals(const Scene& scene, TriangleMesh* mesh);
 
 /// How a scene is loaded.
 struct SceneLoadOptions {

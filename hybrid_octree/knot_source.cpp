@@ -95,4 +95,9 @@ glm::vec3 KnotSampler::sampleGradient(const glm::vec3& p) {
   return trilinearGradient(p, mDims, mSpacing, [&t](int i, int j, int k) { return t.at(i, j, k); });
 }
 
+void sampleGradients(const KnotSource& source, std::span<const glm::vec3> points, glm::vec3* gradients) {
+  KnotSampler sampler(source, 16);  // a run of neighbouring points meets a few tiles
+  for (size_t i = 0; i < points.size(); ++i) gradients[i] = sampler.sampleGradient(points[i]);
+}
+
 }  // namespace hyb

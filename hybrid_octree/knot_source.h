@@ -14,6 +14,7 @@
 
 #include <cstdint>
 #include <cstring>
+#include <span>
 #include <vector>
 
 #include "hybrid_octree/volume_octree.h"
@@ -108,6 +109,10 @@ class KnotSampler {
   glm::dvec3 mSpacing;
   std::vector<Tile> mTiles;
 };
+
+/// The gradients of @p source's full-resolution field at voxel positions @p points (a KnotSampler
+/// of its own): Volume::sampleGradient's numbers, bit for bit, without the samples in memory.
+void sampleGradients(const KnotSource& source, std::span<const glm::vec3> points, glm::vec3* gradients);
 
 /// The knots of lattice @p L as value and gradient (data units per mm), x fastest: what
 /// KnotSource::read gives, the gradient at spacing 1 by central differences between the knot's

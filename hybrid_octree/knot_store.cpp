@@ -444,7 +444,6 @@ void forEachBlock(const KnotBox& box, F&& f) {
 
 bool KnotStore::cached(const KnotBox& box) const {
   const std::lock_guard lock(mMutex);
-  if (box.s == 1 && mSamples) return true;
   bool all = true;
   forEachBlock(box, [&](size_t level, const glm::ivec3& b) { all = all && mCache.contains(mLevels[level].blockIndex(b)); });
   return all;
@@ -472,7 +471,7 @@ void KnotStore::prefetch(const std::vector<KnotBox>& boxes) {
       forEachBlock(box, [&](size_t level, const glm::ivec3& b) {
         const StoreLevel& l = mLevels[level];
         const uint64_t k = l.blockIndex(b);
-        if (mCache.contains(k) || (level == 0 && mSamples) || !asked.insert(k).second) return;
+        if (mCache.contains(k) || !asked.insert(k).second) return;
         bytes += rawBytes(l, blockDims(l, b));
         if (!mStats.limit || 2 * bytes <= mStats.limit) queue.emplace_back(level, b);
       });
@@ -545,11 +544,6 @@ void KnotStore::read(int s, const glm::ivec3& lo, const glm::ivec3& count, float
   HYB_DCHECK(std::has_single_bit(unsigned(s)) && size_t(std::countr_zero(unsigned(s))) < mLevels.size());
   const size_t level = size_t(std::countr_zero(unsigned(s)));
   const StoreLevel& l = mLevels[level];
-  if (level == 0 && mSamples) {
-    for (int z = 0; z < count.z; ++z)
-      for (int y = 0; y < count.y; ++y, values += count.x) mSamples->readRow(lo.x, lo.y + y, lo.z + z, count.x, values);
-    return;
-  }
   HYB_DCHECK(gradients == nullptr || l.gradients);
   const glm::ivec3 hi = lo + count - 1, b0 = lo / kStoreBlock, b1 = hi / kStoreBlock;
   for (int bz = b0.z; bz <= b1.z; ++bz)
@@ -630,23 +624,6 @@ SampleArray KnotStore::samples() const {
       });
   failure.rethrow();
   return out;
-}
-
-void KnotStore::useSamples(const Volume& volume) {
-  HYB_CHECK(volume.hasSamples() && volume.dims() == mDims && volume.storedType() == storedType());
-  const std::lock_guard lock(mMutex);
-  mSamples = &volume;
-  const uint64_t finest = mLevels.size() > 1 ? mLevels[1].firstBlock : mIndex.size();
-  for (auto it = mOrder.begin(); it != mOrder.end();) {
-    if (*it >= finest) {
-      ++it;
-      continue;
-    }
-    const auto entry = mCache.find(*it);
-    mStats.bytesHeld -= entry->second.block->bytes.size();
-    mCache.erase(entry);
-    it = mOrder.erase(it);
-  }
 }
 
 void KnotStore::setCacheLimit(uint64_t bytes) {

@@ -155,16 +155,10 @@ class KnotStore final : public KnotSource {
   /// Compressed bytes of all blocks.
   uint64_t compressedBytes() const { return mDataSize; }
 
-  /// Reads spacing 1 from @p volume's samples (the store's own, once a frame needed them all) and
-  /// drops the cached blocks of that spacing: the samples are not held twice. @p volume must
-  /// outlive the store, or be replaced by another call.
-  void useSamples(const Volume& volume);
-
   void setCacheLimit(uint64_t bytes);
   StoreCacheStats cacheStats() const;
 
-  /// Whether every block @p box covers is cached (or, at spacing 1, read from lent samples): a
-  /// read of it would not touch the file.
+  /// Whether every block @p box covers is cached: a read of it would not touch the file.
   bool cached(const KnotBox& box) const;
   /// The finest spacing whose level and the coarser ones hold at most @p bytes of decompressed
   /// blocks (the root's spacing when even its level holds more): small enough to read whenever a
@@ -205,7 +199,6 @@ class KnotStore final : public KnotSource {
   std::vector<StoreLevel> mLevels;
   std::vector<StoreBlock> mIndex;
   uint64_t mDataOffset = 0, mDataSize = 0;
-  const Volume* mSamples = nullptr;  // spacing 1 read from here when set
 
   mutable std::mutex mMutex;
   struct Entry {

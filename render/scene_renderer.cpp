@@ -104,14 +104,6 @@ SceneRenderer::SceneRenderer(Scene scene, const Options& options) : mScene(std::
   HYB_CHECK(mScene.volume.hasSamples() || mScene.knots);
 }
 
-// A paged scene's samples are read whole only by what needs every sample: an isosurface's
-// extraction and normals.
-void SceneRenderer::ensureSamples() {
-  if (mScene.volume.hasSamples()) return;
-  mScene.volume.attachSamples(mScene.knots->samples(), mScene.knots->path());
-  mScene.knots->useSamples(mScene.volume);  // full-resolution bricks read them, not the store's blocks
-}
-
 SceneRenderer::~SceneRenderer() {
   if (mGl) mGl->makeCurrent();  // the textures and programs are deleted in their own context
 }
@@ -135,38 +127,30 @@ double simplifiedErrorMm(const glm::dvec3& spacing, int k) { return double(1 << 
 
 }  // namespace
 
-void SceneRenderer::simplify(const Volume& volume, PreparedSurface* surface, const Progress* progress) {
+void SceneRenderer::simplify(const Scene& scene, PreparedSurface* surface, const Progress* progress) {
   if (!surface->simplified.empty()) return;
-  HYB_CHECK(volume.hasSamples());
-  const glm::dvec3 spacing = volume.spacing();
+  const glm::dvec3 spacing = scene.volume.spacing();
   std::vector<TriangleMesh> levels;
   for (int k = 0; k < kSimplifiedLevels; ++k) {
     // Level k from level k − 1 within what its error adds: errors add up to level k's.
     const double step = simplifiedErrorMm(spacing, k) - (k == 0 ? 0.0 : simplifiedErrorMm(spacing, k - 1));
     levels.push_back(simplifyWithinBlocks(k == 0 ? surface->smooth : levels.back(), double(kSimplifiedBlockVoxels << k) * spacing, step, progress));
-    setGradientNormals(volume, &levels.back());
+    setSceneNormals(scene, &levels.back());
   }
   surface->simplified = std::move(levels);
 }
 
 std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats,
                                                                bool simplified) {
-  // The Surface Octree (the scene's when it matches), its polygons triangulated, shaded both ways.
+  // The Surface Octree (the scene's when it matches), its polygons triangulated, shaded both ways;
+  // a paged scene's samples are read through its cache a leaf at a time, never whole, so a
+  // viewer's builder thread may read them while the scene's frames draw.
   auto s = std::make_unique<PreparedSurface>();
   s->iso = iso;
-  // A paged scene not given its samples (ensureSamples) lends them to this extraction only: a
-  // viewer's builder thread reads them while the scene itself stays paged.
-  Volume whole;
-  if (!scene.volume.hasSamples()) {
-    HYB_CHECK(scene.knots);
-    whole = scene.volume;
-    whole.attachSamples(scene.knots->samples(), scene.knots->path());
-  }
-  const Volume& v = scene.volume.hasSamples() ? scene.volume : whole;
   const bool fromScene = scene.surface && scene.surface->isovalue() == iso;
   auto t0 = Clock::now();
   if (!fromScene) {
-    s->built = SurfaceOctree::build(v, scene.octree, iso);
+    s->built = sceneSurface(scene, iso, progress);
     if (stats) {
       stats->surfaceBuilt = true;
       stats->surfaceBuildMs = msSince(t0);
@@ -175,10 +159,10 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   t0 = Clock::now();
   const DiscreteMesh d = (fromScene ? *scene.surface : *s->built).reconstruct(0, progress);
   s->polygons = d.faceCount();
-  s->facet = fineMeshToTriangles(d, v.spacing());
+  s->facet = fineMeshToTriangles(d, scene.volume.spacing());
   s->smooth = s->facet;
-  setGradientNormals(v, &s->smooth);
-  if (simplified) simplify(v, s.get(), progress);
+  setSceneNormals(scene, &s->smooth);
+  if (simplified) simplify(scene, s.get(), progress);
   if (stats) stats->surfacePolygonsMs = msSince(t0);
   return s;
 }
@@ -205,10 +189,7 @@ void SceneRenderer::adoptSurface(std::unique_ptr<PreparedSurface> surface) { kee
 
 PreparedSurface& SceneRenderer::surfaceEntry(float iso, FrameStats* stats) {
   const auto it = std::find_if(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == iso; });
-  if (it == mSurfaces.end()) {
-    ensureSamples();
-    return keep(prepareSurface(mScene, iso, mOptions.progress, stats));
-  }
+  if (it == mSurfaces.end()) return keep(prepareSurface(mScene, iso, mOptions.progress, stats));
   mSurfaces.splice(mSurfaces.begin(), mSurfaces, it);
   return *mSurfaces.front();
 }
@@ -317,7 +298,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     st.surfaceTriangles = prepared.surfaceTriangles;
     if (quality.simplifiedSurface && quality.renderer == Renderer::Slices) {
       PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
-      simplify(v, &s, mOptions.progress);
+      simplify(mScene, &s, mOptions.progress);
       // The coarsest level whose error is within the pixels asked where the volume is nearest.
       const double allowedMm = quality.surfaceErrorPixels * camera.pixelMmAt(glm::dvec3(0.0), glm::dvec3(v.dims() - 1) * v.spacing());
       int k = 0;

@@ -213,8 +213,8 @@ class SceneRenderer {
   /// its render thread never waits for it).
   static std::unique_ptr<PreparedSurface> prepareSurface(const Scene& scene, float iso, const Progress* progress = nullptr,
                                                          FrameStats* stats = nullptr, bool simplified = false);
-  /// Makes @p surface's simplified levels from @p volume (its scene's) when it has none.
-  static void simplify(const Volume& volume, PreparedSurface* surface, const Progress* progress = nullptr);
+  /// Makes @p surface's simplified levels (normals from @p scene, its own) when it has none.
+  static void simplify(const Scene& scene, PreparedSurface* surface, const Progress* progress = nullptr);
   /// Keeps @p surface (made from this renderer's scene) as the surface of its isovalue.
   void adoptSurface(std::unique_ptr<PreparedSurface> surface);
   /// Surfaces kept: those of the isovalues pinned here (a viewer's clients draw them) and, of the
@@ -234,7 +234,6 @@ class SceneRenderer {
   ViewErrors& viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
                          const std::optional<VolumeOfInterest>& voi, bool anyCamera);
   void ensureGl();
-  void ensureSamples();
   /// Makes @p selection drawable from what is resident (Quality::waitForBricks false), asks the
   /// store's prefetch thread for the rest, and returns how many bricks that is.
   size_t drawResident(const Camera& gridCamera, Selection* selection);

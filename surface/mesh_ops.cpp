@@ -5,6 +5,8 @@
 #include <cstdint>
 #include <utility>
 
+#include "volume/parallel.h"
+
 namespace hyb {
 
 bool flatTriangle(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {
@@ -36,6 +38,12 @@ void removeUnreferencedVertices(TriangleMesh* mesh) {
 }
 
 void setGradientNormals(const Volume& volume, TriangleMesh* mesh) {
+  setGradientNormals(volume.spacing(), [&](std::span<const glm::vec3> points, glm::vec3* gradients) {
+    for (size_t i = 0; i < points.size(); ++i) gradients[i] = volume.sampleGradient(points[i]);
+  }, mesh);
+}
+
+void setGradientNormals(const glm::dvec3& spacing, const GradientsAt& gradients, TriangleMesh* mesh) {
   const size_t n = mesh->vertices.size();
   std::vector<glm::dvec3> faceSum(n, glm::dvec3(0.0));  // area-weighted: |cross| is twice the area
   for (const glm::uvec3& t : mesh->triangles) {
@@ -44,14 +52,27 @@ void setGradientNormals(const Volume& volume, TriangleMesh* mesh) {
     for (int k = 0; k < 3; ++k) faceSum[t[k]] += w;
   }
   mesh->normals.resize(n);
-  const glm::dvec3 toVoxel = 1.0 / volume.spacing();
-#pragma omp parallel for schedule(static)
-  for (size_t v = 0; v < n; ++v) {
-    const glm::dvec3 g(volume.sampleGradient(glm::vec3(glm::dvec3(mesh->vertices[v]) * toVoxel)));
-    const double len = glm::length(g);
-    const double faces = glm::length(faceSum[v]);
-    mesh->normals[v] = len > 0.0 && std::isfinite(len) ? glm::vec3(-g / len) : faces > 0.0 ? glm::vec3(faceSum[v] / faces) : glm::vec3(0, 0, 1);
-  }
+  const glm::dvec3 toVoxel = 1.0 / spacing;
+  // Runs of neighbouring vertices (a mesh lists them in the order its faces were made): a paged
+  // field reads each run's few tiles once.
+  constexpr size_t kRun = 4096;
+  ParallelFailure failure;
+#pragma omp parallel for schedule(dynamic)
+  for (size_t first = 0; first < n; first += kRun)
+    failure.run([&] {
+      const size_t count = std::min(kRun, n - first);
+      std::vector<glm::vec3> points(count), g(count);
+      for (size_t i = 0; i < count; ++i) points[i] = glm::vec3(glm::dvec3(mesh->vertices[first + i]) * toVoxel);
+      gradients(points, g.data());
+      for (size_t i = 0; i < count; ++i) {
+        const size_t v = first + i;
+        const glm::dvec3 gv(g[i]);
+        const double len = glm::length(gv);
+        const double faces = glm::length(faceSum[v]);
+        mesh->normals[v] = len > 0.0 && std::isfinite(len) ? glm::vec3(-gv / len) : faces > 0.0 ? glm::vec3(faceSum[v] / faces) : glm::vec3(0, 0, 1);
+      }
+    });
+  failure.rethrow();
 }
 
 void toPatientSpace(const PatientFrame& frame, TriangleMesh* mesh) {

@@ -3,7 +3,9 @@
 #pragma once
 
 #include <algorithm>
+#include <functional>
 #include <limits>
+#include <span>
 
 #include "surface/mesh.h"
 #include "volume/patient_frame.h"
@@ -32,6 +34,12 @@ bool flatTriangle(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c)
 /// Where the gradient vanishes the area-weighted normal of the vertex's triangles is used. The
 /// geometry is unchanged: smooth shading of the exact DiscMC surface.
 void setGradientNormals(const Volume& volume, TriangleMesh* mesh);
+/// The gradients (data units per mm) at voxel positions: gradients[i] at points[i]. Called from
+/// several threads at once, on runs of neighbouring vertices.
+using GradientsAt = std::function<void(std::span<const glm::vec3> points, glm::vec3* gradients)>;
+/// The same with the gradient from @p gradients on a grid of @p spacing: a field that is not held
+/// whole (a paged scene's, read through its cache).
+void setGradientNormals(const glm::dvec3& spacing, const GradientsAt& gradients, TriangleMesh* mesh);
 
 /// Maps a grid-frame mesh (mm) into the patient (LPS mm) with @p frame; a mirrored frame reverses
 /// every triangle's winding so that outward stays outward.

@@ -58,10 +58,11 @@ TEST(SceneRenderer, ASurfaceMadeOnAnotherThreadIsAdoptedAndDrawnAsIfBuiltHere) {
   EXPECT_EQ(adopted.image.pixels, built.image.pixels);
 }
 
-// A viewer keeps a scene file paged: a surface made on its builder thread reads the samples for
-// that extraction only, and the scene itself stays without them; what the viewer shows of it first
-// (the summary: histogram, framed views) is what the scene in memory gives.
-TEST(SceneRenderer, APagedSceneLendsItsSamplesToASurfaceAndStaysPaged) {
+// A viewer keeps a scene file paged: a surface made on its builder thread reads the samples a leaf
+// at a time through the scene's cache, never whole, and gives the surface of the scene in memory,
+// normals and simplified levels bit for bit; what the viewer shows of it first (the summary:
+// histogram, framed views) is what the scene in memory gives.
+TEST(SceneRenderer, APagedSceneBuildsItsSurfacesThroughItsCacheAndStaysPaged) {
   test::gl();
   test::TempDir dir;
   saveScene(dir.file("s.hoct"), sphereScene().volume, sphereScene().octree);
@@ -95,8 +96,17 @@ TEST(SceneRenderer, APagedSceneLendsItsSamplesToASurfaceAndStaysPaged) {
   for (int i = 0; i < 2; ++i) paged.render(view, look, Quality{});
   builder.join();
   EXPECT_FALSE(paged.volume().hasSamples());
+  std::unique_ptr<PreparedSurface> inMemory = SceneRenderer::prepareSurface(memory.scene(), 5.0f, nullptr, nullptr, true);
+  ASSERT_TRUE(made->built && inMemory->built);
+  EXPECT_GT(made->built->nodes().size(), 0u);
+  EXPECT_EQ(made->built->nodes(), inMemory->built->nodes());
+  EXPECT_EQ(made->smooth.vertices, inMemory->smooth.vertices);
+  EXPECT_EQ(made->smooth.normals, inMemory->smooth.normals);
+  ASSERT_EQ(made->simplified.size(), inMemory->simplified.size());
+  for (size_t l = 0; l < made->simplified.size(); ++l) EXPECT_EQ(made->simplified[l].normals, inMemory->simplified[l].normals) << l;
+  EXPECT_LE(paged.scene().knots->cacheStats().bytesHeld, paged.scene().knots->cacheStats().limit + kMaxStoreBlockBytes);
   paged.adoptSurface(std::move(made));
-  memory.adoptSurface(SceneRenderer::prepareSurface(memory.scene(), 5.0f, nullptr, nullptr, true));
+  memory.adoptSurface(std::move(inMemory));
   look.iso = 5.0f;
   look.surfaceColor = glm::vec4(0.9f, 0.8f, 0.7f, 0.5f);
   const RenderedFrame p = paged.render(view, look, Quality{}), m = memory.render(view, look, Quality{});

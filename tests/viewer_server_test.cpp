@@ -192,6 +192,26 @@ TEST(ViewerServer, EveryRequestNeedsTheTokenAndOnlyAssetsAreServed) {
   EXPECT_EQ(ok.next()["type"], "info");
 }
 
+// A scene file stays paged in the viewer: the mesh of an isovalue it does not store is extracted
+// through its cache, the same file as from the scene in memory.
+TEST(ViewerServer, TheMeshOfAPagedSceneIsExtractedThroughItsCache) {
+  test::TempDir dir;
+  saveScene(dir.file("s.hoct"), sphereScene().volume, sphereScene().octree);
+  std::string bodies[2];
+  for (const bool paged : {false, true}) {
+    TestServer s(60.0, 8, [&](ServerOptions& o) {
+      o.loader = [&](const std::string&, const std::string&, const Progress*) {
+        return loadScene(dir.file("s.hoct"), SceneLoadOptions{!paged, 1 << 20});
+      };
+    });
+    const Reply mesh = httpRequest(s.port(), "/api/mesh?iso=4&format=ply", "hyb_token=" + s.token());
+    EXPECT_EQ(mesh.status, 200u) << paged;
+    bodies[paged] = mesh.body;
+  }
+  EXPECT_EQ(bodies[0].rfind("ply", 0), 0u);
+  EXPECT_EQ(bodies[1], bodies[0]);
+}
+
 TEST(ViewerServer, BadMessagesGetTheirErrorAndTheServerKeepsServing) {
   TestServer s;
   Socket c(s.port(), "/ws?token=" + s.token());
