@@ -3,6 +3,7 @@
 #include <archive.h>
 #include <archive_entry.h>
 #include <gdcmAttribute.h>
+#include <gdcmImageChangeTransferSyntax.h>
 #include <gdcmImageWriter.h>
 #include <gdcmMediaStorage.h>
 #include <gdcmTrace.h>
@@ -12,6 +13,7 @@
 #include <nifti2_io.h>
 #include <zlib.h>
 
+#include <functional>
 #include <iomanip>
 #include <sstream>
 
@@ -227,10 +229,18 @@ std::string inv3Plist(const std::string& shape) {
          "<key>spacing</key><array><real>0.5</real><real>0.75</real><real>2.5</real></array>\n</dict>\n</plist>\n";
 }
 
-// One CT slice of kDims.x x kDims.y pixels at Image Position @p position with Image Orientation
-// @p cosines (rows' direction, then columns').
-void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels, const glm::dvec3& position, const std::string& seriesUid,
-                     const double (&cosines)[6] = {1, 0, 0, 0, 1, 0}, const std::string& description = "") {
+// The pixel module and rescale of a synthetic DICOM slice (by default a CT's: int16, HU + 1024).
+struct DicomPixels {
+  gdcm::PixelFormat::ScalarType type = gdcm::PixelFormat::INT16;
+  unsigned short bitsStored = 16;
+  double slope = 1.0, intercept = -1024.0;
+  bool rle = false;  // RLE Lossless (encapsulated) rather than Implicit VR Little Endian
+};
+
+// One CT slice of kDims.x x kDims.y pixels (@p bytes, little-endian, of @p format) at Image
+// Position @p position with Image Orientation @p cosines (rows' direction, then columns').
+void writeDicomImage(const std::string& path, const std::vector<uint8_t>& bytes, const DicomPixels& format, const glm::dvec3& position,
+                     const std::string& seriesUid, const double (&cosines)[6] = {1, 0, 0, 0, 1, 0}, const std::string& description = "") {
   gdcm::Trace::WarningOff();  // the writer warns of the tags it fills in itself
   gdcm::ImageWriter w;
   gdcm::Image& im = w.GetImage();
@@ -241,13 +251,23 @@ void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels
   im.SetSpacing(1, 0.75);
   for (unsigned a = 0; a < 3; ++a) im.SetOrigin(a, position[int(a)]);
   im.SetDirectionCosines(cosines);
-  im.SetPixelFormat(gdcm::PixelFormat::INT16);
+  gdcm::PixelFormat pf(format.type);
+  pf.SetBitsStored(format.bitsStored);
+  pf.SetHighBit(uint16_t(format.bitsStored - 1));
+  im.SetPixelFormat(pf);
   im.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
-  im.SetSlope(1.0);
-  im.SetIntercept(-1024.0);
+  im.SetSlope(format.slope);
+  im.SetIntercept(format.intercept);
   gdcm::DataElement pixelData(gdcm::Tag(0x7fe0, 0x0010));
-  pixelData.SetByteValue(reinterpret_cast<const char*>(pixels.data()), uint32_t(pixels.size() * 2));
+  pixelData.SetByteValue(reinterpret_cast<const char*>(bytes.data()), uint32_t(bytes.size()));
   im.SetDataElement(pixelData);
+  if (format.rle) {
+    gdcm::ImageChangeTransferSyntax change;
+    change.SetTransferSyntax(gdcm::TransferSyntax::RLELossless);
+    change.SetInput(im);
+    ASSERT_TRUE(change.Change()) << path;
+    im = change.GetOutput();
+  }
   gdcm::DataSet& ds = w.GetFile().GetDataSet();
   gdcm::Attribute<0x0008, 0x0016> sopClass;
   sopClass.SetValue(gdcm::MediaStorage::GetMSString(gdcm::MediaStorage::CTImageStorage));
@@ -268,6 +288,12 @@ void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels
   ds.Replace(thickness.GetAsDataElement());
   w.SetFileName(path.c_str());
   ASSERT_TRUE(w.Write()) << path;
+}
+
+// One CT slice of int16 pixels, Hounsfield units + 1024 (rescale intercept −1024).
+void writeDicomSlice(const std::string& path, const std::vector<int16_t>& pixels, const glm::dvec3& position, const std::string& seriesUid,
+                     const double (&cosines)[6] = {1, 0, 0, 0, 1, 0}, const std::string& description = "") {
+  writeDicomImage(path, toBytes(pixels), DicomPixels{}, position, seriesUid, cosines, description);
 }
 
 // Slice k of the expected samples, stored as HU + 1024.
@@ -731,6 +757,188 @@ TEST(DicomReader, InfoListsTheSeriesAndRenderNamesTheOneItReads) {
   EXPECT_EQ(r.err, "");
   test::expectBadInput({"render", dir.path().string(), "--series", "7.7", "--size", "8x8", "-o", dir.file("t.png")}, "--series '7.7'");
   test::expectBadInput({"info", dir.file("a0.dcm"), "--series", "1.2.3.100"}, "--series needs a DICOM directory");
+}
+
+// A series of kDims.z slices in @p dir/@p name: slice k of format @p formatOf(k) holds the stored
+// values @p raw(i, j, k), at z = 100 + 2.5 k, its file written in a shuffled order under a name
+// that does not sort (slice k is in "img<f>.dcm" with kShuffled[f] = k). Returns the directory.
+constexpr int kShuffled[5] = {3, 0, 4, 1, 2};
+std::string dicomSeries(const TempDir& dir, const std::string& name, const std::function<DicomPixels(int k)>& formatOf,
+                        const std::function<int(int i, int j, int k)>& raw) {
+  const std::string d = dir.file(name);
+  std::filesystem::create_directories(d);
+  for (int f = 0; f < kDims.z; ++f) {
+    const int k = kShuffled[f];
+    const DicomPixels format = formatOf(k);
+    const bool wide = format.type == gdcm::PixelFormat::UINT16 || format.type == gdcm::PixelFormat::INT16;
+    std::vector<uint8_t> bytes;
+    for (int j = 0; j < kDims.y; ++j)
+      for (int i = 0; i < kDims.x; ++i) {
+        const int v = raw(i, j, k);
+        bytes.push_back(uint8_t(v & 0xff));
+        if (wide) bytes.push_back(uint8_t((v >> 8) & 0xff));
+      }
+    writeDicomImage(d + "/" + sliceName("img", f), bytes, format, glm::dvec3(10.0, -5.0, 100.0 + 2.5 * k), "1.2.3.4");
+  }
+  return d;
+}
+
+DicomPixels pixels(gdcm::PixelFormat::ScalarType type, unsigned short bitsStored, double slope, double intercept, bool rle = false) {
+  DicomPixels p;
+  p.type = type;
+  p.bitsStored = bitsStored;
+  p.slope = slope;
+  p.intercept = intercept;
+  p.rle = rle;
+  return p;
+}
+
+// The planes of a series streamed one by one, in order along the normal, with the shuffled files:
+// equal bit for bit to readDicomSeries (samples in the same stored type, source type, frame,
+// info, warnings; readBoth reads them twice, the second pass after rewind()), and each plane k
+// the slice at position k rescaled by its own slope and intercept.
+TEST(DicomPlanes, StreamedPlanesAreTheWholeReadBitForBit) {
+  struct Case {
+    const char* name;
+    std::function<DicomPixels(int)> formatOf;
+    std::function<int(int, int, int)> raw;
+    ScalarType stored, source;
+  };
+  const auto hu = [](int i, int j, int k) { return expectedValue(i, j, k) + 1024; };
+  const std::vector<Case> cases = {
+      {"uint16", [](int) { return pixels(gdcm::PixelFormat::UINT16, 16, 1.0, 0.0); },
+       [](int i, int j, int k) { return 65000 + expectedValue(i, j, k); }, ScalarType::UInt16, ScalarType::UInt16},
+      {"int16, 12 bits, HU", [](int) { return pixels(gdcm::PixelFormat::INT16, 12, 1.0, -1024.0); },
+       [](int i, int j, int k) { return 5 * expectedValue(i, j, k); }, ScalarType::Int16, ScalarType::Int32},
+      {"uint16, 12 bits, HU", [](int) { return pixels(gdcm::PixelFormat::UINT16, 12, 1.0, -1024.0); }, hu, ScalarType::Int16,
+       ScalarType::Int32},
+      {"slopes and intercepts per slice", [](int k) { return pixels(gdcm::PixelFormat::UINT16, 12, 1.0 + k % 2, -1024.0 + 10.0 * k); }, hu,
+       ScalarType::Int16, ScalarType::Int32},
+      {"fractional slopes", [](int k) { return pixels(gdcm::PixelFormat::UINT16, 16, 0.25 * (k + 1), 0.5); }, hu, ScalarType::Float32,
+       ScalarType::Float32},
+      {"uint8", [](int) { return pixels(gdcm::PixelFormat::UINT8, 8, 1.0, 0.0); },
+       [](int i, int j, int k) { return expectedValue(i, j, k) / 2 + 150; }, ScalarType::UInt8, ScalarType::UInt8},
+      {"RLE, uint16, 12 bits, HU", [](int) { return pixels(gdcm::PixelFormat::UINT16, 12, 1.0, -1024.0, true); }, hu, ScalarType::Int16,
+       ScalarType::Int32}};
+  TempDir dir;
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const std::string d = dicomSeries(dir, std::to_string(&c - cases.data()), c.formatOf, c.raw);
+    if (c.formatOf(0).rle) {  // the files hold RLE Lossless
+      const std::vector<uint8_t> b = test::readBytes(d + "/" + sliceName("img", 0));
+      const std::string uid = "1.2.840.10008.1.2.5";
+      EXPECT_NE(std::search(b.begin(), b.end(), uid.begin(), uid.end()), b.end());
+    }
+    const Volume whole = readBoth(d);
+    EXPECT_EQ(whole.storedType(), c.stored);
+    EXPECT_EQ(whole.sourceType(), c.source);
+    const std::unique_ptr<PlaneSource> planes = detail::dicomPlanes(d, "");
+    ASSERT_TRUE(planes);
+    EXPECT_EQ(planes->storedType(), c.stored);
+    EXPECT_EQ(planes->name(), d);
+    SampleArray plane = detail::allocateSamples(planes->storedType(), planes->planeSize());
+    for (int k = 0; k < kDims.z; ++k) {
+      planes->read(1, &plane, 0);
+      const DicomPixels f = c.formatOf(k);
+      const Volume one(glm::ivec3(kDims.x, kDims.y, 1), glm::dvec3(1.0), c.source, plane);
+      for (int j = 0; j < kDims.y; ++j)
+        for (int i = 0; i < kDims.x; ++i) ASSERT_EQ(one.at(i, j, 0), float(c.raw(i, j, k) * f.slope + f.intercept)) << i << "," << j << "," << k;
+    }
+  }
+}
+
+TEST(DicomPlanes, RewindStartsAgainAtTheFirstPlane) {
+  TempDir dir;
+  const std::string d = dicomSeries(dir, "s", [](int) { return pixels(gdcm::PixelFormat::UINT16, 12, 1.0, -1024.0); },
+                                     [](int i, int j, int k) { return expectedValue(i, j, k) + 1024; });
+  const Volume whole = readDicomSeries(d);
+  const std::unique_ptr<PlaneSource> planes = detail::dicomPlanes(d, "");
+  ASSERT_TRUE(planes);
+  SampleArray all = detail::allocateSamples(planes->storedType(), whole.voxelCount());
+  planes->read(3, &all, 0);
+  planes->rewind();
+  SampleArray again = detail::allocateSamples(planes->storedType(), whole.voxelCount());
+  planes->read(2, &again, 0);
+  planes->read(3, &again, 2 * planes->planeSize());
+  EXPECT_TRUE(again == whole.samples());
+  planes->rewind();
+  planes->read(5, &all, 0);
+  EXPECT_TRUE(all == whole.samples());
+}
+
+// Where the whole reader's stored type depends on the values (it widens to float at the first
+// rescaled value its type does not hold), the series is read whole, the same volume.
+TEST(DicomPlanes, SeriesWhoseStoredTypeDependsOnTheValuesAreReadWhole) {
+  TempDir dir;
+  const auto hu = [](int i, int j, int k) { return expectedValue(i, j, k) + 1024; };
+  // int16 with 16 bits stored and intercept −1024: values could reach −33792.
+  const std::string full = dicomSeries(dir, "full", [](int) { return DicomPixels{}; }, hu);
+  // The first slice not rescaled (uint16 kept), the others with an intercept.
+  const std::string later = dicomSeries(dir, "later", [](int k) { return pixels(gdcm::PixelFormat::UINT16, 12, 1.0, k == 0 ? 0.0 : -1024.0); }, hu);
+  // A fractional slope after integer ones.
+  const std::string fraction = dicomSeries(dir, "fraction", [](int k) { return pixels(gdcm::PixelFormat::UINT16, 12, k == 3 ? 0.5 : 1.0, -1024.0); }, hu);
+  for (const std::string& d : {full, later, fraction}) {
+    EXPECT_FALSE(detail::dicomPlanes(d, "")) << d;
+    readBoth(d, false);
+  }
+  EXPECT_EQ(readDicomSeries(full).storedType(), ScalarType::Int16);  // its values fit
+  EXPECT_EQ(readDicomSeries(fraction).storedType(), ScalarType::Float32);
+}
+
+// A slice that turns bad after the series was opened (truncated, rewritten with another rescale,
+// removed) throws when its plane is read, naming its file; the planes before it read.
+TEST(DicomPlanes, ASliceDamagedAfterTheScanThrowsNamingItsFile) {
+  TempDir dir;
+  const auto format = [](int) { return pixels(gdcm::PixelFormat::UINT16, 12, 1.0, -1024.0); };
+  const auto hu = [](int i, int j, int k) { return expectedValue(i, j, k) + 1024; };
+  const std::string d = dicomSeries(dir, "s", format, hu);
+  const std::string third = d + "/" + sliceName("img", 4);  // kShuffled[4] == 2: plane 2
+  const std::vector<uint8_t> bytes = test::readBytes(third);
+  const auto opened = [&](const std::string& what, const std::function<void()>& damage) {
+    const std::unique_ptr<PlaneSource> planes = detail::dicomPlanes(d, "");
+    ASSERT_TRUE(planes);
+    damage();
+    SampleArray all = detail::allocateSamples(planes->storedType(), planes->planeSize() * size_t(kDims.z));
+    planes->read(2, &all, 0);
+    try {
+      planes->read(1, &all, 2 * planes->planeSize());
+      ADD_FAILURE() << "plane 2 read; expected an error containing '" << what << "'";
+    } catch (const IoError& e) {
+      EXPECT_THAT(e.what(), HasSubstr(third));
+      EXPECT_THAT(e.what(), HasSubstr(what));
+    }
+    writeBytes(third, bytes);
+  };
+  opened("declaring 24 bytes where 17 are left", [&] { std::filesystem::resize_file(third, bytes.size() - 7); });
+  opened("(slice 3 of 5): changed since the series was opened: uint16 pixels, rescale slope 1, intercept -1000 (expected uint16, slope 1, "
+         "intercept -1024)",
+         [&] {
+           DicomPixels p = format(2);
+           p.intercept = -1000.0;
+           std::vector<uint8_t> px;
+           for (int j = 0; j < kDims.y; ++j)
+             for (int i = 0; i < kDims.x; ++i) {
+               px.push_back(uint8_t(hu(i, j, 2) & 0xff));
+               px.push_back(uint8_t(hu(i, j, 2) >> 8));
+             }
+           writeDicomImage(third, px, p, glm::dvec3(10.0, -5.0, 105.0), "1.2.3.4");
+         });
+  opened("does not exist", [&] { std::filesystem::remove(third); });
+}
+
+// The command line: build streams a DICOM series (reading it once per pass), info reads it whole.
+TEST(DicomPlanes, BuildStreamsTheSeriesAndInfoReadsIt) {
+  TempDir dir;
+  const std::string d = dicomSeries(dir, "s", [](int) { return pixels(gdcm::PixelFormat::INT16, 12, 1.0, -1024.0); },
+                                     [](int i, int j, int k) { return 5 * expectedValue(i, j, k); });
+  test::CliRun r = test::run({"build", d, "-o", dir.file("s.hoct")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("streamed plane by plane"));
+  r = test::run({"info", d});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("rescale  slope 1, intercept -1024 (applied)\n"));
+  r = test::run({"info", dir.file("s.hoct")});
+  ASSERT_EQ(r.status, 0) << r.err;
 }
 
 TEST(DicomReader, RejectsDirectoryWithoutDicom) {

@@ -2,6 +2,8 @@
 // malformed files and prints to the terminal, so every file is checked here first (its file meta
 // information byte by byte, then the pixel module's tags and the pixel data's length) and GDCM's
 // output is captured; what GDCM still refuses becomes one line naming the file and the slice.
+// A series is read whole (readDicomSeries) or slice by slice (detail::dicomPlanes), by the same
+// per-slice steps and checks.
 #include <gdcmDirectory.h>
 #include <gdcmImageReader.h>
 #include <gdcmReader.h>
@@ -14,11 +16,16 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <map>
+#include <memory>
 #include <sstream>
+#include <type_traits>
+#include <variant>
 
 #include "volume/file_util.h"
 #include "volume/memory_limit.h"
+#include "volume/plane_source.h"
 #include "volume/reader_util.h"
 #include "volume/volume_io.h"
 
@@ -390,21 +397,30 @@ std::string describe(const DicomSeriesInfo& s) {
                         s.slices, " slices of ", s.columns, "x", s.rows, ")");
 }
 
-}  // namespace
+// A slice of the chosen series and where it lies.
+struct DicomSlice {
+  std::string file;
+  glm::dvec3 position;
+  double depth;  // along the slices' normal, mm
+};
 
-std::vector<DicomSeriesInfo> listDicomSeries(const std::string& dir) {
-  DicomScan scan;
-  scanDicom(dir, &scan);
-  std::vector<DicomSeriesInfo> out;
-  for (const auto& [uid, files] : scan.series) out.push_back(seriesInfo(scan, uid, files));
-  std::stable_sort(out.begin(), out.end(), [](const DicomSeriesInfo& a, const DicomSeriesInfo& b) { return a.slices > b.slices; });
-  return out;
-}
-
-Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, const Progress* progress) {
-  DicomScan scan;
-  scanDicom(dir, &scan);
+// A series chosen in a directory, its geometry checked and its slices ordered: what the whole
+// reader and the streamed planes share.
+struct SeriesLayout {
+  std::string dir;
+  DicomSeriesInfo chosen;
   std::vector<std::string> warnings;
+  PatientFrame axes;               // the slices' rows, columns and normal
+  std::vector<DicomSlice> slices;  // ordered along the normal
+  double zSpacing = 1.0;
+  std::string patientPosition, thickness;  // the first slice's, for the info
+};
+
+SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid) {
+  DicomScan scan;
+  scanDicom(dir, &scan);
+  SeriesLayout l;
+  l.dir = dir;
   // The series: the one named, or the largest (with a line naming it when there are several).
   std::vector<DicomSeriesInfo> all;
   for (const auto& [uid, files] : scan.series) all.push_back(seriesInfo(scan, uid, files));
@@ -417,10 +433,11 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
     if (it == all.end()) HYB_THROW(ValueError, "--series ", quotedExcerpt(seriesUid), ": no such series in ", dir, " (it holds ", listing, ")");
     chosen = &*it;
   } else if (all.size() > 1) {
-    warnings.push_back(detail::concat(dir, ": ", all.size(), " series; reading the largest, ", describe(*chosen),
-                                      " (choose another with --series UID: ", listing, ")"));
+    l.warnings.push_back(detail::concat(dir, ": ", all.size(), " series; reading the largest, ", describe(*chosen),
+                                        " (choose another with --series UID: ", listing, ")"));
   }
-  std::vector<std::string> files = scan.series.at(chosen->uid);
+  l.chosen = *chosen;
+  const std::vector<std::string>& files = scan.series.at(chosen->uid);
 
   // Geometry (DICOM PS3.3 C.7.6.2): the rows' and columns' directions from Image Orientation
   // (Patient), the slices ordered by Image Position (Patient) along their normal, which must hold
@@ -435,15 +452,10 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
   } else if (files.size() > 1) {
     HYB_THROW(IoError, files.front(), ": Image Orientation (Patient) missing or malformed (expected six cosines to order the slices)");
   } else {
-    warnings.push_back(files.front() + ": no Image Orientation (Patient): the slice's axes are taken as LPS");
+    l.warnings.push_back(files.front() + ": no Image Orientation (Patient): the slice's axes are taken as LPS");
   }
-  const PatientFrame axes = makePatientFrame(direction, glm::dvec3(0.0), files.front() + " (Image Orientation (Patient))");
-  struct Slice {
-    std::string file;
-    glm::dvec3 position;
-    double depth;
-  };
-  std::vector<Slice> slices;
+  l.axes = makePatientFrame(direction, glm::dvec3(0.0), files.front() + " (Image Orientation (Patient))");
+  std::vector<DicomSlice>& slices = l.slices;
   for (const std::string& f : files) {
     const std::vector<double> ipp = decimals(scan.scanner.GetValue(f.c_str(), kPosition));
     if (ipp.size() != 3 && files.size() > 1)
@@ -455,12 +467,12 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
       for (size_t c = 0; same && c < 6; ++c) same = std::abs(other[c] - iop[c]) <= 1e-4;
       if (!same) HYB_THROW(IoError, f, ": Image Orientation (Patient) differs from ", files.front(), "'s (expected one orientation for the series)");
     }
-    slices.push_back({f, p, glm::dot(p, axes.direction[2])});
+    slices.push_back({f, p, glm::dot(p, l.axes.direction[2])});
   }
-  std::sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.depth < b.depth; });
-  double zSpacing = 1.0;
+  std::sort(slices.begin(), slices.end(), [](const DicomSlice& a, const DicomSlice& b) { return a.depth < b.depth; });
   if (slices.size() > 1) {
-    zSpacing = (slices.back().depth - slices.front().depth) / double(slices.size() - 1);
+    l.zSpacing = (slices.back().depth - slices.front().depth) / double(slices.size() - 1);
+    const double zSpacing = l.zSpacing;
     for (size_t k = 1; k < slices.size(); ++k) {
       const double step = slices[k].depth - slices[k - 1].depth;
       if (step <= 1e-3 * std::max(zSpacing, 1e-3))
@@ -470,18 +482,203 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
                   " mm, the series' mean ", zSpacing, " mm; expected a regular grid)");
       // Positions must run along the normal: a gantry tilt moves them across the image plane.
       const glm::dvec3 offset = slices[k].position - slices.front().position;
-      const double across = glm::length(offset - glm::dot(offset, axes.direction[2]) * axes.direction[2]);
+      const double across = glm::length(offset - glm::dot(offset, l.axes.direction[2]) * l.axes.direction[2]);
       if (across > std::max(1e-2, 1e-3 * glm::length(offset)))
         HYB_THROW(IoError, dir, ": slice positions move ", across, " mm across the image plane by ", slices[k].file,
                   " (gantry tilt or a sheared series: the grid is not orthogonal); resample it to an orthogonal grid first "
                   "(e.g. Slicer or ITK), it is refused rather than drawn sheared");
     }
   } else if (const std::vector<double> t = decimals(scan.scanner.GetValue(slices.front().file.c_str(), kThickness)); t.size() == 1 && t[0] > 0) {
-    zSpacing = t[0];
+    l.zSpacing = t[0];
+  }
+  l.patientPosition = scan.value(slices.front().file, kPatientPosition);
+  l.thickness = scan.value(slices.front().file, kThickness);
+  return l;
+}
+
+// Slice @p s of @p l named for messages: its file and its place in the series.
+std::string sliceWhere(const SeriesLayout& l, size_t s) {
+  return detail::concat(l.slices[s].file, " (slice ", s + 1, " of ", l.slices.size(), ")");
+}
+
+// Refuses a slice whose Columns and Rows (@p module) are not the first slice's (@p dims).
+void checkSliceSize(const std::string& where, const PixelModule& module, const glm::ivec3& dims) {
+  if (module.columns != dims.x || module.rows != dims.y)
+    HYB_THROW(IoError, where, ": slice is ", module.columns, "x", module.rows, ", expected ", dims.x, "x", dims.y, " like the first slice");
+}
+
+// One slice's image as GDCM reads it, its pixels not decoded yet.
+struct SliceImage {
+  gdcm::ImageReader reader;
+  ScalarType type = ScalarType::Int16;  // of the decoded pixels
+  glm::ivec2 size{0};
+  glm::dvec2 spacing{1.0};  // between columns, between rows (Pixel Spacing's second and first)
+  double slope = 1.0, intercept = 0.0;
+  // The values GDCM can decode: the type's range, or Bits Stored's where GDCM clears the unused bits
+  // of 16-bit pixels (ImageCodec::DoOverlayCleanup, run by its raw and RLE decoders with the
+  // header's pixel format; the JPEG family's decoders may take another from the stream).
+  double lo = 0.0, hi = 0.0;
+};
+
+// Reads slice @p file (its pixel module @p module checked) with GDCM, checking what it decodes to.
+void readSliceImage(const std::string& file, const std::string& where, const PixelModule& module, SliceImage* out) {
+  gdcm::ImageReader& reader = out->reader;
+  reader.SetFileName(file.c_str());
+  if (!reader.Read()) HYB_THROW(IoError, where, ": not a readable DICOM image (GDCM refused its data set; expected a well-formed DICOM file)");
+  const gdcm::Image& image = reader.GetImage();
+  const gdcm::PixelFormat& pf = image.GetPixelFormat();
+  if (pf.GetSamplesPerPixel() != 1)
+    HYB_THROW(IoError, where, ": ", pf.GetSamplesPerPixel(), " samples per pixel (expected 1, greyscale)");
+  if (image.GetNumberOfDimensions() == 3 && image.GetDimension(2) > 1)
+    HYB_THROW(IoError, where, ": multi-frame images are not supported (expected one slice per file)");
+  out->size = glm::ivec2(int(image.GetDimension(0)), int(image.GetDimension(1)));
+  if (out->size.x != module.columns || out->size.y != module.rows)
+    HYB_THROW(IoError, where, ": GDCM decodes ", out->size.x, "x", out->size.y, " pixels (expected the ", module.columns, "x", module.rows,
+              " of Columns and Rows)");
+  switch (pf.GetScalarType()) {
+    case gdcm::PixelFormat::UINT8: out->type = ScalarType::UInt8; break;
+    case gdcm::PixelFormat::INT8: out->type = ScalarType::Int8; break;
+    case gdcm::PixelFormat::UINT16: out->type = ScalarType::UInt16; break;
+    case gdcm::PixelFormat::INT16: out->type = ScalarType::Int16; break;
+    case gdcm::PixelFormat::UINT32: out->type = ScalarType::UInt32; break;
+    case gdcm::PixelFormat::INT32: out->type = ScalarType::Int32; break;
+    case gdcm::PixelFormat::FLOAT32: out->type = ScalarType::Float32; break;
+    case gdcm::PixelFormat::FLOAT64: out->type = ScalarType::Float64; break;
+    default: HYB_THROW(IoError, where, ": unsupported pixel format ", pf.GetScalarTypeAsString());
+  }
+  const double* sp = image.GetSpacing();
+  out->spacing = glm::dvec2(sp[0], sp[1]);
+  out->slope = image.GetSlope();
+  out->intercept = image.GetIntercept();
+  const bool isFloat = out->type == ScalarType::Float32 || out->type == ScalarType::Float64;
+  const bool isSigned = out->type == ScalarType::Int8 || out->type == ScalarType::Int16 || out->type == ScalarType::Int32;
+  int bits = int(scalarSize(out->type)) * 8;
+  const gdcm::TransferSyntax& ts = image.GetTransferSyntax();
+  if (pf.GetBitsAllocated() == 16 && bits == 16 && (!ts.IsEncapsulated() || ts == gdcm::TransferSyntax::RLELossless)) bits = pf.GetBitsStored();
+  out->lo = isFloat ? -std::numeric_limits<double>::infinity() : isSigned ? -std::ldexp(1.0, bits - 1) : 0.0;
+  out->hi = isFloat ? std::numeric_limits<double>::infinity() : std::ldexp(1.0, isSigned ? bits - 1 : bits) - 1.0;
+}
+
+// The @p image's decoded pixels in the type a volume holds them in (decodeSamples).
+SampleArray sliceSamples(const SliceImage& image, const std::string& where) {
+  const size_t count = size_t(image.size.x) * size_t(image.size.y);
+  const gdcm::Image& im = image.reader.GetImage();
+  if (im.GetBufferLength() != count * scalarSize(image.type))
+    HYB_THROW(IoError, where, ": decoded pixel data holds ", im.GetBufferLength(), " bytes (expected ", count * scalarSize(image.type), ")");
+  std::vector<char> buffer(im.GetBufferLength());
+  if (!im.GetBuffer(buffer.data())) HYB_THROW(IoError, where, ": pixel data missing or truncated");
+  return decodeSamples(reinterpret_cast<const uint8_t*>(buffer.data()), count, image.type, std::endian::native == std::endian::big);
+}
+
+// The volume's source type: the first slice's, or, once any slice is rescaled, int32 (integers) or
+// float32 by the type the rescaled samples are held in.
+ScalarType seriesSourceType(ScalarType first, bool rescaled, ScalarType stored) {
+  if (!rescaled || first == ScalarType::Float32 || first == ScalarType::Float64) return first;
+  return stored == ScalarType::Float32 ? ScalarType::Float32 : ScalarType::Int32;
+}
+
+// The series' frame, info and warnings on @p v (the whole volume or its description).
+Volume placedSeries(Volume v, const SeriesLayout& l, double slopeFirst, double interceptFirst, bool rescaled) {
+  v = placed(std::move(v), makePatientFrame(l.axes.direction, l.slices.front().position, l.dir), l.warnings);
+  v.addInfo("modality", l.chosen.modality.empty() ? "(none)" : l.chosen.modality);
+  v.addInfo("series", describe(l.chosen) + (l.chosen.number.empty() ? "" : ", number " + l.chosen.number));
+  if (!l.patientPosition.empty()) v.addInfo("position", l.patientPosition + " (Patient Position)");
+  if (!l.thickness.empty())
+    v.addInfo("thickness", l.thickness + " mm (Slice Thickness; slices " + detail::concat(l.zSpacing) + " mm apart)");
+  v.addInfo("rescale", detail::concat("slope ", slopeFirst, ", intercept ", interceptFirst, rescaled ? " (applied)" : ""));
+  return v;
+}
+
+// Whether slope * v + intercept is a value of @p stored (the samples' type) for every integer v in
+// [lo, hi]: then rescaleSamples keeps samples of that type (float holds any value).
+bool holdsAll(ScalarType stored, double lo, double hi, double slope, double intercept) {
+  if (stored == ScalarType::Float32) return true;
+  if (slope != std::floor(slope) || intercept != std::floor(intercept)) return false;  // (NaN too)
+  const double a = lo * slope + intercept, b = hi * slope + intercept;  // the extremes (linear in v)
+  return detail::withFileType(stored, [&](auto zero) {
+    using T = decltype(zero);
+    return holdsExactly<T>(std::min(a, b)) && holdsExactly<T>(std::max(a, b));
+  });
+}
+
+// What one slice's header decided when the series was opened.
+struct SliceHeader {
+  ScalarType type;
+  double slope, intercept;
+};
+
+// The planes of a DICOM series, each decoded from its slice file when it is read: the file is
+// checked as the whole reader checks it (it may have changed since the series was opened) and its
+// samples rescaled as readDicomSeries rescales them, into the stored type its headers decided.
+class DicomPlanes final : public PlaneSource {
+ public:
+  DicomPlanes(Volume description, SeriesLayout layout, std::vector<SliceHeader> headers)
+      : PlaneSource(std::move(description), layout.dir), mLayout(std::move(layout)), mHeaders(std::move(headers)) {}
+  void rewind() override { mNext = 0; }
+  void read(int count, SampleArray* out, size_t first) override {
+    HYB_CHECK(count >= 0 && mNext + count <= dims().z && first + size_t(count) * planeSize() <= sampleCount(*out) &&
+              hyb::storedType(*out) == storedType());
+    for (int k = 0; k < count; ++k, ++mNext) {
+      decodePlane(size_t(mNext));
+      std::visit(
+          [&](const auto& plane) {
+            using T = typename std::remove_reference_t<decltype(plane)>::value_type;
+            std::copy(plane.begin(), plane.end(), std::get<std::vector<T>>(*out).begin() + ptrdiff_t(first + size_t(k) * planeSize()));
+          },
+          mPlane);
+    }
   }
 
+ private:
+  // Decodes plane @p z into mPlane.
+  void decodePlane(size_t z) {
+    const std::string& file = mLayout.slices[z].file;
+    const std::string where = sliceWhere(mLayout, z);
+    const SliceHeader& h = mHeaders[z];
+    PixelModule module;
+    {
+      // The checks that keep GDCM from asserting, made again: the file may have changed since it was scanned.
+      const InputFile f(file);
+      if (checkFileMeta(f) != DicomKind::Dicom)
+        HYB_THROW(IoError, where, ": no longer a DICOM file (expected the slice the series was opened with)");
+      module = checkPixelModule(f, where);
+      checkSliceSize(where, module, dims());
+    }
+    SliceImage image;
+    readSliceImage(file, where, module, &image);
+    if (image.type != h.type || image.slope != h.slope || image.intercept != h.intercept)
+      HYB_THROW(IoError, where, ": changed since the series was opened: ", scalarName(image.type), " pixels, rescale slope ", image.slope,
+                ", intercept ", image.intercept, " (expected ", scalarName(h.type), ", slope ", h.slope, ", intercept ", h.intercept, ")");
+    const SampleArray slice = sliceSamples(image, where);
+    if (sampleCount(mPlane) != planeSize() || hyb::storedType(mPlane) != storedType()) mPlane = detail::allocateSamples(storedType(), planeSize());
+    detail::rescaleSamples(&mPlane, 0, slice, h.slope, h.intercept);
+    if (hyb::storedType(mPlane) != storedType())  // (GDCM decoded values outside the range its header gives)
+      HYB_THROW(IoError, where, ": decoded values that ", scalarName(storedType()), " samples do not hold (expected values within the range of "
+                "its Bits Stored and Pixel Representation, rescaled)");
+  }
+
+  SeriesLayout mLayout;
+  std::vector<SliceHeader> mHeaders;  // per plane
+  int mNext = 0;
+  SampleArray mPlane;  // the plane last decoded, rescaled
+};
+
+}  // namespace
+
+std::vector<DicomSeriesInfo> listDicomSeries(const std::string& dir) {
+  DicomScan scan;
+  scanDicom(dir, &scan);
+  std::vector<DicomSeriesInfo> out;
+  for (const auto& [uid, files] : scan.series) out.push_back(seriesInfo(scan, uid, files));
+  std::stable_sort(out.begin(), out.end(), [](const DicomSeriesInfo& a, const DicomSeriesInfo& b) { return a.slices > b.slices; });
+  return out;
+}
+
+Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, const Progress* progress) {
+  const SeriesLayout layout = seriesLayout(dir, seriesUid);
+  const std::vector<DicomSlice>& slices = layout.slices;
   glm::ivec3 dims(0, 0, int(slices.size()));
-  glm::dvec3 spacing(1.0, 1.0, zSpacing);
+  glm::dvec3 spacing(1.0, 1.0, layout.zSpacing);
   ScalarType type = ScalarType::Int16;
   SampleArray samples;
   bool rescaled = false;
@@ -489,79 +686,78 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
   ProgressTask task(progress, "DICOM slices", slices.size());
   for (size_t s = 0; s < slices.size(); ++s, task.advance()) {
     const std::string& file = slices[s].file;
-    const std::string where = detail::concat(file, " (slice ", s + 1, " of ", slices.size(), ")");
+    const std::string where = sliceWhere(layout, s);
     const PixelModule module = checkPixelModule(InputFile(file), where);
     if (s == 0)  // the whole series is allocated up front (float at worst): what its first slice claims must fit
       checkMemory(where, uint64_t(module.columns) * uint64_t(module.rows) * (slices.size() * sizeof(float) + 2 * sizeof(double)),
                   detail::concat(slices.size(), " slices of ", module.columns, "x", module.rows, " samples"));
-    else if (module.columns != dims.x || module.rows != dims.y)
-      HYB_THROW(IoError, where, ": slice is ", module.columns, "x", module.rows, ", expected ", dims.x, "x", dims.y, " like the first slice");
-    gdcm::ImageReader reader;
-    reader.SetFileName(file.c_str());
-    if (!reader.Read()) HYB_THROW(IoError, where, ": not a readable DICOM image (GDCM refused its data set; expected a well-formed DICOM file)");
-    const gdcm::Image& image = reader.GetImage();
-    const gdcm::PixelFormat& pf = image.GetPixelFormat();
-    if (pf.GetSamplesPerPixel() != 1)
-      HYB_THROW(IoError, where, ": ", pf.GetSamplesPerPixel(), " samples per pixel (expected 1, greyscale)");
-    if (image.GetNumberOfDimensions() == 3 && image.GetDimension(2) > 1)
-      HYB_THROW(IoError, where, ": multi-frame images are not supported (expected one slice per file)");
-    const glm::ivec2 size(int(image.GetDimension(0)), int(image.GetDimension(1)));
-    if (size.x != module.columns || size.y != module.rows)
-      HYB_THROW(IoError, where, ": GDCM decodes ", size.x, "x", size.y, " pixels (expected the ", module.columns, "x", module.rows,
-                " of Columns and Rows)");
-    ScalarType sliceType;
-    switch (pf.GetScalarType()) {
-      case gdcm::PixelFormat::UINT8: sliceType = ScalarType::UInt8; break;
-      case gdcm::PixelFormat::INT8: sliceType = ScalarType::Int8; break;
-      case gdcm::PixelFormat::UINT16: sliceType = ScalarType::UInt16; break;
-      case gdcm::PixelFormat::INT16: sliceType = ScalarType::Int16; break;
-      case gdcm::PixelFormat::UINT32: sliceType = ScalarType::UInt32; break;
-      case gdcm::PixelFormat::INT32: sliceType = ScalarType::Int32; break;
-      case gdcm::PixelFormat::FLOAT32: sliceType = ScalarType::Float32; break;
-      case gdcm::PixelFormat::FLOAT64: sliceType = ScalarType::Float64; break;
-      default: HYB_THROW(IoError, where, ": unsupported pixel format ", pf.GetScalarTypeAsString());
-    }
+    else
+      checkSliceSize(where, module, dims);
+    SliceImage image;
+    readSliceImage(file, where, module, &image);
     if (s == 0) {
-      dims.x = size.x;
-      dims.y = size.y;
+      dims.x = image.size.x;
+      dims.y = image.size.y;
       validateDims(dims, dir);
-      const double* sp = image.GetSpacing();  // column spacing, row spacing (Pixel Spacing's second and first)
-      spacing.x = sp[0];
-      spacing.y = sp[1];
-      type = sliceType;
-      slopeFirst = image.GetSlope();
-      interceptFirst = image.GetIntercept();
+      spacing.x = image.spacing.x;
+      spacing.y = image.spacing.y;
+      type = image.type;
+      slopeFirst = image.slope;
+      interceptFirst = image.intercept;
       samples = detail::rescaleTarget(type, slopeFirst, interceptFirst, size_t(dims.x) * dims.y * dims.z);
-    } else if (size.x != dims.x || size.y != dims.y) {
-      HYB_THROW(IoError, where, ": slice is ", size.x, "x", size.y, ", expected ", dims.x, "x", dims.y, " like the first slice");
+    } else if (image.size.x != dims.x || image.size.y != dims.y) {
+      HYB_THROW(IoError, where, ": slice is ", image.size.x, "x", image.size.y, ", expected ", dims.x, "x", dims.y, " like the first slice");
     }
-    const size_t sliceCount = size_t(dims.x) * dims.y;
-    if (image.GetBufferLength() != sliceCount * scalarSize(sliceType))
-      HYB_THROW(IoError, where, ": decoded pixel data holds ", image.GetBufferLength(), " bytes (expected ", sliceCount * scalarSize(sliceType),
-                ")");
-    std::vector<char> buffer(image.GetBufferLength());
-    if (!image.GetBuffer(buffer.data()))
-      HYB_THROW(IoError, where, ": pixel data missing or truncated");
-    const SampleArray slice = decodeSamples(reinterpret_cast<const uint8_t*>(buffer.data()), sliceCount, sliceType,
-                                            std::endian::native == std::endian::big);
-    const double slopeValue = image.GetSlope(), intercept = image.GetIntercept();
-    if (slopeValue != 1.0 || intercept != 0.0) rescaled = true;
-    detail::rescaleSamples(&samples, s * sliceCount, slice, slopeValue, intercept);
+    const SampleArray slice = sliceSamples(image, where);
+    if (image.slope != 1.0 || image.intercept != 0.0) rescaled = true;
+    detail::rescaleSamples(&samples, s * size_t(dims.x) * dims.y, slice, image.slope, image.intercept);
   }
-  if (rescaled && type != ScalarType::Float32 && type != ScalarType::Float64)
-    type = storedType(samples) == ScalarType::Float32 ? ScalarType::Float32 : ScalarType::Int32;
+  type = seriesSourceType(type, rescaled, storedType(samples));
   validateSpacing(spacing, dir);
-  Volume v = placed(Volume(dims, spacing, type, std::move(samples), dir),
-                    makePatientFrame(axes.direction, slices.front().position, dir), warnings);
-  const std::string& first = slices.front().file;
-  v.addInfo("modality", chosen->modality.empty() ? "(none)" : chosen->modality);
-  v.addInfo("series", describe(*chosen) + (chosen->number.empty() ? "" : ", number " + chosen->number));
-  if (const std::string pp = scan.value(first, kPatientPosition); !pp.empty()) v.addInfo("position", pp + " (Patient Position)");
-  if (const std::string t = scan.value(first, kThickness); !t.empty()) v.addInfo("thickness", t + " mm (Slice Thickness; slices " +
-                                                                                   detail::concat(zSpacing) + " mm apart)");
-  v.addInfo("rescale", detail::concat("slope ", slopeFirst, ", intercept ", interceptFirst, rescaled ? " (applied)" : ""));
-  return v;
+  return placedSeries(Volume(dims, spacing, type, std::move(samples), dir), layout, slopeFirst, interceptFirst, rescaled);
 }
 
+namespace detail {
+
+std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::string& seriesUid) {
+  SeriesLayout layout = seriesLayout(dir, seriesUid);
+  const size_t n = layout.slices.size();
+  // Every slice's header, checked as the whole reader checks it; the stored type is decided by the
+  // whole reader's rule (rescaleTarget of the first slice, widened to float when a rescaled value
+  // does not fit) applied to the range each header allows instead of the values.
+  glm::ivec3 dims(0, 0, int(n));
+  glm::dvec3 spacing(1.0, 1.0, layout.zSpacing);
+  ScalarType stored = ScalarType::Int16;
+  bool rescaled = false;
+  std::vector<SliceHeader> headers;
+  headers.reserve(n);
+  for (size_t s = 0; s < n; ++s) {
+    const std::string& file = layout.slices[s].file;
+    const std::string where = sliceWhere(layout, s);
+    const PixelModule module = checkPixelModule(InputFile(file), where);
+    if (s > 0) checkSliceSize(where, module, dims);
+    SliceImage image;
+    readSliceImage(file, where, module, &image);
+    if (s == 0) {
+      dims.x = image.size.x;
+      dims.y = image.size.y;
+      validateDims(dims, dir);
+      spacing.x = image.spacing.x;
+      spacing.y = image.spacing.y;
+      stored = storedType(detail::rescaleTarget(image.type, image.slope, image.intercept, 0));
+    }
+    // Whether the whole reader widens to float depends on the values: read whole.
+    if (!holdsAll(stored, image.lo, image.hi, image.slope, image.intercept)) return nullptr;
+    if (image.slope != 1.0 || image.intercept != 0.0) rescaled = true;
+    headers.push_back({image.type, image.slope, image.intercept});
+  }
+  validateSpacing(spacing, dir);
+  const ScalarType source = seriesSourceType(headers.front().type, rescaled, stored);
+  Volume description = placedSeries(Volume::withoutSamples(dims, spacing, source, stored, 0.0f, 0.0f, dir), layout, headers.front().slope,
+                                    headers.front().intercept, rescaled);
+  return std::make_unique<DicomPlanes>(std::move(description), std::move(layout), std::move(headers));
+}
+
+}  // namespace detail
 
 }  // namespace hyb

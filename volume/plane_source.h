@@ -1,6 +1,6 @@
 // A volume's samples plane by plane (z slices, in order), for a build whose memory must not grow
-// with the volume: raw files and NRRD or MetaImage data (raw or gzip/zlib) are read as they are
-// needed; other inputs are read whole first.
+// with the volume: raw files, NRRD, MetaImage and NIfTI data (raw or gzip/zlib) and DICOM series
+// (a slice file at a time) are read as they are needed; other inputs are read whole first.
 #pragma once
 
 #include <glm/glm.hpp>
@@ -47,10 +47,11 @@ class PlaneSource {
 /// The planes of @p volume, which must outlive the source.
 std::unique_ptr<PlaneSource> planesOf(const Volume& volume);
 
-/// The planes of a volume file, by the rules of readVolume(): raw files, and NRRD, MetaImage and
+/// The planes of a volume file, by the rules of readVolume(): raw files, NRRD, MetaImage and
 /// NIfTI files of 8- and 16-bit integer or float samples in raw or gzip/zlib encoding (NIfTI's not
-/// rescaled), are read plane by plane; anything else (DICOM, InVesalius, ASCII, 32-bit integers)
-/// is read whole.
+/// rescaled), and DICOM series whose stored type their headers decide (detail::dicomPlanes), are
+/// read plane by plane; anything else (InVesalius, ASCII, 32-bit integers, other DICOM series) is
+/// read whole.
 /// @throw IoError / ValueError naming @p path, as readVolume().
 std::unique_ptr<PlaneSource> openPlanes(const std::string& path, const RawLayout* raw = nullptr, const std::string& series = "",
                                         const Progress* progress = nullptr);
@@ -83,6 +84,19 @@ std::unique_ptr<PlaneSource> metaImagePlanes(const std::string& path);
 /// The streamed planes of a NIfTI file (.nii, .nii.gz, .hdr with its .img), or null when its
 /// samples do not stream (32-bit integers, or rescaled by scl_slope and scl_inter).
 std::unique_ptr<PlaneSource> niftiPlanes(const std::string& path);
+/// The streamed planes of the DICOM series @p seriesUid in @p dir (the largest when empty): what
+/// readDicomSeries() reads (grid, types, frame, info, warnings; the samples bit for bit), each
+/// plane decoded from its slice file when read() asks for it, compressed transfer syntaxes too
+/// (GDCM decodes a file at a time). Every slice's header is read and checked here. The whole reader
+/// holds the samples in rescaleTarget() of the first slice and widens them to float at the first
+/// rescaled value that type does not hold; here the type is decided from every value the headers
+/// allow (each slice's pixel type, its Bits Stored for 16-bit pixels uncompressed or RLE, its slope
+/// and intercept). Null (read whole) when that depends on the values: int16 with 16 bits stored and
+/// an intercept (values down to -33792), 32-bit pixels, a fractional slope after integer ones, an
+/// intercept after a first slice without one.
+/// @throw IoError / ValueError as readDicomSeries() for the series and its headers; read() throws
+///        IoError naming the slice file when a slice is damaged or changed since.
+std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::string& seriesUid);
 /// The streamed planes of @p path by the rules of readVolume(), or null when it is read whole.
 std::unique_ptr<PlaneSource> openStreamedPlanes(const std::string& path, const RawLayout* raw, const std::string& series);
 

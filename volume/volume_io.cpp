@@ -114,6 +114,7 @@ std::unique_ptr<PlaneSource> detail::openStreamedPlanes(const std::string& path,
       Volume description = rawDescription(path, *raw);
       return streamedPlanes(SampleData{path, raw->headerBytes, 0, "header", false, raw->type, raw->bigEndian}, std::move(description), path);
     }
+    if (fs::is_directory(path, ec)) return dicomPlanes(path, series);
     if (!series.empty() || !fs::is_regular_file(path, ec)) return nullptr;  // readVolume says what is wrong
     const std::string ext = fileExtension(path);
     if (ext == ".nrrd" || ext == ".nhdr") return nrrdPlanes(path);
