@@ -262,8 +262,7 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
     const StoreCacheStats c = store->cacheStats();
     out << std::setprecision(1) << std::fixed << "store    " << c.misses << " blocks read (" << double(c.bytesRead) / 1048576.0
         << " MB compressed), " << c.hits << " from the cache, " << c.evicted << " evicted; the cache holds "
-        << double(c.bytesHeld) / 1048576.0 << " of " << double(c.limit) / 1048576.0 << " MB"
-        << (job.renderer->volume().hasSamples() ? "; the samples were read whole (the reference frame needs them)" : "") << "\n"
+        << double(c.bytesHeld) / 1048576.0 << " of " << double(c.limit) / 1048576.0 << " MB\n"
         << std::defaultfloat;
   }
   // The trade should only lose accuracy and bytes along each sweep.

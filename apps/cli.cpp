@@ -271,7 +271,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
       // What the paged scene read: blocks from the file, from the cache, and what the cache holds.
       const StoreCacheStats c = store->cacheStats();
       j["store"] = {{"blocks_read", c.misses}, {"bytes_read", c.bytesRead}, {"cache_hits", c.hits}, {"cache_bytes", c.bytesHeld},
-                    {"cache_limit", c.limit}, {"evicted", c.evicted}, {"samples_loaded", job.renderer->volume().hasSamples()}};
+                    {"cache_limit", c.limit}, {"evicted", c.evicted}};
     }
     j["camera"] = nlohmann::ordered_json::parse(cameraJson(job.view.camera));
     outputs.write(o.stats, [&](const std::string& to) { writeFileAtomically(to, [&](std::ostream& s) { s << j.dump(2) << "\n"; }); });
