@@ -24,9 +24,11 @@ double AdaptiveQuality::estimateMs(int level) const {
   return mMeasured[size_t(mLast)] * mLadder[size_t(level)].cost() / mLadder[size_t(mLast)].cost();
 }
 
-void AdaptiveQuality::record(int level, double ms, bool cold) {
-  mCold = cold ? mCold + 1 : 0;
-  if (cold && mCold < kColdFramesTrusted) return;
+void AdaptiveQuality::record(int level, double ms, bool cold, double coarser) {
+  const bool passing = cold || coarser > 0.0;  // a state the level's later frames leave behind, or not
+  mCold = passing ? mCold + 1 : 0;
+  if (passing && mCold < kColdFramesTrusted) return;
+  ms /= std::max(1.0 - coarser, 1.0 / kMaxCoarserScale);
   double& m = mMeasured[size_t(level)];
   m = m < 0.0 ? ms : 0.6 * m + 0.4 * ms;  // smoothed: one slow frame of a shared machine moves it a little
   mLast = level;

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <array>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -76,6 +77,12 @@ inline constexpr double kInteractiveLodPixels = 0.7;
 /// phantom's quarter-pixel voxels) stops there instead of drawing every voxel (docs/scale.md).
 inline constexpr double kFinalLodPixels = 0.5;
 
+/// Texels a moving frame packs at most for textures the cache does not keep (Quality::packTexels):
+/// sixteen bricks of kInteractiveBrickEdge, some 20-40 ms of packing on two cores. A new rung's
+/// first frames packed hundreds of bricks (0.4-0.6 s on the clinical study); now they draw the
+/// rest from coarser kept textures and the cut reaches the new one over a few frames.
+inline constexpr uint64_t kInteractivePackTexels = uint64_t(16) * kInteractiveBrickEdge * kInteractiveBrickEdge * kInteractiveBrickEdge;
+
 /// Simplification error of the surface in the frames before the final one, in pixels where the
 /// volume comes nearest the eye (Quality::surfaceErrorPixels): at two pixels the clinical-size
 /// CT's bone surface holds the frame rate at a small loss in PSNR, at one it does not
@@ -108,9 +115,14 @@ class AdaptiveQuality {
   void reset();
   static constexpr double kRefineFactor = 2.0;
   /// Records that a frame at @p level took @p ms (render and encode). A @p cold frame, one that
-  /// uploaded most of its textures, is not taken as the level's time (later frames do not pay for
-  /// the upload) unless frames keep being cold (a texture cache too small for the view).
-  void record(int level, double ms, bool cold = false);
+  /// uploaded most of its textures, or one that drew a share @p coarser of its bricks from coarser
+  /// ones (textures beyond its packing bound, or knots the store is still loading), is not taken
+  /// as the level's time (the level's later frames neither pay for the upload nor skip bricks)
+  /// unless such frames keep coming (a texture cache too small for the view, a level whose bricks
+  /// never all fit); then it is taken as costing ms / (1 − coarser), at most kMaxCoarserScale
+  /// times ms: what it would have cost whole, so that such a level does not look cheap.
+  void record(int level, double ms, bool cold = false, double coarser = 0.0);
+  static constexpr double kMaxCoarserScale = 10.0;
   static constexpr int kColdFramesTrusted = 3;
   /// The measured time of @p level, or one predicted from the last measured level's.
   double estimateMs(int level) const;

@@ -392,6 +392,7 @@ struct ServerState {
     std::string message;
     double ms = 0.0;
     bool cold = false;
+    double coarser = 0.0;  // share of the bricks drawn coarser
     try {
       const auto t0 = Clock::now();
       const FrameParts parts = frameParts(request, rung, level, iso);
@@ -399,6 +400,7 @@ struct ServerState {
       const double renderMs = msSince(t0);
       const FrameStats& st = frame.stats;
       cold = 2 * st.slices.uploadedBricks > st.slices.bricks;
+      coarser = double(st.bricksNotResident) / double(std::max<size_t>(1, st.slices.bricks + st.bricksNotResident));
       message = encodeFrame(summary, request, parts.look, rung, level, final, iso, scene.surfaceReady, arrival, frame.image, st,
                             frame.selection.maxError, renderMs, t0, &ms);
     } catch (const std::exception& e) {
@@ -407,7 +409,7 @@ struct ServerState {
     }
     lock.lock();
     if (!message.empty()) {  // (a failed frame's time says nothing of its level)
-      client.quality(surface).record(level, ms, cold);
+      client.quality(surface).record(level, ms, cold, coarser);
       client.send(std::move(message), true);
     }
   }
@@ -492,6 +494,7 @@ struct ServerState {
       p.quality.maxBrickEdge = kInteractiveBrickEdge;
       p.quality.lodPixels = kInteractiveLodPixels;
       p.quality.waitForBricks = false;  // a paged scene's bricks not cached yet are drawn coarser meanwhile
+      if (r.interacting) p.quality.packTexels = kInteractivePackTexels;
     } else {
       p.quality.lodPixels = kFinalLodPixels;
     }
@@ -526,7 +529,7 @@ struct ServerState {
                    {"textureBytes", st.slices.textureBytes},
                    {"bricks", st.slices.bricks},
                    {"maxError", maxError},
-                   {"bricksNotResident", st.bricksNotResident},  // > 0: bricks drawn coarser while the store loads theirs
+                   {"bricksNotResident", st.bricksNotResident},  // > 0: bricks drawn coarser (beyond the packing bound, or loading)
                    {"iso", iso ? json(*iso) : json(nullptr)},
                    {"surfaceReady", !r.iso || surfaceReady},  // false: the surface asked for is still being built
                    {"camera", cameraToJson(r.camera)}};

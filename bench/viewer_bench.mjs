@@ -137,7 +137,7 @@ async function orbit(label, withSurface) {
   console.log(`  latency parts (medians): request to the server ${med((m) => m.upMs)} ms, waiting for the render thread ${med((m) => m.waitMs)}, ` +
     `render ${med((m) => m.renderMs)}, encode ${med((m) => m.encodeMs)}, frame to the page ${med((m) => m.downMs)}, decode and paint ${med((m) => m.paintMs)}`);
   const coarser = interactive.filter((m) => m.bricksNotResident > 0);
-  console.log(`  frames drawing bricks coarser while the store loads them: ${coarser.length} of ${interactive.length}` +
+  console.log(`  frames drawing bricks coarser (textures beyond the packing bound, or knots the store is loading): ${coarser.length} of ${interactive.length}` +
     (coarser.length ? ` (median ${quantile(coarser.map((m) => m.bricksNotResident), 0.5).toFixed(0)} bricks)` : ''));
   console.log(`  levels used: ${Object.entries(levels).map(([k, l]) => `${k}: ${l.n} frames, ${(l.ms / l.n).toFixed(0)} ms`).join('; ')}`);
   console.log(`  bytes per interactive frame: mean ${(bytes.reduce((a, b) => a + b, 0) / Math.max(1, bytes.length) / 1024).toFixed(1)} KiB; final ${final ? (final.bytes / 1024).toFixed(1) : '?'} KiB`);

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <unordered_set>
 
 #include "hybrid_octree/surface_octree.h"
 #include "render/patient_view.h"
@@ -233,34 +234,58 @@ ViewErrors& SceneRenderer::viewErrors(const Camera& gridCamera, const TransferFu
   return *e.errors;
 }
 
-size_t SceneRenderer::drawResident(const Camera& camera, Selection* selection) {
-  KnotStore& store = *mScene.knots;
+size_t SceneRenderer::drawResident(const Camera& camera, uint64_t packTexels, Selection* selection) {
+  KnotStore* store = mScene.knots.get();
   const VolumeOctree& octree = mScene.octree;
-  const int readAnyway = store.coarseSpacing(mOptions.readAnywayBytes);
+  const int readAnyway = store ? store->coarseSpacing(mOptions.readAnywayBytes) : 0;
   const BrickTextureCache* textures = mOptions.keepTextures ? mTextures.get() : nullptr;
-  auto resident = [&](const Brick& b) {
-    if (textures && textures->contains(b)) return true;
-    const std::vector<KnotBox> boxes = brickKnotBoxes(octree, b);
-    return std::all_of(boxes.begin(), boxes.end(), [&](const KnotBox& k) { return k.s >= readAnyway || store.cached(k); });
-  };
-  std::vector<Brick> missing;
-  *selection = residentSelection(octree, *selection, resident, &missing);
-  // Coarse lattices first (a frame soon after draws them if the fine ones are not in yet), then
-  // the nearest to the eye.
   const glm::dvec3 spacing = mScene.volume.spacing();
   auto distance = [&](const Brick& b) {
     glm::ivec3 lo, hi;
     octree.voxelBox(octree.nodes()[b.node], &lo, &hi);
     return glm::length(glm::clamp(camera.eye, glm::dvec3(lo) * spacing, glm::dvec3(hi) * spacing) - camera.eye);
   };
-  auto spacingOf = [&](const Brick& b) { return octree.edge(octree.nodes()[b.node]) >> b.p; };
-  std::stable_sort(missing.begin(), missing.end(), [&](const Brick& a, const Brick& b) {
-    return spacingOf(a) != spacingOf(b) ? spacingOf(a) > spacingOf(b) : distance(a) < distance(b);
-  });
-  std::vector<KnotBox> boxes;
-  for (const Brick& b : missing)
-    for (const KnotBox& k : brickKnotBoxes(octree, b)) boxes.push_back(k);
-  store.prefetch(boxes);  // (also when empty: what an earlier view asked for is not needed now)
+  auto kept = [&](const Brick& b) { return textures && textures->contains(b); };
+  auto knotsAtHand = [&](const Brick& b) {
+    if (!store) return true;
+    const std::vector<KnotBox> boxes = brickKnotBoxes(octree, b);
+    return std::all_of(boxes.begin(), boxes.end(), [&](const KnotBox& k) { return k.s >= readAnyway || store->cached(k); });
+  };
+  auto key = [](const Brick& b) { return uint64_t(b.node) << 8 | uint64_t(b.p); };
+  // The selection's bricks this frame packs, nearest the eye first, within packTexels. The coarser
+  // bricks drawn instead of the others are not bounded (each has an eighth of the texels or fewer):
+  // were they, the root would end up drawing the whole volume.
+  std::unordered_set<uint64_t> selected, packs;
+  std::vector<const Brick*> toPack;
+  for (const Brick& b : selection->bricks) {
+    selected.insert(key(b));
+    if (!b.hidden && !kept(b) && knotsAtHand(b)) toPack.push_back(&b);
+  }
+  std::stable_sort(toPack.begin(), toPack.end(), [&](const Brick* a, const Brick* b) { return distance(*a) < distance(*b); });
+  uint64_t left = packTexels > 0 ? packTexels : std::numeric_limits<uint64_t>::max();
+  for (const Brick* b : toPack)
+    if (b->texelCount() <= left || packs.empty()) {  // (the nearest always: every frame makes progress)
+      left -= std::min(left, b->texelCount());
+      packs.insert(key(*b));
+    }
+  auto resident = [&](const Brick& b) {
+    if (kept(b)) return true;
+    return selected.contains(key(b)) ? packs.contains(key(b)) : knotsAtHand(b);
+  };
+  std::vector<Brick> missing;
+  *selection = residentSelection(octree, *selection, resident, &missing);
+  if (store) {
+    // Coarse lattices first (a frame soon after draws them if the fine ones are not in yet), then
+    // the nearest to the eye.
+    auto spacingOf = [&](const Brick& b) { return octree.edge(octree.nodes()[b.node]) >> b.p; };
+    std::stable_sort(missing.begin(), missing.end(), [&](const Brick& a, const Brick& b) {
+      return spacingOf(a) != spacingOf(b) ? spacingOf(a) > spacingOf(b) : distance(a) < distance(b);
+    });
+    std::vector<KnotBox> boxes;
+    for (const Brick& b : missing)
+      for (const KnotBox& k : brickKnotBoxes(octree, b)) boxes.push_back(k);
+    store->prefetch(boxes);  // (also when empty: what an earlier view asked for is not needed now)
+  }
   return missing.size();
 }
 
@@ -370,7 +395,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   st.budgetTexels = choice.texelBudget;
   const SelectionParams params = paramsOf(choice);
   out.selection = selectNodes(mScene.octree, params);
-  if (!quality.waitForBricks && mScene.knots) st.bricksNotResident = drawResident(camera, &out.selection);
+  if (!quality.waitForBricks && (mScene.knots || quality.packTexels > 0)) st.bricksNotResident = drawResident(camera, quality.packTexels, &out.selection);
   st.selectMs = msSince(s0);
 
   ensureGl();

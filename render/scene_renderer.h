@@ -106,6 +106,11 @@ struct Quality {
   /// (residentSelection: never a hole) while the store's prefetch thread loads them, and the
   /// frame says it is not final (FrameStats::bricksNotResident).
   bool waitForBricks = true;
+  /// With waitForBricks false: texels the frame may pack for textures the cache does not keep (0:
+  /// no bound). Bricks beyond it are drawn coarser, from kept textures where they can be, and
+  /// packed by the frames after (Carmona et al.: the cut moves towards the new one frame by frame,
+  /// so a moving frame that meets many new bricks costs about what the one before did).
+  uint64_t packTexels = 0;
 
   /// Empty when valid, else a message naming the offending flag (--epsilon, --step, --budget...).
   std::string validate() const;
@@ -124,8 +129,9 @@ struct FrameStats {
   double selectMs = 0, renderMs = 0;
   size_t brickErrorsMeasured = 0;  ///< the view's bricks whose image error has been measured
   uint64_t textureBytesKept = 0;   ///< the brick texture cache after the frame
-  /// Bricks of the selection drawn from a coarser level because their knots were not cached
-  /// (Quality::waitForBricks false); the prefetch thread is loading them. 0: the frame is final.
+  /// Bricks of the selection drawn from a coarser level because their knots were not cached (the
+  /// prefetch thread is loading them) or their textures were beyond Quality::packTexels
+  /// (Quality::waitForBricks false). 0: the frame is final.
   size_t bricksNotResident = 0;
 };
 
@@ -234,9 +240,10 @@ class SceneRenderer {
   ViewErrors& viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
                          const std::optional<VolumeOfInterest>& voi, bool anyCamera);
   void ensureGl();
-  /// Makes @p selection drawable from what is resident (Quality::waitForBricks false), asks the
-  /// store's prefetch thread for the rest, and returns how many bricks that is.
-  size_t drawResident(const Camera& gridCamera, Selection* selection);
+  /// Makes @p selection drawable from what is resident (Quality::waitForBricks false) and packs
+  /// at most @p packTexels (0: any), asks a paged store's prefetch thread for the knots not
+  /// cached, and returns how many bricks are drawn coarser.
+  size_t drawResident(const Camera& gridCamera, uint64_t packTexels, Selection* selection);
 
   Scene mScene;
   Options mOptions;

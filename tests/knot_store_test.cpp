@@ -214,6 +214,49 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
   EXPECT_EQ(stats.limit, tenth);
 }
 
+// A moving frame packs at most Quality::packTexels of its selection's bricks, nearest the eye
+// first, and draws the others from coarser bricks, never a hole; the frames after pack the rest,
+// so the cut reaches the exact one over a few frames, whether the samples are in memory or paged.
+TEST(KnotStore, MovingFramesPackABoundedShareOfNewTexturesAndReachTheExactFrame) {
+  test::gl();
+  test::TempDir dir;
+  const Volume v = noisyHead({70, 45, 37}, ScalarType::Int16);
+  const VolumeOctree t = VolumeOctree::build(v);
+  saveScene(dir.file("h.hoct"), v, t);
+  Look look;
+  look.tf = TransferFunction({{60.0f, {1, 1, 1}, 0.0f}, {120.0f, {1.0f, 0.6f, 0.4f}, 0.05f}, {220.0f, {1.0f, 1.0f, 0.9f}, 0.4f}}, "head");
+  View view;
+  view.camera = fitCamera(visiblePoints(v, t, look.tf), orbitDirection(30.0, 20), 30, false, 40, 40, 0.05);
+  for (const bool paged : {false, true}) {
+    SceneRenderer r(loadScene(dir.file("h.hoct"), SceneLoadOptions{!paged, 0})), exact(loadScene(dir.file("h.hoct")));
+    const RenderedFrame want = exact.render(view, look, Quality{});
+    ASSERT_GT(want.stats.slices.bricks, 20u);
+    const uint64_t brickTexels = want.selection.texels / want.stats.slices.bricks;
+    Quality moving;
+    moving.waitForBricks = false;
+    moving.packTexels = 2 * brickTexels;
+    int frames = 0;
+    size_t coarser = std::numeric_limits<size_t>::max();
+    for (; frames < 40; ++frames) {
+      if (paged) r.scene().knots->waitForPrefetch();
+      const RenderedFrame f = r.render(view, look, moving);
+      // Never a hole: wherever the exact frame is half opaque, this one shows something.
+      size_t holes = 0;
+      for (size_t i = 0; i < want.image.pixels.size(); ++i) holes += want.image.pixels[i].a >= 0.5f && f.image.pixels[i].a < 0.1f;
+      EXPECT_EQ(holes, 0u) << paged << " frame " << frames;
+      EXPECT_LE(f.stats.bricksNotResident, coarser) << paged << " frame " << frames;
+      coarser = f.stats.bricksNotResident;
+      if (coarser == 0) {
+        EXPECT_EQ(f.image.pixels, want.image.pixels) << paged;
+        break;
+      }
+    }
+    // The bound spread the packing over frames: about one per two of the view's bricks.
+    EXPECT_GE(frames + 1, int(want.stats.slices.bricks / 4)) << paged;
+    EXPECT_LT(frames, 40) << paged;
+  }
+}
+
 TEST(KnotStore, AColdCacheDrawsCoarserBricksNeverAHoleWhileThePrefetchThreadLoadsTheRest) {
   test::gl();
   test::TempDir dir;

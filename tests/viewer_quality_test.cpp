@@ -104,5 +104,32 @@ TEST(ViewerQuality, AFrameThatUploadedItsTexturesIsNotTheLevelsTime) {
   EXPECT_EQ(thrashing.estimateMs(4), 300.0);
 }
 
+// A frame that drew some of its bricks coarser (beyond its packing bound, or still loading) is
+// passing, as a cold one is: not the level's time unless such frames keep coming, and then it
+// costs what it would have whole, so a level whose bricks never all fit (a quarter drawn at a
+// time) does not look cheap and the ladder does not climb to it.
+TEST(ViewerQuality, AFrameThatDrewBricksCoarserCountsAsTheWholeFrame) {
+  AdaptiveQuality q(kVolumeLadder, 80.0);
+  q.record(4, 30.0, false, 0.5);  // a new level's first frame
+  EXPECT_EQ(q.estimateMs(4), 0.0);
+  q.record(4, 45.0);
+  EXPECT_DOUBLE_EQ(q.estimateMs(4), 45.0);
+  AdaptiveQuality persistent(kVolumeLadder, 80.0);
+  for (int i = 1; i < AdaptiveQuality::kColdFramesTrusted; ++i) persistent.record(4, 30.0, false, 0.5);
+  EXPECT_EQ(persistent.estimateMs(4), 0.0);
+  persistent.record(4, 30.0, false, 0.5);
+  EXPECT_DOUBLE_EQ(persistent.estimateMs(4), 60.0);
+  AdaptiveQuality capped(kVolumeLadder, 80.0);
+  for (int i = 0; i < AdaptiveQuality::kColdFramesTrusted; ++i) capped.record(4, 30.0, false, 0.99);
+  EXPECT_DOUBLE_EQ(capped.estimateMs(4), 30.0 * AdaptiveQuality::kMaxCoarserScale);
+  AdaptiveQuality ladder(kVolumeLadder, 80.0);
+  const int last = int(kVolumeLadder.size()) - 1;
+  ladder.record(last, 20.0);
+  const int chosen = ladder.chooseInteractiveLevel();
+  EXPECT_LT(chosen, last);
+  for (int i = 0; i < 8; ++i) ladder.record(chosen, 25.0, false, 0.75);  // 100 ms whole: too slow
+  EXPECT_GT(ladder.chooseInteractiveLevel(), chosen);
+}
+
 }  // namespace
 }  // namespace hyb::viewer

@@ -196,7 +196,7 @@ async function onFrame(buffer) {
   drawMarker(header.camera);
   setState(header.quality === 'final' && header.surfaceReady === false ? 'final without the surface (building)' : header.quality);
   $('numbers').textContent = `${(header.renderMs + header.encodeMs).toFixed(0)} ms · ${(header.textureBytes / 1048576).toFixed(1)} MB · ` +
-    `max error ${header.maxError.toFixed(1)}` + (header.bricksNotResident > 0 ? ` · ${header.bricksNotResident} bricks loading` : '');
+    `max error ${header.maxError.toFixed(1)}` + (header.bricksNotResident > 0 ? ` · ${header.bricksNotResident} bricks coarser` : '');
   $('level').textContent = header.levelText;
   if (header.quality === 'final') {
     state.lastFinal = { header, blob };
