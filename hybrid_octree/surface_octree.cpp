@@ -476,12 +476,17 @@ void checkOptions(const SurfaceOctreeOptions& options) {
 
 }  // namespace
 
-SurfaceOctree SurfaceOctree::build(const KnotSource& knots, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options) {
+SurfaceOctree SurfaceOctree::empty(const glm::ivec3& dims, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options) {
   checkOptions(options);
   SurfaceOctree so;
-  so.mDims = knots.dims();
+  so.mDims = dims;
   so.mIso = iso;
   so.mMergeEdge = options.maxEdge > 0 ? std::min(options.maxEdge, octree.leafEdge()) : octree.leafEdge();
+  return so;
+}
+
+SurfaceOctree SurfaceOctree::build(const KnotSource& knots, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options) {
+  SurfaceOctree so = empty(knots.dims(), octree, iso, options);
   const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
   std::vector<std::vector<SurfaceNode>> nodes(blocks.size());
   ProgressTask progress(options.progress, "surface octree", blocks.size());
@@ -496,11 +501,7 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
 }
 
 SurfaceOctree SurfaceOctree::build(PlaneSource& planes, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options) {
-  checkOptions(options);
-  SurfaceOctree so;
-  so.mDims = planes.dims();
-  so.mIso = iso;
-  so.mMergeEdge = options.maxEdge > 0 ? std::min(options.maxEdge, octree.leafEdge()) : octree.leafEdge();
+  SurfaceOctree so = empty(planes.dims(), octree, iso, options);
   // The leaves a slab at a time (their Morton order visits slabs back and forth): each reads the
   // planes from one below its own to its top, leafEdge + 2 of them.
   const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);

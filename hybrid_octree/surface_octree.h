@@ -120,6 +120,8 @@ class SurfaceOctree {
   DiscreteMesh reconstruct(int mergeCube = 0, const Progress* progress = nullptr) const;
 
  private:
+  // The octree of @p iso over @p dims with its merge edge, @p options checked, no nodes yet.
+  static SurfaceOctree empty(const glm::ivec3& dims, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options);
   // Appends the leaves' nodes in their order (Morton order: the leaves are).
   void gather(std::vector<std::vector<SurfaceNode>> perBlock);
 
