@@ -273,8 +273,10 @@ class FramePrograms {
 // built by a worker thread while this one submits the bricks before it to llvmpipe, whose vertex
 // processing runs on the submitting thread: the two halves of the per-brick work overlap.
 struct BrickDraw {
-  uint32_t brick = 0;  // index into selection.bricks
+  uint32_t brick = 0, node = 0;  // index into selection.bricks, and its node
   bool visible = false, sliced = false, shell = false;
+  bool crossed = false;  // the cutting plane crosses its box (then it is textured)
+  bool pending = false;  // its texels are packed into `packed`, uploaded when it is drawn
   GLuint texture = 0;
   glm::vec3 fineScale{0.0f}, fineOffset{0.0f};  // grid mm -> the texture's coordinates
   float valueOffset = 0.0f, valueScale = 1.0f;
@@ -283,143 +285,194 @@ struct BrickDraw {
   ShellFrame frame{};
   const VisibleBlocks* blocks = nullptr;  // each slice or shell is cut from the box of the visible blocks it meets
   KnotLattice lattice{};
-  int32_t pending = -1;  // its packed texels in BrickPlan::pending, uploaded when it is drawn; -1: texture made
-  glm::ivec3 texels{0};  // its texture's size
+  CachedBrick* cached = nullptr;  // its cache entry, found before the frame's first draw; null: made by this frame
+  PackedBrick packed;             // its texels, from its batch's packing to its texture's making
+  glm::ivec3 texels{0};           // its texture's size
+  std::vector<float> cutPolygon;  // its piece of the cutting plane, until planned
   // Built by the worker:
   std::vector<float> stream;  // kStreamFloats a vertex
   uint64_t slices = 0, surfaceTriangles = 0, slabPolygonDraws = 0;
 };
 
-// The bricks' textures and slicing, back to front: textures from the cache or packed now (on all
-// cores: their texels are most of a first frame's work) and uploaded; the cutting plane's piece of
-// each; the box each slices (the cells the transfer function can make visible: empty-space skipping
-// inside the brick) and its slice spacing (slicePeriod).
-struct BrickPlan {
-  std::vector<BrickDraw> draws;
-  std::vector<CutPiece> cut;
-  std::deque<VisibleBlocks> frameBlocks;  // visible blocks of bricks no cache keeps
-  std::vector<gl::Texture> frameTextures;  // textures no cache keeps
-  // Packed bricks whose textures are made when they are drawn and deleted after, unless the cache
-  // keeps them: llvmpipe holds a frame's textures at about twice their texels' bytes, and a frame
-  // that made them all first held them all at once.
-  std::vector<PackedBrick> pending;
-  uint64_t texels = 0, cutTexels = 0, bricks = 0, blended = 0, shellBricks = 0, uploaded = 0;
-};
-BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
-                     const Camera& camera, const SlicesOptions& options, const TransferTable& table, const std::vector<uint32_t>& order,
-                     const BrickIndex& brickOf, const BrickPolygons& polygonsOf, bool translucent, const glm::dvec4& cut,
-                     double baseDelta) {
-  const glm::dvec3 spacing = volume.spacing();
-  const VolumeKnots inMemory(volume, octree);
-  const KnotSource& knots = options.knots ? *options.knots : inMemory;
-  BrickPlan plan;
-  // Hidden (transparent or culled) bricks cost no texels; their surface triangles are still drawn.
-  auto textured = [&](uint32_t node) {
-    const OctreeNode& n = octree.nodes()[node];
-    return !selection.bricks[size_t(brickOf[node])].hidden && tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
-  };
-  // Warm frames (nothing to pack) do not open the parallel region: its threads would spin for a
-  // while after it (libgomp's default wait policy), taking a core from llvmpipe's rasterizer.
-  std::vector<uint32_t> toPack;
-  std::vector<int32_t> packedOf(order.size(), -1);  // per position in `order`
-  for (size_t k = 0; k < order.size(); ++k)
-    if (const uint32_t i = order[k]; textured(i) && !(options.textures && options.textures->find(selection.bricks[size_t(brickOf[i])]))) {
-      packedOf[k] = int32_t(toPack.size());
-      toPack.push_back(i);
+// The bricks' textures and slicing, back to front: textures from the cache or packed (on all cores:
+// their texels are most of a first frame's work) and uploaded; the cutting plane's piece of each;
+// the box each slices (the cells the transfer function can make visible: empty-space skipping
+// inside the brick, found from the packed texels' ranges) and its slice spacing (slicePeriod).
+//
+// The draws are planned a batch at a time, a batch ahead of the drawing: packing every brick first
+// held a whole frame's packed texels at once (1.83 GB for the phantom's 93,066 bricks), so at most
+// two batches' are held now (the one drawn and the next), whatever the brick count. Bricks the
+// cutting plane crosses are planned before any draw: the plane is drawn first, from their textures.
+class BrickPlanner {
+ public:
+  BrickPlanner(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf, const Camera& camera,
+               const SlicesOptions& options, const TransferTable& table, const std::vector<uint32_t>& order, const BrickIndex& brickOf,
+               const BrickPolygons& polygonsOf, bool translucent, const glm::dvec4& cut, double baseDelta)
+      : mOctree(octree), mSelection(selection), mCamera(camera), mOptions(options), mTable(table), mPolygonsOf(polygonsOf),
+        mInMemory(volume, octree), mKnots(options.knots ? *options.knots : mInMemory), mSpacing(volume.spacing()), mBaseDelta(baseDelta),
+        mBatch(std::max<size_t>(options.packBatch, 1)) {
+    // The frame's draws, and the crossed bricks to pack; no cache entry is marked as used here.
+    // Hidden (transparent or culled) bricks cost no texels; their surface triangles are still drawn.
+    std::vector<size_t> crossedToPack;
+    mDraws.reserve(order.size());
+    for (const uint32_t i : order) {
+      const OctreeNode& n = octree.nodes()[i];
+      BrickDraw d;
+      d.brick = uint32_t(brickOf[i]);
+      d.node = i;
+      const Brick& b = selection.bricks[d.brick];
+      d.visible = !b.hidden && tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
+      if (!d.visible && !(translucent && !polygonsOf.of(d.brick).empty())) continue;
+      glm::ivec3 lo, hi;
+      octree.voxelBox(n, &lo, &hi);
+      d.blo = d.slo = glm::dvec3(lo) * mSpacing;
+      d.bhi = d.shi = glm::dvec3(hi) * mSpacing;
+      d.shell = options.proxy == Proxy::Shells && !camera.ortho && shellFrame(d.blo, d.bhi, camera.eye, &d.frame);
+      d.crossed = d.visible && options.cut && slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &d.cutPolygon);
+      if (d.crossed && !(options.textures && options.textures->contains(b))) crossedToPack.push_back(mDraws.size());
+      mDraws.push_back(std::move(d));
     }
-  plan.uploaded = toPack.size();
-  // Packed in batches on all cores; textures are made below for bricks the cutting plane crosses
-  // (the plane is drawn before the bricks), the others' when they are drawn.
-  constexpr size_t kBatch = 256;
-  plan.pending.resize(toPack.size());
-  for (size_t first = 0; first < toPack.size(); first += kBatch) {
-    const size_t count = std::min(kBatch, toPack.size() - first);
+    // In draw order, as a frame that packed every brick first did (the cache's order of use is the
+    // same): each textured brick's cache entry found (marked as used by this frame, so that no draw
+    // evicts it before its own), and the crossed bricks planned, their textures made from batches
+    // packed just before.
+    size_t next = 0;
+    for (size_t first = 0;; first += mBatch) {
+      const size_t count = std::min(mBatch, crossedToPack.size() - first);
+      pack(crossedToPack.data() + first, count);
+      const size_t end = first + count < crossedToPack.size() ? crossedToPack[first + count] : mDraws.size();
+      for (; next < end; ++next) {
+        BrickDraw& d = mDraws[next];
+        if (!d.visible) continue;
+        d.cached = options.textures ? options.textures->find(selection.bricks[d.brick]) : nullptr;
+        if (d.crossed) {
+          plan(d);
+        } else if (!d.cached) {
+          d.pending = true;
+          mToPack.push_back(next);
+        }
+      }
+      if (end == mDraws.size()) break;
+    }
+    mUploaded = crossedToPack.size() + mToPack.size();
+  }
+
+  // The frame's draws, back to front; those before planned() are ready to draw.
+  std::vector<BrickDraw>& draws() { return mDraws; }
+  size_t planned() const { return mPlanned; }
+  // The first draw of the last batch planned.
+  size_t lastBatch() const { return mLastBatch; }
+  // The cutting plane's pieces, in draw order.
+  const std::vector<CutPiece>& cut() const { return mCut; }
+
+  // Plans the next batch: packs the next packBatch bricks on all cores, then plans the draws up to
+  // the first brick of the batch after (to the last draw when no brick is left to pack).
+  void planNext() {
+    const size_t count = std::min(mBatch, mToPack.size() - mPacked);
+    pack(mToPack.data() + mPacked, count);
+    mPacked += count;
+    const size_t end = mPacked < mToPack.size() ? mToPack[mPacked] : mDraws.size();
+    mLastBatch = mPlanned;
+    for (; mPlanned < end; ++mPlanned)
+      if (!mDraws[mPlanned].crossed) plan(mDraws[mPlanned]);
+  }
+
+  // Records that draw @p d's packed texels were made into its texture.
+  void uploaded(BrickDraw& d) {
+    d.packed = PackedBrick{};
+    --mHeld;
+  }
+
+  // Writes the frame's figures to @p st.
+  void addStats(SlicesStats* st) const {
+    st->bricks = mBricks;
+    st->uploadedBricks = mUploaded;
+    st->blendedBricks = mBlended;
+    st->texels = mTexels;
+    st->shellBricks = mShellBricks;
+    st->textureBytes = mTexels * bytesPerTexel(mOptions.texelBits) + mCutTexels * kBytesPerCutTexel;
+    st->peakPackedBricks = mPeakHeld;
+  }
+
+ private:
+  // Packs the texels of draws @p js[0, count) on all cores. Warm frames (nothing to pack) do not
+  // open the parallel region: its threads would spin for a while after it (libgomp's default wait
+  // policy), taking a core from llvmpipe's rasterizer.
+  void pack(const size_t* js, size_t count) {
+    if (count == 0) return;
     ParallelFailure failure;
 #pragma omp parallel for schedule(dynamic) if (count > 1)
     for (size_t k = 0; k < count; ++k)
       failure.run([&] {
-        const uint32_t i = toPack[first + k];
-        const Brick& b = selection.bricks[size_t(brickOf[i])];
-        const std::vector<glm::vec4> texels = brickTexels(knots, octree, b);
-        PackedBrick& p = plan.pending[first + k];
-        p = packBrick(texels, options.texelBits);
-        p.brick.ranges = texelRanges(texels, octree.lattice(octree.nodes()[i], b.p).dims);
+        BrickDraw& d = mDraws[js[k]];
+        const Brick& b = mSelection.bricks[d.brick];
+        const std::vector<glm::vec4> texels = brickTexels(mKnots, mOctree, b);
+        d.packed = packBrick(texels, mOptions.texelBits);
+        d.packed.brick.ranges = texelRanges(texels, mOctree.lattice(mOctree.nodes()[d.node], b.p).dims);
       });
     failure.rethrow();
+    mHeld += count;
+    mPeakHeld = std::max(mPeakHeld, mHeld);
   }
-  plan.draws.reserve(order.size());
-  for (size_t k = 0; k < order.size(); ++k) {
-    const uint32_t i = order[k];
-    const Brick& b = selection.bricks[size_t(brickOf[i])];
-    const OctreeNode& n = octree.nodes()[i];
-    BrickDraw d;
-    d.visible = textured(i);
-    d.brick = uint32_t(brickOf[i]);
-    const bool holdsTriangles = !polygonsOf.of(d.brick).empty();
-    if (!d.visible && !(translucent && holdsTriangles)) continue;
-    glm::ivec3 lo, hi;
-    octree.voxelBox(n, &lo, &hi);
-    d.blo = d.slo = glm::dvec3(lo) * spacing;
-    d.bhi = d.shi = glm::dvec3(hi) * spacing;
-    d.shell = options.proxy == Proxy::Shells && !camera.ortho && shellFrame(d.blo, d.bhi, camera.eye, &d.frame);
-    const KnotLattice fine = octree.lattice(n, b.p);
+
+  // Plans draw @p d, its brick found in the cache or packed.
+  void plan(BrickDraw& d) {
+    const Brick& b = mSelection.bricks[d.brick];
+    const KnotLattice fine = mOctree.lattice(mOctree.nodes()[d.node], b.p);
     d.sliced = d.visible;
     if (d.visible) {
-      CachedBrick* cached = options.textures ? options.textures->find(b) : nullptr;
-      CutPiece piece;
-      const bool crossed = options.cut && slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &piece.polygon);
+      // A crossed brick's texture is made now, others' when they are drawn.
+      CachedBrick* cached = d.cached;
       CachedBrick made;
-      if (!cached) {
-        PackedBrick& packed = plan.pending[size_t(packedOf[k])];
-        if (crossed) {
-          made = uploadBrick(std::move(packed), fine.dims, options.texelBits);
-          packed = PackedBrick{};
-          if (options.textures) cached = &options.textures->insert(b, std::move(made));
-        } else {
-          d.pending = packedOf[k];
-          d.texels = fine.dims;
-        }
+      if (!cached && d.crossed) {
+        made = uploadBrick(std::move(d.packed), fine.dims, mOptions.texelBits);
+        uploaded(d);
+        if (mOptions.textures) cached = &mOptions.textures->insert(b, std::move(made));
+      } else if (!cached) {
+        d.texels = fine.dims;
       }
-      CachedBrick& brick = cached ? *cached : d.pending >= 0 ? plan.pending[size_t(d.pending)].brick : made;
-      if (crossed) {
-        if (options.texelBits == TexelBits::Sixteen) {
+      CachedBrick& brick = cached ? *cached : d.pending ? d.packed.brick : made;
+      CutPiece piece;
+      if (d.crossed) {
+        piece.polygon = std::move(d.cutPolygon);
+        if (mOptions.texelBits == TexelBits::Sixteen) {
           piece.texture = brick.texture.id();  // its value is 16 bits already
         } else {
           if (!brick.cutTexture) {
             const uint64_t before = brick.bytes;
-            uploadCutTexture(brickTexels(knots, octree, b), fine.dims, &brick);
-            if (cached) options.textures->grew(b, brick.bytes - before);
+            uploadCutTexture(brickTexels(mKnots, mOctree, b), fine.dims, &brick);
+            if (cached) mOptions.textures->grew(b, brick.bytes - before);
           }
           piece.texture = brick.cutTexture.id();
-          plan.cutTexels += fine.count();
+          mCutTexels += fine.count();
         }
       }
       d.texture = brick.texture.id();
       d.valueOffset = brick.valueOffset;
       d.valueScale = brick.valueScale;
-      plan.texels += fine.count();
-      ++plan.bricks;
-      plan.blended += b.coarseCorners != 0;
-      if (options.visibleBoxes) {
+      mTexels += fine.count();
+      ++mBricks;
+      mBlended += b.coarseCorners != 0;
+      if (mOptions.visibleBoxes) {
         glm::dvec3 vlo(0.0), vhi(0.0);
-        findVisibleBlocks(brick.ranges, table.visible, &brick.visible);
+        findVisibleBlocks(brick.ranges, mTable.visible, &brick.visible);
         d.sliced = visibleBox(brick.visible, fine, &vlo, &vhi);
-        d.slo = glm::max(d.blo, vlo * spacing);
-        d.shi = glm::min(d.bhi, vhi * spacing);
+        d.slo = glm::max(d.blo, vlo * mSpacing);
+        d.shi = glm::min(d.bhi, vhi * mSpacing);
         if (d.sliced) {
-          d.blocks = cached || d.pending >= 0 ? &brick.visible : &plan.frameBlocks.emplace_back(std::move(made.visible));
+          d.blocks = cached || d.pending ? &brick.visible : &mFrameBlocks.emplace_back(std::move(made.visible));
           d.lattice = fine;
         }
       }
       // The texture coordinates are affine in grid mm: uv = x·scale + offset.
       const glm::dvec3 dims(fine.dims);
-      d.fineScale = glm::vec3(1.0 / (spacing * double(fine.step) * dims));
+      d.fineScale = glm::vec3(1.0 / (mSpacing * double(fine.step) * dims));
       d.fineOffset = glm::vec3((0.5 - glm::dvec3(fine.origin) / double(fine.step)) / dims);
       piece.fineScale = d.fineScale, piece.fineOffset = d.fineOffset, piece.valueOffset = d.valueOffset, piece.valueScale = d.valueScale;
-      if (!piece.polygon.empty()) plan.cut.push_back(std::move(piece));
-      if (!cached && d.pending < 0) {
-        plan.frameTextures.push_back(std::move(made.texture));
-        if (made.cutTexture) plan.frameTextures.push_back(std::move(made.cutTexture));
+      if (!piece.polygon.empty()) mCut.push_back(std::move(piece));
+      if (!cached && !d.pending) {
+        mFrameTextures.push_back(std::move(made.texture));
+        if (made.cutTexture) mFrameTextures.push_back(std::move(made.cutTexture));
       }
     }
     // Each level is sliced at its own rate (LaMar 1999), the shader correcting the opacity for it,
@@ -427,18 +480,36 @@ BrickPlan planBricks(const Volume& volume, const VolumeOctree& octree, const Sel
     // its own slices as in the paper, where its level approximates the field; where the level is
     // exact the brick keeps the base spacing so that the surface is composited exactly, and so
     // does a brick holding the eye, so that the near plane cuts the volume finely.
-    const bool holdsEye = !camera.ortho && glm::all(glm::greaterThanEqual(camera.eye, d.blo)) && glm::all(glm::lessThanEqual(camera.eye, d.bhi));
-    const bool exactWithSurface = holdsTriangles && b.error == 0.0f && b.coarseCorners == 0;
+    const bool holdsEye = !mCamera.ortho && glm::all(glm::greaterThanEqual(mCamera.eye, d.blo)) && glm::all(glm::lessThanEqual(mCamera.eye, d.bhi));
+    const bool exactWithSurface = !mPolygonsOf.of(d.brick).empty() && b.error == 0.0f && b.coarseCorners == 0;
     // At least four planes across the brick's box: a ray's stretch in the brick that meets none of
     // its planes is lost.
     const double across = std::min({d.bhi.x - d.blo.x, d.bhi.y - d.blo.y, d.bhi.z - d.blo.z});
-    const int period = std::clamp(int(across / (4.0 * baseDelta)), 1, slicePeriod(fine.step));
-    d.delta = baseDelta * (d.sliced && !holdsEye && !exactWithSurface ? period : 1);
-    plan.shellBricks += d.shell && d.sliced;
-    plan.draws.push_back(std::move(d));
+    const int period = std::clamp(int(across / (4.0 * mBaseDelta)), 1, slicePeriod(fine.step));
+    d.delta = mBaseDelta * (d.sliced && !holdsEye && !exactWithSurface ? period : 1);
+    mShellBricks += d.shell && d.sliced;
   }
-  return plan;
-}
+
+  const VolumeOctree& mOctree;
+  const Selection& mSelection;
+  const Camera& mCamera;
+  const SlicesOptions& mOptions;
+  const TransferTable& mTable;
+  const BrickPolygons& mPolygonsOf;
+  const VolumeKnots mInMemory;
+  const KnotSource& mKnots;
+  const glm::dvec3 mSpacing;
+  const double mBaseDelta;
+  const size_t mBatch;
+  std::vector<BrickDraw> mDraws;
+  std::vector<CutPiece> mCut;
+  std::deque<VisibleBlocks> mFrameBlocks;   // visible blocks of bricks no cache keeps
+  std::vector<gl::Texture> mFrameTextures;  // textures no cache keeps
+  std::vector<size_t> mToPack;              // draws whose bricks are packed batch by batch
+  size_t mPacked = 0, mPlanned = 0, mLastBatch = 0;
+  size_t mHeld = 0, mPeakHeld = 0;  // draws holding packed texels, now and at most
+  uint64_t mTexels = 0, mCutTexels = 0, mBricks = 0, mBlended = 0, mShellBricks = 0, mUploaded = 0;
+};
 
 // Brick @p d's vertex stream: its slices far to near, each slab's SlabPolygon list before the slice
 // that closes the slab.
@@ -559,20 +630,25 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
 
   const gl::Query query = gl::Query::make();
   glBeginQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB, query.id());
-  // 4. The bricks' textures and slicing.
-  BrickPlan plan = planBricks(volume, octree, selection, tf, camera, options, table, order, brickOf, polygonsOf, translucent, cut, baseDelta);
+  // 4. The bricks the cutting plane crosses, their textures made.
+  BrickPlanner planner(volume, octree, selection, tf, camera, options, table, order, brickOf, polygonsOf, translucent, cut, baseDelta);
   // 5. The cutting plane, opaque and writing depth.
-  if (options.cut) st.cutPolygons = drawCutPlane(programs.cut(), plan.cut);
+  if (options.cut) st.cutPolygons = drawCutPlane(programs.cut(), planner.cut());
 
-  // 6. Each brick's slices and SlabPolygon lists, built by a worker in draw order (it publishes how
-  // many are done) and drawn here. The worker stays at most kLookahead bricks ahead of the drawing,
-  // so the streams held at once stay a few bricks' worth however many bricks the frame has.
+  // 6. The bricks' textures and slicing planned a batch ahead of the drawing (the next batch when
+  // the drawing enters the last one planned); each brick's slices and SlabPolygon lists built by a
+  // worker in draw order (it publishes how many are done) and drawn here. The worker builds only
+  // planned draws, at most kLookahead bricks ahead of the drawing, so the streams held at once stay
+  // a few bricks' worth however many bricks the frame has.
   constexpr size_t kLookahead = 32;
-  std::vector<BrickDraw>& draws = plan.draws;
+  std::vector<BrickDraw>& draws = planner.draws();
+  planner.planNext();
   GLuint bound = 0;  // the slice program in use
   constexpr size_t kTrimBytes = size_t(128) << 20;
   size_t drawnBytes = 0;  // of streams and new textures since the heap was last trimmed
-  std::atomic<size_t> built{0}, drawn{0};
+  // The draws the worker may build, set here alone; kAbandon stops it.
+  constexpr size_t kAbandon = std::numeric_limits<size_t>::max();
+  std::atomic<size_t> built{0}, ready{0};
   std::exception_ptr failure;
   std::thread worker([&] {
     SlabPolygonList list;
@@ -580,8 +656,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     std::vector<float> one;
     try {
       for (size_t j = 0; j < draws.size(); ++j) {
-        for (size_t done = drawn.load(std::memory_order_acquire); done + kLookahead < j; done = drawn.load(std::memory_order_acquire))
-          drawn.wait(done);
+        size_t may = ready.load(std::memory_order_acquire);
+        for (; may <= j; may = ready.load(std::memory_order_acquire)) ready.wait(may);
+        if (may == kAbandon) return;
         buildStream(draws[j], translucent ? &*polygons : nullptr, polygonsOf, camera, frame, spacing, options.slabOrder, options.cutToSlabs, list,
                     boxes, one);
         built.fetch_add(1, std::memory_order_release);
@@ -593,21 +670,24 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       built.notify_one();
     }
   });
-  // The worker is joined whatever happens here (an exception leaving this scope would otherwise
-  // terminate the process through its std::thread); it is released from waiting first.
+  // The worker is joined whatever happens here (an exception leaving this scope, from the drawing
+  // or the packing, would otherwise terminate the process through its std::thread); it is stopped
+  // first.
   struct Join {
     std::thread& t;
-    std::atomic<size_t>& drawn;
+    std::atomic<size_t>& ready;
     ~Join() {
-      drawn.store(std::numeric_limits<size_t>::max() / 2, std::memory_order_release);
-      drawn.notify_one();
+      ready.store(kAbandon, std::memory_order_release);
+      ready.notify_one();
       if (t.joinable()) t.join();
     }
-  } join{worker, drawn};
+  } join{worker, ready};
   ProgressTask progress(options.progress, "slices", draws.size());
   for (size_t j = 0; j < draws.size(); ++j, progress.advance()) {
-    drawn.store(j, std::memory_order_release);
-    drawn.notify_one();
+    if (j >= planner.lastBatch() && planner.planned() < draws.size()) planner.planNext();
+    HYB_DCHECK(j < planner.planned());
+    ready.store(std::min(planner.planned(), j + kLookahead + 1), std::memory_order_release);
+    ready.notify_one();
     for (size_t seen = built.load(std::memory_order_acquire); seen <= j; seen = built.load(std::memory_order_acquire)) built.wait(seen);
     if (failure) break;
     BrickDraw& d = draws[j];
@@ -617,10 +697,9 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     // A packed brick's texture, made for its draw: kept by the cache if it has room (it evicts
     // earlier frames' bricks for it), else deleted when this iteration ends.
     CachedBrick drawing;
-    if (d.pending >= 0) {
-      PackedBrick& p = plan.pending[size_t(d.pending)];
-      drawing = uploadBrick(std::move(p), d.texels, options.texelBits);
-      std::vector<uint8_t>().swap(p.bytes);
+    if (d.pending) {
+      drawing = uploadBrick(std::move(d.packed), d.texels, options.texelBits);
+      planner.uploaded(d);
       d.texture = drawing.texture.id();
     }
     // The frees of a frame's textures and streams leave the heap fragmented, its pages resident
@@ -672,12 +751,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   GLuint fragments = 0;  // libOSMesa exports only the 32-bit getter; frames stay below 2^32 fragments
   glGetQueryObjectuiv(query.id(), GL_QUERY_RESULT, &fragments);
   st.fragments = fragments;
-  st.bricks = plan.bricks;
-  st.uploadedBricks = plan.uploaded;
-  st.blendedBricks = plan.blended;
-  st.texels = plan.texels;
-  st.shellBricks = plan.shellBricks;
-  st.textureBytes = plan.texels * bytesPerTexel(options.texelBits) + plan.cutTexels * kBytesPerCutTexel;
+  planner.addStats(&st);
 
   // 8. Read back.
   Image image(W, H);

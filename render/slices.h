@@ -67,6 +67,10 @@ struct SlicesOptions {
   /// exactly the pixels a whole frame has there: a scissor, and bricks whose projection misses the
   /// band skipped. A large frame drawn band by band lets other work run between its bands.
   std::optional<glm::ivec2> rows;
+  /// Bricks packed at once (on all cores), a batch ahead of their draws: a frame holds at most two
+  /// batches' packed texels (SlicesStats::peakPackedBricks), whatever its brick count. The image
+  /// does not depend on it.
+  size_t packBatch = 256;
 };
 
 /// What a frame used.
@@ -74,6 +78,7 @@ struct SlicesStats {
   size_t bricks = 0;               ///< textured bricks
   size_t uploadedBricks = 0;       ///< of which packed and uploaded by this frame (the others were cached)
   size_t blendedBricks = 0;        ///< of which blend towards coarser data at some corner
+  size_t peakPackedBricks = 0;     ///< most bricks whose packed texels were held at once (packed, texture not made yet)
   uint64_t texels = 0;             ///< texels uploaded, blend textures included
   uint64_t textureBytes = 0;       ///< texels' bytes and those of the cutting plane's 16-bit values
   uint64_t slices = 0;            ///< slice polygons (or shell pieces) drawn

@@ -1,9 +1,11 @@
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cmath>
 #include <stdexcept>
 
 #include "render/raycast.h"
+#include "hybrid_octree/knot_source.h"
 #include "hybrid_octree/surface_octree.h"
 #include "render/gl_objects.h"
 #include "render/patient_view.h"
@@ -11,6 +13,7 @@
 #include "render/slices.h"
 #include "render_util.h"
 #include "test_util.h"
+#include "volume/error.h"
 #include "volume/volume_io.h"
 
 namespace hyb {
@@ -231,6 +234,109 @@ TEST(Slices, AFrameThatThrowsLeaksNothingAndTheNextOneRendersRight) {
   o.progress = &stop;
   EXPECT_THROW(renderSlices(v, t, sel, tf, cam, o), std::runtime_error);
   EXPECT_EQ(live(), objects);
+  o.progress = nullptr;
+  EXPECT_EQ(renderSlices(v, t, sel, tf, cam, o).pixels, before.pixels);
+}
+
+// A frame packs its bricks a batch ahead of their draws: with batches of 16 bricks it holds at most
+// two batches' packed texels while it makes hundreds of textures, and draws the image a frame that
+// packs every brick first draws, with a cutting plane (the bricks it crosses are made before any
+// draw, for the plane drawn first) and through a cache (a warm frame packs nothing).
+TEST(Slices, BricksArePackedABatchAheadOfTheirDraws) {
+  gl();
+  const Volume v = test::makeVolume({40, 36, 33}, [](int i, int j, int k) { return 8.0 + 7.0 * std::sin(0.35 * i) * std::cos(0.3 * j) + 0.2 * k; });
+  VolumeOctreeOptions small;
+  small.leafEdge = 4;
+  const VolumeOctree t = VolumeOctree::build(v, small);
+  const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "s");
+  SelectionParams params;
+  params.maxBrickEdge = 4;  // many small bricks
+  const Selection sel = selectNodes(t, params);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64);
+  const CutPlane cut{glm::dvec3(20, 18, 16), glm::dvec3(0.3, 1, 0)};
+  for (const CutPlane* plane : {static_cast<const CutPlane*>(nullptr), &cut}) {
+    SlicesOptions batched, whole;
+    batched.packBatch = 16;
+    whole.packBatch = size_t(1) << 30;
+    batched.cut = whole.cut = plane;
+    SlicesStats sb, sw;
+    const Image a = renderSlices(v, t, sel, tf, cam, batched, &sb);
+    const Image b = renderSlices(v, t, sel, tf, cam, whole, &sw);
+    const std::string what = plane ? "with the plane" : "without";
+    EXPECT_EQ(a.pixels, b.pixels) << what;
+    EXPECT_GT(sb.uploadedBricks, 20u * batched.packBatch) << what;
+    EXPECT_EQ(sb.uploadedBricks, sb.bricks) << what;
+    EXPECT_EQ(sb.uploadedBricks, sw.uploadedBricks) << what;
+    EXPECT_EQ(sb.textureBytes, sw.textureBytes) << what;
+    EXPECT_EQ(sb.fragments, sw.fragments) << what;
+    EXPECT_EQ(sb.cutPolygons, sw.cutPolygons) << what;
+    EXPECT_EQ(sb.cutPolygons > 0, plane != nullptr) << what;
+    EXPECT_GT(sb.peakPackedBricks, 0u) << what;
+    EXPECT_LE(sb.peakPackedBricks, 2 * batched.packBatch) << what;
+    EXPECT_GE(sw.peakPackedBricks, (sw.uploadedBricks - sw.cutPolygons)) << what;  // one batch: all of them held at once
+    // Through a cache: cold, the same image; warm, nothing packed.
+    BrickTextureCache cache;
+    batched.textures = &cache;
+    SlicesStats cold, warm;
+    EXPECT_EQ(renderSlices(v, t, sel, tf, cam, batched, &cold).pixels, a.pixels) << what;
+    EXPECT_EQ(cold.uploadedBricks, sb.uploadedBricks) << what;
+    EXPECT_LE(cold.peakPackedBricks, 2 * batched.packBatch) << what;
+    EXPECT_EQ(renderSlices(v, t, sel, tf, cam, batched, &warm).pixels, a.pixels) << what;
+    EXPECT_EQ(warm.uploadedBricks, 0u) << what;
+    EXPECT_EQ(warm.peakPackedBricks, 0u) << what;
+  }
+}
+
+// The knots of a volume in memory, failing once @p limit bricks' reads have been asked for: a
+// paged store whose file turns out damaged partway through a frame.
+class FailingKnots final : public KnotSource {
+ public:
+  FailingKnots(const Volume& v, const VolumeOctree& t, int limit) : mKnots(v, t), mLeft(limit) {}
+  glm::ivec3 dims() const override { return mKnots.dims(); }
+  glm::dvec3 spacing() const override { return mKnots.spacing(); }
+  void read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const override {
+    if (mLeft.fetch_sub(1) <= 0) HYB_THROW(IoError, "damaged block");
+    mKnots.read(s, lo, count, values, gradients);
+  }
+
+ private:
+  VolumeKnots mKnots;
+  mutable std::atomic<int> mLeft;
+};
+
+// A packing that fails while the frame draws (the third batch of 16 bricks reads a damaged block)
+// stops the frame with the packing's error, the stream worker joined and no GL object left behind;
+// the next frame renders right.
+TEST(Slices, APackingThatFailsMidFrameStopsItCleanly) {
+  gl();
+  const Volume v = test::makeVolume({40, 36, 33}, [](int i, int j, int k) { return 8.0 + 7.0 * std::sin(0.35 * i) * std::cos(0.3 * j) + 0.2 * k; });
+  VolumeOctreeOptions small;
+  small.leafEdge = 4;
+  const VolumeOctree t = VolumeOctree::build(v, small);
+  const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "s");
+  SelectionParams params;
+  params.maxBrickEdge = 4;
+  const Selection sel = selectNodes(t, params);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 48, 48);
+  SlicesOptions o;
+  o.packBatch = 16;
+  const Image before = renderSlices(v, t, sel, tf, cam, o);
+  auto live = [] {
+    size_t n = 0;
+    for (GLuint id = 1; id < 20000; ++id)
+      n += glIsTexture(id) + glIsBuffer(id) + glIsVertexArray(id) + glIsFramebuffer(id) + glIsRenderbuffer(id) + glIsQuery(id) + glIsProgram(id);
+    return n;
+  };
+  const size_t objects = live();
+  const FailingKnots failing(v, t, 40);  // full-resolution bricks read once each: the third batch fails
+  o.knots = &failing;
+  double reached = 0.0;
+  const Progress heard([&](const std::string&, double fraction) { reached = std::max(reached, fraction < 1.0 ? fraction : 0.0); });
+  o.progress = &heard;
+  EXPECT_THROW(renderSlices(v, t, sel, tf, cam, o), IoError);
+  EXPECT_GT(reached, 0.0);  // some bricks were drawn before it failed
+  EXPECT_EQ(live(), objects);
+  o.knots = nullptr;
   o.progress = nullptr;
   EXPECT_EQ(renderSlices(v, t, sel, tf, cam, o).pixels, before.pixels);
 }
