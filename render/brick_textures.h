@@ -59,7 +59,7 @@ struct CachedBrick {
 };
 
 /// A brick ready for upload: its value mapping and texels (the CPU half of an upload, made on all
-/// cores before the frame's GL work).
+/// cores a batch ahead of the draws that upload them).
 struct PackedBrick {
   CachedBrick brick;  ///< textures not made yet
   std::vector<uint8_t> bytes;
