@@ -238,20 +238,29 @@ TEST(Slices, AFrameThatThrowsLeaksNothingAndTheNextOneRendersRight) {
   EXPECT_EQ(renderSlices(v, t, sel, tf, cam, o).pixels, before.pixels);
 }
 
+// A scene of hundreds of small bricks (leaves and bricks of 4), for the batched packing.
+struct ManyBricks {
+  Volume v = test::makeVolume({40, 36, 33}, [](int i, int j, int k) { return 8.0 + 7.0 * std::sin(0.35 * i) * std::cos(0.3 * j) + 0.2 * k; });
+  VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{4, true, nullptr});
+  TransferFunction tf{{{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "s"};
+  Selection sel = [this] {
+    SelectionParams params;
+    params.maxBrickEdge = 4;
+    return selectNodes(t, params);
+  }();
+};
+
 // A frame packs its bricks a batch ahead of their draws: with batches of 16 bricks it holds at most
 // two batches' packed texels while it makes hundreds of textures, and draws the image a frame that
 // packs every brick first draws, with a cutting plane (the bricks it crosses are made before any
 // draw, for the plane drawn first) and through a cache (a warm frame packs nothing).
 TEST(Slices, BricksArePackedABatchAheadOfTheirDraws) {
   gl();
-  const Volume v = test::makeVolume({40, 36, 33}, [](int i, int j, int k) { return 8.0 + 7.0 * std::sin(0.35 * i) * std::cos(0.3 * j) + 0.2 * k; });
-  VolumeOctreeOptions small;
-  small.leafEdge = 4;
-  const VolumeOctree t = VolumeOctree::build(v, small);
-  const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "s");
-  SelectionParams params;
-  params.maxBrickEdge = 4;  // many small bricks
-  const Selection sel = selectNodes(t, params);
+  const ManyBricks m;
+  const Volume& v = m.v;
+  const VolumeOctree& t = m.t;
+  const TransferFunction& tf = m.tf;
+  const Selection& sel = m.sel;
   const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64);
   const CutPlane cut{glm::dvec3(20, 18, 16), glm::dvec3(0.3, 1, 0)};
   for (const CutPlane* plane : {static_cast<const CutPlane*>(nullptr), &cut}) {
@@ -309,14 +318,11 @@ class FailingKnots final : public KnotSource {
 // the next frame renders right.
 TEST(Slices, APackingThatFailsMidFrameStopsItCleanly) {
   gl();
-  const Volume v = test::makeVolume({40, 36, 33}, [](int i, int j, int k) { return 8.0 + 7.0 * std::sin(0.35 * i) * std::cos(0.3 * j) + 0.2 * k; });
-  VolumeOctreeOptions small;
-  small.leafEdge = 4;
-  const VolumeOctree t = VolumeOctree::build(v, small);
-  const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "s");
-  SelectionParams params;
-  params.maxBrickEdge = 4;
-  const Selection sel = selectNodes(t, params);
+  const ManyBricks m;
+  const Volume& v = m.v;
+  const VolumeOctree& t = m.t;
+  const TransferFunction& tf = m.tf;
+  const Selection& sel = m.sel;
   const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 48, 48);
   SlicesOptions o;
   o.packBatch = 16;
