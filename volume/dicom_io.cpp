@@ -520,6 +520,15 @@ struct SliceImage {
   double lo = 0.0, hi = 0.0;
 };
 
+// The series' rows, columns and their spacings from its first slice's @p image.
+void takeGrid(const SliceImage& image, const std::string& dir, glm::ivec3* dims, glm::dvec3* spacing) {
+  dims->x = image.size.x;
+  dims->y = image.size.y;
+  validateDims(*dims, dir);
+  spacing->x = image.spacing.x;
+  spacing->y = image.spacing.y;
+}
+
 // Reads slice @p file (its pixel module @p module checked) with GDCM, checking what it decodes to.
 void readSliceImage(const std::string& file, const std::string& where, const PixelModule& module, SliceImage* out) {
   gdcm::ImageReader& reader = out->reader;
@@ -696,11 +705,7 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
     SliceImage image;
     readSliceImage(file, where, module, &image);
     if (s == 0) {
-      dims.x = image.size.x;
-      dims.y = image.size.y;
-      validateDims(dims, dir);
-      spacing.x = image.spacing.x;
-      spacing.y = image.spacing.y;
+      takeGrid(image, dir, &dims, &spacing);
       type = image.type;
       slopeFirst = image.slope;
       interceptFirst = image.intercept;
@@ -739,11 +744,7 @@ std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::stri
     SliceImage image;
     readSliceImage(file, where, module, &image);
     if (s == 0) {
-      dims.x = image.size.x;
-      dims.y = image.size.y;
-      validateDims(dims, dir);
-      spacing.x = image.spacing.x;
-      spacing.y = image.spacing.y;
+      takeGrid(image, dir, &dims, &spacing);
       stored = storedType(detail::rescaleTarget(image.type, image.slope, image.intercept, 0));
     }
     // Whether the whole reader widens to float depends on the values: read whole.
