@@ -503,14 +503,16 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
 SurfaceOctree SurfaceOctree::build(PlaneSource& planes, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options) {
   SurfaceOctree so = empty(planes.dims(), octree, iso, options);
   // The leaves a slab at a time (their Morton order visits slabs back and forth): each reads the
-  // planes from one below its own to its top, leafEdge + 2 of them.
+  // planes from one below its own to its top, leafEdge + 2 of them at most.
   const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
   std::vector<uint32_t> bySlab(blocks.size());
   std::iota(bySlab.begin(), bySlab.end(), 0u);
   std::stable_sort(bySlab.begin(), bySlab.end(), [&](uint32_t a, uint32_t b) { return blocks[a].lo.z < blocks[b].lo.z; });
   std::vector<VoxelBlock> slab;
   std::vector<std::vector<SurfaceNode>> nodes(blocks.size()), slabNodes;
-  SampleWindow window(planes, octree.leafEdge() + 2);
+  int height = 0;
+  for (const VoxelBlock& b : blocks) height = std::max(height, b.hi.z - b.lo.z);
+  SampleWindow window(planes, height + 2);
   planes.rewind();
   ProgressTask progress(options.progress, "surface octree", blocks.size());
   for (size_t b = 0, e; b < bySlab.size(); b = e) {
