@@ -251,27 +251,26 @@ size_t SceneRenderer::drawResident(const Camera& camera, uint64_t packTexels, Se
     const std::vector<KnotBox> boxes = brickKnotBoxes(octree, b);
     return std::all_of(boxes.begin(), boxes.end(), [&](const KnotBox& k) { return k.s >= readAnyway || store->cached(k); });
   };
+  // The selection's bricks this frame packs, nearest the eye first, within packTexels (the nearest
+  // always: every frame makes progress); the others wait. The coarser bricks drawn instead of them
+  // are not bounded (each has an eighth of the texels or fewer): were they, the root would end up
+  // drawing the whole volume.
   auto key = [](const Brick& b) { return uint64_t(b.node) << 8 | uint64_t(b.p); };
-  // The selection's bricks this frame packs, nearest the eye first, within packTexels. The coarser
-  // bricks drawn instead of the others are not bounded (each has an eighth of the texels or fewer):
-  // were they, the root would end up drawing the whole volume.
-  std::unordered_set<uint64_t> selected, packs;
-  std::vector<const Brick*> toPack;
-  for (const Brick& b : selection->bricks) {
-    selected.insert(key(b));
-    if (!b.hidden && !kept(b) && knotsAtHand(b)) toPack.push_back(&b);
-  }
-  std::stable_sort(toPack.begin(), toPack.end(), [&](const Brick* a, const Brick* b) { return distance(*a) < distance(*b); });
-  uint64_t left = packTexels > 0 ? packTexels : std::numeric_limits<uint64_t>::max();
-  for (const Brick* b : toPack)
-    if (b->texelCount() <= left || packs.empty()) {  // (the nearest always: every frame makes progress)
-      left -= std::min(left, b->texelCount());
-      packs.insert(key(*b));
+  std::unordered_set<uint64_t> waiting;
+  if (packTexels > 0) {
+    std::vector<const Brick*> toPack;
+    for (const Brick& b : selection->bricks)
+      if (!b.hidden && !kept(b) && knotsAtHand(b)) toPack.push_back(&b);
+    std::stable_sort(toPack.begin(), toPack.end(), [&](const Brick* a, const Brick* b) { return distance(*a) < distance(*b); });
+    uint64_t packed = 0;
+    for (const Brick* b : toPack) {
+      if (packed > 0 && packed + b->texelCount() > packTexels)
+        waiting.insert(key(*b));
+      else
+        packed += b->texelCount();
     }
-  auto resident = [&](const Brick& b) {
-    if (kept(b)) return true;
-    return selected.contains(key(b)) ? packs.contains(key(b)) : knotsAtHand(b);
-  };
+  }
+  auto resident = [&](const Brick& b) { return kept(b) || (!waiting.contains(key(b)) && knotsAtHand(b)); };
   std::vector<Brick> missing;
   *selection = residentSelection(octree, *selection, resident, &missing);
   if (store) {
