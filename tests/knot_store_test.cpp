@@ -21,6 +21,9 @@ namespace {
 using ::testing::HasSubstr;
 
 // A sphere of bone-like values in noisy soft tissue, @p dims spanning several store blocks, held as @p type.
+// Soft tissue faint, the shell opaque: what the paged frames draw from noisyHead.
+TransferFunction headTf() { return TransferFunction({{60.0f, {1, 1, 1}, 0.0f}, {120.0f, {1.0f, 0.6f, 0.4f}, 0.05f}, {220.0f, {1.0f, 1.0f, 0.9f}, 0.4f}}, "head"); }
+
 Volume noisyHead(glm::ivec3 dims, ScalarType type) {
   std::mt19937 rng(7);
   std::uniform_int_distribution<int> noise(-20, 20);
@@ -160,7 +163,7 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
   KnotStore& store = *paged.scene().knots;
   store.setCacheLimit(tenth);
   Look look;
-  look.tf = TransferFunction({{60.0f, {1, 1, 1}, 0.0f}, {120.0f, {1.0f, 0.6f, 0.4f}, 0.05f}, {220.0f, {1.0f, 1.0f, 0.9f}, 0.4f}}, "head");
+  look.tf = headTf();
   const std::vector<glm::dvec3> visible = visiblePoints(v, t, look.tf);
   // Framed alike from the store's samples and from memory.
   EXPECT_EQ(visiblePoints(paged.volume(), paged.octree(), look.tf, std::nullopt, &store), visible);
@@ -224,7 +227,7 @@ TEST(KnotStore, MovingFramesPackABoundedShareOfNewTexturesAndReachTheExactFrame)
   const VolumeOctree t = VolumeOctree::build(v);
   saveScene(dir.file("h.hoct"), v, t);
   Look look;
-  look.tf = TransferFunction({{60.0f, {1, 1, 1}, 0.0f}, {120.0f, {1.0f, 0.6f, 0.4f}, 0.05f}, {220.0f, {1.0f, 1.0f, 0.9f}, 0.4f}}, "head");
+  look.tf = headTf();
   View view;
   view.camera = fitCamera(visiblePoints(v, t, look.tf), orbitDirection(30.0, 20), 30, false, 40, 40, 0.05);
   for (const bool paged : {false, true}) {
@@ -269,7 +272,7 @@ TEST(KnotStore, AColdCacheDrawsCoarserBricksNeverAHoleWhileThePrefetchThreadLoad
   KnotStore& store = *paged.scene().knots;
   ASSERT_EQ(store.coarseSpacing(options.readAnywayBytes), 8);
   Look look;
-  look.tf = TransferFunction({{60.0f, {1, 1, 1}, 0.0f}, {120.0f, {1.0f, 0.6f, 0.4f}, 0.05f}, {220.0f, {1.0f, 1.0f, 0.9f}, 0.4f}}, "head");
+  look.tf = headTf();
   const std::vector<glm::dvec3> visible = visiblePoints(v, t, look.tf);
   Quality now;
   now.waitForBricks = false;
