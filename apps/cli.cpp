@@ -227,14 +227,16 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   if (o.repeat > 1) timing << "first frame " << firstMs << " ms, best of " << o.repeat << " ";
   timing << renderMs << " ms";
   const glm::ivec2 size(job.view.camera.width, job.view.camera.height);
-  if (slices)
+  if (slices) {
     out << "render   slices " << size.x << "x" << size.y << ", " << st.slices.bricks << " textured bricks (" << st.slices.blendedBricks << " blended), "
-        << st.slices.textureBytes << " texture bytes, " << st.slices.slices << " slices, " << st.slices.slabPolygonDraws << " slab polygon draws, "
-        << timing.str() << "\n";
-  else
+        << st.slices.textureBytes << " texture bytes, " << st.slices.slices << " slices, " << st.slices.slabPolygonDraws << " slab polygon draws";
+    if (st.slices.unseenTriangles > 0) out << " (" << st.slices.unseenTriangles << " triangles between pixel centres left out)";
+    out << ", " << timing.str() << "\n";
+  } else {
     out << "render   raycast " << size.x << "x" << size.y << ", " << st.rays.rays << " rays (" << std::setprecision(1)
         << 100.0 * double(st.rays.rays) / pixels << " % of the pixels), " << st.rays.samples << " samples, " << st.rays.skippedLeaves
         << " empty-space skips, " << st.rays.surfaceHits << " surface crossings, " << timing.str() << "\n";
+  }
   Image image = std::move(frame.image);
   if (o.marker) drawOrientationMarker(job.view.camera, &image);
   if (job.quality.progressive > 1)
@@ -253,6 +255,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     j["surface_polygons"] = st.surfacePolygons;
     j["surface_triangles"] = st.surfaceTriangles;
     j["slab_polygon_draws"] = st.slices.slabPolygonDraws;
+    j["unseen_triangles"] = st.slices.unseenTriangles;
     j["fragments"] = st.slices.fragments;
     j["shell_bricks"] = st.slices.shellBricks;
     j["cut_polygons"] = st.slices.cutPolygons;

@@ -20,10 +20,12 @@ void main() {
 )";
 
 /// One brick's stream of slices and translucent surface triangles in draw order. kind 0: a slice;
-/// kind 1: a surface triangle in its slab [slab.x, slab.y] (SlabPolygon; clipped to planar slabs
-/// on the CPU, to shells per fragment). All are clipped by the cutting plane. Compiled after the
+/// kind 1: a surface triangle whose fragments are drawn where their depth (along forward, or the
+/// distance to the eye for shells) lies in [slab.x, slab.y) (SlabPolygon: a triangle covering
+/// several slabs comes once per slab). All are clipped by the cutting plane. Compiled after the
 /// same #defines as kSliceFragment: llvmpipe sets up every varying of every triangle, so the face
-/// normal is flat unless the surface has vertex normals (SMOOTH), and the slab goes only to shells.
+/// normal is flat unless the surface has vertex normals (SMOOTH), and the slab goes only to
+/// frames with a translucent surface.
 inline constexpr const char* kStreamVertex = R"(
 layout(location = 0) in vec3 position;
 layout(location = 1) in vec3 normal;
@@ -37,14 +39,14 @@ out vec3 vNormal;  // vertex normals, interpolated
 flat out vec3 vNormal;
 #endif
 flat out float vKind;
-#if SHELLS
+#if SURFACE
 flat out vec2 vSlab;
 #endif
 void main() {
   vWorld = position;
   vNormal = normal;
   vKind = kindSlab.x;
-#if SHELLS
+#if SURFACE
   vSlab = kindSlab.yz;
 #endif
 #if CUT
@@ -100,7 +102,7 @@ in vec3 vNormal;  // a surface triangle's vertex normals, interpolated
 flat in vec3 vNormal;  // a surface triangle's face normal
 #endif
 flat in float vKind;
-#if SHELLS
+#if SURFACE
 flat in vec2 vSlab;
 #endif
 out vec4 fragColor;
@@ -134,12 +136,13 @@ vec3 rayDirection() {
 void main() {
 #if SURFACE
   if (vKind > 0.5) {  // translucent surface, headlight-shaded, premultiplied
+    // This slab's part of the triangle (planes between slabs would cost llvmpipe's clipper more).
 #if SHELLS
-    if (shells == 1) {  // the slab between two shells: a sphere cannot be a clip plane
-      float r = length(vWorld - eye);
-      if (r < vSlab.x || r >= vSlab.y) discard;
-    }
+    float slabDepth = shells == 1 ? length(vWorld - eye) : dot(forward, vWorld);
+#else
+    float slabDepth = dot(forward, vWorld);
 #endif
+    if (slabDepth < vSlab.x || slabDepth >= vSlab.y) discard;
     // Vertex normals on either side of a thin plate can cancel inside a triangle: unshaded there.
     float nn = dot(vNormal, vNormal);
     float shade = nn > 0.0 ? 0.25 + 0.75 * abs(dot(vNormal, rayDirection())) * inversesqrt(nn) : 1.0;

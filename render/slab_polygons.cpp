@@ -5,7 +5,6 @@
 #include <limits>
 #include <numeric>
 
-#include "surface/mesh_ops.h"
 #include "volume/error.h"
 
 namespace hyb {
@@ -16,9 +15,22 @@ SurfacePolygons::SurfacePolygons(const TriangleMesh& surface) : mesh(&surface), 
     std::iota(starts.begin(), starts.end(), 0u);
   }
   HYB_CHECK(starts.front() == 0 && starts.back() == surface.triangles.size());
-  HYB_CHECK(surface.loopStarts.empty() || (surface.loopStarts.size() == starts.size() && surface.loopStarts.back() == surface.loops.size()));
-  loopStarts = surface.loopStarts;
-  loops = surface.loops;
+}
+
+bool PixelCentres::missedBy(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c) const {
+  glm::vec2 lo(std::numeric_limits<float>::max()), hi(std::numeric_limits<float>::lowest());
+  for (const glm::vec3& p : {a, b, c}) {
+    const glm::vec4 q = viewProj * glm::vec4(p, 1.0f);
+    if (!(q.w > 0.0f)) return false;  // the clipper's business
+    const glm::vec2 window = (glm::vec2(q) / q.w * 0.5f + 0.5f) * glm::vec2(float(width), float(height));
+    lo = glm::min(lo, window);
+    hi = glm::max(hi, window);
+  }
+  // The centres (i + 0.5, j + 0.5) of the image the box may hold.
+  constexpr float kMargin = 1.0f / 64.0f;
+  const glm::vec2 first = glm::max(glm::ceil(lo - 0.5f - kMargin), glm::vec2(0.0f));
+  const glm::vec2 last = glm::min(glm::floor(hi - 0.5f + kMargin), glm::vec2(float(width - 1), float(height - 1)));
+  return first.x > last.x || first.y > last.y;
 }
 
 // A grid of leaves says which brick holds each polygon's centroid.
@@ -56,20 +68,19 @@ BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, 
   return out;
 }
 
-void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const ProxyDepth& depth, double delta, bool sliced, bool cut) {
+void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const ProxyDepth& depth, double delta, bool sliced, bool cut,
+                            const PixelCentres* centres) {
   mSurface = &surface;
-  mDepth = depth;
   mDelta = delta;
   mSmooth = !surface.mesh->normals.empty();
   mInstances.clear();
   mNext = 0;
   mPolygons.clear();
-  mPolygonSpans.clear();
   mFirstSpan.clear();
   mSpans.clear();
   mFirst = std::numeric_limits<long long>::max();
   mLast = std::numeric_limits<long long>::min();
-  mTriangles = mDraws = 0;
+  mTriangles = mUnseen = mDraws = 0;
   const TriangleMesh& mesh = *surface.mesh;
   for (uint32_t pi : polygons) {
     const uint32_t local = uint32_t(mPolygons.size());
@@ -79,6 +90,7 @@ void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint
     double centroid = 0;
     for (uint32_t ti = surface.starts[pi]; ti < surface.starts[pi + 1]; ++ti) {
       const glm::uvec3 tr = mesh.triangles[ti];
+      ++mTriangles;
       double dmn = 1e300, dmx = -1e300, sum = 0;
       for (int k = 0; k < 3; ++k) {
         const double d = depth.of(glm::dvec3(mesh.vertices[tr[k]]));
@@ -90,18 +102,22 @@ void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint
         dmn = distanceToTriangle(depth.eye, glm::dvec3(mesh.vertices[tr.x]), glm::dvec3(mesh.vertices[tr.y]), glm::dvec3(mesh.vertices[tr.z]));
       // A brick without slices needs no slabs: its polygons are only sorted back to front.
       const long long k0 = sliced ? (long long)std::floor(dmn / delta) : 0, k1 = sliced ? (long long)std::floor(dmx / delta) : 0;
+      centroid += sum / 3;
+      if (centres && centres->missedBy(mesh.vertices[tr.x], mesh.vertices[tr.y], mesh.vertices[tr.z])) {
+        mSpans.push_back({1, 0});
+        ++mUnseen;
+        continue;
+      }
       mSpans.push_back({int32_t(k0), int32_t(k1)});
       p0 = std::min(p0, k0);
       p1 = std::max(p1, k1);
-      centroid += sum / 3;
-      ++mTriangles;
     }
     centroid /= double(surface.starts[pi + 1] - surface.starts[pi]);
-    if (!cut && sliced) {  // whole, in its centroid's slab
+    if (!cut && sliced && p0 <= p1) {  // whole, in its centroid's slab
       p0 = p1 = (long long)std::floor(centroid / delta);
-      for (size_t j = mFirstSpan.back(); j < mSpans.size(); ++j) mSpans[j] = {int32_t(p0), int32_t(p0)};
+      for (size_t j = mFirstSpan.back(); j < mSpans.size(); ++j)
+        if (mSpans[j][0] <= mSpans[j][1]) mSpans[j] = {int32_t(p0), int32_t(p0)};
     }
-    mPolygonSpans.push_back({int32_t(p0), int32_t(p1)});
     for (long long k = p0; k <= p1; ++k)
       mInstances.push_back({sliced ? std::clamp(centroid, double(k) * delta, double(k + 1) * delta) : centroid, int32_t(k), local});
     if (sliced && p0 <= p1) {
@@ -110,9 +126,10 @@ void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint
     }
   }
   if (mFirst > mLast) mFirst = 0, mLast = -1;
-  // Far to near: by slab, then by depth inside a slab.
+  // Far to near: by slab, then by depth inside a slab; ties (centroids clamped to one slab's
+  // bound) in the polygons' order, so that the triangles left out change no other's order.
   std::sort(mInstances.begin(), mInstances.end(), [](const Instance& x, const Instance& y) {
-    return x.slab != y.slab ? x.slab > y.slab : x.depth > y.depth;
+    return x.slab != y.slab ? x.slab > y.slab : x.depth != y.depth ? x.depth > y.depth : x.polygon < y.polygon;
   });
 }
 
@@ -120,101 +137,24 @@ void SlabPolygonList::emitDownTo(long long slab, std::vector<float>* stream) {
   for (; mNext < mInstances.size() && mInstances[mNext].slab >= slab; ++mNext) emit(mInstances[mNext], stream);
 }
 
-// A polygon's part in one slab: a convex polygon that covers several slabs is cut to the slab whole
-// (one piece, fanned); otherwise each of its triangles that reaches the slab goes in, cut to it when
-// the triangle covers more than one.
+// A polygon's triangles that reach one slab, each with the depths its fragments must lie within:
+// none where the triangle is in one slab, else the slab's, open at the triangle's first and last
+// (a fragment the shader's float depth puts just beyond them is still drawn, in exactly one).
 void SlabPolygonList::emit(const Instance& in, std::vector<float>* stream) {
-  const uint32_t pi = mPolygons[in.polygon];
-  const auto [p0, p1] = mPolygonSpans[in.polygon];
   const SurfacePolygons& s = *mSurface;
   const TriangleMesh& mesh = *s.mesh;
-  if (p1 > p0 && !mDepth.shells && pi + 1 < s.loopStarts.size() && s.loopStarts[pi + 1] > s.loopStarts[pi]) {
-    ++mDraws;
-    mPiece.clear();
-    const glm::uvec3 tr = mesh.triangles[s.starts[pi]];
-    const glm::vec3 face = glm::normalize(glm::cross(mesh.vertices[tr.y] - mesh.vertices[tr.x], mesh.vertices[tr.z] - mesh.vertices[tr.x]));
-    for (uint32_t l = s.loopStarts[pi]; l < s.loopStarts[pi + 1]; ++l)
-      mPiece.emplace_back(glm::dvec3(mesh.vertices[s.loops[l]]), mSmooth ? mesh.normals[s.loops[l]] : face);
-    emitClipped(in.slab, stream);
-    return;
-  }
+  const uint32_t pi = mPolygons[in.polygon];
   size_t j = mFirstSpan[in.polygon];
   for (uint32_t ti = s.starts[pi]; ti < s.starts[pi + 1]; ++ti, ++j) {
     const auto [k0, k1] = mSpans[j];
-    if (in.slab >= k0 && in.slab <= k1) emitTriangle(ti, in.slab, k1 > k0, stream);
-  }
-}
-
-// A triangle in one slab, cut to it when it covers more than one (shells: per fragment).
-void SlabPolygonList::emitTriangle(uint32_t triangle, int32_t slab, bool clip, std::vector<float>* stream) {
-  const TriangleMesh& mesh = *mSurface->mesh;
-  const glm::uvec3 tr = mesh.triangles[triangle];
-  const glm::vec3 a = mesh.vertices[tr.x], b = mesh.vertices[tr.y], c = mesh.vertices[tr.z];
-  const glm::vec3 face = glm::normalize(glm::cross(b - a, c - a));
-  ++mDraws;
-  if (!clip || mDepth.shells) {
-    const float lo = clip ? float(double(slab) * mDelta) : -1e30f, hi = clip ? float(double(slab + 1) * mDelta) : 1e30f;
+    if (in.slab < k0 || in.slab > k1) continue;
+    const glm::uvec3 tr = mesh.triangles[ti];
+    const glm::vec3 a = mesh.vertices[tr.x], b = mesh.vertices[tr.y], c = mesh.vertices[tr.z];
+    const glm::vec3 face = mSmooth ? glm::vec3(0.0f) : glm::normalize(glm::cross(b - a, c - a));
+    const float lo = in.slab > k0 ? float(double(in.slab) * mDelta) : -1e30f, hi = in.slab < k1 ? float(double(in.slab + 1) * mDelta) : 1e30f;
     for (int k = 0; k < 3; ++k) putVertex(stream, mesh.vertices[tr[k]], mSmooth ? mesh.normals[tr[k]] : face, 1.0f, lo, hi);
-    return;
+    ++mDraws;
   }
-  mPiece.clear();
-  for (int k = 0; k < 3; ++k) mPiece.emplace_back(glm::dvec3(mesh.vertices[tr[k]]), mSmooth ? mesh.normals[tr[k]] : face);
-  emitClipped(slab, stream);
-}
-
-// The convex planar piece in mPiece cut to slab [slab·Δ, (slab+1)·Δ) (Sutherland and Hodgman, two
-// parallel planes: it stays convex), normals interpolated along the cut edges, and triangulated
-// without a flat triangle (flatTriangle: llvmpipe draws those as NaN colours, black specks). So
-// distances below the float resolution of the coordinates count as none: a vertex that near a
-// plane lies on it (kept, no intersection beside it), vertices that near the previous one are
-// merged, and a piece with collinear vertices (the T-junctions of the Surface Octree's loops) is
-// fanned from its centroid, not from a corner whose edges hold them.
-void SlabPolygonList::emitClipped(int32_t slab, std::vector<float>* stream) {
-  double scale = 0.0;
-  for (const auto& [p, n] : mPiece) scale = std::max({scale, std::abs(p.x), std::abs(p.y), std::abs(p.z)});
-  const double eps = floatResolutionMm(scale);
-  const glm::dvec3 f = mDepth.forward;
-  const double lo = double(slab) * mDelta, hi = double(slab + 1) * mDelta;
-  for (const std::pair<double, double>& plane : {std::pair{1.0, lo}, std::pair{-1.0, -hi}}) {  // depth ≥ lo, then −depth ≥ −hi
-    const double sign = plane.first, bound = plane.second;  // (not a structured binding: clang 14 cannot capture one)
-    auto side = [&](const glm::dvec3& p) {
-      const double d = sign * glm::dot(f, p) - bound;
-      return std::abs(d) <= eps ? 0.0 : d;
-    };
-    mKept.clear();
-    for (size_t v = 0; v < mPiece.size(); ++v) {
-      const auto& [p, np] = mPiece[v];
-      const auto& [q, nq] = mPiece[(v + 1) % mPiece.size()];
-      const double dp = side(p), dq = side(q);
-      if (dp >= 0) mKept.push_back(mPiece[v]);
-      if ((dp > 0 && dq < 0) || (dp < 0 && dq > 0)) {
-        const double t = dp / (dp - dq);
-        mKept.emplace_back(p + (q - p) * t, np + (nq - np) * float(t));
-      }
-    }
-    mPiece.swap(mKept);
-  }
-  mKept.clear();
-  for (const auto& vertex : mPiece)
-    if (mKept.empty() || glm::length(vertex.first - mKept.back().first) > eps) mKept.push_back(vertex);
-  while (mKept.size() > 1 && glm::length(mKept.back().first - mKept.front().first) <= eps) mKept.pop_back();
-  mPiece.swap(mKept);
-  const size_t n = mPiece.size();
-  size_t corners = 0;
-  for (size_t v = 0; v < n; ++v) corners += !flatTriangle(mPiece[(v + n - 1) % n].first, mPiece[v].first, mPiece[(v + 1) % n].first);
-  if (corners < 3) return;  // a segment: it covers nothing
-  auto triangle = [&](const std::pair<glm::dvec3, glm::vec3>& a, const std::pair<glm::dvec3, glm::vec3>& b, const std::pair<glm::dvec3, glm::vec3>& c) {
-    for (const auto& [p, nrm] : {a, b, c}) putVertex(stream, glm::vec3(p), nrm, 1.0f, -1e30f, 1e30f);
-  };
-  if (corners == n) {
-    for (size_t v = 1; v + 1 < n; ++v) triangle(mPiece[0], mPiece[v], mPiece[v + 1]);
-    return;
-  }
-  glm::dvec3 centre(0.0);
-  glm::vec3 normal(0.0f);
-  for (const auto& [p, nrm] : mPiece) centre += p, normal += nrm;
-  const std::pair<glm::dvec3, glm::vec3> mid{centre / double(n), normal / float(n)};
-  for (size_t v = 0; v < n; ++v) triangle(mid, mPiece[v], mPiece[(v + 1) % n]);
 }
 
 double distanceToTriangle(const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {

@@ -291,7 +291,7 @@ struct BrickDraw {
   std::vector<float> cutPolygon;  // its piece of the cutting plane, until planned
   // Built by the worker:
   std::vector<float> stream;  // kStreamFloats a vertex
-  uint64_t slices = 0, surfaceTriangles = 0, slabPolygonDraws = 0;
+  uint64_t slices = 0, surfaceTriangles = 0, unseenTriangles = 0, slabPolygonDraws = 0;
 };
 
 // The bricks' textures and slicing, back to front: textures from the cache or packed (on all cores:
@@ -514,19 +514,20 @@ class BrickPlanner {
 // Brick @p d's vertex stream: its slices far to near, each slab's SlabPolygon list before the slice
 // that closes the slab.
 void buildStream(BrickDraw& d, const SurfacePolygons* surface, const BrickPolygons& polygonsOf, const Camera& camera, const FrameCamera& frame,
-                 const glm::dvec3& spacing, bool slabOrder, bool cutToSlabs, SlabPolygonList& list,
+                 const glm::dvec3& spacing, bool slabOrder, bool cutToSlabs, const PixelCentres& centres, SlabPolygonList& list,
                  std::vector<std::pair<glm::dvec3, glm::dvec3>>& boxes, std::vector<float>& one) {
   const ProxyDepth depth{d.shell, frame.forward, camera.eye};
   // This brick owns the proxies with depth in [bmin, bmax).
   const auto [bmin, bmax] = depth.range(d.blo, d.bhi);
   long long kLo = (long long)std::floor(bmin / d.delta) - 1, kHi = (long long)std::ceil(bmax / d.delta);
   if (surface) {
-    list.build(*surface, polygonsOf.of(d.brick), depth, d.delta, d.sliced, cutToSlabs);
+    list.build(*surface, polygonsOf.of(d.brick), depth, d.delta, d.sliced, cutToSlabs, &centres);
     if (d.sliced && !list.empty()) {
       kLo = std::min(kLo, list.firstSlab());
       kHi = std::max(kHi, list.lastSlab());
     }
     d.surfaceTriangles = list.triangles();
+    d.unseenTriangles = list.unseen();
   }
   if (d.blocks) {
     boxes.resize(size_t(kHi - kLo + 1));
@@ -650,6 +651,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   constexpr size_t kAbandon = std::numeric_limits<size_t>::max();
   std::atomic<size_t> built{0}, ready{0};
   std::exception_ptr failure;
+  const PixelCentres centres{frame.viewProj, W, H};
   std::thread worker([&] {
     SlabPolygonList list;
     std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes;
@@ -659,8 +661,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         size_t may = ready.load(std::memory_order_acquire);
         for (; may <= j; may = ready.load(std::memory_order_acquire)) ready.wait(may);
         if (may == kAbandon) return;
-        buildStream(draws[j], translucent ? &*polygons : nullptr, polygonsOf, camera, frame, spacing, options.slabOrder, options.cutToSlabs, list,
-                    boxes, one);
+        buildStream(draws[j], translucent ? &*polygons : nullptr, polygonsOf, camera, frame, spacing, options.slabOrder, options.cutToSlabs, centres,
+                    list, boxes, one);
         built.fetch_add(1, std::memory_order_release);
         built.notify_one();
       }
@@ -693,6 +695,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     BrickDraw& d = draws[j];
     st.slices += d.slices;
     st.surfaceTriangles += d.surfaceTriangles;
+    st.unseenTriangles += d.unseenTriangles;
     st.slabPolygonDraws += d.slabPolygonDraws;
     // A packed brick's texture, made for its draw: kept by the cache if it has room (it evicts
     // earlier frames' bricks for it), else deleted when this iteration ends.
@@ -717,7 +720,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
       keep();
       continue;
     }
-    const FramePrograms::Slice& sp = programs.slice(d.delta > baseDelta, d.surfaceTriangles > 0);
+    const FramePrograms::Slice& sp = programs.slice(d.delta > baseDelta, d.slabPolygonDraws > 0);
     if (sp.id != bound) glUseProgram(bound = sp.id);
     if (d.visible) {
       glActiveTexture(GL_TEXTURE0);

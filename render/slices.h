@@ -5,9 +5,9 @@
 //
 // Opaque surfaces are drawn first with depth writes. Translucent surface triangles go through the
 // SlabPolygon lists: each is put into the slabs between global slice planes that its depth range
-// covers (clipped to each slab on the CPU where it spans several; per fragment for shells), sorted
-// back to front inside a slab, and drawn between the slices of its brick; the lists are rebuilt for
-// every view.
+// covers (drawn once in each, keeping that slab's fragments, where it spans several), sorted back
+// to front inside a slab, and drawn between the slices of its brick; the lists are rebuilt for
+// every view. Triangles that cover no pixel centre are left out.
 #pragma once
 
 #include <cstdint>
@@ -84,7 +84,8 @@ struct SlicesStats {
   uint64_t slices = 0;            ///< slice polygons (or shell pieces) drawn
   uint64_t shellBricks = 0;       ///< bricks sampled by spherical shells
   uint64_t surfaceTriangles = 0;  ///< translucent triangles placed
-  uint64_t slabPolygonDraws = 0;  ///< translucent pieces drawn: a triangle's, or a convex polygon's, part in each slab it covers
+  uint64_t unseenTriangles = 0;   ///< of which left out: they cover no pixel centre
+  uint64_t slabPolygonDraws = 0;  ///< translucent triangles drawn: each once in every slab it covers
   uint64_t fragments = 0;         ///< fragment shader invocations of the slices and slab polygons
   uint64_t cutPolygons = 0;       ///< pieces of the cutting plane drawn (one per textured brick it crosses)
   uint64_t cutLineSegments = 0;   ///< segments of the surface's intersection with the cutting plane

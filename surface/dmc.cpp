@@ -187,8 +187,6 @@ TriangleMesh toTriangleMesh(const DiscreteMesh& mesh, const glm::dvec3& spacing,
   std::vector<std::array<uint32_t, 3>> tris;
   out.polygonStarts.reserve(mesh.faceCount() + 1);
   out.polygonStarts.push_back(0);
-  out.loopStarts.reserve(mesh.faceCount() + 1);
-  out.loopStarts.push_back(0);
   for (size_t f = 0; f < mesh.faceCount(); ++f) {
     const uint32_t* loop = &mesh.indices[mesh.offsets[f]];
     const size_t n = mesh.faceSize(f);
@@ -197,8 +195,6 @@ TriangleMesh toTriangleMesh(const DiscreteMesh& mesh, const glm::dvec3& spacing,
     HYB_CHECK(ok);
     for (const auto& t : tris) out.triangles.push_back({t[0], t[1], t[2]});
     out.polygonStarts.push_back(uint32_t(out.triangles.size()));
-    if (isConvex(mesh.vertices, loop, n, mesh.planes[f].normal())) out.loops.insert(out.loops.end(), loop, loop + n);
-    out.loopStarts.push_back(uint32_t(out.loops.size()));
   }
   removeUnreferencedVertices(&out);
   return out;

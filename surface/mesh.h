@@ -41,10 +41,8 @@ struct TriangleMesh {
   /// Per-vertex shading normals (unit, outward), or empty: shade each triangle by its own plane.
   std::vector<glm::vec3> normals;
   /// When the triangles come from planar polygons (a triangulated DiscreteMesh): polygon f's
-  /// triangles are [polygonStarts[f], polygonStarts[f + 1]), and, when the polygon is convex, its
-  /// boundary (vertex indices in order) is loops[loopStarts[f] .. loopStarts[f + 1]) (empty for a
-  /// polygon that is not). All three empty: nothing is known of polygons.
-  std::vector<uint32_t> polygonStarts, loopStarts, loops;
+  /// triangles are [polygonStarts[f], polygonStarts[f + 1]). Empty: nothing is known of polygons.
+  std::vector<uint32_t> polygonStarts;
 };
 
 /// A box of samples [lo, hi] (voxel indices, inclusive) whose cells an extraction visits.

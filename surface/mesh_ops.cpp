@@ -34,7 +34,6 @@ void removeUnreferencedVertices(TriangleMesh* mesh) {
   if (!mesh->normals.empty()) mesh->normals.resize(next);
   for (glm::uvec3& t : mesh->triangles)
     for (int k = 0; k < 3; ++k) t[k] = remap[t[k]];
-  for (uint32_t& v : mesh->loops) v = remap[v];  // a loop's vertices are its triangles' vertices
 }
 
 void setGradientNormals(const Volume& volume, TriangleMesh* mesh) {
@@ -80,9 +79,6 @@ void toPatientSpace(const PatientFrame& frame, TriangleMesh* mesh) {
   for (glm::vec3& nrm : mesh->normals) nrm = glm::vec3(frame.vectorToPatient(glm::dvec3(nrm)));
   if (!frame.mirrored()) return;
   for (glm::uvec3& t : mesh->triangles) std::swap(t.y, t.z);
-  // Loops run the other way too.
-  for (size_t f = 0; f + 1 < mesh->loopStarts.size(); ++f)
-    std::reverse(mesh->loops.begin() + mesh->loopStarts[f], mesh->loops.begin() + mesh->loopStarts[f + 1]);
 }
 
 }  // namespace hyb

@@ -14,8 +14,8 @@
 namespace hyb {
 
 /// Removes the vertices no triangle references (the Surface Octree's reconstruction leaves the
-/// straight-through vertices it dropped from polygons), renumbering triangles, polygon loops and
-/// normals. Keeps the order of the vertices that remain.
+/// straight-through vertices it dropped from polygons), renumbering triangles and normals. Keeps
+/// the order of the vertices that remain.
 void removeUnreferencedVertices(TriangleMesh* mesh);
 
 /// The distance below which float coordinates of magnitude up to @p scale mm (taken as at least 1)

@@ -180,16 +180,4 @@ bool triangulatePolygon(const std::vector<glm::ivec3>& points, const uint32_t* l
   return true;
 }
 
-bool isConvex(const std::vector<glm::ivec3>& points, const uint32_t* loop, size_t n, const glm::ivec3& normal) {
-  if (n < 3) return false;
-  const std::vector<P2> p = project(points, loop, n, normal);
-  bool left = false, right = false;
-  for (size_t i = 0; i < n; ++i) {
-    const int64_t side = orient(p[(i + n - 1) % n], p[i], p[(i + 1) % n]);
-    left = left || side > 0;
-    right = right || side < 0;
-  }
-  return left != right;
-}
-
 }  // namespace hyb

@@ -17,8 +17,4 @@ namespace hyb {
 bool triangulatePolygon(const std::vector<glm::ivec3>& points, const uint32_t* loop, size_t n, const glm::ivec3& normal,
                         std::vector<std::array<uint32_t, 3>>* out);
 
-/// Whether the simple polygon points[loop[0..n)] in the plane of @p normal is convex: it never
-/// turns the other way (straight-through vertices allowed). Exact.
-bool isConvex(const std::vector<glm::ivec3>& points, const uint32_t* loop, size_t n, const glm::ivec3& normal);
-
 }  // namespace hyb

@@ -18,14 +18,11 @@ TEST(MeshOps, UnreferencedVerticesAreDroppedAndIndicesFollow) {
   m.normals = {{0, 0, 1}, {1, 0, 0}, {0, 0, 1}, {0, 0, 1}, {1, 0, 0}, {0, 0, 1}};
   m.triangles = {{0, 2, 3}, {2, 5, 3}};
   m.polygonStarts = {0, 2};
-  m.loopStarts = {0, 4};
-  m.loops = {0, 2, 5, 3};
   removeUnreferencedVertices(&m);
   ASSERT_EQ(m.vertices.size(), 4u);
   EXPECT_EQ(m.vertices[2], glm::vec3(0, 1, 0));
   EXPECT_EQ(m.triangles[0], glm::uvec3(0, 1, 2));
   EXPECT_EQ(m.triangles[1], glm::uvec3(1, 3, 2));
-  EXPECT_EQ(m.loops, (std::vector<uint32_t>{0, 1, 3, 2}));
   EXPECT_EQ(m.normals.size(), 4u);
   EXPECT_EQ(m.normals[3], glm::vec3(0, 0, 1));
 }
