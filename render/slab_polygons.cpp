@@ -17,20 +17,54 @@ SurfacePolygons::SurfacePolygons(const TriangleMesh& surface) : mesh(&surface), 
   HYB_CHECK(starts.front() == 0 && starts.back() == surface.triangles.size());
 }
 
-bool PixelCentres::missedBy(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c) const {
-  glm::vec2 lo(std::numeric_limits<float>::max()), hi(std::numeric_limits<float>::lowest());
-  for (const glm::vec3& p : {a, b, c}) {
-    const glm::vec4 q = viewProj * glm::vec4(p, 1.0f);
-    if (!(q.w > 0.0f)) return false;  // the clipper's business
-    const glm::vec2 window = (glm::vec2(q) / q.w * 0.5f + 0.5f) * glm::vec2(float(width), float(height));
-    lo = glm::min(lo, window);
-    hi = glm::max(hi, window);
+PixelCentres::PixelCentres(const glm::mat4& viewProj, int width, int height)
+    : mViewProj(viewProj), mInverse(glm::inverse(glm::dmat4(viewProj))), mSize(width, height) {}
+
+PixelCentres::Cover PixelCentres::cover(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c, const ProxyDepth& depth) const {
+  constexpr double kMargin = 1.0 / 64.0;  // pixels
+  const glm::dvec3 p[3] = {glm::dvec3(a), glm::dvec3(b), glm::dvec3(c)};
+  glm::dvec2 w[3];
+  for (int k = 0; k < 3; ++k) {
+    const glm::dvec4 q = mViewProj * glm::dvec4(p[k], 1.0);
+    if (!(q.w > 0.0)) return {};  // the clipper's business
+    w[k] = (glm::dvec2(q) / q.w * 0.5 + 0.5) * mSize;
   }
-  // The centres (i + 0.5, j + 0.5) of the image the box may hold.
-  constexpr float kMargin = 1.0f / 64.0f;
-  const glm::vec2 first = glm::max(glm::ceil(lo - 0.5f - kMargin), glm::vec2(0.0f));
-  const glm::vec2 last = glm::min(glm::floor(hi - 0.5f + kMargin), glm::vec2(float(width - 1), float(height - 1)));
-  return first.x > last.x || first.y > last.y;
+  // The centres (i + 0.5, j + 0.5) of the image the bounding box may hold.
+  const glm::dvec2 first = glm::max(glm::ceil(glm::min(w[0], glm::min(w[1], w[2])) - 0.5 - kMargin), glm::dvec2(0.0));
+  const glm::dvec2 last = glm::min(glm::floor(glm::max(w[0], glm::max(w[1], w[2])) - 0.5 + kMargin), mSize - 1.0);
+  if (first.x > last.x || first.y > last.y) return {true, 0, 0, 0};
+  if ((last.x - first.x + 1) * (last.y - first.y + 1) > kMaxCentres) return {};
+  auto cross = [](const glm::dvec2& u, const glm::dvec2& v) { return u.x * v.y - u.y * v.x; };
+  const double area = cross(w[1] - w[0], w[2] - w[0]);
+  if (area == 0.0) return {};
+  const glm::dvec3 normal = glm::cross(p[1] - p[0], p[2] - p[0]);
+  // The depth of the triangle's plane where the ray through window point s meets it.
+  auto depthAt = [&](const glm::dvec2& s) {
+    const glm::dvec2 ndc = s / mSize * 2.0 - 1.0;
+    const glm::dvec4 n4 = mInverse * glm::dvec4(ndc, -1.0, 1.0), f4 = mInverse * glm::dvec4(ndc, 1.0, 1.0);
+    const glm::dvec3 from = glm::dvec3(n4) / n4.w, dir = glm::dvec3(f4) / f4.w - from;
+    return depth.of(from + dir * (glm::dot(normal, p[0] - from) / glm::dot(normal, dir)));
+  };
+  const double rounding = 16.0 * double(std::numeric_limits<float>::epsilon()) *
+                          std::max({1.0, glm::length(p[0] - depth.eye), glm::length(p[0]), std::abs(depth.of(p[0]))});
+  Cover out{true, 0, std::numeric_limits<double>::max(), std::numeric_limits<double>::lowest()};
+  for (double y = first.y; y <= last.y; ++y)
+    for (double x = first.x; x <= last.x; ++x) {
+      const glm::dvec2 s(x + 0.5, y + 0.5);
+      double inside = std::numeric_limits<double>::max();  // pixels from the nearest edge, > 0 inside
+      for (int k = 0; k < 3; ++k) {
+        const glm::dvec2 e = w[(k + 1) % 3] - w[k];
+        inside = std::min(inside, std::copysign(1.0, area) * cross(e, s - w[k]) / glm::length(e));
+      }
+      if (inside < -kMargin) continue;
+      if (inside <= kMargin) return {};  // the rasteriser's edge rule decides
+      const double d = depthAt(s), slope = std::abs(depthAt(s + glm::dvec2(kMargin, 0.0)) - d) + std::abs(depthAt(s + glm::dvec2(0.0, kMargin)) - d);
+      if (!std::isfinite(d) || !std::isfinite(slope)) return {};
+      out.nearest = std::min(out.nearest, d - slope - rounding);
+      out.farthest = std::max(out.farthest, d + slope + rounding);
+      ++out.centres;
+    }
+  return out;
 }
 
 // A grid of leaves says which brick holds each polygon's centroid.
@@ -101,13 +135,16 @@ void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint
       if (depth.shells)  // the nearest point of a triangle to the eye may lie inside it
         dmn = distanceToTriangle(depth.eye, glm::dvec3(mesh.vertices[tr.x]), glm::dvec3(mesh.vertices[tr.y]), glm::dvec3(mesh.vertices[tr.z]));
       // A brick without slices needs no slabs: its polygons are only sorted back to front.
-      const long long k0 = sliced ? (long long)std::floor(dmn / delta) : 0, k1 = sliced ? (long long)std::floor(dmx / delta) : 0;
+      long long k0 = sliced ? (long long)std::floor(dmn / delta) : 0, k1 = sliced ? (long long)std::floor(dmx / delta) : 0;
       centroid += sum / 3;
-      if (centres && centres->missedBy(mesh.vertices[tr.x], mesh.vertices[tr.y], mesh.vertices[tr.z])) {
+      const PixelCentres::Cover cover = centres ? centres->cover(mesh.vertices[tr.x], mesh.vertices[tr.y], mesh.vertices[tr.z], depth) : PixelCentres::Cover{};
+      if (cover.known && cover.centres == 0) {
         mSpans.push_back({1, 0});
         ++mUnseen;
         continue;
       }
+      if (cover.known && sliced && std::floor(cover.nearest / delta) == std::floor(cover.farthest / delta))
+        k0 = k1 = (long long)std::floor(cover.nearest / delta);  // every fragment it draws is in that slab
       mSpans.push_back({int32_t(k0), int32_t(k1)});
       p0 = std::min(p0, k0);
       p1 = std::max(p1, k1);

@@ -54,16 +54,29 @@ struct BrickPolygons {
 BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const SurfacePolygons& surface);
 
 /// The pixel centres a frame samples. Coverage is sampled at pixel centres, so a triangle whose
-/// projected bounding box holds none draws no fragment: a frame leaves it out (most of a clinical
-/// surface's triangles are smaller than a pixel of a 512² frame).
-struct PixelCentres {
-  glm::mat4 viewProj{1.0f};
-  int width = 0, height = 0;
-  /// Whether triangle (a, b, c) (mm) surely covers no pixel centre: its bounding box holds none, with
-  /// a margin of 1/64 pixel (llvmpipe snaps vertices to 1/256 pixel; the shader's float arithmetic
-  /// differs from this one's by far less), or lies outside the image. Never for a triangle that
-  /// reaches behind the eye.
-  bool missedBy(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c) const;
+/// projected bounding box holds none draws no fragment and is left out; one whose box holds a few
+/// is tested against each: covering none it is left out too, and where the depths of those it
+/// covers lie in one slab it is drawn in that slab alone, whole. Most of a clinical surface's
+/// triangles are smaller than a pixel of a 512² frame.
+class PixelCentres {
+ public:
+  PixelCentres(const glm::mat4& viewProj, int width, int height);
+  /// What a triangle covers, where that is sure: the number of pixel centres, and the depths
+  /// (ProxyDepth) the fragments there may take, each widened by what 1/64 pixel and float rounding
+  /// can change. Not known for a triangle whose box holds more than kMaxCentres centres, that
+  /// reaches behind the eye, or that passes within 1/64 pixel of a centre (llvmpipe snaps
+  /// vertices to 1/256 pixel): those are drawn in every slab their depth range covers.
+  struct Cover {
+    bool known = false;
+    int centres = 0;
+    double nearest = 0, farthest = 0;
+  };
+  static constexpr int kMaxCentres = 4;
+  Cover cover(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c, const ProxyDepth& depth) const;
+
+ private:
+  glm::dmat4 mViewProj, mInverse;
+  glm::dvec2 mSize;
 };
 
 /// One brick's SlabPolygon list.
@@ -74,7 +87,8 @@ class SlabPolygonList {
   /// order in @p polygons). With @p sliced false (a brick without slices) every polygon is one
   /// instance in slab 0, sorted back to front by its centroid; with @p cut false every polygon is
   /// one instance, whole, in the slab of its centroid's depth. Triangles that @p centres says
-  /// cover no pixel centre are left out (the polygon's depth stays that of all its triangles).
+  /// cover no pixel centre are left out (the polygon's depth stays that of all its triangles),
+  /// and those whose covered centres lie in one slab go to that slab alone.
   void build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const ProxyDepth& depth, double delta, bool sliced, bool cut = true,
              const PixelCentres* centres = nullptr);
   /// Whether no polygon was placed.

@@ -651,7 +651,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   constexpr size_t kAbandon = std::numeric_limits<size_t>::max();
   std::atomic<size_t> built{0}, ready{0};
   std::exception_ptr failure;
-  const PixelCentres centres{frame.viewProj, W, H};
+  const PixelCentres centres(frame.viewProj, W, H);
   std::thread worker([&] {
     SlabPolygonList list;
     std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes;
