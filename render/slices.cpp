@@ -119,13 +119,21 @@ bool meetsRows(const VolumeOctree& octree, const OctreeNode& n, const glm::dvec3
 
 // Draws @p surface opaque with depth writes by @p program (kSurfaceFragment), headlight-shaded (by
 // its vertex normals when it has them), clipped by @p cutPlane. The frame's vertex buffer is bound.
-void drawOpaqueSurface(GLuint program, const TriangleMesh& surface, const glm::mat4& viewProj, const Camera& camera, const glm::vec3& color,
-                       const glm::vec4& cutPlane) {
+// The triangles that cover no pixel centre are left out (a large study's surface at a small size:
+// nearly all of them).
+uint64_t drawOpaqueSurface(GLuint program, const TriangleMesh& surface, const glm::mat4& viewProj, const Camera& camera, const glm::vec3& color,
+                           const glm::vec4& cutPlane) {
   glUseProgram(program);
+  const PixelCentres centres(viewProj, camera.width, camera.height);
+  const ProxyDepth depth{false, camera.forward(), camera.eye};
   std::vector<float> data;
-  data.reserve(surface.triangles.size() * 18);
+  uint64_t unseen = 0;
   for (const glm::uvec3& t : surface.triangles) {
     const glm::vec3 a = surface.vertices[t.x], b = surface.vertices[t.y], c = surface.vertices[t.z];
+    if (const PixelCentres::Cover cover = centres.cover(a, b, c, depth); cover.known && cover.centres == 0) {
+      ++unseen;
+      continue;
+    }
     const glm::vec3 face = glm::normalize(glm::cross(b - a, c - a));
     for (int k = 0; k < 3; ++k) {
       const glm::vec3 p = surface.vertices[t[k]], n = surface.normals.empty() ? face : surface.normals[t[k]];
@@ -146,6 +154,7 @@ void drawOpaqueSurface(GLuint program, const TriangleMesh& surface, const glm::m
   glUniform3fv(at("color"), 1, glm::value_ptr(color));
   glUniform4fv(at("cutPlane"), 1, glm::value_ptr(cutPlane));
   glDrawArrays(GL_TRIANGLES, 0, GLsizei(data.size() / 6));
+  return unseen;
 }
 
 // The transfer function's lookup table (texture unit 1, read with texelFetch) and what it shows.
@@ -608,7 +617,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
 
   // 2. The opaque surface first, writing depth.
   if (withTriangles && !translucent)
-    drawOpaqueSurface(programs.surface(), *options.surface, frame.viewProj, camera, glm::vec3(options.surfaceColor), cutPlane);
+    st.unseenTriangles = drawOpaqueSurface(programs.surface(), *options.surface, frame.viewProj, camera, glm::vec3(options.surfaceColor), cutPlane);
   glEnableVertexAttribArray(0);
   glEnableVertexAttribArray(1);
   glEnableVertexAttribArray(2);

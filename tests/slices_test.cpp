@@ -392,6 +392,38 @@ TEST(Slices, OpaqueSurfaceHidesTheVolumeBehindIt) {
   EXPECT_NEAR(p.b, 0.2f * a1 + (1 - a1) * 0.6f, 2.0f / 255.0f);
 }
 
+// An opaque plane of 80,000 triangles a tenth of a pixel wide, seen straight on (8x8 pixels of
+// 0.5 mm): nearly every triangle lies between pixel centres and is left out, and still every pixel
+// shows the plane, opaque (a triangle left out wrongly would leave a pixel on the material behind).
+TEST(Slices, AnOpaqueSurfaceLeavesOutTrianglesBetweenPixelCentresAndNoPixel) {
+  gl();
+  const Volume v = test::makeVolume({11, 11, 11}, [](int, int, int) { return 1.0f; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const int n = 200;
+  TriangleMesh plane;
+  for (int j = 0; j <= n; ++j)
+    for (int i = 0; i <= n; ++i) plane.vertices.emplace_back(-1.0 + 12.0 * i / n, -1.0 + 12.0 * j / n, 5.0);
+  for (uint32_t j = 0; j < n; ++j)
+    for (uint32_t i = 0; i < n; ++i) {
+      const uint32_t a = j * (n + 1) + i;
+      plane.triangles.push_back({a, a + 1, a + n + 2});
+      plane.triangles.push_back({a, a + n + 2, a + n + 1});
+    }
+  SlicesOptions o;
+  o.shading = false;
+  o.surface = &plane;
+  o.surfaceColor = glm::vec4(0.2f, 0.4f, 0.6f, 1.0f);
+  SlicesStats st;
+  const Image image = renderSlices(v, t, selectNodes(t, SelectionParams{}), constantTf(0.05f), straightOn(glm::dvec3(5.0)), o, &st);
+  EXPECT_GT(st.unseenTriangles, 78000u);
+  const float a1 = 1.0f - std::pow(0.95f, 5.0f);  // the 5 mm in front of the plane
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x) {
+      EXPECT_NEAR(image.at(x, y).a, 1.0f, 1.0f / 255.0f) << x << "," << y;
+      EXPECT_NEAR(image.at(x, y).b, 0.2f * a1 + (1 - a1) * 0.6f, 2.0f / 255.0f) << x << "," << y;
+    }
+}
+
 TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
   gl();
   // A 10 mm slab of material with a translucent quad inside, at a generic depth, exactly on a slice
