@@ -27,6 +27,21 @@ using test::quadAt;
 // An 8x8 orthographic view straight down -z onto a 4 mm window around @p centre.
 Camera straightOn(const glm::dvec3& centre) { return test::orthoDown(centre, 4.0, 8); }
 
+// A grid of n x n squares, two triangles each, over (u, v) in [0, 1]², placed by @p at.
+template <class At>
+TriangleMesh gridMesh(int n, At at) {
+  TriangleMesh m;
+  for (int j = 0; j <= n; ++j)
+    for (int i = 0; i <= n; ++i) m.vertices.push_back(at(double(i) / n, double(j) / n));
+  for (uint32_t j = 0; j < uint32_t(n); ++j)
+    for (uint32_t i = 0; i < uint32_t(n); ++i) {
+      const uint32_t a = j * (n + 1) + i;
+      m.triangles.push_back({a, a + 1, a + n + 2});
+      m.triangles.push_back({a, a + n + 2, a + n + 1});
+    }
+  return m;
+}
+
 TEST(Slices, ContextIsOpenGl45Core) { EXPECT_NE(gl().description().find("4.5"), std::string::npos) << gl().description(); }
 
 TEST(Slices, MatchesTheReferenceOnASphereInBothProjections) {
@@ -399,16 +414,7 @@ TEST(Slices, AnOpaqueSurfaceLeavesOutTrianglesBetweenPixelCentresAndNoPixel) {
   gl();
   const Volume v = test::makeVolume({11, 11, 11}, [](int, int, int) { return 1.0f; });
   const VolumeOctree t = VolumeOctree::build(v);
-  const int n = 200;
-  TriangleMesh plane;
-  for (int j = 0; j <= n; ++j)
-    for (int i = 0; i <= n; ++i) plane.vertices.emplace_back(-1.0 + 12.0 * i / n, -1.0 + 12.0 * j / n, 5.0);
-  for (uint32_t j = 0; j < n; ++j)
-    for (uint32_t i = 0; i < n; ++i) {
-      const uint32_t a = j * (n + 1) + i;
-      plane.triangles.push_back({a, a + 1, a + n + 2});
-      plane.triangles.push_back({a, a + n + 2, a + n + 1});
-    }
+  const TriangleMesh plane = gridMesh(200, [](double gu, double gv) { return glm::vec3(-1.0 + 12.0 * gu, -1.0 + 12.0 * gv, 5.0); });
   SlicesOptions o;
   o.shading = false;
   o.surface = &plane;
@@ -493,17 +499,7 @@ TEST(Slices, ATranslucentSurfaceAcrossManySlabsCoversEachPixelOnce) {
   gl();
   const Volume v = test::makeVolume({21, 21, 11}, [](int, int, int) { return 1.0f; });
   const VolumeOctree t = VolumeOctree::build(v);
-  const int n = 20;  // squares a side, two triangles each
-  auto height = [](double x) { return 2.0 + 0.6 * x; };
-  TriangleMesh plane;
-  for (int j = 0; j <= n; ++j)
-    for (int i = 0; i <= n; ++i) plane.vertices.emplace_back(10.0 * i / n, 10.0 * j / n, height(10.0 * i / n));
-  for (uint32_t j = 0; j < n; ++j)
-    for (uint32_t i = 0; i < n; ++i) {
-      const uint32_t a = j * (n + 1) + i;
-      plane.triangles.push_back({a, a + 1, a + n + 2});
-      plane.triangles.push_back({a, a + n + 2, a + n + 1});
-    }
+  const TriangleMesh plane = gridMesh(20, [](double gu, double gv) { return glm::vec3(10.0 * gu, 10.0 * gv, 2.0 + 6.0 * gu); });  // z = 2 + 0.6 x
   Camera cam;
   cam.center = glm::dvec3(5, 5, 5);
   cam.eye = cam.center + glm::normalize(glm::dvec3(0.3, 0.2, 1)) * 80.0;
