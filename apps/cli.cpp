@@ -230,7 +230,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   if (slices) {
     out << "render   slices " << size.x << "x" << size.y << ", " << st.slices.bricks << " textured bricks (" << st.slices.blendedBricks << " blended), "
         << st.slices.textureBytes << " texture bytes, " << st.slices.slices << " slices, " << st.slices.slabPolygonDraws << " slab polygon draws";
-    if (st.slices.unseenTriangles > 0) out << " (" << st.slices.unseenTriangles << " triangles between pixel centres left out)";
+    if (st.slices.unseenTriangles > 0) out << ", " << st.slices.unseenTriangles << " surface triangles between pixel centres left out";
     out << ", " << timing.str() << "\n";
   } else {
     out << "render   raycast " << size.x << "x" << size.y << ", " << st.rays.rays << " rays (" << std::setprecision(1)

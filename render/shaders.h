@@ -24,8 +24,8 @@ void main() {
 /// distance to the eye for shells) lies in [slab.x, slab.y) (SlabPolygon: a triangle covering
 /// several slabs comes once per slab). All are clipped by the cutting plane. Compiled after the
 /// same #defines as kSliceFragment: llvmpipe sets up every varying of every triangle, so the face
-/// normal is flat unless the surface has vertex normals (SMOOTH), and the slab goes only to
-/// frames with a translucent surface.
+/// normal is flat unless the surface has vertex normals (SMOOTH), and the slab goes only to the
+/// SURFACE variants (bricks whose stream holds surface triangles).
 inline constexpr const char* kStreamVertex = R"(
 layout(location = 0) in vec3 position;
 layout(location = 1) in vec3 normal;
@@ -142,7 +142,7 @@ void main() {
 #else
     float slabDepth = dot(forward, vWorld);
 #endif
-    if (slabDepth < vSlab.x || slabDepth >= vSlab.y) discard;
+    if (!(slabDepth >= vSlab.x && slabDepth < vSlab.y)) discard;  // (NaN too)
     // Vertex normals on either side of a thin plate can cancel inside a triangle: unshaded there.
     float nn = dot(vNormal, vNormal);
     float shade = nn > 0.0 ? 0.25 + 0.75 * abs(dot(vNormal, rayDirection())) * inversesqrt(nn) : 1.0;

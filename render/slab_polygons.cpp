@@ -20,7 +20,7 @@ SurfacePolygons::SurfacePolygons(const TriangleMesh& surface) : mesh(&surface), 
 PixelCentres::PixelCentres(const glm::mat4& viewProj, int width, int height)
     : mViewProj(viewProj), mInverse(glm::inverse(glm::dmat4(viewProj))), mSize(width, height) {}
 
-PixelCentres::Cover PixelCentres::cover(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c, const ProxyDepth& depth) const {
+PixelCentres::Cover PixelCentres::cover(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c, const ProxyDepth* depth) const {
   constexpr double kMargin = 1.0 / 64.0;  // pixels
   const glm::dvec3 p[3] = {glm::dvec3(a), glm::dvec3(b), glm::dvec3(c)};
   glm::dvec2 w[3];
@@ -28,12 +28,14 @@ PixelCentres::Cover PixelCentres::cover(const glm::vec3& a, const glm::vec3& b, 
     const glm::dvec4 q = mViewProj * glm::dvec4(p[k], 1.0);
     if (!(q.w > 0.0)) return {};  // the clipper's business
     w[k] = (glm::dvec2(q) / q.w * 0.5 + 0.5) * mSize;
+    if (!std::isfinite(w[k].x) || !std::isfinite(w[k].y)) return {};
   }
-  // The centres (i + 0.5, j + 0.5) of the image the bounding box may hold.
-  const glm::dvec2 first = glm::max(glm::ceil(glm::min(w[0], glm::min(w[1], w[2])) - 0.5 - kMargin), glm::dvec2(0.0));
-  const glm::dvec2 last = glm::min(glm::floor(glm::max(w[0], glm::max(w[1], w[2])) - 0.5 + kMargin), mSize - 1.0);
+  // The centres (i + 0.5, j + 0.5) of the image the bounding box may hold. A box larger than a few
+  // pixels is left to the rasteriser: its float error grows with the coordinates, the margin not.
+  const glm::dvec2 lo = glm::min(w[0], glm::min(w[1], w[2])), hi = glm::max(w[0], glm::max(w[1], w[2]));
+  const glm::dvec2 first = glm::max(glm::ceil(lo - 0.5 - kMargin), glm::dvec2(0.0)), last = glm::min(glm::floor(hi - 0.5 + kMargin), mSize - 1.0);
   if (first.x > last.x || first.y > last.y) return {true, 0, 0, 0};
-  if ((last.x - first.x + 1) * (last.y - first.y + 1) > kMaxCentres) return {};
+  if (glm::any(glm::greaterThan(hi - lo, glm::dvec2(double(kMaxCentres)))) || (last.x - first.x + 1) * (last.y - first.y + 1) > kMaxCentres) return {};
   auto cross = [](const glm::dvec2& u, const glm::dvec2& v) { return u.x * v.y - u.y * v.x; };
   const double area = cross(w[1] - w[0], w[2] - w[0]);
   if (area == 0.0) return {};
@@ -43,10 +45,12 @@ PixelCentres::Cover PixelCentres::cover(const glm::vec3& a, const glm::vec3& b, 
     const glm::dvec2 ndc = s / mSize * 2.0 - 1.0;
     const glm::dvec4 n4 = mInverse * glm::dvec4(ndc, -1.0, 1.0), f4 = mInverse * glm::dvec4(ndc, 1.0, 1.0);
     const glm::dvec3 from = glm::dvec3(n4) / n4.w, dir = glm::dvec3(f4) / f4.w - from;
-    return depth.of(from + dir * (glm::dot(normal, p[0] - from) / glm::dot(normal, dir)));
+    return depth->of(from + dir * (glm::dot(normal, p[0] - from) / glm::dot(normal, dir)));
   };
-  const double rounding = 16.0 * double(std::numeric_limits<float>::epsilon()) *
-                          std::max({1.0, glm::length(p[0] - depth.eye), glm::length(p[0]), std::abs(depth.of(p[0]))});
+  double rounding = 1.0;  // 16 float ulps of the largest magnitude the shader's depth meets
+  if (depth)
+    for (const glm::dvec3& v : p) rounding = std::max({rounding, glm::length(v - depth->eye), glm::length(v), std::abs(depth->of(v))});
+  rounding *= 16.0 * double(std::numeric_limits<float>::epsilon());
   Cover out{true, 0, std::numeric_limits<double>::max(), std::numeric_limits<double>::lowest()};
   for (double y = first.y; y <= last.y; ++y)
     for (double x = first.x; x <= last.x; ++x) {
@@ -58,11 +62,12 @@ PixelCentres::Cover PixelCentres::cover(const glm::vec3& a, const glm::vec3& b, 
       }
       if (inside < -kMargin) continue;
       if (inside <= kMargin) return {};  // the rasteriser's edge rule decides
+      ++out.centres;
+      if (!depth) continue;
       const double d = depthAt(s), slope = std::abs(depthAt(s + glm::dvec2(kMargin, 0.0)) - d) + std::abs(depthAt(s + glm::dvec2(0.0, kMargin)) - d);
       if (!std::isfinite(d) || !std::isfinite(slope)) return {};
       out.nearest = std::min(out.nearest, d - slope - rounding);
       out.farthest = std::max(out.farthest, d + slope + rounding);
-      ++out.centres;
     }
   return out;
 }
@@ -135,15 +140,16 @@ void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint
       if (depth.shells)  // the nearest point of a triangle to the eye may lie inside it
         dmn = distanceToTriangle(depth.eye, glm::dvec3(mesh.vertices[tr.x]), glm::dvec3(mesh.vertices[tr.y]), glm::dvec3(mesh.vertices[tr.z]));
       // A brick without slices needs no slabs: its polygons are only sorted back to front.
-      long long k0 = sliced ? (long long)std::floor(dmn / delta) : 0, k1 = sliced ? (long long)std::floor(dmx / delta) : 0;
       centroid += sum / 3;
-      const PixelCentres::Cover cover = centres ? centres->cover(mesh.vertices[tr.x], mesh.vertices[tr.y], mesh.vertices[tr.z], depth) : PixelCentres::Cover{};
-      if (cover.known && cover.centres == 0) {
+      const PixelCentres::Cover cover =
+          centres ? centres->cover(mesh.vertices[tr.x], mesh.vertices[tr.y], mesh.vertices[tr.z], sliced && cut ? &depth : nullptr) : PixelCentres::Cover{};
+      if ((cover.known && cover.centres == 0) || !std::isfinite(dmn) || !std::isfinite(dmx)) {  // (a corner not finite draws nothing)
         mSpans.push_back({1, 0});
         ++mUnseen;
         continue;
       }
-      if (cover.known && sliced && std::floor(cover.nearest / delta) == std::floor(cover.farthest / delta))
+      long long k0 = sliced ? (long long)std::floor(dmn / delta) : 0, k1 = sliced ? (long long)std::floor(dmx / delta) : 0;
+      if (cover.known && sliced && cut && std::floor(cover.nearest / delta) == std::floor(cover.farthest / delta))
         k0 = k1 = (long long)std::floor(cover.nearest / delta);  // every fragment it draws is in that slab
       mSpans.push_back({int32_t(k0), int32_t(k1)});
       p0 = std::min(p0, k0);

@@ -15,7 +15,6 @@
 #include <cstdint>
 #include <limits>
 #include <span>
-#include <utility>
 #include <vector>
 
 #include "hybrid_octree/selection.h"
@@ -61,18 +60,19 @@ BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, 
 class PixelCentres {
  public:
   PixelCentres(const glm::mat4& viewProj, int width, int height);
-  /// What a triangle covers, where that is sure: the number of pixel centres, and the depths
-  /// (ProxyDepth) the fragments there may take, each widened by what 1/64 pixel and float rounding
-  /// can change. Not known for a triangle whose box holds more than kMaxCentres centres, that
-  /// reaches behind the eye, or that passes within 1/64 pixel of a centre (llvmpipe snaps
-  /// vertices to 1/256 pixel): those are drawn in every slab their depth range covers.
+  /// What a triangle covers, where that is sure: the number of pixel centres, and (given @p depth)
+  /// the depths the fragments there may take, each widened by what 1/64 pixel and float rounding
+  /// can change. Not known for a triangle whose box is wider than kMaxCentres pixels or holds more
+  /// than kMaxCentres centres, that reaches behind the eye, or that passes within 1/64 pixel of a
+  /// centre (llvmpipe snaps vertices to 1/256 pixel): those are drawn in every slab their depth
+  /// range covers.
   struct Cover {
     bool known = false;
     int centres = 0;
     double nearest = 0, farthest = 0;
   };
   static constexpr int kMaxCentres = 4;
-  Cover cover(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c, const ProxyDepth& depth) const;
+  Cover cover(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c, const ProxyDepth* depth) const;
 
  private:
   glm::dmat4 mViewProj, mInverse;

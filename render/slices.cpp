@@ -122,15 +122,14 @@ bool meetsRows(const VolumeOctree& octree, const OctreeNode& n, const glm::dvec3
 // The triangles that cover no pixel centre are left out (a large study's surface at a small size:
 // nearly all of them).
 uint64_t drawOpaqueSurface(GLuint program, const TriangleMesh& surface, const glm::mat4& viewProj, const Camera& camera, const glm::vec3& color,
-                           const glm::vec4& cutPlane) {
+                           const glm::vec4& cutPlane, bool leaveOutUnseen) {
   glUseProgram(program);
   const PixelCentres centres(viewProj, camera.width, camera.height);
-  const ProxyDepth depth{false, camera.forward(), camera.eye};
   std::vector<float> data;
   uint64_t unseen = 0;
   for (const glm::uvec3& t : surface.triangles) {
     const glm::vec3 a = surface.vertices[t.x], b = surface.vertices[t.y], c = surface.vertices[t.z];
-    if (const PixelCentres::Cover cover = centres.cover(a, b, c, depth); cover.known && cover.centres == 0) {
+    if (const PixelCentres::Cover cover = leaveOutUnseen ? centres.cover(a, b, c, nullptr) : PixelCentres::Cover{}; cover.known && cover.centres == 0) {
       ++unseen;
       continue;
     }
@@ -523,14 +522,14 @@ class BrickPlanner {
 // Brick @p d's vertex stream: its slices far to near, each slab's SlabPolygon list before the slice
 // that closes the slab.
 void buildStream(BrickDraw& d, const SurfacePolygons* surface, const BrickPolygons& polygonsOf, const Camera& camera, const FrameCamera& frame,
-                 const glm::dvec3& spacing, bool slabOrder, bool cutToSlabs, const PixelCentres& centres, SlabPolygonList& list,
+                 const glm::dvec3& spacing, bool slabOrder, bool cutToSlabs, const PixelCentres* centres, SlabPolygonList& list,
                  std::vector<std::pair<glm::dvec3, glm::dvec3>>& boxes, std::vector<float>& one) {
   const ProxyDepth depth{d.shell, frame.forward, camera.eye};
   // This brick owns the proxies with depth in [bmin, bmax).
   const auto [bmin, bmax] = depth.range(d.blo, d.bhi);
   long long kLo = (long long)std::floor(bmin / d.delta) - 1, kHi = (long long)std::ceil(bmax / d.delta);
   if (surface) {
-    list.build(*surface, polygonsOf.of(d.brick), depth, d.delta, d.sliced, cutToSlabs, &centres);
+    list.build(*surface, polygonsOf.of(d.brick), depth, d.delta, d.sliced, cutToSlabs, centres);
     if (d.sliced && !list.empty()) {
       kLo = std::min(kLo, list.firstSlab());
       kHi = std::max(kHi, list.lastSlab());
@@ -617,7 +616,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
 
   // 2. The opaque surface first, writing depth.
   if (withTriangles && !translucent)
-    st.unseenTriangles = drawOpaqueSurface(programs.surface(), *options.surface, frame.viewProj, camera, glm::vec3(options.surfaceColor), cutPlane);
+    st.unseenTriangles =
+        drawOpaqueSurface(programs.surface(), *options.surface, frame.viewProj, camera, glm::vec3(options.surfaceColor), cutPlane, options.leaveOutUnseen);
   glEnableVertexAttribArray(0);
   glEnableVertexAttribArray(1);
   glEnableVertexAttribArray(2);
@@ -670,7 +670,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
         size_t may = ready.load(std::memory_order_acquire);
         for (; may <= j; may = ready.load(std::memory_order_acquire)) ready.wait(may);
         if (may == kAbandon) return;
-        buildStream(draws[j], translucent ? &*polygons : nullptr, polygonsOf, camera, frame, spacing, options.slabOrder, options.cutToSlabs, centres,
+        buildStream(draws[j], translucent ? &*polygons : nullptr, polygonsOf, camera, frame, spacing, options.slabOrder, options.cutToSlabs, options.leaveOutUnseen ? &centres : nullptr,
                     list, boxes, one);
         built.fetch_add(1, std::memory_order_release);
         built.notify_one();

@@ -57,11 +57,14 @@ struct SlicesOptions {
                                         ///< function can make visible (false: the whole brick; same image)
   bool slabOrder = true;                  ///< false: draw each brick's surface after its slices (a
                                           ///< deliberately wrong order, to show the tests catch it)
-  /// Cut each translucent polygon to every slab its depth range covers (exact order); false puts
-  /// it whole in the slab of its centroid's depth, misplacing what lies in the neighbouring slabs
-  /// (the viewer's frames before the final one: llvmpipe's cost of the cut pieces, not the
-  /// misplacement, is what shows; docs/viewer.md).
+  /// Draw each translucent polygon in every slab its depth range covers, each slab keeping its part
+  /// (exact order); false puts it whole in the slab of its centroid's depth, misplacing what lies
+  /// in the neighbouring slabs (the viewer's frames before the final one: llvmpipe's cost of the
+  /// instances, not the misplacement, is what shows; docs/viewer.md).
   bool cutToSlabs = true;
+  /// Leave out the surface triangles that cover no pixel centre, and draw those whose covered
+  /// centres lie in one slab there alone (PixelCentres; the image is the same either way).
+  bool leaveOutUnseen = true;
   const Progress* progress = nullptr;     ///< hears of the bricks drawn ("slices"); may throw to stop the frame
   /// Renders only the image rows [rows.x, rows.y) (from the top; the others stay transparent), with
   /// exactly the pixels a whole frame has there: a scissor, and bricks whose projection misses the
@@ -84,7 +87,7 @@ struct SlicesStats {
   uint64_t slices = 0;            ///< slice polygons (or shell pieces) drawn
   uint64_t shellBricks = 0;       ///< bricks sampled by spherical shells
   uint64_t surfaceTriangles = 0;  ///< translucent triangles placed
-  uint64_t unseenTriangles = 0;   ///< of which left out: they cover no pixel centre
+  uint64_t unseenTriangles = 0;   ///< surface triangles (translucent or opaque) left out: they cover no pixel centre
   uint64_t slabPolygonDraws = 0;  ///< translucent triangles drawn: each once in every slab it covers
   uint64_t fragments = 0;         ///< fragment shader invocations of the slices and slab polygons
   uint64_t cutPolygons = 0;       ///< pieces of the cutting plane drawn (one per textured brick it crosses)

@@ -75,9 +75,9 @@ TEST(SlabPolygons, ATriangleComesWholeOnceInEachSlabItCoversFarToNear) {
   EXPECT_TRUE(stream.empty());  // everything was emitted once
 }
 
-// Inside one slab the pieces go far to near by their centroid's depth; a brick without slices
+// Inside one slab the triangles go far to near by their centroid's depth; a brick without slices
 // sorts its polygons only.
-TEST(SlabPolygons, PiecesInOneSlabAreSortedByDepth) {
+TEST(SlabPolygons, TrianglesInOneSlabAreSortedByDepth) {
   TriangleMesh mesh;
   mesh.vertices = {{0, 0, 0.2f}, {1, 0, 0.2f}, {0, 1, 0.2f}, {0, 0, 0.8f}, {1, 0, 0.8f}, {0, 1, 0.8f}};
   mesh.triangles = {{0, 1, 2}, {3, 4, 5}};
@@ -181,7 +181,7 @@ double shortestEdge(const std::array<glm::vec3, 3>& t) {
 
 // The same on a real Surface Octree: a sphere's merged polygons, from many directions, put no
 // flat triangle in the stream (edges longer than 0.01 mm, its apex within 1e-4 mm of the longest).
-TEST(SlabPolygons, TheSurfaceOctreesPiecesHaveNoFlatTriangle) {
+TEST(SlabPolygons, TheSurfaceOctreesStreamHasNoFlatTriangle) {
   const Volume v = test::sphereVolume({64, 64, 64}, 26.5);
   const VolumeOctree octree = VolumeOctree::build(v);
   const SurfaceOctree so = SurfaceOctree::build(v, octree, 0.0f);
@@ -204,6 +204,69 @@ TEST(SlabPolygons, TheSurfaceOctreesPiecesHaveNoFlatTriangle) {
     pieces += list.draws();
   }
   EXPECT_GT(pieces, 24u * surface.count());  // triangles came in several slabs
+}
+
+// A 4x4 orthographic view of the square [0, 4]², one pixel a millimetre, slabs of 1 mm along z.
+// Triangle 0 lies between the centres (around (1, 1)) and is left out; triangle 1 covers the
+// centre (1.5, 1.5) only, where it is at z = 1.5: though it spans slabs 0 to 2 it goes to slab 1
+// alone, whole, with no depths to keep. A polygon whose triangles are all left out has no
+// instance; uncut, the one left keeps its centroid's slab.
+TEST(SlabPolygons, TrianglesGoWhereThePixelCentresSeeThem) {
+  TriangleMesh mesh;
+  mesh.vertices = {{0.9f, 0.9f, 0.2f}, {1.1f, 0.95f, 2.8f}, {0.95f, 1.1f, 1.0f},  // between centres
+                   {1.3f, 1.3f, 0.7f}, {1.8f, 1.35f, 2.7f}, {1.4f, 1.8f, 1.1f}};  // over (1.5, 1.5), z = 1.5 + 4 (x − 1.5)
+  mesh.triangles = {{0, 1, 2}, {3, 4, 5}};
+  const SurfacePolygons surface(mesh);
+  const PixelCentres centres(glm::ortho(0.0f, 4.0f, 0.0f, 4.0f, -10.0f, 10.0f), 4, 4);
+  const ProxyDepth depth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)};
+  const PixelCentres::Cover over = centres.cover(mesh.vertices[3], mesh.vertices[4], mesh.vertices[5], &depth);
+  ASSERT_TRUE(over.known);
+  EXPECT_EQ(over.centres, 1);
+  EXPECT_NEAR(over.nearest, 1.5 - 4.0 / 64.0, 1e-3);  // widened by 1/64 pixel of its slope
+  EXPECT_NEAR(over.farthest, 1.5 + 4.0 / 64.0, 1e-3);
+  const uint32_t both[] = {0, 1}, between[] = {0};
+  SlabPolygonList list;
+  list.build(surface, both, depth, 1.0, true, true, &centres);
+  EXPECT_EQ(list.triangles(), 2u);
+  EXPECT_EQ(list.unseen(), 1u);
+  EXPECT_EQ(list.firstSlab(), 1);
+  EXPECT_EQ(list.lastSlab(), 1);
+  std::vector<float> stream;
+  list.emitRest(&stream);
+  ASSERT_EQ(triangles(stream).size(), 1u);
+  EXPECT_EQ(triangles(stream)[0][0], mesh.vertices[3]);
+  EXPECT_EQ(slabsOf(stream)[0], glm::vec2(-1e30f, 1e30f));
+  EXPECT_EQ(list.draws(), 1u);
+  list.build(surface, between, depth, 1.0, true, true, &centres);
+  EXPECT_TRUE(list.empty());
+  list.build(surface, both, depth, 1.0, true, false, &centres);  // uncut: triangle 1's centroid z = 1.5
+  EXPECT_EQ(list.firstSlab(), 1);
+  EXPECT_EQ(list.lastSlab(), 1);
+  EXPECT_EQ(list.unseen(), 1u);
+}
+
+// Forty triangles spanning slabs 0 to 2 whose centroids (z from 1.2 to 1.6) lie beyond slab 0:
+// there every instance sorts at its far bound, and they keep their order in the brick's polygon
+// list (reversed here), whatever the sort does with equal keys.
+TEST(SlabPolygons, InstancesOfEqualDepthKeepThePolygonsOrder) {
+  TriangleMesh mesh;
+  std::vector<uint32_t> order;
+  for (uint32_t i = 0; i < 40; ++i) {
+    const float x = 2.0f * float(i), z = 0.2f + 0.01f * float(i);
+    mesh.vertices.insert(mesh.vertices.end(), {{x, 0, z}, {x + 1, 0, z + 2}, {x, 1, z + 1}});
+    mesh.triangles.push_back({3 * i, 3 * i + 1, 3 * i + 2});
+    order.insert(order.begin(), i);
+  }
+  const SurfacePolygons surface(mesh);
+  SlabPolygonList list;
+  list.build(surface, order, ProxyDepth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)}, 1.0, true);
+  std::vector<float> stream;
+  list.emitDownTo(1, &stream);
+  stream.clear();
+  list.emitRest(&stream);  // slab 0
+  const std::vector<std::array<glm::vec3, 3>> t = triangles(stream);
+  ASSERT_EQ(t.size(), order.size());
+  for (size_t k = 0; k < t.size(); ++k) EXPECT_EQ(t[k][0], mesh.vertices[mesh.triangles[order[k]].x]) << k;
 }
 
 // What PixelCentres says a triangle covers is what llvmpipe draws: 3,000 random triangles from a
@@ -255,7 +318,7 @@ void main() { colour = vec4(dot(forward, world), length(world - eye), 0.0, 1.0);
     const std::array<glm::vec3, 3> t{c + size * glm::vec3(unit(random), unit(random), unit(random)),
                                      c + size * glm::vec3(unit(random), unit(random), unit(random)),
                                      c + size * glm::vec3(unit(random), unit(random), unit(random))};
-    const PixelCentres::Cover alongView = centres.cover(t[0], t[1], t[2], planes), toEye = centres.cover(t[0], t[1], t[2], shells);
+    const PixelCentres::Cover alongView = centres.cover(t[0], t[1], t[2], &planes), toEye = centres.cover(t[0], t[1], t[2], &shells);
     ASSERT_EQ(alongView.known, toEye.known);
     if (!alongView.known) {
       ++unknown;

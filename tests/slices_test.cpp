@@ -430,6 +430,42 @@ TEST(Slices, AnOpaqueSurfaceLeavesOutTrianglesBetweenPixelCentresAndNoPixel) {
     }
 }
 
+// Leaving out the triangles between pixel centres, and drawing those whose covered centres lie in
+// one slab there alone, changes no pixel: a sphere's surface (its triangles about a pixel wide at
+// 40²) inside a shell of material, translucent and opaque, in perspective with planes and with
+// shells, orthographic, and in a band of rows.
+TEST(Slices, TrianglesLeftOutBetweenPixelCentresChangeNoPixel) {
+  gl();
+  const Volume v = test::sphereVolume(glm::ivec3(48, 44, 40), 15.0);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const TriangleMesh mesh = fineMeshToTriangles(SurfaceOctree::build(v, t, 3.0f).reconstruct(), v.spacing());
+  const TransferFunction tf({{-1.0f, {1, 1, 1}, 0.0f}, {0.0f, {1.0f, 0.6f, 0.3f}, 0.2f}, {2.0f, {0.3f, 0.6f, 1.0f}, 0.2f}, {3.0f, {1, 1, 1}, 0.0f}}, "shell");
+  const Selection sel = selectNodes(t, SelectionParams{});
+  for (const float alpha : {0.5f, 1.0f})
+    for (int view = 0; view < 4; ++view) {
+      SlicesOptions o;
+      o.surface = &mesh;
+      o.surfaceColor = glm::vec4(0.9f, 0.8f, 0.6f, alpha);
+      o.proxy = view == 1 ? Proxy::Shells : Proxy::Planes;
+      if (view == 3) o.rows = glm::ivec2(13, 29);
+      const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, view == 2, 40, 40);
+      SlicesStats left, all;
+      const Image a = renderSlices(v, t, sel, tf, cam, o, &left);
+      o.leaveOutUnseen = false;
+      const Image b = renderSlices(v, t, sel, tf, cam, o, &all);
+      const std::string what = "alpha " + std::to_string(alpha) + ", view " + std::to_string(view);
+      EXPECT_GT(left.unseenTriangles, mesh.triangles.size() / 10) << what;
+      EXPECT_EQ(all.unseenTriangles, 0u) << what;
+      if (alpha < 1.0f) {
+        EXPECT_LT(left.slabPolygonDraws, all.slabPolygonDraws) << what;
+      }
+      size_t differing = 0;
+      for (int y = 0; y < a.height; ++y)
+        for (int x = 0; x < a.width; ++x) differing += a.at(x, y) != b.at(x, y);
+      EXPECT_EQ(differing, 0u) << what;
+    }
+}
+
 TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
   gl();
   // A 10 mm slab of material with a translucent quad inside, at a generic depth, exactly on a slice
