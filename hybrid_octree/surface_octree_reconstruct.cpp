@@ -8,7 +8,6 @@
 #include <iterator>
 #include <numeric>
 #include <span>
-#include <tuple>
 
 #include "hybrid_octree/discrete_geometry.h"
 #include "hybrid_octree/surface_octree.h"
@@ -92,7 +91,6 @@ Poly clipToBox(const Plane& pl, const Box& box) {
   return hull;
 }
 
-bool lexLess(const V64& a, const V64& b) { return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z); }
 // The polygons of the nodes, flat (a vector per polygon costs more than its vertices): polygon p's
 // loop is points[starts[p] .. starts[p + 1]) (fine coordinates, below 2^21: 32 bits), its plane
 // planes[p] (d in fine units), its node nodes[p].
@@ -248,8 +246,10 @@ Loops insertTJunctions(const OutPolys& polys, const std::vector<SurfaceNode>& no
     const SurfaceNode& n = nodes[polys.nodes[p]];
     return nodeBox(glm::ivec3(n.origin), n.edge, dims);
   };
-  // The points of every line, sorted by line and then lexicographically (their order along it).
-  std::vector<std::pair<uint64_t, glm::ivec3>> linePoints;
+  // The points of every line, sorted by line and then lexicographically (their order along it):
+  // a point is its gridKey, whose order is the lexicographic one (16 bytes a point, not 24: this
+  // is the reconstruction's largest array).
+  std::vector<std::pair<uint64_t, uint64_t>> linePoints;
   for (size_t pi = 0; pi < polys.size(); ++pi) {
     const std::span<const glm::ivec3> loop = polys.loop(pi);
     const Box box = boxOf(pi);
@@ -257,21 +257,21 @@ Loops insertTJunctions(const OutPolys& polys, const std::vector<SurfaceNode>& no
       uint64_t key;
       const glm::ivec3 &a = loop[k], &b = loop[(k + 1) % loop.size()];
       if (faceLine(box, V64(a), V64(b), &key)) {
-        linePoints.emplace_back(key, a);
-        linePoints.emplace_back(key, b);
+        linePoints.emplace_back(key, gridKey(a));
+        linePoints.emplace_back(key, gridKey(b));
       }
     }
   }
-  std::sort(linePoints.begin(), linePoints.end(),
-            [](const auto& x, const auto& y) { return x.first != y.first ? x.first < y.first : lexLess(V64(x.second), V64(y.second)); });
+  std::sort(linePoints.begin(), linePoints.end());
   linePoints.erase(std::unique(linePoints.begin(), linePoints.end()), linePoints.end());
   FlatMap lineStart(linePoints.size() / 2);
   for (size_t k = linePoints.size(); k-- > 0;) lineStart[linePoints[k].first] = uint32_t(k);
 
   FlatMap ids(polys.size());
-  auto vertexId = [&](const glm::ivec3& p) {
-    return ids.findOrInsert(gridKey(p), [&] {
-      mesh.vertices.push_back(p);
+  auto vertexId = [&](uint64_t point) {
+    return ids.findOrInsert(point, [&] {
+      constexpr uint64_t kMask = (uint64_t(1) << 21) - 1;
+      mesh.vertices.emplace_back(int(point >> 42), int((point >> 21) & kMask), int(point & kMask));
       return uint32_t(mesh.vertices.size() - 1);
     });
   };
@@ -285,18 +285,18 @@ Loops insertTJunctions(const OutPolys& polys, const std::vector<SurfaceNode>& no
     loops.start.push_back(loops.ids.size());
     loops.size.push_back(0);
     for (size_t k = 0; k < loop.size(); ++k) {
-      const V64 a(loop[k]), b(loop[(k + 1) % loop.size()]);
-      loops.ids.push_back(vertexId(loop[k]));
+      const glm::ivec3 &a = loop[k], &b = loop[(k + 1) % loop.size()];
+      loops.ids.push_back(vertexId(gridKey(a)));
       uint64_t key;
-      if (!faceLine(box, a, b, &key)) continue;
+      if (!faceLine(box, V64(a), V64(b), &key)) continue;
       // Insert the line's vertices strictly between a and b, in order from a to b.
-      const bool forward = lexLess(a, b);
-      const V64& lo = forward ? a : b;
-      const V64& hi = forward ? b : a;
+      const uint64_t ka = gridKey(a), kb = gridKey(b);
+      const bool forward = ka < kb;
+      const uint64_t lo = std::min(ka, kb), hi = std::max(ka, kb);
       auto first = linePoints.begin() + *lineStart.find(key);
-      while (lexLess(V64(first->second), lo) || V64(first->second) == lo) ++first;  // lo and hi are on the line
+      while (first->second <= lo) ++first;  // lo and hi are on the line
       auto last = first;
-      while (lexLess(V64(last->second), hi)) ++last;
+      while (last->second < hi) ++last;
       if (forward) {
         for (auto it = first; it != last; ++it) loops.ids.push_back(vertexId(it->second));
       } else {
