@@ -137,9 +137,6 @@ void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint
         dmx = std::max(dmx, d);
         sum += d;
       }
-      if (depth.shells)  // the nearest point of a triangle to the eye may lie inside it
-        dmn = distanceToTriangle(depth.eye, glm::dvec3(mesh.vertices[tr.x]), glm::dvec3(mesh.vertices[tr.y]), glm::dvec3(mesh.vertices[tr.z]));
-      // A brick without slices needs no slabs: its polygons are only sorted back to front.
       centroid += sum / 3;
       const PixelCentres::Cover cover =
           centres ? centres->cover(mesh.vertices[tr.x], mesh.vertices[tr.y], mesh.vertices[tr.z], sliced && cut ? &depth : nullptr) : PixelCentres::Cover{};
@@ -148,6 +145,9 @@ void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint
         ++mUnseen;
         continue;
       }
+      if (depth.shells)  // the nearest point of a triangle to the eye may lie inside it
+        dmn = distanceToTriangle(depth.eye, glm::dvec3(mesh.vertices[tr.x]), glm::dvec3(mesh.vertices[tr.y]), glm::dvec3(mesh.vertices[tr.z]));
+      // A brick without slices needs no slabs: its polygons are only sorted back to front.
       long long k0 = sliced ? (long long)std::floor(dmn / delta) : 0, k1 = sliced ? (long long)std::floor(dmx / delta) : 0;
       if (cover.known && sliced && cut && std::floor(cover.nearest / delta) == std::floor(cover.farthest / delta))
         k0 = k1 = (long long)std::floor(cover.nearest / delta);  // every fragment it draws is in that slab
