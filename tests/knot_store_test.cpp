@@ -21,9 +21,6 @@ namespace {
 using ::testing::HasSubstr;
 
 // A sphere of bone-like values in noisy soft tissue, @p dims spanning several store blocks, held as @p type.
-// Soft tissue faint, the shell opaque: what the paged frames draw from noisyHead.
-TransferFunction headTf() { return TransferFunction({{60.0f, {1, 1, 1}, 0.0f}, {120.0f, {1.0f, 0.6f, 0.4f}, 0.05f}, {220.0f, {1.0f, 1.0f, 0.9f}, 0.4f}}, "head"); }
-
 Volume noisyHead(glm::ivec3 dims, ScalarType type) {
   std::mt19937 rng(7);
   std::uniform_int_distribution<int> noise(-20, 20);
@@ -46,6 +43,19 @@ Volume noisyHead(glm::ivec3 dims, ScalarType type) {
   for (size_t i = 0; i < n; ++i) f[i] = float(s[i]) * 0.37f;
   return Volume(dims, glm::dvec3(0.7, 0.8, 1.1), type, SampleArray(std::move(f)), "head");
 }
+
+// Soft tissue faint, the shell opaque: what the paged frames draw from noisyHead.
+TransferFunction headTf() { return TransferFunction({{60.0f, {1, 1, 1}, 0.0f}, {120.0f, {1.0f, 0.6f, 0.4f}, 0.05f}, {220.0f, {1.0f, 1.0f, 0.9f}, 0.4f}}, "head"); }
+
+// noisyHead (int16, spanning several store blocks) and its octree, saved as a scene file in a
+// temporary directory.
+struct SavedHead {
+  test::TempDir dir;
+  Volume v = noisyHead({70, 45, 37}, ScalarType::Int16);
+  VolumeOctree t = VolumeOctree::build(v);
+  std::string path = dir.file("h.hoct");
+  SavedHead() { saveScene(path, v, t); }
+};
 
 bool sameBits(const std::vector<glm::vec4>& a, const std::vector<glm::vec4>& b) {
   return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(glm::vec4)) == 0;
@@ -154,12 +164,10 @@ TEST(KnotStore, TheOctreesCountAgainstAPagedScenesMemory) {
 
 TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
   test::gl();
-  test::TempDir dir;
-  const Volume v = noisyHead({70, 45, 37}, ScalarType::Int16);
-  const VolumeOctree t = VolumeOctree::build(v);
-  saveScene(dir.file("h.hoct"), v, t);
+  const SavedHead head;
+  const auto& [dir, v, t, path] = head;
   const uint64_t tenth = v.voxelCount() * 2 / 10;
-  SceneRenderer paged(loadScene(dir.file("h.hoct"), SceneLoadOptions{false, 0})), memory(loadScene(dir.file("h.hoct")));
+  SceneRenderer paged(loadScene(path, SceneLoadOptions{false, 0})), memory(loadScene(path));
   KnotStore& store = *paged.scene().knots;
   store.setCacheLimit(tenth);
   Look look;
@@ -222,16 +230,14 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
 // so the cut reaches the exact one over a few frames, whether the samples are in memory or paged.
 TEST(KnotStore, MovingFramesPackABoundedShareOfNewTexturesAndReachTheExactFrame) {
   test::gl();
-  test::TempDir dir;
-  const Volume v = noisyHead({70, 45, 37}, ScalarType::Int16);
-  const VolumeOctree t = VolumeOctree::build(v);
-  saveScene(dir.file("h.hoct"), v, t);
+  const SavedHead head;
+  const auto& [dir, v, t, path] = head;
   Look look;
   look.tf = headTf();
   View view;
   view.camera = fitCamera(visiblePoints(v, t, look.tf), orbitDirection(30.0, 20), 30, false, 40, 40, 0.05);
   for (const bool paged : {false, true}) {
-    SceneRenderer r(loadScene(dir.file("h.hoct"), SceneLoadOptions{!paged, 0})), exact(loadScene(dir.file("h.hoct")));
+    SceneRenderer r(loadScene(path, SceneLoadOptions{!paged, 0})), exact(loadScene(path));
     const RenderedFrame want = exact.render(view, look, Quality{});
     ASSERT_GT(want.stats.slices.bricks, 20u);
     const uint64_t brickTexels = want.selection.texels / want.stats.slices.bricks;
@@ -262,13 +268,11 @@ TEST(KnotStore, MovingFramesPackABoundedShareOfNewTexturesAndReachTheExactFrame)
 
 TEST(KnotStore, AColdCacheDrawsCoarserBricksNeverAHoleWhileThePrefetchThreadLoadsTheRest) {
   test::gl();
-  test::TempDir dir;
-  const Volume v = noisyHead({70, 45, 37}, ScalarType::Int16);
-  const VolumeOctree t = VolumeOctree::build(v);
-  saveScene(dir.file("h.hoct"), v, t);
+  const SavedHead head;
+  const auto& [dir, v, t, path] = head;
   SceneRenderer::Options options;
   options.readAnywayBytes = 8192;  // the levels of spacing 8 and more are read uncached
-  SceneRenderer paged(loadScene(dir.file("h.hoct"), SceneLoadOptions{false, 0}), options), memory(loadScene(dir.file("h.hoct")));
+  SceneRenderer paged(loadScene(path, SceneLoadOptions{false, 0}), options), memory(loadScene(path));
   KnotStore& store = *paged.scene().knots;
   ASSERT_EQ(store.coarseSpacing(options.readAnywayBytes), 8);
   Look look;

@@ -27,6 +27,14 @@ using test::quadAt;
 // An 8x8 orthographic view straight down -z onto a 4 mm window around @p centre.
 Camera straightOn(const glm::dvec3& centre) { return test::orthoDown(centre, 4.0, 8); }
 
+// Live GL objects of every kind, by name (whatever the driver's naming policy).
+size_t liveGlObjects() {
+  size_t n = 0;
+  for (GLuint id = 1; id < 20000; ++id)
+    n += glIsTexture(id) + glIsBuffer(id) + glIsVertexArray(id) + glIsFramebuffer(id) + glIsRenderbuffer(id) + glIsQuery(id) + glIsProgram(id);
+  return n;
+}
+
 // A grid of n x n squares, two triangles each, over (u, v) in [0, 1]², placed by @p at.
 template <class At>
 TriangleMesh gridMesh(int n, At at) {
@@ -239,20 +247,13 @@ TEST(Slices, AFrameThatThrowsLeaksNothingAndTheNextOneRendersRight) {
   SlicesOptions o;
   o.cut = &cut;
   const Image before = renderSlices(v, t, sel, tf, cam, o);
-  // Live objects of every kind, by name (whatever the driver's naming policy).
-  auto live = [] {
-    size_t n = 0;
-    for (GLuint id = 1; id < 20000; ++id)
-      n += glIsTexture(id) + glIsBuffer(id) + glIsVertexArray(id) + glIsFramebuffer(id) + glIsRenderbuffer(id) + glIsQuery(id) + glIsProgram(id);
-    return n;
-  };
-  const size_t objects = live();
+  const size_t objects = liveGlObjects();
   const Progress stop([](const std::string&, double fraction) {
     if (fraction >= 0.5 && fraction < 1.0) throw std::runtime_error("stopped");
   });
   o.progress = &stop;
   EXPECT_THROW(renderSlices(v, t, sel, tf, cam, o), std::runtime_error);
-  EXPECT_EQ(live(), objects);
+  EXPECT_EQ(liveGlObjects(), objects);
   o.progress = nullptr;
   EXPECT_EQ(renderSlices(v, t, sel, tf, cam, o).pixels, before.pixels);
 }
@@ -276,10 +277,7 @@ struct ManyBricks {
 TEST(Slices, BricksArePackedABatchAheadOfTheirDraws) {
   gl();
   const ManyBricks m;
-  const Volume& v = m.v;
-  const VolumeOctree& t = m.t;
-  const TransferFunction& tf = m.tf;
-  const Selection& sel = m.sel;
+  const auto& [v, t, tf, sel] = m;
   const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64);
   const CutPlane cut{glm::dvec3(20, 18, 16), glm::dvec3(0.3, 1, 0)};
   for (const CutPlane* plane : {static_cast<const CutPlane*>(nullptr), &cut}) {
@@ -338,21 +336,12 @@ class FailingKnots final : public KnotSource {
 TEST(Slices, APackingThatFailsMidFrameStopsItCleanly) {
   gl();
   const ManyBricks m;
-  const Volume& v = m.v;
-  const VolumeOctree& t = m.t;
-  const TransferFunction& tf = m.tf;
-  const Selection& sel = m.sel;
+  const auto& [v, t, tf, sel] = m;
   const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 48, 48);
   SlicesOptions o;
   o.packBatch = 16;
   const Image before = renderSlices(v, t, sel, tf, cam, o);
-  auto live = [] {
-    size_t n = 0;
-    for (GLuint id = 1; id < 20000; ++id)
-      n += glIsTexture(id) + glIsBuffer(id) + glIsVertexArray(id) + glIsFramebuffer(id) + glIsRenderbuffer(id) + glIsQuery(id) + glIsProgram(id);
-    return n;
-  };
-  const size_t objects = live();
+  const size_t objects = liveGlObjects();
   const FailingKnots failing(v, t, 40);  // full-resolution bricks read once each: the third batch fails
   o.knots = &failing;
   double reached = 0.0;
@@ -360,7 +349,7 @@ TEST(Slices, APackingThatFailsMidFrameStopsItCleanly) {
   o.progress = &heard;
   EXPECT_THROW(renderSlices(v, t, sel, tf, cam, o), IoError);
   EXPECT_GT(reached, 0.0);  // some bricks were drawn before it failed
-  EXPECT_EQ(live(), objects);
+  EXPECT_EQ(liveGlObjects(), objects);
   o.knots = nullptr;
   o.progress = nullptr;
   EXPECT_EQ(renderSlices(v, t, sel, tf, cam, o).pixels, before.pixels);
