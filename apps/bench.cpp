@@ -143,7 +143,7 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   const std::string dir = fs::path(o.outDir).string();
   auto file = [&](const std::string& name) { return (fs::path(dir) / name).string(); };
 
-  if (job.look.iso) out << surfaceLine(job.renderer->prepare(job.look), *job.look.iso, false);
+  if (job.look.iso) out << surfaceLine(job.renderer->prepare(job.view, job.look, Quality{}), *job.look.iso, false);
   // The reference: the CPU hybrid ray tracer at full resolution.
   Quality reference = job.quality;
   reference.renderer = Renderer::Raycast;

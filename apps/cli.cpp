@@ -184,7 +184,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   const bool slices = job.quality.renderer == Renderer::Slices;
   const bool fromScene = job.renderer->scene().surface && job.look.iso && job.renderer->scene().surface->isovalue() == *job.look.iso;
   const int pixels = job.view.camera.width * job.view.camera.height;
-  const FrameStats surface = job.renderer->prepare(job.look);
+  const FrameStats surface = job.renderer->prepare(job.view, job.look, job.quality);
   if (job.look.iso) out << surfaceLine(surface, *job.look.iso, fromScene);
   // Progressive refinement: the images before the last (slices: coarser selections; the reference:
   // rays on sparser grids).
@@ -254,6 +254,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     j["slices"] = st.slices.slices;
     j["surface_polygons"] = st.surfacePolygons;
     j["surface_triangles"] = st.surfaceTriangles;
+    j["surface_spacing"] = st.surfaceSpacing;
     j["slab_polygon_draws"] = st.slices.slabPolygonDraws;
     j["unseen_triangles"] = st.slices.unseenTriangles;
     j["fragments"] = st.slices.fragments;

@@ -341,7 +341,7 @@ void RenderOptions::add(CLI::App* cmd) {
             "coarse levels (texels 4+ voxels apart) hold the data smoothed by their tent filter instead of point samples; a scene file "
             "keeps the choice it was built with (default on)");
   cmd->add_option("--step", quality.step, "slice / sample spacing in voxels (default 0.5 for slices, 0.25 for raycast)");
-  cmd->add_option("--lod-pixels", quality.lodPixels, "stop refining where texels are at most this many pixels apart on screen (0 = off)")
+  cmd->add_option("--lod-pixels", quality.lodPixels, "stop refining where texels are at most this many pixels apart on screen, and draw the surface with its vertices clustered by the largest cubes no wider (0 = off: full resolution)")
       ->capture_default_str();
   cmd->add_option("--max-brick", quality.maxBrickEdge, "brick edge in texels (power of two)")->capture_default_str();
   addChoice<TexelBits>(cmd, "--texel-bits", &quality.texelBits, {{"8", TexelBits::Eight}, {"16", TexelBits::Sixteen}},
@@ -429,7 +429,13 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
 std::string surfaceLine(const FrameStats& stats, float iso, bool fromScene) {
   if (stats.surfacePolygonsMs == 0 && !stats.surfaceBuilt) return "";
   std::ostringstream line;
-  line << std::fixed << std::setprecision(1) << "surface  iso " << iso << ": Surface Octree ";
+  line << std::fixed << std::setprecision(1) << "surface  iso " << iso << ": ";
+  if (stats.surfaceSpacing > 1) {
+    line << "clustered by cubes of " << stats.surfaceSpacing << " voxels (--lod-pixels), " << stats.surfaceTriangles << " triangles made in "
+         << stats.surfaceBuildMs << " ms\n";
+    return line.str();
+  }
+  line << "Surface Octree ";
   if (stats.surfaceBuilt)
     line << "built in " << stats.surfaceBuildMs << " ms";
   else

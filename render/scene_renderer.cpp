@@ -6,6 +6,7 @@
 #include <limits>
 #include <unordered_set>
 
+#include "hybrid_octree/coarse_surface.h"
 #include "hybrid_octree/surface_octree.h"
 #include "render/patient_view.h"
 #include "surface/mesh_ops.h"
@@ -148,6 +149,7 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   // viewer's builder thread may read them while the scene's frames draw.
   auto s = std::make_unique<PreparedSurface>();
   s->iso = iso;
+  s->exact = true;
   const bool fromScene = scene.surface && scene.surface->isovalue() == iso;
   auto t0 = Clock::now();
   if (!fromScene) {
@@ -169,6 +171,8 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
 }
 
 PreparedSurface& SceneRenderer::keep(std::unique_ptr<PreparedSurface> surface) {
+  for (auto& s : mSurfaces)  // the coarse surfaces already made stay
+    if (s->iso == surface->iso) surface->coarse.merge(s->coarse);
   std::erase_if(mSurfaces, [&](const auto& s) { return s->iso == surface->iso; });
   mSurfaces.push_front(std::move(surface));
   trimSurfaces();
@@ -188,18 +192,56 @@ void SceneRenderer::trimSurfaces() {
 
 void SceneRenderer::adoptSurface(std::unique_ptr<PreparedSurface> surface) { keep(std::move(surface)); }
 
-PreparedSurface& SceneRenderer::surfaceEntry(float iso, FrameStats* stats) {
+PreparedSurface& SceneRenderer::entry(float iso) {
   const auto it = std::find_if(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == iso; });
-  if (it == mSurfaces.end()) return keep(prepareSurface(mScene, iso, mOptions.progress, stats));
-  mSurfaces.splice(mSurfaces.begin(), mSurfaces, it);
-  return *mSurfaces.front();
+  if (it != mSurfaces.end()) {
+    mSurfaces.splice(mSurfaces.begin(), mSurfaces, it);
+    return *mSurfaces.front();
+  }
+  auto s = std::make_unique<PreparedSurface>();
+  s->iso = iso;
+  return keep(std::move(s));
+}
+
+PreparedSurface& SceneRenderer::surfaceEntry(float iso, FrameStats* stats) {
+  PreparedSurface& s = entry(iso);
+  return s.exact ? s : keep(prepareSurface(mScene, iso, mOptions.progress, stats));
+}
+
+const TriangleMesh& SceneRenderer::coarseSurface(float iso, int s, FrameStats* stats) {
+  PreparedSurface& e = entry(iso);
+  const auto it = e.coarse.find(s);
+  if (it != e.coarse.end()) return it->second;
+  const auto t0 = Clock::now();
+  const Volume& v = mScene.volume;
+  TriangleMesh mesh = v.hasSamples() ? clusteredSurface(VolumeKnots(v, mScene.octree), mScene.octree, s, iso, mOptions.progress)
+                                     : clusteredSurface(*mScene.knots, mScene.octree, s, iso, mOptions.progress);
+  if (stats) {
+    stats->surfaceBuilt = true;
+    stats->surfaceBuildMs = msSince(t0);
+  }
+  return e.coarse.emplace(s, std::move(mesh)).first->second;
 }
 
 const TriangleMesh& SceneRenderer::surface(float iso, SurfaceNormals normals) { return surfaceEntry(iso, nullptr).mesh(normals); }
 
-FrameStats SceneRenderer::prepare(const Look& look) {
+double SceneRenderer::nearestPixelMm(const Camera& gridCamera) const {
+  return gridCamera.pixelMmAt(glm::dvec3(0.0), glm::dvec3(volume().dims() - 1) * volume().spacing());
+}
+
+int SceneRenderer::surfaceSpacing(const Camera& gridCamera, const Quality& quality) const {
+  if (quality.renderer != Renderer::Slices || quality.lodPixels <= 0.0 || quality.simplifiedSurface) return 1;
+  return clusterSpacingFor(quality.lodPixels * nearestPixelMm(gridCamera), volume().spacing(), octree().leafEdge());
+}
+
+FrameStats SceneRenderer::prepare(const View& view, const Look& look, const Quality& quality) {
   FrameStats st;
   if (!look.iso) return st;
+  st.surfaceSpacing = surfaceSpacing(toGridCamera(view.camera, volume().frame()), quality);
+  if (st.surfaceSpacing > 1) {
+    st.surfaceTriangles = coarseSurface(*look.iso, st.surfaceSpacing, &st).triangles.size();
+    return st;
+  }
   const PreparedSurface& s = surfaceEntry(*look.iso, &st);
   st.surfacePolygons = s.polygons;
   st.surfaceTriangles = s.mesh(look.normals).triangles.size();
@@ -208,7 +250,7 @@ FrameStats SceneRenderer::prepare(const Look& look) {
 
 size_t SceneRenderer::surfacePolygons(float iso) const {
   for (const auto& s : mSurfaces)
-    if (s->iso == iso) return s->polygons;
+    if (s->iso == iso && s->exact) return s->polygons;
   return 0;
 }
 
@@ -219,7 +261,7 @@ std::vector<float> SceneRenderer::surfaceIsos() const {
 }
 
 bool SceneRenderer::hasSurface(float iso) const {
-  return std::any_of(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == iso; });
+  return std::any_of(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == iso && s->exact; });
 }
 
 ViewErrors& SceneRenderer::viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
@@ -314,17 +356,20 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   // The surface: kept from earlier frames, or built now.
   const TriangleMesh* mesh = nullptr;
   if (look.iso) {
-    const FrameStats prepared = prepare(look);
+    const FrameStats prepared = prepare(view, look, quality);
+    st.surfaceSpacing = prepared.surfaceSpacing;
     st.surfaceBuilt = prepared.surfaceBuilt;
     st.surfaceBuildMs = prepared.surfaceBuildMs;
     st.surfacePolygonsMs = prepared.surfacePolygonsMs;
     st.surfacePolygons = prepared.surfacePolygons;
     st.surfaceTriangles = prepared.surfaceTriangles;
-    if (quality.simplifiedSurface && quality.renderer == Renderer::Slices) {
+    if (st.surfaceSpacing > 1) {
+      mesh = &coarseSurface(*look.iso, st.surfaceSpacing, nullptr);
+    } else if (quality.simplifiedSurface && quality.renderer == Renderer::Slices) {
       PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
       simplify(mScene, &s, mOptions.progress);
       // The coarsest level whose error is within the pixels asked where the volume is nearest.
-      const double allowedMm = quality.surfaceErrorPixels * camera.pixelMmAt(glm::dvec3(0.0), glm::dvec3(v.dims() - 1) * v.spacing());
+      const double allowedMm = quality.surfaceErrorPixels * nearestPixelMm(camera);
       int k = 0;
       while (k + 1 < int(s.simplified.size()) && simplifiedErrorMm(v.spacing(), k + 1) <= allowedMm) ++k;
       mesh = &s.simplified[size_t(k)];

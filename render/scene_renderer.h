@@ -17,6 +17,7 @@
 #include <cstdint>
 #include <functional>
 #include <list>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
@@ -92,6 +93,11 @@ struct Quality {
   bool cutToSlabs = true;
   TexelBits texelBits = TexelBits::Eight;
   int maxBrickEdge = 16;
+  /// LaMar's screen-space stop (SelectionParams::lodPixels; 0 = off). A slice frame's surface
+  /// follows it too, unless simplifiedSurface: where the volume comes nearest the eye, the largest
+  /// cubes at most this many pixels wide (clusterSpacingFor, at most the octree's leaf edge)
+  /// cluster its vertices (clusteredSurface; the Surface Octree's surface when they are one voxel)
+  /// (FrameStats::surfaceSpacing).
   double lodPixels = 0.0;
   std::optional<glm::dvec3> focus;  ///< region of interest, patient mm
   /// Images of one frame, coarse to fine (Levoy's progressive refinement): slices render 1/8 of
@@ -124,6 +130,9 @@ struct FrameStats {
   SlicesStats slices;
   RaycastStats rays;
   size_t surfacePolygons = 0, surfaceTriangles = 0;
+  /// The cubes (voxels a side) the surface drawn was clustered by: 1 for the Surface Octree's
+  /// surface, s ≥ 2 for clusteredSurface's (Quality::lodPixels).
+  int surfaceSpacing = 1;
   bool surfaceBuilt = false;  ///< the surface was built for this frame (not from the scene or an earlier frame)
   double surfaceBuildMs = 0, surfacePolygonsMs = 0;  ///< this frame's work on the surface (0 when kept)
   double selectMs = 0, renderMs = 0;
@@ -154,10 +163,11 @@ inline constexpr int kSimplifiedBlockVoxels = 32;
 inline constexpr int kSimplifiedLevels = 4;
 
 /// An isosurface ready to draw: its Surface Octree, its polygons triangulated, with both kinds of
-/// normals, and its simplified levels. Made by SceneRenderer::prepareSurface (on any thread), kept by
-/// a renderer.
+/// normals, and its simplified levels (made by SceneRenderer::prepareSurface, on any thread), and
+/// the coarse surfaces frames whose pixels are wider than a voxel drew. Kept by a renderer.
 struct PreparedSurface {
   float iso = 0.0f;
+  bool exact = false;                  ///< built, polygons, facet and smooth are made
   std::optional<SurfaceOctree> built;  ///< none when the scene's own surface has this isovalue
   size_t polygons = 0;
   TriangleMesh facet, smooth;          ///< grid frame, mm
@@ -166,6 +176,8 @@ struct PreparedSurface {
   /// first asks for them (SceneRenderer::simplify), unless prepareSurface was asked to.
   std::vector<TriangleMesh> simplified;
   std::unique_ptr<Bvh> bvh[2];         ///< facet, smooth; made by the first reference frame
+  /// clusteredSurface of each cube edge s ≥ 2 a frame drew (grid frame, mm, smooth): made by that frame.
+  std::map<int, TriangleMesh> coarse;
   const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? smooth : facet; }
 };
 
@@ -198,16 +210,17 @@ class SceneRenderer {
   /// @throw ValueError for impossible parameters; RuntimeError when OpenGL fails.
   RenderedFrame render(const View& view, const Look& look, const Quality& quality, const LevelCallback& onLevel = {});
 
-  /// Builds what @p look needs before its first frame (its isosurface, with the normals it asks
-  /// for) and reports that work; render() does it too when it was not done.
-  FrameStats prepare(const Look& look);
+  /// Builds the isosurface a frame of @p view, @p look and @p quality draws (the Surface Octree's,
+  /// with the normals @p look asks for, or the coarse one its level of detail allows) and reports
+  /// that work and the surface; render() does it too when it was not done.
+  FrameStats prepare(const View& view, const Look& look, const Quality& quality);
 
   /// The isosurface of @p iso in the grid frame, built (or taken from the scene) on first use and
   /// kept: its triangles with the @p normals asked for.
   const TriangleMesh& surface(float iso, SurfaceNormals normals);
   /// The polygons of the surface of @p iso (0 before it is built).
   size_t surfacePolygons(float iso) const;
-  /// Whether the surface of @p iso is ready: a frame showing it builds nothing.
+  /// Whether the surface of @p iso is ready: a frame showing it at full resolution builds nothing.
   bool hasSurface(float iso) const;
   /// The isovalues of the surfaces kept, most recently used first.
   std::vector<float> surfaceIsos() const;
@@ -234,7 +247,17 @@ class SceneRenderer {
 
  private:
   struct Errors;
+  /// The kept entry of @p iso (made empty when there is none), most recently used now.
+  PreparedSurface& entry(float iso);
+  /// entry(iso) with its full-resolution surface made.
   PreparedSurface& surfaceEntry(float iso, FrameStats* stats);
+  /// The surface of @p iso clustered by cubes of @p s ≥ 2 voxels, made when not kept.
+  const TriangleMesh& coarseSurface(float iso, int s, FrameStats* stats);
+  /// The cubes (voxels a side) the surface of a frame of @p gridCamera and @p quality is clustered
+  /// by (Quality::lodPixels): 1 for the Surface Octree's surface.
+  int surfaceSpacing(const Camera& gridCamera, const Quality& quality) const;
+  /// The size (mm) of a pixel of @p gridCamera where the volume comes nearest the eye.
+  double nearestPixelMm(const Camera& gridCamera) const;
   PreparedSurface& keep(std::unique_ptr<PreparedSurface> surface);
   void trimSurfaces();
   ViewErrors& viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <random>
 
+#include "hybrid_octree/coarse_surface.h"
 #include "hybrid_octree/hybrid_io.h"
 #include "render/brick_textures.h"
 #include "render/patient_view.h"
@@ -217,6 +218,19 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
   look.iso = 150.0f;
   look.surfaceColor = glm::vec4(0.9f, 0.9f, 0.8f, 0.5f);
   compare({Quality{}});
+  EXPECT_FALSE(paged.volume().hasSamples());
+  // So is the surface clustered for a frame's level of detail (by cubes of 2 or 4 voxels here).
+  Quality lod;
+  lod.lodPixels = 3.0;
+  compare({lod});
+  EXPECT_GT(paged.render(View{fitCamera(visible, orbitDirection(0, 20), 30, false, 40, 40, 0.05)}, look, lod).stats.surfaceSpacing, 1);
+  for (const int s : {2, 4}) {
+    const TriangleMesh a = clusteredSurface(store, t, s, 150.0f), b = clusteredSurface(VolumeKnots(v, t), t, s, 150.0f);
+    ASSERT_GT(a.triangles.size(), 100u);
+    EXPECT_EQ(a.triangles, b.triangles);
+    EXPECT_EQ(a.vertices, b.vertices);
+    EXPECT_EQ(a.normals, b.normals);
+  }
   EXPECT_FALSE(paged.volume().hasSamples());
   const StoreCacheStats stats = store.cacheStats();
   EXPECT_GT(stats.hits, 0u);

@@ -8,6 +8,7 @@
 #include <thread>
 #include <tuple>
 
+#include "hybrid_octree/coarse_surface.h"
 #include "hybrid_octree/hybrid_io.h"
 #include "render/patient_view.h"
 #include "render/scene_pool.h"
@@ -249,6 +250,69 @@ TEST(SceneRenderer, SmallFramesDrawCoarserLevelsOfTheSimplifiedSurface) {
     view.camera.width = view.camera.height = pixels;
     EXPECT_EQ(r.render(view, look, q).stats.slices.surfaceTriangles, counts[size_t(level)]) << pixels << " pixels, perspective";
   }
+}
+
+// A frame asking for a screen-space level of detail draws the surface clustered by the largest
+// cubes its pixels allow where the volume is nearest (orthographic: a pixel is the view's height
+// over its rows), never builds the full-resolution one, and keeps each clustered surface for the
+// next frame; at one voxel, or without the level of detail, it draws the Surface Octree's.
+TEST(SceneRenderer, FramesWithALevelOfDetailDrawTheSurfaceClusteredByTheirPixels) {
+  test::gl();
+  Scene scene;
+  scene.volume = test::sphereVolume({97, 97, 97}, 40.0);
+  scene.octree = VolumeOctree::build(scene.volume);  // leaves of 8 voxels: cubes of 8 at most
+  SceneRenderer r(std::move(scene));
+  Look look;
+  look.tf = warm();
+  look.iso = 0.0f;
+  look.surfaceColor = glm::vec4(0.9f, 0.9f, 0.9f, 0.5f);
+  View view;
+  view.camera.eye = glm::dvec3(48.0, -200.0, 48.0);
+  view.camera.center = glm::dvec3(48.0);
+  view.camera.up = glm::dvec3(0, 0, 1);
+  view.camera.ortho = true;
+  view.camera.orthoHeight = 120.0;
+  Quality q;
+  q.lodPixels = 1.0;
+  // Pixels of 24, 8, 3, 1.5 and 1 voxels: cubes of 8 (the leaf edge), 8, 2, 1 and 1; no
+  // full-resolution surface made before a frame needs it.
+  for (const auto& [pixels, cubes] : {std::pair{5, 8}, {15, 8}, {40, 2}, {80, 1}, {120, 1}}) {
+    view.camera.width = view.camera.height = pixels;
+    EXPECT_EQ(r.hasSurface(0.0f), pixels > 80) << pixels << " pixels";
+    const FrameStats st = r.render(view, look, q).stats;
+    EXPECT_EQ(st.surfaceSpacing, cubes) << pixels << " pixels";
+    const size_t triangles = cubes > 1 ? clusteredSurface(VolumeKnots(r.volume(), r.octree()), r.octree(), cubes, 0.0f).triangles.size()
+                                       : r.surface(0.0f, SurfaceNormals::Gradient).triangles.size();
+    EXPECT_EQ(st.surfaceTriangles, triangles) << pixels << " pixels";
+  }
+  // Kept: the next frame of the same cubes builds nothing.
+  view.camera.width = view.camera.height = 40;
+  EXPECT_FALSE(r.render(view, look, q).stats.surfaceBuilt);
+  // Close to the full-resolution surface's frame at the same selection, translucent, in perspective.
+  view.camera.ortho = false;
+  view.camera.fovDeg = 30.0;
+  view.camera.width = view.camera.height = 64;
+  Quality coarse = q;
+  coarse.lodPixels = 1.5;  // 1.68 mm pixels where the volume is nearest (200 mm away): cubes of 2
+  Quality exact = coarse;
+  exact.lodPixels = 0.0;
+  exact.epsilon = 1e9f;  // the same bricks as the coarse frame's: the coarsest (the sphere's field is smooth)
+  coarse.epsilon = 1e9f;
+  const RenderedFrame c = r.render(view, look, coarse), e = r.render(view, look, exact);
+  EXPECT_EQ(c.stats.surfaceSpacing, 2);
+  EXPECT_EQ(e.stats.surfaceSpacing, 1);
+  EXPECT_EQ(c.selection.texels, e.selection.texels);
+  EXPECT_LT(2 * c.stats.surfaceTriangles, e.stats.surfaceTriangles);
+  // 33.3 dB: silhouettes and shading moved by less than a pixel (the frames are 25.4 and 24.8 dB
+  // from the reference, whose volume is finer than these coarsest bricks).
+  EXPECT_GE(test::psnrOf(e.image, c.image), 32.0);
+  // The viewer's moving frames keep their simplified levels; the reference its exact surface.
+  Quality moving = q;
+  moving.simplifiedSurface = true;
+  EXPECT_EQ(r.render(view, look, moving).stats.surfaceSpacing, 1);
+  Quality reference = coarse;
+  reference.renderer = Renderer::Raycast;
+  EXPECT_EQ(r.render(view, look, reference).stats.surfaceSpacing, 1);
 }
 
 // A frame rendered band by band (a viewer's large final frame, between whose bands other clients'

@@ -1,0 +1,211 @@
+#include "hybrid_octree/coarse_surface.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <numeric>
+
+#include "surface/dmc_table.h"
+#include "surface/flat_map.h"
+#include "volume/error.h"
+#include "volume/parallel.h"
+
+namespace hyb {
+
+namespace {
+
+// Whether the samples of the voxel box [lo, hi] (inclusive) may straddle @p iso: some node over
+// the box (the nodes inside it, the leaves across its faces, by their closed boxes) holds a value
+// below it and one at or above it.
+void rangeIn(const VolumeOctree& t, uint32_t i, const glm::ivec3& lo, const glm::ivec3& hi, float* mn, float* mx) {
+  const OctreeNode& n = t.nodes()[i];
+  glm::ivec3 nlo, nhi;
+  t.voxelBox(n, &nlo, &nhi);
+  if (glm::any(glm::greaterThan(nlo, hi)) || glm::any(glm::lessThan(nhi, lo))) return;
+  if (n.isLeaf() || (glm::all(glm::greaterThanEqual(nlo, lo)) && glm::all(glm::lessThanEqual(nhi, hi)))) {
+    *mn = std::min(*mn, n.minValue);
+    *mx = std::max(*mx, n.maxValue);
+    return;
+  }
+  uint32_t child = n.firstChild;
+  for (int slot = 0; slot < 8; ++slot)
+    if (n.childMask >> slot & 1) rangeIn(t, child++, lo, hi, mn, mx);
+}
+
+// What the vertices clustered into one cube add up to: area-weighted positions and normals.
+struct Cluster {
+  glm::dvec3 position{0.0};
+  double weight = 0.0;
+  glm::vec3 normal{0.0f};  // the gradient's, area-weighted, summed with one orientation (shading is two-sided)
+  void add(const glm::dvec3& p, double w, const glm::vec3& n) {
+    position += w * p;
+    weight += w;
+    normal += glm::dot(normal, n) < 0.0f ? -n : n;
+  }
+  void add(const Cluster& c) { add(c.position / c.weight, c.weight, c.normal); }
+};
+
+// One block's share: the clusters its vertices fall in (with their cubes' keys) and its triangles
+// over them, each once per orientation.
+struct BlockClusters {
+  std::vector<uint64_t> keys;
+  std::vector<Cluster> clusters;
+  std::vector<glm::uvec3> triangles;
+};
+
+// @p t rotated to start at its smallest index: one form per orientation.
+glm::uvec3 canonical(const glm::uvec3& t) {
+  if (t.y < t.x && t.y < t.z) return {t.y, t.z, t.x};
+  if (t.z < t.x && t.z < t.y) return {t.z, t.x, t.y};
+  return t;
+}
+bool lexLess(const glm::uvec3& a, const glm::uvec3& b) { return a.x != b.x ? a.x < b.x : a.y != b.y ? a.y < b.y : a.z < b.z; }
+
+// Sorts and removes repeated triangles.
+void unique(std::vector<glm::uvec3>* triangles) {
+  std::sort(triangles->begin(), triangles->end(), lexLess);
+  triangles->erase(std::unique(triangles->begin(), triangles->end()), triangles->end());
+}
+
+}  // namespace
+
+int clusterSpacingFor(double pixelMm, const glm::dvec3& spacing, int maxSpacing) {
+  const double voxelMm = std::min({spacing.x, spacing.y, spacing.z});
+  int s = 1;
+  while (2 * s <= maxSpacing && double(2 * s) * voxelMm <= pixelMm) s *= 2;
+  return s;
+}
+
+TriangleMesh clusteredSurface(const KnotSource& knots, const VolumeOctree& octree, int s, float iso, const Progress* progress, int blockCells) {
+  HYB_CHECK(s >= 1 && blockCells >= 1 && knots.dims() == octree.dims());
+  const glm::ivec3 dims = knots.dims();
+  const glm::dvec3 spacing = knots.spacing();
+  const glm::ivec3 cells = glm::max(dims - 1, glm::ivec3(0));
+  const glm::ivec3 blocks = (cells + blockCells - 1) / blockCells;
+  const glm::ivec3 cubes = (dims + s - 1) / s;  // cluster cubes per axis
+  std::vector<glm::ivec3> todo;
+  for (int bz = 0; bz < blocks.z; ++bz)
+    for (int by = 0; by < blocks.y; ++by)
+      for (int bx = 0; bx < blocks.x; ++bx) {
+        const glm::ivec3 lo = glm::ivec3(bx, by, bz) * blockCells, hi = glm::min(lo + blockCells, cells);
+        float mn = octree.root().maxValue, mx = octree.root().minValue;
+        rangeIn(octree, 0, lo, hi, &mn, &mx);
+        if (mn < iso && iso <= mx) todo.push_back(glm::ivec3(bx, by, bz));
+      }
+
+  // The blocks a batch at a time, each on its own (all cores): its samples, its Marching Cubes
+  // triangles, their corners clustered; then the batch's clusters merged in block order (the same
+  // sums whatever the threads) and its triangles kept once each. A batch's parts are all that is
+  // held beside the result.
+  const auto& table = dmc::caseTable();
+  // Each corner weighs the area around it, and a little more: a cluster of degenerate triangles
+  // (corners on samples equal to the isovalue) still has a mean.
+  const double minWeight = 1e-9 * std::min({spacing.x, spacing.y, spacing.z}) * std::min({spacing.x, spacing.y, spacing.z});
+  constexpr size_t kBatch = 256;
+  std::vector<BlockClusters> parts;
+  ProgressTask task(progress, "coarse surface", todo.size());
+  ParallelFailure failure;
+  FlatMap global(1024);
+  std::vector<uint64_t> keys;
+  std::vector<Cluster> clusters;
+  std::vector<glm::uvec3> triangles;
+  std::vector<uint32_t> to;
+  for (size_t first = 0; first < todo.size(); first += kBatch) {
+    parts.assign(std::min(kBatch, todo.size() - first), BlockClusters{});
+#pragma omp parallel for schedule(dynamic)
+    for (size_t bi = 0; bi < parts.size(); ++bi)
+      failure.run([&] {
+        // The block's samples, with the neighbour either side a gradient needs where the grid has one.
+        const glm::ivec3 lo = todo[first + bi] * blockCells, n = glm::min(lo + blockCells, cells) - lo + 1;  // cell corners a side
+        const glm::ivec3 rlo = glm::max(lo - 1, glm::ivec3(0)), rn = glm::min(lo + n, dims - 1) - rlo + 1;
+        std::vector<float> values(size_t(rn.x) * size_t(rn.y) * size_t(rn.z));
+        knots.read(1, rlo, rn, values.data(), nullptr);
+        auto sample = [&](int x, int y, int z) { return values[size_t(x - rlo.x) + size_t(rn.x) * (size_t(y - rlo.y) + size_t(rn.y) * size_t(z - rlo.z))]; };
+        auto at = [&](const glm::ivec3& p) { return sample(lo.x + p.x, lo.y + p.y, lo.z + p.z); };
+        // The outward normal there, as Volume::sampleGradient's along the edge (zero where it vanishes).
+        auto normalAt = [&](const glm::ivec3& a, const glm::ivec3& d, float t) {
+          const glm::vec3 g = glm::mix(centralDifferences(lo + a, dims, spacing, sample), centralDifferences(lo + a + d, dims, spacing, sample), t);
+          const float len = glm::length(g);
+          return len > 0.0f && std::isfinite(len) ? -g / len : glm::vec3(0.0f);
+        };
+        BlockClusters& b = parts[bi];
+        FlatMap local(256);
+        auto cluster = [&](const glm::dvec3& voxel) {
+          const glm::ivec3 c = glm::min(glm::ivec3(glm::floor(voxel / double(s))), cubes - 1);
+          const uint64_t key = uint64_t(c.x) + uint64_t(cubes.x) * (uint64_t(c.y) + uint64_t(cubes.y) * uint64_t(c.z));
+          return local.findOrInsert(key, [&] {
+            b.keys.push_back(key);
+            b.clusters.emplace_back();
+            return uint32_t(b.clusters.size() - 1);
+          });
+        };
+        std::array<glm::dvec3, 12> corner;
+        std::array<glm::vec3, 12> normal;
+        for (int k = 0; k + 1 < n.z; ++k)
+          for (int j = 0; j + 1 < n.y; ++j)
+            for (int i = 0; i + 1 < n.x; ++i) {
+              const glm::ivec3 base(i, j, k);
+              unsigned mask = 0;
+              for (int c = 0; c < 8; ++c)
+                if (at(base + dmc::cornerPosition(c) / 2) >= iso) mask |= 1u << c;
+              if (mask == 0 || mask == 255) continue;
+              for (const auto& loop : table[mask].loops) {
+                for (size_t v = 0; v < loop.size(); ++v) {
+                  const auto [ca, cb] = dmc::edgeCorners(loop[v]);
+                  const glm::ivec3 a = base + dmc::cornerPosition(ca) / 2, d = dmc::cornerPosition(cb) / 2 - dmc::cornerPosition(ca) / 2;
+                  const float va = at(a), vb = at(a + d);
+                  const double t = double((iso - va) / (vb - va));  // the corners classify differently, so va != vb
+                  corner[v] = glm::dvec3(lo + a) + t * glm::dvec3(d);
+                  normal[v] = normalAt(a, d, float(t));
+                }
+                for (size_t v = 1; v + 1 < loop.size(); ++v) {
+                  const glm::dvec3 p[3] = {corner[0] * spacing, corner[v] * spacing, corner[v + 1] * spacing};
+                  const glm::dvec3 area2 = glm::cross(p[1] - p[0], p[2] - p[0]);  // twice the area, along the normal
+                  const glm::uvec3 ids(cluster(corner[0]), cluster(corner[v]), cluster(corner[v + 1]));
+                  const double w = glm::length(area2) + minWeight;
+                  const size_t at3[3] = {0, v, v + 1};
+                  for (int q = 0; q < 3; ++q) b.clusters[ids[q]].add(p[q], w, float(w) * normal[at3[q]]);
+                  if (ids.x != ids.y && ids.y != ids.z && ids.x != ids.z) b.triangles.push_back(canonical(ids));
+                }
+              }
+            }
+        unique(&b.triangles);
+        task.advance();
+      });
+    failure.rethrow();
+    for (BlockClusters& b : parts) {
+      to.resize(b.clusters.size());
+      for (size_t c = 0; c < b.clusters.size(); ++c) {
+        to[c] = global.findOrInsert(b.keys[c], [&] {
+          keys.push_back(b.keys[c]);
+          clusters.emplace_back();
+          return uint32_t(clusters.size() - 1);
+        });
+        clusters[to[c]].add(b.clusters[c]);
+      }
+      for (const glm::uvec3& t : b.triangles) triangles.push_back({to[t.x], to[t.y], to[t.z]});
+      b = BlockClusters{};
+    }
+  }
+  global = FlatMap(0);
+
+  // Vertices numbered by their cubes, triangles once each.
+  std::vector<uint32_t> order(clusters.size()), rank(clusters.size());
+  std::iota(order.begin(), order.end(), 0u);
+  std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return keys[a] < keys[b]; });
+  TriangleMesh mesh;
+  mesh.vertices.reserve(clusters.size());
+  mesh.normals.reserve(clusters.size());
+  for (uint32_t r = 0; r < order.size(); ++r) {
+    const Cluster& c = clusters[order[r]];
+    rank[order[r]] = r;
+    mesh.vertices.push_back(glm::vec3(c.position / c.weight));
+    mesh.normals.push_back(glm::length(c.normal) > 0.0f ? glm::normalize(c.normal) : glm::vec3(0, 0, 1));
+  }
+  for (glm::uvec3& t : triangles) t = canonical({rank[t.x], rank[t.y], rank[t.z]});
+  unique(&triangles);
+  mesh.triangles = std::move(triangles);
+  return mesh;
+}
+
+}  // namespace hyb

@@ -1,0 +1,130 @@
+// The surface at a frame's level of detail: the full-resolution surface's vertices clustered by
+// cubes of s voxels, out of core, with no holes where the full surface has none.
+#include "hybrid_octree/coarse_surface.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "test_util.h"
+
+namespace hyb {
+namespace {
+
+// Whether the ray from @p o along @p d crosses a triangle of @p m (Möller–Trumbore, both sides).
+bool hits(const TriangleMesh& m, const glm::dvec3& o, const glm::dvec3& d) {
+  for (const glm::uvec3& t : m.triangles) {
+    const glm::dvec3 a(m.vertices[t.x]), b(m.vertices[t.y]), c(m.vertices[t.z]);
+    const glm::dvec3 e1 = b - a, e2 = c - a, p = glm::cross(d, e2);
+    const double det = glm::dot(e1, p);
+    if (std::abs(det) < 1e-15) continue;
+    const glm::dvec3 s = o - a;
+    const double u = glm::dot(s, p) / det;
+    if (u < 0.0 || u > 1.0) continue;
+    const glm::dvec3 q = glm::cross(s, e1);
+    const double v = glm::dot(d, q) / det;
+    if (v < 0.0 || u + v > 1.0) continue;
+    if (glm::dot(e2, q) / det > 0.0) return true;
+  }
+  return false;
+}
+
+TEST(CoarseSurface, ASphereStaysClosedOnItsCubesAtEverySpacing) {
+  const glm::ivec3 dims(90, 90, 90);
+  const double radius = 30.0;
+  const glm::dvec3 spacing(0.8, 0.8, 1.2);
+  const glm::dvec3 c = glm::dvec3(dims - 1) * 0.5;
+  const Volume v = test::makeVolume(dims, [&](int i, int j, int k) { return radius - glm::length(glm::dvec3(i, j, k) - c); }, spacing);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const VolumeKnots knots(v, t);
+  size_t previous = 0;
+  for (const int s : {2, 4, 8}) {
+    SCOPED_TRACE("cubes of " + std::to_string(s) + " voxels");
+    const TriangleMesh m = clusteredSurface(knots, t, s, 0.0f);
+    ASSERT_EQ(m.normals.size(), m.vertices.size());
+    // On the sphere (in voxels) within the sagitta of a cube's diagonal; normals along the radius.
+    const double tolerance = 0.1 + 3.0 * s * s / (8.0 * radius);
+    for (size_t i = 0; i < m.vertices.size(); ++i) {
+      const glm::dvec3 r = glm::dvec3(m.vertices[i]) / spacing - c;
+      ASSERT_NEAR(glm::length(r), radius, tolerance);
+      const glm::dvec3 radial = glm::normalize(r / spacing);  // the sphere's normal in mm
+      ASSERT_GT(std::abs(glm::dot(glm::dvec3(m.normals[i]), radial)), 0.98);
+    }
+    // No hole: rays from the centre in 2,000 directions (a Fibonacci sphere) all cross it.
+    int missed = 0;
+    for (int q = 0; q < 2000; ++q) {
+      const double z = 1.0 - (q + 0.5) / 1000.0, r = std::sqrt(1.0 - z * z), phi = q * 2.399963229728653;
+      missed += !hits(m, c * spacing, glm::dvec3(r * std::cos(phi), r * std::sin(phi), z));
+    }
+    EXPECT_EQ(missed, 0);
+    // About a quarter of the triangles at each doubling.
+    if (previous > 0) {
+      EXPECT_GT(double(m.triangles.size()), 0.15 * double(previous));
+      EXPECT_LT(double(m.triangles.size()), 0.35 * double(previous));
+    }
+    previous = m.triangles.size();
+  }
+}
+
+TEST(CoarseSurface, ASheetThinnerThanACubeKeepsNoHole) {
+  // One voxel thick, off every cube's faces: Marching Cubes of the knots 4 or 8 voxels apart would
+  // not see it at all.
+  const glm::ivec3 dims(41, 66, 66);
+  const Volume v = test::makeVolume(dims, [&](int i, int j, int k) { return i == 21 && j >= 5 && j <= 60 && k >= 5 && k <= 60 ? 100.0 : 0.0; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const VolumeKnots knots(v, t);
+  for (const int s : {4, 8}) {
+    SCOPED_TRACE("cubes of " + std::to_string(s) + " voxels");
+    const TriangleMesh m = clusteredSurface(knots, t, s, 50.0f);
+    int missed = 0;
+    for (int z = 8; z <= 56; z += 3)
+      for (int y = 8; y <= 56; y += 3) missed += !hits(m, glm::dvec3(0.0, y + 0.61, z + 0.37), glm::dvec3(1, 0, 0));
+    EXPECT_EQ(missed, 0);
+    // Both faces collapse onto the sheet, their normals adding up along it away from its rim.
+    for (size_t i = 0; i < m.vertices.size(); ++i) {
+      ASSERT_NEAR(m.vertices[i].x, 21.0, 0.5 + 1e-4);
+      const glm::vec3 p = m.vertices[i];
+      if (p.y > 8 && p.y < 57 && p.z > 8 && p.z < 57) {
+        ASSERT_GT(std::abs(m.normals[i].x), 0.99f);
+      }
+    }
+  }
+}
+
+TEST(CoarseSurface, BlocksThreadsAndSkippedBlocksChangeNothing) {
+  const glm::dvec3 spacing(0.7, 0.8, 1.1);
+  const glm::ivec3 dims(61, 47, 39);
+  const glm::dvec3 c = glm::dvec3(dims - 1) * glm::dvec3(0.4, 0.5, 0.5);
+  const Volume v = test::makeVolume(dims, [&](int i, int j, int k) { return 14.0 - glm::length((glm::dvec3(i, j, k) - c) * spacing) + (i == 55 ? 20.0 : 0.0); },
+                                    spacing);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const VolumeKnots knots(v, t);
+  // An octree of the same grid whose ranges skip nothing: the same surface from every block.
+  const Volume checker = test::makeVolume(dims, [](int i, int j, int k) { return (i + j + k) % 2 ? 1e6 : -1e6; }, spacing);
+  const VolumeOctree all = VolumeOctree::build(checker);
+  for (const int s : {2, 4}) {
+    SCOPED_TRACE("cubes of " + std::to_string(s) + " voxels");
+    const TriangleMesh m = clusteredSurface(knots, t, s, 0.0f);
+    ASSERT_GT(m.triangles.size(), 200u);
+    for (const auto& [octree, block] : {std::pair{&t, 5}, std::pair{&all, kClusterBlockCells}, std::pair{&all, 3}}) {
+      const TriangleMesh o = clusteredSurface(knots, *octree, s, 0.0f, nullptr, block);
+      EXPECT_EQ(o.triangles, m.triangles);
+      ASSERT_EQ(o.vertices.size(), m.vertices.size());
+      for (size_t i = 0; i < m.vertices.size(); ++i) ASSERT_LT(glm::length(o.vertices[i] - m.vertices[i]), 1e-4f);
+    }
+  }
+}
+
+TEST(CoarseSurface, SpacingIsTheCoarsestWhoseCubesFitThePixels) {
+  const glm::dvec3 spacing(0.5, 0.4, 2.0);  // the shortest axis decides, as for bricks
+  EXPECT_EQ(clusterSpacingFor(0.0, spacing, 16), 1);
+  EXPECT_EQ(clusterSpacingFor(0.79, spacing, 16), 1);
+  EXPECT_EQ(clusterSpacingFor(0.8, spacing, 16), 2);
+  EXPECT_EQ(clusterSpacingFor(3.2, spacing, 16), 8);
+  EXPECT_EQ(clusterSpacingFor(3.19, spacing, 16), 4);
+  EXPECT_EQ(clusterSpacingFor(1000.0, spacing, 16), 16);
+  EXPECT_EQ(clusterSpacingFor(1000.0, spacing, 1), 1);
+}
+
+}  // namespace
+}  // namespace hyb
