@@ -67,6 +67,88 @@ void unique(std::vector<glm::uvec3>* triangles) {
   triangles->erase(std::unique(triangles->begin(), triangles->end()), triangles->end());
 }
 
+// What clusteredSurface asks of each block.
+struct ClusterJob {
+  const KnotSource& knots;
+  const VolumeOctree& octree;
+  int s;
+  float iso;
+  glm::ivec3 cubes;  // cluster cubes per axis
+  double minWeight;  // what a corner weighs beyond its area: a cluster of degenerate triangles still has a mean
+};
+
+// The Marching Cubes triangles of the cells [lo, lo + n − 1) (their corners' samples read with the
+// neighbour either side a gradient needs), a leaf's box at a time, the boxes the isovalue cannot
+// cross skipped; their corners clustered into @p out, their triangles of three clusters kept once.
+void clusterBlock(const ClusterJob& job, const glm::ivec3& lo, const glm::ivec3& n, BlockClusters* out) {
+  const glm::ivec3 dims = job.knots.dims();
+  const glm::dvec3 spacing = job.knots.spacing();
+  const glm::ivec3 rlo = glm::max(lo - 1, glm::ivec3(0)), rn = glm::min(lo + n, dims - 1) - rlo + 1;
+  std::vector<float> values(size_t(rn.x) * size_t(rn.y) * size_t(rn.z));
+  job.knots.read(1, rlo, rn, values.data(), nullptr);
+  auto sample = [&](int x, int y, int z) { return values[size_t(x - rlo.x) + size_t(rn.x) * (size_t(y - rlo.y) + size_t(rn.y) * size_t(z - rlo.z))]; };
+  auto at = [&](const glm::ivec3& p) { return sample(lo.x + p.x, lo.y + p.y, lo.z + p.z); };
+  // The outward normal on the edge from a to a + d, as Volume::sampleGradient's (zero where it vanishes).
+  auto normalAt = [&](const glm::ivec3& a, const glm::ivec3& d, float t) {
+    const glm::vec3 g = glm::mix(centralDifferences(lo + a, dims, spacing, sample), centralDifferences(lo + a + d, dims, spacing, sample), t);
+    const float len = glm::length(g);
+    return len > 0.0f && std::isfinite(len) ? -g / len : glm::vec3(0.0f);
+  };
+  FlatMap local(256);
+  auto cluster = [&](const glm::dvec3& voxel) {
+    const glm::ivec3 c = glm::min(glm::ivec3(glm::floor(voxel / double(job.s))), job.cubes - 1);
+    const uint64_t key = uint64_t(c.x) + uint64_t(job.cubes.x) * (uint64_t(c.y) + uint64_t(job.cubes.y) * uint64_t(c.z));
+    return local.findOrInsert(key, [&] {
+      out->keys.push_back(key);
+      out->clusters.emplace_back();
+      return uint32_t(out->clusters.size() - 1);
+    });
+  };
+  const auto& table = dmc::caseTable();
+  std::array<glm::dvec3, 12> corner;
+  std::array<glm::vec3, 12> normal;
+  auto triangulate = [&](const glm::ivec3& base) {
+    unsigned mask = 0;
+    for (int c = 0; c < 8; ++c)
+      if (at(base + dmc::cornerPosition(c) / 2) >= job.iso) mask |= 1u << c;
+    for (const auto& loop : table[mask].loops) {
+      for (size_t v = 0; v < loop.size(); ++v) {
+        const auto [ca, cb] = dmc::edgeCorners(loop[v]);
+        const glm::ivec3 a = base + dmc::cornerPosition(ca) / 2, d = dmc::cornerPosition(cb) / 2 - dmc::cornerPosition(ca) / 2;
+        const float va = at(a), vb = at(a + d);
+        const float t = (job.iso - va) / (vb - va);  // the corners classify differently, so va != vb
+        corner[v] = glm::dvec3(lo + a) + double(t) * glm::dvec3(d);
+        normal[v] = normalAt(a, d, t);
+      }
+      for (size_t v = 1; v + 1 < loop.size(); ++v) {
+        const size_t c3[3] = {0, v, v + 1};
+        glm::dvec3 p[3];
+        glm::uvec3 ids;
+        for (int q = 0; q < 3; ++q) {
+          p[q] = corner[c3[q]] * spacing;
+          ids[q] = cluster(corner[c3[q]]);
+        }
+        const double w = glm::length(glm::cross(p[1] - p[0], p[2] - p[0])) + job.minWeight;  // twice the area
+        for (int q = 0; q < 3; ++q) out->clusters[ids[q]].add(p[q], w, float(w) * normal[c3[q]]);
+        if (ids.x != ids.y && ids.y != ids.z && ids.x != ids.z) out->triangles.push_back(canonical(ids));
+      }
+    }
+  };
+  const int sub = job.octree.leafEdge();  // boxes clipped to the block
+  for (int sz = 0; sz + 1 < n.z; sz += sub)
+    for (int sy = 0; sy + 1 < n.y; sy += sub)
+      for (int sx = 0; sx + 1 < n.x; sx += sub) {
+        const glm::ivec3 slo(sx, sy, sz), shi = glm::min(slo + sub, n - 1);
+        float mn = job.octree.root().maxValue, mx = job.octree.root().minValue;
+        rangeIn(job.octree, 0, lo + slo, lo + shi, &mn, &mx);
+        if (!(mn < job.iso && job.iso <= mx)) continue;
+        for (int k = slo.z; k < shi.z; ++k)
+          for (int j = slo.y; j < shi.y; ++j)
+            for (int i = slo.x; i < shi.x; ++i) triangulate(glm::ivec3(i, j, k));
+      }
+  unique(&out->triangles);
+}
+
 }  // namespace
 
 int clusterSpacingFor(double pixelMm, const glm::dvec3& spacing, int maxSpacing) {
@@ -78,33 +160,26 @@ int clusterSpacingFor(double pixelMm, const glm::dvec3& spacing, int maxSpacing)
 
 TriangleMesh clusteredSurface(const KnotSource& knots, const VolumeOctree& octree, int s, float iso, const Progress* progress, int blockCells) {
   HYB_CHECK(s >= 1 && blockCells >= 1 && knots.dims() == octree.dims());
-  const glm::ivec3 dims = knots.dims();
-  const glm::dvec3 spacing = knots.spacing();
-  const glm::ivec3 cells = glm::max(dims - 1, glm::ivec3(0));
+  const glm::ivec3 cells = glm::max(knots.dims() - 1, glm::ivec3(0));
   const glm::ivec3 blocks = (cells + blockCells - 1) / blockCells;
-  const glm::ivec3 cubes = (dims + s - 1) / s;  // cluster cubes per axis
-  std::vector<glm::ivec3> todo;
+  std::vector<glm::ivec3> todo;  // the blocks whose samples may straddle the isovalue
   for (int bz = 0; bz < blocks.z; ++bz)
     for (int by = 0; by < blocks.y; ++by)
       for (int bx = 0; bx < blocks.x; ++bx) {
         const glm::ivec3 lo = glm::ivec3(bx, by, bz) * blockCells, hi = glm::min(lo + blockCells, cells);
         float mn = octree.root().maxValue, mx = octree.root().minValue;
         rangeIn(octree, 0, lo, hi, &mn, &mx);
-        if (mn < iso && iso <= mx) todo.push_back(glm::ivec3(bx, by, bz));
+        if (mn < iso && iso <= mx) todo.push_back(lo);
       }
+  const double voxelMm = std::min({knots.spacing().x, knots.spacing().y, knots.spacing().z});
+  const ClusterJob job{knots, octree, s, iso, (knots.dims() + s - 1) / s, 1e-9 * voxelMm * voxelMm};
 
-  // The blocks a batch at a time, each on its own (all cores): its samples, its Marching Cubes
-  // triangles, their corners clustered; then the batch's clusters merged in block order (the same
-  // sums whatever the threads) and its triangles kept once each. A batch's parts are all that is
-  // held beside the result.
-  const auto& table = dmc::caseTable();
-  // Each corner weighs the area around it, and a little more: a cluster of degenerate triangles
-  // (corners on samples equal to the isovalue) still has a mean.
-  const double minWeight = 1e-9 * std::min({spacing.x, spacing.y, spacing.z}) * std::min({spacing.x, spacing.y, spacing.z});
+  // The blocks a batch at a time, each on its own (all cores), then the batch's clusters merged in
+  // block order (the same sums whatever the threads) and its triangles kept once each: a batch's
+  // parts are all that is held beside the result.
   constexpr size_t kBatch = 256;
   std::vector<BlockClusters> parts;
   ProgressTask task(progress, "coarse surface", todo.size());
-  ParallelFailure failure;
   FlatMap global(1024);
   std::vector<uint64_t> keys;
   std::vector<Cluster> clusters;
@@ -112,64 +187,12 @@ TriangleMesh clusteredSurface(const KnotSource& knots, const VolumeOctree& octre
   std::vector<uint32_t> to;
   for (size_t first = 0; first < todo.size(); first += kBatch) {
     parts.assign(std::min(kBatch, todo.size() - first), BlockClusters{});
+    ParallelFailure failure;
 #pragma omp parallel for schedule(dynamic)
     for (size_t bi = 0; bi < parts.size(); ++bi)
       failure.run([&] {
-        // The block's samples, with the neighbour either side a gradient needs where the grid has one.
-        const glm::ivec3 lo = todo[first + bi] * blockCells, n = glm::min(lo + blockCells, cells) - lo + 1;  // cell corners a side
-        const glm::ivec3 rlo = glm::max(lo - 1, glm::ivec3(0)), rn = glm::min(lo + n, dims - 1) - rlo + 1;
-        std::vector<float> values(size_t(rn.x) * size_t(rn.y) * size_t(rn.z));
-        knots.read(1, rlo, rn, values.data(), nullptr);
-        auto sample = [&](int x, int y, int z) { return values[size_t(x - rlo.x) + size_t(rn.x) * (size_t(y - rlo.y) + size_t(rn.y) * size_t(z - rlo.z))]; };
-        auto at = [&](const glm::ivec3& p) { return sample(lo.x + p.x, lo.y + p.y, lo.z + p.z); };
-        // The outward normal there, as Volume::sampleGradient's along the edge (zero where it vanishes).
-        auto normalAt = [&](const glm::ivec3& a, const glm::ivec3& d, float t) {
-          const glm::vec3 g = glm::mix(centralDifferences(lo + a, dims, spacing, sample), centralDifferences(lo + a + d, dims, spacing, sample), t);
-          const float len = glm::length(g);
-          return len > 0.0f && std::isfinite(len) ? -g / len : glm::vec3(0.0f);
-        };
-        BlockClusters& b = parts[bi];
-        FlatMap local(256);
-        auto cluster = [&](const glm::dvec3& voxel) {
-          const glm::ivec3 c = glm::min(glm::ivec3(glm::floor(voxel / double(s))), cubes - 1);
-          const uint64_t key = uint64_t(c.x) + uint64_t(cubes.x) * (uint64_t(c.y) + uint64_t(cubes.y) * uint64_t(c.z));
-          return local.findOrInsert(key, [&] {
-            b.keys.push_back(key);
-            b.clusters.emplace_back();
-            return uint32_t(b.clusters.size() - 1);
-          });
-        };
-        std::array<glm::dvec3, 12> corner;
-        std::array<glm::vec3, 12> normal;
-        for (int k = 0; k + 1 < n.z; ++k)
-          for (int j = 0; j + 1 < n.y; ++j)
-            for (int i = 0; i + 1 < n.x; ++i) {
-              const glm::ivec3 base(i, j, k);
-              unsigned mask = 0;
-              for (int c = 0; c < 8; ++c)
-                if (at(base + dmc::cornerPosition(c) / 2) >= iso) mask |= 1u << c;
-              if (mask == 0 || mask == 255) continue;
-              for (const auto& loop : table[mask].loops) {
-                for (size_t v = 0; v < loop.size(); ++v) {
-                  const auto [ca, cb] = dmc::edgeCorners(loop[v]);
-                  const glm::ivec3 a = base + dmc::cornerPosition(ca) / 2, d = dmc::cornerPosition(cb) / 2 - dmc::cornerPosition(ca) / 2;
-                  const float va = at(a), vb = at(a + d);
-                  const double t = double((iso - va) / (vb - va));  // the corners classify differently, so va != vb
-                  corner[v] = glm::dvec3(lo + a) + t * glm::dvec3(d);
-                  normal[v] = normalAt(a, d, float(t));
-                }
-                for (size_t v = 1; v + 1 < loop.size(); ++v) {
-                  const glm::dvec3 p[3] = {corner[0] * spacing, corner[v] * spacing, corner[v + 1] * spacing};
-                  const glm::dvec3 area2 = glm::cross(p[1] - p[0], p[2] - p[0]);  // twice the area, along the normal
-                  const glm::uvec3 ids(cluster(corner[0]), cluster(corner[v]), cluster(corner[v + 1]));
-                  const double w = glm::length(area2) + minWeight;
-                  const size_t at3[3] = {0, v, v + 1};
-                  for (int q = 0; q < 3; ++q) b.clusters[ids[q]].add(p[q], w, float(w) * normal[at3[q]]);
-                  if (ids.x != ids.y && ids.y != ids.z && ids.x != ids.z) b.triangles.push_back(canonical(ids));
-                }
-              }
-            }
-        unique(&b.triangles);
+        const glm::ivec3 lo = todo[first + bi];
+        clusterBlock(job, lo, glm::min(lo + blockCells, cells) - lo + 1, &parts[bi]);
         task.advance();
       });
     failure.rethrow();
