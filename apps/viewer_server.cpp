@@ -483,6 +483,7 @@ struct ServerState {
     p.look.shading = r.shading;
     p.look.cut = r.cut;
     p.look.voi = r.voi;
+    p.quality.waitForSurface = false;  // the pool's builder makes it; meanwhile its preview, or none
     if (level > 0) {
       p.quality.budgetPercent = q.budgetPercent < 100.0 ? q.budgetPercent : 0.0;
       p.quality.step = q.step;

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 
+#include "hybrid_octree/coarse_surface.h"
 #include "render/patient_view.h"
 #include "render/transfer_function.h"
 #include "volume/error.h"
@@ -68,6 +69,7 @@ struct ScenePool::Entry {
   std::optional<float> building;
   std::thread builder;
   std::unique_ptr<PreparedSurface> built;  // handed over by the builder
+  std::unique_ptr<PreparedSurface> preview;  // a clustered surface handed over before the full-resolution one
   bool buildDone = false;                  // the builder has ended (built is null when it failed or stopped)
   bool buildStopped = false;               // ... because no viewer wanted its surface any more
   Clock::time_point lastProgress{};
@@ -252,8 +254,19 @@ void ScenePool::startBuild(Entry& e, float iso) {
     std::unique_ptr<PreparedSurface> s;
     bool stopped = false;
     try {
-      // Only reads the scene: the render thread keeps drawing with the renderer meanwhile.
-      s = SceneRenderer::prepareSurface(e.renderer->scene(), iso, &progress, nullptr, true);
+      // Only reads the scene: the render thread keeps drawing with the renderer meanwhile. A large
+      // paged scene's frames draw a clustered surface first, made in a fraction of the time.
+      const Scene& scene = e.renderer->scene();
+      if (!scene.volume.hasSamples() && scene.volume.voxelCount() > kPreviewSurfaceSamples) {
+        auto preview = std::make_unique<PreparedSurface>();
+        preview->iso = iso;
+        const int cubes = scene.octree.leafEdge();
+        preview->coarse.emplace(cubes, clusteredSurface(*scene.knots, scene.octree, cubes, iso, &progress));
+        const std::lock_guard<std::mutex> guard(mMutex);
+        e.preview = std::move(preview);
+        mEvents.wake();
+      }
+      s = SceneRenderer::prepareSurface(scene, iso, &progress, nullptr, true);
     } catch (const Cancelled&) {
       stopped = true;
     } catch (const std::exception&) {
@@ -278,7 +291,10 @@ ScenePool::Frame ScenePool::forFrame(uint64_t viewer, std::optional<float> iso) 
     v.drawn = iso;
   } else if (iso) {
     f.surfaceReady = false;
-    if (!(v.drawn && e.renderer->hasSurface(*v.drawn))) v.drawn.reset();  // the one drawn before, while it is kept; never another's
+    if (e.renderer->hasAnySurface(*iso))
+      v.drawn = iso;  // its clustered preview
+    else if (!(v.drawn && e.renderer->hasAnySurface(*v.drawn)))
+      v.drawn.reset();  // the one drawn before, while it is kept; never another's
     if (e.building != iso && std::find(e.queued.begin(), e.queued.end(), *iso) == e.queued.end()) {
       if (e.building) {
         e.queued.push_back(*iso);
@@ -302,14 +318,16 @@ void ScenePool::repin(Entry& e) {
       for (const std::optional<float>& iso : {v.asked, v.drawn})
         if (iso) isos.push_back(*iso);
   e.renderer->pinSurfaces(std::move(isos));
-  e.ready = e.renderer->surfaceIsos();
+  e.ready.clear();
+  for (const float iso : e.renderer->surfaceIsos())
+    if (e.renderer->hasSurface(iso)) e.ready.push_back(iso);
   e.repin = false;
 }
 
 bool ScenePool::hasWork() const {
   const auto now = Clock::now();
   for (const auto& [key, e] : mScenes)
-    if (e->buildDone || e->repin) return true;
+    if (e->buildDone || e->preview || e->repin) return true;
   const std::optional<Clock::time_point> due = nextRelease();
   return due && *due <= now;
 }
@@ -333,6 +351,11 @@ std::vector<std::string> ScenePool::collect(std::unique_lock<std::mutex>& lock) 
   std::vector<std::unique_ptr<Entry>> gone;
   for (auto it = mScenes.begin(); it != mScenes.end();) {
     Entry& e = *it->second;
+    if (e.preview) {  // drawn until the full-resolution surface comes
+      e.renderer->adoptSurface(std::move(e.preview));
+      e.repin = true;
+      changed.push_back(it->first);
+    }
     if (e.buildDone) {
       e.builder.join();
       const float iso = *e.building;

@@ -56,6 +56,11 @@ struct SceneSummary {
 /// positions (an eighth, read in a few seconds where all of an 8 GiB study take half a minute).
 inline constexpr uint64_t kSummarySamples = uint64_t(1) << 27;
 
+/// A paged scene of more samples than this draws a surface clustered by its octree's leaves
+/// (clusteredSurface) while the full-resolution one is made: the 8 GiB phantom's in seconds where
+/// the full one takes over a minute; a clinical study's full surface comes in a few seconds.
+inline constexpr uint64_t kPreviewSurfaceSamples = uint64_t(1) << 28;
+
 /// The summary of @p scene, read from @p path and @p series, shown as @p name under @p key. A paged
 /// scene's histogram reads its store a block at a time: every sample up to @p histogramSamples,
 /// beyond them the samples at even positions.
@@ -120,8 +125,10 @@ class ScenePool {
   struct Frame {
     SceneRenderer* renderer = nullptr;  ///< null: the viewer shows no scene
     const SceneSummary* summary = nullptr;
-    std::optional<float> iso;           ///< the surface to draw: the one asked for when ready, else the viewer's last one (if kept), else none
-    bool surfaceReady = true;           ///< false while the surface asked for is being built
+    /// The surface to draw: the one asked for when ready or its clustered preview is, else the
+    /// viewer's last one (if kept), else none. Frames draw it with Quality::waitForSurface false.
+    std::optional<float> iso;
+    bool surfaceReady = true;           ///< false while the surface asked for is being built at full resolution
   };
   /// The scene @p viewer shows and the surface its frame draws when it asks for @p iso; starts
   /// building that surface when it is neither ready nor on its way.

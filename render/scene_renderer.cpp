@@ -171,9 +171,13 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
 }
 
 PreparedSurface& SceneRenderer::keep(std::unique_ptr<PreparedSurface> surface) {
-  for (auto& s : mSurfaces)  // the coarse surfaces already made stay
-    if (s->iso == surface->iso) surface->coarse.merge(s->coarse);
-  std::erase_if(mSurfaces, [&](const auto& s) { return s->iso == surface->iso; });
+  // One entry an isovalue: what is kept of it stays, the clustered surfaces joined.
+  const auto it = std::find_if(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == surface->iso; });
+  if (it != mSurfaces.end()) {
+    if ((*it)->exact && !surface->exact) std::swap(surface, *it);
+    surface->coarse.merge((*it)->coarse);
+    mSurfaces.erase(it);
+  }
   mSurfaces.push_front(std::move(surface));
   trimSurfaces();
   return *mSurfaces.front();
@@ -234,17 +238,32 @@ int SceneRenderer::surfaceSpacing(const Camera& gridCamera, const Quality& quali
   return clusterSpacingFor(quality.lodPixels * nearestPixelMm(gridCamera), volume().spacing(), octree().leafEdge());
 }
 
+int SceneRenderer::drawnSpacing(const Camera& gridCamera, const Quality& quality, float iso) const {
+  const int s = surfaceSpacing(gridCamera, quality);
+  if (quality.waitForSurface || quality.renderer != Renderer::Slices) return s;
+  const auto it = std::find_if(mSurfaces.begin(), mSurfaces.end(), [&](const auto& e) { return e->iso == iso; });
+  if (it == mSurfaces.end()) return s;
+  const PreparedSurface& e = **it;
+  if ((s == 1 && e.exact) || e.coarse.count(s)) return s;
+  if (e.exact) return 1;  // finer than asked: it only costs the triangles between pixel centres
+  return e.coarse.empty() ? s : e.coarse.begin()->first;
+}
+
 FrameStats SceneRenderer::prepare(const View& view, const Look& look, const Quality& quality) {
+  if (!look.iso) return {};
+  return prepareAt(*look.iso, drawnSpacing(toGridCamera(view.camera, volume().frame()), quality, *look.iso), look.normals);
+}
+
+FrameStats SceneRenderer::prepareAt(float iso, int s, SurfaceNormals normals) {
   FrameStats st;
-  if (!look.iso) return st;
-  st.surfaceSpacing = surfaceSpacing(toGridCamera(view.camera, volume().frame()), quality);
-  if (st.surfaceSpacing > 1) {
-    st.surfaceTriangles = coarseSurface(*look.iso, st.surfaceSpacing, &st).triangles.size();
+  st.surfaceSpacing = s;
+  if (s > 1) {
+    st.surfaceTriangles = coarseSurface(iso, s, &st).triangles.size();
     return st;
   }
-  const PreparedSurface& s = surfaceEntry(*look.iso, &st);
-  st.surfacePolygons = s.polygons;
-  st.surfaceTriangles = s.mesh(look.normals).triangles.size();
+  const PreparedSurface& e = surfaceEntry(iso, &st);
+  st.surfacePolygons = e.polygons;
+  st.surfaceTriangles = e.mesh(normals).triangles.size();
   return st;
 }
 
@@ -258,6 +277,10 @@ std::vector<float> SceneRenderer::surfaceIsos() const {
   std::vector<float> isos;
   for (const auto& s : mSurfaces) isos.push_back(s->iso);
   return isos;
+}
+
+bool SceneRenderer::hasAnySurface(float iso) const {
+  return std::any_of(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == iso && (s->exact || !s->coarse.empty()); });
 }
 
 bool SceneRenderer::hasSurface(float iso) const {
@@ -356,7 +379,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   // The surface: kept from earlier frames, or built now.
   const TriangleMesh* mesh = nullptr;
   if (look.iso) {
-    const FrameStats prepared = prepare(view, look, quality);
+    const FrameStats prepared = prepareAt(*look.iso, drawnSpacing(camera, quality, *look.iso), look.normals);
     st.surfaceSpacing = prepared.surfaceSpacing;
     st.surfaceBuilt = prepared.surfaceBuilt;
     st.surfaceBuildMs = prepared.surfaceBuildMs;

@@ -117,6 +117,11 @@ struct Quality {
   /// packed by the frames after (Carmona et al.: the cut moves towards the new one frame by frame,
   /// so a moving frame that meets many new bricks costs about what the one before did).
   uint64_t packTexels = 0;
+  /// Slice frames whose surface is not made yet: true makes it (the exact frame); false draws the
+  /// kept surface of that isovalue nearest it (the full-resolution one when kept, else the finest
+  /// clustered one) without making anything, as a viewer's frames do while its builder thread
+  /// makes the surface (FrameStats::surfaceSpacing says which was drawn).
+  bool waitForSurface = true;
 
   /// Empty when valid, else a message naming the offending flag (--epsilon, --step, --budget...).
   std::string validate() const;
@@ -222,6 +227,9 @@ class SceneRenderer {
   size_t surfacePolygons(float iso) const;
   /// Whether the surface of @p iso is ready: a frame showing it at full resolution builds nothing.
   bool hasSurface(float iso) const;
+  /// Whether a surface of @p iso is kept, full-resolution or clustered: a frame that does not wait
+  /// for its surface (Quality::waitForSurface) can draw it.
+  bool hasAnySurface(float iso) const;
   /// The isovalues of the surfaces kept, most recently used first.
   std::vector<float> surfaceIsos() const;
 
@@ -256,6 +264,12 @@ class SceneRenderer {
   /// The cubes (voxels a side) the surface of a frame of @p gridCamera and @p quality is clustered
   /// by (Quality::lodPixels): 1 for the Surface Octree's surface.
   int surfaceSpacing(const Camera& gridCamera, const Quality& quality) const;
+  /// The cubes of the surface of @p iso such a frame draws: surfaceSpacing, or what is kept nearest
+  /// it when the frame does not wait for its surface.
+  int drawnSpacing(const Camera& gridCamera, const Quality& quality, float iso) const;
+  /// Makes (or finds) the surface of @p iso clustered by cubes of @p s voxels (1: the Surface
+  /// Octree's, with @p normals) and reports that work and the surface.
+  FrameStats prepareAt(float iso, int s, SurfaceNormals normals);
   /// The size (mm) of a pixel of @p gridCamera where the volume comes nearest the eye.
   double nearestPixelMm(const Camera& gridCamera) const;
   PreparedSurface& keep(std::unique_ptr<PreparedSurface> surface);

@@ -315,6 +315,63 @@ TEST(SceneRenderer, FramesWithALevelOfDetailDrawTheSurfaceClusteredByTheirPixels
   EXPECT_EQ(r.render(view, look, reference).stats.surfaceSpacing, 1);
 }
 
+// A viewer's frames do not wait for their surface (Quality::waitForSurface false): before the
+// full-resolution surface is adopted they draw the clustered preview a builder made, whatever they
+// ask, and build nothing; after, the full-resolution one (finer than a level of detail asks costs
+// only the triangles between pixel centres), the preview still kept; a later preview leaves it.
+TEST(SceneRenderer, FramesThatDoNotWaitDrawTheKeptSurfaceNearestTheirOwn) {
+  test::gl();
+  Scene scene;
+  scene.volume = test::sphereVolume({65, 65, 65}, 25.0);
+  scene.octree = VolumeOctree::build(scene.volume);
+  SceneRenderer r(std::move(scene));
+  auto preview = [&] {
+    auto p = std::make_unique<PreparedSurface>();
+    p->iso = 0.0f;
+    p->coarse.emplace(8, clusteredSurface(VolumeKnots(r.volume(), r.octree()), r.octree(), 8, 0.0f));
+    return p;
+  };
+  const size_t previewTriangles = preview()->coarse.at(8).triangles.size();
+  r.adoptSurface(preview());
+  EXPECT_TRUE(r.hasAnySurface(0.0f));
+  EXPECT_FALSE(r.hasSurface(0.0f));
+  Look look;
+  look.tf = warm();
+  look.iso = 0.0f;
+  const View view = viewFrom(30, r.volume(), 64);
+  Quality moving;
+  moving.simplifiedSurface = true;
+  moving.waitForSurface = false;
+  Quality final;
+  final.lodPixels = 0.5;
+  final.waitForSurface = false;
+  for (const Quality& q : {moving, final}) {
+    const FrameStats st = r.render(view, look, q).stats;
+    EXPECT_EQ(st.surfaceSpacing, 8);
+    EXPECT_EQ(st.surfaceTriangles, previewTriangles);
+    EXPECT_FALSE(st.surfaceBuilt);
+  }
+  EXPECT_FALSE(r.hasSurface(0.0f));
+  r.adoptSurface(SceneRenderer::prepareSurface(r.scene(), 0.0f, nullptr, nullptr, true));
+  ASSERT_TRUE(r.hasSurface(0.0f));
+  const size_t full = r.surface(0.0f, SurfaceNormals::Gradient).triangles.size();
+  for (const Quality& q : {moving, final}) EXPECT_EQ(r.render(view, look, q).stats.surfaceSpacing, 1);
+  Quality coarse = final;
+  coarse.lodPixels = 1e6;  // cubes of 8 asked: kept
+  EXPECT_EQ(r.render(view, look, coarse).stats.surfaceTriangles, previewTriangles);
+  coarse.lodPixels = 2.5 / view.camera.pixelMmAt(glm::dvec3(0.0), glm::dvec3(64.0));  // cubes of 2 asked, not kept: the full-resolution surface
+  const FrameStats st = r.render(view, look, coarse).stats;
+  EXPECT_EQ(st.surfaceSpacing, 1);
+  EXPECT_EQ(st.surfaceTriangles, full);
+  r.adoptSurface(preview());
+  EXPECT_TRUE(r.hasSurface(0.0f));
+  // A frame that waits makes what it asks for.
+  coarse.waitForSurface = true;
+  const FrameStats made = r.render(view, look, coarse).stats;
+  EXPECT_EQ(made.surfaceSpacing, 2);
+  EXPECT_TRUE(made.surfaceBuilt);
+}
+
 // A frame rendered band by band (a viewer's large final frame, between whose bands other clients'
 // frames are drawn) is the whole frame, bit for bit: both renderers, the translucent surface cut
 // into slabs, perspective and orthographic, with a cutting plane; a band that misses part of the
