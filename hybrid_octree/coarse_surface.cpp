@@ -14,9 +14,8 @@ namespace hyb {
 
 namespace {
 
-// Whether the samples of the voxel box [lo, hi] (inclusive) may straddle @p iso: some node over
-// the box (the nodes inside it, the leaves across its faces, by their closed boxes) holds a value
-// below it and one at or above it.
+// Widens [*mn, *mx] to hold every sample of the voxel box [lo, hi] (inclusive), from the nodes of
+// subtree @p i inside the box and the leaves across its faces (their closed boxes: a superset).
 void rangeIn(const VolumeOctree& t, uint32_t i, const glm::ivec3& lo, const glm::ivec3& hi, float* mn, float* mx) {
   const OctreeNode& n = t.nodes()[i];
   glm::ivec3 nlo, nhi;

@@ -23,10 +23,10 @@ inline GlContext& gl() {
   return context;
 }
 
-/// A scene of the analytic sphere (radius 13 voxels in 40×36×32) with its Volume Octree.
-inline Scene sphereScene() {
+/// A scene of the analytic sphere (radius 13 voxels in 40×36×32 unless told) with its Volume Octree.
+inline Scene sphereScene(glm::ivec3 dims = {40, 36, 32}, double radius = 13.0) {
   Scene s;
-  s.volume = sphereVolume({40, 36, 32}, 13.0);
+  s.volume = sphereVolume(dims, radius);
   s.octree = VolumeOctree::build(s.volume);
   return s;
 }

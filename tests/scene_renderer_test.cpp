@@ -26,6 +26,26 @@ TransferFunction warm() { return TransferFunction({{0.0f, {1, 1, 1}, 0.0f}, {2.0
 // The same support (values above 0) over another domain: another lookup table.
 TransferFunction cool() { return TransferFunction({{0.0f, {1, 1, 1}, 0.0f}, {3.0f, {0.2f, 0.5f, 1.0f}, 0.2f}, {20.0f, {0.9f, 0.9f, 0.9f}, 0.1f}}, "cool"); }
 
+// The translucent surface of value 0 under warm(): a sphere's, for the tests of surface detail.
+Look surfaceAtZero() {
+  Look look;
+  look.tf = warm();
+  look.iso = 0.0f;
+  look.surfaceColor = glm::vec4(0.9f, 0.9f, 0.9f, 0.5f);
+  return look;
+}
+
+// Orthographic from the front of a 97³ grid, 120 mm high: a pixel is 120 mm over the rows, at any depth.
+View frontOfGrid97() {
+  View view;
+  view.camera.eye = glm::dvec3(48.0, -200.0, 48.0);
+  view.camera.center = glm::dvec3(48.0);
+  view.camera.up = glm::dvec3(0, 0, 1);
+  view.camera.ortho = true;
+  view.camera.orthoHeight = 120.0;
+  return view;
+}
+
 View viewFrom(double azimuth, const Volume& v, int pixels = 48, double margin = 0.05) {
   View view;
   view.camera = fitCamera(visiblePoints(v, VolumeOctree::build(v), warm()), orbitDirection(azimuth, 15), 30, false, pixels, pixels, margin);
@@ -200,10 +220,7 @@ TEST(SceneRenderer, TheSimplifiedUncutSurfaceStaysCloseToTheExactOne) {
 // height over its rows, whatever the depth), level 0 when no error is allowed.
 TEST(SceneRenderer, SmallFramesDrawCoarserLevelsOfTheSimplifiedSurface) {
   test::gl();
-  Scene scene;
-  scene.volume = test::sphereVolume({97, 97, 97}, 40.0);
-  scene.octree = VolumeOctree::build(scene.volume);
-  SceneRenderer r(std::move(scene));
+  SceneRenderer r(sphereScene({97, 97, 97}, 40.0));
   std::unique_ptr<PreparedSurface> made = SceneRenderer::prepareSurface(r.scene(), 0.0f, nullptr, nullptr, true);
   ASSERT_EQ(made->simplified.size(), size_t(kSimplifiedLevels));
   std::vector<size_t> counts;
@@ -220,16 +237,8 @@ TEST(SceneRenderer, SmallFramesDrawCoarserLevelsOfTheSimplifiedSurface) {
     EXPECT_LE(sag, double(1 << k) + 0.1) << k;  // the 0.1: level 0's input lies within a tenth of a voxel
   }
   r.adoptSurface(std::move(made));
-  Look look;
-  look.tf = warm();
-  look.iso = 0.0f;
-  look.surfaceColor = glm::vec4(0.9f, 0.9f, 0.9f, 0.5f);
-  View view;
-  view.camera.eye = glm::dvec3(48.0, -200.0, 48.0);
-  view.camera.center = glm::dvec3(48.0);
-  view.camera.up = glm::dvec3(0, 0, 1);
-  view.camera.ortho = true;
-  view.camera.orthoHeight = 120.0;
+  Look look = surfaceAtZero();
+  View view = frontOfGrid97();
   Quality q;
   q.simplifiedSurface = true;
   q.cutToSlabs = false;
@@ -258,20 +267,9 @@ TEST(SceneRenderer, SmallFramesDrawCoarserLevelsOfTheSimplifiedSurface) {
 // next frame; at one voxel, or without the level of detail, it draws the Surface Octree's.
 TEST(SceneRenderer, FramesWithALevelOfDetailDrawTheSurfaceClusteredByTheirPixels) {
   test::gl();
-  Scene scene;
-  scene.volume = test::sphereVolume({97, 97, 97}, 40.0);
-  scene.octree = VolumeOctree::build(scene.volume);  // leaves of 8 voxels: cubes of 8 at most
-  SceneRenderer r(std::move(scene));
-  Look look;
-  look.tf = warm();
-  look.iso = 0.0f;
-  look.surfaceColor = glm::vec4(0.9f, 0.9f, 0.9f, 0.5f);
-  View view;
-  view.camera.eye = glm::dvec3(48.0, -200.0, 48.0);
-  view.camera.center = glm::dvec3(48.0);
-  view.camera.up = glm::dvec3(0, 0, 1);
-  view.camera.ortho = true;
-  view.camera.orthoHeight = 120.0;
+  SceneRenderer r(sphereScene({97, 97, 97}, 40.0));  // leaves of 8 voxels: cubes of 8 at most
+  Look look = surfaceAtZero();
+  View view = frontOfGrid97();
   Quality q;
   q.lodPixels = 1.0;
   // Pixels of 24, 8, 3, 1.5 and 1 voxels: cubes of 8 (the leaf edge), 8, 2, 1 and 1; no
@@ -321,10 +319,7 @@ TEST(SceneRenderer, FramesWithALevelOfDetailDrawTheSurfaceClusteredByTheirPixels
 // only the triangles between pixel centres), the preview still kept; a later preview leaves it.
 TEST(SceneRenderer, FramesThatDoNotWaitDrawTheKeptSurfaceNearestTheirOwn) {
   test::gl();
-  Scene scene;
-  scene.volume = test::sphereVolume({65, 65, 65}, 25.0);
-  scene.octree = VolumeOctree::build(scene.volume);
-  SceneRenderer r(std::move(scene));
+  SceneRenderer r(sphereScene({65, 65, 65}, 25.0));
   auto preview = [&] {
     auto p = std::make_unique<PreparedSurface>();
     p->iso = 0.0f;
