@@ -1,111 +1,119 @@
 #include "render/bvh.h"
 
+#include <embree3/rtcore.h>
+
 #include <algorithm>
 #include <cmath>
-#include <numeric>
+#include <cstring>
+#include <mutex>
+
+#include "volume/error.h"
 
 namespace hyb {
 
+namespace {
+
+// One Embree device for the process (its threads and memory pools), made at the first BVH.
+RTCDevice device() {
+  static RTCDevice d = [] {
+    RTCDevice made = rtcNewDevice(nullptr);
+    if (!made) HYB_THROW(RuntimeError, "Embree: cannot create a device (error ", int(rtcGetDeviceError(nullptr)), ")");
+    return made;
+  }();
+  return d;
+}
+
+// What a query passes its filter: the mesh, the ray in double precision and the hits so far.
+struct Query {
+  RTCIntersectContext context;  // first: Embree hands the filter this pointer
+  const TriangleMesh* mesh;
+  glm::dvec3 origin, dir;
+  double tMin, tMax;
+  std::vector<Hit>* hits;
+};
+
+// Records the crossing Embree found, measured again in double precision (Möller–Trumbore on the
+// same triangle), and rejects it so that the traversal goes on to the next.
+void recordHit(const RTCFilterFunctionNArguments* args) {
+  const Query& q = *reinterpret_cast<const Query*>(args->context);
+  args->valid[0] = 0;
+  const uint32_t prim = RTCHitN_primID(args->hit, args->N, 0);
+  const glm::uvec3 tri = q.mesh->triangles[prim];
+  const glm::dvec3 p0 = q.mesh->vertices[tri.x], p1 = q.mesh->vertices[tri.y], p2 = q.mesh->vertices[tri.z];
+  const glm::dvec3 e1 = p1 - p0, e2 = p2 - p0, pv = glm::cross(q.dir, e2);
+  const double det = glm::dot(e1, pv);
+  double t = RTCRayN_tfar(args->ray, args->N, 0), u = RTCHitN_u(args->hit, args->N, 0), v = RTCHitN_v(args->hit, args->N, 0);
+  if (std::abs(det) >= 1e-18) {  // (edge-on: Embree's own numbers)
+    const glm::dvec3 tv = q.origin - p0, qv = glm::cross(tv, e1);
+    u = std::clamp(glm::dot(tv, pv) / det, 0.0, 1.0);
+    v = std::clamp(glm::dot(q.dir, qv) / det, 0.0, 1.0 - u);
+    t = glm::dot(e2, qv) / det;
+  }
+  if (!(t > q.tMin && t < q.tMax)) return;
+  const glm::dvec3 facet = glm::normalize(glm::cross(e1, e2));
+  if (q.mesh->normals.empty()) {
+    q.hits->push_back({t, facet});
+    return;
+  }
+  const glm::dvec3 n = (1.0 - u - v) * glm::dvec3(q.mesh->normals[tri.x]) + u * glm::dvec3(q.mesh->normals[tri.y]) + v * glm::dvec3(q.mesh->normals[tri.z]);
+  const double len = glm::length(n);
+  q.hits->push_back({t, len > 0.0 ? n / len : facet});
+}
+
+}  // namespace
+
 Bvh::Bvh(const TriangleMesh& mesh) : mMesh(&mesh) {
-  const size_t n = mesh.triangles.size();
-  if (n == 0) return;
-  mTriangles.resize(n);
-  std::iota(mTriangles.begin(), mTriangles.end(), 0u);
-  std::vector<glm::vec3> centroid(n);
-  for (size_t i = 0; i < n; ++i) {
-    const glm::uvec3 t = mesh.triangles[i];
-    centroid[i] = (mesh.vertices[t.x] + mesh.vertices[t.y] + mesh.vertices[t.z]) / 3.0f;
+  if (mesh.triangles.empty()) return;
+  RTCDevice dev = device();
+  RTCGeometry geometry = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+  // Copies (Embree pads its buffers for its vector loads): 12 bytes a vertex, 12 a triangle.
+  auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), mesh.vertices.size()));
+  auto* indices = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), mesh.triangles.size()));
+  if (!vertices || !indices) {
+    rtcReleaseGeometry(geometry);
+    HYB_THROW(RuntimeError, "Embree: cannot allocate the buffers of ", mesh.triangles.size(), " triangles");
   }
-  struct Task {
-    uint32_t node, first, count;
-  };
-  mNodes.push_back({});
-  std::vector<Task> stack{{0, 0, uint32_t(n)}};
-  while (!stack.empty()) {
-    const Task task = stack.back();
-    stack.pop_back();
-    glm::vec3 lo(1e30f), hi(-1e30f), clo(1e30f), chi(-1e30f);
-    for (uint32_t i = task.first; i < task.first + task.count; ++i) {
-      const glm::uvec3 t = mesh.triangles[mTriangles[i]];
-      for (int k = 0; k < 3; ++k) {
-        lo = glm::min(lo, mesh.vertices[t[k]]);
-        hi = glm::max(hi, mesh.vertices[t[k]]);
-      }
-      clo = glm::min(clo, centroid[mTriangles[i]]);
-      chi = glm::max(chi, centroid[mTriangles[i]]);
-    }
-    Node& node = mNodes[task.node];
-    node.lo = lo;
-    node.hi = hi;
-    if (task.count <= 4) {
-      node.first = task.first;
-      node.count = task.count;
-      continue;
-    }
-    const glm::vec3 ext = chi - clo;
-    const int axis = ext.x > ext.y ? (ext.x > ext.z ? 0 : 2) : (ext.y > ext.z ? 1 : 2);
-    const uint32_t mid = task.first + task.count / 2;
-    std::nth_element(mTriangles.begin() + task.first, mTriangles.begin() + mid, mTriangles.begin() + task.first + task.count,
-                     [&](uint32_t a, uint32_t b) { return centroid[a][axis] < centroid[b][axis]; });
-    const uint32_t left = uint32_t(mNodes.size());
-    node.first = left;
-    node.count = 0;
-    mNodes.push_back({});
-    mNodes.push_back({});
-    stack.push_back({left, task.first, mid - task.first});
-    stack.push_back({left + 1, mid, task.first + task.count - mid});
+  std::memcpy(vertices, mesh.vertices.data(), mesh.vertices.size() * sizeof(glm::vec3));
+  std::memcpy(indices, mesh.triangles.data(), mesh.triangles.size() * sizeof(glm::uvec3));
+  rtcSetGeometryIntersectFilterFunction(geometry, recordHit);
+  rtcCommitGeometry(geometry);
+  RTCScene scene = rtcNewScene(dev);
+  rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);  // no shortcuts that could miss a crossing
+  rtcSetSceneBuildQuality(scene, RTC_BUILD_QUALITY_HIGH);  // built once per surface, traced by every reference frame
+  rtcAttachGeometry(scene, geometry);
+  rtcReleaseGeometry(geometry);
+  rtcCommitScene(scene);
+  if (const RTCError e = rtcGetDeviceError(dev); e != RTC_ERROR_NONE) {
+    rtcReleaseScene(scene);
+    HYB_THROW(RuntimeError, "Embree: cannot build the BVH of ", mesh.triangles.size(), " triangles (error ", int(e), ")");
   }
+  mScene = scene;
+}
+
+Bvh::~Bvh() {
+  if (mScene) rtcReleaseScene(mScene);
 }
 
 void Bvh::allHits(const glm::dvec3& o, const glm::dvec3& d, double tMin, double tMax, std::vector<Hit>* hits) const {
   hits->clear();
-  if (mNodes.empty()) return;
-  const glm::dvec3 inv(1.0 / d.x, 1.0 / d.y, 1.0 / d.z);
-  uint32_t stack[64];
-  int sp = 0;
-  stack[sp++] = 0;
-  while (sp > 0) {
-    const Node& node = mNodes[stack[--sp]];
-    // Slab test.
-    double t0 = tMin, t1 = tMax;
-    for (int a = 0; a < 3; ++a) {
-      double ta = (double(node.lo[a]) - o[a]) * inv[a], tb = (double(node.hi[a]) - o[a]) * inv[a];
-      if (ta > tb) std::swap(ta, tb);
-      t0 = std::max(t0, ta);
-      t1 = std::min(t1, tb);
-    }
-    if (t0 > t1 * (1 + 1e-12) + 1e-12) continue;
-    if (node.count == 0) {
-      stack[sp++] = node.first;
-      stack[sp++] = node.first + 1;
-      continue;
-    }
-    for (uint32_t i = node.first; i < node.first + node.count; ++i) {
-      const glm::uvec3 tri = mMesh->triangles[mTriangles[i]];
-      const glm::dvec3 p0 = mMesh->vertices[tri.x], p1 = mMesh->vertices[tri.y], p2 = mMesh->vertices[tri.z];
-      // Möller–Trumbore in double precision.
-      const glm::dvec3 e1 = p1 - p0, e2 = p2 - p0, pv = glm::cross(d, e2);
-      const double det = glm::dot(e1, pv);
-      if (std::abs(det) < 1e-18) continue;
-      const double invDet = 1.0 / det;
-      const glm::dvec3 tv = o - p0;
-      const double u = glm::dot(tv, pv) * invDet;
-      if (u < 0.0 || u > 1.0) continue;
-      const glm::dvec3 qv = glm::cross(tv, e1);
-      const double v = glm::dot(d, qv) * invDet;
-      if (v < 0.0 || u + v > 1.0) continue;
-      const double t = glm::dot(e2, qv) * invDet;
-      if (t <= tMin || t >= tMax) continue;
-      if (mMesh->normals.empty()) {
-        hits->push_back({t, glm::normalize(glm::cross(e1, e2))});
-      } else {
-        const glm::dvec3 n = (1.0 - u - v) * glm::dvec3(mMesh->normals[tri.x]) + u * glm::dvec3(mMesh->normals[tri.y]) +
-                             v * glm::dvec3(mMesh->normals[tri.z]);
-        const double len = glm::length(n);
-        hits->push_back({t, len > 0.0 ? n / len : glm::normalize(glm::cross(e1, e2))});
-      }
-    }
-  }
+  if (!mScene) return;
+  Query q{{}, mMesh, o, d, tMin, tMax, hits};
+  rtcInitIntersectContext(&q.context);
+  RTCRayHit rh{};
+  rh.ray.org_x = float(o.x);
+  rh.ray.org_y = float(o.y);
+  rh.ray.org_z = float(o.z);
+  rh.ray.dir_x = float(d.x);
+  rh.ray.dir_y = float(d.y);
+  rh.ray.dir_z = float(d.z);
+  // Widened by float's rounding of the origin: the filter keeps only tMin < t < tMax, in double.
+  const double slack = 1e-6 * (glm::length(o) + std::abs(tMin) + (std::isfinite(tMax) ? std::abs(tMax) : 0.0)) + 1e-6;
+  rh.ray.tnear = float(std::max(0.0, tMin - slack));
+  rh.ray.tfar = std::isfinite(tMax) ? float(tMax + slack) : std::numeric_limits<float>::infinity();
+  rh.ray.mask = ~0u;
+  rh.ray.flags = 0;
+  rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  rtcIntersect1(mScene, &q.context, &rh);
   std::sort(hits->begin(), hits->end(), [](const Hit& a, const Hit& b) { return a.t < b.t; });
   // A ray through an edge or vertex shared by several triangles crosses the surface once there.
   auto same = [](const Hit& a, const Hit& b) { return std::abs(a.t - b.t) < 1e-9 * (1 + std::abs(a.t)); };

@@ -1,4 +1,6 @@
-// Bounding-volume hierarchy over a triangle mesh, for exact ray-triangle hits in the ray caster.
+// Every ray–triangle crossing of a mesh, for the reference ray tracer's surface: Embree's BVH
+// (Intel, Debian's libembree-dev 3.13) finds the triangles a ray crosses; each crossing is then
+// measured in double precision. Embree appears only in render/bvh.cpp.
 #pragma once
 
 #include <glm/glm.hpp>
@@ -6,6 +8,8 @@
 #include <vector>
 
 #include "surface/mesh.h"
+
+struct RTCSceneTy;
 
 namespace hyb {
 
@@ -19,21 +23,20 @@ struct Hit {
 class Bvh {
  public:
   Bvh() = default;
-  /// Builds over @p mesh (world millimetres); the mesh must outlive the BVH.
+  /// Builds over @p mesh (world millimetres, finite); the mesh must outlive the BVH.
+  /// @throw RuntimeError when Embree cannot build it (out of memory).
   explicit Bvh(const TriangleMesh& mesh);
+  ~Bvh();
+  Bvh(const Bvh&) = delete;
+  Bvh& operator=(const Bvh&) = delete;
   /// All hits with tMin < t < tMax, sorted by t; hits at the same distance (a ray through a shared
-  /// edge or vertex) are counted once.
+  /// edge or vertex) are counted once. Thread-safe.
   void allHits(const glm::dvec3& origin, const glm::dvec3& dir, double tMin, double tMax, std::vector<Hit>* hits) const;
-  bool empty() const { return mNodes.empty(); }
+  bool empty() const { return mScene == nullptr; }
 
  private:
-  struct Node {
-    glm::vec3 lo, hi;
-    uint32_t first, count;  // leaf: triangles [first, first + count); inner: count = 0, children first, first + 1
-  };
   const TriangleMesh* mMesh = nullptr;
-  std::vector<Node> mNodes;
-  std::vector<uint32_t> mTriangles;
+  RTCSceneTy* mScene = nullptr;
 };
 
 }  // namespace hyb

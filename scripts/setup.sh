@@ -15,6 +15,7 @@ packages=(
   libpng-dev                                     # PNG output
   libcgal-dev libopenmesh-dev                    # exact mesh checks; mesh storage and IO
   libmeshoptimizer-dev                           # the simplified isosurface drawn while the view moves
+  libembree-dev                                  # the reference ray tracer's ray–triangle queries (Embree's BVH)
   libosmesa6-dev                                 # off-screen OpenGL 4.5 core through llvmpipe
   libgtest-dev libbenchmark-dev                  # tests and micro-benchmarks
   clang-14 libfuzzer-14-dev                      # the fuzz targets (tests/fuzz) and their regression run
