@@ -27,6 +27,40 @@ std::vector<double> parseList(const std::string& text, const std::string& flag, 
   return out;
 }
 
+// The default ε sweep: for each of 1/2, 1/4, … 1/64 of this view's full-resolution texels, the
+// smallest nodal error whose selection holds no more (a selection changes only where ε passes a
+// nodal error), each once, none beyond what the coarsest selection reaches.
+std::vector<double> epsilonsOfTheView(SceneRenderer& renderer, const View& view, const Look& look, Quality quality) {
+  std::vector<float> errors;
+  for (const float e : renderer.octree().errorData())
+    if (e > 0.0f && std::isfinite(e)) errors.push_back(e);
+  std::sort(errors.begin(), errors.end());
+  errors.erase(std::unique(errors.begin(), errors.end()), errors.end());
+  quality.renderer = Renderer::Slices;
+  quality.budgetMb = quality.budgetPercent = 0.0;
+  auto texels = [&](double epsilon) {
+    quality.epsilon = epsilon;
+    return renderer.select(view, look, quality).texels;
+  };
+  const double full = double(texels(0.0));
+  std::vector<double> out;
+  size_t first = 0;
+  for (int k = 1; k <= 6; ++k) {
+    size_t a = first, b = errors.size();  // the first error whose selection holds at most full / 2^k
+    while (a < b) {
+      const size_t mid = a + (b - a) / 2;
+      if (double(texels(errors[mid])) <= full / double(1 << k))
+        b = mid;
+      else
+        a = mid + 1;
+    }
+    if (a == errors.size()) break;
+    if (out.empty() || double(errors[a]) != out.back()) out.push_back(errors[a]);
+    first = a;
+  }
+  return out;
+}
+
 // One measured point of the sweep.
 struct Point {
   std::string sweep;  // full, epsilon or budget
@@ -117,7 +151,7 @@ std::string BenchOptions::validate() const {
 void BenchOptions::add(CLI::App* cmd) {
   render.add(cmd);
   cmd->add_option("-o,--output", outDir, "directory for trade.csv, trade.png and the images");
-  cmd->add_option("--epsilons", epsilons, "epsilon_u values in data units, comma-separated (default: 0 to 10 % of the data range)");
+  cmd->add_option("--epsilons", epsilons, "epsilon_u values in data units, comma-separated (default: the smallest nodal errors at which this view's selection holds 1/2, 1/4, ... 1/64 of the full-resolution texels)");
   cmd->add_option("--budgets", budgets, "texture budgets as fractions of the full-resolution bytes")->capture_default_str();
   cmd->add_option("--repeat", repeat, "frames per point: the first packs and uploads the brick textures, the fastest of the others (warm) counts; 1: the first")->capture_default_str();
   cmd->add_option("--rounds", rounds, "passes over all the points, each keeping its fastest frames (a slow spell of a shared machine then does not land on one point)")
@@ -134,9 +168,12 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   if (!o.epsilons.empty())
     epsilons = parseList(o.epsilons, "--epsilons", [](double x) { return std::isfinite(x) && x >= 0.0; }, "finite values >= 0");
   RenderJob job = prepareRender(o.render, out, err);
-  const Volume& v = job.renderer->volume();
-  if (o.epsilons.empty())
-    for (double fraction : {0.0025, 0.005, 0.01, 0.025, 0.05, 0.1}) epsilons.push_back(fraction * double(v.maxValue() - v.minValue()));
+  if (o.epsilons.empty()) {
+    epsilons = epsilonsOfTheView(*job.renderer, job.view, job.look, job.quality);
+    out << "epsilons";
+    for (const double e : epsilons) out << " " << e;
+    out << ": the smallest nodal errors whose selection holds at most 1/2, 1/4, ... of this view's full-resolution texels (up to 1/64)\n";
+  }
   std::error_code ec;
   fs::create_directories(o.outDir, ec);
   if (ec || !fs::is_directory(o.outDir)) HYB_THROW(IoError, o.outDir, ": cannot create the output directory (", ec.message(), ")");

@@ -15,7 +15,7 @@ namespace hyb::app {
 struct BenchOptions {
   RenderOptions render;
   std::string outDir;
-  std::string epsilons;                            ///< ε_u values (data units); empty: 0…10 % of the data range
+  std::string epsilons;                            ///< ε_u values (data units); empty: where this view's selection halves, six times
   std::string budgets = "0.5,0.25,0.125,0.0625";  ///< fractions of the full-resolution texture bytes
   int repeat = 4;                                  ///< frames per point: the first uploads, the fastest of the others counts
   int rounds = 3;                                  ///< passes over all the points; each point keeps its fastest frames

@@ -353,6 +353,52 @@ size_t SceneRenderer::drawResident(const Camera& camera, uint64_t packTexels, Se
   return missing.size();
 }
 
+SceneRenderer::GridParts SceneRenderer::gridParts(const View& view, const Look& look) const {
+  const PatientFrame& frame = mScene.volume.frame();
+  GridParts g{toGridCamera(view.camera, frame), std::nullopt, look.voi};
+  if (look.cut) g.cut = CutPlane{frame.toGrid(look.cut->point), frame.vectorToGrid(look.cut->normal)};
+  if (g.voi) {
+    g.voi->toBox = frame.direction;
+    g.voi->offset = frame.origin;
+  }
+  return g;
+}
+
+SelectionParams SceneRenderer::selectionParams(const GridParts& g, const Look& look, const Quality& quality, FrameStats* st) {
+  const Volume& v = mScene.volume;
+  SelectionChoice choice;
+  choice.epsilon = quality.epsilon;
+  if (quality.focus) choice.focus = v.frame().toGrid(*quality.focus);
+  choice.maxBrickEdge = quality.maxBrickEdge;
+  choice.blend = quality.blend;
+  choice.lodPixels = quality.lodPixels;
+  ViewErrors& errors = viewErrors(g.camera, look.tf, g.cut, g.voi, quality.reuseViewErrors);
+  auto paramsOf = [&](const SelectionChoice& c) {
+    return viewSelectionParams(v, look.tf, g.camera, g.cut ? &*g.cut : nullptr, g.voi ? &*g.voi : nullptr, c, &errors);
+  };
+  if (quality.budgetPercent > 0.0) {
+    // A percentage is of this view's full-resolution texels (every visible brick exact), at least one.
+    SelectionChoice full = choice;
+    full.epsilon = 0.0;
+    st->fullTexels = selectNodes(mScene.octree, paramsOf(full)).texels;
+    choice.texelBudget = std::max<uint64_t>(1, uint64_t(quality.budgetPercent / 100.0 * double(st->fullTexels)));
+  } else if (quality.budgetMb > 0.0) {
+    // A budget beyond 2^62 texels limits nothing (and would overflow the count): unlimited.
+    const double texels = quality.budgetMb * 1024.0 * 1024.0 / double(bytesPerTexel(quality.texelBits));
+    if (texels < 1.0) HYB_THROW(ValueError, "--budget ", quality.budgetMb, " MB is smaller than one texel");
+    choice.texelBudget = texels < 0x1p62 ? uint64_t(texels) : 0;
+  }
+  st->budgetTexels = choice.texelBudget;
+  return paramsOf(choice);
+}
+
+Selection SceneRenderer::select(const View& view, const Look& look, const Quality& quality) {
+  for (const std::string& problem : {view.validate(), look.validate(), quality.validate()})
+    if (!problem.empty()) throw ValueError(problem);
+  FrameStats st;
+  return selectNodes(mScene.octree, selectionParams(gridParts(view, look), look, quality, &st));
+}
+
 RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Quality& quality, const LevelCallback& onLevel) {
   for (const std::string& problem : {view.validate(), look.validate(), quality.validate()})
     if (!problem.empty()) throw ValueError(problem);
@@ -363,19 +409,14 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     if (quality.progressive > 1 || quality.adaptive > 0) HYB_THROW(ValueError, "a band of rows cannot be rendered progressively");
   }
   const Volume& v = mScene.volume;
-  const PatientFrame& frame = v.frame();
   RenderedFrame out;
   FrameStats& st = out.stats;
   st.renderer = quality.renderer;
   // Patient space to the grid frame.
-  const Camera camera = toGridCamera(view.camera, frame);
-  std::optional<CutPlane> cut;
-  if (look.cut) cut = CutPlane{frame.toGrid(look.cut->point), frame.vectorToGrid(look.cut->normal)};
-  std::optional<VolumeOfInterest> voi = look.voi;
-  if (voi) {
-    voi->toBox = frame.direction;
-    voi->offset = frame.origin;
-  }
+  const GridParts g = gridParts(view, look);
+  const Camera& camera = g.camera;
+  const std::optional<CutPlane>& cut = g.cut;
+  const std::optional<VolumeOfInterest>& voi = g.voi;
   // The surface: kept from earlier frames, or built now.
   const TriangleMesh* mesh = nullptr;
   if (look.iso) {
@@ -438,29 +479,8 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   }
 
   // The selection: ε and the budget for this view.
-  SelectionChoice choice;
-  choice.epsilon = quality.epsilon;
-  if (quality.focus) choice.focus = frame.toGrid(*quality.focus);
-  choice.maxBrickEdge = quality.maxBrickEdge;
-  choice.blend = quality.blend;
-  choice.lodPixels = quality.lodPixels;
-  ViewErrors& errors = viewErrors(camera, look.tf, cut, voi, quality.reuseViewErrors);
-  auto paramsOf = [&](const SelectionChoice& c) { return viewSelectionParams(v, look.tf, camera, cut ? &*cut : nullptr, voi ? &*voi : nullptr, c, &errors); };
   const auto s0 = Clock::now();
-  if (quality.budgetPercent > 0.0) {
-    // A percentage is of this view's full-resolution texels (every visible brick exact), at least one.
-    SelectionChoice full = choice;
-    full.epsilon = 0.0;
-    st.fullTexels = selectNodes(mScene.octree, paramsOf(full)).texels;
-    choice.texelBudget = std::max<uint64_t>(1, uint64_t(quality.budgetPercent / 100.0 * double(st.fullTexels)));
-  } else if (quality.budgetMb > 0.0) {
-    // A budget beyond 2^62 texels limits nothing (and would overflow the count): unlimited.
-    const double texels = quality.budgetMb * 1024.0 * 1024.0 / double(bytesPerTexel(quality.texelBits));
-    if (texels < 1.0) HYB_THROW(ValueError, "--budget ", quality.budgetMb, " MB is smaller than one texel");
-    choice.texelBudget = texels < 0x1p62 ? uint64_t(texels) : 0;
-  }
-  st.budgetTexels = choice.texelBudget;
-  const SelectionParams params = paramsOf(choice);
+  const SelectionParams params = selectionParams(g, look, quality, &st);
   out.selection = selectNodes(mScene.octree, params);
   if (!quality.waitForBricks && (mScene.knots || quality.packTexels > 0)) st.bricksNotResident = drawResident(camera, quality.packTexels, &out.selection);
   st.selectMs = msSince(s0);
@@ -498,7 +518,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   const auto r0 = Clock::now();
   out.image = renderSlices(v, mScene.octree, out.selection, look.tf, camera, so, &st.slices);
   st.renderMs = msSince(r0);
-  st.brickErrorsMeasured = errors.measured();
+  st.brickErrorsMeasured = mErrors->errors->measured();  // the view's, made by the selection
   st.textureBytesKept = mTextures->bytes();
   return out;
 }

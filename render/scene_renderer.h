@@ -215,6 +215,11 @@ class SceneRenderer {
   /// @throw ValueError for impossible parameters; RuntimeError when OpenGL fails.
   RenderedFrame render(const View& view, const Look& look, const Quality& quality, const LevelCallback& onLevel = {});
 
+  /// The bricks a slice frame of @p view, @p look and @p quality selects (what render() draws,
+  /// before a paged store's residency), without drawing: for sweeps that pick their settings by it.
+  /// @throw ValueError for impossible parameters.
+  Selection select(const View& view, const Look& look, const Quality& quality);
+
   /// Builds the isosurface a frame of @p view, @p look and @p quality draws (the Surface Octree's,
   /// with the normals @p look asks for, or the coarse one its level of detail allows) and reports
   /// that work and the surface; render() does it too when it was not done.
@@ -255,6 +260,15 @@ class SceneRenderer {
 
  private:
   struct Errors;
+  /// A frame's camera, cutting plane and volume of interest in the grid frame.
+  struct GridParts {
+    Camera camera;
+    std::optional<CutPlane> cut;
+    std::optional<VolumeOfInterest> voi;
+  };
+  GridParts gridParts(const View& view, const Look& look) const;
+  /// The selection parameters of a frame (ε, the budget as texels in @p st, the view's errors).
+  SelectionParams selectionParams(const GridParts& g, const Look& look, const Quality& quality, FrameStats* st);
   /// The kept entry of @p iso (made empty when there is none), most recently used now.
   PreparedSurface& entry(float iso);
   /// entry(iso) with its full-resolution surface made.

@@ -414,6 +414,29 @@ TEST(Cli, BenchWritesTheTableThePlotAndTheImages) {
   EXPECT_EQ(readPng(dir.file("bench/reference.png"), &w, &h).size(), size_t(32 * 32 * 4));
 }
 
+// Without --epsilons the sweep takes the smallest nodal errors at which the view's selection halves:
+// every point selects fewer texture bytes than the one before.
+TEST(Cli, BenchsDefaultEpsilonsEachSelectLess) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  const CliRun r = run({"bench", nhdr, "--size", "16x16", "--budgets", "0.5", "--max-brick", "2", "--repeat", "1", "--rounds", "1", "--no-plot",
+                        "-o", dir.file("bench")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("the smallest nodal errors whose selection holds at most 1/2, 1/4"));
+  std::istringstream csv(test::readText(dir.file("bench/trade.csv")));
+  std::string row;
+  std::getline(csv, row);
+  std::vector<double> bytes;  // full resolution, then each epsilon
+  while (std::getline(csv, row)) {
+    std::vector<std::string> cells;
+    std::istringstream fields(row);
+    for (std::string c; std::getline(fields, c, ',');) cells.push_back(c);
+    if (cells[0] == "full" || cells[0] == "epsilon") bytes.push_back(std::stod(cells[8]));
+  }
+  ASSERT_GE(bytes.size(), 3u);
+  for (size_t i = 1; i < bytes.size(); ++i) EXPECT_LT(bytes[i], bytes[i - 1]) << i;
+}
+
 // Frame times: the first frame (uploads included) in a column of its own, the best warm frame as
 // frame_ms, each the fastest over the rounds; with --repeat 1 both are the one frame. An epsilon that selects what full resolution
 // does shares its label in the plot instead of printing over it.
