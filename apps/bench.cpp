@@ -10,6 +10,7 @@
 #include <ostream>
 #include <sstream>
 
+#include "render/brick_textures.h"
 #include "render/gl_context.h"
 #include "volume/file_util.h"
 
@@ -70,6 +71,7 @@ struct Point {
   uint64_t textureBytes = 0;
   float maxError = 0;
   double selectMs = 0, frameMs = 0, firstFrameMs = 0, psnrDb = 0, ssim = 0;
+  float seam = 0;  // with blending: the largest step it removes between levels (data units)
   std::string image;
 };
 
@@ -233,6 +235,13 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
     p.blended = f.stats.slices.blendedBricks;
     p.textureBytes = f.stats.slices.textureBytes;
     p.maxError = f.selection.maxError;
+    if (p.blend) {
+      const Scene& scene = job.renderer->scene();
+      const VolumeKnots inMemory(scene.volume, scene.octree);
+      const KnotSource& knots = scene.knots ? static_cast<const KnotSource&>(*scene.knots) : inMemory;
+      for (const Brick& b : f.selection.bricks)
+        if (!b.hidden) p.seam = std::max(p.seam, seamHeight(knots, scene.octree, b));
+    }
     std::ostringstream name;
     name << p.sweep;
     if (p.sweep == "epsilon") name << "_" << p.epsilon;
@@ -292,7 +301,8 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
     out << "  budget " << std::setprecision(4) << on.budgetFraction << ": " << std::setprecision(2) << base.frameMs / on.frameMs
         << "x faster than full, " << on.psnrDb << " dB; blending costs " << std::setprecision(1) << 100.0 * (on.frameMs / off.frameMs - 1.0)
         << " % frame time, " << 100.0 * (double(on.textureBytes) / double(std::max<uint64_t>(off.textureBytes, 1)) - 1.0)
-        << " % texture bytes, " << std::setprecision(2) << on.psnrDb - off.psnrDb << " dB\n";
+        << " % texture bytes, " << std::setprecision(2) << on.psnrDb - off.psnrDb << " dB, and removes steps of up to "
+        << std::setprecision(1) << on.seam << " between levels (data units)\n";
   }
   if (const auto& store = job.renderer->scene().knots) {
     // What the paged scene read through its cache over the whole run.

@@ -77,33 +77,68 @@ std::vector<KnotBox> brickKnotBoxes(const VolumeOctree& t, const Brick& b) {
   return boxes;
 }
 
+namespace {
+
+// What a brick that blends (Carmona et al.) is made of: its lattice's knots, the coarser lattice's,
+// and the trilinear weight of its corners that touch no coarser brick at each position (0 on a
+// face shared with a coarser brick, 1 where every corner is its own).
+struct BlendParts {
+  KnotLattice fine, coarse;
+  std::vector<glm::vec4> own, low;
+  BlendParts(const KnotSource& source, const VolumeOctree& t, const Brick& b)
+      : fine(t.lattice(t.nodes()[b.node], b.p)), coarse(t.coarseLattice(t.nodes()[b.node], b.p)), own(latticeKnots(source, fine)),
+        low(latticeKnots(source, coarse)) {}
+  glm::vec4 ownAt(const glm::ivec3& j) const { return own[size_t(j.x) + size_t(fine.dims.x) * (size_t(j.y) + size_t(fine.dims.y) * size_t(j.z))]; }
+  // The coarse lattice's field at voxel @p p.
+  glm::vec4 coarseAt(const VolumeOctree& t, const glm::ivec3& p) const {
+    auto lowAt = [&](const glm::ivec3& q) {
+      glm::ivec3 j;
+      for (int a = 0; a < 3; ++a) j[a] = q[a] >= coarse.last[a] ? coarse.dims[a] - 1 : (q[a] - coarse.origin[a]) / coarse.step;
+      return low[size_t(j.x) + size_t(coarse.dims.x) * (size_t(j.y) + size_t(coarse.dims.y) * size_t(j.z))];
+    };
+    return t.latticeField(coarse.step, glm::clamp(p, coarse.origin, coarse.last), lowAt);
+  }
+};
+
+float ownCornerWeight(const VolumeOctree& t, const Brick& b, const glm::ivec3& p) {
+  const OctreeNode& n = t.nodes()[b.node];
+  const glm::vec3 u = glm::clamp((glm::vec3(p) - glm::vec3(n.origin)) / float(t.edge(n)), 0.0f, 1.0f);
+  float w = 0.0f;
+  for (int c = 0; c < 8; ++c)
+    if (!((b.coarseCorners >> c) & 1)) w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
+  return w;
+}
+
+}  // namespace
+
 // The coarse field is read from the coarse lattice's knots once (each serves up to eight of the
 // brick's); a coarse brick keeps the full-resolution gradients at its knots, interpolated between
 // them, as a simplified mesh keeps its original normals (docs/multires.md).
 std::vector<glm::vec4> brickTexels(const KnotSource& source, const VolumeOctree& t, const Brick& b) {
-  const OctreeNode& n = t.nodes()[b.node];
-  const KnotLattice fine = t.lattice(n, b.p);
-  const std::vector<glm::vec4> own = latticeKnots(source, fine);
-  auto ownAt = [&](const glm::ivec3& j) { return own[size_t(j.x) + size_t(fine.dims.x) * (size_t(j.y) + size_t(fine.dims.y) * size_t(j.z))]; };
-  if (!b.coarseCorners) return latticeTexels(fine, [&](const glm::ivec3& j, const glm::ivec3&) { return ownAt(j); });
-  const KnotLattice coarse = t.coarseLattice(n, b.p);
-  const std::vector<glm::vec4> low = latticeKnots(source, coarse);
-  const glm::vec3 origin(n.origin);
-  const float edge = float(t.edge(n));
-  auto lowAt = [&](const glm::ivec3& q) {
-    glm::ivec3 j;
-    for (int a = 0; a < 3; ++a) j[a] = q[a] >= coarse.last[a] ? coarse.dims[a] - 1 : (q[a] - coarse.origin[a]) / coarse.step;
-    return low[size_t(j.x) + size_t(coarse.dims.x) * (size_t(j.y) + size_t(coarse.dims.y) * size_t(j.z))];
-  };
-  return latticeTexels(fine, [&](const glm::ivec3& j, const glm::ivec3& p) {
-    const glm::vec3 u = glm::clamp((glm::vec3(p) - origin) / edge, 0.0f, 1.0f);
-    float w = 0.0f;
-    for (int c = 0; c < 8; ++c)
-      if (!((b.coarseCorners >> c) & 1))
-        w += (c & 1 ? u.x : 1 - u.x) * (c & 2 ? u.y : 1 - u.y) * (c & 4 ? u.z : 1 - u.z);
-    w = std::min(1.0f, kBlendSteepness * w);
-    return glm::mix(t.latticeField(coarse.step, glm::clamp(p, coarse.origin, coarse.last), lowAt), ownAt(j), w);
+  if (!b.coarseCorners) {
+    const KnotLattice fine = t.lattice(t.nodes()[b.node], b.p);
+    const std::vector<glm::vec4> own = latticeKnots(source, fine);
+    return latticeTexels(fine, [&](const glm::ivec3& j, const glm::ivec3&) {
+      return own[size_t(j.x) + size_t(fine.dims.x) * (size_t(j.y) + size_t(fine.dims.y) * size_t(j.z))];
+    });
+  }
+  const BlendParts parts(source, t, b);
+  return latticeTexels(parts.fine, [&](const glm::ivec3& j, const glm::ivec3& p) {
+    return glm::mix(parts.coarseAt(t, p), parts.ownAt(j), std::min(1.0f, kBlendSteepness * ownCornerWeight(t, b, p)));
   });
+}
+
+float seamHeight(const KnotSource& source, const VolumeOctree& t, const Brick& b) {
+  if (!b.coarseCorners) return 0.0f;
+  const BlendParts parts(source, t, b);
+  float height = 0.0f;
+  for (int k = 0; k < parts.fine.dims.z; ++k)
+    for (int j = 0; j < parts.fine.dims.y; ++j)
+      for (int i = 0; i < parts.fine.dims.x; ++i) {
+        const glm::ivec3 p(parts.fine.knot(0, i), parts.fine.knot(1, j), parts.fine.knot(2, k));
+        if (ownCornerWeight(t, b, p) == 0.0f) height = std::max(height, std::abs(parts.ownAt(glm::ivec3(i, j, k)).x - parts.coarseAt(t, p).x));
+      }
+  return height;
 }
 
 PackedBrick packBrick(const std::vector<glm::vec4>& texels, TexelBits bits) {

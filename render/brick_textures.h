@@ -73,6 +73,11 @@ struct PackedBrick {
 std::vector<glm::vec4> brickTexels(const KnotSource& source, const VolumeOctree& octree, const Brick& b);
 /// The knots brickTexels reads for @p b: its lattice's, and where a corner blends its coarse lattice's.
 std::vector<KnotBox> brickKnotBoxes(const VolumeOctree& octree, const Brick& b);
+/// The seam blending removes at @p b: the largest difference, at its knots on faces shared with a
+/// coarser brick (where brickTexels' weight is 0), between its own value and the coarser level's
+/// field (data units), which a frame drawn without blending shows as a step there. 0 when no corner
+/// of @p b touches a coarser brick.
+float seamHeight(const KnotSource& source, const VolumeOctree& octree, const Brick& b);
 
 /// The ranges of @p texels (a lattice of @p dims knots) over blocks of 2×2×2 cells.
 BrickRanges texelRanges(const std::vector<glm::vec4>& texels, const glm::ivec3& dims);

@@ -405,6 +405,9 @@ TEST(Cli, BenchWritesTheTableThePlotAndTheImages) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("[4/4]"));
   EXPECT_THAT(r.out, HasSubstr("  monotonic: PSNR and texture bytes fall"));
+  EXPECT_TRUE(std::regex_search(r.out, std::regex("blending costs [-0-9.]+ % frame time, [-0-9.]+ % texture bytes, [-0-9.]+ dB, and removes "
+                                                  "steps of up to [0-9.]+ between levels")))
+      << r.out;
   const std::string csv = test::readText(dir.file("bench/trade.csv"));
   EXPECT_EQ(lines(csv), size_t(5));  // header, full, one epsilon, the budget with and without blending
   EXPECT_THAT(csv, HasSubstr("budget,0,0.5,"));

@@ -11,6 +11,7 @@
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/surface_octree.h"
 #include "render/brick_error.h"
+#include "render/brick_textures.h"
 #include "render/raycast.h"
 #include "render/slices.h"
 #include "render_util.h"
@@ -148,6 +149,19 @@ TEST(Multires, BlendingRemovesTheSeamAtALevelChange) {
   EXPECT_LE(seamBlended * 4.0f, seamNaive) << "naive " << seamNaive << ", blended " << seamBlended;
   // Far from the change, both show the fine data unchanged.
   for (int y = 0; y < 64; ++y) EXPECT_NEAR(a.at(4, y).r, b.at(4, y).r, 1e-6f);
+  // The seam blending removes, in data units: on the face x = 32 the fine bricks' knots at odd y
+  // against the coarse side's field there, the mean of the samples either side.
+  auto f = [](int j) { return 100.0 + 80.0 * std::sin(2.0 * M_PI * j / 10.0); };
+  double expected = 0.0;
+  for (int j = 1; j < 32; j += 2) expected = std::max(expected, std::abs(f(j) - 0.5 * (f(j - 1) + f(j + 1))));
+  const VolumeKnots knots(v, t);
+  float seam = 0.0f;
+  for (const Brick& brick : blended.bricks) {
+    const float h = seamHeight(knots, t, brick);
+    EXPECT_TRUE(brick.coarseCorners || h == 0.0f);
+    seam = std::max(seam, h);
+  }
+  EXPECT_NEAR(seam, expected, 1e-3);  // 14.5: 80·(1 − cos 36°)·sin 108°
 }
 
 TEST(Multires, CoarseBricksShadeWithTheDatasOwnGradients) {
