@@ -408,81 +408,82 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
       HYB_THROW(ValueError, "rows ", rows.x, "..", rows.y, " invalid (expected 0 <= first < last <= ", view.camera.height, ")");
     if (quality.progressive > 1 || quality.adaptive > 0) HYB_THROW(ValueError, "a band of rows cannot be rendered progressively");
   }
-  const Volume& v = mScene.volume;
   RenderedFrame out;
-  FrameStats& st = out.stats;
-  st.renderer = quality.renderer;
-  // Patient space to the grid frame.
+  out.stats.renderer = quality.renderer;
   const GridParts g = gridParts(view, look);
-  const Camera& camera = g.camera;
-  const std::optional<CutPlane>& cut = g.cut;
-  const std::optional<VolumeOfInterest>& voi = g.voi;
-  // The surface: kept from earlier frames, or built now.
-  const TriangleMesh* mesh = nullptr;
-  if (look.iso) {
-    const FrameStats prepared = prepareAt(*look.iso, drawnSpacing(camera, quality, *look.iso), look.normals);
-    st.surfaceSpacing = prepared.surfaceSpacing;
-    st.surfaceBuilt = prepared.surfaceBuilt;
-    st.surfaceBuildMs = prepared.surfaceBuildMs;
-    st.surfacePolygonsMs = prepared.surfacePolygonsMs;
-    st.surfacePolygons = prepared.surfacePolygons;
-    st.surfaceTriangles = prepared.surfaceTriangles;
-    if (st.surfaceSpacing > 1) {
-      mesh = &coarseSurface(*look.iso, st.surfaceSpacing, nullptr);
-    } else if (quality.simplifiedSurface && quality.renderer == Renderer::Slices) {
-      PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
-      simplify(mScene, &s, mOptions.progress);
-      // The coarsest level whose error is within the pixels asked where the volume is nearest.
-      const double allowedMm = quality.surfaceErrorPixels * nearestPixelMm(camera);
-      int k = 0;
-      while (k + 1 < int(s.simplified.size()) && simplifiedErrorMm(v.spacing(), k + 1) <= allowedMm) ++k;
-      mesh = &s.simplified[size_t(k)];
-    } else {
-      mesh = &surface(*look.iso, look.normals);
-    }
-  }
+  const TriangleMesh* mesh = look.iso ? frameSurface(g.camera, look, quality, &out.stats) : nullptr;
+  if (quality.renderer == Renderer::Raycast)
+    renderRaycast(g, look, quality, mesh, onLevel, &out);
+  else
+    renderSlicesFrame(g, look, quality, mesh, onLevel, &out);
+  return out;
+}
 
-  if (quality.renderer == Renderer::Raycast) {
-    const Bvh* bvh = nullptr;
-    if (mesh) {
-      PreparedSurface& s = *mSurfaces.front();  // this frame's
-      std::unique_ptr<Bvh>& kept = s.bvh[look.normals == SurfaceNormals::Gradient ? 1 : 0];
-      if (!kept) kept = std::make_unique<Bvh>(*mesh);
-      bvh = kept.get();
-    }
-    RaycastOptions ro;
-    ro.stepVoxels = quality.step.value_or(0.25);
-    ro.shading = look.shading;
-    ro.surface = bvh;
-    ro.surfaceColor = look.surfaceColor;
-    ro.cut = cut ? &*cut : nullptr;
-    ro.voi = voi ? &*voi : nullptr;
-    ro.knots = v.hasSamples() ? nullptr : mScene.knots.get();  // a paged scene's samples through its cache
-    // Levoy's refinement: progressive levels (the first grid 2^(N−1) pixels apart), or four with
-    // an adaptive tolerance alone; the last level is exact unless the tolerance is given.
-    ro.refineLevels = quality.progressive > 1 ? quality.progressive : quality.adaptive > 0 ? 4 : 1;
-    ro.refineTolerance = float(quality.adaptive / 255.0);
-    ro.progress = mOptions.progress;
-    ro.rows = quality.rows;
-    const auto t0 = Clock::now();
-    if (onLevel)
-      ro.onLevel = [&](int level, const Image& image, uint64_t rays) {
-        if (level >= ro.refineLevels) return;
-        FrameStats ls = st;
-        ls.rays.rays = rays;
-        ls.renderMs = msSince(t0);
-        onLevel(level, ro.refineLevels, image, ls);
-      };
-    out.image = raycast(v, mScene.octree, look.tf, camera, ro, &st.rays);
-    st.renderMs = msSince(t0);
-    return out;
-  }
+const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look& look, const Quality& quality, FrameStats* st) {
+  // Kept from earlier frames, or built now.
+  const FrameStats prepared = prepareAt(*look.iso, drawnSpacing(camera, quality, *look.iso), look.normals);
+  st->surfaceSpacing = prepared.surfaceSpacing;
+  st->surfaceBuilt = prepared.surfaceBuilt;
+  st->surfaceBuildMs = prepared.surfaceBuildMs;
+  st->surfacePolygonsMs = prepared.surfacePolygonsMs;
+  st->surfacePolygons = prepared.surfacePolygons;
+  st->surfaceTriangles = prepared.surfaceTriangles;
+  if (st->surfaceSpacing > 1) return &coarseSurface(*look.iso, st->surfaceSpacing, nullptr);
+  if (!(quality.simplifiedSurface && quality.renderer == Renderer::Slices)) return &surface(*look.iso, look.normals);
+  PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
+  simplify(mScene, &s, mOptions.progress);
+  // The coarsest level whose error is within the pixels asked where the volume is nearest.
+  const double allowedMm = quality.surfaceErrorPixels * nearestPixelMm(camera);
+  int k = 0;
+  while (k + 1 < int(s.simplified.size()) && simplifiedErrorMm(volume().spacing(), k + 1) <= allowedMm) ++k;
+  return &s.simplified[size_t(k)];
+}
 
+void SceneRenderer::renderRaycast(const GridParts& g, const Look& look, const Quality& quality, const TriangleMesh* mesh,
+                                  const LevelCallback& onLevel, RenderedFrame* out) {
+  FrameStats& st = out->stats;
+  const Bvh* bvh = nullptr;
+  if (mesh) {
+    PreparedSurface& s = *mSurfaces.front();  // this frame's
+    std::unique_ptr<Bvh>& kept = s.bvh[look.normals == SurfaceNormals::Gradient ? 1 : 0];
+    if (!kept) kept = std::make_unique<Bvh>(*mesh);
+    bvh = kept.get();
+  }
+  RaycastOptions ro;
+  ro.stepVoxels = quality.step.value_or(0.25);
+  ro.shading = look.shading;
+  ro.surface = bvh;
+  ro.surfaceColor = look.surfaceColor;
+  ro.cut = g.cut ? &*g.cut : nullptr;
+  ro.voi = g.voi ? &*g.voi : nullptr;
+  ro.knots = volume().hasSamples() ? nullptr : mScene.knots.get();  // a paged scene's samples through its cache
+  // Levoy's refinement: progressive levels (the first grid 2^(N−1) pixels apart), or four with
+  // an adaptive tolerance alone; the last level is exact unless the tolerance is given.
+  ro.refineLevels = quality.progressive > 1 ? quality.progressive : quality.adaptive > 0 ? 4 : 1;
+  ro.refineTolerance = float(quality.adaptive / 255.0);
+  ro.progress = mOptions.progress;
+  ro.rows = quality.rows;
+  const auto t0 = Clock::now();
+  if (onLevel)
+    ro.onLevel = [&](int level, const Image& image, uint64_t rays) {
+      if (level >= ro.refineLevels) return;
+      FrameStats ls = st;
+      ls.rays.rays = rays;
+      ls.renderMs = msSince(t0);
+      onLevel(level, ro.refineLevels, image, ls);
+    };
+  out->image = raycast(volume(), mScene.octree, look.tf, g.camera, ro, &st.rays);
+  st.renderMs = msSince(t0);
+}
+
+void SceneRenderer::renderSlicesFrame(const GridParts& g, const Look& look, const Quality& quality, const TriangleMesh* mesh,
+                                      const LevelCallback& onLevel, RenderedFrame* out) {
+  FrameStats& st = out->stats;
   // The selection: ε and the budget for this view.
   const auto s0 = Clock::now();
   const SelectionParams params = selectionParams(g, look, quality, &st);
-  out.selection = selectNodes(mScene.octree, params);
-  if (!quality.waitForBricks && (mScene.knots || quality.packTexels > 0)) st.bricksNotResident = drawResident(camera, quality.packTexels, &out.selection);
+  out->selection = selectNodes(mScene.octree, params);
+  if (!quality.waitForBricks && (mScene.knots || quality.packTexels > 0)) st.bricksNotResident = drawResident(g.camera, quality.packTexels, &out->selection);
   st.selectMs = msSince(s0);
 
   ensureGl();
@@ -492,9 +493,9 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   so.texelBits = quality.texelBits;
   so.surface = mesh;
   so.surfaceColor = look.surfaceColor;
-  so.cut = cut ? &*cut : nullptr;
+  so.cut = g.cut ? &*g.cut : nullptr;
   so.cutLine = look.cutLine;
-  so.voi = voi ? &*voi : nullptr;
+  so.voi = g.voi ? &*g.voi : nullptr;
   so.proxy = quality.proxy;
   so.textures = mOptions.keepTextures ? mTextures.get() : nullptr;
   so.knots = mScene.knots.get();
@@ -505,22 +506,21 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   for (int k = 1; k < quality.progressive; ++k) {
     const int shift = 3 * (quality.progressive - k);
     SelectionParams coarser = params;
-    coarser.texelBudget = std::max<uint64_t>(1, shift < 64 ? out.selection.texels >> shift : 0);
+    coarser.texelBudget = std::max<uint64_t>(1, shift < 64 ? out->selection.texels >> shift : 0);
     FrameStats ls = st;
     const auto p0 = Clock::now();
     const Selection coarse = selectNodes(mScene.octree, coarser);
-    const Image preview = renderSlices(v, mScene.octree, coarse, look.tf, camera, so, &ls.slices);
+    const Image preview = renderSlices(volume(), mScene.octree, coarse, look.tf, g.camera, so, &ls.slices);
     ls.renderMs = msSince(p0);
     if (onLevel) onLevel(k, quality.progressive, preview, ls);
   }
   so.progress = mOptions.progress;
   so.rows = quality.rows;
   const auto r0 = Clock::now();
-  out.image = renderSlices(v, mScene.octree, out.selection, look.tf, camera, so, &st.slices);
+  out->image = renderSlices(volume(), mScene.octree, out->selection, look.tf, g.camera, so, &st.slices);
   st.renderMs = msSince(r0);
   st.brickErrorsMeasured = mErrors->errors->measured();  // the view's, made by the selection
   st.textureBytesKept = mTextures->bytes();
-  return out;
 }
 
 }  // namespace hyb

@@ -267,6 +267,13 @@ class SceneRenderer {
     std::optional<VolumeOfInterest> voi;
   };
   GridParts gridParts(const View& view, const Look& look) const;
+  /// The surface a frame draws (Look::iso set), its work and size in @p st.
+  const TriangleMesh* frameSurface(const Camera& gridCamera, const Look& look, const Quality& quality, FrameStats* st);
+  /// The two renderers' frames, the surface @p mesh (or none) in it.
+  void renderRaycast(const GridParts& g, const Look& look, const Quality& quality, const TriangleMesh* mesh, const LevelCallback& onLevel,
+                     RenderedFrame* out);
+  void renderSlicesFrame(const GridParts& g, const Look& look, const Quality& quality, const TriangleMesh* mesh, const LevelCallback& onLevel,
+                         RenderedFrame* out);
   /// The selection parameters of a frame (ε, the budget as texels in @p st, the view's errors).
   SelectionParams selectionParams(const GridParts& g, const Look& look, const Quality& quality, FrameStats* st);
   /// The kept entry of @p iso (made empty when there is none), most recently used now.
