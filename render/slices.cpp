@@ -277,6 +277,35 @@ class FramePrograms {
   std::vector<gl::Program> mOwn;  // without a cache: the frame's own
 };
 
+// What every stage of one slice frame reads, made once: its inputs, its camera, the transfer
+// function's table, the bricks' draw order and the surface's polygons by brick.
+struct SliceFrame {
+  const Volume& volume;
+  const VolumeOctree& octree;
+  const Selection& selection;
+  const TransferFunction& tf;
+  const Camera& camera;
+  const SlicesOptions& options;
+  const FrameCamera& view;       // the camera's matrices and forward axis
+  const TransferTable& table;
+  double baseDelta;              // the base slice spacing, mm
+  bool translucent;              // a translucent surface, drawn in SlabPolygon lists
+  glm::dvec4 cut;                // the cutting plane's kept side (everything without a plane)
+  const BrickIndex& brickOf;
+  const std::vector<uint32_t>& order;       // the bricks' nodes, back to front
+  const SurfacePolygons* surface;           // the translucent surface's polygons, or none
+  const BrickPolygons& polygonsOf;
+  const PixelCentres* centres;              // the triangles between pixel centres left out, or none
+  glm::dvec3 spacing() const { return volume.spacing(); }
+};
+
+// What a worker reuses from one brick's stream to the next.
+struct StreamScratch {
+  SlabPolygonList list;
+  std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes;
+  std::vector<float> one;
+};
+
 // What one brick draws: planned on the submitting thread (textures are GL work), its vertex stream
 // built by a worker thread while this one submits the bricks before it to llvmpipe, whose vertex
 // processing runs on the submitting thread: the two halves of the per-brick work overlap.
@@ -313,30 +342,30 @@ struct BrickDraw {
 // cutting plane crosses are planned before any draw: the plane is drawn first, from their textures.
 class BrickPlanner {
  public:
-  BrickPlanner(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf, const Camera& camera,
-               const SlicesOptions& options, const TransferTable& table, const std::vector<uint32_t>& order, const BrickIndex& brickOf,
-               const BrickPolygons& polygonsOf, bool translucent, const glm::dvec4& cut, double baseDelta)
-      : mOctree(octree), mSelection(selection), mCamera(camera), mOptions(options), mTable(table), mPolygonsOf(polygonsOf),
-        mInMemory(volume, octree), mKnots(options.knots ? *options.knots : mInMemory), mSpacing(volume.spacing()), mBaseDelta(baseDelta),
-        mBatch(std::max<size_t>(options.packBatch, 1)) {
+  explicit BrickPlanner(const SliceFrame& f)
+      : mF(f), mInMemory(f.volume, f.octree), mKnots(f.options.knots ? *f.options.knots : mInMemory), mSpacing(f.spacing()),
+        mBatch(std::max<size_t>(f.options.packBatch, 1)) {
+    const VolumeOctree& octree = f.octree;
+    const SlicesOptions& options = f.options;
+    const Camera& camera = f.camera;
     // The frame's draws, and the crossed bricks to pack; no cache entry is marked as used here.
     // Hidden (transparent or culled) bricks cost no texels; their surface triangles are still drawn.
     std::vector<size_t> crossedToPack;
-    mDraws.reserve(order.size());
-    for (const uint32_t i : order) {
+    mDraws.reserve(f.order.size());
+    for (const uint32_t i : f.order) {
       const OctreeNode& n = octree.nodes()[i];
       BrickDraw d;
-      d.brick = uint32_t(brickOf[i]);
+      d.brick = uint32_t(f.brickOf[i]);
       d.node = i;
-      const Brick& b = selection.bricks[d.brick];
-      d.visible = !b.hidden && tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
-      if (!d.visible && !(translucent && !polygonsOf.of(d.brick).empty())) continue;
+      const Brick& b = f.selection.bricks[d.brick];
+      d.visible = !b.hidden && f.tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
+      if (!d.visible && !(f.translucent && !f.polygonsOf.of(d.brick).empty())) continue;
       glm::ivec3 lo, hi;
       octree.voxelBox(n, &lo, &hi);
       d.blo = d.slo = glm::dvec3(lo) * mSpacing;
       d.bhi = d.shi = glm::dvec3(hi) * mSpacing;
       d.shell = options.proxy == Proxy::Shells && !camera.ortho && shellFrame(d.blo, d.bhi, camera.eye, &d.frame);
-      d.crossed = d.visible && options.cut && slicePolygon(d.blo, d.bhi, glm::dvec3(cut), -cut.w, &d.cutPolygon);
+      d.crossed = d.visible && options.cut && slicePolygon(d.blo, d.bhi, glm::dvec3(f.cut), -f.cut.w, &d.cutPolygon);
       if (d.crossed && !(options.textures && options.textures->contains(b))) crossedToPack.push_back(mDraws.size());
       mDraws.push_back(std::move(d));
     }
@@ -352,7 +381,7 @@ class BrickPlanner {
       for (; next < end; ++next) {
         BrickDraw& d = mDraws[next];
         if (!d.visible) continue;
-        d.cached = options.textures ? options.textures->find(selection.bricks[d.brick]) : nullptr;
+        d.cached = options.textures ? options.textures->find(f.selection.bricks[d.brick]) : nullptr;
         if (d.crossed) {
           plan(d);
         } else if (!d.cached) {
@@ -398,7 +427,7 @@ class BrickPlanner {
     st->blendedBricks = mBlended;
     st->texels = mTexels;
     st->shellBricks = mShellBricks;
-    st->textureBytes = mTexels * bytesPerTexel(mOptions.texelBits) + mCutTexels * kBytesPerCutTexel;
+    st->textureBytes = mTexels * bytesPerTexel(mF.options.texelBits) + mCutTexels * kBytesPerCutTexel;
     st->peakPackedBricks = mPeakHeld;
   }
 
@@ -413,10 +442,10 @@ class BrickPlanner {
     for (size_t k = 0; k < count; ++k)
       failure.run([&] {
         BrickDraw& d = mDraws[js[k]];
-        const Brick& b = mSelection.bricks[d.brick];
-        const std::vector<glm::vec4> texels = brickTexels(mKnots, mOctree, b);
-        d.packed = packBrick(texels, mOptions.texelBits);
-        d.packed.brick.ranges = texelRanges(texels, mOctree.lattice(mOctree.nodes()[d.node], b.p).dims);
+        const Brick& b = mF.selection.bricks[d.brick];
+        const std::vector<glm::vec4> texels = brickTexels(mKnots, mF.octree, b);
+        d.packed = packBrick(texels, mF.options.texelBits);
+        d.packed.brick.ranges = texelRanges(texels, mF.octree.lattice(mF.octree.nodes()[d.node], b.p).dims);
       });
     failure.rethrow();
     mHeld += count;
@@ -425,17 +454,17 @@ class BrickPlanner {
 
   // Plans draw @p d, its brick found in the cache or packed.
   void plan(BrickDraw& d) {
-    const Brick& b = mSelection.bricks[d.brick];
-    const KnotLattice fine = mOctree.lattice(mOctree.nodes()[d.node], b.p);
+    const Brick& b = mF.selection.bricks[d.brick];
+    const KnotLattice fine = mF.octree.lattice(mF.octree.nodes()[d.node], b.p);
     d.sliced = d.visible;
     if (d.visible) {
       // A crossed brick's texture is made now, others' when they are drawn.
       CachedBrick* cached = d.cached;
       CachedBrick made;
       if (!cached && d.crossed) {
-        made = uploadBrick(std::move(d.packed), fine.dims, mOptions.texelBits);
+        made = uploadBrick(std::move(d.packed), fine.dims, mF.options.texelBits);
         uploaded(d);
-        if (mOptions.textures) cached = &mOptions.textures->insert(b, std::move(made));
+        if (mF.options.textures) cached = &mF.options.textures->insert(b, std::move(made));
       } else if (!cached) {
         d.texels = fine.dims;
       }
@@ -443,13 +472,13 @@ class BrickPlanner {
       CutPiece piece;
       if (d.crossed) {
         piece.polygon = std::move(d.cutPolygon);
-        if (mOptions.texelBits == TexelBits::Sixteen) {
+        if (mF.options.texelBits == TexelBits::Sixteen) {
           piece.texture = brick.texture.id();  // its value is 16 bits already
         } else {
           if (!brick.cutTexture) {
             const uint64_t before = brick.bytes;
-            uploadCutTexture(brickTexels(mKnots, mOctree, b), fine.dims, &brick);
-            if (cached) mOptions.textures->grew(b, brick.bytes - before);
+            uploadCutTexture(brickTexels(mKnots, mF.octree, b), fine.dims, &brick);
+            if (cached) mF.options.textures->grew(b, brick.bytes - before);
           }
           piece.texture = brick.cutTexture.id();
           mCutTexels += fine.count();
@@ -461,9 +490,9 @@ class BrickPlanner {
       mTexels += fine.count();
       ++mBricks;
       mBlended += b.coarseCorners != 0;
-      if (mOptions.visibleBoxes) {
+      if (mF.options.visibleBoxes) {
         glm::dvec3 vlo(0.0), vhi(0.0);
-        findVisibleBlocks(brick.ranges, mTable.visible, &brick.visible);
+        findVisibleBlocks(brick.ranges, mF.table.visible, &brick.visible);
         d.sliced = visibleBox(brick.visible, fine, &vlo, &vhi);
         d.slo = glm::max(d.blo, vlo * mSpacing);
         d.shi = glm::min(d.bhi, vhi * mSpacing);
@@ -488,26 +517,20 @@ class BrickPlanner {
     // its own slices as in the paper, where its level approximates the field; where the level is
     // exact the brick keeps the base spacing so that the surface is composited exactly, and so
     // does a brick holding the eye, so that the near plane cuts the volume finely.
-    const bool holdsEye = !mCamera.ortho && glm::all(glm::greaterThanEqual(mCamera.eye, d.blo)) && glm::all(glm::lessThanEqual(mCamera.eye, d.bhi));
-    const bool exactWithSurface = !mPolygonsOf.of(d.brick).empty() && b.error == 0.0f && b.coarseCorners == 0;
+    const bool holdsEye = !mF.camera.ortho && glm::all(glm::greaterThanEqual(mF.camera.eye, d.blo)) && glm::all(glm::lessThanEqual(mF.camera.eye, d.bhi));
+    const bool exactWithSurface = !mF.polygonsOf.of(d.brick).empty() && b.error == 0.0f && b.coarseCorners == 0;
     // At least four planes across the brick's box: a ray's stretch in the brick that meets none of
     // its planes is lost.
     const double across = std::min({d.bhi.x - d.blo.x, d.bhi.y - d.blo.y, d.bhi.z - d.blo.z});
-    const int period = std::clamp(int(across / (4.0 * mBaseDelta)), 1, slicePeriod(fine.step));
-    d.delta = mBaseDelta * (d.sliced && !holdsEye && !exactWithSurface ? period : 1);
+    const int period = std::clamp(int(across / (4.0 * mF.baseDelta)), 1, slicePeriod(fine.step));
+    d.delta = mF.baseDelta * (d.sliced && !holdsEye && !exactWithSurface ? period : 1);
     mShellBricks += d.shell && d.sliced;
   }
 
-  const VolumeOctree& mOctree;
-  const Selection& mSelection;
-  const Camera& mCamera;
-  const SlicesOptions& mOptions;
-  const TransferTable& mTable;
-  const BrickPolygons& mPolygonsOf;
+  const SliceFrame& mF;
   const VolumeKnots mInMemory;
   const KnotSource& mKnots;
   const glm::dvec3 mSpacing;
-  const double mBaseDelta;
   const size_t mBatch;
   std::vector<BrickDraw> mDraws;
   std::vector<CutPiece> mCut;
@@ -521,15 +544,18 @@ class BrickPlanner {
 
 // Brick @p d's vertex stream: its slices far to near, each slab's SlabPolygon list before the slice
 // that closes the slab.
-void buildStream(BrickDraw& d, const SurfacePolygons* surface, const BrickPolygons& polygonsOf, const Camera& camera, const FrameCamera& frame,
-                 const glm::dvec3& spacing, bool slabOrder, bool cutToSlabs, const PixelCentres* centres, SlabPolygonList& list,
-                 std::vector<std::pair<glm::dvec3, glm::dvec3>>& boxes, std::vector<float>& one) {
+void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
+  const Camera& camera = f.camera;
+  const FrameCamera& frame = f.view;
+  const glm::dvec3 spacing = f.spacing();
+  const SurfacePolygons* surface = f.surface;
+  auto& [list, boxes, one] = scratch;
   const ProxyDepth depth{d.shell, frame.forward, camera.eye};
   // This brick owns the proxies with depth in [bmin, bmax).
   const auto [bmin, bmax] = depth.range(d.blo, d.bhi);
   long long kLo = (long long)std::floor(bmin / d.delta) - 1, kHi = (long long)std::ceil(bmax / d.delta);
   if (surface) {
-    list.build(*surface, polygonsOf.of(d.brick), depth, d.delta, d.sliced, cutToSlabs, centres);
+    list.build(*surface, f.polygonsOf.of(d.brick), depth, d.delta, d.sliced, f.options.cutToSlabs, f.centres);
     if (d.sliced && !list.empty()) {
       kLo = std::min(kLo, list.firstSlab());
       kHi = std::max(kHi, list.lastSlab());
@@ -547,7 +573,7 @@ void buildStream(BrickDraw& d, const SurfacePolygons* surface, const BrickPolygo
     proxyBoxes(*d.blocks, d.lattice, spacing, depth, d.delta, kLo, merge, &boxes);
   }
   for (long long k = kHi; k >= kLo; --k) {
-    if (surface && slabOrder) list.emitDownTo(k, &d.stream);
+    if (surface && f.options.slabOrder) list.emitDownTo(k, &d.stream);
     const double plane = double(k) * d.delta;
     one.clear();
     glm::dvec3 lo = d.slo, hi = d.shi;
@@ -638,10 +664,14 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   const BrickPolygons polygonsOf =
       polygons ? polygonsByBrick(volume, octree, selection, *polygons) : BrickPolygons{std::vector<uint32_t>(selection.bricks.size() + 1, 0), {}};
 
+  const PixelCentres centres(frame.viewProj, W, H);
+  const SliceFrame f{volume, octree, selection, tf, camera, options, frame, table, baseDelta, translucent, cut, brickOf, order,
+                     translucent ? &*polygons : nullptr, polygonsOf, options.leaveOutUnseen ? &centres : nullptr};
+
   const gl::Query query = gl::Query::make();
   glBeginQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB, query.id());
   // 4. The bricks the cutting plane crosses, their textures made.
-  BrickPlanner planner(volume, octree, selection, tf, camera, options, table, order, brickOf, polygonsOf, translucent, cut, baseDelta);
+  BrickPlanner planner(f);
   // 5. The cutting plane, opaque and writing depth.
   if (options.cut) st.cutPolygons = drawCutPlane(programs.cut(), planner.cut());
 
@@ -660,18 +690,14 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   constexpr size_t kAbandon = std::numeric_limits<size_t>::max();
   std::atomic<size_t> built{0}, ready{0};
   std::exception_ptr failure;
-  const PixelCentres centres(frame.viewProj, W, H);
   std::thread worker([&] {
-    SlabPolygonList list;
-    std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes;
-    std::vector<float> one;
+    StreamScratch scratch;
     try {
       for (size_t j = 0; j < draws.size(); ++j) {
         size_t may = ready.load(std::memory_order_acquire);
         for (; may <= j; may = ready.load(std::memory_order_acquire)) ready.wait(may);
         if (may == kAbandon) return;
-        buildStream(draws[j], translucent ? &*polygons : nullptr, polygonsOf, camera, frame, spacing, options.slabOrder, options.cutToSlabs, options.leaveOutUnseen ? &centres : nullptr,
-                    list, boxes, one);
+        buildStream(draws[j], f, scratch);
         built.fetch_add(1, std::memory_order_release);
         built.notify_one();
       }
