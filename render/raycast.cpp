@@ -34,22 +34,40 @@ bool slab(const glm::dvec3& o, const glm::dvec3& d, const glm::dvec3& lo, const 
 // Shading factor of a headlight on a surface with normal n (two-sided Lambert with ambient).
 double headlight(const glm::dvec3& n, const glm::dvec3& dir) { return 0.25 + 0.75 * std::abs(glm::dot(n, dir)); }
 
+// What every pass of one reference frame reads, made once: its inputs, and the nodes whose value
+// range the transfer function maps to zero opacity (skipped along the rays).
+struct RayFrame {
+  const Volume& volume;
+  const VolumeOctree& octree;
+  const TransferFunction& tf;
+  const Camera& camera;
+  const RaycastOptions& options;
+  RaycastStats* stats;
+  ProgressTask* progress;
+  std::vector<uint8_t> transparent;
+  RayFrame(const Volume& v, const VolumeOctree& t, const TransferFunction& f, const Camera& c, const RaycastOptions& o, RaycastStats* s,
+           ProgressTask* p)
+      : volume(v), octree(t), tf(f), camera(c), options(o), stats(s), progress(p), transparent(t.nodes().size()) {
+    for (size_t i = 0; i < transparent.size(); ++i)
+      transparent[i] = o.skipEmptySpace && f.maxAlpha(t.nodes()[i].minValue, t.nodes()[i].maxValue) <= 0.0f;
+  }
+};
+
 // Traces pixels pixel(0) … pixel(count − 1) into @p out on all cores, chunk pixels at a time.
 template <class Pixel>
-void tracePixels(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-                 const RaycastOptions& options, size_t count, size_t chunk, const Pixel& pixel, Image* out, RaycastStats* stats,
-                 ProgressTask* progress) {
+void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pixel, Image* out) {
+  const Volume& volume = f.volume;
+  const VolumeOctree& octree = f.octree;
+  const TransferFunction& tf = f.tf;
+  const Camera& camera = f.camera;
+  const RaycastOptions& options = f.options;
+  const std::vector<uint8_t>& transparent = f.transparent;
   Image& image = *out;
   const glm::dvec3 spacing = volume.spacing();
   const glm::dvec3 boxHi = volume.extentMm();
   const double dt = options.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
   const glm::ivec3 cells = glm::max(volume.dims() - 1, glm::ivec3(1));
-
-  // Nodes whose value range the transfer function maps to zero opacity.
   const auto& nodes = octree.nodes();
-  std::vector<uint8_t> transparent(nodes.size());
-  for (size_t i = 0; i < nodes.size(); ++i)
-    transparent[i] = options.skipEmptySpace && tf.maxAlpha(nodes[i].minValue, nodes[i].maxValue) <= 0.0f;
 
   // The transparent node containing voxel-space point q (or -1), with its box in mm.
   auto transparentBoxAt = [&](const glm::dvec3& q, glm::dvec3* lo, glm::dvec3* hi) -> bool {
@@ -89,7 +107,7 @@ void tracePixels(const Volume& volume, const VolumeOctree& octree, const Transfe
       // One iteration a pixel; what it throws (a progress callback that stops, a block that cannot
       // be read) ends the frame.
       failure.run([&] {
-        progress->advance();
+        f.progress->advance();
         const glm::ivec2 px = pixel(i);
         const int x = px.x, y = px.y;
         glm::dvec3 o, d;
@@ -180,19 +198,19 @@ void tracePixels(const Volume& volume, const VolumeOctree& octree, const Transfe
     }
   }
   failure.rethrow();
-  stats->samples += samples;
-  stats->skippedLeaves += skipped;
-  stats->surfaceHits += crossings;
-  stats->rays += count;
+  f.stats->samples += samples;
+  f.stats->skippedLeaves += skipped;
+  f.stats->surfaceHits += crossings;
+  f.stats->rays += count;
 }
 
 // Levoy's progressive (adaptive) refinement: rays on a grid 2^(levels − 1) pixels apart, then, level
 // by level, at half the spacing inside every square whose corners' colours differ by more than the
 // tolerance; the other squares keep the bilinear interpolation of their corners. With tolerance 0
 // the last level traces every pixel not traced yet: the image is the exact one.
-Image refine(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-             const RaycastOptions& options, RaycastStats* stats, ProgressTask* progress) {
-  const int W = camera.width, H = camera.height, levels = options.refineLevels;
+Image refine(const RayFrame& f) {
+  const RaycastOptions& options = f.options;
+  const int W = f.camera.width, H = f.camera.height, levels = options.refineLevels;
   Image image(W, H);
   std::vector<uint8_t> traced(size_t(W) * size_t(H), 0);
   std::vector<glm::ivec2> todo;
@@ -202,7 +220,7 @@ Image refine(const Volume& volume, const VolumeOctree& octree, const TransferFun
     t = 1;
   };
   auto trace = [&] {
-    tracePixels(volume, octree, tf, camera, options, todo.size(), 64, [&](size_t i) { return todo[i]; }, &image, stats, progress);
+    tracePixels(f, todo.size(), 64, [&](size_t i) { return todo[i]; }, &image);
     todo.clear();
   };
   // Squares [x0, x1] × [y0, y1] whose corners are traced: the first grid's, then their quarters.
@@ -263,7 +281,7 @@ Image refine(const Volume& volume, const VolumeOctree& octree, const TransferFun
     trace();
     for (const Square& q : settled) fill(q);
     for (const Square& q : open) fill(q);
-    if (options.onLevel) options.onLevel(level, image, stats->rays);
+    if (options.onLevel) options.onLevel(level, image, f.stats->rays);
   }
   return image;
 }
@@ -281,8 +299,9 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
   RaycastStats counts;
   Image image(camera.width, camera.height);
   ProgressTask progress(options.progress, "ray tracing", uint64_t(camera.width) * uint64_t(rows.y - rows.x));
+  const RayFrame f(volume, octree, tf, camera, options, &counts, &progress);
   if (options.refineLevels > 1) {
-    image = refine(volume, octree, tf, camera, options, &counts, &progress);
+    image = refine(f);
   } else {
     // Squares of 8² pixels: neighbouring rays read the same samples (and a paged scene's tiles)
     // while they are at hand.
@@ -293,8 +312,7 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
       for (int x0 = 0; x0 < camera.width; x0 += kSquare)
         for (int y = y0; y < std::min(y0 + kSquare, rows.y); ++y)
           for (int x = x0; x < std::min(x0 + kSquare, camera.width); ++x) order.push_back({x, y});
-    tracePixels(volume, octree, tf, camera, options, order.size(), kSquare * kSquare, [&order](size_t i) { return order[i]; }, &image, &counts,
-                &progress);
+    tracePixels(f, order.size(), kSquare * kSquare, [&order](size_t i) { return order[i]; }, &image);
   }
   if (stats) *stats = counts;
   return image;
