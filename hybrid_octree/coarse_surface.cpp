@@ -31,18 +31,76 @@ void rangeIn(const VolumeOctree& t, uint32_t i, const glm::ivec3& lo, const glm:
     if (n.childMask >> slot & 1) rangeIn(t, child++, lo, hi, mn, mx);
 }
 
-// What the vertices clustered into one cube add up to: area-weighted positions and normals.
+// What the vertices clustered into one cube add up to: area-weighted positions and the gradient's
+// unit normals, summed as they are (outward) and as their outer products (whose principal axis is
+// the normal's line whatever the signs: the two faces of a sheet thinner than the cube add up
+// there instead of cancelling, in any order of summation).
 struct Cluster {
   glm::dvec3 position{0.0};
   double weight = 0.0;
-  glm::vec3 normal{0.0f};  // the gradient's, area-weighted, summed with one orientation (shading is two-sided)
-  void add(const glm::dvec3& p, double w, const glm::vec3& n) {
+  glm::vec3 outward{0.0f};
+  float magnitude = 0.0f;  // of the unit normals summed, area-weighted
+  std::array<float, 6> outer{};  // xx, xy, xz, yy, yz, zz
+  void add(const glm::dvec3& p, double w, const glm::vec3& n) {  // n: unit, or 0 where the gradient vanishes
     position += w * p;
     weight += w;
-    normal += glm::dot(normal, n) < 0.0f ? -n : n;
+    const float a = float(w);
+    outward += a * n;
+    magnitude += a * glm::length(n);
+    const std::array<float, 6> o{n.x * n.x, n.x * n.y, n.x * n.z, n.y * n.y, n.y * n.z, n.z * n.z};
+    for (size_t k = 0; k < 6; ++k) outer[k] += a * o[k];
   }
-  void add(const Cluster& c) { add(c.position / c.weight, c.weight, c.normal); }
+  void add(const Cluster& c) {
+    position += c.position;
+    weight += c.weight;
+    outward += c.outward;
+    magnitude += c.magnitude;
+    for (size_t k = 0; k < 6; ++k) outer[k] += c.outer[k];
+  }
+  // Outward where the normals agree; else the outer products' principal axis (power iteration from
+  // their largest column), its sign left to orientNormals.
+  glm::vec3 normal() const {
+    if (glm::length(outward) > 0.5f * magnitude && magnitude > 0.0f) return glm::normalize(outward);
+    const glm::mat3 m(outer[0], outer[1], outer[2], outer[1], outer[3], outer[4], outer[2], outer[4], outer[5]);
+    glm::vec3 v = m[0];
+    if (glm::length(m[1]) > glm::length(v)) v = m[1];
+    if (glm::length(m[2]) > glm::length(v)) v = m[2];
+    for (int i = 0; i < 16 && glm::length(v) > 0.0f; ++i) v = glm::normalize(m * v);
+    return glm::length(v) > 0.0f ? v : glm::vec3(0, 0, 1);
+  }
 };
+
+// Turns @p mesh's vertex normals so that the corners of each triangle agree in sign (two-sided
+// shading ignores the sign, but opposed corners would interpolate through zero, a dark band):
+// breadth first over shared triangles from each vertex not reached yet.
+void orientNormals(TriangleMesh* mesh) {
+  const size_t n = mesh->vertices.size();
+  std::vector<uint32_t> first(n + 1, 0), tris(3 * mesh->triangles.size());  // the triangles of each vertex
+  for (const glm::uvec3& t : mesh->triangles)
+    for (int k = 0; k < 3; ++k) ++first[t[k] + 1];
+  for (size_t v = 0; v < n; ++v) first[v + 1] += first[v];
+  std::vector<uint32_t> fill(first.begin(), first.end() - 1);
+  for (uint32_t i = 0; i < mesh->triangles.size(); ++i)
+    for (int k = 0; k < 3; ++k) tris[fill[mesh->triangles[i][k]]++] = i;
+  std::vector<uint8_t> reached(n, 0);
+  std::vector<uint32_t> queue;
+  for (uint32_t seed = 0; seed < n; ++seed) {
+    if (reached[seed]) continue;
+    reached[seed] = 1;
+    queue.assign(1, seed);
+    for (size_t q = 0; q < queue.size(); ++q) {
+      const uint32_t u = queue[q];
+      for (uint32_t k = first[u]; k < first[u + 1]; ++k)
+        for (int c = 0; c < 3; ++c) {
+          const uint32_t w = mesh->triangles[tris[k]][c];
+          if (reached[w]) continue;
+          reached[w] = 1;
+          if (glm::dot(mesh->normals[w], mesh->normals[u]) < 0.0f) mesh->normals[w] = -mesh->normals[w];
+          queue.push_back(w);
+        }
+    }
+  }
+}
 
 // One block's share: the clusters its vertices fall in (with their cubes' keys) and its triangles
 // over them, each once per orientation.
@@ -128,7 +186,7 @@ void clusterBlock(const ClusterJob& job, const glm::ivec3& lo, const glm::ivec3&
           ids[q] = cluster(corner[c3[q]]);
         }
         const double w = glm::length(glm::cross(p[1] - p[0], p[2] - p[0])) + job.minWeight;  // twice the area
-        for (int q = 0; q < 3; ++q) out->clusters[ids[q]].add(p[q], w, float(w) * normal[c3[q]]);
+        for (int q = 0; q < 3; ++q) out->clusters[ids[q]].add(p[q], w, normal[c3[q]]);
         if (ids.x != ids.y && ids.y != ids.z && ids.x != ids.z) out->triangles.push_back(canonical(ids));
       }
     }
@@ -151,7 +209,7 @@ void clusterBlock(const ClusterJob& job, const glm::ivec3& lo, const glm::ivec3&
 }  // namespace
 
 int clusterSpacingFor(double pixelMm, const glm::dvec3& spacing, int maxSpacing) {
-  const double voxelMm = std::min({spacing.x, spacing.y, spacing.z});
+  const double voxelMm = std::max({spacing.x, spacing.y, spacing.z});
   int s = 1;
   while (2 * s <= maxSpacing && double(2 * s) * voxelMm <= pixelMm) s *= 2;
   return s;
@@ -171,7 +229,9 @@ TriangleMesh clusteredSurface(const KnotSource& knots, const VolumeOctree& octre
         if (mn < iso && iso <= mx) todo.push_back(lo);
       }
   const double voxelMm = std::min({knots.spacing().x, knots.spacing().y, knots.spacing().z});
-  const ClusterJob job{knots, octree, s, iso, (knots.dims() + s - 1) / s, 1e-9 * voxelMm * voxelMm};
+  // Cubes per axis: the last sample's plane belongs to the cube before it, not a sliver of its own.
+  const glm::ivec3 cubes = glm::max((cells + s - 1) / s, glm::ivec3(1));
+  const ClusterJob job{knots, octree, s, iso, cubes, 1e-9 * voxelMm * voxelMm};
 
   // The blocks a batch at a time, each on its own (all cores), then the batch's clusters merged in
   // block order (the same sums whatever the threads) and its triangles kept once each: a batch's
@@ -222,11 +282,12 @@ TriangleMesh clusteredSurface(const KnotSource& knots, const VolumeOctree& octre
     const Cluster& c = clusters[order[r]];
     rank[order[r]] = r;
     mesh.vertices.push_back(glm::vec3(c.position / c.weight));
-    mesh.normals.push_back(glm::length(c.normal) > 0.0f ? glm::normalize(c.normal) : glm::vec3(0, 0, 1));
+    mesh.normals.push_back(c.normal());
   }
   for (glm::uvec3& t : triangles) t = canonical({rank[t.x], rank[t.y], rank[t.z]});
   unique(&triangles);
   mesh.triangles = std::move(triangles);
+  orientNormals(&mesh);
   return mesh;
 }
 

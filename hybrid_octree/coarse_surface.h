@@ -34,9 +34,10 @@ inline constexpr int kClusterBlockCells = 32;
 TriangleMesh clusteredSurface(const KnotSource& knots, const VolumeOctree& octree, int s, float iso, const Progress* progress = nullptr,
                               int blockCells = kClusterBlockCells);
 
-/// The coarsest cluster edge (a power of two, 1 … @p maxSpacing) at most @p pixelMm wide, in
-/// voxels of @p spacing mm along their shortest axis: the rule by which a brick stops refining
-/// (SelectionParams::lodPixels). 1 when @p pixelMm is below two voxels or not positive.
+/// The coarsest cluster edge (a power of two, 1 … @p maxSpacing) whose cubes are at most
+/// @p pixelMm wide along every axis, voxels being @p spacing mm: along the longest, so that on
+/// anisotropic data no cube is wider than asked (a brick's texels, SelectionParams::lodPixels, go
+/// by the shortest). 1 when @p pixelMm is below two voxels or not positive.
 int clusterSpacingFor(double pixelMm, const glm::dvec3& spacing, int maxSpacing);
 
 }  // namespace hyb

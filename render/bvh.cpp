@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <mutex>
 
 #include "volume/error.h"
@@ -106,16 +107,20 @@ void Bvh::allHits(const glm::dvec3& o, const glm::dvec3& d, double tMin, double 
   rh.ray.dir_x = float(d.x);
   rh.ray.dir_y = float(d.y);
   rh.ray.dir_z = float(d.z);
-  // Widened by float's rounding of the origin: the filter keeps only tMin < t < tMax, in double.
-  const double slack = 1e-6 * (glm::length(o) + std::abs(tMin) + (std::isfinite(tMax) ? std::abs(tMax) : 0.0)) + 1e-6;
-  rh.ray.tnear = float(std::max(0.0, tMin - slack));
-  rh.ray.tfar = std::isfinite(tMax) ? float(tMax + slack) : std::numeric_limits<float>::infinity();
+  // Widened by float's rounding of the origin and of finite bounds: the filter keeps only
+  // tMin < t < tMax, in double. A bound beyond float's range is none.
+  constexpr double kFloatMax = double(std::numeric_limits<float>::max());
+  const bool far = !(tMax < 0.5 * kFloatMax);
+  const double slack = 1e-6 * (glm::length(o) + std::abs(tMin) + (far ? 0.0 : std::abs(tMax))) + 1e-6;
+  rh.ray.tnear = float(std::clamp(tMin - slack, 0.0, 0.5 * kFloatMax));
+  rh.ray.tfar = far ? std::numeric_limits<float>::infinity() : float(tMax + slack);
   rh.ray.mask = ~0u;
   rh.ray.flags = 0;
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(mScene, &q.context, &rh);
   std::sort(hits->begin(), hits->end(), [](const Hit& a, const Hit& b) { return a.t < b.t; });
-  // A ray through an edge or vertex shared by several triangles crosses the surface once there.
+  // A ray through an edge or vertex shared by several triangles crosses the surface once there (and
+  // Embree's spatial splits may report one triangle twice).
   auto same = [](const Hit& a, const Hit& b) { return std::abs(a.t - b.t) < 1e-9 * (1 + std::abs(a.t)); };
   hits->erase(std::unique(hits->begin(), hits->end(), same), hits->end());
 }

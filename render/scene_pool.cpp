@@ -238,7 +238,8 @@ void ScenePool::startBuild(Entry& e, float iso) {
   e.buildDone = e.buildStopped = false;
   e.lastProgress = Clock::now();
   sendSurface(e, iso, SurfaceState::Building, "surface", 0.0);
-  e.builder = std::thread([this, &e, iso] {
+  const bool preview = !e.renderer->hasAnySurface(iso);  // (not again after a build that stopped)
+  e.builder = std::thread([this, &e, iso, preview] {
     const std::string key = e.summary.key;
     auto wanted = [&] {
       return std::any_of(mViewers.begin(), mViewers.end(), [&](const auto& v) { return v.second.key == key && v.second.asked == iso; });
@@ -257,13 +258,13 @@ void ScenePool::startBuild(Entry& e, float iso) {
       // Only reads the scene: the render thread keeps drawing with the renderer meanwhile. A large
       // paged scene's frames draw a clustered surface first, made in a fraction of the time.
       const Scene& scene = e.renderer->scene();
-      if (!scene.volume.hasSamples() && scene.volume.voxelCount() > kPreviewSurfaceSamples) {
-        auto preview = std::make_unique<PreparedSurface>();
-        preview->iso = iso;
-        const int cubes = scene.octree.leafEdge();
-        preview->coarse.emplace(cubes, clusteredSurface(*scene.knots, scene.octree, cubes, iso, &progress));
+      if (preview && !scene.volume.hasSamples() && scene.volume.voxelCount() > kPreviewSurfaceSamples) {
+        auto made = std::make_unique<PreparedSurface>();
+        made->iso = iso;
+        const int cubes = std::max(2, scene.octree.leafEdge());
+        made->coarse.emplace(cubes, clusteredSurface(*scene.knots, scene.octree, cubes, iso, &progress));
         const std::lock_guard<std::mutex> guard(mMutex);
-        e.preview = std::move(preview);
+        e.preview = std::move(made);
         mEvents.wake();
       }
       s = SceneRenderer::prepareSurface(scene, iso, &progress, nullptr, true);

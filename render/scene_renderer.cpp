@@ -213,9 +213,10 @@ PreparedSurface& SceneRenderer::surfaceEntry(float iso, FrameStats* stats) {
 }
 
 const TriangleMesh& SceneRenderer::coarseSurface(float iso, int s, FrameStats* stats) {
-  PreparedSurface& e = entry(iso);
-  const auto it = e.coarse.find(s);
-  if (it != e.coarse.end()) return it->second;
+  HYB_CHECK(s >= 2);
+  for (const auto& e : mSurfaces)
+    if (e->iso == iso && e->coarse.count(s)) return entry(iso).coarse.at(s);  // (entry() makes it the most recent)
+  // Made before its entry: a build that stops leaves no empty entry behind.
   const auto t0 = Clock::now();
   const Volume& v = mScene.volume;
   TriangleMesh mesh = v.hasSamples() ? clusteredSurface(VolumeKnots(v, mScene.octree), mScene.octree, s, iso, mOptions.progress)
@@ -224,7 +225,7 @@ const TriangleMesh& SceneRenderer::coarseSurface(float iso, int s, FrameStats* s
     stats->surfaceBuilt = true;
     stats->surfaceBuildMs = msSince(t0);
   }
-  return e.coarse.emplace(s, std::move(mesh)).first->second;
+  return entry(iso).coarse.emplace(s, std::move(mesh)).first->second;
 }
 
 const TriangleMesh& SceneRenderer::surface(float iso, SurfaceNormals normals) { return surfaceEntry(iso, nullptr).mesh(normals); }
@@ -242,16 +243,17 @@ int SceneRenderer::drawnSpacing(const Camera& gridCamera, const Quality& quality
   const int s = surfaceSpacing(gridCamera, quality);
   if (quality.waitForSurface || quality.renderer != Renderer::Slices) return s;
   const auto it = std::find_if(mSurfaces.begin(), mSurfaces.end(), [&](const auto& e) { return e->iso == iso; });
-  if (it == mSurfaces.end()) return s;
+  if (it == mSurfaces.end()) return 0;
   const PreparedSurface& e = **it;
   if ((s == 1 && e.exact) || e.coarse.count(s)) return s;
   if (e.exact) return 1;  // finer than asked: it only costs the triangles between pixel centres
-  return e.coarse.empty() ? s : e.coarse.begin()->first;
+  return e.coarse.empty() ? 0 : e.coarse.begin()->first;
 }
 
 FrameStats SceneRenderer::prepare(const View& view, const Look& look, const Quality& quality) {
   if (!look.iso) return {};
-  return prepareAt(*look.iso, drawnSpacing(toGridCamera(view.camera, volume().frame()), quality, *look.iso), look.normals);
+  const int spacing = drawnSpacing(toGridCamera(view.camera, volume().frame()), quality, *look.iso);
+  return spacing == 0 ? FrameStats{} : prepareAt(*look.iso, spacing, look.normals);
 }
 
 FrameStats SceneRenderer::prepareAt(float iso, int s, SurfaceNormals normals) {
@@ -420,8 +422,10 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
 }
 
 const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look& look, const Quality& quality, FrameStats* st) {
-  // Kept from earlier frames, or built now.
-  const FrameStats prepared = prepareAt(*look.iso, drawnSpacing(camera, quality, *look.iso), look.normals);
+  // Kept from earlier frames, or built now; none when the frame does not wait and nothing is kept.
+  const int spacing = drawnSpacing(camera, quality, *look.iso);
+  if (spacing == 0) return nullptr;
+  const FrameStats prepared = prepareAt(*look.iso, spacing, look.normals);
   st->surfaceSpacing = prepared.surfaceSpacing;
   st->surfaceBuilt = prepared.surfaceBuilt;
   st->surfaceBuildMs = prepared.surfaceBuildMs;

@@ -365,8 +365,9 @@ TEST(Cli, ProgressiveCutAndVolumeOfInterest) {
   EXPECT_THAT(test::readText(dir.file("r.json")), Not(HasSubstr("\"fragments\": 0,")));  // shader invocations counted
   ASSERT_EQ(run({"render", nhdr, "--size", "24x24", "--iso", "0.5", "--surface-color", "1,1,1,0.5", "-o", dir.file("r1.png")}).status, 0);
   EXPECT_EQ(readPng(dir.file("r.png"), &w, &h), readPng(dir.file("r1.png"), &w, &h));
-  // --lod-pixels: a frame whose pixels span voxels draws the surface clustered by cubes as wide.
-  r = run({"render", nhdr, "--size", "6x6", "--iso", "0.5", "--lod-pixels", "2", "-o", dir.file("l.png"), "--stats", dir.file("l.json")});
+  // --lod-pixels: a frame whose pixels span voxels draws the surface clustered by cubes as wide
+  // along every axis (here 2 mm along z: cubes of 2 voxels are 4 mm).
+  r = run({"render", nhdr, "--size", "6x6", "--iso", "0.5", "--lod-pixels", "3", "-o", dir.file("l.png"), "--stats", dir.file("l.json")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("clustered by cubes of 2 voxels (--lod-pixels)"));
   EXPECT_EQ(jsonNumber(dir.file("l.json"), "surface_spacing"), 2.0);

@@ -5,6 +5,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <tuple>
+
+#include <omp.h>
 
 #include "test_util.h"
 
@@ -47,8 +50,8 @@ TEST(CoarseSurface, ASphereStaysClosedOnItsCubesAtEverySpacing) {
     for (size_t i = 0; i < m.vertices.size(); ++i) {
       const glm::dvec3 r = glm::dvec3(m.vertices[i]) / spacing - c;
       ASSERT_NEAR(glm::length(r), radius, tolerance);
-      const glm::dvec3 radial = glm::normalize(r / spacing);  // the sphere's normal in mm
-      ASSERT_GT(std::abs(glm::dot(glm::dvec3(m.normals[i]), radial)), 0.98);
+      const glm::dvec3 radial = glm::normalize(r / spacing);  // the sphere's outward normal in mm
+      ASSERT_GT(glm::dot(glm::dvec3(m.normals[i]), radial), 0.98);
     }
     // No hole: rays from the centre in 2,000 directions (a Fibonacci sphere) all cross it.
     int missed = 0;
@@ -91,6 +94,34 @@ TEST(CoarseSurface, ASheetThinnerThanACubeKeepsNoHole) {
   }
 }
 
+// A spherical shell one voxel thick collapses onto itself in cubes of 4 and 8 voxels: every
+// triangle's corners' normals agree in sign (opposed ones would shade dark across the triangle;
+// half-way summed normals gave 1,766 such corner pairs here), along the shell's radius.
+TEST(CoarseSurface, ACollapsedShellKeepsItsNormalsOnOneSide) {
+  const glm::ivec3 dims(64, 64, 64);
+  const glm::dvec3 c(31.3, 32.1, 30.7);
+  const Volume v = test::makeVolume(dims, [&](int i, int j, int k) { return std::abs(glm::length(glm::dvec3(i, j, k) - c) - 24.0) < 0.6 ? 100.0 : 0.0; });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const VolumeKnots knots(v, t);
+  for (const int s : {4, 8}) {
+    SCOPED_TRACE("cubes of " + std::to_string(s) + " voxels");
+    const TriangleMesh m = clusteredSurface(knots, t, s, 50.0f);
+    ASSERT_GT(m.triangles.size(), 500u);
+    size_t opposed = 0;
+    for (const glm::uvec3& tri : m.triangles)
+      for (int e = 0; e < 3; ++e) opposed += glm::dot(m.normals[tri[e]], m.normals[tri[(e + 1) % 3]]) < 0.0f;
+    EXPECT_EQ(opposed, 0u);
+    double worst = 1.0, mean = 0.0;
+    for (size_t i = 0; i < m.vertices.size(); ++i) {
+      const double d = std::abs(glm::dot(glm::dvec3(m.normals[i]), glm::normalize(glm::dvec3(m.vertices[i]) - c)));
+      worst = std::min(worst, d);
+      mean += d / double(m.vertices.size());
+    }
+    EXPECT_GT(mean, 0.97);  // 0.983 and 0.991: the voxelised shell's staircase tilts the gradient
+    EXPECT_GT(worst, 0.7);  // 0.75 and 0.92
+  }
+}
+
 TEST(CoarseSurface, BlocksThreadsAndSkippedBlocksChangeNothing) {
   const glm::dvec3 spacing(0.7, 0.8, 1.1);
   const glm::ivec3 dims(61, 47, 39);
@@ -106,22 +137,27 @@ TEST(CoarseSurface, BlocksThreadsAndSkippedBlocksChangeNothing) {
     SCOPED_TRACE("cubes of " + std::to_string(s) + " voxels");
     const TriangleMesh m = clusteredSurface(knots, t, s, 0.0f);
     ASSERT_GT(m.triangles.size(), 200u);
-    for (const auto& [octree, block] : {std::pair{&t, 5}, std::pair{&all, kClusterBlockCells}, std::pair{&all, 3}}) {
+    for (const auto& [octree, block, threads] : {std::tuple{&t, 5, 1}, std::tuple{&all, kClusterBlockCells, 2}, std::tuple{&all, 3, 2}}) {
+      omp_set_num_threads(threads);
       const TriangleMesh o = clusteredSurface(knots, *octree, s, 0.0f, nullptr, block);
       EXPECT_EQ(o.triangles, m.triangles);
       ASSERT_EQ(o.vertices.size(), m.vertices.size());
-      for (size_t i = 0; i < m.vertices.size(); ++i) ASSERT_LT(glm::length(o.vertices[i] - m.vertices[i]), 1e-4f);
+      for (size_t i = 0; i < m.vertices.size(); ++i) {
+        ASSERT_LT(glm::length(o.vertices[i] - m.vertices[i]), 1e-4f);
+        ASSERT_GT(glm::dot(o.normals[i], m.normals[i]), 0.999f);
+      }
     }
+    omp_set_num_threads(2);
   }
 }
 
 TEST(CoarseSurface, SpacingIsTheCoarsestWhoseCubesFitThePixels) {
-  const glm::dvec3 spacing(0.5, 0.4, 2.0);  // the shortest axis decides, as for bricks
+  const glm::dvec3 spacing(0.5, 0.4, 2.0);  // the longest axis decides: no cube wider than asked
   EXPECT_EQ(clusterSpacingFor(0.0, spacing, 16), 1);
-  EXPECT_EQ(clusterSpacingFor(0.79, spacing, 16), 1);
-  EXPECT_EQ(clusterSpacingFor(0.8, spacing, 16), 2);
-  EXPECT_EQ(clusterSpacingFor(3.2, spacing, 16), 8);
-  EXPECT_EQ(clusterSpacingFor(3.19, spacing, 16), 4);
+  EXPECT_EQ(clusterSpacingFor(3.99, spacing, 16), 1);
+  EXPECT_EQ(clusterSpacingFor(4.0, spacing, 16), 2);
+  EXPECT_EQ(clusterSpacingFor(16.0, spacing, 16), 8);
+  EXPECT_EQ(clusterSpacingFor(15.99, spacing, 16), 4);
   EXPECT_EQ(clusterSpacingFor(1000.0, spacing, 16), 16);
   EXPECT_EQ(clusterSpacingFor(1000.0, spacing, 1), 1);
 }
