@@ -30,7 +30,9 @@ std::vector<double> parseList(const std::string& text, const std::string& flag, 
 
 // The default ε sweep: for each of 1/2, 1/4, … 1/64 of this view's full-resolution texels, the
 // smallest nodal error whose selection holds no more (a selection changes only where ε passes a
-// nodal error), each once, none beyond what the coarsest selection reaches.
+// nodal error, or, with a focus, a nodal error over a node's importance: the search still finds
+// where the texels halve, at a nearby error), each once, none beyond what the coarsest selection
+// reaches (none at all for a constant volume, whose every error is 0).
 std::vector<double> epsilonsOfTheView(SceneRenderer& renderer, const View& view, const Look& look, Quality quality) {
   std::vector<float> errors;
   for (const float e : renderer.octree().errorData())
@@ -172,9 +174,13 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   RenderJob job = prepareRender(o.render, out, err);
   if (o.epsilons.empty()) {
     epsilons = epsilonsOfTheView(*job.renderer, job.view, job.look, job.quality);
-    out << "epsilons";
-    for (const double e : epsilons) out << " " << e;
-    out << ": the smallest nodal errors whose selection holds at most 1/2, 1/4, ... of this view's full-resolution texels (up to 1/64)\n";
+    if (epsilons.empty()) {
+      out << "epsilons: none (every nodal error is 0: each selection is the full resolution)\n";
+    } else {
+      out << "epsilons";
+      for (const double e : epsilons) out << " " << e;
+      out << ": the smallest nodal errors whose selection holds at most 1/2, 1/4, ... of this view's full-resolution texels (up to 1/64)\n";
+    }
   }
   std::error_code ec;
   fs::create_directories(o.outDir, ec);

@@ -258,7 +258,7 @@ void ScenePool::startBuild(Entry& e, float iso) {
       // Only reads the scene: the render thread keeps drawing with the renderer meanwhile. A large
       // paged scene's frames draw a clustered surface first, made in a fraction of the time.
       const Scene& scene = e.renderer->scene();
-      if (preview && !scene.volume.hasSamples() && scene.volume.voxelCount() > kPreviewSurfaceSamples) {
+      if (preview && !scene.volume.hasSamples() && scene.volume.voxelCount() > mOptions.previewSamples) {
         auto made = std::make_unique<PreparedSurface>();
         made->iso = iso;
         const int cubes = std::max(2, scene.octree.leafEdge());

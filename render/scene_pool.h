@@ -79,6 +79,8 @@ class ScenePool {
     uint64_t textureLimitBytes = 0;   ///< each scene's brick texture cache (0: no limit)
     /// A scene no viewer shows is released this long after the last one left it (0: at once).
     std::chrono::milliseconds releaseAfter{10000};
+    /// A paged scene of more samples than this draws a clustered preview of a surface first.
+    uint64_t previewSamples = kPreviewSurfaceSamples;
   };
 
   /// A surface's state, told to the viewers that asked for it.

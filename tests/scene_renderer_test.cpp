@@ -4,7 +4,9 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <condition_variable>
 #include <cstdlib>
+#include <mutex>
 #include <thread>
 #include <tuple>
 
@@ -365,6 +367,55 @@ TEST(SceneRenderer, FramesThatDoNotWaitDrawTheKeptSurfaceNearestTheirOwn) {
   const FrameStats made = r.render(view, look, coarse).stats;
   EXPECT_EQ(made.surfaceSpacing, 2);
   EXPECT_TRUE(made.surfaceBuilt);
+}
+
+// A paged scene above the pool's preview size gets from the builder thread a surface clustered by
+// its octree's leaves, then the full-resolution one; the renderer keeps both, and a frame that does
+// not wait draws the preview where its pixels allow cubes that large, building nothing.
+TEST(SceneRenderer, ThePoolsBuilderHandsOverAClusteredPreviewFirst) {
+  test::gl();
+  test::TempDir dir;
+  saveScene(dir.file("s.hoct"), sphereScene().volume, sphereScene().octree);
+  std::mutex mutex;
+  std::condition_variable changed;
+  bool opened = false, ready = false;
+  ScenePool::Events events;
+  events.loading = [](uint64_t, const std::string&, const std::string&, double) {};
+  events.opened = [&](uint64_t, const std::string&, const SceneSummary* summary, const std::string&) { opened = summary != nullptr; changed.notify_all(); };
+  events.surface = [&](uint64_t, const std::string&, float, ScenePool::SurfaceState state, const std::string&, double) {
+    ready = ready || state == ScenePool::SurfaceState::Ready;
+  };
+  events.wake = [&] { changed.notify_all(); };
+  ScenePool::Options options;
+  options.loader = [](const std::string& path, const std::string&, const Progress*) { return loadScene(path, SceneLoadOptions{false, 1 << 20}); };
+  options.previewSamples = 0;
+  {
+    ScenePool pool(mutex, options, events);
+    std::unique_lock<std::mutex> lock(mutex);
+    pool.open(1, "k", dir.file("s.hoct"), "", "s");
+    changed.wait(lock, [&] { return opened; });
+    ScenePool::Frame f = pool.forFrame(1, 5.0f);
+    ASSERT_TRUE(f.renderer);
+    EXPECT_FALSE(f.surfaceReady);
+    while (!ready) {
+      changed.wait_for(lock, std::chrono::milliseconds(50));
+      pool.collect(lock);
+    }
+    f = pool.forFrame(1, 5.0f);
+    EXPECT_TRUE(f.surfaceReady);
+    ASSERT_EQ(f.iso, std::optional<float>(5.0f));
+    Look look;
+    look.tf = warm();
+    look.iso = 5.0f;
+    Quality coarse;
+    coarse.lodPixels = 1e6;  // cubes of the leaf edge asked for: the preview's
+    coarse.waitForSurface = false;
+    const FrameStats st = f.renderer->render(viewFrom(20, sphereScene().volume), look, coarse).stats;  // (framed from the samples in memory)
+    EXPECT_EQ(st.surfaceSpacing, f.renderer->octree().leafEdge());
+    EXPECT_FALSE(st.surfaceBuilt);
+    EXPECT_GT(st.surfaceTriangles, 0u);
+    lock.unlock();
+  }
 }
 
 // A frame rendered band by band (a viewer's large final frame, between whose bands other clients'
