@@ -23,12 +23,14 @@ inline constexpr int kClusterBlockCells = 32;
 /// The isosurface of @p iso of @p knots' samples (spacing 1; a corner inside where its sample is
 /// ≥ iso, the face-consistent loops of surface/dmc_table.h), its vertices clustered by the cubes
 /// of @p s voxels ({s·c … s·c + s} per axis, c ≥ 0): each cluster's vertex is the mean of its
-/// vertices weighted by the area around them, its normal their faces' normals summed with one
-/// orientation (shading is two-sided, so a sheet's two faces add up). Triangles of three clusters
+/// vertices weighted by the area around them, its normal the samples' gradient summed where it
+/// agrees, else the principal axis of its outer products (a sheet's two faces add up), the signs
+/// then made to agree across every triangle (shading is two-sided, but opposed corners would
+/// interpolate through zero). Triangles of three clusters
 /// are kept once per orientation (a collapsed sheet keeps both, as the full surface draws both of
 /// its faces). Grid frame, mm, with per-vertex normals. @p octree (of the same grid) skips the
 /// blocks of @p blockCells cells a side whose samples do not straddle @p iso. Deterministic: the
-/// same mesh whatever the thread count (and the block size, but for the means' rounding); its
+/// same mesh whatever the thread count (and the block size, but for the sums' rounding); its
 /// vertices in the order of their cubes, x fastest.
 /// @throw IoError as KnotSource::read; what @p progress throws ("coarse surface").
 TriangleMesh clusteredSurface(const KnotSource& knots, const VolumeOctree& octree, int s, float iso, const Progress* progress = nullptr,
@@ -37,7 +39,7 @@ TriangleMesh clusteredSurface(const KnotSource& knots, const VolumeOctree& octre
 /// The coarsest cluster edge (a power of two, 1 … @p maxSpacing) whose cubes are at most
 /// @p pixelMm wide along every axis, voxels being @p spacing mm: along the longest, so that on
 /// anisotropic data no cube is wider than asked (a brick's texels, SelectionParams::lodPixels, go
-/// by the shortest). 1 when @p pixelMm is below two voxels or not positive.
+/// by the shortest). 1 when @p pixelMm is below two of the longest voxel edges or not positive.
 int clusterSpacingFor(double pixelMm, const glm::dvec3& spacing, int maxSpacing);
 
 }  // namespace hyb
