@@ -270,8 +270,7 @@ Loops insertTJunctions(const OutPolys& polys, const std::vector<SurfaceNode>& no
   FlatMap ids(polys.size());
   auto vertexId = [&](uint64_t point) {
     return ids.findOrInsert(point, [&] {
-      constexpr uint64_t kMask = (uint64_t(1) << 21) - 1;
-      mesh.vertices.emplace_back(int(point >> 42), int((point >> 21) & kMask), int(point & kMask));
+      mesh.vertices.push_back(gridPoint(point));
       return uint32_t(mesh.vertices.size() - 1);
     });
   };

@@ -102,6 +102,16 @@ std::string Quality::validate() const {
   return limits.validate();
 }
 
+namespace {
+
+// @throw ValueError naming the first impossible parameter of a frame.
+void validateFrame(const View& view, const Look& look, const Quality& quality) {
+  for (const std::string& problem : {view.validate(), look.validate(), quality.validate()})
+    if (!problem.empty()) throw ValueError(problem);
+}
+
+}  // namespace
+
 SceneRenderer::SceneRenderer(Scene scene, const Options& options) : mScene(std::move(scene)), mOptions(options) {
   HYB_CHECK(mScene.volume.hasSamples() || mScene.knots);
 }
@@ -251,22 +261,24 @@ int SceneRenderer::drawnSpacing(const Camera& gridCamera, const Quality& quality
 }
 
 FrameStats SceneRenderer::prepare(const View& view, const Look& look, const Quality& quality) {
-  if (!look.iso) return {};
+  FrameStats st;
+  if (!look.iso) return st;
   const int spacing = drawnSpacing(toGridCamera(view.camera, volume().frame()), quality, *look.iso);
-  return spacing == 0 ? FrameStats{} : prepareAt(*look.iso, spacing, look.normals);
+  if (spacing > 0) prepareAt(*look.iso, spacing, look.normals, &st);
+  return st;
 }
 
-FrameStats SceneRenderer::prepareAt(float iso, int s, SurfaceNormals normals) {
-  FrameStats st;
-  st.surfaceSpacing = s;
+const TriangleMesh& SceneRenderer::prepareAt(float iso, int s, SurfaceNormals normals, FrameStats* st) {
+  st->surfaceSpacing = s;
   if (s > 1) {
-    st.surfaceTriangles = coarseSurface(iso, s, &st).triangles.size();
-    return st;
+    const TriangleMesh& mesh = coarseSurface(iso, s, st);
+    st->surfaceTriangles = mesh.triangles.size();
+    return mesh;
   }
-  const PreparedSurface& e = surfaceEntry(iso, &st);
-  st.surfacePolygons = e.polygons;
-  st.surfaceTriangles = e.mesh(normals).triangles.size();
-  return st;
+  const PreparedSurface& e = surfaceEntry(iso, st);
+  st->surfacePolygons = e.polygons;
+  st->surfaceTriangles = e.mesh(normals).triangles.size();
+  return e.mesh(normals);
 }
 
 size_t SceneRenderer::surfacePolygons(float iso) const {
@@ -395,15 +407,13 @@ SelectionParams SceneRenderer::selectionParams(const GridParts& g, const Look& l
 }
 
 Selection SceneRenderer::select(const View& view, const Look& look, const Quality& quality) {
-  for (const std::string& problem : {view.validate(), look.validate(), quality.validate()})
-    if (!problem.empty()) throw ValueError(problem);
+  validateFrame(view, look, quality);
   FrameStats st;
   return selectNodes(mScene.octree, selectionParams(gridParts(view, look), look, quality, &st));
 }
 
 RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Quality& quality, const LevelCallback& onLevel) {
-  for (const std::string& problem : {view.validate(), look.validate(), quality.validate()})
-    if (!problem.empty()) throw ValueError(problem);
+  validateFrame(view, look, quality);
   if (quality.rows) {
     const glm::ivec2 rows = *quality.rows;
     if (!(rows.x >= 0 && rows.x < rows.y && rows.y <= view.camera.height))
@@ -425,15 +435,8 @@ const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look
   // Kept from earlier frames, or built now; none when the frame does not wait and nothing is kept.
   const int spacing = drawnSpacing(camera, quality, *look.iso);
   if (spacing == 0) return nullptr;
-  const FrameStats prepared = prepareAt(*look.iso, spacing, look.normals);
-  st->surfaceSpacing = prepared.surfaceSpacing;
-  st->surfaceBuilt = prepared.surfaceBuilt;
-  st->surfaceBuildMs = prepared.surfaceBuildMs;
-  st->surfacePolygonsMs = prepared.surfacePolygonsMs;
-  st->surfacePolygons = prepared.surfacePolygons;
-  st->surfaceTriangles = prepared.surfaceTriangles;
-  if (st->surfaceSpacing > 1) return &coarseSurface(*look.iso, st->surfaceSpacing, nullptr);
-  if (!(quality.simplifiedSurface && quality.renderer == Renderer::Slices)) return &surface(*look.iso, look.normals);
+  const TriangleMesh& mesh = prepareAt(*look.iso, spacing, look.normals, st);
+  if (spacing > 1 || !(quality.simplifiedSurface && quality.renderer == Renderer::Slices)) return &mesh;
   PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
   simplify(mScene, &s, mOptions.progress);
   // The coarsest level whose error is within the pixels asked where the volume is nearest.

@@ -289,8 +289,8 @@ class SceneRenderer {
   /// it when the frame does not wait for its surface (0: nothing is kept, the frame draws none).
   int drawnSpacing(const Camera& gridCamera, const Quality& quality, float iso) const;
   /// Makes (or finds) the surface of @p iso clustered by cubes of @p s voxels (1: the Surface
-  /// Octree's, with @p normals) and reports that work and the surface.
-  FrameStats prepareAt(float iso, int s, SurfaceNormals normals);
+  /// Octree's, with @p normals), and reports that work and the surface in @p st.
+  const TriangleMesh& prepareAt(float iso, int s, SurfaceNormals normals, FrameStats* st);
   /// The size (mm) of a pixel of @p gridCamera where the volume comes nearest the eye.
   double nearestPixelMm(const Camera& gridCamera) const;
   PreparedSurface& keep(std::unique_ptr<PreparedSurface> surface);

@@ -122,14 +122,13 @@ bool meetsRows(const VolumeOctree& octree, const OctreeNode& n, const glm::dvec3
 // The triangles that cover no pixel centre are left out (a large study's surface at a small size:
 // nearly all of them).
 uint64_t drawOpaqueSurface(GLuint program, const TriangleMesh& surface, const glm::mat4& viewProj, const Camera& camera, const glm::vec3& color,
-                           const glm::vec4& cutPlane, bool leaveOutUnseen) {
+                           const glm::vec4& cutPlane, const PixelCentres* centres) {
   glUseProgram(program);
-  const PixelCentres centres(viewProj, camera.width, camera.height);
   std::vector<float> data;
   uint64_t unseen = 0;
   for (const glm::uvec3& t : surface.triangles) {
     const glm::vec3 a = surface.vertices[t.x], b = surface.vertices[t.y], c = surface.vertices[t.z];
-    if (const PixelCentres::Cover cover = leaveOutUnseen ? centres.cover(a, b, c, nullptr) : PixelCentres::Cover{}; cover.known && cover.centres == 0) {
+    if (const PixelCentres::Cover cover = centres ? centres->cover(a, b, c, nullptr) : PixelCentres::Cover{}; cover.known && cover.centres == 0) {
       ++unseen;
       continue;
     }
@@ -289,11 +288,10 @@ struct SliceFrame {
   const FrameCamera& view;       // the camera's matrices and forward axis
   const TransferTable& table;
   double baseDelta;              // the base slice spacing, mm
-  bool translucent;              // a translucent surface, drawn in SlabPolygon lists
   glm::dvec4 cut;                // the cutting plane's kept side (everything without a plane)
   const BrickIndex& brickOf;
   const std::vector<uint32_t>& order;       // the bricks' nodes, back to front
-  const SurfacePolygons* surface;           // the translucent surface's polygons, or none
+  const SurfacePolygons* surface;           // the translucent surface's polygons (in SlabPolygon lists), or none
   const BrickPolygons& polygonsOf;
   const PixelCentres* centres;              // the triangles between pixel centres left out, or none
   glm::dvec3 spacing() const { return volume.spacing(); }
@@ -359,7 +357,7 @@ class BrickPlanner {
       d.node = i;
       const Brick& b = f.selection.bricks[d.brick];
       d.visible = !b.hidden && f.tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
-      if (!d.visible && !(f.translucent && !f.polygonsOf.of(d.brick).empty())) continue;
+      if (!d.visible && !(f.surface && !f.polygonsOf.of(d.brick).empty())) continue;
       glm::ivec3 lo, hi;
       octree.voxelBox(n, &lo, &hi);
       d.blo = d.slo = glm::dvec3(lo) * mSpacing;
@@ -639,11 +637,13 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     options.textures->beginFrame();
   }
   FramePrograms programs(options, camera, frame, table, translucent, cutPlane);
+  const PixelCentres centres(frame.viewProj, W, H);  // which surface triangles draw no fragment
+  const PixelCentres* unseen = options.leaveOutUnseen ? &centres : nullptr;
 
   // 2. The opaque surface first, writing depth.
   if (withTriangles && !translucent)
     st.unseenTriangles =
-        drawOpaqueSurface(programs.surface(), *options.surface, frame.viewProj, camera, glm::vec3(options.surfaceColor), cutPlane, options.leaveOutUnseen);
+        drawOpaqueSurface(programs.surface(), *options.surface, frame.viewProj, camera, glm::vec3(options.surfaceColor), cutPlane, unseen);
   glEnableVertexAttribArray(0);
   glEnableVertexAttribArray(1);
   glEnableVertexAttribArray(2);
@@ -664,9 +664,8 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   const BrickPolygons polygonsOf =
       polygons ? polygonsByBrick(volume, octree, selection, *polygons) : BrickPolygons{std::vector<uint32_t>(selection.bricks.size() + 1, 0), {}};
 
-  const PixelCentres centres(frame.viewProj, W, H);
-  const SliceFrame f{volume, octree, selection, tf, camera, options, frame, table, baseDelta, translucent, cut, brickOf, order,
-                     translucent ? &*polygons : nullptr, polygonsOf, options.leaveOutUnseen ? &centres : nullptr};
+  const SliceFrame f{volume, octree, selection, tf, camera, options, frame, table, baseDelta, cut, brickOf, order,
+                     translucent ? &*polygons : nullptr, polygonsOf, unseen};
 
   const gl::Query query = gl::Query::make();
   glBeginQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB, query.id());

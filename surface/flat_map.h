@@ -21,6 +21,12 @@ inline uint64_t gridKey(const glm::ivec3& p) {
   return (uint64_t(p.x) << 42) | (uint64_t(p.y) << 21) | uint64_t(p.z);
 }
 
+/// The grid point of gridKey @p key.
+inline glm::ivec3 gridPoint(uint64_t key) {
+  constexpr uint64_t kMask = (uint64_t(1) << 21) - 1;
+  return {int(key >> 42), int((key >> 21) & kMask), int(key & kMask)};
+}
+
 /// Map from keys (never ~0) to values. References and pointers into it are invalidated by inserts.
 class FlatMap {
  public:
