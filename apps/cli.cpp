@@ -202,7 +202,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   };
   // --repeat: the same view again; brick textures are uploaded once (as an interactive viewer would).
   RenderedFrame frame;
-  double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0;
+  double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0, tableMs = 0;
   for (int r = 0; r < o.repeat; ++r) {
     frame = job.renderer->render(job.view, job.look, job.quality, r == 0 && job.quality.progressive > 1 ? onLevel : LevelCallback{});
     if (r == 0) {
@@ -218,6 +218,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
         err << "hybrid-octree: warning: --budget " << o.budgetText << (job.quality.budgetPercent > 0 ? "" : " MB") << " cannot be met; using "
             << frame.selection.texels << " texels\n";
       firstMs = frame.stats.renderMs;
+      tableMs = frame.stats.preintegrationMs;
     }
     renderMs = std::min(renderMs, frame.stats.renderMs);
   }
@@ -237,6 +238,8 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
         << 100.0 * double(st.rays.rays) / pixels << " % of the pixels), " << st.rays.samples << " samples, " << st.rays.skippedLeaves
         << " empty-space skips, " << st.rays.surfaceHits << " surface crossings, " << timing.str() << "\n";
   }
+  if (job.quality.classification == Classification::PreIntegrated)
+    out << "classify pre-integrated, table made in " << std::fixed << std::setprecision(1) << tableMs << " ms\n";
   Image image = std::move(frame.image);
   if (o.marker) drawOrientationMarker(job.view.camera, &image);
   if (job.quality.progressive > 1)
@@ -266,6 +269,8 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
     j["select_ms"] = st.selectMs;
     j["render_ms"] = renderMs;
     j["first_render_ms"] = firstMs;
+    j["classification"] = job.quality.classification == Classification::PreIntegrated ? "preintegrated" : "post";
+    j["preintegration_ms"] = tableMs;
     j["samples"] = st.rays.samples;
     j["rays"] = st.rays.rays;
     j["epsilon"] = job.quality.epsilon;

@@ -340,6 +340,10 @@ void RenderOptions::add(CLI::App* cmd) {
   addSwitch(cmd, "--prefilter", &prefilter,
             "coarse levels (texels 4+ voxels apart) hold the data smoothed by their tent filter instead of point samples; a scene file "
             "keeps the choice it was built with (default on)");
+  addChoice<Classification>(cmd, "--classification", &quality.classification,
+                            {{"post", Classification::Post}, {"preintegrated", Classification::PreIntegrated}},
+                            "post-classified samples (default) or segments pre-integrated between their ends' values (finds narrow transfer-function "
+                            "features between samples; two brick reads a fragment)");
   cmd->add_option("--step", quality.step, "slice / sample spacing in voxels (default 0.5 for slices, 0.25 for raycast)");
   cmd->add_option("--lod-pixels", quality.lodPixels, "stop refining where texels are at most this many pixels apart on screen, and draw the surface with its vertices clustered by the largest cubes no wider (0 = off: full resolution)")
       ->capture_default_str();

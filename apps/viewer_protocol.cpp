@@ -106,7 +106,7 @@ std::vector<TransferFunction::Point> pointsAt(const json& j) {
 }
 
 FrameRequest frameAt(const json& j) {
-  onlyFields(j, "", {"type", "seq", "scene", "interacting", "camera", "tf", "shading", "surface", "cut", "voi"});
+  onlyFields(j, "", {"type", "seq", "scene", "interacting", "camera", "tf", "shading", "classification", "surface", "cut", "voi"});
   FrameRequest r;
   if (!j.contains("seq") || !j["seq"].is_number_unsigned()) fail("seq", "a whole number ≥ 0");
   r.seq = j["seq"].get<uint64_t>();
@@ -127,6 +127,11 @@ FrameRequest frameAt(const json& j) {
   }
   if (tf.contains("opacity")) r.opacityScale = float(numberAt(tf["opacity"], "tf.opacity", 0, 10));
   if (j.contains("shading")) r.shading = boolAt(j["shading"], "shading");
+  if (j.contains("classification")) {
+    const std::string c = stringAt(j["classification"], "classification", 32);
+    if (c != "post" && c != "preintegrated") fail("classification", "\"post\" or \"preintegrated\"");
+    r.classification = c == "post" ? Classification::Post : Classification::PreIntegrated;
+  }
   if (j.contains("surface") && !j["surface"].is_null()) {
     const json& s = objectAt(j["surface"], "surface");
     onlyFields(s, "surface", {"iso", "color"});

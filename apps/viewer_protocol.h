@@ -14,6 +14,7 @@
 
 #include "render/camera.h"
 #include "render/cut_plane.h"
+#include "render/preintegration.h"
 #include "render/transfer_function.h"
 #include "render/voi.h"
 
@@ -38,6 +39,7 @@ struct FrameRequest {
   std::vector<TransferFunction::Point> points;
   float opacityScale = 1.0f;  ///< multiplies every opacity, [0, 10]
   bool shading = true;
+  Classification classification = Classification::Post;
   std::optional<float> iso;  ///< the isosurface, or none
   glm::vec4 surfaceColor{0.95f, 0.92f, 0.85f, 1.0f};
   std::optional<CutPlane> cut;

@@ -104,6 +104,7 @@ std::string renderCommand(const std::string& path, const std::string& series, co
   cmd += " --size " + std::to_string(c.width) + "x" + std::to_string(c.height);
   cmd += !r.preset.empty() && r.opacityScale == 1.0f ? " --preset " + r.preset : " --tf " + tfFile;
   if (!r.shading) cmd += " --shading off";
+  if (r.classification == Classification::PreIntegrated) cmd += " --classification preintegrated";
   if (r.iso) {
     const glm::vec4& s = r.surfaceColor;
     cmd += " --iso " + exact(*r.iso) + " --surface-color " + exact(s.r) + "," + exact(s.g) + "," + exact(s.b) + "," + exact(s.a);
@@ -481,6 +482,7 @@ struct ServerState {
     p.look.iso = iso;
     p.look.surfaceColor = r.surfaceColor;
     p.look.shading = r.shading;
+    p.quality.classification = r.classification;
     p.look.cut = r.cut;
     p.look.voi = r.voi;
     p.quality.waitForSurface = false;  // the pool's builder makes it; meanwhile its preview, or none

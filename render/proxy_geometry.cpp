@@ -82,14 +82,14 @@ bool visibleBox(const VisibleBlocks& v, const KnotLattice& L, glm::dvec3* lo, gl
 }
 
 void proxyBoxes(const VisibleBlocks& v, const KnotLattice& L, const glm::dvec3& spacing, const ProxyDepth& depth, double delta, long long kLo,
-                int merge, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes) {
+                int merge, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes, double grow) {
   const long long count = (long long)boxes->size();
   std::fill(boxes->begin(), boxes->end(), std::pair{glm::dvec3(1e300), glm::dvec3(-1e300)});
   auto add = [&](const glm::ivec3& b0, const glm::ivec3& b1) {
     glm::dvec3 lo, hi;
     blockBox(L, b0, b1, &lo, &hi);
-    lo *= spacing;
-    hi *= spacing;
+    lo = lo * spacing - grow;
+    hi = hi * spacing + grow;
     const auto [near, far] = depth.range(lo, hi);
     const long long k0 = std::max((long long)std::ceil(near / delta) - kLo, 0LL);
     const long long k1 = std::min((long long)std::floor(far / delta) - kLo, count - 1);

@@ -54,9 +54,10 @@ bool visibleBox(const VisibleBlocks& blocks, const KnotLattice& lattice, glm::dv
 /// For proxies at depth k·delta, k in [kLo, kLo + boxes->size()): the box (mm) of the visible blocks
 /// each proxy meets (empty boxes have lo > hi); a block meets the proxies its depth range spans.
 /// With @p merge > 1 the blocks are taken in groups of merge³, each visible when any of its
-/// blocks is: coarser boxes for fewer block visits.
+/// blocks is: coarser boxes for fewer block visits. Each block's box grows by @p grow mm on every
+/// side first (pre-integrated fragments read their segment's ends, up to a spacing either side).
 void proxyBoxes(const VisibleBlocks& blocks, const KnotLattice& lattice, const glm::dvec3& spacing, const ProxyDepth& depth, double delta, long long kLo,
-                int merge, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes);
+                int merge, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes, double grow = 0.0);
 
 /// Appends plane f·x = depth ∩ box [lo, hi] as a triangle fan (mm, xyz a vertex) to @p out;
 /// returns whether the plane cuts the box in a polygon.

@@ -144,6 +144,8 @@ void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pix
         t1 = std::min(t1, keepHi);
         if (options.surface) options.surface->allHits(o, d, keepLo, std::max(keepLo, keepHi), &hits);
         size_t nextHit = 0;
+        double backT = -1.0;  // the last pre-integrated segment's end, and its value
+        float backValue = 0.0f;
         auto surfaceUntil = [&](double t) {  // composite surface crossings before distance t
           while (nextHit < hits.size() && hits[nextHit].t <= t && acc.a < 0.999) {
             const glm::vec4 c = options.surfaceColor;
@@ -158,13 +160,17 @@ void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pix
             glm::dvec3 lo, hi;
             const glm::dvec3 p = o + d * ta;
             if (transparentBoxAt(p / spacing, &lo, &hi)) {
+              // The whole segments inside the transparent node are skipped; the one it leaves in is
+              // sampled (its middle, or its end pre-integrated, may lie beyond the node).
               double e0, e1;
               slab(o, d, lo, hi, &e0, &e1);
-              const double resume = t0 + std::ceil((std::max(e1, ta) - t0) / dt + 1e-9) * dt;
-              surfaceUntil(std::min(resume, t1));
-              ++skipped;
-              ta = resume;
-              continue;
+              const double resume = t0 + std::floor((std::max(e1, ta) - t0) / dt + 1e-9) * dt;
+              if (resume > ta) {
+                surfaceUntil(std::min(resume, t1));
+                ++skipped;
+                ta = resume;
+                continue;
+              }
             }
             double tb = std::min(ta + dt, t1);
             for (double s = ta; s < tb && acc.a < 0.999;) {
@@ -172,18 +178,28 @@ void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pix
               if (e > s) {
                 const double tm = 0.5 * (s + e);
                 const glm::dvec3 q = (o + d * tm) / spacing;
-                glm::vec4 c = tf.lookup(sampleAt(glm::vec3(q)));
-                if (options.voi) c.a = float(std::min(1.0, double(c.a) * options.voi->factor(o + d * tm)));
-                ++samples;
-                const float a = TransferFunction::segmentAlpha(c.a, float(e - s));
-                if (a > 0.0f) {
-                  double shade = 1.0;
-                  if (options.shading) {
-                    const glm::dvec3 g(gradientAt(glm::vec3(q)));
-                    const double len = glm::length(g);
-                    if (len > 1e-6) shade = headlight(g / len, d);
-                  }
-                  composite(glm::dvec3(c) * shade, a);
+                auto shadeAt = [&] {
+                  if (!options.shading) return 1.0;
+                  const glm::dvec3 g(gradientAt(glm::vec3(q)));
+                  const double len = glm::length(g);
+                  return len > 1e-6 ? headlight(g / len, d) : 1.0;
+                };
+                if (const PreIntegrationTable* pre = options.preintegrated) {
+                  // The segment [s, e] between its two ends' values (the front one is the last
+                  // segment's back one when they meet).
+                  const bool meets = s == backT;
+                  const float front = meets ? backValue : sampleAt(glm::vec3((o + d * s) / spacing));
+                  backValue = sampleAt(glm::vec3((o + d * e) / spacing));
+                  backT = e;
+                  samples += meets ? 1 : 2;
+                  const glm::vec4 c = pre->lookup(front, backValue, e - s, options.voi ? options.voi->factor(o + d * tm) : 1.0);
+                  if (c.a > 0.0f) acc += glm::dvec4(glm::dvec3(c) * shadeAt(), c.a) * (1.0 - acc.a);
+                } else {
+                  glm::vec4 c = tf.lookup(sampleAt(glm::vec3(q)));
+                  if (options.voi) c.a = float(std::min(1.0, double(c.a) * options.voi->factor(o + d * tm)));
+                  ++samples;
+                  const float a = TransferFunction::segmentAlpha(c.a, float(e - s));
+                  if (a > 0.0f) composite(glm::dvec3(c) * shadeAt(), a);
                 }
               }
               s = e;

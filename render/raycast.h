@@ -14,6 +14,7 @@
 #include "render/cut_plane.h"
 #include "render/voi.h"
 #include "render/image.h"
+#include "render/preintegration.h"
 #include "render/transfer_function.h"
 #include "volume/progress.h"
 #include "volume/volume.h"
@@ -30,6 +31,10 @@ struct RaycastOptions {
   bool skipEmptySpace = true;        ///< jump over nodes the transfer function makes transparent
   const CutPlane* cut = nullptr;     ///< cutting plane, or none
   const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
+  /// Pre-integrated classification: each segment between samples reads this table at the values
+  /// of its two ends (shading and the volume of interest at its middle); none: post-classified at
+  /// its middle.
+  const PreIntegrationTable* preintegrated = nullptr;
   /// Where the samples are read: a paged scene's knot store, through its cache (the volume need
   /// not hold its samples), or none: the volume's own.
   const KnotSource* knots = nullptr;

@@ -126,6 +126,24 @@ void SceneRenderer::ensureGl() {
   if (!mTextures) mTextures = std::make_unique<BrickTextureCache>(mOptions.textureLimitBytes);
 }
 
+const PreIntegrationTable& SceneRenderer::preintegration(const TransferFunction& tf, double minMm, double maxMm, FrameStats* st) {
+  const std::vector<TransferFunction::Point>& points = tf.points();
+  const bool sameTf = std::equal(points.begin(), points.end(), mPreintegrationTf.begin(), mPreintegrationTf.end(), [](const auto& a, const auto& b) {
+    return a.value == b.value && a.color == b.color && a.alpha == b.alpha;
+  });
+  if (!(mPreintegration && sameTf && mPreintegration->covers(minMm, maxMm))) {
+    // A frame that needs other layers keeps the ones made before too.
+    if (mPreintegration && sameTf) {
+      minMm = std::min(minMm, PreIntegrationTable::layerMm(mPreintegration->firstLayer()));
+      maxMm = std::max(maxMm, PreIntegrationTable::layerMm(mPreintegration->firstLayer() + mPreintegration->layers() - 1));
+    }
+    mPreintegration = std::make_unique<PreIntegrationTable>(preintegrationFor(tf, volume().minValue(), volume().maxValue(), minMm, maxMm));
+    mPreintegrationTf = points;
+    st->preintegrationMs = mPreintegration->buildMs();
+  }
+  return *mPreintegration;
+}
+
 void SceneRenderer::dropTextures() {
   if (!mTextures) return;
   mGl->makeCurrent();
@@ -464,6 +482,12 @@ void SceneRenderer::renderRaycast(const GridParts& g, const Look& look, const Qu
   ro.cut = g.cut ? &*g.cut : nullptr;
   ro.voi = g.voi ? &*g.voi : nullptr;
   ro.knots = volume().hasSamples() ? nullptr : mScene.knots.get();  // a paged scene's samples through its cache
+  if (quality.classification == Classification::PreIntegrated) {
+    // Segments are a step long, shorter where a surface crossing or the volume's end cuts them.
+    const glm::dvec3 spacing = volume().spacing();
+    const double dt = ro.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
+    ro.preintegrated = &preintegration(look.tf, 0.25 * dt, dt, &st);
+  }
   // Levoy's refinement: progressive levels (the first grid 2^(N−1) pixels apart), or four with
   // an adaptive tolerance alone; the last level is exact unless the tolerance is given.
   ro.refineLevels = quality.progressive > 1 ? quality.progressive : quality.adaptive > 0 ? 4 : 1;
@@ -507,6 +531,13 @@ void SceneRenderer::renderSlicesFrame(const GridParts& g, const Look& look, cons
   so.textures = mOptions.keepTextures ? mTextures.get() : nullptr;
   so.knots = mScene.knots.get();
   so.cutToSlabs = quality.cutToSlabs;
+  if (quality.classification == Classification::PreIntegrated) {
+    // From half the base spacing (segments cut at bricks' faces) to the coarsest levels' spacing
+    // along oblique rays (SlicesOptions::preintegrated).
+    const glm::dvec3 spacing = volume().spacing();
+    const double delta = so.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
+    so.preintegrated = &preintegration(look.tf, 0.5 * delta, 64.0 * delta, &st);
+  }
   // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
   // texels (one level coarser), the last being the requested selection. Early images of a long
   // sequence bottom out at the coarsest selection the octree has (at least one texel is asked for).

@@ -92,6 +92,9 @@ struct Quality {
   /// places each whole in its centroid's slab.
   bool cutToSlabs = true;
   TexelBits texelBits = TexelBits::Eight;
+  /// Post-classified samples, or segments pre-integrated between their ends' values (both
+  /// renderers; the table is made when the transfer function changes: FrameStats::preintegrationMs).
+  Classification classification = Classification::Post;
   int maxBrickEdge = 16;
   /// LaMar's screen-space stop (SelectionParams::lodPixels; 0 = off). A slice frame's surface
   /// follows it too, unless simplifiedSurface: where the volume comes nearest the eye, the largest
@@ -141,6 +144,7 @@ struct FrameStats {
   bool surfaceBuilt = false;  ///< the surface was built for this frame (not from the scene or an earlier frame)
   double surfaceBuildMs = 0, surfacePolygonsMs = 0;  ///< this frame's work on the surface (0 when kept)
   double selectMs = 0, renderMs = 0;
+  double preintegrationMs = 0;     ///< making the pre-integration table (0 when kept or not used)
   size_t brickErrorsMeasured = 0;  ///< the view's bricks whose image error has been measured
   uint64_t textureBytesKept = 0;   ///< the brick texture cache after the frame
   /// Bricks of the selection drawn from a coarser level because their knots were not cached (the
@@ -298,6 +302,9 @@ class SceneRenderer {
   ViewErrors& viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
                          const std::optional<VolumeOfInterest>& voi, bool anyCamera);
   void ensureGl();
+  /// The pre-integration table of @p tf with layers for segments of [minMm, maxMm], kept until the
+  /// transfer function changes or a frame needs other layers (its making timed in @p st).
+  const PreIntegrationTable& preintegration(const TransferFunction& tf, double minMm, double maxMm, FrameStats* st);
   /// Makes @p selection drawable from what is resident (Quality::waitForBricks false) and packs
   /// at most @p packTexels (0: any), asks a paged store's prefetch thread for the knots not
   /// cached, and returns how many bricks are drawn coarser.
@@ -310,6 +317,8 @@ class SceneRenderer {
   std::list<std::unique_ptr<PreparedSurface>> mSurfaces;  // most recently used first
   std::vector<float> mPinned;                             // kept whatever else is built
   std::unique_ptr<Errors> mErrors;               // the last view's
+  std::unique_ptr<PreIntegrationTable> mPreintegration;   // the last frame's, and its transfer function
+  std::vector<TransferFunction::Point> mPreintegrationTf;
 };
 
 }  // namespace hyb

@@ -65,10 +65,12 @@ uniform float tfMin, tfScale, tfSize;
 uniform vec3 fineScale, fineOffset;  // world mm -> the brick texture's coordinates
 uniform float valueOffset, valueScale;  // value = valueOffset + valueScale * (2 u - 1)
 
+// The value a brick's normalised value u stands for.
+float valueOf(float u) { return valueOffset + valueScale * (2.0 * u - 1.0); }
+
 // The lookup table's entry (nearest) for the normalised value u.
 vec4 classify(float u) {
-  float v = valueOffset + valueScale * (2.0 * u - 1.0);
-  return texelFetch(tfTex, int(clamp((v - tfMin) * tfScale + 0.5, 0.0, tfSize - 1.0)), 0);
+  return texelFetch(tfTex, int(clamp((valueOf(u) - tfMin) * tfScale + 0.5, 0.0, tfSize - 1.0)), 0);
 }
 )";
 
@@ -92,8 +94,9 @@ void main() {
 /// shading by the brick's stored gradient), SURFACE (translucent triangles in the stream), CUT (a
 /// cutting plane clips the stream), SHELLS (spherical-shell bricks may occur), VOI, ORTHO,
 /// TEXEL16 (16-bit brick texels), SMOOTH (the surface's vertex normals interpolated) and SEGMENTS
-/// (each fragment's segment cut to the brick's box: bricks sliced coarser than the base spacing),
-/// each 0 or 1.
+/// (each fragment's segment cut to the brick's box: bricks sliced coarser than the base spacing)
+/// and PREINT (pre-integrated classification: the segment, always cut to the box, read from the
+/// PreIntegrationTable at the values of its two ends), each 0 or 1.
 inline constexpr const char* kSliceFragment = R"(
 in vec3 vWorld;
 #if SMOOTH
@@ -124,6 +127,57 @@ float voiFactor(vec3 x) {
   return mix(voiOutside, voiInside, t * t * (3.0 - 2.0 * t));
 }
 
+#if PREINT
+// The pre-integration table: layers of thickness 2^((k + preFirst) / 2) mm, the front value's bin
+// along x, the back value's along y, read bilinearly (PreIntegrationTable::lookup).
+uniform sampler2DArray preTex;
+uniform float preMin, preScale, preBins, preFirst, preLayers;
+
+// Layer k's entry at uv, rescaled to a segment of len mm whose optical depth is scaled by depthScale.
+vec4 preRead(vec2 uv, float k, float len, float depthScale) {
+  vec4 e = texture(preTex, vec3(uv, k));
+  float r = len * exp2(-0.5 * (k + preFirst)) * depthScale;
+  float a = e.a >= 1.0 ? 1.0 : 1.0 - exp2(r * log2(1.0 - e.a));
+  return e.a > 0.0 ? vec4(e.rgb * (a / e.a), a) : vec4(e.rgb * r, 0.0);
+}
+
+// The premultiplied colour and opacity of a segment of len mm (> 0) from value vf to value vb:
+// the two layers around len, mixed linearly in log len.
+vec4 preintegrated(float vf, float vb, float len, float depthScale) {
+  vec2 uv = (clamp((vec2(vf, vb) - preMin) * preScale, 0.0, preBins - 1.0) + 0.5) / preBins;
+  float k = clamp(2.0 * log2(len) - preFirst, 0.0, preLayers - 1.0);
+  float k0 = min(floor(k), max(preLayers - 2.0, 0.0));
+  vec4 c = preRead(uv, k0, len, depthScale);
+  return preLayers > 1.5 ? mix(c, preRead(uv, k0 + 1.0, len, depthScale), k - k0) : c;
+}
+#endif
+
+// The stretch [front, back] of the ray through x that this fragment stands for, in units of the
+// slices' parameter (depth along forward, or radius), v being the ray's step per unit of it: half-way
+// to the planes (shells) either side, and out to where the ray enters or leaves the brick for the
+// first and last one in it, so that the brick integrates exactly its own stretch of every ray at
+// any spacing (no seam where a neighbour's spacing differs, nothing lost or doubled at the
+// volume's faces). r is the unnormalised ray, rr its squared length.
+void segment(vec3 x, vec3 r, float rr, out vec3 v, out float front, out float back) {
+#if ORTHO
+  v = forward;
+#else
+  v = r / max(abs(dot(r, forward)), 1e-6 * sqrt(rr));
+#if SHELLS
+  if (shells == 1) v = r * inversesqrt(rr);
+#endif
+#endif
+  vec3 inv = 1.0 / mix(v, vec3(1e-20), lessThan(abs(v), vec3(1e-20)));
+  vec3 sa = (boxLo - x) * inv, sb = (boxHi - x) * inv;
+  vec3 near = min(sa, sb), far = max(sa, sb);
+  float enter = min(max(max(near.x, near.y), near.z), 0.0), leave = max(min(min(far.x, far.y), far.z), 0.0);
+  // A neighbour's plane counts as in the brick unless its face is nearer than the plane by more
+  // than a thousandth of the spacing (a plane on a face belongs to the brick behind it).
+  float h = 0.5 * sliceSpacing;
+  front = enter > -0.999 * sliceSpacing ? enter : -h;
+  back = leave < 1.001 * sliceSpacing ? leave : h;
+}
+
 // The unit ray direction through this fragment.
 vec3 rayDirection() {
 #if ORTHO
@@ -151,6 +205,32 @@ void main() {
   }
 #endif
   vec3 x = vWorld;
+#if PREINT
+#if ORTHO
+  vec3 r = forward;
+  float rr = 1.0;
+#else
+  vec3 r = vWorld - eye;
+  float rr = dot(r, r);
+#endif
+  vec3 v;
+  float front, back;
+  segment(x, r, rr, v, front, back);
+  float len = (back - front) * length(v);
+  if (!(len > 0.0)) discard;
+  // The field at the segment's two ends; their gradients' mean shades it.
+  vec4 texelFront = texture(volumeTex, (x + v * front) * fineScale + fineOffset);
+  vec4 texelBack = texture(volumeTex, (x + v * back) * fineScale + fineOffset);
+  vec4 texel = 0.5 * (texelFront + texelBack);
+  float depthScale = 1.0;
+#if VOI
+  depthScale = voiFactor(x);
+#endif
+  vec4 c = preintegrated(valueOf(texelFront.x), valueOf(texelBack.x), len, depthScale);
+  if (c.a <= 0.0) discard;
+  vec3 color = c.rgb;  // premultiplied
+  float alpha = c.a;
+#else
   // The brick's field and gradient at x (blending towards coarser bricks is baked into its texels).
   vec4 texel = texture(volumeTex, x * fineScale + fineOffset);
   vec4 c = classify(texel.x);
@@ -164,27 +244,10 @@ void main() {
   float rr = dot(r, r);
 #endif
 #if SEGMENTS
-  // The segment of the ray this slice stands for: half-way to the planes (shells) either side,
-  // and out to where the ray enters or leaves the brick for the first and last one in it, so that
-  // the brick integrates exactly its own stretch of every ray at any spacing (no seam where a
-  // neighbour's spacing differs, nothing lost or doubled at the volume's faces). In units of the
-  // slices' parameter (depth along forward, or radius), v being the ray's step per unit of it.
-#if ORTHO
-  vec3 v = forward;
-#else
-  vec3 v = r / max(abs(dot(r, forward)), 1e-6 * sqrt(rr));
-#if SHELLS
-  if (shells == 1) v = r * inversesqrt(rr);
-#endif
-#endif
-  vec3 inv = 1.0 / mix(v, vec3(1e-20), lessThan(abs(v), vec3(1e-20)));
-  vec3 sa = (boxLo - x) * inv, sb = (boxHi - x) * inv;
-  vec3 near = min(sa, sb), far = max(sa, sb);
-  float enter = min(max(max(near.x, near.y), near.z), 0.0), leave = max(min(min(far.x, far.y), far.z), 0.0);
-  // A neighbour's plane counts as in the brick unless its face is nearer than the plane by more
-  // than a thousandth of the spacing (a plane on a face belongs to the brick behind it).
-  float h = 0.5 * sliceSpacing;
-  float len = ((leave < 1.001 * sliceSpacing ? leave : h) - (enter > -0.999 * sliceSpacing ? enter : -h)) * length(v);
+  vec3 v;
+  float front, back;
+  segment(x, r, rr, v, front, back);
+  float len = (back - front) * length(v);
 #else
   float len = sliceSpacing;
 #if !ORTHO
@@ -199,6 +262,8 @@ void main() {
   if (c.a <= 0.0) discard;
 #endif
   float alpha = c.a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - c.a, len);
+  vec3 color = c.rgb * alpha;
+#endif
   float shade = 1.0;
 #if SHADING
   {
@@ -211,7 +276,7 @@ void main() {
     if (gg > 1e-12) shade = 0.25 + 0.75 * abs(dot(g, r)) * inversesqrt(gg * rr);
   }
 #endif
-  fragColor = vec4(c.rgb * shade * alpha, alpha);
+  fragColor = vec4(color * shade, alpha);
 }
 )";
 

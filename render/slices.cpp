@@ -42,6 +42,10 @@ namespace {
 // choices).
 int slicePeriod(int step) { return step == 1 ? 1 : step == 2 ? 3 : 2 * step; }
 
+// How far (in slice spacings) a brick's visible boxes grow for pre-integrated fragments: their
+// segments reach a spacing either side of their slice, and further along an oblique ray.
+constexpr double kPreintegratedGrowth = 2.0;
+
 // The bricks (nodes with brickOf ≥ 0) in back-to-front octree order: the octant farthest from the
 // eye first, then those one, two and three flips towards it (valid for perspective too).
 std::vector<uint32_t> bricksBackToFront(const VolumeOctree& octree, const BrickIndex& brickOf, const glm::dvec3& eyeVoxel) {
@@ -155,13 +159,14 @@ uint64_t drawOpaqueSurface(GLuint program, const TriangleMesh& surface, const gl
   return unseen;
 }
 
-// The transfer function's lookup table (texture unit 1, read with texelFetch) and what it shows.
+// The transfer function's lookup table (texture unit 1, read with texelFetch) and what it shows;
+// the pre-integration table's layers (unit 2, read bilinearly) when the frame uses them.
 struct TransferTable {
   LutLayout layout;
   std::vector<glm::vec4> lut;
-  gl::Texture texture;
+  gl::Texture texture, preintegrated;
   VisibleValues visible;
-  TransferTable(const Volume& volume, const TransferFunction& tf)
+  TransferTable(const Volume& volume, const TransferFunction& tf, const PreIntegrationTable* pre)
       : layout(volume.minValue(), volume.maxValue(), tf), lut(tableOf(layout, tf)), texture(gl::Texture::make()), visible(lut, layout) {
     glActiveTexture(GL_TEXTURE1);
     glBindTexture(GL_TEXTURE_1D, texture.id());
@@ -169,6 +174,16 @@ struct TransferTable {
     // A filter without mipmaps keeps the texture complete.
     glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
     glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    if (pre) {
+      preintegrated = gl::Texture::make();
+      glActiveTexture(GL_TEXTURE2);
+      glBindTexture(GL_TEXTURE_2D_ARRAY, preintegrated.id());
+      glTexImage3D(GL_TEXTURE_2D_ARRAY, 0, GL_RGBA32F, pre->bins(), pre->bins(), pre->layers(), 0, GL_RGBA, GL_FLOAT, pre->texels().data());
+      glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+      glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+      glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+      glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+    }
   }
   static std::vector<glm::vec4> tableOf(const LutLayout& layout, const TransferFunction& tf) {
     std::vector<glm::vec4> lut(LutLayout::kSize);
@@ -196,7 +211,7 @@ class FramePrograms {
     mDefines = "#version 450 core\n";
     for (const auto& [name, on] : {std::pair{"SHADING", options.shading}, {"CUT", bool(options.cut)},
                                    {"SHELLS", options.proxy == Proxy::Shells && !camera.ortho}, {"VOI", bool(options.voi)}, {"ORTHO", camera.ortho},
-                                   {"TEXEL16", options.texelBits == TexelBits::Sixteen}})
+                                   {"TEXEL16", options.texelBits == TexelBits::Sixteen}, {"PREINT", bool(options.preintegrated)}})
       mDefines += std::string("#define ") + name + (on ? " 1\n" : " 0\n");
   }
 
@@ -227,6 +242,14 @@ class FramePrograms {
       glUniform1f(uniform("voiInside"), float(voi->inside));
       glUniform1f(uniform("voiOutside"), float(voi->outside));
       glUniform1f(uniform("voiRamp"), float(voi->ramp));
+    }
+    if (const PreIntegrationTable* pre = mOptions.preintegrated) {
+      glUniform1i(uniform("preTex"), 2);
+      glUniform1f(uniform("preMin"), pre->vmin());
+      glUniform1f(uniform("preScale"), pre->scale());
+      glUniform1f(uniform("preBins"), float(pre->bins()));
+      glUniform1f(uniform("preFirst"), float(pre->firstLayer()));
+      glUniform1f(uniform("preLayers"), float(pre->layers()));
     }
     p.fineScale = uniform("fineScale"), p.fineOffset = uniform("fineOffset"), p.valueOffset = uniform("valueOffset");
     p.valueScale = uniform("valueScale"), p.sliceSpacing = uniform("sliceSpacing"), p.shells = uniform("shells");
@@ -522,6 +545,10 @@ class BrickPlanner {
     const double across = std::min({d.bhi.x - d.blo.x, d.bhi.y - d.blo.y, d.bhi.z - d.blo.z});
     const int period = std::clamp(int(across / (4.0 * mF.baseDelta)), 1, slicePeriod(fine.step));
     d.delta = mF.baseDelta * (d.sliced && !holdsEye && !exactWithSurface ? period : 1);
+    if (mF.options.preintegrated && d.blocks) {  // its fragments read up to a spacing either side
+      d.slo = glm::max(d.blo, d.slo - kPreintegratedGrowth * d.delta);
+      d.shi = glm::min(d.bhi, d.shi + kPreintegratedGrowth * d.delta);
+    }
     mShellBricks += d.shell && d.sliced;
   }
 
@@ -568,7 +595,7 @@ void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
     const double blockMm = 2.0 * d.lattice.step * std::max({spacing.x, spacing.y, spacing.z}), pixelMm = camera.pixelMmAt(d.blo, d.bhi);
     int merge = 1;
     while (merge < 64 && 2 * merge * blockMm <= 2.0 * pixelMm) merge *= 2;
-    proxyBoxes(*d.blocks, d.lattice, spacing, depth, d.delta, kLo, merge, &boxes);
+    proxyBoxes(*d.blocks, d.lattice, spacing, depth, d.delta, kLo, merge, &boxes, f.options.preintegrated ? kPreintegratedGrowth * d.delta : 0.0);
   }
   for (long long k = kHi; k >= kLo; --k) {
     if (surface && f.options.slabOrder) list.emitDownTo(k, &d.stream);
@@ -631,7 +658,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   // 1. The transfer function's table and the programs.
   const bool withTriangles = options.surface && !options.surface->triangles.empty();
   const bool translucent = withTriangles && options.surfaceColor.a < 1.0f;
-  const TransferTable table(volume, tf);
+  const TransferTable table(volume, tf, options.preintegrated);
   if (options.textures) {
     options.textures->setBits(options.texelBits);
     options.textures->beginFrame();

@@ -21,6 +21,7 @@
 #include "render/voi.h"
 #include "render/gl_context.h"
 #include "render/image.h"
+#include "render/preintegration.h"
 #include "render/transfer_function.h"
 #include "surface/mesh.h"
 #include "volume/progress.h"
@@ -53,6 +54,11 @@ struct SlicesOptions {
   /// memory. Both give bit-identical bricks.
   const KnotSource* knots = nullptr;
   TexelBits texelBits = TexelBits::Eight;
+  /// Pre-integrated classification: each fragment's segment, cut to its brick's box, reads this
+  /// table at the values of its two ends (two brick reads instead of one; shading by their
+  /// gradients' mean); none: post-classified at the slice. Its layers should cover the frame's
+  /// segments (half the base spacing to 64 times it); longer and shorter ones read the end layers.
+  const PreIntegrationTable* preintegrated = nullptr;
   bool visibleBoxes = true;             ///< slice only the box of each brick's cells that the transfer
                                         ///< function can make visible (false: the whole brick; same image)
   bool slabOrder = true;                  ///< false: draw each brick's surface after its slices (a

@@ -371,6 +371,19 @@ TEST(Cli, ProgressiveCutAndVolumeOfInterest) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("clustered by cubes of 2 voxels (--lod-pixels)"));
   EXPECT_EQ(jsonNumber(dir.file("l.json"), "surface_spacing"), 2.0);
+  // --classification: the table's making is reported once (the repeated frame keeps it), in both
+  // renderers; an unknown one is refused naming the flag.
+  for (const char* renderer : {"slices", "raycast"}) {
+    r = run({"render", nhdr, "--size", "12x12", "--renderer", renderer, "--classification", "preintegrated", "--repeat", "2", "-o", dir.file("p.png"),
+             "--stats", dir.file("p.json")});
+    ASSERT_EQ(r.status, 0) << r.err;
+    EXPECT_THAT(r.out, HasSubstr("classify pre-integrated, table made in "));
+    EXPECT_THAT(test::readText(dir.file("p.json")), HasSubstr("\"classification\": \"preintegrated\""));
+    EXPECT_GT(jsonNumber(dir.file("p.json"), "preintegration_ms"), 0.0);
+  }
+  r = run({"render", nhdr, "--classification", "pre", "-o", dir.file("x.png")});
+  EXPECT_NE(r.status, 0);
+  EXPECT_THAT(r.err, HasSubstr("--classification"));
 
   // The reference refines its rays progressively (Levoy): the previews trace a growing share of the
   // pixels and the last image is the plain reference's; --adaptive interpolates where colours agree.

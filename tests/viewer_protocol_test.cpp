@@ -28,7 +28,8 @@ std::string refusal(const std::string& text) {
 
 TEST(ViewerProtocol, AFrameRequestCarriesTheWholeState) {
   const Request r = parseRequest(frame(R"(,"interacting":true,"surface":{"iso":400,"color":[1,0.5,0.25,0.5]},)"
-                                       R"("cut":{"point":[1,2,3],"normal":[0,2,0]},"voi":{"min":[-10,-10,-10],"max":[10,20,30],"outside":0.2},"shading":false)"));
+                                       R"("cut":{"point":[1,2,3],"normal":[0,2,0]},"voi":{"min":[-10,-10,-10],"max":[10,20,30],"outside":0.2},"shading":false,)"
+                                       R"("classification":"preintegrated")"));
   const FrameRequest& f = std::get<FrameRequest>(r);
   EXPECT_EQ(f.seq, 7u);
   EXPECT_TRUE(f.interacting);
@@ -45,6 +46,7 @@ TEST(ViewerProtocol, AFrameRequestCarriesTheWholeState) {
   EXPECT_EQ(f.voi->hi, glm::dvec3(10, 20, 30));
   EXPECT_DOUBLE_EQ(f.voi->outside, 0.2);
   EXPECT_FALSE(f.shading);
+  EXPECT_EQ(f.classification, Classification::PreIntegrated);
   // Points and an opacity scale: the transfer function scaled, clamped at 1.
   const FrameRequest p = std::get<FrameRequest>(parseRequest(
       R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf":{"points":[[0,1,1,1,0],[100,1,0,0,0.4]],"opacity":3}})"));
@@ -64,6 +66,8 @@ TEST(ViewerProtocol, EveryBadMessageIsRefusedNamingItsField) {
       {R"({"type":"paint"})", "'type'"},
       {R"({"seq":1})", "'type'"},
       {frame(R"(,"colour":1)"), "'colour': expected no such field"},
+      {frame(R"(,"classification":"pre")"), "'classification'"},
+      {frame(R"(,"classification":1)"), "'classification'"},
       {R"({"type":"frame","seq":-1,)" + kCamera + R"(,"tf":{"preset":"ct-bone"}})", "'seq'"},
       {R"({"type":"frame","seq":1.5,)" + kCamera + R"(,"tf":{"preset":"ct-bone"}})", "'seq'"},
       {R"({"type":"frame","seq":1,"tf":{"preset":"ct-bone"}})", "'camera'"},

@@ -287,6 +287,23 @@ TEST(ViewerServer, TheFinalFrameIsTheEnginesImageLossless) {
   look.surfaceColor = r.surfaceColor;
   const RenderedFrame want = engine.render(view, look, Quality{});
   EXPECT_EQ(got, toRgba8(want.image, glm::vec3(0.0f)));
+  // Pre-integrated: the engine's pre-integrated image, and the command says so.
+  json pre = frameRequest(10, false, 80, 30);
+  pre["classification"] = "preintegrated";
+  c.send(pre.dump());
+  for (int i = 0; i < 20; ++i) {
+    f = c.nextFrameOrError(&image);
+    ASSERT_EQ(f["type"], "frame") << f.dump();
+    if (f["seq"] == 10 && f["quality"] == "final") break;
+  }
+  ASSERT_EQ(f["quality"], "final");
+  EXPECT_THAT(f["command"].get<std::string>(), HasSubstr(" --classification preintegrated"));
+  test::writeBytes(dir.file("p.png"), std::vector<uint8_t>(image.begin(), image.end()));
+  Quality preintegrated;
+  preintegrated.classification = Classification::PreIntegrated;
+  const Image wantPre = engine.render(view, look, preintegrated).image;
+  EXPECT_EQ(readPng(dir.file("p.png"), &w, &h), toRgba8(wantPre, glm::vec3(0.0f)));
+  EXPECT_NE(toRgba8(wantPre, glm::vec3(0.0f)), toRgba8(want.image, glm::vec3(0.0f)));
 }
 
 // Each client draws the isosurface it asked for once it is ready (the one it drew before until

@@ -109,6 +109,7 @@ function send(interacting) {
     camera: { eye: c.eye, center: c.center, up: c.up, fov: c.fov, pixels: [size, size] },
     tf: tfMessage(),
     shading: true,
+    classification: $('preintegrated').checked ? 'preintegrated' : 'post',
     surface: surfaceMessage(),
     cut: cutMessage(),
     voi: voiMessage(),
@@ -571,6 +572,7 @@ $('opacity').addEventListener('input', () => {
   drawTfEditor();
   burst();
 });
+$('preintegrated').addEventListener('change', () => request(false));
 $('size').addEventListener('change', () => {
   const s = imageSize();
   canvas.width = canvas.height = s;

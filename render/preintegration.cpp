@@ -1,0 +1,138 @@
+// Pre-integrated classification: K. Engel, M. Kraus, T. Ertl, "High-Quality Pre-Integrated Volume
+// Rendering Using Hardware-Accelerated Pixel Shading", Graphics Hardware 2001; the exact O(n²)
+// table of docs/renderer.md.
+#include "render/preintegration.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "volume/error.h"
+
+namespace hyb {
+
+namespace {
+
+// Optical depth per mm of an opacity @p a per mm.
+double tauOf(double a) {
+  if (a <= 0.0) return 0.0;
+  if (a >= 1.0) return PreIntegrationTable::kMaxTau;
+  return std::min(-std::log1p(-a), PreIntegrationTable::kMaxTau);
+}
+
+constexpr int kMinLayer = -40, kMaxLayer = 40;  // 2^−20 … 2^20 mm
+
+// The layers either side of a thickness (the two a segment of it reads).
+double layerCoordinate(double mm) { return std::clamp(2.0 * std::log2(std::max(mm, 1e-30)), double(kMinLayer), double(kMaxLayer)); }
+int layerBelow(double mm) { return int(std::floor(layerCoordinate(mm))); }
+int layerAbove(double mm) { return int(std::ceil(layerCoordinate(mm))); }
+
+}  // namespace
+
+int PreIntegrationTable::layerOf(double mm) { return int(std::lround(layerCoordinate(mm))); }
+
+double PreIntegrationTable::layerMm(int k) { return std::exp2(0.5 * double(k)); }
+
+PreIntegrationTable::PreIntegrationTable(const TransferFunction& tf, float vmin, float vmax, double minMm, double maxMm, int bins)
+    : mBins(bins), mVmin(vmin), mVmax(std::max(vmin, vmax)) {
+  if (bins < 2 || bins > 4096) HYB_THROW(ValueError, "pre-integration table of ", bins, " bins (expected 2 to 4096)");
+  if (!(minMm > 0.0 && maxMm >= minMm && std::isfinite(maxMm)))
+    HYB_THROW(ValueError, "pre-integration thicknesses [", minMm, ", ", maxMm, "] mm (expected 0 < min <= max, finite)");
+  const auto t0 = std::chrono::steady_clock::now();
+  mScale = mVmax > mVmin ? float(bins - 1) / (mVmax - mVmin) : 0.0f;
+  if (!std::isfinite(mScale)) mScale = 0.0f;
+  mFirst = layerBelow(minMm);
+  mLayers = layerAbove(maxMm) - mFirst + 1;
+  mTexels.assign(size_t(mLayers) * size_t(bins) * size_t(bins), glm::vec4(0.0f));
+  // The pieces between bins: their optical depth per mm and colour at their midpoints.
+  const int pieces = (bins - 1) * kPieces;
+  std::vector<double> tau(static_cast<size_t>(pieces));
+  std::vector<glm::dvec3> color(static_cast<size_t>(pieces));
+  for (int j = 0; j < pieces; ++j) {
+    const glm::vec4 c = tf.lookup(float(double(mVmin) + (double(mVmax) - double(mVmin)) * (j + 0.5) / pieces));
+    tau[size_t(j)] = tauOf(c.a);
+    color[size_t(j)] = glm::dvec3(c);
+  }
+  for (int layer = 0; layer < mLayers; ++layer) buildLayer(tau, color, tf, layer);
+  mBuildMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void PreIntegrationTable::buildLayer(const std::vector<double>& tau, const std::vector<glm::dvec3>& color, const TransferFunction& tf, int layer) {
+  const double d = layerMm(mFirst + layer);
+  const int n = mBins, m = int(tau.size());
+  glm::vec4* out = &mTexels[size_t(layer) * size_t(n) * size_t(n)];
+  auto entry = [&](int front, int back) -> glm::vec4& { return out[size_t(back) * size_t(n) + size_t(front)]; };
+  // Equal values: the homogeneous segment's closed form.
+  for (int u = 0; u < n; ++u) {
+    const glm::vec4 c = tf.lookup(mVmin + (mVmax - mVmin) * float(u) / float(n - 1));
+    const double a = -std::expm1(-tauOf(c.a) * d);
+    entry(u, u) = glm::vec4(glm::vec3(glm::dvec3(c) * a), float(a));
+  }
+  // Optical depth of pieces [0, j): the opacity of any run of pieces.
+  std::vector<double> depth(size_t(m) + 1, 0.0);
+  for (int j = 0; j < m; ++j) depth[size_t(j) + 1] = depth[size_t(j)] + tau[size_t(j)];
+#pragma omp parallel
+  {
+    std::vector<glm::dvec3> back(size_t(m) + 1), front(size_t(m) + 1);
+#pragma omp for schedule(dynamic)
+    for (int k = 1; k < n; ++k) {
+      // Bins k apart: the segment crosses k·kPieces pieces, each d/(k·kPieces) mm long.
+      const double piece = d / (double(k) * kPieces);
+      // back[j]: pieces j, j+1, … composited front to back (values rising away from the eye);
+      // front[j]: pieces j − 1, j − 2, … (values falling away from the eye).
+      back[size_t(m)] = glm::dvec3(0.0);
+      for (int j = m - 1; j >= 0; --j) {
+        const double a = -std::expm1(-tau[size_t(j)] * piece);
+        back[size_t(j)] = a * color[size_t(j)] + (1.0 - a) * back[size_t(j) + 1];
+      }
+      front[0] = glm::dvec3(0.0);
+      for (int j = 0; j < m; ++j) {
+        const double a = -std::expm1(-tau[size_t(j)] * piece);
+        front[size_t(j) + 1] = a * color[size_t(j)] + (1.0 - a) * front[size_t(j)];
+      }
+      for (int lo = 0; lo + k < n; ++lo) {
+        const int hi = lo + k;
+        const size_t pl = size_t(lo) * kPieces, ph = size_t(hi) * kPieces;
+        const double t = std::exp(-(depth[ph] - depth[pl]) * piece);
+        const float alpha = float(1.0 - t);
+        entry(lo, hi) = glm::vec4(glm::vec3(back[pl] - t * back[ph]), alpha);
+        entry(hi, lo) = glm::vec4(glm::vec3(front[ph] - t * front[pl]), alpha);
+      }
+    }
+  }
+}
+
+bool PreIntegrationTable::covers(double minMm, double maxMm) const {
+  return layerBelow(minMm) >= mFirst && layerAbove(maxMm) < mFirst + mLayers;
+}
+
+glm::vec4 PreIntegrationTable::rescale(const glm::vec4& entry, double layerMm, double mm, double depthScale) {
+  const double r = std::max(0.0, mm / layerMm * depthScale);
+  const double a = entry.a;
+  if (a <= 0.0) return glm::vec4(glm::vec3(entry) * float(r), 0.0f);
+  const double alpha = a >= 1.0 ? (r > 0.0 ? 1.0 : 0.0) : -std::expm1(r * std::log1p(-a));
+  return glm::vec4(glm::vec3(glm::dvec3(entry) * (alpha / a)), float(alpha));
+}
+
+glm::vec4 PreIntegrationTable::lookup(float front, float back, double mm, double depthScale) const {
+  auto coord = [&](float v) { return std::clamp((v - mVmin) * mScale, 0.0f, float(mBins - 1)); };
+  const float x = coord(front), y = coord(back);
+  const int x0 = std::min(int(x), mBins - 2), y0 = std::min(int(y), mBins - 2);
+  const float fx = x - float(x0), fy = y - float(y0);
+  auto read = [&](int layer) {
+    const glm::vec4 e = glm::mix(glm::mix(at(layer, x0, y0), at(layer, x0 + 1, y0), fx), glm::mix(at(layer, x0, y0 + 1), at(layer, x0 + 1, y0 + 1), fx), fy);
+    return rescale(e, layerMm(mFirst + layer), mm, depthScale);
+  };
+  // Between the two layers around mm, linearly in log thickness (one layer beyond either end).
+  const double k = std::clamp(layerCoordinate(mm) - mFirst, 0.0, double(mLayers - 1));
+  const int k0 = std::min(int(k), std::max(mLayers - 2, 0));
+  if (mLayers == 1) return read(0);
+  return glm::mix(read(k0), read(k0 + 1), float(k - k0));
+}
+
+PreIntegrationTable preintegrationFor(const TransferFunction& tf, float dataMin, float dataMax, double minMm, double maxMm) {
+  const LutLayout layout(dataMin, dataMax, tf);
+  return PreIntegrationTable(tf, layout.vmin, layout.vmax, minMm, maxMm);
+}
+
+}  // namespace hyb

@@ -1,0 +1,85 @@
+// Pre-integrated classification (Engel, Kraus and Ertl, "High-Quality Pre-Integrated Volume
+// Rendering Using Hardware-Accelerated Pixel Shading", 2001): a segment's colour and opacity read
+// from a table of the transfer function integrated between the values at its two ends, so narrow
+// transfer-function features between samples are not missed (docs/renderer.md).
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <vector>
+
+#include "render/transfer_function.h"
+
+namespace hyb {
+
+/// How a segment of a ray is classified: by the transfer function at one sample (post-
+/// classification, LaMar's opacity correction for its length), or integrated between the values
+/// at its ends (pre-integration).
+enum class Classification { Post, PreIntegrated };
+
+/// The pre-integration table of a transfer function over the value domain [vmin, vmax] (the
+/// lookup table's, LutLayout): for a segment of d mm along which the value goes linearly from sf
+/// (front, nearer the eye) to sb (back), the premultiplied colour C = ∫ τ c e^(−∫τ) and opacity
+/// α = 1 − e^(−∫τ), τ = −ln(1 − a) being the optical depth per mm of the per-millimetre opacity a.
+///
+/// Layers: one table per thickness 2^(k/2) mm (k an integer), for the layers covering the
+/// thicknesses asked. A segment of d mm reads the two layers around d; each entry's opacity is
+/// rescaled exactly to d (1 − (1 − α)^(d/d_k): optical depth is linear in d for the same pair of
+/// values), its colour by the ratio of the opacities (exact for a homogeneous segment, and where
+/// self-attenuation inside it is negligible), and the two are mixed linearly in log d. Thicknesses
+/// beyond the layers read the end layer, rescaled. Each layer is DESIGN's exact
+/// O(n²) table: for each bin distance the pieces between bins are composited back to front once,
+/// and every pair at that distance is a difference of two running sums. The transfer function is
+/// integrated on kPieces pieces between neighbouring bins (midpoint rule); a pair of values
+/// between bins reads the four nearest entries, bilinearly, as a linear texture filter does.
+class PreIntegrationTable {
+ public:
+  static constexpr int kDefaultBins = 256;
+  static constexpr int kPieces = 8;     ///< integration pieces between neighbouring bins
+  static constexpr double kMaxTau = 1e4;  ///< optical depth per mm of an opacity of 1 (opaque in a micrometre)
+
+  /// Layers covering segments of [minMm, maxMm] (each clamped to [2^−20, 2^20] mm).
+  /// @throw ValueError when @p bins is outside [2, 4096] or the thicknesses are not positive and finite.
+  PreIntegrationTable(const TransferFunction& tf, float vmin, float vmax, double minMm, double maxMm, int bins = kDefaultBins);
+
+  /// The layer whose thickness is nearest @p mm (in ratio), and layer @p k's thickness.
+  static int layerOf(double mm);
+  static double layerMm(int k);
+
+  /// Colour (premultiplied) and opacity of a segment of @p mm millimetres whose value goes from
+  /// @p front to @p back, the optical depth scaled by @p depthScale (a volume of interest's
+  /// opacity factor). Reads as the slice shader does.
+  glm::vec4 lookup(float front, float back, double mm, double depthScale = 1.0) const;
+  /// Rescales @p entry, read from a layer of @p layerMm, to a segment of @p mm with its optical
+  /// depth scaled by @p depthScale.
+  static glm::vec4 rescale(const glm::vec4& entry, double layerMm, double mm, double depthScale);
+
+  int bins() const { return mBins; }
+  int firstLayer() const { return mFirst; }
+  int layers() const { return mLayers; }
+  bool covers(double minMm, double maxMm) const;
+  float vmin() const { return mVmin; }
+  /// A value's bin coordinate is (v − vmin) · scale, clamped to [0, bins − 1].
+  float scale() const { return mScale; }
+  /// Entries layer by layer, each bins × bins with the front value's bin along rows.
+  const std::vector<glm::vec4>& texels() const { return mTexels; }
+  double buildMs() const { return mBuildMs; }
+
+ private:
+  void buildLayer(const std::vector<double>& tau, const std::vector<glm::dvec3>& color, const TransferFunction& tf, int layer);
+  glm::vec4 at(int layer, int front, int back) const {
+    return mTexels[(size_t(layer) * size_t(mBins) + size_t(back)) * size_t(mBins) + size_t(front)];
+  }
+
+  int mBins;
+  float mVmin, mVmax, mScale;
+  int mFirst = 0, mLayers = 0;
+  std::vector<glm::vec4> mTexels;
+  double mBuildMs = 0.0;
+};
+
+/// The table the renderers read for data with values in [@p dataMin, @p dataMax]: over the lookup
+/// table's domain (LutLayout), layers covering segments of [minMm, maxMm].
+PreIntegrationTable preintegrationFor(const TransferFunction& tf, float dataMin, float dataMax, double minMm, double maxMm);
+
+}  // namespace hyb
