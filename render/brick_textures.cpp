@@ -259,6 +259,14 @@ GLuint BrickTextureCache::program(const std::string& key) const {
 
 void BrickTextureCache::insertProgram(const std::string& key, gl::Program program) { mPrograms[key] = std::move(program); }
 
+GLuint BrickTextureCache::tableTexture(uint64_t tableId, const std::function<gl::Texture()>& make) {
+  if (tableId != mTableId || !mTable) {
+    mTable = make();
+    mTableId = tableId;
+  }
+  return mTable.id();
+}
+
 void BrickTextureCache::clearBricks() {
   mEntries.clear();
   mOrder.clear();
@@ -267,6 +275,8 @@ void BrickTextureCache::clearBricks() {
 
 void BrickTextureCache::clear() {
   mPrograms.clear();
+  mTable = gl::Texture();
+  mTableId = 0;
   clearBricks();
 }
 

@@ -9,6 +9,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <list>
 #include <string>
 #include <unordered_map>
@@ -138,6 +139,9 @@ class BrickTextureCache {
   GLuint program(const std::string& key) const;
   /// Takes ownership of @p program.
   void insertProgram(const std::string& key, gl::Program program);
+  /// The texture kept for the pre-integration table of id @p tableId, made by @p make when it is
+  /// another table's (or none is kept): a frame's upload of its layers costs a fifth of the frame.
+  GLuint tableTexture(uint64_t tableId, const std::function<gl::Texture()>& make);
   void clear();
 
  private:
@@ -154,6 +158,8 @@ class BrickTextureCache {
   uint64_t mLimit = 0, mBytes = 0, mFrame = 0, mEvicted = 0;
   TexelBits mBits = TexelBits::Eight;
   std::unordered_map<std::string, gl::Program> mPrograms;
+  uint64_t mTableId = 0;
+  gl::Texture mTable;
 };
 
 }  // namespace hyb

@@ -4,6 +4,7 @@
 #include "render/preintegration.h"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 
@@ -20,6 +21,8 @@ double tauOf(double a) {
   return std::min(-std::log1p(-a), PreIntegrationTable::kMaxTau);
 }
 
+std::atomic<uint64_t> nextId{0};
+
 constexpr int kMinLayer = -40, kMaxLayer = 40;  // 2^−20 … 2^20 mm
 
 // The layers either side of a thickness (the two a segment of it reads).
@@ -34,7 +37,7 @@ int PreIntegrationTable::layerOf(double mm) { return int(std::lround(layerCoordi
 double PreIntegrationTable::layerMm(int k) { return std::exp2(0.5 * double(k)); }
 
 PreIntegrationTable::PreIntegrationTable(const TransferFunction& tf, float vmin, float vmax, double minMm, double maxMm, int bins)
-    : mBins(bins), mVmin(vmin), mVmax(std::max(vmin, vmax)) {
+    : mBins(bins), mVmin(vmin), mVmax(std::max(vmin, vmax)), mId(nextId.fetch_add(1) + 1) {
   if (bins < 2 || bins > 4096) HYB_THROW(ValueError, "pre-integration table of ", bins, " bins (expected 2 to 4096)");
   if (!(minMm > 0.0 && maxMm >= minMm && std::isfinite(maxMm)))
     HYB_THROW(ValueError, "pre-integration thicknesses [", minMm, ", ", maxMm, "] mm (expected 0 < min <= max, finite)");

@@ -64,6 +64,8 @@ class PreIntegrationTable {
   /// Entries layer by layer, each bins × bins with the front value's bin along rows.
   const std::vector<glm::vec4>& texels() const { return mTexels; }
   double buildMs() const { return mBuildMs; }
+  /// Unique to this table (kept by its moves): what a texture made from it is kept under.
+  uint64_t id() const { return mId; }
 
  private:
   void buildLayer(const std::vector<double>& tau, const std::vector<glm::dvec3>& color, const TransferFunction& tf, int layer);
@@ -76,6 +78,7 @@ class PreIntegrationTable {
   int mFirst = 0, mLayers = 0;
   std::vector<glm::vec4> mTexels;
   double mBuildMs = 0.0;
+  uint64_t mId;
 };
 
 /// The table the renderers read for data with values in [@p dataMin, @p dataMax]: over the lookup

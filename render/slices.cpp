@@ -164,9 +164,9 @@ uint64_t drawOpaqueSurface(GLuint program, const TriangleMesh& surface, const gl
 struct TransferTable {
   LutLayout layout;
   std::vector<glm::vec4> lut;
-  gl::Texture texture, preintegrated;
+  gl::Texture texture, ownTable;
   VisibleValues visible;
-  TransferTable(const Volume& volume, const TransferFunction& tf, const PreIntegrationTable* pre)
+  TransferTable(const Volume& volume, const TransferFunction& tf, const PreIntegrationTable* pre, BrickTextureCache* cache)
       : layout(volume.minValue(), volume.maxValue(), tf), lut(tableOf(layout, tf)), texture(gl::Texture::make()), visible(lut, layout) {
     glActiveTexture(GL_TEXTURE1);
     glBindTexture(GL_TEXTURE_1D, texture.id());
@@ -174,16 +174,21 @@ struct TransferTable {
     // A filter without mipmaps keeps the texture complete.
     glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
     glTexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
-    if (pre) {
-      preintegrated = gl::Texture::make();
+    if (!pre) return;
+    auto make = [pre] {
+      gl::Texture t = gl::Texture::make();
       glActiveTexture(GL_TEXTURE2);
-      glBindTexture(GL_TEXTURE_2D_ARRAY, preintegrated.id());
+      glBindTexture(GL_TEXTURE_2D_ARRAY, t.id());
       glTexImage3D(GL_TEXTURE_2D_ARRAY, 0, GL_RGBA32F, pre->bins(), pre->bins(), pre->layers(), 0, GL_RGBA, GL_FLOAT, pre->texels().data());
       glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
       glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
       glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
       glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
-    }
+      return t;
+    };
+    const GLuint id = cache ? cache->tableTexture(pre->id(), make) : (ownTable = make()).id();
+    glActiveTexture(GL_TEXTURE2);
+    glBindTexture(GL_TEXTURE_2D_ARRAY, id);
   }
   static std::vector<glm::vec4> tableOf(const LutLayout& layout, const TransferFunction& tf) {
     std::vector<glm::vec4> lut(LutLayout::kSize);
@@ -658,7 +663,7 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   // 1. The transfer function's table and the programs.
   const bool withTriangles = options.surface && !options.surface->triangles.empty();
   const bool translucent = withTriangles && options.surfaceColor.a < 1.0f;
-  const TransferTable table(volume, tf, options.preintegrated);
+  const TransferTable table(volume, tf, options.preintegrated, options.textures);
   if (options.textures) {
     options.textures->setBits(options.texelBits);
     options.textures->beginFrame();

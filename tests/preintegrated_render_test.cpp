@@ -102,6 +102,27 @@ TEST(PreIntegrated, ANarrowSpikeBetweenSamplesIsFound) {
     }
 }
 
+TEST(PreIntegrated, TheKeptTableTextureFollowsTheTable) {
+  gl();
+  // Frames through one texture cache with two tables in turn draw what frames without it draw.
+  const Volume v = test::makeVolume({17, 17, 17}, [](int i, int j, int k) { return 0.1f * float(i + j + k); });
+  const VolumeOctree t = VolumeOctree::build(v);
+  const Selection sel = selectNodes(t, SelectionParams{});
+  const Camera cam = test::perspective(glm::dvec3(40, 30, 50), glm::dvec3(8.0), glm::dvec3(0, 0, 1), 30.0, 16);
+  BrickTextureCache cache;
+  const TransferFunction a = constantTf(0.1f), b({{0.0f, {0.2f, 0.9f, 0.3f}, 0.0f}, {4.8f, {1, 1, 1}, 0.3f}}, "ramp");
+  for (const TransferFunction* tf : {&a, &b, &a}) {
+    const PreIntegrationTable table = preintegrationFor(*tf, v.minValue(), v.maxValue(), 0.25, 32.0);
+    SlicesOptions o;
+    o.preintegrated = &table;
+    const Image alone = renderSlices(v, t, sel, *tf, cam, o);
+    o.textures = &cache;
+    const Image cached = renderSlices(v, t, sel, *tf, cam, o);
+    EXPECT_EQ(toRgba8(cached, glm::vec3(0.0f)), toRgba8(alone, glm::vec3(0.0f)));
+  }
+  cache.clear();
+}
+
 TEST(PreIntegratedCranium, MatchesTheReferenceWithTheSurfaceAndACutAndTheBudget) {
   // The scene renderer's frames in both classifications: the slices against the (post-classified)
   // reference at full resolution, with the translucent bone surface through the SlabPolygon
