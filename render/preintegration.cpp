@@ -65,15 +65,19 @@ void PreIntegrationTable::buildLayer(const std::vector<double>& tau, const std::
   const int n = mBins, m = int(tau.size());
   glm::vec4* out = &mTexels[size_t(layer) * size_t(n) * size_t(n)];
   auto entry = [&](int front, int back) -> glm::vec4& { return out[size_t(back) * size_t(n) + size_t(front)]; };
-  // Equal values: the homogeneous segment's closed form.
+  // Equal values: the homogeneous segment, its colour and optical depth per mm those of its value.
   for (int u = 0; u < n; ++u) {
     const glm::vec4 c = tf.lookup(mVmin + (mVmax - mVmin) * float(u) / float(n - 1));
-    const double a = -std::expm1(-tauOf(c.a) * d);
-    entry(u, u) = glm::vec4(glm::vec3(glm::dvec3(c) * a), float(a));
+    entry(u, u) = glm::vec4(glm::vec3(c), float(tauOf(c.a)));
   }
-  // Optical depth of pieces [0, j): the opacity of any run of pieces.
+  // Optical depth of pieces [0, j), and of each piece weighting its colour: a segment's opacity,
+  // and its colour where it is nearly transparent (the limit of C/α as the opacity vanishes).
   std::vector<double> depth(size_t(m) + 1, 0.0);
-  for (int j = 0; j < m; ++j) depth[size_t(j) + 1] = depth[size_t(j)] + tau[size_t(j)];
+  std::vector<glm::dvec3> depthColor(size_t(m) + 1, glm::dvec3(0.0));
+  for (int j = 0; j < m; ++j) {
+    depth[size_t(j) + 1] = depth[size_t(j)] + tau[size_t(j)];
+    depthColor[size_t(j) + 1] = depthColor[size_t(j)] + tau[size_t(j)] * color[size_t(j)];
+  }
 #pragma omp parallel
   {
     std::vector<glm::dvec3> back(size_t(m) + 1), front(size_t(m) + 1);
@@ -96,10 +100,18 @@ void PreIntegrationTable::buildLayer(const std::vector<double>& tau, const std::
       for (int lo = 0; lo + k < n; ++lo) {
         const int hi = lo + k;
         const size_t pl = size_t(lo) * kPieces, ph = size_t(hi) * kPieces;
-        const double t = std::exp(-(depth[ph] - depth[pl]) * piece);
-        const float alpha = float(1.0 - t);
-        entry(lo, hi) = glm::vec4(glm::vec3(back[pl] - t * back[ph]), alpha);
-        entry(hi, lo) = glm::vec4(glm::vec3(front[ph] - t * front[pl]), alpha);
+        const double sum = depth[ph] - depth[pl], alpha = -std::expm1(-sum * piece), t = 1.0 - alpha;
+        const float perMm = float(sum / (double(k) * kPieces));
+        // Colour C / α: exact where the segment is visible, its limit where it is (nearly) not.
+        glm::dvec3 rising, falling;
+        if (alpha > 1e-6) {
+          rising = (back[pl] - t * back[ph]) / alpha;
+          falling = (front[ph] - t * front[pl]) / alpha;
+        } else {
+          rising = falling = sum > 0.0 ? (depthColor[ph] - depthColor[pl]) / sum : color[(pl + ph) / 2];
+        }
+        entry(lo, hi) = glm::vec4(glm::vec3(rising), perMm);
+        entry(hi, lo) = glm::vec4(glm::vec3(falling), perMm);
       }
     }
   }
@@ -109,28 +121,20 @@ bool PreIntegrationTable::covers(double minMm, double maxMm) const {
   return layerBelow(minMm) >= mFirst && layerAbove(maxMm) < mFirst + mLayers;
 }
 
-glm::vec4 PreIntegrationTable::rescale(const glm::vec4& entry, double layerMm, double mm, double depthScale) {
-  const double r = std::max(0.0, mm / layerMm * depthScale);
-  const double a = entry.a;
-  if (a <= 0.0) return glm::vec4(glm::vec3(entry) * float(r), 0.0f);
-  const double alpha = a >= 1.0 ? (r > 0.0 ? 1.0 : 0.0) : -std::expm1(r * std::log1p(-a));
-  return glm::vec4(glm::vec3(glm::dvec3(entry) * (alpha / a)), float(alpha));
-}
-
 glm::vec4 PreIntegrationTable::lookup(float front, float back, double mm, double depthScale) const {
+  // Trilinear, as the slice shader's texture read: bins bilinearly, layers linearly in log mm.
   auto coord = [&](float v) { return std::clamp((v - mVmin) * mScale, 0.0f, float(mBins - 1)); };
   const float x = coord(front), y = coord(back);
   const int x0 = std::min(int(x), mBins - 2), y0 = std::min(int(y), mBins - 2);
   const float fx = x - float(x0), fy = y - float(y0);
   auto read = [&](int layer) {
-    const glm::vec4 e = glm::mix(glm::mix(at(layer, x0, y0), at(layer, x0 + 1, y0), fx), glm::mix(at(layer, x0, y0 + 1), at(layer, x0 + 1, y0 + 1), fx), fy);
-    return rescale(e, layerMm(mFirst + layer), mm, depthScale);
+    return glm::mix(glm::mix(at(layer, x0, y0), at(layer, x0 + 1, y0), fx), glm::mix(at(layer, x0, y0 + 1), at(layer, x0 + 1, y0 + 1), fx), fy);
   };
-  // Between the two layers around mm, linearly in log thickness (one layer beyond either end).
   const double k = std::clamp(layerCoordinate(mm) - mFirst, 0.0, double(mLayers - 1));
   const int k0 = std::min(int(k), std::max(mLayers - 2, 0));
-  if (mLayers == 1) return read(0);
-  return glm::mix(read(k0), read(k0 + 1), float(k - k0));
+  const glm::vec4 e = mLayers == 1 ? read(0) : glm::mix(read(k0), read(k0 + 1), float(k - k0));
+  const double alpha = -std::expm1(-std::max(mm, 0.0) * depthScale * double(e.a));
+  return glm::vec4(glm::vec3(glm::dvec3(e) * alpha), float(alpha));
 }
 
 PreIntegrationTable preintegrationFor(const TransferFunction& tf, float dataMin, float dataMax, double minMm, double maxMm) {

@@ -22,16 +22,15 @@ enum class Classification { Post, PreIntegrated };
 /// (front, nearer the eye) to sb (back), the premultiplied colour C = ∫ τ c e^(−∫τ) and opacity
 /// α = 1 − e^(−∫τ), τ = −ln(1 − a) being the optical depth per mm of the per-millimetre opacity a.
 ///
-/// Layers: one table per thickness 2^(k/2) mm (k an integer), for the layers covering the
-/// thicknesses asked. A segment of d mm reads the two layers around d; each entry's opacity is
-/// rescaled exactly to d (1 − (1 − α)^(d/d_k): optical depth is linear in d for the same pair of
-/// values), its colour by the ratio of the opacities (exact for a homogeneous segment, and where
-/// self-attenuation inside it is negligible), and the two are mixed linearly in log d. Thicknesses
-/// beyond the layers read the end layer, rescaled. Each layer is DESIGN's exact
-/// O(n²) table: for each bin distance the pieces between bins are composited back to front once,
-/// and every pair at that distance is a difference of two running sums. The transfer function is
-/// integrated on kPieces pieces between neighbouring bins (midpoint rule); a pair of values
-/// between bins reads the four nearest entries, bilinearly, as a linear texture filter does.
+/// Each entry holds the segment's optical depth per mm (the mean of τ between sf and sb: the same
+/// at every length, so α = 1 − e^(−d·D) is exact at any d) and its colour C / α, which depends on
+/// d through the attenuation inside the segment: one layer per thickness 2^(k/2) mm (k an
+/// integer), covering the thicknesses asked, each DESIGN's exact O(n²) table (for each bin
+/// distance the pieces between bins are composited back to front once, and every pair at that
+/// distance is a difference of two running sums). A read is trilinear, as one 3D texture read in
+/// the slice shader: bins bilinearly, layers linearly in log d (thicknesses beyond the layers read
+/// the end layer's colour). Exact for a homogeneous segment at any d. The transfer function is
+/// integrated on kPieces pieces between neighbouring bins (midpoint rule).
 class PreIntegrationTable {
  public:
   static constexpr int kDefaultBins = 256;
@@ -50,9 +49,6 @@ class PreIntegrationTable {
   /// @p front to @p back, the optical depth scaled by @p depthScale (a volume of interest's
   /// opacity factor). Reads as the slice shader does.
   glm::vec4 lookup(float front, float back, double mm, double depthScale = 1.0) const;
-  /// Rescales @p entry, read from a layer of @p layerMm, to a segment of @p mm with its optical
-  /// depth scaled by @p depthScale.
-  static glm::vec4 rescale(const glm::vec4& entry, double layerMm, double mm, double depthScale);
 
   int bins() const { return mBins; }
   int firstLayer() const { return mFirst; }
@@ -61,7 +57,8 @@ class PreIntegrationTable {
   float vmin() const { return mVmin; }
   /// A value's bin coordinate is (v − vmin) · scale, clamped to [0, bins − 1].
   float scale() const { return mScale; }
-  /// Entries layer by layer, each bins × bins with the front value's bin along rows.
+  /// Entries (colour C / α, optical depth per mm) layer by layer, each bins × bins with the front
+  /// value's bin along rows.
   const std::vector<glm::vec4>& texels() const { return mTexels; }
   double buildMs() const { return mBuildMs; }
   /// Unique to this table (kept by its moves): what a texture made from it is kept under.

@@ -128,27 +128,20 @@ float voiFactor(vec3 x) {
 }
 
 #if PREINT
-// The pre-integration table: layers of thickness 2^((k + preFirst) / 2) mm, the front value's bin
-// along x, the back value's along y, read bilinearly (PreIntegrationTable::lookup).
-uniform sampler2DArray preTex;
+// The pre-integration table (PreIntegrationTable): colour C / α and optical depth per mm, the front
+// value's bin along x, the back value's along y, layers of thickness 2^((k + preFirst) / 2) mm
+// along z, read trilinearly.
+uniform sampler3D preTex;
 uniform float preMin, preScale, preBins, preFirst, preLayers;
 
-// Layer k's entry at uv, rescaled to a segment of len mm whose optical depth is scaled by depthScale.
-vec4 preRead(vec2 uv, float k, float len, float depthScale) {
-  vec4 e = texture(preTex, vec3(uv, k));
-  float r = len * exp2(-0.5 * (k + preFirst)) * depthScale;
-  float a = e.a >= 1.0 ? 1.0 : 1.0 - exp2(r * log2(1.0 - e.a));
-  return e.a > 0.0 ? vec4(e.rgb * (a / e.a), a) : vec4(e.rgb * r, 0.0);
-}
-
-// The premultiplied colour and opacity of a segment of len mm (> 0) from value vf to value vb:
-// the two layers around len, mixed linearly in log len.
+// The premultiplied colour and opacity of a segment of len mm (> 0) from value vf to value vb,
+// its optical depth scaled by depthScale.
 vec4 preintegrated(float vf, float vb, float len, float depthScale) {
   vec2 uv = (clamp((vec2(vf, vb) - preMin) * preScale, 0.0, preBins - 1.0) + 0.5) / preBins;
   float k = clamp(2.0 * log2(len) - preFirst, 0.0, preLayers - 1.0);
-  float k0 = min(floor(k), max(preLayers - 2.0, 0.0));
-  vec4 c = preRead(uv, k0, len, depthScale);
-  return preLayers > 1.5 ? mix(c, preRead(uv, k0 + 1.0, len, depthScale), k - k0) : c;
+  vec4 e = texture(preTex, vec3(uv, (k + 0.5) / preLayers));
+  float alpha = 1.0 - exp2(-1.44269504 * len * depthScale * e.a);
+  return vec4(e.rgb * alpha, alpha);
 }
 #endif
 

@@ -178,17 +178,16 @@ struct TransferTable {
     auto make = [pre] {
       gl::Texture t = gl::Texture::make();
       glActiveTexture(GL_TEXTURE2);
-      glBindTexture(GL_TEXTURE_2D_ARRAY, t.id());
-      glTexImage3D(GL_TEXTURE_2D_ARRAY, 0, GL_RGBA32F, pre->bins(), pre->bins(), pre->layers(), 0, GL_RGBA, GL_FLOAT, pre->texels().data());
-      glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-      glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-      glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-      glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+      glBindTexture(GL_TEXTURE_3D, t.id());
+      glTexImage3D(GL_TEXTURE_3D, 0, GL_RGBA32F, pre->bins(), pre->bins(), pre->layers(), 0, GL_RGBA, GL_FLOAT, pre->texels().data());
+      glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+      glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+      for (const GLenum wrap : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R}) glTexParameteri(GL_TEXTURE_3D, wrap, GL_CLAMP_TO_EDGE);
       return t;
     };
     const GLuint id = cache ? cache->tableTexture(pre->id(), make) : (ownTable = make()).id();
     glActiveTexture(GL_TEXTURE2);
-    glBindTexture(GL_TEXTURE_2D_ARRAY, id);
+    glBindTexture(GL_TEXTURE_3D, id);
   }
   static std::vector<glm::vec4> tableOf(const LutLayout& layout, const TransferFunction& tf) {
     std::vector<glm::vec4> lut(LutLayout::kSize);

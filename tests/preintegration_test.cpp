@@ -51,8 +51,8 @@ TEST(PreIntegration, TableEqualsBruteForceIntegration) {
       const float sf = 1000.0f * float(a) / 255.0f, sb = 1000.0f * float(b) / 255.0f;
       worstOnBins = std::max(worstOnBins, maxDiff(table.lookup(sf, sb, d), bruteForce(tf, sf, sb, d)));
     }
-    // Values between bins (bilinear) on layers, values on bins at any thickness (the nearest layer
-    // rescaled), and both.
+    // Values between bins (bilinear) on layers, values on bins at any thickness (between layers),
+    // and both.
     for (int i = 0; i < 40; ++i) {
       const double sf = value(rng), sb = value(rng), d = mm(rng);
       const int layer = table.firstLayer() + int(rng() % unsigned(table.layers()));
@@ -65,7 +65,7 @@ TEST(PreIntegration, TableEqualsBruteForceIntegration) {
     }
   }
   // The tolerances: the midpoint rule on kPieces pieces a bin; bilinear reads between bins; the
-  // two layers around a thickness, each rescaled, mixed; all below one 8-bit level (1/255).
+  // colours of the two layers around a thickness mixed; all below one 8-bit level (1/255).
   EXPECT_LT(worstOnBins, 1e-4);
   EXPECT_LT(worstBilinear, 2e-3);
   EXPECT_LT(worstRescaled, 3e-3);
