@@ -25,12 +25,12 @@ enum class Classification { Post, PreIntegrated };
 /// Each entry holds the segment's optical depth per mm (the mean of τ between sf and sb: the same
 /// at every length, so α = 1 − e^(−d·D) is exact at any d) and its colour C / α, which depends on
 /// d through the attenuation inside the segment: one layer per thickness 2^(k/2) mm (k an
-/// integer), covering the thicknesses asked, each DESIGN's exact O(n²) table (for each bin
-/// distance the pieces between bins are composited back to front once, and every pair at that
-/// distance is a difference of two running sums). A read is trilinear, as one 3D texture read in
-/// the slice shader: bins bilinearly, layers linearly in log d (thicknesses beyond the layers read
-/// the end layer's colour). Exact for a homogeneous segment at any d. The transfer function is
-/// integrated on kPieces pieces between neighbouring bins (midpoint rule).
+/// integer), covering the thicknesses asked, each the exact O(n²) table of docs/renderer.md (for
+/// each bin distance the pieces between bins are composited back to front once, and every pair at
+/// that distance is a difference of two running sums). A read is trilinear, as one 3D texture
+/// read in the slice shader: bins bilinearly, layers linearly in log d (thicknesses beyond the
+/// layers read the end layer's colour). Exact for a homogeneous segment at any d. The transfer
+/// function is integrated on kPieces pieces between neighbouring bins (midpoint rule).
 class PreIntegrationTable {
  public:
   static constexpr int kDefaultBins = 256;

@@ -160,7 +160,7 @@ uint64_t drawOpaqueSurface(GLuint program, const TriangleMesh& surface, const gl
 }
 
 // The transfer function's lookup table (texture unit 1, read with texelFetch) and what it shows;
-// the pre-integration table's layers (unit 2, read bilinearly) when the frame uses them.
+// the pre-integration table (unit 2, a 3D texture read trilinearly) when the frame uses it.
 struct TransferTable {
   LutLayout layout;
   std::vector<glm::vec4> lut;
