@@ -1,15 +1,17 @@
 #!/usr/bin/python3
-"""Optional comparison of the renderer issue's speed targets with VTK, in one run on this machine:
-VTK's GPU ray cast mapper with depth peeling (volume + translucent isosurface) and its CPU
-fixed-point ray caster (volume only, automatic sample distances), both through Mesa's llvmpipe
-under Xvfb, against `hybrid-octree render` on the same volume, view, transfer function and size.
-Every image is also compared with the reference ray tracer (`hybrid-octree compare`), and the
-fixed-point caster is met once more at its own accuracy: at the widest slice spacing whose image
-is at least as close to the reference as VTK's.
+"""Speed against accuracy, side by side in one run on this machine: frame time and PSNR to the
+reference ray tracer as curves, for each of our renderers (slices post-classified and
+pre-integrated over slice spacings, the reference ray tracer over sample spacings) and each peer:
+VTK's GPU ray cast mapper (volume only; with the translucent isosurface, with and without depth
+peeling) and its CPU fixed-point ray caster (volume only; its automatic sample distances, then
+fixed ones), through Mesa's llvmpipe under Xvfb, on the same volume, view, transfer function and
+size. Prints one row per frame (name, ms, dB, ratio of the peer's frame to this one), the targets'
+rows, and writes the curves as a CSV table and a plot.
 
-Needs Debian's python3-vtk9 and xvfb (not dependencies of the project). From the repository root:
+Needs Debian's python3-vtk9, python3-matplotlib and xvfb (not dependencies of the project). From
+the repository root:
 
-    xvfb-run -a /usr/bin/python3 bench/vtk_render.py cranium_256x256x108_int16le.nhdr [--runs 3] [--rounds 3] [--images DIR]
+    xvfb-run -a /usr/bin/python3 bench/vtk_render.py cranium_256x256x108_int16le.nhdr [--runs 3] [--images DIR] [--csv docs/trade-vtk.csv] [--plot docs/trade-vtk.png]
 """
 import argparse
 import math
@@ -56,9 +58,14 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("volume")
     parser.add_argument("--runs", type=int, default=3, help="timed frames per measurement")
-    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds of every measurement")
+    parser.add_argument("--rounds", type=int, default=1, help="interleaved rounds of every measurement")
     parser.add_argument("--hybrid-octree", default="build/hybrid-octree")
     parser.add_argument("--images", help="keep every image here (default: a temporary folder)")
+    parser.add_argument("--steps", default="0.5,1,1.6,2,3,4", help="our slice spacings, voxels")
+    parser.add_argument("--ray-steps", default="0.5,1,2", help="the reference ray tracer's sample spacings, voxels")
+    parser.add_argument("--vtk-distances", default="0.5,1,2,4", help="VTK's sample distances, in smallest voxel spacings")
+    parser.add_argument("--csv", help="write the curves here")
+    parser.add_argument("--plot", help="plot the curves here (PNG)")
     args = parser.parse_args()
     try:
         import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (registers the OpenGL back end)
@@ -125,7 +132,7 @@ def main():
         writer.SetInputConnection(grab.GetOutputPort())
         writer.Write()
 
-    def scene(mapper, surface, name):
+    def scene(mapper, surface, name, peeling=True):
         renderer = vtkRenderer()
         window.AddRenderer(renderer)
         volume = vtkVolume()
@@ -145,8 +152,8 @@ def main():
             actor.GetProperty().SetColor(0.95, 0.92, 0.85)
             actor.GetProperty().SetOpacity(0.5)
             renderer.AddActor(actor)
-            renderer.SetUseDepthPeeling(1)
-            renderer.SetUseDepthPeelingForVolumes(1)
+            renderer.SetUseDepthPeeling(1 if peeling else 0)
+            renderer.SetUseDepthPeelingForVolumes(1 if peeling else 0)
             renderer.SetMaximumNumberOfPeels(8)
             renderer.SetOcclusionRatio(0.0)
         camera = renderer.GetActiveCamera()
@@ -172,68 +179,115 @@ def main():
         gpu.SetAutoAdjustSampleDistances(0)
         gpu.SetSampleDistance(0.5 * min(spacing))  # as our default slice spacing
         return gpu
-    cpu = vtkFixedPointVolumeRayCastMapper()
-    cpu.SetInputData(image)  # automatic sample distances (its default)
     surface = ["--iso", "400", "--surface-color", "0.95,0.92,0.85,0.5"]
     exe = args.hybrid_octree
 
+    # The curves: name, peer it is measured against, and its points (label, measure, look).
     def ours(name, extra):
         return lambda: ours_ms(exe, args.volume, args.runs, extra, view, os.path.join(folder, name + ".png"))
 
-    # At the accuracy floor the targets allow (PSNR >= 35 dB against the reference ray tracer;
-    # docs/renderer.md measures the slice spacing that keeps it).
-    measures = {
-        "gpu_surface": lambda: scene(gpu_mapper(), True, "gpu_surface"),
-        "gpu_volume": lambda: scene(gpu_mapper(), False, "gpu_volume"),
-        "cpu_volume": lambda: scene(cpu, False, "cpu_volume"),
-        "ours_surface": ours("ours_surface", surface),
-        "ours_volume": ours("ours_volume", []),
-        "ours_surface_floor": ours("ours_surface_floor", surface + ["--step", "3"]),
-        "ours_volume_floor": ours("ours_volume_floor", ["--step", "1.6"]),
-    }
-    # Accuracy: every image against the reference ray tracer of each scene. The fixed-point caster
-    # is then also met at its own accuracy: the widest slice spacing whose image is at least as
-    # close to the reference as VTK's.
+    def cpu_mapper(distance):
+        cpu = vtkFixedPointVolumeRayCastMapper()
+        cpu.SetInputData(image)
+        if distance:
+            cpu.SetAutoAdjustSampleDistances(0)
+            cpu.SetSampleDistance(distance)
+            cpu.SetImageSampleDistance(1.0)
+        return cpu
+
+    def gpu(distance):
+        mapper = gpu_mapper()
+        mapper.SetSampleDistance(distance)
+        return mapper
+
+    curves = []  # (curve, look, [(label, name, measure)])
+    for look, extra in (("volume", []), ("surface", surface)):
+        for mode in ("post", "preintegrated"):
+            curves.append((f"hybrid-octree slices, {mode}", look, [
+                (f"--step {st}", f"ours_{look}_{mode}_{st}", ours(f"ours_{look}_{mode}_{st}", extra + ["--step", st, "--classification", mode]))
+                for st in args.steps.split(",")]))
+        curves.append(("hybrid-octree reference ray tracer", look, [
+            (f"--step {st}", f"rays_{look}_{st}", ours(f"rays_{look}_{st}", extra + ["--renderer", "raycast", "--step", st]))
+            for st in args.ray_steps.split(",")]))
+    mm = min(spacing)
+    distances = [float(f) * mm for f in args.vtk_distances.split(",")]
+    curves.append(("VTK GPU ray cast", "volume", [
+        (f"sample {d:.2f} mm", f"gpu_volume_{d:.2f}", (lambda d=d: scene(gpu(d), False, f"gpu_volume_{d:.2f}"))) for d in distances]))
+    curves.append(("VTK CPU fixed-point ray cast", "volume",
+                   [("automatic", "cpu_volume_auto", lambda: scene(cpu_mapper(0), False, "cpu_volume_auto"))] +
+                   [(f"sample {d:.2f} mm", f"cpu_volume_{d:.2f}", (lambda d=d: scene(cpu_mapper(d), False, f"cpu_volume_{d:.2f}"))) for d in distances]))
+    for peeling in (True, False):
+        tag = "peeled" if peeling else "unpeeled"
+        curves.append((f"VTK GPU ray cast + surface, {'depth peeling' if peeling else 'no depth peeling'}", "surface", [
+            (f"sample {d:.2f} mm", f"gpu_surface_{tag}_{d:.2f}", (lambda d=d, p=peeling, t=tag: scene(gpu(d), True, f"gpu_surface_{t}_{d:.2f}", p)))
+            for d in distances]))
+
     for name, extra in (("reference_surface", surface), ("reference_volume", [])):
         subprocess.run([exe, "render", args.volume, "--size", "512x512", "--renderer", "raycast", "-o", os.path.join(folder, name + ".png")]
                        + view + extra, check=True, capture_output=True)
-    measures["cpu_volume"]()
-    cpu_psnr = psnr_db(exe, os.path.join(folder, "reference_volume.png"), os.path.join(folder, "cpu_volume.png"))
-    matched = "1.6"
-    for step in ("2", "3", "4"):
-        ours_ms(exe, args.volume, 0, ["--step", step], view, os.path.join(folder, "ours_volume_step.png"))
-        if psnr_db(exe, os.path.join(folder, "reference_volume.png"), os.path.join(folder, "ours_volume_step.png")) >= cpu_psnr:
-            matched = step
-    measures["ours_volume_matched"] = ours("ours_volume_matched", ["--step", matched])
     # Interleaved rounds, the best of each kept: the load of a shared machine drifts over a run, and
-    # measuring one side after the other would put the drift into the ratios.
-    best = {name: float("inf") for name in measures}
+    # measuring one curve after the other would put the drift into the ratios.
+    best = {}
     for _ in range(args.rounds):
-        for name, measure in measures.items():
-            best[name] = min(best[name], measure())
-    gpu_surface, gpu_volume, cpu_volume = best["gpu_surface"], best["gpu_volume"], best["cpu_volume"]
-    ours_surface, ours_volume = best["ours_surface"], best["ours_volume"]
-    ours_surface_floor, ours_volume_floor = best["ours_surface_floor"], best["ours_volume_floor"]
-    ours_volume_matched = best["ours_volume_matched"]
+        for _, _, points in curves:
+            for _, name, measure in points:
+                best[name] = min(best.get(name, float("inf")), measure())
+    db = {}
+    for _, look, points in curves:
+        for _, name, _ in points:
+            db[name] = psnr_db(exe, os.path.join(folder, f"reference_{look}.png"), os.path.join(folder, name + ".png"))
 
-    def acc(name):
-        reference = os.path.join(folder, "reference_" + ("surface" if "surface" in name else "volume") + ".png")
-        return f"{psnr_db(exe, reference, os.path.join(folder, name + '.png')):6.2f} dB"
+    # The peers' frames the targets name: the fixed-point caster's own (automatic) frame, and the
+    # GPU caster with depth peeling at the sample distance closest to our default slice spacing.
+    peers = {"volume": ("VTK CPU fixed-point, automatic", best["cpu_volume_auto"]),
+             "surface": ("VTK GPU + depth peeling, 0.5 voxel", best[f"gpu_surface_peeled_{distances[0]:.2f}"])}
     print(f"volume {args.volume}, 512x512, ct-skin-bone, perspective; best of {args.runs} frames x {args.rounds} rounds, ms;"
-          " PSNR against the reference ray tracer")
-    print(f"  VTK GPU ray cast + translucent surface, depth peeling   {gpu_surface:8.1f}  {acc('gpu_surface')}")
-    print(f"  VTK GPU ray cast, volume only                           {gpu_volume:8.1f}  {acc('gpu_volume')}")
-    print(f"  VTK CPU fixed-point ray cast, volume only               {cpu_volume:8.1f}  {acc('cpu_volume')}")
-    print(f"  hybrid-octree slices + translucent surface              {ours_surface:8.1f}  {acc('ours_surface')}   "
-          f"VTK/ours {gpu_surface / ours_surface:5.2f} (target >= 10)")
-    print(f"  hybrid-octree slices, volume only                       {ours_volume:8.1f}  {acc('ours_volume')}   "
-          f"VTK CPU/ours {cpu_volume / ours_volume:5.2f} (target >= 1)")
-    print(f"  hybrid-octree, + surface, --step 3                      {ours_surface_floor:8.1f}  {acc('ours_surface_floor')}   "
-          f"VTK/ours {gpu_surface / ours_surface_floor:5.2f} (target >= 10)")
-    print(f"  hybrid-octree, volume only, --step 1.6                  {ours_volume_floor:8.1f}  {acc('ours_volume_floor')}   "
-          f"VTK CPU/ours {cpu_volume / ours_volume_floor:5.2f} (target >= 1)")
-    print(f"  hybrid-octree, volume only, --step {matched:<4} (as accurate) {ours_volume_matched:8.1f}  {acc('ours_volume_matched')}   "
-          f"VTK CPU/ours {cpu_volume / ours_volume_matched:5.2f} (target >= 1)")
+          " PSNR against the reference ray tracer; ratio: the peer's frame / this one")
+    rows = []
+    for curve, look, points in curves:
+        peer_name, peer_ms = peers[look]
+        print(f"{look}: {curve} (peer: {peer_name}, {peer_ms:.1f} ms)")
+        for label, name, _ in points:
+            print(f"  {curve + ', ' + label:<58} {best[name]:8.1f} ms {db[name]:6.2f} dB  {peer_ms / best[name]:6.2f}x")
+            rows.append((look, curve, label, best[name], db[name]))
+    for look, target, ratio in (("volume", 35.0, 2.0), ("surface", 35.0, 20.0)):
+        peer_name, peer_ms = peers[look]
+        ok = [(best[n], db[n], c, l) for c, lk, pts in curves if lk == look and c.startswith("hybrid-octree slices") for l, n, _ in pts
+              if db[n] >= target]
+        if ok:
+            ms, d, c, l = min(ok)
+            print(f"target, {look} at >= {target:g} dB: {c}, {l}: {ms:.1f} ms, {d:.2f} dB against {peer_name} {peer_ms:.1f} ms: "
+                  f"{peer_ms / ms:.2f}x (target >= {ratio:g}x)")
+        else:
+            print(f"target, {look} at >= {target:g} dB: no frame of ours reaches it")
+    if args.csv:
+        with open(args.csv + ".tmp", "w") as f:
+            f.write("look,renderer,setting,ms,psnr_db\n")
+            for look, curve, label, ms, d in rows:
+                f.write(f"{look},{curve},{label},{ms:.1f},{d:.2f}\n")
+        os.replace(args.csv + ".tmp", args.csv)
+    if args.plot:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+        for ax, look in zip(axes, ("volume", "surface")):
+            for curve, lk, points in curves:
+                if lk != look:
+                    continue
+                pts = [(best[n], min(db[n], 60.0)) for _, n, _ in points]  # in the order of their setting
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=curve)
+            ax.set_xscale("log")
+            ax.set_xlabel("frame time, ms (log)")
+            ax.set_ylabel("PSNR against the reference, dB")
+            ax.set_title("volume only" if look == "volume" else "volume + translucent 400 HU surface")
+            ax.axhline(35.0, color="grey", linewidth=0.8, linestyle=":")
+            ax.grid(True, which="both", linewidth=0.3)
+            ax.legend(fontsize=7)
+        fig.suptitle(f"{os.path.basename(args.volume)}, 512², ct-skin-bone, this machine (2 cores, llvmpipe)")
+        fig.tight_layout()
+        fig.savefig(args.plot + ".tmp.png", dpi=90)
+        os.replace(args.plot + ".tmp.png", args.plot)
 
 
 if __name__ == "__main__":

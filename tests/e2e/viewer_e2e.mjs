@@ -79,19 +79,31 @@ try {
   const final = await page.evaluate(() => window.hybViewer.lastFinal());
   check(final.format === 'png', 'the final frame is lossless (PNG)');
   check(final.camera.eye.length === 3, 'the final frame carries its camera');
-  const png = await page.evaluate(() => window.hybViewer.lastFinalPng());
-  fs.writeFileSync(path.join(tmp, 'viewer.png'), Buffer.from(png, 'base64'));
 
-  // The command line the page shows renders the same image.
-  const args = final.command.match(/'[^']*'|\S+/g).map((a) => a.replace(/^'|'$/g, ''));
-  check(args[0] === 'hybrid-octree' && args[1] === 'render', 'the page shows a render command');
-  args[args.indexOf('-o') + 1] = path.join(tmp, 'render.png');
-  execFileSync(exe, [...args.slice(1), '--progress', 'off'], { stdio: ['ignore', 'ignore', 'inherit'] });
-  const compare = execFileSync(exe, ['compare', path.join(tmp, 'render.png'), path.join(tmp, 'viewer.png')]).toString();
-  const m = compare.match(/PSNR (\S+) dB/);
-  const psnr = compare.includes('identical') ? Infinity : m ? Number(m[1]) : NaN;
+  // The command line the page shows renders the same image as the page's last final frame.
+  const renderedPsnr = async (name) => {
+    const shown = await page.evaluate(() => window.hybViewer.lastFinal());
+    fs.writeFileSync(path.join(tmp, `${name}_viewer.png`), Buffer.from(await page.evaluate(() => window.hybViewer.lastFinalPng()), 'base64'));
+    const args = shown.command.match(/'[^']*'|\S+/g).map((a) => a.replace(/^'|'$/g, ''));
+    check(args[0] === 'hybrid-octree' && args[1] === 'render', 'the page shows a render command');
+    args[args.indexOf('-o') + 1] = path.join(tmp, `${name}_render.png`);
+    execFileSync(exe, [...args.slice(1), '--progress', 'off'], { stdio: ['ignore', 'ignore', 'inherit'] });
+    const compare = execFileSync(exe, ['compare', path.join(tmp, `${name}_render.png`), path.join(tmp, `${name}_viewer.png`)]).toString();
+    const m = compare.match(/PSNR (\S+) dB/);
+    return compare.includes('identical') ? Infinity : m ? Number(m[1]) : NaN;
+  };
+  const psnr = await renderedPsnr('surface');
   check(psnr >= 40, `the final frame equals hybrid-octree render of the same command (PSNR ${psnr} dB, at least 40)`);
   check((await finalCount()) >= 2, 'a final frame follows each settled change');
+
+  // Pre-integrated classification: the final frame's command asks for it and makes the same image.
+  await page.click('#preintegrated');
+  await page.waitForFunction(() => {
+    const f = window.hybViewer.lastFinal();
+    return f && f.command && f.command.includes('--classification preintegrated');
+  }, { timeout: 120000 });
+  const prePsnr = await renderedPsnr('preintegrated');
+  check(prePsnr >= 40, `the pre-integrated final frame equals hybrid-octree render of its command (PSNR ${prePsnr} dB, at least 40)`);
 
   if (screenshot) await page.screenshot({ path: screenshot });
 
