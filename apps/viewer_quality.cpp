@@ -14,7 +14,7 @@ double QualityLevel::cost() const {
 
 std::string QualityLevel::describe() const {
   std::ostringstream s;
-  s << "size " << int(std::lround(scale * 100)) << " %, budget " << budgetPercent << " %, step " << step;
+  s << "size " << int(std::lround(scale * 100)) << " %, budget " << budgetPercent << " %, step " << step << (rays ? ", ray-traced" : "");
   return s.str();
 }
 

@@ -162,12 +162,14 @@ struct Client {
   std::vector<int> refine;              // levels still to render for it, next last
   bool refineSurface = false;           // ... of the surface's ladder
   std::optional<BandedFrame> banded;    // its final frame, part drawn
-  AdaptiveQuality volumeQuality, surfaceQuality;
+  AdaptiveQuality volumeQuality, surfaceQuality, surfaceRayQuality;
+  bool raysForSurface = false;  // the scene holds its samples: the surface's ladder ray-traces small frames
   std::atomic<bool> open{true};
   std::function<void(std::string message, bool binary)> send;  // posts to the socket; drops when closed
-  explicit Client(double targetMs) : volumeQuality(kVolumeLadder, targetMs), surfaceQuality(kSurfaceLadder, targetMs) {}
+  explicit Client(double targetMs)
+      : volumeQuality(kVolumeLadder, targetMs), surfaceQuality(kSurfaceLadder, targetMs), surfaceRayQuality(kSurfaceRayLadder, targetMs) {}
   // The ladder of frames with a surface or without: they cost and lose accuracy differently.
-  AdaptiveQuality& quality(bool surface) { return surface ? surfaceQuality : volumeQuality; }
+  AdaptiveQuality& quality(bool surface) { return surface ? (raysForSurface ? surfaceRayQuality : surfaceQuality) : volumeQuality; }
   bool hasWork() const { return open && !sceneKey.empty() && (pending || !refine.empty() || banded); }
   // A new scene: nothing of the last one's requests, refinement or measured times applies to it.
   void showScene(const std::string& key) {
@@ -178,6 +180,7 @@ struct Client {
     banded.reset();
     volumeQuality.reset();
     surfaceQuality.reset();
+    surfaceRayQuality.reset();
   }
 };
 
@@ -349,7 +352,9 @@ struct ServerState {
         client.current.reset();
         return;
       }
-      surface = pool->forFrame(client.id, r.iso).iso.has_value();
+      const ScenePool::Frame shown = pool->forFrame(client.id, r.iso);
+      surface = shown.iso.has_value();
+      client.raysForSurface = shown.renderer && shown.renderer->volume().hasSamples();
       AdaptiveQuality& quality = client.quality(surface);
       if (r.interacting) {
         level = quality.chooseInteractiveLevel();
@@ -486,6 +491,7 @@ struct ServerState {
     p.look.cut = r.cut;
     p.look.voi = r.voi;
     p.quality.waitForSurface = false;  // the pool's builder makes it; meanwhile its preview, or none
+    if (q.rays) p.quality.renderer = Renderer::Raycast;
     if (level > 0) {
       p.quality.budgetPercent = q.budgetPercent < 100.0 ? q.budgetPercent : 0.0;
       p.quality.step = q.step;

@@ -470,9 +470,13 @@ void SceneRenderer::renderRaycast(const GridParts& g, const Look& look, const Qu
   const Bvh* bvh = nullptr;
   if (mesh) {
     PreparedSurface& s = *mSurfaces.front();  // this frame's
-    std::unique_ptr<Bvh>& kept = s.bvh[look.normals == SurfaceNormals::Gradient ? 1 : 0];
-    if (!kept) kept = std::make_unique<Bvh>(*mesh);
-    bvh = kept.get();
+    // Made for the mesh drawn: a frame that does not wait may draw a clustered preview first.
+    const int k = look.normals == SurfaceNormals::Gradient ? 1 : 0;
+    if (!s.bvh[k] || s.bvhMesh[k] != mesh) {
+      s.bvh[k] = std::make_unique<Bvh>(*mesh);
+      s.bvhMesh[k] = mesh;
+    }
+    bvh = s.bvh[k].get();
   }
   RaycastOptions ro;
   ro.stepVoxels = quality.step.value_or(0.25);

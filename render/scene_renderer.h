@@ -185,6 +185,7 @@ struct PreparedSurface {
   /// first asks for them (SceneRenderer::simplify), unless prepareSurface was asked to.
   std::vector<TriangleMesh> simplified;
   std::unique_ptr<Bvh> bvh[2];         ///< facet, smooth; made by the first reference frame
+  const TriangleMesh* bvhMesh[2] = {nullptr, nullptr};  ///< the mesh each was made for
   /// clusteredSurface of each cube edge s ≥ 2 a frame drew (grid frame, mm, smooth): made by that frame.
   std::map<int, TriangleMesh> coarse;
   const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? smooth : facet; }

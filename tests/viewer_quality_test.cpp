@@ -6,7 +6,9 @@ namespace hyb::viewer {
 namespace {
 
 TEST(ViewerQuality, TheLaddersGoFromTheFinalFrameToCheaperOnes) {
-  for (const Ladder* ladder : {&kVolumeLadder, &kSurfaceLadder}) {
+  for (const Ladder* ladder : {&kVolumeLadder, &kSurfaceLadder, &kSurfaceRayLadder}) {
+    EXPECT_FALSE((*ladder)[0].rays);  // the final frame is the slice frame `render` makes
+    for (const QualityLevel& q : *ladder) EXPECT_TRUE(!q.rays || q.scale <= 0.5);
     EXPECT_EQ((*ladder)[0].scale, 1.0);
     EXPECT_EQ((*ladder)[0].budgetPercent, 100.0);
     EXPECT_EQ((*ladder)[0].step, 0.5);

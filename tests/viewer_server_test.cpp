@@ -366,6 +366,34 @@ json warmUp(Socket& c, int pixels) {
   return {};
 }
 
+TEST(ViewerServer, TheSurfacesSmallMovingFramesAreRayTracedWhenTheSamplesAreInMemory) {
+  TestServer s(1.0);  // no rung fits: moving frames stay on the cheapest ones
+  Socket c(s.port(), "/ws?token=" + s.token());
+  c.next();  // info
+  // Moving frames: once the surface is built, those of the surface's ladder are ray-traced (the
+  // test scene holds its samples; the first may have been chosen before the surface was ready).
+  json f;
+  int surfaceFrames = 0;
+  for (uint64_t seq = 1; seq < 200 && surfaceFrames < 6; ++seq) {
+    c.send(frameRequest(seq, true, 64).dump());
+    do f = c.nextFrameOrError();
+    while (f["type"] == "frame" && f["seq"] != seq);
+    ASSERT_EQ(f["type"], "frame") << f.dump();
+    if (f["ladder"] == "surface" && ++surfaceFrames > 1) {
+      EXPECT_THAT(f["levelText"].get<std::string>(), HasSubstr("ray-traced")) << f["level"];
+    }
+  }
+  EXPECT_EQ(surfaceFrames, 6);
+  // The final frame is the slice frame.
+  c.send(frameRequest(500, false, 64).dump());
+  for (int i = 0; i < 20 && f["quality"] != "final"; ++i) {
+    do f = c.nextFrameOrError();
+    while (f["type"] == "frame" && f["seq"] != 500);
+  }
+  ASSERT_EQ(f["quality"], "final");
+  EXPECT_THAT(f["levelText"].get<std::string>(), Not(HasSubstr("ray-traced")));
+}
+
 TEST(ViewerServer, InteractiveFramesUseLargerBricksAndTheScreenSpaceLevelOfDetail) {
   TestServer s(1000.0);
   Socket c(s.port(), "/ws?token=" + s.token());
