@@ -74,11 +74,11 @@ inline constexpr Ladder kSurfaceRayLadder{{
     {0.5, 100.0, 2.5, true},
     {0.375, 100.0, 2.5, true},
     {0.3125, 100.0, 2.5, true},
-    {0.3125, 100.0, 4.0, true},
+    {0.3125, 100.0, 3.0, true},
+    {0.25, 100.0, 2.5, true},
     {0.25, 100.0, 3.0, true},
-    {0.25, 100.0, 4.0, true},
-    {0.1875, 100.0, 4.0, true},
-    {0.15625, 100.0, 4.0, true},
+    {0.1875, 100.0, 3.0, true},
+    {0.15625, 100.0, 3.0, true},
 }};
 
 /// Brick edge (texels) of the frames before the final one: an eighth of the bricks of the default

@@ -405,7 +405,7 @@ struct ServerState {
       const RenderedFrame frame = scene.renderer->render(parts.view, parts.look, parts.quality);
       const double renderMs = msSince(t0);
       const FrameStats& st = frame.stats;
-      cold = 2 * st.slices.uploadedBricks > st.slices.bricks;
+      cold = 2 * st.slices.uploadedBricks > st.slices.bricks || st.bvhMs > 0.0;  // (a ray-traced frame's surface BVH made)
       coarser = double(st.bricksNotResident) / double(std::max<size_t>(1, st.slices.bricks + st.bricksNotResident));
       message = encodeFrame(summary, request, parts.look, rung, level, final, iso, scene.surfaceReady, arrival, frame.image, st,
                             frame.selection.maxError, renderMs, t0, &ms);

@@ -473,8 +473,10 @@ void SceneRenderer::renderRaycast(const GridParts& g, const Look& look, const Qu
     // Made for the mesh drawn: a frame that does not wait may draw a clustered preview first.
     const int k = look.normals == SurfaceNormals::Gradient ? 1 : 0;
     if (!s.bvh[k] || s.bvhMesh[k] != mesh) {
+      const auto b0 = Clock::now();
       s.bvh[k] = std::make_unique<Bvh>(*mesh);
       s.bvhMesh[k] = mesh;
+      st.bvhMs = msSince(b0);
     }
     bvh = s.bvh[k].get();
   }

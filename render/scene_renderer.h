@@ -145,6 +145,7 @@ struct FrameStats {
   double surfaceBuildMs = 0, surfacePolygonsMs = 0;  ///< this frame's work on the surface (0 when kept)
   double selectMs = 0, renderMs = 0;
   double preintegrationMs = 0;     ///< making the pre-integration table (0 when kept or not used)
+  double bvhMs = 0;                ///< making the ray tracer's BVH of the surface (0 when kept or not used)
   size_t brickErrorsMeasured = 0;  ///< the view's bricks whose image error has been measured
   uint64_t textureBytesKept = 0;   ///< the brick texture cache after the frame
   /// Bricks of the selection drawn from a coarser level because their knots were not cached (the
