@@ -63,8 +63,7 @@ inline constexpr Ladder kSurfaceLadder{{
 /// The surface's ladder for a scene whose samples are in memory: below half the canvas the frames
 /// are ray-traced. At those sizes a slice frame's cost follows the surface's triangles (llvmpipe
 /// shades 4×4 blocks), a ray-traced one its pixels, and the ray tracer draws the exact surface
-/// composited exactly: on the cranium with the translucent bone surface, 160² at 2.5 voxels is
-/// 32.2 dB as painted in 69 ms against 30.4 dB in 75 ms sliced (docs/viewer.md). Not for a paged
+/// composited exactly: more accurate for the time at those sizes (docs/viewer.md). Not for a paged
 /// scene, whose samples the ray tracer reads through the store's cache, several times slower.
 inline constexpr Ladder kSurfaceRayLadder{{
     {1.0, 100.0, 0.5},

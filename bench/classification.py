@@ -13,7 +13,11 @@ import argparse
 import os
 import re
 import subprocess
+import sys
 import tempfile
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from vtk_render import psnr_db  # noqa: E402  (VTK is imported by its main only)
 
 
 def render(exe, volume, size, runs, extra, image):
@@ -21,12 +25,6 @@ def render(exe, volume, size, runs, extra, image):
     out = subprocess.run([exe, "render", volume, "--size", f"{size}x{size}", "--repeat", str(runs + 1), "-o", image] + extra,
                          check=True, capture_output=True, text=True).stdout
     return float(re.search(r"^render .* ([0-9.]+) ms$", out, re.M).group(1))
-
-
-def psnr_db(exe, reference, image):
-    out = subprocess.run([exe, "compare", reference, image], check=True, capture_output=True, text=True).stdout
-    found = re.search(r"PSNR ([0-9.]+) dB", out)
-    return float(found.group(1)) if found else float("inf")
 
 
 def main():

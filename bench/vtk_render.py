@@ -5,8 +5,10 @@ pre-integrated over slice spacings, the reference ray tracer over sample spacing
 VTK's GPU ray cast mapper (volume only; with the translucent isosurface, with and without depth
 peeling) and its CPU fixed-point ray caster (volume only; its automatic sample distances, then
 fixed ones), through Mesa's llvmpipe under Xvfb, on the same volume, view, transfer function and
-size. Prints one row per frame (name, ms, dB, ratio of the peer's frame to this one), the targets'
-rows, and writes the curves as a CSV table and a plot.
+size; with --volpack, orthographic frames of ours against Lacroute and Levoy's shear-warp
+(VolPack, `hyb_volpack`, built when Debian's libvolpack1-dev is installed; VolPack has no
+perspective). Prints one row per frame (name, ms, dB, ratio of the peer's frame to this one), the
+targets' rows, and writes the curves as a CSV table and a plot.
 
 Needs Debian's python3-vtk9, python3-matplotlib and xvfb (not dependencies of the project). From
 the repository root:
@@ -64,6 +66,7 @@ def main():
     parser.add_argument("--steps", default="0.5,1,1.6,2,3,4", help="our slice spacings, voxels")
     parser.add_argument("--ray-steps", default="0.5,1,2", help="the reference ray tracer's sample spacings, voxels")
     parser.add_argument("--vtk-distances", default="0.5,1,2,4", help="VTK's sample distances, in smallest voxel spacings")
+    parser.add_argument("--volpack", help="hyb_volpack: add the orthographic comparison with VolPack")
     parser.add_argument("--csv", help="write the curves here")
     parser.add_argument("--plot", help="plot the curves here (PNG)")
     args = parser.parse_args()
@@ -222,6 +225,31 @@ def main():
             (f"sample {d:.2f} mm", f"gpu_surface_{tag}_{d:.2f}", (lambda d=d, p=peeling, t=tag: scene(gpu(d), True, f"gpu_surface_{t}_{d:.2f}", p)))
             for d in distances]))
 
+    if args.volpack:
+        # Orthographic, as VolPack draws: our CLI's ortho height for an explicit eye (the grid's
+        # diagonal, 5 % wider), given to VolPack too. Its classification is made once per transfer
+        # function; a frame's time is its shading table and its render.
+        ortho = ["--ortho"]
+        height = 1.05 * math.sqrt(sum(e * e for e in extent))
+
+        def volpack():
+            out = subprocess.run([args.volpack, args.volume, os.path.join(folder, "volpack_ortho.png"), "--eye", view[1], "--center", view[3],
+                                  "--up", view[5], "--ortho-height", f"{height:.9g}", "--repeat", str(args.runs)],
+                                 check=True, capture_output=True, text=True).stdout
+            t = re.search(r"classify ([0-9.]+) shade_table ([0-9.]+) render ([0-9.]+)", out)
+            volpack_classify.append(float(t.group(1)))
+            return float(t.group(2)) + float(t.group(3))
+        volpack_classify = []
+        for mode in ("post", "preintegrated"):
+            curves.append((f"hybrid-octree slices, {mode}", "ortho", [
+                (f"--step {st}", f"ours_ortho_{mode}_{st}", ours(f"ours_ortho_{mode}_{st}", ortho + ["--step", st, "--classification", mode]))
+                for st in args.steps.split(",")]))
+        curves.append(("hybrid-octree reference ray tracer", "ortho", [
+            (f"--step {st}", f"rays_ortho_{st}", ours(f"rays_ortho_{st}", ortho + ["--renderer", "raycast", "--step", st]))
+            for st in args.ray_steps.split(",")]))
+        curves.append(("VolPack shear-warp", "ortho", [("one sample a slice", "volpack_ortho", volpack)]))
+        subprocess.run([exe, "render", args.volume, "--size", "512x512", "--renderer", "raycast", "-o", os.path.join(folder, "reference_ortho.png")]
+                       + view + ortho, check=True, capture_output=True)
     for name, extra in (("reference_surface", surface), ("reference_volume", [])):
         subprocess.run([exe, "render", args.volume, "--size", "512x512", "--renderer", "raycast", "-o", os.path.join(folder, name + ".png")]
                        + view + extra, check=True, capture_output=True)
@@ -241,6 +269,8 @@ def main():
     # GPU caster with depth peeling at the sample distance closest to our default slice spacing.
     peers = {"volume": ("VTK CPU fixed-point, automatic", best["cpu_volume_auto"]),
              "surface": ("VTK GPU + depth peeling, 0.5 voxel", best[f"gpu_surface_peeled_{distances[0]:.2f}"])}
+    if args.volpack:
+        peers["ortho"] = ("VolPack shear-warp", best["volpack_ortho"])
     print(f"volume {args.volume}, 512x512, ct-skin-bone, perspective; best of {args.runs} frames x {args.rounds} rounds, ms;"
           " PSNR against the reference ray tracer; ratio: the peer's frame / this one")
     rows = []
@@ -250,6 +280,8 @@ def main():
         for label, name, _ in points:
             print(f"  {curve + ', ' + label:<58} {best[name]:8.1f} ms {db[name]:6.2f} dB  {peer_ms / best[name]:6.2f}x")
             rows.append((look, curve, label, best[name], db[name]))
+    if args.volpack:
+        print(f"VolPack's classification (once per transfer function): {min(volpack_classify):.1f} ms")
     for look, target, ratio in (("volume", 35.0, 2.0), ("surface", 35.0, 20.0)):
         peer_name, peer_ms = peers[look]
         ok = [(best[n], db[n], c, l) for c, lk, pts in curves if lk == look and c.startswith("hybrid-octree slices") for l, n, _ in pts
@@ -270,8 +302,10 @@ def main():
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-        fig, axes = plt.subplots(1, 2, figsize=(12, 5))
-        for ax, look in zip(axes, ("volume", "surface")):
+        looks = ("volume", "surface", "ortho") if args.volpack else ("volume", "surface")
+        fig, axes = plt.subplots(1, len(looks), figsize=(6 * len(looks), 5))
+        titles = {"volume": "volume only", "surface": "volume + translucent 400 HU surface", "ortho": "volume only, orthographic (VolPack)"}
+        for ax, look in zip(axes, looks):
             for curve, lk, points in curves:
                 if lk != look:
                     continue
@@ -280,7 +314,7 @@ def main():
             ax.set_xscale("log")
             ax.set_xlabel("frame time, ms (log)")
             ax.set_ylabel("PSNR against the reference, dB")
-            ax.set_title("volume only" if look == "volume" else "volume + translucent 400 HU surface")
+            ax.set_title(titles[look])
             ax.axhline(35.0, color="grey", linewidth=0.8, linestyle=":")
             ax.grid(True, which="both", linewidth=0.3)
             ax.legend(fontsize=7)

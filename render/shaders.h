@@ -198,7 +198,7 @@ void main() {
   }
 #endif
   vec3 x = vWorld;
-#if PREINT
+  // The ray r through this fragment, unnormalised, and its squared length.
 #if ORTHO
   vec3 r = forward;
   float rr = 1.0;
@@ -206,6 +206,7 @@ void main() {
   vec3 r = vWorld - eye;
   float rr = dot(r, r);
 #endif
+#if PREINT
   vec3 v;
   float front, back;
   segment(x, r, rr, v, front, back);
@@ -228,14 +229,6 @@ void main() {
   vec4 texel = texture(volumeTex, x * fineScale + fineOffset);
   vec4 c = classify(texel.x);
   if (c.a <= 0.0) discard;
-  // The ray r through this fragment, unnormalised, and its squared length.
-#if ORTHO
-  vec3 r = forward;
-  float rr = 1.0;
-#else
-  vec3 r = vWorld - eye;
-  float rr = dot(r, r);
-#endif
 #if SEGMENTS
   vec3 v;
   float front, back;
