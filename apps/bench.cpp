@@ -10,7 +10,7 @@
 #include <ostream>
 #include <sstream>
 
-#include "render/brick_textures.h"
+#include "render/slices/brick_textures.h"
 #include "render/gl_context.h"
 #include "volume/file_util.h"
 

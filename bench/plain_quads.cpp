@@ -3,7 +3,7 @@
 #include <chrono>
 #include <vector>
 
-#include "render/brick_textures.h"
+#include "render/slices/brick_textures.h"
 #include "render/gl_objects.h"
 
 namespace hyb::bench {

@@ -16,7 +16,7 @@
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
 #include "render/brick_error.h"
-#include "render/brick_textures.h"
+#include "render/slices/brick_textures.h"
 #include "render/camera.h"
 #include "render/cut_plane.h"
 #include "render/transfer_function.h"

@@ -1,7 +1,8 @@
 // Hybrid slice renderer: I. Boada, I. Navazo, "3D Texture-based Hybrid Visualizations", 2002, §4,
 // with the view-aligned form of DESIGN 3.4 (slice polygons cut on the CPU, global slice planes).
-// The stages are files of their own: brick_textures (textures, blending, the cache),
-// proxy_geometry (planes and shells), slab_polygons (the SlabPolygon lists) and cut_plane_pass.
+// This file is the frame, stage by stage; the stages' internals are files of their own in
+// render/slices/: brick_textures (textures, blending, the cache), proxy_geometry (planes and
+// shells), slab_polygons (the SlabPolygon lists), cut_plane_pass and the shaders.
 #include "render/slices.h"
 
 #include <malloc.h>
@@ -21,11 +22,11 @@
 #include <thread>
 #include <utility>
 
-#include "render/cut_plane_pass.h"
+#include "render/slices/cut_plane_pass.h"
 #include "render/gl_objects.h"
-#include "render/proxy_geometry.h"
-#include "render/shaders.h"
-#include "render/slab_polygons.h"
+#include "render/slices/proxy_geometry.h"
+#include "render/slices/shaders.h"
+#include "render/slices/slab_polygons.h"
 #include "volume/error.h"
 #include "volume/parallel.h"
 

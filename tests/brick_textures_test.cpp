@@ -1,4 +1,4 @@
-#include "render/brick_textures.h"
+#include "render/slices/brick_textures.h"
 
 #include <gtest/gtest.h>
 

@@ -10,7 +10,7 @@
 
 #include "hybrid_octree/coarse_surface.h"
 #include "hybrid_octree/hybrid_io.h"
-#include "render/brick_textures.h"
+#include "render/slices/brick_textures.h"
 #include "render/patient_view.h"
 #include "render/scene_renderer.h"
 #include "render_util.h"

@@ -11,7 +11,7 @@
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/surface_octree.h"
 #include "render/brick_error.h"
-#include "render/brick_textures.h"
+#include "render/slices/brick_textures.h"
 #include "render/raycast.h"
 #include "render/slices.h"
 #include "render_util.h"

@@ -1,4 +1,4 @@
-#include "render/slab_polygons.h"
+#include "render/slices/slab_polygons.h"
 
 #include <gtest/gtest.h>
 

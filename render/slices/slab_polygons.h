@@ -19,7 +19,7 @@
 
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
-#include "render/proxy_geometry.h"
+#include "render/slices/proxy_geometry.h"
 #include "surface/mesh.h"
 #include "volume/volume.h"
 

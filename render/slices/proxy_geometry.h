@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "hybrid_octree/volume_octree.h"
-#include "render/brick_textures.h"
+#include "render/slices/brick_textures.h"
 #include "render/transfer_function.h"
 
 namespace hyb {

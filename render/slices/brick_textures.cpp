@@ -1,5 +1,5 @@
 // Brick textures: knot lattices as textures, Carmona et al.'s blend bake, packing, and the cache.
-#include "render/brick_textures.h"
+#include "render/slices/brick_textures.h"
 
 #include <algorithm>
 #include <limits>

@@ -1,8 +1,8 @@
-#include "render/cut_plane_pass.h"
+#include "render/slices/cut_plane_pass.h"
 
 #include <glm/gtc/type_ptr.hpp>
 
-#include "render/shaders.h"
+#include "render/slices/shaders.h"
 
 namespace hyb {
 

@@ -1,4 +1,4 @@
-#include "render/proxy_geometry.h"
+#include "render/slices/proxy_geometry.h"
 
 #include <algorithm>
 #include <bit>
