@@ -354,7 +354,8 @@ struct ServerState {
       }
       const ScenePool::Frame shown = pool->forFrame(client.id, r.iso);
       surface = shown.iso.has_value();
-      client.raysForSurface = shown.renderer && shown.renderer->volume().hasSamples();
+      // (once the full surface is ready: the ray tracer draws no preview, it would build it here)
+      client.raysForSurface = shown.renderer && shown.renderer->volume().hasSamples() && shown.surfaceReady;
       AdaptiveQuality& quality = client.quality(surface);
       if (r.interacting) {
         level = quality.chooseInteractiveLevel();
@@ -405,7 +406,8 @@ struct ServerState {
       const RenderedFrame frame = scene.renderer->render(parts.view, parts.look, parts.quality);
       const double renderMs = msSince(t0);
       const FrameStats& st = frame.stats;
-      cold = 2 * st.slices.uploadedBricks > st.slices.bricks || st.bvhMs > 0.0;  // (a ray-traced frame's surface BVH made)
+      // (also a ray-traced frame that made the surface's BVH, or one that made a pre-integration table)
+      cold = 2 * st.slices.uploadedBricks > st.slices.bricks || st.bvhMs > 0.0 || st.preintegrationMs > 0.0;
       coarser = double(st.bricksNotResident) / double(std::max<size_t>(1, st.slices.bricks + st.bricksNotResident));
       message = encodeFrame(summary, request, parts.look, rung, level, final, iso, scene.surfaceReady, arrival, frame.image, st,
                             frame.selection.maxError, renderMs, t0, &ms);

@@ -138,8 +138,9 @@ glm::vec4 PreIntegrationTable::lookup(float front, float back, double mm, double
 }
 
 PreIntegrationTable preintegrationFor(const TransferFunction& tf, float dataMin, float dataMax, double minMm, double maxMm) {
-  const LutLayout layout(dataMin, dataMax, tf);
-  return PreIntegrationTable(tf, layout.vmin, layout.vmax, minMm, maxMm);
+  // Over every value the data take: a segment's ends are integrated between them, and an end
+  // clamped to a narrower domain would stretch the rest over the whole segment.
+  return PreIntegrationTable(tf, dataMin, dataMax, minMm, maxMm);
 }
 
 }  // namespace hyb

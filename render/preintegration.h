@@ -18,7 +18,7 @@ namespace hyb {
 enum class Classification { Post, PreIntegrated };
 
 /// The pre-integration table of a transfer function over the value domain [vmin, vmax] (the
-/// lookup table's, LutLayout): for a segment of d mm along which the value goes linearly from sf
+/// renderers': the data's range, preintegrationFor): for a segment of d mm along which the value goes linearly from sf
 /// (front, nearer the eye) to sb (back), the premultiplied colour C = ∫ τ c e^(−∫τ) and opacity
 /// α = 1 − e^(−∫τ), τ = −ln(1 − a) being the optical depth per mm of the per-millimetre opacity a.
 ///
@@ -78,8 +78,9 @@ class PreIntegrationTable {
   uint64_t mId;
 };
 
-/// The table the renderers read for data with values in [@p dataMin, @p dataMax]: over the lookup
-/// table's domain (LutLayout), layers covering segments of [minMm, maxMm].
+/// The table the renderers read for data with values in [@p dataMin, @p dataMax]: over that range
+/// (a value outside the table's domain is clamped, which is exact only for a homogeneous segment),
+/// layers covering segments of [minMm, maxMm].
 PreIntegrationTable preintegrationFor(const TransferFunction& tf, float dataMin, float dataMax, double minMm, double maxMm);
 
 }  // namespace hyb

@@ -127,18 +127,16 @@ void SceneRenderer::ensureGl() {
 }
 
 const PreIntegrationTable& SceneRenderer::preintegration(const TransferFunction& tf, double minMm, double maxMm, FrameStats* st) {
-  const std::vector<TransferFunction::Point>& points = tf.points();
-  const bool sameTf = std::equal(points.begin(), points.end(), mPreintegrationTf.begin(), mPreintegrationTf.end(), [](const auto& a, const auto& b) {
-    return a.value == b.value && a.color == b.color && a.alpha == b.alpha;
-  });
-  if (!(mPreintegration && sameTf && mPreintegration->covers(minMm, maxMm))) {
-    // A frame that needs other layers keeps the ones made before too.
-    if (mPreintegration && sameTf) {
-      minMm = std::min(minMm, PreIntegrationTable::layerMm(mPreintegration->firstLayer()));
-      maxMm = std::max(maxMm, PreIntegrationTable::layerMm(mPreintegration->firstLayer() + mPreintegration->layers() - 1));
+  const bool kept = mPreintegration && sameTf(tf, mPreintegrationTf);
+  if (!(kept && mPreintegration->covers(minMm, maxMm))) {
+    // A frame that needs other layers keeps the ones made before too (a hair inside their
+    // thicknesses, so that rounding adds no layer).
+    if (kept) {
+      minMm = std::min(minMm, PreIntegrationTable::layerMm(mPreintegration->firstLayer()) * (1.0 + 1e-9));
+      maxMm = std::max(maxMm, PreIntegrationTable::layerMm(mPreintegration->firstLayer() + mPreintegration->layers() - 1) * (1.0 - 1e-9));
     }
     mPreintegration = std::make_unique<PreIntegrationTable>(preintegrationFor(tf, volume().minValue(), volume().maxValue(), minMm, maxMm));
-    mPreintegrationTf = points;
+    mPreintegrationTf = tf;
     st->preintegrationMs = mPreintegration->buildMs();
   }
   return *mPreintegration;
@@ -470,7 +468,7 @@ void SceneRenderer::renderRaycast(const GridParts& g, const Look& look, const Qu
   const Bvh* bvh = nullptr;
   if (mesh) {
     PreparedSurface& s = *mSurfaces.front();  // this frame's
-    // Made for the mesh drawn: a frame that does not wait may draw a clustered preview first.
+    // Made for the mesh drawn (an entry's meshes can be made again).
     const int k = look.normals == SurfaceNormals::Gradient ? 1 : 0;
     if (!s.bvh[k] || s.bvhMesh[k] != mesh) {
       const auto b0 = Clock::now();
@@ -538,11 +536,11 @@ void SceneRenderer::renderSlicesFrame(const GridParts& g, const Look& look, cons
   so.knots = mScene.knots.get();
   so.cutToSlabs = quality.cutToSlabs;
   if (quality.classification == Classification::PreIntegrated) {
-    // From half the base spacing (segments cut at bricks' faces) to the coarsest levels' spacing
-    // along oblique rays (SlicesOptions::preintegrated).
+    // From half the base spacing (segments cut at bricks' faces) to twice the coarsest levels'
+    // spacing (32 base spacings) along oblique rays (SlicesOptions::preintegrated).
     const glm::dvec3 spacing = volume().spacing();
     const double delta = so.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
-    so.preintegrated = &preintegration(look.tf, 0.5 * delta, 64.0 * delta, &st);
+    so.preintegrated = &preintegration(look.tf, 0.5 * delta, 128.0 * delta, &st);
   }
   // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
   // texels (one level coarser), the last being the requested selection. Early images of a long

@@ -320,7 +320,7 @@ class SceneRenderer {
   std::vector<float> mPinned;                             // kept whatever else is built
   std::unique_ptr<Errors> mErrors;               // the last view's
   std::unique_ptr<PreIntegrationTable> mPreintegration;   // the last frame's, and its transfer function
-  std::vector<TransferFunction::Point> mPreintegrationTf;
+  TransferFunction mPreintegrationTf;
 };
 
 }  // namespace hyb

@@ -57,7 +57,7 @@ struct SlicesOptions {
   /// Pre-integrated classification: each fragment's segment, cut to its brick's box, reads this
   /// table at the values of its two ends (two brick reads instead of one; shading by their
   /// gradients' mean); none: post-classified at the slice. Its layers should cover the frame's
-  /// segments (half the base spacing to 64 times it); longer and shorter ones read the end layers.
+  /// segments (half the base spacing to 128 times it); longer and shorter ones read the end layers.
   const PreIntegrationTable* preintegrated = nullptr;
   bool visibleBoxes = true;             ///< slice only the box of each brick's cells that the transfer
                                         ///< function can make visible (false: the whole brick; same image)

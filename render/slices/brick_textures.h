@@ -140,7 +140,7 @@ class BrickTextureCache {
   /// Takes ownership of @p program.
   void insertProgram(const std::string& key, gl::Program program);
   /// The texture kept for the pre-integration table of id @p tableId, made by @p make when it is
-  /// another table's (or none is kept): a frame's upload of its layers costs a fifth of the frame.
+  /// another table's (or none is kept): uploading its layers every frame is a large part of it.
   GLuint tableTexture(uint64_t tableId, const std::function<gl::Texture()>& make);
   void clear();
 
