@@ -150,6 +150,9 @@ void SceneRenderer::dropTextures() {
 
 namespace {
 
+// The distance, mm, of @p stepVoxels smallest voxel spacings of @p v (a renderer's sample spacing).
+double stepMm(const Volume& v, double stepVoxels) { return stepVoxels * std::min({v.spacing().x, v.spacing().y, v.spacing().z}); }
+
 // The error of simplified level @p k: 2^k of the smallest voxel edge.
 double simplifiedErrorMm(const glm::dvec3& spacing, int k) { return double(1 << k) * std::min({spacing.x, spacing.y, spacing.z}); }
 
@@ -488,8 +491,7 @@ void SceneRenderer::renderRaycast(const GridParts& g, const Look& look, const Qu
   ro.knots = volume().hasSamples() ? nullptr : mScene.knots.get();  // a paged scene's samples through its cache
   if (quality.classification == Classification::PreIntegrated) {
     // Segments are a step long, shorter where a surface crossing or the volume's end cuts them.
-    const glm::dvec3 spacing = volume().spacing();
-    const double dt = ro.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
+    const double dt = stepMm(volume(), ro.stepVoxels);
     ro.preintegrated = &preintegration(look.tf, 0.25 * dt, dt, &st);
   }
   // Levoy's refinement: progressive levels (the first grid 2^(N−1) pixels apart), or four with
@@ -538,8 +540,7 @@ void SceneRenderer::renderSlicesFrame(const GridParts& g, const Look& look, cons
   if (quality.classification == Classification::PreIntegrated) {
     // From half the base spacing (segments cut at bricks' faces) to twice the coarsest levels'
     // spacing (32 base spacings) along oblique rays (SlicesOptions::preintegrated).
-    const glm::dvec3 spacing = volume().spacing();
-    const double delta = so.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
+    const double delta = stepMm(volume(), so.stepVoxels);
     so.preintegrated = &preintegration(look.tf, 0.5 * delta, 128.0 * delta, &st);
   }
   // Progressive refinement (Levoy): coarse images first, each with an eighth of the next one's
