@@ -127,7 +127,7 @@ void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pix
           if (dn > 0.0) {
             keepLo = std::max(0.0, -sd / dn);
             const double slack = 1e-9 * glm::length(boxHi);
-            if (inBox && keepLo >= t0 - slack && keepLo <= t1 + slack) {
+            if (inBox && keepLo >= t0 - slack && keepLo <= t1 + slack && (!options.region || options.region->contains(o + d * keepLo))) {
               const glm::vec4 c = tf.lookup(sampleAt(glm::vec3((o + d * keepLo) / spacing)));
               if (c.a > 0.0f) {
                 image.at(x, y) = glm::vec4(glm::vec3(c), 1.0f);
@@ -154,9 +154,28 @@ void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pix
             ++crossings;
           }
         };
+        // A region's frame: the segments whose (unclipped) middles lie in the region, on the whole
+        // frame's lattice from t0, so that the regions' images composite into the whole frame's.
+        double first = t0, last = t1;
+        if (options.region && inBox) {
+          double r0 = 0, r1 = 0;
+          if (slab(o, d, options.region->lo, options.region->hi, &r0, &r1)) {
+            first = t0 + std::max(0.0, std::floor((r0 - t0) / dt) - 1.0) * dt;
+            last = std::min(t1, r1 + dt);
+          } else {
+            last = first;
+          }
+        }
+        auto owned = [&](double ta) {  // by the lattice index, so that every region decides alike
+          return !options.region || options.region->contains(o + d * (t0 + (std::round((ta - t0) / dt) + 0.5) * dt));
+        };
         if (inBox && options.volume && t1 > t0) {
           // Volume segments of length dt from t0, split at surface crossings.
-          for (double ta = t0; ta < t1 && acc.a < 0.999;) {
+          for (double ta = first; ta < last && acc.a < 0.999;) {
+            if (!owned(ta)) {
+              ta += dt;
+              continue;
+            }
             glm::dvec3 lo, hi;
             const glm::dvec3 p = o + d * ta;
             if (transparentBoxAt(p / spacing, &lo, &hi)) {

@@ -15,6 +15,7 @@
 #include "render/voi.h"
 #include "render/image.h"
 #include "render/preintegration.h"
+#include "render/regions.h"
 #include "render/transfer_function.h"
 #include "volume/progress.h"
 #include "volume/volume.h"
@@ -48,6 +49,10 @@ struct RaycastOptions {
   /// Receives the image after each level of refinement, and the rays traced so far.
   std::function<void(int level, const Image& image, uint64_t rays)> onLevel;
   const Progress* progress = nullptr;  ///< hears of the rays traced ("ray tracing"), or none
+  /// A region of a sort-last frame (render/regions.h), or none: only the volume segments whose
+  /// middles lie in it are composited (the surface given should be cut to it, cutMeshToRegion),
+  /// so that the regions' images composited front to back make the whole frame's image.
+  const RegionBox* region = nullptr;
   /// Traces only the image rows [rows.x, rows.y) (from the top; the others stay transparent).
   /// Needs refineLevels 1.
   std::optional<glm::ivec2> rows;

@@ -96,6 +96,7 @@ std::string Quality::validate() const {
   if (adaptive > 0 && renderer != Renderer::Raycast) return "--adaptive needs --renderer raycast (Levoy's adaptive refinement of the reference's rays)";
   if (focus && !(std::isfinite(focus->x) && std::isfinite(focus->y) && std::isfinite(focus->z))) return "--focus must be three finite coordinates";
   if (!(std::isfinite(surfaceErrorPixels) && surfaceErrorPixels >= 0)) return "surface error must be a finite number of pixels >= 0";
+  if (region && (progressive > 1 || adaptive > 0)) return "a region of a sort-last frame cannot be rendered progressively (--progressive, --adaptive)";
   SelectionParams limits;  // the selection's own checks: the brick edge and the screen-space stop
   limits.maxBrickEdge = maxBrickEdge;
   limits.lodPixels = lodPixels;
@@ -431,6 +432,17 @@ Selection SceneRenderer::select(const View& view, const Look& look, const Qualit
   return selectNodes(mScene.octree, selectionParams(gridParts(view, look), look, quality, &st));
 }
 
+SceneRenderer::SortLast SceneRenderer::sortLast(const View& view, const Look& look, const Quality& quality, int parts) {
+  Quality whole = quality;
+  whole.region.reset();
+  const Selection selection = select(view, look, whole);
+  SortLast out{splitSelection(mScene.octree, volume().spacing(), selection, parts), {}};
+  const Camera c = gridParts(view, look).camera;
+  const glm::dvec3 forward = glm::normalize(c.center - c.eye);
+  out.frontToBack = out.regions.frontToBack(c.ortho ? c.eye - forward * 1e9 * glm::length(volume().extentMm()) : c.eye);
+  return out;
+}
+
 RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Quality& quality, const LevelCallback& onLevel) {
   validateFrame(view, look, quality);
   if (quality.rows) {
@@ -443,11 +455,26 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   out.stats.renderer = quality.renderer;
   const GridParts g = gridParts(view, look);
   const TriangleMesh* mesh = look.iso ? frameSurface(g.camera, look, quality, &out.stats) : nullptr;
+  if (mesh && quality.region) mesh = &regionSurface(*mesh, *quality.region);
   if (quality.renderer == Renderer::Raycast)
     renderRaycast(g, look, quality, mesh, onLevel, &out);
   else
     renderSlicesFrame(g, look, quality, mesh, onLevel, &out);
   return out;
+}
+
+const TriangleMesh& SceneRenderer::regionSurface(const TriangleMesh& mesh, const RegionBox& region) {
+  RegionSurface& r = mRegionSurface;
+  if (r.from != &mesh || r.triangles != mesh.triangles.size() || !(r.box == region)) {
+    r.mesh = cutMeshToRegion(mesh, region);
+    for (auto& kept : mSurfaces)  // a ray tracer's BVH made for the mesh this one replaces
+      for (int k = 0; k < 2; ++k)
+        if (kept->bvhMesh[k] == &r.mesh) kept->bvhMesh[k] = nullptr;
+    r.from = &mesh;
+    r.triangles = mesh.triangles.size();
+    r.box = region;
+  }
+  return r.mesh;
 }
 
 const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look& look, const Quality& quality, FrameStats* st) {
@@ -488,7 +515,8 @@ void SceneRenderer::renderRaycast(const GridParts& g, const Look& look, const Qu
   ro.surfaceColor = look.surfaceColor;
   ro.cut = g.cut ? &*g.cut : nullptr;
   ro.voi = g.voi ? &*g.voi : nullptr;
-  ro.knots = volume().hasSamples() ? nullptr : mScene.knots.get();  // a paged scene's samples through its cache
+  ro.knots = volume().hasSamples() ? nullptr : mScene.knots.get();
+  ro.region = quality.region ? &*quality.region : nullptr;  // a paged scene's samples through its cache
   if (quality.classification == Classification::PreIntegrated) {
     // Segments are a step long, shorter where a surface crossing or the volume's end cuts them.
     const double dt = stepMm(volume(), ro.stepVoxels);
@@ -537,6 +565,7 @@ void SceneRenderer::renderSlicesFrame(const GridParts& g, const Look& look, cons
   so.textures = mOptions.keepTextures ? mTextures.get() : nullptr;
   so.knots = mScene.knots.get();
   so.cutToSlabs = quality.cutToSlabs;
+  so.region = quality.region ? &*quality.region : nullptr;
   if (quality.classification == Classification::PreIntegrated) {
     // From half the base spacing (segments cut at bricks' faces) to twice the coarsest levels'
     // spacing (32 base spacings) along oblique rays (SlicesOptions::preintegrated).

@@ -31,6 +31,7 @@
 #include "render/gl_context.h"
 #include "render/image.h"
 #include "render/raycast.h"
+#include "render/regions.h"
 #include "render/selection_policy.h"
 #include "render/slices.h"
 #include "render/transfer_function.h"
@@ -120,6 +121,11 @@ struct Quality {
   /// packed by the frames after (Carmona et al.: the cut moves towards the new one frame by frame,
   /// so a moving frame that meets many new bricks costs about what the one before did).
   uint64_t packTexels = 0;
+  /// A sort-last frame's region (grid frame mm, render/regions.h), or none: the frame draws only
+  /// what lies in it (slices: its bricks; the reference: its segments; both: the surface cut to
+  /// it), on the whole frame's sample planes, so that the regions' images composited front to back
+  /// (Regions::frontToBack) make the whole frame's image. Not with progressive or adaptive refinement.
+  std::optional<RegionBox> region;
   /// Slice frames whose surface is not made yet: true makes it (the exact frame); false draws the
   /// kept surface of that isovalue nearest it (the full-resolution one when kept, else the finest
   /// clustered one) without making anything, as a viewer's frames do while its builder thread
@@ -226,6 +232,16 @@ class SceneRenderer {
   /// @throw ValueError for impossible parameters.
   Selection select(const View& view, const Look& look, const Quality& quality);
 
+  /// A sort-last frame: its selection (select()) split into @p parts regions (splitSelection) to
+  /// be rendered apart (Quality::region) and composited in the order given, front to back from the
+  /// view's eye (far behind the camera for an orthographic view).
+  /// @throw ValueError for impossible parameters.
+  struct SortLast {
+    Regions regions;
+    std::vector<int> frontToBack;
+  };
+  SortLast sortLast(const View& view, const Look& look, const Quality& quality, int parts);
+
   /// Builds the isosurface a frame of @p view, @p look and @p quality draws (the Surface Octree's,
   /// with the normals @p look asks for, or the coarse one its level of detail allows) and reports
   /// that work and the surface; render() does it too when it was not done.
@@ -297,6 +313,8 @@ class SceneRenderer {
   /// Makes (or finds) the surface of @p iso clustered by cubes of @p s voxels (1: the Surface
   /// Octree's, with @p normals), and reports that work and the surface in @p st.
   const TriangleMesh& prepareAt(float iso, int s, SurfaceNormals normals, FrameStats* st);
+  /// @p mesh cut to @p region (cutMeshToRegion), kept for the next frame of the same region.
+  const TriangleMesh& regionSurface(const TriangleMesh& mesh, const RegionBox& region);
   /// The size (mm) of a pixel of @p gridCamera where the volume comes nearest the eye.
   double nearestPixelMm(const Camera& gridCamera) const;
   PreparedSurface& keep(std::unique_ptr<PreparedSurface> surface);
@@ -321,6 +339,12 @@ class SceneRenderer {
   std::unique_ptr<Errors> mErrors;               // the last view's
   std::unique_ptr<PreIntegrationTable> mPreintegration;   // the last frame's, and its transfer function
   TransferFunction mPreintegrationTf;
+  struct RegionSurface {
+    const TriangleMesh* from = nullptr;
+    size_t triangles = 0;  // of `from`, which an entry's remaking may reuse the address of
+    RegionBox box;
+    TriangleMesh mesh;
+  } mRegionSurface;  // the last sort-last frame's
 };
 
 }  // namespace hyb

@@ -692,9 +692,14 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
   std::vector<uint32_t> order = bricksBackToFront(octree, brickOf, eyeVoxel);
   HYB_CHECK(order.size() == selection.bricks.size());
   if (options.rows) std::erase_if(order, [&](uint32_t node) { return !meetsRows(octree, octree.nodes()[node], spacing, frame.viewProj, H, rows); });
+  if (options.region)
+    std::erase_if(order, [&](uint32_t node) {  // a brick lies inside one region: its centre's
+      const OctreeNode& n = octree.nodes()[node];
+      return !options.region->contains((glm::dvec3(n.origin) + 0.5 * double(octree.edge(n))) * spacing);
+    });
   const std::optional<SurfacePolygons> polygons = withTriangles ? std::optional<SurfacePolygons>(*options.surface) : std::nullopt;
   const BrickPolygons polygonsOf =
-      polygons ? polygonsByBrick(volume, octree, selection, *polygons) : BrickPolygons{std::vector<uint32_t>(selection.bricks.size() + 1, 0), {}};
+      polygons ? polygonsByBrick(volume, octree, selection, *polygons, options.region) : BrickPolygons{std::vector<uint32_t>(selection.bricks.size() + 1, 0), {}};
 
   const SliceFrame f{volume, octree, selection, tf, camera, options, frame, table, baseDelta, cut, brickOf, order,
                      translucent ? &*polygons : nullptr, polygonsOf, unseen};

@@ -22,6 +22,7 @@
 #include "render/gl_context.h"
 #include "render/image.h"
 #include "render/preintegration.h"
+#include "render/regions.h"
 #include "render/transfer_function.h"
 #include "surface/mesh.h"
 #include "volume/progress.h"
@@ -76,6 +77,10 @@ struct SlicesOptions {
   /// exactly the pixels a whole frame has there: a scissor, and bricks whose projection misses the
   /// band skipped. A large frame drawn band by band lets other work run between its bands.
   std::optional<glm::ivec2> rows;
+  /// A region of a sort-last frame (render/regions.h), or none: only the bricks inside it are
+  /// drawn (the surface given should be cut to it, cutMeshToRegion); the slices stay on the whole
+  /// frame's planes, so the regions' images composited front to back make the whole frame's image.
+  const RegionBox* region = nullptr;
   /// Bricks packed at once (on all cores), a batch ahead of their draws: a frame holds at most two
   /// batches' packed texels (SlicesStats::peakPackedBricks), whatever its brick count. The image
   /// does not depend on it.

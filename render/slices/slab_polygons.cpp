@@ -73,7 +73,8 @@ PixelCentres::Cover PixelCentres::cover(const glm::vec3& a, const glm::vec3& b, 
 }
 
 // A grid of leaves says which brick holds each polygon's centroid.
-BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const SurfacePolygons& surface) {
+BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const SurfacePolygons& surface,
+                              const RegionBox* region) {
   const std::vector<uint32_t>& starts = surface.starts;
   const TriangleMesh& mesh = *surface.mesh;
   const glm::ivec3 cells = glm::max(volume.dims() - 1, glm::ivec3(1));
@@ -95,7 +96,10 @@ BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, 
     glm::dvec3 c(0.0);
     for (uint32_t ti = starts[pi]; ti < starts[pi + 1]; ++ti)
       for (int k = 0; k < 3; ++k) c += glm::dvec3(mesh.vertices[mesh.triangles[ti][k]]);
-    c /= 3.0 * double(std::max(starts[pi + 1] - starts[pi], 1u)) * volume.spacing();
+    c /= 3.0 * double(std::max(starts[pi + 1] - starts[pi], 1u));
+    // A region's pieces (cutMeshToRegion) go to its own bricks, slivers along its faces included.
+    if (region) c = glm::clamp(c, region->lo, glm::max(region->lo, region->hi - 1e-6 * volume.spacing()));
+    c /= volume.spacing();
     const glm::ivec3 g = glm::clamp(glm::ivec3(glm::floor(c)), glm::ivec3(0), cells - 1) / leaf;
     brickOf[pi] = brickAt[size_t(g.x) + size_t(grid.x) * (size_t(g.y) + size_t(grid.y) * size_t(g.z))];
     ++out.offsets[brickOf[pi] + 1];

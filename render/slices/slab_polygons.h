@@ -19,6 +19,7 @@
 
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
+#include "render/regions.h"
 #include "render/slices/proxy_geometry.h"
 #include "surface/mesh.h"
 #include "volume/volume.h"
@@ -50,7 +51,10 @@ struct BrickPolygons {
   /// Brick @p b's polygons (indices into the SurfacePolygons).
   std::span<const uint32_t> of(size_t b) const { return {list.data() + offsets[b], list.data() + offsets[b + 1]}; }
 };
-BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const SurfacePolygons& surface);
+/// With @p region (a sort-last frame's), centroids are taken inside it, so that a piece of a polygon
+/// cut to the region goes to one of its bricks.
+BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const SurfacePolygons& surface,
+                              const RegionBox* region = nullptr);
 
 /// The pixel centres a frame samples. Coverage is sampled at pixel centres, so a triangle whose
 /// projected bounding box holds none draws no fragment and is left out; one whose box holds a few
