@@ -2,6 +2,7 @@
 
 #include "apps/bench.h"
 #include "apps/frame.h"
+#include "apps/ranks.h"
 #include "apps/outputs.h"
 #include "apps/progress_display.h"
 #include "apps/viewer_server.h"
@@ -186,6 +187,12 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   const int pixels = job.view.camera.width * job.view.camera.height;
   const FrameStats surface = job.renderer->prepare(job.view, job.look, job.quality);
   if (job.look.iso) out << surfaceLine(surface, *job.look.iso, fromScene);
+  // Across MPI ranks: this rank's region of the frame, composited with the others' by IceT.
+  std::unique_ptr<RankFrame> rankFrame;
+  if (ranks().mpi) {
+    if (job.quality.progressive > 1 || job.quality.adaptive > 0) throw ValueError("--progressive and --adaptive cannot run across MPI ranks");
+    rankFrame = std::make_unique<RankFrame>(*job.renderer, job.view, job.look, &job.quality);
+  }
   // Progressive refinement: the images before the last (slices: coarser selections; the reference:
   // rays on sparser grids).
   const LevelCallback onLevel = [&](int level, int levels, const Image& image, const FrameStats& st) {
@@ -205,6 +212,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0, tableMs = 0;
   for (int r = 0; r < o.repeat; ++r) {
     frame = job.renderer->render(job.view, job.look, job.quality, r == 0 && job.quality.progressive > 1 ? onLevel : LevelCallback{});
+    if (rankFrame) rankFrame->composite(&frame);
     if (r == 0) {
       if (job.quality.budgetPercent > 0) {
         auto mb = [&](uint64_t texels) { return double(texels * bytesPerTexel(job.quality.texelBits)) / (1024.0 * 1024.0); };
@@ -221,6 +229,11 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
       tableMs = frame.stats.preintegrationMs;
     }
     renderMs = std::min(renderMs, frame.stats.renderMs);
+  }
+  std::string ranksJson;
+  if (rankFrame) {
+    out << rankFrame->report(frame, &ranksJson);
+    if (!ranks().root()) return 0;  // rank 0 writes the frame
   }
   const FrameStats& st = frame.stats;
   std::ostringstream timing;
@@ -282,6 +295,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
       j["store"] = {{"blocks_read", c.misses}, {"bytes_read", c.bytesRead}, {"cache_hits", c.hits}, {"cache_bytes", c.bytesHeld},
                     {"cache_limit", c.limit}, {"evicted", c.evicted}};
     }
+    if (!ranksJson.empty()) j["ranks"] = nlohmann::ordered_json::parse(ranksJson);
     j["camera"] = nlohmann::ordered_json::parse(cameraJson(job.view.camera));
     outputs.write(o.stats, [&](const std::string& to) { writeFileAtomically(to, [&](std::ostream& s) { s << j.dump(2) << "\n"; }); });
   }

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Installs every Debian 12 package hybrid-octree needs to build, test and run its demo.
-# Idempotent: apt-get skips what is already installed. Run as root (or with sudo).
+# Installs every Debian 12 package hybrid-octree needs to build, test and run its demo; with --mpi,
+# also what the MPI build (-DHYB_MPI=ON) needs. Idempotent: apt-get skips what is already installed.
+# Run as root (or with sudo).
 set -euo pipefail
 packages=(
   build-essential cmake ninja-build pkg-config   # toolchain
@@ -23,6 +24,12 @@ packages=(
   invesalius-examples                            # the real CT used by the demo and the tests
   chromium                                       # the viewer's end-to-end test drives the page in it
 )
+if [ "${1:-}" = "--mpi" ]; then
+  packages+=(
+    libopenmpi-dev openmpi-bin                   # MPI ranks (mpirun)
+    paraview-dev                                 # IceT, the ranks' ordered compositing (Debian has it only in ParaView)
+  )
+fi
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
