@@ -1,4 +1,5 @@
 #include "apps/bench.h"
+#include "apps/ranks.h"
 
 #include <spawn.h>
 #include <sys/wait.h>
@@ -183,8 +184,9 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
     }
   }
   std::error_code ec;
-  fs::create_directories(o.outDir, ec);
-  if (ec || !fs::is_directory(o.outDir)) HYB_THROW(IoError, o.outDir, ": cannot create the output directory (", ec.message(), ")");
+  const bool root = ranks().root();  // across MPI ranks, rank 0 writes the files
+  if (root) fs::create_directories(o.outDir, ec);
+  if (root && (ec || !fs::is_directory(o.outDir))) HYB_THROW(IoError, o.outDir, ": cannot create the output directory (", ec.message(), ")");
   const std::string dir = fs::path(o.outDir).string();
   auto file = [&](const std::string& name) { return (fs::path(dir) / name).string(); };
 
@@ -196,9 +198,9 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   reference.progressive = 1;
   reference.adaptive = 0;
   auto t0 = Clock::now();
-  const Image referenceImage = job.renderer->render(job.view, job.look, reference).image;
+  const Image referenceImage = renderFrame(*job.renderer, job.view, job.look, reference).image;
   const double referenceMs = msSince(t0);
-  writePng(file("reference.png"), referenceImage, job.background);
+  if (root) writePng(file("reference.png"), referenceImage, job.background);
   const std::vector<uint8_t> refRgba = toRgba8(referenceImage, job.background);
   out << "reference ray tracer: " << std::fixed << std::setprecision(1) << referenceMs << " ms -> " << file("reference.png") << "\n";
 
@@ -220,7 +222,7 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
     RenderedFrame f;
     for (int r = 0; r < o.repeat; ++r) {
       if (r == 0) job.renderer->dropTextures();
-      f = job.renderer->render(job.view, job.look, qualityOf(*p));
+      f = renderFrame(*job.renderer, job.view, job.look, qualityOf(*p));
       const double ms = f.stats.renderMs;
       if (r == 0) {
         p->firstFrameMs = std::min(p->firstFrameMs, ms);
@@ -253,7 +255,7 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
     if (p.sweep == "epsilon") name << "_" << p.epsilon;
     if (p.sweep == "budget") name << "_" << p.budgetFraction << "_blend_" << (p.blend ? "on" : "off");
     p.image = name.str() + ".png";
-    writePng(file(p.image), f.image, job.background);
+    if (root) writePng(file(p.image), f.image, job.background);
     points.push_back(p);
     out << "[" << points.size() << "/" << total << "] " << std::left << std::setw(28) << name.str() << std::right << std::setprecision(2)
         << std::setw(8) << double(p.textureBytes) / 1048576.0 << " MB " << std::setw(5) << p.textured << " bricks " << std::setprecision(1)
@@ -289,6 +291,7 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   }
 
   // The table and the plot.
+  if (!root) return 0;
   writeFileAtomically(file("trade.csv"), [&](std::ostream& s) {
     s << "sweep,epsilon,budget_fraction,budget_mb,blend,bricks,textured_bricks,blended_bricks,texture_bytes,max_error,select_ms,frame_ms,"
          "first_frame_ms,psnr_db,ssim,image\n";

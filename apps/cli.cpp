@@ -211,8 +211,12 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   RenderedFrame frame;
   double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0, tableMs = 0;
   for (int r = 0; r < o.repeat; ++r) {
+    const auto f0 = Clock::now();
     frame = job.renderer->render(job.view, job.look, job.quality, r == 0 && job.quality.progressive > 1 ? onLevel : LevelCallback{});
-    if (rankFrame) rankFrame->composite(&frame);
+    if (rankFrame) {
+      rankFrame->composite(&frame);
+      frame.stats.renderMs = msSince(f0);  // the whole frame's, to the end of the compositing
+    }
     if (r == 0) {
       if (job.quality.budgetPercent > 0) {
         auto mb = [&](uint64_t texels) { return double(texels * bytesPerTexel(job.quality.texelBits)) / (1024.0 * 1024.0); };

@@ -39,6 +39,14 @@ struct RankLine {
   double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
 };
 
+// What identifies a selection: every rank must draw its part of the same one.
+uint64_t selectionHash(const Selection& s) {
+  uint64_t h = 1469598103934665603ull;  // FNV-1a
+  auto mix = [&](uint64_t v) { h = (h ^ v) * 1099511628211ull; };
+  for (const Brick& b : s.bricks) mix(uint64_t(b.node) << 8 | uint64_t(b.p) << 1 | uint64_t(b.hidden));
+  return h;
+}
+
 double peakRssMb() {
   rusage u{};
   getrusage(RUSAGE_SELF, &u);
@@ -71,6 +79,7 @@ struct RankFrame::State {
   IceTContext context = nullptr;
   std::vector<double> renderMs, waitMs, compositeMs;
   double cost = 0;
+  uint64_t selection = 0;  // its hash
 };
 
 RankFrame::RankFrame(SceneRenderer& renderer, const View& view, const Look& look, Quality* quality) : m(std::make_unique<State>()) {
@@ -79,6 +88,12 @@ RankFrame::RankFrame(SceneRenderer& renderer, const View& view, const Look& look
   m->split = renderer.sortLast(view, look, *quality, gRanks.size);
   quality->region = m->split.regions.boxes[size_t(gRanks.rank)];
   m->cost = m->split.regions.cost[size_t(gRanks.rank)];
+  // The same selection in every rank, or the regions would not make one frame.
+  m->selection = selectionHash(m->split.selection);
+  uint64_t lo = 0, hi = 0;
+  MPI_Allreduce(&m->selection, &lo, 1, MPI_UINT64_T, MPI_MIN, MPI_COMM_WORLD);
+  MPI_Allreduce(&m->selection, &hi, 1, MPI_UINT64_T, MPI_MAX, MPI_COMM_WORLD);
+  if (lo != hi) HYB_THROW(RuntimeError, "the MPI ranks selected different bricks for one frame (rank ", gRanks.rank, " of ", gRanks.size, ")");
   m->comm = icetCreateMPICommunicator(MPI_COMM_WORLD);
   m->context = icetCreateContext(m->comm);
   icetDiagnostics(ICET_DIAG_ERRORS | ICET_DIAG_ALL_NODES);
@@ -100,6 +115,18 @@ RankFrame::~RankFrame() {
 }
 
 void RankFrame::composite(RenderedFrame* frame) {
+  if (frame->stats.renderer == Renderer::Slices && selectionHash(frame->selection) != m->selection)
+    HYB_THROW(RuntimeError, "rank ", gRanks.rank, " drew another selection than the one its region was split from");
+  // The whole frame's counts, in every rank.
+  SlicesStats& sl = frame->stats.slices;
+  RaycastStats& ra = frame->stats.rays;
+  uint64_t* counts[] = {&sl.bricks, &sl.uploadedBricks, &sl.blendedBricks, &sl.texels, &sl.textureBytes, &sl.slices, &sl.shellBricks,
+                        &sl.surfaceTriangles, &sl.unseenTriangles, &sl.slabPolygonDraws, &sl.fragments, &sl.cutPolygons, &sl.cutLineSegments,
+                        &ra.samples, &ra.skippedLeaves, &ra.surfaceHits, &ra.rays};
+  std::vector<uint64_t> mine, sum(std::size(counts));
+  for (const uint64_t* c : counts) mine.push_back(*c);
+  MPI_Allreduce(mine.data(), sum.data(), int(mine.size()), MPI_UINT64_T, MPI_SUM, MPI_COMM_WORLD);
+  for (size_t i = 0; i < sum.size(); ++i) *counts[i] = sum[i];
   Image& image = frame->image;
   const auto w0 = Clock::now();
   MPI_Barrier(MPI_COMM_WORLD);  // the wait for the slowest rank, apart from the compositing
@@ -173,7 +200,22 @@ std::string RankFrame::report(const RenderedFrame& frame, std::string* json) {
   return text.str();
 }
 
+RenderedFrame renderFrame(SceneRenderer& renderer, const View& view, const Look& look, const Quality& quality) {
+  if (!gRanks.mpi) return renderer.render(view, look, quality);
+  Quality q = quality;
+  RankFrame ranked(renderer, view, look, &q);
+  const auto t0 = Clock::now();
+  RenderedFrame frame = renderer.render(view, look, q);
+  ranked.composite(&frame);
+  frame.stats.renderMs = msSince(t0);
+  return frame;
+}
+
 #else
+
+RenderedFrame renderFrame(SceneRenderer& renderer, const View& view, const Look& look, const Quality& quality) {
+  return renderer.render(view, look, quality);
+}
 
 Ranks startRanks(int*, char***) { return gRanks; }
 void endRanks(const Ranks&, int) {}

@@ -52,4 +52,9 @@ class RankFrame {
   std::unique_ptr<State> m;
 };
 
+/// Renders a frame: across the ranks when the run is sort-last (each rank its region, composited
+/// on rank 0; stats.renderMs then runs from the start of the rank's render to the end of the
+/// compositing, so that rank 0's is the whole frame's), else in this process.
+RenderedFrame renderFrame(SceneRenderer& renderer, const View& view, const Look& look, const Quality& quality);
+
 }  // namespace hyb::app

@@ -435,8 +435,8 @@ Selection SceneRenderer::select(const View& view, const Look& look, const Qualit
 SceneRenderer::SortLast SceneRenderer::sortLast(const View& view, const Look& look, const Quality& quality, int parts) {
   Quality whole = quality;
   whole.region.reset();
-  const Selection selection = select(view, look, whole);
-  SortLast out{splitSelection(mScene.octree, volume().spacing(), selection, parts), {}};
+  SortLast out{select(view, look, whole), {}, {}};
+  out.regions = splitSelection(mScene.octree, volume().spacing(), out.selection, parts);
   const Camera c = gridParts(view, look).camera;
   const glm::dvec3 forward = glm::normalize(c.center - c.eye);
   out.frontToBack = out.regions.frontToBack(c.ortho ? c.eye - forward * 1e9 * glm::length(volume().extentMm()) : c.eye);

@@ -237,6 +237,7 @@ class SceneRenderer {
   /// view's eye (far behind the camera for an orthographic view).
   /// @throw ValueError for impossible parameters.
   struct SortLast {
+    Selection selection;  ///< the whole frame's
     Regions regions;
     std::vector<int> frontToBack;
   };

@@ -14,6 +14,17 @@ export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1  # CI runs as r
 export OMPI_MCA_rmaps_base_oversubscribe=1 OMPI_MCA_btl=self,vader  # more ranks than cores; one machine
 failures=0
 fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
+# same WHAT ONE.png RANKS.png: the ranks' image within 50 dB of the single process's.
+same() {
+  local line psnr
+  line="$("$bin" compare "$2" "$3")"
+  psnr="$(sed -n 's/.*PSNR \([0-9.]*\) dB.*/\1/p' <<< "$line")"
+  if [[ "$line" == *identical* ]] || awk -v p="$psnr" 'BEGIN { exit !(p >= 50) }'; then
+    echo "ok: $1: ${psnr:-identical}${psnr:+ dB}"
+  else
+    fail "$1: $line"
+  fi
+}
 
 "$bin" build "$ct" -o "$tmp/cranium.hoct" --iso 400 --progress off > /dev/null
 
@@ -36,13 +47,7 @@ for c in "${cases[@]}"; do
         --stats "$tmp/$name-$n.json" > "$tmp/$name-$n.log" 2>&1; then
       fail "$name on $n ranks: mpirun failed"; cat "$tmp/$name-$n.log"; continue
     fi
-    line="$("$bin" compare "$tmp/$name.png" "$tmp/$name-$n.png")"
-    psnr="$(sed -n 's/.*PSNR \([0-9.]*\) dB.*/\1/p' <<< "$line")"
-    if [[ "$line" == *identical* ]] || awk -v p="$psnr" 'BEGIN { exit !(p >= 50) }'; then
-      echo "ok: $name on $n ranks: ${psnr:-identical}${psnr:+ dB}"
-    else
-      fail "$name on $n ranks: $line"
-    fi
+    same "$name on $n ranks" "$tmp/$name.png" "$tmp/$name-$n.png"
     # Every visible brick in exactly one rank (slices: the ranks' bricks add up to the selection's).
     if [[ "$name" != raycast* ]]; then
       python3 - "$tmp/$name-$n.json" "$n" <<'EOF' || fail "$name on $n ranks: the ranks' bricks do not partition the selection"
@@ -57,6 +62,15 @@ EOF
     fi
   done
 done
+
+# bench across ranks: the same sweep, the same images.
+"$bin" bench "$tmp/cranium.hoct" --size 96x96 --epsilons 0,500 --budgets 0.25 --rounds 1 --no-plot --progress off -o "$tmp/bench1" > /dev/null
+if ! timeout 300 mpirun -np 2 "$bin" bench "$tmp/cranium.hoct" --size 96x96 --epsilons 0,500 --budgets 0.25 --rounds 1 --no-plot --progress off \
+    -o "$tmp/bench2" > "$tmp/bench2.log" 2>&1; then
+  fail "bench on 2 ranks failed"; cat "$tmp/bench2.log"
+else
+  for png in "$tmp"/bench1/*.png; do same "bench on 2 ranks, $(basename "$png")" "$png" "$tmp/bench2/$(basename "$png")"; done
+fi
 
 # A bad scene: every rank fails to read it; the run ends with a message naming it.
 head -c 100000 "$tmp/cranium.hoct" > "$tmp/cut.hoct"
