@@ -12,6 +12,7 @@ tmp="$(mktemp -d)"
 trap 'rm -rf "$tmp"' EXIT
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1  # CI runs as root
 export OMPI_MCA_rmaps_base_oversubscribe=1 OMPI_MCA_btl=self,vader  # more ranks than cores; one machine
+export OMPI_MCA_hwloc_base_binding_policy=none  # a rank may use every core (llvmpipe, OpenMP)
 failures=0
 fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
 # same WHAT ONE.png RANKS.png: the ranks' image within 50 dB of the single process's.
