@@ -198,7 +198,7 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   reference.progressive = 1;
   reference.adaptive = 0;
   auto t0 = Clock::now();
-  const Image referenceImage = renderFrame(*job.renderer, job.view, job.look, reference).image;
+  const Image referenceImage = renderFrame(*job.renderer, job.view, job.look, reference, o.render.input.progress).image;
   const double referenceMs = msSince(t0);
   if (root) writePng(file("reference.png"), referenceImage, job.background);
   const std::vector<uint8_t> refRgba = toRgba8(referenceImage, job.background);
@@ -222,7 +222,7 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
     RenderedFrame f;
     for (int r = 0; r < o.repeat; ++r) {
       if (r == 0) job.renderer->dropTextures();
-      f = renderFrame(*job.renderer, job.view, job.look, qualityOf(*p));
+      f = renderFrame(*job.renderer, job.view, job.look, qualityOf(*p), o.render.input.progress);
       const double ms = f.stats.renderMs;
       if (r == 0) {
         p->firstFrameMs = std::min(p->firstFrameMs, ms);

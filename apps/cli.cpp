@@ -191,7 +191,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   std::unique_ptr<RankFrame> rankFrame;
   if (ranks().mpi) {
     if (job.quality.progressive > 1 || job.quality.adaptive > 0) throw ValueError("--progressive and --adaptive cannot run across MPI ranks");
-    rankFrame = std::make_unique<RankFrame>(*job.renderer, job.view, job.look, &job.quality);
+    rankFrame = std::make_unique<RankFrame>(*job.renderer, job.view, job.look, &job.quality, o.input.progress);
   }
   // Progressive refinement: the images before the last (slices: coarser selections; the reference:
   // rays on sparser grids).
@@ -624,6 +624,9 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     for (const auto& [cmd, in] : {std::pair{infoCmd, &info.input}, {buildCmd, &build.input}, {renderCmd, &render.input},
                                   {benchCmd, &bench.render.input}, {exportCmd, &exportOpts.input}, {viewCmd, &view.input}})
       if (cmd->parsed()) subject = cmd->get_name() + " of " + in->path;
+    if (ranks().mpi && !renderCmd->parsed() && !benchCmd->parsed())
+      check("only render and bench run across MPI ranks; run " + (app.get_subcommands().empty() ? std::string("it") : app.get_subcommands().front()->get_name()) +
+            " without mpirun");
     if (infoCmd->parsed()) return check(info.validate()), runInfo(info, out, err);
     if (buildCmd->parsed()) return check(build.validate()), runBuild(build, out, err);
     if (renderCmd->parsed()) {

@@ -74,6 +74,7 @@ void endRanks(const Ranks& r, int exitCode) {
 
 struct RankFrame::State {
   const SceneRenderer* renderer = nullptr;
+  const Progress* progress = nullptr;
   SceneRenderer::SortLast split;
   IceTCommunicator comm = nullptr;
   IceTContext context = nullptr;
@@ -82,9 +83,11 @@ struct RankFrame::State {
   uint64_t selection = 0;  // its hash
 };
 
-RankFrame::RankFrame(SceneRenderer& renderer, const View& view, const Look& look, Quality* quality) : m(std::make_unique<State>()) {
+RankFrame::RankFrame(SceneRenderer& renderer, const View& view, const Look& look, Quality* quality, const Progress* progress)
+    : m(std::make_unique<State>()) {
   HYB_CHECK(gRanks.mpi);
   m->renderer = &renderer;
+  m->progress = progress;
   m->split = renderer.sortLast(view, look, *quality, gRanks.size);
   quality->region = m->split.regions.boxes[size_t(gRanks.rank)];
   m->cost = m->split.regions.cost[size_t(gRanks.rank)];
@@ -128,8 +131,23 @@ void RankFrame::composite(RenderedFrame* frame) {
   MPI_Allreduce(mine.data(), sum.data(), int(mine.size()), MPI_UINT64_T, MPI_SUM, MPI_COMM_WORLD);
   for (size_t i = 0; i < sum.size(); ++i) *counts[i] = sum[i];
   Image& image = frame->image;
+  // Rank 0 hears of each rank's region done, as they come (the run's progress); then all meet, so
+  // that the wait for the slowest rank is measured apart from the compositing.
   const auto w0 = Clock::now();
-  MPI_Barrier(MPI_COMM_WORLD);  // the wait for the slowest rank, apart from the compositing
+  constexpr int kDoneTag = 7;
+  if (gRanks.root()) {
+    ProgressTask task(m->progress, "ranks rendered", uint64_t(gRanks.size));
+    task.advance();
+    for (int k = 1; k < gRanks.size; ++k) {
+      double ms = 0;
+      MPI_Recv(&ms, 1, MPI_DOUBLE, MPI_ANY_SOURCE, kDoneTag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+      task.advance();
+    }
+  } else {
+    const double ms = frame->stats.renderMs;
+    MPI_Send(&ms, 1, MPI_DOUBLE, 0, kDoneTag, MPI_COMM_WORLD);
+  }
+  MPI_Barrier(MPI_COMM_WORLD);
   m->waitMs.push_back(msSince(w0));
   const auto t0 = Clock::now();
   // IceT images are bottom-up; ours are top-down: neither is turned, so the composite is ours.
@@ -200,10 +218,10 @@ std::string RankFrame::report(const RenderedFrame& frame, std::string* json) {
   return text.str();
 }
 
-RenderedFrame renderFrame(SceneRenderer& renderer, const View& view, const Look& look, const Quality& quality) {
+RenderedFrame renderFrame(SceneRenderer& renderer, const View& view, const Look& look, const Quality& quality, const Progress* progress) {
   if (!gRanks.mpi) return renderer.render(view, look, quality);
   Quality q = quality;
-  RankFrame ranked(renderer, view, look, &q);
+  RankFrame ranked(renderer, view, look, &q, progress);
   const auto t0 = Clock::now();
   RenderedFrame frame = renderer.render(view, look, q);
   ranked.composite(&frame);
@@ -213,14 +231,14 @@ RenderedFrame renderFrame(SceneRenderer& renderer, const View& view, const Look&
 
 #else
 
-RenderedFrame renderFrame(SceneRenderer& renderer, const View& view, const Look& look, const Quality& quality) {
+RenderedFrame renderFrame(SceneRenderer& renderer, const View& view, const Look& look, const Quality& quality, const Progress*) {
   return renderer.render(view, look, quality);
 }
 
 Ranks startRanks(int*, char***) { return gRanks; }
 void endRanks(const Ranks&, int) {}
 struct RankFrame::State {};
-RankFrame::RankFrame(SceneRenderer&, const View&, const Look&, Quality*) { HYB_THROW(ValueError, "this build has no MPI (configure with -DHYB_MPI=ON)"); }
+RankFrame::RankFrame(SceneRenderer&, const View&, const Look&, Quality*, const Progress*) { HYB_THROW(ValueError, "this build has no MPI (configure with -DHYB_MPI=ON)"); }
 RankFrame::~RankFrame() = default;
 void RankFrame::composite(RenderedFrame*) {}
 std::string RankFrame::report(const RenderedFrame&, std::string*) { return ""; }

@@ -35,7 +35,9 @@ class RankFrame {
  public:
   /// Splits the frame of @p view, @p look, @p quality into one region per rank and sets
   /// @p quality's region to this rank's. Every rank must call it with the same frame.
-  RankFrame(SceneRenderer& renderer, const View& view, const Look& look, Quality* quality);
+  /// @p progress (rank 0's, or none) hears of the ranks' regions done ("ranks rendered").
+  /// @throw RuntimeError when the ranks' selections differ.
+  RankFrame(SceneRenderer& renderer, const View& view, const Look& look, Quality* quality, const Progress* progress = nullptr);
   ~RankFrame();
   RankFrame(const RankFrame&) = delete;
   RankFrame& operator=(const RankFrame&) = delete;
@@ -55,6 +57,6 @@ class RankFrame {
 /// Renders a frame: across the ranks when the run is sort-last (each rank its region, composited
 /// on rank 0; stats.renderMs then runs from the start of the rank's render to the end of the
 /// compositing, so that rank 0's is the whole frame's), else in this process.
-RenderedFrame renderFrame(SceneRenderer& renderer, const View& view, const Look& look, const Quality& quality);
+RenderedFrame renderFrame(SceneRenderer& renderer, const View& view, const Look& look, const Quality& quality, const Progress* progress = nullptr);
 
 }  // namespace hyb::app

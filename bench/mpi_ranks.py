@@ -39,7 +39,7 @@ def main():
     a = ap.parse_args()
     env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1", OMPI_MCA_rmaps_base_oversubscribe="1",
                OMPI_MCA_btl="self,vader",
-               OMPI_MCA_hwloc_base_binding_policy="none")  # each rank may use every core (llvmpipe and OpenMP threads)
+               OMPI_MCA_hwloc_base_binding_policy="none", OMPI_MCA_btl_vader_single_copy_mechanism="none")  # each rank may use every core (llvmpipe and OpenMP threads)
     flags = ["--size", a.size, "--repeat", str(a.repeat), "--renderer", a.renderer, "--progress", "off"] + shlex.split(a.extra)
     if a.iso is not None:
         flags += ["--iso", str(a.iso), "--surface-color", "0.95,0.92,0.85,0.5"]

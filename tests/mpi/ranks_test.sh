@@ -13,6 +13,7 @@ trap 'rm -rf "$tmp"' EXIT
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1  # CI runs as root
 export OMPI_MCA_rmaps_base_oversubscribe=1 OMPI_MCA_btl=self,vader  # more ranks than cores; one machine
 export OMPI_MCA_hwloc_base_binding_policy=none  # a rank may use every core (llvmpipe, OpenMP)
+export OMPI_MCA_btl_vader_single_copy_mechanism=none  # containers often forbid the cross-memory attach it would use
 failures=0
 fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
 # same WHAT ONE.png RANKS.png: the ranks' image within 50 dB of the single process's.
@@ -71,6 +72,17 @@ if ! timeout 300 mpirun -np 2 "$bin" bench "$tmp/cranium.hoct" --size 96x96 --ep
   fail "bench on 2 ranks failed"; cat "$tmp/bench2.log"
 else
   for png in "$tmp"/bench1/*.png; do same "bench on 2 ranks, $(basename "$png")" "$png" "$tmp/bench2/$(basename "$png")"; done
+fi
+
+# Commands that do not run across ranks are refused by name.
+if timeout 60 mpirun -np 2 "$bin" build "$ct" -o "$tmp/twice.hoct" > "$tmp/build.log" 2>&1; then
+  fail "build ran across ranks"
+elif ! grep -q "only render and bench run across MPI ranks; run build without mpirun" "$tmp/build.log"; then
+  fail "build across ranks: no clear message"; cat "$tmp/build.log"
+elif [ -e "$tmp/twice.hoct" ]; then
+  fail "build across ranks left a scene"
+else
+  echo "ok: build across ranks is refused"
 fi
 
 # A bad scene: every rank fails to read it; the run ends with a message naming it.
