@@ -336,6 +336,60 @@ std::string checkLine(const MeshCheck& c) {
          "\n";
 }
 
+}  // namespace
+
+ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string& kind, bool closed, bool normals, const Progress* progress,
+                                std::ostream& out) {
+  if (kind != "dmc" && kind != "mc" && kind != "octree") HYB_THROW(ValueError, "surface kind '", kind, "' invalid (expected dmc, octree or mc)");
+  if (!scene.volume.hasSamples()) HYB_THROW(ValueError, "the surface of a scene read paged needs its samples (load it whole)");
+  // Closed: the volume padded by one sample well below the isovalue on every face, so the surface
+  // is capped where it meets them (half a voxel outside the data, DiscMC's midpoints).
+  std::optional<Volume> padded;
+  std::optional<VolumeOctree> paddedOctree;
+  if (closed) {
+    const Volume& v = scene.volume;
+    padded = paddedVolume(v, std::min(v.minValue(), iso) - std::max(1.0f, v.maxValue() - v.minValue()));
+    paddedOctree = VolumeOctree::build(*padded, VolumeOctreeOptions{8, true, progress});
+  }
+  const Volume& v = closed ? *padded : scene.volume;
+  const VolumeOctree& octree = closed ? *paddedOctree : scene.octree;
+  const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
+  ExportedSurface e;
+  auto t0 = Clock::now();
+  e.mc = extractMarchingCubes(v, iso, blocks);
+  scaleToMillimetres(&e.mc, v.spacing());
+  e.mcMs = msSince(t0);
+  t0 = Clock::now();
+  if (kind == "mc") {
+    e.mesh = e.mc;
+    e.polygons = e.mc.triangles.size();
+  } else if (kind == "dmc") {
+    const DiscreteMesh d = extractDiscMC(v, iso, blocks);
+    e.polygons = d.faceCount();
+    e.mesh = toTriangleMesh(d, v.spacing());
+  } else {
+    const bool stored = !closed && scene.surface && scene.surface->isovalue() == iso;
+    const auto ts = Clock::now();
+    const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, octree, iso);
+    out << surfaceSummary(so, stored ? std::nullopt : std::optional<double>(msSince(ts)));
+    const DiscreteMesh d = so.reconstruct(kMaxDim, progress);  // one mesh: merge coplanar polygons across bricks too
+    e.polygons = d.faceCount();
+    e.mesh = fineMeshToTriangles(d, v.spacing());
+  }
+  if (normals) setGradientNormals(v, &e.mesh);
+  // Patient coordinates (LPS mm), as the volume's own.
+  toPatientSpace(v.frame(), &e.mesh);
+  toPatientSpace(v.frame(), &e.mc);
+  e.ms = kind == "mc" ? e.mcMs : msSince(t0);
+  out << std::fixed << std::setprecision(1) << "surface  " << kind << " at iso " << iso << (closed ? " (closed)" : "") << ": " << e.polygons
+      << " polygons, " << e.mesh.triangles.size() << " triangles, " << e.mesh.vertices.size() << " vertices, " << e.ms << " ms\n";
+  out << "vs mc    " << e.mc.triangles.size() << " triangles in " << e.mcMs << " ms; triangles ratio " << std::setprecision(3)
+      << (e.mc.triangles.empty() ? 1.0 : double(e.mesh.triangles.size()) / double(e.mc.triangles.size())) << "\n";
+  return e;
+}
+
+namespace {
+
 int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   double buildMs = 0;
   const Scene scene = loadOrBuild(o.input, out, err, &buildMs);
@@ -343,50 +397,10 @@ int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   if (iso <= scene.volume.minValue() || iso > scene.volume.maxValue())
     err << "hybrid-octree: warning: --iso " << iso << " is outside the data's crossing range (" << scene.volume.minValue() << ", "
         << scene.volume.maxValue() << "]: the surface is empty\n";
-  // --closed: the volume padded by one sample well below the isovalue on every face, so the
-  // surface is capped where it meets them (half a voxel outside the data, DiscMC's midpoints).
-  std::optional<Volume> padded;
-  std::optional<VolumeOctree> paddedOctree;
-  if (o.closed) {
-    const Volume& v = scene.volume;
-    padded = paddedVolume(v, std::min(v.minValue(), iso) - std::max(1.0f, v.maxValue() - v.minValue()));
-    paddedOctree = VolumeOctree::build(*padded, VolumeOctreeOptions{8, true, o.input.progress});
-  }
-  const Volume& v = o.closed ? *padded : scene.volume;
-  const VolumeOctree& octree = o.closed ? *paddedOctree : scene.octree;
-  const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
-  auto t0 = Clock::now();
-  TriangleMesh mc = extractMarchingCubes(v, iso, blocks);
-  scaleToMillimetres(&mc, v.spacing());
-  const double mcMs = msSince(t0);
-  t0 = Clock::now();
-  TriangleMesh mesh;
-  size_t polygons = 0;
-  if (o.surface == "mc") {
-    mesh = mc;
-    polygons = mc.triangles.size();
-  } else if (o.surface == "dmc") {
-    const DiscreteMesh d = extractDiscMC(v, iso, blocks);
-    polygons = d.faceCount();
-    mesh = toTriangleMesh(d, v.spacing());
-  } else {
-    const bool stored = !o.closed && scene.surface && scene.surface->isovalue() == iso;
-    const auto ts = Clock::now();
-    const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, octree, iso);
-    out << surfaceSummary(so, stored ? std::nullopt : std::optional<double>(msSince(ts)));
-    const DiscreteMesh d = so.reconstruct(kMaxDim, o.input.progress);  // one mesh: merge coplanar polygons across bricks too
-    polygons = d.faceCount();
-    mesh = fineMeshToTriangles(d, v.spacing());
-  }
-  if (o.normals) setGradientNormals(v, &mesh);
-  // Files hold patient coordinates (LPS mm), as the volume's own.
-  toPatientSpace(v.frame(), &mesh);
-  toPatientSpace(v.frame(), &mc);
-  const double ms = o.surface == "mc" ? mcMs : msSince(t0);
-  out << std::fixed << std::setprecision(1) << "surface  " << o.surface << " at iso " << iso << (o.closed ? " (closed)" : "") << ": " << polygons
-      << " polygons, " << mesh.triangles.size() << " triangles, " << mesh.vertices.size() << " vertices, " << ms << " ms\n";
-  out << "vs mc    " << mc.triangles.size() << " triangles in " << mcMs << " ms; triangles ratio "
-      << std::setprecision(3) << (mc.triangles.empty() ? 1.0 : double(mesh.triangles.size()) / double(mc.triangles.size())) << "\n";
+  const ExportedSurface e = exportedSurface(scene, iso, o.surface, o.closed, o.normals, o.input.progress, out);
+  const TriangleMesh& mesh = e.mesh;
+  const TriangleMesh& mc = e.mc;
+  const Volume& v = scene.volume;
   writeMesh(o.output, mesh, MeshWriteOptions{o.normals, "LPS"});
   out << "wrote    " << o.output << " (patient coordinates, LPS mm" << (o.normals ? ", with vertex normals" : "") << ")\n";
   if (o.check) {

@@ -355,8 +355,6 @@ void RenderOptions::add(CLI::App* cmd) {
 }
 
 RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream& err, bool keepTextures) {
-  std::optional<Camera> fromFile;
-  if (!o.cameraFile.empty()) fromFile = readCameraFile(o.cameraFile);
   RenderJob job;
   VolumeOctreeOptions octree;
   octree.prefilter = o.prefilter;
@@ -369,6 +367,15 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
       err << "hybrid-octree: warning: --memory " << memoryBytes / (1024 * 1024) << " MB: the scene's octree alone takes " << octreeBytes / (1024 * 1024)
           << " MB; its block cache gets " << cache / (1024 * 1024) << " MB, and the process more than --memory\n";
   }
+  setUpFrame(o, scene, &job, err);
+  job.renderer = std::make_unique<SceneRenderer>(std::move(scene), SceneRenderer::Options{0, o.input.progress, keepTextures});
+  return job;
+}
+
+void setUpFrame(const RenderOptions& o, const Scene& scene, RenderJob* out, std::ostream& err) {
+  std::optional<Camera> fromFile;
+  if (!o.cameraFile.empty()) fromFile = readCameraFile(o.cameraFile);
+  RenderJob& job = *out;
   const Volume& v = scene.volume;
   const PatientFrame& frame = v.frame();
   // What is shown: the transfer function from a file, a preset, or chosen for the data's range.
@@ -426,9 +433,8 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
     HYB_THROW(ValueError, "--zoom ", o.zoom, " makes a field of view of ", camera.fovDeg, " degrees (expected a zoom keeping it in [0.1, 179))");
   job.quality = o.quality;
   job.background = o.background;
-  job.renderer = std::make_unique<SceneRenderer>(std::move(scene), SceneRenderer::Options{0, o.input.progress, keepTextures});
-  return job;
 }
+
 
 std::string surfaceLine(const FrameStats& stats, float iso, bool fromScene) {
   if (stats.surfacePolygonsMs == 0 && !stats.surfaceBuilt) return "";

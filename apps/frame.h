@@ -143,6 +143,25 @@ struct RenderJob {
 /// @p keepTextures: brick textures are kept for later frames (SceneRenderer::Options::keepTextures).
 RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream& err, bool keepTextures = true);
 
+/// An isosurface as `export` writes it, in patient coordinates (LPS mm): @p kind dmc (DiscMC),
+/// octree (the Surface Octree's, coplanar polygons merged) or mc (classic Marching Cubes), capped on
+/// the volume's faces when @p closed, with gradient normals when @p normals; and classic Marching
+/// Cubes' surface beside it (`export --check` compares them). Prints what it made on @p out.
+/// @throw ValueError for another kind, or a scene without its samples.
+struct ExportedSurface {
+  TriangleMesh mesh, mc;
+  size_t polygons = 0;
+  double ms = 0, mcMs = 0;
+};
+ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string& kind, bool closed, bool normals, const Progress* progress,
+                                std::ostream& out);
+
+/// Sets @p job's view, look, quality and background from @p o's flags for @p scene: the transfer
+/// function (file, preset, or one for the data's range) and the camera (a file's, the --eye given,
+/// or the view framing what is visible), warnings (an isovalue outside the data) on @p err.
+/// @throw ValueError naming the flag, IoError naming a camera or transfer-function file.
+void setUpFrame(const RenderOptions& o, const Scene& scene, RenderJob* job, std::ostream& err);
+
 /// One line on the surface of a frame that built or reconstructed it (empty when it was kept).
 std::string surfaceLine(const FrameStats& stats, float iso, bool fromScene);
 

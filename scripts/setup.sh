@@ -18,6 +18,8 @@ packages=(
   libmeshoptimizer-dev                           # the simplified isosurface drawn while the view moves
   libembree-dev                                  # the reference ray tracer's ray–triangle queries (Embree's BVH)
   libosmesa6-dev                                 # off-screen OpenGL 4.5 core through llvmpipe
+  pybind11-dev python3-dev python3-numpy         # the Python module (numpy arrays in, images and meshes out)
+  python3-pytest                                 # its tests
   libgtest-dev libbenchmark-dev                  # tests and micro-benchmarks
   clang-14 libfuzzer-14-dev                      # the fuzz targets (tests/fuzz) and their regression run
   gnuplot-nox                                    # the plot of `hybrid-octree bench` (speed/accuracy trade)

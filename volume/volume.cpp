@@ -107,7 +107,33 @@ Volume::Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, Sampl
   mSamples = std::make_shared<const SampleArray>(std::move(samples));
   mStored = hyb::storedType(*mSamples);
   mCount = expected;
-  mData = visitSamples([](const auto* d) { return static_cast<const void*>(d); });
+  mData = std::visit([](const auto& d) { return static_cast<const void*>(d.data()); }, *mSamples);
+  scanSamples(source);
+}
+
+Volume Volume::borrowing(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, ScalarType storedType, const void* data,
+                         std::shared_ptr<const void> owner, const std::string& source) {
+  validateDims(dims, source);
+  validateSpacing(spacing, source);
+  if (!(storedType == ScalarType::UInt8 || storedType == ScalarType::Int8 || storedType == ScalarType::UInt16 || storedType == ScalarType::Int16 ||
+        storedType == ScalarType::Float32))
+    HYB_THROW(ValueError, source, ": samples of type ", scalarName(storedType), " are held as float32 (expected uint8, int8, uint16, int16 or float32 to borrow)");
+  HYB_CHECK(data != nullptr);
+  Volume v;
+  v.mDims = dims;
+  v.mSpacing = spacing;
+  v.mSourceType = sourceType;
+  v.mStored = storedType;
+  v.mCount = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
+  v.mOwner = std::move(owner);
+  v.mData = data;
+  v.scanSamples(source);
+  return v;
+}
+
+void Volume::scanSamples(const std::string& source) {
+  const size_t expected = mCount;
+  const glm::ivec3 dims = mDims;
   float lo = std::numeric_limits<float>::max(), hi = -lo;
   bool finite = true;
   visitSamples([&](const auto* d) {
@@ -162,6 +188,7 @@ void Volume::attachSamples(SampleArray samples, const std::string& source) {
     HYB_THROW(ValueError, source, ": samples of type ", scalarName(full.mStored), " in [", full.mMin, ", ", full.mMax, "] for a volume of type ",
               scalarName(mStored), " in [", mMin, ", ", mMax, "]");
   mSamples = full.mSamples;
+  mOwner.reset();
   mData = full.mData;
 }
 

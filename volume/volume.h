@@ -128,6 +128,13 @@ class Volume {
          const std::string& source = "volume")
       : Volume(dims, spacing, sourceType, SampleArray(std::move(samples)), source) {}
 
+  /// Borrows @p data (the volume's samples of @p storedType, one of the SampleArray types, x
+  /// fastest) without copying them: @p owner keeps them alive and unchanged as long as this volume
+  /// and its copies (a numpy array a Python scene holds). Checked as the constructor checks them.
+  /// @throw ValueError as the constructor, or for a stored type no SampleArray holds.
+  static Volume borrowing(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, ScalarType storedType, const void* data,
+                          std::shared_ptr<const void> owner, const std::string& source = "volume");
+
   /// A volume whose samples are not in memory (a scene read through its knot store): its grid,
   /// types and range only. Reading a sample before attachSamples() is a caller error.
   /// @throw ValueError as the constructor, or for a range that is not finite.
@@ -138,7 +145,7 @@ class Volume {
   /// @throw ValueError naming @p source.
   Volume withRange(float minValue, float maxValue, const std::string& source) const;
   /// Whether the samples are in memory.
-  bool hasSamples() const { return mSamples != nullptr; }
+  bool hasSamples() const { return mData != nullptr; }
   /// Gives a volume made withoutSamples() its samples.
   /// @throw ValueError naming @p source when their count, type or range differs from the volume's.
   void attachSamples(SampleArray samples, const std::string& source);
@@ -160,13 +167,23 @@ class Volume {
   /// Smallest and largest sample.
   float minValue() const { return mMin; }
   float maxValue() const { return mMax; }
-  /// All samples, x fastest, in the stored type (shared by copies of this volume).
-  const SampleArray& samples() const { return *mSamples; }
+  /// All samples, x fastest, in the stored type (shared by copies of this volume). Not of a
+  /// borrowing volume (visitSamples reads either).
+  const SampleArray& samples() const {
+    HYB_CHECK(mSamples != nullptr);
+    return *mSamples;
+  }
   /// Calls @p f with a pointer to the samples in their stored type (const T*, T one of the
   /// SampleArray types): a loop over many samples converts each where it reads it.
   template <class F>
   decltype(auto) visitSamples(F&& f) const {
-    return std::visit([&](const auto& s) -> decltype(auto) { return f(s.data()); }, *mSamples);
+    switch (mStored) {
+      case ScalarType::UInt8: return f(static_cast<const uint8_t*>(mData));
+      case ScalarType::Int8: return f(static_cast<const int8_t*>(mData));
+      case ScalarType::UInt16: return f(static_cast<const uint16_t*>(mData));
+      case ScalarType::Int16: return f(static_cast<const int16_t*>(mData));
+      default: return f(static_cast<const float*>(mData));
+    }
   }
   bool empty() const { return mCount == 0; }
 
@@ -228,9 +245,13 @@ class Volume {
   glm::ivec3 mDims{0};
   glm::dvec3 mSpacing{1.0};
   ScalarType mSourceType = ScalarType::Float32;
-  std::shared_ptr<const SampleArray> mSamples;  // immutable, so copies share it
+  /// Checks the samples at mData (count, finite values) and sets the range.
+  void scanSamples(const std::string& source);
+
+  std::shared_ptr<const SampleArray> mSamples;  // immutable, so copies share it; none when borrowing
+  std::shared_ptr<const void> mOwner;           // what keeps borrowed samples alive
   ScalarType mStored = ScalarType::Float32;
-  const void* mData = nullptr;  // mSamples' data, for value()'s switch
+  const void* mData = nullptr;  // the samples (mSamples' or borrowed), for value()'s switch
   size_t mCount = 0;
   float mMin = 0.0f;
   float mMax = 0.0f;
