@@ -190,7 +190,6 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   // Across MPI ranks: this rank's region of the frame, composited with the others' by IceT.
   std::unique_ptr<RankFrame> rankFrame;
   if (ranks().mpi) {
-    if (job.quality.progressive > 1 || job.quality.adaptive > 0) throw ValueError("--progressive and --adaptive cannot run across MPI ranks");
     rankFrame = std::make_unique<RankFrame>(*job.renderer, job.view, job.look, &job.quality, o.input.progress);
   }
   // Progressive refinement: the images before the last (slices: coarser selections; the reference:
@@ -236,7 +235,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   }
   std::string ranksJson;
   if (rankFrame) {
-    out << rankFrame->report(frame, &ranksJson);
+    out << rankFrame->report(&ranksJson);
     if (!ranks().root()) return 0;  // rank 0 writes the frame
   }
   const FrameStats& st = frame.stats;

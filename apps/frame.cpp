@@ -372,7 +372,7 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
   return job;
 }
 
-void setUpFrame(const RenderOptions& o, const Scene& scene, RenderJob* out, std::ostream& err) {
+void setUpFrame(const RenderOptions& o, const Scene& scene, RenderJob* out, std::ostream& err, const TransferFunction* tf) {
   std::optional<Camera> fromFile;
   if (!o.cameraFile.empty()) fromFile = readCameraFile(o.cameraFile);
   RenderJob& job = *out;
@@ -380,7 +380,8 @@ void setUpFrame(const RenderOptions& o, const Scene& scene, RenderJob* out, std:
   const PatientFrame& frame = v.frame();
   // What is shown: the transfer function from a file, a preset, or chosen for the data's range.
   Look& look = job.look;
-  look.tf = !o.tfFile.empty()   ? TransferFunction::fromFile(o.tfFile)
+  look.tf = tf                  ? *tf
+            : !o.tfFile.empty() ? TransferFunction::fromFile(o.tfFile)
             : !o.preset.empty() ? TransferFunction::preset(o.preset)
                                 : TransferFunction::defaultFor(v.minValue(), v.maxValue());
   if (o.iso) {

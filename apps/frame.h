@@ -160,7 +160,8 @@ ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string
 /// function (file, preset, or one for the data's range) and the camera (a file's, the --eye given,
 /// or the view framing what is visible), warnings (an isovalue outside the data) on @p err.
 /// @throw ValueError naming the flag, IoError naming a camera or transfer-function file.
-void setUpFrame(const RenderOptions& o, const Scene& scene, RenderJob* job, std::ostream& err);
+/// @p tf, when given, replaces the flags' transfer function (the camera frames what it shows).
+void setUpFrame(const RenderOptions& o, const Scene& scene, RenderJob* job, std::ostream& err, const TransferFunction* tf = nullptr);
 
 /// One line on the surface of a frame that built or reconstructed it (empty when it was kept).
 std::string surfaceLine(const FrameStats& stats, float iso, bool fromScene);

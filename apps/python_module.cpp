@@ -10,7 +10,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <atomic>
+#include <mutex>
 #include <set>
+#include <thread>
 #include <sstream>
 
 #include "apps/frame.h"
@@ -78,6 +81,8 @@ Volume volumeOf(const py::array& array, const glm::dvec3& spacing) {
     HYB_THROW(ValueError, "expected a 3-D array indexed (z, y, x), got ", array.ndim(), "-D");
   if (!(array.flags() & py::array::c_style))
     HYB_THROW(ValueError, "expected a C-contiguous array indexed (z, y, x) (numpy.ascontiguousarray makes one; a Fortran-ordered array is (x, y, z) reversed)");
+  if (!py::cast<bool>(array.attr("flags").attr("aligned")))
+    HYB_THROW(ValueError, "expected an aligned array (array.copy() makes one)");
   const ScalarType type = scalarOf(array.dtype());
   const glm::ivec3 dims(int(array.shape(2)), int(array.shape(1)), int(array.shape(0)));
   if (array.shape(0) > INT32_MAX || array.shape(1) > INT32_MAX || array.shape(2) > INT32_MAX) HYB_THROW(ValueError, "array too large along an axis");
@@ -103,7 +108,8 @@ Volume volumeOf(const py::array& array, const glm::dvec3& spacing) {
 std::string flagValue(const py::handle& v) {
   if (py::isinstance<py::str>(v)) return py::cast<std::string>(v);
   if (py::isinstance<py::bool_>(v)) return py::cast<bool>(v) ? "on" : "off";
-  if (py::isinstance<py::int_>(v) || py::isinstance<py::float_>(v)) {
+  if (py::isinstance<py::array>(v) && py::cast<py::array>(v).ndim() == 0) return flagValue(v.attr("item")());
+  if (!py::hasattr(v, "__iter__") && PyNumber_Check(v.ptr())) {  // Python's and numpy's numbers
     std::ostringstream s;
     s.precision(17);
     s << py::cast<double>(v);
@@ -146,6 +152,13 @@ py::dict statsOf(const RenderedFrame& f) {
   d["budget_met"] = f.selection.budgetMet;
   d["preintegration_ms"] = s.preintegrationMs;
   return d;
+}
+
+// Each line of @p text (the command line's warnings) as a Python UserWarning.
+void warnLines(const std::string& text) {
+  std::istringstream lines(text);
+  for (std::string line; std::getline(lines, line);)
+    if (!line.empty()) PyErr_WarnEx(PyExc_UserWarning, line.c_str(), 1);
 }
 
 class PyScene {
@@ -221,12 +234,12 @@ class PyScene {
     if (const std::string e = o.validate(); !e.empty() && e.rfind("-o", 0) != 0) throw ValueError(e);
     RenderJob job;
     std::ostringstream warnings;
-    setUpFrame(o, mRenderer->scene(), &job, warnings);
-    if (tf) job.look.tf = *tf;
-    warn(warnings.str());
+    setUpFrame(o, mRenderer->scene(), &job, warnings, tf ? &*tf : nullptr);
+    warnLines(warnings.str());
     RenderedFrame frame;
     {
       py::gil_scoped_release release;
+      const Busy busy(*this);
       try {
         frame = mRenderer->render(job.view, job.look, job.quality);
       } catch (const Interrupted&) {
@@ -265,16 +278,44 @@ class PyScene {
     writeMesh(path, e.mesh, MeshWriteOptions{normals, "LPS"});
   }
 
+  /// Builds the isosurface of @p iso now and keeps it for frames (Scene(iso=...)).
+  void prepareSurface(double iso) {
+    checkIso(iso);
+    py::gil_scoped_release release;
+    const Busy busy(*this);
+    mRenderer->surface(float(iso), SurfaceNormals::Gradient);
+  }
+
  private:
+  // One call at a time on a scene's engine (not thread-safe): a second thread waits; a call from
+  // inside a frame (a signal handler's) is refused rather than deadlocking.
+  struct Busy {
+    PyScene& s;
+    explicit Busy(PyScene& scene) : s(scene) {
+      if (s.mOwner.load() == std::this_thread::get_id()) HYB_THROW(RuntimeError, "the scene is drawing a frame on this thread (from a signal handler?)");
+      s.mMutex.lock();
+      s.mOwner = std::this_thread::get_id();
+    }
+    ~Busy() {
+      s.mOwner = std::thread::id();
+      s.mMutex.unlock();
+    }
+  };
+
+  static void checkIso(double iso) {
+    if (!std::isfinite(iso) || std::abs(iso) > 3.4e38) HYB_THROW(ValueError, "iso must be a finite number within the float range");
+  }
+
   static inline const std::set<std::string> kAllowed = {
       "view", "orbit", "eye", "center", "up", "zoom", "fov", "preset", "iso", "surface_color", "surface_normals", "shading", "cut", "cut_line",
       "voi", "voi_inside", "voi_outside", "voi_ramp", "renderer", "epsilon", "budget", "step", "classification", "proxy", "blend", "lod_pixels",
       "max_brick", "texel_bits", "focus", "camera_file", "marker"};
 
   ExportedSurface exported(double iso, const std::string& kind, bool closed, bool normals) {
-    if (!std::isfinite(iso) || std::abs(iso) > 3.4e38) HYB_THROW(ValueError, "iso must be a finite number within the float range");
+    checkIso(iso);
     std::ostringstream out;
     py::gil_scoped_release release;
+    const Busy busy(*this);
     return exportedSurface(mRenderer->scene(), float(iso), kind, closed, normals, nullptr, out);
   }
 
@@ -289,12 +330,6 @@ class PyScene {
     return TransferFunction(std::move(points), "array");
   }
 
-  static void warn(const std::string& text) {
-    std::istringstream lines(text);
-    for (std::string line; std::getline(lines, line);)
-      if (!line.empty()) PyErr_WarnEx(PyExc_UserWarning, line.c_str(), 1);
-  }
-
   // From the frame's progress (the rendering thread, the GIL released): a pending signal's
   // exception (KeyboardInterrupt) stops the frame. Only the main thread runs signal handlers.
   static void checkSignals() {
@@ -303,6 +338,8 @@ class PyScene {
   }
 
   std::string mSource;
+  std::mutex mMutex;
+  std::atomic<std::thread::id> mOwner{};
   std::unique_ptr<Progress> mProgress;
   std::unique_ptr<SceneRenderer> mRenderer;
 };
@@ -332,7 +369,7 @@ std::unique_ptr<PyScene> sceneFromArray(const py::array& array, const py::object
   }
   scene.volume = std::move(volume);
   auto s = std::make_unique<PyScene>(std::move(scene), "numpy array");
-  if (!iso.is_none()) s->surface(py::cast<double>(iso), "octree", false, false);
+  if (!iso.is_none()) s->prepareSurface(py::cast<double>(iso));
   return s;
 }
 
@@ -346,9 +383,7 @@ std::unique_ptr<PyScene> openScene(const std::string& path) {
     py::gil_scoped_release release;
     scene = loadOrBuild(in, out, err, &buildMs);
   }
-  std::istringstream lines(err.str());
-  for (std::string line; std::getline(lines, line);)
-    if (!line.empty()) PyErr_WarnEx(PyExc_UserWarning, line.c_str(), 1);
+  warnLines(err.str());
   return std::make_unique<PyScene>(std::move(scene), path);
 }
 
@@ -365,6 +400,8 @@ PYBIND11_MODULE(hybrid_octree, m) {
       PyErr_SetString(PyExc_ValueError, e.what());
     } catch (const hyb::IoError& e) {
       PyErr_SetString(PyExc_OSError, e.what());
+    } catch (const hyb::RuntimeError& e) {
+      PyErr_SetString(PyExc_RuntimeError, e.what());
     }
   });
   py::class_<PyScene>(m, "Scene")

@@ -5,6 +5,7 @@
 #include <sys/resource.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <cstdlib>
 #include <iomanip>
 #include <numeric>
@@ -80,7 +81,6 @@ struct RankFrame::State {
   IceTContext context = nullptr;
   std::vector<double> renderMs, waitMs, compositeMs;
   double cost = 0;
-  uint64_t selection = 0;  // its hash
 };
 
 RankFrame::RankFrame(SceneRenderer& renderer, const View& view, const Look& look, Quality* quality, const Progress* progress)
@@ -92,11 +92,15 @@ RankFrame::RankFrame(SceneRenderer& renderer, const View& view, const Look& look
   quality->region = m->split.regions.boxes[size_t(gRanks.rank)];
   m->cost = m->split.regions.cost[size_t(gRanks.rank)];
   // The same selection in every rank, or the regions would not make one frame.
-  m->selection = selectionHash(m->split.selection);
-  uint64_t lo = 0, hi = 0;
-  MPI_Allreduce(&m->selection, &lo, 1, MPI_UINT64_T, MPI_MIN, MPI_COMM_WORLD);
-  MPI_Allreduce(&m->selection, &hi, 1, MPI_UINT64_T, MPI_MAX, MPI_COMM_WORLD);
-  if (lo != hi) HYB_THROW(RuntimeError, "the MPI ranks selected different bricks for one frame (rank ", gRanks.rank, " of ", gRanks.size, ")");
+  const uint64_t hash = selectionHash(m->split.selection);
+  std::vector<uint64_t> hashes(size_t(gRanks.size));
+  MPI_Allgather(&hash, 1, MPI_UINT64_T, hashes.data(), 1, MPI_UINT64_T, MPI_COMM_WORLD);
+  std::string differ;
+  for (int r = 1; r < gRanks.size; ++r)
+    if (hashes[size_t(r)] != hashes[0]) differ += (differ.empty() ? "" : ", ") + std::to_string(r);
+  if (!differ.empty()) HYB_THROW(RuntimeError, "MPI ranks ", differ, " of ", gRanks.size, " selected other bricks than rank 0 for one frame");
+  // Every rank draws its part of that selection, not one it would make again.
+  if (quality->renderer == Renderer::Slices) quality->selection = std::make_shared<const Selection>(m->split.selection);
   m->comm = icetCreateMPICommunicator(MPI_COMM_WORLD);
   m->context = icetCreateContext(m->comm);
   icetDiagnostics(ICET_DIAG_ERRORS | ICET_DIAG_ALL_NODES);
@@ -118,8 +122,6 @@ RankFrame::~RankFrame() {
 }
 
 void RankFrame::composite(RenderedFrame* frame) {
-  if (frame->stats.renderer == Renderer::Slices && selectionHash(frame->selection) != m->selection)
-    HYB_THROW(RuntimeError, "rank ", gRanks.rank, " drew another selection than the one its region was split from");
   // The whole frame's counts, in every rank.
   SlicesStats& sl = frame->stats.slices;
   RaycastStats& ra = frame->stats.rays;
@@ -165,13 +167,14 @@ void RankFrame::composite(RenderedFrame* frame) {
   m->compositeMs.push_back(msSince(t0));
 }
 
-std::string RankFrame::report(const RenderedFrame& frame, std::string* json) {
+std::string RankFrame::report(std::string* json) {
   RankLine mine;
   const RegionBox& box = m->split.regions.boxes[size_t(gRanks.rank)];
-  for (size_t b = 0; b < frame.selection.bricks.size(); ++b)
-    if (m->split.regions.brickRegion[b] == uint32_t(gRanks.rank) && !frame.selection.bricks[b].hidden) {
+  const Selection& selection = m->split.selection;  // the reference's frames carry none
+  for (size_t b = 0; b < selection.bricks.size(); ++b)
+    if (m->split.regions.brickRegion[b] == uint32_t(gRanks.rank) && !selection.bricks[b].hidden) {
       ++mine.bricks;
-      mine.texels += double(frame.selection.bricks[b].texelCount());
+      mine.texels += double(selection.bricks[b].texelCount());
     }
   if (const auto& store = m->renderer->scene().knots) mine.blocksRead = double(store->cacheStats().misses);
   // The best frame's times (--repeat).
@@ -235,13 +238,17 @@ RenderedFrame renderFrame(SceneRenderer& renderer, const View& view, const Look&
   return renderer.render(view, look, quality);
 }
 
-Ranks startRanks(int*, char***) { return gRanks; }
+Ranks startRanks(int*, char***) {
+  if (std::getenv("OMPI_COMM_WORLD_SIZE") || std::getenv("PMI_SIZE") || std::getenv("PMIX_RANK"))
+    std::fprintf(stderr, "hybrid-octree: warning: started by an MPI launcher, but built without MPI (-DHYB_MPI=ON): each process runs the whole command\n");
+  return gRanks;
+}
 void endRanks(const Ranks&, int) {}
 struct RankFrame::State {};
 RankFrame::RankFrame(SceneRenderer&, const View&, const Look&, Quality*, const Progress*) { HYB_THROW(ValueError, "this build has no MPI (configure with -DHYB_MPI=ON)"); }
 RankFrame::~RankFrame() = default;
 void RankFrame::composite(RenderedFrame*) {}
-std::string RankFrame::report(const RenderedFrame&, std::string*) { return ""; }
+std::string RankFrame::report(std::string*) { return ""; }
 
 #endif
 

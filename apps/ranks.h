@@ -47,7 +47,7 @@ class RankFrame {
   void composite(RenderedFrame* frame);
   /// What each rank did and how long it took, one line each, and the balance (collective; the
   /// text on rank 0, empty elsewhere). @p json receives the same per rank on rank 0.
-  std::string report(const RenderedFrame& frame, std::string* json);
+  std::string report(std::string* json);
 
  private:
   struct State;

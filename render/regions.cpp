@@ -195,6 +195,10 @@ TriangleMesh cutMeshToRegion(const TriangleMesh& mesh, const RegionBox& box) {
       for (uint32_t t = starts[f]; t < starts[f + 1]; ++t)
         out.triangles.push_back({keep(mesh.triangles[t].x), keep(mesh.triangles[t].y), keep(mesh.triangles[t].z)});
     } else {
+      // Flat on an axis and lying on a face of the box: the region holding that plane (half-open) draws it.
+      bool onOtherSide = false;
+      for (int a = 0; a < 3; ++a) onOtherSide |= lo[a] == hi[a] && !(box.lo[a] <= lo[a] && lo[a] < box.hi[a]);
+      if (onOtherSide) continue;
       for (uint32_t t = starts[f]; t < starts[f + 1]; ++t) {
         poly.clear();
         for (int k = 0; k < 3; ++k) {

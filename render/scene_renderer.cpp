@@ -435,6 +435,11 @@ Selection SceneRenderer::select(const View& view, const Look& look, const Qualit
 SceneRenderer::SortLast SceneRenderer::sortLast(const View& view, const Look& look, const Quality& quality, int parts) {
   Quality whole = quality;
   whole.region.reset();
+  whole.selection.reset();
+  if (quality.renderer == Renderer::Raycast) {  // bricks to balance the regions by, not to draw: no budget to measure
+    whole.budgetMb = 0.0;
+    whole.budgetPercent = 0.0;
+  }
   SortLast out{select(view, look, whole), {}, {}};
   out.regions = splitSelection(mScene.octree, volume().spacing(), out.selection, parts);
   const Camera c = gridParts(view, look).camera;
@@ -465,13 +470,14 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
 
 const TriangleMesh& SceneRenderer::regionSurface(const TriangleMesh& mesh, const RegionBox& region) {
   RegionSurface& r = mRegionSurface;
-  if (r.from != &mesh || r.triangles != mesh.triangles.size() || !(r.box == region)) {
+  if (r.from != &mesh || r.triangles != mesh.triangles.size() || r.vertices != mesh.vertices.size() || !(r.box == region)) {
     r.mesh = cutMeshToRegion(mesh, region);
     for (auto& kept : mSurfaces)  // a ray tracer's BVH made for the mesh this one replaces
       for (int k = 0; k < 2; ++k)
         if (kept->bvhMesh[k] == &r.mesh) kept->bvhMesh[k] = nullptr;
     r.from = &mesh;
     r.triangles = mesh.triangles.size();
+    r.vertices = mesh.vertices.size();
     r.box = region;
   }
   return r.mesh;
@@ -547,7 +553,7 @@ void SceneRenderer::renderSlicesFrame(const GridParts& g, const Look& look, cons
   // The selection: ε and the budget for this view.
   const auto s0 = Clock::now();
   const SelectionParams params = selectionParams(g, look, quality, &st);
-  out->selection = selectNodes(mScene.octree, params);
+  out->selection = quality.selection ? *quality.selection : selectNodes(mScene.octree, params);
   if (!quality.waitForBricks && (mScene.knots || quality.packTexels > 0)) st.bricksNotResident = drawResident(g.camera, quality.packTexels, &out->selection);
   st.selectMs = msSince(s0);
 

@@ -121,6 +121,9 @@ struct Quality {
   /// packed by the frames after (Carmona et al.: the cut moves towards the new one frame by frame,
   /// so a moving frame that meets many new bricks costs about what the one before did).
   uint64_t packTexels = 0;
+  /// The selection select() made for this very frame (a sort-last frame's, shared by its ranks),
+  /// drawn instead of selecting again; none: the frame selects.
+  std::shared_ptr<const Selection> selection;
   /// A sort-last frame's region (grid frame mm, render/regions.h), or none: the frame draws only
   /// what lies in it (slices: its bricks; the reference: its segments; both: the surface cut to
   /// it), on the whole frame's sample planes, so that the regions' images composited front to back
@@ -342,7 +345,7 @@ class SceneRenderer {
   TransferFunction mPreintegrationTf;
   struct RegionSurface {
     const TriangleMesh* from = nullptr;
-    size_t triangles = 0;  // of `from`, which an entry's remaking may reuse the address of
+    size_t triangles = 0, vertices = 0;  // of `from`, whose address a remade entry may reuse
     RegionBox box;
     TriangleMesh mesh;
   } mRegionSurface;  // the last sort-last frame's

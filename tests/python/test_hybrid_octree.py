@@ -241,3 +241,32 @@ def test_a_render_stops_at_ctrl_c():
         scene.render(renderer="raycast", step=0.02, size=(1024, 1024))  # about a minute uninterrupted
     assert time.monotonic() - start < 10.0
     assert scene.render(size=(32, 32)).shape == (32, 32, 4)  # and the scene still renders
+
+
+def test_numpy_scalars_a_kept_surface_and_two_threads():
+    a = blobs()
+    scene = ho.Scene(a, iso=500)
+    assert scene.info()["surfaces"] == [500.0]  # built at construction, kept for frames
+    one = scene.render(size=(48, 48), iso=a.max() // 2, zoom=np.float32(1.5))  # numpy scalars as flag values
+    assert one.shape == (48, 48, 4)
+    # Two threads on one scene take turns: each gets the frame it would get alone.
+    alone = scene.render(size=(40, 40), orbit=(10, 10))
+    images = [None, None]
+
+    def draw(k):
+        images[k] = scene.render(size=(40, 40), orbit=(10, 10))
+
+    threads = [threading.Thread(target=draw, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert all(np.array_equal(i, alone) for i in images)
+
+
+def test_a_misaligned_array_is_refused():
+    buf = np.zeros(2 * 4 * 4 * 4 + 1, np.uint8)
+    a = np.frombuffer(buf.data, dtype="<u2", count=64, offset=1).reshape(4, 4, 4)
+    assert not a.flags.aligned
+    with pytest.raises(ValueError, match="aligned"):
+        ho.Scene(a)
