@@ -344,6 +344,9 @@ void RenderOptions::add(CLI::App* cmd) {
                             {{"post", Classification::Post}, {"preintegrated", Classification::PreIntegrated}},
                             "post-classified samples (default) or segments pre-integrated between their ends' values (finds narrow transfer-function "
                             "features between samples; two brick reads a fragment)");
+  cmd->add_option("--image-scale", quality.imageScale,
+                  "render at this fraction of --size and magnify bilinearly (as VTK's image sample distance 1/S); 1 renders every pixel")
+      ->capture_default_str();
   cmd->add_option("--step", quality.step, "slice / sample spacing in voxels (default 0.5 for slices, 0.25 for raycast)");
   cmd->add_option("--lod-pixels", quality.lodPixels, "stop refining where texels are at most this many pixels apart on screen, and draw the surface with its vertices clustered by the largest cubes no wider (0 = off: full resolution)")
       ->capture_default_str();

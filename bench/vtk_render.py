@@ -64,6 +64,8 @@ def main():
     parser.add_argument("--hybrid-octree", default="build/hybrid-octree")
     parser.add_argument("--images", help="keep every image here (default: a temporary folder)")
     parser.add_argument("--steps", default="0.5,1,1.6,2,3,4", help="our slice spacings, voxels")
+    parser.add_argument("--image-scales", default="0.5,0.75", help="our slices at these fractions of the image's size, magnified")
+    parser.add_argument("--scaled-steps", default="1.2,1.6,2,3", help="their slice spacings, voxels")
     parser.add_argument("--ray-steps", default="0.5,1,2", help="the reference ray tracer's sample spacings, voxels")
     parser.add_argument("--vtk-distances", default="0.5,1,2,4", help="VTK's sample distances, in smallest voxel spacings")
     parser.add_argument("--volpack", help="hyb_volpack: add the orthographic comparison with VolPack")
@@ -209,6 +211,12 @@ def main():
             curves.append((f"hybrid-octree slices, {mode}", look, [
                 (f"--step {st}", f"ours_{look}_{mode}_{st}", ours(f"ours_{look}_{mode}_{st}", extra + ["--step", st, "--classification", mode]))
                 for st in args.steps.split(",")]))
+        # A frame at a fraction of its size, magnified (--image-scale), in 32-texel bricks (fewer draws).
+        for scale in args.image_scales.split(","):
+            curves.append((f"hybrid-octree slices, post, --image-scale {scale} --max-brick 32", look, [
+                (f"--step {st}", f"ours_{look}_scale{scale}_{st}",
+                 ours(f"ours_{look}_scale{scale}_{st}", extra + ["--step", st, "--image-scale", scale, "--max-brick", "32"]))
+                for st in args.scaled_steps.split(",")]))
         curves.append(("hybrid-octree reference ray tracer", look, [
             (f"--step {st}", f"rays_{look}_{st}", ours(f"rays_{look}_{st}", extra + ["--renderer", "raycast", "--step", st]))
             for st in args.ray_steps.split(",")]))

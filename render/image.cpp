@@ -15,6 +15,25 @@
 
 namespace hyb {
 
+Image resampled(const Image& image, int width, int height) {
+  Image out(width, height);
+  if (image.width <= 0 || image.height <= 0) return out;
+  const double sx = double(image.width) / width, sy = double(image.height) / height;
+  for (int y = 0; y < height; ++y) {
+    const double fy = std::clamp((y + 0.5) * sy - 0.5, 0.0, double(image.height - 1));
+    const int y0 = int(fy), y1 = std::min(y0 + 1, image.height - 1);
+    const float ty = float(fy - y0);
+    for (int x = 0; x < width; ++x) {
+      const double fx = std::clamp((x + 0.5) * sx - 0.5, 0.0, double(image.width - 1));
+      const int x0 = int(fx), x1 = std::min(x0 + 1, image.width - 1);
+      const float tx = float(fx - x0);
+      const glm::vec4 top = glm::mix(image.at(x0, y0), image.at(x1, y0), tx), bottom = glm::mix(image.at(x0, y1), image.at(x1, y1), tx);
+      out.at(x, y) = glm::mix(top, bottom, ty);
+    }
+  }
+  return out;
+}
+
 std::vector<uint8_t> toRgba8(const Image& image, const glm::vec3& background) {
   std::vector<uint8_t> out(image.pixels.size() * 4);
   for (size_t i = 0; i < image.pixels.size(); ++i) {

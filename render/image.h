@@ -19,6 +19,11 @@ struct Image {
   const glm::vec4& at(int x, int y) const { return pixels[size_t(y) * size_t(width) + size_t(x)]; }
 };
 
+/// @p image resampled to @p width × @p height by bilinear interpolation of its premultiplied
+/// pixels, pixel centres aligned (a source pixel's centre at (x + ½)·w/W − ½ of the result's): a
+/// frame rendered at a fraction of its size, magnified (Quality::imageScale).
+Image resampled(const Image& image, int width, int height);
+
 /// Composites @p image over an opaque @p background and rounds to 8 bits: what the PNG holds.
 std::vector<uint8_t> toRgba8(const Image& image, const glm::vec3& background);
 

@@ -96,6 +96,8 @@ std::string Quality::validate() const {
   if (adaptive > 0 && renderer != Renderer::Raycast) return "--adaptive needs --renderer raycast (Levoy's adaptive refinement of the reference's rays)";
   if (focus && !(std::isfinite(focus->x) && std::isfinite(focus->y) && std::isfinite(focus->z))) return "--focus must be three finite coordinates";
   if (!(std::isfinite(surfaceErrorPixels) && surfaceErrorPixels >= 0)) return "surface error must be a finite number of pixels >= 0";
+  if (!(imageScale > 0.0 && imageScale <= 1.0)) return "--image-scale must be in (0, 1] (a fraction of the image's size)";
+  if (imageScale < 1.0 && rows) return "--image-scale cannot render a band of rows";
   if (region && (progressive > 1 || adaptive > 0)) return "a region of a sort-last frame cannot be rendered progressively (--progressive, --adaptive)";
   SelectionParams limits;  // the selection's own checks: the brick edge and the screen-space stop
   limits.maxBrickEdge = maxBrickEdge;
@@ -455,6 +457,22 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     if (!(rows.x >= 0 && rows.x < rows.y && rows.y <= view.camera.height))
       HYB_THROW(ValueError, "rows ", rows.x, "..", rows.y, " invalid (expected 0 <= first < last <= ", view.camera.height, ")");
     if (quality.progressive > 1 || quality.adaptive > 0) HYB_THROW(ValueError, "a band of rows cannot be rendered progressively");
+  }
+  if (quality.imageScale < 1.0) {
+    // Rendered smaller, then magnified: each image of a progressive frame too.
+    const int W = view.camera.width, H = view.camera.height;
+    View small = view;
+    small.camera.width = std::max(1, int(std::lround(W * quality.imageScale)));
+    small.camera.height = std::max(1, int(std::lround(H * quality.imageScale)));
+    Quality whole = quality;
+    whole.imageScale = 1.0;
+    LevelCallback magnified;
+    if (onLevel) magnified = [&](int level, int levels, const Image& image, const FrameStats& st) { onLevel(level, levels, resampled(image, W, H), st); };
+    RenderedFrame f = render(small, look, whole, magnified);
+    const auto t0 = Clock::now();
+    f.image = resampled(f.image, W, H);
+    f.stats.renderMs += msSince(t0);
+    return f;
   }
   RenderedFrame out;
   out.stats.renderer = quality.renderer;

@@ -124,6 +124,11 @@ struct Quality {
   /// The selection select() made for this very frame (a sort-last frame's, shared by its ranks),
   /// drawn instead of selecting again; none: the frame selects.
   std::shared_ptr<const Selection> selection;
+  /// Renders at this fraction of the image's width and height and magnifies the result bilinearly
+  /// (render/image.h resampled), as VTK's image sample distance 1/imageScale does: where a pixel
+  /// is smaller than a voxel's footprint the frame costs a fraction of its fragments, and the
+  /// magnification smooths the slices' aliasing. 1: every pixel rendered.
+  double imageScale = 1.0;
   /// A sort-last frame's region (grid frame mm, render/regions.h), or none: the frame draws only
   /// what lies in it (slices: its bricks; the reference: its segments; both: the surface cut to
   /// it), on the whole frame's sample planes, so that the regions' images composited front to back

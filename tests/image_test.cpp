@@ -47,3 +47,29 @@ TEST(Image, SsimOfIdenticalConstantAndNoisyImages) {
 
 }  // namespace
 }  // namespace hyb
+
+namespace hyb {
+namespace {
+
+// Bilinear magnification with aligned pixel centres reproduces a linear ramp exactly between the
+// outer source centres, and a constant everywhere.
+TEST(Image, ResampledRampsAreExactBetweenTheOuterCentres) {
+  Image ramp(8, 6);
+  for (int y = 0; y < 6; ++y)
+    for (int x = 0; x < 8; ++x) ramp.at(x, y) = glm::vec4(0.1f * float(x), 0.05f * float(y), 0.5f, 0.25f + 0.02f * float(x + y));
+  const Image big = resampled(ramp, 32, 24);
+  ASSERT_EQ(big.width, 32);
+  ASSERT_EQ(big.height, 24);
+  for (int y = 0; y < 24; ++y)
+    for (int x = 0; x < 32; ++x) {
+      // The source position of this pixel's centre, clamped to the outer centres.
+      const float sx = std::clamp((float(x) + 0.5f) / 4.0f - 0.5f, 0.0f, 7.0f), sy = std::clamp((float(y) + 0.5f) / 4.0f - 0.5f, 0.0f, 5.0f);
+      const glm::vec4 want(0.1f * sx, 0.05f * sy, 0.5f, 0.25f + 0.02f * (sx + sy));
+      for (int c = 0; c < 4; ++c) EXPECT_NEAR(big.at(x, y)[c], want[c], 1e-6f) << x << "," << y;
+    }
+  const Image same = resampled(ramp, 8, 6);
+  for (size_t i = 0; i < same.pixels.size(); ++i) EXPECT_EQ(same.pixels[i], ramp.pixels[i]);
+}
+
+}  // namespace
+}  // namespace hyb

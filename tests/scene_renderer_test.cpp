@@ -497,6 +497,42 @@ TEST(SceneRenderer, TextureMemoryStaysWithinItsLimitAcrossFrames) {
   EXPECT_EQ(limited.render(front, look, coarse).image.pixels, full.image.pixels);
 }
 
+// A frame at a fraction of its size is the small frame magnified, for both renderers, and the
+// fraction is checked.
+TEST(SceneRenderer, AFrameAtAFractionOfItsSizeIsTheSmallFrameMagnified) {
+  test::gl();
+  SceneRenderer r(sphereScene());
+  const Look look = surfaceAtZero();
+  View view = viewFrom(30, r.volume(), 48);
+  View small = view;
+  small.camera.width = small.camera.height = 24;
+  for (const Renderer renderer : {Renderer::Slices, Renderer::Raycast}) {
+    Quality q;
+    q.renderer = renderer;
+    q.step = 1.0;
+    const Image smallImage = r.render(small, look, q).image;
+    q.imageScale = 0.5;
+    const Image scaled = r.render(view, look, q).image;
+    ASSERT_EQ(scaled.width, 48);
+    const Image want = resampled(smallImage, 48, 48);
+    for (size_t i = 0; i < want.pixels.size(); ++i) ASSERT_EQ(scaled.pixels[i], want.pixels[i]) << i;
+  }
+  for (const double bad : {0.0, 1.5, std::nan("")}) {
+    Quality q;
+    q.imageScale = bad;
+    try {
+      r.render(view, look, q);
+      ADD_FAILURE() << "image scale " << bad << " was accepted";
+    } catch (const ValueError& e) {
+      EXPECT_THAT(e.what(), HasSubstr("--image-scale"));
+    }
+  }
+  Quality band;
+  band.imageScale = 0.5;
+  band.rows = glm::ivec2(0, 10);
+  EXPECT_THROW(r.render(view, look, band), ValueError);
+}
+
 TEST(SceneRenderer, ProgressiveFramesAndValidation) {
   test::gl();
   SceneRenderer r(sphereScene());
