@@ -28,10 +28,11 @@ class Scene:
         float32). spacing: (sx, sy, sz) mm (default 1); origin: LPS mm of voxel (0, 0, 0); direction:
         3x3 whose columns are the x, y and z axes in LPS (SimpleITK's GetDirection() reshaped to 3x3).
         iso: build that isosurface now. ValueError or TypeError name what was expected."""
-    def info(self) -> dict[str, Any]:
+    def info(self, bins: int = 24) -> dict[str, Any]:
         """What `hybrid-octree info` prints: dims (x, y, z), shape (z, y, x), spacing, type,
         stored_type, min, max, origin, direction (rows), orientation, bytes, octree_nodes, the
-        surfaces built, and the text."""
+        surfaces built, the text, and the histogram (counts in `bins` equal bins, min, max, mean,
+        stddev, p01, p50, p99)."""
     @overload
     def render(self, *, stats: Literal[False] = ..., **options: Any) -> npt.NDArray[np.uint8]: ...
     @overload

@@ -168,7 +168,8 @@ class PyScene {
     mRenderer = std::make_unique<SceneRenderer>(std::move(scene), SceneRenderer::Options{0, mProgress.get(), true});
   }
 
-  py::dict info() const {
+  py::dict info(int bins) {
+    if (bins < 1 || bins > 4096) HYB_THROW(ValueError, "bins must be in 1..4096");
     const Scene& s = mRenderer->scene();
     const Volume& v = s.volume;
     py::dict d;
@@ -190,6 +191,14 @@ class PyScene {
     d["octree_nodes"] = s.octree.nodes().size();
     d["surfaces"] = mRenderer->surfaceIsos();
     d["text"] = v.toString();
+    Histogram h;
+    {
+      py::gil_scoped_release release;
+      const Busy busy(*this);
+      h = computeHistogram(v, bins);
+    }
+    d["histogram"] = py::dict(py::arg("counts") = h.counts, py::arg("min") = h.minValue, py::arg("max") = h.maxValue, py::arg("mean") = h.mean,
+                              py::arg("stddev") = h.stddev, py::arg("p01") = h.p01, py::arg("p50") = h.p50, py::arg("p99") = h.p99);
     return d;
   }
 
@@ -407,7 +416,7 @@ PYBIND11_MODULE(hybrid_octree, m) {
   py::class_<PyScene>(m, "Scene")
       .def(py::init(&sceneFromArray), py::arg("array"), py::arg("spacing") = py::none(), py::arg("origin") = py::none(),
            py::arg("direction") = py::none(), py::arg("iso") = py::none())
-      .def("info", &PyScene::info)
+      .def("info", &PyScene::info, py::arg("bins") = 24)
       .def("render", &PyScene::render)
       .def("surface", &PyScene::surface, py::arg("iso"), py::arg("kind") = "octree", py::arg("closed") = false, py::arg("normals") = false)
       .def("export", &PyScene::exportMesh, py::arg("path"), py::arg("iso"), py::arg("kind") = "dmc", py::arg("closed") = false,

@@ -190,6 +190,9 @@ def test_info_says_what_the_command_line_says(volume):
     assert info["origin"] == pytest.approx(origin)
     assert np.allclose(info["direction"], direction)
     assert info["min"] == a.min() and info["max"] == a.max()
+    h = ho.Scene(a).info(bins=10)["histogram"]
+    assert sum(h["counts"]) == a.size and len(h["counts"]) == 10
+    assert h["mean"] == pytest.approx(a.mean(), rel=1e-6) and h["p50"] == np.percentile(a, 50, method="lower")
     text = cli("info", path)
     assert info["orientation"] in text
     assert ho.open(str(path)).info()["dims"] == (64, 56, 48)
