@@ -93,3 +93,32 @@ TEST(FileUtil, AtomicWriteLeavesNothingBehindOnFailure) {
 
 }  // namespace
 }  // namespace hyb
+
+namespace hyb {
+namespace {
+
+// A volume over samples it does not own reads them in place, keeps their owner alive, and checks
+// them as the owning constructor does.
+TEST(Volume, ABorrowingVolumeReadsItsOwnersSamplesInPlace) {
+  auto owner = std::make_shared<std::vector<int16_t>>(std::vector<int16_t>{-5, 3, 7, 100, 0, 1, 2, 9});
+  {
+    const Volume v = Volume::borrowing({2, 2, 2}, glm::dvec3(1.0), ScalarType::Int16, ScalarType::Int16, owner->data(), owner, "borrowed");
+    EXPECT_EQ(owner.use_count(), 2);
+    EXPECT_TRUE(v.hasSamples());
+    EXPECT_EQ(v.at(1, 1, 0), 100.0f);
+    EXPECT_EQ(v.minValue(), -5.0f);
+    EXPECT_EQ(v.maxValue(), 100.0f);
+    v.visitSamples([&](const auto* d) { EXPECT_EQ(static_cast<const void*>(d), static_cast<const void*>(owner->data())); });
+    const Volume copy = v;  // copies share the owner
+    EXPECT_EQ(owner.use_count(), 3);
+  }
+  EXPECT_EQ(owner.use_count(), 1);
+  std::vector<float> bad{1.0f, std::nanf(""), 0, 0, 0, 0, 0, 0};
+  EXPECT_THROW(Volume::borrowing({2, 2, 2}, glm::dvec3(1.0), ScalarType::Float32, ScalarType::Float32, bad.data(), nullptr, "nan"), ValueError);
+  std::vector<double> wide(8, 0.0);
+  EXPECT_THROW(Volume::borrowing({2, 2, 2}, glm::dvec3(1.0), ScalarType::Float64, ScalarType::Float64, wide.data(), nullptr, "f64"), ValueError);
+  EXPECT_THROW(Volume::borrowing({2, 2, 2}, glm::dvec3(-1.0), ScalarType::Int16, ScalarType::Int16, owner->data(), owner, "spacing"), ValueError);
+}
+
+}  // namespace
+}  // namespace hyb

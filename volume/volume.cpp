@@ -113,18 +113,11 @@ Volume::Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, Sampl
 
 Volume Volume::borrowing(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, ScalarType storedType, const void* data,
                          std::shared_ptr<const void> owner, const std::string& source) {
-  validateDims(dims, source);
-  validateSpacing(spacing, source);
   if (!(storedType == ScalarType::UInt8 || storedType == ScalarType::Int8 || storedType == ScalarType::UInt16 || storedType == ScalarType::Int16 ||
         storedType == ScalarType::Float32))
     HYB_THROW(ValueError, source, ": samples of type ", scalarName(storedType), " are held as float32 (expected uint8, int8, uint16, int16 or float32 to borrow)");
   HYB_CHECK(data != nullptr);
-  Volume v;
-  v.mDims = dims;
-  v.mSpacing = spacing;
-  v.mSourceType = sourceType;
-  v.mStored = storedType;
-  v.mCount = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
+  Volume v = withoutSamples(dims, spacing, sourceType, storedType, 0.0f, 0.0f, source);  // the grid, checked; the range scanned below
   v.mOwner = std::move(owner);
   v.mData = data;
   v.scanSamples(source);
