@@ -867,8 +867,9 @@ TEST(DicomPlanes, RewindStartsAgainAtTheFirstPlane) {
 }
 
 // Where the whole reader's stored type depends on the values (it widens to float at the first
-// rescaled value its type does not hold), the series is read whole, the same volume.
-TEST(DicomPlanes, SeriesWhoseStoredTypeDependsOnTheValuesAreReadWhole) {
+// rescaled value its type does not hold), the planes decide it from the values: the same volume,
+// streamed.
+TEST(DicomPlanes, SeriesWhoseStoredTypeDependsOnTheValuesStreamInTheTypeTheirValuesDecide) {
   TempDir dir;
   const auto hu = [](int i, int j, int k) { return expectedValue(i, j, k) + 1024; };
   // int16 with 16 bits stored and intercept −1024: values could reach −33792.
@@ -877,12 +878,18 @@ TEST(DicomPlanes, SeriesWhoseStoredTypeDependsOnTheValuesAreReadWhole) {
   const std::string later = dicomSeries(dir, "later", [](int k) { return pixels(gdcm::PixelFormat::UINT16, 12, 1.0, k == 0 ? 0.0 : -1024.0); }, hu);
   // A fractional slope after integer ones.
   const std::string fraction = dicomSeries(dir, "fraction", [](int k) { return pixels(gdcm::PixelFormat::UINT16, 12, k == 3 ? 0.5 : 1.0, -1024.0); }, hu);
-  for (const std::string& d : {full, later, fraction}) {
-    EXPECT_FALSE(detail::dicomPlanes(d, "")) << d;
-    readBoth(d, false);
+  // A fractional slope whose products are all integers: the whole reader keeps 16 bits (per value).
+  const auto even = [](int i, int j, int k) { return 2 * ((expectedValue(i, j, k) + 1024) / 2); };
+  const std::string halves = dicomSeries(dir, "halves", [](int k) { return pixels(gdcm::PixelFormat::UINT16, 12, k == 3 ? 0.5 : 1.0, -1024.0); }, even);
+  for (const std::string& d : {full, later, fraction, halves}) {
+    const std::unique_ptr<PlaneSource> planes = detail::dicomPlanes(d, "");
+    ASSERT_TRUE(planes) << d;
+    EXPECT_EQ(planes->storedType(), readDicomSeries(d).storedType()) << d;
+    readBoth(d, true);
   }
   EXPECT_EQ(readDicomSeries(full).storedType(), ScalarType::Int16);  // its values fit
   EXPECT_EQ(readDicomSeries(fraction).storedType(), ScalarType::Float32);
+  EXPECT_EQ(readDicomSeries(halves).storedType(), ScalarType::Int16);
 }
 
 // A slice that turns bad after the series was opened (truncated, rewritten with another rescale,

@@ -729,11 +729,12 @@ std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::stri
   const size_t n = layout.slices.size();
   // Every slice's header, checked as the whole reader checks it; the stored type is decided by the
   // whole reader's rule (rescaleTarget of the first slice, widened to float when a rescaled value
-  // does not fit) applied to the range each header allows instead of the values.
+  // does not fit) applied to the range each header allows, or where that range does not fit, to
+  // the values, read once a slice at a time.
   glm::ivec3 dims(0, 0, int(n));
   glm::dvec3 spacing(1.0, 1.0, layout.zSpacing);
   ScalarType stored = ScalarType::Int16;
-  bool rescaled = false;
+  bool rescaled = false, byValues = false;
   std::vector<SliceHeader> headers;
   headers.reserve(n);
   for (size_t s = 0; s < n; ++s) {
@@ -747,12 +748,25 @@ std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::stri
       takeGrid(image, dir, &dims, &spacing);
       stored = storedType(detail::rescaleTarget(image.type, image.slope, image.intercept, 0));
     }
-    // Whether the whole reader widens to float depends on the values: read whole.
-    if (!holdsAll(stored, image.lo, image.hi, image.slope, image.intercept)) return nullptr;
+    // Whether the whole reader widens to float depends on the values (below).
+    byValues = byValues || !holdsAll(stored, image.lo, image.hi, image.slope, image.intercept);
     if (image.slope != 1.0 || image.intercept != 0.0) rescaled = true;
     headers.push_back({image.type, image.slope, image.intercept});
   }
   validateSpacing(spacing, dir);
+  // The values decide (an int16 CT with 16 bits stored and an intercept, GE's): rescaled as the whole
+  // reader rescales them, a slice at a time, float as soon as one is not of the stored type.
+  for (size_t s = 0; byValues && s < n; ++s) {
+    const std::string where = sliceWhere(layout, s);
+    SliceImage image;
+    readSliceImage(layout.slices[s].file, where, checkPixelModule(InputFile(layout.slices[s].file), where), &image);
+    SampleArray plane = detail::allocateSamples(stored, size_t(dims.x) * size_t(dims.y));
+    detail::rescaleSamples(&plane, 0, sliceSamples(image, where), image.slope, image.intercept);
+    if (storedType(plane) != stored) {
+      stored = ScalarType::Float32;
+      byValues = false;
+    }
+  }
   const ScalarType source = seriesSourceType(headers.front().type, rescaled, stored);
   Volume description = placedSeries(Volume::withoutSamples(dims, spacing, source, stored, 0.0f, 0.0f, dir), layout, headers.front().slope,
                                     headers.front().intercept, rescaled);

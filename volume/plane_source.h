@@ -49,9 +49,8 @@ std::unique_ptr<PlaneSource> planesOf(const Volume& volume);
 
 /// The planes of a volume file, by the rules of readVolume(): raw files, NRRD, MetaImage and
 /// NIfTI files of 8- and 16-bit integer or float samples in raw or gzip/zlib encoding (NIfTI's not
-/// rescaled), and DICOM series whose stored type their headers decide (detail::dicomPlanes), are
-/// read plane by plane; anything else (InVesalius, ASCII, 32-bit integers, other DICOM series) is
-/// read whole.
+/// rescaled), and DICOM series (detail::dicomPlanes), are read plane by plane; anything else
+/// (InVesalius, ASCII, 32-bit integers) is read whole.
 /// @throw IoError / ValueError naming @p path, as readVolume().
 std::unique_ptr<PlaneSource> openPlanes(const std::string& path, const RawLayout* raw = nullptr, const std::string& series = "",
                                         const Progress* progress = nullptr);
@@ -91,9 +90,9 @@ std::unique_ptr<PlaneSource> niftiPlanes(const std::string& path);
 /// holds the samples in rescaleTarget() of the first slice and widens them to float at the first
 /// rescaled value that type does not hold; here the type is decided from every value the headers
 /// allow (each slice's pixel type, its Bits Stored for 16-bit pixels uncompressed or RLE, its slope
-/// and intercept). Null (read whole) when that depends on the values: int16 with 16 bits stored and
-/// an intercept (values down to -33792), 32-bit pixels, a fractional slope after integer ones, an
-/// intercept after a first slice without one.
+/// and intercept), and where that range does not fit the type (int16 with 16 bits stored and an
+/// intercept, values down to -33792; a fractional slope after integer ones; an intercept after a
+/// first slice without one), from the values, each slice decoded once more here.
 /// @throw IoError / ValueError as readDicomSeries() for the series and its headers; read() throws
 ///        IoError naming the slice file when a slice is damaged or changed since.
 std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::string& seriesUid);
