@@ -64,6 +64,8 @@ class Scene:
         step: float = ...,
         classification: Literal["post", "preintegrated"] = ...,
         lod_pixels: float = ...,
+        image_scale: float = ...,
+        max_brick: int = ...,
         premultiplied: bool = False,
         stats: bool = False,
         **more: Any,

@@ -18,6 +18,7 @@
 
 #include "apps/frame.h"
 #include "hybrid_octree/hybrid_io.h"
+#include "render/orientation_marker.h"
 #include "surface/mesh_io.h"
 #include "volume/error.h"
 #include "volume/reader_util.h"
@@ -257,6 +258,7 @@ class PyScene {
       }
     }
     if (PyErr_Occurred()) throw py::error_already_set();  // a signal seen as the frame ended
+    if (o.marker) drawOrientationMarker(job.view.camera, &frame.image);
     py::array_t<uint8_t> image = toArray(frame.image, premultiplied);
     if (!withStats) return image;
     return py::make_tuple(image, statsOf(frame));
@@ -318,7 +320,7 @@ class PyScene {
   static inline const std::set<std::string> kAllowed = {
       "view", "orbit", "eye", "center", "up", "zoom", "fov", "preset", "iso", "surface_color", "surface_normals", "shading", "cut", "cut_line",
       "voi", "voi_inside", "voi_outside", "voi_ramp", "renderer", "epsilon", "budget", "step", "classification", "proxy", "blend", "lod_pixels",
-      "max_brick", "texel_bits", "focus", "camera_file", "marker"};
+      "max_brick", "texel_bits", "focus", "camera_file", "marker", "image_scale"};
 
   ExportedSurface exported(double iso, const std::string& kind, bool closed, bool normals) {
     checkIso(iso);
