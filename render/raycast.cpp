@@ -323,6 +323,23 @@ Image refine(const RayFrame& f) {
 
 }  // namespace
 
+RaycastOptions raycastOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const Bvh* surface) {
+  RaycastOptions ro;
+  ro.stepVoxels = quality.step.value_or(0.25);
+  ro.shading = look.shading;
+  ro.surface = surface;
+  ro.surfaceColor = look.surfaceColor;
+  ro.cut = grid.cut ? &*grid.cut : nullptr;
+  ro.voi = grid.voi ? &*grid.voi : nullptr;
+  ro.region = quality.region ? &*quality.region : nullptr;
+  // Levoy's refinement: progressive levels (the first grid 2^(N−1) pixels apart), or four with
+  // an adaptive tolerance alone; the last level is exact unless the tolerance is given.
+  ro.refineLevels = quality.progressive > 1 ? quality.progressive : quality.adaptive > 0 ? 4 : 1;
+  ro.refineTolerance = float(quality.adaptive / 255.0);
+  ro.rows = quality.rows;
+  return ro;
+}
+
 Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
               const RaycastOptions& options, RaycastStats* stats) {
   HYB_CHECK(options.refineLevels >= 1 && options.refineLevels <= 16 && options.refineTolerance >= 0.0f);

@@ -12,6 +12,7 @@
 #include "render/bvh.h"
 #include "render/camera.h"
 #include "render/cut_plane.h"
+#include "render/frame_request.h"
 #include "render/voi.h"
 #include "render/image.h"
 #include "render/preintegration.h"
@@ -57,6 +58,12 @@ struct RaycastOptions {
   /// Needs refineLevels 1.
   std::optional<glm::ivec2> rows;
 };
+
+/// The options a frame's look and quality ask of the reference renderer, @p surface the
+/// triangles it crosses (or none) and @p grid the frame in the grid frame, which must outlive
+/// them: Levoy's refinement from Quality::progressive and adaptive. What an engine keeps across
+/// frames (RaycastOptions::knots, preintegrated), the progress and onLevel are its own to set.
+RaycastOptions raycastOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const Bvh* surface);
 
 /// Per-pixel statistics of a render.
 struct RaycastStats {

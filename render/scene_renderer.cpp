@@ -54,67 +54,6 @@ struct SceneRenderer::Errors {
   std::unique_ptr<ViewErrors> errors;
 };
 
-std::string View::validate() const {
-  const Camera& c = camera;
-  auto finite = [](const glm::dvec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); };
-  if (!finite(c.eye) || !finite(c.center) || !finite(c.up)) return "camera eye, center and up must be finite (patient mm)";
-  if (glm::length(c.eye - c.center) == 0 || glm::length(glm::cross(c.center - c.eye, c.up)) == 0)
-    return "camera eye, center and up must give a view direction not parallel to up";
-  if (c.width < 1 || c.height < 1 || c.width > kMaxRenderEdge || c.height > kMaxRenderEdge)
-    return detail::concat("--size ", c.width, "x", c.height, " invalid (expected 1..", kMaxRenderEdge, " pixels each)");
-  if (!(c.fovDeg >= kMinFovDeg && c.fovDeg < kMaxFovDeg)) return "the field of view (--fov, narrowed by --zoom) must be in [0.1, 179) degrees";
-  if (!(std::isfinite(c.orthoHeight) && c.orthoHeight > 0)) return "camera orthographic height must be a finite positive size (mm)";
-  return "";
-}
-
-std::string Look::validate() const {
-  for (int k = 0; k < 4; ++k)
-    if (!(surfaceColor[k] >= 0.0f && surfaceColor[k] <= 1.0f)) return "--surface-color components must be in [0, 1]";
-  if (iso && !std::isfinite(*iso)) return "--iso must be a finite number";
-  if (cut) {
-    const glm::dvec3 p = cut->point, n = cut->normal;
-    if (!(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z) && std::isfinite(n.x) && std::isfinite(n.y) && std::isfinite(n.z)) ||
-        glm::length(n) == 0.0)
-      return "--cut needs a finite point and a finite non-zero normal (patient mm)";
-  }
-  if (voi) {
-    if (!glm::all(glm::lessThan(voi->lo, voi->hi))) return "--voi box must have x0 < x1, y0 < y1, z0 < z1";
-    if (!(std::isfinite(voi->inside) && voi->inside >= 0)) return "--voi-inside must be a finite factor >= 0";
-    if (!(std::isfinite(voi->outside) && voi->outside >= 0)) return "--voi-outside must be a finite factor >= 0";
-    if (!(std::isfinite(voi->ramp) && voi->ramp >= 0)) return "--voi-ramp must be a finite width >= 0 mm";
-  }
-  return "";
-}
-
-std::string Quality::validate() const {
-  if (!(epsilon >= 0 && epsilon <= double(std::numeric_limits<float>::max()))) return "--epsilon must be a finite value >= 0 within the float range (data units)";
-  if (!(std::isfinite(budgetMb) && budgetMb >= 0)) return "--budget must be megabytes >= 0";
-  if (!(std::isfinite(budgetPercent) && budgetPercent >= 0 && budgetPercent <= 100)) return "--budget percentage must be in (0, 100]";
-  if (step && !(*step > 0.01 && *step <= 4)) return "--step must be in (0.01, 4] voxels";
-  if (progressive < 1 || progressive > 8) return "--progressive must be in 1..8 images";
-  if (!(std::isfinite(adaptive) && adaptive >= 0 && adaptive <= 255)) return "--adaptive must be a colour difference in [0, 255] (units of 1/255)";
-  if (adaptive > 0 && renderer != Renderer::Raycast) return "--adaptive needs --renderer raycast (Levoy's adaptive refinement of the reference's rays)";
-  if (focus && !(std::isfinite(focus->x) && std::isfinite(focus->y) && std::isfinite(focus->z))) return "--focus must be three finite coordinates";
-  if (!(std::isfinite(surfaceErrorPixels) && surfaceErrorPixels >= 0)) return "surface error must be a finite number of pixels >= 0";
-  if (!(imageScale > 0.0 && imageScale <= 1.0)) return "--image-scale must be in (0, 1] (a fraction of the image's size)";
-  if (imageScale < 1.0 && rows) return "--image-scale cannot render a band of rows";
-  if (region && (progressive > 1 || adaptive > 0)) return "a region of a sort-last frame cannot be rendered progressively (--progressive, --adaptive)";
-  SelectionParams limits;  // the selection's own checks: the brick edge and the screen-space stop
-  limits.maxBrickEdge = maxBrickEdge;
-  limits.lodPixels = lodPixels;
-  return limits.validate();
-}
-
-namespace {
-
-// @throw ValueError naming the first impossible parameter of a frame.
-void validateFrame(const View& view, const Look& look, const Quality& quality) {
-  for (const std::string& problem : {view.validate(), look.validate(), quality.validate()})
-    if (!problem.empty()) throw ValueError(problem);
-}
-
-}  // namespace
-
 SceneRenderer::SceneRenderer(Scene scene, const Options& options) : mScene(std::move(scene)), mOptions(options) {
   HYB_CHECK(mScene.volume.hasSamples() || mScene.knots);
 }
@@ -389,18 +328,7 @@ size_t SceneRenderer::drawResident(const Camera& camera, uint64_t packTexels, Se
   return missing.size();
 }
 
-SceneRenderer::GridParts SceneRenderer::gridParts(const View& view, const Look& look) const {
-  const PatientFrame& frame = mScene.volume.frame();
-  GridParts g{toGridCamera(view.camera, frame), std::nullopt, look.voi};
-  if (look.cut) g.cut = CutPlane{frame.toGrid(look.cut->point), frame.vectorToGrid(look.cut->normal)};
-  if (g.voi) {
-    g.voi->toBox = frame.direction;
-    g.voi->offset = frame.origin;
-  }
-  return g;
-}
-
-SelectionParams SceneRenderer::selectionParams(const GridParts& g, const Look& look, const Quality& quality, FrameStats* st) {
+SelectionParams SceneRenderer::selectionParams(const FrameGrid& g, const Look& look, const Quality& quality, FrameStats* st) {
   const Volume& v = mScene.volume;
   SelectionChoice choice;
   choice.epsilon = quality.epsilon;
@@ -431,7 +359,7 @@ SelectionParams SceneRenderer::selectionParams(const GridParts& g, const Look& l
 Selection SceneRenderer::select(const View& view, const Look& look, const Quality& quality) {
   validateFrame(view, look, quality);
   FrameStats st;
-  return selectNodes(mScene.octree, selectionParams(gridParts(view, look), look, quality, &st));
+  return selectNodes(mScene.octree, selectionParams(frameGrid(view, look, volume().frame()), look, quality, &st));
 }
 
 SceneRenderer::SortLast SceneRenderer::sortLast(const View& view, const Look& look, const Quality& quality, int parts) {
@@ -444,7 +372,7 @@ SceneRenderer::SortLast SceneRenderer::sortLast(const View& view, const Look& lo
   }
   SortLast out{select(view, look, whole), {}, {}};
   out.regions = splitSelection(mScene.octree, volume().spacing(), out.selection, parts);
-  const Camera c = gridParts(view, look).camera;
+  const Camera c = frameGrid(view, look, volume().frame()).camera;
   const glm::dvec3 forward = glm::normalize(c.center - c.eye);
   out.frontToBack = out.regions.frontToBack(c.ortho ? c.eye - forward * 1e9 * glm::length(volume().extentMm()) : c.eye);
   return out;
@@ -476,7 +404,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   }
   RenderedFrame out;
   out.stats.renderer = quality.renderer;
-  const GridParts g = gridParts(view, look);
+  const FrameGrid g = frameGrid(view, look, volume().frame());
   const TriangleMesh* mesh = look.iso ? frameSurface(g.camera, look, quality, &out.stats) : nullptr;
   if (mesh && quality.region) mesh = &regionSurface(*mesh, *quality.region);
   if (quality.renderer == Renderer::Raycast)
@@ -516,7 +444,7 @@ const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look
   return &s.simplified[size_t(k)];
 }
 
-void SceneRenderer::renderRaycast(const GridParts& g, const Look& look, const Quality& quality, const TriangleMesh* mesh,
+void SceneRenderer::renderRaycast(const FrameGrid& g, const Look& look, const Quality& quality, const TriangleMesh* mesh,
                                   const LevelCallback& onLevel, RenderedFrame* out) {
   FrameStats& st = out->stats;
   const Bvh* bvh = nullptr;
@@ -532,26 +460,14 @@ void SceneRenderer::renderRaycast(const GridParts& g, const Look& look, const Qu
     }
     bvh = s.bvh[k].get();
   }
-  RaycastOptions ro;
-  ro.stepVoxels = quality.step.value_or(0.25);
-  ro.shading = look.shading;
-  ro.surface = bvh;
-  ro.surfaceColor = look.surfaceColor;
-  ro.cut = g.cut ? &*g.cut : nullptr;
-  ro.voi = g.voi ? &*g.voi : nullptr;
-  ro.knots = volume().hasSamples() ? nullptr : mScene.knots.get();
-  ro.region = quality.region ? &*quality.region : nullptr;  // a paged scene's samples through its cache
+  RaycastOptions ro = raycastOptions(g, look, quality, bvh);
+  ro.knots = volume().hasSamples() ? nullptr : mScene.knots.get();  // a paged scene's samples through its cache
   if (quality.classification == Classification::PreIntegrated) {
     // Segments are a step long, shorter where a surface crossing or the volume's end cuts them.
     const double dt = stepMm(volume(), ro.stepVoxels);
     ro.preintegrated = &preintegration(look.tf, 0.25 * dt, dt, &st);
   }
-  // Levoy's refinement: progressive levels (the first grid 2^(N−1) pixels apart), or four with
-  // an adaptive tolerance alone; the last level is exact unless the tolerance is given.
-  ro.refineLevels = quality.progressive > 1 ? quality.progressive : quality.adaptive > 0 ? 4 : 1;
-  ro.refineTolerance = float(quality.adaptive / 255.0);
   ro.progress = mOptions.progress;
-  ro.rows = quality.rows;
   const auto t0 = Clock::now();
   if (onLevel)
     ro.onLevel = [&](int level, const Image& image, uint64_t rays) {
@@ -565,7 +481,7 @@ void SceneRenderer::renderRaycast(const GridParts& g, const Look& look, const Qu
   st.renderMs = msSince(t0);
 }
 
-void SceneRenderer::renderSlicesFrame(const GridParts& g, const Look& look, const Quality& quality, const TriangleMesh* mesh,
+void SceneRenderer::renderSlicesFrame(const FrameGrid& g, const Look& look, const Quality& quality, const TriangleMesh* mesh,
                                       const LevelCallback& onLevel, RenderedFrame* out) {
   FrameStats& st = out->stats;
   // The selection: ε and the budget for this view.
@@ -576,20 +492,9 @@ void SceneRenderer::renderSlicesFrame(const GridParts& g, const Look& look, cons
   st.selectMs = msSince(s0);
 
   ensureGl();
-  SlicesOptions so;
-  so.stepVoxels = quality.step.value_or(0.5);
-  so.shading = look.shading;
-  so.texelBits = quality.texelBits;
-  so.surface = mesh;
-  so.surfaceColor = look.surfaceColor;
-  so.cut = g.cut ? &*g.cut : nullptr;
-  so.cutLine = look.cutLine;
-  so.voi = g.voi ? &*g.voi : nullptr;
-  so.proxy = quality.proxy;
+  SlicesOptions so = slicesOptions(g, look, quality, mesh);
   so.textures = mOptions.keepTextures ? mTextures.get() : nullptr;
   so.knots = mScene.knots.get();
-  so.cutToSlabs = quality.cutToSlabs;
-  so.region = quality.region ? &*quality.region : nullptr;
   if (quality.classification == Classification::PreIntegrated) {
     // From half the base spacing (segments cut at bricks' faces) to twice the coarsest levels'
     // spacing (32 base spacings) along oblique rays (SlicesOptions::preintegrated).
@@ -611,7 +516,6 @@ void SceneRenderer::renderSlicesFrame(const GridParts& g, const Look& look, cons
     if (onLevel) onLevel(k, quality.progressive, preview, ls);
   }
   so.progress = mOptions.progress;
-  so.rows = quality.rows;
   const auto r0 = Clock::now();
   out->image = renderSlices(volume(), mScene.octree, out->selection, look.tf, g.camera, so, &st.slices);
   st.renderMs = msSince(r0);

@@ -626,6 +626,23 @@ void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
 
 }  // namespace
 
+SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const TriangleMesh* surface) {
+  SlicesOptions so;
+  so.stepVoxels = quality.step.value_or(0.5);
+  so.shading = look.shading;
+  so.texelBits = quality.texelBits;
+  so.proxy = quality.proxy;
+  so.surface = surface;
+  so.surfaceColor = look.surfaceColor;
+  so.cut = grid.cut ? &*grid.cut : nullptr;
+  so.cutLine = look.cutLine;
+  so.voi = grid.voi ? &*grid.voi : nullptr;
+  so.cutToSlabs = quality.cutToSlabs;
+  so.region = quality.region ? &*quality.region : nullptr;
+  so.rows = quality.rows;
+  return so;
+}
+
 Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
                    const Camera& camera, const SlicesOptions& options, SlicesStats* stats) {
   const int W = camera.width, H = camera.height;

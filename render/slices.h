@@ -18,6 +18,7 @@
 #include "render/slices/brick_textures.h"
 #include "render/camera.h"
 #include "render/cut_plane.h"
+#include "render/frame_request.h"
 #include "render/voi.h"
 #include "render/gl_context.h"
 #include "render/image.h"
@@ -29,13 +30,6 @@
 #include "volume/volume.h"
 
 namespace hyb {
-
-/// Proxy geometry that samples the bricks (LaMar 1999).
-enum class Proxy {
-  Planes,  ///< view-aligned planes f·x = kΔ, globally aligned
-  Shells,  ///< spherical shells |x − eye| = kΔ around the eye (perspective; bricks the eye is too close
-           ///< to, and orthographic views, use planes)
-};
 
 /// Options of the slice renderer.
 struct SlicesOptions {
@@ -86,6 +80,12 @@ struct SlicesOptions {
   /// does not depend on it.
   size_t packBatch = 256;
 };
+
+/// The options a frame's look and quality ask of the slice renderer, @p surface the triangles it
+/// draws (or none) and @p grid the frame in the grid frame, which must outlive them. What an
+/// engine keeps across frames (SlicesOptions::textures, knots, preintegrated) and the progress are
+/// its own to set.
+SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const TriangleMesh* surface);
 
 /// What a frame used.
 struct SlicesStats {

@@ -533,6 +533,56 @@ TEST(SceneRenderer, AFrameAtAFractionOfItsSizeIsTheSmallFrameMagnified) {
   EXPECT_THROW(r.render(view, look, band), ValueError);
 }
 
+// Each renderer reads the frame's look and quality in one place: every quality it honours reaches
+// its options, the grid frame's cut and volume of interest by address.
+TEST(SceneRenderer, EachRendererMakesItsOptionsFromTheFramesLookAndQuality) {
+  FrameGrid grid;
+  grid.cut = CutPlane{glm::dvec3(1, 2, 3), glm::dvec3(0, 0, 1)};
+  grid.voi = VolumeOfInterest{};
+  Look look = surfaceAtZero();
+  look.shading = false;
+  look.cutLine = false;
+  Quality q;
+  const SlicesOptions s0 = slicesOptions(grid, look, q, nullptr);
+  EXPECT_EQ(s0.stepVoxels, 0.5);
+  EXPECT_EQ(raycastOptions(grid, look, q, nullptr).stepVoxels, 0.25);
+  EXPECT_EQ(raycastOptions(grid, look, q, nullptr).refineLevels, 1);
+  q.step = 1.7;
+  q.texelBits = TexelBits::Sixteen;
+  q.proxy = Proxy::Shells;
+  q.cutToSlabs = false;
+  q.region = RegionBox{};
+  q.rows = glm::ivec2(3, 9);
+  const TriangleMesh mesh;
+  const SlicesOptions s = slicesOptions(grid, look, q, &mesh);
+  EXPECT_EQ(s.stepVoxels, 1.7);
+  EXPECT_FALSE(s.shading);
+  EXPECT_FALSE(s.cutLine);
+  EXPECT_EQ(s.texelBits, TexelBits::Sixteen);
+  EXPECT_EQ(s.proxy, Proxy::Shells);
+  EXPECT_FALSE(s.cutToSlabs);
+  EXPECT_EQ(s.surface, &mesh);
+  EXPECT_EQ(s.surfaceColor, look.surfaceColor);
+  EXPECT_EQ(s.cut, &*grid.cut);
+  EXPECT_EQ(s.voi, &*grid.voi);
+  EXPECT_EQ(s.region, &*q.region);
+  EXPECT_EQ(s.rows, q.rows);
+  EXPECT_EQ(s.textures, nullptr);  // the engine's to give
+  q.adaptive = 4.0;
+  const RaycastOptions r = raycastOptions(grid, look, q, nullptr);
+  EXPECT_EQ(r.stepVoxels, 1.7);
+  EXPECT_FALSE(r.shading);
+  EXPECT_EQ(r.surfaceColor, look.surfaceColor);
+  EXPECT_EQ(r.cut, &*grid.cut);
+  EXPECT_EQ(r.voi, &*grid.voi);
+  EXPECT_EQ(r.region, &*q.region);
+  EXPECT_EQ(r.rows, q.rows);
+  EXPECT_EQ(r.refineLevels, 4);  // an adaptive tolerance alone refines in four levels
+  EXPECT_FLOAT_EQ(r.refineTolerance, 4.0f / 255.0f);
+  q.progressive = 3;
+  EXPECT_EQ(raycastOptions(grid, look, q, nullptr).refineLevels, 3);
+}
+
 TEST(SceneRenderer, ProgressiveFramesAndValidation) {
   test::gl();
   SceneRenderer r(sphereScene());

@@ -18,17 +18,12 @@
 #include "hybrid_octree/knot_source.h"
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
+#include "render/frame_request.h"
 #include "render/gl_objects.h"
 #include "volume/volume.h"
 
 namespace hyb {
 
-/// Precision of the brick textures' value and gradient: 8 bits (RGBA8, which llvmpipe filters in
-/// fixed point) or 16 bits (RGBA16: twice the bytes, slower frames, for transfer functions whose
-/// features are narrow against a brick's range of values, e.g. soft tissue next to air and bone).
-enum class TexelBits { Eight = 8, Sixteen = 16 };
-/// Bytes of one brick texel: value and three gradient components.
-inline constexpr uint64_t bytesPerTexel(TexelBits bits) { return bits == TexelBits::Sixteen ? 8 : 4; }
 /// Bytes of one texel of the 16-bit value textures made for 8-bit bricks a cutting plane crosses.
 inline constexpr uint64_t kBytesPerCutTexel = 2;
 
