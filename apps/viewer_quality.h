@@ -101,7 +101,9 @@ inline constexpr double kFinalLodPixels = 0.5;
 /// Texels a moving frame packs at most for textures the cache does not keep (Quality::packTexels):
 /// sixteen bricks of kInteractiveBrickEdge, some 20-40 ms of packing on two cores. A new rung's
 /// first frames packed hundreds of bricks (0.4-0.6 s on the clinical study); now they draw the
-/// rest from coarser kept textures and the cut reaches the new one over a few frames.
+/// rest from coarser kept textures and the cut reaches the new one over a few frames. The refining
+/// frame too: larger than the moving ones, it met finer bricks and packed them all (2 s on the
+/// clinical study, before the final frame packed them again at its own level).
 inline constexpr uint64_t kInteractivePackTexels = uint64_t(16) * kInteractiveBrickEdge * kInteractiveBrickEdge * kInteractiveBrickEdge;
 
 /// Simplification error of the surface in the frames before the final one, in pixels where the

@@ -505,7 +505,7 @@ struct ServerState {
       p.quality.maxBrickEdge = kInteractiveBrickEdge;
       p.quality.lodPixels = kInteractiveLodPixels;
       p.quality.waitForBricks = false;  // a paged scene's bricks not cached yet are drawn coarser meanwhile
-      if (r.interacting) p.quality.packTexels = kInteractivePackTexels;
+      p.quality.packTexels = kInteractivePackTexels;
     } else {
       p.quality.lodPixels = kFinalLodPixels;
     }
