@@ -66,7 +66,8 @@ std::vector<glm::vec4> latticeKnots(const KnotSource& source, const KnotLattice&
 }
 
 KnotSampler::KnotSampler(const KnotSource& source, int tiles)
-    : mSource(source), mDims(source.dims()), mSpacing(source.spacing()), mTiles(size_t(std::max(tiles, 1))) {}
+    : mSource(source), mDims(source.dims()), mSpacing(source.spacing()),
+      mTiles(size_t(std::max((tiles + kWays - 1) / kWays, 1)) * kWays) {}
 
 const KnotSampler::Tile& KnotSampler::tileAt(const glm::vec3& p) {
   // The voxel trilinearSample starts from; its tile covers kTile voxels from there on, and one
@@ -74,14 +75,27 @@ const KnotSampler::Tile& KnotSampler::tileAt(const glm::vec3& p) {
   const glm::ivec3 i0 = glm::min(glm::ivec3(glm::clamp(p, glm::vec3(0.0f), glm::vec3(mDims - 1))), mDims - 1);
   const glm::ivec3 key = i0 / kTile;
   const uint32_t h = uint32_t(key.x) * 73856093u ^ uint32_t(key.y) * 19349663u ^ uint32_t(key.z) * 83492791u;
-  Tile& t = mTiles[h % mTiles.size()];
-  if (t.key == key) return t;
+  // A set of kWays tiles, the least recently used replaced: a ray's beam meets a dozen or more
+  // tiles, and two of them sharing one slot of a direct-mapped table were read again by every
+  // ray of the beam.
+  Tile* set = &mTiles[size_t(h) % (mTiles.size() / kWays) * kWays];
+  ++mClock;
+  Tile* victim = set;
+  for (int w = 0; w < kWays; ++w) {
+    if (set[w].key == key) {
+      set[w].used = mClock;
+      return set[w];
+    }
+    if (set[w].used < victim->used) victim = &set[w];
+  }
+  Tile& t = *victim;
   t.key = glm::ivec3(-1);  // (a failed read leaves no tile half-made)
   t.lo = glm::max(key * kTile - 1, glm::ivec3(0));
   t.count = glm::min(key * kTile + kTile + 1, mDims - 1) - t.lo + 1;
   t.values.resize(size_t(t.count.x) * size_t(t.count.y) * size_t(t.count.z));
   mSource.read(1, t.lo, t.count, t.values.data(), nullptr);
   t.key = key;
+  t.used = mClock;
   return t;
 }
 

@@ -81,10 +81,11 @@ class VolumeKnots final : public KnotSource {
 /// Volume::sampleGradient sample a volume in memory, bit for bit: what a ray tracer reads from a
 /// paged scene, through the store's cache, without reading the samples whole. It reads tiles of
 /// kTile³ voxels (with the neighbour either side a gradient needs) and keeps the last few in a
-/// direct-mapped table, as neighbouring rays revisit them. One sampler per thread.
+/// table of kWays-way sets, as neighbouring rays revisit them. One sampler per thread.
 class KnotSampler {
  public:
   static constexpr int kTile = 32;
+  static constexpr int kWays = 4;
   /// @p source must outlive the sampler; @p tiles: how many tiles it keeps (each ≤ 171 KB: 22 MB
   /// by default, what the rays of a few pixels' squares revisit).
   explicit KnotSampler(const KnotSource& source, int tiles = 128);
@@ -95,6 +96,7 @@ class KnotSampler {
  private:
   struct Tile {
     glm::ivec3 key{-1};
+    uint64_t used = 0;  // the sampler's clock at its last use
     glm::ivec3 lo{0}, count{0};
     std::vector<float> values;
     float at(int i, int j, int k) const {
@@ -107,7 +109,8 @@ class KnotSampler {
   const KnotSource& mSource;
   glm::ivec3 mDims;
   glm::dvec3 mSpacing;
-  std::vector<Tile> mTiles;
+  std::vector<Tile> mTiles;  // sets of kWays
+  uint64_t mClock = 0;
 };
 
 /// The gradients of @p source's full-resolution field at voxel positions @p points (a KnotSampler

@@ -5,6 +5,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cstring>
 #include <random>
 
@@ -97,6 +98,55 @@ TEST(KnotStore, EveryBrickReadsBackAsTheBrickMadeInMemory) {
       // The store is smaller than the samples it holds, in their type, for every level.
       EXPECT_LT(paged.knots->compressedBytes(), v.voxelCount() * scalarSize(v.storedType()) * 2);
     }
+}
+
+// A source that counts its reads: the tiles a KnotSampler fetches.
+struct CountingKnots final : KnotSource {
+  const KnotSource& inner;
+  mutable int reads = 0;
+  explicit CountingKnots(const KnotSource& k) : inner(k) {}
+  glm::ivec3 dims() const override { return inner.dims(); }
+  glm::dvec3 spacing() const override { return inner.spacing(); }
+  void read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const override {
+    ++reads;
+    inner.read(s, lo, count, values, gradients);
+  }
+};
+
+// The ray tracer's sampler gives Volume::sample's numbers bit for bit, and keeps every tile of a
+// beam its table can hold: a tile is read once however the rays alternate between them (a
+// direct-mapped table read two tiles sharing a slot again for every ray).
+TEST(KnotSampler, SamplesAsTheVolumeAndReadsEachTileOnceWhileItsSetHoldsIt) {
+  const Volume v = noisyHead({130, 70, 40}, ScalarType::Int16);  // 5 × 3 × 2 tiles of 32
+  const VolumeOctree t = VolumeOctree::build(v);
+  const VolumeKnots knots(v, t);
+  const CountingKnots counting(knots);
+  KnotSampler sampler(counting, KnotSampler::kWays);  // one set: any four tiles
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  const glm::vec3 hi(v.dims() - 1);
+  for (int i = 0; i < 2000; ++i) {
+    const glm::vec3 p = glm::vec3(u(rng), u(rng), u(rng)) * hi;
+    const float a = sampler.sample(p), b = v.sample(p);
+    const glm::vec3 g = sampler.sampleGradient(p), h = v.sampleGradient(p);
+    ASSERT_EQ(std::memcmp(&a, &b, sizeof a), 0) << i;
+    ASSERT_EQ(std::memcmp(&g, &h, sizeof g), 0) << i;
+  }
+  // Four tiles, visited in turn by 100 "rays": read once each.
+  KnotSampler beam(counting, KnotSampler::kWays);
+  const std::array<glm::vec3, 4> tiles{glm::vec3(5, 5, 5), glm::vec3(40, 5, 5), glm::vec3(70, 40, 5), glm::vec3(100, 5, 35)};
+  counting.reads = 0;
+  for (int ray = 0; ray < 100; ++ray)
+    for (const glm::vec3& p : tiles) EXPECT_EQ(beam.sample(p + 0.25f * float(ray % 4)), v.sample(p + 0.25f * float(ray % 4)));
+  EXPECT_EQ(counting.reads, 4);
+  // A fifth replaces the least recently used (the first); a beam of five tiles in a set of four
+  // then reads each again, each replacing the next one it needs: what the table's size bounds.
+  beam.sample(glm::vec3(5, 40, 35));
+  EXPECT_EQ(counting.reads, 5);
+  beam.sample(tiles[3]);
+  EXPECT_EQ(counting.reads, 5);
+  for (const glm::vec3& p : tiles) beam.sample(p);
+  EXPECT_EQ(counting.reads, 8);  // the first three again; the last was used just before
 }
 
 TEST(KnotStore, ADamagedBlockIsRefusedByName) {
