@@ -28,6 +28,7 @@ void AdaptiveQuality::record(int level, double ms, bool cold, double coarser) {
   const bool passing = cold || coarser > 0.0;  // a state the level's later frames leave behind, or not
   mCold = passing ? mCold + 1 : 0;
   if (passing && mCold < kColdFramesTrusted) return;
+  if (level == mProbe) mProbe = -1;  // measured
   ms /= std::max(1.0 - coarser, 1.0 / kMaxCoarserScale);
   double& m = mMeasured[size_t(level)];
   m = m < 0.0 ? ms : 0.6 * m + 0.4 * ms;  // smoothed: one slow frame of a shared machine moves it a little
@@ -37,12 +38,21 @@ void AdaptiveQuality::record(int level, double ms, bool cold, double coarser) {
 void AdaptiveQuality::reset() {
   mMeasured.fill(-1.0);
   mLast = mCurrent = int(mLadder.size()) - 1;
-  mStay = mCold = 0;
+  mStay = mCold = mProbeFrames = 0;
+  mProbe = -1;
 }
 
 int AdaptiveQuality::chooseInteractiveLevel() {
   const int n = int(mLadder.size());
   if (mMeasured[size_t(mLast)] < 0.0) return mCurrent = n - 1;  // nothing measured: nothing to predict from
+  // A probe whose frames were passing (their textures new, or bricks drawn coarser: a finer level's
+  // first frames are) is rendered again until one is its level's time, else that level kept the
+  // slow time it was last measured at and the ladder stayed on a cheap level for good.
+  if (mProbe >= 0 && mProbeFrames < kColdFramesTrusted) {
+    ++mProbeFrames;
+    return mProbe;
+  }
+  mProbe = -1;
   int level = -1;
   for (int k = 1; k < n && level < 0; ++k) {
     // Moving to a better level than the current needs a margin; staying or going coarser does not.
@@ -61,7 +71,8 @@ int AdaptiveQuality::chooseInteractiveLevel() {
   mCurrent = level;
   if (level > 1 && mStay >= kProbeAfter) {
     mStay = 0;
-    return level - 1;  // a probe: its measured time decides whether the level moves up
+    mProbeFrames = 1;
+    return mProbe = level - 1;  // a probe: its measured time decides whether the level moves up
   }
   return level;
 }

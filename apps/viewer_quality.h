@@ -121,8 +121,9 @@ class AdaptiveQuality {
   /// The level for the next interactive frame: the best whose time fits the target (with a margin
   /// to move to a better one, so that the level does not flicker), or when none does, the best
   /// whose time is within kNearFastest of the fastest (a quarter: the cheapest levels lose 2-3 dB).
-  /// After kProbeAfter frames at one level the next better one is tried once: its time may have
-  /// been measured on a slow frame. With nothing measured (a volume just opened), the cheapest: its
+  /// After kProbeAfter frames at one level the next better one is tried: its time may have been
+  /// measured on a slow frame. A probe frame that is not its level's time (cold, or drawing
+  /// bricks coarser: record) is followed by another, up to kColdFramesTrusted. With nothing measured (a volume just opened), the cheapest: its
   /// time then predicts the others' for this volume and image (a full-size frame of a large
   /// volume took seconds).
   int chooseInteractiveLevel();
@@ -159,6 +160,8 @@ class AdaptiveQuality {
   int mCurrent = 0;  // the interactive level in use
   int mStay = 0;     // frames at mCurrent since it was chosen or probed
   int mCold = 0;     // cold frames in a row
+  int mProbe = -1;   // the level being probed, until a frame of it is measured
+  int mProbeFrames = 0;  // frames of the probe asked for so far
 };
 
 }  // namespace hyb::viewer

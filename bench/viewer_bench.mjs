@@ -7,6 +7,7 @@
 // usage (after scripts/setup.sh): node bench/viewer_bench.mjs build/hybrid-octree [--seconds 5] [--samples 4] [--frame-ms 80]
 //                                  [--volume FILE] [--iso V]   (default: the cranium and 400 HU)
 //                                  [--volume-only]   (no surface orbit: a study too large to extract one from)
+//                                  [--frames]   (also print each interactive frame's level, time and bricks drawn coarser)
 import { spawn, execFileSync } from 'node:child_process';
 import { createRequire } from 'node:module';
 import fs from 'node:fs';
@@ -140,6 +141,8 @@ async function orbit(label, withSurface) {
   console.log(`  frames drawing bricks coarser (textures beyond the packing bound, or knots the store is loading): ${coarser.length} of ${interactive.length}` +
     (coarser.length ? ` (median ${quantile(coarser.map((m) => m.bricksNotResident), 0.5).toFixed(0)} bricks)` : ''));
   console.log(`  levels used: ${Object.entries(levels).map(([k, l]) => `${k}: ${l.n} frames, ${(l.ms / l.n).toFixed(0)} ms`).join('; ')}`);
+  if (process.argv.includes('--frames'))
+    console.log(`  frames in order (level: render + encode ms, bricks coarser): ${interactive.map((m) => `${m.level}: ${(m.renderMs + m.encodeMs).toFixed(0)}${m.bricksNotResident ? ` (${m.bricksNotResident})` : ''}`).join(', ')}`);
   console.log(`  bytes per interactive frame: mean ${(bytes.reduce((a, b) => a + b, 0) / Math.max(1, bytes.length) / 1024).toFixed(1)} KiB; final ${final ? (final.bytes / 1024).toFixed(1) : '?'} KiB`);
   console.log(`  interactive frames against the reference, as painted (512²): ${painted.map((p) => p.toFixed(1)).join(', ')} dB (target >= 30)`);
   console.log(`  the same frames as sent, at their own size: ${sent.join(', ')} dB`);

@@ -131,6 +131,42 @@ TEST(ViewerQuality, AFrameThatDrewBricksCoarserCountsAsTheWholeFrame) {
   EXPECT_LT(chosen, last);
   for (int i = 0; i < 8; ++i) ladder.record(chosen, 25.0, false, 0.75);  // 100 ms whole: too slow
   EXPECT_GT(ladder.chooseInteractiveLevel(), chosen);
+
+  // A probe's first frames draw bricks coarser (the finer level's bricks are new): it is asked
+  // for again until one is measured, and a fast one moves the level up; without that, the slow
+  // time the level was once measured at kept the ladder on the cheaper level for good.
+  AdaptiveQuality stuck(kVolumeLadder, 80.0);
+  stuck.record(last - 1, 300.0);  // measured once, on a slow frame
+  stuck.record(last, 30.0);
+  int frames = 0, probeFrames = 0;
+  while (frames < 3 * AdaptiveQuality::kProbeAfter) {
+    const int l = stuck.chooseInteractiveLevel();
+    ++frames;
+    if (l != last) {
+      EXPECT_EQ(l, last - 1);
+      ++probeFrames;
+      stuck.record(l, probeFrames == 1 ? 90.0 : 50.0, false, probeFrames == 1 ? 0.4 : 0.0);
+      if (probeFrames == 2) break;
+    } else {
+      stuck.record(l, 30.0);
+    }
+  }
+  EXPECT_EQ(frames, AdaptiveQuality::kProbeAfter + 1);  // the probe (the kProbeAfter-th frame), then again
+  EXPECT_DOUBLE_EQ(stuck.estimateMs(last - 1), 0.6 * 300.0 + 0.4 * 50.0);
+  for (int i = 0; i < 4; ++i) stuck.record(last - 1, 50.0);  // (its later frames)
+  EXPECT_EQ(stuck.chooseInteractiveLevel(), last - 1);
+  // At most kColdFramesTrusted probe frames: the last is taken whatever it was.
+  AdaptiveQuality cold(kVolumeLadder, 80.0);
+  cold.record(last - 1, 300.0);
+  cold.record(last, 30.0);
+  std::vector<int> levels;
+  for (int i = 0; i < AdaptiveQuality::kProbeAfter + 4; ++i) {
+    const int l = cold.chooseInteractiveLevel();
+    levels.push_back(l);
+    cold.record(l, l == last ? 30.0 : 200.0, l != last);
+  }
+  EXPECT_EQ(std::count(levels.begin(), levels.end(), last - 1), AdaptiveQuality::kColdFramesTrusted);
+  EXPECT_EQ(levels.back(), last);
 }
 
 }  // namespace
