@@ -123,7 +123,8 @@ class AdaptiveQuality {
   /// whose time is within kNearFastest of the fastest (a quarter: the cheapest levels lose 2-3 dB).
   /// After kProbeAfter frames at one level the next better one is tried: its time may have been
   /// measured on a slow frame. A probe frame that is not its level's time (cold, or drawing
-  /// bricks coarser: record) is followed by another, up to kColdFramesTrusted. With nothing measured (a volume just opened), the cheapest: its
+  /// bricks coarser: record) but within the target is followed by another, up to
+  /// kColdFramesTrusted (each costs the frame rate what it takes beyond a frame's time). With nothing measured (a volume just opened), the cheapest: its
   /// time then predicts the others' for this volume and image (a full-size frame of a large
   /// volume took seconds).
   int chooseInteractiveLevel();
