@@ -65,52 +65,75 @@ std::vector<glm::vec4> latticeKnots(const KnotSource& source, const KnotLattice&
   return out;
 }
 
-KnotSampler::KnotSampler(const KnotSource& source, int tiles)
-    : mSource(source), mDims(source.dims()), mSpacing(source.spacing()),
-      mTiles(size_t(std::max((tiles + kWays - 1) / kWays, 1)) * kWays) {}
+SampleBlock KnotSource::sampleBlock(const glm::ivec3& v) const {
+  SampleBlock b;
+  b.lo = v / kSampleBlock * kSampleBlock;
+  b.dims = glm::min(b.lo + kSampleBlock, dims()) - b.lo;
+  auto values = std::make_shared<std::vector<float>>(size_t(b.dims.x) * size_t(b.dims.y) * size_t(b.dims.z));
+  read(1, b.lo, b.dims, values->data(), nullptr);
+  b.samples = values->data();
+  b.keep = std::move(values);
+  return b;
+}
 
-const KnotSampler::Tile& KnotSampler::tileAt(const glm::vec3& p) {
-  // The voxel trilinearSample starts from; its tile covers kTile voxels from there on, and one
-  // more either side (a gradient reads i0 − 1 … i0 + 2).
-  const glm::ivec3 i0 = glm::min(glm::ivec3(glm::clamp(p, glm::vec3(0.0f), glm::vec3(mDims - 1))), mDims - 1);
-  const glm::ivec3 key = i0 / kTile;
-  const uint32_t h = uint32_t(key.x) * 73856093u ^ uint32_t(key.y) * 19349663u ^ uint32_t(key.z) * 83492791u;
-  // A set of kWays tiles, the least recently used replaced: a ray's beam meets a dozen or more
-  // tiles, and two of them sharing one slot of a direct-mapped table were read again by every
+SampleBlock VolumeKnots::sampleBlock(const glm::ivec3& v) const {
+  if (!mVolume.hasSamples()) return KnotSource::sampleBlock(v);
+  SampleBlock b;
+  b.dims = mVolume.dims();
+  b.type = mVolume.storedType();
+  b.samples = mVolume.visitSamples([](const auto* p) { return static_cast<const void*>(p); });
+  return b;
+}
+
+KnotSampler::KnotSampler(const KnotSource& source, int blocks)
+    : mSource(source), mDims(source.dims()), mSpacing(source.spacing()),
+      mEntries(size_t(std::max((blocks + kWays - 1) / kWays, 1)) * kWays) {}
+
+const SampleBlock& KnotSampler::blockAt(const glm::ivec3& v) {
+  if (mLast && mLast->holds(v)) return *mLast;
+  // A set of kWays blocks, the least recently used replaced: a ray's beam meets a dozen or more
+  // blocks, and two of them sharing one slot of a direct-mapped table were read again by every
   // ray of the beam.
-  Tile* set = &mTiles[size_t(h) % (mTiles.size() / kWays) * kWays];
+  const glm::ivec3 key = v / kSampleBlock;
+  const uint32_t h = uint32_t(key.x) * 73856093u ^ uint32_t(key.y) * 19349663u ^ uint32_t(key.z) * 83492791u;
+  Entry* set = &mEntries[size_t(h) % (mEntries.size() / kWays) * kWays];
   ++mClock;
-  Tile* victim = set;
+  Entry* victim = set;
   for (int w = 0; w < kWays; ++w) {
-    if (set[w].key == key) {
+    if (set[w].block.samples && set[w].block.holds(v)) {
       set[w].used = mClock;
-      return set[w];
+      return *(mLast = &set[w].block);
     }
     if (set[w].used < victim->used) victim = &set[w];
   }
-  Tile& t = *victim;
-  t.key = glm::ivec3(-1);  // (a failed read leaves no tile half-made)
-  t.lo = glm::max(key * kTile - 1, glm::ivec3(0));
-  t.count = glm::min(key * kTile + kTile + 1, mDims - 1) - t.lo + 1;
-  t.values.resize(size_t(t.count.x) * size_t(t.count.y) * size_t(t.count.z));
-  mSource.read(1, t.lo, t.count, t.values.data(), nullptr);
-  t.key = key;
-  t.used = mClock;
-  return t;
+  mLast = nullptr;
+  victim->block = SampleBlock{};  // (a failed read leaves no block half-made)
+  victim->block = mSource.sampleBlock(v);
+  victim->used = mClock;
+  return *(mLast = &victim->block);
+}
+
+template <class F>
+decltype(auto) KnotSampler::around(const glm::vec3& p, F&& f) {
+  // The voxels a gradient at p reads (trilinearGradient: i0 − 1 … i0 + 2, clamped).
+  const glm::vec3 q = glm::clamp(p, glm::vec3(0.0f), glm::vec3(mDims - 1));
+  const glm::ivec3 i0 = glm::min(glm::ivec3(q), mDims - 1);
+  const glm::ivec3 lo = glm::max(i0 - 1, glm::ivec3(0)), hi = glm::min(i0 + 2, mDims - 1);
+  const SampleBlock& b = blockAt(i0);
+  if (b.holds(lo) && b.holds(hi)) return b.visit(f);
+  return f([this](int i, int j, int k) { return blockAt({i, j, k}).at({i, j, k}); });
 }
 
 float KnotSampler::sample(const glm::vec3& p) {
-  const Tile& t = tileAt(p);
-  return trilinearSample(p, mDims, [&t](int i, int j, int k) { return t.at(i, j, k); });
+  return around(p, [&](const auto& at) { return trilinearSample(p, mDims, at); });
 }
 
 glm::vec3 KnotSampler::sampleGradient(const glm::vec3& p) {
-  const Tile& t = tileAt(p);
-  return trilinearGradient(p, mDims, mSpacing, [&t](int i, int j, int k) { return t.at(i, j, k); });
+  return around(p, [&](const auto& at) { return trilinearGradient(p, mDims, mSpacing, at); });
 }
 
 void sampleGradients(const KnotSource& source, std::span<const glm::vec3> points, glm::vec3* gradients) {
-  KnotSampler sampler(source, 16);  // a run of neighbouring points meets a few tiles
+  KnotSampler sampler(source, 16);  // a run of neighbouring points meets a few blocks
   for (size_t i = 0; i < points.size(); ++i) gradients[i] = sampler.sampleGradient(points[i]);
 }
 

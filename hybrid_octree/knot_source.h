@@ -14,6 +14,7 @@
 
 #include <cstdint>
 #include <cstring>
+#include <memory>
 #include <span>
 #include <vector>
 
@@ -46,6 +47,50 @@ struct KnotBox {
   glm::ivec3 lo{0}, count{0};
 };
 
+/// Samples of a KnotSource (its spacing-1 knots) held in place in their stored type, x fastest:
+/// a paged store's decompressed block, a volume's whole array, or a copy. @p keep holds them.
+struct SampleBlock {
+  glm::ivec3 lo{0}, dims{0};  ///< the voxels lo … lo + dims − 1
+  ScalarType type = ScalarType::Float32;
+  const void* samples = nullptr;
+  std::shared_ptr<const void> keep;
+  bool holds(const glm::ivec3& v) const {
+    return glm::all(glm::greaterThanEqual(v, lo)) && glm::all(glm::lessThan(v, lo + dims));
+  }
+  /// A reader of this block's voxels as stored in type T: (i, j, k) → float.
+  template <class T>
+  auto reader() const {
+    const char* base = static_cast<const char*>(samples);
+    const glm::ivec3 o = lo;
+    const size_t nx = size_t(dims.x), nxy = size_t(dims.x) * size_t(dims.y);
+    return [base, o, nx, nxy](int i, int j, int k) {
+      T x;  // (a paged store's blocks are bytes: copied, not aliased)
+      std::memcpy(&x, base + (size_t(i - o.x) + nx * size_t(j - o.y) + nxy * size_t(k - o.z)) * sizeof(T), sizeof(T));
+      return float(x);
+    };
+  }
+  /// Calls @p f with a reader of this block's voxels, (i, j, k) → float as Volume::at gives it,
+  /// the type dispatched once.
+  template <class F>
+  decltype(auto) visit(F&& f) const {
+    switch (type) {
+      case ScalarType::UInt8: return f(reader<uint8_t>());
+      case ScalarType::Int8: return f(reader<int8_t>());
+      case ScalarType::UInt16: return f(reader<uint16_t>());
+      case ScalarType::Int16: return f(reader<int16_t>());
+      default: return f(reader<float>());
+    }
+  }
+  /// The value of voxel @p v (held here).
+  float at(const glm::ivec3& v) const {
+    return visit([&](const auto& read) { return read(v.x, v.y, v.z); });
+  }
+};
+
+/// Voxels a side of the blocks KnotSource::sampleBlock copies by default (a paged store's blocks
+/// are its own, kStoreBlock).
+inline constexpr int kSampleBlock = 32;
+
 /// The knot values of a sample grid at every power-of-two spacing.
 class KnotSource {
  public:
@@ -61,6 +106,10 @@ class KnotSource {
   /// Thread-safe.
   /// @throw IoError when a paged source cannot read them (a damaged file, named with its block).
   virtual void read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const = 0;
+  /// Samples around voxel @p v (inside dims()) held in place, @p v among them: what a sampler
+  /// reads one voxel at a time. By default the block of kSampleBlock³ holding it, copied by read().
+  /// Thread-safe. @throw IoError as read().
+  virtual SampleBlock sampleBlock(const glm::ivec3& v) const;
 };
 
 /// The knots of a volume in memory: the samples, or the octree's prefiltered knots where it holds
@@ -71,6 +120,8 @@ class VolumeKnots final : public KnotSource {
   glm::ivec3 dims() const override { return mVolume.dims(); }
   glm::dvec3 spacing() const override { return mVolume.spacing(); }
   void read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const override;
+  /// The volume's whole array (a volume without samples: the default copy, which fails).
+  SampleBlock sampleBlock(const glm::ivec3& v) const override;
 
  private:
   const Volume& mVolume;
@@ -79,37 +130,37 @@ class VolumeKnots final : public KnotSource {
 
 /// The full-resolution field of a KnotSource (spacing 1) sampled as Volume::sample and
 /// Volume::sampleGradient sample a volume in memory, bit for bit: what a ray tracer reads from a
-/// paged scene, through the store's cache, without reading the samples whole. It reads tiles of
-/// kTile³ voxels (with the neighbour either side a gradient needs) and keeps the last few in a
-/// table of kWays-way sets, as neighbouring rays revisit them. One sampler per thread.
+/// paged scene, through the store's cache, without reading the samples whole. It reads the
+/// source's blocks in place (KnotSource::sampleBlock: a paged store's cached blocks, nothing
+/// copied) and keeps the last few in a table of kWays-way sets, least recently used replaced, as
+/// neighbouring rays revisit them. One sampler per thread.
 class KnotSampler {
  public:
-  static constexpr int kTile = 32;
   static constexpr int kWays = 4;
-  /// @p source must outlive the sampler; @p tiles: how many tiles it keeps (each ≤ 171 KB: 22 MB
-  /// by default, what the rays of a few pixels' squares revisit).
-  explicit KnotSampler(const KnotSource& source, int tiles = 128);
-  /// @throw IoError as KnotSource::read.
+  /// @p source must outlive the sampler; @p blocks: how many blocks it keeps (a paged store's
+  /// stay held while it does: 64 KB each for int16 samples, 16 MB by default).
+  explicit KnotSampler(const KnotSource& source, int blocks = 256);
+  /// @throw IoError as KnotSource::sampleBlock.
   float sample(const glm::vec3& p);
   glm::vec3 sampleGradient(const glm::vec3& p);
 
  private:
-  struct Tile {
-    glm::ivec3 key{-1};
+  struct Entry {
+    SampleBlock block;
     uint64_t used = 0;  // the sampler's clock at its last use
-    glm::ivec3 lo{0}, count{0};
-    std::vector<float> values;
-    float at(int i, int j, int k) const {
-      return values[size_t(i - lo.x) + size_t(count.x) * (size_t(j - lo.y) + size_t(count.y) * size_t(k - lo.z))];
-    }
   };
-  /// The tile holding every voxel a sample or gradient at @p p reads.
-  const Tile& tileAt(const glm::vec3& p);
+  /// The block holding voxel @p v, from the one last used or the table, else read.
+  const SampleBlock& blockAt(const glm::ivec3& v);
+  /// Calls @p f with a reader of voxels (i, j, k) → float for the voxels lo … hi around @p p: one
+  /// block's typed reader where a block holds them all (most samples), else voxel by voxel.
+  template <class F>
+  decltype(auto) around(const glm::vec3& p, F&& f);
 
   const KnotSource& mSource;
   glm::ivec3 mDims;
   glm::dvec3 mSpacing;
-  std::vector<Tile> mTiles;  // sets of kWays
+  std::vector<Entry> mEntries;  // sets of kWays
+  const SampleBlock* mLast = nullptr;
   uint64_t mClock = 0;
 };
 

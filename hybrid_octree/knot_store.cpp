@@ -571,6 +571,20 @@ void KnotStore::read(int s, const glm::ivec3& lo, const glm::ivec3& count, float
       }
 }
 
+SampleBlock KnotStore::sampleBlock(const glm::ivec3& v) const {
+  const StoreLevel& l = mLevels.front();
+  HYB_DCHECK(!l.coded && glm::all(glm::greaterThanEqual(v, glm::ivec3(0))) && glm::all(glm::lessThan(v, mDims)));
+  const glm::ivec3 b = v / kStoreBlock;
+  std::shared_ptr<const Block> blk = block(0, b);
+  SampleBlock out;
+  out.lo = b * kStoreBlock;
+  out.dims = blk->dims;
+  out.type = l.type;
+  out.samples = blk->bytes.data();
+  out.keep = std::move(blk);
+  return out;
+}
+
 void KnotStore::forEachValue(int s, const std::function<void(const float* values, size_t n)>& use) const {
   HYB_CHECK(std::has_single_bit(unsigned(s)) && size_t(std::countr_zero(unsigned(s))) < mLevels.size());
   const size_t level = size_t(std::countr_zero(unsigned(s)));

@@ -33,6 +33,7 @@ namespace hyb {
 /// Knots per axis of a store block (64 KB of int16 samples): large enough for zstd to find the
 /// samples' redundancy, small enough that a 17³-knot brick reads little besides itself.
 inline constexpr int kStoreBlock = 32;
+static_assert(kStoreBlock == kSampleBlock, "a sampler's table keys blocks of kSampleBlock voxels");
 /// Largest decompressed block: float values and bfloat16 gradients. The cache keeps the block a
 /// read needs even when it alone exceeds the cache's bound.
 inline constexpr uint64_t kMaxStoreBlockBytes = uint64_t(kStoreBlock) * kStoreBlock * kStoreBlock * (4 + 6);
@@ -142,6 +143,8 @@ class KnotStore final : public KnotSource {
   glm::dvec3 spacing() const override { return mSpacing; }
   /// @throw IoError naming the file, level and block when a block is corrupt.
   void read(int s, const glm::ivec3& lo, const glm::ivec3& count, float* values, glm::vec3* gradients) const override;
+  /// The cached block of samples holding voxel @p v, in place (read into the cache when it is not).
+  SampleBlock sampleBlock(const glm::ivec3& v) const override;
   /// Every sample (level 1) as the array a Volume holds.
   SampleArray samples() const;
   /// Passes the knots of spacing @p s (values, a block at a time, read past the cache) to @p use.

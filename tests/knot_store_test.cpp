@@ -100,7 +100,7 @@ TEST(KnotStore, EveryBrickReadsBackAsTheBrickMadeInMemory) {
     }
 }
 
-// A source that counts its reads: the tiles a KnotSampler fetches.
+// A source that counts its reads: the blocks a KnotSampler copies (KnotSource::sampleBlock's default).
 struct CountingKnots final : KnotSource {
   const KnotSource& inner;
   mutable int reads = 0;
@@ -113,15 +113,15 @@ struct CountingKnots final : KnotSource {
   }
 };
 
-// The ray tracer's sampler gives Volume::sample's numbers bit for bit, and keeps every tile of a
-// beam its table can hold: a tile is read once however the rays alternate between them (a
-// direct-mapped table read two tiles sharing a slot again for every ray).
-TEST(KnotSampler, SamplesAsTheVolumeAndReadsEachTileOnceWhileItsSetHoldsIt) {
-  const Volume v = noisyHead({130, 70, 40}, ScalarType::Int16);  // 5 × 3 × 2 tiles of 32
+// The ray tracer's sampler gives Volume::sample's numbers bit for bit, and keeps every block of
+// a beam its table can hold: a block is read once however the rays alternate between them (a
+// direct-mapped table read two blocks sharing a slot again for every ray).
+TEST(KnotSampler, SamplesAsTheVolumeAndReadsEachBlockOnceWhileItsSetHoldsIt) {
+  const Volume v = noisyHead({130, 70, 40}, ScalarType::Int16);  // 5 × 3 × 2 blocks of 32
   const VolumeOctree t = VolumeOctree::build(v);
   const VolumeKnots knots(v, t);
   const CountingKnots counting(knots);
-  KnotSampler sampler(counting, KnotSampler::kWays);  // one set: any four tiles
+  KnotSampler sampler(counting, KnotSampler::kWays);  // one set: any four blocks
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   const glm::vec3 hi(v.dims() - 1);
@@ -132,20 +132,20 @@ TEST(KnotSampler, SamplesAsTheVolumeAndReadsEachTileOnceWhileItsSetHoldsIt) {
     ASSERT_EQ(std::memcmp(&a, &b, sizeof a), 0) << i;
     ASSERT_EQ(std::memcmp(&g, &h, sizeof g), 0) << i;
   }
-  // Four tiles, visited in turn by 100 "rays": read once each.
+  // Four blocks, visited in turn by 100 "rays": read once each.
   KnotSampler beam(counting, KnotSampler::kWays);
-  const std::array<glm::vec3, 4> tiles{glm::vec3(5, 5, 5), glm::vec3(40, 5, 5), glm::vec3(70, 40, 5), glm::vec3(100, 5, 35)};
+  const std::array<glm::vec3, 4> blocks{glm::vec3(5, 5, 5), glm::vec3(40, 5, 5), glm::vec3(70, 40, 5), glm::vec3(100, 5, 35)};
   counting.reads = 0;
   for (int ray = 0; ray < 100; ++ray)
-    for (const glm::vec3& p : tiles) EXPECT_EQ(beam.sample(p + 0.25f * float(ray % 4)), v.sample(p + 0.25f * float(ray % 4)));
+    for (const glm::vec3& p : blocks) EXPECT_EQ(beam.sample(p + 0.25f * float(ray % 4)), v.sample(p + 0.25f * float(ray % 4)));
   EXPECT_EQ(counting.reads, 4);
-  // A fifth replaces the least recently used (the first); a beam of five tiles in a set of four
+  // A fifth replaces the least recently used (the first); a beam of five blocks in a set of four
   // then reads each again, each replacing the next one it needs: what the table's size bounds.
   beam.sample(glm::vec3(5, 40, 35));
   EXPECT_EQ(counting.reads, 5);
-  beam.sample(tiles[3]);
+  beam.sample(blocks[3]);
   EXPECT_EQ(counting.reads, 5);
-  for (const glm::vec3& p : tiles) beam.sample(p);
+  for (const glm::vec3& p : blocks) beam.sample(p);
   EXPECT_EQ(counting.reads, 8);  // the first three again; the last was used just before
 }
 
@@ -253,7 +253,7 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
   // The image errors a budget ranks by read the store a node at a time, never the samples whole.
   compare({budget});
   EXPECT_FALSE(paged.volume().hasSamples());
-  // The reference ray tracer reads the samples through the same cache, a tile at a time, the
+  // The reference ray tracer reads the samples through the same cache, a cached block at a time in place, the
   // face of a cutting plane included.
   Quality reference;
   reference.renderer = Renderer::Raycast;
@@ -263,7 +263,7 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
   compare({reference});
   look.cut.reset();
   EXPECT_FALSE(paged.volume().hasSamples());
-  // A translucent surface is extracted and shaded a leaf and a few tiles at a time through the
+  // A translucent surface is extracted and shaded a leaf and a few blocks at a time through the
   // same cache.
   look.iso = 150.0f;
   look.surfaceColor = glm::vec4(0.9f, 0.9f, 0.8f, 0.5f);
