@@ -12,6 +12,11 @@ double QualityLevel::cost() const {
   return scale * scale * (0.5 / step) * std::pow(budgetPercent / 100.0, 0.75);
 }
 
+bool surfaceRaysFit(const glm::ivec3& dims, const glm::dvec3& spacing) {
+  const glm::dvec3 extent = glm::dvec3(dims) * spacing;
+  return std::max({extent.x, extent.y, extent.z}) <= kRayLadderVoxels * std::min({spacing.x, spacing.y, spacing.z});
+}
+
 std::string QualityLevel::describe() const {
   std::ostringstream s;
   s << "size " << int(std::lround(scale * 100)) << " %, budget " << budgetPercent << " %, step " << step << (rays ? ", ray-traced" : "");

@@ -4,6 +4,8 @@
 // as ParaView's and Neuroglancer's interactive renderers do. Pure logic, fed with measured times.
 #pragma once
 
+#include <glm/glm.hpp>
+
 #include <array>
 #include <cstdint>
 #include <string>
@@ -63,8 +65,8 @@ inline constexpr Ladder kSurfaceLadder{{
 /// The surface's ladder for a scene whose samples are in memory: below half the canvas the frames
 /// are ray-traced. At those sizes a slice frame's cost follows the surface's triangles (llvmpipe
 /// shades 4×4 blocks), a ray-traced one its pixels, and the ray tracer draws the exact surface
-/// composited exactly: more accurate for the time at those sizes (docs/viewer.md). Not for a paged
-/// scene, whose samples the ray tracer reads through the store's cache, several times slower.
+/// composited exactly: more accurate for the time at those sizes (docs/viewer.md). For volumes
+/// whose rays are short enough (surfaceRaysFit), in memory or paged.
 inline constexpr Ladder kSurfaceRayLadder{{
     {1.0, 100.0, 0.5},
     {1.0, 100.0, 1.0},
@@ -79,6 +81,16 @@ inline constexpr Ladder kSurfaceRayLadder{{
     {0.1875, 100.0, 3.0, true},
     {0.15625, 100.0, 3.0, true},
 }};
+
+/// Longest ray, in the volume's smallest voxel spacings, for which the surface's moving frames
+/// are ray-traced (kSurfaceRayLadder): the cranium's rays cross 256 such voxels, and its 128²
+/// frames take 45-75 ms whether its samples are in memory or paged (docs/viewer.md); the
+/// clinical study's cross 512, and its ray-traced frames held neither the frame rate nor the
+/// latency (9 frames a second, p95 201 ms) where the sliced ladder does.
+inline constexpr double kRayLadderVoxels = 384.0;
+/// Whether a volume of @p dims voxels spaced @p spacing mm gets the ray-traced surface ladder:
+/// its longest extent is at most kRayLadderVoxels of its smallest spacing.
+bool surfaceRaysFit(const glm::ivec3& dims, const glm::dvec3& spacing);
 
 /// Brick edge (texels) of the frames before the final one: an eighth of the bricks of the default
 /// 16 at the same resolution, a third less time a frame on the cranium at the same accuracy

@@ -163,7 +163,7 @@ struct Client {
   bool refineSurface = false;           // ... of the surface's ladder
   std::optional<BandedFrame> banded;    // its final frame, part drawn
   AdaptiveQuality volumeQuality, surfaceQuality, surfaceRayQuality;
-  bool raysForSurface = false;  // the scene holds its samples: the surface's ladder ray-traces small frames
+  bool raysForSurface = false;  // the surface's ladder ray-traces small frames (surfaceRaysFit)
   std::atomic<bool> open{true};
   std::function<void(std::string message, bool binary)> send;  // posts to the socket; drops when closed
   explicit Client(double targetMs)
@@ -355,7 +355,8 @@ struct ServerState {
       const ScenePool::Frame shown = pool->forFrame(client.id, r.iso);
       surface = shown.iso.has_value();
       // (once the full surface is ready: the ray tracer draws no preview, it would build it here)
-      client.raysForSurface = shown.renderer && shown.renderer->volume().hasSamples() && shown.surfaceReady;
+      client.raysForSurface =
+          shown.renderer && shown.surfaceReady && surfaceRaysFit(shown.renderer->volume().dims(), shown.renderer->volume().spacing());
       AdaptiveQuality& quality = client.quality(surface);
       if (r.interacting) {
         level = quality.chooseInteractiveLevel();

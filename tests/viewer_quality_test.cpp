@@ -24,6 +24,18 @@ TEST(ViewerQuality, TheLaddersGoFromTheFinalFrameToCheaperOnes) {
   }
 }
 
+// The surface's moving frames are ray-traced where a ray crosses at most kRayLadderVoxels of the
+// smallest spacing: the cranium (256 across), not the clinical study (512), whatever the units.
+TEST(ViewerQuality, RayTracedSurfaceFramesGoToVolumesWhoseRaysAreShort) {
+  EXPECT_TRUE(surfaceRaysFit({256, 256, 108}, {0.957, 0.957, 1.5}));
+  EXPECT_FALSE(surfaceRaysFit({512, 512, 432}, {0.479, 0.479, 0.375}));
+  EXPECT_TRUE(surfaceRaysFit({384, 10, 10}, {1.0, 1.0, 1.0}));
+  EXPECT_FALSE(surfaceRaysFit({385, 10, 10}, {1.0, 1.0, 1.0}));
+  // Thick slices: 100 slices of 5 mm are 500 of the 1 mm pixels' spacing.
+  EXPECT_FALSE(surfaceRaysFit({200, 200, 100}, {1.0, 1.0, 5.0}));
+  EXPECT_TRUE(surfaceRaysFit({200, 200, 100}, {2.0, 2.0, 5.0}));
+}
+
 TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLevel) {
   AdaptiveQuality q(kVolumeLadder, 60.0);
   // Nothing measured (a volume just opened): the cheapest level, whose time predicts the others'.

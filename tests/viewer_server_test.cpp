@@ -366,12 +366,22 @@ json warmUp(Socket& c, int pixels) {
   return {};
 }
 
-TEST(ViewerServer, TheSurfacesSmallMovingFramesAreRayTracedWhenTheSamplesAreInMemory) {
-  TestServer s(1.0);  // no rung fits: moving frames stay on the cheapest ones
+// In memory or paged (the ray tracer reads a scene file's cached blocks in place).
+class SurfaceRays : public ::testing::TestWithParam<bool> {};
+
+TEST_P(SurfaceRays, TheSurfacesSmallMovingFramesAreRayTraced) {
+  const bool paged = GetParam();
+  test::TempDir dir;
+  saveScene(dir.file("s.hoct"), sphereScene().volume, sphereScene().octree);
+  TestServer s(1.0, 8, [&](ServerOptions& o) {  // no rung fits: moving frames stay on the cheapest ones
+    o.loader = [&](const std::string&, const std::string&, const Progress*) {
+      return loadScene(dir.file("s.hoct"), SceneLoadOptions{!paged, 1 << 20});
+    };
+  });
   Socket c(s.port(), "/ws?token=" + s.token());
   c.next();  // info
   // Moving frames: once the surface is built, those of the surface's ladder are ray-traced (the
-  // test scene holds its samples; the first may have been chosen before the surface was ready).
+  // first may have been chosen before the surface was ready).
   json f;
   int surfaceFrames = 0, rayTraced = 0;
   for (uint64_t seq = 1; seq < 200 && surfaceFrames < 6; ++seq) {
@@ -396,6 +406,9 @@ TEST(ViewerServer, TheSurfacesSmallMovingFramesAreRayTracedWhenTheSamplesAreInMe
   ASSERT_EQ(f["quality"], "final");
   EXPECT_THAT(f["levelText"].get<std::string>(), Not(HasSubstr("ray-traced")));
 }
+
+INSTANTIATE_TEST_SUITE_P(ViewerServer, SurfaceRays, ::testing::Values(false, true),
+                         [](const ::testing::TestParamInfo<bool>& p) { return p.param ? "Paged" : "InMemory"; });
 
 TEST(ViewerServer, InteractiveFramesUseLargerBricksAndTheScreenSpaceLevelOfDetail) {
   TestServer s(1000.0);
