@@ -62,11 +62,11 @@ inline constexpr Ladder kSurfaceLadder{{
     {0.1875, 100.0, 2.5},
     {0.15625, 100.0, 2.5},
 }};
-/// The surface's ladder for a scene whose samples are in memory: below half the canvas the frames
-/// are ray-traced. At those sizes a slice frame's cost follows the surface's triangles (llvmpipe
+/// The surface's ladder for a volume whose rays are short (surfaceRaysFit): below half the canvas
+/// the frames are ray-traced. At those sizes a slice frame's cost follows the surface's triangles (llvmpipe
 /// shades 4×4 blocks), a ray-traced one its pixels, and the ray tracer draws the exact surface
-/// composited exactly: more accurate for the time at those sizes (docs/viewer.md). For volumes
-/// whose rays are short enough (surfaceRaysFit), in memory or paged.
+/// composited exactly: more accurate for the time at those sizes (docs/viewer.md). In memory or
+/// paged alike (the ray tracer reads a scene file's cached blocks in place).
 inline constexpr Ladder kSurfaceRayLadder{{
     {1.0, 100.0, 0.5},
     {1.0, 100.0, 1.0},
@@ -136,9 +136,9 @@ class AdaptiveQuality {
   /// After kProbeAfter frames at one level the next better one is tried: its time may have been
   /// measured on a slow frame. A probe frame that is not its level's time (cold, or drawing
   /// bricks coarser: record) but within the target is followed by another, up to
-  /// kColdFramesTrusted (each costs the frame rate what it takes beyond a frame's time). With nothing measured (a volume just opened), the cheapest: its
-  /// time then predicts the others' for this volume and image (a full-size frame of a large
-  /// volume took seconds).
+  /// kColdFramesTrusted. With nothing measured (a volume just opened), the cheapest: its time
+  /// then predicts the others' for this volume and image (a full-size frame of a large volume
+  /// took seconds).
   int chooseInteractiveLevel();
   static constexpr int kProbeAfter = 12;
   static constexpr double kNearFastest = 1.25;
