@@ -3,10 +3,20 @@
 
 #include <glm/glm.hpp>
 
+#include <array>
 #include <bit>
 #include <cstdint>
 
 namespace hyb {
+
+/// Set bits of each 8-bit child mask: a table read, since Debian's baseline x86-64 has no popcnt
+/// instruction and std::popcount became a libgcc call (8 % of a small ray-traced frame's time,
+/// in the descents of empty-space skipping).
+inline constexpr auto kChildMaskBits = [] {
+  std::array<uint8_t, 256> t{};
+  for (int m = 0; m < 256; ++m) t[size_t(m)] = uint8_t(std::popcount(unsigned(m)));
+  return t;
+}();
 
 /// One node of the flattened Volume Octree. Nodes live in one array in breadth-first order; the
 /// existing children of a node are contiguous, in slot order, starting at firstChild.
@@ -20,7 +30,7 @@ struct OctreeNode {
   uint8_t childMask = 0;     ///< bit s set when child slot s exists (slot bits: x | y<<1 | z<<2)
 
   bool isLeaf() const { return childMask == 0; }
-  int childCount() const { return std::popcount(unsigned(childMask)); }
+  int childCount() const { return kChildMaskBits[childMask]; }
 };
 static_assert(sizeof(OctreeNode) == 24, "OctreeNode is meant to pack into 24 bytes");
 
@@ -31,7 +41,7 @@ inline int childSlot(const glm::ivec3& p, int shift) {
 
 /// Array index of child @p slot of @p n, which must exist.
 inline uint32_t childIndex(const OctreeNode& n, int slot) {
-  return n.firstChild + uint32_t(std::popcount(unsigned(n.childMask) & ((1u << slot) - 1u)));
+  return n.firstChild + uint32_t(kChildMaskBits[n.childMask & ((1u << slot) - 1u)]);
 }
 
 /// Offset of child @p slot's origin from its parent's, for children of edge @p childEdge.
