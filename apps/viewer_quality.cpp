@@ -32,10 +32,11 @@ double AdaptiveQuality::estimateMs(int level) const {
 void AdaptiveQuality::record(int level, double ms, bool cold, double coarser) {
   const bool passing = cold || coarser > 0.0;  // a state the level's later frames leave behind, or not
   mCold = passing ? mCold + 1 : 0;
+  const bool untrusted = passing && mCold < kColdFramesTrusted;
   // A probe is done once measured, or once a frame of it, even drawing coarser bricks or
   // uploading a bounded share of textures, took longer than the target: the level does not fit.
-  if (level == mProbe && (!(passing && mCold < kColdFramesTrusted) || ms > mTargetMs)) mProbe = -1;
-  if (passing && mCold < kColdFramesTrusted) return;
+  if (level == mProbe && (!untrusted || ms > mTargetMs)) mProbe = -1;
+  if (untrusted) return;
   ms /= std::max(1.0 - coarser, 1.0 / kMaxCoarserScale);
   double& m = mMeasured[size_t(level)];
   m = m < 0.0 ? ms : 0.6 * m + 0.4 * ms;  // smoothed: one slow frame of a shared machine moves it a little

@@ -764,7 +764,7 @@ std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::stri
     detail::rescaleSamples(&plane, 0, sliceSamples(image, where), image.slope, image.intercept);
     if (storedType(plane) != stored) {
       stored = ScalarType::Float32;
-      byValues = false;
+      break;
     }
   }
   const ScalarType source = seriesSourceType(headers.front().type, rescaled, stored);
