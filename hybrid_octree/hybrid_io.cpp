@@ -32,6 +32,7 @@ constexpr uint32_t kOctreeTag = tag("VOCT");
 constexpr uint32_t kSurfaceTag = tag("SURF");
 constexpr uint32_t kBlocksTag = tag("KDAT");
 constexpr uint32_t kIndexTag = tag("KIDX");
+constexpr uint32_t kAlignTag = tag("ALGN");  // padding: the octree's arrays start 8-byte aligned, to be mapped in place
 
 // Appends plain values and arrays to a byte buffer.
 class Writer {
@@ -83,6 +84,16 @@ class Reader {
     mPos += size_t(n) * sizeof(T);
     return v;
   }
+  /// An array laid out as getArray reads it, left in place: where its items start, and how many.
+  template <typename T>
+  std::pair<const uint8_t*, size_t> skipArray() {
+    const uint64_t n = get<uint64_t>();
+    needItems(n, sizeof(T));
+    const uint8_t* at = mData + mPos;
+    mPos += size_t(n) * sizeof(T);
+    return {at, size_t(n)};
+  }
+  size_t left() const { return mSize - mPos; }
 
  private:
   void need(size_t n) {
@@ -243,7 +254,7 @@ void writeScene(const std::string& path, const Volume& volume, const VolumeOctre
     };
     auto write = [&](uint32_t t, const std::vector<uint8_t>& bytes) { writeSection(Section{t, {{bytes.data(), bytes.size()}}}); };
     out.write(kMagic, sizeof kMagic);
-    const uint32_t header[2] = {kSceneVersion, surface ? 5u : 4u};  // VOLM, KDAT, KIDX, VOCT and SURF
+    const uint32_t header[2] = {kSceneVersion, surface ? 6u : 5u};  // VOLM, KDAT, KIDX, ALGN, VOCT and SURF
     out.write(reinterpret_cast<const char*>(header), sizeof header);
     write(kVolumeTag, vol.bytes());
     // The blocks stream out as they are compressed; their section's size is known at its end.
@@ -257,6 +268,10 @@ void writeScene(const std::string& path, const Volume& volume, const VolumeOctre
     out.seekp(0, std::ios::end);
     write(kIndexTag, indexBytes);
     const uint64_t volumeHash = volumeHashOf(vol.bytes(), indexBytes);
+    // The octree section's header and arrays start at multiples of 8 (its header is 16 bytes, an
+    // array's count 8, a node 24), so that a reader maps them in place.
+    const std::vector<uint8_t> padding(size_t((8 - (uint64_t(out.tellp()) + 16) % 8) % 8), 0);
+    write(kAlignTag, padding);
     // The node and error arrays are written from where they lie (the phantom's are 390 MB): the
     // section is its header fields, then each array as Writer::putArray lays it out.
     Writer oct, nodeCount, errorCount;
@@ -424,44 +439,38 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
       HYB_THROW(IoError, path, ": the ", name, " section was built from another volume than the scene's (content hash mismatch)");
   };
   {
-    // Read straight into the node and error arrays (no copy of the section: 390 MB on the phantom),
-    // the checksum over the pieces as they come.
+    // Mapped, not read (390 MB on the phantom): the checksum and the checks read it through the
+    // mapping, then its pages are given back, so that a frame holds only the nodes it reads (the
+    // kernel pages them in from the file, and may drop them again). Arrays off their alignment (a
+    // scene written before its octree was aligned) are copied instead.
     const Entry& e = entry(kOctreeTag, "volume octree");
-    uint64_t at = e.offset, left = e.size;
-    uLong crc = crc32_z(0L, Z_NULL, 0);
-    auto piece = [&](void* to, uint64_t n) {
-      if (n > left) corrupt(e);  // a count its checksum would have refused
-      file.read(at, n, static_cast<uint8_t*>(to));
-      crc = crc32_z(crc, static_cast<const uint8_t*>(to), size_t(n));
-      at += n;
-      left -= n;
-    };
-    uint8_t head[16];
-    piece(head, sizeof head);
-    Reader r(head, sizeof head, path);
+    const auto mapping = file.map(e.offset, e.size);
+    if (Section{0, {{mapping->data(), size_t(e.size)}}}.crc() != e.crc) corrupt(e);
+    Reader r(mapping->data(), size_t(e.size), path);
     const uint64_t hash = r.get<uint64_t>();
     const int32_t leafEdge = r.get<int32_t>();
     const uint32_t prefiltered = r.get<uint32_t>();
-    auto array = [&]<class T>(std::vector<T>* v) {
-      uint64_t n = 0;
-      piece(&n, sizeof n);
-      if (n > left / sizeof(T)) corrupt(e);
-      v->resize(size_t(n));
-      piece(v->data(), n * sizeof(T));
-    };
-    std::vector<OctreeNode> nodes;
-    std::vector<float> errors;
-    array(&nodes);
-    array(&errors);
-    if (left != 0 || uint32_t(crc) != e.crc) corrupt(e);
+    const auto [nodesAt, nodeCount] = r.skipArray<OctreeNode>();
+    const auto [errorsAt, errorCount] = r.skipArray<float>();
+    if (r.left() != 0) corrupt(e);  // a count its checksum would have refused
     sameVolume(hash, "volume octree");
     if (prefiltered > 1) HYB_THROW(IoError, path, ": octree knot mode ", prefiltered, " unknown (expected 0 or 1)");
     // Paged, the octree's prefiltered knots are the store's; in memory they are rebuilt, and the
     // octree is checked against the samples.
     const bool inMemory = scene.volume.hasSamples();
-    scene.octree = VolumeOctree::fromParts(scene.volume.dims(), leafEdge, std::move(nodes), std::move(errors), path,
-                                           prefiltered && inMemory ? &scene.volume : nullptr);
+    const Volume* knotsFrom = prefiltered && inMemory ? &scene.volume : nullptr;
+    if (reinterpret_cast<uintptr_t>(nodesAt) % alignof(OctreeNode) == 0 && reinterpret_cast<uintptr_t>(errorsAt) % alignof(float) == 0) {
+      scene.octree = VolumeOctree::fromParts(scene.volume.dims(), leafEdge, {reinterpret_cast<const OctreeNode*>(nodesAt), nodeCount},
+                                             {reinterpret_cast<const float*>(errorsAt), errorCount}, mapping, path, knotsFrom);
+    } else {
+      std::vector<OctreeNode> nodes(nodeCount);
+      std::vector<float> errors(errorCount);
+      std::memcpy(nodes.data(), nodesAt, nodeCount * sizeof(OctreeNode));
+      std::memcpy(errors.data(), errorsAt, errorCount * sizeof(float));
+      scene.octree = VolumeOctree::fromParts(scene.volume.dims(), leafEdge, std::move(nodes), std::move(errors), path, knotsFrom);
+    }
     if (inMemory) scene.octree.validateAgainst(scene.volume, path);
+    scene.octree.releasePages();
     // Bricks read the spacings 1 … the root's edge: the store must hold each.
     if (scene.knots && scene.knots->levels().size() != size_t(scene.octree.depth()) + 1)
       HYB_THROW(IoError, path, ": the knot store holds ", scene.knots->levels().size(), " spacings for an octree of depth ", scene.octree.depth(),

@@ -373,7 +373,7 @@ bool isRestricted(const VolumeOctree& octree, const Selection& sel) {
 
 Selection residentSelection(const VolumeOctree& octree, const Selection& selection, const std::function<bool(const Brick&)>& resident,
                             std::vector<Brick>* missing) {
-  const std::vector<OctreeNode>& nodes = octree.nodes();
+  const std::span<const OctreeNode> nodes = octree.nodes();
   // The nodes from the root down to @p n.
   auto path = [&](const OctreeNode& n) {
     std::vector<uint32_t> p{0};

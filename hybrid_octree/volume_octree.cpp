@@ -484,6 +484,25 @@ void visitPlanes(PlaneSource& planes, PlaneVisitor& visitor, int first, Progress
 
 VolumeOctree VolumeOctree::fromParts(glm::ivec3 dims, int leafEdge, std::vector<OctreeNode> nodes,
                                      std::vector<float> errors, const std::string& source, const Volume* prefilteredFrom) {
+  VolumeOctree t = checkedShell(dims, leafEdge, nodes, errors, source, prefilteredFrom);
+  t.mNodes = std::move(nodes);
+  t.mErrors = std::move(errors);
+  return t;
+}
+
+VolumeOctree VolumeOctree::fromParts(glm::ivec3 dims, int leafEdge, std::span<const OctreeNode> nodes, std::span<const float> errors,
+                                     std::shared_ptr<const InputFile::Mapping> owner, const std::string& source,
+                                     const Volume* prefilteredFrom) {
+  HYB_CHECK(owner);
+  VolumeOctree t = checkedShell(dims, leafEdge, nodes, errors, source, prefilteredFrom);
+  t.mOwner = std::move(owner);
+  t.mMappedNodes = nodes;
+  t.mMappedErrors = errors;
+  return t;
+}
+
+VolumeOctree VolumeOctree::checkedShell(glm::ivec3 dims, int leafEdge, std::span<const OctreeNode> nodes, std::span<const float> errors,
+                                        const std::string& source, const Volume* prefilteredFrom) {
   validateDims(dims, source);
   if (leafEdge < 1 || leafEdge > 256 || (leafEdge & (leafEdge - 1)))
     HYB_THROW(IoError, source, ": stored leaf edge ", leafEdge, " invalid (expected a power of two in 1..256)");
@@ -530,8 +549,6 @@ VolumeOctree VolumeOctree::fromParts(glm::ivec3 dims, int leafEdge, std::vector<
   t.mDims = dims;
   t.mDepth = g.depth;
   t.mLeafEdge = g.leafEdge;
-  t.mNodes = std::move(nodes);
-  t.mErrors = std::move(errors);
   if (prefilteredFrom) {
     HYB_CHECK(prefilteredFrom->dims() == dims);
     t.mKnots = KnotPyramid(*prefilteredFrom);
@@ -571,10 +588,11 @@ void VolumeOctree::validateAgainst(const Volume& volume, const std::string& sour
   const auto fail = [&](size_t i, const char* what) {
     HYB_THROW(IoError, source, ": octree node ", i, " ", what, " (the scene's octree does not describe its volume)");
   };
-  std::vector<uint8_t> wrong(mNodes.size(), 0);
+  const std::span<const OctreeNode> all = nodes();
+  std::vector<uint8_t> wrong(all.size(), 0);
 #pragma omp parallel for schedule(dynamic, 64)
-  for (size_t i = 0; i < mNodes.size(); ++i) {
-    const OctreeNode& n = mNodes[i];
+  for (size_t i = 0; i < all.size(); ++i) {
+    const OctreeNode& n = all[i];
     if (!n.isLeaf()) continue;
     glm::ivec3 lo, hi;
     voxelBox(n, &lo, &hi);
@@ -588,15 +606,15 @@ void VolumeOctree::validateAgainst(const Volume& volume, const std::string& sour
         }
     wrong[i] = mn != n.minValue || mx != n.maxValue;
   }
-  for (size_t i = mNodes.size(); i-- > 0;) {
-    const OctreeNode& n = mNodes[i];
+  for (size_t i = all.size(); i-- > 0;) {
+    const OctreeNode& n = all[i];
     if (wrong[i]) fail(i, "has a min/max other than its samples'");
     if (errors(n).back() != 0.0f) fail(i, "has a non-zero error at full resolution");
     if (n.isLeaf()) continue;
     float mn = std::numeric_limits<float>::infinity(), mx = -mn;
     for (int c = 0; c < n.childCount(); ++c) {
-      mn = std::min(mn, mNodes[n.firstChild + uint32_t(c)].minValue);
-      mx = std::max(mx, mNodes[n.firstChild + uint32_t(c)].maxValue);
+      mn = std::min(mn, all[n.firstChild + uint32_t(c)].minValue);
+      mx = std::max(mx, all[n.firstChild + uint32_t(c)].maxValue);
     }
     if (mn != n.minValue || mx != n.maxValue) fail(i, "has a min/max other than its children's");
   }

@@ -27,6 +27,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <string>
 #include <vector>
@@ -35,6 +36,7 @@
 #include "hybrid_octree/octree_node.h"
 #include "surface/mesh.h"
 #include "volume/plane_source.h"
+#include "volume/file_util.h"
 #include "volume/progress.h"
 #include "volume/sample_window.h"
 #include "volume/volume.h"
@@ -99,6 +101,11 @@ class VolumeOctree {
   static VolumeOctree fromParts(glm::ivec3 dims, int leafEdge, std::vector<OctreeNode> nodes,
                                 std::vector<float> errors, const std::string& source,
                                 const Volume* prefilteredFrom = nullptr);
+  /// The same checks, the arrays left where they lie (a scene file's section mapped read-only:
+  /// the kernel pages the nodes a frame reads in and out), kept alive by @p owner.
+  static VolumeOctree fromParts(glm::ivec3 dims, int leafEdge, std::span<const OctreeNode> nodes, std::span<const float> errors,
+                                std::shared_ptr<const InputFile::Mapping> owner, const std::string& source,
+                                const Volume* prefilteredFrom = nullptr);
 
   /// Checks a reassembled octree against the samples it claims to describe: every leaf's min/max
   /// equals its box's, every inner node's its children's, and every node's finest error is 0 (its
@@ -113,10 +120,17 @@ class VolumeOctree {
   /// Sample grid the octree was built over.
   const glm::ivec3& dims() const { return mDims; }
   /// All nodes, breadth first; the root is nodes()[0].
-  const std::vector<OctreeNode>& nodes() const { return mNodes; }
-  const OctreeNode& root() const { return mNodes[0]; }
+  std::span<const OctreeNode> nodes() const { return mOwner ? mMappedNodes : std::span<const OctreeNode>(mNodes); }
+  const OctreeNode& root() const { return nodes()[0]; }
   /// Flat array of every node's error list.
-  const std::vector<float>& errorData() const { return mErrors; }
+  std::span<const float> errorData() const { return mOwner ? mMappedErrors : std::span<const float>(mErrors); }
+  /// Whether the arrays lie in a mapped file (fromParts with an owner) rather than in memory of their own.
+  bool mapped() const { return mOwner != nullptr; }
+  /// Mapped: gives the pages read so far back (a walk over the whole tree, such as the default
+  /// camera's fit, need not keep them); the frames after fault in what they read. Else nothing.
+  void releasePages() const {
+    if (mOwner) mOwner->release();
+  }
 
   /// Edge of @p n in cells.
   int edge(const OctreeNode& n) const { return 1 << (mDepth - n.level); }
@@ -124,7 +138,7 @@ class VolumeOctree {
   int maxLevel(const OctreeNode& n) const { return mDepth - n.level; }
   /// ε_p(n) for p = 0…maxLevel(n), in data units.
   std::span<const float> errors(const OctreeNode& n) const {
-    return {mErrors.data() + n.errorOffset, size_t(maxLevel(n) + 1)};
+    return errorData().subspan(n.errorOffset, size_t(maxLevel(n) + 1));
   }
 
   /// Knots per axis of @p n's sub-grid at level @p p, cropped to the grid (seamless bricks: up to
@@ -168,15 +182,23 @@ class VolumeOctree {
 
   /// Bytes held by the node and error arrays and the knot pyramid (the octree's memory overhead).
   size_t bytesUsed() const {
-    return mNodes.size() * sizeof(OctreeNode) + mErrors.size() * sizeof(float) + mKnots.bytesUsed() + sizeof(*this);
+    return nodes().size() * sizeof(OctreeNode) + errorData().size() * sizeof(float) + mKnots.bytesUsed() + sizeof(*this);
   }
 
  private:
+  // Checks stored parts against the shape dims and leafEdge imply (fromParts) and makes the octree
+  // without its arrays.
+  static VolumeOctree checkedShell(glm::ivec3 dims, int leafEdge, std::span<const OctreeNode> nodes, std::span<const float> errors,
+                                   const std::string& source, const Volume* prefilteredFrom);
+
   glm::ivec3 mDims{0};
   int mDepth = 0;
   int mLeafEdge = 1;
   std::vector<OctreeNode> mNodes;
   std::vector<float> mErrors;
+  std::shared_ptr<const InputFile::Mapping> mOwner;  // of the mapped arrays below, when set
+  std::span<const OctreeNode> mMappedNodes;
+  std::span<const float> mMappedErrors;
   KnotPyramid mKnots;  // empty unless prefiltered
 };
 

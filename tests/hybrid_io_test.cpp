@@ -2,6 +2,8 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+
+#include <algorithm>
 #include <zlib.h>
 
 #include <cmath>
@@ -41,7 +43,7 @@ TEST(SceneFile, RoundTripIsExact) {
   EXPECT_EQ(s.octree.leafEdge(), 4);
   ASSERT_EQ(s.octree.nodes().size(), t.nodes().size());
   EXPECT_EQ(std::memcmp(s.octree.nodes().data(), t.nodes().data(), t.nodes().size() * sizeof(OctreeNode)), 0);
-  EXPECT_EQ(s.octree.errorData(), t.errorData());
+  EXPECT_TRUE(std::ranges::equal(s.octree.errorData(), t.errorData()));
 }
 
 // A scene built from a file read plane by plane (two passes, a few planes held at a time, the
@@ -152,7 +154,7 @@ TEST(SceneFile, KnotModeRoundTrips) {
     saveScene(dir.file("s.hoct"), v, t);
     const Scene s = loadScene(dir.file("s.hoct"));
     EXPECT_EQ(s.octree.prefiltered(), prefilter);
-    EXPECT_EQ(s.octree.errorData(), t.errorData());
+    EXPECT_TRUE(std::ranges::equal(s.octree.errorData(), t.errorData()));
     for (const glm::ivec3 knot : {glm::ivec3(0, 0, 0), glm::ivec3(8, 16, 8), glm::ivec3(32, 19, 8)})
       EXPECT_EQ(s.octree.knotValue(s.volume, 8, knot), t.knotValue(v, 8, knot));
   }
@@ -266,8 +268,8 @@ TEST(SceneFile, SectionsOfAnotherVolumeAreRefused) {
   saveScene(dir.file("b.hoct"), b, tb, &sb);
   const std::vector<uint8_t> fa = test::readBytes(dir.file("a.hoct")), fb = test::readBytes(dir.file("b.hoct"));
   const auto ra = sectionRecords(fa), rb = sectionRecords(fb);
-  ASSERT_EQ(ra.size(), size_t(5));  // VOLM, KDAT, KIDX, VOCT, SURF
-  for (size_t swapped : {size_t(2), size_t(3), size_t(4)}) {
+  ASSERT_EQ(ra.size(), size_t(6));  // VOLM, KDAT, KIDX, ALGN, VOCT, SURF
+  for (size_t swapped : {size_t(2), size_t(4), size_t(5)}) {
     std::vector<uint8_t> mixed(fa.begin(), fa.begin() + 16);
     for (size_t s = 0; s < ra.size(); ++s) {
       const bool store = swapped == 2 && s == 1;  // the knot store's data goes with its index
@@ -287,9 +289,45 @@ TEST(SceneFile, SectionsOfAnotherVolumeAreRefused) {
       }
       continue;
     }
-    expectLoadFails(dir.file("mixed.hoct"), std::string("the ") + (swapped == 4 ? "surface octree" : "volume octree") +
+    expectLoadFails(dir.file("mixed.hoct"), std::string("the ") + (swapped == 5 ? "surface octree" : "volume octree") +
                                                 " section was built from another volume");
   }
+}
+
+// The octree's arrays are left in the file, mapped (the kernel pages in the nodes a frame reads),
+// in memory and paged alike; a scene whose arrays are off their alignment (one byte more of
+// padding before them) loads them copied, the same octree.
+TEST(SceneFile, TheOctreeIsMappedInPlaceOrCopiedWhenMisaligned) {
+  test::TempDir dir;
+  const Volume v = test::randomVolume({33, 20, 9}, 3);
+  const VolumeOctree t = VolumeOctree::build(v, VolumeOctreeOptions{4});
+  saveScene(dir.file("s.hoct"), v, t);
+  auto same = [&](const VolumeOctree& o) {
+    return o.nodes().size() == t.nodes().size() &&
+           std::memcmp(o.nodes().data(), t.nodes().data(), t.nodes().size() * sizeof(OctreeNode)) == 0 &&
+           std::ranges::equal(o.errorData(), t.errorData());
+  };
+  EXPECT_FALSE(t.mapped());
+  for (const bool inMemory : {true, false}) {
+    const Scene s = loadScene(dir.file("s.hoct"), SceneLoadOptions{inMemory, 1 << 20});
+    EXPECT_TRUE(s.octree.mapped()) << inMemory;
+    EXPECT_TRUE(same(s.octree)) << inMemory;
+    const VolumeOctree copy = s.octree;  // shares the mapping, which outlives the scene
+    EXPECT_TRUE(copy.mapped());
+  }
+  auto records = sectionRecords(test::readBytes(dir.file("s.hoct")));
+  ASSERT_EQ(records.size(), size_t(5));  // VOLM, KDAT, KIDX, ALGN, VOCT
+  ASSERT_EQ(std::string(records[3].begin(), records[3].begin() + 4), "ALGN");
+  records[3].push_back(0);
+  const uint64_t padding = records[3].size() - 16;
+  std::memcpy(&records[3][4], &padding, 8);
+  std::vector<uint8_t> shifted = test::readBytes(dir.file("s.hoct"));
+  shifted.resize(16);
+  for (const auto& r : records) shifted.insert(shifted.end(), r.begin(), r.end());
+  test::writeBytes(dir.file("shifted.hoct"), shifted);
+  const Scene s = loadScene(dir.file("shifted.hoct"));
+  EXPECT_FALSE(s.octree.mapped());
+  EXPECT_TRUE(same(s.octree));
 }
 
 TEST(SceneFile, AnOctreeThatDisagreesWithItsSamplesIsRefused) {
@@ -308,22 +346,24 @@ TEST(SceneFile, AnOctreeThatDisagreesWithItsSamplesIsRefused) {
   };
   const size_t leaf = t.nodes().size() - 1;
   ASSERT_TRUE(t.nodes()[leaf].isLeaf());
-  auto nodes = t.nodes();
+  const std::vector<OctreeNode> allNodes(t.nodes().begin(), t.nodes().end());
+  const std::vector<float> errorData(t.errorData().begin(), t.errorData().end());
+  auto nodes = allNodes;
   nodes[leaf].minValue -= 1.0f;  // still a valid range, but not its samples'
-  check(nodes, t.errorData(), "min/max other than its samples'");
-  nodes = t.nodes();
+  check(nodes, errorData, "min/max other than its samples'");
+  nodes = allNodes;
   nodes[0].maxValue += 1.0f;
-  check(nodes, t.errorData(), "min/max other than its children's");
-  auto errors = t.errorData();
+  check(nodes, errorData, "min/max other than its children's");
+  auto errors = errorData;
   errors[t.nodes()[0].errorOffset + size_t(t.maxLevel(t.nodes()[0]))] = 0.5f;
-  check(t.nodes(), errors, "non-zero error at full resolution");
+  check(allNodes, errors, "non-zero error at full resolution");
 }
 
 TEST(SceneFile, FromPartsRejectsInconsistentOctrees) {
   const Volume v = test::randomVolume({17, 9, 5}, 4);
   const VolumeOctree t = VolumeOctree::build(v);
-  auto nodes = t.nodes();
-  auto errors = t.errorData();
+  const std::vector<OctreeNode> nodes(t.nodes().begin(), t.nodes().end());
+  const std::vector<float> errors(t.errorData().begin(), t.errorData().end());
   EXPECT_NO_THROW(VolumeOctree::fromParts(v.dims(), 8, nodes, errors, "x"));
   EXPECT_THROW(VolumeOctree::fromParts({18, 9, 5}, 8, nodes, errors, "x"), IoError);  // other grid, other shape
   EXPECT_THROW(VolumeOctree::fromParts(v.dims(), 4, nodes, errors, "x"), IoError);

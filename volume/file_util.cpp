@@ -1,6 +1,7 @@
 #include "volume/file_util.h"
 
 #include <fcntl.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -80,6 +81,21 @@ std::vector<uint8_t> InputFile::bytes(uint64_t offset, uint64_t count) const {
   read(offset, count, out.data());
   return out;
 }
+
+std::shared_ptr<const InputFile::Mapping> InputFile::map(uint64_t offset, uint64_t count) const {
+  if (offset > mSize || count > mSize - offset)
+    HYB_THROW(IoError, mPath, ": file ends at byte ", mSize, " (expected ", count, " bytes from byte ", offset, ")");
+  const uint64_t page = uint64_t(::sysconf(_SC_PAGESIZE));
+  const uint64_t start = offset / page * page;
+  const size_t length = size_t(std::max<uint64_t>(offset + count - start, 1));
+  void* base = ::mmap(nullptr, length, PROT_READ, MAP_PRIVATE, mFd, off_t(start));
+  if (base == MAP_FAILED) HYB_THROW(IoError, mPath, ": cannot map ", count, " bytes from byte ", offset, " (", std::strerror(errno), ")");
+  return std::make_shared<const Mapping>(base, length, static_cast<const uint8_t*>(base) + (offset - start), count);
+}
+
+InputFile::Mapping::~Mapping() { ::munmap(mBase, mLength); }
+
+void InputFile::Mapping::release() const { ::madvise(mBase, mLength, MADV_DONTNEED); }
 
 std::vector<uint8_t> readFileBytes(const std::string& path) {
   const InputFile file(path);

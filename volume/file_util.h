@@ -4,6 +4,7 @@
 #include <cstdint>
 #include <functional>
 #include <iosfwd>
+#include <memory>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -31,11 +32,39 @@ class InputFile {
   /// The bytes [@p offset, @p offset + @p count); checks memoryLimit() first.
   /// @throw IoError as read(), or when the bytes exceed the memory limit.
   std::vector<uint8_t> bytes(uint64_t offset, uint64_t count) const;
+  class Mapping;
+  /// The bytes [@p offset, @p offset + @p count) mapped read-only: the kernel reads a page when it is
+  /// first touched and, the pages being clean copies of the file, may drop them again under memory
+  /// pressure, so what stays resident follows what is read. The file must not shrink while mapped
+  /// (a read past its end would be a bus error): for sections read again and again, such as a scene's
+  /// octree, whose checksum is verified through the mapping first.
+  /// @throw IoError naming the file when the range is outside it or cannot be mapped.
+  std::shared_ptr<const Mapping> map(uint64_t offset, uint64_t count) const;
 
  private:
   std::string mPath;
   int mFd = -1;
   uint64_t mSize = 0;
+};
+
+/// A range of a file mapped by InputFile::map; unmapped when the last owner lets go.
+class InputFile::Mapping {
+ public:
+  Mapping(void* base, size_t length, const uint8_t* data, uint64_t size) : mBase(base), mLength(length), mData(data), mSize(size) {}
+  ~Mapping();
+  Mapping(const Mapping&) = delete;
+  Mapping& operator=(const Mapping&) = delete;
+  const uint8_t* data() const { return mData; }
+  uint64_t size() const { return mSize; }
+  /// Gives the pages read so far back (madvise MADV_DONTNEED): the process's memory no longer holds
+  /// them, and a later read faults them in again from the file (usually from the page cache).
+  void release() const;
+
+ private:
+  void* mBase;
+  size_t mLength;
+  const uint8_t* mData;
+  uint64_t mSize;
 };
 
 /// Reads the whole file (a regular file only) into memory, within memoryLimit().
