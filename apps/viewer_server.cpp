@@ -142,7 +142,7 @@ inline constexpr int kBandPixels = 512 * 512;
 struct BandedFrame {
   FrameRequest request;
   std::optional<float> iso;
-  bool surfaceReady = true;
+  bool surfaceReady = true, surfaceBuilding = false;
   std::optional<Arrival> arrival;
   Image image;
   int next = 0;           // the first row not drawn yet
@@ -384,6 +384,7 @@ struct ServerState {
       b.request = request;
       b.iso = scene.iso;
       b.surfaceReady = scene.surfaceReady;
+      b.surfaceBuilding = scene.surfaceBuilding;
       b.arrival = arrival;
       b.image = Image(request.camera.width, request.camera.height);
       b.rowsPerBand = std::max(16, kBandPixels / request.camera.width);
@@ -410,7 +411,7 @@ struct ServerState {
       // (also a ray-traced frame that made the surface's BVH, or one that made a pre-integration table)
       cold = 2 * st.slices.uploadedBricks > st.slices.bricks || st.bvhMs > 0.0 || st.preintegrationMs > 0.0;
       coarser = double(st.bricksNotResident) / double(std::max<size_t>(1, st.slices.bricks + st.bricksNotResident));
-      message = encodeFrame(summary, request, parts.look, rung, level, final, iso, scene.surfaceReady, arrival, frame.image, st,
+      message = encodeFrame(summary, request, parts.look, rung, level, final, iso, scene.surfaceReady, scene.surfaceBuilding, arrival, frame.image, st,
                             frame.selection.maxError, renderMs, t0, &ms);
     } catch (const std::exception& e) {
       message.clear();
@@ -463,7 +464,7 @@ struct ServerState {
     double total = 0.0;
     try {
       const FrameParts parts = frameParts(done.request, rung, 0, iso);
-      message = encodeFrame(summary, done.request, parts.look, rung, 0, true, iso, done.surfaceReady, done.arrival, done.image, done.stats,
+      message = encodeFrame(summary, done.request, parts.look, rung, 0, true, iso, done.surfaceReady, done.surfaceBuilding, done.arrival, done.image, done.stats,
                             done.maxError, done.renderMs, Clock::now(), &total);
     } catch (const std::exception& e) {
       error = e.what();
@@ -516,7 +517,7 @@ struct ServerState {
   // A frame's message: its header and the image, JPEG before the final frame, PNG for it (render
   // thread, unlocked); @p ms receives the frame's time from @p t0, encoding included.
   std::string encodeFrame(const SceneSummary& scene, const FrameRequest& r, const Look& look, const QualityLevel& q, int level, bool final,
-                          std::optional<float> iso, bool surfaceReady, const std::optional<Arrival>& arrival, const Image& image,
+                          std::optional<float> iso, bool surfaceReady, bool surfaceBuilding, const std::optional<Arrival>& arrival, const Image& image,
                           const FrameStats& st, double maxError, double renderMs, Clock::time_point t0, double* ms) const {
     const auto t1 = Clock::now();
     const std::vector<uint8_t> rgba = toRgba8(image, glm::vec3(0.0f));
@@ -544,6 +545,9 @@ struct ServerState {
                    {"bricksNotResident", st.bricksNotResident},  // > 0: bricks drawn coarser (beyond the packing bound, or loading)
                    {"iso", iso ? json(*iso) : json(nullptr)},
                    {"surfaceReady", !r.iso || surfaceReady},  // false: the surface asked for is still being built
+                   // > 1: the surface drawn is clustered by cubes this many voxels wide (a preview, or the level of detail)
+                   {"surfaceSpacing", iso ? json(st.surfaceSpacing) : json(nullptr)},
+                   {"surfaceBuilding", surfaceBuilding},  // the surface asked for, or its levels for moving frames, on its way
                    {"camera", cameraToJson(r.camera)}};
     if (final && (!r.iso || surfaceReady)) {  // (while the surface asked for is built, the frame is not the command's)
       header["command"] = renderCommand(scene.path, scene.series, r, "view.tf");

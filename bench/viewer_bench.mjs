@@ -40,9 +40,9 @@ await page.waitForFunction(() => window.hybViewer && window.hybViewer.lastFinal(
 
 const quantile = (xs, q) => { const s = [...xs].sort((a, b) => a - b); return s[Math.min(s.length - 1, Math.floor(q * s.length))]; };
 
-async function waitFinal(predicate = 'true') {
+async function waitFinal(predicate = 'true', timeout = 120000) {
   const before = await page.evaluate(() => window.hybViewer.metrics().filter((m) => m.quality === 'final').length);
-  await page.waitForFunction(`window.hybViewer.metrics().filter((m) => m.quality === 'final').length > ${before} && (${predicate})`, { timeout: 120000 });
+  await page.waitForFunction(`window.hybViewer.metrics().filter((m) => m.quality === 'final').length > ${before} && (${predicate})`, { timeout });
 }
 
 function reference(header, withSurface, file, size) {
@@ -159,8 +159,26 @@ try {
   await orbit('volume only', false);
   if (!process.argv.includes('--volume-only')) {
     await page.evaluate((v) => { document.getElementById('iso').value = document.getElementById('iso-number').value = String(v); }, iso);
+    const asked = await page.evaluate(() => performance.now());
     await page.click('#surface-on');
+    // The orbit starts once the full-resolution surface is drawn (not its preview, built beside the frames).
+    await waitFinal(`window.hybViewer.lastFinal().iso === ${iso} && window.hybViewer.lastFinal().surfaceReady`, 600000);
+    const frames = (await page.evaluate(() => window.hybViewer.metrics())).filter((m) => m.paintedAt > asked && m.iso === iso);
+    const first = frames[0], full = frames.find((m) => m.surfaceReady);
+    // Moving frames draw the preview until the builder has simplified the full surface for them:
+    // the orbit measures the frames after, a moving frame asked for every 300 ms till then.
+    let simplified = null;
+    for (const until = Date.now() + 600000; simplified === null && Date.now() < until;) {
+      await page.evaluate(() => window.hybViewer.request(true));
+      await new Promise((r) => setTimeout(r, 300));
+      const moving = (await page.evaluate(() => window.hybViewer.metrics())).filter((m) => m.quality === 'interactive' && m.iso === iso).at(-1);
+      if (moving && !moving.surfaceBuilding) simplified = moving.paintedAt - asked;
+    }
+    await page.evaluate(() => window.hybViewer.request(false));
     await waitFinal(`window.hybViewer.lastFinal().iso === ${iso}`);
+    console.log(`surface ${iso} asked for: first drawn after ${first ? (first.paintedAt - asked).toFixed(0) : '?'} ms` +
+      `${first && !first.surfaceReady ? ' (its clustered preview)' : ''}, at full resolution after ${full ? (full.paintedAt - asked).toFixed(0) : '?'} ms` +
+      `, simplified for moving frames after ${simplified === null ? '?' : simplified.toFixed(0)} ms`);
     await orbit(`volume + translucent surface (${iso}, alpha 0.5)`, true);
   }
 } finally {

@@ -21,6 +21,12 @@ constexpr auto kProgressInterval = std::chrono::milliseconds(100);
 
 }  // namespace
 
+int previewSpacing(const glm::ivec3& dims, const glm::dvec3& spacing, int leafEdge) {
+  const glm::dvec3 extent = glm::dvec3(dims) * spacing;
+  const double extentMm = std::max({extent.x, extent.y, extent.z});
+  return std::max(2, clusterSpacingFor(extentMm / 96.0, spacing, leafEdge));
+}
+
 SceneSummary summarizeScene(const Scene& scene, const std::string& key, const std::string& path, const std::string& series,
                             const std::string& name, uint64_t histogramSamples) {
   const Volume& v = scene.volume;
@@ -69,10 +75,12 @@ struct ScenePool::Entry {
   std::deque<float> queued;                // isovalues asked for, waiting for the builder
   std::optional<float> building;
   std::thread builder;
-  std::unique_ptr<PreparedSurface> built;  // handed over by the builder
-  std::unique_ptr<PreparedSurface> preview;  // a clustered surface handed over before the full-resolution one
+  std::unique_ptr<PreparedSurface> built;  // handed over by the builder at its end: the simplified levels
+  // Handed over before: a clustered preview, then the full-resolution surface (drawn meanwhile).
+  std::vector<std::unique_ptr<PreparedSurface>> handed;
   bool buildDone = false;                  // the builder has ended (built is null when it failed or stopped)
   bool buildStopped = false;               // ... because no viewer wanted its surface any more
+  std::vector<float> levelsFailed;         // surfaces whose simplified levels failed: not tried again
   Clock::time_point lastProgress{};
   bool repin = true;                       // the viewers' isovalues changed since the renderer was told
   int pins = 0;
@@ -238,16 +246,22 @@ void ScenePool::startBuild(Entry& e, float iso) {
   e.building = iso;
   e.buildDone = e.buildStopped = false;
   e.lastProgress = Clock::now();
-  sendSurface(e, iso, SurfaceState::Building, "surface", 0.0);
+  if (!e.renderer->hasSurface(iso)) sendSurface(e, iso, SurfaceState::Building, "surface", 0.0);
   const bool preview = !e.renderer->hasAnySurface(iso);  // (not again after a build that stopped)
-  e.builder = std::thread([this, &e, iso, preview] {
+  // The full-resolution surface kept from a build that stopped before its simplified levels: only
+  // they are left to make, from a copy (the renderer's may go while the builder reads).
+  std::optional<TriangleMesh> kept;
+  if (const TriangleMesh* m = e.renderer->unsimplified(iso)) kept = *m;
+  e.builder = std::thread([this, &e, iso, preview, smooth = std::move(kept)]() mutable {
     const std::string key = e.summary.key;
     auto wanted = [&] {
       return std::any_of(mViewers.begin(), mViewers.end(), [&](const auto& v) { return v.second.key == key && v.second.asked == iso; });
     };
+    bool ready = smooth.has_value();  // the full-resolution surface is the renderer's: frames draw it
     const Progress progress([&](const std::string& task, double fraction) {
       const std::lock_guard<std::mutex> guard(mMutex);
       if (mStopping || !wanted()) throw Cancelled{};
+      if (ready) return;  // (the viewers were told it is ready; the levels are for moving frames)
       const auto now = Clock::now();
       if (fraction > 0.0 && fraction < 1.0 && now - e.lastProgress < kProgressInterval) return;
       e.lastProgress = now;
@@ -255,20 +269,32 @@ void ScenePool::startBuild(Entry& e, float iso) {
     });
     std::unique_ptr<PreparedSurface> s;
     bool stopped = false;
+    auto hand = [&](std::unique_ptr<PreparedSurface> made) {
+      const std::lock_guard<std::mutex> guard(mMutex);
+      e.handed.push_back(std::move(made));
+      mEvents.wake();
+    };
     try {
       // Only reads the scene: the render thread keeps drawing with the renderer meanwhile. A large
-      // paged scene's frames draw a clustered surface first, made in a fraction of the time.
+      // paged scene's frames draw a clustered surface first, made in a fraction of the time; the
+      // final frames draw the full-resolution one while its simplified levels are made.
       const Scene& scene = e.renderer->scene();
-      if (preview && !scene.volume.hasSamples() && scene.volume.voxelCount() > mOptions.previewSamples) {
-        auto made = std::make_unique<PreparedSurface>();
-        made->iso = iso;
-        const int cubes = std::max(2, scene.octree.leafEdge());
-        made->coarse.emplace(cubes, clusteredSurface(*scene.knots, scene.octree, cubes, iso, &progress));
-        const std::lock_guard<std::mutex> guard(mMutex);
-        e.preview = std::move(made);
-        mEvents.wake();
+      if (!smooth) {
+        if (preview && !scene.volume.hasSamples() && scene.volume.voxelCount() > mOptions.previewSamples) {
+          auto made = std::make_unique<PreparedSurface>();
+          made->iso = iso;
+          const int cubes = previewSpacing(scene.volume.dims(), scene.volume.spacing(), scene.octree.leafEdge());
+          made->coarse.emplace(cubes, clusteredSurface(*scene.knots, scene.octree, cubes, iso, &progress));
+          hand(std::move(made));
+        }
+        std::unique_ptr<PreparedSurface> exact = SceneRenderer::prepareSurface(scene, iso, &progress);
+        smooth = exact->smooth;
+        hand(std::move(exact));
+        ready = true;
       }
-      s = SceneRenderer::prepareSurface(scene, iso, &progress, nullptr, true);
+      s = std::make_unique<PreparedSurface>();
+      s->iso = iso;
+      s->simplified = SceneRenderer::simplifiedLevels(scene, *smooth, &progress);
     } catch (const Cancelled&) {
       stopped = true;
     } catch (const std::exception&) {
@@ -297,20 +323,26 @@ ScenePool::Frame ScenePool::forFrame(uint64_t viewer, std::optional<float> iso) 
       v.drawn = iso;  // its clustered preview
     else if (!(v.drawn && e.renderer->hasAnySurface(*v.drawn)))
       v.drawn.reset();  // the one drawn before, while it is kept; never another's
-    if (e.building != iso && std::find(e.queued.begin(), e.queued.end(), *iso) == e.queued.end()) {
-      if (e.building) {
-        e.queued.push_back(*iso);
-        sendSurface(e, *iso, SurfaceState::Building, "waiting", 0.0);
-      } else {
-        startBuild(e, *iso);
-      }
-    }
   } else {
     v.drawn.reset();
   }
+  if (iso && needsBuild(e, *iso) && e.building != iso && std::find(e.queued.begin(), e.queued.end(), *iso) == e.queued.end()) {
+    if (!e.building) {
+      startBuild(e, *iso);
+    } else {
+      e.queued.push_back(*iso);
+      if (!f.surfaceReady) sendSurface(e, *iso, SurfaceState::Building, "waiting", 0.0);
+    }
+  }
   f.iso = v.drawn;
+  f.surfaceBuilding = iso && e.building == iso;
   if (e.repin) repin(e);
   return f;
+}
+
+bool ScenePool::needsBuild(const Entry& e, float iso) const {
+  if (!e.renderer->hasSurface(iso)) return true;
+  return e.renderer->unsimplified(iso) && std::find(e.levelsFailed.begin(), e.levelsFailed.end(), iso) == e.levelsFailed.end();
 }
 
 void ScenePool::repin(Entry& e) {
@@ -329,7 +361,7 @@ void ScenePool::repin(Entry& e) {
 bool ScenePool::hasWork() const {
   const auto now = Clock::now();
   for (const auto& [key, e] : mScenes)
-    if (e->buildDone || e->preview || e->repin) return true;
+    if (e->buildDone || !e->handed.empty() || e->repin) return true;
   const std::optional<Clock::time_point> due = nextRelease();
   return due && *due <= now;
 }
@@ -353,30 +385,34 @@ std::vector<std::string> ScenePool::collect(std::unique_lock<std::mutex>& lock) 
   std::vector<std::unique_ptr<Entry>> gone;
   for (auto it = mScenes.begin(); it != mScenes.end();) {
     Entry& e = *it->second;
-    if (e.preview) {  // drawn until the full-resolution surface comes
-      e.renderer->adoptSurface(std::move(e.preview));
+    for (std::unique_ptr<PreparedSurface>& made : e.handed) {
+      const bool exact = made->exact;
+      const float iso = made->iso;
+      e.renderer->adoptSurface(std::move(made));
       e.repin = true;
+      if (exact) sendSurface(e, iso, SurfaceState::Ready, "", 1.0);
       changed.push_back(it->first);
     }
+    e.handed.clear();
     if (e.buildDone) {
       e.builder.join();
       const float iso = *e.building;
       e.building.reset();
       e.buildDone = false;
-      if (e.built) {
-        e.renderer->adoptSurface(std::move(e.built));
-        e.repin = true;
-        sendSurface(e, iso, SurfaceState::Ready, "", 1.0);
-        changed.push_back(it->first);
-      } else if (!e.buildStopped) {
-        sendSurface(e, iso, SurfaceState::Failed, "", 0.0);
+      if (e.built && e.renderer->hasSurface(iso)) {  // (not when the surface was dropped meanwhile)
+        e.renderer->adoptSurface(std::move(e.built));  // (the final frames' surface is the same: no frame again)
+      } else if (!e.built && !e.buildStopped) {
+        if (!e.renderer->hasSurface(iso))
+          sendSurface(e, iso, SurfaceState::Failed, "", 0.0);
+        else
+          e.levelsFailed.push_back(iso);  // (moving frames draw the preview or the full surface instead)
       }
       // The next isovalue still asked for.
       while (!e.queued.empty() && !e.building) {
         const float next = e.queued.front();
         e.queued.pop_front();
         const bool asked = std::any_of(mViewers.begin(), mViewers.end(), [&](const auto& v) { return v.second.key == it->first && v.second.asked == next; });
-        if (asked && !e.renderer->hasSurface(next)) startBuild(e, next);
+        if (asked && needsBuild(e, next)) startBuild(e, next);
       }
     }
     if (e.repin) repin(e);

@@ -56,10 +56,14 @@ struct SceneSummary {
 /// positions (an eighth, read in a few seconds where all of an 8 GiB study take half a minute).
 inline constexpr uint64_t kSummarySamples = uint64_t(1) << 27;
 
-/// A paged scene of more samples than this draws a surface clustered by its octree's leaves
-/// (clusteredSurface) while the full-resolution one is made: the 8 GiB phantom's in seconds where
-/// the full one takes over a minute; a clinical study's full surface comes in a few seconds.
-inline constexpr uint64_t kPreviewSurfaceSamples = uint64_t(1) << 28;
+/// A paged scene of more samples than this draws a clustered surface (previewSpacing) while the
+/// full-resolution one is made: a clinical study's in about a second where the full one takes
+/// seven, the 8 GiB phantom's in seconds where the full one takes over a minute.
+inline constexpr uint64_t kPreviewSurfaceSamples = uint64_t(1) << 24;
+
+/// The cubes of a scene's surface preview: about a pixel of a 96-pixel frame of the whole volume
+/// (the viewer's smallest moving frames), at least 2 voxels and at most the octree's leaf edge.
+int previewSpacing(const glm::ivec3& dims, const glm::dvec3& spacing, int leafEdge);
 
 /// The summary of @p scene, read from @p path and @p series, shown as @p name under @p key. A paged
 /// scene's histogram reads its store a block at a time: every sample up to @p histogramSamples,
@@ -131,6 +135,7 @@ class ScenePool {
     /// viewer's last one (if kept), else none. Frames draw it with Quality::waitForSurface false.
     std::optional<float> iso;
     bool surfaceReady = true;           ///< false while the surface asked for is being built at full resolution
+    bool surfaceBuilding = false;       ///< the builder is at work on the surface asked for (its levels, once ready)
   };
   /// The scene @p viewer shows and the surface its frame draws when it asks for @p iso; starts
   /// building that surface when it is neither ready nor on its way.
@@ -163,6 +168,8 @@ class ScenePool {
   };
   void loaderLoop();
   void startBuild(Entry& e, float iso);
+  /// Whether the surface of @p iso has yet to be built, or its simplified levels.
+  bool needsBuild(const Entry& e, float iso) const;
   void sendSurface(const Entry& e, float iso, SurfaceState state, const std::string& task, double fraction);
   void repin(Entry& e);
   void dropLoadWaiter(uint64_t viewer);

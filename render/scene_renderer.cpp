@@ -100,21 +100,19 @@ double simplifiedErrorMm(const glm::dvec3& spacing, int k) { return double(1 << 
 
 }  // namespace
 
-void SceneRenderer::simplify(const Scene& scene, PreparedSurface* surface, const Progress* progress) {
-  if (!surface->simplified.empty()) return;
+std::vector<TriangleMesh> SceneRenderer::simplifiedLevels(const Scene& scene, const TriangleMesh& smooth, const Progress* progress) {
   const glm::dvec3 spacing = scene.volume.spacing();
   std::vector<TriangleMesh> levels;
   for (int k = 0; k < kSimplifiedLevels; ++k) {
     // Level k from level k − 1 within what its error adds: errors add up to level k's.
     const double step = simplifiedErrorMm(spacing, k) - (k == 0 ? 0.0 : simplifiedErrorMm(spacing, k - 1));
-    levels.push_back(simplifyWithinBlocks(k == 0 ? surface->smooth : levels.back(), double(kSimplifiedBlockVoxels << k) * spacing, step, progress));
+    levels.push_back(simplifyWithinBlocks(k == 0 ? smooth : levels.back(), double(kSimplifiedBlockVoxels << k) * spacing, step, progress));
     setSceneNormals(scene, &levels.back());
   }
-  surface->simplified = std::move(levels);
+  return levels;
 }
 
-std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats,
-                                                               bool simplified) {
+std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats) {
   // The Surface Octree (the scene's when it matches), its polygons triangulated, shaded both ways;
   // a paged scene's samples are read through its cache a leaf at a time, never whole, so a
   // viewer's builder thread may read them while the scene's frames draw.
@@ -136,7 +134,6 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   s->facet = fineMeshToTriangles(d, scene.volume.spacing());
   s->smooth = s->facet;
   setSceneNormals(scene, &s->smooth);
-  if (simplified) simplify(scene, s.get(), progress);
   if (stats) stats->surfacePolygonsMs = msSince(t0);
   return s;
 }
@@ -147,6 +144,7 @@ PreparedSurface& SceneRenderer::keep(std::unique_ptr<PreparedSurface> surface) {
   if (it != mSurfaces.end()) {
     if ((*it)->exact && !surface->exact) std::swap(surface, *it);
     surface->coarse.merge((*it)->coarse);
+    if (surface->simplified.empty()) surface->simplified = std::move((*it)->simplified);
     mSurfaces.erase(it);
   }
   mSurfaces.push_front(std::move(surface));
@@ -256,6 +254,12 @@ std::vector<float> SceneRenderer::surfaceIsos() const {
 
 bool SceneRenderer::hasAnySurface(float iso) const {
   return std::any_of(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == iso && (s->exact || !s->coarse.empty()); });
+}
+
+const TriangleMesh* SceneRenderer::unsimplified(float iso) const {
+  for (const auto& s : mSurfaces)
+    if (s->iso == iso && s->exact && s->simplified.empty()) return &s->smooth;
+  return nullptr;
 }
 
 bool SceneRenderer::hasSurface(float iso) const {
@@ -436,11 +440,20 @@ const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look
   const TriangleMesh& mesh = prepareAt(*look.iso, spacing, look.normals, st);
   if (spacing > 1 || !(quality.simplifiedSurface && quality.renderer == Renderer::Slices)) return &mesh;
   PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
-  simplify(mScene, &s, mOptions.progress);
+  if (s.simplified.empty()) {
+    if (!quality.waitForSurface) {  // the builder makes them: the preview meanwhile, else the full surface
+      if (s.coarse.empty()) return &mesh;
+      st->surfacePolygons = 0;
+      return &prepareAt(*look.iso, s.coarse.begin()->first, look.normals, st);
+    }
+    s.simplified = simplifiedLevels(mScene, s.smooth, mOptions.progress);
+  }
   // The coarsest level whose error is within the pixels asked where the volume is nearest.
   const double allowedMm = quality.surfaceErrorPixels * nearestPixelMm(camera);
   int k = 0;
   while (k + 1 < int(s.simplified.size()) && simplifiedErrorMm(volume().spacing(), k + 1) <= allowedMm) ++k;
+  st->surfaceTriangles = s.simplified[size_t(k)].triangles.size();
+  st->surfaceSimplified = true;
   return &s.simplified[size_t(k)];
 }
 

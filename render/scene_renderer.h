@@ -53,6 +53,7 @@ struct FrameStats {
   /// surface, s ≥ 2 for clusteredSurface's (Quality::lodPixels).
   int surfaceSpacing = 1;
   bool surfaceBuilt = false;  ///< the surface was built for this frame (not from the scene or an earlier frame)
+  bool surfaceSimplified = false;  ///< a level of the simplified surface was drawn (Quality::simplifiedSurface)
   double surfaceBuildMs = 0, surfacePolygonsMs = 0;  ///< this frame's work on the surface (0 when kept)
   double selectMs = 0, renderMs = 0;
   double preintegrationMs = 0;     ///< making the pre-integration table (0 when kept or not used)
@@ -94,7 +95,8 @@ struct PreparedSurface {
   TriangleMesh facet, smooth;          ///< grid frame, mm
   /// Smooth, simplified to 1, 2, 4, … voxels' error within blocks (kSimplifiedLevels): for the
   /// viewer's frames before the final one, each drawing the coarsest its pixels allow; made when one
-  /// first asks for them (SceneRenderer::simplify), unless prepareSurface was asked to.
+  /// first asks for them, or by a viewer's builder thread (SceneRenderer::simplifiedLevels); a frame
+  /// that does not wait for its surface draws a clustered or the full-resolution one meanwhile.
   std::vector<TriangleMesh> simplified;
   std::unique_ptr<Bvh> bvh[2];         ///< facet, smooth; made by the first reference frame
   const TriangleMesh* bvhMesh[2] = {nullptr, nullptr};  ///< the mesh each was made for
@@ -169,13 +171,17 @@ class SceneRenderer {
   /// Makes the isosurface of @p iso of @p scene, touching no renderer: it only reads the scene, so
   /// it may run on another thread while a renderer of the same scene draws (a viewer keeps showing
   /// the old surface meanwhile). @p stats, when given, receives the build and polygon times.
-  /// @p simplified: make PreparedSurface::simplified too (a viewer's builder thread does, so that
-  /// its render thread never waits for it).
   static std::unique_ptr<PreparedSurface> prepareSurface(const Scene& scene, float iso, const Progress* progress = nullptr,
-                                                         FrameStats* stats = nullptr, bool simplified = false);
-  /// Makes @p surface's simplified levels (normals from @p scene, its own) when it has none.
-  static void simplify(const Scene& scene, PreparedSurface* surface, const Progress* progress = nullptr);
-  /// Keeps @p surface (made from this renderer's scene) as the surface of its isovalue.
+                                                         FrameStats* stats = nullptr);
+  /// The simplified levels of @p smooth (PreparedSurface::simplified; normals from @p scene), also
+  /// touching no renderer.
+  static std::vector<TriangleMesh> simplifiedLevels(const Scene& scene, const TriangleMesh& smooth, const Progress* progress = nullptr);
+  /// The full-resolution surface of @p iso (smooth) when it is kept without its simplified levels;
+  /// else null.
+  const TriangleMesh* unsimplified(float iso) const;
+  /// Keeps @p surface (made from this renderer's scene) as the surface of its isovalue, joined with
+  /// what is kept of it: the full-resolution surface, the clustered ones, the simplified levels (a
+  /// viewer's builder hands them over one after the other).
   void adoptSurface(std::unique_ptr<PreparedSurface> surface);
   /// Surfaces kept: those of the isovalues pinned here (a viewer's clients draw them) and, of the
   /// others, the two used most recently. Unpinned surfaces beyond those are dropped now.

@@ -48,6 +48,13 @@ View frontOfGrid97() {
   return view;
 }
 
+// The surface of @p iso with its simplified levels, as a viewer's frames draw it.
+std::unique_ptr<PreparedSurface> withLevels(const Scene& scene, float iso) {
+  std::unique_ptr<PreparedSurface> s = SceneRenderer::prepareSurface(scene, iso);
+  s->simplified = SceneRenderer::simplifiedLevels(scene, s->smooth);
+  return s;
+}
+
 View viewFrom(double azimuth, const Volume& v, int pixels = 48, double margin = 0.05) {
   View view;
   view.camera = fitCamera(visiblePoints(v, VolumeOctree::build(v), warm()), orbitDirection(azimuth, 15), 30, false, pixels, pixels, margin);
@@ -115,11 +122,11 @@ TEST(SceneRenderer, APagedSceneBuildsItsSurfacesThroughItsCacheAndStaysPaged) {
   look.tf = warm();
   const View view = viewFrom(20, memory.volume());
   std::unique_ptr<PreparedSurface> made;
-  std::thread builder([&] { made = SceneRenderer::prepareSurface(paged.scene(), 5.0f, nullptr, nullptr, true); });
+  std::thread builder([&] { made = withLevels(paged.scene(), 5.0f); });
   for (int i = 0; i < 2; ++i) paged.render(view, look, Quality{});
   builder.join();
   EXPECT_FALSE(paged.volume().hasSamples());
-  std::unique_ptr<PreparedSurface> inMemory = SceneRenderer::prepareSurface(memory.scene(), 5.0f, nullptr, nullptr, true);
+  std::unique_ptr<PreparedSurface> inMemory = withLevels(memory.scene(), 5.0f);
   ASSERT_TRUE(made->built && inMemory->built);
   EXPECT_GT(made->built->nodes().size(), 0u);
   EXPECT_EQ(made->built->nodes(), inMemory->built->nodes());
@@ -223,7 +230,7 @@ TEST(SceneRenderer, TheSimplifiedUncutSurfaceStaysCloseToTheExactOne) {
 TEST(SceneRenderer, SmallFramesDrawCoarserLevelsOfTheSimplifiedSurface) {
   test::gl();
   SceneRenderer r(sphereScene({97, 97, 97}, 40.0));
-  std::unique_ptr<PreparedSurface> made = SceneRenderer::prepareSurface(r.scene(), 0.0f, nullptr, nullptr, true);
+  std::unique_ptr<PreparedSurface> made = withLevels(r.scene(), 0.0f);
   ASSERT_EQ(made->simplified.size(), size_t(kSimplifiedLevels));
   std::vector<size_t> counts;
   for (int k = 0; k < kSimplifiedLevels; ++k) {
@@ -318,7 +325,8 @@ TEST(SceneRenderer, FramesWithALevelOfDetailDrawTheSurfaceClusteredByTheirPixels
 // A viewer's frames do not wait for their surface (Quality::waitForSurface false): before the
 // full-resolution surface is adopted they draw the clustered preview a builder made, whatever they
 // ask, and build nothing; after, the full-resolution one (finer than a level of detail asks costs
-// only the triangles between pixel centres), the preview still kept; a later preview leaves it.
+// only the triangles between pixel centres), the preview still kept, and in moving frames until
+// the simplified levels come; a later preview leaves it.
 TEST(SceneRenderer, FramesThatDoNotWaitDrawTheKeptSurfaceNearestTheirOwn) {
   test::gl();
   SceneRenderer r(sphereScene({65, 65, 65}, 25.0));
@@ -349,10 +357,28 @@ TEST(SceneRenderer, FramesThatDoNotWaitDrawTheKeptSurfaceNearestTheirOwn) {
     EXPECT_FALSE(st.surfaceBuilt);
   }
   EXPECT_FALSE(r.hasSurface(0.0f));
-  r.adoptSurface(SceneRenderer::prepareSurface(r.scene(), 0.0f, nullptr, nullptr, true));
+  // The full-resolution surface first, its simplified levels after, as the pool's builder hands
+  // them over: meanwhile the moving frames draw the preview and make no level.
+  std::unique_ptr<PreparedSurface> exact = SceneRenderer::prepareSurface(r.scene(), 0.0f);
+  auto levels = std::make_unique<PreparedSurface>();
+  levels->iso = 0.0f;
+  levels->simplified = SceneRenderer::simplifiedLevels(r.scene(), exact->smooth);
+  r.adoptSurface(std::move(exact));
   ASSERT_TRUE(r.hasSurface(0.0f));
   const size_t full = r.surface(0.0f, SurfaceNormals::Gradient).triangles.size();
-  for (const Quality& q : {moving, final}) EXPECT_EQ(r.render(view, look, q).stats.surfaceSpacing, 1);
+  const FrameStats before = r.render(view, look, moving).stats;
+  EXPECT_EQ(before.surfaceSpacing, 8);
+  EXPECT_EQ(before.surfaceTriangles, previewTriangles);
+  EXPECT_FALSE(before.surfaceSimplified);
+  EXPECT_NE(r.unsimplified(0.0f), nullptr);
+  EXPECT_EQ(r.render(view, look, final).stats.surfaceSpacing, 1);
+  r.adoptSurface(std::move(levels));
+  EXPECT_EQ(r.unsimplified(0.0f), nullptr);
+  const FrameStats after = r.render(view, look, moving).stats;
+  EXPECT_EQ(after.surfaceSpacing, 1);
+  EXPECT_LT(after.surfaceTriangles, full);  // a simplified level
+  EXPECT_TRUE(after.surfaceSimplified);
+  EXPECT_EQ(r.render(view, look, final).stats.surfaceTriangles, full);
   Quality coarse = final;
   coarse.lodPixels = 1e6;  // cubes of 8 asked: kept
   EXPECT_EQ(r.render(view, look, coarse).stats.surfaceTriangles, previewTriangles);
@@ -369,9 +395,19 @@ TEST(SceneRenderer, FramesThatDoNotWaitDrawTheKeptSurfaceNearestTheirOwn) {
   EXPECT_TRUE(made.surfaceBuilt);
 }
 
-// A paged scene above the pool's preview size gets from the builder thread a surface clustered by
-// its octree's leaves, then the full-resolution one; the renderer keeps both, and a frame that does
+// A paged scene above the pool's preview size gets from the builder thread a clustered surface
+// (previewSpacing), then the full-resolution one; the renderer keeps both, and a frame that does
 // not wait draws the preview where its pixels allow cubes that large, building nothing.
+// About a pixel of a 96-pixel frame of the whole volume, along its longest voxel edge.
+TEST(ScenePool, PreviewCubesAreAboutAPixelOfTheSmallestMovingFrame) {
+  EXPECT_EQ(previewSpacing({512, 512, 432}, {0.4776, 0.4776, 0.3724}, 8), 4);  // the clinical study: 2.55 mm pixels
+  EXPECT_EQ(previewSpacing({2048, 2048, 1024}, {0.25, 0.25, 0.25}, 8), 8);     // the phantom: the leaf edge
+  EXPECT_EQ(previewSpacing({2048, 2048, 1024}, {0.25, 0.25, 0.25}, 4), 4);
+  EXPECT_EQ(previewSpacing({384, 384, 384}, {1.0, 1.0, 1.0}, 8), 4);           // 4 mm pixels: cubes of 4 fit exactly
+  EXPECT_EQ(previewSpacing({383, 383, 383}, {1.0, 1.0, 1.0}, 8), 2);
+  EXPECT_EQ(previewSpacing({40, 36, 32}, {1.0, 1.0, 1.0}, 8), 2);              // never finer than 2: cheaper than the full surface
+}
+
 TEST(SceneRenderer, ThePoolsBuilderHandsOverAClusteredPreviewFirst) {
   test::gl();
   test::TempDir dir;
@@ -379,11 +415,13 @@ TEST(SceneRenderer, ThePoolsBuilderHandsOverAClusteredPreviewFirst) {
   std::mutex mutex;
   std::condition_variable changed;
   bool opened = false, ready = false;
+  int buildingSix = 0;
   ScenePool::Events events;
   events.loading = [](uint64_t, const std::string&, const std::string&, double) {};
   events.opened = [&](uint64_t, const std::string&, const SceneSummary* summary, const std::string&) { opened = summary != nullptr; changed.notify_all(); };
-  events.surface = [&](uint64_t, const std::string&, float, ScenePool::SurfaceState state, const std::string&, double) {
+  events.surface = [&](uint64_t, const std::string&, float iso, ScenePool::SurfaceState state, const std::string&, double) {
     ready = ready || state == ScenePool::SurfaceState::Ready;
+    buildingSix += iso == 6.0f && state == ScenePool::SurfaceState::Building;
   };
   events.wake = [&] { changed.notify_all(); };
   ScenePool::Options options;
@@ -397,6 +435,7 @@ TEST(SceneRenderer, ThePoolsBuilderHandsOverAClusteredPreviewFirst) {
     ScenePool::Frame f = pool.forFrame(1, 5.0f);
     ASSERT_TRUE(f.renderer);
     EXPECT_FALSE(f.surfaceReady);
+    EXPECT_TRUE(f.surfaceBuilding);
     while (!ready) {
       changed.wait_for(lock, std::chrono::milliseconds(50));
       pool.collect(lock);
@@ -407,13 +446,40 @@ TEST(SceneRenderer, ThePoolsBuilderHandsOverAClusteredPreviewFirst) {
     Look look;
     look.tf = warm();
     look.iso = 5.0f;
-    Quality coarse;
-    coarse.lodPixels = 1e6;  // cubes of the leaf edge asked for: the preview's
-    coarse.waitForSurface = false;
-    const FrameStats st = f.renderer->render(viewFrom(20, sphereScene().volume), look, coarse).stats;  // (framed from the samples in memory)
-    EXPECT_EQ(st.surfaceSpacing, f.renderer->octree().leafEdge());
-    EXPECT_FALSE(st.surfaceBuilt);
-    EXPECT_GT(st.surfaceTriangles, 0u);
+    const int preview = previewSpacing(f.renderer->volume().dims(), f.renderer->volume().spacing(), f.renderer->octree().leafEdge());
+    EXPECT_EQ(preview, 2);  // (40 mm across: below a voxel a pixel at 96 pixels)
+    // Frames asking coarser and coarser cubes: the one asking the preview's draws it, the others the
+    // full-resolution surface (finer than asked, never a cube size not kept).
+    bool drewPreview = false;
+    for (double pixels = 1.0; pixels <= 64.0; pixels *= 2.0) {
+      Quality coarse;
+      coarse.lodPixels = pixels;
+      coarse.waitForSurface = false;
+      const FrameStats st = f.renderer->render(viewFrom(20, sphereScene().volume), look, coarse).stats;  // (framed from the samples in memory)
+      EXPECT_TRUE(st.surfaceSpacing == 1 || st.surfaceSpacing == preview) << pixels << " pixels";
+      EXPECT_FALSE(st.surfaceBuilt) << pixels << " pixels";
+      EXPECT_GT(st.surfaceTriangles, 0u);
+      drewPreview = drewPreview || st.surfaceSpacing == preview;
+    }
+    EXPECT_TRUE(drewPreview);
+    // Then the simplified levels of the moving frames.
+    auto levelsCome = [&](float iso) {
+      for (int i = 0; i < 600 && f.renderer->unsimplified(iso); ++i) {
+        changed.wait_for(lock, std::chrono::milliseconds(50));
+        pool.collect(lock);
+      }
+      return f.renderer->unsimplified(iso) == nullptr;
+    };
+    EXPECT_TRUE(levelsCome(5.0f));
+    EXPECT_FALSE(pool.forFrame(1, 5.0f).surfaceBuilding);
+    // A full-resolution surface kept without its levels (its build stopped before them) is ready at
+    // once; the builder makes only the levels, telling no viewer it builds.
+    f.renderer->adoptSurface(SceneRenderer::prepareSurface(f.renderer->scene(), 6.0f));
+    f = pool.forFrame(1, 6.0f);
+    EXPECT_TRUE(f.surfaceReady);
+    EXPECT_TRUE(f.surfaceBuilding);
+    EXPECT_TRUE(levelsCome(6.0f));
+    EXPECT_EQ(buildingSix, 0);
     lock.unlock();
   }
 }

@@ -182,7 +182,7 @@ async function onFrame(buffer) {
   const painted = performance.now();
   const sentAt = state.sent.get(header.seq);
   state.metrics.push({
-    scene: header.scene, iso: header.iso, seq: header.seq, quality: header.quality, level: header.level, levelText: header.levelText,
+    scene: header.scene, iso: header.iso, surfaceReady: header.surfaceReady, surfaceSpacing: header.surfaceSpacing, surfaceBuilding: header.surfaceBuilding, seq: header.seq, quality: header.quality, level: header.level, levelText: header.levelText,
     width: header.width, height: header.height, bytes: buffer.byteLength, renderMs: header.renderMs,
     encodeMs: header.encodeMs, waitMs: header.waitMs, paintMs: painted - received,
     // (a frame the server made without a new request, refining or after a surface came, has no arrival)
