@@ -195,7 +195,8 @@ async function onFrame(buffer) {
   state.displayedBlob = blob;
   if (header.iso !== null && header.surfaceReady) onSurface({ iso: header.iso, state: 'ready' });
   drawMarker(header.camera);
-  setState(header.quality === 'final' && header.surfaceReady === false ? 'final without the surface (building)' : header.quality);
+  const building = header.iso !== null ? 'final with a clustered preview of the surface (building)' : 'final without the surface (building)';
+  setState(header.quality === 'final' && header.surfaceReady === false ? building : header.quality);
   $('numbers').textContent = `${(header.renderMs + header.encodeMs).toFixed(0)} ms · ${(header.textureBytes / 1048576).toFixed(1)} MB · ` +
     `max error ${header.maxError.toFixed(1)}` + (header.bricksNotResident > 0 ? ` · ${header.bricksNotResident} bricks coarser` : '');
   $('level').textContent = header.levelText;
