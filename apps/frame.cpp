@@ -429,6 +429,7 @@ void setUpFrame(const RenderOptions& o, const Scene& scene, RenderJob* out, std:
     if (points.empty())  // nothing visible: the data's box
       for (int c = 0; c < 8; ++c) points.push_back(frame.toPatient(glm::dvec3(c & 1, (c >> 1) & 1, (c >> 2) & 1) * v.extentMm()));
     camera = fitCamera(points, direction, o.fov, o.ortho, pixels.x, pixels.y);
+    scene.octree.releasePages();  // the fit walked every visible leaf; the frame reads far fewer
   }
   camera.width = pixels.x;
   camera.height = pixels.y;

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <optional>
 #include <random>
 
 #include "test_util.h"
@@ -309,11 +310,17 @@ TEST(SceneFile, TheOctreeIsMappedInPlaceOrCopiedWhenMisaligned) {
   };
   EXPECT_FALSE(t.mapped());
   for (const bool inMemory : {true, false}) {
-    const Scene s = loadScene(dir.file("s.hoct"), SceneLoadOptions{inMemory, 1 << 20});
-    EXPECT_TRUE(s.octree.mapped()) << inMemory;
-    EXPECT_TRUE(same(s.octree)) << inMemory;
-    const VolumeOctree copy = s.octree;  // shares the mapping, which outlives the scene
-    EXPECT_TRUE(copy.mapped());
+    std::optional<VolumeOctree> copy;
+    {
+      const Scene s = loadScene(dir.file("s.hoct"), SceneLoadOptions{inMemory, 1 << 20});
+      EXPECT_TRUE(s.octree.mapped()) << inMemory;
+      EXPECT_TRUE(same(s.octree)) << inMemory;
+      copy = s.octree;  // shares the mapping, which outlives the scene
+    }
+    ASSERT_TRUE(copy->mapped());
+    EXPECT_TRUE(same(*copy)) << inMemory;
+    copy->releasePages();  // its pages given back are read again from the file
+    EXPECT_TRUE(same(*copy)) << inMemory;
   }
   auto records = sectionRecords(test::readBytes(dir.file("s.hoct")));
   ASSERT_EQ(records.size(), size_t(5));  // VOLM, KDAT, KIDX, ALGN, VOCT

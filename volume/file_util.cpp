@@ -89,13 +89,17 @@ std::shared_ptr<const InputFile::Mapping> InputFile::map(uint64_t offset, uint64
   const uint64_t start = offset / page * page;
   const size_t length = size_t(std::max<uint64_t>(offset + count - start, 1));
   void* base = ::mmap(nullptr, length, PROT_READ, MAP_PRIVATE, mFd, off_t(start));
-  if (base == MAP_FAILED) HYB_THROW(IoError, mPath, ": cannot map ", count, " bytes from byte ", offset, " (", std::strerror(errno), ")");
+  if (base == MAP_FAILED) return std::make_shared<const Mapping>(bytes(offset, count));
   return std::make_shared<const Mapping>(base, length, static_cast<const uint8_t*>(base) + (offset - start), count);
 }
 
-InputFile::Mapping::~Mapping() { ::munmap(mBase, mLength); }
+InputFile::Mapping::~Mapping() {
+  if (mBase) ::munmap(mBase, mLength);
+}
 
-void InputFile::Mapping::release() const { ::madvise(mBase, mLength, MADV_DONTNEED); }
+void InputFile::Mapping::release() const {
+  if (mBase) ::madvise(mBase, mLength, MADV_DONTNEED);
+}
 
 std::vector<uint8_t> readFileBytes(const std::string& path) {
   const InputFile file(path);

@@ -35,10 +35,12 @@ class InputFile {
   class Mapping;
   /// The bytes [@p offset, @p offset + @p count) mapped read-only: the kernel reads a page when it is
   /// first touched and, the pages being clean copies of the file, may drop them again under memory
-  /// pressure, so what stays resident follows what is read. The file must not shrink while mapped
-  /// (a read past its end would be a bus error): for sections read again and again, such as a scene's
-  /// octree, whose checksum is verified through the mapping first.
-  /// @throw IoError naming the file when the range is outside it or cannot be mapped.
+  /// pressure, so what stays resident follows what is read. A page dropped is read again from the
+  /// file: the file must be neither changed in place nor shrunk while mapped (replaced by a rename,
+  /// as every writer here does, it is not): what was checked through the mapping holds only then,
+  /// and a read past a shrunk file's end is a bus error. Where the file system cannot map it, the
+  /// bytes are read into memory instead (release() then does nothing).
+  /// @throw IoError naming the file when the range is outside it, or as bytes().
   std::shared_ptr<const Mapping> map(uint64_t offset, uint64_t count) const;
 
  private:
@@ -51,6 +53,10 @@ class InputFile {
 class InputFile::Mapping {
  public:
   Mapping(void* base, size_t length, const uint8_t* data, uint64_t size) : mBase(base), mLength(length), mData(data), mSize(size) {}
+  /// The bytes read into memory (a file system that cannot map them).
+  explicit Mapping(std::vector<uint8_t> bytes) : mBase(nullptr), mLength(0), mData(nullptr), mSize(bytes.size()), mCopy(std::move(bytes)) {
+    mData = mCopy.data();
+  }
   ~Mapping();
   Mapping(const Mapping&) = delete;
   Mapping& operator=(const Mapping&) = delete;
@@ -65,6 +71,7 @@ class InputFile::Mapping {
   size_t mLength;
   const uint8_t* mData;
   uint64_t mSize;
+  std::vector<uint8_t> mCopy;
 };
 
 /// Reads the whole file (a regular file only) into memory, within memoryLimit().
