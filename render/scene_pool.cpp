@@ -401,6 +401,7 @@ std::vector<std::string> ScenePool::collect(std::unique_lock<std::mutex>& lock) 
       e.buildDone = false;
       if (e.built && e.renderer->hasSurface(iso)) {  // (not when the surface was dropped meanwhile)
         e.renderer->adoptSurface(std::move(e.built));  // (the final frames' surface is the same: no frame again)
+        sendSurface(e, iso, SurfaceState::Ready, "", 1.0);  // (again: the viewers may say it was being simplified)
       } else if (!e.built && !e.buildStopped) {
         if (!e.renderer->hasSurface(iso))
           sendSurface(e, iso, SurfaceState::Failed, "", 0.0);

@@ -33,6 +33,7 @@ const state = {
   metrics: [],              // one entry per painted frame
   lastFinal: null,          // {header, blob}
   surfaceStates: {},         // isovalue -> 'building' | 'ready' | 'failed', of the volume shown
+  simplifying: null,         // the isovalue whose ready surface the builder still simplifies for moving frames
   opening: null,             // the scene key of a volume asked for and not shown yet
   loads: [],                 // the loading messages heard: {scene, task, progress}
   opened: [],                // the volumes shown, in order: {scene, at}
@@ -147,7 +148,11 @@ function onText(m) {
   if (m.type === 'info') openInfo(m);
   else if (m.type === 'volumes') listVolumes(m.volumes);
   else if (m.type === 'loading') onLoading(m);
-  else if (m.type === 'surface') { if (shown(m.scene)) onSurface(m); }
+  else if (m.type === 'surface') {
+    if (!shown(m.scene)) return;
+    if (m.state === 'ready' && state.simplifying === m.iso) state.simplifying = null;  // (told again once simplified)
+    onSurface(m);
+  }
   else if (m.type === 'error') {
     if (m.scene !== undefined && m.scene === state.opening) {  // the open failed: the volume shown stays
       state.opening = null;
@@ -193,6 +198,8 @@ async function onFrame(buffer) {
   if (state.metrics.length > 5000) state.metrics.shift();
   state.displayed = header;
   state.displayedBlob = blob;
+  // (ready, the builder may still simplify it for moving frames, which draw a preview meanwhile)
+  state.simplifying = header.iso !== null && header.surfaceReady && header.surfaceBuilding ? header.iso : null;
   if (header.iso !== null && header.surfaceReady) onSurface({ iso: header.iso, state: 'ready' });
   drawMarker(header.camera);
   const building = header.iso !== null ? 'final with a clustered preview of the surface (building)' : 'final without the surface (building)';
@@ -271,7 +278,8 @@ function onSurface(m) {
 // The state of the isovalue asked for, in the volume shown.
 function showSurfaceState() {
   const iso = Number($('iso').value), s = state.surfaceStates[iso];
-  $('surface-state').textContent = !$('surface-on').checked || s === undefined ? '' : s === 'ready' ? `${iso} ready` : s === 'failed' ? `${iso} failed` : `building ${iso}`;
+  const ready = state.simplifying === iso ? `${iso} ready; simplifying it for moving frames` : `${iso} ready`;
+  $('surface-state').textContent = !$('surface-on').checked || s === undefined ? '' : s === 'ready' ? ready : s === 'failed' ? `${iso} failed` : `building ${iso}`;
 }
 
 // ---- a volume opened ------------------------------------------------------------------------

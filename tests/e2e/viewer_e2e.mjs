@@ -79,6 +79,10 @@ try {
   const final = await page.evaluate(() => window.hybViewer.lastFinal());
   check(final.format === 'png', 'the final frame is lossless (PNG)');
   check(final.camera.eye.length === 3, 'the final frame carries its camera');
+  // Ready at full resolution, then simplified for moving frames: the page says so, then just ready.
+  const simplified = await page.waitForFunction(() => document.getElementById('surface-state').textContent === '300 ready', { timeout: 60000 })
+    .then(() => true, () => false);
+  check(simplified, `the surface's state ends as '300 ready' (${await page.evaluate(() => document.getElementById('surface-state').textContent)})`);
 
   // The command line the page shows renders the same image as the page's last final frame.
   const renderedPsnr = async (name) => {
