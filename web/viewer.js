@@ -202,7 +202,8 @@ async function onFrame(buffer) {
   state.simplifying = header.iso !== null && header.surfaceReady && header.surfaceBuilding ? header.iso : null;
   if (header.iso !== null && header.surfaceReady) onSurface({ iso: header.iso, state: 'ready' });
   drawMarker(header.camera);
-  const building = header.iso !== null ? 'final with a clustered preview of the surface (building)' : 'final without the surface (building)';
+  const building = header.iso === null ? 'final without the surface (building)'
+    : header.iso === Number($('iso').value) ? 'final with a clustered preview of the surface (building)' : `final with the surface at ${header.iso} (building)`;
   setState(header.quality === 'final' && header.surfaceReady === false ? building : header.quality);
   $('numbers').textContent = `${(header.renderMs + header.encodeMs).toFixed(0)} ms · ${(header.textureBytes / 1048576).toFixed(1)} MB · ` +
     `max error ${header.maxError.toFixed(1)}` + (header.bricksNotResident > 0 ? ` · ${header.bricksNotResident} bricks coarser` : '');
