@@ -214,6 +214,8 @@ int SceneRenderer::drawnSpacing(const Camera& gridCamera, const Quality& quality
   const auto it = std::find_if(mSurfaces.begin(), mSurfaces.end(), [&](const auto& e) { return e->iso == iso; });
   if (it == mSurfaces.end()) return 0;
   const PreparedSurface& e = **it;
+  // A moving frame draws the preview while the builder simplifies the surface for it.
+  if (s == 1 && e.exact && quality.simplifiedSurface && e.simplified.empty() && !e.coarse.empty()) return e.coarse.begin()->first;
   if ((s == 1 && e.exact) || e.coarse.count(s)) return s;
   if (e.exact) return 1;  // finer than asked: it only costs the triangles between pixel centres
   return e.coarse.empty() ? 0 : e.coarse.begin()->first;
@@ -441,11 +443,7 @@ const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look
   if (spacing > 1 || !(quality.simplifiedSurface && quality.renderer == Renderer::Slices)) return &mesh;
   PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
   if (s.simplified.empty()) {
-    if (!quality.waitForSurface) {  // the builder makes them: the preview meanwhile, else the full surface
-      if (s.coarse.empty()) return &mesh;
-      st->surfacePolygons = 0;
-      return &prepareAt(*look.iso, s.coarse.begin()->first, look.normals, st);
-    }
+    if (!quality.waitForSurface) return &mesh;  // the builder makes them (drawnSpacing takes a preview kept meanwhile)
     s.simplified = simplifiedLevels(mScene, s.smooth, mOptions.progress);
   }
   // The coarsest level whose error is within the pixels asked where the volume is nearest.

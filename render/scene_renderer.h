@@ -213,7 +213,8 @@ class SceneRenderer {
   /// by (Quality::lodPixels): 1 for the Surface Octree's surface.
   int surfaceSpacing(const Camera& gridCamera, const Quality& quality) const;
   /// The cubes of the surface of @p iso such a frame draws: surfaceSpacing, or what is kept nearest
-  /// it when the frame does not wait for its surface (0: nothing is kept, the frame draws none).
+  /// it when the frame does not wait for its surface (0: nothing is kept, the frame draws none; a
+  /// moving frame draws a kept preview until the simplified levels come).
   int drawnSpacing(const Camera& gridCamera, const Quality& quality, float iso) const;
   /// Makes (or finds) the surface of @p iso clustered by cubes of @p s voxels (1: the Surface
   /// Octree's, with @p normals), and reports that work and the surface in @p st.
