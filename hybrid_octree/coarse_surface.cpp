@@ -102,6 +102,31 @@ void orientNormals(TriangleMesh* mesh) {
   }
 }
 
+// Gives each triangle corners whose normals agree with its plane's side (a vertex whose normal
+// does not, in some of its triangles, gets a copy with the normal turned for them): what
+// orientNormals leaves opposed (a crease, the two tables of a bone thinner than a cube joined by a
+// triangle, where its fronts meet) would otherwise interpolate through zero inside the triangle,
+// a dark speck or line.
+void splitOpposedCorners(TriangleMesh* mesh) {
+  std::vector<uint32_t> turned(mesh->vertices.size(), UINT32_MAX);  // each vertex's copy with its normal turned
+  for (glm::uvec3& t : mesh->triangles) {
+    const glm::vec3 n0 = mesh->normals[t.x], n1 = mesh->normals[t.y], n2 = mesh->normals[t.z];
+    if (glm::dot(n0, n1) >= 0.0f && glm::dot(n1, n2) >= 0.0f && glm::dot(n0, n2) >= 0.0f) continue;
+    glm::vec3 side = glm::cross(mesh->vertices[t.y] - mesh->vertices[t.x], mesh->vertices[t.z] - mesh->vertices[t.x]);
+    if (!(glm::dot(side, side) > 0.0f)) side = n0;  // a degenerate triangle: its first corner's side
+    for (int k = 0; k < 3; ++k) {
+      if (glm::dot(mesh->normals[t[k]], side) >= 0.0f) continue;
+      if (turned[t[k]] == UINT32_MAX) {
+        turned[t[k]] = uint32_t(mesh->vertices.size());
+        const glm::vec3 p = mesh->vertices[t[k]], n = mesh->normals[t[k]];
+        mesh->vertices.push_back(p);
+        mesh->normals.push_back(-n);
+      }
+      t[k] = turned[t[k]];
+    }
+  }
+}
+
 // One block's share: the clusters its vertices fall in (with their cubes' keys) and its triangles
 // over them, each once per orientation.
 struct BlockClusters {
@@ -288,6 +313,7 @@ TriangleMesh clusteredSurface(const KnotSource& knots, const VolumeOctree& octre
   unique(&triangles);
   mesh.triangles = std::move(triangles);
   orientNormals(&mesh);
+  splitOpposedCorners(&mesh);
   return mesh;
 }
 

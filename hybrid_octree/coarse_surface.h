@@ -25,13 +25,15 @@ inline constexpr int kClusterBlockCells = 32;
 /// of @p s voxels ({s·c … s·c + s} per axis, c ≥ 0): each cluster's vertex is the mean of its
 /// vertices weighted by the area around them, its normal the samples' gradient summed where it
 /// agrees, else the principal axis of its outer products (a sheet's two faces add up), the signs
-/// then made to agree across every triangle (shading is two-sided, but opposed corners would
+/// then made to agree from vertex to vertex, and where a triangle's corners still oppose (a
+/// crease, two surfaces a cube apart) the corners on the far side of its plane drawn from a copy
+/// of their vertex with the normal turned (shading is two-sided, but opposed corners would
 /// interpolate through zero). Triangles of three clusters
 /// are kept once per orientation (a collapsed sheet keeps both, as the full surface draws both of
 /// its faces). Grid frame, mm, with per-vertex normals. @p octree (of the same grid) skips the
 /// blocks of @p blockCells cells a side whose samples do not straddle @p iso. Deterministic: the
 /// same mesh whatever the thread count (and the block size, but for the sums' rounding); its
-/// vertices in the order of their cubes, x fastest.
+/// vertices in the order of their cubes, x fastest, then the turned copies.
 /// @throw IoError as KnotSource::read; what @p progress throws ("coarse surface").
 TriangleMesh clusteredSurface(const KnotSource& knots, const VolumeOctree& octree, int s, float iso, const Progress* progress = nullptr,
                               int blockCells = kClusterBlockCells);
