@@ -247,25 +247,39 @@ Loops insertTJunctions(const OutPolys& polys, const std::vector<SurfaceNode>& no
     return nodeBox(glm::ivec3(n.origin), n.edge, dims);
   };
   // The points of every line, sorted by line and then lexicographically (their order along it):
-  // a point is its gridKey, whose order is the lexicographic one (16 bytes a point, not 24: this
-  // is the reconstruction's largest array).
-  std::vector<std::pair<uint64_t, uint64_t>> linePoints;
-  for (size_t pi = 0; pi < polys.size(); ++pi) {
-    const std::span<const glm::ivec3> loop = polys.loop(pi);
-    const Box box = boxOf(pi);
-    for (size_t k = 0; k < loop.size(); ++k) {
-      uint64_t key;
-      const glm::ivec3 &a = loop[k], &b = loop[(k + 1) % loop.size()];
-      if (faceLine(box, V64(a), V64(b), &key)) {
-        linePoints.emplace_back(key, gridKey(a));
-        linePoints.emplace_back(key, gridKey(b));
+  // a point is its gridKey, whose order is the lexicographic one. The reconstruction's largest
+  // array: counted before it is made (not grown by doubling), sorted as (line, point) pairs, then
+  // kept as the points alone with a table of each line's first, sized by the lines.
+  auto forEachFaceEdge = [&](auto&& f) {
+    for (size_t pi = 0; pi < polys.size(); ++pi) {
+      const std::span<const glm::ivec3> loop = polys.loop(pi);
+      const Box box = boxOf(pi);
+      for (size_t k = 0; k < loop.size(); ++k) {
+        uint64_t key;
+        const glm::ivec3 &a = loop[k], &b = loop[(k + 1) % loop.size()];
+        if (faceLine(box, V64(a), V64(b), &key)) f(key, a, b);
       }
     }
-  }
+  };
+  size_t faceEdges = 0;
+  forEachFaceEdge([&](uint64_t, const glm::ivec3&, const glm::ivec3&) { ++faceEdges; });
+  std::vector<std::pair<uint64_t, uint64_t>> linePoints;
+  linePoints.reserve(2 * faceEdges);
+  forEachFaceEdge([&](uint64_t key, const glm::ivec3& a, const glm::ivec3& b) {
+    linePoints.emplace_back(key, gridKey(a));
+    linePoints.emplace_back(key, gridKey(b));
+  });
   std::sort(linePoints.begin(), linePoints.end());
   linePoints.erase(std::unique(linePoints.begin(), linePoints.end()), linePoints.end());
-  FlatMap lineStart(linePoints.size() / 2);
-  for (size_t k = linePoints.size(); k-- > 0;) lineStart[linePoints[k].first] = uint32_t(k);
+  size_t lines = 0;
+  for (size_t k = 0; k < linePoints.size(); ++k) lines += k == 0 || linePoints[k].first != linePoints[k - 1].first;
+  FlatMap lineStart(lines);
+  std::vector<uint64_t> onLine(linePoints.size());
+  for (size_t k = linePoints.size(); k-- > 0;) {
+    lineStart[linePoints[k].first] = uint32_t(k);
+    onLine[k] = linePoints[k].second;
+  }
+  std::vector<std::pair<uint64_t, uint64_t>>().swap(linePoints);
 
   FlatMap ids(polys.size());
   auto vertexId = [&](uint64_t point) {
@@ -292,14 +306,14 @@ Loops insertTJunctions(const OutPolys& polys, const std::vector<SurfaceNode>& no
       const uint64_t ka = gridKey(a), kb = gridKey(b);
       const bool forward = ka < kb;
       const uint64_t lo = std::min(ka, kb), hi = std::max(ka, kb);
-      auto first = linePoints.begin() + *lineStart.find(key);
-      while (first->second <= lo) ++first;  // lo and hi are on the line
+      auto first = onLine.begin() + *lineStart.find(key);
+      while (*first <= lo) ++first;  // lo and hi are on the line
       auto last = first;
-      while (last->second < hi) ++last;
+      while (*last < hi) ++last;
       if (forward) {
-        for (auto it = first; it != last; ++it) loops.ids.push_back(vertexId(it->second));
+        for (auto it = first; it != last; ++it) loops.ids.push_back(vertexId(*it));
       } else {
-        for (auto it = last; it != first;) loops.ids.push_back(vertexId((--it)->second));
+        for (auto it = last; it != first;) loops.ids.push_back(vertexId(*--it));
       }
     }
     loops.close(pi);
@@ -443,6 +457,8 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube, const Progress* progress)
   task.advance(stage);
   DiscreteMesh mesh;
   Loops loops = insertTJunctions(polys, mNodes, mDims, &mesh);
+  std::vector<glm::ivec3>().swap(polys.points);  // the loops are vertex ids now
+  std::vector<size_t>().swap(polys.starts);
   task.advance(stage);
   mergeCoplanar(polys, mNodes, mergeCube, &loops);
   task.advance(stage);
