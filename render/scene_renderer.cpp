@@ -113,7 +113,7 @@ std::vector<TriangleMesh> SceneRenderer::simplifiedLevels(const Scene& scene, co
 }
 
 std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats) {
-  // The Surface Octree (the scene's when it matches), its polygons triangulated, shaded both ways;
+  // The Surface Octree (the scene's when it matches), its polygons triangulated, shaded by the gradient;
   // a paged scene's samples are read through its cache a leaf at a time, never whole, so a
   // viewer's builder thread may read them while the scene's frames draw.
   auto s = std::make_unique<PreparedSurface>();
@@ -131,8 +131,7 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   t0 = Clock::now();
   const DiscreteMesh d = (fromScene ? *scene.surface : *s->built).reconstruct(0, progress);
   s->polygons = d.faceCount();
-  s->facet = fineMeshToTriangles(d, scene.volume.spacing());
-  s->smooth = s->facet;
+  s->smooth = fineMeshToTriangles(d, scene.volume.spacing());
   setSceneNormals(scene, &s->smooth);
   if (stats) stats->surfacePolygonsMs = msSince(t0);
   return s;
@@ -236,7 +235,7 @@ const TriangleMesh& SceneRenderer::prepareAt(float iso, int s, SurfaceNormals no
     st->surfaceTriangles = mesh.triangles.size();
     return mesh;
   }
-  const PreparedSurface& e = surfaceEntry(iso, st);
+  PreparedSurface& e = surfaceEntry(iso, st);
   st->surfacePolygons = e.polygons;
   st->surfaceTriangles = e.mesh(normals).triangles.size();
   return e.mesh(normals);

@@ -89,10 +89,13 @@ inline constexpr int kSimplifiedLevels = 4;
 /// the coarse surfaces frames whose pixels are wider than a voxel drew. Kept by a renderer.
 struct PreparedSurface {
   float iso = 0.0f;
-  bool exact = false;                  ///< built, polygons, facet and smooth are made
+  bool exact = false;                  ///< built, polygons and smooth are made
   std::optional<SurfaceOctree> built;  ///< none when the scene's own surface has this isovalue
   size_t polygons = 0;
-  TriangleMesh facet, smooth;          ///< grid frame, mm
+  TriangleMesh smooth;                 ///< grid frame, mm, with the gradient's normals
+  /// smooth without its normals (each triangle shaded by its plane): made when first asked for, as
+  /// most frames and every viewer shade by the gradient (a copy costs 19 bytes a triangle).
+  TriangleMesh facet;
   /// Smooth, simplified to 1, 2, 4, … voxels' error within blocks (kSimplifiedLevels): for the
   /// viewer's frames before the final one, each drawing the coarsest its pixels allow; made when one
   /// first asks for them, or by a viewer's builder thread (SceneRenderer::simplifiedLevels); a frame
@@ -102,7 +105,11 @@ struct PreparedSurface {
   const TriangleMesh* bvhMesh[2] = {nullptr, nullptr};  ///< the mesh each was made for
   /// clusteredSurface of each cube edge s ≥ 2 a frame drew (grid frame, mm, smooth): made by that frame.
   std::map<int, TriangleMesh> coarse;
-  const TriangleMesh& mesh(SurfaceNormals n) const { return n == SurfaceNormals::Gradient ? smooth : facet; }
+  const TriangleMesh& mesh(SurfaceNormals n) {
+    if (n == SurfaceNormals::Gradient) return smooth;
+    if (facet.triangles.size() != smooth.triangles.size()) facet = TriangleMesh{smooth.vertices, smooth.triangles, {}, smooth.polygonStarts};
+    return facet;
+  }
 };
 
 /// Decompressed bytes of the store's coarse levels that a frame which does not wait for the store

@@ -75,7 +75,9 @@ TEST(SceneRenderer, ASurfaceMadeOnAnotherThreadIsAdoptedAndDrawnAsIfBuiltHere) {
   builder.join();
   ASSERT_TRUE(made);
   EXPECT_GT(made->polygons, 0u);
-  EXPECT_EQ(made->facet.triangles.size(), made->smooth.triangles.size());
+  EXPECT_TRUE(made->facet.triangles.empty());  // made when a frame first asks for it
+  EXPECT_EQ(made->mesh(SurfaceNormals::Facet).triangles, made->smooth.triangles);
+  EXPECT_TRUE(made->facet.normals.empty());
   r.adoptSurface(std::move(made));
   EXPECT_TRUE(r.hasSurface(5.0f));
   look.iso = 5.0f;
