@@ -61,9 +61,9 @@ int main(int argc, char** argv) {
     auto prepared = SceneRenderer::prepareSurface(r.scene(), iso);
     const double reconstructMs = msSince(t0);
     t0 = Clock::now();
-    prepared->simplified = SceneRenderer::simplifiedLevels(r.scene(), prepared->smooth);
+    prepared->simplified = SceneRenderer::simplifiedLevels(r.scene(), *prepared->smooth);
     const double simplifyMs = msSince(t0);
-    std::printf("surface %g: %zu triangles, built and reconstructed in %.0f ms; simplified in %.0f ms to", iso, prepared->smooth.triangles.size(),
+    std::printf("surface %g: %zu triangles, built and reconstructed in %.0f ms; simplified in %.0f ms to", iso, prepared->smooth->triangles.size(),
                 reconstructMs, simplifyMs);
     for (const TriangleMesh& m : prepared->simplified) std::printf(" %zu", m.triangles.size());
     std::printf(" triangles\n");

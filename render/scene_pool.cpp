@@ -249,15 +249,13 @@ void ScenePool::startBuild(Entry& e, float iso) {
   if (!e.renderer->hasSurface(iso)) sendSurface(e, iso, SurfaceState::Building, "surface", 0.0);
   const bool preview = !e.renderer->hasAnySurface(iso);  // (not again after a build that stopped)
   // The full-resolution surface kept from a build that stopped before its simplified levels: only
-  // they are left to make, from a copy (the renderer's may go while the builder reads).
-  std::optional<TriangleMesh> kept;
-  if (const TriangleMesh* m = e.renderer->unsimplified(iso)) kept = *m;
-  e.builder = std::thread([this, &e, iso, preview, smooth = std::move(kept)]() mutable {
+  // they are left to make (shared: the renderer may let go of it while the builder reads).
+  e.builder = std::thread([this, &e, iso, preview, smooth = e.renderer->unsimplified(iso)]() mutable {
     const std::string key = e.summary.key;
     auto wanted = [&] {
       return std::any_of(mViewers.begin(), mViewers.end(), [&](const auto& v) { return v.second.key == key && v.second.asked == iso; });
     };
-    bool ready = smooth.has_value();  // the full-resolution surface is the renderer's: frames draw it
+    bool ready = smooth != nullptr;  // the full-resolution surface is the renderer's: frames draw it
     const Progress progress([&](const std::string& task, double fraction) {
       const std::lock_guard<std::mutex> guard(mMutex);
       if (mStopping || !wanted()) throw Cancelled{};
@@ -288,7 +286,7 @@ void ScenePool::startBuild(Entry& e, float iso) {
           hand(std::move(made));
         }
         std::unique_ptr<PreparedSurface> exact = SceneRenderer::prepareSurface(scene, iso, &progress);
-        smooth = exact->smooth;
+        smooth = exact->smooth;  // shared, not copied
         hand(std::move(exact));
         ready = true;
       }

@@ -131,8 +131,9 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   t0 = Clock::now();
   const DiscreteMesh d = (fromScene ? *scene.surface : *s->built).reconstruct(0, progress);
   s->polygons = d.faceCount();
-  s->smooth = fineMeshToTriangles(d, scene.volume.spacing());
-  setSceneNormals(scene, &s->smooth);
+  auto smooth = std::make_shared<TriangleMesh>(fineMeshToTriangles(d, scene.volume.spacing()));
+  setSceneNormals(scene, smooth.get());
+  s->smooth = std::move(smooth);
   if (stats) stats->surfacePolygonsMs = msSince(t0);
   return s;
 }
@@ -257,9 +258,9 @@ bool SceneRenderer::hasAnySurface(float iso) const {
   return std::any_of(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == iso && (s->exact || !s->coarse.empty()); });
 }
 
-const TriangleMesh* SceneRenderer::unsimplified(float iso) const {
+std::shared_ptr<const TriangleMesh> SceneRenderer::unsimplified(float iso) const {
   for (const auto& s : mSurfaces)
-    if (s->iso == iso && s->exact && s->simplified.empty()) return &s->smooth;
+    if (s->iso == iso && s->exact && s->simplified.empty()) return s->smooth;
   return nullptr;
 }
 
@@ -443,7 +444,7 @@ const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look
   PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
   if (s.simplified.empty()) {
     if (!quality.waitForSurface) return &mesh;  // the builder makes them (drawnSpacing takes a preview kept meanwhile)
-    s.simplified = simplifiedLevels(mScene, s.smooth, mOptions.progress);
+    s.simplified = simplifiedLevels(mScene, *s.smooth, mOptions.progress);
   }
   // The coarsest level whose error is within the pixels asked where the volume is nearest.
   const double allowedMm = quality.surfaceErrorPixels * nearestPixelMm(camera);

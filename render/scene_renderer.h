@@ -92,7 +92,9 @@ struct PreparedSurface {
   bool exact = false;                  ///< built, polygons and smooth are made
   std::optional<SurfaceOctree> built;  ///< none when the scene's own surface has this isovalue
   size_t polygons = 0;
-  TriangleMesh smooth;                 ///< grid frame, mm, with the gradient's normals
+  /// Grid frame, mm, with the gradient's normals; shared with a viewer's builder thread, which
+  /// simplifies it while frames draw it (the renderer may let go of it meanwhile).
+  std::shared_ptr<const TriangleMesh> smooth;
   /// smooth without its normals (each triangle shaded by its plane): made when first asked for, as
   /// most frames and every viewer shade by the gradient (a copy costs 19 bytes a triangle).
   TriangleMesh facet;
@@ -106,8 +108,9 @@ struct PreparedSurface {
   /// clusteredSurface of each cube edge s ≥ 2 a frame drew (grid frame, mm, smooth): made by that frame.
   std::map<int, TriangleMesh> coarse;
   const TriangleMesh& mesh(SurfaceNormals n) {
-    if (n == SurfaceNormals::Gradient) return smooth;
-    if (facet.triangles.size() != smooth.triangles.size()) facet = TriangleMesh{smooth.vertices, smooth.triangles, {}, smooth.polygonStarts};
+    HYB_CHECK(smooth);
+    if (n == SurfaceNormals::Gradient) return *smooth;
+    if (facet.triangles.size() != smooth->triangles.size()) facet = TriangleMesh{smooth->vertices, smooth->triangles, {}, smooth->polygonStarts};
     return facet;
   }
 };
@@ -185,7 +188,7 @@ class SceneRenderer {
   static std::vector<TriangleMesh> simplifiedLevels(const Scene& scene, const TriangleMesh& smooth, const Progress* progress = nullptr);
   /// The full-resolution surface of @p iso (smooth) when it is kept without its simplified levels;
   /// else null.
-  const TriangleMesh* unsimplified(float iso) const;
+  std::shared_ptr<const TriangleMesh> unsimplified(float iso) const;
   /// Keeps @p surface (made from this renderer's scene) as the surface of its isovalue, joined with
   /// what is kept of it: the full-resolution surface, the clustered ones, the simplified levels (a
   /// viewer's builder hands them over one after the other).

@@ -51,7 +51,7 @@ View frontOfGrid97() {
 // The surface of @p iso with its simplified levels, as a viewer's frames draw it.
 std::unique_ptr<PreparedSurface> withLevels(const Scene& scene, float iso) {
   std::unique_ptr<PreparedSurface> s = SceneRenderer::prepareSurface(scene, iso);
-  s->simplified = SceneRenderer::simplifiedLevels(scene, s->smooth);
+  s->simplified = SceneRenderer::simplifiedLevels(scene, *s->smooth);
   return s;
 }
 
@@ -76,7 +76,7 @@ TEST(SceneRenderer, ASurfaceMadeOnAnotherThreadIsAdoptedAndDrawnAsIfBuiltHere) {
   ASSERT_TRUE(made);
   EXPECT_GT(made->polygons, 0u);
   EXPECT_TRUE(made->facet.triangles.empty());  // made when a frame first asks for it
-  EXPECT_EQ(made->mesh(SurfaceNormals::Facet).triangles, made->smooth.triangles);
+  EXPECT_EQ(made->mesh(SurfaceNormals::Facet).triangles, made->smooth->triangles);
   EXPECT_TRUE(made->facet.normals.empty());
   r.adoptSurface(std::move(made));
   EXPECT_TRUE(r.hasSurface(5.0f));
@@ -132,8 +132,8 @@ TEST(SceneRenderer, APagedSceneBuildsItsSurfacesThroughItsCacheAndStaysPaged) {
   ASSERT_TRUE(made->built && inMemory->built);
   EXPECT_GT(made->built->nodes().size(), 0u);
   EXPECT_EQ(made->built->nodes(), inMemory->built->nodes());
-  EXPECT_EQ(made->smooth.vertices, inMemory->smooth.vertices);
-  EXPECT_EQ(made->smooth.normals, inMemory->smooth.normals);
+  EXPECT_EQ(made->smooth->vertices, inMemory->smooth->vertices);
+  EXPECT_EQ(made->smooth->normals, inMemory->smooth->normals);
   ASSERT_EQ(made->simplified.size(), inMemory->simplified.size());
   for (size_t l = 0; l < made->simplified.size(); ++l) EXPECT_EQ(made->simplified[l].normals, inMemory->simplified[l].normals) << l;
   EXPECT_LE(paged.scene().knots->cacheStats().bytesHeld, paged.scene().knots->cacheStats().limit + kMaxStoreBlockBytes);
@@ -238,7 +238,7 @@ TEST(SceneRenderer, SmallFramesDrawCoarserLevelsOfTheSimplifiedSurface) {
   for (int k = 0; k < kSimplifiedLevels; ++k) {
     const TriangleMesh& m = made->simplified[size_t(k)];
     counts.push_back(m.triangles.size());
-    EXPECT_LT(counts.back(), k == 0 ? made->smooth.triangles.size() : counts[size_t(k) - 1]) << k;
+    EXPECT_LT(counts.back(), k == 0 ? made->smooth->triangles.size() : counts[size_t(k) - 1]) << k;
     EXPECT_EQ(m.normals.size(), m.vertices.size()) << k;
     double sag = 0.0;
     for (const glm::uvec3& t : m.triangles) {
@@ -364,7 +364,7 @@ TEST(SceneRenderer, FramesThatDoNotWaitDrawTheKeptSurfaceNearestTheirOwn) {
   std::unique_ptr<PreparedSurface> exact = SceneRenderer::prepareSurface(r.scene(), 0.0f);
   auto levels = std::make_unique<PreparedSurface>();
   levels->iso = 0.0f;
-  levels->simplified = SceneRenderer::simplifiedLevels(r.scene(), exact->smooth);
+  levels->simplified = SceneRenderer::simplifiedLevels(r.scene(), *exact->smooth);
   r.adoptSurface(std::move(exact));
   ASSERT_TRUE(r.hasSurface(0.0f));
   const size_t full = r.surface(0.0f, SurfaceNormals::Gradient).triangles.size();
