@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <iterator>
+#include <tuple>
 #include <cmath>
 #include <cstdint>
 #include <unordered_map>
@@ -140,6 +141,134 @@ bool flipFlatTriangles(const TriangleMesh& mesh, std::vector<glm::uvec3>* triang
   return fixed->size() != before;
 }
 
+// The edges of the blocks' triangles @p kept used by another number of triangles than in the input
+// (@p counts; 2 for an edge a collapse made), with each block that uses them.
+std::vector<std::pair<Edge, uint32_t>> edgesInError(const std::vector<std::vector<glm::uvec3>>& kept, const std::vector<std::pair<Edge, int>>& counts) {
+  std::vector<std::pair<Edge, uint32_t>> edges;  // each edge of the result, with its block
+  for (size_t b = 0; b < kept.size(); ++b)
+    for (const glm::uvec3& t : kept[b])
+      for (int k = 0; k < 3; ++k) edges.push_back({edgeOf(t, k), uint32_t(b)});
+  std::sort(edges.begin(), edges.end());
+  std::vector<std::pair<Edge, uint32_t>> bad;
+  for (size_t i = 0, j = 0; i < edges.size(); i = j) {
+    while (j < edges.size() && edges[j].first == edges[i].first) ++j;
+    const auto in = std::lower_bound(counts.begin(), counts.end(), std::pair{edges[i].first, 0});
+    if (int(j - i) != (in != counts.end() && in->first == edges[i].first ? in->second : 2)) bad.insert(bad.end(), edges.begin() + long(i), edges.begin() + long(j));
+  }
+  return bad;
+}
+
+// Whether the edges @p link (a vertex's link: the edges opposite it) are empty or one loop, each
+// of their vertices on two of them.
+bool oneLoop(std::vector<Edge> link) {
+  if (link.empty()) return true;
+  std::vector<uint32_t> ends;
+  for (const Edge& e : link) ends.insert(ends.end(), {e.first, e.second});
+  std::sort(ends.begin(), ends.end());
+  for (size_t i = 0; i < ends.size(); i += 2)
+    if (i + 1 >= ends.size() || ends[i] != ends[i + 1] || (i + 2 < ends.size() && ends[i + 2] == ends[i])) return false;
+  // Walk the loop from the first edge: it must take in every edge.
+  size_t walked = 1;
+  uint32_t from = link[0].first, at = link[0].second;
+  link.erase(link.begin());
+  while (at != from) {
+    const auto it = std::find_if(link.begin(), link.end(), [&](const Edge& e) { return e.first == at || e.second == at; });
+    if (it == link.end()) return false;
+    at = it->first == at ? it->second : it->first;
+    link.erase(it);
+    ++walked;
+  }
+  return link.empty() && walked > 0;
+}
+
+// A triangle of block a and its mirror image in block b (dropMirroredPairs).
+struct MirroredPair {
+  glm::uvec3 ta, tb;
+  uint32_t a, b;
+};
+
+// Two neighbouring blocks that each collapsed onto the same three vertices of their common border
+// leave a triangle and its mirror image over one another: a fin of no area between them, whose
+// edges are used too often. Both triangles go (the surface is then as if neither had been made,
+// its edges used as before), rather than both blocks being simplified again: on a CT's bone that
+// is nearly every block. Only the triangles of @p bad edges (sorted, with their blocks) are looked
+// at; the pairs dropped are added to @p dropped. Returns whether any went.
+bool dropMirroredPairs(const std::vector<std::pair<Edge, uint32_t>>& bad, std::vector<std::vector<glm::uvec3>>* kept, std::vector<MirroredPair>* dropped) {
+  auto isBad = [&](const Edge& e) {
+    const auto it = std::lower_bound(bad.begin(), bad.end(), std::pair{e, uint32_t(0)});
+    return it != bad.end() && it->first == e;
+  };
+  struct Candidate {
+    glm::uvec3 sorted;  // its vertices, ascending
+    bool parity;        // its orientation
+    uint32_t block, index;
+  };
+  std::vector<Candidate> candidates;
+  std::vector<uint32_t> blocks;  // the blocks of the bad edges, ascending
+  for (const auto& e : bad) blocks.push_back(e.second);
+  sortUnique(&blocks);
+  for (uint32_t b : blocks)
+    for (uint32_t i = 0; i < (*kept)[b].size(); ++i) {
+      const glm::uvec3 t = (*kept)[b][i];
+      if (!isBad(edgeOf(t, 0)) && !isBad(edgeOf(t, 1)) && !isBad(edgeOf(t, 2))) continue;
+      glm::uvec3 r = t;  // rotated to start at its smallest vertex: the orientation is whether the rest ascend
+      while (r.x > r.y || r.x > r.z) r = {r.y, r.z, r.x};
+      candidates.push_back({{r.x, std::min(r.y, r.z), std::max(r.y, r.z)}, r.y < r.z, b, i});
+    }
+  auto less = [](const Candidate& a, const Candidate& b) {
+    return std::tie(a.sorted.x, a.sorted.y, a.sorted.z, a.block) < std::tie(b.sorted.x, b.sorted.y, b.sorted.z, b.block);
+  };
+  std::sort(candidates.begin(), candidates.end(), less);
+  std::vector<std::pair<const Candidate*, const Candidate*>> pairs;
+  for (size_t i = 0, j = 0; i < candidates.size(); i = j) {
+    while (j < candidates.size() && candidates[j].sorted == candidates[i].sorted) ++j;
+    if (j - i == 2 && candidates[i].parity != candidates[i + 1].parity && candidates[i].block != candidates[i + 1].block)
+      pairs.push_back({&candidates[i], &candidates[i + 1]});
+  }
+  // A pair is kept where dropping the pairs would leave one of its vertices' triangles in two fans
+  // (two fins at one vertex: a pinch, not a surface); its blocks are then done again.
+  std::vector<uint32_t> corners;
+  for (const auto& [a, b] : pairs) corners.insert(corners.end(), {a->sorted.x, a->sorted.y, a->sorted.z});
+  sortUnique(&corners);
+  auto corner = [&](uint32_t v) {
+    const auto it = std::lower_bound(corners.begin(), corners.end(), v);
+    return it != corners.end() && *it == v ? long(it - corners.begin()) : -1L;
+  };
+  std::vector<std::vector<uint64_t>> dropping(kept->size());  // (index) of each block's triangles in pairs
+  for (const auto& [a, b] : pairs) {
+    dropping[a->block].push_back(a->index);
+    dropping[b->block].push_back(b->index);
+  }
+  for (auto& d : dropping) std::sort(d.begin(), d.end());
+  std::vector<std::vector<Edge>> links(corners.size());  // each corner's link without the pairs
+  for (size_t b = 0; b < kept->size(); ++b)
+    for (uint32_t i = 0; i < (*kept)[b].size(); ++i) {
+      const glm::uvec3 t = (*kept)[b][i];
+      for (int k = 0; k < 3; ++k) {
+        const long c = corner(t[k]);
+        if (c >= 0 && !std::binary_search(dropping[b].begin(), dropping[b].end(), uint64_t(i))) links[size_t(c)].push_back(edgeOf(t, (k + 1) % 3));
+      }
+    }
+  std::vector<char> pinched(corners.size(), 0);
+  for (size_t c = 0; c < corners.size(); ++c) pinched[c] = !oneLoop(links[c]);
+  std::vector<std::vector<uint32_t>> drop(kept->size());
+  for (const auto& [a, b] : pairs) {
+    if (pinched[size_t(corner(a->sorted.x))] || pinched[size_t(corner(a->sorted.y))] || pinched[size_t(corner(a->sorted.z))]) continue;
+    drop[a->block].push_back(a->index);
+    drop[b->block].push_back(b->index);
+    dropped->push_back({(*kept)[a->block][a->index], (*kept)[b->block][b->index], a->block, b->block});
+  }
+  bool any = false;
+  for (size_t b = 0; b < drop.size(); ++b) {
+    if (drop[b].empty()) continue;
+    sortUnique(&drop[b]);
+    std::vector<glm::uvec3>& tris = (*kept)[b];
+    for (size_t k = drop[b].size(); k-- > 0;) tris.erase(tris.begin() + long(drop[b][k]));
+    any = true;
+  }
+  return any;
+}
+
 // One block's triangles simplified within @p errorMm, those touching a @p fixed vertex (sorted) kept
 // as they are. meshoptimizer does not check the link condition: a collapse beside locked vertices
 // can stack triangles on their edge; nor does it avoid flat triangles, which are flipped away.
@@ -165,7 +294,7 @@ std::vector<glm::uvec3> simplifyBlock(const TriangleMesh& mesh, const std::vecto
 
 }  // namespace
 
-TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& blockMm, double maxErrorMm, const Progress* progress) {
+TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& blockMm, double maxErrorMm, const Progress* progress, SimplifyStats* stats) {
   const bool blockOk = std::isfinite(blockMm.x) && std::isfinite(blockMm.y) && std::isfinite(blockMm.z) && glm::all(glm::greaterThan(blockMm, glm::dvec3(0.0)));
   if (!blockOk) HYB_THROW(ValueError, "simplification block must be a finite positive size (mm)");
   if (!(std::isfinite(maxErrorMm) && maxErrorMm > 0.0)) HYB_THROW(ValueError, "simplification error must be a finite positive distance (mm)");
@@ -185,14 +314,16 @@ TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& bl
   }
 
   // Each block on its own, then across blocks: a collapse onto a border vertex can span three of
-  // them with a triangle in the block's face, and the neighbour may make one there too, over it.
-  // Where an edge is used by more or fewer triangles than in the input, its two vertices are fixed
-  // in the blocks that use it (triangles touching them stay) and those blocks are done again; after
-  // four rounds a block still at fault keeps its whole border, after five it stays as it came.
+  // them with a triangle in the block's face, and the neighbour may make one there too, over it:
+  // such a pair is dropped (dropMirroredPairs). Where an edge is still used by more or fewer
+  // triangles than in the input, its two vertices are fixed in the blocks that use it (triangles
+  // touching them stay) and those blocks are done again; after four rounds a block still at fault
+  // keeps its whole border, after five it stays as it came.
   const size_t blocks = input.size();
   std::vector<std::vector<glm::uvec3>> kept(blocks);
   std::vector<std::vector<uint32_t>> fixed(blocks);
   std::vector<char> redo(blocks, 1);
+  std::vector<MirroredPair> dropped;
   const std::vector<std::pair<Edge, int>> counts = edgeCounts(mesh.triangles);
   ProgressTask task(progress, "simplified surface", blocks);
   for (int round = 0; round < 6; ++round) {
@@ -201,6 +332,14 @@ TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& bl
         if (redo[b])
           for (const auto& [edge, count] : openEdges(input[b])) fixed[b].insert(fixed[b].end(), {edge.first, edge.second});
     for (std::vector<uint32_t>& f : fixed) sortUnique(&f);
+    // A pair dropped beside a block done again comes back to the block that stays: the other may
+    // not make its half again.
+    std::erase_if(dropped, [&](const MirroredPair& p) {
+      if (!redo[p.a] && !redo[p.b]) return false;
+      if (!redo[p.a]) kept[p.a].push_back(p.ta);
+      if (!redo[p.b]) kept[p.b].push_back(p.tb);
+      return true;
+    });
     ParallelFailure failure;
 #pragma omp parallel for schedule(dynamic)
     for (size_t b = 0; b < blocks; ++b)
@@ -210,24 +349,19 @@ TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& bl
           if (round == 0) task.advance();
         });
     failure.rethrow();
-    std::vector<std::pair<Edge, uint32_t>> edges;  // each edge of the result, with its block
-    for (size_t b = 0; b < blocks; ++b)
-      for (const glm::uvec3& t : kept[b])
-        for (int k = 0; k < 3; ++k) edges.push_back({edgeOf(t, k), uint32_t(b)});
-    std::sort(edges.begin(), edges.end());
+    std::vector<std::pair<Edge, uint32_t>> bad = edgesInError(kept, counts);
+    if (!bad.empty() && dropMirroredPairs(bad, &kept, &dropped)) bad = edgesInError(kept, counts);
     std::fill(redo.begin(), redo.end(), 0);
-    bool any = false;
-    for (size_t i = 0, j = 0; i < edges.size(); i = j) {
-      while (j < edges.size() && edges[j].first == edges[i].first) ++j;
-      const auto in = std::lower_bound(counts.begin(), counts.end(), std::pair{edges[i].first, 0});
-      if (int(j - i) == (in != counts.end() && in->first == edges[i].first ? in->second : 2)) continue;
-      for (size_t k = i; k < j; ++k) {
-        redo[edges[k].second] = 1;
-        fixed[edges[k].second].insert(fixed[edges[k].second].end(), {edges[k].first.first, edges[k].first.second});
-      }
-      any = true;
+    for (const auto& [edge, b] : bad) {
+      redo[b] = 1;
+      fixed[b].insert(fixed[b].end(), {edge.first, edge.second});
     }
-    if (!any) break;
+    if (bad.empty()) break;
+    if (stats && round < 5) stats->blocksRedone += size_t(std::count(redo.begin(), redo.end(), 1));
+  }
+  if (stats) {
+    stats->blocks = blocks;
+    stats->mirroredPairs = dropped.size();
   }
 
   TriangleMesh result;

@@ -15,13 +15,21 @@ namespace hyb {
 /// inside the block its input triangles did. Collapses stop where the surface would move by more
 /// than @p maxErrorMm (meshoptimizer's quadric distance). Every edge is used by as many triangles
 /// as in the input (closed stays closed, nothing is stacked or folded onto a neighbour's face):
-/// where a collapse broke that, the vertices concerned are kept and the block is simplified again.
+/// where a collapse broke that, the vertices concerned are kept and the block is simplified again
+/// (but a triangle and its mirror image, made by two blocks over their common border, are dropped).
 /// No output triangle is flat (flatTriangle) where the input had none: where a collapse made one,
 /// its vertices are kept and the block simplified again. Self-intersections are not prevented.
 /// Vertices keep their input positions (a collapse moves one onto another); normals are not set
 /// (the caller sets them, e.g. setGradientNormals) and the polygon structure is dropped.
 /// @p progress hears of the blocks done ("simplified surface").
 /// @throw ValueError if blockMm or maxErrorMm is not positive and finite.
-TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& blockMm, double maxErrorMm, const Progress* progress = nullptr);
+/// What simplifyWithinBlocks did beyond one pass over the blocks.
+struct SimplifyStats {
+  size_t blocks = 0;          ///< blocks with triangles
+  size_t blocksRedone = 0;    ///< simplifications of a block after the first, summed over the rounds
+  size_t mirroredPairs = 0;   ///< triangle pairs dropped as mirror images over a common border
+};
+TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& blockMm, double maxErrorMm, const Progress* progress = nullptr,
+                                  SimplifyStats* stats = nullptr);
 
 }  // namespace hyb
