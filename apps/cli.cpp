@@ -493,19 +493,20 @@ int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
   so.token = o.token;
   so.frameTargetMs = o.frameMs;
   so.textureLimitBytes = uint64_t(o.textureMb * 1024 * 1024);
+  // A scene file is read paged within --memory, as render reads it: a study larger than memory
+  // opens; the surfaces made of it count against it too.
+  so.memoryBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
   if (o.volumeGiven || o.dataDir.empty()) {
     so.volume = o.input.path;
     so.series = o.input.series;
   }
-  so.loader = [&o, &err](const std::string& path, const std::string& series, const Progress* progress) {
+  so.loader = [&o, &err, memoryBytes = so.memoryBytes](const std::string& path, const std::string& series, const Progress* progress) {
     VolumeInput in = o.input;
     in.path = path;
     in.series = series;
     in.progress = progress ? progress : o.input.progress;  // the page hears of a load it waits for
     std::ostringstream quiet;
     double ms = 0;
-    // A scene file is read paged within --memory, as render reads it: a study larger than memory opens.
-    const uint64_t memoryBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
     return loadOrBuild(in, quiet, err, &ms, {}, SceneLoadOptions{false, memoryBytes});
   };
   so.log = &out;
@@ -603,7 +604,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   viewCmd->add_option("--frame-ms", view.frameMs, "frame time interactive frames aim at, ms")->capture_default_str();
   viewCmd->add_option("--texture-mb", view.textureMb, "brick textures kept between frames, MB per volume")->capture_default_str();
   viewCmd->add_option("--memory", view.memoryMb,
-                      "MB a scene file read paged holds, per scene: its octree, and the cache of decompressed blocks its bricks are read through, which gets what the octree leaves, at least a quarter (default: an eighth of the physical memory)");
+                      "MB a scene file read paged holds, per scene: its octree, the surfaces made of it, and the cache of decompressed blocks its bricks are read through, which gets what they leave, at least a quarter (default: an eighth of the physical memory)");
 
   try {
     try {

@@ -254,7 +254,7 @@ void RenderOptions::add(CLI::App* cmd) {
   // What is shown.
   cmd->add_option("--iso", iso, "isovalue of the embedded surface (data units; none = volume only)");
   cmd->add_option("--memory", memoryMb,
-                  "MB a scene file read paged holds: its octree, and the cache of decompressed blocks its bricks are read through, which gets what the octree leaves, at least a quarter (default: an eighth of the physical memory)");
+                  "MB a scene file read paged holds: its octree, the surface made of it, and the cache of decompressed blocks its bricks are read through, which gets what they leave, at least a quarter (default: an eighth of the physical memory)");
   cmd->add_option_function<std::string>("--surface-color", [this](const std::string& t) { surfaceColor = parseColor(t, "--surface-color", 4); },
                                         "surface r,g,b,a in [0,1]; a < 1 is translucent (default 0.95,0.92,0.85,1)");
   addChoice<SurfaceNormals>(cmd, "--surface-normals", &surfaceNormals, {{"gradient", SurfaceNormals::Gradient}, {"facet", SurfaceNormals::Facet}},
@@ -371,7 +371,9 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
           << " MB; its block cache gets " << cache / (1024 * 1024) << " MB, and the process more than --memory\n";
   }
   setUpFrame(o, scene, &job, err);
-  job.renderer = std::make_unique<SceneRenderer>(std::move(scene), SceneRenderer::Options{0, o.input.progress, keepTextures});
+  SceneRenderer::Options ro{0, o.input.progress, keepTextures};
+  ro.memoryBytes = memoryBytes;
+  job.renderer = std::make_unique<SceneRenderer>(std::move(scene), ro);
   return job;
 }
 

@@ -941,6 +941,7 @@ Server::Server(ServerOptions options) : mImpl(std::make_unique<ServerState>()) {
   ScenePool::Options po;
   po.loader = s.options.loader;
   po.textureLimitBytes = s.options.textureLimitBytes;
+  po.memoryBytes = s.options.memoryBytes;
   po.releaseAfter = s.options.releaseAfter;
   s.pool = std::make_unique<ScenePool>(s.mutex, std::move(po), s.poolEvents());
   if (!s.options.volume.empty()) {

@@ -34,6 +34,7 @@ struct ServerOptions {
   std::filesystem::path dataDir;       ///< the page lists and opens volumes under it; empty: none
   std::string token;                   ///< empty: a random one
   uint64_t textureLimitBytes = 1ull << 29;  ///< brick textures each scene keeps between frames
+  uint64_t memoryBytes = 0;            ///< --memory: each paged scene's octrees, surfaces and block cache (0: the loader's bound)
   double frameTargetMs = 80.0;         ///< interactive frames aim at this time (render and encode)
   int maxClients = 8;
   /// A volume no client shows is released this long after the last one left it.

@@ -418,14 +418,18 @@ std::shared_ptr<const KnotStore::Block> KnotStore::insert(uint64_t k, std::share
   mOrder.push_back(k);
   mCache.emplace(k, Entry{made, std::prev(mOrder.end())});
   mStats.bytesHeld += made->bytes.size();
-  while (mStats.limit && mStats.bytesHeld > mStats.limit && mOrder.size() > 1) {
+  evictToLimit(1);
+  return made;
+}
+
+void KnotStore::evictToLimit(size_t keep) const {
+  while (mStats.limit && mStats.bytesHeld > mStats.limit && mOrder.size() > keep) {
     const auto victim = mCache.find(mOrder.front());
     mStats.bytesHeld -= victim->second.block->bytes.size();
     mCache.erase(victim);
     mOrder.pop_front();
     ++mStats.evicted;
   }
-  return made;
 }
 
 namespace {
@@ -643,6 +647,7 @@ SampleArray KnotStore::samples() const {
 void KnotStore::setCacheLimit(uint64_t bytes) {
   const std::lock_guard lock(mMutex);
   mStats.limit = bytes;
+  evictToLimit(0);
 }
 
 StoreCacheStats KnotStore::cacheStats() const {

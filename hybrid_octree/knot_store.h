@@ -158,6 +158,8 @@ class KnotStore final : public KnotSource {
   /// Compressed bytes of all blocks.
   uint64_t compressedBytes() const { return mDataSize; }
 
+  /// Bounds the cache to @p bytes of decompressed blocks (0: no bound), evicting the least recently
+  /// used at once.
   void setCacheLimit(uint64_t bytes);
   StoreCacheStats cacheStats() const;
 
@@ -193,6 +195,9 @@ class KnotStore final : public KnotSource {
   /// Caches @p made as block @p key (its index position), evicting to stay within the bound;
   /// returns the cached block (another thread's when it was first). Needs mMutex held.
   std::shared_ptr<const Block> insert(uint64_t key, std::shared_ptr<const Block> made) const;
+  /// Evicts the least recently used blocks but the @p keep most recent while the cache is over its
+  /// bound. Needs mMutex held.
+  void evictToLimit(size_t keep) const;
   struct Prefetch;
   void prefetchLoop();
 

@@ -120,6 +120,7 @@ std::unique_ptr<ScenePool::Entry> ScenePool::makeEntry(Scene scene, const std::s
   e->summary = summarizeScene(scene, key, path, series, name);
   SceneRenderer::Options ro;
   ro.textureLimitBytes = mOptions.textureLimitBytes;
+  ro.memoryBytes = mOptions.memoryBytes;
   e->renderer = std::make_unique<SceneRenderer>(std::move(scene), ro);  // its OpenGL context comes with its first frame
   return e;
 }

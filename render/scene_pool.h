@@ -81,6 +81,7 @@ class ScenePool {
   struct Options {
     Loader loader;
     uint64_t textureLimitBytes = 0;   ///< each scene's brick texture cache (0: no limit)
+    uint64_t memoryBytes = 0;         ///< each paged scene's --memory (SceneRenderer::Options::memoryBytes)
     /// A scene no viewer shows is released this long after the last one left it (0: at once).
     std::chrono::milliseconds releaseAfter{10000};
     /// A paged scene of more samples than this draws a clustered preview of a surface first.

@@ -138,6 +138,25 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   return s;
 }
 
+size_t PreparedSurface::bytesUsed() const {
+  size_t n = (smooth ? smooth->bytesUsed() : 0) + facet.bytesUsed() + (built ? built->bytesUsed() : 0);
+  for (const TriangleMesh& m : simplified) n += m.bytesUsed();
+  for (const auto& [s, m] : coarse) n += m.bytesUsed();
+  return n;
+}
+
+size_t SceneRenderer::surfaceBytes() const {
+  size_t n = 0;
+  for (const auto& s : mSurfaces) n += s->bytesUsed();
+  return n;
+}
+
+void SceneRenderer::boundCache() {
+  if (!mScene.knots || mOptions.memoryBytes == 0) return;
+  const uint64_t octrees = mScene.octree.bytesUsed() + (mScene.surface ? mScene.surface->bytesUsed() : 0);
+  mScene.knots->setCacheLimit(sceneCacheBytes(mOptions.memoryBytes, octrees + surfaceBytes()));
+}
+
 PreparedSurface& SceneRenderer::keep(std::unique_ptr<PreparedSurface> surface) {
   // One entry an isovalue: what is kept of it stays, the clustered surfaces joined.
   const auto it = std::find_if(mSurfaces.begin(), mSurfaces.end(), [&](const auto& s) { return s->iso == surface->iso; });
@@ -161,6 +180,7 @@ void SceneRenderer::pinSurfaces(std::vector<float> isos) {
 void SceneRenderer::trimSurfaces() {
   int unpinned = 0;
   std::erase_if(mSurfaces, [&](const auto& s) { return std::find(mPinned.begin(), mPinned.end(), s->iso) == mPinned.end() && ++unpinned > 2; });
+  boundCache();
 }
 
 void SceneRenderer::adoptSurface(std::unique_ptr<PreparedSurface> surface) { keep(std::move(surface)); }
@@ -197,7 +217,11 @@ const TriangleMesh& SceneRenderer::coarseSurface(float iso, int s, FrameStats* s
   return entry(iso).coarse.emplace(s, std::move(mesh)).first->second;
 }
 
-const TriangleMesh& SceneRenderer::surface(float iso, SurfaceNormals normals) { return surfaceEntry(iso, nullptr).mesh(normals); }
+const TriangleMesh& SceneRenderer::surface(float iso, SurfaceNormals normals) {
+  const TriangleMesh& mesh = surfaceEntry(iso, nullptr).mesh(normals);
+  boundCache();
+  return mesh;
+}
 
 double SceneRenderer::nearestPixelMm(const Camera& gridCamera) const {
   return gridCamera.pixelMmAt(glm::dvec3(0.0), glm::dvec3(volume().dims() - 1) * volume().spacing());
@@ -440,11 +464,13 @@ const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look
   const int spacing = drawnSpacing(camera, quality, *look.iso);
   if (spacing == 0) return nullptr;
   const TriangleMesh& mesh = prepareAt(*look.iso, spacing, look.normals, st);
+  boundCache();  // (a surface made for this frame)
   if (spacing > 1 || !(quality.simplifiedSurface && quality.renderer == Renderer::Slices)) return &mesh;
   PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
   if (s.simplified.empty()) {
     if (!quality.waitForSurface) return &mesh;  // the builder makes them (drawnSpacing takes a preview kept meanwhile)
     s.simplified = simplifiedLevels(mScene, *s.smooth, mOptions.progress);
+    boundCache();
   }
   // The coarsest level whose error is within the pixels asked where the volume is nearest.
   const double allowedMm = quality.surfaceErrorPixels * nearestPixelMm(camera);

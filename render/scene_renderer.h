@@ -107,6 +107,8 @@ struct PreparedSurface {
   const TriangleMesh* bvhMesh[2] = {nullptr, nullptr};  ///< the mesh each was made for
   /// clusteredSurface of each cube edge s ≥ 2 a frame drew (grid frame, mm, smooth): made by that frame.
   std::map<int, TriangleMesh> coarse;
+  /// Bytes its meshes and Surface Octree hold (not Embree's BVHs, which the reference frames make).
+  size_t bytesUsed() const;
   const TriangleMesh& mesh(SurfaceNormals n) {
     HYB_CHECK(smooth);
     if (n == SurfaceNormals::Gradient) return *smooth;
@@ -129,6 +131,10 @@ class SceneRenderer {
     /// Frames that do not wait for a paged store (Quality::waitForBricks) read its levels that
     /// hold at most this many bytes whether cached or not (KnotStore::coarseSpacing).
     uint64_t readAnywayBytes = kReadAnywayBytes;
+    /// A paged scene's --memory (SceneLoadOptions::memoryBytes): its block cache gets what its
+    /// octrees and the surfaces this renderer keeps leave (sceneCacheBytes), shrinking as surfaces
+    /// are made and growing as they go. 0: the cache keeps the bound it was opened with.
+    uint64_t memoryBytes = 0;
   };
   explicit SceneRenderer(Scene scene, const Options& options);
   explicit SceneRenderer(Scene scene) : SceneRenderer(std::move(scene), Options{}) {}
@@ -172,6 +178,8 @@ class SceneRenderer {
   size_t surfacePolygons(float iso) const;
   /// Whether the surface of @p iso is ready: a frame showing it at full resolution builds nothing.
   bool hasSurface(float iso) const;
+  /// Bytes the surfaces kept hold (PreparedSurface::bytesUsed): counted against Options::memoryBytes.
+  size_t surfaceBytes() const;
   /// Whether a surface of @p iso is kept, full-resolution or clustered: a frame that does not wait
   /// for its surface (Quality::waitForSurface) can draw it.
   bool hasAnySurface(float iso) const;
@@ -235,6 +243,8 @@ class SceneRenderer {
   double nearestPixelMm(const Camera& gridCamera) const;
   PreparedSurface& keep(std::unique_ptr<PreparedSurface> surface);
   void trimSurfaces();
+  /// Gives a paged scene's cache what its octrees and the kept surfaces leave of Options::memoryBytes.
+  void boundCache();
   ViewErrors& viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
                          const std::optional<VolumeOfInterest>& voi, bool anyCamera);
   void ensureGl();

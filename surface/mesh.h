@@ -43,6 +43,11 @@ struct TriangleMesh {
   /// When the triangles come from planar polygons (a triangulated DiscreteMesh): polygon f's
   /// triangles are [polygonStarts[f], polygonStarts[f + 1]). Empty: nothing is known of polygons.
   std::vector<uint32_t> polygonStarts;
+  /// Bytes its arrays hold.
+  size_t bytesUsed() const {
+    return sizeof(glm::vec3) * (vertices.capacity() + normals.capacity()) + sizeof(glm::uvec3) * triangles.capacity() +
+           sizeof(uint32_t) * polygonStarts.capacity();
+  }
 };
 
 /// A box of samples [lo, hi] (voxel indices, inclusive) whose cells an extraction visits.

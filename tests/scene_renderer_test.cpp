@@ -90,6 +90,48 @@ TEST(SceneRenderer, ASurfaceMadeOnAnotherThreadIsAdoptedAndDrawnAsIfBuiltHere) {
   EXPECT_EQ(adopted.image.pixels, built.image.pixels);
 }
 
+// A paged scene's --memory counts the surfaces its renderer keeps: the cache's bound is what the
+// octree and they leave (sceneCacheBytes), its blocks given back at once when a surface comes, and
+// it grows again when a surface goes; below the octree and surfaces it keeps a quarter.
+TEST(SceneRenderer, TheSurfacesKeptCountAgainstAPagedScenesMemory) {
+  test::gl();
+  test::TempDir dir;
+  saveScene(dir.file("s.hoct"), sphereScene().volume, sphereScene().octree);
+  for (const uint64_t memory : {uint64_t(8) << 20, uint64_t(64) << 10}) {
+    SCOPED_TRACE(memory);
+    SceneRenderer::Options options;
+    options.memoryBytes = memory;
+    SceneRenderer r(loadScene(dir.file("s.hoct"), SceneLoadOptions{false, memory}), options);
+    const KnotStore& store = *r.scene().knots;
+    const uint64_t octree = r.octree().bytesUsed();
+    EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree));
+    EXPECT_EQ(r.surfaceBytes(), 0u);
+    Look look;
+    look.tf = warm();
+    look.iso = 5.0f;
+    look.surfaceColor = glm::vec4(0.9f, 0.8f, 0.7f, 0.5f);
+    r.render(viewFrom(20, sphereScene().volume), look, Quality{});  // reads blocks, then makes the surface
+    const TriangleMesh& smooth = r.surface(5.0f, SurfaceNormals::Gradient);
+    const size_t one = r.surfaceBytes();
+    EXPECT_GE(one, sizeof(glm::vec3) * 2 * smooth.vertices.size() + sizeof(glm::uvec3) * smooth.triangles.size());
+    EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + one));
+    EXPECT_LE(store.cacheStats().bytesHeld, store.cacheStats().limit);
+    r.surface(5.0f, SurfaceNormals::Facet);  // its copy without normals counts too
+    EXPECT_GT(r.surfaceBytes(), one);
+    EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes()));
+    // Two more isovalues: the first goes (two unpinned surfaces are kept), the bound follows.
+    r.surface(4.0f, SurfaceNormals::Gradient);
+    const size_t two = r.surfaceBytes();
+    r.surface(6.0f, SurfaceNormals::Gradient);
+    EXPECT_EQ(r.surfaceIsos().size(), 2u);
+    EXPECT_LT(r.surfaceBytes(), two + one);
+    EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes()));
+    if (memory < octree + r.surfaceBytes()) {
+      EXPECT_EQ(store.cacheStats().limit, memory / 4);
+    }
+  }
+}
+
 // A viewer keeps a scene file paged: a surface made on its builder thread reads the samples a leaf
 // at a time through the scene's cache, never whole, and gives the surface of the scene in memory,
 // normals and simplified levels bit for bit; what the viewer shows of it first (the summary:
