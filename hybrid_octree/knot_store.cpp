@@ -1,5 +1,6 @@
 #include "hybrid_octree/knot_store.h"
 
+#include <malloc.h>
 #include <zlib.h>
 #include <zstd.h>
 
@@ -23,6 +24,9 @@
 namespace hyb {
 
 namespace {
+
+// Evicting more than this at once hands the heap's free pages back (setCacheLimit).
+constexpr uint64_t kTrimAfterBytes = uint64_t(16) << 20;
 
 uint32_t crcOf(const uint8_t* p, size_t n) { return uint32_t(crc32_z(crc32_z(0L, Z_NULL, 0), p, n)); }
 
@@ -645,9 +649,17 @@ SampleArray KnotStore::samples() const {
 }
 
 void KnotStore::setCacheLimit(uint64_t bytes) {
-  const std::lock_guard lock(mMutex);
-  mStats.limit = bytes;
-  evictToLimit(0);
+  uint64_t freed = 0;
+  {
+    const std::lock_guard lock(mMutex);
+    mStats.limit = bytes;
+    const uint64_t held = mStats.bytesHeld;
+    evictToLimit(0);
+    freed = held - mStats.bytesHeld;
+  }
+  // The blocks' frees leave the heap's pages resident though unused, and what takes their room
+  // (a surface's large arrays) is mapped afresh: handed back, the process follows the bound.
+  if (freed > kTrimAfterBytes) malloc_trim(0);
 }
 
 StoreCacheStats KnotStore::cacheStats() const {

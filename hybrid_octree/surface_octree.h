@@ -111,6 +111,9 @@ class SurfaceOctree {
   /// Largest node edge the build allowed; reconstructed polygons never cross a cube of this edge.
   int mergeEdge() const { return mMergeEdge; }
   size_t bytesUsed() const { return mNodes.size() * sizeof(SurfaceNode) + sizeof(*this); }
+  /// At most what reconstruct()'s working arrays hold beside the octree: 480–530 bytes a node on
+  /// CT bone (docs/scale.md), with a margin.
+  uint64_t reconstructBytes() const { return 600 * uint64_t(mNodes.size()); }
 
   /// Polygons of every terminal node, merged per plane and facing inside each node and then across
   /// nodes inside each aligned cube of @p mergeCube cells (0 = mergeEdge(), so every polygon lies in

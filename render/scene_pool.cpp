@@ -286,7 +286,8 @@ void ScenePool::startBuild(Entry& e, float iso) {
           made->coarse.emplace(cubes, clusteredSurface(*scene.knots, scene.octree, cubes, iso, &progress));
           hand(std::move(made));
         }
-        std::unique_ptr<PreparedSurface> exact = SceneRenderer::prepareSurface(scene, iso, &progress);
+        std::unique_ptr<PreparedSurface> exact =
+            SceneRenderer::prepareSurface(scene, iso, &progress, nullptr, [&](uint64_t bytes) { e.renderer->reserveSurfaceBytes(bytes); });
         smooth = exact->smooth;  // shared, not copied
         hand(std::move(exact));
         ready = true;

@@ -112,7 +112,8 @@ std::vector<TriangleMesh> SceneRenderer::simplifiedLevels(const Scene& scene, co
   return levels;
 }
 
-std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats) {
+std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scene, float iso, const Progress* progress, FrameStats* stats,
+                                                              const std::function<void(uint64_t)>& reserve) {
   // The Surface Octree (the scene's when it matches), its polygons triangulated, shaded by the gradient;
   // a paged scene's samples are read through its cache a leaf at a time, never whole, so a
   // viewer's builder thread may read them while the scene's frames draw.
@@ -129,7 +130,15 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
     }
   }
   t0 = Clock::now();
-  const DiscreteMesh d = (fromScene ? *scene.surface : *s->built).reconstruct(0, progress);
+  const SurfaceOctree& octree = fromScene ? *scene.surface : *s->built;
+  struct Reserved {  // what the reconstruction holds, counted until it is done or stopped
+    const std::function<void(uint64_t)>& reserve;
+    ~Reserved() {
+      if (reserve) reserve(0);
+    }
+  } reserved{reserve};
+  if (reserve) reserve(octree.reconstructBytes());
+  const DiscreteMesh d = octree.reconstruct(0, progress);
   s->polygons = d.faceCount();
   auto smooth = std::make_shared<TriangleMesh>(fineMeshToTriangles(d, scene.volume.spacing()));
   setSceneNormals(scene, smooth.get());
@@ -152,9 +161,21 @@ size_t SceneRenderer::surfaceBytes() const {
 }
 
 void SceneRenderer::boundCache() {
+  mKeptBytes = surfaceBytes();
+  setCacheBound();
+}
+
+void SceneRenderer::reserveSurfaceBytes(uint64_t bytes) {
+  mReservedBytes = bytes;
+  setCacheBound();
+}
+
+void SceneRenderer::setCacheBound() {
   if (!mScene.knots || mOptions.memoryBytes == 0) return;
+  // Each caller stores its count before locking, so the last to set the bound sees both counts.
+  const std::lock_guard lock(mBoundMutex);
   const uint64_t octrees = mScene.octree.bytesUsed() + (mScene.surface ? mScene.surface->bytesUsed() : 0);
-  mScene.knots->setCacheLimit(sceneCacheBytes(mOptions.memoryBytes, octrees + surfaceBytes()));
+  mScene.knots->setCacheLimit(sceneCacheBytes(mOptions.memoryBytes, octrees + mKeptBytes + mReservedBytes));
 }
 
 PreparedSurface& SceneRenderer::keep(std::unique_ptr<PreparedSurface> surface) {
@@ -198,7 +219,7 @@ PreparedSurface& SceneRenderer::entry(float iso) {
 
 PreparedSurface& SceneRenderer::surfaceEntry(float iso, FrameStats* stats) {
   PreparedSurface& s = entry(iso);
-  return s.exact ? s : keep(prepareSurface(mScene, iso, mOptions.progress, stats));
+  return s.exact ? s : keep(prepareSurface(mScene, iso, mOptions.progress, stats, [this](uint64_t bytes) { reserveSurfaceBytes(bytes); }));
 }
 
 const TriangleMesh& SceneRenderer::coarseSurface(float iso, int s, FrameStats* stats) {

@@ -14,11 +14,13 @@
 
 #include <glm/glm.hpp>
 
+#include <atomic>
 #include <cstdint>
 #include <functional>
 #include <list>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -189,8 +191,13 @@ class SceneRenderer {
   /// Makes the isosurface of @p iso of @p scene, touching no renderer: it only reads the scene, so
   /// it may run on another thread while a renderer of the same scene draws (a viewer keeps showing
   /// the old surface meanwhile). @p stats, when given, receives the build and polygon times.
+  /// @p reserve, when given, hears what the reconstruction will hold at most before it starts
+  /// (SurfaceOctree::reconstructBytes), and 0 once it is done or stopped (reserveSurfaceBytes).
   static std::unique_ptr<PreparedSurface> prepareSurface(const Scene& scene, float iso, const Progress* progress = nullptr,
-                                                         FrameStats* stats = nullptr);
+                                                         FrameStats* stats = nullptr, const std::function<void(uint64_t)>& reserve = {});
+  /// Counts @p bytes, what a surface being made on another thread holds, against
+  /// Options::memoryBytes with the surfaces kept, until it is set back to 0. Thread-safe.
+  void reserveSurfaceBytes(uint64_t bytes);
   /// The simplified levels of @p smooth (PreparedSurface::simplified; normals from @p scene), also
   /// touching no renderer.
   static std::vector<TriangleMesh> simplifiedLevels(const Scene& scene, const TriangleMesh& smooth, const Progress* progress = nullptr);
@@ -243,8 +250,10 @@ class SceneRenderer {
   double nearestPixelMm(const Camera& gridCamera) const;
   PreparedSurface& keep(std::unique_ptr<PreparedSurface> surface);
   void trimSurfaces();
-  /// Gives a paged scene's cache what its octrees and the kept surfaces leave of Options::memoryBytes.
+  /// Gives a paged scene's cache what its octrees, the kept surfaces and a surface being made
+  /// elsewhere leave of Options::memoryBytes (render thread).
   void boundCache();
+  void setCacheBound();  // from mKeptBytes and mReservedBytes, under mBoundMutex
   ViewErrors& viewErrors(const Camera& gridCamera, const TransferFunction& tf, const std::optional<CutPlane>& cut,
                          const std::optional<VolumeOfInterest>& voi, bool anyCamera);
   void ensureGl();
@@ -262,6 +271,8 @@ class SceneRenderer {
   std::unique_ptr<BrickTextureCache> mTextures;  // destroyed before the context
   std::list<std::unique_ptr<PreparedSurface>> mSurfaces;  // most recently used first
   std::vector<float> mPinned;                             // kept whatever else is built
+  std::mutex mBoundMutex;                                 // the cache bound is set from two threads
+  std::atomic<uint64_t> mKeptBytes{0}, mReservedBytes{0};  // surfaceBytes(), and reserveSurfaceBytes
   std::unique_ptr<Errors> mErrors;               // the last view's
   std::unique_ptr<PreIntegrationTable> mPreintegration;   // the last frame's, and its transfer function
   TransferFunction mPreintegrationTf;

@@ -129,7 +129,27 @@ TEST(SceneRenderer, TheSurfacesKeptCountAgainstAPagedScenesMemory) {
     if (memory < octree + r.surfaceBytes()) {
       EXPECT_EQ(store.cacheStats().limit, memory / 4);
     }
+    // A surface being made on another thread counts while it is made.
+    r.reserveSurfaceBytes(1 << 20);
+    EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes() + (1 << 20)));
+    r.reserveSurfaceBytes(0);
+    EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes()));
   }
+  // What the reconstruction will hold is told before it starts, and 0 after, even when it stops.
+  const Scene scene = sphereScene();
+  std::vector<uint64_t> heard;
+  const auto made = SceneRenderer::prepareSurface(scene, 5.0f, nullptr, nullptr, [&](uint64_t bytes) { heard.push_back(bytes); });
+  ASSERT_TRUE(made->built);
+  EXPECT_THAT(heard, ::testing::ElementsAre(made->built->reconstructBytes(), 0u));
+  EXPECT_GT(made->built->reconstructBytes(), 0u);
+  heard.clear();
+  const Progress stop([](const std::string& task, double) {
+    if (task == "surface polygons") throw std::runtime_error("stopped");
+  });
+  EXPECT_THROW(SceneRenderer::prepareSurface(scene, 5.0f, &stop, nullptr, [&](uint64_t bytes) { heard.push_back(bytes); }), std::runtime_error);
+  ASSERT_EQ(heard.size(), 2u);
+  EXPECT_GT(heard[0], 0u);
+  EXPECT_EQ(heard[1], 0u);
 }
 
 // A viewer keeps a scene file paged: a surface made on its builder thread reads the samples a leaf
