@@ -294,7 +294,7 @@ void ScenePool::startBuild(Entry& e, float iso) {
       }
       s = std::make_unique<PreparedSurface>();
       s->iso = iso;
-      s->simplified = SceneRenderer::simplifiedLevels(scene, *smooth, &progress);
+      s->simplified = SceneRenderer::simplifiedLevels(scene, *smooth, &progress, [&](uint64_t bytes) { e.renderer->reserveSurfaceBytes(bytes); });
     } catch (const Cancelled&) {
       stopped = true;
     } catch (const std::exception&) {

@@ -98,9 +98,27 @@ double stepMm(const Volume& v, double stepVoxels) { return stepVoxels * std::min
 // The error of simplified level @p k: 2^k of the smallest voxel edge.
 double simplifiedErrorMm(const glm::dvec3& spacing, int k) { return double(1 << k) * std::min({spacing.x, spacing.y, spacing.z}); }
 
+// Tells @p reserve what a surface being made will hold, and 0 once it is made or stopped.
+class Reservation {
+ public:
+  Reservation(const std::function<void(uint64_t)>& reserve, uint64_t bytes) : mReserve(reserve) {
+    if (mReserve) mReserve(bytes);
+  }
+  ~Reservation() {
+    if (mReserve) mReserve(0);
+  }
+  Reservation(const Reservation&) = delete;
+  Reservation& operator=(const Reservation&) = delete;
+
+ private:
+  const std::function<void(uint64_t)>& mReserve;
+};
+
 }  // namespace
 
-std::vector<TriangleMesh> SceneRenderer::simplifiedLevels(const Scene& scene, const TriangleMesh& smooth, const Progress* progress) {
+std::vector<TriangleMesh> SceneRenderer::simplifiedLevels(const Scene& scene, const TriangleMesh& smooth, const Progress* progress,
+                                                         const std::function<void(uint64_t)>& reserve) {
+  const Reservation reserved(reserve, kSimplifyBytesPerTriangle * uint64_t(smooth.triangles.size()));
   const glm::dvec3 spacing = scene.volume.spacing();
   std::vector<TriangleMesh> levels;
   for (int k = 0; k < kSimplifiedLevels; ++k) {
@@ -131,13 +149,7 @@ std::unique_ptr<PreparedSurface> SceneRenderer::prepareSurface(const Scene& scen
   }
   t0 = Clock::now();
   const SurfaceOctree& octree = fromScene ? *scene.surface : *s->built;
-  struct Reserved {  // what the reconstruction holds, counted until it is done or stopped
-    const std::function<void(uint64_t)>& reserve;
-    ~Reserved() {
-      if (reserve) reserve(0);
-    }
-  } reserved{reserve};
-  if (reserve) reserve(octree.reconstructBytes());
+  const Reservation reserved(reserve, octree.reconstructBytes());
   const DiscreteMesh d = octree.reconstruct(0, progress);
   s->polygons = d.faceCount();
   auto smooth = std::make_shared<TriangleMesh>(fineMeshToTriangles(d, scene.volume.spacing()));
@@ -490,7 +502,7 @@ const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look
   PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
   if (s.simplified.empty()) {
     if (!quality.waitForSurface) return &mesh;  // the builder makes them (drawnSpacing takes a preview kept meanwhile)
-    s.simplified = simplifiedLevels(mScene, *s.smooth, mOptions.progress);
+    s.simplified = simplifiedLevels(mScene, *s.smooth, mOptions.progress, [this](uint64_t bytes) { reserveSurfaceBytes(bytes); });
     boundCache();
   }
   // The coarsest level whose error is within the pixels asked where the volume is nearest.

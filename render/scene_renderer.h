@@ -199,8 +199,10 @@ class SceneRenderer {
   /// Options::memoryBytes with the surfaces kept, until it is set back to 0. Thread-safe.
   void reserveSurfaceBytes(uint64_t bytes);
   /// The simplified levels of @p smooth (PreparedSurface::simplified; normals from @p scene), also
-  /// touching no renderer.
-  static std::vector<TriangleMesh> simplifiedLevels(const Scene& scene, const TriangleMesh& smooth, const Progress* progress = nullptr);
+  /// touching no renderer; @p reserve hears what they hold at most while made
+  /// (kSimplifyBytesPerTriangle), then 0.
+  static std::vector<TriangleMesh> simplifiedLevels(const Scene& scene, const TriangleMesh& smooth, const Progress* progress = nullptr,
+                                                    const std::function<void(uint64_t)>& reserve = {});
   /// The full-resolution surface of @p iso (smooth) when it is kept without its simplified levels;
   /// else null.
   std::shared_ptr<const TriangleMesh> unsimplified(float iso) const;

@@ -14,6 +14,7 @@
 #include "hybrid_octree/hybrid_io.h"
 #include "render/patient_view.h"
 #include "render/scene_pool.h"
+#include "surface/mesh_simplify.h"
 #include "render_util.h"
 #include "test_util.h"
 
@@ -135,13 +136,17 @@ TEST(SceneRenderer, TheSurfacesKeptCountAgainstAPagedScenesMemory) {
     r.reserveSurfaceBytes(0);
     EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes()));
   }
-  // What the reconstruction will hold is told before it starts, and 0 after, even when it stops.
+  // What the reconstruction and the levels will hold is told before they start, and 0 after, even
+  // when they stop.
   const Scene scene = sphereScene();
   std::vector<uint64_t> heard;
   const auto made = SceneRenderer::prepareSurface(scene, 5.0f, nullptr, nullptr, [&](uint64_t bytes) { heard.push_back(bytes); });
   ASSERT_TRUE(made->built);
   EXPECT_THAT(heard, ::testing::ElementsAre(made->built->reconstructBytes(), 0u));
   EXPECT_GT(made->built->reconstructBytes(), 0u);
+  heard.clear();
+  SceneRenderer::simplifiedLevels(scene, *made->smooth, nullptr, [&](uint64_t bytes) { heard.push_back(bytes); });
+  EXPECT_THAT(heard, ::testing::ElementsAre(kSimplifyBytesPerTriangle * made->smooth->triangles.size(), 0u));
   heard.clear();
   const Progress stop([](const std::string& task, double) {
     if (task == "surface polygons") throw std::runtime_error("stopped");
