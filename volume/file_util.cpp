@@ -89,8 +89,8 @@ std::shared_ptr<const InputFile::Mapping> InputFile::map(uint64_t offset, uint64
   const uint64_t start = offset / page * page;
   const size_t length = size_t(std::max<uint64_t>(offset + count - start, 1));
   void* base = ::mmap(nullptr, length, PROT_READ, MAP_PRIVATE, mFd, off_t(start));
-  if (base == MAP_FAILED) return std::make_shared<const Mapping>(bytes(offset, count));
-  return std::make_shared<const Mapping>(base, length, static_cast<const uint8_t*>(base) + (offset - start), count);
+  if (base == MAP_FAILED) return std::make_shared<const Mapping>(Mapping::Key{}, bytes(offset, count));
+  return std::make_shared<const Mapping>(Mapping::Key{}, base, length, static_cast<const uint8_t*>(base) + (offset - start), count);
 }
 
 InputFile::Mapping::~Mapping() {

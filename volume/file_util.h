@@ -51,10 +51,15 @@ class InputFile {
 
 /// A range of a file mapped by InputFile::map; unmapped when the last owner lets go.
 class InputFile::Mapping {
+  struct Key {  // only InputFile::map makes one: the destructor unmaps what it was given
+    explicit Key() = default;
+  };
+  friend class InputFile;
+
  public:
-  Mapping(void* base, size_t length, const uint8_t* data, uint64_t size) : mBase(base), mLength(length), mData(data), mSize(size) {}
+  Mapping(Key, void* base, size_t length, const uint8_t* data, uint64_t size) : mBase(base), mLength(length), mData(data), mSize(size) {}
   /// The bytes read into memory (a file system that cannot map them).
-  explicit Mapping(std::vector<uint8_t> bytes) : mBase(nullptr), mLength(0), mData(nullptr), mSize(bytes.size()), mCopy(std::move(bytes)) {
+  Mapping(Key, std::vector<uint8_t> bytes) : mBase(nullptr), mLength(0), mData(nullptr), mSize(bytes.size()), mCopy(std::move(bytes)) {
     mData = mCopy.data();
   }
   ~Mapping();
