@@ -494,7 +494,7 @@ int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
   so.frameTargetMs = o.frameMs;
   so.textureLimitBytes = uint64_t(o.textureMb * 1024 * 1024);
   // A scene file is read paged within --memory, as render reads it: a study larger than memory
-  // opens; the surfaces made of it count against it too.
+  // opens; the surfaces made of it and the brick textures kept count against it too.
   so.memoryBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
   if (o.volumeGiven || o.dataDir.empty()) {
     so.volume = o.input.path;
@@ -604,7 +604,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   viewCmd->add_option("--frame-ms", view.frameMs, "frame time interactive frames aim at, ms")->capture_default_str();
   viewCmd->add_option("--texture-mb", view.textureMb, "brick textures kept between frames, MB per volume")->capture_default_str();
   viewCmd->add_option("--memory", view.memoryMb,
-                      "MB a scene file read paged holds, per scene: its octree, the surfaces made of it, and the cache of decompressed blocks its bricks are read through, which gets what they leave, at least a quarter (default: an eighth of the physical memory)");
+                      "MB a scene file read paged holds, per scene: its octree, the surfaces made of it, the brick textures kept (--texture-mb), and the cache of decompressed blocks its bricks are read through, which gets what they leave, at least a quarter (default: an eighth of the physical memory)");
 
   try {
     try {

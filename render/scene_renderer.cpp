@@ -56,6 +56,7 @@ struct SceneRenderer::Errors {
 
 SceneRenderer::SceneRenderer(Scene scene, const Options& options) : mScene(std::move(scene)), mOptions(options) {
   HYB_CHECK(mScene.volume.hasSamples() || mScene.knots);
+  setCacheBound();  // (the brick textures it may keep count from the start)
 }
 
 SceneRenderer::~SceneRenderer() {
@@ -187,7 +188,10 @@ void SceneRenderer::setCacheBound() {
   // Each caller stores its count before locking, so the last to set the bound sees both counts.
   const std::lock_guard lock(mBoundMutex);
   const uint64_t octrees = mScene.octree.bytesUsed() + (mScene.surface ? mScene.surface->bytesUsed() : 0);
-  mScene.knots->setCacheLimit(sceneCacheBytes(mOptions.memoryBytes, octrees + mKeptBytes + mReservedBytes));
+  // The brick textures kept between frames count at their bound: llvmpipe holds them in this
+  // process's memory, and the cache's bound does not then move with every frame.
+  const uint64_t textures = mOptions.keepTextures ? mOptions.textureLimitBytes : 0;
+  mScene.knots->setCacheLimit(sceneCacheBytes(mOptions.memoryBytes, octrees + textures + mKeptBytes + mReservedBytes));
 }
 
 PreparedSurface& SceneRenderer::keep(std::unique_ptr<PreparedSurface> surface) {

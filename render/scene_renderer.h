@@ -134,8 +134,9 @@ class SceneRenderer {
     /// hold at most this many bytes whether cached or not (KnotStore::coarseSpacing).
     uint64_t readAnywayBytes = kReadAnywayBytes;
     /// A paged scene's --memory (SceneLoadOptions::memoryBytes): its block cache gets what its
-    /// octrees and the surfaces this renderer keeps leave (sceneCacheBytes), shrinking as surfaces
-    /// are made and growing as they go. 0: the cache keeps the bound it was opened with.
+    /// octrees, the brick textures kept (textureLimitBytes) and the surfaces this renderer keeps
+    /// leave (sceneCacheBytes), shrinking as surfaces are made and growing as they go. 0: the
+    /// cache keeps the bound it was opened with.
     uint64_t memoryBytes = 0;
   };
   explicit SceneRenderer(Scene scene, const Options& options);

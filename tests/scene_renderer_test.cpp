@@ -91,10 +91,11 @@ TEST(SceneRenderer, ASurfaceMadeOnAnotherThreadIsAdoptedAndDrawnAsIfBuiltHere) {
   EXPECT_EQ(adopted.image.pixels, built.image.pixels);
 }
 
-// A paged scene's --memory counts the surfaces its renderer keeps: the cache's bound is what the
-// octree and they leave (sceneCacheBytes), its blocks given back at once when a surface comes, and
-// it grows again when a surface goes; below the octree and surfaces it keeps a quarter.
-TEST(SceneRenderer, TheSurfacesKeptCountAgainstAPagedScenesMemory) {
+// A paged scene's --memory counts the surfaces and brick textures its renderer keeps: the cache's
+// bound is what the octree and they leave (sceneCacheBytes), its blocks given back at once when a
+// surface comes, and it grows again when a surface goes; below the octree and surfaces it keeps a
+// quarter.
+TEST(SceneRenderer, TheSurfacesAndTexturesKeptCountAgainstAPagedScenesMemory) {
   test::gl();
   test::TempDir dir;
   saveScene(dir.file("s.hoct"), sphereScene().volume, sphereScene().octree);
@@ -135,6 +136,20 @@ TEST(SceneRenderer, TheSurfacesKeptCountAgainstAPagedScenesMemory) {
     EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes() + (1 << 20)));
     r.reserveSurfaceBytes(0);
     EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes()));
+  }
+  // The brick textures a renderer keeps between frames count at their bound (a viewer's
+  // --texture-mb), from its start; a renderer that keeps none counts none.
+  for (const bool keep : {true, false}) {
+    const uint64_t memory = uint64_t(8) << 20;
+    SceneRenderer::Options options;
+    options.memoryBytes = memory;
+    options.textureLimitBytes = uint64_t(3) << 20;
+    options.keepTextures = keep;
+    SceneRenderer r(loadScene(dir.file("s.hoct"), SceneLoadOptions{false, memory}), options);
+    const uint64_t counted = r.octree().bytesUsed() + (keep ? options.textureLimitBytes : 0);
+    EXPECT_EQ(r.scene().knots->cacheStats().limit, sceneCacheBytes(memory, counted)) << keep;
+    r.surface(5.0f, SurfaceNormals::Gradient);
+    EXPECT_EQ(r.scene().knots->cacheStats().limit, sceneCacheBytes(memory, counted + r.surfaceBytes())) << keep;
   }
   // What the reconstruction and the levels will hold is told before they start, and 0 after, even
   // when they stop.
