@@ -648,7 +648,7 @@ SampleArray KnotStore::samples() const {
   return out;
 }
 
-void KnotStore::setCacheLimit(uint64_t bytes) {
+uint64_t KnotStore::setCacheLimit(uint64_t bytes, bool trim) {
   uint64_t freed = 0;
   {
     const std::lock_guard lock(mMutex);
@@ -657,6 +657,11 @@ void KnotStore::setCacheLimit(uint64_t bytes) {
     evictToLimit(0);
     freed = held - mStats.bytesHeld;
   }
+  if (trim) giveBackFreed(freed);
+  return freed;
+}
+
+void KnotStore::giveBackFreed(uint64_t freed) {
   // The blocks' frees leave the heap's pages resident though unused, and what takes their room
   // (a surface's large arrays) is mapped afresh: handed back, the process follows the bound.
   if (freed > kTrimAfterBytes) malloc_trim(0);

@@ -159,8 +159,11 @@ class KnotStore final : public KnotSource {
   uint64_t compressedBytes() const { return mDataSize; }
 
   /// Bounds the cache to @p bytes of decompressed blocks (0: no bound), evicting the least recently
-  /// used at once.
-  void setCacheLimit(uint64_t bytes);
+  /// used at once; when that freed much, hands the heap's free pages back unless @p trim is false
+  /// (a caller holding a lock trims after it, giveBackFreed). Returns the bytes evicted.
+  uint64_t setCacheLimit(uint64_t bytes, bool trim = true);
+  /// Hands the heap's free pages back to the system when @p freed bytes were evicted at once.
+  static void giveBackFreed(uint64_t freed);
   StoreCacheStats cacheStats() const;
 
   /// Whether every block @p box covers is cached: a read of it would not touch the file.

@@ -269,6 +269,7 @@ void ScenePool::startBuild(Entry& e, float iso) {
     std::unique_ptr<PreparedSurface> s;
     bool stopped = false;
     auto hand = [&](std::unique_ptr<PreparedSurface> made) {
+      e.renderer->holdSurfaceBytes(made->bytesUsed());  // until adopted (collect)
       const std::lock_guard<std::mutex> guard(mMutex);
       e.handed.push_back(std::move(made));
       mEvents.wake();
@@ -286,15 +287,15 @@ void ScenePool::startBuild(Entry& e, float iso) {
           made->coarse.emplace(cubes, clusteredSurface(*scene.knots, scene.octree, cubes, iso, &progress));
           hand(std::move(made));
         }
-        std::unique_ptr<PreparedSurface> exact =
-            SceneRenderer::prepareSurface(scene, iso, &progress, nullptr, [&](uint64_t bytes) { e.renderer->reserveSurfaceBytes(bytes); });
+        std::unique_ptr<PreparedSurface> exact = SceneRenderer::prepareSurface(scene, iso, &progress, nullptr, e.renderer->surfaceReservation());
         smooth = exact->smooth;  // shared, not copied
         hand(std::move(exact));
         ready = true;
       }
       s = std::make_unique<PreparedSurface>();
       s->iso = iso;
-      s->simplified = SceneRenderer::simplifiedLevels(scene, *smooth, &progress, [&](uint64_t bytes) { e.renderer->reserveSurfaceBytes(bytes); });
+      s->simplified = SceneRenderer::simplifiedLevels(scene, *smooth, &progress, e.renderer->surfaceReservation());
+      e.renderer->holdSurfaceBytes(s->bytesUsed());  // until adopted (collect)
     } catch (const Cancelled&) {
       stopped = true;
     } catch (const std::exception&) {
@@ -388,6 +389,7 @@ std::vector<std::string> ScenePool::collect(std::unique_lock<std::mutex>& lock) 
     for (std::unique_ptr<PreparedSurface>& made : e.handed) {
       const bool exact = made->exact;
       const float iso = made->iso;
+      e.renderer->releaseSurfaceBytes(made->bytesUsed());  // (counted as kept from now on)
       e.renderer->adoptSurface(std::move(made));
       e.repin = true;
       if (exact) sendSurface(e, iso, SurfaceState::Ready, "", 1.0);
@@ -399,6 +401,7 @@ std::vector<std::string> ScenePool::collect(std::unique_lock<std::mutex>& lock) 
       const float iso = *e.building;
       e.building.reset();
       e.buildDone = false;
+      if (e.built) e.renderer->releaseSurfaceBytes(e.built->bytesUsed());
       if (e.built && e.renderer->hasSurface(iso)) {  // (not when the surface was dropped meanwhile)
         e.renderer->adoptSurface(std::move(e.built));  // (the final frames' surface is the same: no frame again)
         sendSurface(e, iso, SurfaceState::Ready, "", 1.0);  // (again: the viewers may say it was being simplified)

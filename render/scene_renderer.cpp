@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <unordered_set>
+#include <utility>
 
 #include "hybrid_octree/coarse_surface.h"
 #include "hybrid_octree/surface_octree.h"
@@ -178,20 +179,38 @@ void SceneRenderer::boundCache() {
   setCacheBound();
 }
 
-void SceneRenderer::reserveSurfaceBytes(uint64_t bytes) {
-  mReservedBytes = bytes;
+std::function<void(uint64_t)> SceneRenderer::surfaceReservation() {
+  auto held = std::make_shared<uint64_t>(0);  // this reservation's part of mReservedBytes
+  return [this, held](uint64_t bytes) {
+    mReservedBytes += bytes;  // (added before the old part goes: the sum never wraps)
+    releaseSurfaceBytes(std::exchange(*held, bytes));
+  };
+}
+
+void SceneRenderer::holdSurfaceBytes(uint64_t bytes) {
+  mReservedBytes += bytes;
+  setCacheBound();
+}
+
+void SceneRenderer::releaseSurfaceBytes(uint64_t bytes) {
+  HYB_CHECK(mReservedBytes >= bytes);
+  mReservedBytes -= bytes;
   setCacheBound();
 }
 
 void SceneRenderer::setCacheBound() {
   if (!mScene.knots || mOptions.memoryBytes == 0) return;
   // Each caller stores its count before locking, so the last to set the bound sees both counts.
-  const std::lock_guard lock(mBoundMutex);
-  const uint64_t octrees = mScene.octree.bytesUsed() + (mScene.surface ? mScene.surface->bytesUsed() : 0);
-  // The brick textures kept between frames count at their bound: llvmpipe holds them in this
-  // process's memory, and the cache's bound does not then move with every frame.
-  const uint64_t textures = mOptions.keepTextures ? mOptions.textureLimitBytes : 0;
-  mScene.knots->setCacheLimit(sceneCacheBytes(mOptions.memoryBytes, octrees + textures + mKeptBytes + mReservedBytes));
+  uint64_t freed = 0;
+  {
+    const std::lock_guard lock(mBoundMutex);
+    const uint64_t octrees = mScene.octree.bytesUsed() + (mScene.surface ? mScene.surface->bytesUsed() : 0);
+    // The brick textures kept between frames count at their bound: llvmpipe holds them in this
+    // process's memory, and the cache's bound does not then move with every frame.
+    const uint64_t textures = mOptions.keepTextures ? mOptions.textureLimitBytes : 0;
+    freed = mScene.knots->setCacheLimit(sceneCacheBytes(mOptions.memoryBytes, octrees + textures + mKeptBytes + mReservedBytes), false);
+  }
+  KnotStore::giveBackFreed(freed);  // (not under the lock: the other thread would wait for the trim)
 }
 
 PreparedSurface& SceneRenderer::keep(std::unique_ptr<PreparedSurface> surface) {
@@ -235,7 +254,7 @@ PreparedSurface& SceneRenderer::entry(float iso) {
 
 PreparedSurface& SceneRenderer::surfaceEntry(float iso, FrameStats* stats) {
   PreparedSurface& s = entry(iso);
-  return s.exact ? s : keep(prepareSurface(mScene, iso, mOptions.progress, stats, [this](uint64_t bytes) { reserveSurfaceBytes(bytes); }));
+  return s.exact ? s : keep(prepareSurface(mScene, iso, mOptions.progress, stats, surfaceReservation()));
 }
 
 const TriangleMesh& SceneRenderer::coarseSurface(float iso, int s, FrameStats* stats) {
@@ -506,7 +525,7 @@ const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look
   PreparedSurface& s = surfaceEntry(*look.iso, nullptr);
   if (s.simplified.empty()) {
     if (!quality.waitForSurface) return &mesh;  // the builder makes them (drawnSpacing takes a preview kept meanwhile)
-    s.simplified = simplifiedLevels(mScene, *s.smooth, mOptions.progress, [this](uint64_t bytes) { reserveSurfaceBytes(bytes); });
+    s.simplified = simplifiedLevels(mScene, *s.smooth, mOptions.progress, surfaceReservation());
     boundCache();
   }
   // The coarsest level whose error is within the pixels asked where the volume is nearest.

@@ -193,12 +193,17 @@ class SceneRenderer {
   /// it may run on another thread while a renderer of the same scene draws (a viewer keeps showing
   /// the old surface meanwhile). @p stats, when given, receives the build and polygon times.
   /// @p reserve, when given, hears what the reconstruction will hold at most before it starts
-  /// (SurfaceOctree::reconstructBytes), and 0 once it is done or stopped (reserveSurfaceBytes).
+  /// (SurfaceOctree::reconstructBytes), and 0 once it is done or stopped (surfaceReservation).
   static std::unique_ptr<PreparedSurface> prepareSurface(const Scene& scene, float iso, const Progress* progress = nullptr,
                                                          FrameStats* stats = nullptr, const std::function<void(uint64_t)>& reserve = {});
-  /// Counts @p bytes, what a surface being made on another thread holds, against
-  /// Options::memoryBytes with the surfaces kept, until it is set back to 0. Thread-safe.
-  void reserveSurfaceBytes(uint64_t bytes);
+  /// A reserve callback for prepareSurface and simplifiedLevels, on any thread: what it is told
+  /// counts against Options::memoryBytes with the surfaces kept until it is told 0. Each callback
+  /// counts apart (surfaces may be made on two threads at once). Thread-safe.
+  std::function<void(uint64_t)> surfaceReservation();
+  /// Counts @p bytes more, or fewer, of surfaces made elsewhere and not yet adopted
+  /// (adoptSurface) against Options::memoryBytes; in any order from any thread.
+  void holdSurfaceBytes(uint64_t bytes);
+  void releaseSurfaceBytes(uint64_t bytes);
   /// The simplified levels of @p smooth (PreparedSurface::simplified; normals from @p scene), also
   /// touching no renderer; @p reserve hears what they hold at most while made
   /// (kSimplifyBytesPerTriangle), then 0.
@@ -275,7 +280,7 @@ class SceneRenderer {
   std::list<std::unique_ptr<PreparedSurface>> mSurfaces;  // most recently used first
   std::vector<float> mPinned;                             // kept whatever else is built
   std::mutex mBoundMutex;                                 // the cache bound is set from two threads
-  std::atomic<uint64_t> mKeptBytes{0}, mReservedBytes{0};  // surfaceBytes(), and reserveSurfaceBytes
+  std::atomic<uint64_t> mKeptBytes{0}, mReservedBytes{0};  // surfaceBytes(), and the surfaceReservation()s
   std::unique_ptr<Errors> mErrors;               // the last view's
   std::unique_ptr<PreIntegrationTable> mPreintegration;   // the last frame's, and its transfer function
   TransferFunction mPreintegrationTf;

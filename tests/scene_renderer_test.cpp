@@ -131,10 +131,20 @@ TEST(SceneRenderer, TheSurfacesAndTexturesKeptCountAgainstAPagedScenesMemory) {
     if (memory < octree + r.surfaceBytes()) {
       EXPECT_EQ(store.cacheStats().limit, memory / 4);
     }
-    // A surface being made on another thread counts while it is made.
-    r.reserveSurfaceBytes(1 << 20);
-    EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes() + (1 << 20)));
-    r.reserveSurfaceBytes(0);
+    // A surface being made on another thread counts while it is made, two at once apart (the
+    // first done does not take the other's count), and a surface handed over until adopted.
+    const auto first = r.surfaceReservation();
+    const auto second = r.surfaceReservation();
+    first(1 << 20);
+    second(3 << 20);
+    EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes() + (4 << 20)));
+    first(2 << 20);
+    first(0);
+    EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes() + (3 << 20)));
+    r.holdSurfaceBytes(5 << 20);
+    second(0);
+    EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes() + (5 << 20)));
+    r.releaseSurfaceBytes(5 << 20);
     EXPECT_EQ(store.cacheStats().limit, sceneCacheBytes(memory, octree + r.surfaceBytes()));
   }
   // The brick textures a renderer keeps between frames count at their bound (a viewer's
