@@ -226,7 +226,8 @@ bool dropMirroredPairs(const std::vector<std::pair<Edge, uint32_t>>& bad, std::v
       pairs.push_back({&candidates[i], &candidates[i + 1]});
   }
   // A pair is kept where dropping the pairs would leave one of its vertices' triangles in two fans
-  // (two fins at one vertex: a pinch, not a surface); its blocks are then done again.
+  // (two fins at one vertex: a pinch, not a surface); its blocks are then done again. A pair kept
+  // is back in its corners' links, which may pinch another corner: checked again until none is.
   std::vector<uint32_t> corners;
   for (const auto& [a, b] : pairs) corners.insert(corners.end(), {a->sorted.x, a->sorted.y, a->sorted.z});
   sortUnique(&corners);
@@ -234,26 +235,37 @@ bool dropMirroredPairs(const std::vector<std::pair<Edge, uint32_t>>& bad, std::v
     const auto it = std::lower_bound(corners.begin(), corners.end(), v);
     return it != corners.end() && *it == v ? long(it - corners.begin()) : -1L;
   };
-  std::vector<std::vector<uint64_t>> dropping(kept->size());  // (index) of each block's triangles in pairs
-  for (const auto& [a, b] : pairs) {
-    dropping[a->block].push_back(a->index);
-    dropping[b->block].push_back(b->index);
-  }
-  for (auto& d : dropping) std::sort(d.begin(), d.end());
-  std::vector<std::vector<Edge>> links(corners.size());  // each corner's link without the pairs
-  for (size_t b = 0; b < kept->size(); ++b)
-    for (uint32_t i = 0; i < (*kept)[b].size(); ++i) {
-      const glm::uvec3 t = (*kept)[b][i];
-      for (int k = 0; k < 3; ++k) {
-        const long c = corner(t[k]);
-        if (c >= 0 && !std::binary_search(dropping[b].begin(), dropping[b].end(), uint64_t(i))) links[size_t(c)].push_back(edgeOf(t, (k + 1) % 3));
+  std::vector<char> keepPair(pairs.size(), 0);
+  for (bool changed = true; changed;) {
+    std::vector<std::vector<uint64_t>> dropping(kept->size());  // (index) of each block's triangles in pairs dropped
+    for (size_t p = 0; p < pairs.size(); ++p)
+      if (!keepPair[p]) {
+        dropping[pairs[p].first->block].push_back(pairs[p].first->index);
+        dropping[pairs[p].second->block].push_back(pairs[p].second->index);
       }
+    for (auto& d : dropping) std::sort(d.begin(), d.end());
+    std::vector<std::vector<Edge>> links(corners.size());  // each corner's link without those pairs
+    for (size_t b = 0; b < kept->size(); ++b)
+      for (uint32_t i = 0; i < (*kept)[b].size(); ++i) {
+        const glm::uvec3 t = (*kept)[b][i];
+        for (int k = 0; k < 3; ++k) {
+          const long c = corner(t[k]);
+          if (c >= 0 && !std::binary_search(dropping[b].begin(), dropping[b].end(), uint64_t(i))) links[size_t(c)].push_back(edgeOf(t, (k + 1) % 3));
+        }
+      }
+    std::vector<char> pinched(corners.size(), 0);
+    for (size_t c = 0; c < corners.size(); ++c) pinched[c] = !oneLoop(links[c]);
+    changed = false;
+    for (size_t p = 0; p < pairs.size(); ++p) {
+      const Candidate& a = *pairs[p].first;
+      if (!keepPair[p] && (pinched[size_t(corner(a.sorted.x))] || pinched[size_t(corner(a.sorted.y))] || pinched[size_t(corner(a.sorted.z))]))
+        keepPair[p] = changed = true;
     }
-  std::vector<char> pinched(corners.size(), 0);
-  for (size_t c = 0; c < corners.size(); ++c) pinched[c] = !oneLoop(links[c]);
+  }
   std::vector<std::vector<uint32_t>> drop(kept->size());
-  for (const auto& [a, b] : pairs) {
-    if (pinched[size_t(corner(a->sorted.x))] || pinched[size_t(corner(a->sorted.y))] || pinched[size_t(corner(a->sorted.z))]) continue;
+  for (size_t p = 0; p < pairs.size(); ++p) {
+    if (keepPair[p]) continue;
+    const auto& [a, b] = pairs[p];
     drop[a->block].push_back(a->index);
     drop[b->block].push_back(b->index);
     dropped->push_back({(*kept)[a->block][a->index], (*kept)[b->block][b->index], a->block, b->block});

@@ -14,7 +14,8 @@ namespace hyb {
 /// together, the vertices where the surface leaves the block kept, so each output triangle lies
 /// inside the block its input triangles did. Collapses stop where the surface would move by more
 /// than @p maxErrorMm (meshoptimizer's quadric distance). Every edge is used by as many triangles
-/// as in the input (closed stays closed, nothing is stacked or folded onto a neighbour's face):
+/// as in the input (no edge of a closed surface opens, nothing is stacked or folded onto a
+/// neighbour's face; a vertex may still be left between two fans, docs/surface.md):
 /// where a collapse broke that, the vertices concerned are kept and the block is simplified again
 /// (but a triangle and its mirror image, made by two blocks over their common border, are dropped).
 /// No output triangle is flat (flatTriangle) where the input had none: where a collapse made one,

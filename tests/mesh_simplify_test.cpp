@@ -79,9 +79,10 @@ TEST(MeshSimplify, ASphereStaysClosedWithEachTriangleInsideItsBlock) {
 // A bumpy ball (bone-like: curvature at every scale) over blocks of 8 voxels. Two blocks that
 // collapse onto the same three vertices of their common border make a triangle and its mirror
 // image there; both are dropped, where the blocks used to be simplified again with those vertices
-// fixed (nearly every block of a CT's bone, twice the time). The result is as sound: closed (no
-// vertex pinched between two fins), its volume kept, each triangle inside its block, no flat
-// triangle, no triangle over its mirror image.
+// fixed (nearly every block of a CT's bone, twice the time). The result is as sound: closed (on
+// this input no vertex is left between two fans; a pair stays where dropping it would leave one),
+// its volume kept, each triangle inside its block, no flat triangle, no triangle over its mirror
+// image.
 TEST(MeshSimplify, MirroredPairsOverABlockBorderAreDroppedNotSimplifiedAgain) {
   const glm::dvec3 spacing(0.7, 0.7, 0.9);
   const glm::dvec3 c(23.3, 24.1, 22.7);
