@@ -1,6 +1,9 @@
 #include "render/slices/brick_textures.h"
 
 #include <gtest/gtest.h>
+#include <malloc.h>
+
+#include <vector>
 
 #include "render_util.h"
 #include "test_util.h"
@@ -67,6 +70,32 @@ TEST(BrickTextures, RoomIsMadeFromEarlierFramesOnly) {
   EXPECT_EQ(cache.bytes(), 100u);
   EXPECT_EQ(cache.evicted(), 1u);
   EXPECT_TRUE(BrickTextureCache().makeRoom(uint64_t(1) << 40));  // no limit
+}
+
+// The cache counts what llvmpipe allocates for a brick's texture, its rows padded to a cache line
+// (a brick of 33³ RGBA8 texels holds 1.58 times its texels' bytes): the formula, and the heap's
+// growth as 64 such textures are made.
+TEST(BrickTextures, TheMemoryATextureHoldsIsLlvmpipes) {
+  EXPECT_EQ(heldTextureBytes({33, 33, 33}, 4), 192u * 36u * 33u);  // rows of 36 texels, 144 bytes, padded to 192
+  EXPECT_EQ(heldTextureBytes({33, 33, 33}, 8), 320u * 36u * 33u);
+  EXPECT_EQ(heldTextureBytes({33, 33, 33}, 2), 128u * 36u * 33u);
+  EXPECT_EQ(heldTextureBytes({16, 16, 16}, 4), 64u * 16u * 16u);  // nothing to pad
+  EXPECT_EQ(heldTextureBytes({9, 5, 3}, 4), 64u * 8u * 3u);
+  test::gl();
+  const glm::ivec3 dims(33, 33, 33);
+  auto heap = [] {
+    const struct mallinfo2 m = mallinfo2();
+    return double(m.uordblks + m.hblkhd);
+  };
+  std::vector<gl::Texture> textures;
+  const double before = heap();
+  for (int i = 0; i < 64; ++i) {
+    PackedBrick p;
+    p.bytes.assign(size_t(dims.x) * dims.y * dims.z * 4, uint8_t(i));
+    textures.push_back(std::move(uploadBrick(std::move(p), dims, TexelBits::Eight).texture));
+  }
+  const double each = (heap() - before) / 64.0;
+  EXPECT_NEAR(each, double(heldTextureBytes(dims, 4)), 0.05 * double(heldTextureBytes(dims, 4)));  // (not 143,748: the texels)
 }
 
 TEST(BrickTextures, RangesAreTheTexelsValuesOverBlocksOfTwoCells) {

@@ -159,12 +159,18 @@ PackedBrick packBrick(const std::vector<glm::vec4>& texels, TexelBits bits) {
   return out;
 }
 
+uint64_t heldTextureBytes(const glm::ivec3& dims, uint64_t texelBytes) {
+  auto padded = [](uint64_t n, uint64_t to) { return (n + to - 1) / to * to; };
+  const uint64_t row = padded(padded(uint64_t(dims.x), 4) * texelBytes, 64);
+  return row * padded(uint64_t(dims.y), 4) * uint64_t(dims.z);
+}
+
 CachedBrick uploadBrick(PackedBrick&& packed, const glm::ivec3& dims, TexelBits bits) {
   packed.brick.texture = gl::volumeTexture();
   const bool wide = bits == TexelBits::Sixteen;
   glTexImage3D(GL_TEXTURE_3D, 0, wide ? GL_RGBA16 : GL_RGBA8, dims.x, dims.y, dims.z, 0, GL_RGBA, wide ? GL_UNSIGNED_SHORT : GL_UNSIGNED_BYTE,
                packed.bytes.data());
-  packed.brick.bytes = uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z) * bytesPerTexel(bits);
+  packed.brick.bytes = heldTextureBytes(dims, bytesPerTexel(bits));
   return std::move(packed.brick);
 }
 
@@ -174,7 +180,7 @@ void uploadCutTexture(const std::vector<glm::vec4>& texels, const glm::ivec3& di
   for (const glm::vec4& t : texels) values.push_back(uint16_t(unitValue(*brick, t.x) * 65535.0f + 0.5f));
   brick->cutTexture = gl::volumeTexture();
   glTexImage3D(GL_TEXTURE_3D, 0, GL_R16, dims.x, dims.y, dims.z, 0, GL_RED, GL_UNSIGNED_SHORT, values.data());
-  brick->bytes += uint64_t(texels.size()) * kBytesPerCutTexel;
+  brick->bytes += heldTextureBytes(dims, kBytesPerCutTexel);
 }
 
 BrickRanges texelRanges(const std::vector<glm::vec4>& texels, const glm::ivec3& dims) {

@@ -51,8 +51,13 @@ struct CachedBrick {
   float valueOffset = 0.0f, valueScale = 1.0f;  ///< value = offset + scale · (2·texel − 1)
   BrickRanges ranges;
   VisibleBlocks visible;
-  uint64_t bytes = 0;  ///< texture memory held (both textures)
+  uint64_t bytes = 0;  ///< memory its textures hold (both; heldTextureBytes)
 };
+
+/// The memory llvmpipe allocates for a 3D texture of @p dims texels of @p texelBytes each: its rows
+/// padded to four texels and then to a cache line (64 bytes), its images to four rows (Mesa's
+/// llvmpipe_texture_layout). A brick of 33³ RGBA8 texels holds 1.58 times its texels' bytes.
+uint64_t heldTextureBytes(const glm::ivec3& dims, uint64_t texelBytes);
 
 /// A brick ready for upload: its value mapping and texels (the CPU half of an upload, made on all
 /// cores a batch ahead of the draws that upload them).
@@ -124,7 +129,7 @@ class BrickTextureCache {
   /// The texels' precision: a frame with another precision drops the bricks.
   void setBits(TexelBits bits);
   size_t size() const { return mEntries.size(); }
-  /// Texture memory held by the kept bricks.
+  /// Memory the kept bricks' textures hold (CachedBrick::bytes).
   uint64_t bytes() const { return mBytes; }
   uint64_t limit() const { return mLimit; }
   void setLimit(uint64_t bytes) { mLimit = bytes; }
