@@ -30,6 +30,14 @@
 
 namespace hyb {
 
+/// Whether scene files' checksums (sections and store blocks) are verified: not in a fuzzing build
+/// (HYB_FUZZ), where a mutated file would stop at them, while a hostile file can carry valid ones.
+#ifdef FUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION
+inline constexpr bool kVerifyChecksums = false;
+#else
+inline constexpr bool kVerifyChecksums = true;
+#endif
+
 /// Knots per axis of a store block (64 KB of int16 samples): large enough for zstd to find the
 /// samples' redundancy, small enough that a 17³-knot brick reads little besides itself.
 inline constexpr int kStoreBlock = 32;
