@@ -565,8 +565,9 @@ SurfaceOctree SurfaceOctree::fromParts(glm::ivec3 dims, float iso, size_t cellCo
                     o.z % n.edge == 0 && glm::all(glm::lessThan(o, glm::max(dims - 1, glm::ivec3(1)))) && n.planeCount >= 1 &&
                     n.planeCount <= n.planes.size() && (uint64_t(n.occurs) >> (1u << n.planeCount)) == 0 &&
                     (n.inside & ~n.occurs) == 0 && morton(o) >= previous && n.edge <= mergeEdge;
-    bool planesOk = true;
-    for (int j = 0; j < n.planeCount; ++j) planesOk &= n.planes[size_t(j)].orientation >= 0 && n.planes[size_t(j)].orientation < kOrientationCount;
+    bool planesOk = ok;  // (only a plane count within the array: a hostile one is past its end)
+    for (int j = 0; planesOk && j < n.planeCount; ++j)
+      planesOk = n.planes[size_t(j)].orientation >= 0 && n.planes[size_t(j)].orientation < kOrientationCount;
     if (!ok || !planesOk || !std::isfinite(iso)) HYB_THROW(IoError, source, ": surface octree node ", i, " is invalid");
     previous = morton(o);
   }

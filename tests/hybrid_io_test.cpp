@@ -210,6 +210,10 @@ TEST(SceneFile, SurfaceOctreeRoundTrip) {
   nodes.back().origin = glm::u16vec3(60000);
   EXPECT_THROW(SurfaceOctree::fromParts(v.dims(), 0.0f, so.cellCount(), so.mergeEdge(), nodes, "x"), IoError);
   EXPECT_THROW(SurfaceOctree::fromParts(v.dims(), 0.0f, so.cellCount(), 3, so.nodes(), "x"), IoError);
+  // So is a plane count past the node's planes, their orientations never read (a fuzzer's find).
+  nodes = so.nodes();
+  nodes.front().planeCount = uint8_t(nodes.front().planes.size() + 200);
+  EXPECT_THROW(SurfaceOctree::fromParts(v.dims(), 0.0f, so.cellCount(), so.mergeEdge(), nodes, "x"), IoError);
 }
 
 TEST(SceneFile, RejectsForeignTruncatedCorruptAndNewer) {
