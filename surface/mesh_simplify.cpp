@@ -346,12 +346,15 @@ TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& bl
     for (std::vector<uint32_t>& f : fixed) sortUnique(&f);
     // A pair dropped beside a block done again comes back to the block that stays: the other may
     // not make its half again.
+    size_t restored = 0;
     std::erase_if(dropped, [&](const MirroredPair& p) {
       if (!redo[p.a] && !redo[p.b]) return false;
       if (!redo[p.a]) kept[p.a].push_back(p.ta);
       if (!redo[p.b]) kept[p.b].push_back(p.tb);
+      restored += !redo[p.a] || !redo[p.b];
       return true;
     });
+    if (stats) stats->pairsRestored += restored;
     ParallelFailure failure;
 #pragma omp parallel for schedule(dynamic)
     for (size_t b = 0; b < blocks; ++b)

@@ -34,6 +34,7 @@ struct SimplifyStats {
   size_t blocks = 0;          ///< blocks with triangles
   size_t blocksRedone = 0;    ///< simplifications of a block after the first, summed over the rounds
   size_t mirroredPairs = 0;   ///< triangle pairs dropped as mirror images over a common border
+  size_t pairsRestored = 0;   ///< dropped pairs given back to a block that stayed, its neighbour being done again
 };
 TriangleMesh simplifyWithinBlocks(const TriangleMesh& mesh, const glm::dvec3& blockMm, double maxErrorMm, const Progress* progress = nullptr,
                                   SimplifyStats* stats = nullptr);
