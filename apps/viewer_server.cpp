@@ -139,10 +139,21 @@ struct Arrival {
 // bands, so that it holds the render thread for one band at a time (the pixels are the whole
 // frame's: SlicesOptions::rows).
 inline constexpr int kBandPixels = 512 * 512;
-struct BandedFrame {
-  FrameRequest request;
+
+// What a frame shows of its scene's surfaces (ScenePool::Frame): the isovalue drawn, whether the
+// one asked for is ready, whether the builder is at work on it.
+struct SurfaceShown {
   std::optional<float> iso;
-  bool surfaceReady = true, surfaceBuilding = false;
+  bool ready = true, building = false;
+  explicit SurfaceShown(const ScenePool::Frame& f) : iso(f.iso), ready(f.surfaceReady), building(f.surfaceBuilding) {}
+  /// The surface a frame of @p r draws: none when it asks for none.
+  std::optional<float> drawn(const FrameRequest& r) const { return r.iso ? iso : std::nullopt; }
+};
+
+struct BandedFrame {
+  BandedFrame(FrameRequest r, const SurfaceShown& s) : request(std::move(r)), surface(s) {}
+  FrameRequest request;
+  SurfaceShown surface;
   std::optional<Arrival> arrival;
   Image image;
   int next = 0;           // the first row not drawn yet
@@ -380,11 +391,7 @@ struct ServerState {
     const FrameRequest request = client.banded ? client.banded->request : *client.current;
     const bool final = !request.interacting && client.refine.empty() && level == 0;
     if (final && !client.banded && int64_t(request.camera.width) * request.camera.height > kBandPixels) {
-      BandedFrame b;
-      b.request = request;
-      b.iso = scene.iso;
-      b.surfaceReady = scene.surfaceReady;
-      b.surfaceBuilding = scene.surfaceBuilding;
+      BandedFrame b(request, SurfaceShown(scene));
       b.arrival = arrival;
       b.image = Image(request.camera.width, request.camera.height);
       b.rowsPerBand = std::max(16, kBandPixels / request.camera.width);
@@ -395,7 +402,8 @@ struct ServerState {
       return;
     }
     const QualityLevel& rung = client.quality(surface).ladder()[size_t(level)];
-    const std::optional<float> iso = request.iso ? scene.iso : std::nullopt;
+    const SurfaceShown shown(scene);
+    const std::optional<float> iso = shown.drawn(request);
     const SceneSummary summary = *scene.summary;
     lock.unlock();
     std::string message;
@@ -411,8 +419,8 @@ struct ServerState {
       // (also a ray-traced frame that made the surface's BVH, or one that made a pre-integration table)
       cold = 2 * st.slices.uploadedBricks > st.slices.bricks || st.bvhMs > 0.0 || st.preintegrationMs > 0.0;
       coarser = double(st.bricksNotResident) / double(std::max<size_t>(1, st.slices.bricks + st.bricksNotResident));
-      message = encodeFrame(summary, request, parts.look, rung, level, final, iso, scene.surfaceReady, scene.surfaceBuilding, arrival, frame.image, st,
-                            frame.selection.maxError, renderMs, t0, &ms);
+      message = encodeFrame(summary, request, parts.look, rung, level, final, shown, arrival, frame.image, st, frame.selection.maxError, renderMs, t0,
+                            &ms);
     } catch (const std::exception& e) {
       message.clear();
       client.send(errorMessage(e.what(), request.seq), false);
@@ -428,9 +436,9 @@ struct ServerState {
   void serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, std::unique_lock<std::mutex>& lock) {
     BandedFrame& b = *client.banded;
     const glm::ivec2 rows(b.next, std::min(b.next + b.rowsPerBand, b.image.height));
-    const QualityLevel& rung = client.quality(b.iso.has_value()).ladder()[0];
+    const QualityLevel& rung = client.quality(b.surface.iso.has_value()).ladder()[0];
     const FrameRequest request = b.request;
-    const std::optional<float> iso = request.iso ? b.iso : std::nullopt;
+    const std::optional<float> iso = b.surface.drawn(request);
     const SceneSummary summary = scene;
     lock.unlock();
     std::string message, error;
@@ -464,8 +472,8 @@ struct ServerState {
     double total = 0.0;
     try {
       const FrameParts parts = frameParts(done.request, rung, 0, iso);
-      message = encodeFrame(summary, done.request, parts.look, rung, 0, true, iso, done.surfaceReady, done.surfaceBuilding, done.arrival, done.image, done.stats,
-                            done.maxError, done.renderMs, Clock::now(), &total);
+      message = encodeFrame(summary, done.request, parts.look, rung, 0, true, done.surface, done.arrival, done.image, done.stats, done.maxError, done.renderMs,
+                            Clock::now(), &total);
     } catch (const std::exception& e) {
       error = e.what();
     }
@@ -517,8 +525,9 @@ struct ServerState {
   // A frame's message: its header and the image, JPEG before the final frame, PNG for it (render
   // thread, unlocked); @p ms receives the frame's time from @p t0, encoding included.
   std::string encodeFrame(const SceneSummary& scene, const FrameRequest& r, const Look& look, const QualityLevel& q, int level, bool final,
-                          std::optional<float> iso, bool surfaceReady, bool surfaceBuilding, const std::optional<Arrival>& arrival, const Image& image,
+                          const SurfaceShown& surface, const std::optional<Arrival>& arrival, const Image& image,
                           const FrameStats& st, double maxError, double renderMs, Clock::time_point t0, double* ms) const {
+    const std::optional<float> iso = surface.drawn(r);
     const auto t1 = Clock::now();
     const std::vector<uint8_t> rgba = toRgba8(image, glm::vec3(0.0f));
     const std::vector<uint8_t> bytes = final ? encodePng(rgba, image.width, image.height) : encodeJpeg(rgba, image.width, image.height, 95);
@@ -544,12 +553,12 @@ struct ServerState {
                    {"maxError", maxError},
                    {"bricksNotResident", st.bricksNotResident},  // > 0: bricks drawn coarser (beyond the packing bound, or loading)
                    {"iso", iso ? json(*iso) : json(nullptr)},
-                   {"surfaceReady", !r.iso || surfaceReady},  // false: the surface asked for is still being built
+                   {"surfaceReady", !r.iso || surface.ready},  // false: the surface asked for is still being built
                    // > 1: the surface drawn is clustered by cubes this many voxels wide (a preview, or the level of detail)
                    {"surfaceSpacing", iso ? json(st.surfaceSpacing) : json(nullptr)},
-                   {"surfaceBuilding", surfaceBuilding},  // the surface asked for, or its levels for moving frames, on its way
+                   {"surfaceBuilding", surface.building},  // the surface asked for, or its levels for moving frames, on its way
                    {"camera", cameraToJson(r.camera)}};
-    if (final && (!r.iso || surfaceReady)) {  // (while the surface asked for is built, the frame is not the command's)
+    if (final && (!r.iso || surface.ready)) {  // (while the surface asked for is built, the frame is not the command's)
       header["command"] = renderCommand(scene.path, scene.series, r, "view.tf");
       if (r.preset.empty() || r.opacityScale != 1.0f) header["tfText"] = tfText(look.tf);
     }
