@@ -235,31 +235,32 @@ bool dropMirroredPairs(const std::vector<std::pair<Edge, uint32_t>>& bad, std::v
     const auto it = std::lower_bound(corners.begin(), corners.end(), v);
     return it != corners.end() && *it == v ? long(it - corners.begin()) : -1L;
   };
+  std::vector<std::vector<uint64_t>> dropping(kept->size());  // (index) of each block's triangles in pairs
+  for (const auto& [a, b] : pairs) {
+    dropping[a->block].push_back(a->index);
+    dropping[b->block].push_back(b->index);
+  }
+  for (auto& d : dropping) std::sort(d.begin(), d.end());
+  std::vector<std::vector<Edge>> links(corners.size());  // each corner's link without the pairs dropped
+  auto link = [&](const glm::uvec3& t) {
+    for (int k = 0; k < 3; ++k)
+      if (const long c = corner(t[k]); c >= 0) links[size_t(c)].push_back(edgeOf(t, (k + 1) % 3));
+  };
+  for (size_t b = 0; b < kept->size(); ++b)
+    for (uint32_t i = 0; i < (*kept)[b].size(); ++i)
+      if (!std::binary_search(dropping[b].begin(), dropping[b].end(), uint64_t(i))) link((*kept)[b][i]);
   std::vector<char> keepPair(pairs.size(), 0);
   for (bool changed = true; changed;) {
-    std::vector<std::vector<uint64_t>> dropping(kept->size());  // (index) of each block's triangles in pairs dropped
-    for (size_t p = 0; p < pairs.size(); ++p)
-      if (!keepPair[p]) {
-        dropping[pairs[p].first->block].push_back(pairs[p].first->index);
-        dropping[pairs[p].second->block].push_back(pairs[p].second->index);
-      }
-    for (auto& d : dropping) std::sort(d.begin(), d.end());
-    std::vector<std::vector<Edge>> links(corners.size());  // each corner's link without those pairs
-    for (size_t b = 0; b < kept->size(); ++b)
-      for (uint32_t i = 0; i < (*kept)[b].size(); ++i) {
-        const glm::uvec3 t = (*kept)[b][i];
-        for (int k = 0; k < 3; ++k) {
-          const long c = corner(t[k]);
-          if (c >= 0 && !std::binary_search(dropping[b].begin(), dropping[b].end(), uint64_t(i))) links[size_t(c)].push_back(edgeOf(t, (k + 1) % 3));
-        }
-      }
     std::vector<char> pinched(corners.size(), 0);
     for (size_t c = 0; c < corners.size(); ++c) pinched[c] = !oneLoop(links[c]);
     changed = false;
     for (size_t p = 0; p < pairs.size(); ++p) {
-      const Candidate& a = *pairs[p].first;
-      if (!keepPair[p] && (pinched[size_t(corner(a.sorted.x))] || pinched[size_t(corner(a.sorted.y))] || pinched[size_t(corner(a.sorted.z))]))
-        keepPair[p] = changed = true;
+      const auto& [a, b] = pairs[p];
+      if (keepPair[p] || !(pinched[size_t(corner(a->sorted.x))] || pinched[size_t(corner(a->sorted.y))] || pinched[size_t(corner(a->sorted.z))]))
+        continue;
+      keepPair[p] = changed = true;  // back in its corners' links
+      link((*kept)[a->block][a->index]);
+      link((*kept)[b->block][b->index]);
     }
   }
   std::vector<std::vector<uint32_t>> drop(kept->size());
