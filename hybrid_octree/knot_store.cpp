@@ -25,7 +25,7 @@ namespace hyb {
 
 namespace {
 
-// Evicting more than this at once hands the heap's free pages back (setCacheLimit).
+// Evicting more than this at once hands the heap's free pages back (giveBackFreed).
 constexpr uint64_t kTrimAfterBytes = uint64_t(16) << 20;
 
 uint32_t crcOf(const uint8_t* p, size_t n) { return uint32_t(crc32_z(crc32_z(0L, Z_NULL, 0), p, n)); }
@@ -648,7 +648,7 @@ SampleArray KnotStore::samples() const {
   return out;
 }
 
-uint64_t KnotStore::setCacheLimit(uint64_t bytes, bool trim) {
+uint64_t KnotStore::setCacheLimit(uint64_t bytes) {
   uint64_t freed = 0;
   {
     const std::lock_guard lock(mMutex);
@@ -657,7 +657,6 @@ uint64_t KnotStore::setCacheLimit(uint64_t bytes, bool trim) {
     evictToLimit(0);
     freed = held - mStats.bytesHeld;
   }
-  if (trim) giveBackFreed(freed);
   return freed;
 }
 

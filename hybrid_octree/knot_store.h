@@ -167,9 +167,9 @@ class KnotStore final : public KnotSource {
   uint64_t compressedBytes() const { return mDataSize; }
 
   /// Bounds the cache to @p bytes of decompressed blocks (0: no bound), evicting the least recently
-  /// used at once; when that freed much, hands the heap's free pages back unless @p trim is false
-  /// (a caller holding a lock trims after it, giveBackFreed). Returns the bytes evicted.
-  uint64_t setCacheLimit(uint64_t bytes, bool trim = true);
+  /// used at once. Returns the bytes evicted (for giveBackFreed, which a caller holding a lock
+  /// calls after letting it go).
+  uint64_t setCacheLimit(uint64_t bytes);
   /// Hands the heap's free pages back to the system when @p freed bytes were evicted at once.
   static void giveBackFreed(uint64_t freed);
   StoreCacheStats cacheStats() const;

@@ -208,7 +208,7 @@ void SceneRenderer::setCacheBound() {
     // The brick textures kept between frames count at their bound: llvmpipe holds them in this
     // process's memory, and the cache's bound does not then move with every frame.
     const uint64_t textures = mOptions.keepTextures ? mOptions.textureLimitBytes : 0;
-    freed = mScene.knots->setCacheLimit(sceneCacheBytes(mOptions.memoryBytes, octrees + textures + mKeptBytes + mReservedBytes), false);
+    freed = mScene.knots->setCacheLimit(sceneCacheBytes(mOptions.memoryBytes, octrees + textures + mKeptBytes + mReservedBytes));
   }
   KnotStore::giveBackFreed(freed);  // (not under the lock: the other thread would wait for the trim)
 }
