@@ -118,12 +118,20 @@ class Reservation {
 
 }  // namespace
 
+int simplifiedLevelCount(const glm::ivec3& dims) {
+  const int longest = std::max({dims.x, dims.y, dims.z});
+  int k = kSimplifiedLevels - 1;  // the coarsest level
+  while (k < 20 && int64_t(kCoarsestLevelFraction) << k < longest) ++k;
+  return k + 1;
+}
+
 std::vector<TriangleMesh> SceneRenderer::simplifiedLevels(const Scene& scene, const TriangleMesh& smooth, const Progress* progress,
                                                          const std::function<void(uint64_t)>& reserve) {
   const Reservation reserved(reserve, kSimplifyBytesPerTriangle * uint64_t(smooth.triangles.size()));
   const glm::dvec3 spacing = scene.volume.spacing();
   std::vector<TriangleMesh> levels;
-  for (int k = 0; k < kSimplifiedLevels; ++k) {
+  const int count = simplifiedLevelCount(scene.volume.dims());
+  for (int k = 0; k < count; ++k) {
     // Level k from level k − 1 within what its error adds: errors add up to level k's.
     const double step = simplifiedErrorMm(spacing, k) - (k == 0 ? 0.0 : simplifiedErrorMm(spacing, k - 1));
     levels.push_back(simplifyWithinBlocks(k == 0 ? smooth : levels.back(), double(kSimplifiedBlockVoxels << k) * spacing, step, progress));

@@ -82,9 +82,17 @@ using LevelCallback = std::function<void(int level, int levels, const Image& ima
 /// The blocks (voxels a side) within which PreparedSurface::simplified[0] is simplified: each of
 /// its triangles lies inside one block, hence inside one brick of edge at least this many voxels.
 inline constexpr int kSimplifiedBlockVoxels = 32;
-/// Levels of PreparedSurface::simplified: level k is simplified to 2^k voxels' error within blocks
-/// of kSimplifiedBlockVoxels·2^k voxels (from level k − 1, within 2^(k−1) voxels more).
+/// PreparedSurface::simplified: level k is simplified to 2^k voxels' error within blocks of
+/// kSimplifiedBlockVoxels·2^k voxels (from level k − 1, within 2^(k−1) voxels more), at least
+/// kSimplifiedLevels levels, and more until the coarsest one's error reaches the volume's longest
+/// edge over kCoarsestLevelFraction voxels: two pixels (the viewer's moving frames' error) of a
+/// 128-pixel view of the whole volume, the size of most of its moving frames. A larger study's
+/// small frames then draw about as many triangles as a smaller one's (simplifiedLevelCount).
 inline constexpr int kSimplifiedLevels = 4;
+inline constexpr int kCoarsestLevelFraction = 64;
+/// The levels simplifiedLevels makes for a volume of @p dims voxels: 4 up to 512 voxels a side, 5
+/// up to 1024, 6 up to 2048.
+int simplifiedLevelCount(const glm::ivec3& dims);
 
 /// An isosurface ready to draw: its Surface Octree, its polygons triangulated, with both kinds of
 /// normals, and its simplified levels (made by SceneRenderer::prepareSurface, on any thread), and
@@ -100,7 +108,7 @@ struct PreparedSurface {
   /// smooth without its normals (each triangle shaded by its plane): made when first asked for, as
   /// most frames and every viewer shade by the gradient (a copy costs 19 bytes a triangle).
   TriangleMesh facet;
-  /// Smooth, simplified to 1, 2, 4, … voxels' error within blocks (kSimplifiedLevels): for the
+  /// Smooth, simplified to 1, 2, 4, … voxels' error within blocks (simplifiedLevelCount): for the
   /// viewer's frames before the final one, each drawing the coarsest its pixels allow; made when one
   /// first asks for them, or by a viewer's builder thread (SceneRenderer::simplifiedLevels); a frame
   /// that does not wait for its surface draws a clustered or the full-resolution one meanwhile.

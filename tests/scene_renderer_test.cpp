@@ -364,6 +364,32 @@ TEST(SceneRenderer, SmallFramesDrawCoarserLevelsOfTheSimplifiedSurface) {
   }
 }
 
+// A larger volume gets coarser levels, up to two pixels of a 128-pixel view of it: the cranium's
+// and the clinical study's four, the 8 GiB phantom's six. A capsule of radius 20 along a volume
+// 520 voxels long gets a fifth level, of 16 voxels' error, coarser than the fourth and within it.
+TEST(SceneRenderer, ALargerVolumeGetsCoarserSimplifiedLevels) {
+  EXPECT_EQ(simplifiedLevelCount({1, 1, 1}), 4);
+  EXPECT_EQ(simplifiedLevelCount({256, 256, 108}), 4);
+  EXPECT_EQ(simplifiedLevelCount({512, 512, 432}), 4);
+  EXPECT_EQ(simplifiedLevelCount({64, 513, 64}), 5);
+  EXPECT_EQ(simplifiedLevelCount({2048, 2048, 1024}), 6);
+  const glm::dvec3 a(30.0, 23.5, 23.5), b(489.0, 23.5, 23.5);
+  auto axisDistance = [&](const glm::dvec3& p) { return glm::length(p - glm::mix(a, b, glm::clamp((p.x - a.x) / (b.x - a.x), 0.0, 1.0))); };
+  Scene scene;
+  scene.volume = test::makeVolume({520, 48, 48}, [&](int i, int j, int k) { return 20.0 - axisDistance(glm::dvec3(i, j, k)); });
+  scene.octree = VolumeOctree::build(scene.volume);
+  std::unique_ptr<PreparedSurface> made = withLevels(scene, 0.0f);
+  ASSERT_EQ(made->simplified.size(), size_t(5));
+  for (size_t k = 1; k < made->simplified.size(); ++k) {
+    const TriangleMesh& m = made->simplified[k];
+    EXPECT_LT(m.triangles.size(), made->simplified[k - 1].triangles.size()) << k;
+    double sag = 0.0;
+    for (const glm::uvec3& t : m.triangles)
+      sag = std::max(sag, 20.0 - axisDistance((glm::dvec3(m.vertices[t.x]) + glm::dvec3(m.vertices[t.y]) + glm::dvec3(m.vertices[t.z])) / 3.0));
+    EXPECT_LE(sag, double(1 << k) + 0.1) << k;
+  }
+}
+
 // A frame asking for a screen-space level of detail draws the surface clustered by the largest
 // cubes its pixels allow where the volume is nearest (orthographic: a pixel is the view's height
 // over its rows), never builds the full-resolution one, and keeps each clustered surface for the
