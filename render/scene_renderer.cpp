@@ -118,10 +118,11 @@ class Reservation {
 
 }  // namespace
 
-int simplifiedLevelCount(const glm::ivec3& dims) {
-  const int longest = std::max({dims.x, dims.y, dims.z});
+int simplifiedLevelCount(const glm::ivec3& dims, const glm::dvec3& spacing) {
+  const glm::dvec3 extent = glm::dvec3(dims) * spacing;
+  const double longestMm = std::max({extent.x, extent.y, extent.z});
   int k = kSimplifiedLevels - 1;  // the coarsest level
-  while (k < 20 && int64_t(kCoarsestLevelFraction) << k < longest) ++k;
+  while (k < 20 && simplifiedErrorMm(spacing, k) * kCoarsestLevelFraction < longestMm) ++k;
   return k + 1;
 }
 
@@ -130,7 +131,7 @@ std::vector<TriangleMesh> SceneRenderer::simplifiedLevels(const Scene& scene, co
   const Reservation reserved(reserve, kSimplifyBytesPerTriangle * uint64_t(smooth.triangles.size()));
   const glm::dvec3 spacing = scene.volume.spacing();
   std::vector<TriangleMesh> levels;
-  const int count = simplifiedLevelCount(scene.volume.dims());
+  const int count = simplifiedLevelCount(scene.volume.dims(), spacing);
   for (int k = 0; k < count; ++k) {
     // Level k from level k − 1 within what its error adds: errors add up to level k's.
     const double step = simplifiedErrorMm(spacing, k) - (k == 0 ? 0.0 : simplifiedErrorMm(spacing, k - 1));

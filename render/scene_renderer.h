@@ -85,14 +85,14 @@ inline constexpr int kSimplifiedBlockVoxels = 32;
 /// PreparedSurface::simplified: level k is simplified to 2^k voxels' error within blocks of
 /// kSimplifiedBlockVoxels·2^k voxels (from level k − 1, within 2^(k−1) voxels more), at least
 /// kSimplifiedLevels levels, and more until the coarsest one's error reaches the volume's longest
-/// edge over kCoarsestLevelFraction voxels: two pixels (the viewer's moving frames' error) of a
+/// extent over kCoarsestLevelFraction: two pixels (the viewer's moving frames' error) of a
 /// 128-pixel view of the whole volume, the size of most of its moving frames. A larger study's
 /// small frames then draw about as many triangles as a smaller one's (simplifiedLevelCount).
 inline constexpr int kSimplifiedLevels = 4;
 inline constexpr int kCoarsestLevelFraction = 64;
-/// The levels simplifiedLevels makes for a volume of @p dims voxels: 4 up to 512 voxels a side, 5
-/// up to 1024, 6 up to 2048.
-int simplifiedLevelCount(const glm::ivec3& dims);
+/// The levels simplifiedLevels makes for a volume of @p dims voxels spaced @p spacing mm (errors
+/// in its smallest spacing): on isotropic voxels 4 up to 512 a side, 5 up to 1024, 6 up to 2048.
+int simplifiedLevelCount(const glm::ivec3& dims, const glm::dvec3& spacing);
 
 /// An isosurface ready to draw: its Surface Octree, its polygons triangulated, with both kinds of
 /// normals, and its simplified levels (made by SceneRenderer::prepareSurface, on any thread), and

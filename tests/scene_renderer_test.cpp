@@ -365,14 +365,19 @@ TEST(SceneRenderer, SmallFramesDrawCoarserLevelsOfTheSimplifiedSurface) {
 }
 
 // A larger volume gets coarser levels, up to two pixels of a 128-pixel view of it: the cranium's
-// and the clinical study's four, the 8 GiB phantom's six. A capsule of radius 20 along a volume
+// four, the clinical study's five (its slices 0.37 mm apart, the errors' unit), the phantom's six. A capsule of radius 20 along a volume
 // 520 voxels long gets a fifth level, of 16 voxels' error, coarser than the fourth and within it.
 TEST(SceneRenderer, ALargerVolumeGetsCoarserSimplifiedLevels) {
-  EXPECT_EQ(simplifiedLevelCount({1, 1, 1}), 4);
-  EXPECT_EQ(simplifiedLevelCount({256, 256, 108}), 4);
-  EXPECT_EQ(simplifiedLevelCount({512, 512, 432}), 4);
-  EXPECT_EQ(simplifiedLevelCount({64, 513, 64}), 5);
-  EXPECT_EQ(simplifiedLevelCount({2048, 2048, 1024}), 6);
+  const glm::dvec3 iso(1.0);
+  EXPECT_EQ(simplifiedLevelCount({1, 1, 1}, iso), 4);
+  EXPECT_EQ(simplifiedLevelCount({256, 256, 108}, {0.957, 0.957, 1.5}), 4);  // the cranium
+  EXPECT_EQ(simplifiedLevelCount({512, 512, 432}, iso), 4);
+  EXPECT_EQ(simplifiedLevelCount({512, 512, 432}, {0.4776, 0.4776, 0.3724}), 5);
+  EXPECT_EQ(simplifiedLevelCount({2048, 2048, 1024}, glm::dvec3(0.25)), 6);
+  EXPECT_EQ(simplifiedLevelCount({64, 513, 64}, iso), 5);
+  EXPECT_EQ(simplifiedLevelCount({2048, 2048, 1024}, iso), 6);
+  // Errors are in the smallest spacing, the extent in mm: 400 slices of 2 mm are 800 mm.
+  EXPECT_EQ(simplifiedLevelCount({256, 256, 400}, {1.0, 1.0, 2.0}), 5);
   const glm::dvec3 a(30.0, 23.5, 23.5), b(489.0, 23.5, 23.5);
   auto axisDistance = [&](const glm::dvec3& p) { return glm::length(p - glm::mix(a, b, glm::clamp((p.x - a.x) / (b.x - a.x), 0.0, 1.0))); };
   Scene scene;
