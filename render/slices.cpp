@@ -43,6 +43,15 @@ namespace {
 // choices).
 int slicePeriod(int step) { return step == 1 ? 1 : step == 2 ? 3 : 2 * step; }
 
+// The period of a level of @p step voxels a texel among planes @p stepVoxels apart: slicePeriod's
+// at the default half voxel; at a wider spacing about the same distance in voxels rather than the
+// same multiple of the spacing (which undersamples the texels: woodgrain and specks on the moving
+// frames' coarse bricks), every plane where that distance is below the spacing.
+int levelPeriod(int step, double stepVoxels) {
+  const int period = slicePeriod(step);
+  return std::clamp(int(0.5 * period / stepVoxels), 1, period);
+}
+
 // How far (in slice spacings) a brick's visible boxes grow for pre-integrated fragments: their
 // segments reach a spacing either side of their slice, and further along an oblique ray.
 constexpr double kPreintegratedGrowth = 2.0;
@@ -548,7 +557,7 @@ class BrickPlanner {
     // At least four planes across the brick's box: a ray's stretch in the brick that meets none of
     // its planes is lost.
     const double across = std::min({d.bhi.x - d.blo.x, d.bhi.y - d.blo.y, d.bhi.z - d.blo.z});
-    const int period = std::clamp(int(across / (4.0 * mF.baseDelta)), 1, slicePeriod(fine.step));
+    const int period = std::clamp(int(across / (4.0 * mF.baseDelta)), 1, levelPeriod(fine.step, mF.options.stepVoxels));
     d.delta = mF.baseDelta * (d.sliced && !holdsEye && !exactWithSurface ? period : 1);
     if (mF.options.preintegrated && d.blocks) {  // its fragments read up to a spacing either side
       d.slo = glm::max(d.blo, d.slo - kPreintegratedGrowth * d.delta);

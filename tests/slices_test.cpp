@@ -379,6 +379,40 @@ TEST(Slices, OpacityDoesNotDependOnTheSliceSpacing) {
   }
 }
 
+// The viewer's moving frames space their planes 1.0-2.5 voxels apart. A coarse brick keeps about
+// its own spacing in voxels there (a plane every 1.5 voxels at two voxels a texel), not the same
+// multiple of the frame's (every 4.5 voxels at 1.5: woodgrain on a shell the transfer function
+// draws narrow): at three times the default spacing its planes are the default's, and so is the image.
+TEST(Slices, CoarseBricksKeepTheirSpacingInVoxelsAtAWideBaseSpacing) {
+  gl();
+  const Volume v = test::sphereVolume({33, 33, 33}, 11.0);
+  const VolumeOctree t = VolumeOctree::build(v);
+  // A shell a voxel and a half thick at radius 11, oblique to every plane of an oblique view.
+  const TransferFunction tf({{-1.0f, {0.8f, 0.5f, 0.2f}, 0.0f}, {0.0f, {0.8f, 0.5f, 0.2f}, 0.5f}, {0.5f, {0.8f, 0.5f, 0.2f}, 0.0f}}, "shell");
+  SelectionParams coarse;
+  coarse.epsilon = 1.0f;
+  const Selection sel = selectNodes(t, coarse);
+  int finest = 1 << 30;
+  for (const Brick& b : sel.bricks)
+    if (!b.hidden) finest = std::min(finest, t.lattice(t.nodes()[b.node], b.p).step);
+  ASSERT_EQ(finest, 2) << "the sphere's error should select bricks of two voxels a texel";
+  Camera cam;
+  cam.center = glm::dvec3(16.0);
+  cam.eye = cam.center + 80.0 * glm::normalize(glm::dvec3(0.3, 0.5, 1.0));
+  cam.up = glm::dvec3(0, 1, 0);
+  cam.ortho = true;
+  cam.orthoHeight = 34.0;
+  cam.width = cam.height = 64;
+  SlicesOptions o;
+  o.shading = false;
+  SlicesStats atDefault, atWide;
+  const Image base = renderSlices(v, t, sel, tf, cam, o, &atDefault);
+  o.stepVoxels = 1.5;
+  const Image wide = renderSlices(v, t, sel, tf, cam, o, &atWide);
+  EXPECT_EQ(atWide.slices, atDefault.slices);
+  EXPECT_GE(psnrOf(base, wide), 60.0);
+}
+
 TEST(Slices, OpaqueSurfaceHidesTheVolumeBehindIt) {
   gl();
   const Volume v = test::makeVolume({11, 11, 11}, [](int, int, int) { return 1.0f; });
