@@ -1,6 +1,7 @@
 #include "apps/frame.h"
 
 #include <chrono>
+#include <filesystem>
 #include <cmath>
 #include <iomanip>
 #include <ostream>
@@ -10,6 +11,7 @@
 #include "hybrid_octree/surface_octree.h"
 #include "render/bvh.h"
 #include "surface/mesh_ops.h"
+#include "volume/file_util.h"
 #include "volume/memory_limit.h"
 
 #include <nlohmann/json.hpp>
@@ -56,16 +58,26 @@ void VolumeInput::add(CLI::App* cmd) {
 
 std::optional<RawLayout> VolumeInput::rawLayout() const {
   if (rawDims.empty() && rawType.empty() && rawSpacing.empty()) return std::nullopt;
+  // A file that describes itself is never read as raw: its header would be taken for samples.
+  std::error_code ec;
+  const std::string ext = fileExtension(path);
+  for (const char* described : {".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".nii.gz", ".hdr", ".inv3", ".hoct"})
+    if (ext == described)
+      HYB_THROW(ValueError, path, ": a ", ext, " file carries its own layout (--raw-dims, --raw-type and --raw-spacing are for headerless raw data)");
+  if (std::filesystem::is_directory(path, ec))
+    HYB_THROW(ValueError, path, ": a directory (DICOM) carries its own layout (--raw-dims, --raw-type and --raw-spacing are for headerless raw data)");
+  RawLayout l;
+  if (!rawDims.empty()) {
+    const glm::dvec3 d = parseVec3(rawDims, "--raw-dims");
+    for (int a = 0; a < 3; ++a)
+      if (d[a] != std::floor(d[a]) || d[a] < 1 || d[a] > kMaxDim)
+        HYB_THROW(ValueError, "--raw-dims '", rawDims, "' invalid (expected positive integers up to ", kMaxDim, ")");
+    l.dims = glm::ivec3(d);
+  }
+  if (!rawType.empty() && !parseScalarName(rawType, &l.type))
+    HYB_THROW(ValueError, "--raw-type '", rawType, "' unknown (expected int16|uint16|uint8|int8|int32|uint32|float32|float64)");
   if (rawDims.empty()) HYB_THROW(ValueError, "--raw-dims missing (expected X,Y,Z with --raw-type)");
   if (rawType.empty()) HYB_THROW(ValueError, "--raw-type missing (expected int16|uint16|uint8|float32...)");
-  RawLayout l;
-  const glm::dvec3 d = parseVec3(rawDims, "--raw-dims");
-  for (int a = 0; a < 3; ++a)
-    if (d[a] != std::floor(d[a]) || d[a] < 1 || d[a] > kMaxDim)
-      HYB_THROW(ValueError, "--raw-dims '", rawDims, "' invalid (expected positive integers up to ", kMaxDim, ")");
-  l.dims = glm::ivec3(d);
-  if (!parseScalarName(rawType, &l.type))
-    HYB_THROW(ValueError, "--raw-type '", rawType, "' unknown (expected int16|uint16|uint8|int8|int32|uint32|float32|float64)");
   if (!rawSpacing.empty()) l.spacing = parseVec3(rawSpacing, "--raw-spacing");
   validateSpacing(l.spacing, "--raw-spacing");
   if (rawEndian != "little" && rawEndian != "big") HYB_THROW(ValueError, "--raw-endian '", rawEndian, "' invalid (expected little or big)");
@@ -167,8 +179,8 @@ Camera readCameraFile(const std::string& path) {
   if (!(c.orthoHeight >= 1e-3 && c.orthoHeight <= kMaxCameraMm)) HYB_THROW(IoError, path, ": camera field 'ortho_height' must be in [0.001, 1e6] mm");
   for (const auto& [p, key] : {std::pair{c.eye, "eye"}, std::pair{c.center, "center"}})
     if (!withinCameraRange(p)) HYB_THROW(IoError, path, ": camera field '", key, "' must be within 1e6 mm of the patient origin");
-  if (glm::length(c.eye - c.center) == 0 || glm::length(glm::cross(c.center - c.eye, c.up)) == 0)
-    HYB_THROW(IoError, path, ": camera eye, center and up must give a view direction not parallel to up");
+  if (glm::length(c.eye - c.center) == 0) HYB_THROW(IoError, path, ": camera fields 'eye' and 'center' must differ");
+  if (glm::length(glm::cross(c.center - c.eye, c.up)) == 0) HYB_THROW(IoError, path, ": camera field 'up' must not be parallel to the view direction (eye to center)");
   return c;
 }
 
@@ -419,8 +431,9 @@ void setUpFrame(const RenderOptions& o, const Scene& scene, RenderJob* out, std:
     camera.eye = *o.eye;
     camera.center = o.center.value_or(frame.toPatient(0.5 * v.extentMm()));
     camera.up = o.up;
-    if (glm::length(camera.eye - camera.center) == 0 || glm::length(glm::cross(camera.center - camera.eye, camera.up)) == 0)
-      HYB_THROW(ValueError, "--eye, --center and --up must give a view direction not parallel to up");
+    if (glm::length(camera.eye - camera.center) == 0) HYB_THROW(ValueError, "--eye and --center must differ (the view direction runs from the eye to the center)");
+    if (glm::length(glm::cross(camera.center - camera.eye, camera.up)) == 0)
+      HYB_THROW(ValueError, "--up must not be parallel to the view direction (--eye to --center)");
     camera.fovDeg = o.fov;
     camera.ortho = o.ortho;
     camera.orthoHeight = glm::length(v.extentMm()) * 1.05;

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include <atomic>
+#include <charconv>
 #include <chrono>
 #include <condition_variable>
 #include <cstdio>
@@ -78,10 +79,11 @@ json cameraToJson(const Camera& c) {
 }
 
 // Doubles printed so that reading them back gives the same bits.
-std::string exact(double x) {
-  std::ostringstream s;
-  s << std::setprecision(17) << x;
-  return s.str();
+// The shortest text that reads back as the same value (a float as a float: 0.1, not 0.10000000000000001).
+template <class T>
+std::string exact(T x) {
+  char text[32];
+  return std::string(text, std::to_chars(text, text + sizeof text, x).ptr);
 }
 std::string exact3(const glm::dvec3& v) { return exact(v.x) + "," + exact(v.y) + "," + exact(v.z); }
 

@@ -99,6 +99,11 @@ std::vector<uint8_t> encodePng(const std::vector<uint8_t>& rgba, int width, int 
 std::vector<uint8_t> readPng(const std::string& path, int* width, int* height) {
   png_image img{};
   img.version = PNG_IMAGE_VERSION;
+  errno = 0;  // libpng says only that it failed: a file that cannot be opened is named as such
+  if (FILE* f = std::fopen(path.c_str(), "rb"))
+    std::fclose(f);
+  else
+    HYB_THROW(IoError, path, ": cannot open (", std::strerror(errno), "; expected a PNG image)");
   if (!png_image_begin_read_from_file(&img, path.c_str())) HYB_THROW(IoError, path, ": not a readable PNG");
   img.format = PNG_FORMAT_RGBA;
   std::vector<uint8_t> out(PNG_IMAGE_SIZE(img));

@@ -221,7 +221,7 @@ TEST(Cli, CompareMeasuresAnImageAgainstAReference) {
 
   expectBadInput({"compare", dir.file("black.png"), dir.file("small.png")}, "small.png");
   expectBadInput({"compare", dir.file("black.png")}, "compare");
-  expectBadInput({"compare", dir.file("black.png"), dir.file("missing.png")}, "missing.png");
+  expectBadInput({"compare", dir.file("black.png"), dir.file("missing.png")}, "missing.png: cannot open (No such file or directory");
   expectBadInput({"compare", dir.file("black.png"), dir.file("one.png"), "--diff", dir.file("d.jpg")}, "--diff");
 }
 
@@ -235,6 +235,9 @@ TEST(Cli, RawInput) {
   expectBadInput({"info", dir.file("v.bin"), "--raw-dims", "9,7,5", "--raw-type", "complex"}, "--raw-type");
   expectBadInput({"info", dir.file("v.bin"), "--raw-dims", "9,7,6", "--raw-type", "float32"}, "v.bin");
   expectBadInput({"info", dir.file("v.bin"), "--raw-dims", "9,7,5"}, "--raw-type");
+  expectBadInput({"info", dir.file("v.bin"), "--raw-dims", "nan,7,5"}, "--raw-dims 'nan,7,5' invalid");  // before the missing type
+  expectBadInput({"info", dir.file("v.nhdr"), "--raw-dims", "9,7,5", "--raw-type", "int16"}, "v.nhdr: a .nhdr file carries its own layout");
+  expectBadInput({"info", dir.path().string(), "--raw-dims", "9,7,5", "--raw-type", "int16"}, "a directory (DICOM) carries its own layout");
   expectBadInput({"info", dir.file("v.bin"), "--raw-dims", "9,7,5", "--raw-type", "float32", "--raw-endian", "middle"},
                  "--raw-endian");
 }
@@ -676,6 +679,8 @@ TEST(Cli, ExtremeNumbersAreRefusedNamingTheirFlagOrRenderSanely) {
   expectBadInput({"render", nhdr, "--fov", "1e-6", "-o", png}, "--fov must be in [0.1, 179)");
   expectBadInput({"render", nhdr, "--eye", "1e30,0,0", "-o", png}, "--eye must be within 1e6 mm");
   expectBadInput({"render", nhdr, "--eye", "0,-50,0", "--center", "0,0,1e300", "-o", png}, "--center");
+  expectBadInput({"render", nhdr, "--eye", "0,-50,0", "--center", "0,-50,0", "-o", png}, "--eye and --center must differ");
+  expectBadInput({"render", nhdr, "--eye", "0,-50,0", "--center", "0,0,0", "--up", "0,1,0", "-o", png}, "--up must not be parallel");
   expectBadInput({"render", nhdr, "--focus", "1e7,0,0", "-o", png}, "--focus");
   expectBadInput({"render", nhdr, "--cut", "0,0,1e7,0,0,1", "-o", png}, "--cut");
   expectBadInput({"render", nhdr, "--voi", "-1e300,0,0,1,1,1", "-o", png}, "--voi");

@@ -269,7 +269,8 @@ TEST(ViewerServer, TheFinalFrameIsTheEnginesImageLossless) {
   ASSERT_EQ(f["quality"], "final");
   EXPECT_EQ(f["format"], "png");
   EXPECT_EQ(f["width"], 80);
-  EXPECT_THAT(f["command"].get<std::string>(), HasSubstr("--iso 4 --surface-color"));
+  // Each value as its shortest text that reads back the same (0.9, not 0.89999997615814209).
+  EXPECT_THAT(f["command"].get<std::string>(), HasSubstr("--iso 4 --surface-color 0.9,0.9,0.8,0.5 "));
   EXPECT_THAT(f["command"].get<std::string>(), HasSubstr(" --tf view.tf"));
   EXPECT_THAT(f["tfText"].get<std::string>(), HasSubstr("15 0.300000012 0.600000024 1 0.0500000007"));
   test::TempDir dir;

@@ -41,7 +41,7 @@ void checkMemory(const std::string& file, uint64_t bytes, const std::string& wha
   const uint64_t limit = memoryLimit();
   if (bytes <= limit) return;
   HYB_THROW(IoError, file, ": ", what, " need ", bytes, " bytes (", formatBytes(bytes), "), more than the memory limit of ",
-            formatBytes(limit), " (expected a volume that fits; the limit is setMemoryLimit's, by default half the physical memory)");
+            formatBytes(limit), " (expected a volume that fits; the limit, --memory-limit MB on the command line, is by default half the physical memory)");
 }
 
 }  // namespace hyb
