@@ -312,7 +312,8 @@ function openInfo(info) {
   if (!info.defaultPreset) presets.add(new Option('ramp (data range)', ''));
   setPreset(info.defaultPreset);
   const [lo, hi] = info.range;
-  for (const id of ['iso', 'iso-number']) { $(id).min = lo; $(id).max = hi; }
+  // A surface separates values below the isovalue from those at or above it: none at the smallest.
+  for (const id of ['iso', 'iso-number']) { $(id).min = Math.min(lo + 1, hi); $(id).max = hi; }
   const iso = info.iso !== null ? info.iso : (lo < -500 && hi > 300 ? 400 : (lo + hi) / 2);
   $('iso').value = $('iso-number').value = iso;
   // Cut and VOI sliders over the volume's patient bounds.
@@ -595,12 +596,12 @@ $('iso').addEventListener('change', () => { showSurfaceState(); request(false); 
 $('iso-number').addEventListener('change', () => {
   const typed = $('iso-number').value, v = Number(typed);
   if (typed.trim() === '' || !Number.isFinite(v)) {
-    showError(`isovalue: '${typed}' is not a number`);
+    showError(typed.trim() === '' ? 'isovalue: expected a number' : `isovalue: '${typed}' is not a number`);
     $('iso-number').value = $('iso').value;  // the surface shown stays
     return;
   }
   $('iso').value = v;  // clamped to the data's range and rounded to the slider's step
-  if (Number($('iso').value) !== v) showError(`isovalue ${typed}: the data's values are ${$('iso').min} to ${$('iso').max} in steps of 1: using ${$('iso').value}`);
+  if (Number($('iso').value) !== v) showError(`isovalue ${typed}: a surface needs ${$('iso').min} to ${$('iso').max} in steps of 1: using ${$('iso').value}`);
   $('iso-number').value = $('iso').value;
   showSurfaceState();
   request(false);

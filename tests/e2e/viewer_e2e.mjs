@@ -122,6 +122,9 @@ try {
     typeIso('99999');
     out.clamped = $('iso-number').value === $('iso').max && $('iso').value === $('iso').max;
     out.clampMessage = $('message').textContent;
+    typeIso('-99999');  // the data's smallest value makes no surface: the box stops one above it
+    out.lowClamped = $('iso').value === $('iso').min && $('message').textContent.includes(`a surface needs ${$('iso').min} to`);
+    typeIso('300');
     // A volume-of-interest minimum moved past its maximum pushes it along.
     const min = $('voi-min-0'), max = $('voi-max-0');
     min.value = Number(max.value) + 20;
@@ -129,7 +132,8 @@ try {
     out.voiOrdered = Number(max.value) === Number(min.value);
     return out;
   });
-  check(form.emptyKept && form.emptyMessage.includes('is not a number'), `an isovalue that is not a number is refused and the old one kept (${form.emptyMessage})`);
+  check(form.emptyKept && form.emptyMessage.includes('expected a number'), `an isovalue that is not a number is refused and the old one kept (${form.emptyMessage})`);
+  check(form.lowClamped, 'an isovalue below the data is clamped to one above its smallest value');
   check(form.clamped && form.clampMessage.includes('using'), `an isovalue beyond the data is clamped and the box shows it (${form.clampMessage})`);
   check(form.voiOrdered, 'the volume of interest keeps its minimum below its maximum');
   // The transfer-function editor puts a point where it is double-clicked, whatever the opacity scale.
