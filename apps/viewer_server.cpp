@@ -78,7 +78,6 @@ json cameraToJson(const Camera& c) {
           {"ortho", c.ortho},       {"height", c.orthoHeight},       {"pixels", json::array({c.width, c.height})}};
 }
 
-// Doubles printed so that reading them back gives the same bits.
 // The shortest text that reads back as the same value (a float as a float: 0.1, not 0.10000000000000001).
 template <class T>
 std::string exact(T x) {
