@@ -337,8 +337,8 @@ std::string checkLine(const MeshCheck& c) {
 
 }  // namespace
 
-ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string& kind, bool closed, bool normals, const Progress* progress,
-                                std::ostream& out) {
+ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string& kind, bool closed, bool normals, bool againstMc,
+                                const Progress* progress, std::ostream& out) {
   if (kind != "dmc" && kind != "mc" && kind != "octree") HYB_THROW(ValueError, "surface kind '", kind, "' invalid (expected dmc, octree or mc)");
   if (!scene.volume.hasSamples()) HYB_THROW(ValueError, "the surface of a scene read paged needs its samples (load it whole)");
   // Closed: the volume padded by one sample well below the isovalue on every face, so the surface
@@ -355,13 +355,20 @@ ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string
   const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
   ExportedSurface e;
   auto t0 = Clock::now();
-  e.mc = extractMarchingCubes(v, iso, blocks);
-  scaleToMillimetres(&e.mc, v.spacing());
-  e.mcMs = msSince(t0);
+  if (kind == "mc" || againstMc) {
+    e.mc = extractMarchingCubes(v, iso, blocks);
+    scaleToMillimetres(&e.mc, v.spacing());
+    e.mcMs = msSince(t0);
+  }
   t0 = Clock::now();
   if (kind == "mc") {
-    e.mesh = e.mc;
-    e.polygons = e.mc.triangles.size();
+    if (againstMc) {
+      e.mesh = e.mc;
+    } else {
+      e.mesh = std::move(e.mc);
+      e.mc = TriangleMesh{};
+    }
+    e.polygons = e.mesh.triangles.size();
   } else if (kind == "dmc") {
     const DiscreteMesh d = extractDiscMC(v, iso, blocks);
     e.polygons = d.faceCount();
@@ -382,8 +389,9 @@ ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string
   e.ms = kind == "mc" ? e.mcMs : msSince(t0);
   out << std::fixed << std::setprecision(1) << "surface  " << kind << " at iso " << iso << (closed ? " (closed)" : "") << ": " << e.polygons
       << " polygons, " << e.mesh.triangles.size() << " triangles, " << e.mesh.vertices.size() << " vertices, " << e.ms << " ms\n";
-  out << "vs mc    " << e.mc.triangles.size() << " triangles in " << e.mcMs << " ms; triangles ratio " << std::setprecision(3)
-      << (e.mc.triangles.empty() ? 1.0 : double(e.mesh.triangles.size()) / double(e.mc.triangles.size())) << "\n";
+  if (againstMc)
+    out << "vs mc    " << e.mc.triangles.size() << " triangles in " << e.mcMs << " ms; triangles ratio " << std::setprecision(3)
+        << (e.mc.triangles.empty() ? 1.0 : double(e.mesh.triangles.size()) / double(e.mc.triangles.size())) << "\n";
   return e;
 }
 
@@ -396,7 +404,7 @@ int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   if (iso <= scene.volume.minValue() || iso > scene.volume.maxValue())
     err << "hybrid-octree: warning: --iso " << iso << " is outside the data's crossing range (" << scene.volume.minValue() << ", "
         << scene.volume.maxValue() << "]: the surface is empty\n";
-  const ExportedSurface e = exportedSurface(scene, iso, o.surface, o.closed, o.normals, o.input.progress, out);
+  const ExportedSurface e = exportedSurface(scene, iso, o.surface, o.closed, o.normals, o.check, o.input.progress, out);
   const TriangleMesh& mesh = e.mesh;
   const TriangleMesh& mc = e.mc;
   const Volume& v = scene.volume;

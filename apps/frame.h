@@ -145,16 +145,17 @@ RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream&
 
 /// An isosurface as `export` writes it, in patient coordinates (LPS mm): @p kind dmc (DiscMC),
 /// octree (the Surface Octree's, coplanar polygons merged) or mc (classic Marching Cubes), capped on
-/// the volume's faces when @p closed, with gradient normals when @p normals; and classic Marching
-/// Cubes' surface beside it (`export --check` compares them). Prints what it made on @p out.
+/// the volume's faces when @p closed, with gradient normals when @p normals; and, when
+/// @p againstMc, classic Marching Cubes' surface beside it (`export --check` compares them; not
+/// made otherwise: it doubles the extraction's time and memory). Prints what it made on @p out.
 /// @throw ValueError for another kind, or a scene without its samples.
 struct ExportedSurface {
   TriangleMesh mesh, mc;
   size_t polygons = 0;
   double ms = 0, mcMs = 0;
 };
-ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string& kind, bool closed, bool normals, const Progress* progress,
-                                std::ostream& out);
+ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string& kind, bool closed, bool normals, bool againstMc,
+                                const Progress* progress, std::ostream& out);
 
 /// Sets @p job's view, look, quality and background from @p o's flags for @p scene: the transfer
 /// function (file, preset, or one for the data's range) and the camera (a file's, the --eye given,

@@ -327,7 +327,7 @@ class PyScene {
     std::ostringstream out;
     py::gil_scoped_release release;
     const Busy busy(*this);
-    return exportedSurface(mRenderer->scene(), float(iso), kind, closed, normals, nullptr, out);
+    return exportedSurface(mRenderer->scene(), float(iso), kind, closed, normals, false, nullptr, out);
   }
 
   static TransferFunction transferFunctionOf(const py::handle& v) {

@@ -516,9 +516,13 @@ TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("(from the scene)"));
   EXPECT_THAT(r.out, HasSubstr("manifold yes, closed yes"));
-  r = run({"export", nhdr, "--iso", "0", "-o", dir.file("s.stl"), "--surface", "mc"});
+  EXPECT_THAT(r.out, HasSubstr("vs mc    "));  // made for --check
+  r = run({"export", nhdr, "--iso", "0", "-o", dir.file("s.stl"), "--surface", "mc", "--check"});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("triangles ratio 1.000"));
+  r = run({"export", nhdr, "--iso", "0", "-o", dir.file("d.ply")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, Not(HasSubstr("vs mc")));  // classic Marching Cubes is made only to be compared with
   r = run({"export", nhdr, "--iso", "1000", "-o", dir.file("empty.ply")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(lines(r.err), 2u) << r.err;  // the file's missing orientation, and the isovalue
