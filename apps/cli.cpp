@@ -312,8 +312,12 @@ struct ExportOptions {
   std::string output, surface = "dmc";
   std::optional<double> iso;
   bool check = false, closed = false, normals = false;
+  std::optional<double> memoryMb;  // a scene file read paged (--surface octree): its octrees and cache
+  /// Only the Surface Octree's surface is made through a scene's cache; the others need its samples.
+  bool paged() const { return surface == "octree" && !closed && !check && !input.rawLayout() && isSceneFile(input.path); }
   std::string validate() const {
     if (!iso) return "--iso missing (expected the isovalue in data units)";
+    if (memoryMb && !(*memoryMb >= 1.0 && *memoryMb <= 1e9)) return "--memory must be megabytes in [1, 1e9]";
     if (!isFloat(*iso)) return "--iso must be a finite number within the float range (|x| <= 3.4e38)";
     if (output.empty()) return "-o missing (expected mesh.ply, .obj, .stl or .off)";
     const std::string ext = fileExtension(output);
@@ -340,7 +344,8 @@ std::string checkLine(const MeshCheck& c) {
 ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string& kind, bool closed, bool normals, bool againstMc,
                                 const Progress* progress, std::ostream& out) {
   if (kind != "dmc" && kind != "mc" && kind != "octree") HYB_THROW(ValueError, "surface kind '", kind, "' invalid (expected dmc, octree or mc)");
-  if (!scene.volume.hasSamples()) HYB_THROW(ValueError, "the surface of a scene read paged needs its samples (load it whole)");
+  if (!scene.volume.hasSamples() && (kind != "octree" || closed || againstMc))
+    HYB_THROW(ValueError, "the ", kind, closed ? " closed" : "", " surface of a scene read paged needs its samples (load it whole)");
   // Closed: the volume padded by one sample well below the isovalue on every face, so the surface
   // is capped where it meets them (half a voxel outside the data, DiscMC's midpoints).
   std::optional<Volume> padded;
@@ -376,13 +381,19 @@ ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string
   } else {
     const bool stored = !closed && scene.surface && scene.surface->isovalue() == iso;
     const auto ts = Clock::now();
-    const SurfaceOctree so = stored ? *scene.surface : SurfaceOctree::build(v, octree, iso);
+    // A paged scene's is extracted through its cache, a leaf at a time.
+    const SurfaceOctree so = closed ? SurfaceOctree::build(v, octree, iso) : sceneSurface(scene, iso, progress);
     out << surfaceSummary(so, stored ? std::nullopt : std::optional<double>(msSince(ts)));
     const DiscreteMesh d = so.reconstruct(kMaxDim, progress);  // one mesh: merge coplanar polygons across bricks too
     e.polygons = d.faceCount();
     e.mesh = fineMeshToTriangles(d, v.spacing());
   }
-  if (normals) setGradientNormals(v, &e.mesh);
+  if (normals) {
+    if (closed)
+      setGradientNormals(v, &e.mesh);
+    else
+      setSceneNormals(scene, &e.mesh);  // a paged scene's through its cache, the same normals
+  }
   // Patient coordinates (LPS mm), as the volume's own.
   toPatientSpace(v.frame(), &e.mesh);
   toPatientSpace(v.frame(), &e.mc);
@@ -399,7 +410,8 @@ namespace {
 
 int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   double buildMs = 0;
-  const Scene scene = loadOrBuild(o.input, out, err, &buildMs);
+  const uint64_t memoryBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
+  const Scene scene = loadOrBuild(o.input, out, err, &buildMs, VolumeOctreeOptions{}, SceneLoadOptions{!o.paged(), memoryBytes});
   const float iso = float(*o.iso);
   if (iso <= scene.volume.minValue() || iso > scene.volume.maxValue())
     err << "hybrid-octree: warning: --iso " << iso << " is outside the data's crossing range (" << scene.volume.minValue() << ", "
@@ -595,6 +607,9 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   exportCmd->add_flag("--closed", exportOpts.closed,
                       "cap the surface where it meets the volume's faces (as if the volume were padded below the isovalue): a closed mesh to print");
   exportCmd->add_flag("--normals", exportOpts.normals, "write vertex normals from the volume's gradient (.ply and .obj)");
+  exportCmd->add_option("--memory", exportOpts.memoryMb,
+                        "MB a scene file holds when its Surface Octree's surface is exported (--surface octree, without --closed or --check): "
+                        "its octrees and the cache of decompressed blocks the surface is extracted through (default: an eighth of the physical memory)");
 
   CompareOptions compare;
   CLI::App* compareCmd = app.add_subcommand("compare", "PSNR and SSIM of an image against a reference image, and where they differ");

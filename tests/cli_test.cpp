@@ -516,6 +516,18 @@ TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("(from the scene)"));
   EXPECT_THAT(r.out, HasSubstr("manifold yes, closed yes"));
+  // A scene's Surface Octree surface is extracted through its cache, a leaf at a time: the same file
+  // as from its samples loaded whole (--check loads them), within a memory limit the samples exceed.
+  r = run({"build", nhdr, "-o", dir.file("p.hoct")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  r = run({"--memory-limit", "0.004", "export", dir.file("p.hoct"), "--iso", "0", "--surface", "octree", "--normals", "--memory", "1", "-o",
+           dir.file("paged.ply")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  expectBadInput({"--memory-limit", "0.004", "export", dir.file("p.hoct"), "--iso", "0", "--surface", "octree", "--check", "-o", dir.file("w.ply")},
+                 "more than the memory limit");
+  r = run({"export", dir.file("p.hoct"), "--iso", "0", "--surface", "octree", "--normals", "--check", "-o", dir.file("whole.ply")});
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(test::readText(dir.file("paged.ply")), test::readText(dir.file("whole.ply")));
   EXPECT_THAT(r.out, HasSubstr("vs mc    "));  // made for --check
   r = run({"export", nhdr, "--iso", "0", "-o", dir.file("s.stl"), "--surface", "mc", "--check"});
   ASSERT_EQ(r.status, 0) << r.err;
