@@ -64,6 +64,7 @@ std::optional<RawLayout> VolumeInput::rawLayout() const {
   for (const char* described : {".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".nii.gz", ".hdr", ".inv3", ".hoct"})
     if (ext == described)
       HYB_THROW(ValueError, path, ": a ", ext, " file carries its own layout (--raw-dims, --raw-type and --raw-spacing are for headerless raw data)");
+  if (isSceneFile(path)) HYB_THROW(ValueError, path, ": a scene file carries its own layout (--raw-dims, --raw-type and --raw-spacing are for headerless raw data)");
   if (std::filesystem::is_directory(path, ec))
     HYB_THROW(ValueError, path, ": a directory (DICOM) carries its own layout (--raw-dims, --raw-type and --raw-spacing are for headerless raw data)");
   RawLayout l;
@@ -180,7 +181,7 @@ Camera readCameraFile(const std::string& path) {
   for (const auto& [p, key] : {std::pair{c.eye, "eye"}, std::pair{c.center, "center"}})
     if (!withinCameraRange(p)) HYB_THROW(IoError, path, ": camera field '", key, "' must be within 1e6 mm of the patient origin");
   if (glm::length(c.eye - c.center) == 0) HYB_THROW(IoError, path, ": camera fields 'eye' and 'center' must differ");
-  if (glm::length(glm::cross(c.center - c.eye, c.up)) == 0) HYB_THROW(IoError, path, ": camera field 'up' must not be parallel to the view direction (eye to center)");
+  if (glm::length(glm::cross(c.center - c.eye, c.up)) == 0) HYB_THROW(IoError, path, ": camera field 'up' must be non-zero and not parallel to the view direction (eye to center)");
   return c;
 }
 
@@ -433,7 +434,7 @@ void setUpFrame(const RenderOptions& o, const Scene& scene, RenderJob* out, std:
     camera.up = o.up;
     if (glm::length(camera.eye - camera.center) == 0) HYB_THROW(ValueError, "--eye and --center must differ (the view direction runs from the eye to the center)");
     if (glm::length(glm::cross(camera.center - camera.eye, camera.up)) == 0)
-      HYB_THROW(ValueError, "--up must not be parallel to the view direction (--eye to --center)");
+      HYB_THROW(ValueError, "--up must be non-zero and not parallel to the view direction (--eye to --center)");
     camera.fovDeg = o.fov;
     camera.ortho = o.ortho;
     camera.orthoHeight = glm::length(v.extentMm()) * 1.05;

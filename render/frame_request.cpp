@@ -13,7 +13,7 @@ std::string View::validate() const {
   auto finite = [](const glm::dvec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); };
   if (!finite(c.eye) || !finite(c.center) || !finite(c.up)) return "camera eye, center and up must be finite (patient mm)";
   if (glm::length(c.eye - c.center) == 0) return "camera eye and center must differ (the view direction runs from the eye to the center)";
-  if (glm::length(glm::cross(c.center - c.eye, c.up)) == 0) return "camera up must not be parallel to the view direction (eye to center)";
+  if (glm::length(glm::cross(c.center - c.eye, c.up)) == 0) return "camera up must be non-zero and not parallel to the view direction (eye to center)";
   if (c.width < 1 || c.height < 1 || c.width > kMaxRenderEdge || c.height > kMaxRenderEdge)
     return detail::concat("--size ", c.width, "x", c.height, " invalid (expected 1..", kMaxRenderEdge, " pixels each)");
   if (!(c.fovDeg >= kMinFovDeg && c.fovDeg < kMaxFovDeg)) return "the field of view (--fov, narrowed by --zoom) must be in [0.1, 179) degrees";

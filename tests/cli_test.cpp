@@ -528,6 +528,8 @@ TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
   r = run({"export", dir.file("p.hoct"), "--iso", "0", "--surface", "octree", "--normals", "--check", "-o", dir.file("whole.ply")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(test::readText(dir.file("paged.ply")), test::readText(dir.file("whole.ply")));
+  std::filesystem::copy_file(dir.file("p.hoct"), dir.file("p.bin"));  // known by its magic, whatever its name
+  expectBadInput({"info", dir.file("p.bin"), "--raw-dims", "9,7,5", "--raw-type", "int16"}, "p.bin: a scene file carries its own layout");
   EXPECT_THAT(r.out, HasSubstr("vs mc    "));  // made for --check
   r = run({"export", nhdr, "--iso", "0", "-o", dir.file("s.stl"), "--surface", "mc", "--check"});
   ASSERT_EQ(r.status, 0) << r.err;
@@ -696,7 +698,7 @@ TEST(Cli, ExtremeNumbersAreRefusedNamingTheirFlagOrRenderSanely) {
   expectBadInput({"render", nhdr, "--eye", "1e30,0,0", "-o", png}, "--eye must be within 1e6 mm");
   expectBadInput({"render", nhdr, "--eye", "0,-50,0", "--center", "0,0,1e300", "-o", png}, "--center");
   expectBadInput({"render", nhdr, "--eye", "0,-50,0", "--center", "0,-50,0", "-o", png}, "--eye and --center must differ");
-  expectBadInput({"render", nhdr, "--eye", "0,-50,0", "--center", "0,0,0", "--up", "0,1,0", "-o", png}, "--up must not be parallel");
+  expectBadInput({"render", nhdr, "--eye", "0,-50,0", "--center", "0,0,0", "--up", "0,1,0", "-o", png}, "--up must be non-zero and not parallel");
   expectBadInput({"render", nhdr, "--focus", "1e7,0,0", "-o", png}, "--focus");
   expectBadInput({"render", nhdr, "--cut", "0,0,1e7,0,0,1", "-o", png}, "--cut");
   expectBadInput({"render", nhdr, "--voi", "-1e300,0,0,1,1,1", "-o", png}, "--voi");

@@ -382,7 +382,8 @@ TEST(Slices, OpacityDoesNotDependOnTheSliceSpacing) {
 // The viewer's moving frames space their planes 1.0-2.5 voxels apart. A coarse brick keeps about
 // its own spacing in voxels there (a plane every 1.5 voxels at two voxels a texel), not the same
 // multiple of the frame's (every 4.5 voxels at 1.5: woodgrain on a shell the transfer function
-// draws narrow): at three times the default spacing its planes are the default's, and so is the image.
+// draws narrow): at three times the default spacing such a brick's planes are the default's, and so
+// is the image.
 TEST(Slices, CoarseBricksKeepTheirSpacingInVoxelsAtAWideBaseSpacing) {
   gl();
   const Volume v = test::sphereVolume({33, 33, 33}, 11.0);
