@@ -37,8 +37,8 @@ namespace {
 // Base slice spacings between a brick's slices when its texels are @p step voxels apart: full
 // resolution keeps the base spacing (half a voxel by default: twice a texel), two voxels a texel
 // take three (4/3 a texel), coarser levels twice their step (once a texel: DESIGN 4's slab width;
-// their knots hold the data smoothed by the lattice's tent). Coarser bricks' planes are a subset of
-// finer ones', and their fragments cut the stretch they stand for to the brick's box (SEGMENTS in
+// their knots hold the data smoothed by the lattice's tent). Every brick's planes lie on the base
+// grid, and coarse fragments cut the stretch they stand for to the brick's box (SEGMENTS in
 // the slice shader), so a level change shows no seam of sampling (docs/multires.md measures the
 // choices).
 int slicePeriod(int step) { return step == 1 ? 1 : step == 2 ? 3 : 2 * step; }
