@@ -69,11 +69,23 @@ void put(std::vector<uint8_t>* out, const T& v) {
   std::memcpy(out->data() + at, &v, sizeof(T));
 }
 
+// A block's bytes are not aligned to their type (a uint8 block's gradients start at its knot
+// count, a row's blocks follow each other byte for byte): its values are copied, never cast.
+template <class T>
+void storeAt(uint8_t* bytes, size_t i, T v) {
+  std::memcpy(bytes + i * sizeof(T), &v, sizeof(T));
+}
+template <class T>
+T loadAt(const uint8_t* bytes, size_t i) {
+  T v;
+  std::memcpy(&v, bytes + i * sizeof(T), sizeof(T));
+  return v;
+}
+
 // The value of knot @p i of a block's bytes, exactly as the in-memory source gives it.
 template <class T>
 float valueOf(const StoreLevel& l, const uint8_t* bytes, size_t i) {
-  T v;
-  std::memcpy(&v, bytes + i * sizeof(T), sizeof(T));
+  const T v = loadAt<T>(bytes, i);
   if constexpr (std::is_same_v<T, uint16_t>)
     if (l.coded) return l.offset + l.scale * float(v);
   return float(v);
@@ -188,21 +200,21 @@ void KnotStoreWriter::plane(const SampleWindow& w, int z) {
         const glm::ivec3 bi(b % nb.x, by0 + b / nb.x, r), d = blockDims(l, bi), lo = bi * kStoreBlock;
         uint8_t* out = row.bytes.data() + row.offsets[size_t(b)];
         const size_t first = size_t(kk) * size_t(d.x) * size_t(d.y);
+        size_t q = first;
         if (l.coded) {
-          uint16_t* q = reinterpret_cast<uint16_t*>(out) + first;
           for (int j = 0; j < d.y; ++j)
-            for (int i = 0; i < d.x; ++i) *q++ = mKnots->code(s, glm::ivec3(lo.x + i, lo.y + j, k));
+            for (int i = 0; i < d.x; ++i) storeAt<uint16_t>(out, q++, mKnots->code(s, glm::ivec3(lo.x + i, lo.y + j, k)));
         } else {
-          T* q = reinterpret_cast<T*>(out) + first;
           for (int j = 0; j < d.y; ++j)
-            for (int i = 0; i < d.x; ++i) *q++ = plane[size_t(px[size_t(lo.x + i)]) + size_t(n.x) * size_t(py[size_t(lo.y + j)])];
+            for (int i = 0; i < d.x; ++i) storeAt<T>(out, q++, plane[size_t(px[size_t(lo.x + i)]) + size_t(n.x) * size_t(py[size_t(lo.y + j)])]);
         }
         if (l.gradients) {
-          uint16_t* g = reinterpret_cast<uint16_t*>(out + blockKnots(d) * scalarSize(l.type)) + 3 * first;
+          uint8_t* g = out + blockKnots(d) * scalarSize(l.type);
+          size_t at = 3 * first;
           for (int j = 0; j < d.y; ++j)
             for (int i = 0; i < d.x; ++i) {
-              const glm::vec3 q = w.gradientAt(px[size_t(lo.x + i)], py[size_t(lo.y + j)], z);
-              for (int a = 0; a < 3; ++a) *g++ = toBfloat16(q[a]);
+              const glm::vec3 grad = w.gradientAt(px[size_t(lo.x + i)], py[size_t(lo.y + j)], z);
+              for (int a = 0; a < 3; ++a) storeAt<uint16_t>(g, at++, toBfloat16(grad[a]));
             }
         }
       }
@@ -561,7 +573,7 @@ void KnotStore::read(int s, const glm::ivec3& lo, const glm::ivec3& count, float
         const std::shared_ptr<const Block> blk = block(level, b);
         const glm::ivec3 from = glm::max(lo, base), to = glm::min(hi, base + blk->dims - 1);
         const uint8_t* bytes = blk->bytes.data();
-        const uint16_t* g = reinterpret_cast<const uint16_t*>(bytes + blockKnots(blk->dims) * scalarSize(l.type));
+        const uint8_t* g = bytes + blockKnots(blk->dims) * scalarSize(l.type);
         detail::withFileType(l.type, [&](auto zero) {
           using T = decltype(zero);
           for (int z = from.z; z <= to.z; ++z)
@@ -571,8 +583,9 @@ void KnotStore::read(int s, const glm::ivec3& lo, const glm::ivec3& count, float
               for (int x = 0; x <= to.x - from.x; ++x) values[dst + size_t(x)] = valueOf<T>(l, bytes, src + size_t(x));
               if (gradients)
                 for (int x = 0; x <= to.x - from.x; ++x) {
-                  const uint16_t* q = g + 3 * (src + size_t(x));
-                  gradients[dst + size_t(x)] = glm::vec3(fromBfloat16(q[0]), fromBfloat16(q[1]), fromBfloat16(q[2]));
+                  const size_t at = 3 * (src + size_t(x));
+                  gradients[dst + size_t(x)] =
+                      glm::vec3(fromBfloat16(loadAt<uint16_t>(g, at)), fromBfloat16(loadAt<uint16_t>(g, at + 1)), fromBfloat16(loadAt<uint16_t>(g, at + 2)));
                 }
             }
         });

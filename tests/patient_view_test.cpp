@@ -263,7 +263,7 @@ TEST(PatientView, TheDefaultCameraDoesNotDependOnTheStorageOrder) {
 // orthographic), from far fewer points, each a corner of a visible cell.
 TEST(PatientView, VisiblePointsCarryTheHullOfEveryVisibleCorner) {
   const TransferFunction tf({{0.3f, {1, 1, 1}, 0.0f}, {0.5f, {1, 1, 1}, 0.1f}, {3.0f, {1, 1, 1}, 0.1f}}, "ball");
-  const Copy& c = copies()[3];  // permuted and oblique to the grid's planes
+  const Copy c = copies()[3];  // permuted and oblique to the grid's planes
   Volume v = test::makeVolume(c.dims, [&](int a, int b, int k) { return phantom(c.origin + c.direction * (glm::dvec3(a, b, k) * c.spacing)); }, c.spacing);
   v.setFrame(makePatientFrame(c.direction, c.origin, c.name));
   const std::vector<glm::dvec3> hull = visiblePoints(v, VolumeOctree::build(v), tf);
