@@ -410,7 +410,7 @@ namespace {
 
 int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   double buildMs = 0;
-  const uint64_t memoryBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
+  const uint64_t memoryBytes = sceneMemoryBytes(o.memoryMb);
   const Scene scene = loadOrBuild(o.input, out, err, &buildMs, VolumeOctreeOptions{}, SceneLoadOptions{!o.paged(), memoryBytes});
   const float iso = float(*o.iso);
   if (iso <= scene.volume.minValue() || iso > scene.volume.maxValue())
@@ -515,7 +515,7 @@ int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
   so.textureLimitBytes = uint64_t(o.textureMb * 1024 * 1024);
   // A scene file is read paged within --memory, as render reads it: a study larger than memory
   // opens; the surfaces made of it and the brick textures kept count against it too.
-  so.memoryBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
+  so.memoryBytes = sceneMemoryBytes(o.memoryMb);
   if (o.volumeGiven || o.dataDir.empty()) {
     so.volume = o.input.path;
     so.series = o.input.series;

@@ -370,12 +370,16 @@ void RenderOptions::add(CLI::App* cmd) {
   addVec3(cmd, "--focus", &quality.focus, "region of interest x,y,z, patient mm (LPS)");
 }
 
+uint64_t sceneMemoryBytes(const std::optional<double>& memoryMb) {
+  return memoryMb ? uint64_t(*memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
+}
+
 RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream& err, bool keepTextures) {
   RenderJob job;
   VolumeOctreeOptions octree;
   octree.prefilter = o.prefilter;
   // A scene file is read paged: its octrees and the cache its bricks come through hold --memory.
-  const uint64_t memoryBytes = o.memoryMb ? uint64_t(*o.memoryMb * 1024.0 * 1024.0) : defaultMemoryLimit() / 4;
+  const uint64_t memoryBytes = sceneMemoryBytes(o.memoryMb);
   Scene scene = loadOrBuild(o.input, out, err, &job.buildMs, octree, SceneLoadOptions{false, memoryBytes});
   if (scene.knots) {
     const uint64_t cache = scene.knots->cacheStats().limit, octreeBytes = scene.octree.bytesUsed();

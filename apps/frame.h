@@ -137,6 +137,10 @@ struct RenderJob {
   double buildMs = 0;  // the octree's build (0: a scene file's)
 };
 
+/// The bytes `--memory MB` gives a scene file read paged: its octrees, its surfaces and its cache
+/// (default: an eighth of the physical memory).
+uint64_t sceneMemoryBytes(const std::optional<double>& memoryMb);
+
 /// Loads the scene, chooses the transfer function (file, preset, or one for the data's range) and
 /// sets up the camera (a file's, the --eye given, or the view framing what is visible), printing
 /// what it did on @p out and warnings (the readers', an isovalue outside the data) on @p err.
