@@ -60,13 +60,12 @@ std::optional<RawLayout> VolumeInput::rawLayout() const {
   if (rawDims.empty() && rawType.empty() && rawSpacing.empty()) return std::nullopt;
   // A file that describes itself is never read as raw: its header would be taken for samples.
   std::error_code ec;
-  const std::string ext = fileExtension(path);
-  for (const char* described : {".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".nii.gz", ".hdr", ".inv3", ".hoct"})
-    if (ext == described)
-      HYB_THROW(ValueError, path, ": a ", ext, " file carries its own layout (--raw-dims, --raw-type and --raw-spacing are for headerless raw data)");
-  if (isSceneFile(path)) HYB_THROW(ValueError, path, ": a scene file carries its own layout (--raw-dims, --raw-type and --raw-spacing are for headerless raw data)");
-  if (std::filesystem::is_directory(path, ec))
-    HYB_THROW(ValueError, path, ": a directory (DICOM) carries its own layout (--raw-dims, --raw-type and --raw-spacing are for headerless raw data)");
+  const std::string described = volumeFormatOf(path) != VolumeFormat::None ? fileExtension(path) + " file"
+                                : isSceneFile(path)                        ? "scene file"
+                                : std::filesystem::is_directory(path, ec)  ? "directory (DICOM)"
+                                                                           : "";
+  if (!described.empty())
+    HYB_THROW(ValueError, path, ": a ", described, " carries its own layout (--raw-dims, --raw-type and --raw-spacing are for headerless raw data)");
   RawLayout l;
   if (!rawDims.empty()) {
     const glm::dvec3 d = parseVec3(rawDims, "--raw-dims");

@@ -63,17 +63,33 @@ std::string oneLine(const std::string& message) {
   return out;
 }
 
+}  // namespace
+
+VolumeFormat volumeFormatOf(const std::string& path) {
+  const std::string ext = fileExtension(path);
+  if (ext == ".nrrd" || ext == ".nhdr") return VolumeFormat::Nrrd;
+  if (ext == ".mhd" || ext == ".mha") return VolumeFormat::MetaImage;
+  if (ext == ".nii" || ext == ".nii.gz" || ext == ".hdr") return VolumeFormat::Nifti;
+  if (ext == ".inv3") return VolumeFormat::Inv3;
+  return VolumeFormat::None;
+}
+
+namespace {
+
 Volume readByFormat(const std::string& path, const RawLayout* raw, const std::string& series, const Progress* progress) {
   if (raw) return readRaw(path, *raw);
   std::error_code ec;
   if (!fs::exists(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
   if (fs::is_directory(path, ec)) return readDicomSeries(path, series, progress);
   if (!series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", path, " is a file)");
+  switch (volumeFormatOf(path)) {
+    case VolumeFormat::Nrrd: return readNrrd(path);
+    case VolumeFormat::MetaImage: return readMetaImage(path);
+    case VolumeFormat::Nifti: return readNifti(path);
+    case VolumeFormat::Inv3: return readInv3(path);
+    case VolumeFormat::None: break;
+  }
   const std::string ext = fileExtension(path);
-  if (ext == ".nrrd" || ext == ".nhdr") return readNrrd(path);
-  if (ext == ".mhd" || ext == ".mha") return readMetaImage(path);
-  if (ext == ".nii" || ext == ".nii.gz" || ext == ".hdr") return readNifti(path);
-  if (ext == ".inv3") return readInv3(path);
   if (ext == ".raw")
     HYB_THROW(ValueError, path, ": raw data needs --raw-dims X,Y,Z and --raw-type (and optionally --raw-spacing, --raw-endian)");
   HYB_THROW(IoError, path, ": unknown volume format '", ext,
@@ -116,10 +132,13 @@ std::unique_ptr<PlaneSource> detail::openStreamedPlanes(const std::string& path,
     }
     if (fs::is_directory(path, ec)) return dicomPlanes(path, series);
     if (!series.empty() || !fs::is_regular_file(path, ec)) return nullptr;  // readVolume says what is wrong
-    const std::string ext = fileExtension(path);
-    if (ext == ".nrrd" || ext == ".nhdr") return nrrdPlanes(path);
-    if (ext == ".mhd" || ext == ".mha") return metaImagePlanes(path);
-    if (ext == ".nii" || ext == ".nii.gz" || ext == ".hdr") return niftiPlanes(path);
+    switch (volumeFormatOf(path)) {
+      case VolumeFormat::Nrrd: return nrrdPlanes(path);
+      case VolumeFormat::MetaImage: return metaImagePlanes(path);
+      case VolumeFormat::Nifti: return niftiPlanes(path);
+      case VolumeFormat::Inv3:  // read whole (readVolume)
+      case VolumeFormat::None: break;
+    }
     return nullptr;
   });
 }

@@ -30,6 +30,11 @@ struct RawLayout {
   uint64_t headerBytes = 0;            ///< bytes to skip before the samples
 };
 
+/// The format a volume file's extension names: NRRD (.nrrd .nhdr), MetaImage (.mhd .mha), NIfTI
+/// (.nii .nii.gz .hdr) or InVesalius (.inv3); None for any other (raw samples, a scene file).
+enum class VolumeFormat { None, Nrrd, MetaImage, Nifti, Inv3 };
+VolumeFormat volumeFormatOf(const std::string& path);
+
 /// Reads any supported volume, chosen by extension (.nrrd .nhdr .mhd .mha .nii .nii.gz .inv3), by
 /// being a directory (DICOM series: @p series names one by its Series Instance UID), or by @p raw
 /// being non-null (raw samples).
