@@ -6,7 +6,6 @@
 #include <cstring>
 #include <filesystem>
 #include <functional>
-#include <fstream>
 #include <map>
 #include <ostream>
 
@@ -317,9 +316,18 @@ KnotStoreWriter storeWriterFor(const std::string& path, const PlaneSource& plane
 }
 
 bool isSceneFile(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  char m[8] = {};
-  return in.read(m, 8) && std::memcmp(m, kMagic, 8) == 0;
+  // Through InputFile: a FIFO named like a volume must be refused by its reader, not block here.
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) return false;
+  try {
+    const InputFile file(path);
+    uint8_t m[8] = {};
+    if (file.size() < 8) return false;
+    file.read(0, 8, m);
+    return std::memcmp(m, kMagic, 8) == 0;
+  } catch (const IoError&) {
+    return false;
+  }
 }
 
 Scene loadScene(const std::string& path, const SceneLoadOptions& options) {

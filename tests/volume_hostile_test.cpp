@@ -22,10 +22,12 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "hybrid_octree/hybrid_io.h"
 #include "render/transfer_function.h"
 #include "test_util.h"
 #include "volume/file_util.h"
 #include "volume/memory_limit.h"
+#include "volume/plane_source.h"
 #include "volume/volume_io.h"
 
 namespace hyb {
@@ -60,8 +62,10 @@ void expectRefused(const std::function<void()>& read, const std::string& named, 
   for (char c : msg) ASSERT_TRUE(static_cast<unsigned char>(c) >= 0x20 && c != 0x7f) << "control byte in message: " << msg;
 }
 
+// Read whole and opened plane by plane (the streamed build's path).
 void expectVolumeRefused(const std::string& path, const std::string& named, const std::string& what, const RawLayout* raw = nullptr) {
   expectRefused([&] { readVolume(path, raw); }, named, what);
+  expectRefused([&] { openPlanes(path, raw); }, named, what);
 }
 
 std::vector<uint8_t> concat(const std::string& header, const std::vector<uint8_t>& data) {
@@ -114,13 +118,17 @@ const std::string kNrrd16 = "NRRD0004\ntype: short\ndimension: 3\nsizes: 4 3 5\n
 
 TEST(HostileInputs, FifosAreRefusedWithoutBlocking) {
   TempDir dir;
-  for (const char* name : {"v.nrrd", "v.mha", "v.nii", "v.inv3", "v.raw", "data.raw", "f.tf"})
-    ASSERT_EQ(::mkfifo(dir.file(name).c_str(), 0600), 0) << name;
+  const char* kVolumes[] = {"v.nrrd", "v.nhdr", "v.mha", "v.mhd", "v.nii", "v.nii.gz", "v.hdr", "v.inv3"};
+  for (const char* name : kVolumes) ASSERT_EQ(::mkfifo(dir.file(name).c_str(), 0600), 0) << name;
+  for (const char* name : {"v.raw", "v.hoct", "data.raw", "f.tf", "i.img"}) ASSERT_EQ(::mkfifo(dir.file(name).c_str(), 0600), 0) << name;
   alarm(60);  // a reader that blocks on a FIFO must fail the run, not hang it
-  for (const char* name : {"v.nrrd", "v.mha", "v.nii", "v.inv3"}) expectVolumeRefused(dir.file(name), name, "FIFO");
+  for (const char* name : kVolumes) expectVolumeRefused(dir.file(name), name, "FIFO");
   RawLayout raw;
   raw.dims = {2, 2, 2};
   expectVolumeRefused(dir.file("v.raw"), "v.raw", "FIFO", &raw);
+  expectVolumeRefused(dir.file("v.hoct"), "v.hoct", "FIFO", &raw);  // a scene's name with raw flags: still not opened
+  expectRefused([&] { loadScene(dir.file("v.hoct")); }, "v.hoct", "FIFO");
+  EXPECT_FALSE(isSceneFile(dir.file("v.hoct")));
   writeText(dir.file("d.nhdr"), "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\ndata file: data.raw\n");
   expectVolumeRefused(dir.file("d.nhdr"), "data.raw", "expected a regular file, found a FIFO");
   writeText(dir.file("d.mhd"), "NDims = 3\nDimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = data.raw\n");

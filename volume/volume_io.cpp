@@ -82,6 +82,7 @@ Volume readByFormat(const std::string& path, const RawLayout* raw, const std::st
   if (!fs::exists(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
   if (fs::is_directory(path, ec)) return readDicomSeries(path, series, progress);
   if (!series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", path, " is a file)");
+  InputFile{path};  // what is not a regular file is refused here, whatever its name, before a reader opens it
   switch (volumeFormatOf(path)) {
     case VolumeFormat::Nrrd: return readNrrd(path);
     case VolumeFormat::MetaImage: return readMetaImage(path);
@@ -92,8 +93,10 @@ Volume readByFormat(const std::string& path, const RawLayout* raw, const std::st
   const std::string ext = fileExtension(path);
   if (ext == ".raw")
     HYB_THROW(ValueError, path, ": raw data needs --raw-dims X,Y,Z and --raw-type (and optionally --raw-spacing, --raw-endian)");
+  if (ext == ".hoct")
+    HYB_THROW(IoError, path, ": not a hybrid-octree scene file (expected one written by hybrid-octree build, starting with HYBOCT)");
   HYB_THROW(IoError, path, ": unknown volume format '", ext,
-            "' (expected .nrrd .nhdr .mhd .mha .nii .nii.gz .inv3, a DICOM directory, or raw with --raw-dims)");
+            "' (expected .nrrd .nhdr .mhd .mha .nii .nii.gz .hdr .inv3, a DICOM directory, or raw with --raw-dims)");
 }
 
 }  // namespace
@@ -131,7 +134,8 @@ std::unique_ptr<PlaneSource> detail::openStreamedPlanes(const std::string& path,
       return streamedPlanes(SampleData{path, raw->headerBytes, 0, "header", false, raw->type, raw->bigEndian}, std::move(description), path);
     }
     if (fs::is_directory(path, ec)) return dicomPlanes(path, series);
-    if (!series.empty() || !fs::is_regular_file(path, ec)) return nullptr;  // readVolume says what is wrong
+    if (!series.empty()) return nullptr;  // readVolume says what is wrong
+    InputFile{path};  // as readVolume: a FIFO or device is refused before any reader opens it
     switch (volumeFormatOf(path)) {
       case VolumeFormat::Nrrd: return nrrdPlanes(path);
       case VolumeFormat::MetaImage: return metaImagePlanes(path);
