@@ -809,17 +809,17 @@ TEST(DicomPlanes, StreamedPlanesAreTheWholeReadBitForBit) {
       {"uint16", [](int) { return pixels(gdcm::PixelFormat::UINT16, 16, 1.0, 0.0); },
        [](int i, int j, int k) { return 65000 + expectedValue(i, j, k); }, ScalarType::UInt16, ScalarType::UInt16},
       {"int16, 12 bits, HU", [](int) { return pixels(gdcm::PixelFormat::INT16, 12, 1.0, -1024.0); },
-       [](int i, int j, int k) { return 5 * expectedValue(i, j, k); }, ScalarType::Int16, ScalarType::Int32},
+       [](int i, int j, int k) { return 5 * expectedValue(i, j, k); }, ScalarType::Int16, ScalarType::Int16},
       {"uint16, 12 bits, HU", [](int) { return pixels(gdcm::PixelFormat::UINT16, 12, 1.0, -1024.0); }, hu, ScalarType::Int16,
-       ScalarType::Int32},
+       ScalarType::UInt16},
       {"slopes and intercepts per slice", [](int k) { return pixels(gdcm::PixelFormat::UINT16, 12, 1.0 + k % 2, -1024.0 + 10.0 * k); }, hu,
-       ScalarType::Int16, ScalarType::Int32},
+       ScalarType::Int16, ScalarType::UInt16},
       {"fractional slopes", [](int k) { return pixels(gdcm::PixelFormat::UINT16, 16, 0.25 * (k + 1), 0.5); }, hu, ScalarType::Float32,
-       ScalarType::Float32},
+       ScalarType::UInt16},
       {"uint8", [](int) { return pixels(gdcm::PixelFormat::UINT8, 8, 1.0, 0.0); },
        [](int i, int j, int k) { return expectedValue(i, j, k) / 2 + 150; }, ScalarType::UInt8, ScalarType::UInt8},
       {"RLE, uint16, 12 bits, HU", [](int) { return pixels(gdcm::PixelFormat::UINT16, 12, 1.0, -1024.0, true); }, hu, ScalarType::Int16,
-       ScalarType::Int32}};
+       ScalarType::UInt16}};
   TempDir dir;
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
@@ -946,6 +946,41 @@ TEST(DicomPlanes, BuildStreamsTheSeriesAndInfoReadsIt) {
   EXPECT_THAT(r.out, HasSubstr("rescale  slope 1, intercept -1024 (applied)\n"));
   r = test::run({"info", dir.file("s.hoct")});
   ASSERT_EQ(r.status, 0) << r.err;
+}
+
+// A rescale whose values leave the float range (held as float at widest) is refused naming the
+// slice and the tag, read whole or streamed, and by the command line before it writes anything.
+TEST(DicomReader, RescaleBeyondTheFloatRangeIsRefusedNamingTheSliceAndTag) {
+  TempDir dir;
+  const auto hu = [](int i, int j, int k) { return expectedValue(i, j, k) + 1024; };
+  const std::string intercept =
+      dicomSeries(dir, "intercept", [](int k) { return pixels(gdcm::PixelFormat::INT16, 12, 1.0, k == 2 ? -1e39 : -1024.0); }, hu);
+  const std::string slope = dicomSeries(dir, "slope", [](int) { return pixels(gdcm::PixelFormat::INT16, 12, 1e308, 0.0); }, hu);
+  expectRejected(intercept, "(slice 3 of 5)", "Rescale Intercept (0028,1052) -1e+39");
+  expectRejected(slope, "(slice 1 of 5)", "Rescale Slope (0028,1053) 1e+308");
+  for (const std::string& d : {intercept, slope}) {
+    const test::CliRun r = test::run({"build", d, "-o", dir.file("s.hoct")});
+    EXPECT_EQ(r.status, 2) << r.err;
+    EXPECT_THAT(r.err, HasSubstr("beyond the float range"));
+    EXPECT_FALSE(std::filesystem::exists(dir.file("s.hoct")));
+  }
+}
+
+// A float sample that is not finite is refused naming the file and the voxel, read whole or
+// streamed into a build (whose range, made from the planes, must be finite).
+TEST(VolumeReaders, NonFiniteFloatSamplesAreRefusedReadWholeOrStreamed) {
+  TempDir dir;
+  for (const float bad : {std::numeric_limits<float>::infinity(), std::numeric_limits<float>::quiet_NaN()}) {
+    std::vector<float> values(size_t(4 * 3 * 5), 1.5f);
+    values[size_t(1 + 4 * (2 + 3 * 3))] = bad;  // voxel (1,2,3)
+    writeBytes(dir.file("f.raw"), toBytes(values));
+    writeText(dir.file("f.nhdr"), "NRRD0004\ntype: float\ndimension: 3\nsizes: 4 3 5\nendian: little\nencoding: raw\ndata file: f.raw\n");
+    expectRejected(dir.file("f.nhdr"), "f.", std::isnan(bad) ? "sample (1,2,3) is nan" : "sample (1,2,3) is inf");
+    const test::CliRun r = test::run({"build", dir.file("f.nhdr"), "-o", dir.file("f.hoct")});
+    EXPECT_EQ(r.status, 2) << r.err;
+    EXPECT_THAT(r.err, HasSubstr("sample (1,2,3) is "));
+    EXPECT_FALSE(std::filesystem::exists(dir.file("f.hoct")));
+  }
 }
 
 TEST(DicomReader, RejectsDirectoryWithoutDicom) {

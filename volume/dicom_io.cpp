@@ -566,6 +566,12 @@ void readSliceImage(const std::string& file, const std::string& where, const Pix
   if (pf.GetBitsAllocated() == 16 && bits == 16 && (!ts.IsEncapsulated() || ts == gdcm::TransferSyntax::RLELossless)) bits = pf.GetBitsStored();
   out->lo = isFloat ? -std::numeric_limits<double>::infinity() : isSigned ? -std::ldexp(1.0, bits - 1) : 0.0;
   out->hi = isFloat ? std::numeric_limits<double>::infinity() : std::ldexp(1.0, isSigned ? bits - 1 : bits) - 1.0;
+  // Samples are held as float at widest: a rescale whose values leave its range would make infinities.
+  const double a = isFloat ? 0.0 : out->lo * out->slope + out->intercept, b = isFloat ? 0.0 : out->hi * out->slope + out->intercept;
+  if (!std::isfinite(out->slope) || !std::isfinite(out->intercept) || !std::isfinite(a) || !std::isfinite(b) ||
+      std::max(std::abs(a), std::abs(b)) > double(std::numeric_limits<float>::max()))
+    HYB_THROW(IoError, where, ": Rescale Slope (0028,1053) ", out->slope, " and Rescale Intercept (0028,1052) ", out->intercept,
+              " take the pixel values ", out->lo, "..", out->hi, " beyond the float range (expected rescaled values within +-3.4e38)");
 }
 
 // The @p image's decoded pixels in the type a volume holds them in (decodeSamples).
@@ -577,13 +583,6 @@ SampleArray sliceSamples(const SliceImage& image, const std::string& where) {
   std::vector<char> buffer(im.GetBufferLength());
   if (!im.GetBuffer(buffer.data())) HYB_THROW(IoError, where, ": pixel data missing or truncated");
   return decodeSamples(reinterpret_cast<const uint8_t*>(buffer.data()), count, image.type, std::endian::native == std::endian::big);
-}
-
-// The volume's source type: the first slice's, or, once any slice is rescaled, int32 (integers) or
-// float32 by the type the rescaled samples are held in.
-ScalarType seriesSourceType(ScalarType first, bool rescaled, ScalarType stored) {
-  if (!rescaled || first == ScalarType::Float32 || first == ScalarType::Float64) return first;
-  return stored == ScalarType::Float32 ? ScalarType::Float32 : ScalarType::Int32;
 }
 
 // The series' frame, info and warnings on @p v (the whole volume or its description).
@@ -717,7 +716,6 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
     if (image.slope != 1.0 || image.intercept != 0.0) rescaled = true;
     detail::rescaleSamples(&samples, s * size_t(dims.x) * dims.y, slice, image.slope, image.intercept);
   }
-  type = seriesSourceType(type, rescaled, storedType(samples));
   validateSpacing(spacing, dir);
   return placedSeries(Volume(dims, spacing, type, std::move(samples), dir), layout, slopeFirst, interceptFirst, rescaled);
 }
@@ -767,8 +765,7 @@ std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::stri
       break;
     }
   }
-  const ScalarType source = seriesSourceType(headers.front().type, rescaled, stored);
-  Volume description = placedSeries(Volume::withoutSamples(dims, spacing, source, stored, 0.0f, 0.0f, dir), layout, headers.front().slope,
+  Volume description = placedSeries(Volume::withoutSamples(dims, spacing, headers.front().type, stored, 0.0f, 0.0f, dir), layout, headers.front().slope,
                                     headers.front().intercept, rescaled);
   return std::make_unique<DicomPlanes>(std::move(description), std::move(layout), std::move(headers));
 }

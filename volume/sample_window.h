@@ -4,6 +4,8 @@
 
 #include <glm/glm.hpp>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 
 #include "volume/memory_limit.h"
@@ -27,6 +29,14 @@ class SampleWindow {
   void load(PlaneSource& source) {
     HYB_CHECK(mNext < mDims.z);
     source.read(1, &mSamples, slot(mNext));
+    // A streamed float plane is checked as a volume read whole is (Volume's range must be finite).
+    if (const auto* plane = std::get_if<std::vector<float>>(&mSamples)) {
+      const float* d = plane->data() + slot(mNext);
+      const float* bad = std::find_if(d, d + mPlaneSize, [](float v) { return !std::isfinite(v); });
+      if (const size_t i = size_t(bad - d); i < mPlaneSize)
+        HYB_THROW(IoError, source.name(), ": sample (", i % size_t(mDims.x), ",", i / size_t(mDims.x), ",", mNext, ") is ", *bad,
+                  "; expected finite values");
+    }
     ++mNext;
   }
   /// The plane load() reads next: the window holds planes next() − planes … next() − 1.
