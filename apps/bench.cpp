@@ -150,6 +150,12 @@ std::string BenchOptions::validate() const {
   if (outDir.empty()) return "-o missing (expected the output directory)";
   if (repeat < 1 || repeat > 100) return "--repeat must be in 1..100";
   if (rounds < 1 || rounds > 100) return "--rounds must be in 1..100";
+  // The directory is made last, but where it goes must take files now, before the frames.
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  fs::path at = fs::absolute(outDir, ec);
+  while (!at.empty() && !fs::exists(at, ec) && at != at.parent_path()) at = at.parent_path();
+  if (std::string e = outputPathError((fs::is_directory(at, ec) ? at / "trade.csv" : at).string(), "-o"); !e.empty()) return e;
   return render.validate();
 }
 

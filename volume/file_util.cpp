@@ -220,8 +220,17 @@ std::string outputPathError(const std::string& path, const std::string& flag) {
   if (const std::string why = replaceRefusal(path); !why.empty()) return flag + " '" + path + "' " + why + " (expected a regular file to write)";
   const fs::path dir = fs::path(path).parent_path();
   std::error_code ec;
-  if (dir.empty() || fs::is_directory(dir, ec)) return "";
-  return flag + " '" + path + "': directory '" + dir.string() + "' does not exist";
+  if (!dir.empty() && !fs::is_directory(dir, ec)) return flag + " '" + path + "': directory '" + dir.string() + "' does not exist";
+  // A file is created and removed there now, so a read-only directory fails before the work, not after it
+  // (access() would not do: root passes it on a read-only mount).
+  const std::string probe = temporaryNameFor(path) + ".probe";
+  const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+  if (fd < 0)
+    return flag + " '" + path + "': cannot create files in directory '" + (dir.empty() ? std::string(".") : dir.string()) + "' (" +
+           std::strerror(errno) + ")";
+  ::close(fd);
+  ::unlink(probe.c_str());
+  return "";
 }
 
 std::string sameFileError(const std::string& output, const std::string& flag, const std::string& input) {
