@@ -51,7 +51,8 @@ std::string octreeSummary(const Volume& v, const VolumeOctree& t) {
     << " leaves), " << t.errorData().size() << " nodal errors, coarse knots " << (t.prefiltered() ? "prefiltered" : "point-subsampled")
     << "\n";
   s << "memory   " << t.bytesUsed() << " bytes = " << std::fixed << std::setprecision(2)
-    << 100.0 * double(t.bytesUsed()) / double(v.sourceBytes()) << " % of the " << scalarName(v.sourceType()) << " volume\n";
+    << 100.0 * double(t.bytesUsed()) / double(v.voxelCount() * scalarSize(v.storedType())) << " % of the " << scalarName(v.storedType())
+    << " samples\n";
   const auto e = t.errors(t.root());
   s << "root     min " << t.root().minValue << "  max " << t.root().maxValue << "  errors";
   for (float x : e) s << " " << std::setprecision(1) << x;
@@ -128,6 +129,8 @@ struct BuildOptions {
 
 
 int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
+  if (!o.input.rawLayout() && isSceneFile(o.input.path))
+    HYB_THROW(ValueError, o.input.path, ": a scene file, built already (build reads a volume; render, export, info and view read the scene)");
   // The build streams its input plane by plane: twice for the octree and its store, once more for
   // an isosurface.
   const std::unique_ptr<PlaneSource> planes = o.input.openPlanes(err);
@@ -569,7 +572,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
 
   BuildOptions build;
   CLI::App* buildCmd = app.add_subcommand("build", "build the Hybrid Octree once and save it as a scene file");
-  build.input.add(buildCmd);
+  build.input.add(buildCmd, false);
   buildCmd->add_option("-o,--output", build.output, "scene file to write (.hoct)");
   buildCmd->add_option("--iso", build.iso, "isovalue of the Surface Octree to build (data units; none = volume only)");
   buildCmd->add_option("--leaf-edge", build.leafEdge, "edge in voxels of the smallest octree nodes")->capture_default_str();

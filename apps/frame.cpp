@@ -45,8 +45,9 @@ glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
   return {x[0], x[1], x[2]};
 }
 
-void VolumeInput::add(CLI::App* cmd) {
-  cmd->add_option("volume", path, "volume file (.nrrd .nhdr .mhd .mha .nii .nii.gz .inv3), DICOM directory, raw file, or scene.hoct")
+void VolumeInput::add(CLI::App* cmd, bool scenes) {
+  cmd->add_option("volume", path,
+                  std::string("volume file (.nrrd .nhdr .mhd .mha .nii .nii.gz .hdr .inv3), DICOM directory, raw file") + (scenes ? ", or scene.hoct" : ""))
       ->capture_default_str();
   cmd->add_option("--raw-dims", rawDims, "raw input: samples per axis X,Y,Z");
   cmd->add_option("--raw-type", rawType, "raw input: int16|uint16|uint8|int8|int32|uint32|float32|float64");

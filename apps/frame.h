@@ -65,7 +65,8 @@ struct VolumeInput {
   std::string series;  // DICOM Series Instance UID; empty: the largest series
   const Progress* progress = nullptr;  // where long steps report (runMain's display of --progress)
 
-  void add(CLI::App* cmd);
+  /// Adds the volume argument and the raw and DICOM flags; @p scenes: the command also reads scene files.
+  void add(CLI::App* cmd, bool scenes = true);
   /// The raw layout when any raw flag is given (then --raw-dims and --raw-type are required).
   /// @throw ValueError naming the flag.
   std::optional<RawLayout> rawLayout() const;

@@ -690,6 +690,48 @@ TEST(Cli, OutputsNeverReplaceInputsDevicesOrEachOther) {
   expectBadInput({"render", nhdr, "-o", dir.file("d.png")}, "is a directory");
 }
 
+// A FIFO named as a volume (raw with its flags, a self-describing format, a scene) is refused by
+// every command at once: none opens it for reading, which would wait for a writer.
+TEST(Cli, EveryCommandRefusesAFifoVolumeAtOnce) {
+  test::TempDir dir;
+  for (const char* name : {"vol.raw", "vol.nrrd", "vol.hoct"}) ASSERT_EQ(::mkfifo(dir.file(name).c_str(), 0600), 0) << name;
+  alarm(60);  // a command that blocks must fail the run, not hang it
+  const std::vector<std::string> raw = {"--raw-dims", "20,18,16", "--raw-type", "int16"};
+  for (const char* name : {"vol.raw", "vol.nrrd", "vol.hoct"}) {
+    const std::string v = dir.file(name);
+    const bool isRaw = std::string(name) == "vol.raw";
+    auto with = [&](std::vector<std::string> args) {
+      if (isRaw) args.insert(args.begin() + 2, raw.begin(), raw.end());
+      return args;
+    };
+    expectBadInput(with({"info", v}), "FIFO");
+    expectBadInput(with({"build", v, "-o", dir.file("s.hoct")}), "FIFO");
+    expectBadInput(with({"render", v, "-o", dir.file("a.png")}), "FIFO");
+    expectBadInput(with({"export", v, "--iso", "0", "-o", dir.file("m.ply")}), "FIFO");
+  }
+  alarm(0);
+  EXPECT_EQ(namesIn(dir), (std::vector<std::string>{"vol.hoct", "vol.nrrd", "vol.raw"}));
+}
+
+// An output directory where no file can be created (read-only) is refused before the work.
+TEST(Cli, AnOutputDirectoryThatTakesNoFilesIsRefusedBeforeTheWork) {
+  test::TempDir dir;
+  const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
+  const std::string ro = dir.file("ro");
+  std::filesystem::create_directory(ro);
+  // A read-only bind would need privileges; a directory without write permission stops non-root users,
+  // and root is stopped by a file system mounted read-only: /proc holds no new files for anyone.
+  const std::string target = ::geteuid() == 0 ? std::string("/proc") : ro;
+  std::filesystem::permissions(ro, std::filesystem::perms::owner_read | std::filesystem::perms::owner_exec);
+  expectBadInput({"render", nhdr, "-o", target + "/a.png"}, "cannot create files in directory '" + target + "'");
+  expectBadInput({"render", nhdr, "-o", dir.file("a.png"), "--stats", target + "/a.json"}, "--stats");
+  expectBadInput({"build", nhdr, "-o", target + "/s.hoct"}, "-o '" + target + "/s.hoct': cannot create files");
+  expectBadInput({"export", nhdr, "--iso", "0", "--check", "-o", target + "/m.ply"}, "cannot create files");
+  expectBadInput({"bench", nhdr, "-o", target + "/trade"}, "cannot create files");
+  std::filesystem::permissions(ro, std::filesystem::perms::owner_all);
+  EXPECT_EQ(namesIn(dir), (std::vector<std::string>{"ro", "s.nhdr", "s.raw"}));
+}
+
 TEST(Cli, ExtremeNumbersAreRefusedNamingTheirFlagOrRenderSanely) {
   test::TempDir dir;
   const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());

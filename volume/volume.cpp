@@ -227,7 +227,9 @@ std::string Volume::toString() const {
   s << std::setprecision(7) << "spacing  " << mSpacing.x << " x " << mSpacing.y << " x " << mSpacing.z << " mm\n";
   const glm::dvec3 e = extentMm();
   s << "extent   " << e.x << " x " << e.y << " x " << e.z << " mm\n";
-  s << "type     " << scalarName(mSourceType) << " (" << sourceBytes() << " bytes)\n";
+  // The samples as held (what memory and the scene store); the file's own pixel type where it differs.
+  s << "type     " << scalarName(mStored) << " (" << voxelCount() * scalarSize(mStored) << " bytes"
+    << (mSourceType != mStored ? std::string("; the file holds ") + scalarName(mSourceType) : std::string()) << ")\n";
   s << "range    " << mMin << " .. " << mMax << "\n";
   const glm::dvec3 o = mFrame.origin;
   s << "origin   " << o.x << ", " << o.y << ", " << o.z << " mm (LPS: the centre of voxel 0,0,0)\n";
