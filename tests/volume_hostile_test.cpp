@@ -62,9 +62,13 @@ void expectRefused(const std::function<void()>& read, const std::string& named, 
   for (char c : msg) ASSERT_TRUE(static_cast<unsigned char>(c) >= 0x20 && c != 0x7f) << "control byte in message: " << msg;
 }
 
-// Read whole and opened plane by plane (the streamed build's path).
 void expectVolumeRefused(const std::string& path, const std::string& named, const std::string& what, const RawLayout* raw = nullptr) {
   expectRefused([&] { readVolume(path, raw); }, named, what);
+}
+
+// Read whole and opened plane by plane (the streamed build's path).
+void expectBothRefused(const std::string& path, const std::string& named, const std::string& what, const RawLayout* raw = nullptr) {
+  expectVolumeRefused(path, named, what, raw);
   expectRefused([&] { openPlanes(path, raw); }, named, what);
 }
 
@@ -122,17 +126,17 @@ TEST(HostileInputs, FifosAreRefusedWithoutBlocking) {
   for (const char* name : kVolumes) ASSERT_EQ(::mkfifo(dir.file(name).c_str(), 0600), 0) << name;
   for (const char* name : {"v.raw", "v.hoct", "data.raw", "f.tf", "i.img"}) ASSERT_EQ(::mkfifo(dir.file(name).c_str(), 0600), 0) << name;
   alarm(60);  // a reader that blocks on a FIFO must fail the run, not hang it
-  for (const char* name : kVolumes) expectVolumeRefused(dir.file(name), name, "FIFO");
+  for (const char* name : kVolumes) expectBothRefused(dir.file(name), name, "FIFO");
   RawLayout raw;
   raw.dims = {2, 2, 2};
-  expectVolumeRefused(dir.file("v.raw"), "v.raw", "FIFO", &raw);
-  expectVolumeRefused(dir.file("v.hoct"), "v.hoct", "FIFO", &raw);  // a scene's name with raw flags: still not opened
+  expectBothRefused(dir.file("v.raw"), "v.raw", "FIFO", &raw);
+  expectBothRefused(dir.file("v.hoct"), "v.hoct", "FIFO", &raw);  // a scene's name with raw flags: still not opened
   expectRefused([&] { loadScene(dir.file("v.hoct")); }, "v.hoct", "FIFO");
   EXPECT_FALSE(isSceneFile(dir.file("v.hoct")));
   writeText(dir.file("d.nhdr"), "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\ndata file: data.raw\n");
-  expectVolumeRefused(dir.file("d.nhdr"), "data.raw", "expected a regular file, found a FIFO");
+  expectBothRefused(dir.file("d.nhdr"), "data.raw", "expected a regular file, found a FIFO");
   writeText(dir.file("d.mhd"), "NDims = 3\nDimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = data.raw\n");
-  expectVolumeRefused(dir.file("d.mhd"), "data.raw", "FIFO");
+  expectBothRefused(dir.file("d.mhd"), "data.raw", "FIFO");
   expectRefused([&] { TransferFunction::fromFile(dir.file("f.tf")); }, "f.tf", "expected a regular file, found a FIFO");
   expectRefused([&] { readFileBytes(dir.file("f.tf")); }, "f.tf", "FIFO");
   expectRefused([&] { readFileBytes(dir.path().string()); }, dir.path().string(), "found a directory");
