@@ -730,10 +730,9 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
   void read() { mWs.async_read_some(mBuffer, kMaxMessageBytes, beast::bind_front_handler(&WsSession::onRead, shared_from_this())); }
 
   void onRead(beast::error_code ec, size_t) {
+    if (!mClient) return;  // closed meanwhile (a failed write, the queue's bound): what was read is dropped
     if (ec) {
-      if (ec == websocket::error::message_too_big) mServer.log("client sent a message over the limit: closed");
-      mDeadline.cancel();
-      close();
+      close(ec == websocket::error::message_too_big ? "sent a message over the limit" : "");
       return;
     }
     if (!mInMessage) {
@@ -741,9 +740,7 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
       mDeadline.expires_after(mServer.options.messageTimeout);
       mDeadline.async_wait([self = shared_from_this()](beast::error_code e) {
         if (e || !self->mInMessage) return;
-        self->mServer.log("client took longer than the message timeout to send a message: closed");
-        beast::error_code ignored;
-        beast::get_lowest_layer(self->mWs).socket().close(ignored);
+        self->close("took longer than the message timeout to send a message");
       });
     }
     if (!mWs.is_message_done()) {
@@ -758,36 +755,50 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
       mServer.onMessage(mClient, beast::buffers_to_string(mBuffer.data()));
     }
     mBuffer.consume(mBuffer.size());
-    read();
+    if (mClient) read();
   }
 
-  void close() {
-    if (mClient) {
-      mServer.removeClient(mClient);
-      mServer.log("client disconnected");
-      mClient.reset();
-    }
+  // Ends the session, once: the client leaves the server, what waits to be written is dropped and
+  // the socket is closed, so that its pending read and write end with an error. A handler already
+  // queued with a message read or a write done finds mClient empty and does nothing more.
+  void close(const std::string& why = "") {
+    if (!mClient) return;
+    mServer.removeClient(mClient);
+    mServer.log(why.empty() ? "client disconnected" : "client " + why + ": closed");
+    mClient.reset();
+    mDeadline.cancel();
+    mQueue.erase(mQueue.begin() + (mWriting ? 1 : 0), mQueue.end());  // (the one being written is its buffer until the write ends)
+    mWaitingTextBytes = 0;
+    beast::get_lowest_layer(mWs).close();
   }
 
-  // Text messages all go; of frames only the newest waiting one (a slow link drops stale frames).
+  // Text messages all go, up to kMaxQueuedTextBytes waiting (a client that does not read them is
+  // closed); of frames only the newest waiting one (a slow link drops stale frames).
   void queue(std::string message, bool binary) {
     if (!mClient) return;
-    if (binary)
+    if (binary) {
       for (auto it = mQueue.begin() + (mWriting ? 1 : 0); it != mQueue.end();)
         it = it->second ? mQueue.erase(it) : it + 1;
+    } else if ((mWaitingTextBytes += message.size()) > kMaxQueuedTextBytes) {
+      close("does not read its messages (over " + std::to_string(kMaxQueuedTextBytes) + " bytes waiting)");
+      return;
+    }
     mQueue.emplace_back(std::move(message), binary);
     if (!mWriting) write();
   }
 
   void write() {
     mWriting = true;
-    mWs.binary(mQueue.front().second);
-    mWs.async_write(net::buffer(mQueue.front().first), beast::bind_front_handler(&WsSession::onWrite, shared_from_this()));
+    const auto& [message, binary] = mQueue.front();
+    if (!binary) mWaitingTextBytes -= message.size();
+    mWs.binary(binary);
+    mWs.async_write(net::buffer(message), beast::bind_front_handler(&WsSession::onWrite, shared_from_this()));
   }
 
   void onWrite(beast::error_code ec, size_t) {
     mQueue.pop_front();
     mWriting = false;
+    if (!mClient) return;
     if (ec) {
       close();
       return;
@@ -801,8 +812,9 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
   net::steady_timer mDeadline{mWs.get_executor()};  // the message being read must be complete by then
   bool mInMessage = false;
   std::shared_ptr<Client> mClient;
-  std::deque<std::pair<std::string, bool>> mQueue;
+  std::deque<std::pair<std::string, bool>> mQueue;  // messages to write, the front one being written while mWriting
   bool mWriting = false;
+  size_t mWaitingTextBytes = 0;  // text messages in mQueue not being written yet
 };
 
 // One HTTP connection: the page's assets, the mesh export, or the upgrade to the WebSocket.
