@@ -221,6 +221,7 @@ struct ServerState {
   std::deque<Export> exports;
   uint64_t nextClient = 1;
   std::vector<DataEntry> listing;  // the data directory's volumes, listed at start
+  std::string dataRoot;            // the data directory, every link resolved ("" without one)
 
   void log(const std::string& line) {
     if (options.log) *options.log << "view     " << line << std::endl;
@@ -233,6 +234,23 @@ struct ServerState {
   }
 
   // ---- what the page is told -----------------------------------------------------------------
+
+  // What the page's menu calls scene @p key (a DICOM series by its directory, modality, slices and
+  // description, not its UID); the key itself when the listing has no such entry.
+  std::string labelOf(const std::string& key) const {
+    for (const DataEntry& e : listing)
+      if (keyOf(e.path, e.series) == key) return e.label;
+    return key;
+  }
+
+  // @p text with the data directory's own path left out of the paths it names (the page knows
+  // its volumes by their paths in that directory).
+  std::string inDataDirTerms(std::string text) const {
+    if (dataRoot.empty()) return text;
+    const std::string prefix = dataRoot + "/";
+    for (size_t at = text.find(prefix); at != std::string::npos; at = text.find(prefix, at)) text.erase(at, prefix.size());
+    return text;
+  }
 
   json volumesJson() const {
     json list = json::array();
@@ -285,7 +303,7 @@ struct ServerState {
       const auto c = clients.find(viewer);
       if (c == clients.end()) return;
       if (!summary) {
-        json m = json::parse(errorMessage("open " + key + ": " + error));
+        json m = json::parse(errorMessage("cannot open " + labelOf(key) + ": " + inDataDirTerms(error)));
         m["scene"] = key;
         c->second->send(m.dump(-1, ' ', false, json::error_handler_t::replace), false);
         return;
@@ -959,7 +977,10 @@ Server::Server(ServerOptions options) : mImpl(std::make_unique<ServerState>()) {
   s.token = s.options.token.empty() ? makeToken() : s.options.token;
   if (!s.options.loader) HYB_THROW(ValueError, "view: no volume loader");
   if (s.options.volume.empty() && s.options.dataDir.empty()) HYB_THROW(ValueError, "view: expected a volume or --data-dir");
-  if (!s.options.dataDir.empty()) s.listing = listDataDir(s.options.dataDir);
+  if (!s.options.dataDir.empty()) {
+    s.listing = listDataDir(s.options.dataDir);
+    s.dataRoot = std::filesystem::canonical(s.options.dataDir).string();  // (listDataDir has read it)
+  }
   ScenePool::Options po;
   po.loader = s.options.loader;
   po.textureLimitBytes = s.options.textureLimitBytes;

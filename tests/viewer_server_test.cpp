@@ -771,5 +771,38 @@ TEST(ViewerServer, SwitchingVolumesTagsEveryMessageAndReleasesTheOneLeft) {
   EXPECT_EQ(s.loadsOfFile("b.nrrd"), 1);
 }
 
+// A volume of the data directory that cannot be read: the client hears why, in the words of the
+// listing and with the data directory's own path left out, and keeps the volume it showed.
+TEST(ViewerServer, AFailedOpenSaysWhyAndKeepsTheVolumeShown) {
+  test::TempDir dir;
+  for (const char* name : {"a.nrrd", "bad.nrrd"}) test::writeText(dir.file(name), "NRRD0004\n");
+  TestServer s(60.0, 8, [&](ServerOptions& o) {
+    o.volume.clear();
+    o.dataDir = dir.path();
+    o.loader = [](const std::string& path, const std::string&, const Progress*) {
+      if (path.find("bad") != std::string::npos) HYB_THROW(IoError, path, ": no 'sizes' field");
+      return sphereScene();
+    };
+  });
+  Socket c(s.port(), "/ws?token=" + s.token());
+  EXPECT_EQ(c.next()["type"], "volumes");
+  c.send(json{{"type", "open"}, {"path", "a.nrrd"}}.dump());
+  json m;
+  do m = c.next();
+  while (m["type"] != "info");
+  c.send(json{{"type", "open"}, {"path", "bad.nrrd"}}.dump());
+  do m = c.next();
+  while (m["type"] == "loading");
+  ASSERT_EQ(m["type"], "error") << m.dump();
+  EXPECT_EQ(m["scene"], "bad.nrrd");
+  EXPECT_EQ(m["message"], "cannot open bad.nrrd: bad.nrrd: no 'sizes' field");
+  json r = frameRequest(1, false, 32);
+  r["scene"] = "a.nrrd";
+  c.send(r.dump());
+  const json f = c.nextFrameOrError();
+  EXPECT_EQ(f["type"], "frame") << f.dump();
+  EXPECT_EQ(f["scene"], "a.nrrd");
+}
+
 }  // namespace
 }  // namespace hyb::viewer
