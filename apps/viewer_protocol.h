@@ -25,6 +25,9 @@ inline constexpr size_t kMaxMessageBytes = 64 * 1024;
 inline constexpr int kMaxImageEdge = 2048, kMinImageEdge = 16;
 inline constexpr size_t kMaxTfPoints = 64;
 inline constexpr size_t kMaxPathBytes = 4096;
+/// Text messages waiting for a client that does not read them (its frames are bounded apart: only
+/// the newest waits); beyond this the server closes that client.
+inline constexpr size_t kMaxQueuedTextBytes = 1 << 20;
 
 /// A frame to render: the page's whole state, so the server keeps no per-field history and a lost
 /// message loses nothing. Coordinates are patient millimetres (LPS).

@@ -221,6 +221,7 @@ struct ServerState {
   std::deque<Export> exports;
   uint64_t nextClient = 1;
   std::vector<DataEntry> listing;  // the data directory's volumes, listed at start
+  std::string dataRoot;            // the data directory, every link resolved ("" without one)
 
   void log(const std::string& line) {
     if (options.log) *options.log << "view     " << line << std::endl;
@@ -233,6 +234,23 @@ struct ServerState {
   }
 
   // ---- what the page is told -----------------------------------------------------------------
+
+  // What the page's menu calls scene @p key (a DICOM series by its directory, modality, slices and
+  // description, not its UID); the key itself when the listing has no such entry.
+  std::string labelOf(const std::string& key) const {
+    for (const DataEntry& e : listing)
+      if (keyOf(e.path, e.series) == key) return e.label;
+    return key;
+  }
+
+  // @p text with the data directory's own path left out of the paths it names (the page knows
+  // its volumes by their paths in that directory).
+  std::string inDataDirTerms(std::string text) const {
+    if (dataRoot.empty()) return text;
+    const std::string prefix = dataRoot + "/";
+    for (size_t at = text.find(prefix); at != std::string::npos; at = text.find(prefix, at)) text.erase(at, prefix.size());
+    return text;
+  }
 
   json volumesJson() const {
     json list = json::array();
@@ -285,7 +303,7 @@ struct ServerState {
       const auto c = clients.find(viewer);
       if (c == clients.end()) return;
       if (!summary) {
-        json m = json::parse(errorMessage("open " + key + ": " + error));
+        json m = json::parse(errorMessage("cannot open " + labelOf(key) + ": " + inDataDirTerms(error)));
         m["scene"] = key;
         c->second->send(m.dump(-1, ' ', false, json::error_handler_t::replace), false);
         return;
@@ -730,10 +748,9 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
   void read() { mWs.async_read_some(mBuffer, kMaxMessageBytes, beast::bind_front_handler(&WsSession::onRead, shared_from_this())); }
 
   void onRead(beast::error_code ec, size_t) {
+    if (!mClient) return;  // closed meanwhile (a failed write, the queue's bound): what was read is dropped
     if (ec) {
-      if (ec == websocket::error::message_too_big) mServer.log("client sent a message over the limit: closed");
-      mDeadline.cancel();
-      close();
+      close(ec == websocket::error::message_too_big ? "sent a message over the limit" : "");
       return;
     }
     if (!mInMessage) {
@@ -741,9 +758,7 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
       mDeadline.expires_after(mServer.options.messageTimeout);
       mDeadline.async_wait([self = shared_from_this()](beast::error_code e) {
         if (e || !self->mInMessage) return;
-        self->mServer.log("client took longer than the message timeout to send a message: closed");
-        beast::error_code ignored;
-        beast::get_lowest_layer(self->mWs).socket().close(ignored);
+        self->close("took longer than the message timeout to send a message");
       });
     }
     if (!mWs.is_message_done()) {
@@ -758,36 +773,50 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
       mServer.onMessage(mClient, beast::buffers_to_string(mBuffer.data()));
     }
     mBuffer.consume(mBuffer.size());
-    read();
+    if (mClient) read();
   }
 
-  void close() {
-    if (mClient) {
-      mServer.removeClient(mClient);
-      mServer.log("client disconnected");
-      mClient.reset();
-    }
+  // Ends the session, once: the client leaves the server, what waits to be written is dropped and
+  // the socket is closed, so that its pending read and write end with an error. A handler already
+  // queued with a message read or a write done finds mClient empty and does nothing more.
+  void close(const std::string& why = "") {
+    if (!mClient) return;
+    mServer.removeClient(mClient);
+    mServer.log(why.empty() ? "client disconnected" : "client " + why + ": closed");
+    mClient.reset();
+    mDeadline.cancel();
+    mQueue.erase(mQueue.begin() + (mWriting ? 1 : 0), mQueue.end());  // (the one being written is its buffer until the write ends)
+    mWaitingTextBytes = 0;
+    beast::get_lowest_layer(mWs).close();
   }
 
-  // Text messages all go; of frames only the newest waiting one (a slow link drops stale frames).
+  // Text messages all go, up to kMaxQueuedTextBytes waiting (a client that does not read them is
+  // closed); of frames only the newest waiting one (a slow link drops stale frames).
   void queue(std::string message, bool binary) {
     if (!mClient) return;
-    if (binary)
+    if (binary) {
       for (auto it = mQueue.begin() + (mWriting ? 1 : 0); it != mQueue.end();)
         it = it->second ? mQueue.erase(it) : it + 1;
+    } else if ((mWaitingTextBytes += message.size()) > kMaxQueuedTextBytes) {
+      close("does not read its messages (over " + std::to_string(kMaxQueuedTextBytes) + " bytes waiting)");
+      return;
+    }
     mQueue.emplace_back(std::move(message), binary);
     if (!mWriting) write();
   }
 
   void write() {
     mWriting = true;
-    mWs.binary(mQueue.front().second);
-    mWs.async_write(net::buffer(mQueue.front().first), beast::bind_front_handler(&WsSession::onWrite, shared_from_this()));
+    const auto& [message, binary] = mQueue.front();
+    if (!binary) mWaitingTextBytes -= message.size();
+    mWs.binary(binary);
+    mWs.async_write(net::buffer(message), beast::bind_front_handler(&WsSession::onWrite, shared_from_this()));
   }
 
   void onWrite(beast::error_code ec, size_t) {
     mQueue.pop_front();
     mWriting = false;
+    if (!mClient) return;
     if (ec) {
       close();
       return;
@@ -801,8 +830,9 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
   net::steady_timer mDeadline{mWs.get_executor()};  // the message being read must be complete by then
   bool mInMessage = false;
   std::shared_ptr<Client> mClient;
-  std::deque<std::pair<std::string, bool>> mQueue;
+  std::deque<std::pair<std::string, bool>> mQueue;  // messages to write, the front one being written while mWriting
   bool mWriting = false;
+  size_t mWaitingTextBytes = 0;  // text messages in mQueue not being written yet
 };
 
 // One HTTP connection: the page's assets, the mesh export, or the upgrade to the WebSocket.
@@ -947,7 +977,10 @@ Server::Server(ServerOptions options) : mImpl(std::make_unique<ServerState>()) {
   s.token = s.options.token.empty() ? makeToken() : s.options.token;
   if (!s.options.loader) HYB_THROW(ValueError, "view: no volume loader");
   if (s.options.volume.empty() && s.options.dataDir.empty()) HYB_THROW(ValueError, "view: expected a volume or --data-dir");
-  if (!s.options.dataDir.empty()) s.listing = listDataDir(s.options.dataDir);
+  if (!s.options.dataDir.empty()) {
+    s.listing = listDataDir(s.options.dataDir);
+    s.dataRoot = std::filesystem::canonical(s.options.dataDir).string();  // (listDataDir has read it)
+  }
   ScenePool::Options po;
   po.loader = s.options.loader;
   po.textureLimitBytes = s.options.textureLimitBytes;

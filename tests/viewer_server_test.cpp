@@ -641,6 +641,76 @@ TEST(ViewerServer, ATricklingSocketIsClosedAnIdleOneIsNot) {
   EXPECT_EQ(idle.nextFrameOrError()["seq"], 2);
 }
 
+// Text frames of one byte ("x": not JSON), masked as a client's must be (with a zero key).
+std::string invalidMessages(int count) {
+  std::string out;
+  for (int i = 0; i < count; ++i) out += std::string("\x81\x81\0\0\0\0x", 7);
+  return out;
+}
+
+// Asks @p c for a moving frame and returns the message answering it (a frame, or an error).
+json askFrame(Socket& c, uint64_t seq) {
+  c.send(frameRequest(seq, true, 32, double(seq)).dump());
+  json f;
+  do f = c.nextFrameOrError();
+  while (f["type"] == "frame" && f["seq"] != seq);
+  return f;
+}
+
+// A client with the token floods the server with up to 100,000 invalid one-byte messages without
+// reading the error replies, then resets its connection (SO_LINGER 0). Another client gets a frame
+// after each thousand of them, and five more after the reset; new clients are served afterwards.
+// (The flood ends early if the server closes the flooding client first: its replies past the bound.)
+TEST(ViewerServer, AClientFloodingAndResettingHarmsNoOther) {
+  TestServer s(1000.0);
+  Socket calm(s.port(), "/ws?token=" + s.token());
+  calm.next();  // info
+  uint64_t seq = 0;
+  {
+    Socket flood(s.port(), "/ws?token=" + s.token());
+    const std::string batch = invalidMessages(1000);
+    beast::error_code ec;
+    int sent = 0;
+    while (sent < 100000) {
+      net::write(flood.ws.next_layer(), net::buffer(batch), ec);
+      if (ec) break;
+      sent += 1000;
+      ASSERT_EQ(askFrame(calm, ++seq)["type"], "frame") << "after " << sent << " invalid messages";
+    }
+    const linger reset{1, 0};
+    ::setsockopt(flood.ws.next_layer().native_handle(), SOL_SOCKET, SO_LINGER, &reset, sizeof reset);
+    flood.ws.next_layer().close(ec);
+  }
+  for (int i = 0; i < 5; ++i) ASSERT_EQ(askFrame(calm, ++seq)["type"], "frame");
+  Socket next(s.port(), "/ws?token=" + s.token());
+  EXPECT_EQ(next.next()["type"], "info");
+  EXPECT_EQ(askFrame(next, 1)["type"], "frame");
+}
+
+// A client that sends invalid messages without reading the replies has at most
+// kMaxQueuedTextBytes of them waiting: past that it is closed, its replies cut short (what the
+// sockets' buffers held reaches it, then the end).
+TEST(ViewerServer, AClientThatDoesNotReadItsRepliesIsClosed) {
+  TestServer s;
+  Socket f(s.port(), "/ws?token=" + s.token());
+  const std::string batch = invalidMessages(1000);
+  beast::error_code ec;
+  int sent = 0;
+  for (; sent < 100000 && !ec; sent += 1000) net::write(f.ws.next_layer(), net::buffer(batch), ec);
+  // The info, then the replies until the end.
+  int messages = 0;
+  beast::flat_buffer sink;
+  for (ec = {}; messages <= sent; ++messages) {
+    f.ws.read(sink, ec);
+    if (ec) break;
+    sink.consume(sink.size());
+  }
+  EXPECT_TRUE(ec) << "the socket stayed open";
+  EXPECT_LT(messages, sent) << "every reply came: nothing bounded them";
+  Socket next(s.port(), "/ws?token=" + s.token());
+  EXPECT_EQ(next.next()["type"], "info");
+}
+
 // Volumes opened from the data directory: every message names its volume, a request for the one
 // shown before is dropped, the load's progress is told to the client waiting for it, and a volume
 // no client shows is released after the stated delay (opened again, it is read again).
@@ -699,6 +769,39 @@ TEST(ViewerServer, SwitchingVolumesTagsEveryMessageAndReleasesTheOneLeft) {
   open("a.nrrd", "b.nrrd");
   EXPECT_EQ(s.loadsOfFile("a.nrrd"), 2);
   EXPECT_EQ(s.loadsOfFile("b.nrrd"), 1);
+}
+
+// A volume of the data directory that cannot be read: the client hears why, in the words of the
+// listing and with the data directory's own path left out, and keeps the volume it showed.
+TEST(ViewerServer, AFailedOpenSaysWhyAndKeepsTheVolumeShown) {
+  test::TempDir dir;
+  for (const char* name : {"a.nrrd", "bad.nrrd"}) test::writeText(dir.file(name), "NRRD0004\n");
+  TestServer s(60.0, 8, [&](ServerOptions& o) {
+    o.volume.clear();
+    o.dataDir = dir.path();
+    o.loader = [](const std::string& path, const std::string&, const Progress*) {
+      if (std::filesystem::path(path).filename() == "bad.nrrd") HYB_THROW(IoError, path, ": no 'sizes' field");
+      return sphereScene();
+    };
+  });
+  Socket c(s.port(), "/ws?token=" + s.token());
+  EXPECT_EQ(c.next()["type"], "volumes");
+  c.send(json{{"type", "open"}, {"path", "a.nrrd"}}.dump());
+  json m;
+  do m = c.next();
+  while (m["type"] != "info");
+  c.send(json{{"type", "open"}, {"path", "bad.nrrd"}}.dump());
+  do m = c.next();
+  while (m["type"] == "loading");
+  ASSERT_EQ(m["type"], "error") << m.dump();
+  EXPECT_EQ(m["scene"], "bad.nrrd");
+  EXPECT_EQ(m["message"], "cannot open bad.nrrd: bad.nrrd: no 'sizes' field");
+  json r = frameRequest(1, false, 32);
+  r["scene"] = "a.nrrd";
+  c.send(r.dump());
+  const json f = c.nextFrameOrError();
+  EXPECT_EQ(f["type"], "frame") << f.dump();
+  EXPECT_EQ(f["scene"], "a.nrrd");
 }
 
 }  // namespace

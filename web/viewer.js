@@ -35,6 +35,7 @@ const state = {
   surfaceStates: {},         // isovalue -> 'building' | 'ready' | 'failed', of the volume shown
   simplifying: null,         // the isovalue whose ready surface the builder still simplifies for moving frames
   opening: null,             // the scene key of a volume asked for and not shown yet
+  openingLabel: '',          // ... as the volume menu calls it
   loads: [],                 // the loading messages heard: {scene, task, progress}
   opened: [],                // the volumes shown, in order: {scene, at}
   errors: [],
@@ -154,12 +155,17 @@ function onText(m) {
     onSurface(m);
   }
   else if (m.type === 'error') {
-    if (m.scene !== undefined && m.scene === state.opening) {  // the open failed: the volume shown stays
+    if (m.scene !== undefined && m.scene === state.opening) {
+      // The open failed: the volume shown stays, the menu names it again, and the reason (the
+      // server's words: the menu's label and the reader's error) stays until dismissed.
       state.opening = null;
-      setState(state.info ? `failed to open ${m.scene}` : 'choose a volume');
-    } else if (m.scene !== undefined && !shown(m.scene)) {
+      showLoading('');
+      $('volumes').value = shownVolumeValue();
+      if (!state.info) setState('choose a volume');
+      showError(m.message, { sticky: true });
       return;
     }
+    if (m.scene !== undefined && !shown(m.scene)) return;
     showError(m.message);
   }
 }
@@ -168,7 +174,13 @@ function onLoading(m) {
   if (m.scene !== state.opening) return;
   state.loads.push({ scene: m.scene, task: m.task, progress: m.progress });
   if (state.loads.length > 1000) state.loads.shift();
-  setState(`loading ${m.scene}: ${m.task} ${Math.round(100 * m.progress)} %`);
+  showLoading(`opening ${state.openingLabel}: ${m.task} ${Math.round(100 * m.progress)} %`);
+}
+
+// The line of the volume being opened, apart from the figures of the frame shown ('': none).
+function showLoading(text) {
+  $('loading').textContent = text;
+  $('loading').hidden = !text;
 }
 
 async function onFrame(buffer) {
@@ -260,13 +272,32 @@ function setState(text) {
   el.className = text === 'final' ? 'final' : '';
 }
 
-function showError(text) {
+// A message over the picture, with a button that dismisses it: a sticky one (why an open failed)
+// stays until then, another goes after 6 s. Each replaces the last of its kind.
+function showError(text, { sticky = false } = {}) {
   state.errors.push(text);
-  const el = $('message');
-  el.textContent = text;
-  el.hidden = false;
-  clearTimeout(showError.timer);
-  showError.timer = setTimeout(() => { el.hidden = true; }, 6000);
+  const box = $('message'), kind = sticky ? 'sticky' : 'passing';
+  let item = box.querySelector(`.${kind}`);
+  if (!item) {
+    item = document.createElement('div');
+    item.className = `item ${kind}`;
+    const close = document.createElement('button');
+    Object.assign(close, { textContent: '×', title: 'dismiss' });
+    close.setAttribute('aria-label', 'dismiss');
+    close.addEventListener('click', () => dismissError(kind));
+    item.append(document.createElement('span'), close);
+    box.append(item);
+  }
+  item.firstChild.textContent = text;
+  box.hidden = false;
+  clearTimeout(item.timer);
+  if (!sticky) item.timer = setTimeout(() => dismissError(kind), 6000);
+}
+
+function dismissError(kind) {
+  const box = $('message'), item = box.querySelector(`.${kind}`);
+  if (item) { clearTimeout(item.timer); item.remove(); }
+  box.hidden = box.children.length === 0;
 }
 
 function onSurface(m) {
@@ -292,11 +323,18 @@ function listVolumes(volumes) {
   if (!state.info) setState(volumes.length ? 'choose a volume' : 'no volumes in the data directory');
 }
 
+// The menu's value of the volume shown ('' when none is).
+function shownVolumeValue() {
+  const open = state.info && state.info.open;
+  return open ? JSON.stringify({ path: open.path, series: open.series }) : '';
+}
+
 function cloneCamera(c) { return { eye: c.eye.slice(), center: c.center.slice(), up: c.up.slice(), fov: c.fov }; }
 
 function openInfo(info) {
   state.info = info;
   state.opening = null;
+  showLoading('');
   state.opened.push({ scene: info.scene, at: performance.now() });
   state.surfaceStates = {};
   for (const iso of info.surfaces) state.surfaceStates[iso] = 'ready';
@@ -305,7 +343,7 @@ function openInfo(info) {
   $('volume-name').replaceChildren(info.name, ' · ', piece(info.dims.join('×')), ' · ',
     piece(info.orientationAssumed ? `orientation unknown: grid axes taken as ${info.orientation}` : info.orientation));
   if (info.volumes) listVolumes(info.volumes);
-  if (info.open) $('volumes').value = JSON.stringify({ path: info.open.path, series: info.open.series });
+  $('volumes').value = shownVolumeValue();
   const presets = $('preset');
   presets.replaceChildren();
   for (const name of Object.keys(info.presets)) presets.add(new Option(name, name));
@@ -615,12 +653,18 @@ $('cut-pos').addEventListener('input', () => { $('cut-value').textContent = `${N
 $('voi-on').addEventListener('change', () => request(false));
 $('voi-outside').addEventListener('input', () => { if ($('voi-on').checked) burst(); });
 $('volumes').addEventListener('change', () => {
-  const v = $('volumes').value;
-  if (!v || !socket) return;
-  const open = JSON.parse(v);
+  const select = $('volumes');
+  if (!select.value || !socket) {
+    select.value = shownVolumeValue();
+    return;
+  }
+  const open = JSON.parse(select.value);
   state.opening = open.series ? `${open.path}#${open.series}` : open.path;  // the scene key the server gives it
+  state.openingLabel = select.selectedOptions[0].textContent;
+  dismissError('sticky');  // (a failed open's reason: the user has moved on)
   socket.send(JSON.stringify({ type: 'open', ...open }));
-  setState(`loading ${open.path}`);
+  if (!state.info) setState('');
+  showLoading(`opening ${state.openingLabel}`);
 });
 $('save-png').addEventListener('click', () => {
   const save = (blob) => {

@@ -1,7 +1,10 @@
 // End-to-end test of switching volumes in `hybrid-octree view --data-dir` (headless chromium): a
 // volume whose file carries no orientation says so; the load's progress is shown; with one
 // volume's surface ready, opening another says nothing of that surface, and going back while the
-// other's surface builds leaves no stale label and paints no frame of the volume left.
+// other's surface builds leaves no stale label and paints no frame of the volume left. A DICOM
+// series that cannot be read: the volume shown stays, on screen and in the menu, and the page says
+// why in the menu's words (not the series' UID) until the message is dismissed. The menu fits its
+// panel in a window 1100 pixels wide.
 //
 // usage: node tests/e2e/viewer_switch_e2e.mjs BUILD/hybrid-octree [--screenshot page.png]
 import fs from 'node:fs';
@@ -30,6 +33,35 @@ for (let z = 0, i = 0; z < n; ++z)
 const header = `NRRD0004\ntype: short\ndimension: 3\nsizes: ${n} ${n} ${n}\nendian: little\nencoding: raw\n\n`;
 fs.writeFileSync(path.join(dir, 'blob.nrrd'), Buffer.concat([Buffer.from(header), Buffer.from(samples.buffer)]));
 
+// A DICOM series of two 4×4 CT slices without Image Orientation (Patient): listed (its headers
+// scan), but the reader cannot order its slices. Explicit VR little endian, as PS3.10 lays it out.
+function dicomElement(group, element, vr, value) {
+  let v = Buffer.isBuffer(value) ? value : Buffer.from(value, 'latin1');
+  if (v.length % 2) v = Buffer.concat([v, Buffer.from(vr === 'UI' || vr === 'OB' ? '\0' : ' ')]);
+  const long = vr === 'OB';
+  const h = Buffer.alloc(long ? 12 : 8);
+  h.writeUInt16LE(group, 0);
+  h.writeUInt16LE(element, 2);
+  h.write(vr, 4, 'latin1');
+  if (long) h.writeUInt32LE(v.length, 8);
+  else h.writeUInt16LE(v.length, 6);
+  return Buffer.concat([h, v]);
+}
+const brokenUid = '1.2.826.0.1.3680043.8.498.4242', description = 'Head CT 0.625 mm, bone kernel H70h, arterial phase, contrast';
+fs.mkdirSync(path.join(dir, 'broken-ct'));
+for (let k = 0; k < 2; ++k) {
+  const ct = '1.2.840.10008.5.1.4.1.1.2', instance = `${brokenUid}.${k + 1}`, us = (n) => Buffer.from([n & 255, n >> 8]);
+  const metaBody = Buffer.concat([dicomElement(2, 1, 'OB', Buffer.from([0, 1])), dicomElement(2, 2, 'UI', ct), dicomElement(2, 3, 'UI', instance),
+    dicomElement(2, 0x10, 'UI', '1.2.840.10008.1.2.1')]);
+  const groupLength = Buffer.alloc(4);
+  groupLength.writeUInt32LE(metaBody.length);
+  const data = Buffer.concat([dicomElement(8, 0x16, 'UI', ct), dicomElement(8, 0x18, 'UI', instance), dicomElement(8, 0x60, 'CS', 'CT'),
+    dicomElement(8, 0x103e, 'LO', description), dicomElement(0x20, 0x0e, 'UI', brokenUid), dicomElement(0x20, 0x11, 'IS', '7'),
+    dicomElement(0x20, 0x32, 'DS', `0\\0\\${2 * k}`), dicomElement(0x28, 0x10, 'US', us(4)), dicomElement(0x28, 0x11, 'US', us(4))]);
+  fs.writeFileSync(path.join(dir, 'broken-ct', `slice${k}.dcm`),
+    Buffer.concat([Buffer.alloc(128), Buffer.from('DICM'), dicomElement(2, 0, 'UL', groupLength), metaBody, data]));
+}
+
 const started = startServer(exe, ['--data-dir', dir]);
 const server = started.server;
 let browser;
@@ -37,12 +69,14 @@ try {
   const url = await started.url;
   browser = await launch(puppeteer);
   const page = await browser.newPage();
-  await page.setViewport({ width: 900, height: 720 });
+  await page.setViewport({ width: 1100, height: 720 });
   const consoleErrors = watchConsole(page);
   await page.goto(url);
-  await page.waitForFunction(() => document.querySelectorAll('#volumes option').length >= 3, { timeout: 60000 });
-  const open = async (name) => {
-    const value = await page.evaluate((n) => [...document.querySelectorAll('#volumes option')].find((o) => o.textContent === n).value, name);
+  await page.waitForFunction(() => document.querySelectorAll('#volumes option').length >= 4, { timeout: 60000 });
+  // Opens the volume whose menu label is @p name (or starts with it, with @p prefix).
+  const open = async (name, prefix = false) => {
+    const value = await page.evaluate((n, p) => [...document.querySelectorAll('#volumes option')].find((o) => (p ? o.textContent.startsWith(n) : o.textContent === n)).value,
+      name, prefix);
     await page.select('#volumes', value);
   };
   const lastOpened = () => page.evaluate(() => { const o = window.hybViewer.opened(); return o.length ? o[o.length - 1].scene : null; });
@@ -90,7 +124,44 @@ try {
   const stale = await page.evaluate((t) => window.hybViewer.metrics().filter((m) => m.paintedAt > t && m.scene !== 'blob.nrrd').length, back);
   check(stale === 0, `no frame of the cranium is painted after the blob is shown again (${stale})`);
   check((await lastOpened()) === 'blob.nrrd', 'the blob is the volume shown');
+
+  // The broken series: its open fails, the blob stays shown and the page says why until dismissed.
+  const menuFits = () => page.evaluate(() => {
+    const menu = document.getElementById('volumes').getBoundingClientRect(), panel = document.getElementById('panel');
+    const box = panel.getBoundingClientRect();
+    return { fits: menu.right <= box.right - 12 && panel.scrollWidth <= panel.clientWidth, menu: Math.round(menu.right), panel: Math.round(box.right) };
+  });
+  const fitsBefore = await menuFits();
+  const brokenLabel = await page.evaluate(() => [...document.querySelectorAll('#volumes option')].find((o) => o.textContent.startsWith('broken-ct/')).textContent);
+  await open('broken-ct/', true);
+  await page.waitForFunction(() => document.querySelector('#message .sticky'), { timeout: 60000 });
+  const failed = () => page.evaluate(() => {
+    const $ = (id) => document.getElementById(id), sticky = document.querySelector('#message .sticky');
+    return { message: sticky ? sticky.firstChild.textContent : null, shown: !$('message').hidden, menu: $('volumes').selectedOptions[0].textContent,
+      overlay: $('overlay').textContent, loading: !$('loading').hidden, name: $('volume-name').textContent };
+  });
+  const f = await failed();
+  check(f.message.includes(`cannot open ${brokenLabel}: `) && f.message.includes(': broken-ct/slice') && f.message.includes('Image Orientation (Patient) missing') && !f.message.includes(dir),
+    `the failed open says why, in the menu's words (${f.message})`);
+  check(!f.message.includes(brokenUid) && !f.overlay.includes(brokenUid), "the series' UID shows nowhere");
+  check(f.menu === 'blob.nrrd', `the menu names the volume shown (${f.menu})`);
+  check(!f.loading && !f.overlay.includes('broken-ct'), `the overlay says nothing of the failed volume (${f.overlay})`);
+  check(f.name.startsWith('blob.nrrd'), `the volume's name is the blob's (${f.name})`);
+  check((await page.evaluate(() => window.hybViewer.state.displayed.scene)) === 'blob.nrrd', "the frame on screen is the blob's");
+  const fitsAfter = await menuFits();
+  check(fitsBefore.fits && fitsAfter.fits, `the menu fits its panel in a 1100-pixel window (its right edge ${fitsAfter.menu}, the panel's ${fitsAfter.panel})`);
   if (screenshot) await page.screenshot({ path: screenshot });
+  // The page still asks for and paints the blob's frames.
+  const asked = await page.evaluate(() => { window.hybViewer.request(false); return performance.now(); });
+  await page.waitForFunction((t) => window.hybViewer.metrics().some((m) => m.paintedAt > t && m.quality === 'final'), { timeout: 120000 }, asked);
+  const after = await page.evaluate((t) => window.hybViewer.metrics().filter((m) => m.paintedAt > t).map((m) => m.scene), asked);
+  check(after.every((s) => s === 'blob.nrrd'), `the frames painted after the failure are the blob's (${[...new Set(after)].join(', ')})`);
+  await new Promise((r) => setTimeout(r, 7000));
+  const later = await failed();
+  check(later.shown && later.message === f.message, 'the reason is still shown 7 s later');
+  await page.click('#message .sticky button');
+  const dismissed = await failed();
+  check(!dismissed.shown && dismissed.message === null, 'the dismiss button takes it away');
   check(consoleErrors.length === 0, `the console shows no errors${consoleErrors.length ? ': ' + consoleErrors.join(' | ') : ''}`);
 } catch (e) {
   check(false, e.message);
