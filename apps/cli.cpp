@@ -81,14 +81,46 @@ std::string surfaceSummary(const SurfaceOctree& so, std::optional<double> buildM
   return s.str() + "\n";
 }
 
-int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
-  if (std::error_code ec; std::filesystem::is_directory(o.input.path, ec) && !o.input.rawLayout()) {
-    const std::vector<DicomSeriesInfo> series = listDicomSeries(o.input.path);
-    out << "series   " << series.size() << " in " << o.input.path << " (largest first; --series UID reads another):\n";
-    for (const DicomSeriesInfo& s : series)
-      out << "  " << s.uid << "  " << (s.modality.empty() ? "?" : s.modality) << "  " << s.slices << " slices of " << s.columns << "x" << s.rows
-          << (s.description.empty() ? "" : "  " + s.description) << "\n";
+// A DICOM folder's patients, studies and series, the default marked, and what was skipped.
+std::string dicomListingText(const DicomListing& l) {
+  std::ostringstream s;
+  std::set<std::string> studies;
+  for (const DicomSeriesInfo& x : l.series) studies.insert(x.studyUid);
+  s << "series   " << l.series.size() << " in " << studies.size() << (studies.size() == 1 ? " study" : " studies") << " in " << l.dir
+    << (l.dicomdir ? " (from its DICOMDIR)" : "") << "; the first is read by default, --series UID reads another:\n";
+  // Grouped by patient and study, in the order of their first series.
+  std::vector<std::string> order;
+  for (const DicomSeriesInfo& x : l.series)
+    if (std::find(order.begin(), order.end(), x.studyUid) == order.end()) order.push_back(x.studyUid);
+  std::string patient = "\x01";
+  for (const std::string& study : order) {
+    const auto firstOf = std::find_if(l.series.begin(), l.series.end(), [&](const DicomSeriesInfo& x) { return x.studyUid == study; });
+    const std::string who = (firstOf->patientName.empty() ? "(no name)" : firstOf->patientName) +
+                            (firstOf->patientId.empty() ? "" : " (ID " + firstOf->patientId + ")");
+    if (who != patient) s << "patient  " << (patient = who) << "\n";
+    s << "  study  " << (firstOf->studyDate.empty() ? "(no date)" : firstOf->studyDate)
+      << (firstOf->studyDescription.empty() ? "" : "  " + firstOf->studyDescription) << "  (" << (study.empty() ? "no UID" : study) << ")\n";
+    for (const DicomSeriesInfo& x : l.series) {
+      if (x.studyUid != study) continue;
+      s << "    " << x.uid << "  " << (x.modality.empty() ? "?" : x.modality) << (x.number.empty() ? "" : "  #" + x.number) << "  " << x.slices
+        << (x.slices == 1 ? " slice" : " slices") << " of " << x.columns << "x" << x.rows << "  " << formatBytes(x.bytes)
+        << (x.date.empty() ? "" : "  " + x.date) << (x.description.empty() ? "" : "  " + x.description) << (x.localizer ? "  (localizer)" : "")
+        << (&x == &l.series.front() ? "  (read by default)" : "") << "\n";
+    }
   }
+  size_t skipped = 0;
+  std::string why;
+  for (const auto& [reason, n] : l.skipped) {
+    skipped += n;
+    why += (why.empty() ? "" : ", ") + std::to_string(n) + " " + reason;
+  }
+  if (skipped) s << "skipped  " << skipped << " of " << l.files << " files: " << why << "\n";
+  return s.str();
+}
+
+int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
+  if (std::error_code ec; std::filesystem::is_directory(o.input.path, ec) && !o.input.rawLayout())
+    out << dicomListingText(listDicomSeries(o.input.path, o.input.progress));
   if (!o.input.rawLayout() && isSceneFile(o.input.path)) {
     if (!o.input.series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", o.input.path, " is a scene file)");
     Scene scene = loadScene(o.input.path, SceneLoadOptions{false, 0});

@@ -278,6 +278,9 @@ void writeDicomImage(const std::string& path, const std::vector<uint8_t>& bytes,
   gdcm::Attribute<0x0020, 0x000e> series;
   series.SetValue(seriesUid);
   ds.Replace(series.GetAsDataElement());
+  gdcm::Attribute<0x0020, 0x000d> study;  // one study, as a scanner writes it (GDCM would make one a file)
+  study.SetValue("1.2.826.0.1.3680043.8.498.7");
+  ds.Replace(study.GetAsDataElement());
   if (!description.empty()) {
     gdcm::Attribute<0x0008, 0x103e> text;
     text.SetValue(description);
@@ -685,15 +688,26 @@ TEST(DicomReader, OrientationAndPositionGiveThePatientFrame) {
   }
 }
 
-TEST(DicomReader, GantryTiltAndUnevenSpacingAreRefused) {
+// Positions off the normal (a tilt) and uneven steps are resampled with a warning, read whole or
+// streamed alike (the geometry against analytic objects: dicom_clinical_test.cpp).
+TEST(DicomReader, GantryTiltAndUnevenSpacingAreResampled) {
   TempDir tilt, uneven;
   for (int k = 0; k < kDims.z; ++k) {
-    // Each slice 0.4 mm further along y than the last: the positions leave the normal (z).
-    writeDicomSlice(tilt.file(std::to_string(k).append(".dcm")), storedSlice(k), glm::dvec3(0.0, 0.4 * k, 2.5 * k), "1.2.3");
+    // Each slice 0.75 mm (one row) further along y than the last: the positions leave the normal (z).
+    writeDicomSlice(tilt.file(std::to_string(k).append(".dcm")), storedSlice(k), glm::dvec3(0.0, 0.75 * k, 2.5 * k), "1.2.3");
     writeDicomSlice(uneven.file(std::to_string(k).append(".dcm")), storedSlice(k), glm::dvec3(0.0, 0.0, k < 3 ? 2.5 * k : 3.0 * k), "1.2.3");
   }
-  expectRejected(tilt.path().string(), tilt.path().string(), "gantry tilt");
-  expectRejected(uneven.path().string(), uneven.path().string(), "not evenly spaced");
+  const Volume t = readBoth(tilt.path().string());
+  EXPECT_EQ(t.dims(), glm::ivec3(kDims.x, kDims.y + 4, kDims.z));  // one more row a slice
+  ASSERT_EQ(t.warnings().size(), 1u);
+  EXPECT_THAT(t.warnings()[0], HasSubstr("gantry tilt of 16.7 degrees"));
+  for (int k = 0; k < kDims.z; ++k)  // slice k moved down k rows, whole rows: exact
+    for (int j = 0; j < kDims.y; ++j) ASSERT_EQ(t.at(1, j + k, k), float(expectedValue(1, j, k))) << j << "," << k;
+  const Volume u = readBoth(uneven.path().string());
+  EXPECT_EQ(u.spacing().z, 2.5);  // the smallest step that recurs
+  EXPECT_EQ(u.dims().z, 6);       // 0 .. 12.5 mm, for slices from 0 to 12 mm
+  ASSERT_EQ(u.warnings().size(), 1u);
+  EXPECT_THAT(u.warnings()[0], HasSubstr("slices 2.5 to 4 mm apart along their normal: resampled onto a regular grid 2.5 mm apart"));
 }
 
 TEST(DicomReader, SeveralSeriesAreListedAndOneIsChosen) {
@@ -702,7 +716,7 @@ TEST(DicomReader, SeveralSeriesAreListedAndOneIsChosen) {
     writeDicomSlice(dir.file(sliceName("a", k)), storedSlice(k), glm::dvec3(0.0, 0.0, 2.5 * k), "1.2.3.100", {1, 0, 0, 0, 1, 0}, "head soft");
   for (int k = 0; k < 3; ++k)
     writeDicomSlice(dir.file(sliceName("b", k)), storedSlice(k), glm::dvec3(0.0, 0.0, 1.0 * k), "1.2.3.200", {1, 0, 0, 0, 1, 0}, "scout");
-  const std::vector<DicomSeriesInfo> all = listDicomSeries(dir.path().string());
+  const std::vector<DicomSeriesInfo> all = listDicomSeries(dir.path().string()).series;
   ASSERT_EQ(all.size(), 2u);
   EXPECT_EQ(all[0].uid, "1.2.3.100");
   EXPECT_EQ(all[0].slices, 5u);
@@ -714,7 +728,7 @@ TEST(DicomReader, SeveralSeriesAreListedAndOneIsChosen) {
   const Volume largest = readVolume(dir.path().string());
   EXPECT_EQ(largest.dims().z, 5);
   ASSERT_EQ(largest.warnings().size(), 1u);
-  EXPECT_THAT(largest.warnings()[0], HasSubstr("2 series; reading the largest, '1.2.3.100' (CT, head soft, 5 slices of 4x3)"));
+  EXPECT_THAT(largest.warnings()[0], HasSubstr("2 series; reading the largest axial one that is not a localizer, '1.2.3.100' (CT, head soft, 5 slices of 4x3)"));
   EXPECT_THAT(largest.warnings()[0], HasSubstr("--series"));
   EXPECT_THAT(largest.warnings()[0], HasSubstr("'1.2.3.200' (CT, scout, 3 slices of 4x3)"));
   // The one named, without a warning.
@@ -741,9 +755,10 @@ TEST(DicomReader, InfoListsTheSeriesAndRenderNamesTheOneItReads) {
     writeDicomSlice(dir.file(sliceName("b", k)), storedSlice(k), glm::dvec3(0.0, 0.0, 1.0 * k), "1.2.3.200", {1, 0, 0, 0, 1, 0}, "scout");
   test::CliRun r = test::run({"info", dir.path().string()});
   ASSERT_EQ(r.status, 0) << r.err;
-  EXPECT_THAT(r.out, HasSubstr("series   2 in "));
-  EXPECT_THAT(r.out, HasSubstr("  1.2.3.100  CT  5 slices of 4x3  head\n"));
-  EXPECT_THAT(r.out, HasSubstr("  1.2.3.200  CT  2 slices of 4x3  scout\n"));
+  EXPECT_THAT(r.out, HasSubstr("series   2 in 1 study in "));
+  EXPECT_THAT(r.out, HasSubstr("patient  (no name)\n  study  "));
+  EXPECT_THAT(r.out, HasSubstr("    1.2.3.100  CT  5 slices of 4x3  4.3 KiB  head  (read by default)\n"));
+  EXPECT_THAT(r.out, HasSubstr("    1.2.3.200  CT  2 slices of 4x3  1.7 KiB  scout\n"));
   EXPECT_THAT(r.out, HasSubstr("modality CT\n"));
   EXPECT_THAT(r.out, HasSubstr("series   '1.2.3.100' (CT, head, 5 slices of 4x3)\n"));
   EXPECT_THAT(r.out, HasSubstr("thickness 2 mm (Slice Thickness; slices 2.5 mm apart)\n"));
@@ -751,7 +766,7 @@ TEST(DicomReader, InfoListsTheSeriesAndRenderNamesTheOneItReads) {
   r = test::run({"render", dir.path().string(), "--size", "8x8", "-o", dir.file("r.png")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(test::lines(r.err), 1u) << r.err;
-  EXPECT_THAT(r.err, HasSubstr("warning: " + dir.path().string() + ": 2 series; reading the largest, '1.2.3.100'"));
+  EXPECT_THAT(r.err, HasSubstr("warning: " + dir.path().string() + ": 2 series; reading the largest axial one that is not a localizer, '1.2.3.100'"));
   r = test::run({"render", dir.path().string(), "--series", "1.2.3.200", "--size", "8x8", "-o", dir.file("s.png")});
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(r.err, "");
@@ -986,7 +1001,7 @@ TEST(VolumeReaders, NonFiniteFloatSamplesAreRefusedReadWholeOrStreamed) {
 TEST(DicomReader, RejectsDirectoryWithoutDicom) {
   TempDir dir;
   writeText(dir.file("a.txt"), "hello");
-  expectRejected(dir.path().string(), dir.path().string(), "no DICOM files");
+  expectRejected(dir.path().string(), dir.path().string(), "no DICOM image series found (1 file: 1 not DICOM");
 }
 
 TEST(NrrdReader, SpaceDirectionsAndOriginInRasLasAndLps) {
@@ -1065,18 +1080,21 @@ TEST(NiftiReader, SformThenQformThenMethodOne) {
     expectFrame(readVolume(dir.file("s.nii")), g, 1e-6);
     writeBytes(dir.file("sq.nii"), orientedNifti(data, &g.direction, g.origin, &other, {0, 0, 0}));
     expectFrame(readVolume(dir.file("sq.nii")), g, 1e-6);
-    // The qform alone (quaternion and qfac), and under a sheared sform, which gives way to it.
+    // The qform alone (quaternion and qfac).
     writeBytes(dir.file("q.nii"), orientedNifti(data, nullptr, {}, &g.direction, g.origin));
     const Volume q = readVolume(dir.file("q.nii"));
     expectFrame(q, g, 1e-6);
     EXPECT_TRUE(q.warnings().empty());
-    writeBytes(dir.file("shq.nii"), orientedNifti(data, &sheared, {0, 0, 0}, &g.direction, g.origin));
-    const Volume shq = readVolume(dir.file("shq.nii"));
-    expectFrame(shq, g, 1e-6);
-    ASSERT_EQ(shq.warnings().size(), 1u);
-    EXPECT_THAT(shq.warnings()[0], HasSubstr("the qform is used instead"));
   }
-  writeBytes(dir.file("sh.nii"), orientedNifti(data, &sheared, {0, 0, 0}, nullptr, {}));
+  // A sform sheared along its third axis (a tilted acquisition) wins over the qform too: its planes
+  // are resampled where it puts them (dicom_clinical_test.cpp compares it with the DICOM series).
+  writeBytes(dir.file("shq.nii"), orientedNifti(data, &sheared, {0, 0, 0}, &geometries().front().direction, {}));
+  const Volume shq = readBoth(dir.file("shq.nii"));
+  ASSERT_EQ(shq.warnings().size(), 1u);
+  EXPECT_THAT(shq.warnings()[0], HasSubstr("gantry tilt of 16.7 degrees (a sheared sform)"));
+  // Sheared within its plane: no stack of planes, refused.
+  const glm::dmat3 inPlane(glm::dvec3(1, 0, 0), glm::dvec3(0.3, 1, 0), glm::dvec3(0, 0, 1));
+  writeBytes(dir.file("sh.nii"), orientedNifti(data, &inPlane, {0, 0, 0}, nullptr, {}));
   expectRejected(dir.file("sh.nii"), "sh.nii (sform)", "not orthogonal");
   // Neither: method 1, RAS axes, and a warning.
   writeBytes(dir.file("none.nii"), niftiFile(0.0f, 0.0f, data));

@@ -4,10 +4,8 @@
 // output is captured; what GDCM still refuses becomes one line naming the file and the slice.
 // A series is read whole (readDicomSeries) or slice by slice (detail::dicomPlanes), by the same
 // per-slice steps and checks.
-#include <gdcmDirectory.h>
 #include <gdcmImageReader.h>
 #include <gdcmReader.h>
-#include <gdcmScanner.h>
 #include <gdcmStringFilter.h>
 #include <gdcmTrace.h>
 #include <sys/stat.h>
@@ -16,53 +14,36 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <limits>
 #include <map>
 #include <memory>
+#include <set>
 #include <sstream>
 #include <type_traits>
 #include <variant>
 
+#include "volume/dicom_scan.h"
 #include "volume/file_util.h"
 #include "volume/memory_limit.h"
 #include "volume/plane_source.h"
+#include "volume/plane_stack.h"
 #include "volume/reader_util.h"
 #include "volume/volume_io.h"
 
 namespace hyb {
 
+namespace fs = std::filesystem;
+using detail::catalogDicom;
 using detail::decodeSamples;
+using detail::describeSeries;
+using detail::DicomCatalog;
+using detail::DicomFrame;
+using detail::DicomInstance;
 using detail::placed;
 using detail::trim;
 
 namespace {
-
-const gdcm::Tag kSeriesUid(0x0020, 0x000e), kSeriesNumber(0x0020, 0x0011), kSeriesDescription(0x0008, 0x103e), kModality(0x0008, 0x0060),
-    kRows(0x0028, 0x0010), kColumns(0x0028, 0x0011), kPosition(0x0020, 0x0032), kOrientation(0x0020, 0x0037), kThickness(0x0018, 0x0050),
-    kSlope(0x0028, 0x1053), kIntercept(0x0028, 0x1052), kPatientPosition(0x0018, 0x5100);
-
-// Backslash-separated decimal strings (DICOM's multi-valued DS).
-std::vector<double> decimals(const char* text) {
-  std::vector<double> out;
-  if (!text) return out;
-  std::string t(text);
-  for (char& c : t)
-    if (c == '\\') c = ' ';
-  std::istringstream in(t);
-  double v;
-  while (in >> v) out.push_back(v);
-  return out;
-}
-
-// The DICOM files of @p dir scanned for the tags the series need.
-struct DicomScan {
-  gdcm::Scanner scanner;
-  std::map<std::string, std::vector<std::string>> series;  // series UID -> files
-  std::string value(const std::string& file, const gdcm::Tag& t) const {
-    const char* v = scanner.GetValue(file.c_str(), t);
-    return v ? trim(v) : std::string();
-  }
-};
 
 // GDCM prints its warnings (a missing Photometric Interpretation, say) and errors on stderr; the
 // reader reports what matters in its own one-line errors instead, so GDCM writes to a stream
@@ -275,12 +256,12 @@ DicomKind checkFileMeta(const InputFile& file) {
 // tables, 1-bit pixels, unused bits in 8- or 32-bit pixels, zero samples per pixel; a length that
 // is not the image's lets a small file claim a huge slice.
 
-const gdcm::Tag kPixelData(0x7fe0, 0x0010), kSamplesPerPixel(0x0028, 0x0002), kPhotometric(0x0028, 0x0004), kFrames(0x0028, 0x0008),
+const gdcm::Tag kRows(0x0028, 0x0010), kColumns(0x0028, 0x0011), kPixelData(0x7fe0, 0x0010), kSamplesPerPixel(0x0028, 0x0002), kPhotometric(0x0028, 0x0004), kFrames(0x0028, 0x0008),
     kBitsAllocated(0x0028, 0x0100), kBitsStored(0x0028, 0x0101), kHighBit(0x0028, 0x0102), kPixelRepresentation(0x0028, 0x0103);
 
 // What one slice's pixel module declares.
 struct PixelModule {
-  int rows = 0, columns = 0, bitsAllocated = 0;
+  int rows = 0, columns = 0, bitsAllocated = 0, frames = 1;
 };
 
 // An unsigned integer tag of @p ds as text (GDCM's StringFilter swaps and formats it); -1 when absent.
@@ -332,8 +313,9 @@ PixelModule checkPixelModule(const InputFile& file, const std::string& where) {
   const long representation = number(kPixelRepresentation);
   if (representation != 0 && representation != 1) refuse("Pixel Representation", representation, "0 or 1");
   const long frames = number(kFrames);
-  if (frames > 1) HYB_THROW(IoError, where, ": multi-frame images are not supported (expected one slice per file)");
+  if (frames > (long(1) << 20)) refuse("Number of Frames", frames, "at most 1048576");
   PixelModule m;
+  m.frames = int(std::max(1L, frames));
   const long rows = number(kRows), columns = number(kColumns);
   if (rows < 1 || rows > kMaxDim) refuse("Rows", rows, "1 to 32768");
   if (columns < 1 || columns > kMaxDim) refuse("Columns", columns, "1 to 32768");
@@ -343,7 +325,7 @@ PixelModule checkPixelModule(const InputFile& file, const std::string& where) {
   // The pixel data's length must be the image's (odd lengths padded by one byte, PS3.5 7.1.1).
   const gdcm::TransferSyntax& ts = reader.GetFile().GetHeader().GetDataSetTransferSyntax();
   if (ts == gdcm::TransferSyntax::DeflatedExplicitVRLittleEndian) return m;  // positions are in the inflated stream
-  const uint64_t expected = uint64_t(rows) * uint64_t(columns) * uint64_t(allocated / 8);
+  const uint64_t expected = uint64_t(rows) * uint64_t(columns) * uint64_t(allocated / 8) * uint64_t(m.frames);
   const int64_t length = pixelDataLength(file, reader.GetStreamCurrentPosition(), ts);
   if (length < 0) HYB_THROW(IoError, where, ": no Pixel Data (expected a DICOM image)");
   if (length == 0xffffffff) {
@@ -351,154 +333,135 @@ PixelModule checkPixelModule(const InputFile& file, const std::string& where) {
     return m;
   }
   if (uint64_t(length) != expected && uint64_t(length) != expected + (expected & 1))
-    HYB_THROW(IoError, where, ": Pixel Data holds ", length, " bytes (expected ", expected, " for ", columns, "x", rows, " pixels of ", allocated,
-              " bits)");
+    HYB_THROW(IoError, where, ": Pixel Data holds ", length, " bytes (expected ", expected, " for ", m.frames > 1 ? detail::concat(m.frames, " frames of ") : "",
+              columns, "x", rows, " pixels of ", allocated, " bits)");
   if (reader.GetStreamCurrentPosition() + uint64_t(length) > file.size())
     HYB_THROW(IoError, where, ": Pixel Data of ", length, " bytes runs past the end of the file (expected ", expected, " bytes in the file)");
   return m;
 }
 
-void scanDicom(const std::string& dir, DicomScan* scan) {
-  silenceGdcm();
-  gdcm::Directory directory;
-  if (directory.Load(dir, false) == 0) HYB_THROW(IoError, dir, ": directory holds no files (expected a DICOM series)");
-  // Only regular files that pass the meta check reach GDCM (a FIFO would block its open).
-  std::vector<std::string> candidates;
-  for (const std::string& f : directory.GetFilenames()) {
-    struct stat st {};
-    if (::stat(f.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) continue;
-    if (checkFileMeta(InputFile(f)) == DicomKind::Dicom) candidates.push_back(f);
-  }
-  for (const gdcm::Tag& t : {kSeriesUid, kSeriesNumber, kSeriesDescription, kModality, kRows, kColumns, kPosition, kOrientation, kThickness,
-                             kSlope, kIntercept, kPatientPosition})
-    scan->scanner.AddTag(t);
-  if (!scan->scanner.Scan(candidates)) HYB_THROW(IoError, dir, ": cannot scan the directory for DICOM files");
-  for (const std::string& f : candidates)
-    if (scan->scanner.IsKey(f.c_str())) scan->series[scan->value(f, kSeriesUid)].push_back(f);
-  if (scan->series.empty()) HYB_THROW(IoError, dir, ": no DICOM files found (expected a directory holding one series)");
-}
 
-DicomSeriesInfo seriesInfo(const DicomScan& scan, const std::string& uid, const std::vector<std::string>& files) {
-  DicomSeriesInfo s;
-  s.uid = uid;
-  s.slices = files.size();
-  const std::string& f = files.front();
-  s.number = scan.value(f, kSeriesNumber);
-  s.description = scan.value(f, kSeriesDescription);
-  s.modality = scan.value(f, kModality);
-  s.columns = std::atoi(scan.value(f, kColumns).c_str());
-  s.rows = std::atoi(scan.value(f, kRows).c_str());
-  return s;
-}
-
-// One line naming series @p s.
-std::string describe(const DicomSeriesInfo& s) {
-  return detail::concat("", quotedExcerpt(s.uid), " (", s.modality.empty() ? "?" : s.modality, s.description.empty() ? "" : ", " + s.description, ", ",
-                        s.slices, " slices of ", s.columns, "x", s.rows, ")");
-}
-
-// A slice of the chosen series and where it lies.
-struct DicomSlice {
-  std::string file;
-  glm::dvec3 position;
-  double depth;  // along the slices' normal, mm
-};
-
-// A series chosen in a directory, its geometry checked and its slices ordered: what the whole
+// A series chosen in a folder, its geometry checked and its planes ordered: what the whole
 // reader and the streamed planes share.
 struct SeriesLayout {
   std::string dir;
   DicomSeriesInfo chosen;
   std::vector<std::string> warnings;
-  PatientFrame axes;               // the slices' rows, columns and normal
-  std::vector<DicomSlice> slices;  // ordered along the normal
-  double zSpacing = 1.0;
-  std::string patientPosition, thickness;  // the first slice's, for the info
+  std::vector<DicomFrame> slices;  // ordered along the normal
+  PlaneStack stack;                // their geometry
+  StackGrid grid;                  // the orthogonal grid they are drawn on
+  std::string patientPosition, thickness;
 };
 
-SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid) {
-  DicomScan scan;
-  scanDicom(dir, &scan);
+// One plane named for messages: its file, its frame in a multi-frame file, its place in the series.
+std::string sliceWhere(const SeriesLayout& l, size_t s) {
+  const DicomFrame& f = l.slices[s];
+  return detail::concat(f.file, f.frame >= 0 ? detail::concat(" (frame ", f.frame + 1, ")") : "", " (slice ", s + 1, " of ", l.slices.size(), ")");
+}
+
+// Orders and checks the planes of the series @p seriesUid of @p dir's catalog (the default when empty).
+SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid, const Progress* progress) {
+  silenceGdcm();
+  const DicomCatalog catalog = catalogDicom(dir, true, progress);
   SeriesLayout l;
   l.dir = dir;
-  // The series: the one named, or the largest (with a line naming it when there are several).
-  std::vector<DicomSeriesInfo> all;
-  for (const auto& [uid, files] : scan.series) all.push_back(seriesInfo(scan, uid, files));
-  std::stable_sort(all.begin(), all.end(), [](const DicomSeriesInfo& a, const DicomSeriesInfo& b) { return a.slices > b.slices; });
   std::string listing;
-  for (const DicomSeriesInfo& s : all) listing += (listing.empty() ? "" : "; ") + describe(s);
-  const DicomSeriesInfo* chosen = &all.front();
+  std::set<std::string> studies;
+  for (const DicomSeriesInfo& s : catalog.series) {
+    listing += (listing.empty() ? "" : "; ") + describeSeries(s);
+    studies.insert(s.studyUid);
+  }
+  const DicomSeriesInfo* chosen = &catalog.series.front();
   if (!seriesUid.empty()) {
-    const auto it = std::find_if(all.begin(), all.end(), [&](const DicomSeriesInfo& s) { return s.uid == seriesUid; });
-    if (it == all.end()) HYB_THROW(ValueError, "--series ", quotedExcerpt(seriesUid), ": no such series in ", dir, " (it holds ", listing, ")");
+    const auto it = std::find_if(catalog.series.begin(), catalog.series.end(), [&](const DicomSeriesInfo& s) { return s.uid == seriesUid; });
+    if (it == catalog.series.end()) HYB_THROW(ValueError, "--series ", quotedExcerpt(seriesUid), ": no such series in ", dir, " (it holds ", listing, ")");
     chosen = &*it;
-  } else if (all.size() > 1) {
-    l.warnings.push_back(detail::concat(dir, ": ", all.size(), " series; reading the largest, ", describe(*chosen),
-                                        " (choose another with --series UID: ", listing, ")"));
+  } else if (catalog.series.size() > 1) {
+    l.warnings.push_back(detail::concat(dir, ": ", catalog.series.size(), " series", studies.size() > 1 ? detail::concat(" in ", studies.size(), " studies") : "",
+                                        "; reading the largest", chosen->localizer ? "" : chosen->axial ? " axial one that is not a localizer" : " that is not a localizer",
+                                        ", ", describeSeries(*chosen), " (choose another with --series UID: ", listing, ")"));
   }
   l.chosen = *chosen;
-  const std::vector<std::string>& files = scan.series.at(chosen->uid);
+  const std::vector<DicomInstance>& instances = catalog.instances.at(chosen->uid);
+  // A damaged file beside the series' images may be one of them: refused; one elsewhere is named.
+  std::set<fs::path> folders;
+  for (const DicomInstance& in : instances) folders.insert(fs::path(in.file).parent_path());
+  for (const auto& [file, message] : catalog.damaged) {
+    if (!folders.count(fs::path(file).parent_path())) {
+      l.warnings.push_back(message + " (skipped: not in the folder of the series read)");
+      continue;
+    }
+    (void)checkFileMeta(InputFile(file));  // its own words where GDCM's guard has them
+    throw IoError(message);
+  }
+
+  // The planes: every frame of every image; localizer images among others are left out.
+  size_t localizers = 0;
+  for (const DicomInstance& in : instances)
+    for (const DicomFrame& f : in.planes) {
+      if (f.localizer && !chosen->localizer) ++localizers;
+      else l.slices.push_back(f);
+    }
+  if (localizers)
+    l.warnings.push_back(detail::concat(dir, ": ", localizers, " localizer image", localizers == 1 ? "" : "s", " of series ", quotedExcerpt(chosen->uid), " left out"));
+  const DicomInstance* first = nullptr;
+  for (const DicomInstance& in : instances) {
+    if (std::none_of(l.slices.begin(), l.slices.end(), [&](const DicomFrame& f) { return f.file == in.file; })) continue;
+    if (!first) first = &in;
+    if (in.columns != first->columns || in.rows != first->rows)
+      HYB_THROW(IoError, dir, ": series ", quotedExcerpt(chosen->uid), " holds images of two sizes, ", first->columns, "x", first->rows, " (", first->file,
+                ") and ", in.columns, "x", in.rows, " (", in.file, "; expected one size for a volume)");
+    if (glm::length(in.pixelSpacing - first->pixelSpacing) > 1e-4 * std::max(1.0, glm::length(first->pixelSpacing)))
+      HYB_THROW(IoError, dir, ": series ", quotedExcerpt(chosen->uid), " holds images of two pixel spacings, ", first->pixelSpacing.x, " x ",
+                first->pixelSpacing.y, " mm (", first->file, ") and ", in.pixelSpacing.x, " x ", in.pixelSpacing.y, " mm (", in.file,
+                "; expected one spacing for a volume)");
+  }
 
   // Geometry (DICOM PS3.3 C.7.6.2): the rows' and columns' directions from Image Orientation
-  // (Patient), the slices ordered by Image Position (Patient) along their normal, which must hold
-  // every position (no gantry tilt) at one spacing.
-  const std::vector<double> iop = decimals(scan.scanner.GetValue(files.front().c_str(), kOrientation));
+  // (Patient), the planes ordered by Image Position (Patient) along their normal.
+  const DicomFrame& top = l.slices.front();
+  const std::vector<double>& iop = top.orientation;
   glm::dmat3 direction(1.0);
   const bool oriented = iop.size() == 6;
   if (oriented) {
     direction[0] = glm::dvec3(iop[0], iop[1], iop[2]);
     direction[1] = glm::dvec3(iop[3], iop[4], iop[5]);
     direction[2] = glm::cross(direction[0], direction[1]);
-  } else if (files.size() > 1) {
-    HYB_THROW(IoError, files.front(), ": Image Orientation (Patient) missing or malformed (expected six cosines to order the slices)");
+  } else if (l.slices.size() > 1) {
+    HYB_THROW(IoError, top.file, ": Image Orientation (Patient) missing or malformed (expected six cosines to order the slices)");
   } else {
-    l.warnings.push_back(files.front() + ": no Image Orientation (Patient): the slice's axes are taken as LPS");
+    l.warnings.push_back(top.file + ": no Image Orientation (Patient): the slice's axes are taken as LPS");
   }
-  l.axes = makePatientFrame(direction, glm::dvec3(0.0), files.front() + " (Image Orientation (Patient))");
-  std::vector<DicomSlice>& slices = l.slices;
-  for (const std::string& f : files) {
-    const std::vector<double> ipp = decimals(scan.scanner.GetValue(f.c_str(), kPosition));
-    if (ipp.size() != 3 && files.size() > 1)
-      HYB_THROW(IoError, f, ": Image Position (Patient) missing or malformed (expected three numbers to order the slices)");
-    const glm::dvec3 p = ipp.size() == 3 ? glm::dvec3(ipp[0], ipp[1], ipp[2]) : glm::dvec3(0.0);
-    if (oriented && f != files.front()) {
-      const std::vector<double> other = decimals(scan.scanner.GetValue(f.c_str(), kOrientation));
-      bool same = other.size() == 6;
-      for (size_t c = 0; same && c < 6; ++c) same = std::abs(other[c] - iop[c]) <= 1e-4;
-      if (!same) HYB_THROW(IoError, f, ": Image Orientation (Patient) differs from ", files.front(), "'s (expected one orientation for the series)");
-    }
-    slices.push_back({f, p, glm::dot(p, l.axes.direction[2])});
+  const PatientFrame axes = makePatientFrame(direction, glm::dvec3(0.0), top.file + " (Image Orientation (Patient))");
+  for (const DicomFrame& f : l.slices) {
+    if (!f.hasPosition && l.slices.size() > 1)
+      HYB_THROW(IoError, f.file, ": Image Position (Patient) missing or malformed (expected three numbers to order the slices)");
+    bool same = !oriented || f.orientation.size() == 6;
+    for (size_t c = 0; oriented && same && c < 6; ++c) same = std::abs(f.orientation[c] - iop[c]) <= 1e-4;
+    if (!same)
+      HYB_THROW(IoError, f.file, ": Image Orientation (Patient) differs from ", top.file, "'s (expected one orientation for the series: mixed orientations are not one volume)");
   }
-  std::sort(slices.begin(), slices.end(), [](const DicomSlice& a, const DicomSlice& b) { return a.depth < b.depth; });
-  if (slices.size() > 1) {
-    l.zSpacing = (slices.back().depth - slices.front().depth) / double(slices.size() - 1);
-    const double zSpacing = l.zSpacing;
-    for (size_t k = 1; k < slices.size(); ++k) {
-      const double step = slices[k].depth - slices[k - 1].depth;
-      if (step <= 1e-3 * std::max(zSpacing, 1e-3))
-        HYB_THROW(IoError, slices[k].file, ": at the same position as ", slices[k - 1].file, " along the slice normal (expected one slice per position)");
-      if (std::abs(step - zSpacing) > std::max(1e-3, 1e-2 * zSpacing))
-        HYB_THROW(IoError, dir, ": slices are not evenly spaced along the normal (", slices[k - 1].file, " to ", slices[k].file, ": ", step,
-                  " mm, the series' mean ", zSpacing, " mm; expected a regular grid)");
-      // Positions must run along the normal: a gantry tilt moves them across the image plane.
-      const glm::dvec3 offset = slices[k].position - slices.front().position;
-      const double across = glm::length(offset - glm::dot(offset, l.axes.direction[2]) * l.axes.direction[2]);
-      if (across > std::max(1e-2, 1e-3 * glm::length(offset)))
-        HYB_THROW(IoError, dir, ": slice positions move ", across, " mm across the image plane by ", slices[k].file,
-                  " (gantry tilt or a sheared series: the grid is not orthogonal); resample it to an orthogonal grid first "
-                  "(e.g. Slicer or ITK), it is refused rather than drawn sheared");
-    }
-  } else if (const std::vector<double> t = decimals(scan.scanner.GetValue(slices.front().file.c_str(), kThickness)); t.size() == 1 && t[0] > 0) {
-    l.zSpacing = t[0];
+  std::stable_sort(l.slices.begin(), l.slices.end(), [&](const DicomFrame& a, const DicomFrame& b) {
+    return glm::dot(a.position, axes.direction[2]) < glm::dot(b.position, axes.direction[2]);
+  });
+  glm::dvec2 spacing = first->pixelSpacing;
+  if (spacing.x <= 0.0 || spacing.y <= 0.0) {
+    spacing = glm::dvec2(1.0);
+    l.warnings.push_back(first->file + ": no Pixel Spacing (0028,0030): 1 mm between pixels assumed");
   }
-  l.patientPosition = scan.value(slices.front().file, kPatientPosition);
-  l.thickness = scan.value(slices.front().file, kThickness);
+  l.patientPosition = first->patientPosition;
+  l.thickness = first->thickness;
+  PlaneStack& stack = l.stack;
+  stack.axes = axes.direction;
+  stack.pixelSpacing = spacing;
+  stack.size = {first->columns, first->rows};
+  for (size_t s = 0; s < l.slices.size(); ++s) {
+    stack.origins.push_back(l.slices[s].position);
+    stack.names.push_back(sliceWhere(l, s));
+  }
+  if (const double t = std::strtod(l.thickness.c_str(), nullptr); std::isfinite(t) && t > 0.0) stack.singleSpacing = t;
+  l.grid = stackGrid(stack, dir, first->tilt.empty() ? "" : "Gantry/Detector Tilt (0018,1120) says " + first->tilt + " degrees");
   return l;
-}
-
-// Slice @p s of @p l named for messages: its file and its place in the series.
-std::string sliceWhere(const SeriesLayout& l, size_t s) {
-  return detail::concat(l.slices[s].file, " (slice ", s + 1, " of ", l.slices.size(), ")");
 }
 
 // Refuses a slice whose Columns and Rows (@p module) are not the first slice's (@p dims).
@@ -507,29 +470,19 @@ void checkSliceSize(const std::string& where, const PixelModule& module, const g
     HYB_THROW(IoError, where, ": slice is ", module.columns, "x", module.rows, ", expected ", dims.x, "x", dims.y, " like the first slice");
 }
 
-// One slice's image as GDCM reads it, its pixels not decoded yet.
+// One image as GDCM reads it, its pixels not decoded yet.
 struct SliceImage {
   gdcm::ImageReader reader;
   ScalarType type = ScalarType::Int16;  // of the decoded pixels
   glm::ivec2 size{0};
-  glm::dvec2 spacing{1.0};  // between columns, between rows (Pixel Spacing's second and first)
-  double slope = 1.0, intercept = 0.0;
+  int frames = 1;
   // The values GDCM can decode: the type's range, or Bits Stored's where GDCM clears the unused bits
   // of 16-bit pixels (ImageCodec::DoOverlayCleanup, run by its raw and RLE decoders with the
   // header's pixel format; the JPEG family's decoders may take another from the stream).
   double lo = 0.0, hi = 0.0;
 };
 
-// The series' rows, columns and their spacings from its first slice's @p image.
-void takeGrid(const SliceImage& image, const std::string& dir, glm::ivec3* dims, glm::dvec3* spacing) {
-  dims->x = image.size.x;
-  dims->y = image.size.y;
-  validateDims(*dims, dir);
-  spacing->x = image.spacing.x;
-  spacing->y = image.spacing.y;
-}
-
-// Reads slice @p file (its pixel module @p module checked) with GDCM, checking what it decodes to.
+// Reads image @p file (its pixel module @p module checked) with GDCM, checking what it decodes to.
 void readSliceImage(const std::string& file, const std::string& where, const PixelModule& module, SliceImage* out) {
   gdcm::ImageReader& reader = out->reader;
   reader.SetFileName(file.c_str());
@@ -538,8 +491,9 @@ void readSliceImage(const std::string& file, const std::string& where, const Pix
   const gdcm::PixelFormat& pf = image.GetPixelFormat();
   if (pf.GetSamplesPerPixel() != 1)
     HYB_THROW(IoError, where, ": ", pf.GetSamplesPerPixel(), " samples per pixel (expected 1, greyscale)");
-  if (image.GetNumberOfDimensions() == 3 && image.GetDimension(2) > 1)
-    HYB_THROW(IoError, where, ": multi-frame images are not supported (expected one slice per file)");
+  out->frames = image.GetNumberOfDimensions() == 3 ? int(image.GetDimension(2)) : 1;
+  if (out->frames != module.frames)
+    HYB_THROW(IoError, where, ": GDCM decodes ", out->frames, " frames (expected the ", module.frames, " of Number of Frames)");
   out->size = glm::ivec2(int(image.GetDimension(0)), int(image.GetDimension(1)));
   if (out->size.x != module.columns || out->size.y != module.rows)
     HYB_THROW(IoError, where, ": GDCM decodes ", out->size.x, "x", out->size.y, " pixels (expected the ", module.columns, "x", module.rows,
@@ -555,10 +509,6 @@ void readSliceImage(const std::string& file, const std::string& where, const Pix
     case gdcm::PixelFormat::FLOAT64: out->type = ScalarType::Float64; break;
     default: HYB_THROW(IoError, where, ": unsupported pixel format ", pf.GetScalarTypeAsString());
   }
-  const double* sp = image.GetSpacing();
-  out->spacing = glm::dvec2(sp[0], sp[1]);
-  out->slope = image.GetSlope();
-  out->intercept = image.GetIntercept();
   const bool isFloat = out->type == ScalarType::Float32 || out->type == ScalarType::Float64;
   const bool isSigned = out->type == ScalarType::Int8 || out->type == ScalarType::Int16 || out->type == ScalarType::Int32;
   int bits = int(scalarSize(out->type)) * 8;
@@ -566,17 +516,28 @@ void readSliceImage(const std::string& file, const std::string& where, const Pix
   if (pf.GetBitsAllocated() == 16 && bits == 16 && (!ts.IsEncapsulated() || ts == gdcm::TransferSyntax::RLELossless)) bits = pf.GetBitsStored();
   out->lo = isFloat ? -std::numeric_limits<double>::infinity() : isSigned ? -std::ldexp(1.0, bits - 1) : 0.0;
   out->hi = isFloat ? std::numeric_limits<double>::infinity() : std::ldexp(1.0, isSigned ? bits - 1 : bits) - 1.0;
-  // Samples are held as float at widest: a rescale whose values leave its range would make infinities.
-  const double a = isFloat ? 0.0 : out->lo * out->slope + out->intercept, b = isFloat ? 0.0 : out->hi * out->slope + out->intercept;
-  if (!std::isfinite(out->slope) || !std::isfinite(out->intercept) || !std::isfinite(a) || !std::isfinite(b) ||
-      std::max(std::abs(a), std::abs(b)) > double(std::numeric_limits<float>::max()))
-    HYB_THROW(IoError, where, ": Rescale Slope (0028,1053) ", out->slope, " and Rescale Intercept (0028,1052) ", out->intercept,
-              " take the pixel values ", out->lo, "..", out->hi, " beyond the float range (expected rescaled values within +-3.4e38)");
 }
 
-// The @p image's decoded pixels in the type a volume holds them in (decodeSamples).
-SampleArray sliceSamples(const SliceImage& image, const std::string& where) {
-  const size_t count = size_t(image.size.x) * size_t(image.size.y);
+// What one plane's header decided when the series was opened.
+struct SliceHeader {
+  ScalarType type;
+  double slope, intercept;
+  double lo, hi;  // the pixel values GDCM can decode
+};
+
+// Samples are held as float at widest: a rescale whose values leave its range would make infinities.
+void checkRescale(const std::string& where, const SliceHeader& h) {
+  const bool isFloat = !std::isfinite(h.lo);
+  const double a = isFloat ? 0.0 : h.lo * h.slope + h.intercept, b = isFloat ? 0.0 : h.hi * h.slope + h.intercept;
+  if (!std::isfinite(h.slope) || !std::isfinite(h.intercept) || !std::isfinite(a) || !std::isfinite(b) ||
+      std::max(std::abs(a), std::abs(b)) > double(std::numeric_limits<float>::max()))
+    HYB_THROW(IoError, where, ": Rescale Slope (0028,1053) ", h.slope, " and Rescale Intercept (0028,1052) ", h.intercept, " take the pixel values ",
+              h.lo, "..", h.hi, " beyond the float range (expected rescaled values within +-3.4e38)");
+}
+
+// The @p image's decoded pixels (every frame) in the type a volume holds them in (decodeSamples).
+SampleArray imageSamples(const SliceImage& image, const std::string& where) {
+  const size_t count = size_t(image.size.x) * size_t(image.size.y) * size_t(image.frames);
   const gdcm::Image& im = image.reader.GetImage();
   if (im.GetBufferLength() != count * scalarSize(image.type))
     HYB_THROW(IoError, where, ": decoded pixel data holds ", im.GetBufferLength(), " bytes (expected ", count * scalarSize(image.type), ")");
@@ -585,14 +546,77 @@ SampleArray sliceSamples(const SliceImage& image, const std::string& where) {
   return decodeSamples(reinterpret_cast<const uint8_t*>(buffer.data()), count, image.type, std::endian::native == std::endian::big);
 }
 
+// Plane @p frame of @p all (planes of @p planeSize samples).
+SampleArray framePlane(const SampleArray& all, int frame, size_t planeSize) {
+  return std::visit(
+      [&](const auto& v) -> SampleArray {
+        using T = typename std::remove_reference_t<decltype(v)>::value_type;
+        const auto from = v.begin() + ptrdiff_t(size_t(std::max(frame, 0)) * planeSize);
+        return std::vector<T>(from, from + ptrdiff_t(planeSize));
+      },
+      all);
+}
+
+// What GDCM needs to decode plane @p s's file without asserting, checked (the file may have changed
+// since the series was opened), with its size the series'.
+PixelModule checkedModule(const SeriesLayout& l, size_t s) {
+  const std::string where = sliceWhere(l, s);
+  const InputFile file(l.slices[s].file);
+  if (checkFileMeta(file) != DicomKind::Dicom) HYB_THROW(IoError, where, ": not a DICOM file (expected the slice the series was opened with)");
+  const PixelModule module = checkPixelModule(file, where);
+  checkSliceSize(where, module, glm::ivec3(l.stack.size, 0));
+  return module;
+}
+
+// Decodes the planes of a series one at a time: an image file for each single-frame plane; a
+// multi-frame image decoded whole once (GDCM decodes a file at a time) while its frames are read.
+class PlaneDecoder {
+ public:
+  explicit PlaneDecoder(const SeriesLayout& l) : mLayout(l) {}
+  /// Plane @p s's pixels (not rescaled) and its header, every check made on its file first.
+  SampleArray decode(size_t s, SliceHeader* header) {
+    const DicomFrame& f = mLayout.slices[s];
+    const std::string where = sliceWhere(mLayout, s);
+    const glm::ivec3 dims(mLayout.stack.size, 0);
+    if (f.frame < 0 || f.file != mFile) {
+      const PixelModule module = checkedModule(mLayout, s);
+      SliceImage image;
+      readSliceImage(f.file, where, module, &image);
+      mAll = imageSamples(image, where);  // the reader and its copy of the pixel data go with `image`
+      mFacts = {image.type, 1.0, 0.0, image.lo, image.hi};
+      mFrames = image.frames;
+      mFile = f.frame < 0 ? std::string() : f.file;  // single-frame images are not kept
+    }
+    *header = {mFacts.type, f.slope, f.intercept, mFacts.lo, mFacts.hi};
+    if (f.frame < 0)  // the rescale the file holds now (it may have been rewritten since the series was opened)
+      if (const std::optional<detail::DicomHeader> now = detail::readDicomHeader(f.file)) {
+        const std::vector<double> slope = now->data.numbers(detail::dicomTag(0x0028, 0x1053)), intercept = now->data.numbers(detail::dicomTag(0x0028, 0x1052));
+        header->slope = slope.size() == 1 ? slope[0] : 1.0;
+        header->intercept = intercept.size() == 1 ? intercept[0] : 0.0;
+      }
+    checkRescale(where, *header);
+    if (f.frame < 0) return std::move(mAll);
+    if (f.frame >= mFrames) HYB_THROW(IoError, where, ": holds ", mFrames, " frames (expected frame ", f.frame + 1, ")");
+    return framePlane(mAll, f.frame, size_t(dims.x) * size_t(dims.y));
+  }
+
+ private:
+  const SeriesLayout& mLayout;
+  std::string mFile;  // the multi-frame image decoded in mAll
+  SliceHeader mFacts{};  // its pixel type and the values it can decode
+  int mFrames = 1;
+  SampleArray mAll;
+};
+
 // The series' frame, info and warnings on @p v (the whole volume or its description).
 Volume placedSeries(Volume v, const SeriesLayout& l, double slopeFirst, double interceptFirst, bool rescaled) {
-  v = placed(std::move(v), makePatientFrame(l.axes.direction, l.slices.front().position, l.dir), l.warnings);
+  v = placed(std::move(v), makePatientFrame(l.stack.axes, l.stack.origins.front(), l.dir), l.warnings);
   v.addInfo("modality", l.chosen.modality.empty() ? "(none)" : l.chosen.modality);
-  v.addInfo("series", describe(l.chosen) + (l.chosen.number.empty() ? "" : ", number " + l.chosen.number));
+  v.addInfo("series", describeSeries(l.chosen) + (l.chosen.number.empty() ? "" : ", number " + l.chosen.number));
   if (!l.patientPosition.empty()) v.addInfo("position", l.patientPosition + " (Patient Position)");
   if (!l.thickness.empty())
-    v.addInfo("thickness", l.thickness + " mm (Slice Thickness; slices " + detail::concat(l.zSpacing) + " mm apart)");
+    v.addInfo("thickness", l.thickness + " mm (Slice Thickness; slices " + detail::concat(l.grid.spacing.z) + " mm apart" +
+                               (l.grid.resampled ? " after resampling" : "") + ")");
   v.addInfo("rescale", detail::concat("slope ", slopeFirst, ", intercept ", interceptFirst, rescaled ? " (applied)" : ""));
   return v;
 }
@@ -609,19 +633,13 @@ bool holdsAll(ScalarType stored, double lo, double hi, double slope, double inte
   });
 }
 
-// What one slice's header decided when the series was opened.
-struct SliceHeader {
-  ScalarType type;
-  double slope, intercept;
-};
-
-// The planes of a DICOM series, each decoded from its slice file when it is read: the file is
-// checked as the whole reader checks it (it may have changed since the series was opened) and its
-// samples rescaled as readDicomSeries rescales them, into the stored type its headers decided.
+// The planes of a DICOM series in the order of its stack, each decoded when it is read: the file
+// is checked as the whole reader checks it (it may have changed since the series was opened) and
+// its samples rescaled as readDicomSeries rescales them, into the stored type its headers decided.
 class DicomPlanes final : public PlaneSource {
  public:
   DicomPlanes(Volume description, SeriesLayout layout, std::vector<SliceHeader> headers)
-      : PlaneSource(std::move(description), layout.dir), mLayout(std::move(layout)), mHeaders(std::move(headers)) {}
+      : PlaneSource(std::move(description), layout.dir), mLayout(std::move(layout)), mHeaders(std::move(headers)), mDecoder(mLayout) {}
   void rewind() override { mNext = 0; }
   void read(int count, SampleArray* out, size_t first) override {
     HYB_CHECK(count >= 0 && mNext + count <= dims().z && first + size_t(count) * planeSize() <= sampleCount(*out) &&
@@ -640,24 +658,13 @@ class DicomPlanes final : public PlaneSource {
  private:
   // Decodes plane @p z into mPlane.
   void decodePlane(size_t z) {
-    const std::string& file = mLayout.slices[z].file;
     const std::string where = sliceWhere(mLayout, z);
     const SliceHeader& h = mHeaders[z];
-    PixelModule module;
-    {
-      // The checks that keep GDCM from asserting, made again: the file may have changed since it was scanned.
-      const InputFile f(file);
-      if (checkFileMeta(f) != DicomKind::Dicom)
-        HYB_THROW(IoError, where, ": no longer a DICOM file (expected the slice the series was opened with)");
-      module = checkPixelModule(f, where);
-      checkSliceSize(where, module, dims());
-    }
-    SliceImage image;
-    readSliceImage(file, where, module, &image);
-    if (image.type != h.type || image.slope != h.slope || image.intercept != h.intercept)
-      HYB_THROW(IoError, where, ": changed since the series was opened: ", scalarName(image.type), " pixels, rescale slope ", image.slope,
-                ", intercept ", image.intercept, " (expected ", scalarName(h.type), ", slope ", h.slope, ", intercept ", h.intercept, ")");
-    const SampleArray slice = sliceSamples(image, where);
+    SliceHeader now;
+    const SampleArray slice = mDecoder.decode(z, &now);
+    if (now.type != h.type || now.slope != h.slope || now.intercept != h.intercept)
+      HYB_THROW(IoError, where, ": changed since the series was opened: ", scalarName(now.type), " pixels, rescale slope ", now.slope, ", intercept ",
+                now.intercept, " (expected ", scalarName(h.type), ", slope ", h.slope, ", intercept ", h.intercept, ")");
     if (sampleCount(mPlane) != planeSize() || hyb::storedType(mPlane) != storedType()) mPlane = detail::allocateSamples(storedType(), planeSize());
     detail::rescaleSamples(&mPlane, 0, slice, h.slope, h.intercept);
     if (hyb::storedType(mPlane) != storedType())  // (GDCM decoded values outside the range its header gives)
@@ -667,107 +674,112 @@ class DicomPlanes final : public PlaneSource {
 
   SeriesLayout mLayout;
   std::vector<SliceHeader> mHeaders;  // per plane
+  PlaneDecoder mDecoder;
   int mNext = 0;
   SampleArray mPlane;  // the plane last decoded, rescaled
 };
 
+// The planes of the series in its stack's order, not resampled.
+std::unique_ptr<PlaneSource> stackPlanes(SeriesLayout layout) {
+  const size_t n = layout.slices.size();
+  // Every plane's header, checked as the whole reader checks it; the stored type is decided by the
+  // whole reader's rule (rescaleTarget of the first plane, widened to float when a rescaled value
+  // does not fit) applied to the range each header allows, or where that range does not fit, to
+  // the values, decoded once more a plane at a time.
+  const glm::ivec3 dims(layout.stack.size, int(n));
+  validateDims(dims, layout.dir);
+  ScalarType stored = ScalarType::Int16;
+  bool rescaled = false, byValues = false;
+  std::vector<SliceHeader> headers(n);
+  {
+    PlaneDecoder decoder(layout);
+    for (size_t s = 0; s < n; ++s) {
+      decoder.decode(s, &headers[s]);  // (a multi-frame image is decoded once for all its frames)
+      const SliceHeader& h = headers[s];
+      if (s == 0) stored = storedType(detail::rescaleTarget(h.type, h.slope, h.intercept, 0));
+      byValues = byValues || !holdsAll(stored, h.lo, h.hi, h.slope, h.intercept);
+      if (h.slope != 1.0 || h.intercept != 0.0) rescaled = true;
+    }
+  }
+  // The values decide (an int16 CT with 16 bits stored and an intercept, GE's): rescaled as the whole
+  // reader rescales them, a plane at a time, float as soon as one is not of the stored type.
+  if (byValues) {
+    PlaneDecoder decoder(layout);
+    for (size_t s = 0; s < n; ++s) {
+      SliceHeader h;
+      const SampleArray pixels = decoder.decode(s, &h);
+      SampleArray plane = detail::allocateSamples(stored, size_t(dims.x) * size_t(dims.y));
+      detail::rescaleSamples(&plane, 0, pixels, h.slope, h.intercept);
+      if (storedType(plane) != stored) {
+        stored = ScalarType::Float32;
+        break;
+      }
+    }
+  }
+  // (The spacing along the normal of a stack to be resampled is its grid's, which replaces it.)
+  const glm::dvec3 spacing(layout.stack.pixelSpacing, layout.grid.resampled ? 1.0 : layout.grid.spacing.z);
+  Volume description = placedSeries(Volume::withoutSamples(dims, spacing, headers.front().type, stored, 0.0f, 0.0f, layout.dir), layout,
+                                    headers.front().slope, headers.front().intercept, rescaled);
+  return std::make_unique<DicomPlanes>(std::move(description), std::move(layout), std::move(headers));
+}
+
 }  // namespace
 
-std::vector<DicomSeriesInfo> listDicomSeries(const std::string& dir) {
-  DicomScan scan;
-  scanDicom(dir, &scan);
-  std::vector<DicomSeriesInfo> out;
-  for (const auto& [uid, files] : scan.series) out.push_back(seriesInfo(scan, uid, files));
-  std::stable_sort(out.begin(), out.end(), [](const DicomSeriesInfo& a, const DicomSeriesInfo& b) { return a.slices > b.slices; });
+DicomListing listDicomSeries(const std::string& dir, const Progress* progress, bool recursive) {
+  const DicomCatalog c = catalogDicom(dir, recursive, progress);
+  DicomListing out;
+  out.dir = dir;
+  out.series = c.series;
+  out.files = c.files;
+  out.skipped = c.skipped;
+  out.dicomdir = c.dicomdir;
   return out;
 }
 
 Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, const Progress* progress) {
-  const SeriesLayout layout = seriesLayout(dir, seriesUid);
-  const std::vector<DicomSlice>& slices = layout.slices;
-  glm::ivec3 dims(0, 0, int(slices.size()));
-  glm::dvec3 spacing(1.0, 1.0, layout.zSpacing);
+  SeriesLayout layout = seriesLayout(dir, seriesUid, progress);
+  const StackGrid grid = layout.grid;
+  const size_t n = layout.slices.size();
+  glm::ivec3 dims(layout.stack.size, int(n));
+  validateDims(dims, dir);
   ScalarType type = ScalarType::Int16;
   SampleArray samples;
   bool rescaled = false;
   double slopeFirst = 1.0, interceptFirst = 0.0;
-  ProgressTask task(progress, "DICOM slices", slices.size());
-  for (size_t s = 0; s < slices.size(); ++s, task.advance()) {
-    const std::string& file = slices[s].file;
-    const std::string where = sliceWhere(layout, s);
-    const PixelModule module = checkPixelModule(InputFile(file), where);
-    if (s == 0)  // the whole series is allocated up front (float at worst): what its first slice claims must fit
-      checkMemory(where, uint64_t(module.columns) * uint64_t(module.rows) * (slices.size() * sizeof(float) + 2 * sizeof(double)),
-                  detail::concat(slices.size(), " slices of ", module.columns, "x", module.rows, " samples"));
-    else
-      checkSliceSize(where, module, dims);
-    SliceImage image;
-    readSliceImage(file, where, module, &image);
-    if (s == 0) {
-      takeGrid(image, dir, &dims, &spacing);
-      type = image.type;
-      slopeFirst = image.slope;
-      interceptFirst = image.intercept;
-      samples = detail::rescaleTarget(type, slopeFirst, interceptFirst, size_t(dims.x) * dims.y * dims.z);
-    } else if (image.size.x != dims.x || image.size.y != dims.y) {
-      HYB_THROW(IoError, where, ": slice is ", image.size.x, "x", image.size.y, ", expected ", dims.x, "x", dims.y, " like the first slice");
+  ProgressTask task(progress, "DICOM slices", n);
+  PlaneDecoder decoder(layout);
+  const size_t planeSize = size_t(dims.x) * size_t(dims.y);
+  for (size_t s = 0; s < n; ++s, task.advance()) {
+    if (s == 0) {  // the whole series is allocated up front (float at worst): what its first slice claims must fit
+      checkedModule(layout, 0);
+      checkMemory(sliceWhere(layout, 0), planeSize * (n * sizeof(float) + 2 * sizeof(double)),
+                  detail::concat(n, " slices of ", dims.x, "x", dims.y, " samples"));
     }
-    const SampleArray slice = sliceSamples(image, where);
-    if (image.slope != 1.0 || image.intercept != 0.0) rescaled = true;
-    detail::rescaleSamples(&samples, s * size_t(dims.x) * dims.y, slice, image.slope, image.intercept);
+    SliceHeader h;
+    const SampleArray slice = decoder.decode(s, &h);
+    if (s == 0) {
+      type = h.type;
+      slopeFirst = h.slope;
+      interceptFirst = h.intercept;
+      samples = detail::rescaleTarget(type, slopeFirst, interceptFirst, planeSize * n);
+    }
+    if (h.slope != 1.0 || h.intercept != 0.0) rescaled = true;
+    detail::rescaleSamples(&samples, s * planeSize, slice, h.slope, h.intercept);
   }
+  const glm::dvec3 spacing(layout.stack.pixelSpacing, grid.resampled ? 1.0 : grid.spacing.z);
   validateSpacing(spacing, dir);
-  return placedSeries(Volume(dims, spacing, type, std::move(samples), dir), layout, slopeFirst, interceptFirst, rescaled);
+  Volume v = placedSeries(Volume(dims, spacing, type, std::move(samples), dir), layout, slopeFirst, interceptFirst, rescaled);
+  if (!grid.resampled) return v;
+  // Tilted or unevenly spaced: the stack read whole, drawn on its orthogonal grid.
+  return detail::readAllPlanes(*resampledPlanes(detail::planesOwning(std::make_shared<const Volume>(std::move(v)), dir), grid));
 }
 
 namespace detail {
 
 std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::string& seriesUid) {
-  SeriesLayout layout = seriesLayout(dir, seriesUid);
-  const size_t n = layout.slices.size();
-  // Every slice's header, checked as the whole reader checks it; the stored type is decided by the
-  // whole reader's rule (rescaleTarget of the first slice, widened to float when a rescaled value
-  // does not fit) applied to the range each header allows, or where that range does not fit, to
-  // the values, read once a slice at a time.
-  glm::ivec3 dims(0, 0, int(n));
-  glm::dvec3 spacing(1.0, 1.0, layout.zSpacing);
-  ScalarType stored = ScalarType::Int16;
-  bool rescaled = false, byValues = false;
-  std::vector<SliceHeader> headers;
-  headers.reserve(n);
-  for (size_t s = 0; s < n; ++s) {
-    const std::string& file = layout.slices[s].file;
-    const std::string where = sliceWhere(layout, s);
-    const PixelModule module = checkPixelModule(InputFile(file), where);
-    if (s > 0) checkSliceSize(where, module, dims);
-    SliceImage image;
-    readSliceImage(file, where, module, &image);
-    if (s == 0) {
-      takeGrid(image, dir, &dims, &spacing);
-      stored = storedType(detail::rescaleTarget(image.type, image.slope, image.intercept, 0));
-    }
-    // Whether the whole reader widens to float depends on the values (below).
-    byValues = byValues || !holdsAll(stored, image.lo, image.hi, image.slope, image.intercept);
-    if (image.slope != 1.0 || image.intercept != 0.0) rescaled = true;
-    headers.push_back({image.type, image.slope, image.intercept});
-  }
-  validateSpacing(spacing, dir);
-  // The values decide (an int16 CT with 16 bits stored and an intercept, GE's): rescaled as the whole
-  // reader rescales them, a slice at a time, float as soon as one is not of the stored type.
-  for (size_t s = 0; byValues && s < n; ++s) {
-    const std::string where = sliceWhere(layout, s);
-    SliceImage image;
-    readSliceImage(layout.slices[s].file, where, checkPixelModule(InputFile(layout.slices[s].file), where), &image);
-    SampleArray plane = detail::allocateSamples(stored, size_t(dims.x) * size_t(dims.y));
-    detail::rescaleSamples(&plane, 0, sliceSamples(image, where), image.slope, image.intercept);
-    if (storedType(plane) != stored) {
-      stored = ScalarType::Float32;
-      break;
-    }
-  }
-  Volume description = placedSeries(Volume::withoutSamples(dims, spacing, headers.front().type, stored, 0.0f, 0.0f, dir), layout, headers.front().slope,
-                                    headers.front().intercept, rescaled);
-  return std::make_unique<DicomPlanes>(std::move(description), std::move(layout), std::move(headers));
+  SeriesLayout layout = seriesLayout(dir, seriesUid, nullptr);
+  const StackGrid grid = layout.grid;
+  return resampledPlanes(stackPlanes(std::move(layout)), grid);
 }
 
 }  // namespace detail

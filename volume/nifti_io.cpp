@@ -18,6 +18,7 @@
 #include "volume/memory_limit.h"
 #include "volume/patient_frame.h"
 #include "volume/plane_source.h"
+#include "volume/plane_stack.h"
 #include "volume/reader_util.h"
 #include "volume/text_reader.h"
 
@@ -28,26 +29,60 @@ using namespace detail;  // the readers' shared helpers
 
 namespace {
 
+// A sform whose first two columns are orthogonal but whose third leaves their normal (dcm2niix's
+// conversion of a gantry-tilted series): the stack of its planes, each at origin + k·column 3.
+std::optional<PlaneStack> shearedStack(const glm::dmat3& d, const glm::dvec3& origin, const glm::ivec3& dims, const std::string& path) {
+  const double l0 = glm::length(d[0]), l1 = glm::length(d[1]);
+  if (!(l0 > 0.0 && l1 > 0.0) || std::abs(glm::dot(d[0], d[1])) > 1e-3 * l0 * l1) return std::nullopt;
+  glm::dvec3 n = glm::cross(d[0] / l0, d[1] / l1);
+  if (glm::dot(n, d[2]) < 0.0) n = -n;  // the planes in the file's order are in increasing depth
+  if (glm::dot(glm::normalize(d[2]), n) < 0.1) return std::nullopt;  // the third axis nearly in the plane: not a stack
+  PlaneStack s;
+  s.axes = makePatientFrame(glm::dmat3(d[0] / l0, d[1] / l1, n), glm::dvec3(0.0), path + " (sform)").direction;
+  s.pixelSpacing = {l0, l1};
+  s.size = {dims.x, dims.y};
+  for (int k = 0; k < dims.z; ++k) {
+    s.origins.push_back(origin + double(k) * d[2]);
+    s.names.push_back(concat(path, " (plane ", k, ")"));
+  }
+  return s;
+}
+
 // The patient frame of a NIfTI image, with the precedence of ITK (5.x) and nibabel: the sform when
-// its code is set and its axes are orthogonal (spacing: its columns' lengths), else the qform
-// (nifti_clib's qto_xyz: quaternion, qfac and pixdim), else NIfTI's method 1 (RAS axes, origin 0)
-// with a warning. NIfTI's world is RAS; the frame is LPS.
-PatientFrame niftiFrame(const nifti_image& nim, const std::string& path, glm::dvec3* spacing, std::vector<std::string>* warnings) {
+// its code is set, else the qform (nifti_clib's qto_xyz: quaternion, qfac and pixdim), else NIfTI's
+// method 1 (RAS axes, origin 0) with a warning. NIfTI's world is RAS; the frame is LPS. A sform
+// sheared along its third axis (a tilted acquisition) is honoured: @p grid receives the orthogonal
+// grid its planes are resampled onto (ITK would take the qform instead, drawing the planes where
+// the file says they are not).
+PatientFrame niftiFrame(const nifti_image& nim, const std::string& path, const glm::ivec3& dims, glm::dvec3* spacing,
+                        std::vector<std::string>* warnings, std::optional<StackGrid>* grid) {
   const double unit = nim.xyz_units == NIFTI_UNITS_METER ? 1000.0 : nim.xyz_units == NIFTI_UNITS_MICRON ? 1e-3 : 1.0;
-  auto fromMatrix = [&](const nifti_dmat44& m, const char* name) {
+  auto columns = [&](const nifti_dmat44& m, glm::dvec3* origin) {
     glm::dmat3 d;
-    for (int c = 0; c < 3; ++c) {
-      d[c] = rasToLps(glm::dvec3(m.m[0][c], m.m[1][c], m.m[2][c]) * unit);
-      (*spacing)[c] = glm::length(d[c]);
-    }
-    return makePatientFrame(d, rasToLps(glm::dvec3(m.m[0][3], m.m[1][3], m.m[2][3]) * unit), path + " (" + name + ")");
+    for (int c = 0; c < 3; ++c) d[c] = rasToLps(glm::dvec3(m.m[0][c], m.m[1][c], m.m[2][c]) * unit);
+    *origin = rasToLps(glm::dvec3(m.m[0][3], m.m[1][3], m.m[2][3]) * unit);
+    return d;
+  };
+  auto fromMatrix = [&](const nifti_dmat44& m, const char* name) {
+    glm::dvec3 origin;
+    const glm::dmat3 d = columns(m, &origin);
+    for (int c = 0; c < 3; ++c) (*spacing)[c] = glm::length(d[c]);
+    return makePatientFrame(d, origin, path + " (" + name + ")");
   };
   if (nim.sform_code > 0) {
     try {
       return fromMatrix(nim.sto_xyz, "sform");
-    } catch (const ValueError& e) {
-      if (nim.qform_code <= 0) throw;
-      warnings->push_back(std::string(e.what()) + "; the qform is used instead, as ITK does");
+    } catch (const ValueError&) {
+      glm::dvec3 origin;
+      const glm::dmat3 d = columns(nim.sto_xyz, &origin);
+      const std::optional<PlaneStack> stack = shearedStack(d, origin, dims, path);
+      if (!stack) throw;
+      *grid = stackGrid(*stack, path, "a sheared sform");
+      *spacing = (*grid)->resampled ? glm::dvec3(stack->pixelSpacing, 1.0) : (*grid)->spacing;  // (resampled: the grid's replaces it)
+      PatientFrame f;
+      f.direction = stack->axes;
+      f.origin = origin;
+      return f;
     }
   }
   if (nim.qform_code > 0) return fromMatrix(nim.qto_xyz, "qform");
@@ -89,6 +124,7 @@ struct NiftiLayout {
   SampleData data;
   double slope = 1.0, inter = 0.0;  // scl_slope and scl_inter where they rescale the samples
   bool rescaled() const { return slope != 1.0 || inter != 0.0; }
+  std::optional<StackGrid> grid;  // a sheared sform's: its planes resampled onto it
 };
 
 NiftiLayout parseNifti(const std::string& path) {
@@ -128,7 +164,7 @@ NiftiLayout parseNifti(const std::string& path) {
   }
   glm::dvec3 spacing(std::fabs(nim->dx), std::fabs(nim->dy > 0 ? nim->dy : 1.0), std::fabs(nim->dz > 0 ? nim->dz : 1.0));
   std::vector<std::string> warnings;
-  const PatientFrame frame = niftiFrame(*nim, path, &spacing, &warnings);
+  const PatientFrame frame = niftiFrame(*nim, path, dims, &spacing, &warnings, &l.grid);
   validateSpacing(spacing, path);
   l.description = placed(describedVolume(dims, spacing, type, path), frame, warnings);
   // A .nii.gz is one gzip stream, the header inside it: the samples start vox_offset inflated bytes in.
@@ -165,13 +201,17 @@ Volume readNifti(const std::string& path) {
     samples = std::move(values);
     if (storedType(samples) == ScalarType::Float32) type = ScalarType::Float32;
   }
-  return placedAs(Volume(dims, l.description.spacing(), type, std::move(samples), path), l.description);
+  Volume v = placedAs(Volume(dims, l.description.spacing(), type, std::move(samples), path), l.description);
+  if (!l.grid || !l.grid->resampled) return v;
+  return readAllPlanes(*resampledPlanes(planesOwning(std::make_shared<const Volume>(std::move(v)), path), *l.grid));
 }
 
 std::unique_ptr<PlaneSource> detail::niftiPlanes(const std::string& path) {
   NiftiLayout l = parseNifti(path);
   if (!streams(l.data.type) || l.rescaled()) return nullptr;  // a rescale may change the stored type: read whole
-  return streamedPlanes(l.data, std::move(l.description), path);
+  std::optional<StackGrid> grid = std::move(l.grid);
+  std::unique_ptr<PlaneSource> planes = streamedPlanes(l.data, std::move(l.description), path);
+  return grid ? resampledPlanes(std::move(planes), std::move(*grid)) : std::move(planes);
 }
 
 }  // namespace hyb

@@ -54,21 +54,41 @@ Volume readMetaImage(const std::string& path);
 /// converted to LPS.
 Volume readNifti(const std::string& path);
 
-/// One series of a DICOM directory.
+/// One image series of a DICOM folder, folder tree or patient CD.
 struct DicomSeriesInfo {
   std::string uid, number, description, modality;
-  size_t slices = 0;
+  std::string date;                         ///< Series Date (YYYYMMDD), or empty
+  std::string studyUid, studyDate, studyDescription;
+  std::string patientName, patientId;
+  size_t slices = 0;                        ///< images: each frame of a multi-frame image counts
+  size_t files = 0;
   int columns = 0, rows = 0;
+  uint64_t bytes = 0;                       ///< its files' sizes
+  bool localizer = false;                   ///< ImageType LOCALIZER, or one slice across its study's main series
+  bool axial = false;                       ///< its slices' normal nearest the patient's z axis
 };
-/// The series in @p dir, largest first. @throw IoError when it holds no DICOM file.
-std::vector<DicomSeriesInfo> listDicomSeries(const std::string& dir);
-/// One DICOM series of @p dir: the one whose Series Instance UID is @p seriesUid, or the largest
-/// (a warning names it when there are several). Slices are ordered along the normal of Image
-/// Orientation (Patient), which must hold every Image Position (Patient) at one spacing (a gantry
-/// tilt is refused); rescale slope/intercept applied (CT comes out in HU). The frame: i along the
-/// rows' direction, j along the columns', k along the normal, the origin at the first slice's
-/// position. Info: modality, series, patient position, slice thickness, rescale. @p progress
-/// hears of the slices read ("DICOM slices").
+/// What a DICOM folder holds: its series (the default, the largest axial one that is not a
+/// localizer, first; then by size) and the files that are not image series, by reason.
+struct DicomListing {
+  std::string dir;
+  std::vector<DicomSeriesInfo> series;
+  size_t files = 0;                                      ///< files looked at
+  std::vector<std::pair<std::string, size_t>> skipped;  ///< reason ("not DICOM", "structured report"...), count
+  bool dicomdir = false;                                 ///< read from a DICOMDIR's records
+};
+/// The series in @p dir: from its DICOMDIR when it holds one, else from every file of its tree
+/// (@p recursive) or of the folder alone (headers only). @p progress hears of the files read ("DICOM headers").
+/// @throw IoError when it holds no image series, saying what it found.
+DicomListing listDicomSeries(const std::string& dir, const Progress* progress = nullptr, bool recursive = true);
+/// One DICOM series of @p dir (a folder, a folder tree or a CD with its DICOMDIR): the one whose
+/// Series Instance UID is @p seriesUid, or the default (the largest axial series that is not a
+/// localizer; a warning names it when there are several). Planes (single-frame images, or the
+/// frames of enhanced multi-frame images) are ordered along the normal of Image Orientation
+/// (Patient); when they are unevenly spaced or their positions leave the normal (a gantry tilt) they
+/// are resampled onto an orthogonal regular grid (plane_stack.h), a missing slice refused; rescale
+/// slope/intercept applied per plane (CT comes out in HU). The frame: i along the rows' direction,
+/// j along the columns', k along the normal. Info: modality, series, patient position, slice
+/// thickness, rescale. @p progress hears of the headers and slices read.
 Volume readDicomSeries(const std::string& dir, const std::string& seriesUid = "", const Progress* progress = nullptr);
 /// An InVesalius 3 project (.inv3: gzip tar with main.plist and the raw matrix). InVesalius keeps
 /// its matrix LAS (its DICOM import's layout) unless the project stores an affine (NIfTI import).
