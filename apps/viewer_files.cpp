@@ -2,7 +2,7 @@
 
 #include <algorithm>
 #include <cstdio>
-#include <fstream>
+#include <cstring>
 #include <random>
 
 #include "volume/error.h"
@@ -66,12 +66,29 @@ bool isVolumeName(const fs::path& p) {
   return std::any_of(std::begin(kExtensions), std::end(kExtensions), [&](const char* e) { return ext == e; });
 }
 
-// A DICOM file: "DICM" at byte 128, or the .dcm extension.
+// A DICOM file: the .dcm extension, or "DICM" at byte 128 (read without blocking: a FIFO is not one).
 bool looksLikeDicom(const fs::path& p) {
   if (fileExtension(p.string()) == ".dcm") return true;
-  std::ifstream in(p, std::ios::binary);
-  char magic[132] = {};
-  return in.read(magic, sizeof magic) && std::string_view(magic + 128, 4) == "DICM";
+  try {
+    const InputFile f(p.string());
+    uint8_t magic[4] = {};
+    if (f.size() < 132) return false;
+    f.read(128, 4, magic);
+    return std::memcmp(magic, "DICM", 4) == 0;
+  } catch (const Error&) {
+    return false;
+  }
+}
+
+// What the page shows for a DICOM series: its folder, study and series, modality and size.
+std::string seriesLabel(const std::string& folder, const DicomSeriesInfo& s) {
+  std::string label = folder + "/ ";
+  if (!s.studyDate.empty()) label += s.studyDate + " ";
+  if (!s.studyDescription.empty()) label += s.studyDescription + ": ";
+  label += s.description.empty() ? "series " + s.number : s.description;
+  label += " (" + (s.modality.empty() ? std::string("?") : s.modality) + ", " + std::to_string(s.slices) + (s.slices == 1 ? " slice" : " slices") +
+           (s.localizer ? ", localizer" : "") + ")";
+  return label;
 }
 
 }  // namespace
@@ -123,7 +140,13 @@ std::vector<DataEntry> listDataDir(const fs::path& dir, size_t maxEntries) {
          it.increment(ec))
       children.push_back(it->path());
     std::sort(children.begin(), children.end());
-    bool dicomHere = false;
+    // A patient CD: its DICOMDIR lists every series of the tree below it.
+    const bool cd = std::any_of(children.begin(), children.end(), [](const fs::path& c) {
+      std::string name = c.filename().string();
+      std::transform(name.begin(), name.end(), name.begin(), [](unsigned char ch) { return char(std::toupper(ch)); });
+      return name == "DICOMDIR";
+    });
+    bool dicomHere = cd;
     for (const fs::path& c : children) {
       if (out.size() >= maxEntries) return;
       std::error_code e;
@@ -132,19 +155,17 @@ std::vector<DataEntry> listDataDir(const fs::path& dir, size_t maxEntries) {
       if (e) continue;
       if (!inside(root, real)) continue;
       if (fs::is_directory(real, e)) {
-        if (depth < 6 && !fs::is_symlink(c)) self(self, real, depth + 1);
-      } else if (fs::is_regular_file(real, e)) {
+        if (depth < 6 && !fs::is_symlink(c) && !cd) self(self, real, depth + 1);
+      } else if (fs::is_regular_file(real, e) && !cd) {
         if (isVolumeName(c)) out.push_back({relative(c), "", relative(c)});
         else dicomHere = dicomHere || looksLikeDicom(real);
       }
     }
     if (dicomHere && out.size() < maxEntries) {
-      try {
-        for (const DicomSeriesInfo& s : listDicomSeries(d.string()))
-          out.push_back({relative(d), s.uid,
-                         relative(d) + "/ " + (s.modality.empty() ? "" : s.modality + " ") + std::to_string(s.slices) + " slices" +
-                             (s.description.empty() ? "" : ", " + s.description)});
-      } catch (const Error&) {  // not a readable series after all: not listed
+      try {  // the folder's own files (its subfolders are listed as folders), or the CD's whole tree
+        for (const DicomSeriesInfo& s : listDicomSeries(d.string(), nullptr, cd).series)
+          out.push_back({relative(d), s.uid, seriesLabel(relative(d), s)});
+      } catch (const Error&) {  // no image series after all: not listed
       }
     }
   };

@@ -3,9 +3,13 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <filesystem>
 #include <set>
 
+#include "dicom_writer.h"
 #include "test_util.h"
 #include "volume/error.h"
 
@@ -81,6 +85,37 @@ TEST(ViewerFiles, NoPathLeavesTheDataDirectory) {
   std::set<std::string> listed;
   for (const DataEntry& e : listDataDir(data)) listed.insert(e.path);
   EXPECT_EQ(listed, (std::set<std::string>{"ct/head.nrrd", "link-in.nrrd"}));
+}
+
+// DICOM in the data directory: a patient CD (DICOMDIR over nested extensionless files, with a report
+// and a non-DICOM file in its folders) lists its image series once each under the CD's folder, with
+// study and description; a plain series folder lists its series; a FIFO named like a slice is not
+// opened; nothing that is not an image series is listed.
+TEST(ViewerFiles, DicomFoldersAndCdsListTheirImageSeriesOnce) {
+  test::TempDir dir;
+  const fs::path data = dir.path() / "data";
+  test::DicomStudy study;
+  test::DicomImage image;
+  image.size = {8, 8};
+  const auto air = [](const glm::dvec3&) { return -1000.0; };
+  test::writeSeries((data / "cd/S1/S2").string(), "I", study, image, {{0, 0, 0}, {0, 0, 2}, {0, 0, 4}}, air);
+  test::writeStructuredReport((data / "cd/S1/S3/I1").string(), study, "1.2.3.77");
+  test::writeBytes((data / "cd/S1/S2/DIRFILE").string(), std::vector<uint8_t>(200, 0x41));
+  test::writeDicomdir((data / "cd").string(), {"S1/S2/I1", "S1/S2/I2", "S1/S2/I3", "S1/S3/I1"});
+  test::DicomImage other = image;
+  other.seriesUid = "1.2.3.88";
+  other.seriesDescription = "BONE";
+  test::writeSeries((data / "plain").string(), "s", study, other, {{0, 0, 0}, {0, 0, 1}}, air);
+  ASSERT_EQ(::mkfifo((data / "plain/pipe").c_str(), 0600), 0);
+  alarm(60);
+  const std::vector<DataEntry> listed = listDataDir(data);
+  alarm(0);
+  ASSERT_EQ(listed.size(), 2u);
+  EXPECT_EQ(listed[0].path, "cd");
+  EXPECT_EQ(listed[0].series, image.seriesUid);
+  EXPECT_EQ(listed[0].label, "cd/ 20240301 CT HEAD: HEAD 2.5 (CT, 3 slices)");
+  EXPECT_EQ(listed[1].path, "plain");
+  EXPECT_EQ(listed[1].label, "plain/ 20240301 CT HEAD: BONE (CT, 2 slices)");
 }
 
 }  // namespace

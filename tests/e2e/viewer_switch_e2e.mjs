@@ -33,12 +33,12 @@ for (let z = 0, i = 0; z < n; ++z)
 const header = `NRRD0004\ntype: short\ndimension: 3\nsizes: ${n} ${n} ${n}\nendian: little\nencoding: raw\n\n`;
 fs.writeFileSync(path.join(dir, 'blob.nrrd'), Buffer.concat([Buffer.from(header), Buffer.from(samples.buffer)]));
 
-// A DICOM series of two 4×4 CT slices without Image Orientation (Patient): listed (its headers
-// scan), but the reader cannot order its slices. Explicit VR little endian, as PS3.10 lays it out.
+// A DICOM series of two 4×4 CT images without Image Orientation (Patient): listed (its headers
+// scan as images), but the reader cannot order its slices. Explicit VR little endian, as PS3.10 lays it out.
 function dicomElement(group, element, vr, value) {
   let v = Buffer.isBuffer(value) ? value : Buffer.from(value, 'latin1');
   if (v.length % 2) v = Buffer.concat([v, Buffer.from(vr === 'UI' || vr === 'OB' ? '\0' : ' ')]);
-  const long = vr === 'OB';
+  const long = vr === 'OB' || vr === 'OW';
   const h = Buffer.alloc(long ? 12 : 8);
   h.writeUInt16LE(group, 0);
   h.writeUInt16LE(element, 2);
@@ -57,7 +57,8 @@ for (let k = 0; k < 2; ++k) {
   groupLength.writeUInt32LE(metaBody.length);
   const data = Buffer.concat([dicomElement(8, 0x16, 'UI', ct), dicomElement(8, 0x18, 'UI', instance), dicomElement(8, 0x60, 'CS', 'CT'),
     dicomElement(8, 0x103e, 'LO', description), dicomElement(0x20, 0x0e, 'UI', brokenUid), dicomElement(0x20, 0x11, 'IS', '7'),
-    dicomElement(0x20, 0x32, 'DS', `0\\0\\${2 * k}`), dicomElement(0x28, 0x10, 'US', us(4)), dicomElement(0x28, 0x11, 'US', us(4))]);
+    dicomElement(0x20, 0x32, 'DS', `0\\0\\${2 * k}`), dicomElement(0x28, 0x10, 'US', us(4)), dicomElement(0x28, 0x11, 'US', us(4)),
+    dicomElement(0x7fe0, 0x10, 'OW', Buffer.alloc(32))]);
   fs.writeFileSync(path.join(dir, 'broken-ct', `slice${k}.dcm`),
     Buffer.concat([Buffer.alloc(128), Buffer.from('DICM'), dicomElement(2, 0, 'UL', groupLength), metaBody, data]));
 }
