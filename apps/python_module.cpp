@@ -223,20 +223,36 @@ Volume volumeOf(const py::handle& object, const glm::dvec3& spacing) {
   const glm::ivec3 dims(int(array.shape(2)), int(array.shape(1)), int(array.shape(0)));
   if (array.shape(0) > INT32_MAX || array.shape(1) > INT32_MAX || array.shape(2) > INT32_MAX) HYB_THROW(ValueError, "array too large along an axis");
   const std::string source = "numpy array";
+  const auto keep = std::make_shared<ArrayKeeper>();
   if (type != ScalarType::UInt32 && type != ScalarType::Int32 && type != ScalarType::Float64) {
-    auto keep = std::make_shared<ArrayKeeper>();
     keep->array = array;
-    return Volume::borrowing(dims, spacing, type, type, array.data(), std::move(keep), source);
+    return Volume::borrowing(dims, spacing, type, type, array.data(), keep, source);
   }
   const size_t count = size_t(array.size());
-  SampleArray samples;
+  ValueScan scan;
   {
     py::gil_scoped_release release;  // the caller's reference keeps the array
-    const ValueScan scan = detail::withFileType(type, [&](auto zero) { return scanValues(static_cast<const decltype(zero)*>(array.data()), count, dims); });
-    samples = detail::allocateSamples(storedTypeOf(scan), count);
-    detail::decodeInto(static_cast<const uint8_t*>(array.data()), count, type, false, &samples, 0);
+    scan = detail::withFileType(type, [&](auto zero) { return scanValues(static_cast<const decltype(zero)*>(array.data()), count, dims); });
   }
-  return Volume(dims, spacing, type, std::move(samples), source);
+  // The copy is a numpy array the scene keeps as it keeps a borrowed one: numpy allocates it without
+  // zeroing, in huge pages where the kernel gives them on request (4 KiB page faults cost more than
+  // the conversion's arithmetic).
+  const ScalarType stored = storedTypeOf(scan);
+  const std::vector<py::ssize_t> shape(array.shape(), array.shape() + 3);
+  py::array copy = detail::withFileType(stored, [&](auto zero) -> py::array { return py::array_t<decltype(zero)>(shape); });
+  {
+    py::gil_scoped_release release;
+    detail::withFileType(type, [&](auto from) {
+      detail::withFileType(stored, [&](auto to) {
+        const auto* in = static_cast<const decltype(from)*>(array.data());
+        auto* out = static_cast<decltype(to)*>(copy.mutable_data());
+#pragma omp parallel for schedule(static)
+        for (size_t i = 0; i < count; ++i) out[i] = decltype(to)(in[i]);  // exact: storedTypeOf holds every value
+      });
+    });
+  }
+  keep->array = copy;
+  return Volume::borrowing(dims, spacing, type, stored, copy.data(), keep, source);
 }
 
 // The image as an (H, W, 4) uint8 array: over @p background, opaque, as the command line's PNG
