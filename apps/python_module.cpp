@@ -240,14 +240,15 @@ Volume volumeOf(const py::handle& object, const glm::dvec3& spacing) {
   const ScalarType stored = storedTypeOf(scan);
   const std::vector<py::ssize_t> shape(array.shape(), array.shape() + 3);
   py::array copy = detail::withFileType(stored, [&](auto zero) -> py::array { return py::array_t<decltype(zero)>(shape); });
+  void* const target = copy.mutable_data();
   {
     py::gil_scoped_release release;
     detail::withFileType(type, [&](auto from) {
       detail::withFileType(stored, [&](auto to) {
         const auto* in = static_cast<const decltype(from)*>(array.data());
-        auto* out = static_cast<decltype(to)*>(copy.mutable_data());
+        auto* out = static_cast<decltype(to)*>(target);
 #pragma omp parallel for schedule(static)
-        for (size_t i = 0; i < count; ++i) out[i] = decltype(to)(in[i]);  // exact: storedTypeOf holds every value
+        for (size_t i = 0; i < count; ++i) out[i] = decltype(to)(in[i]);  // whole numbers exact; fractions rounded to float32
       });
     });
   }
@@ -352,8 +353,10 @@ class PyScene {
     std::vector<std::string> args;
     for (const auto& [k, v] : kwargs) {
       const std::string key = py::cast<std::string>(k);
-      if (v.is_none()) continue;
       const auto row = std::find_if(std::begin(kKeywords), std::end(kKeywords), [&](const Keyword& w) { return key == w.name; });
+      if (row == std::end(kKeywords) && key != "premultiplied" && key != "stats" && key != "tf")
+        throw py::type_error(hyb::detail::concat("render() got an unexpected keyword argument '", key, "'"));
+      if (v.is_none()) continue;
       if (key == "premultiplied") {
         premultiplied = flagOf(key, v);
       } else if (key == "stats") {
@@ -362,8 +365,6 @@ class PyScene {
         tf = transferFunctionOf(v);
       } else if (key == "tf") {
         args.push_back("--tf=" + *pathText(v));
-      } else if (row == std::end(kKeywords)) {
-        throw py::type_error(hyb::detail::concat("render() got an unexpected keyword argument '", key, "'"));
       } else if (row->form == Form::Flag) {
         if (flagOf(key, v)) args.push_back(flagName(key));
       } else {
