@@ -12,7 +12,6 @@
 #include <cmath>
 #include <atomic>
 #include <mutex>
-#include <set>
 #include <thread>
 #include <sstream>
 
@@ -62,22 +61,158 @@ ScalarType scalarOf(const py::dtype& dt) {
   throw py::type_error(hyb::detail::concat("dtype ", std::string(py::str(py::handle(dt))), " unsupported (expected uint8, int8, uint16, int16, uint32, int32, float32 or float64)"));
 }
 
-glm::dvec3 vec3Of(const py::handle& h, const char* what) {
-  std::vector<double> v;
-  try {
-    v = py::cast<std::vector<double>>(h);
-  } catch (const py::cast_error&) {
-    throw py::type_error(hyb::detail::concat(what, " must be three numbers"));
+// How a keyword is written in Python; the flag's own text (a str) is accepted by every form but Flag.
+enum class Form {
+  Number,   // a real number: int, float, a numpy scalar or 0-d array
+  Integer,  // an integer: int, a numpy integer or 0-d integer array
+  Numbers,  // a 1-D sequence of numbers (tuple, list, numpy array): "a,b,c"
+  Size,     // two integers (width, height): "WxH"
+  Word,     // text only: a choice, or a path (str or os.PathLike)
+  Switch,   // True/False: on|off
+  Flag,     // True/False: the flag given or not
+};
+
+const char* expectedFor(Form form) {
+  switch (form) {
+    case Form::Number: return "a number (or its text)";
+    case Form::Integer: return "an integer (or its text)";
+    case Form::Numbers: return "a sequence of numbers (tuple, list or 1-D array; or their text 'a,b,...')";
+    case Form::Size: return "(width, height) integers (or 'WxH')";
+    case Form::Word: return "a str";
+    case Form::Switch: return "True, False, 'on' or 'off'";
+    case Form::Flag: break;
   }
-  if (v.size() != 3) HYB_THROW(ValueError, what, " must be three numbers, got ", v.size());
-  for (const double x : v)
-    if (!std::isfinite(x)) HYB_THROW(ValueError, what, " must be finite");
-  return {v[0], v[1], v[2]};
+  return "True or False";
 }
 
-// A volume over @p array's samples: borrowed when held in their own type, else converted to the
-// type the readers hold them in (32-bit integers and float64: int16, uint16 or float32).
-Volume volumeOf(const py::array& array, const glm::dvec3& spacing) {
+// @p v is no value of @p form (an element of sequence @p within, when given).
+[[noreturn]] void wrongType(const std::string& key, Form form, const py::handle& v, const py::handle& within = py::handle()) {
+  throw py::type_error(hyb::detail::concat(key, " must be ", expectedFor(form), ", got ", Py_TYPE(v.ptr())->tp_name,
+                                           within ? std::string(" in a ") + Py_TYPE(within.ptr())->tp_name : ""));
+}
+
+// A numpy 0-d array as its scalar; anything else as it is.
+py::object itemOf(const py::handle& v) {
+  if (py::isinstance<py::array>(v) && py::reinterpret_borrow<py::array>(v).ndim() == 0) return v.attr("item")();
+  return py::reinterpret_borrow<py::object>(v);
+}
+
+bool isBool(const py::handle& v) { return PyBool_Check(v.ptr()) || py::isinstance(v, py::module_::import("numpy").attr("bool_")); }
+
+// @p v's text when it is a number (an integer when @p integer): ints as digits, floats as Python's
+// repr (the shortest text that reads back as the same double). None for bools and anything else.
+std::optional<std::string> numberText(const py::handle& h, bool integer) {
+  const py::object v = itemOf(h);
+  if (isBool(v)) return std::nullopt;
+  const py::module_ numbers = py::module_::import("numbers");
+  if (py::isinstance(v, numbers.attr("Integral"))) return std::string(py::str(py::int_(v)));
+  if (!integer && py::isinstance(v, numbers.attr("Real"))) return std::string(py::repr(py::float_(v)));
+  return std::nullopt;
+}
+
+// A path given as str or os.PathLike, else nothing.
+std::optional<std::string> pathText(const py::handle& v) {
+  if (py::isinstance<py::str>(v)) return py::cast<std::string>(v);
+  if (py::hasattr(v, "__fspath__")) {
+    const py::object p = py::module_::import("os").attr("fspath")(v);
+    if (py::isinstance<py::str>(p)) return py::cast<std::string>(p);
+  }
+  return std::nullopt;
+}
+
+// The text of keyword @p key's value @p v written in @p form (not Flag): what its flag reads. A value
+// that no text of the form spells raises TypeError; the flag's parser refuses a wrong value.
+std::string spelled(const std::string& key, const py::handle& h, Form form) {
+  const py::object v = itemOf(h);
+  if (py::isinstance<py::str>(v)) return py::cast<std::string>(v);
+  switch (form) {
+    case Form::Number:
+    case Form::Integer:
+      if (auto t = numberText(v, form == Form::Integer)) return *t;
+      break;
+    case Form::Numbers:
+    case Form::Size: {
+      const bool array = py::isinstance<py::array>(v);
+      if ((array && py::reinterpret_borrow<py::array>(v).ndim() != 1) || (!array && !py::isinstance<py::list>(v) && !py::isinstance<py::tuple>(v))) break;
+      std::string out;
+      for (const py::handle x : v) {
+        const std::optional<std::string> t = numberText(x, form == Form::Size);
+        if (!t) wrongType(key, form, x, v);
+        out += (out.empty() ? "" : form == Form::Size ? "x" : ",") + *t;
+      }
+      return out;
+    }
+    case Form::Word:
+      if (auto t = pathText(v)) return *t;
+      break;
+    case Form::Switch:
+      if (isBool(v)) return py::cast<bool>(py::bool_(v)) ? "on" : "off";
+      break;
+    case Form::Flag: break;
+  }
+  wrongType(key, form, v);
+}
+
+// A True/False keyword (numpy's bool too).
+bool flagOf(const std::string& key, const py::handle& h) {
+  const py::object v = itemOf(h);
+  if (!isBool(v)) wrongType(key, Form::Flag, v);
+  return py::cast<bool>(py::bool_(v));
+}
+
+// One finite number written in @p form (an isovalue, a count), its wrong text refused naming @p key.
+double numberOf(const std::string& key, const py::handle& v, Form form = Form::Number) {
+  const std::string text = spelled(key, v, form);
+  const double x = parseNumbers(text, key, 1, form == Form::Integer ? "an integer" : "a finite number")[0];
+  if (form == Form::Integer && x != std::floor(x)) HYB_THROW(ValueError, key, " '", text, "' invalid (expected an integer)");
+  return x;
+}
+
+// The samples' range and whether every one is a whole number: what their stored type is chosen from.
+struct ValueScan {
+  double lo = 0, hi = 0;
+  bool whole = true;
+};
+
+// Scans the @p count samples at @p d (x fastest within @p dims); a value float32 cannot hold (NaN,
+// infinity, beyond 3.4e38) is refused naming its sample, as a reader refuses one.
+template <class T>
+ValueScan scanValues(const T* d, size_t count, const glm::ivec3& dims) {
+  constexpr double kFloatMax = std::numeric_limits<float>::max();
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  bool whole = true, held = true;
+#pragma omp parallel for reduction(min : lo) reduction(max : hi) reduction(&& : whole) reduction(&& : held)
+  for (size_t i = 0; i < count; ++i) {
+    const double v = double(d[i]);
+    held = held && std::abs(v) <= kFloatMax;  // false for NaN too
+    whole = whole && v == std::trunc(v);
+    lo = std::min(lo, v);
+    hi = std::max(hi, v);
+  }
+  if (!held) {
+    size_t bad = 0;
+    while (std::abs(double(d[bad])) <= kFloatMax) ++bad;
+    const size_t i = bad % size_t(dims.x), j = (bad / size_t(dims.x)) % size_t(dims.y), k = bad / (size_t(dims.x) * size_t(dims.y));
+    HYB_THROW(ValueError, "numpy array: sample (", i, ",", j, ",", k, ") is ", double(d[bad]), "; expected finite values within float32's range (|x| <= 3.4e38)");
+  }
+  return {lo, hi, whole};
+}
+
+// Where converted samples are held: whole numbers in the smallest of uint8, int16 and uint16 that
+// holds them all (beyond 16 bits, float32, as the readers hold 32-bit integers); fractions in float32.
+ScalarType storedTypeOf(const ValueScan& s) {
+  if (!s.whole) return ScalarType::Float32;
+  if (s.lo >= 0 && s.hi <= 255) return ScalarType::UInt8;
+  return storageTypeFor(ScalarType::Int32, s.lo, s.hi);
+}
+
+// A volume over @p array's samples: borrowed when held in their own type (uint8, int8, uint16,
+// int16, float32), else converted into storedTypeOf their values: one pass reads their range, a
+// second writes the stored copy, and nothing else of the array's size is held.
+Volume volumeOf(const py::handle& object, const glm::dvec3& spacing) {
+  if (!py::isinstance<py::array>(object))
+    throw py::type_error(hyb::detail::concat("array must be a numpy array (numpy.asarray makes one), got ", Py_TYPE(object.ptr())->tp_name));
+  const py::array array = py::reinterpret_borrow<py::array>(object);
   if (array.ndim() != 3)
     HYB_THROW(ValueError, "expected a 3-D array indexed (z, y, x), got ", array.ndim(), "-D");
   if (!(array.flags() & py::array::c_style))
@@ -88,42 +223,48 @@ Volume volumeOf(const py::array& array, const glm::dvec3& spacing) {
   const glm::ivec3 dims(int(array.shape(2)), int(array.shape(1)), int(array.shape(0)));
   if (array.shape(0) > INT32_MAX || array.shape(1) > INT32_MAX || array.shape(2) > INT32_MAX) HYB_THROW(ValueError, "array too large along an axis");
   const std::string source = "numpy array";
-  switch (type) {
-    case ScalarType::UInt8:
-    case ScalarType::Int8:
-    case ScalarType::UInt16:
-    case ScalarType::Int16:
-    case ScalarType::Float32: {
-      auto keep = std::make_shared<ArrayKeeper>();
-      keep->array = array;
-      return Volume::borrowing(dims, spacing, type, type, array.data(), std::move(keep), source);
-    }
-    default: {
-      // As a reader of these types does: a copy, into 16 bits when the values fit, else float.
-      SampleArray samples = detail::decodeSamples(static_cast<const uint8_t*>(array.data()), size_t(array.size()), type, false);
-      return Volume(dims, spacing, type, std::move(samples), source);
-    }
+  const auto keep = std::make_shared<ArrayKeeper>();
+  if (type != ScalarType::UInt32 && type != ScalarType::Int32 && type != ScalarType::Float64) {
+    keep->array = array;
+    return Volume::borrowing(dims, spacing, type, type, array.data(), keep, source);
   }
+  const size_t count = size_t(array.size());
+  ValueScan scan;
+  {
+    py::gil_scoped_release release;  // the caller's reference keeps the array
+    scan = detail::withFileType(type, [&](auto zero) { return scanValues(static_cast<const decltype(zero)*>(array.data()), count, dims); });
+  }
+  // The copy is a numpy array the scene keeps as it keeps a borrowed one: numpy allocates it without
+  // zeroing, in huge pages where the kernel gives them on request (4 KiB page faults cost more than
+  // the conversion's arithmetic).
+  const ScalarType stored = storedTypeOf(scan);
+  const std::vector<py::ssize_t> shape(array.shape(), array.shape() + 3);
+  py::array copy = detail::withFileType(stored, [&](auto zero) -> py::array { return py::array_t<decltype(zero)>(shape); });
+  void* const target = copy.mutable_data();
+  {
+    py::gil_scoped_release release;
+    detail::withFileType(type, [&](auto from) {
+      detail::withFileType(stored, [&](auto to) {
+        const auto* in = static_cast<const decltype(from)*>(array.data());
+        auto* out = static_cast<decltype(to)*>(target);
+#pragma omp parallel for schedule(static)
+        for (size_t i = 0; i < count; ++i) out[i] = decltype(to)(in[i]);  // whole numbers exact; fractions rounded to float32
+      });
+    });
+  }
+  keep->array = copy;
+  return Volume::borrowing(dims, spacing, type, stored, copy.data(), keep, source);
 }
 
-std::string flagValue(const py::handle& v) {
-  if (py::isinstance<py::str>(v)) return py::cast<std::string>(v);
-  if (py::isinstance<py::bool_>(v)) return py::cast<bool>(v) ? "on" : "off";
-  if (py::isinstance<py::array>(v) && py::cast<py::array>(v).ndim() == 0) return flagValue(v.attr("item")());
-  if (!py::hasattr(v, "__iter__") && PyNumber_Check(v.ptr())) {  // Python's and numpy's numbers
-    std::ostringstream s;
-    s.precision(17);
-    s << py::cast<double>(v);
-    return s.str();
-  }
-  // Sequences of numbers: "a,b,c".
-  std::string out;
-  for (const py::handle x : py::iter(v)) out += (out.empty() ? "" : ",") + flagValue(x);
-  return out;
-}
-
-py::array_t<uint8_t> toArray(const Image& image, bool premultiplied) {
+// The image as an (H, W, 4) uint8 array: over @p background, opaque, as the command line's PNG
+// holds it; else straight alpha over transparent, or premultiplied.
+py::array_t<uint8_t> toArray(const Image& image, bool premultiplied, const std::optional<glm::vec3>& background) {
   py::array_t<uint8_t> out({image.height, image.width, 4});
+  if (background) {
+    const std::vector<uint8_t> rgba = toRgba8(image, *background);
+    std::copy(rgba.begin(), rgba.end(), out.mutable_data());
+    return out;
+  }
   auto o = out.mutable_unchecked<3>();
   for (int y = 0; y < image.height; ++y)
     for (int x = 0; x < image.width; ++x) {
@@ -169,8 +310,9 @@ class PyScene {
     mRenderer = std::make_unique<SceneRenderer>(std::move(scene), SceneRenderer::Options{0, mProgress.get(), true});
   }
 
-  py::dict info(int bins) {
-    if (bins < 1 || bins > 4096) HYB_THROW(ValueError, "bins must be in 1..4096");
+  py::dict info(const py::object& binsArg) {
+    const double bins = numberOf("bins", binsArg, Form::Integer);
+    if (!(bins >= 1 && bins <= 4096)) HYB_THROW(ValueError, "bins must be in 1..4096");
     const Scene& s = mRenderer->scene();
     const Volume& v = s.volume;
     py::dict d;
@@ -196,7 +338,7 @@ class PyScene {
     {
       py::gil_scoped_release release;
       const Busy busy(*this);
-      h = computeHistogram(v, bins);
+      h = computeHistogram(v, int(bins));
     }
     d["histogram"] = py::dict(py::arg("counts") = h.counts, py::arg("min") = h.minValue, py::arg("max") = h.maxValue, py::arg("mean") = h.mean,
                               py::arg("stddev") = h.stddev, py::arg("p01") = h.p01, py::arg("p50") = h.p50, py::arg("p99") = h.p99);
@@ -204,37 +346,35 @@ class PyScene {
   }
 
   py::object render(const py::kwargs& kwargs) {
-    // The command line's flags, from the keywords (tf, premultiplied and stats are Python's own).
+    // The command line's flags, from the keywords (tf, premultiplied and stats are Python's own);
+    // None is a keyword left out.
     bool premultiplied = false, withStats = false;
     std::optional<TransferFunction> tf;
     std::vector<std::string> args;
     for (const auto& [k, v] : kwargs) {
       const std::string key = py::cast<std::string>(k);
-      if (key == "premultiplied") {
-        premultiplied = py::cast<bool>(v);
-      } else if (key == "stats") {
-        withStats = py::cast<bool>(v);
-      } else if (key == "tf") {
-        tf = transferFunctionOf(v);
-      } else if (key == "ortho") {
-        if (py::cast<bool>(v)) args.push_back("--ortho");
-      } else if (key == "size") {
-        const std::vector<int> wh = py::cast<std::vector<int>>(v);
-        if (wh.size() != 2) HYB_THROW(ValueError, "size must be (width, height)");
-        args.push_back("--size=" + std::to_string(wh[0]) + "x" + std::to_string(wh[1]));
-      } else if (key == "budget" && !py::isinstance<py::str>(v)) {
-        args.push_back("--budget=" + flagValue(v));
-      } else if (kAllowed.count(key)) {
-        std::string flag = key;
-        std::replace(flag.begin(), flag.end(), '_', '-');
-        args.push_back("--" + flag + "=" + flagValue(v));
-      } else {
+      const auto row = std::find_if(std::begin(kKeywords), std::end(kKeywords), [&](const Keyword& w) { return key == w.name; });
+      if (row == std::end(kKeywords) && key != "premultiplied" && key != "stats" && key != "tf")
         throw py::type_error(hyb::detail::concat("render() got an unexpected keyword argument '", key, "'"));
+      if (v.is_none()) continue;
+      if (key == "premultiplied") {
+        premultiplied = flagOf(key, v);
+      } else if (key == "stats") {
+        withStats = flagOf(key, v);
+      } else if (key == "tf" && !pathText(v)) {
+        tf = transferFunctionOf(v);
+      } else if (key == "tf") {
+        args.push_back("--tf=" + *pathText(v));
+      } else if (row->form == Form::Flag) {
+        if (flagOf(key, v)) args.push_back(flagName(key));
+      } else {
+        args.push_back(flagName(key) + "=" + spelled(key, v, row->form));
       }
     }
     RenderOptions o;
     CLI::App app("render", "render");
     o.add(&app);
+    for (const Keyword& w : kKeywords) HYB_CHECK(app.get_option_no_throw(flagName(w.name)) != nullptr);
     std::vector<std::string> reversed(args.rbegin(), args.rend());
     try {
       app.parse(reversed);
@@ -242,6 +382,10 @@ class PyScene {
       HYB_THROW(ValueError, e.what());
     }
     if (const std::string e = o.validate(); !e.empty() && e.rfind("-o", 0) != 0) throw ValueError(e);
+    if (tf && !o.preset.empty()) throw ValueError("--tf and --preset are exclusive");
+    // --background composites the image over it, opaque, as the command line's PNG holds it.
+    const bool composited = app.get_option("--background")->count() > 0;
+    if (composited && premultiplied) throw ValueError("premultiplied and background are exclusive (a composited image is opaque)");
     RenderJob job;
     std::ostringstream warnings;
     setUpFrame(o, mRenderer->scene(), &job, warnings, tf ? &*tf : nullptr);
@@ -259,13 +403,14 @@ class PyScene {
     }
     if (PyErr_Occurred()) throw py::error_already_set();  // a signal seen as the frame ended
     if (o.marker) drawOrientationMarker(job.view.camera, &frame.image);
-    py::array_t<uint8_t> image = toArray(frame.image, premultiplied);
+    py::array_t<uint8_t> image = toArray(frame.image, premultiplied, composited ? std::optional(job.background) : std::nullopt);
     if (!withStats) return image;
     return py::make_tuple(image, statsOf(frame));
   }
 
-  py::tuple surface(double iso, const std::string& kind, bool closed, bool normals) {
-    const ExportedSurface e = exported(iso, kind, closed, normals);
+  py::tuple surface(const py::object& iso, const py::object& kind, const py::object& closed, const py::object& normals) {
+    const MeshRequest r(iso, kind, closed, normals);
+    const ExportedSurface e = exported(r);
     const TriangleMesh& m = e.mesh;
     py::array_t<float> vertices({py::ssize_t(m.vertices.size()), py::ssize_t(3)});
     py::array_t<int64_t> faces({py::ssize_t(m.triangles.size()), py::ssize_t(3)});
@@ -273,28 +418,30 @@ class PyScene {
     auto f = faces.mutable_unchecked<2>();
     for (size_t t = 0; t < m.triangles.size(); ++t)
       for (int k = 0; k < 3; ++k) f(py::ssize_t(t), k) = int64_t(m.triangles[t][k]);
-    if (!normals) return py::make_tuple(vertices, faces);
+    if (!r.normals) return py::make_tuple(vertices, faces);
     py::array_t<float> n({py::ssize_t(m.normals.size()), py::ssize_t(3)});
     if (!m.normals.empty()) std::copy_n(&m.normals.front().x, 3 * m.normals.size(), n.mutable_data());
     return py::make_tuple(vertices, faces, n);
   }
 
-  void exportMesh(const std::string& path, double iso, const std::string& kind, bool closed, bool normals) {
+  void exportMesh(const py::object& pathArg, const py::object& iso, const py::object& kind, const py::object& closed, const py::object& normals) {
+    const std::string path = spelled("path", pathArg, Form::Word);
+    const MeshRequest r(iso, kind, closed, normals);
     const std::string ext = fileExtension(path);
     if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".off")
       HYB_THROW(ValueError, "'", path, "' has an unknown extension (expected .ply, .obj, .stl or .off)");
-    if (normals && ext != ".ply" && ext != ".obj") HYB_THROW(ValueError, "normals need a .ply or .obj file (STL keeps facet normals, OFF none)");
-    const ExportedSurface e = exported(iso, kind, closed, normals);
+    if (r.normals && ext != ".ply" && ext != ".obj") HYB_THROW(ValueError, "normals need a .ply or .obj file (STL keeps facet normals, OFF none)");
+    const ExportedSurface e = exported(r);
     py::gil_scoped_release release;
-    writeMesh(path, e.mesh, MeshWriteOptions{normals, "LPS"});
+    writeMesh(path, e.mesh, MeshWriteOptions{r.normals, "LPS"});
   }
 
   /// Builds the isosurface of @p iso now and keeps it for frames (Scene(iso=...)).
-  void prepareSurface(double iso) {
-    checkIso(iso);
+  void prepareSurface(const py::object& isoArg) {
+    const float iso = isoOf(isoArg);
     py::gil_scoped_release release;
     const Busy busy(*this);
-    mRenderer->surface(float(iso), SurfaceNormals::Gradient);
+    mRenderer->surface(iso, SurfaceNormals::Gradient);
   }
 
  private:
@@ -313,25 +460,53 @@ class PyScene {
     }
   };
 
-  static void checkIso(double iso) {
-    if (!std::isfinite(iso) || std::abs(iso) > 3.4e38) HYB_THROW(ValueError, "iso must be a finite number within the float range");
+  static float isoOf(const py::handle& v) {
+    const double iso = numberOf("iso", v);
+    if (!isFloat(iso)) HYB_THROW(ValueError, "iso must be a finite number within the float range (|x| <= 3.4e38)");
+    return float(iso);
   }
 
-  static inline const std::set<std::string> kAllowed = {
-      "view", "orbit", "eye", "center", "up", "zoom", "fov", "preset", "iso", "surface_color", "surface_normals", "shading", "cut", "cut_line",
-      "voi", "voi_inside", "voi_outside", "voi_ramp", "renderer", "epsilon", "budget", "step", "classification", "proxy", "blend", "lod_pixels",
-      "max_brick", "texel_bits", "focus", "camera_file", "marker", "image_scale"};
+  // surface() and export()'s keywords, in their types.
+  struct MeshRequest {
+    float iso;
+    std::string kind;
+    bool closed, normals;
+    MeshRequest(const py::handle& isoArg, const py::handle& kindArg, const py::handle& closedArg, const py::handle& normalsArg)
+        : iso(isoOf(isoArg)), kind(spelled("kind", kindArg, Form::Word)), closed(flagOf("closed", closedArg)), normals(flagOf("normals", normalsArg)) {}
+  };
 
-  ExportedSurface exported(double iso, const std::string& kind, bool closed, bool normals) {
-    checkIso(iso);
+  // render()'s keywords beside tf, premultiplied and stats: the command line's flags (`-` as `_`)
+  // and how each is written in Python.
+  struct Keyword {
+    const char* name;
+    Form form;
+  };
+  static constexpr Keyword kKeywords[] = {
+      {"view", Form::Word},        {"orbit", Form::Numbers},          {"eye", Form::Numbers},        {"center", Form::Numbers},
+      {"up", Form::Numbers},       {"zoom", Form::Number},            {"fov", Form::Number},         {"ortho", Form::Flag},
+      {"size", Form::Size},        {"camera_file", Form::Word},       {"marker", Form::Switch},      {"preset", Form::Word},
+      {"iso", Form::Number},       {"surface_color", Form::Numbers},  {"surface_normals", Form::Word}, {"shading", Form::Switch},
+      {"background", Form::Numbers}, {"cut", Form::Numbers},          {"cut_line", Form::Switch},    {"voi", Form::Numbers},
+      {"voi_inside", Form::Number}, {"voi_outside", Form::Number},    {"voi_ramp", Form::Number},    {"renderer", Form::Word},
+      {"epsilon", Form::Number},   {"budget", Form::Number},          {"step", Form::Number},        {"classification", Form::Word},
+      {"proxy", Form::Word},       {"blend", Form::Switch},           {"lod_pixels", Form::Number},  {"max_brick", Form::Integer},
+      {"texel_bits", Form::Integer}, {"focus", Form::Numbers},        {"image_scale", Form::Number}};
+
+  static std::string flagName(std::string key) {
+    std::replace(key.begin(), key.end(), '_', '-');
+    return "--" + key;
+  }
+
+  ExportedSurface exported(const MeshRequest& r) {
     std::ostringstream out;
     py::gil_scoped_release release;
     const Busy busy(*this);
-    return exportedSurface(mRenderer->scene(), float(iso), kind, closed, normals, false, nullptr, out);
+    return exportedSurface(mRenderer->scene(), r.iso, r.kind, r.closed, r.normals, false, nullptr, out);
   }
 
   static TransferFunction transferFunctionOf(const py::handle& v) {
-    const py::array_t<double, py::array::c_style | py::array::forcecast> a = py::cast<py::array>(v);
+    const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(v);
+    if (!a || a.ndim() == 0) throw py::type_error(hyb::detail::concat("tf must be an (N, 5) array of numbers or a transfer-function file's path, got ", Py_TYPE(v.ptr())->tp_name));
     if (a.ndim() != 2 || a.shape(1) != 5)
       HYB_THROW(ValueError, "tf must be an (N, 5) array of control points: value, r, g, b, opacity per mm");
     std::vector<TransferFunction::Point> points;
@@ -355,14 +530,16 @@ class PyScene {
   std::unique_ptr<SceneRenderer> mRenderer;
 };
 
-std::unique_ptr<PyScene> sceneFromArray(const py::array& array, const py::object& spacing, const py::object& origin, const py::object& direction,
+std::unique_ptr<PyScene> sceneFromArray(const py::object& array, const py::object& spacing, const py::object& origin, const py::object& direction,
                                         const py::object& iso) {
-  const glm::dvec3 sp = spacing.is_none() ? glm::dvec3(1.0) : vec3Of(spacing, "spacing");
-  Volume volume = volumeOf(array, sp);
+  const glm::dvec3 sp = spacing.is_none() ? glm::dvec3(1.0) : parseVec3(spelled("spacing", spacing, Form::Numbers), "spacing");
+  validateSpacing(sp, "spacing");  // before a conversion's passes over the samples
   PatientFrame frame;
-  if (!origin.is_none()) frame.origin = vec3Of(origin, "origin");
+  if (!origin.is_none()) frame.origin = parseVec3(spelled("origin", origin, Form::Numbers), "origin");
   if (!direction.is_none()) {
-    const py::array_t<double, py::array::c_style | py::array::forcecast> d = py::cast<py::array>(direction);
+    const auto d = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(direction);
+    if (!d || py::isinstance<py::str>(direction))
+      throw py::type_error(hyb::detail::concat("direction must be a 3x3 matrix of numbers, got ", Py_TYPE(direction.ptr())->tp_name));
     if (d.size() != 9) HYB_THROW(ValueError, "direction must be a 3x3 matrix (or 9 numbers, row by row) whose columns are the x, y and z axes in LPS");
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 3; ++c) frame.direction[c][r] = d.data()[3 * r + c];
@@ -372,6 +549,7 @@ std::unique_ptr<PyScene> sceneFromArray(const py::array& array, const py::object
       for (int c = 0; c < 3; ++c)
         if (!(std::abs(gram[c][r] - (r == c ? 1.0 : 0.0)) < 1e-4)) HYB_THROW(ValueError, "direction must be orthonormal (its columns unit and perpendicular)");
   }
+  Volume volume = volumeOf(array, sp);
   volume.setFrame(frame);
   Scene scene;
   {
@@ -380,13 +558,13 @@ std::unique_ptr<PyScene> sceneFromArray(const py::array& array, const py::object
   }
   scene.volume = std::move(volume);
   auto s = std::make_unique<PyScene>(std::move(scene), "numpy array");
-  if (!iso.is_none()) s->prepareSurface(py::cast<double>(iso));
+  if (!iso.is_none()) s->prepareSurface(iso);
   return s;
 }
 
-std::unique_ptr<PyScene> openScene(const std::string& path) {
+std::unique_ptr<PyScene> openScene(const py::object& path) {
   VolumeInput in;
-  in.path = path;
+  in.path = spelled("path", path, Form::Word);
   std::ostringstream out, err;
   double buildMs = 0;
   Scene scene;
@@ -395,7 +573,7 @@ std::unique_ptr<PyScene> openScene(const std::string& path) {
     scene = loadOrBuild(in, out, err, &buildMs);
   }
   warnLines(err.str());
-  return std::make_unique<PyScene>(std::move(scene), path);
+  return std::make_unique<PyScene>(std::move(scene), in.path);
 }
 
 }  // namespace

@@ -1,12 +1,19 @@
 #!/usr/bin/env python3
-"""The Python module's two targets, measured in one run:
+"""The Python module's targets, measured in one run:
 
 1. A scene's second frame against the command line's `--repeat` frame (the same flags and file):
    the best of --frames frames after the first, against the best of `render --repeat N`.
 2. The memory a scene adds over a large int16 array (default 1 GiB, 1024x1024x512): the peak RSS
-   (ru_maxrss) after Scene(array), its first frame at 256², and a surface, minus the peak before.
+   (VmHWM) after Scene(array), its first frame at 256², and a surface, minus the peak before.
+3. A CT of whole numbers as float64 (what nibabel's get_fdata() gives; default 1 GiB, 512³) against
+   the same values as int16 and as float32: Scene(array)'s time and CPU time (user + system; each
+   the best of --repeat processes, the types interleaved) and the process's peak RSS, each in its
+   own process, as ratios to int16. On a shared machine the CPU time of one thread
+   (OMP_NUM_THREADS=1) is the steady figure: other processes stretch the wall time, and OpenMP's
+   waiting threads spin.
 
-  PYTHONPATH=build/python /usr/bin/python3 bench/python_scene.py build/hybrid-octree [VOLUME] [--gib 1]
+  PYTHONPATH=build/python /usr/bin/python3 bench/python_scene.py build/hybrid-octree [VOLUME] [--gib 1] [--convert-gib 1]
+      [--repeat 3] [--parts frames,memory,conversion]
 """
 import argparse
 import json
@@ -25,7 +32,9 @@ CT = "/usr/share/doc/invesalius-examples/examples/Cranium.inv3"
 
 
 def peak_mb():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    """The process's peak RSS (VmHWM; unlike ru_maxrss, not inherited from the parent across exec)."""
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmHWM:")) / 1024.0
 
 
 def frames(binary, volume, n):
@@ -63,15 +72,63 @@ def memory(gib):
           f"({(after_frame - before) / (a.nbytes / 2**20):.3f} of the array's bytes; target <= 512 MB)")
 
 
+def ct_slice(z, n):
+    """Slice z of an n-cubed CT of whole Hounsfield units: air -1024, a head of 40 with a bone shell
+    of 1000 and a texture of +-20 (integers, so that the octree's errors are not all zero)."""
+    x = np.arange(n, dtype=np.float32) - n / 2
+    r = np.sqrt(x[None, :] ** 2 + x[:, None] ** 2 + (z - n / 2) ** 2) / (0.45 * n)
+    texture = np.round(20 * np.sin(x[None, :] / 3.0) * np.cos(x[:, None] / 5.0 + z / 7.0))
+    return np.where(r < 0.9, 40 + texture, np.where(r < 1.0, 1000 + texture, -1024)).astype(np.int16)
+
+
+def convert_child(dtype, gib):
+    """One process: the CT in @p dtype, then Scene(array); prints JSON."""
+    n = int(round((gib * 2**30 / 8) ** (1 / 3)))
+    a = np.empty((n, n, n), dtype)
+    for z in range(n):
+        a[z] = ct_slice(z, n)
+    before = peak_mb()
+    cpu = lambda: sum(resource.getrusage(resource.RUSAGE_SELF)[:2])
+    t0, c0 = time.monotonic(), cpu()
+    scene = ho.Scene(a)
+    seconds, cpu_seconds = time.monotonic() - t0, cpu() - c0
+    print(json.dumps(dict(n=n, seconds=seconds, cpu=cpu_seconds, before=before, peak=peak_mb(), stored=scene.info()["stored_type"], array_mb=a.nbytes / 2**20)))
+
+
+def conversion(gib, repeat):
+    runs = {}
+    for _ in range(repeat):
+        for dtype in ("int16", "float64", "float32"):
+            out = subprocess.run([sys.executable, __file__, "--child", dtype, str(gib)], check=True, capture_output=True, text=True).stdout
+            r = json.loads(out)
+            best = runs.setdefault(dtype, r)
+            best["seconds"], best["cpu"] = min(best["seconds"], r["seconds"]), min(best["cpu"], r["cpu"])
+    base = runs["int16"]
+    for dtype, r in runs.items():
+        print(f"conversion: {r['n']}³ CT as {dtype} ({r['array_mb']:.0f} MB, held as {r['stored']}): Scene() best of {repeat} {r['seconds']:.2f} s "
+              f"({r['seconds'] / base['seconds']:.2f}× int16's), CPU {r['cpu']:.2f} s ({r['cpu'] / base['cpu']:.2f}×); "
+              f"peak RSS {r['peak']:.0f} MB ({r['peak'] / base['peak']:.2f}×), of which Scene() adds {r['peak'] - r['before']:.0f} MB")
+
+
 def main():
+    if sys.argv[1:2] == ["--child"]:  # one measurement of conversion(), in a process of its own
+        return convert_child(sys.argv[2], float(sys.argv[3]))
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("binary")
     ap.add_argument("volume", nargs="?", default=CT)
     ap.add_argument("--frames", type=int, default=4)
     ap.add_argument("--gib", type=float, default=1.0)
+    ap.add_argument("--convert-gib", type=float, default=1.0, help="the float64 array's GiB in the conversion measurement")
+    ap.add_argument("--repeat", type=int, default=3, help="processes per type in the conversion measurement")
+    ap.add_argument("--parts", default="frames,memory,conversion", help="the measurements to make, comma-separated")
     a = ap.parse_args()
-    frames(a.binary, a.volume, a.frames)
-    memory(a.gib)
+    parts = a.parts.split(",")
+    if "frames" in parts:
+        frames(a.binary, a.volume, a.frames)
+    if "memory" in parts:
+        memory(a.gib)
+    if "conversion" in parts:
+        conversion(a.convert_gib, a.repeat)
 
 
 if __name__ == "__main__":

@@ -1,9 +1,11 @@
 """The Python module against the command line: the same images and meshes from a numpy array as
-from the same samples in a file, arrays kept without copies, and bad input refused by name.
+from the same samples in a file, arrays kept without copies or held in the smallest type that holds
+their values, every keyword in its Python forms, and bad input refused by name.
 
 Run by the test command (ctest) with PYTHONPATH=BUILD/python and HYB_BIN=BUILD/hybrid-octree.
 """
 import os
+import pathlib
 import re
 import signal
 import struct
@@ -66,8 +68,9 @@ def over_black(image):
 
 
 def psnr_to_cli(tmp_path, image, cli_png):
+    """PSNR of @p image (straight alpha put over black, or opaque as it is) against the PNG."""
     mine = tmp_path / "mine.png"
-    write_png(mine, over_black(image))
+    write_png(mine, image if (image[..., 3] == 255).all() else over_black(image))
     out = subprocess.run([BIN, "compare", str(cli_png), str(mine)], capture_output=True, text=True, check=True).stdout
     if "identical" in out:
         return float("inf")
@@ -103,9 +106,18 @@ def test_a_numpy_volume_renders_the_command_lines_image(tmp_path, volume, render
     image = scene.render(**kwargs)
     assert image.shape == (80, 96, 4) and image.dtype == np.uint8
     assert image[..., 3].max() > 200  # something is drawn
+    assert image[0, 0, 3] == 0  # straight alpha over transparent: the corner shows no data
     assert psnr_to_cli(tmp_path, image, tmp_path / "cli.png") >= 45.0
+    # Over the command line's background (black by default) the image is its PNG, byte for byte.
+    opened = ho.open(str(path))
+    for s in (scene, opened):
+        composited = s.render(background=(0, 0, 0), **kwargs)
+        assert (composited[..., 3] == 255).all()
+        assert psnr_to_cli(tmp_path, composited, tmp_path / "cli.png") == float("inf")
+    cli("render", path, *flags, "--background", "0.2,0.3,0.4", "-o", tmp_path / "grey.png")
+    assert psnr_to_cli(tmp_path, scene.render(background=(0.2, 0.3, 0.4), **kwargs), tmp_path / "grey.png") == float("inf")
     # The same file opened by the module: the same image.
-    assert psnr_to_cli(tmp_path, ho.open(str(path)).render(**kwargs), tmp_path / "cli.png") >= 45.0
+    assert psnr_to_cli(tmp_path, opened.render(**kwargs), tmp_path / "cli.png") >= 45.0
 
 
 def test_premultiplied_and_straight_alpha_agree(volume):
@@ -178,9 +190,12 @@ def test_the_array_is_kept_not_copied():
     assert info["stored_type"] == "int16" and info["shape"] == a.shape and info["dims"] == a.shape[::-1]
     del scene
     assert sys.getrefcount(a) == before
-    # Types the readers widen are converted as they convert them: int32 within 16 bits to int16.
-    assert ho.Scene(blobs(np.int32)).info()["stored_type"] == "int16"
-    assert ho.Scene(blobs(np.float64)).info()["stored_type"] == "float32"
+    # Whole numbers of a wider type are held in a copy of 16 bits, and the array is not kept.
+    for dtype in (np.int32, np.float64):
+        wide = blobs(dtype)
+        before = sys.getrefcount(wide)
+        scene = ho.Scene(wide)
+        assert scene.info()["stored_type"] == "int16" and sys.getrefcount(wide) == before
 
 
 def test_info_says_what_the_command_line_says(volume):
@@ -206,7 +221,11 @@ def test_info_says_what_the_command_line_says(volume):
         (lambda: ho.Scene(np.zeros((4, 4, 4), np.int64)), TypeError, "int64 unsupported"),
         (lambda: ho.Scene(np.full((4, 4, 4), np.nan, np.float32)), ValueError, "is nan; expected finite"),
         (lambda: ho.Scene(np.zeros((4, 4, 4), np.int16), spacing=(1, -1, 1)), ValueError, "spacing"),
-        (lambda: ho.Scene(np.zeros((4, 4, 4), np.int16), spacing="abc"), TypeError, "spacing must be three numbers"),
+        (lambda: ho.Scene(np.zeros((4, 4, 4), np.int16), spacing="abc"), ValueError, "spacing 'abc' invalid"),
+        (lambda: ho.Scene(np.zeros((4, 4, 4), np.int16), spacing=1.0), TypeError, "spacing must be a sequence of numbers"),
+        (lambda: ho.Scene(np.zeros((4, 4, 4), np.int16), direction="abc"), TypeError, "direction must be a 3x3 matrix of numbers"),
+        (lambda: ho.Scene(np.zeros((4, 4, 4), np.int16), direction=np.eye(2)), ValueError, "direction must be a 3x3 matrix"),
+        (lambda: ho.Scene([[[0]]]), TypeError, "array must be a numpy array"),
         (lambda: ho.Scene(np.zeros((4, 6, 8), np.int16).transpose()), ValueError, "C-contiguous"),
         (lambda: ho.Scene(np.zeros((4, 4, 4), np.int16), direction=np.ones((3, 3))), ValueError, "orthonormal"),
         (lambda: ho.Scene(np.zeros((4, 4, 4), ">i2")), TypeError, "big-endian"),
@@ -220,8 +239,9 @@ def test_bad_arrays_are_refused_by_name(make, error, message):
 
 def test_bad_render_arguments_get_the_command_lines_messages(volume):
     scene = ho.Scene(volume[0])
-    with pytest.raises(TypeError, match="unexpected keyword argument 'colour'"):
-        scene.render(colour=1)
+    for value in (1, None):  # an unknown keyword is reported even when None
+        with pytest.raises(TypeError, match="unexpected keyword argument 'colour'"):
+            scene.render(colour=value)
     with pytest.raises(ValueError, match="--orbit"):
         scene.render(orbit=(1, 2, 3))
     with pytest.raises(ValueError, match="--step"):
@@ -273,3 +293,254 @@ def test_a_misaligned_array_is_refused():
     assert not a.flags.aligned
     with pytest.raises(ValueError, match="aligned"):
         ho.Scene(a)
+
+
+# Converted arrays: where each range of whole numbers is held, and where fractions are.
+HELD = [((0, 255), "uint8"), ((-1024, 3071), "int16"), ((0, 65535), "uint16"), ((-1, 65535), "float32"), ((0, 70000), "float32")]
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.int32, np.uint32])
+@pytest.mark.parametrize("values, stored", HELD + [((0, 0.5), "float32"), ((-1024.5, 0), "float32")])
+def test_converted_arrays_are_held_in_the_smallest_type_holding_their_values(dtype, values, stored):
+    lo, hi = values
+    if np.dtype(dtype).kind in "iu" and (lo != int(lo) or hi != int(hi) or lo < np.iinfo(dtype).min):
+        pytest.skip("not values of the type")
+    a = np.zeros((6, 5, 4), dtype)
+    a[1, 2, 3], a[4, 0, 1] = lo, hi
+    info = ho.Scene(a).info()
+    assert info["type"] == np.dtype(dtype).name and info["stored_type"] == stored
+    assert (info["min"], info["max"]) == (min(lo, 0), hi)
+
+
+def test_a_float64_ct_is_held_as_int16_and_renders_as_the_int16_one(tmp_path):
+    ct = blobs() - 1024  # what nibabel's get_fdata() gives for int16 with slope 1, intercept -1024: float64
+    as_read = ho.Scene(ct, spacing=(0.8, 0.9, 1.5), iso=-524)
+    fdata = ho.Scene(ct.astype(np.float64), spacing=(0.8, 0.9, 1.5), iso=-524)
+    assert fdata.info()["stored_type"] == "int16"
+    assert fdata.info()["histogram"] == as_read.info()["histogram"]
+    flags = dict(size=(64, 48), orbit=(20, 10), surface_color=(0.95, 0.9, 0.8, 0.5))
+    for renderer in ("slices", "raycast"):
+        assert np.array_equal(fdata.render(renderer=renderer, iso=-524, **flags), as_read.render(renderer=renderer, iso=-524, **flags))
+    for mine, theirs in zip(fdata.surface(-524), as_read.surface(-524)):
+        assert np.array_equal(mine, theirs)
+    # 0..255 as float64 (a uint8 file's get_fdata()) is held as uint8 and renders as the uint8 array.
+    small = (blobs() // 4).astype(np.uint8)
+    wide = ho.Scene(small.astype(np.float64))
+    assert wide.info()["stored_type"] == "uint8"
+    assert np.array_equal(wide.render(size=(48, 48), orbit=(30, 10)), ho.Scene(small).render(size=(48, 48), orbit=(30, 10)))
+
+
+def test_float32_whole_numbers_are_used_in_place_as_the_readers_hold_float32():
+    a = blobs(np.float32)
+    before = sys.getrefcount(a)
+    scene = ho.Scene(a)
+    assert scene.info()["stored_type"] == "float32" and sys.getrefcount(a) == before + 1
+
+
+@pytest.mark.parametrize("bad, text", [(np.nan, "nan"), (np.inf, "inf"), (-np.inf, "-inf"), (1e300, "1e\\+300"), (-4e38, "-4e\\+38")])
+def test_float64_values_float32_cannot_hold_are_refused_by_sample(bad, text):
+    a = blobs(np.float64)
+    a[1, 2, 3] = bad
+    with pytest.raises(ValueError, match=f"numpy array: sample \\(3,2,1\\) is {text}; expected finite values"):
+        ho.Scene(a)
+
+
+# render()'s keywords: (keyword, its form (WRONG_TYPES), the flag's text, the same value in its
+# Python forms, other keywords the frame needs). Every form gives the image of the text.
+EYE = (31.5, -150.0, 23.5)
+VOI = "10,10,10,40,40,30"
+KEYWORDS = [
+    ("view", "Word", "left", [np.str_("left")], {}),
+    ("orbit", "Numbers", "30,10", [(30, 10), [30, 10.0], np.array([30, 10]), np.array([30, 10], np.float32), (np.int64(30), np.float64(10))], {}),
+    ("eye", "Numbers", "31.5,-150,23.5", [EYE, list(EYE), np.array(EYE), (np.float32(31.5), np.int16(-150), 23.5)], {}),
+    ("center", "Numbers", "31.5,27.5,20", [(31.5, 27.5, 20), np.array([31.5, 27.5, 20])], {"eye": EYE}),
+    ("up", "Numbers", "0.5,0,1", [(0.5, 0, 1), [0.5, 0.0, 1.0], np.array([0.5, 0, 1])], {"eye": EYE}),
+    ("zoom", "Number", "1.5", [1.5, np.float64(1.5), np.float32(1.5), np.array(1.5)], {}),
+    ("fov", "Number", "40", [40, 40.0, np.int32(40), np.uint8(40), np.array(40)], {}),
+    ("ortho", "Flag", True, [np.bool_(True), np.array(True)], {}),
+    ("size", "Size", "64x48", [(64, 48), [64, 48], np.array([64, 48]), (np.int64(64), np.uint16(48)), "64X48"], {}),
+    ("marker", "Switch", "on", [True, np.bool_(True), np.array(True)], {}),
+    ("preset", "Word", "ct-bone", [np.str_("ct-bone")], {}),
+    ("iso", "Number", "500", [500, 500.0, np.int16(500), np.float32(500), np.array(500.0)], {}),
+    ("surface_color", "Numbers", "0.9,0.5,0.2,0.5", [(0.9, 0.5, 0.2, 0.5), [0.9, 0.5, 0.2, 0.5], np.array([0.9, 0.5, 0.2, 0.5], np.float32)], {"iso": 500}),
+    ("surface_normals", "Word", "facet", [np.str_("facet")], {"iso": 500}),
+    ("shading", "Switch", "off", [False, np.bool_(False), np.array(False)], {}),
+    ("background", "Numbers", "0.2,0.3,0.4", [(0.2, 0.3, 0.4), [0.2, 0.3, 0.4], np.array([0.2, 0.3, 0.4])], {}),
+    ("cut", "Numbers", "31.5,27.5,23.5,0,1,0", [(31.5, 27.5, 23.5, 0, 1, 0), np.array([31.5, 27.5, 23.5, 0, 1, 0])], {}),
+    ("cut_line", "Switch", "off", [False, np.bool_(False)], {"iso": 500, "cut": "31.5,27.5,23.5,0,1,0"}),
+    ("voi", "Numbers", VOI, [(10, 10, 10, 40, 40, 30), np.array([10, 10, 10, 40, 40, 30], np.int16)], {}),
+    ("voi_inside", "Number", "0.5", [0.5, np.float64(0.5)], {"voi": VOI}),
+    ("voi_outside", "Number", "0.5", [0.5, np.float32(0.5)], {"voi": VOI}),
+    ("voi_ramp", "Number", "2", [2, 2.0, np.int8(2)], {"voi": VOI}),
+    ("renderer", "Word", "raycast", [np.str_("raycast")], {}),
+    ("epsilon", "Number", "50", [50, 50.0, np.float32(50)], {}),
+    ("budget", "Number", "0.05", [0.05, np.float64(0.05), np.array(0.05)], {}),
+    ("step", "Number", "1", [1, 1.0, np.float32(1), np.int64(1)], {}),
+    ("classification", "Word", "preintegrated", [np.str_("preintegrated")], {}),
+    ("proxy", "Word", "shells", [np.str_("shells")], {}),
+    ("blend", "Switch", "off", [False, np.bool_(False)], {"epsilon": 100}),
+    ("lod_pixels", "Number", "4", [4, 4.0, np.float32(4)], {}),
+    ("max_brick", "Integer", "16", [16, np.int64(16), np.uint8(16), np.array(16)], {}),
+    ("texel_bits", "Integer", "16", [16, np.int32(16)], {}),
+    ("focus", "Numbers", "20,20,20", [(20, 20, 20), np.array([20.0, 20.0, 20.0])], {"epsilon": 5, "max_brick": 8}),
+    ("image_scale", "Number", "0.5", [0.5, np.float64(0.5), np.float32(0.5)], {}),
+]
+# Keywords whose value here draws what their default draws (the test still checks their forms).
+SAME_AS_DEFAULT = {"blend", "texel_bits", "max_brick"}
+
+
+@pytest.fixture(scope="module")
+def small_scene():
+    return ho.Scene(blobs())
+
+
+@pytest.mark.parametrize("key, form, text, forms, extra", KEYWORDS, ids=[k[0] for k in KEYWORDS])
+def test_every_keyword_takes_its_python_forms(small_scene, key, form, text, forms, extra):
+    base = dict(size=(48, 40), **extra)
+    if key == "size":
+        del base["size"]
+    canonical = small_scene.render(**base, **{key: text})
+    for form in forms:
+        assert np.array_equal(small_scene.render(**base, **{key: form}), canonical), repr(form)
+    assert np.array_equal(small_scene.render(**base, **{key: None}), small_scene.render(**base))  # None: the keyword left out
+    if key not in SAME_AS_DEFAULT:
+        assert not np.array_equal(canonical, small_scene.render(**base))
+
+
+def test_the_stubs_declare_every_keyword_tested():
+    stub = open(os.path.join(os.path.dirname(__file__), "../../apps/hybrid_octree.pyi")).read()
+    declared = re.search(r"def render\(\n        self,\n        \*,\n(.*?)\*\*more", stub, re.S).group(1)
+    names = set(re.findall(r"^\s+(\w+):", declared, re.M))
+    assert names == {k[0] for k in KEYWORDS} | {"tf", "camera_file", "premultiplied", "stats"}
+
+
+def test_files_and_arrays_as_python_forms(tmp_path, small_scene):
+    points = [[0, 1, 1, 1, 0], [300, 1, 0.5, 0.2, 0.05], [1000, 1, 1, 1, 0.3]]
+    (tmp_path / "t.tf").write_text("".join(" ".join(map(str, p)) + "\n" for p in points))
+    canonical = small_scene.render(size=(48, 40), tf=np.array(points))
+    for tf in (points, np.array(points, np.float32), str(tmp_path / "t.tf"), tmp_path / "t.tf"):
+        assert np.array_equal(small_scene.render(size=(48, 40), tf=tf), canonical)
+    # A camera file (what --stats writes), as str or os.PathLike.
+    path = tmp_path / "blobs.nrrd"
+    write_nrrd(path, blobs(), (1, 1, 1))
+    cli("render", path, "--orbit", "40,20", "--size", "48x40", "-o", tmp_path / "c.png", "--stats", tmp_path / "c.json")
+    from_file = small_scene.render(camera_file=str(tmp_path / "c.json"))
+    assert np.array_equal(small_scene.render(camera_file=tmp_path / "c.json"), from_file)
+    assert np.array_equal(from_file, small_scene.render(size=(48, 40), orbit=(40, 20)))
+    # True/False keywords of Python's own take numpy's bools.
+    assert np.array_equal(small_scene.render(size=(32, 32), premultiplied=np.bool_(True)), small_scene.render(size=(32, 32), premultiplied=True))
+    assert isinstance(small_scene.render(size=(32, 32), stats=np.bool_(True)), tuple)
+
+
+# Values no text of a keyword's form spells, by form.
+WRONG_TYPES = {
+    "Number": [(1, 2), [1.5], {}, 1 + 2j, True, np.bool_(True), np.array([1.5]), b"1", object()],
+    "Integer": [16.5, np.float64(16), (16,), True, {}],
+    "Numbers": [30, [[30, 10]], np.zeros((1, 2)), ("30", "10"), {30, 10}, (True, False), b"30,10"],
+    "Size": [64, (64.0, 48), np.array([64.0, 48.0]), ("64", 48), {}],
+    "Word": [3, ("left",), b"left", True],
+    "Switch": [1, 0.0, (True,), {}],
+    "Flag": ["on", 1, 1.0, {}],
+}
+FORM = {k[0]: k[1] for k in KEYWORDS}
+
+
+@pytest.mark.parametrize("key", [k[0] for k in KEYWORDS] + ["premultiplied", "stats", "tf"])
+def test_a_wrong_type_raises_type_error_naming_the_keyword(small_scene, key):
+    for value in WRONG_TYPES[FORM.get(key, "Flag")] if key != "tf" else [{}, 3, [["a"] * 5]]:
+        with pytest.raises(TypeError, match=f"^{key} must be .*, got ") as e:
+            small_scene.render(**{"size": (32, 32), key: value})
+        assert "cast" not in str(e.value)
+
+
+# Wrong values: the keyword, and the flags the command line gets for it.
+WRONG_VALUES = [
+    (dict(size="0x10"), ["--size", "0x10"]),
+    (dict(size=(0, 10)), ["--size", "0x10"]),
+    (dict(size=(64, 48, 2)), ["--size", "64x48x2"]),
+    (dict(orbit=(1, 2, 3)), ["--orbit", "1,2,3"]),
+    (dict(orbit="abc"), ["--orbit", "abc"]),
+    (dict(eye=np.array([1.0, 2.0])), ["--eye", "1.0,2.0"]),
+    (dict(zoom=-1), ["--zoom", "-1"]),
+    (dict(zoom="big"), ["--zoom", "big"]),
+    (dict(fov=np.float32(180)), ["--fov", "180.0"]),
+    (dict(iso=np.nan), ["--iso", "nan"]),
+    (dict(iso=1e39), ["--iso", "1e+39"]),
+    (dict(surface_color=(2, 0, 0, 1)), ["--surface-color", "2,0,0,1"]),
+    (dict(background=(1, 1)), ["--background", "1,1"]),
+    (dict(shading="maybe"), ["--shading", "maybe"]),
+    (dict(view="front"), ["--view", "front"]),
+    (dict(preset="nope"), ["--preset", "nope"]),
+    (dict(renderer="gpu"), ["--renderer", "gpu"]),
+    (dict(cut=(0, 0, 0, 0, 0, 0)), ["--cut", "0,0,0,0,0,0"]),
+    (dict(voi=(1, 1, 1, 0, 0, 0)), ["--voi", "1,1,1,0,0,0"]),
+    (dict(voi_ramp=-1), ["--voi-ramp", "-1"]),
+    (dict(epsilon=-1), ["--epsilon", "-1"]),
+    (dict(budget="150%"), ["--budget", "150%"]),
+    (dict(step=np.float64(-1)), ["--step", "-1.0"]),
+    (dict(classification="pre"), ["--classification", "pre"]),
+    (dict(max_brick=np.int64(12)), ["--max-brick", "12"]),
+    (dict(max_brick="abc"), ["--max-brick", "abc"]),
+    (dict(texel_bits=12), ["--texel-bits", "12"]),
+    (dict(image_scale=2), ["--image-scale", "2"]),
+    (dict(center=(1, 2, 3)), ["--center", "1,2,3"]),
+]
+
+
+def test_a_wrong_value_raises_the_command_lines_message(tmp_path, small_scene):
+    path = tmp_path / "blobs.nrrd"
+    write_nrrd(path, blobs(), (1, 1, 1))
+    for kwargs, flags in WRONG_VALUES:
+        run = subprocess.run([BIN, "render", str(path), *flags, "-o", str(tmp_path / "x.png"), "--progress", "off"], capture_output=True, text=True)
+        assert run.returncode == 2, flags
+        line = run.stderr.strip().splitlines()[-1]
+        with pytest.raises(ValueError) as e:
+            small_scene.render(**{"size": (32, 32), **kwargs})
+        assert str(e.value) and str(e.value) in line, (kwargs, str(e.value), line)
+    with pytest.raises(ValueError, match="premultiplied and background are exclusive"):
+        small_scene.render(background=(0, 0, 0), premultiplied=True)
+    with pytest.raises(ValueError, match="--tf and --preset are exclusive"):
+        small_scene.render(tf=np.array([[0, 1, 1, 1, 0], [1000, 1, 1, 1, 1]]), preset="ct-bone")
+
+
+def test_surface_export_info_scene_and_open_take_python_forms(tmp_path, volume):
+    a, spacing, origin, direction, path = volume
+    scene = ho.Scene(a, spacing=spacing, origin=origin, direction=direction)
+    vertices, faces = scene.surface(500)
+    for iso in (500.0, np.int16(500), np.float32(500), np.array(500), "500"):
+        v, f = scene.surface(iso, kind=np.str_("octree"), closed=np.bool_(False))
+        assert np.array_equal(v, vertices) and np.array_equal(f, faces)
+    assert len(scene.surface(500, normals=np.bool_(True))) == 3
+    assert len(scene.surface(5000, normals=True)) == 3  # an empty surface has its (0, 3) normals too
+    scene.export(str(tmp_path / "a.off"), 500)
+    scene.export(tmp_path / "b.off", np.float32(500), kind=np.str_("dmc"))
+    assert open(tmp_path / "a.off").read() == open(tmp_path / "b.off").read()
+    assert all(scene.info(bins=b)["histogram"]["counts"] == scene.info(bins=10)["histogram"]["counts"] for b in (np.int64(10), "10", np.array(10)))
+    for forms in [dict(spacing=list(spacing), origin=np.array(origin), direction=direction.tolist()),
+                  dict(spacing=",".join(map(str, spacing)), origin=",".join(map(str, origin)), direction=tuple(direction.ravel()))]:
+        assert np.array_equal(ho.Scene(a, iso=np.float32(500), **forms).surface(500)[0], vertices)
+    assert ho.open(pathlib.Path(path)).info()["dims"] == (64, 56, 48)
+    # Wrong types: TypeError naming the argument; wrong values: ValueError.
+    for call, error, message in [
+        (lambda: scene.surface(None), TypeError, "^iso must be a number"),
+        (lambda: scene.surface((500,)), TypeError, "^iso must be a number"),
+        (lambda: scene.surface(500, closed="yes"), TypeError, "^closed must be True or False"),
+        (lambda: scene.surface(500, normals=1), TypeError, "^normals must be True or False"),
+        (lambda: scene.surface(500, kind=3), TypeError, "^kind must be a str"),
+        (lambda: scene.export(3, 500), TypeError, "^path must be a str"),
+        (lambda: scene.info(bins=2.5), TypeError, "^bins must be an integer"),
+        (lambda: ho.Scene(a, iso=[500]), TypeError, "^iso must be a number"),
+        (lambda: ho.Scene(a, origin={}), TypeError, "^origin must be a sequence of numbers"),
+        (lambda: ho.open(3), TypeError, "^path must be a str"),
+        (lambda: scene.surface("abc"), ValueError, "iso 'abc' invalid"),
+        (lambda: scene.surface(np.nan), ValueError, "iso 'nan' invalid"),
+        (lambda: scene.surface(1e39), ValueError, "iso must be a finite number within the float range"),
+        (lambda: scene.surface(500, kind="marching"), ValueError, "surface kind 'marching' invalid"),
+        (lambda: scene.info(bins=0), ValueError, "bins must be in 1..4096"),
+        (lambda: scene.info(bins="2.5"), ValueError, "bins '2.5' invalid \\(expected an integer\\)"),
+        (lambda: ho.Scene(a, spacing=(1, 2)), ValueError, "spacing '1,2' invalid"),
+        (lambda: ho.Scene(a, origin=(0, 0, np.inf)), ValueError, "origin '0,0,inf' invalid"),
+    ]:
+        with pytest.raises(error, match=message) as e:
+            call()
+        assert "cast" not in str(e.value)
