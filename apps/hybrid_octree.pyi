@@ -43,6 +43,16 @@ class Scene:
         (0, 0, 0); direction: 3x3 whose columns are the x, y and z axes in LPS (SimpleITK's
         GetDirection() reshaped to 3x3). iso: build that isosurface now. ValueError or TypeError name
         what was expected."""
+    @property
+    def array(self) -> npt.NDArray[Any]:
+        """The samples indexed (z, y, x) in their stored type, read-only: a view without a copy of the
+        scene's own samples where it holds them (an array given to Scene, a volume file, a DICOM folder
+        after any resampling), a copy read from its store for a scene file read paged."""
+    @property
+    def affine(self) -> npt.NDArray[np.float64]:
+        """4x4: voxel index (x, y, z), the array's axes reversed, to LPS mm (origin + direction @
+        (x*sx, y*sy, z*sz)), the frame of ITK and of `hybrid-octree info`. nibabel's RAS affine of the
+        same grid is np.diag([-1, -1, 1, 1]) @ affine."""
     def info(self, bins: Integer = 24) -> dict[str, Any]:
         """What `hybrid-octree info` prints: dims (x, y, z), shape (z, y, x), spacing, type,
         stored_type, min, max, origin, direction (rows), orientation, bytes, octree_nodes, the

@@ -345,6 +345,43 @@ class PyScene {
     return d;
   }
 
+  /// The samples as numpy holds them, indexed (z, y, x), read-only: a view of the scene's own
+  /// samples where it holds them (@p self keeps them alive), else (a scene file read paged) a copy
+  /// read from its store.
+  static py::array samples(const py::object& self) {
+    PyScene& s = self.cast<PyScene&>();
+    const Scene& scene = s.mRenderer->scene();
+    const Volume& v = scene.volume;
+    const std::vector<py::ssize_t> shape = {v.dims().z, v.dims().y, v.dims().x};
+    auto make = [&](const auto* data, const py::object& base) {
+      using T = std::remove_cv_t<std::remove_pointer_t<decltype(data)>>;
+      py::array_t<T> a(shape, data, base);
+      a.attr("setflags")(py::arg("write") = false);
+      return py::array(a);
+    };
+    if (v.hasSamples()) return v.visitSamples([&](const auto* data) { return make(data, self); });
+    if (!scene.knots) HYB_THROW(RuntimeError, s.mSource, ": the scene holds no samples");
+    auto owned = std::make_shared<SampleArray>();
+    {
+      py::gil_scoped_release release;
+      *owned = scene.knots->samples();
+    }
+    return std::visit([&](const auto& vec) { return make(vec.data(), py::capsule(new std::shared_ptr<SampleArray>(owned), [](void* p) {
+                                                            delete static_cast<std::shared_ptr<SampleArray>*>(p);
+                                                          })); },
+                      *owned);
+  }
+
+  /// The 4x4 map from voxel index (x, y, z), the array's axes reversed, to LPS millimetres.
+  py::array_t<double> affine() const {
+    const Volume& v = mRenderer->scene().volume;
+    py::array_t<double> m({py::ssize_t(4), py::ssize_t(4)});
+    auto a = m.mutable_unchecked<2>();
+    for (int r = 0; r < 4; ++r)
+      for (int c = 0; c < 4; ++c) a(r, c) = r == 3 ? (c == 3 ? 1.0 : 0.0) : c == 3 ? v.frame().origin[r] : v.frame().direction[c][r] * v.spacing()[c];
+    return m;
+  }
+
   py::object render(const py::kwargs& kwargs) {
     // The command line's flags, from the keywords (tf, premultiplied and stats are Python's own);
     // None is a keyword left out.
@@ -596,6 +633,9 @@ PYBIND11_MODULE(hybrid_octree, m) {
   py::class_<PyScene>(m, "Scene")
       .def(py::init(&sceneFromArray), py::arg("array"), py::arg("spacing") = py::none(), py::arg("origin") = py::none(),
            py::arg("direction") = py::none(), py::arg("iso") = py::none())
+      .def_property_readonly("array", &PyScene::samples,
+                             "the samples (z, y, x), read-only: a view of the scene's own where it holds them, else a copy")
+      .def_property_readonly("affine", &PyScene::affine, "4x4: voxel index (x, y, z) to LPS mm, as ITK's and the command line's frame")
       .def("info", &PyScene::info, py::arg("bins") = 24)
       .def("render", &PyScene::render)
       .def("surface", &PyScene::surface, py::arg("iso"), py::arg("kind") = "octree", py::arg("closed") = false, py::arg("normals") = false)
