@@ -573,37 +573,62 @@ PixelModule checkedModule(const SeriesLayout& l, size_t s) {
 class PlaneDecoder {
  public:
   explicit PlaneDecoder(const SeriesLayout& l) : mLayout(l) {}
-  /// Plane @p s's pixels (not rescaled) and its header, every check made on its file first.
+  /// Plane @p s's header (its pixel type, the values it can decode, its rescale as the file holds it
+  /// now), every check made on its file first; its pixels are not decoded.
+  SliceHeader header(size_t s) {
+    open(s, false);
+    return mHeader;
+  }
+  /// Plane @p s's pixels (not rescaled), and its header.
   SampleArray decode(size_t s, SliceHeader* header) {
     const DicomFrame& f = mLayout.slices[s];
-    const std::string where = sliceWhere(mLayout, s);
-    const glm::ivec3 dims(mLayout.stack.size, 0);
-    if (f.frame < 0 || f.file != mFile) {
-      const PixelModule module = checkedModule(mLayout, s);
-      SliceImage image;
-      readSliceImage(f.file, where, module, &image);
-      mAll = imageSamples(image, where);  // the reader and its copy of the pixel data go with `image`
-      mFacts = {image.type, 1.0, 0.0, image.lo, image.hi};
-      mFrames = image.frames;
-      mFile = f.frame < 0 ? std::string() : f.file;  // single-frame images are not kept
-    }
-    *header = {mFacts.type, f.slope, f.intercept, mFacts.lo, mFacts.hi};
-    if (f.frame < 0)  // the rescale the file holds now (it may have been rewritten since the series was opened)
-      if (const std::optional<detail::DicomHeader> now = detail::readDicomHeader(f.file)) {
-        const std::vector<double> slope = now->data.numbers(detail::dicomTag(0x0028, 0x1053)), intercept = now->data.numbers(detail::dicomTag(0x0028, 0x1052));
-        header->slope = slope.size() == 1 ? slope[0] : 1.0;
-        header->intercept = intercept.size() == 1 ? intercept[0] : 0.0;
-      }
-    checkRescale(where, *header);
+    open(s, true);
+    *header = mHeader;
     if (f.frame < 0) return std::move(mAll);
-    if (f.frame >= mFrames) HYB_THROW(IoError, where, ": holds ", mFrames, " frames (expected frame ", f.frame + 1, ")");
-    return framePlane(mAll, f.frame, size_t(dims.x) * size_t(dims.y));
+    return framePlane(mAll, f.frame, size_t(mLayout.stack.size.x) * size_t(mLayout.stack.size.y));
   }
 
  private:
+  // Reads plane @p s's image (a multi-frame image once for all its frames) and, when @p pixels, decodes it.
+  void open(size_t s, bool pixels) {
+    const DicomFrame& f = mLayout.slices[s];
+    const std::string where = sliceWhere(mLayout, s);
+    if (f.frame < 0 || f.file != mFile || (pixels && !mDecoded)) {
+      const PixelModule module = checkedModule(mLayout, s);
+      SliceImage image;
+      readSliceImage(f.file, where, module, &image);
+      mHeader = {image.type, f.slope, f.intercept, image.lo, image.hi};
+      if (f.frame < 0) {  // the rescale the file holds now: it may have been rewritten since the series was opened
+        const gdcm::DataSet& ds = image.reader.GetFile().GetDataSet();
+        gdcm::StringFilter sf;
+        sf.SetFile(image.reader.GetFile());
+        auto value = [&](uint16_t element, double otherwise) {
+          const gdcm::Tag t(0x0028, element);
+          if (!ds.FindDataElement(t) || ds.GetDataElement(t).IsEmpty()) return otherwise;
+          const std::string text = trim(sf.ToString(t));
+          char* end = nullptr;
+          const double v = std::strtod(text.c_str(), &end);
+          return end == text.c_str() ? otherwise : v;
+        };
+        mHeader.slope = value(0x1053, 1.0);
+        mHeader.intercept = value(0x1052, 0.0);
+      }
+      mFrames = image.frames;
+      mDecoded = pixels;
+      if (pixels) mAll = imageSamples(image, where);  // the reader and its copy of the pixel data go with `image`
+      mFile = f.frame < 0 ? std::string() : f.file;  // single-frame images are not kept
+    } else {
+      mHeader.slope = f.slope;
+      mHeader.intercept = f.intercept;
+    }
+    checkRescale(where, mHeader);
+    if (f.frame >= mFrames) HYB_THROW(IoError, where, ": holds ", mFrames, " frames (expected frame ", f.frame + 1, ")");
+  }
+
   const SeriesLayout& mLayout;
-  std::string mFile;  // the multi-frame image decoded in mAll
-  SliceHeader mFacts{};  // its pixel type and the values it can decode
+  std::string mFile;     // the multi-frame image read last
+  bool mDecoded = false;  // whether its pixels are in mAll
+  SliceHeader mHeader{};
   int mFrames = 1;
   SampleArray mAll;
 };
@@ -694,7 +719,7 @@ std::unique_ptr<PlaneSource> stackPlanes(SeriesLayout layout) {
   {
     PlaneDecoder decoder(layout);
     for (size_t s = 0; s < n; ++s) {
-      decoder.decode(s, &headers[s]);  // (a multi-frame image is decoded once for all its frames)
+      headers[s] = decoder.header(s);
       const SliceHeader& h = headers[s];
       if (s == 0) stored = storedType(detail::rescaleTarget(h.type, h.slope, h.intercept, 0));
       byValues = byValues || !holdsAll(stored, h.lo, h.hi, h.slope, h.intercept);
