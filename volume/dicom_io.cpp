@@ -56,200 +56,8 @@ void silenceGdcm() {
   gdcm::Trace::DebugOff();
 }
 
-// ---------------------------------------------------------------------------------------------
-// File meta information (PS3.10 7.1), checked before GDCM parses it: GDCM asserts on an undefined
-// length, a sequence or a value running past the file in group 0002.
-
-enum class DicomKind { NotDicom, Dicom };
-
 uint16_t le16(const uint8_t* p) { return uint16_t(p[0] | p[1] << 8); }
 uint32_t le32(const uint8_t* p) { return uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24; }
-
-bool isVr(const uint8_t* p) { return p[0] >= 'A' && p[0] <= 'Z' && p[1] >= 'A' && p[1] <= 'Z'; }
-
-// The value representations of PS3.5 6.2: GDCM reads an element of any other as implicit, taking
-// its value bytes for a 32-bit length (a 545-byte slice made it allocate 825 MB that way).
-bool knownVr(const uint8_t* p) {
-  static const char* kVrs[] = {"AE", "AS", "AT", "CS", "DA", "DS", "DT", "FL", "FD", "IS", "LO", "LT", "OB", "OD", "OF", "OL", "OV",
-                               "OW", "PN", "SH", "SL", "SQ", "SS", "ST", "SV", "TM", "UC", "UI", "UL", "UN", "UR", "US", "UT", "UV"};
-  return std::any_of(std::begin(kVrs), std::end(kVrs), [&](const char* v) { return p[0] == v[0] && p[1] == v[1]; });
-}
-
-// Explicit VRs whose length takes 4 bytes after 2 reserved ones (PS3.5 7.1.2).
-bool longVr(const uint8_t* p) {
-  static const char* kLong[] = {"OB", "OW", "OF", "OD", "OL", "OV", "SQ", "UT", "UN", "UC", "UR", "SV", "UV"};
-  return std::any_of(std::begin(kLong), std::end(kLong), [&](const char* v) { return p[0] == v[0] && p[1] == v[1]; });
-}
-
-// Longest file meta information accepted (real ones are a few hundred bytes).
-constexpr size_t kMaxMetaBytes = 64 << 10;
-
-// The value representation GDCM's typed reading of the image module expects of a tag (its
-// attributes assert on another), or null for tags it reads as they come.
-const char* imageModuleVr(uint16_t group, uint16_t element) {
-  static const struct { uint16_t g, e; const char* vr; } kTags[] = {
-      {0x0008, 0x0060, "CS"}, {0x0018, 0x0050, "DS"}, {0x0018, 0x0088, "DS"}, {0x0020, 0x0032, "DS"}, {0x0020, 0x0037, "DS"},
-      {0x0028, 0x0002, "US"}, {0x0028, 0x0004, "CS"}, {0x0028, 0x0006, "US"}, {0x0028, 0x0008, "IS"}, {0x0028, 0x0010, "US"},
-      {0x0028, 0x0011, "US"}, {0x0028, 0x0030, "DS"}, {0x0028, 0x0100, "US"}, {0x0028, 0x0101, "US"}, {0x0028, 0x0102, "US"},
-      {0x0028, 0x0103, "US"}, {0x0028, 0x1050, "DS"}, {0x0028, 0x1051, "DS"}, {0x0028, 0x1052, "DS"}, {0x0028, 0x1053, "DS"}};
-  for (const auto& t : kTags)
-    if (t.g == group && t.e == element) return t.vr;
-  return nullptr;
-}
-
-// The data set after the file meta information, walked element by element before GDCM reads it:
-// GDCM allocates what an element declares before it finds the file shorter (a 545-byte slice
-// made it allocate 2 GB), so every declared length must fit in the bytes left. Sequences and
-// encapsulated pixel data of undefined length are walked item by item, 16 levels deep at most.
-class DataSetWalk {
- public:
-  DataSetWalk(const std::vector<uint8_t>& bytes, bool explicitVr, bool bigEndian, const std::string& file)
-      : mB(bytes), mExplicit(explicitVr), mBig(bigEndian), mFile(file) {}
-  // Walks elements from @p pos to @p end (or to an item delimiter when @p inItem); returns where it stopped.
-  size_t elements(size_t pos, size_t end, int depth, bool inItem) {
-    if (depth > 16) fail(pos, "sequences nested more than 16 deep");
-    while (pos + 8 <= end) {
-      const uint16_t group = u16(pos), element = u16(pos + 2);
-      if (group == 0xfffe) {
-        if (element == 0xe00d && inItem) return pos + 8;  // item delimiter
-        fail(pos, "an item tag outside a sequence");
-      }
-      const bool explicitHere = mExplicit && group != 0xfffe;
-      size_t header = 8;
-      uint64_t length;
-      bool sequence = false, maySequence = !explicitHere;
-      if (explicitHere) {
-        const uint8_t* vr = mB.data() + pos + 4;
-        if (!knownVr(vr)) fail(pos, detail::concat("an unknown value representation ", quotedExcerpt(std::string_view(reinterpret_cast<const char*>(vr), 2))));
-        if (const char* want = imageModuleVr(group, element); want && (vr[0] != want[0] || vr[1] != want[1]))
-          fail(pos, detail::concat("element (", hex(group), ",", hex(element), ") of value representation ",
-                                   quotedExcerpt(std::string_view(reinterpret_cast<const char*>(vr), 2)), " where the standard says ", want));
-        sequence = vr[0] == 'S' && vr[1] == 'Q';
-        maySequence = sequence || (vr[0] == 'U' && vr[1] == 'N') || (vr[0] == 'O' && vr[1] == 'B') || (vr[0] == 'O' && vr[1] == 'W');
-        if (longVr(vr)) {
-          if (pos + 12 > end) fail(pos, "an element cut short");
-          length = u32(pos + 8);
-          header = 12;
-        } else {
-          length = u16(pos + 6);
-        }
-      } else {
-        length = u32(pos + 4);
-      }
-      pos += header;
-      if (length == 0xffffffffu) {
-        if (!maySequence) fail(pos - header, "an undefined length on a value that cannot hold items");
-        pos = items(pos, end, depth + 1, group == 0x7fe0 && element == 0x0010);
-        continue;
-      }
-      if (length > end - pos) fail(pos - header, detail::concat("element (", hex(group), ",", hex(element), ") declaring ", length,
-                                                               " bytes where ", end - pos, " are left"));
-      if (sequence) elementsOfItems(pos, pos + size_t(length), depth + 1);
-      pos += size_t(length);
-    }
-    if (inItem) fail(pos, "an item without its delimiter");
-    if (pos < end) fail(pos, "an element cut short");  // GDCM asserts on a partial element header
-    return pos;
-  }
-
- private:
-  // Items of a sequence (data sets, walked) or @p fragments of encapsulated pixel data, up to the
-  // sequence delimiter.
-  size_t items(size_t pos, size_t end, int depth, bool fragments) {
-    for (;;) {
-      if (pos + 8 > end) fail(pos, "a sequence without its delimiter");
-      const uint16_t group = u16(pos), element = u16(pos + 2);
-      const uint32_t length = u32(pos + 4);
-      pos += 8;
-      if (group != 0xfffe) fail(pos - 8, "a sequence holding something other than items");
-      if (element == 0xe0dd) return pos;  // sequence delimiter
-      if (element != 0xe000) fail(pos - 8, "an unknown item tag");
-      if (length == 0xffffffffu) {
-        pos = elements(pos, end, depth, true);
-        continue;
-      }
-      if (length > end - pos) fail(pos - 8, detail::concat("an item declaring ", length, " bytes where ", end - pos, " are left"));
-      if (!fragments) elements(pos, pos + length, depth, false);
-      pos += length;
-    }
-  }
-  // A sequence of defined length: its items, each checked.
-  void elementsOfItems(size_t pos, size_t end, int depth) {
-    while (pos + 8 <= end) {
-      if (u16(pos) != 0xfffe || u16(pos + 2) != 0xe000) fail(pos, "a sequence holding something other than items");
-      const uint32_t length = u32(pos + 4);
-      pos += 8;
-      if (length == 0xffffffffu) {
-        pos = elements(pos, end, depth, true);
-        continue;
-      }
-      if (length > end - pos) fail(pos - 8, detail::concat("an item declaring ", length, " bytes where ", end - pos, " are left"));
-      elements(pos, pos + length, depth, false);
-      pos += length;
-    }
-  }
-  uint16_t u16(size_t at) const { return mBig ? uint16_t(mB[at] << 8 | mB[at + 1]) : le16(mB.data() + at); }
-  uint32_t u32(size_t at) const {
-    return mBig ? uint32_t(mB[at]) << 24 | uint32_t(mB[at + 1]) << 16 | uint32_t(mB[at + 2]) << 8 | mB[at + 3] : le32(mB.data() + at);
-  }
-  static std::string hex(uint16_t v) {
-    char s[5];
-    std::snprintf(s, sizeof s, "%04x", v);
-    return s;
-  }
-  [[noreturn]] void fail(size_t at, const std::string& what) const {
-    HYB_THROW(IoError, mFile, ": damaged DICOM data set: ", what, " at byte ", at, " (expected elements whose lengths fit in the file)");
-  }
-  const std::vector<uint8_t>& mB;
-  bool mExplicit, mBig;
-  std::string mFile;
-};
-
-// Whether @p file looks like DICOM (the "DICM" prefix, or a data set starting at group 0002 or
-// 0008 as old files do); throws when it is DICOM whose file meta information would make GDCM
-// assert.
-DicomKind checkFileMeta(const InputFile& file) {
-  std::vector<uint8_t> head(size_t(std::min<uint64_t>(file.size(), 132 + kMaxMetaBytes)));
-  file.read(0, head.size(), head.data());
-  size_t pos = 0;
-  if (head.size() >= 132 && std::memcmp(head.data() + 128, "DICM", 4) == 0) pos = 132;
-  else if (head.size() < 8 || (le16(head.data()) != 0x0002 && le16(head.data()) != 0x0008)) return DicomKind::NotDicom;
-  auto damaged = [&](const std::string& what) {
-    HYB_THROW(IoError, file.path(), ": damaged DICOM file meta information: ", what, " at byte ", pos,
-              " (expected group 0002 elements of defined length within the file)");
-  };
-  // After the prefix GDCM expects meta information; without it its guesses allocated 1.6 GB for a 394-byte file.
-  if (pos == 132 && (head.size() < 140 || le16(head.data() + pos) != 0x0002)) damaged("no group 0002 after the DICM prefix");
-  std::string syntax;  // the Transfer Syntax UID (0002,0010)
-  while (pos + 8 <= head.size() && le16(head.data() + pos) == 0x0002) {
-    const uint8_t* e = head.data() + pos;
-    size_t headerBytes = 8;
-    uint64_t length;
-    // PS3.10 7.1: the meta information is explicit VR (GDCM's reading of implicit meta asserts).
-    if (!knownVr(e + 4)) damaged("an element without a known value representation");
-    if (longVr(e + 4)) {
-      if (e[4] == 'S' && e[5] == 'Q') damaged("a sequence");
-      if (pos + 12 > head.size()) damaged("an element cut short");
-      length = le32(e + 8);
-      headerBytes = 12;
-    } else {
-      length = le16(e + 6);
-    }
-    if (length == 0xffffffffu) damaged("an undefined length");
-    if (pos + headerBytes + length > file.size()) damaged(detail::concat("a length of ", length, " past the end of the file"));
-    if (pos + headerBytes + length > head.size()) damaged(detail::concat("more than ", kMaxMetaBytes, " bytes of meta information"));
-    if (le16(e + 2) == 0x0010) syntax.assign(reinterpret_cast<const char*>(e + headerBytes), size_t(length));
-    pos += headerBytes + size_t(length);
-  }
-  // GDCM asserts when it finds the end of the file where the element after the meta information should be.
-  if (pos + 8 > file.size()) damaged("no data set after the file meta information");
-  while (!syntax.empty() && (syntax.back() == '\0' || syntax.back() == ' ')) syntax.pop_back();
-  if (syntax == "1.2.840.10008.1.2.1.99") return DicomKind::Dicom;  // deflated: lengths are inside the compressed stream
-  const std::vector<uint8_t> bytes = file.bytes(0, file.size());
-  const bool explicitVr = syntax.empty() ? pos + 6 <= bytes.size() && isVr(bytes.data() + pos + 4) : syntax != "1.2.840.10008.1.2";
-  DataSetWalk(bytes, explicitVr, syntax == "1.2.840.10008.1.2.2", file.path()).elements(pos, bytes.size(), 0, false);
-  return DicomKind::Dicom;
-}
 
 // ---------------------------------------------------------------------------------------------
 // Pixel module, checked before GDCM decodes it: GDCM asserts on palette colour without its
@@ -391,7 +199,7 @@ SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid, 
       l.warnings.push_back(message + " (skipped: not in the folder of the series read)");
       continue;
     }
-    (void)checkFileMeta(InputFile(file));  // its own words where GDCM's guard has them
+    (void)detail::checkDicomFile(InputFile(file));  // its own words where GDCM's guard has them
     throw IoError(message);
   }
 
@@ -562,7 +370,7 @@ SampleArray framePlane(const SampleArray& all, int frame, size_t planeSize) {
 PixelModule checkedModule(const SeriesLayout& l, size_t s) {
   const std::string where = sliceWhere(l, s);
   const InputFile file(l.slices[s].file);
-  if (checkFileMeta(file) != DicomKind::Dicom) HYB_THROW(IoError, where, ": not a DICOM file (expected the slice the series was opened with)");
+  if (!detail::checkDicomFile(file)) HYB_THROW(IoError, where, ": not a DICOM file (expected the slice the series was opened with)");
   const PixelModule module = checkPixelModule(file, where);
   checkSliceSize(where, module, glm::ivec3(l.stack.size, 0));
   return module;

@@ -60,30 +60,61 @@ bool isUs(uint32_t tag) {
 uint16_t le16(const uint8_t* p) { return uint16_t(p[0] | p[1] << 8); }
 uint32_t le32(const uint8_t* p) { return uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24; }
 
+bool isVr(const uint8_t* p) { return p[0] >= 'A' && p[0] <= 'Z' && p[1] >= 'A' && p[1] <= 'Z'; }
+
+// The value representations of PS3.5 6.2: GDCM reads an element of any other as implicit, taking
+// its value bytes for a 32-bit length (a 545-byte slice made it allocate 825 MB that way).
 bool knownVr(const uint8_t* p) {
   static const char* kVrs[] = {"AE", "AS", "AT", "CS", "DA", "DS", "DT", "FL", "FD", "IS", "LO", "LT", "OB", "OD", "OF", "OL", "OV",
                                "OW", "PN", "SH", "SL", "SQ", "SS", "ST", "SV", "TM", "UC", "UI", "UL", "UN", "UR", "US", "UT", "UV"};
   return std::any_of(std::begin(kVrs), std::end(kVrs), [&](const char* v) { return p[0] == v[0] && p[1] == v[1]; });
 }
 
+// Explicit VRs whose length takes 4 bytes after 2 reserved ones (PS3.5 7.1.2).
 bool longVr(const uint8_t* p) {
   static const char* kLong[] = {"OB", "OW", "OF", "OD", "OL", "OV", "SQ", "UT", "UN", "UC", "UR", "SV", "UV"};
   return std::any_of(std::begin(kLong), std::end(kLong), [&](const char* v) { return p[0] == v[0] && p[1] == v[1]; });
 }
 
+// The value representation GDCM's typed reading of the image module expects of a tag (its
+// attributes assert on another), or null for tags it reads as they come.
+const char* imageModuleVr(uint32_t tag) {
+  static const struct { uint32_t tag; const char* vr; } kTags[] = {
+      {dicomTag(0x0008, 0x0060), "CS"}, {dicomTag(0x0018, 0x0050), "DS"}, {dicomTag(0x0018, 0x0088), "DS"}, {dicomTag(0x0020, 0x0032), "DS"},
+      {dicomTag(0x0020, 0x0037), "DS"}, {dicomTag(0x0028, 0x0002), "US"}, {dicomTag(0x0028, 0x0004), "CS"}, {dicomTag(0x0028, 0x0006), "US"},
+      {dicomTag(0x0028, 0x0008), "IS"}, {dicomTag(0x0028, 0x0010), "US"}, {dicomTag(0x0028, 0x0011), "US"}, {dicomTag(0x0028, 0x0030), "DS"},
+      {dicomTag(0x0028, 0x0100), "US"}, {dicomTag(0x0028, 0x0101), "US"}, {dicomTag(0x0028, 0x0102), "US"}, {dicomTag(0x0028, 0x0103), "US"},
+      {dicomTag(0x0028, 0x1050), "DS"}, {dicomTag(0x0028, 0x1051), "DS"}, {dicomTag(0x0028, 0x1052), "DS"}, {dicomTag(0x0028, 0x1053), "DS"}};
+  for (const auto& t : kTags)
+    if (t.tag == tag) return t.vr;
+  return nullptr;
+}
+
 // Thrown inside a parse when an element lies within the file but past the bytes read so far.
 struct NeedMoreBytes {};
 
+std::string hex(uint16_t v) {
+  char s[5];
+  std::snprintf(s, sizeof s, "%04x", v);
+  return s;
+}
+
 }  // namespace
 
-// Parses a data set held in a byte buffer, every length checked against the file.
+// Walks a data set held in a byte buffer, every length checked against the file: GDCM allocates
+// what an element declares before it finds the file shorter (a 545-byte slice made it allocate 2
+// GB), and asserts on malformed structure. Sequences and encapsulated pixel data of undefined
+// length are walked item by item, 16 levels deep at most. Reading a header, the walk stops at the
+// pixel data and keeps the values asked for; checking a whole file for GDCM, it walks to the end
+// and checks the image module's value representations.
 class DicomHeaderParser {
  public:
-  DicomHeaderParser(const std::vector<uint8_t>& b, uint64_t available, bool explicitVr, bool bigEndian, const std::string& path)
-      : mB(b), mAvailable(available), mExplicit(explicitVr), mBig(bigEndian), mPath(path) {}
+  enum class Mode { Header, WholeFile };
+  DicomHeaderParser(const std::vector<uint8_t>& b, uint64_t available, bool explicitVr, bool bigEndian, const std::string& path, Mode mode)
+      : mB(b), mAvailable(available), mExplicit(explicitVr), mBig(bigEndian), mPath(path), mMode(mode) {}
 
   // Elements from @p pos to @p end, or to an item delimiter when @p inItem; returns where it stopped.
-  // At the top level the pixel data ends the parse (@p pixelData set).
+  // Reading a header, the pixel data at the top level ends the walk (@p pixelData set).
   size_t elements(size_t pos, uint64_t end, int depth, bool inItem, bool implicitHere, DicomDataSet* out, bool* pixelData) {
     if (depth > 16) fail(pos, "sequences nested more than 16 deep");
     const bool explicitVr = mExplicit && !implicitHere;
@@ -95,19 +126,24 @@ class DicomHeaderParser {
         if (element == 0xe00d && inItem) return pos + 8;
         fail(pos, "an item tag outside a sequence");
       }
-      if (tag == dicomTag(0x7fe0, 0x0010) && depth == 0) {
+      const bool pixels = tag == dicomTag(0x7fe0, 0x0010);
+      if (pixels && depth == 0 && mMode == Mode::Header) {
         if (pixelData) *pixelData = true;
         return pos;
       }
       size_t header = 8;
       uint64_t length;
-      bool sequence = false, implicitItems = false;
+      bool sequence = false, maySequence = !explicitVr, implicitItems = implicitHere;
       std::string vr;
       if (explicitVr) {
         const uint8_t* v = mB.data() + pos + 4;
-        if (!knownVr(v)) fail(pos, "an unknown value representation");
         vr.assign(reinterpret_cast<const char*>(v), 2);
+        if (!knownVr(v)) fail(pos, concat("an unknown value representation ", quotedExcerpt(vr)));
+        if (const char* want = imageModuleVr(tag); mMode == Mode::WholeFile && want && vr != want)
+          fail(pos, concat("element (", hex(group), ",", hex(element), ") of value representation ", quotedExcerpt(vr), " where the standard says ", want));
         sequence = vr == "SQ";
+        maySequence = sequence || vr == "UN" || vr == "OB" || vr == "OW";
+        implicitItems = implicitHere || vr == "UN";  // an unknown sequence keeps its items implicit (PS3.5 6.2.2)
         if (longVr(v)) {
           need(pos, 12);
           if (pos + 12 > end) fail(pos, "an element cut short");
@@ -116,27 +152,25 @@ class DicomHeaderParser {
         } else {
           length = u16(pos + 6);
         }
-        implicitItems = vr == "UN";  // an unknown sequence keeps its items implicit (PS3.5 6.2.2)
       } else {
         length = u32(pos + 4);
         sequence = descends(tag);
       }
       pos += header;
       if (length == 0xffffffffu) {
-        if (explicitVr && !sequence && vr != "UN" && vr != "OB" && vr != "OW")
-          fail(pos - header, "an undefined length on a value that cannot hold items");
-        std::vector<DicomDataSet>* items = descends(tag) ? &out->mItems[tag] : nullptr;
-        pos = sequenceItems(pos, end, depth + 1, implicitHere || implicitItems, items, true, 0);
+        if (!maySequence) fail(pos - header, "an undefined length on a value that cannot hold items");
+        std::vector<DicomDataSet>* items = out && descends(tag) ? &out->mItems[tag] : nullptr;
+        pos = sequenceItems(pos, end, depth + 1, implicitItems, items, true, pixels);
         continue;
       }
       if (length > end - pos || pos + length > mAvailable)
-        fail(pos - header, concat("element (", hex(group), ",", hex(element), ") declaring ", length, " bytes where ", std::min<uint64_t>(end, mAvailable) - pos,
-                                  " are left"));
-      if (sequence && descends(tag)) {
-        need(pos, size_t(length));
-        sequenceItems(pos, pos + length, depth + 1, implicitHere || implicitItems, &out->mItems[tag], false, 0);
-      } else if (keptTags().count(tag) && length <= 4096) {
-        need(pos, size_t(length));
+        fail(pos - header, concat("element (", hex(group), ",", hex(element), ") declaring ", length, " bytes where ",
+                                  std::min<uint64_t>(end, mAvailable) - pos, " are left"));
+      if (sequence && (mMode == Mode::WholeFile || descends(tag))) {
+        need(pos, length);
+        sequenceItems(pos, pos + length, depth + 1, implicitItems, out && descends(tag) ? &out->mItems[tag] : nullptr, false, false);
+      } else if (out && keptTags().count(tag) && length <= 4096) {
+        need(pos, length);
         out->mValues[tag] = value(tag, vr, pos, size_t(length));
       }
       pos += size_t(length);
@@ -146,16 +180,16 @@ class DicomHeaderParser {
       fail(pos, "an item without its delimiter");
     }
     if (pos < end) {
-      need(pos, size_t(end - pos));
-      fail(pos, "an element cut short");
+      need(pos, end - pos);
+      fail(pos, "an element cut short");  // GDCM asserts on a partial element header
     }
     return size_t(end);
   }
 
  private:
   // Items of a sequence, to its delimiter (@p undefinedLength) or to @p end; each kept in @p items
-  // when asked for.
-  size_t sequenceItems(size_t pos, uint64_t end, int depth, bool implicitHere, std::vector<DicomDataSet>* items, bool undefinedLength, int) {
+  // when asked for. The items of encapsulated pixel data (@p fragments) are bytes, not data sets.
+  size_t sequenceItems(size_t pos, uint64_t end, int depth, bool implicitHere, std::vector<DicomDataSet>* items, bool undefinedLength, bool fragments) {
     for (;;) {
       if (pos + 8 > end) {
         if (!undefinedLength && pos == end) return pos;
@@ -172,15 +206,16 @@ class DicomHeaderParser {
         return pos;
       }
       if (element != 0xe000) fail(pos - 8, "an unknown item tag");
-      DicomDataSet scratch;
-      DicomDataSet* item = items ? &items->emplace_back() : &scratch;
-      if (length == 0xffffffffu) {
+      DicomDataSet* item = items ? &items->emplace_back() : nullptr;
+      if (length == 0xffffffffu && !fragments) {
         pos = elements(pos, end, depth, true, implicitHere, item, nullptr);
         continue;
       }
       if (length > end - pos || pos + length > mAvailable) fail(pos - 8, concat("an item declaring ", length, " bytes where ", end - pos, " are left"));
-      need(pos, length);
-      elements(pos, pos + length, depth, false, implicitHere, item, nullptr);
+      if (!fragments) {
+        need(pos, length);
+        elements(pos, pos + length, depth, false, implicitHere, item, nullptr);
+      }
       pos += length;
     }
   }
@@ -193,26 +228,22 @@ class DicomHeaderParser {
   void need(size_t pos, uint64_t n) const {
     if (pos + n > mB.size()) {
       if (pos + n <= mAvailable) throw NeedMoreBytes{};
-      fail(pos, "the file ends inside an element");
+      fail(pos, "an element cut short");
     }
   }
   uint16_t u16(size_t at) const { return mBig ? uint16_t(mB[at] << 8 | mB[at + 1]) : le16(mB.data() + at); }
   uint32_t u32(size_t at) const {
     return mBig ? uint32_t(mB[at]) << 24 | uint32_t(mB[at + 1]) << 16 | uint32_t(mB[at + 2]) << 8 | mB[at + 3] : le32(mB.data() + at);
   }
-  static std::string hex(uint16_t v) {
-    char s[5];
-    std::snprintf(s, sizeof s, "%04x", v);
-    return s;
-  }
   [[noreturn]] void fail(size_t at, const std::string& what) const {
-    HYB_THROW(IoError, mPath, ": damaged DICOM header: ", what, " at byte ", at, " (expected elements whose lengths fit in the file)");
+    HYB_THROW(IoError, mPath, ": damaged DICOM data set: ", what, " at byte ", at, " (expected elements whose lengths fit in the file)");
   }
 
   const std::vector<uint8_t>& mB;
   uint64_t mAvailable;  // bytes of the data set in the file
   bool mExplicit, mBig;
   std::string mPath;
+  Mode mMode;
 };
 
 std::string DicomDataSet::text(uint32_t tag) const {
@@ -258,7 +289,8 @@ const std::vector<DicomDataSet>* DicomDataSet::items(uint32_t tag) const {
 
 namespace {
 
-constexpr uint64_t kFirstRead = 16 << 10;           // most headers end within this
+constexpr uint64_t kFirstRead = 16 << 10;                  // most headers end within this
+constexpr uint64_t kMaxMetaBytes = 64 << 10;                // real file meta information is a few hundred bytes
 constexpr uint64_t kMaxHeaderBytes = uint64_t(256) << 20;  // a DICOMDIR of a large CD, per-frame groups of thousands of frames
 
 // The data set after the meta information inflated (Deflated Explicit VR Little Endian), bounded.
@@ -282,74 +314,103 @@ std::vector<uint8_t> inflatedDataSet(const InputFile& file, uint64_t start) {
   return out;
 }
 
+// A file's meta information and where its data set starts.
+struct Meta {
+  size_t dataSet = 0;
+  std::string transferSyntax, mediaStorage;
+  bool explicitVr(const std::vector<uint8_t>& b) const {
+    return transferSyntax.empty() ? dataSet + 6 <= b.size() && isVr(b.data() + dataSet + 4) : transferSyntax != "1.2.840.10008.1.2";
+  }
+  bool bigEndian() const { return transferSyntax == "1.2.840.10008.1.2.2"; }
+};
+
+// The file meta information (PS3.10 7.1) of @p file, whose first bytes are @p head (all of them, or
+// at least 132 and the meta information's most), checked element by element before anything reads
+// it (GDCM asserts on an undefined length, a sequence or a value running past the file in group
+// 0002); none when the file is not DICOM (no "DICM" prefix, no data set starting at group 0002 or
+// 0008 as old files do).
+std::optional<Meta> readMeta(const InputFile& file, const std::vector<uint8_t>& head) {
+  size_t pos = 0;
+  if (head.size() >= 132 && std::memcmp(head.data() + 128, "DICM", 4) == 0) pos = 132;
+  else if (head.size() < 8 || (le16(head.data()) != 0x0002 && le16(head.data()) != 0x0008)) return std::nullopt;
+  auto damaged = [&](const std::string& what) {
+    HYB_THROW(IoError, file.path(), ": damaged DICOM file meta information: ", what, " at byte ", pos,
+              " (expected group 0002 elements of defined length within the file)");
+  };
+  // After the prefix GDCM expects meta information; without it its guesses allocated 1.6 GB for a 394-byte file.
+  if (pos == 132 && (head.size() < 140 || le16(head.data() + pos) != 0x0002)) damaged("no group 0002 after the DICM prefix");
+  Meta m;
+  while (pos + 8 <= head.size() && le16(head.data() + pos) == 0x0002) {
+    const uint8_t* e = head.data() + pos;
+    size_t headerBytes = 8;
+    uint64_t length;
+    // PS3.10 7.1: the meta information is explicit VR (GDCM's reading of implicit meta asserts).
+    if (!knownVr(e + 4)) damaged("an element without a known value representation");
+    if (longVr(e + 4)) {
+      if (e[4] == 'S' && e[5] == 'Q') damaged("a sequence");
+      if (pos + 12 > head.size()) damaged("an element cut short");
+      length = le32(e + 8);
+      headerBytes = 12;
+    } else {
+      length = le16(e + 6);
+    }
+    if (length == 0xffffffffu) damaged("an undefined length");
+    if (pos + headerBytes + length > file.size()) damaged(concat("a length of ", length, " past the end of the file"));
+    if (pos + headerBytes + length > head.size()) damaged(concat("more than ", kMaxMetaBytes, " bytes of meta information"));
+    std::string v(reinterpret_cast<const char*>(e + headerBytes), size_t(length));
+    while (!v.empty() && (v.back() == '\0' || v.back() == ' ')) v.pop_back();
+    if (le16(e + 2) == 0x0010) m.transferSyntax = v;
+    if (le16(e + 2) == 0x0002) m.mediaStorage = v;
+    pos += headerBytes + size_t(length);
+  }
+  // GDCM asserts when it finds the end of the file where the element after the meta information should be.
+  if (pos + 8 > file.size()) damaged("no data set after the file meta information");
+  m.dataSet = pos;
+  return m;
+}
+
+const char* const kDeflated = "1.2.840.10008.1.2.1.99";
+
 }  // namespace
+
+bool checkDicomFile(const InputFile& file) {
+  std::vector<uint8_t> head(size_t(std::min<uint64_t>(file.size(), 132 + kMaxMetaBytes)));
+  file.read(0, head.size(), head.data());
+  const std::optional<Meta> meta = readMeta(file, head);
+  if (!meta) return false;
+  if (meta->transferSyntax == kDeflated) return true;  // lengths are inside the compressed stream: GDCM inflates it
+  const std::vector<uint8_t> bytes = file.bytes(0, file.size());
+  DicomHeaderParser(bytes, bytes.size(), meta->explicitVr(bytes), meta->bigEndian(), file.path(), DicomHeaderParser::Mode::WholeFile)
+      .elements(meta->dataSet, bytes.size(), 0, false, false, nullptr, nullptr);
+  return true;
+}
 
 std::optional<DicomHeader> readDicomHeader(const std::string& path, std::string* why) {
   const InputFile file(path);
-  std::vector<uint8_t> b = file.bytes(0, std::min(file.size(), kFirstRead));
-  size_t pos = 0;
-  if (b.size() >= 132 && std::memcmp(b.data() + 128, "DICM", 4) == 0) {
-    pos = 132;
-  } else if (b.size() < 8 || (le16(b.data()) != 0x0002 && le16(b.data()) != 0x0008)) {
+  std::vector<uint8_t> b = file.bytes(0, std::min(file.size(), std::max(kFirstRead, 132 + kMaxMetaBytes)));
+  const std::optional<Meta> meta = readMeta(file, b);
+  if (!meta) {
     if (why) *why = "not DICOM";
     return std::nullopt;
   }
   DicomHeader h;
-  // File meta information: explicit VR little endian, group 0002 (PS3.10 7.1).
-  for (;;) {
+  h.transferSyntax = meta->transferSyntax;
+  h.mediaStorage = meta->mediaStorage;
+  if (meta->transferSyntax == kDeflated) {  // the data set is one raw deflate stream
+    const std::vector<uint8_t> inflated = inflatedDataSet(file, meta->dataSet);
     try {
-      DicomHeader meta;
-      size_t p = pos;
-      while (p + 8 <= b.size() && le16(b.data() + p) == 0x0002) {
-        const uint8_t* e = b.data() + p;
-        if (!knownVr(e + 4)) HYB_THROW(IoError, path, ": damaged DICOM file meta information at byte ", p, " (expected explicit VR elements)");
-        size_t headerBytes = 8;
-        uint64_t length = le16(e + 6);
-        if (longVr(e + 4)) {
-          if (p + 12 > b.size()) throw NeedMoreBytes{};
-          length = le32(e + 8);
-          headerBytes = 12;
-        }
-        if (length == 0xffffffffu || p + headerBytes + length > file.size())
-          HYB_THROW(IoError, path, ": damaged DICOM file meta information at byte ", p, " (expected elements of defined length within the file)");
-        if (p + headerBytes + length > b.size()) throw NeedMoreBytes{};
-        const uint32_t tag = dicomTag(0x0002, le16(e + 2));
-        if (tag == dicomTag(0x0002, 0x0010) || tag == dicomTag(0x0002, 0x0002))
-          meta.data.set(tag, std::string(reinterpret_cast<const char*>(e + headerBytes), size_t(length)));
-        p += headerBytes + size_t(length);
-      }
-      h.transferSyntax = meta.data.text(dicomTag(0x0002, 0x0010));
-      h.mediaStorage = meta.data.text(dicomTag(0x0002, 0x0002));
-      pos = p;
-      break;
-    } catch (const NeedMoreBytes&) {
-      if (b.size() >= file.size() || b.size() >= kMaxHeaderBytes)
-        HYB_THROW(IoError, path, ": damaged DICOM file meta information (expected it within the first ", kMaxHeaderBytes, " bytes)");
-      b = file.bytes(0, std::min({file.size(), uint64_t(b.size()) * 8, kMaxHeaderBytes}));
-    }
-  }
-  if (pos + 8 > file.size())  // (GDCM asserts reading the tag that is not there)
-    HYB_THROW(IoError, path, ": damaged DICOM file meta information: no data set after the file meta information at byte ", pos,
-              " (expected group 0002 elements of defined length within the file)");
-  const std::string& ts = h.transferSyntax;
-  if (ts == "1.2.840.10008.1.2.1.99") {  // deflated: the data set is one raw deflate stream
-    const std::vector<uint8_t> inflated = inflatedDataSet(file, pos);
-    DicomHeaderParser parser(inflated, inflated.size(), true, false, path);
-    try {
-      parser.elements(0, inflated.size(), 0, false, false, &h.data, &h.pixelData);
+      DicomHeaderParser(inflated, inflated.size(), true, false, path, DicomHeaderParser::Mode::Header)
+          .elements(0, inflated.size(), 0, false, false, &h.data, &h.pixelData);
     } catch (const NeedMoreBytes&) {
       HYB_THROW(IoError, path, ": deflated DICOM data set longer than ", kMaxHeaderBytes, " bytes");
     }
     return h;
   }
-  const bool big = ts == "1.2.840.10008.1.2.2";
   for (;;) {
-    // Without meta information the encoding is guessed as GDCM does: a VR after the first tag.
-    const bool explicitVr = ts.empty() ? pos + 6 <= b.size() && std::isupper(b[pos + 4]) && std::isupper(b[pos + 5]) : ts != "1.2.840.10008.1.2";
-    DicomHeaderParser parser(b, file.size(), explicitVr, big, path);
     DicomHeader attempt = h;
     try {
-      parser.elements(pos, file.size(), 0, false, false, &attempt.data, &attempt.pixelData);
+      DicomHeaderParser(b, file.size(), meta->explicitVr(b), meta->bigEndian(), path, DicomHeaderParser::Mode::Header)
+          .elements(meta->dataSet, file.size(), 0, false, false, &attempt.data, &attempt.pixelData);
       return attempt;
     } catch (const NeedMoreBytes&) {
       if (b.size() >= kMaxHeaderBytes) HYB_THROW(IoError, path, ": DICOM header longer than ", kMaxHeaderBytes, " bytes (expected the pixel data sooner)");

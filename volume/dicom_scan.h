@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "volume/file_util.h"
 #include "volume/progress.h"
 #include "volume/volume_io.h"
 
@@ -58,6 +59,13 @@ struct DicomHeader {
 /// @throw IoError naming the file when it is DICOM but its header is damaged (a length past the
 ///        end of the file, sequences nested more than 16 deep).
 std::optional<DicomHeader> readDicomHeader(const std::string& path, std::string* why = nullptr);
+
+/// Whether @p file is DICOM (the "DICM" prefix, or a data set starting at group 0002 or 0008 as old
+/// files do), walking all of it as GDCM will read it: every length within the file, sequences and
+/// items well formed, the image module's value representations those GDCM's typed reading expects.
+/// @throw IoError naming the file and the byte when it is DICOM that would make GDCM assert or
+///        allocate what the file does not hold.
+bool checkDicomFile(const InputFile& file);
 
 /// Where one slice's plane lies and how its values are rescaled: an image of one frame, or one
 /// frame of an enhanced multi-frame image (its Per-frame Functional Groups).
