@@ -102,6 +102,33 @@ void check(bool ok, const std::string& what) {
   if (!ok) throw std::runtime_error("dicom_writer: " + what);
 }
 
+// A greyscale pixel module of signed 16-bit pixels, and @p pixels as its Pixel Data.
+void putPixels(gdcm::DataSet& ds, const glm::ivec2& size, const std::vector<int16_t>& pixels) {
+  ds.Replace(us(0x0028, 0x0002, 1));
+  ds.Replace(text(0x0028, 0x0004, gdcm::VR::CS, "MONOCHROME2"));
+  ds.Replace(us(0x0028, 0x0010, uint16_t(size.y)));
+  ds.Replace(us(0x0028, 0x0011, uint16_t(size.x)));
+  ds.Replace(us(0x0028, 0x0100, 16));
+  ds.Replace(us(0x0028, 0x0101, 16));
+  ds.Replace(us(0x0028, 0x0102, 15));
+  ds.Replace(us(0x0028, 0x0103, 1));
+  gdcm::DataElement data(gdcm::Tag(0x7fe0, 0x0010));
+  data.SetVR(gdcm::VR::OW);
+  data.SetByteValue(reinterpret_cast<const char*>(pixels.data()), uint32_t(pixels.size() * 2));
+  ds.Replace(data);
+}
+
+// The file meta information of SOP instance @p sop of class @p sopClass, explicit VR little endian, and the file written.
+void writeFile(gdcm::Writer& w, const std::string& path, const std::string& sopClass, const std::string& sop) {
+  gdcm::FileMetaInformation& meta = w.GetFile().GetHeader();
+  meta.SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
+  meta.Replace(text(0x0002, 0x0002, gdcm::VR::UI, sopClass));
+  meta.Replace(text(0x0002, 0x0003, gdcm::VR::UI, sop));
+  std::filesystem::create_directories(std::filesystem::path(path).parent_path());
+  w.SetFileName(path.c_str());
+  check(w.Write(), "cannot write " + path);
+}
+
 }  // namespace
 
 glm::dvec3 DicomImage::at(int i, int j) const {
@@ -135,29 +162,12 @@ void writeCtImage(const std::string& path, const DicomStudy& study, const DicomI
   ds.Replace(text(0x0020, 0x0032, gdcm::VR::DS, decimalString({image.position.x, image.position.y, image.position.z})));
   const double* c = image.cosines;
   ds.Replace(text(0x0020, 0x0037, gdcm::VR::DS, decimalString({c[0], c[1], c[2], c[3], c[4], c[5]})));
-  ds.Replace(us(0x0028, 0x0002, 1));
-  ds.Replace(text(0x0028, 0x0004, gdcm::VR::CS, "MONOCHROME2"));
-  ds.Replace(us(0x0028, 0x0010, uint16_t(image.size.y)));
-  ds.Replace(us(0x0028, 0x0011, uint16_t(image.size.x)));
   ds.Replace(text(0x0028, 0x0030, gdcm::VR::DS, decimalString({image.spacing.y, image.spacing.x})));
-  ds.Replace(us(0x0028, 0x0100, 16));
-  ds.Replace(us(0x0028, 0x0101, 16));
-  ds.Replace(us(0x0028, 0x0102, 15));
-  ds.Replace(us(0x0028, 0x0103, 1));
   ds.Replace(text(0x0028, 0x1052, gdcm::VR::DS, decimalString({image.intercept})));
   ds.Replace(text(0x0028, 0x1053, gdcm::VR::DS, decimalString({image.slope})));
   check(image.pixels.size() == size_t(image.size.x) * size_t(image.size.y), "pixels of another size than the image");
-  gdcm::DataElement pixels(gdcm::Tag(0x7fe0, 0x0010));
-  pixels.SetVR(gdcm::VR::OW);
-  pixels.SetByteValue(reinterpret_cast<const char*>(image.pixels.data()), uint32_t(image.pixels.size() * 2));
-  ds.Replace(pixels);
-  gdcm::FileMetaInformation& meta = w.GetFile().GetHeader();
-  meta.SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
-  meta.Replace(text(0x0002, 0x0002, gdcm::VR::UI, sopClass));
-  meta.Replace(text(0x0002, 0x0003, gdcm::VR::UI, sop));
-  std::filesystem::create_directories(std::filesystem::path(path).parent_path());
-  w.SetFileName(path.c_str());
-  check(w.Write(), "cannot write " + path);
+  putPixels(ds, image.size, image.pixels);
+  writeFile(w, path, sopClass, sop);
 }
 
 void writeEnhancedCt(const std::string& path, const DicomStudy& study, const std::vector<DicomImage>& frames) {
@@ -173,15 +183,7 @@ void writeEnhancedCt(const std::string& path, const DicomStudy& study, const std
   ds.Replace(text(0x0008, 0x0018, gdcm::VR::UI, sop));
   putStudy(ds, study, f0.seriesUid, f0.seriesNumber, f0.seriesDescription, "CT");
   ds.Replace(text(0x0020, 0x0013, gdcm::VR::IS, "1"));
-  ds.Replace(us(0x0028, 0x0002, 1));
-  ds.Replace(text(0x0028, 0x0004, gdcm::VR::CS, "MONOCHROME2"));
   ds.Replace(text(0x0028, 0x0008, gdcm::VR::IS, std::to_string(frames.size())));
-  ds.Replace(us(0x0028, 0x0010, uint16_t(f0.size.y)));
-  ds.Replace(us(0x0028, 0x0011, uint16_t(f0.size.x)));
-  ds.Replace(us(0x0028, 0x0100, 16));
-  ds.Replace(us(0x0028, 0x0101, 16));
-  ds.Replace(us(0x0028, 0x0102, 15));
-  ds.Replace(us(0x0028, 0x0103, 1));
   const double* c = f0.cosines;
   gdcm::DataSet shared = itemOf({sequence(0x0028, 0x9110, {itemOf({text(0x0028, 0x0030, gdcm::VR::DS, decimalString({f0.spacing.y, f0.spacing.x})),
                                                                      text(0x0018, 0x0050, gdcm::VR::DS, decimalString({f0.thickness}))})}),
@@ -198,17 +200,8 @@ void writeEnhancedCt(const std::string& path, const DicomStudy& study, const std
     all.insert(all.end(), f.pixels.begin(), f.pixels.end());
   }
   ds.Replace(sequence(0x5200, 0x9230, perFrame));
-  gdcm::DataElement pixels(gdcm::Tag(0x7fe0, 0x0010));
-  pixels.SetVR(gdcm::VR::OW);
-  pixels.SetByteValue(reinterpret_cast<const char*>(all.data()), uint32_t(all.size() * 2));
-  ds.Replace(pixels);
-  gdcm::FileMetaInformation& meta = w.GetFile().GetHeader();
-  meta.SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
-  meta.Replace(text(0x0002, 0x0002, gdcm::VR::UI, sopClass));
-  meta.Replace(text(0x0002, 0x0003, gdcm::VR::UI, sop));
-  std::filesystem::create_directories(std::filesystem::path(path).parent_path());
-  w.SetFileName(path.c_str());
-  check(w.Write(), "cannot write " + path);
+  putPixels(ds, f0.size, all);
+  writeFile(w, path, sopClass, sop);
 }
 
 void writeStructuredReport(const std::string& path, const DicomStudy& study, const std::string& seriesUid) {
@@ -221,13 +214,7 @@ void writeStructuredReport(const std::string& path, const DicomStudy& study, con
   ds.Replace(text(0x0008, 0x0018, gdcm::VR::UI, sop));
   putStudy(ds, study, seriesUid, 99, "Dose report", "SR");
   ds.Replace(text(0x0040, 0xa040, gdcm::VR::CS, "CONTAINER"));
-  gdcm::FileMetaInformation& meta = w.GetFile().GetHeader();
-  meta.SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
-  meta.Replace(text(0x0002, 0x0002, gdcm::VR::UI, sopClass));
-  meta.Replace(text(0x0002, 0x0003, gdcm::VR::UI, sop));
-  std::filesystem::create_directories(std::filesystem::path(path).parent_path());
-  w.SetFileName(path.c_str());
-  check(w.Write(), "cannot write " + path);
+  writeFile(w, path, sopClass, sop);
 }
 
 void writeDicomdir(const std::string& root, const std::vector<std::string>& files) {
@@ -272,12 +259,7 @@ void writeDicomdir(const std::string& root, const std::vector<std::string>& file
   gdcm::DataSet& ds = w.GetFile().GetDataSet();
   ds.Replace(text(0x0004, 0x1130, gdcm::VR::CS, "HYBTEST"));
   ds.Replace(sequence(0x0004, 0x1220, records));
-  gdcm::FileMetaInformation& meta = w.GetFile().GetHeader();
-  meta.SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
-  meta.Replace(text(0x0002, 0x0002, gdcm::VR::UI, "1.2.840.10008.1.3.10"));
-  meta.Replace(text(0x0002, 0x0003, gdcm::VR::UI, "1.2.826.0.1.3680043.8.498.99"));
-  w.SetFileName((std::filesystem::path(root) / "DICOMDIR").string().c_str());
-  check(w.Write(), "cannot write the DICOMDIR");
+  writeFile(w, (std::filesystem::path(root) / "DICOMDIR").string(), "1.2.840.10008.1.3.10", "1.2.826.0.1.3680043.8.498.99");
 }
 
 std::vector<DicomImage> writeSeries(const std::string& dir, const std::string& prefix, const DicomStudy& study, DicomImage model,
