@@ -284,7 +284,7 @@ struct ServerState {
                  {"center", vec3Json(0.5 * (s.boundsLo + s.boundsHi))},
                  {"views", views},
                  {"presets", presets},
-                 {"defaultPreset", s.minValue < -500.0f && s.maxValue > 300.0f ? "ct-skin-bone" : ""},
+                 {"defaultPreset", TransferFunction::defaultPresetFor(s.minValue, s.maxValue)},
                  {"defaultTf", defaultTf},
                  {"iso", s.sceneIso ? json(*s.sceneIso) : json(nullptr)},
                  {"surfaces", pool->readySurfaces(s.key)},

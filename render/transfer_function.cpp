@@ -39,34 +39,39 @@ TransferFunction TransferFunction::fromFile(const std::string& path) {
   return TransferFunction(std::move(pts), path);
 }
 
+const std::vector<TransferFunction::Preset>& TransferFunction::presets() {
+  static const glm::vec3 skin(0.93f, 0.72f, 0.60f), bone(1.0f, 0.96f, 0.86f), soft(0.85f, 0.45f, 0.40f), vessel(0.85f, 0.15f, 0.12f);
+  static const std::vector<Preset> kPresets = {
+      {"ct-skin-bone", "skin translucent over bone",
+       {{-700, skin, 0.0f}, {-500, skin, 0.08f}, {-300, skin, 0.12f}, {-100, skin, 0.0f}, {150, bone, 0.0f}, {400, bone, 0.2f}, {3000, bone, 0.6f}}},
+      {"ct-bone", "bone", {{150, bone, 0.0f}, {300, bone, 0.08f}, {700, bone, 0.35f}, {3000, bone, 0.6f}}},
+      {"ct-skin", "skin", {{-700, skin, 0.0f}, {-500, skin, 0.2f}, {-300, skin, 0.35f}, {-100, skin, 0.05f}, {0, skin, 0.0f}}},
+      {"ct-soft-tissue", "soft tissue", {{-150, soft, 0.0f}, {0, soft, 0.03f}, {80, soft, 0.06f}, {200, soft, 0.0f}}},
+      {"ct-vessels", "contrast-filled vessels, bone faint",
+       {{100, vessel, 0.0f}, {200, vessel, 0.25f}, {350, vessel, 0.3f}, {450, bone, 0.05f}, {3000, bone, 0.05f}}}};
+  return kPresets;
+}
+
 std::vector<std::string> TransferFunction::presetNames() {
-  return {"ct-bone", "ct-skin", "ct-soft-tissue", "ct-vessels", "ct-skin-bone"};
+  std::vector<std::string> names;
+  for (const Preset& p : presets()) names.push_back(p.name);
+  return names;
 }
 
 TransferFunction TransferFunction::preset(const std::string& name) {
-  const glm::vec3 skin(0.93f, 0.72f, 0.60f), bone(1.0f, 0.96f, 0.86f), soft(0.85f, 0.45f, 0.40f), vessel(0.85f, 0.15f, 0.12f);
-  std::vector<Point> p;
-  if (name == "ct-bone")
-    p = {{150, bone, 0.0f}, {300, bone, 0.08f}, {700, bone, 0.35f}, {3000, bone, 0.6f}};
-  else if (name == "ct-skin")
-    p = {{-700, skin, 0.0f}, {-500, skin, 0.2f}, {-300, skin, 0.35f}, {-100, skin, 0.05f}, {0, skin, 0.0f}};
-  else if (name == "ct-soft-tissue")
-    p = {{-150, soft, 0.0f}, {0, soft, 0.03f}, {80, soft, 0.06f}, {200, soft, 0.0f}};
-  else if (name == "ct-vessels")
-    p = {{100, vessel, 0.0f}, {200, vessel, 0.25f}, {350, vessel, 0.3f}, {450, bone, 0.05f}, {3000, bone, 0.05f}};
-  else if (name == "ct-skin-bone")
-    p = {{-700, skin, 0.0f}, {-500, skin, 0.08f}, {-300, skin, 0.12f}, {-100, skin, 0.0f}, {150, bone, 0.0f}, {400, bone, 0.2f},
-         {3000, bone, 0.6f}};
-  else {
-    std::string list;
-    for (const auto& n : presetNames()) list += (list.empty() ? "" : ", ") + n;
-    HYB_THROW(ValueError, "--preset '", name, "' unknown (expected one of ", list, ")");
-  }
-  return TransferFunction(std::move(p), name);
+  for (const Preset& p : presets())
+    if (name == p.name) return TransferFunction(p.points, name);
+  std::string list;
+  for (const auto& n : presetNames()) list += (list.empty() ? "" : ", ") + n;
+  HYB_THROW(ValueError, "--preset '", name, "' unknown (expected one of ", list, ")");
+}
+
+std::string TransferFunction::defaultPresetFor(float minValue, float maxValue) {
+  return minValue <= -900.0f && maxValue >= 200.0f ? "ct-skin-bone" : "";
 }
 
 TransferFunction TransferFunction::defaultFor(float minValue, float maxValue) {
-  if (minValue <= -900.0f && maxValue >= 200.0f) return preset("ct-skin-bone");
+  if (const std::string name = defaultPresetFor(minValue, maxValue); !name.empty()) return preset(name);
   const float lo = minValue + 0.4f * (maxValue - minValue), hi = std::max(maxValue, lo + 1e-3f);
   return TransferFunction({{lo, {0.9f, 0.6f, 0.3f}, 0.0f}, {hi, {1.0f, 0.95f, 0.85f}, 0.1f}}, "default ramp");
 }

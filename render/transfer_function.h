@@ -35,12 +35,24 @@ class TransferFunction {
   /// @throw IoError / ValueError naming @p path and the line; IoError when @p path is not a
   ///        regular file (a FIFO, a directory) or is longer than the limits.
   static TransferFunction fromFile(const std::string& path);
-  /// Presets in Hounsfield units: ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone.
-  /// @throw ValueError listing the presets when @p name is unknown.
+  /// A named transfer function in Hounsfield units (presets()).
+  struct Preset {
+    const char* name;
+    const char* shows;  ///< what it shows, for help texts and the viewer's menu
+    std::vector<Point> points;
+  };
+  /// The presets, in the order menus list them: ct-skin-bone (CT's default), ct-bone, ct-skin,
+  /// ct-soft-tissue, ct-vessels. The one table that the flags' help, the viewer and Python read.
+  static const std::vector<Preset>& presets();
+  /// The preset named @p name. @throw ValueError listing the presets when @p name is unknown.
   static TransferFunction preset(const std::string& name);
   static std::vector<std::string> presetNames();
-  /// A default for data whose units are unknown: CT (air near -1000 HU) gets ct-skin-bone; other
-  /// data a warm ramp from the 40th to the 100th percentile of [min, max] with opacity up to 0.1/mm.
+  /// The preset data of this range gets by default: ct-skin-bone for CT (air at -900 HU or below
+  /// and bone, 200 HU or above, present), or "" for a ramp over the data's range. The one decision
+  /// the command line, the viewer and its page share.
+  static std::string defaultPresetFor(float minValue, float maxValue);
+  /// The default transfer function of data of this range: its default preset, or a warm ramp from
+  /// the 40th to the 100th percentile of [min, max] with opacity up to 0.1/mm.
   static TransferFunction defaultFor(float minValue, float maxValue);
 
   /// Colour and opacity per mm at @p v (clamped to the end points).

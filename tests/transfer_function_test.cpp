@@ -2,12 +2,32 @@
 
 #include <gtest/gtest.h>
 
+#include <set>
 #include <string>
 
 #include "test_util.h"
 
 namespace hyb {
 namespace {
+
+// One preset table, one default decision: every preset is valid and named once, and the data's
+// range picks CT's default where air and bone are both present (a study reaching only 250 HU gets
+// it as well: the viewer used its own thresholds and offered a "ramp" holding CT's points).
+TEST(TransferFunction, OnePresetTableAndOneDefault) {
+  std::set<std::string> names;
+  for (const TransferFunction::Preset& p : TransferFunction::presets()) {
+    EXPECT_TRUE(names.insert(p.name).second) << p.name;
+    EXPECT_EQ(TransferFunction::preset(p.name).points().size(), p.points.size());
+    EXPECT_GT(std::string(p.shows).size(), 2u);
+  }
+  EXPECT_EQ(TransferFunction::presetNames().size(), names.size());
+  EXPECT_EQ(TransferFunction::defaultPresetFor(-1024, 3071), "ct-skin-bone");
+  EXPECT_EQ(TransferFunction::defaultPresetFor(-950, 250), "ct-skin-bone");
+  EXPECT_EQ(TransferFunction::defaultPresetFor(-850, 3000), "");
+  EXPECT_EQ(TransferFunction::defaultPresetFor(-1024, 150), "");
+  EXPECT_EQ(TransferFunction::defaultPresetFor(0, 255), "");
+  EXPECT_EQ(TransferFunction::defaultFor(-950, 250).points().size(), TransferFunction::preset("ct-skin-bone").points().size());
+}
 
 TEST(TransferFunction, LookupFilesPresetsAndSegments) {
   const TransferFunction tf({{0, {0, 0, 0}, 0.0f}, {10, {1, 0.5f, 0}, 0.5f}}, "t");
