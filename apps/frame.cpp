@@ -47,7 +47,8 @@ glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
 
 void VolumeInput::add(CLI::App* cmd, bool scenes) {
   cmd->add_option("volume", path,
-                  std::string("volume file (.nrrd .nhdr .mhd .mha .nii .nii.gz .hdr .inv3), DICOM directory, raw file") + (scenes ? ", or scene.hoct" : ""))
+                  "volume file (" + volumeExtensionsText() + "), DICOM directory (a series, a folder tree, a CD with its DICOMDIR), raw file" +
+                      (scenes ? ", or scene.hoct" : ""))
       ->capture_default_str();
   cmd->add_option("--raw-dims", rawDims, "raw input: samples per axis X,Y,Z");
   cmd->add_option("--raw-type", rawType, "raw input: int16|uint16|uint8|int8|int32|uint32|float32|float64");
@@ -273,7 +274,10 @@ void RenderOptions::add(CLI::App* cmd) {
   addChoice<SurfaceNormals>(cmd, "--surface-normals", &surfaceNormals, {{"gradient", SurfaceNormals::Gradient}, {"facet", SurfaceNormals::Facet}},
                             "surface shading: the volume's gradient at each vertex (smooth, default) or each polygon's own plane");
   cmd->add_option("--tf", tfFile, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm");
-  cmd->add_option("--preset", preset, "ct-bone, ct-skin, ct-soft-tissue, ct-vessels, ct-skin-bone (default for CT; other data: a ramp)");
+  std::string presets;
+  for (const TransferFunction::Preset& p : TransferFunction::presets()) presets += (presets.empty() ? "" : ", ") + std::string(p.name) + " (" + p.shows + ")";
+  cmd->add_option("--preset", preset, "transfer function: " + presets + "; default: " + TransferFunction::presets().front().name +
+                                           " for CT, a ramp over the data's range for other data");
   cmd->add_option_function<std::string>("--background", [this](const std::string& t) { background = glm::vec3(parseColor(t, "--background", 3)); },
                                         "background r,g,b in [0,1] (default 0,0,0)");
   addSwitch(cmd, "--shading", &shading, "gradient shading of the volume (default on)");

@@ -60,11 +60,8 @@ bool inside(const fs::path& root, const fs::path& real) {
   return !r.empty() && r != "." && *r.begin() != "..";
 }
 
-bool isVolumeName(const fs::path& p) {
-  static const char* kExtensions[] = {".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".nii.gz", ".inv3", ".hoct"};
-  const std::string ext = fileExtension(p.string());
-  return std::any_of(std::begin(kExtensions), std::end(kExtensions), [&](const char* e) { return ext == e; });
-}
+// A file the page may open: of a format the readers know (volume_io.h's table), or a scene.
+bool isVolumeName(const fs::path& p) { return fileExtension(p.string()) == ".hoct" || volumeFormatRow(p.string()) != nullptr; }
 
 // A DICOM file: the .dcm extension, or "DICM" at byte 128 (read without blocking: a FIFO is not one).
 bool looksLikeDicom(const fs::path& p) {

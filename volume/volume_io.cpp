@@ -65,13 +65,32 @@ std::string oneLine(const std::string& message) {
 
 }  // namespace
 
-VolumeFormat volumeFormatOf(const std::string& path) {
+const std::vector<VolumeFormatRow>& volumeFormats() {
+  static const std::vector<VolumeFormatRow> kFormats = {
+      {VolumeFormat::Nrrd, "NRRD", {".nrrd", ".nhdr"}, readNrrd, detail::nrrdPlanes},
+      {VolumeFormat::MetaImage, "MetaImage", {".mhd", ".mha"}, readMetaImage, detail::metaImagePlanes},
+      {VolumeFormat::Nifti, "NIfTI", {".nii", ".nii.gz", ".hdr"}, readNifti, detail::niftiPlanes},
+      {VolumeFormat::Inv3, "InVesalius project", {".inv3"}, readInv3, nullptr}};
+  return kFormats;
+}
+
+const VolumeFormatRow* volumeFormatRow(const std::string& path) {
   const std::string ext = fileExtension(path);
-  if (ext == ".nrrd" || ext == ".nhdr") return VolumeFormat::Nrrd;
-  if (ext == ".mhd" || ext == ".mha") return VolumeFormat::MetaImage;
-  if (ext == ".nii" || ext == ".nii.gz" || ext == ".hdr") return VolumeFormat::Nifti;
-  if (ext == ".inv3") return VolumeFormat::Inv3;
-  return VolumeFormat::None;
+  for (const VolumeFormatRow& row : volumeFormats())
+    if (std::find(row.extensions.begin(), row.extensions.end(), ext) != row.extensions.end()) return &row;
+  return nullptr;
+}
+
+VolumeFormat volumeFormatOf(const std::string& path) {
+  const VolumeFormatRow* row = volumeFormatRow(path);
+  return row ? row->format : VolumeFormat::None;
+}
+
+std::string volumeExtensionsText() {
+  std::string out;
+  for (const VolumeFormatRow& row : volumeFormats())
+    for (const std::string& e : row.extensions) out += (out.empty() ? "" : " ") + e;
+  return out;
 }
 
 namespace {
@@ -83,20 +102,13 @@ Volume readByFormat(const std::string& path, const RawLayout* raw, const std::st
   if (fs::is_directory(path, ec)) return readDicomSeries(path, series, progress);
   if (!series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", path, " is a file)");
   InputFile{path};  // what is not a regular file is refused here, whatever its name, before a reader opens it
-  switch (volumeFormatOf(path)) {
-    case VolumeFormat::Nrrd: return readNrrd(path);
-    case VolumeFormat::MetaImage: return readMetaImage(path);
-    case VolumeFormat::Nifti: return readNifti(path);
-    case VolumeFormat::Inv3: return readInv3(path);
-    case VolumeFormat::None: break;
-  }
+  if (const VolumeFormatRow* row = volumeFormatRow(path)) return row->read(path);
   const std::string ext = fileExtension(path);
   if (ext == ".raw")
     HYB_THROW(ValueError, path, ": raw data needs --raw-dims X,Y,Z and --raw-type (and optionally --raw-spacing, --raw-endian)");
   if (ext == ".hoct")
     HYB_THROW(IoError, path, ": not a hybrid-octree scene file (expected one written by hybrid-octree build, starting with HYBOCT)");
-  HYB_THROW(IoError, path, ": unknown volume format '", ext,
-            "' (expected .nrrd .nhdr .mhd .mha .nii .nii.gz .hdr .inv3, a DICOM directory, or raw with --raw-dims)");
+  HYB_THROW(IoError, path, ": unknown volume format '", ext, "' (expected ", volumeExtensionsText(), ", a DICOM directory, or raw with --raw-dims)");
 }
 
 }  // namespace
@@ -136,14 +148,8 @@ std::unique_ptr<PlaneSource> detail::openStreamedPlanes(const std::string& path,
     if (fs::is_directory(path, ec)) return dicomPlanes(path, series);
     if (!series.empty()) return nullptr;  // readVolume says what is wrong
     InputFile{path};  // as readVolume: a FIFO or device is refused before any reader opens it
-    switch (volumeFormatOf(path)) {
-      case VolumeFormat::Nrrd: return nrrdPlanes(path);
-      case VolumeFormat::MetaImage: return metaImagePlanes(path);
-      case VolumeFormat::Nifti: return niftiPlanes(path);
-      case VolumeFormat::Inv3:  // read whole (readVolume)
-      case VolumeFormat::None: break;
-    }
-    return nullptr;
+    const VolumeFormatRow* row = volumeFormatRow(path);
+    return row && row->planes ? row->planes(path) : nullptr;  // (none: read whole by readVolume)
   });
 }
 

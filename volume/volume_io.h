@@ -10,6 +10,7 @@
 #include <glm/glm.hpp>
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -30,10 +31,29 @@ struct RawLayout {
   uint64_t headerBytes = 0;            ///< bytes to skip before the samples
 };
 
+class PlaneSource;
+
 /// The format a volume file's extension names: NRRD (.nrrd .nhdr), MetaImage (.mhd .mha), NIfTI
 /// (.nii .nii.gz .hdr) or InVesalius (.inv3); None for any other (raw samples, a scene file).
 enum class VolumeFormat { None, Nrrd, MetaImage, Nifti, Inv3 };
+
+/// One format the readers know: the row that readVolume's and the streamed planes' dispatch, the
+/// raw flags' refusal, the "unknown format" message, the flags' help and the viewer's file list
+/// read (a new format is one row here and its reader's file).
+struct VolumeFormatRow {
+  VolumeFormat format;
+  const char* name;                                                  ///< "NRRD"
+  std::vector<std::string> extensions;                               ///< lower case, with the dot: ".nrrd", ".nhdr"
+  Volume (*read)(const std::string& path);                          ///< the whole reader
+  std::unique_ptr<PlaneSource> (*planes)(const std::string& path);  ///< the streamed one; null when the format is read whole
+};
+/// The formats, in the order messages list them.
+const std::vector<VolumeFormatRow>& volumeFormats();
+/// The row of the format @p path's extension names, or null (raw samples, a scene file, unknown).
+const VolumeFormatRow* volumeFormatRow(const std::string& path);
 VolumeFormat volumeFormatOf(const std::string& path);
+/// Every extension the readers know, space-separated (".nrrd .nhdr .mhd ..."), for help and messages.
+std::string volumeExtensionsText();
 
 /// Reads any supported volume, chosen by extension (.nrrd .nhdr .mhd .mha .nii .nii.gz .inv3), by
 /// being a directory (DICOM series: @p series names one by its Series Instance UID), or by @p raw
