@@ -20,7 +20,10 @@ struct MeshCheck {
   double volume = 0;              ///< enclosed volume (closed meshes), in the mesh's units³
 };
 
-/// Checks @p mesh with exact predicates.
+/// Checks @p mesh with exact predicates. Manifold is CGAL's polygon mesh: no triangle repeats a
+/// vertex, no directed edge is in two triangles, and each vertex's triangles make one fan.
+/// Self-intersections are CGAL's does_self_intersect's (a triangle without area counts as one),
+/// found on all cores.
 /// @throw RuntimeError when CGAL fails.
 MeshCheck checkMesh(const TriangleMesh& mesh);
 

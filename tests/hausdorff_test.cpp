@@ -121,5 +121,118 @@ TEST(Hausdorff, AgreesWithBruteForceSampling) {
   EXPECT_LE(h.upper, 0.5 * glm::length(glm::dvec3(1.0, 1.0, 1.5)) + 0.005);  // within half a cell's diagonal
 }
 
+// An n × n grid of squares over [0, size]² at height z, each cut into two triangles.
+TriangleMesh grid(int n, float size, float z) {
+  TriangleMesh m;
+  for (int j = 0; j <= n; ++j)
+    for (int i = 0; i <= n; ++i) m.vertices.push_back({size * float(i) / float(n), size * float(j) / float(n), z});
+  for (uint32_t j = 0; j < uint32_t(n); ++j)
+    for (uint32_t i = 0; i < uint32_t(n); ++i) {
+      const uint32_t a = j * uint32_t(n + 1) + i, b = a + 1, c = a + uint32_t(n + 1) + 1, d = a + uint32_t(n + 1);
+      m.triangles.insert(m.triangles.end(), {{a, b, c}, {a, c, d}});
+    }
+  return m;
+}
+
+// checkMesh's polygon mesh: CGAL's conditions, on soups that break one each.
+TEST(MeshCheck, ManifoldIsCgalsPolygonMesh) {
+  TriangleMesh tetra;  // outward
+  tetra.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  tetra.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+  MeshCheck c = checkMesh(tetra);
+  EXPECT_TRUE(c.manifold && c.closed && c.outward && !c.selfIntersecting);
+  EXPECT_EQ(c.boundaryEdges, 0u);
+  EXPECT_NEAR(c.volume, 1.0 / 6.0, 1e-12);
+  TriangleMesh inward = tetra;
+  for (glm::uvec3& t : inward.triangles) std::swap(t.y, t.z);
+  c = checkMesh(inward);
+  EXPECT_TRUE(c.manifold && c.closed && !c.outward);
+  EXPECT_NEAR(c.volume, -1.0 / 6.0, 1e-12);
+  // Open: one face taken away leaves three boundary edges; a vertex no triangle uses changes nothing.
+  TriangleMesh open = tetra;
+  open.triangles.pop_back();
+  open.vertices.push_back({5, 5, 5});
+  c = checkMesh(open);
+  EXPECT_TRUE(c.manifold && !c.closed && !c.selfIntersecting);
+  EXPECT_EQ(c.boundaryEdges, 3u);
+  // Two tetrahedra touching at a vertex: every edge has two triangles, but that vertex two fans.
+  TriangleMesh pinched = tetra;
+  for (const glm::vec3& p : {glm::vec3(-1, 0, 0), glm::vec3(0, -1, 0), glm::vec3(0, 0, -1)}) pinched.vertices.push_back(p);
+  pinched.triangles.insert(pinched.triangles.end(), {{0, 4, 5}, {0, 5, 6}, {0, 6, 4}, {4, 6, 5}});
+  c = checkMesh(pinched);
+  EXPECT_FALSE(c.manifold);
+  EXPECT_EQ(c.boundaryEdges, 0u);
+  // Two open fans at one vertex (a bow tie).
+  TriangleMesh bowtie;
+  bowtie.vertices = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {-1, 0, 0}, {-1, -1, 0}};
+  bowtie.triangles = {{0, 1, 2}, {0, 3, 4}};
+  c = checkMesh(bowtie);
+  EXPECT_FALSE(c.manifold);
+  EXPECT_EQ(c.boundaryEdges, 6u);
+  // An edge in three triangles; two triangles the same way round an edge; a repeated vertex.
+  TriangleMesh three = open;
+  three.vertices.push_back({1, 1, 1});
+  three.triangles.push_back({0, 1, 5});  // edge 0-1 is in {0, 2, 1} and {0, 1, 3} already
+  c = checkMesh(three);
+  EXPECT_FALSE(c.manifold);
+  EXPECT_EQ(c.boundaryEdges, 5u);  // 1-2, 2-3, 3-1 of the open tetrahedron, 1-5 and 5-0
+  TriangleMesh flipped = grid(1, 1.0f, 0.0f);
+  std::swap(flipped.triangles[1].y, flipped.triangles[1].z);
+  EXPECT_FALSE(checkMesh(flipped).manifold);
+  TriangleMesh repeated = grid(1, 1.0f, 0.0f);
+  repeated.triangles.push_back({0, 0, 2});
+  EXPECT_FALSE(checkMesh(repeated).manifold);
+  EXPECT_TRUE(checkMesh(TriangleMesh{}).manifold);
+}
+
+// Self-intersections as CGAL's does_self_intersect finds them, on open manifold meshes too (their
+// border halfedges linked): two squares crossing each other and not when apart; triangles joined
+// along an edge only when coplanar and folded onto each other; joined at a vertex when the
+// opposite edge of one pierces the other; a triangle whose corners are collinear.
+TEST(MeshCheck, FindsSelfIntersectionsAsCgalDoes) {
+  TriangleMesh crossing = grid(2, 1.0f, 0.0f);
+  TriangleMesh upright = grid(2, 1.0f, 0.0f);
+  for (glm::vec3& p : upright.vertices) p = {p.x, 0.5f, p.y - 0.5f};  // the plane y = 0.5, across z = 0
+  const auto offset = uint32_t(crossing.vertices.size());
+  crossing.vertices.insert(crossing.vertices.end(), upright.vertices.begin(), upright.vertices.end());
+  for (const glm::uvec3& t : upright.triangles) crossing.triangles.push_back(t + offset);
+  MeshCheck c = checkMesh(crossing);
+  EXPECT_TRUE(c.manifold);
+  EXPECT_TRUE(c.selfIntersecting);
+  EXPECT_EQ(c.boundaryEdges, 16u);  // 8 a square
+  for (size_t i = offset; i < crossing.vertices.size(); ++i) crossing.vertices[i].z += 2.0f;  // apart
+  c = checkMesh(crossing);
+  EXPECT_TRUE(c.manifold);
+  EXPECT_FALSE(c.selfIntersecting);
+  // Joined along edge 0-1: the fourth corner on the side of the third folds them; across, flat.
+  for (const float side : {0.5f, -1.0f}) {
+    TriangleMesh pair;
+    pair.vertices = {{0, 0, 0}, {1, 0, 0}, {0.5f, 1, 0}, {0.5f, side, 0}};
+    pair.triangles = {{0, 1, 2}, {1, 0, 3}};
+    c = checkMesh(pair);
+    EXPECT_TRUE(c.manifold) << side;
+    EXPECT_EQ(c.selfIntersecting, side > 0.0f) << side;
+  }
+  // A fan about vertex 0: its last triangle's edge 3-4 pierces the first (at (0.5, 0.5, 0)), or
+  // stays above it.
+  for (const float end : {-1.0f, 2.0f}) {
+    TriangleMesh fan;
+    fan.vertices = {{0, 0, 0}, {2, 0, 0}, {0, 2, 0}, {0.5f, 0.5f, 1}, {0.5f, 0.5f, end}};
+    fan.triangles = {{0, 1, 2}, {0, 2, 3}, {0, 3, 4}};
+    c = checkMesh(fan);
+    EXPECT_TRUE(c.manifold) << end;
+    EXPECT_EQ(c.boundaryEdges, 5u) << end;
+    EXPECT_EQ(c.selfIntersecting, end < 0.0f) << end;
+  }
+  // Vertex 2 on edge 0-1: triangle (0, 1, 2) has no area, in a manifold fan about vertex 2.
+  TriangleMesh flat;
+  flat.vertices = {{0, 0, 0}, {2, 0, 0}, {1, 0, 0}, {1, 1, 0}};
+  flat.triangles = {{0, 1, 2}, {0, 2, 3}, {2, 1, 3}};
+  c = checkMesh(flat);
+  EXPECT_TRUE(c.manifold);
+  EXPECT_EQ(c.boundaryEdges, 3u);
+  EXPECT_TRUE(c.selfIntersecting);
+}
+
 }  // namespace
 }  // namespace hyb
