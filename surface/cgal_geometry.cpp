@@ -688,4 +688,190 @@ HausdorffBracket hausdorffDistance(const TriangleMesh& a, const TriangleMesh& b,
   }
 }
 
+namespace {
+
+// A 64-bit mix (SplitMix64's output function, Steele, Lea and Flood 2014).
+uint64_t mix64(uint64_t z) {
+  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+  return z ^ (z >> 31);
+}
+
+// SplitMix64: a stream of its own for each triangle, so the samples do not depend on which thread
+// draws them.
+class SplitMix {
+ public:
+  explicit SplitMix(uint64_t seed) : mState(seed) {}
+  uint64_t next() { return mix64(mState += 0x9e3779b97f4a7c15ULL); }
+  double uniform() { return double(next() >> 11) * 0x1.0p-53; }  // in [0, 1)
+  // A Poisson variate of mean @p mean: Knuth's product of uniforms, a mean of at most 16 at a time
+  // (a sum of independent Poisson variates is one; e^-16 is far from underflow).
+  uint64_t poisson(double mean) {
+    uint64_t n = 0;
+    for (; mean > 0.0; mean -= 16.0)
+      for (double p = uniform(), limit = std::exp(-std::min(mean, 16.0)); p > limit; p *= uniform()) ++n;
+    return n;
+  }
+
+ private:
+  uint64_t mState;
+};
+
+// Visits the points of a Poisson process of @p density points per unit area on triangle @p v: the
+// triangle is halved at its longest edge down to pieces no longer than sqrt(@p pieceEdge2), each
+// given a Poisson count of uniform points. Counts of disjoint pieces are independent Poisson
+// variates, so their union is the same process on the triangle; and consecutive points are near
+// each other, so each query's answer is a good start for the next.
+template <class Visit>
+void samplePoisson(const std::array<glm::dvec3, 3>& v, double density, double pieceEdge2, SplitMix* random, const Visit& visit) {
+  const double area = 0.5 * glm::length(glm::cross(v[1] - v[0], v[2] - v[0]));
+  if (!(area > 0.0)) return;  // a point or a segment: no area to sample (its corners are measured)
+  const std::array<double, 3> e{glm::dot(v[1] - v[2], v[1] - v[2]), glm::dot(v[2] - v[0], v[2] - v[0]), glm::dot(v[0] - v[1], v[0] - v[1])};
+  const int i = longestOf(e), j = (i + 1) % 3, k = (i + 2) % 3;
+  if (e[size_t(i)] > pieceEdge2) {
+    const glm::dvec3 m = 0.5 * (v[j] + v[k]);
+    samplePoisson({v[i], v[j], m}, density, pieceEdge2, random, visit);
+    samplePoisson({v[i], m, v[k]}, density, pieceEdge2, random, visit);
+    return;
+  }
+  for (uint64_t n = random->poisson(density * area); n > 0; --n) {
+    double s = random->uniform(), t = random->uniform();
+    if (s + t > 1.0) s = 1.0 - s, t = 1.0 - t;  // the other half of the parallelogram folded in: uniform on the triangle
+    visit(v[0] + s * (v[1] - v[0]) + t * (v[2] - v[0]));
+  }
+}
+
+// One side of the sampled distance: points of a source mesh measured against the target's tree.
+// Each query starts from the answer of one nearby.
+class SampledSide {
+ public:
+  struct Result {
+    double lower = 0.0, upper = 0.0;
+    uint64_t samples = 0;
+  };
+
+  explicit SampledSide(const TriangleMesh& target) : mTree(target) {}
+
+  Result from(const TriangleMesh& source, double density, uint64_t seed, ProgressTask* progress) const {
+    // The corners, exactly where they might be the farthest. Each vertex is measured with the
+    // first triangle that uses it, in the triangles' order: the corners of a triangle and of the
+    // next are near each other, each query started from the last one's answer. Chunks start
+    // afresh (the first triangle as the hint, nothing found yet), so what a query stops at does
+    // not depend on the threads: nor does the upper bound made from them.
+    const size_t n = source.vertices.size();
+    const long long count = (long long)source.triangles.size();
+    std::vector<uint32_t> first(n, kNone);
+    for (uint32_t f = 0; f < uint32_t(count); ++f)
+      for (int k = 0; k < 3; ++k)
+        if (uint32_t& i = first[source.triangles[f][k]]; i == kNone) i = f;
+    std::vector<double> distance(n, 0.0);  // from each vertex, or a bound of it no larger than the largest distance found
+    std::vector<uint32_t> nearest(n, 0);   // a target triangle that far from it
+    constexpr long long kChunk = 256;      // triangles; neighbours together, yet all threads busy
+    double lower = 0.0, upper = 0.0;
+    uint64_t samples = 0;
+    ParallelFailure failure;  // a progress callback that stops the work
+#pragma omp parallel for schedule(dynamic, 1) reduction(max : lower)
+    for (long long c = 0; c < (count + kChunk - 1) / kChunk; ++c)
+      failure.run([&] {
+        uint32_t hint = 0;
+        double found = 0.0;
+        for (long long f = c * kChunk; f < std::min(count, (c + 1) * kChunk); ++f)
+          for (int k = 0; k < 3; ++k) {
+            const uint32_t i = source.triangles[size_t(f)][k];
+            if (first[i] != uint32_t(f)) continue;
+            const TriangleBvh::Nearest q = mTree.nearest(glm::dvec3(source.vertices[i]), hint, found * found);
+            distance[i] = std::sqrt(q.distance2);
+            nearest[i] = hint = q.slot;
+            found = std::max(found, distance[i]);
+          }
+        progress->advance(uint64_t(std::min(count, (c + 1) * kChunk) - c * kChunk));
+        lower = std::max(lower, found);
+      });
+    failure.rethrow();
+    // The triangles: each one's exact bound, and its samples, in pieces of a few points each.
+    const double bar = lower, pieceEdge2 = 8.0 / density;
+#pragma omp parallel for schedule(dynamic, kChunk) reduction(max : lower, upper) reduction(+ : samples)
+    for (long long f = 0; f < count; ++f)
+      failure.run([&] {
+        progress->advance();
+        const glm::uvec3 t = source.triangles[size_t(f)];
+        const std::array<glm::dvec3, 3> v{glm::dvec3(source.vertices[t.x]), glm::dvec3(source.vertices[t.y]), glm::dvec3(source.vertices[t.z])};
+        // hausdorffDistance's bounds of a triangle, unsplit: its corners' largest distance plus its
+        // enclosing radius, or less, their largest distance to one target triangle (computed only
+        // where the first would raise the largest so far).
+        const std::array<double, 3> e{glm::dot(v[1] - v[2], v[1] - v[2]), glm::dot(v[2] - v[0], v[2] - v[0]), glm::dot(v[0] - v[1], v[0] - v[1])};
+        double bound = std::max({distance[t.x], distance[t.y], distance[t.z]}) + enclosingRadius(e);
+        for (const uint32_t c : {nearest[t.x], nearest[t.y], nearest[t.z]})
+          if (bound > std::max(upper, bar)) {
+            const std::array<glm::dvec3, 3> near = mTree.corners(c);
+            bound = std::min(bound, std::sqrt(std::max({squaredDistance(v[0], near), squaredDistance(v[1], near), squaredDistance(v[2], near)})));
+          }
+        upper = std::max(upper, bound);
+        uint32_t hint = nearest[t.x];
+        SplitMix random(mix64(seed ^ mix64(uint64_t(f))));
+        samplePoisson(v, density, pieceEdge2, &random, [&](const glm::dvec3& p) {
+          // Exact only where it might be the farthest: the search stops within the largest so far.
+          const double enough = std::max(lower, bar);
+          const TriangleBvh::Nearest q = mTree.nearest(p, hint, enough * enough);
+          hint = q.slot;
+          lower = std::max(lower, std::sqrt(q.distance2));
+          ++samples;
+        });
+      });
+    failure.rethrow();
+    Result r;
+    r.lower = std::max(lower, bar);
+    r.upper = std::max(upper, r.lower);
+    r.samples = samples;
+    return r;
+  }
+
+ private:
+  TriangleBvh mTree;
+};
+
+}  // namespace
+
+// Why the patch bound holds on one side (a Poisson process of density λ on a mesh M measured
+// against the other, N; D the largest distance measured, d(x) a point's distance to N; a search
+// that stops within the largest so far does not change D). When M's area is below A there is
+// nothing to prove. Else let t* be the largest t with area{d ≥ t} ≥ A (that area is
+// left-continuous in t). If D ≥ t*, then area{d > D} ≤ area{d > t*} ≤ A. So area{d > D} > A needs
+// D < t*: no point of the process fell in {d ≥ t*}, a fixed region of area ≥ A, which happens
+// with probability exp(−λ · its area) ≤ exp(−λA). With λ = ln(2/δ)/A that is δ/2 a side, δ for
+// the two (δ = 1 − confidence).
+SampledHausdorff sampledHausdorffDistance(const TriangleMesh& a, const TriangleMesh& b, const SampledHausdorffOptions& options,
+                                          const Progress* progress) {
+  if (!(options.patchRadius > 0.0 && std::isfinite(options.patchRadius)))
+    HYB_THROW(ValueError, "sampled Hausdorff distance: patch radius ", options.patchRadius, " must be positive and finite");
+  if (!(options.confidence > 0.0 && options.confidence < 1.0))
+    HYB_THROW(ValueError, "sampled Hausdorff distance: confidence ", options.confidence, " must be in (0, 1)");
+  for (const TriangleMesh* m : {&a, &b})
+    for (const glm::vec3& p : m->vertices)
+      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
+        HYB_THROW(ValueError, "sampled Hausdorff distance: a vertex (", p.x, ", ", p.y, ", ", p.z, ") is not finite");
+  SampledHausdorff h;
+  h.patchArea = std::numbers::pi * options.patchRadius * options.patchRadius;
+  h.confidence = options.confidence;
+  if (a.triangles.empty() && b.triangles.empty()) return h;
+  if (a.triangles.empty() || b.triangles.empty()) {
+    h.lower = h.upper = std::numeric_limits<double>::infinity();
+    return h;
+  }
+  const double density = std::log(2.0 / (1.0 - options.confidence)) / h.patchArea;
+  try {
+    ProgressTask task(progress, "Hausdorff distance", 2 * (a.triangles.size() + b.triangles.size()));  // each triangle twice: its corners, its samples
+    const SampledSide::Result ab = SampledSide(b).from(a, density, mix64(options.seed), &task),
+                              ba = SampledSide(a).from(b, density, mix64(options.seed + 1), &task);
+    h.lower = std::max(ab.lower, ba.lower);
+    h.upper = std::max(ab.upper, ba.upper);
+    h.samples = ab.samples + ba.samples;
+  } catch (const Error&) {
+    throw;
+  } catch (const std::exception& e) {
+    HYB_THROW(RuntimeError, "sampled Hausdorff distance failed: ", e.what());
+  }
+  return h;
+}
+
 }  // namespace hyb
