@@ -61,14 +61,14 @@ double squaredDistance(const glm::dvec3& p, const std::array<glm::dvec3, 3>& t) 
   return glm::dot(d, d);
 }
 
-// A bounding volume hierarchy over a mesh's triangles for closest-point queries. Inner nodes hold
-// their two children's boxes (64 bytes: one cache line a visit); leaves of up to four triangles
-// are copies of their corners in leaf order (36 bytes a triangle); about 70 bytes a triangle in
-// all. A query starts at the leaf of a triangle near its answer (the last query's nearby) and
-// climbs, searching the other child of each node on the way whose box is nearer than the best so
-// far, nearer child first; and it may stop at the first triangle within a given distance. CGAL's
-// AABB tree takes 64 bytes a triangle for its nodes alone, and its closest-point search starts at
-// the root and visits children left first.
+// A bounding volume hierarchy over a mesh's triangles, for closest points and for the pairs whose
+// boxes meet. Inner nodes hold their two children's boxes (64 bytes: one cache line a visit);
+// leaves of up to four triangles are copies of their corners in leaf order (36 bytes a triangle);
+// about 70 bytes a triangle in all. A closest-point query starts at the leaf of a triangle near its
+// answer (the last query's nearby) and climbs, searching the other child of each node on the way
+// whose box is nearer than the best so far, nearer child first; it may stop at the first triangle
+// within a given distance. CGAL's AABB tree takes 64 bytes a triangle for its nodes alone, and its
+// closest-point search starts at the root and visits children left first.
 class TriangleBvh {
  public:
   struct Nearest {
@@ -766,7 +766,7 @@ class SampledSide {
         if (uint32_t& i = first[source.triangles[f][k]]; i == kNone) i = f;
     std::vector<double> distance(n, 0.0);  // from each vertex, or a bound of it no larger than the largest distance found
     std::vector<uint32_t> nearest(n, 0);   // a target triangle that far from it
-    constexpr long long kChunk = 256;      // triangles; neighbours together, yet all threads busy
+    constexpr long long kChunk = 1024;     // triangles; few fresh starts, yet all threads busy
     double lower = 0.0, upper = 0.0;
     uint64_t samples = 0;
     ParallelFailure failure;  // a progress callback that stops the work
@@ -790,7 +790,7 @@ class SampledSide {
     failure.rethrow();
     // The triangles: each one's exact bound, and its samples, in pieces of a few points each.
     const double bar = lower, pieceEdge2 = 8.0 / density;
-#pragma omp parallel for schedule(dynamic, kChunk) reduction(max : lower, upper) reduction(+ : samples)
+#pragma omp parallel for schedule(dynamic, 256) reduction(max : lower, upper) reduction(+ : samples)
     for (long long f = 0; f < count; ++f)
       failure.run([&] {
         progress->advance();
