@@ -765,7 +765,7 @@ class SampledSide {
       for (int k = 0; k < 3; ++k)
         if (uint32_t& i = first[source.triangles[f][k]]; i == kNone) i = f;
     std::vector<double> distance(n, 0.0);  // from each vertex, or a bound of it no larger than the largest distance found
-    std::vector<uint32_t> nearest(n, 0);   // a target triangle that far from it
+    std::vector<uint32_t> nearest(n, 0);   // a target triangle (its slot) that far from it
     constexpr long long kChunk = 1024;     // triangles; few fresh starts, yet all threads busy
     double lower = 0.0, upper = 0.0;
     uint64_t samples = 0;
