@@ -499,14 +499,23 @@ TEST(Cli, ExportWritesMeshesAndRejectsBadFlags) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("manifold yes, closed yes"));
   EXPECT_THAT(r.out, HasSubstr("self-intersections no"));
-  {  // DiscMC within half a unit cell's diagonal of MC, the bracket within its bound (0.01 cell)
+  {  // DiscMC within half a unit cell's diagonal of MC; the exact upper end adds at most a triangle's
+     // enclosing radius (less than a cell's diagonal); the sampled statement for a patch of one voxel
     const size_t at = r.out.find("Hausdorff distance to mc ");
     ASSERT_NE(at, std::string::npos) << r.out;
     double lower = -1, upper = -1;
-    ASSERT_EQ(std::sscanf(r.out.c_str() + at, "Hausdorff distance to mc %lf mm (at most %lf", &lower, &upper), 2) << r.out;
+    unsigned long long samples = 0;
+    ASSERT_EQ(std::sscanf(r.out.c_str() + at, "Hausdorff distance to mc at least %lf mm (exact: the farthest of every vertex and %llu sampled points), at most %lf",
+                          &lower, &samples, &upper),
+              3)
+        << r.out;
     EXPECT_GT(lower, 0.1);
-    EXPECT_LE(upper, 0.5 * std::sqrt(3.0) + 0.01);
-    EXPECT_LE(upper - lower, 0.01 + 1e-4);  // printed to four digits
+    EXPECT_LE(lower, 0.5 * std::sqrt(3.0) + 1e-4);  // printed to four digits
+    EXPECT_GE(upper, lower);
+    EXPECT_LT(upper, 1.5 * std::sqrt(3.0));
+    EXPECT_GT(samples, 0u);
+    EXPECT_THAT(r.out, HasSubstr("check    sampled, 99.9 % confidence: less than 3.142 mm² of either surface (a disc of one voxel's radius, 1.000 mm) "
+                                 "lies farther than "));
   }
   EXPECT_TRUE(std::filesystem::exists(dir.file("s.off")));
   r = run({"build", nhdr, "--iso", "0", "-o", dir.file("s.hoct")});

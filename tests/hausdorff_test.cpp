@@ -1,8 +1,11 @@
 #include "surface/cgal_geometry.h"
 
 #include <gtest/gtest.h>
+#include <omp.h>
 
 #include <cmath>
+#include <map>
+#include <numbers>
 
 #include "surface/dmc.h"
 #include "test_util.h"
@@ -119,6 +122,269 @@ TEST(Hausdorff, AgreesWithBruteForceSampling) {
   EXPECT_LE(h.upper - h.lower, 0.005 + 1e-12);
   EXPECT_GT(h.lower, 0.2);  // DiscMC's vertices are not MC's
   EXPECT_LE(h.upper, 0.5 * glm::length(glm::dvec3(1.0, 1.0, 1.5)) + 0.005);  // within half a cell's diagonal
+}
+
+// An n × n grid of squares over [0, size]² at height z, each cut into two triangles.
+TriangleMesh grid(int n, float size, float z) {
+  TriangleMesh m;
+  for (int j = 0; j <= n; ++j)
+    for (int i = 0; i <= n; ++i) m.vertices.push_back({size * float(i) / float(n), size * float(j) / float(n), z});
+  for (uint32_t j = 0; j < uint32_t(n); ++j)
+    for (uint32_t i = 0; i < uint32_t(n); ++i) {
+      const uint32_t a = j * uint32_t(n + 1) + i, b = a + 1, c = a + uint32_t(n + 1) + 1, d = a + uint32_t(n + 1);
+      m.triangles.insert(m.triangles.end(), {{a, b, c}, {a, c, d}});
+    }
+  return m;
+}
+
+// A sphere of radius @p r about the origin: an octahedron whose triangles are split in four @p levels
+// times, every vertex on the sphere (closed: edge midpoints shared).
+TriangleMesh sphere(double r, int levels) {
+  std::vector<glm::dvec3> v{{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+  std::vector<glm::uvec3> t{{0, 2, 4}, {2, 1, 4}, {1, 3, 4}, {3, 0, 4}, {2, 0, 5}, {1, 2, 5}, {3, 1, 5}, {0, 3, 5}};
+  for (int l = 0; l < levels; ++l) {
+    std::map<std::pair<uint32_t, uint32_t>, uint32_t> middle;
+    auto mid = [&](uint32_t a, uint32_t b) {
+      const auto [it, added] = middle.try_emplace(std::minmax(a, b), uint32_t(v.size()));
+      if (added) v.push_back(glm::normalize(v[a] + v[b]));
+      return it->second;
+    };
+    std::vector<glm::uvec3> next;
+    for (const glm::uvec3& f : t) {
+      const uint32_t ab = mid(f.x, f.y), bc = mid(f.y, f.z), ca = mid(f.z, f.x);
+      next.insert(next.end(), {{f.x, ab, ca}, {ab, f.y, bc}, {ca, bc, f.z}, {ab, bc, ca}});
+    }
+    t = std::move(next);
+  }
+  TriangleMesh m;
+  for (const glm::dvec3& p : v) m.vertices.push_back(glm::vec3(r * p));
+  m.triangles = t;
+  return m;
+}
+
+// The sampled distance's exact parts: a square grid (squares 0.1 wide) and the same 0.3 above it
+// are 0.3 apart at every point. A triangle's bound is its corners' largest distance to a triangle
+// nearest one of them, which holds the point above that corner: the others are within the
+// triangle's diagonal of it sideways. The samples number about density × both areas.
+TEST(SampledHausdorff, ShiftedPlaneIsMeasuredExactly) {
+  const SampledHausdorffOptions options{0.05, 0.999};
+  const SampledHausdorff h = sampledHausdorffDistance(grid(10, 1.0f, 0.0f), grid(10, 1.0f, 0.3f), options);
+  EXPECT_NEAR(h.lower, 0.3, 1e-6);  // float vertices
+  EXPECT_GE(h.upper, 0.3 - 1e-6);
+  EXPECT_LE(h.upper, std::sqrt(0.3 * 0.3 + 2 * 0.1 * 0.1) + 1e-6);
+  EXPECT_DOUBLE_EQ(h.patchArea, std::numbers::pi * 0.05 * 0.05);
+  EXPECT_EQ(h.confidence, 0.999);
+  const double expected = 2.0 * std::log(2.0 / 0.001) / h.patchArea;  // two unit squares
+  EXPECT_NEAR(double(h.samples), expected, 5.0 * std::sqrt(expected));  // Poisson: 5 standard deviations
+}
+
+// One vertex of a grid moved by d off the plane: the mesh is d from the flat one there and less
+// everywhere else (every point of the moved fan is lower), d is reached only at that vertex, which
+// the exact part measures: found whatever the samples.
+TEST(SampledHausdorff, DisplacedVertexIsCaughtExactly) {
+  TriangleMesh moved = grid(20, 1.0f, 0.0f);
+  const float d = 0.37f;
+  moved.vertices[7 * 21 + 12].z = d;
+  for (const double confidence : {0.999, 0.01}) {  // almost no samples at 1 %: the vertex is still measured
+    const SampledHausdorff h = sampledHausdorffDistance(moved, grid(20, 1.0f, 0.0f), {0.1, confidence});
+    EXPECT_NEAR(h.lower, d, 1e-6) << confidence;
+    EXPECT_GE(h.upper, d - 1e-6) << confidence;
+    EXPECT_NEAR(sampledHausdorffDistance(grid(20, 1.0f, 0.0f), moved, {0.1, confidence}).lower, d, 1e-6) << confidence;
+  }
+}
+
+// Concentric spheres, radii r < R, every vertex on its sphere: a point of one mesh is at least its
+// sphere's gap from the other (R − r) and at most R − ρ, ρ the inner polyhedron's inradius (the
+// ray from the centre meets the other mesh within its own spheres). The vertices of the outer
+// mesh are R − r from the inner one's sphere, so the bracket holds [R − r, R − ρ]; the upper bound
+// is at most that plus the largest triangle's enclosing radius.
+TEST(SampledHausdorff, ConcentricSpheresWithinTheirTessellation) {
+  const double r = 1.0, R = 1.25;
+  const TriangleMesh inner = sphere(r, 3), outer = sphere(R, 3);
+  double inradius = r, largest = 0.0;
+  for (const TriangleMesh* m : {&inner, &outer})
+    for (const glm::uvec3& t : m->triangles) {
+      const glm::dvec3 a(m->vertices[t.x]), b(m->vertices[t.y]), c(m->vertices[t.z]);
+      if (m == &inner) inradius = std::min(inradius, std::abs(glm::dot(glm::normalize(glm::cross(b - a, c - a)), a)));
+      largest = std::max(largest, glm::length(glm::cross(b - a, c - a)) == 0.0 ? 0.0 : glm::length(a - b) * glm::length(b - c) * glm::length(c - a) /
+                                                                                     (2.0 * glm::length(glm::cross(b - a, c - a))));
+    }
+  ASSERT_GT(inradius, 0.98 * r);  // a fine tessellation: the bracket is narrow
+  for (const uint64_t seed : {1, 2, 3}) {
+    const SampledHausdorff h = sampledHausdorffDistance(outer, inner, {0.02, 0.999, seed});
+    EXPECT_GE(h.lower, R - r - 1e-6) << seed;
+    EXPECT_LE(h.lower, R - inradius + 1e-6) << seed;
+    EXPECT_GE(h.upper, h.lower) << seed;
+    EXPECT_LE(h.upper, R - inradius + largest + 1e-6) << seed;  // the circumradius bounds the enclosing radius
+  }
+}
+
+// A farthest point inside a triangle, not at a vertex: a square of half-width 0.25 against a
+// ring about its centre (a regular 64-gon of radius 1, its edges as flat triangles, no area). A
+// point x of the square is the apothem a minus |x| or so from the ring, at most a at the centre:
+// what lies ≥ a − p from it is a 64-gon of inradius p, an area of 64 p² tan(π/64), 1.0008 times
+// the patch π p². The square's corners are 0.65 from the ring and the ring's vertices at most
+// 0.75 from the square, so only samples find more. They miss that 64-gon with probability
+// exp(−density × its area) = ((1 − confidence) / 2)^1.0008: at 99.9 % every seed tried finds
+// it; at 80 %, 10 % of seeds miss (400 seeds: 40, within 3 standard deviations).
+TEST(SampledHausdorff, FindsAnInteriorFarthestPointAtItsConfidence) {
+  const TriangleMesh square = grid(1, 0.5f, 0.0f);  // [0, 0.5]², two triangles: no vertex at its centre (0.25, 0.25)
+  TriangleMesh ring;
+  constexpr int kSides = 64;
+  for (int i = 0; i < kSides; ++i) {
+    const double angle = 2.0 * std::numbers::pi * i / kSides;
+    ring.vertices.push_back({float(0.25 + std::cos(angle)), float(0.25 + std::sin(angle)), 0.0f});
+    ring.triangles.push_back({uint32_t(i), uint32_t((i + 1) % kSides), uint32_t((i + 1) % kSides)});
+  }
+  const double apothem = std::cos(std::numbers::pi / kSides), p = 0.02;
+  for (uint64_t seed = 1; seed <= 20; ++seed) {
+    const SampledHausdorff h = sampledHausdorffDistance(square, ring, {p, 0.999, seed});
+    EXPECT_GE(h.lower, apothem - p) << seed;
+    EXPECT_LE(h.lower, apothem + 1e-6) << seed;
+    EXPECT_GE(h.upper, apothem - 1e-6) << seed;
+  }
+  int missed = 0;
+  for (uint64_t seed = 1; seed <= 400; ++seed) missed += sampledHausdorffDistance(square, ring, {p, 0.8, seed}).lower < apothem - p;
+  EXPECT_NEAR(missed, 40, 3 * 6);  // binomial(400, 0.1): σ = 6
+}
+
+// On curved meshes (DiscMC's and MC's spheres, anisotropic voxels) the sampled bracket and the
+// exact one both hold the distance, so they overlap; the largest distance is reached along whole
+// regions, so the sampled lower end is within the patch radius of the exact one. The result does
+// not depend on the threads.
+TEST(SampledHausdorff, AgreesWithTheExactBracket) {
+  const Volume v = test::sphereVolume(glm::ivec3(11), 3.7);
+  const TriangleMesh a = toTriangleMesh(extractDiscMC(v, 0.0f), glm::dvec3(1.0, 1.0, 1.5));
+  TriangleMesh b = extractMarchingCubes(v, 0.0f);
+  for (glm::vec3& p : b.vertices) p.z *= 1.5f;
+  const HausdorffBracket exact = hausdorffDistance(a, b, 0.001);
+  const SampledHausdorffOptions options{0.05, 0.999};
+  const SampledHausdorff h = sampledHausdorffDistance(a, b, options);
+  EXPECT_LE(h.lower, exact.upper + 1e-9);
+  EXPECT_GE(h.upper, exact.lower - 1e-9);
+  EXPECT_GE(h.lower, exact.lower - options.patchRadius);
+  const int threads = omp_get_max_threads();
+  omp_set_num_threads(1);
+  const SampledHausdorff one = sampledHausdorffDistance(a, b, options);
+  omp_set_num_threads(threads);
+  EXPECT_EQ(one.lower, h.lower);
+  EXPECT_EQ(one.upper, h.upper);
+  EXPECT_EQ(one.samples, h.samples);
+}
+
+TEST(SampledHausdorff, RefusesBadOptionsAndMeasuresEmptyMeshes) {
+  const TriangleMesh square = grid(1, 1.0f, 0.0f);
+  for (const double radius : {0.0, -1.0, std::numeric_limits<double>::infinity(), std::nan("")})
+    EXPECT_THROW(sampledHausdorffDistance(square, square, {radius, 0.9}), ValueError) << radius;
+  for (const double confidence : {0.0, 1.0, 1.5, std::nan("")})
+    EXPECT_THROW(sampledHausdorffDistance(square, square, {0.1, confidence}), ValueError) << confidence;
+  TriangleMesh broken = square;
+  broken.vertices[2].y = std::numeric_limits<float>::infinity();
+  EXPECT_THROW(sampledHausdorffDistance(broken, square, {0.1, 0.9}), ValueError);
+  EXPECT_EQ(sampledHausdorffDistance(TriangleMesh{}, TriangleMesh{}, {0.1, 0.9}).upper, 0.0);
+  const SampledHausdorff one = sampledHausdorffDistance(square, TriangleMesh{}, {0.1, 0.9});
+  EXPECT_TRUE(std::isinf(one.lower) && std::isinf(one.upper));
+  EXPECT_EQ(one.samples, 0u);
+}
+
+// checkMesh's polygon mesh: CGAL's conditions, on soups that break one each.
+TEST(MeshCheck, ManifoldIsCgalsPolygonMesh) {
+  TriangleMesh tetra;  // outward
+  tetra.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  tetra.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+  MeshCheck c = checkMesh(tetra);
+  EXPECT_TRUE(c.manifold && c.closed && c.outward && !c.selfIntersecting);
+  EXPECT_EQ(c.boundaryEdges, 0u);
+  EXPECT_NEAR(c.volume, 1.0 / 6.0, 1e-12);
+  TriangleMesh inward = tetra;
+  for (glm::uvec3& t : inward.triangles) std::swap(t.y, t.z);
+  c = checkMesh(inward);
+  EXPECT_TRUE(c.manifold && c.closed && !c.outward);
+  EXPECT_NEAR(c.volume, -1.0 / 6.0, 1e-12);
+  // Open: one face taken away leaves three boundary edges; a vertex no triangle uses changes nothing.
+  TriangleMesh open = tetra;
+  open.triangles.pop_back();
+  open.vertices.push_back({5, 5, 5});
+  c = checkMesh(open);
+  EXPECT_TRUE(c.manifold && !c.closed && !c.selfIntersecting);
+  EXPECT_EQ(c.boundaryEdges, 3u);
+  // Two tetrahedra touching at a vertex: every edge has two triangles, but that vertex two fans.
+  TriangleMesh pinched = tetra;
+  for (const glm::vec3& p : {glm::vec3(-1, 0, 0), glm::vec3(0, -1, 0), glm::vec3(0, 0, -1)}) pinched.vertices.push_back(p);
+  pinched.triangles.insert(pinched.triangles.end(), {{0, 4, 5}, {0, 5, 6}, {0, 6, 4}, {4, 6, 5}});
+  c = checkMesh(pinched);
+  EXPECT_FALSE(c.manifold);
+  EXPECT_EQ(c.boundaryEdges, 0u);
+  // Two open fans at one vertex (a bow tie).
+  TriangleMesh bowtie;
+  bowtie.vertices = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {-1, 0, 0}, {-1, -1, 0}};
+  bowtie.triangles = {{0, 1, 2}, {0, 3, 4}};
+  c = checkMesh(bowtie);
+  EXPECT_FALSE(c.manifold);
+  EXPECT_EQ(c.boundaryEdges, 6u);
+  // An edge in three triangles; two triangles the same way round an edge; a repeated vertex.
+  TriangleMesh three = open;
+  three.vertices.push_back({1, 1, 1});
+  three.triangles.push_back({0, 1, 5});  // edge 0-1 is in {0, 2, 1} and {0, 1, 3} already
+  c = checkMesh(three);
+  EXPECT_FALSE(c.manifold);
+  EXPECT_EQ(c.boundaryEdges, 5u);  // 1-2, 2-3, 3-1 of the open tetrahedron, 1-5 and 5-0
+  TriangleMesh flipped = grid(1, 1.0f, 0.0f);
+  std::swap(flipped.triangles[1].y, flipped.triangles[1].z);
+  EXPECT_FALSE(checkMesh(flipped).manifold);
+  TriangleMesh repeated = grid(1, 1.0f, 0.0f);
+  repeated.triangles.push_back({0, 0, 2});
+  EXPECT_FALSE(checkMesh(repeated).manifold);
+  EXPECT_TRUE(checkMesh(TriangleMesh{}).manifold);
+}
+
+// Self-intersections as CGAL's does_self_intersect finds them, on open manifold meshes too (their
+// border halfedges linked): two squares crossing each other and not when apart; triangles joined
+// along an edge only when coplanar and folded onto each other; joined at a vertex when the
+// opposite edge of one pierces the other; a triangle whose corners are collinear.
+TEST(MeshCheck, FindsSelfIntersectionsAsCgalDoes) {
+  TriangleMesh crossing = grid(2, 1.0f, 0.0f);
+  TriangleMesh upright = grid(2, 1.0f, 0.0f);
+  for (glm::vec3& p : upright.vertices) p = {p.x, 0.5f, p.y - 0.5f};  // the plane y = 0.5, across z = 0
+  const auto offset = uint32_t(crossing.vertices.size());
+  crossing.vertices.insert(crossing.vertices.end(), upright.vertices.begin(), upright.vertices.end());
+  for (const glm::uvec3& t : upright.triangles) crossing.triangles.push_back(t + offset);
+  MeshCheck c = checkMesh(crossing);
+  EXPECT_TRUE(c.manifold);
+  EXPECT_TRUE(c.selfIntersecting);
+  EXPECT_EQ(c.boundaryEdges, 16u);  // 8 a square
+  for (size_t i = offset; i < crossing.vertices.size(); ++i) crossing.vertices[i].z += 2.0f;  // apart
+  c = checkMesh(crossing);
+  EXPECT_TRUE(c.manifold);
+  EXPECT_FALSE(c.selfIntersecting);
+  // Joined along edge 0-1: the fourth corner on the side of the third folds them; across, flat.
+  for (const float side : {0.5f, -1.0f}) {
+    TriangleMesh pair;
+    pair.vertices = {{0, 0, 0}, {1, 0, 0}, {0.5f, 1, 0}, {0.5f, side, 0}};
+    pair.triangles = {{0, 1, 2}, {1, 0, 3}};
+    c = checkMesh(pair);
+    EXPECT_TRUE(c.manifold) << side;
+    EXPECT_EQ(c.selfIntersecting, side > 0.0f) << side;
+  }
+  // A fan about vertex 0: its last triangle's edge 3-4 pierces the first (at (0.5, 0.5, 0)), or
+  // stays above it.
+  for (const float end : {-1.0f, 2.0f}) {
+    TriangleMesh fan;
+    fan.vertices = {{0, 0, 0}, {2, 0, 0}, {0, 2, 0}, {0.5f, 0.5f, 1}, {0.5f, 0.5f, end}};
+    fan.triangles = {{0, 1, 2}, {0, 2, 3}, {0, 3, 4}};
+    c = checkMesh(fan);
+    EXPECT_TRUE(c.manifold) << end;
+    EXPECT_EQ(c.boundaryEdges, 5u) << end;
+    EXPECT_EQ(c.selfIntersecting, end < 0.0f) << end;
+  }
+  // Vertex 2 on edge 0-1: triangle (0, 1, 2) has no area, in a manifold fan about vertex 2.
+  TriangleMesh flat;
+  flat.vertices = {{0, 0, 0}, {2, 0, 0}, {1, 0, 0}, {1, 1, 0}};
+  flat.triangles = {{0, 1, 2}, {0, 2, 3}, {2, 1, 3}};
+  c = checkMesh(flat);
+  EXPECT_TRUE(c.manifold);
+  EXPECT_EQ(c.boundaryEdges, 3u);
+  EXPECT_TRUE(c.selfIntersecting);
 }
 
 }  // namespace
