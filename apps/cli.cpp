@@ -215,7 +215,7 @@ void printSelection(const RenderJob& job, const RenderedFrame& f, std::ostream& 
 
 int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   // One frame keeps no brick texture beyond its draw; repeated frames reuse them.
-  RenderJob job = prepareRender(o, out, err, o.repeat > 1 || o.quality.progressive > 1);
+  RenderJob job = prepareRender(o, out, err, o.repeat > 1 || o.settings.quality.progressive > 1);
   CommandOutputs outputs;  // the images and --stats, renamed into place together at the end
   const bool slices = job.quality.renderer == Renderer::Slices;
   const bool fromScene = job.renderer->scene().surface && job.look.iso && job.renderer->scene().surface->isovalue() == *job.look.iso;
@@ -232,7 +232,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   const LevelCallback onLevel = [&](int level, int levels, const Image& image, const FrameStats& st) {
     const std::string path = progressivePath(o.output, level);
     Image shown = image;
-    if (o.marker) drawOrientationMarker(job.view.camera, &shown);
+    if (o.settings.marker) drawOrientationMarker(job.view.camera, &shown);
     outputs.write(path, [&](const std::string& to) { writePng(to, shown, job.background); });
     out << "progressive " << level << "/" << levels << ": " << std::fixed;
     if (slices)
@@ -261,7 +261,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
       }
       if (slices) printSelection(job, frame, out);
       if (slices && !frame.selection.budgetMet)
-        err << "hybrid-octree: warning: --budget " << o.budgetText << (job.quality.budgetPercent > 0 ? "" : " MB") << " cannot be met; using "
+        err << "hybrid-octree: warning: --budget " << o.settings.budget << (job.quality.budgetPercent > 0 ? "" : " MB") << " cannot be met; using "
             << frame.selection.texels << " texels\n";
       firstMs = frame.stats.renderMs;
       tableMs = frame.stats.preintegrationMs;
@@ -292,7 +292,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   if (job.quality.classification == Classification::PreIntegrated)
     out << "classify pre-integrated, table made in " << std::fixed << std::setprecision(1) << tableMs << " ms\n";
   Image image = std::move(frame.image);
-  if (o.marker) drawOrientationMarker(job.view.camera, &image);
+  if (o.settings.marker) drawOrientationMarker(job.view.camera, &image);
   if (job.quality.progressive > 1)
     outputs.write(progressivePath(o.output, job.quality.progressive), [&](const std::string& to) { writePng(to, image, job.background); });
   outputs.write(o.output, [&](const std::string& to) { writePng(to, image, job.background); });
@@ -623,14 +623,6 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   render.add(renderCmd);
   renderCmd->add_option("-o,--output", render.output, "PNG to write");
   renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
-  renderCmd->add_option("--progressive", render.quality.progressive,
-                         "write N images coarse to fine (out_1.png ... out_N.png, and out.png): slices one level coarser each, the "
-                         "reference's rays on a grid 2^(N-k) pixels apart, refined where colours differ")
-      ->capture_default_str();
-  renderCmd->add_option("--adaptive", render.quality.adaptive,
-                         "reference only: Levoy's adaptive refinement, rays 8 pixels apart first and more only where neighbouring "
-                         "colours differ by more than T/255, the rest interpolated (0 = every pixel, exact)")
-      ->capture_default_str();
   renderCmd->add_option("--repeat", render.repeat, "render the view N times, brick textures kept; report the fastest frame")
       ->capture_default_str();
 

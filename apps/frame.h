@@ -18,6 +18,7 @@
 #include "hybrid_octree/hybrid_io.h"
 #include "render/camera.h"
 #include "render/image.h"
+#include "render/frame_settings.h"
 #include "render/patient_view.h"
 #include "render/scene_renderer.h"
 #include "render/transfer_function.h"
@@ -40,19 +41,6 @@ glm::dvec3 parseVec3(const std::string& text, const std::string& flag);
 /// Parses @p n comma-separated finite numbers (any count ≥ 1 when @p n is 0).
 /// @throw ValueError naming @p flag and @p expected.
 std::vector<double> parseNumbers(const std::string& text, const std::string& flag, size_t n, const char* expected);
-/// Parses "WxH" into a positive size no larger than 16384. @throw ValueError naming --size.
-glm::ivec2 parseSize(const std::string& text);
-/// Parses @p n comma-separated numbers in [0, 1]. @throw ValueError naming @p flag.
-glm::vec4 parseColor(const std::string& text, const std::string& flag, int n);
-
-/// A texture budget: megabytes, or a percentage of the view's full-resolution texture bytes.
-struct Budget {
-  double value = 0.0;  ///< MB (0 = unlimited), or percent in (0, 100]
-  bool percent = false;
-};
-/// Parses --budget: "MB" (>= 0) or "P%" (0 < P <= 100); none when @p text is neither.
-std::optional<Budget> parseBudget(const std::string& text);
-
 /// Adds flag @p name taking on|off into @p field; anything else is refused naming the flag.
 CLI::Option* addSwitch(CLI::App* cmd, const std::string& name, bool* field, const std::string& help);
 
@@ -85,56 +73,25 @@ void printWarnings(const Volume& v, std::ostream& err);
 Scene loadOrBuild(const VolumeInput& in, std::ostream& out, std::ostream& err, double* buildMs, const VolumeOctreeOptions& options = {},
                   const SceneLoadOptions& load = {});
 
-/// The camera as JSON (patient space, LPS mm): space, eye, center, up, fov_deg, ortho,
-/// ortho_height, width, height. --stats records it; --camera-file reads it back.
-std::string cameraJson(const Camera& patientCamera, int indent = 2);
-/// Reads a camera from @p path: a file of cameraJson's form, or a --stats file holding one under
-/// "camera". @throw IoError naming the file and the field when it is not one.
-Camera readCameraFile(const std::string& path);
-
-/// Render flags (DESIGN 2), shared by render and bench, each held in its type.
+/// Render flags (DESIGN 2), shared by render and bench: the input, the frame's settings (one
+/// flag a field of render/frame_settings.h's table), and what the command does with the frame.
 struct RenderOptions {
   VolumeInput input;
   std::string output, stats;
-  // What is shown.
-  std::string tfFile, preset;
-  std::optional<double> iso;
-  glm::vec4 surfaceColor{0.95f, 0.92f, 0.85f, 1.0f};
-  SurfaceNormals surfaceNormals = SurfaceNormals::Gradient;
-  glm::vec3 background{0.0f};
-  bool shading = true, cutLine = true;
-  std::optional<CutPlane> cut;                              // patient mm
-  std::optional<std::pair<glm::dvec3, glm::dvec3>> voiBox;  // patient mm
-  double voiInside = 1.0, voiOutside = 0.1, voiRamp = 4.0;
-  // Where from.
-  std::optional<glm::dvec3> eye, center;
-  glm::dvec3 up{0, 0, 1};
-  std::optional<glm::dvec2> orbit;  // azimuth, elevation
-  std::optional<AnatomicalView> view;
-  std::string cameraFile;
-  double zoom = 1.0, fov = 30.0;
-  bool ortho = false, marker = false;
-  std::optional<glm::ivec2> size;
-  // How well.
-  Quality quality;
-  std::string budgetText;  // as given, for messages
+  FrameSettings settings;
   bool prefilter = true;
   std::optional<double> memoryMb;  // --memory: a scene's block cache (default: an eighth of physical memory)
   int repeat = 1;  // render: frames of the same view; brick textures are kept, the fastest counts
 
   /// Checks what the flags say together; empty when valid, else a message naming the flag.
   std::string validate() const;
-  /// The flags shared by render and bench.
+  /// The flags shared by render and bench: every field of the table the command line takes.
   void add(CLI::App* cmd);
 };
 
-/// A render job: the scene's renderer and the view, look and quality of the flags.
-struct RenderJob {
+/// A render job: the scene's renderer and the frame the flags set up.
+struct RenderJob : FrameSetup {
   std::unique_ptr<SceneRenderer> renderer;
-  View view;  // patient space
-  Look look;
-  Quality quality;
-  glm::vec3 background{0.0f};
   double buildMs = 0;  // the octree's build (0: a scene file's)
 };
 
@@ -161,13 +118,6 @@ struct ExportedSurface {
 };
 ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string& kind, bool closed, bool normals, bool againstMc,
                                 const Progress* progress, std::ostream& out);
-
-/// Sets @p job's view, look, quality and background from @p o's flags for @p scene: the transfer
-/// function (file, preset, or one for the data's range) and the camera (a file's, the --eye given,
-/// or the view framing what is visible), warnings (an isovalue outside the data) on @p err.
-/// @throw ValueError naming the flag, IoError naming a camera or transfer-function file.
-/// @p tf, when given, replaces the flags' transfer function (the camera frames what it shows).
-void setUpFrame(const RenderOptions& o, const Scene& scene, RenderJob* job, std::ostream& err, const TransferFunction* tf = nullptr);
 
 /// One line on the surface of a frame that built or reconstructed it (empty when it was kept).
 std::string surfaceLine(const FrameStats& stats, float iso, bool fromScene);

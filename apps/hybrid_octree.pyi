@@ -73,11 +73,13 @@ class Scene:
         zoom: Number = ...,
         fov: Number = ...,
         ortho: Flag = ...,
+        ortho_height: Number = ...,
         size: tuple[int, int] | npt.NDArray[np.integer[Any]] | str = ...,
         camera_file: Path = ...,
         marker: Switch = ...,
         preset: str = ...,
         tf: npt.ArrayLike | Path = ...,
+        opacity: Number = ...,
         iso: Number = ...,
         surface_color: Numbers = ...,
         surface_normals: Literal["gradient", "facet"] = ...,
@@ -91,7 +93,7 @@ class Scene:
         voi_ramp: Number = ...,
         renderer: Literal["slices", "raycast"] = ...,
         epsilon: Number = ...,
-        budget: Number = ...,
+        budget: Number | str = ...,
         step: Number = ...,
         classification: Literal["post", "preintegrated"] = ...,
         proxy: Literal["planes", "shells"] = ...,
@@ -130,3 +132,7 @@ class Scene:
 def open(path: Path) -> Scene:
     """A scene from any file the command line reads: NRRD, MetaImage, NIfTI, InVesalius .inv3, a
     DICOM directory, or a scene file (.hoct, its samples loaded)."""
+
+def frame_fields() -> list[dict[str, Any]]:
+    """render()'s keywords as the one table of a frame's settings holds them (the command line's
+    flags, the viewer's fields): name, kind, min, max, default, unit, help, choices."""

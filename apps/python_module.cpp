@@ -2,6 +2,7 @@
 // images and meshes out, through the engine the command line uses. Rendering options are the
 // command line's flags as keyword arguments, parsed and checked by the same code, so a mistake gets
 // the command line's message. README "Python"; the API with types: apps/hybrid_octree.pyi.
+#include <nlohmann/json.hpp>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
@@ -151,6 +152,26 @@ std::string spelled(const std::string& key, const py::handle& h, Form form) {
     case Form::Flag: break;
   }
   wrongType(key, form, v);
+}
+
+// The Python forms of a field: what its kind's text is spelled from.
+Form formOf(const FrameField& f) {
+  switch (f.kind) {
+    case FieldKind::Number: return Form::Number;
+    case FieldKind::Integer: return Form::Integer;
+    case FieldKind::Budget: return Form::Number;  // megabytes, or a str "P%"
+    case FieldKind::Numbers: return Form::Numbers;
+    case FieldKind::Size: return Form::Size;
+    case FieldKind::Switch: return Form::Switch;
+    case FieldKind::Flag: return Form::Flag;
+    case FieldKind::Choice:  // choices that are numbers (texel_bits 8 or 16) are written as numbers
+      return std::all_of(f.choices.begin(), f.choices.end(), [](const std::string& c) { return c.find_first_not_of("0123456789") == std::string::npos; })
+                 ? Form::Integer
+                 : Form::Word;
+    case FieldKind::Text:
+    case FieldKind::Points: return Form::Word;
+  }
+  return Form::Word;
 }
 
 // A True/False keyword (numpy's bool too).
@@ -383,15 +404,15 @@ class PyScene {
   }
 
   py::object render(const py::kwargs& kwargs) {
-    // The command line's flags, from the keywords (tf, premultiplied and stats are Python's own);
-    // None is a keyword left out.
+    // Each keyword is a field of the one table (render/frame_settings.h), its Python form spelled as
+    // the flag's text and parsed by the field, so the messages are the command line's; tf,
+    // premultiplied and stats are Python's own; None is a keyword left out.
     bool premultiplied = false, withStats = false;
-    std::optional<TransferFunction> tf;
-    std::vector<std::string> args;
+    FrameSettings settings;
     for (const auto& [k, v] : kwargs) {
       const std::string key = py::cast<std::string>(k);
-      const auto row = std::find_if(std::begin(kKeywords), std::end(kKeywords), [&](const Keyword& w) { return key == w.name; });
-      if (row == std::end(kKeywords) && key != "premultiplied" && key != "stats" && key != "tf")
+      const FrameField* field = frameField(key);
+      if ((!field || !(field->doors & kPython)) && key != "premultiplied" && key != "stats" && key != "tf")
         throw py::type_error(hyb::detail::concat("render() got an unexpected keyword argument '", key, "'"));
       if (v.is_none()) continue;
       if (key == "premultiplied") {
@@ -399,33 +420,19 @@ class PyScene {
       } else if (key == "stats") {
         withStats = flagOf(key, v);
       } else if (key == "tf" && !pathText(v)) {
-        tf = transferFunctionOf(v);
-      } else if (key == "tf") {
-        args.push_back("--tf=" + *pathText(v));
-      } else if (row->form == Form::Flag) {
-        if (flagOf(key, v)) args.push_back(flagName(key));
+        settings.tfPoints = transferFunctionOf(v).points();
+      } else if (field->kind == FieldKind::Flag) {
+        field->parse(settings, flagOf(key, v) ? "on" : "off", field->flag());
       } else {
-        args.push_back(flagName(key) + "=" + spelled(key, v, row->form));
+        field->parse(settings, spelled(key, v, formOf(*field)), field->flag());
       }
     }
-    RenderOptions o;
-    CLI::App app("render", "render");
-    o.add(&app);
-    for (const Keyword& w : kKeywords) HYB_CHECK(app.get_option_no_throw(flagName(w.name)) != nullptr);
-    std::vector<std::string> reversed(args.rbegin(), args.rend());
-    try {
-      app.parse(reversed);
-    } catch (const CLI::ParseError& e) {
-      HYB_THROW(ValueError, e.what());
-    }
-    if (const std::string e = o.validate(); !e.empty() && e.rfind("-o", 0) != 0) throw ValueError(e);
-    if (tf && !o.preset.empty()) throw ValueError("--tf and --preset are exclusive");
+    if (const std::string e = settings.validate(); !e.empty()) throw ValueError(e);
     // --background composites the image over it, opaque, as the command line's PNG holds it.
-    const bool composited = app.get_option("--background")->count() > 0;
+    const bool composited = kwargs.contains("background") && !kwargs["background"].is_none();
     if (composited && premultiplied) throw ValueError("premultiplied and background are exclusive (a composited image is opaque)");
-    RenderJob job;
     std::ostringstream warnings;
-    setUpFrame(o, mRenderer->scene(), &job, warnings, tf ? &*tf : nullptr);
+    const FrameSetup job = setUpFrame(settings, mRenderer->scene(), warnings);
     warnLines(warnings.str());
     RenderedFrame frame;
     {
@@ -439,7 +446,7 @@ class PyScene {
       }
     }
     if (PyErr_Occurred()) throw py::error_already_set();  // a signal seen as the frame ended
-    if (o.marker) drawOrientationMarker(job.view.camera, &frame.image);
+    if (settings.marker) drawOrientationMarker(job.view.camera, &frame.image);
     py::array_t<uint8_t> image = toArray(frame.image, premultiplied, composited ? std::optional(job.background) : std::nullopt);
     if (!withStats) return image;
     return py::make_tuple(image, statsOf(frame));
@@ -514,26 +521,6 @@ class PyScene {
 
   // render()'s keywords beside tf, premultiplied and stats: the command line's flags (`-` as `_`)
   // and how each is written in Python.
-  struct Keyword {
-    const char* name;
-    Form form;
-  };
-  static constexpr Keyword kKeywords[] = {
-      {"view", Form::Word},        {"orbit", Form::Numbers},          {"eye", Form::Numbers},        {"center", Form::Numbers},
-      {"up", Form::Numbers},       {"zoom", Form::Number},            {"fov", Form::Number},         {"ortho", Form::Flag},
-      {"size", Form::Size},        {"camera_file", Form::Word},       {"marker", Form::Switch},      {"preset", Form::Word},
-      {"iso", Form::Number},       {"surface_color", Form::Numbers},  {"surface_normals", Form::Word}, {"shading", Form::Switch},
-      {"background", Form::Numbers}, {"cut", Form::Numbers},          {"cut_line", Form::Switch},    {"voi", Form::Numbers},
-      {"voi_inside", Form::Number}, {"voi_outside", Form::Number},    {"voi_ramp", Form::Number},    {"renderer", Form::Word},
-      {"epsilon", Form::Number},   {"budget", Form::Number},          {"step", Form::Number},        {"classification", Form::Word},
-      {"proxy", Form::Word},       {"blend", Form::Switch},           {"lod_pixels", Form::Number},  {"max_brick", Form::Integer},
-      {"texel_bits", Form::Integer}, {"focus", Form::Numbers},        {"image_scale", Form::Number}};
-
-  static std::string flagName(std::string key) {
-    std::replace(key.begin(), key.end(), '_', '-');
-    return "--" + key;
-  }
-
   ExportedSurface exported(const MeshRequest& r) {
     std::ostringstream out;
     py::gil_scoped_release release;
@@ -642,4 +629,7 @@ PYBIND11_MODULE(hybrid_octree, m) {
       .def("export", &PyScene::exportMesh, py::arg("path"), py::arg("iso"), py::arg("kind") = "dmc", py::arg("closed") = false,
            py::arg("normals") = false);
   m.def("open", &openScene, py::arg("path"));
+  m.def(
+      "frame_fields", [] { return py::module_::import("json").attr("loads")(hyb::fieldsJson(hyb::kPython).dump()); },
+      "render()'s keywords as the one table of a frame's settings holds them: name, kind, range, default, unit, help");
 }

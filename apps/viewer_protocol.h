@@ -12,44 +12,34 @@
 #include <variant>
 #include <vector>
 
-#include "render/camera.h"
-#include "render/cut_plane.h"
-#include "render/preintegration.h"
-#include "render/transfer_function.h"
-#include "render/voi.h"
+#include "render/frame_settings.h"
 
 namespace hyb::viewer {
 
 /// Limits of what a client may ask for.
 inline constexpr size_t kMaxMessageBytes = 64 * 1024;
 inline constexpr int kMaxImageEdge = 2048, kMinImageEdge = 16;
-inline constexpr size_t kMaxTfPoints = 64;
 inline constexpr size_t kMaxPathBytes = 4096;
 /// Text messages waiting for a client that does not read them (its frames are bounded apart: only
 /// the newest waits); beyond this the server closes that client.
 inline constexpr size_t kMaxQueuedTextBytes = 1 << 20;
 
 /// A frame to render: the page's whole state, so the server keeps no per-field history and a lost
-/// message loses nothing. Coordinates are patient millimetres (LPS).
+/// message loses nothing. Besides seq, scene and interacting, a frame message holds the frame
+/// table's viewer fields (render/frame_settings.h) under their names, as --stats' camera and the
+/// command line's flags spell them: eye, center, up and size required, preset or tf_points.
 struct FrameRequest {
   uint64_t seq = 0;         ///< echoed in the frame that answers it
   /// The scene the page shows (its info's "scene"): a request for another is stale and dropped;
   /// empty: the one the client shows.
   std::string scene;
   bool interacting = false;  ///< the user is dragging: hold the frame rate; false: refine to the final frame
-  Camera camera;             ///< eye, center, up, fov or ortho height, and the image size
-  std::string preset;        ///< a transfer-function preset, or empty when points are given
-  std::vector<TransferFunction::Point> points;
-  float opacityScale = 1.0f;  ///< multiplies every opacity, [0, 10]
-  bool shading = true;
-  Classification classification = Classification::Post;
-  std::optional<float> iso;  ///< the isosurface, or none
-  glm::vec4 surfaceColor{0.95f, 0.92f, 0.85f, 1.0f};
-  std::optional<CutPlane> cut;
-  std::optional<VolumeOfInterest> voi;
+  FrameSettings settings;    ///< the camera and the look, patient millimetres (LPS)
 
-  /// The transfer function asked for, opacities scaled. @throw ValueError naming the preset.
-  TransferFunction transferFunction() const;
+  /// The image size asked for.
+  glm::ivec2 size() const { return *settings.size; }
+  /// The isosurface asked for, or none.
+  std::optional<float> iso() const { return settings.iso ? std::optional(float(*settings.iso)) : std::nullopt; }
 };
 
 /// Open a volume of the data directory (its path relative to that directory) and, for a DICOM

@@ -73,54 +73,28 @@ std::vector<uint8_t> encodeJpeg(const std::vector<uint8_t>& rgba, int width, int
 
 json vec3Json(const glm::dvec3& v) { return json::array({v.x, v.y, v.z}); }
 
-json cameraToJson(const Camera& c) {
-  return {{"eye", vec3Json(c.eye)}, {"center", vec3Json(c.center)}, {"up", vec3Json(c.up)}, {"fov", c.fovDeg},
-          {"ortho", c.ortho},       {"height", c.orthoHeight},       {"pixels", json::array({c.width, c.height})}};
-}
+// The camera in the frame table's fields (eye, center, up, fov, ortho, ortho_height, size).
+json cameraToJson(const Camera& c) { return settingsJson(cameraSettings(c), kViewer); }
 
-// The shortest text that reads back as the same value (a float as a float: 0.1, not 0.10000000000000001).
-template <class T>
-std::string exact(T x) {
-  char text[32];
-  return std::string(text, std::to_chars(text, text + sizeof text, x).ptr);
-}
-std::string exact3(const glm::dvec3& v) { return exact(v.x) + "," + exact(v.y) + "," + exact(v.z); }
-
-// Arguments quoted for a POSIX shell when they need it.
-std::string shellQuote(const std::string& s) {
-  if (!s.empty() && s.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_./,:=%+") == std::string::npos) return s;
-  std::string out = "'";
-  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return out + "'";
-}
-
-// The `hybrid-octree render` command line that makes the same image (the transfer function in
-// the file @p tfFile when it is not a plain preset).
+// The `hybrid-octree render` command line that makes the same image (the transfer function's
+// points in the file @p tfFile when they are not a preset).
 std::string renderCommand(const std::string& path, const std::string& series, const FrameRequest& r, const std::string& tfFile) {
-  const Camera& c = r.camera;
+  FrameSettings s = r.settings;
+  if (!s.tfPoints.empty()) {
+    s.tfPoints.clear();
+    s.tf = tfFile;
+  }
+  if (!s.iso) s.surfaceColor = kDefaultSurfaceColor;  // (no surface: its colour says nothing)
   std::string cmd = "hybrid-octree render " + shellQuote(path);
   if (!series.empty()) cmd += " --series " + shellQuote(series);
-  cmd += " --eye " + exact3(c.eye) + " --center " + exact3(c.center) + " --up " + exact3(c.up);
-  cmd += c.ortho ? " --ortho" : " --fov " + exact(c.fovDeg);
-  cmd += " --size " + std::to_string(c.width) + "x" + std::to_string(c.height);
-  cmd += !r.preset.empty() && r.opacityScale == 1.0f ? " --preset " + r.preset : " --tf " + tfFile;
-  if (!r.shading) cmd += " --shading off";
-  if (r.classification == Classification::PreIntegrated) cmd += " --classification preintegrated";
-  if (r.iso) {
-    const glm::vec4& s = r.surfaceColor;
-    cmd += " --iso " + exact(*r.iso) + " --surface-color " + exact(s.r) + "," + exact(s.g) + "," + exact(s.b) + "," + exact(s.a);
-  }
-  if (r.cut) cmd += " --cut " + exact3(r.cut->point) + "," + exact3(r.cut->normal);
-  if (r.voi)
-    cmd += " --voi " + exact3(r.voi->lo) + "," + exact3(r.voi->hi) + " --voi-inside " + exact(r.voi->inside) + " --voi-outside " +
-           exact(r.voi->outside) + " --voi-ramp " + exact(r.voi->ramp);
-  return cmd + " -o view.png";
+  return cmd + commandLineOf(s) + " -o view.png";
 }
 
-std::string tfText(const TransferFunction& tf) {
+// The transfer function's points as a --tf file.
+std::string tfText(const std::vector<TransferFunction::Point>& points) {
   std::ostringstream s;
   s << "# value r g b a (opacity of 1 mm)\n" << std::setprecision(9);
-  for (const TransferFunction::Point& p : tf.points()) s << p.value << " " << p.color.r << " " << p.color.g << " " << p.color.b << " " << p.alpha << "\n";
+  for (const TransferFunction::Point& p : points) s << p.value << " " << p.color.r << " " << p.color.g << " " << p.color.b << " " << p.alpha << "\n";
   return s.str();
 }
 
@@ -148,7 +122,7 @@ struct SurfaceShown {
   bool ready = true, building = false;
   explicit SurfaceShown(const ScenePool::Frame& f) : iso(f.iso), ready(f.surfaceReady), building(f.surfaceBuilding) {}
   /// The surface a frame of @p r draws: none when it asks for none.
-  std::optional<float> drawn(const FrameRequest& r) const { return r.iso ? iso : std::nullopt; }
+  std::optional<float> drawn(const FrameRequest& r) const { return r.settings.iso ? iso : std::nullopt; }
 };
 
 struct BandedFrame {
@@ -287,8 +261,10 @@ struct ServerState {
                  {"defaultPreset", TransferFunction::defaultPresetFor(s.minValue, s.maxValue)},
                  {"defaultTf", defaultTf},
                  {"iso", s.sceneIso ? json(*s.sceneIso) : json(nullptr)},
+                 {"defaultIso", TransferFunction::defaultIsoFor(s.minValue, s.maxValue)},
                  {"surfaces", pool->readySurfaces(s.key)},
-                 {"volumes", volumesJson()}};
+                 {"volumes", volumesJson()},
+                 {"fields", fieldsJson(kViewer)}};  // what a frame message takes: the page's controls' ranges
     if (!options.dataDir.empty()) info["open"] = {{"path", s.name}, {"series", s.series}};
     return info;
   }
@@ -382,7 +358,7 @@ struct ServerState {
         client.current.reset();
         return;
       }
-      const ScenePool::Frame shown = pool->forFrame(client.id, r.iso);
+      const ScenePool::Frame shown = pool->forFrame(client.id, r.iso());
       surface = shown.iso.has_value();
       // (once the full surface is ready: the ray tracer draws no preview, it would build it here)
       client.raysForSurface =
@@ -401,7 +377,7 @@ struct ServerState {
       level = client.refine.back();
       client.refine.pop_back();
     }
-    const ScenePool::Frame scene = pool->forFrame(client.id, client.current->iso);
+    const ScenePool::Frame scene = pool->forFrame(client.id, client.current->iso());
     if (!scene.renderer) {
       client.refine.clear();
       client.banded.reset();
@@ -409,11 +385,12 @@ struct ServerState {
     }
     const FrameRequest request = client.banded ? client.banded->request : *client.current;
     const bool final = !request.interacting && client.refine.empty() && level == 0;
-    if (final && !client.banded && int64_t(request.camera.width) * request.camera.height > kBandPixels) {
+    const glm::ivec2 size = request.size();
+    if (final && !client.banded && int64_t(size.x) * size.y > kBandPixels) {
       BandedFrame b(request, SurfaceShown(scene));
       b.arrival = arrival;
-      b.image = Image(request.camera.width, request.camera.height);
-      b.rowsPerBand = std::max(16, kBandPixels / request.camera.width);
+      b.image = Image(size.x, size.y);
+      b.rowsPerBand = std::max(16, kBandPixels / size.x);
       client.banded = std::move(b);
     }
     if (client.banded) {
@@ -431,14 +408,14 @@ struct ServerState {
     double coarser = 0.0;  // share of the bricks drawn coarser
     try {
       const auto t0 = Clock::now();
-      const FrameParts parts = frameParts(request, rung, level, iso);
+      const FrameParts parts = frameParts(request, scene.renderer->scene(), rung, level, iso);
       const RenderedFrame frame = scene.renderer->render(parts.view, parts.look, parts.quality);
       const double renderMs = msSince(t0);
       const FrameStats& st = frame.stats;
       // (also a ray-traced frame that made the surface's BVH, or one that made a pre-integration table)
       cold = 2 * st.slices.uploadedBricks > st.slices.bricks || st.bvhMs > 0.0 || st.preintegrationMs > 0.0;
       coarser = double(st.bricksNotResident) / double(std::max<size_t>(1, st.slices.bricks + st.bricksNotResident));
-      message = encodeFrame(summary, request, parts.look, rung, level, final, shown, arrival, frame.image, st, frame.selection.maxError, renderMs, t0,
+      message = encodeFrame(summary, request, rung, level, final, shown, arrival, frame.image, st, frame.selection.maxError, renderMs, t0,
                             &ms);
     } catch (const std::exception& e) {
       message.clear();
@@ -464,7 +441,7 @@ struct ServerState {
     RenderedFrame frame;
     const auto t0 = Clock::now();
     try {
-      FrameParts parts = frameParts(request, rung, 0, iso);
+      FrameParts parts = frameParts(request, renderer.scene(), rung, 0, iso);
       parts.quality.rows = rows;
       frame = renderer.render(parts.view, parts.look, parts.quality);
     } catch (const std::exception& e) {
@@ -490,8 +467,7 @@ struct ServerState {
     lock.unlock();
     double total = 0.0;
     try {
-      const FrameParts parts = frameParts(done.request, rung, 0, iso);
-      message = encodeFrame(summary, done.request, parts.look, rung, 0, true, done.surface, done.arrival, done.image, done.stats, done.maxError, done.renderMs,
+      message = encodeFrame(summary, done.request, rung, 0, true, done.surface, done.arrival, done.image, done.stats, done.maxError, done.renderMs,
                             Clock::now(), &total);
     } catch (const std::exception& e) {
       error = e.what();
@@ -509,18 +485,13 @@ struct ServerState {
     Look look;
     Quality quality;
   };
-  static FrameParts frameParts(const FrameRequest& r, const QualityLevel& q, int level, std::optional<float> iso) {
-    FrameParts p;
-    p.view.camera = r.camera;
-    p.view.camera.width = std::max(kMinImageEdge, int(std::lround(r.camera.width * q.scale)));
-    p.view.camera.height = std::max(kMinImageEdge, int(std::lround(r.camera.height * q.scale)));
-    p.look.tf = r.transferFunction();
+  static FrameParts frameParts(const FrameRequest& r, const Scene& scene, const QualityLevel& q, int level, std::optional<float> iso) {
+    std::ostringstream warnings;  // (an isovalue outside the data: the page's info says so)
+    const FrameSetup setup = setUpFrame(r.settings, scene, warnings);
+    FrameParts p{setup.view, setup.look, setup.quality};
+    p.view.camera.width = std::max(kMinImageEdge, int(std::lround(r.size().x * q.scale)));
+    p.view.camera.height = std::max(kMinImageEdge, int(std::lround(r.size().y * q.scale)));
     p.look.iso = iso;
-    p.look.surfaceColor = r.surfaceColor;
-    p.look.shading = r.shading;
-    p.quality.classification = r.classification;
-    p.look.cut = r.cut;
-    p.look.voi = r.voi;
     p.quality.waitForSurface = false;  // the pool's builder makes it; meanwhile its preview, or none
     if (q.rays) p.quality.renderer = Renderer::Raycast;
     if (level > 0) {
@@ -543,7 +514,7 @@ struct ServerState {
 
   // A frame's message: its header and the image, JPEG before the final frame, PNG for it (render
   // thread, unlocked); @p ms receives the frame's time from @p t0, encoding included.
-  std::string encodeFrame(const SceneSummary& scene, const FrameRequest& r, const Look& look, const QualityLevel& q, int level, bool final,
+  std::string encodeFrame(const SceneSummary& scene, const FrameRequest& r, const QualityLevel& q, int level, bool final,
                           const SurfaceShown& surface, const std::optional<Arrival>& arrival, const Image& image,
                           const FrameStats& st, double maxError, double renderMs, Clock::time_point t0, double* ms) const {
     const std::optional<float> iso = surface.drawn(r);
@@ -572,14 +543,14 @@ struct ServerState {
                    {"maxError", maxError},
                    {"bricksNotResident", st.bricksNotResident},  // > 0: bricks drawn coarser (beyond the packing bound, or loading)
                    {"iso", iso ? json(*iso) : json(nullptr)},
-                   {"surfaceReady", !r.iso || surface.ready},  // false: the surface asked for is still being built
+                   {"surfaceReady", !r.settings.iso || surface.ready},  // false: the surface asked for is still being built
                    // > 1: the surface drawn is clustered by cubes this many voxels wide (a preview, or the level of detail)
                    {"surfaceSpacing", iso ? json(st.surfaceSpacing) : json(nullptr)},
                    {"surfaceBuilding", surface.building},  // the surface asked for, or its levels for moving frames, on its way
-                   {"camera", cameraToJson(r.camera)}};
-    if (final && (!r.iso || surface.ready)) {  // (while the surface asked for is built, the frame is not the command's)
+                   {"camera", cameraToJson(explicitCamera(r.settings))}};
+    if (final && (!r.settings.iso || surface.ready)) {  // (while the surface asked for is built, the frame is not the command's)
       header["command"] = renderCommand(scene.path, scene.series, r, "view.tf");
-      if (r.preset.empty() || r.opacityScale != 1.0f) header["tfText"] = tfText(look.tf);
+      if (!r.settings.tfPoints.empty()) header["tfText"] = tfText(r.settings.tfPoints);
     }
     return frameMessage(header.dump(-1, ' ', false, json::error_handler_t::replace), bytes);
   }

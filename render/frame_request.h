@@ -42,6 +42,9 @@ enum class Renderer { Slices, Raycast };
 /// How the isosurface is shaded: by the volume's gradient at its vertices, or by each polygon's plane.
 enum class SurfaceNormals { Gradient, Facet };
 
+/// The isosurface's colour unless one is asked for: bone white, opaque.
+inline const glm::vec4 kDefaultSurfaceColor{0.95f, 0.92f, 0.85f, 1.0f};
+
 /// Where a frame is seen from: the camera in patient space (LPS mm), with the image's size.
 struct View {
   Camera camera;
@@ -54,7 +57,7 @@ struct View {
 struct Look {
   TransferFunction tf;
   std::optional<float> iso;                      ///< the isosurface's value, or none
-  glm::vec4 surfaceColor{0.95f, 0.92f, 0.85f, 1.0f};  ///< straight RGBA; a < 1 is translucent
+  glm::vec4 surfaceColor = kDefaultSurfaceColor;  ///< straight RGBA; a < 1 is translucent
   SurfaceNormals normals = SurfaceNormals::Gradient;
   bool shading = true;                            ///< gradient shading of the volume
   std::optional<CutPlane> cut;

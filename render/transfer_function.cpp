@@ -70,6 +70,10 @@ std::string TransferFunction::defaultPresetFor(float minValue, float maxValue) {
   return minValue <= -900.0f && maxValue >= 200.0f ? "ct-skin-bone" : "";
 }
 
+float TransferFunction::defaultIsoFor(float minValue, float maxValue) {
+  return defaultPresetFor(minValue, maxValue).empty() ? 0.5f * (minValue + maxValue) : 400.0f;
+}
+
 TransferFunction TransferFunction::defaultFor(float minValue, float maxValue) {
   if (const std::string name = defaultPresetFor(minValue, maxValue); !name.empty()) return preset(name);
   const float lo = minValue + 0.4f * (maxValue - minValue), hi = std::max(maxValue, lo + 1e-3f);

@@ -51,6 +51,9 @@ class TransferFunction {
   /// and bone, 200 HU or above, present), or "" for a ramp over the data's range. The one decision
   /// the command line, the viewer and its page share.
   static std::string defaultPresetFor(float minValue, float maxValue);
+  /// The isovalue first offered for data over [minValue, maxValue]: bone (400 HU) for CT, as
+  /// defaultPresetFor decides, else the middle of the range.
+  static float defaultIsoFor(float minValue, float maxValue);
   /// The default transfer function of data of this range: its default preset, or a warm ramp from
   /// the 40th to the 100th percentile of [min, max] with opacity up to 0.1/mm.
   static TransferFunction defaultFor(float minValue, float maxValue);

@@ -259,8 +259,10 @@ class TriangleBvh {
   // alone, so each subtree has its range of nodes before it is built: the halves are built at once.
   static std::pair<uint32_t, uint32_t> innerNodes(uint32_t m) {
     if (m < kLeafSize) return {0, 0};
-    const auto [half, halfPlusOne] = innerNodes(m / 2);
-    auto f = [&, h = m / 2](uint32_t x) { return x <= kLeafSize ? 0 : 1 + (x / 2 == h ? half : halfPlusOne) + (x - x / 2 == h ? half : halfPlusOne); };
+    const std::pair<uint32_t, uint32_t> halves = innerNodes(m / 2);  // a pair: clang 14 cannot capture bindings
+    const uint32_t h = m / 2;
+    auto count = [&](uint32_t y) { return y == h ? halves.first : halves.second; };
+    auto f = [&](uint32_t x) { return x <= kLeafSize ? 0u : 1u + count(x / 2) + count(x - x / 2); };
     return {f(m), f(m + 1)};
   }
 

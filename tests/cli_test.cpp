@@ -275,11 +275,11 @@ TEST(Cli, BadFlagsExitTwo) {
   expectBadInput({"render", nhdr, "-o", png, "--focus", "1,2"}, "--focus");
   expectBadInput({"render", nhdr, "-o", png, "--orbit", "10"}, "azimuth,elevation");
   expectBadInput({"render", nhdr, "-o", png, "--texel-bits", "12"}, "--texel-bits");
-  expectBadInput({"render", nhdr, "-o", png, "--max-brick", "3"}, "--max-brick 3");
-  expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--max-brick", "512"}, "--max-brick 512");
+  expectBadInput({"render", nhdr, "-o", png, "--max-brick", "3"}, "--max-brick '3' invalid (expected a whole number in [1, 256] texels; a power of two)");
+  expectBadInput({"bench", nhdr, "-o", dir.file("b"), "--max-brick", "512"}, "--max-brick '512' invalid");
   expectBadInput({"render", nhdr, "-o", png, "--orbit", "10,20,30"}, "azimuth,elevation");
-  expectBadInput({"render", nhdr, "-o", png, "--up", "0,1,0"}, "--up requires --eye");  // an orbit would ignore it
-  expectBadInput({"render", nhdr, "-o", png, "--center", "1,2,3"}, "--center requires --eye");
+  expectBadInput({"render", nhdr, "-o", png, "--up", "0,1,0"}, "--center and --up need --eye");  // an orbit would ignore it
+  expectBadInput({"render", nhdr, "-o", png, "--center", "1,2,3"}, "--center and --up need --eye");
   expectBadInput({"render", nhdr, "-o", png, "--eye", "1,2,3", "--orbit", "10,20"}, "--orbit");
   expectBadInput({"render", nhdr, "-o", png, "--budget", "-3"}, "--budget");
   for (const char* budget : {"0%", "150%", "x%", "5%%", "%"}) expectBadInput({"render", nhdr, "-o", png, "--budget", budget}, "--budget");
@@ -745,25 +745,25 @@ TEST(Cli, ExtremeNumbersAreRefusedNamingTheirFlagOrRenderSanely) {
   test::TempDir dir;
   const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
   const std::string png = dir.file("x.png");
-  expectBadInput({"render", nhdr, "--fov", "1e-6", "-o", png}, "--fov must be in [0.1, 179)");
-  expectBadInput({"render", nhdr, "--eye", "1e30,0,0", "-o", png}, "--eye must be within 1e6 mm");
+  expectBadInput({"render", nhdr, "--fov", "1e-6", "-o", png}, "--fov '1e-6' invalid (expected a number in [0.1, 179) degrees)");
+  expectBadInput({"render", nhdr, "--eye", "1e30,0,0", "-o", png}, "--eye '1e30,0,0' invalid (expected x,y,z: 3 numbers, each in [-1e+06, 1e+06] mm)");
   expectBadInput({"render", nhdr, "--eye", "0,-50,0", "--center", "0,0,1e300", "-o", png}, "--center");
   expectBadInput({"render", nhdr, "--eye", "0,-50,0", "--center", "0,-50,0", "-o", png}, "--eye and --center must differ");
   expectBadInput({"render", nhdr, "--eye", "0,-50,0", "--center", "0,0,0", "--up", "0,1,0", "-o", png}, "--up must be non-zero and not parallel");
   expectBadInput({"render", nhdr, "--focus", "1e7,0,0", "-o", png}, "--focus");
   expectBadInput({"render", nhdr, "--cut", "0,0,1e7,0,0,1", "-o", png}, "--cut");
   expectBadInput({"render", nhdr, "--voi", "-1e300,0,0,1,1,1", "-o", png}, "--voi");
-  expectBadInput({"render", nhdr, "--iso", "1e39", "-o", png}, "--iso must be a finite number within the float range");
+  expectBadInput({"render", nhdr, "--iso", "1e39", "-o", png}, "--iso '1e39' invalid (expected a number in [-3.4e+38, 3.4e+38] data units)");
   expectBadInput({"export", nhdr, "--iso", "-1e39", "-o", dir.file("m.ply")}, "--iso");
   expectBadInput({"build", nhdr, "--iso", "1e39", "-o", dir.file("s.hoct")}, "--iso");
   expectBadInput({"render", nhdr, "--epsilon", "1e39", "-o", png}, "--epsilon");
   expectBadInput({"render", nhdr, "--zoom", "1e-300", "-o", png}, "--zoom 1e-300 makes a field of view of 180 degrees");
   expectBadInput({"render", nhdr, "--zoom", "1000", "--fov", "1", "-o", png}, "--zoom 1000 makes a field of view of");
   expectBadInput({"render", nhdr, "--budget", "1e-300", "-o", png}, "--budget 1e-300 MB is smaller than one texel");
-  expectBadInput({"render", nhdr, "--size", "16384x16384", "-o", png}, "--size '16384x16384' invalid (expected WxH, 1..8192 each)");
+  expectBadInput({"render", nhdr, "--size", "16384x16384", "-o", png}, "--size '16384x16384' invalid (expected WxH, each a whole number in [1, 8192] pixels)");
   test::writeText(dir.file("cam.json"),
                   R"({"eye": [1e300, 0, 0], "center": [0, 0, 0], "up": [0, 0, 1], "fov_deg": 30, "ortho": false, "ortho_height": 1, "width": 16, "height": 16})");
-  expectBadInput({"render", nhdr, "--camera-file", dir.file("cam.json"), "-o", png}, "cam.json: camera field 'eye' must be within 1e6 mm");
+  expectBadInput({"render", nhdr, "--camera-file", dir.file("cam.json"), "-o", png}, "cam.json: camera field 'eye' '1e+300,0,0' invalid (expected x,y,z: 3 numbers, each in [-1e+06, 1e+06] mm)");
   // At the limits, both renderers make an image (the volume a few pixels across, or none).
   for (const char* renderer : {"slices", "raycast"}) {
     const CliRun r = run({"render", nhdr, "--renderer", renderer, "--eye", "0,-1e6,0", "--fov", "0.1", "--size", "16x16", "-o", png});

@@ -12,9 +12,11 @@ namespace {
 
 using ::testing::HasSubstr;
 
-const std::string kCamera = R"("camera":{"eye":[0,-500,0],"center":[0,0,0],"up":[0,0,1],"fov":30,"pixels":[256,128]})";
+const std::string kCamera = R"("eye":[0,-500,0],"center":[0,0,0],"up":[0,0,1],"fov":30,"size":[256,128])";
 
-std::string frame(const std::string& extra) { return R"({"type":"frame","seq":7,)" + kCamera + R"(,"tf":{"preset":"ct-bone"})" + extra + "}"; }
+std::string frame(const std::string& extra) { return R"({"type":"frame","seq":7,)" + kCamera + R"(,"preset":"ct-bone")" + extra + "}"; }
+// A frame with the camera's fields @p camera and the preset.
+std::string framed(const std::string& camera) { return R"({"type":"frame","seq":1,)" + camera + R"(,"preset":"ct-bone"})"; }
 
 // The message the parser refuses @p text with.
 std::string refusal(const std::string& text) {
@@ -26,34 +28,37 @@ std::string refusal(const std::string& text) {
   return "(accepted)";
 }
 
-TEST(ViewerProtocol, AFrameRequestCarriesTheWholeState) {
-  const Request r = parseRequest(frame(R"(,"interacting":true,"surface":{"iso":400,"color":[1,0.5,0.25,0.5]},)"
-                                       R"("cut":{"point":[1,2,3],"normal":[0,2,0]},"voi":{"min":[-10,-10,-10],"max":[10,20,30],"outside":0.2},"shading":false,)"
-                                       R"("classification":"preintegrated")"));
+TEST(ViewerProtocol, AFrameRequestCarriesTheWholeStateInTheFrameTablesFields) {
+  const Request r = parseRequest(frame(R"(,"interacting":true,"iso":400,"surface_color":[1,0.5,0.25,0.5],)"
+                                       R"("cut":[1,2,3,0,2,0],"voi":[-10,-10,-10,10,20,30],"voi_outside":0.2,"shading":false,)"
+                                       R"("classification":"preintegrated","opacity":3)"));
   const FrameRequest& f = std::get<FrameRequest>(r);
   EXPECT_EQ(f.seq, 7u);
   EXPECT_TRUE(f.interacting);
-  EXPECT_EQ(f.camera.eye, glm::dvec3(0, -500, 0));
-  EXPECT_EQ(f.camera.width, 256);
-  EXPECT_EQ(f.camera.height, 128);
-  EXPECT_EQ(f.preset, "ct-bone");
-  ASSERT_TRUE(f.iso.has_value());
-  EXPECT_EQ(*f.iso, 400.0f);
-  EXPECT_EQ(f.surfaceColor, glm::vec4(1, 0.5f, 0.25f, 0.5f));
-  ASSERT_TRUE(f.cut.has_value());
-  EXPECT_EQ(f.cut->normal, glm::dvec3(0, 2, 0));
-  ASSERT_TRUE(f.voi.has_value());
-  EXPECT_EQ(f.voi->hi, glm::dvec3(10, 20, 30));
-  EXPECT_DOUBLE_EQ(f.voi->outside, 0.2);
-  EXPECT_FALSE(f.shading);
-  EXPECT_EQ(f.classification, Classification::PreIntegrated);
-  // Points and an opacity scale: the transfer function scaled, clamped at 1.
-  const FrameRequest p = std::get<FrameRequest>(parseRequest(
-      R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf":{"points":[[0,1,1,1,0],[100,1,0,0,0.4]],"opacity":3}})"));
-  const TransferFunction tf = p.transferFunction();
-  ASSERT_EQ(tf.points().size(), 2u);
-  EXPECT_FLOAT_EQ(tf.points()[1].alpha, 1.0f);
-  EXPECT_FLOAT_EQ(tf.lookup(50).a, 0.5f);
+  const FrameSettings& s = f.settings;
+  EXPECT_EQ(*s.eye, glm::dvec3(0, -500, 0));
+  EXPECT_EQ(f.size(), glm::ivec2(256, 128));
+  EXPECT_EQ(s.preset, "ct-bone");
+  ASSERT_TRUE(f.iso().has_value());
+  EXPECT_EQ(*f.iso(), 400.0f);
+  EXPECT_EQ(s.surfaceColor, glm::vec4(1, 0.5f, 0.25f, 0.5f));
+  ASSERT_TRUE(s.cut.has_value());
+  EXPECT_EQ(s.cut->normal, glm::dvec3(0, 2, 0));
+  ASSERT_TRUE(s.voi.has_value());
+  EXPECT_EQ((*s.voi)[5], 30.0);
+  EXPECT_DOUBLE_EQ(s.voiOutside, 0.2);
+  EXPECT_FALSE(s.shading);
+  EXPECT_EQ(s.quality.classification, Classification::PreIntegrated);
+  EXPECT_DOUBLE_EQ(s.opacity, 3.0);
+  // The command line those settings are: the flags a user types for the same frame.
+  EXPECT_EQ(commandLineOf(s),
+            " --eye 0,-500,0 --center 0,0,0 --up 0,0,1 --size 256x128 --preset ct-bone --opacity 3 --iso 400 --surface-color 1,0.5,0.25,0.5 --shading off"
+            " --cut 1,2,3,0,2,0 --voi -10,-10,-10,10,20,30 --voi-outside 0.2 --classification preintegrated");
+  // Points instead of a preset; a field given null is unset.
+  const FrameRequest p = std::get<FrameRequest>(parseRequest(R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf_points":[[0,1,1,1,0],[100,1,0,0,0.4]],"iso":null})"));
+  ASSERT_EQ(p.settings.tfPoints.size(), 2u);
+  EXPECT_FLOAT_EQ(p.settings.tfPoints[1].alpha, 0.4f);
+  EXPECT_FALSE(p.iso().has_value());
   const OpenRequest o = std::get<OpenRequest>(parseRequest(R"({"type":"open","path":"a/b.nrrd","series":"1.2"})"));
   EXPECT_EQ(o.path, "a/b.nrrd");
   EXPECT_EQ(o.series, "1.2");
@@ -65,38 +70,40 @@ TEST(ViewerProtocol, EveryBadMessageIsRefusedNamingItsField) {
       {"[1,2]", "'message'"},
       {R"({"type":"paint"})", "'type'"},
       {R"({"seq":1})", "'type'"},
-      {frame(R"(,"colour":1)"), "'colour': expected no such field"},
+      {frame(R"(,"colour":1)"), "field 'colour': no such field"},
+      {frame(R"(,"budget":10)"), "field 'budget': no such field"},  // (the command line's and Python's, not the viewer's)
       {frame(R"(,"classification":"pre")"), "'classification'"},
       {frame(R"(,"classification":1)"), "'classification'"},
-      {R"({"type":"frame","seq":-1,)" + kCamera + R"(,"tf":{"preset":"ct-bone"}})", "'seq'"},
-      {R"({"type":"frame","seq":1.5,)" + kCamera + R"(,"tf":{"preset":"ct-bone"}})", "'seq'"},
-      {R"({"type":"frame","seq":1,"tf":{"preset":"ct-bone"}})", "'camera'"},
-      {R"({"type":"frame","seq":1,"camera":{"eye":[0,0,1e400],"center":[0,0,0],"up":[0,1,0],"pixels":[64,64]},"tf":{"preset":"ct-bone"}})", "number overflow"},
-      {R"({"type":"frame","seq":1,"camera":{"eye":[0,0,0],"center":[0,0,0],"up":[0,1,0],"pixels":[64,64]},"tf":{"preset":"ct-bone"}})", "'camera.eye'"},
-      {R"({"type":"frame","seq":1,"camera":{"eye":[0,0,5],"center":[0,0,0],"up":[0,0,1],"pixels":[64,64]},"tf":{"preset":"ct-bone"}})", "'camera.up'"},
-      {R"({"type":"frame","seq":1,"camera":{"eye":[0,0,5],"center":[0,0,0],"up":[0,1,0],"pixels":[100000,64]},"tf":{"preset":"ct-bone"}})", "'camera.pixels[0]'"},
-      {R"({"type":"frame","seq":1,"camera":{"eye":[0,0,5],"center":[0,0,0],"up":[0,1,0],"pixels":[64.5,64]},"tf":{"preset":"ct-bone"}})", "'camera.pixels'"},
-      {R"({"type":"frame","seq":1,"camera":{"eye":[0,0,5],"center":[0,0,0],"up":[0,1,0],"fov":0,"pixels":[64,64]},"tf":{"preset":"ct-bone"}})", "'camera.fov'"},
-      {R"({"type":"frame","seq":1,"camera":{"eye":"here","center":[0,0,0],"up":[0,1,0],"pixels":[64,64]},"tf":{"preset":"ct-bone"}})", "'camera.eye'"},
-      {R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf":{"preset":"ct-lungs"}})", "'tf.preset'"},
-      {R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf":{}})", "'tf'"},
-      {R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf":{"points":[[0,1,1,1,2]]}})", "'tf.points[0][4]'"},
-      {R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf":{"points":[[5,1,1,1,0],[1,1,1,1,0]]}})", "'tf.points[1]'"},
-      {R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf":{"preset":"ct-bone","opacity":11}})", "'tf.opacity'"},
-      {frame(R"(,"surface":{"color":[1,1,1,1]})"), "'surface.iso'"},
-      {frame(R"(,"surface":{"iso":1,"color":[1,1,1]})"), "'surface.color'"},
-      {frame(R"(,"cut":{"point":[0,0,0],"normal":[0,0,0]})"), "'cut.normal'"},
-      {frame(R"(,"voi":{"min":[0,0,0],"max":[1,1,0]})"), "'voi.max'"},
-      {frame(R"(,"voi":{"min":[0,0,0],"max":[1,1,1],"inside":-1})"), "'voi.inside'"},
+      {R"({"type":"frame","seq":-1,)" + kCamera + R"(,"preset":"ct-bone"})", "'seq'"},
+      {R"({"type":"frame","seq":1.5,)" + kCamera + R"(,"preset":"ct-bone"})", "'seq'"},
+      {R"({"type":"frame","seq":1,"preset":"ct-bone"})", "'eye'"},
+      {framed(R"("eye":[0,0,1e400],"center":[0,0,0],"up":[0,1,0],"size":[64,64])"), "number overflow"},
+      {framed(R"("eye":[0,0,0],"center":[0,0,0],"up":[0,1,0],"size":[64,64])"), "--eye and --center must differ"},
+      {framed(R"("eye":[0,0,5],"center":[0,0,0],"up":[0,0,1],"size":[64,64])"), "--up must be non-zero and not parallel"},
+      {framed(R"("eye":[0,0,5],"center":[0,0,0],"up":[0,1,0],"size":[100000,64])"), "'size'"},
+      {framed(R"("eye":[0,0,5],"center":[0,0,0],"up":[0,1,0],"size":[8,64])"), "'size'"},
+      {framed(R"("eye":[0,0,5],"center":[0,0,0],"up":[0,1,0],"size":[64.5,64])"), "'size'"},
+      {framed(R"("eye":[0,0,5],"center":[0,0,0],"up":[0,1,0],"fov":0,"size":[64,64])"), "'fov' '0' invalid (expected a number in [0.1, 179) degrees)"},
+      {framed(R"("eye":"here","center":[0,0,0],"up":[0,1,0],"size":[64,64])"), "'eye': expected an array"},
+      {R"({"type":"frame","seq":1,)" + kCamera + R"(,"preset":"ct-lungs"})", "'preset'"},
+      {R"({"type":"frame","seq":1,)" + kCamera + R"(})", "either preset or tf_points"},
+      {R"({"type":"frame","seq":1,)" + kCamera + R"(,"preset":"ct-bone","tf_points":[[0,1,1,1,0]]})", "either preset or tf_points"},
+      {R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf_points":[[0,1,1,1,2]]})", "'tf_points'"},
+      {R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf_points":[[5,1,1,1,0],[1,1,1,1,0]]})", "'tf_points'"},
+      {frame(R"(,"opacity":11)"), "'opacity'"},
+      {frame(R"(,"surface_color":[1,1,1])"), "'surface_color'"},
+      {frame(R"(,"cut":[0,0,0,0,0,0])"), "'cut'"},
+      {frame(R"(,"voi":[0,0,0,1,1,0])"), "'voi'"},
+      {frame(R"(,"voi_inside":-1)"), "'voi_inside'"},
       {R"({"type":"open"})", "'path'"},
       {R"({"type":"open","path":""})", "'path'"},
-      {R"({"type":"frame","seq":1,"camera":{"eye":[[[[[[[[[[1]]]]]]]]]]}})", "nested deeper"},
+      {R"({"type":"frame","seq":1,"eye":[[[[[[[[[[1]]]]]]]]]]})", "nested deeper"},
   };
   for (const auto& [text, expected] : cases) EXPECT_THAT(refusal(text), HasSubstr(expected)) << text;
   // Too many points, and a message over the size limit.
-  std::string many = R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf":{"points":[)";
-  for (int i = 0; i < 65; ++i) many += (i ? "," : "") + std::string("[") + std::to_string(i) + ",1,1,1,0]";
-  EXPECT_THAT(refusal(many + "]}}"), HasSubstr("'tf.points'"));
+  std::string many = R"({"type":"frame","seq":1,)" + kCamera + R"(,"tf_points":[)";
+  for (int i = 0; i < 257; ++i) many += (i ? "," : "") + std::string("[") + std::to_string(i) + ",1,1,1,0]";
+  EXPECT_THAT(refusal(many + "]}"), HasSubstr("'tf_points'"));
   EXPECT_THAT(refusal(std::string(kMaxMessageBytes + 1, ' ')), HasSubstr("at most"));
 }
 

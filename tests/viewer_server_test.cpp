@@ -149,9 +149,14 @@ json frameRequest(uint64_t seq, bool interacting, int pixels = 64, double azimut
   return {{"type", "frame"},
           {"seq", seq},
           {"interacting", interacting},
-          {"camera", {{"eye", {19.5 + 60 * std::sin(a), 17.5 - 60 * std::cos(a), 25}}, {"center", {19.5, 17.5, 15.5}}, {"up", {0, 0, 1}}, {"fov", 40}, {"pixels", {pixels, pixels}}}},
-          {"tf", {{"points", {{0, 1, 1, 1, 0}, {2, 1, 0.6, 0.3, 0.3}, {15, 0.3, 0.6, 1, 0.05}}}}},
-          {"surface", {{"iso", 4.0}, {"color", {0.9, 0.9, 0.8, 0.5}}}}};
+          {"eye", {19.5 + 60 * std::sin(a), 17.5 - 60 * std::cos(a), 25}},
+          {"center", {19.5, 17.5, 15.5}},
+          {"up", {0, 0, 1}},
+          {"fov", 40},
+          {"size", {pixels, pixels}},
+          {"tf_points", {{0, 1, 1, 1, 0}, {2, 1, 0.6, 0.3, 0.3}, {15, 0.3, 0.6, 1, 0.05}}},
+          {"iso", 4.0},
+          {"surface_color", {0.9, 0.9, 0.8, 0.5}}};
 }
 
 TEST(ViewerServer, EveryRequestNeedsTheTokenAndOnlyAssetsAreServed) {
@@ -219,9 +224,10 @@ TEST(ViewerServer, BadMessagesGetTheirErrorAndTheServerKeepsServing) {
   ASSERT_EQ(info["type"], "info");
   EXPECT_EQ(info["dims"], json::array({40, 36, 32}));
   EXPECT_EQ(info["views"].size(), 6u);
+  EXPECT_EQ(info["fields"], fieldsJson(kViewer));  // what the page's controls range over
   const std::pair<std::string, std::string> bad[] = {
       {"{", "not JSON"},
-      {R"({"type":"frame","seq":1})", "'camera'"},
+      {R"({"type":"frame","seq":1})", "field 'eye': expected a value (missing)"},
       {R"({"type":"open","path":"x.nrrd"})", "no data directory"},
       {frameRequest(2, false).dump().replace(1, 0, R"("extra":1,)"), "'extra'"},
   };
@@ -233,7 +239,7 @@ TEST(ViewerServer, BadMessagesGetTheirErrorAndTheServerKeepsServing) {
   }
   json huge = frameRequest(3, false, 4096);
   c.send(huge.dump());
-  EXPECT_THAT(c.next()["message"].get<std::string>(), HasSubstr("camera.pixels[0]"));
+  EXPECT_THAT(c.next()["message"].get<std::string>(), HasSubstr("field 'size'"));
   c.ws.binary(true);
   c.ws.write(net::buffer(std::string("\x01\x02", 2)));
   EXPECT_THAT(c.next()["message"].get<std::string>(), HasSubstr("not binary"));
@@ -280,13 +286,9 @@ TEST(ViewerServer, TheFinalFrameIsTheEnginesImageLossless) {
   // The same request through an engine of its own.
   SceneRenderer engine(sphereScene());
   const FrameRequest r = std::get<FrameRequest>(parseRequest(frameRequest(9, false, 80, 30).dump()));
-  View view;
-  view.camera = r.camera;
-  Look look;
-  look.tf = r.transferFunction();
-  look.iso = r.iso;
-  look.surfaceColor = r.surfaceColor;
-  const RenderedFrame want = engine.render(view, look, Quality{});
+  std::ostringstream warnings;
+  const FrameSetup setup = setUpFrame(r.settings, engine.scene(), warnings);
+  const RenderedFrame want = engine.render(setup.view, setup.look, Quality{});
   EXPECT_EQ(got, toRgba8(want.image, glm::vec3(0.0f)));
   // Pre-integrated: the engine's pre-integrated image, and the command says so.
   json pre = frameRequest(10, false, 80, 30);
@@ -302,7 +304,7 @@ TEST(ViewerServer, TheFinalFrameIsTheEnginesImageLossless) {
   test::writeBytes(dir.file("p.png"), std::vector<uint8_t>(image.begin(), image.end()));
   Quality preintegrated;
   preintegrated.classification = Classification::PreIntegrated;
-  const Image wantPre = engine.render(view, look, preintegrated).image;
+  const Image wantPre = engine.render(setup.view, setup.look, preintegrated).image;
   EXPECT_EQ(readPng(dir.file("p.png"), &w, &h), toRgba8(wantPre, glm::vec3(0.0f)));
   EXPECT_NE(toRgba8(wantPre, glm::vec3(0.0f)), toRgba8(want.image, glm::vec3(0.0f)));
 }
@@ -316,7 +318,7 @@ TEST(ViewerServer, EachClientDrawsItsOwnIsosurface) {
   b.next();
   auto ask = [](Socket& c, uint64_t seq, double iso) {
     json r = frameRequest(seq, false, 48);
-    r["surface"]["iso"] = iso;
+    r["iso"] = iso;
     c.send(r.dump());
   };
   // The final frame of request @p seq with isovalue @p iso; every frame before it draws one of @p drawn.
@@ -418,7 +420,7 @@ TEST(ViewerServer, InteractiveFramesUseLargerBricksAndTheScreenSpaceLevelOfDetai
   // A small, wide view: a pixel spans about ten voxels, so texels of four voxels are finer than it.
   auto wide = [](uint64_t seq) {
     json q = frameRequest(seq, true, 16);
-    q["camera"]["fov"] = 120;
+    q["fov"] = 120;
     return q;
   };
   json f;
@@ -430,10 +432,11 @@ TEST(ViewerServer, InteractiveFramesUseLargerBricksAndTheScreenSpaceLevelOfDetai
   ASSERT_EQ(f["level"], 1) << f.dump();
   SceneRenderer engine(sphereScene());
   const FrameRequest r = std::get<FrameRequest>(parseRequest(wide(1).dump()));
-  View view;
-  view.camera = r.camera;
-  Look look;
-  look.tf = r.transferFunction();
+  std::ostringstream warnings;
+  const FrameSetup setup = setUpFrame(r.settings, engine.scene(), warnings);
+  const View& view = setup.view;
+  Look look = setup.look;
+  look.iso.reset();
   Quality quality;
   quality.maxBrickEdge = kInteractiveBrickEdge;
   quality.lodPixels = kInteractiveLodPixels;
@@ -450,7 +453,7 @@ TEST(ViewerServer, InteractiveFramesUseLargerBricksAndTheScreenSpaceLevelOfDetai
   // The final frame of that view stops where texels are half a pixel apart: fewer texels than full
   // resolution, where a pixel spans ten voxels.
   json final = frameRequest(100, false, 16);
-  final["camera"]["fov"] = 120;
+  final["fov"] = 120;
   c.send(final.dump());
   do f = c.nextFrameOrError();
   while (f["type"] == "frame" && (f["seq"] != 100 || f["quality"] != "final"));
@@ -528,7 +531,7 @@ TEST(ViewerServer, ALargeFinalFrameDoesNotHoldOtherClientsFrames) {
   mover.next();
   warmUp(mover, 64);
   json close = frameRequest(1, false, 2048);
-  close["camera"]["eye"] = {19.5, -10.0, 20.0};  // near: the sphere fills the frame
+  close["eye"] = {19.5, -10.0, 20.0};  // near: the sphere fills the frame
   const auto sent = std::chrono::steady_clock::now();
   big.send(close.dump());
   std::atomic<bool> done{false};
@@ -578,9 +581,9 @@ TEST(ViewerServer, FourClientsWithFourIsovaluesEachSeeTheirOwnSurface) {
   auto ask = [&](int k, uint64_t seq) {
     json r = frameRequest(seq, false, 40);
     if (k < 4)
-      r["surface"]["iso"] = isos[k];
+      r["iso"] = isos[k];
     else
-      r["surface"] = nullptr;
+      r["iso"] = nullptr;
     clients[size_t(k)]->send(r.dump());
   };
   for (int k = 0; k < 5; ++k) ask(k, 1);

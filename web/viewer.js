@@ -53,36 +53,38 @@ function currentPoints() {
   return state.basePoints.map(([v, r, g, b, a]) => [state.level + (v - state.baseLevel) * scale, r, g, b, a]);
 }
 
-function tfMessage() {
+// The transfer function's fields of a frame message: a preset, or points when edited.
+function tfFields() {
   const plain = !state.edited && state.window === state.baseWindow && state.level === state.baseLevel && state.preset;
-  const tf = plain ? { preset: state.preset } : { points: currentPoints() };
-  if (state.opacity !== 1) tf.opacity = state.opacity;
-  return tf;
+  return { ...(plain ? { preset: state.preset } : { tf_points: currentPoints() }), opacity: state.opacity };
 }
 
-function surfaceMessage() {
-  if (!$('surface-on').checked) return null;
+// The surface's fields: no isovalue, no surface.
+function surfaceFields() {
+  if (!$('surface-on').checked) return { iso: null };
   const hex = $('surface-color').value;
   const rgb = [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16) / 255);
-  return { iso: Number($('iso').value), color: [...rgb, Number($('surface-alpha').value)] };
+  return { iso: Number($('iso').value), surface_color: [...rgb, Number($('surface-alpha').value)] };
 }
 
-function cutMessage() {
+// The cutting plane: a point and a normal, px,py,pz,nx,ny,nz.
+function cutField() {
   if (!$('cut-on').checked || !state.info) return null;
   const axis = Number($('cut-axis').value);
   const point = state.info.center.slice();
   point[axis] = Number($('cut-pos').value);
   const normal = [0, 0, 0];
   normal[axis] = $('cut-flip').checked ? -1 : 1;
-  return { point, normal };
+  return [...point, ...normal];
 }
 
-function voiMessage() {
-  if (!$('voi-on').checked || !state.info) return null;
+// The volume of interest: its corners x0,y0,z0,x1,y1,z1, and its opacity outside.
+function voiFields() {
+  if (!$('voi-on').checked || !state.info) return { voi: null };
   const lo = [0, 1, 2].map((a) => Number($(`voi-min-${a}`).value));
   const hi = [0, 1, 2].map((a) => Number($(`voi-max-${a}`).value));
   for (let a = 0; a < 3; ++a) if (hi[a] <= lo[a]) hi[a] = lo[a] + 1;
-  return { min: lo, max: hi, inside: 1, outside: Number($('voi-outside').value), ramp: 4 };
+  return { voi: [...lo, ...hi], voi_outside: Number($('voi-outside').value) };
 }
 
 // ---- talking to the server ------------------------------------------------------------------
@@ -103,18 +105,18 @@ function request(interacting) {
 function send(interacting) {
   const size = imageSize();
   const c = state.camera;
+  // The frame table's fields (the command line's flags, snake_case), as the server's info lists them.
   const message = {
     type: 'frame',
     seq: ++state.seq,
     scene: state.info.scene,  // a request of the volume shown before is dropped by the server
     interacting,
-    camera: { eye: c.eye, center: c.center, up: c.up, fov: c.fov, pixels: [size, size] },
-    tf: tfMessage(),
-    shading: true,
+    eye: c.eye, center: c.center, up: c.up, fov: c.fov, size: [size, size],
+    ...tfFields(),
     classification: $('preintegrated').checked ? 'preintegrated' : 'post',
-    surface: surfaceMessage(),
-    cut: cutMessage(),
-    voi: voiMessage(),
+    ...surfaceFields(),
+    cut: cutField(),
+    ...voiFields(),
   };
   state.sent.set(message.seq, performance.now());
   if (state.sent.size > 500) state.sent.delete(state.sent.keys().next().value);
@@ -352,18 +354,30 @@ function openInfo(info) {
   const [lo, hi] = info.range;
   // A surface separates values below the isovalue from those at or above it: none at the smallest.
   for (const id of ['iso', 'iso-number']) { $(id).min = Math.min(lo + 1, hi); $(id).max = hi; }
-  const iso = info.iso !== null ? info.iso : (lo < -500 && hi > 300 ? 400 : (lo + hi) / 2);
+  const iso = info.iso !== null ? info.iso : info.defaultIso;
   $('iso').value = $('iso-number').value = iso;
   // Cut and VOI sliders over the volume's patient bounds.
   const b = info.bounds;
   buildVoiSliders(b);
   setCutRange();
   state.camera = cloneCamera(info.views.anterior);
+  setRanges(info.fields);
   drawTfEditor();
   showSurfaceState();
   state.opened[state.opened.length - 1].surfaceLabel = $('surface-state').textContent;  // what the page said of the surface at once
   setState(`opened ${info.name}`);
   request(false);
+}
+
+// The controls' ranges: the server's frame table's (what a frame message may hold), within the
+// travel each slider is useful over (opacity beyond 3 is opaque; outside a VOI fainter, not brighter;
+// an invisible surface is the checkbox's job).
+function setRanges(fields) {
+  const field = Object.fromEntries(fields.map((f) => [f.name, f]));
+  const range = (id, name, lo, hi) => { $(id).min = Math.max(field[name].min, lo); $(id).max = Math.min(field[name].max, hi); };
+  range('opacity', 'opacity', 0, 3);
+  range('voi-outside', 'voi_outside', 0, 1);
+  range('surface-alpha', 'surface_color', 0.05, 1);
 }
 
 function setPreset(name) {

@@ -358,9 +358,11 @@ KEYWORDS = [
     ("zoom", "Number", "1.5", [1.5, np.float64(1.5), np.float32(1.5), np.array(1.5)], {}),
     ("fov", "Number", "40", [40, 40.0, np.int32(40), np.uint8(40), np.array(40)], {}),
     ("ortho", "Flag", True, [np.bool_(True), np.array(True)], {}),
+    ("ortho_height", "Number", "30", [30, 30.0, np.float32(30), np.array(30)], {"ortho": True}),
     ("size", "Size", "64x48", [(64, 48), [64, 48], np.array([64, 48]), (np.int64(64), np.uint16(48)), "64X48"], {}),
     ("marker", "Switch", "on", [True, np.bool_(True), np.array(True)], {}),
     ("preset", "Word", "ct-bone", [np.str_("ct-bone")], {}),
+    ("opacity", "Number", "0.5", [0.5, np.float32(0.5), np.array(0.5)], {}),
     ("iso", "Number", "500", [500, 500.0, np.int16(500), np.float32(500), np.array(500.0)], {}),
     ("surface_color", "Numbers", "0.9,0.5,0.2,0.5", [(0.9, 0.5, 0.2, 0.5), [0.9, 0.5, 0.2, 0.5], np.array([0.9, 0.5, 0.2, 0.5], np.float32)], {"iso": 500}),
     ("surface_normals", "Word", "facet", [np.str_("facet")], {"iso": 500}),
@@ -374,7 +376,7 @@ KEYWORDS = [
     ("voi_ramp", "Number", "2", [2, 2.0, np.int8(2)], {"voi": VOI}),
     ("renderer", "Word", "raycast", [np.str_("raycast")], {}),
     ("epsilon", "Number", "50", [50, 50.0, np.float32(50)], {}),
-    ("budget", "Number", "0.05", [0.05, np.float64(0.05), np.array(0.05)], {}),
+    ("budget", "Budget", "0.05", [0.05, np.float64(0.05), np.array(0.05)], {}),
     ("step", "Number", "1", [1, 1.0, np.float32(1), np.int64(1)], {}),
     ("classification", "Word", "preintegrated", [np.str_("preintegrated")], {}),
     ("proxy", "Word", "shells", [np.str_("shells")], {}),
@@ -407,11 +409,29 @@ def test_every_keyword_takes_its_python_forms(small_scene, key, form, text, form
         assert not np.array_equal(canonical, small_scene.render(**base))
 
 
-def test_the_stubs_declare_every_keyword_tested():
+def test_the_stubs_declare_every_keyword_of_the_table_and_each_is_tested():
     stub = open(os.path.join(os.path.dirname(__file__), "../../apps/hybrid_octree.pyi")).read()
     declared = re.search(r"def render\(\n        self,\n        \*,\n(.*?)\*\*more", stub, re.S).group(1)
     names = set(re.findall(r"^\s+(\w+):", declared, re.M))
-    assert names == {k[0] for k in KEYWORDS} | {"tf", "camera_file", "premultiplied", "stats"}
+    table = {f["name"] for f in ho.frame_fields()}
+    assert names == table | {"premultiplied", "stats"}
+    assert {k[0] for k in KEYWORDS} | {"tf", "camera_file"} == table
+
+
+@pytest.mark.parametrize("field", [f for f in ho.frame_fields() if "max" in f and f["max"] < 1e30], ids=lambda f: f["name"])
+def test_a_value_beyond_a_fields_range_gets_the_command_lines_message(field):
+    bad = field["max"] * 2 + 1
+    if field["kind"] in ("integer", "size"):
+        bad = int(bad)
+    text = ",".join([repr(bad)] * field["count"]) if field["kind"] == "numbers" else f"{int(bad)}x{int(bad)}" if field["kind"] == "size" else repr(bad)
+    flag = "--" + field["name"].replace("_", "-")
+    run = subprocess.run([BIN, "render", flag, text, "-o", "/nonexistent/x.png"], capture_output=True, text=True)
+    assert run.returncode == 2
+    expected = re.search(r"invalid \(expected [^\n]*\)", run.stderr).group(0)
+    value = tuple([bad] * field["count"]) if field["kind"] in ("numbers", "size") else bad
+    with pytest.raises(ValueError) as refused:
+        ho.Scene(blobs()).render(**{field["name"]: value})
+    assert flag in str(refused.value) and expected in str(refused.value)
 
 
 def test_files_and_arrays_as_python_forms(tmp_path, small_scene):
@@ -438,6 +458,7 @@ WRONG_TYPES = {
     "Integer": [16.5, np.float64(16), (16,), True, {}],
     "Numbers": [30, [[30, 10]], np.zeros((1, 2)), ("30", "10"), {30, 10}, (True, False), b"30,10"],
     "Size": [64, (64.0, 48), np.array([64.0, 48.0]), ("64", 48), {}],
+    "Budget": [(1, 2), [1.5], {}, True, b"1", object()],
     "Word": [3, ("left",), b"left", True],
     "Switch": [1, 0.0, (True,), {}],
     "Flag": ["on", 1, 1.0, {}],

@@ -1,0 +1,767 @@
+#include "render/frame_settings.h"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <charconv>
+#include <cstdio>
+#include <cmath>
+#include <limits>
+#include <ostream>
+#include <sstream>
+
+#include "hybrid_octree/hybrid_io.h"
+#include "volume/error.h"
+#include "volume/file_util.h"
+
+namespace hyb {
+
+using nlohmann::json;
+
+namespace {
+
+constexpr double kFloatMax = double(std::numeric_limits<float>::max());
+const char* const kViews[] = {"anterior", "posterior", "left", "right", "superior", "inferior"};
+
+// The shortest text that reads back as the same double.
+std::string exact(double x) {
+  char t[32];
+  return std::string(t, std::to_chars(t, t + sizeof t, x).ptr);
+}
+
+// A float as the double of its shortest text (0.9f as 0.9): what a field held as a float writes,
+// so that the text reads back as the same float and the echo shows what the user typed.
+double typed(float x) {
+  char t[32];
+  double d = 0;
+  std::from_chars(t, std::to_chars(t, t + sizeof t, x).ptr, d);
+  return d;
+}
+
+std::string joined(const std::vector<double>& v) {
+  std::string s;
+  for (const double x : v) {
+    if (!s.empty()) s += ',';
+    s += exact(x);
+  }
+  return s;
+}
+
+// Separator-separated finite numbers (a comma, or an 'x' in a size), or none.
+std::optional<std::vector<double>> numbersIn(const std::string& text, char separator = ',') {
+  std::vector<double> out;
+  if (text.empty()) return std::nullopt;
+  for (size_t at = 0; at <= text.size();) {
+    const size_t end = std::min(text.find(separator, at), text.size());
+    std::string word = text.substr(at, end - at);
+    while (!word.empty() && word.front() == ' ') word.erase(word.begin());
+    while (!word.empty() && word.back() == ' ') word.pop_back();
+    double x = 0;
+    const auto [stop, ec] = std::from_chars(word.data(), word.data() + word.size(), x);
+    if (word.empty() || ec != std::errc() || stop != word.data() + word.size() || !std::isfinite(x)) return std::nullopt;
+    out.push_back(x);
+    at = end + 1;
+  }
+  return out;
+}
+
+// Control points "value,r,g,b,a;...", each colour and opacity in [0, 1], values increasing; or none.
+std::optional<std::vector<TransferFunction::Point>> pointsIn(const std::string& text) {
+  std::vector<TransferFunction::Point> points;
+  std::istringstream in(text);
+  for (std::string item; std::getline(in, item, ';');) {
+    const std::optional<std::vector<double>> v = numbersIn(item);
+    if (!v || v->size() != 5 || std::abs((*v)[0]) > kFloatMax) return std::nullopt;
+    for (int k = 1; k < 5; ++k)
+      if (!((*v)[size_t(k)] >= 0.0 && (*v)[size_t(k)] <= 1.0)) return std::nullopt;
+    if (!points.empty() && (*v)[0] < points.back().value) return std::nullopt;
+    points.push_back({float((*v)[0]), glm::vec3(float((*v)[1]), float((*v)[2]), float((*v)[3])), float((*v)[4])});
+  }
+  if (points.empty() || points.size() > 256) return std::nullopt;
+  return points;
+}
+
+std::string pointsText(const std::vector<TransferFunction::Point>& points) {
+  std::string s;
+  for (const TransferFunction::Point& p : points) {
+    if (!s.empty()) s += ';';
+    s += joined({typed(p.value), typed(p.color.r), typed(p.color.g), typed(p.color.b), typed(p.alpha)});
+  }
+  return s;
+}
+
+std::string budgetError(const std::string& text) {
+  const bool percent = !text.empty() && text.back() == '%';
+  const std::optional<std::vector<double>> v = numbersIn(percent ? text.substr(0, text.size() - 1) : text);
+  if (!v || v->size() != 1) return "not a number";
+  if (percent ? !((*v)[0] > 0.0 && (*v)[0] <= 100.0) : (*v)[0] < 0.0) return percent ? "a percentage in (0, 100]" : "megabytes >= 0";
+  return "";
+}
+
+// Builders of the table's rows, one per kind of value.
+FrameField base(std::string name, FieldKind kind, std::string unit, std::string help, unsigned doors) {
+  FrameField f;
+  f.name = std::move(name);
+  f.kind = kind;
+  f.unit = std::move(unit);
+  f.help = std::move(help);
+  f.doors = doors;
+  return f;
+}
+
+// A number held in @p at (none: unset when @p optional).
+template <class At>
+FrameField number(std::string name, double lo, double hi, std::string unit, std::string help, unsigned doors, At at, bool loOpen = false,
+                  bool hiOpen = false) {
+  FrameField f = base(std::move(name), FieldKind::Number, std::move(unit), std::move(help), doors);
+  f.lo = lo;
+  f.hi = hi;
+  f.loOpen = loOpen;
+  f.hiOpen = hiOpen;
+  using Held = std::remove_reference_t<decltype(at(std::declval<FrameSettings&>()))>;
+  f.optional = !std::is_arithmetic_v<Held>;
+  f.setNumbers = [at](FrameSettings& s, const std::optional<std::vector<double>>& v) {
+    if constexpr (std::is_arithmetic_v<Held>) at(s) = Held(v->front());
+    else at(s) = v ? std::optional<typename Held::value_type>(typename Held::value_type(v->front())) : std::nullopt;
+  };
+  f.get = [at](const FrameSettings& s) -> std::optional<std::string> {
+    const auto& held = at(const_cast<FrameSettings&>(s));
+    const auto text = [](auto x) { return exact(std::is_same_v<decltype(x), float> ? typed(float(x)) : double(x)); };
+    if constexpr (std::is_arithmetic_v<Held>) return text(held);
+    else return held ? std::optional(text(*held)) : std::nullopt;
+  };
+  return f;
+}
+
+// @p count numbers, each in [lo, hi], held by @p set and given by @p get.
+FrameField numbers(std::string name, std::string shape, int count, double lo, double hi, std::string unit, std::string help, unsigned doors, bool optional,
+                   std::function<void(FrameSettings&, const std::optional<std::vector<double>>&)> set,
+                   std::function<std::optional<std::vector<double>>(const FrameSettings&)> get, std::function<std::string(const std::vector<double>&)> check = {}) {
+  FrameField f = base(std::move(name), FieldKind::Numbers, std::move(unit), std::move(help), doors);
+  f.shape = std::move(shape);
+  f.count = count;
+  f.lo = lo;
+  f.hi = hi;
+  f.optional = optional;
+  f.setNumbers = std::move(set);
+  f.check = std::move(check);
+  f.get = [get](const FrameSettings& s) -> std::optional<std::string> {
+    const std::optional<std::vector<double>> v = get(s);
+    return v ? std::optional(joined(*v)) : std::nullopt;
+  };
+  return f;
+}
+
+// A word: a switch (on|off), a flag, one of @p choices, or free text (@p choices empty).
+FrameField word(std::string name, FieldKind kind, std::vector<std::string> choices, std::string help, unsigned doors, bool optional,
+                std::function<void(FrameSettings&, const std::optional<std::string>&)> set, std::function<std::optional<std::string>(const FrameSettings&)> get) {
+  FrameField f = base(std::move(name), kind, "", std::move(help), doors);
+  f.choices = std::move(choices);
+  f.optional = optional;
+  f.setWord = std::move(set);
+  f.get = std::move(get);
+  return f;
+}
+
+FrameField onOff(std::string name, bool FrameSettings::*member, std::string help, unsigned doors) {
+  return word(std::move(name), FieldKind::Switch, {"on", "off"}, std::move(help), doors, false,
+              [member](FrameSettings& s, const std::optional<std::string>& w) { s.*member = *w == "on"; },
+              [member](const FrameSettings& s) { return std::optional<std::string>(s.*member ? "on" : "off"); });
+}
+
+std::optional<std::vector<double>> vec(const std::optional<glm::dvec3>& v) {
+  return v ? std::optional(std::vector<double>{v->x, v->y, v->z}) : std::nullopt;
+}
+std::optional<glm::dvec3> vec3(const std::optional<std::vector<double>>& v) {
+  return v ? std::optional(glm::dvec3((*v)[0], (*v)[1], (*v)[2])) : std::nullopt;
+}
+
+// A point in patient mm (eye, center, focus).
+FrameField point(std::string name, std::string help, unsigned doors, std::optional<glm::dvec3>& (*at)(FrameSettings&)) {
+  return numbers(std::move(name), "x,y,z", 3, -kMaxCameraMm, kMaxCameraMm, "mm", std::move(help), doors, true,
+                 [at](FrameSettings& s, const std::optional<std::vector<double>>& v) { at(s) = vec3(v); },
+                 [at](const FrameSettings& s) { return vec(at(const_cast<FrameSettings&>(s))); });
+}
+
+std::string nonZero(const std::vector<double>& v) {
+  return v[0] == 0 && v[1] == 0 && v[2] == 0 ? "a direction, not zero" : "";
+}
+
+template <class Enum>
+FrameField choice(std::string name, std::vector<std::pair<std::string, Enum>> words, std::string help, unsigned doors, Enum& (*at)(FrameSettings&)) {
+  std::vector<std::string> names;
+  for (const auto& w : words) names.push_back(w.first);
+  return word(
+      std::move(name), FieldKind::Choice, names, std::move(help), doors, false,
+      [at, words](FrameSettings& s, const std::optional<std::string>& w) {
+        for (const auto& [text, value] : words)
+          if (text == *w) at(s) = value;
+      },
+      [at, words](const FrameSettings& s) -> std::optional<std::string> {
+        for (const auto& [text, value] : words)
+          if (value == at(const_cast<FrameSettings&>(s))) return text;
+        return std::nullopt;
+      });
+}
+
+std::vector<FrameField> makeFields() {
+  const unsigned cliPy = kCommandLine | kPython, all = kEveryDoor;
+  std::vector<FrameField> f;
+  // Where from.
+  f.push_back(point("eye", "camera position x,y,z (LPS: x towards the patient's left, y posterior, z superior; with center and up)", all,
+                    [](FrameSettings& s) -> auto& { return s.eye; }));
+  f.push_back(point("center", "point looked at x,y,z (default: the volume's centre); needs eye", all, [](FrameSettings& s) -> auto& { return s.center; }));
+  f.push_back(numbers(
+      "up", "x,y,z", 3, -kMaxCameraMm, kMaxCameraMm, "", "up direction x,y,z in patient axes (default 0,0,1, superior); needs eye", all, true,
+      [](FrameSettings& s, const std::optional<std::vector<double>>& v) { s.up = vec3(v); }, [](const FrameSettings& s) { return vec(s.up); }, nonZero));
+  f.push_back(word(
+      "view", FieldKind::Choice, std::vector<std::string>(std::begin(kViews), std::end(kViews)),
+      "anatomical view: anterior (default; the patient's left on the image's right), posterior, left, right, superior, inferior", cliPy, true,
+      [](FrameSettings& s, const std::optional<std::string>& w) {
+        AnatomicalView v{};
+        s.view = w && parseAnatomicalView(*w, &v) ? std::optional(v) : std::nullopt;
+      },
+      [](const FrameSettings& s) { return s.view ? std::optional<std::string>(kViews[int(*s.view)]) : std::nullopt; }));
+  f.push_back(numbers(
+      "orbit", "azimuth,elevation", 2, -1e6, 1e6, "degrees",
+      "azimuth,elevation from the anterior view: azimuth towards the patient's left (90 = left view), elevation towards superior", cliPy, true,
+      [](FrameSettings& s, const std::optional<std::vector<double>>& v) { s.orbit = v ? std::optional(glm::dvec2((*v)[0], (*v)[1])) : std::nullopt; },
+      [](const FrameSettings& s) { return s.orbit ? std::optional(std::vector<double>{s.orbit->x, s.orbit->y}) : std::nullopt; }));
+  f.push_back(number("zoom", 0.0, 1000.0, "", "magnify the image about its centre (2 = twice as large; the default framing fits what is visible)", cliPy,
+                     [](FrameSettings& s) -> auto& { return s.zoom; }, true));
+  f.push_back(number("fov", kMinFovDeg, kMaxFovDeg, "degrees", "vertical field of view", all, [](FrameSettings& s) -> auto& { return s.fov; }, false, true));
+  f.push_back(word(
+      "ortho", FieldKind::Flag, {"on", "off"}, "orthographic projection", all, false,
+      [](FrameSettings& s, const std::optional<std::string>& w) { s.ortho = *w == "on"; },
+      [](const FrameSettings& s) { return std::optional<std::string>(s.ortho ? "on" : "off"); }));
+  f.push_back(number("ortho_height", 0.0, kMaxCameraMm, "mm", "height an orthographic view spans (default: what frames the volume)", all,
+                     [](FrameSettings& s) -> auto& { return s.orthoHeight; }, true));
+  FrameField size = numbers(
+      "size", "WxH", 2, 1, kMaxRenderEdge, "pixels", "image size WxH (default 512x512, or the camera file's)", all, true,
+      [](FrameSettings& s, const std::optional<std::vector<double>>& v) { s.size = v ? std::optional(glm::ivec2(int((*v)[0]), int((*v)[1]))) : std::nullopt; },
+      [](const FrameSettings& s) { return s.size ? std::optional(std::vector<double>{double(s.size->x), double(s.size->y)}) : std::nullopt; });
+  size.kind = FieldKind::Size;
+  size.get = [](const FrameSettings& s) { return s.size ? std::optional(std::to_string(s.size->x) + "x" + std::to_string(s.size->y)) : std::nullopt; };
+  f.push_back(size);
+  f.push_back(word("camera_file", FieldKind::Text, {}, "read the camera from a JSON file written by --stats (or its \"camera\" object alone)", cliPy, true,
+                   [](FrameSettings& s, const std::optional<std::string>& w) { s.cameraFile = w.value_or(""); },
+                   [](const FrameSettings& s) { return s.cameraFile.empty() ? std::nullopt : std::optional(s.cameraFile); }));
+  f.push_back(onOff("marker", &FrameSettings::marker, "orientation marker (patient axes L/R, P/A, S/I) in the lower-left corner (default off)", cliPy));
+  // What is shown.
+  std::string presets;
+  for (const TransferFunction::Preset& p : TransferFunction::presets()) presets += (presets.empty() ? "" : ", ") + std::string(p.name) + " (" + p.shows + ")";
+  f.push_back(word("preset", FieldKind::Choice, TransferFunction::presetNames(),
+                   "transfer function: " + presets + "; default " + TransferFunction::presets().front().name + " for CT, a ramp over the data's range for other data",
+                   all, true, [](FrameSettings& s, const std::optional<std::string>& w) { s.preset = w.value_or(""); },
+                   [](const FrameSettings& s) { return s.preset.empty() ? std::nullopt : std::optional(s.preset); }));
+  f.push_back(word("tf", FieldKind::Text, {}, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm", cliPy, true,
+                   [](FrameSettings& s, const std::optional<std::string>& w) { s.tf = w.value_or(""); },
+                   [](const FrameSettings& s) { return s.tf.empty() ? std::nullopt : std::optional(s.tf); }));
+  f.push_back(word(
+      "tf_points", FieldKind::Points, {}, "transfer function control points value,r,g,b,a;... (opacity of 1 mm), values increasing", kViewer, true,
+      [](FrameSettings& s, const std::optional<std::string>& w) { s.tfPoints = w ? *pointsIn(*w) : std::vector<TransferFunction::Point>{}; },
+      [](const FrameSettings& s) { return s.tfPoints.empty() ? std::nullopt : std::optional(pointsText(s.tfPoints)); }));
+  f.push_back(number("opacity", 0.0, 10.0, "", "multiplies every opacity of the transfer function (at most 1 each)", all,
+                     [](FrameSettings& s) -> auto& { return s.opacity; }));
+  f.push_back(number("iso", -kFloatMax, kFloatMax, "data units", "isovalue of the embedded surface (none: volume only)", all,
+                     [](FrameSettings& s) -> auto& { return s.iso; }));
+  f.push_back(numbers(
+      "surface_color", "r,g,b,a", 4, 0.0, 1.0, "", "surface r,g,b,a; a < 1 is translucent (default 0.95,0.92,0.85,1)", all, false,
+      [](FrameSettings& s, const std::optional<std::vector<double>>& v) {
+        s.surfaceColor = glm::vec4(float((*v)[0]), float((*v)[1]), float((*v)[2]), float((*v)[3]));
+      },
+      [](const FrameSettings& s) {
+        return std::optional(std::vector<double>{typed(s.surfaceColor.r), typed(s.surfaceColor.g), typed(s.surfaceColor.b), typed(s.surfaceColor.a)});
+      }));
+  f.push_back(choice<SurfaceNormals>("surface_normals", {{"gradient", SurfaceNormals::Gradient}, {"facet", SurfaceNormals::Facet}},
+                                     "surface shading: the volume's gradient at each vertex (smooth, default) or each polygon's own plane", all,
+                                     [](FrameSettings& s) -> auto& { return s.surfaceNormals; }));
+  f.push_back(onOff("shading", &FrameSettings::shading, "gradient shading of the volume (default on)", all));
+  f.push_back(numbers(
+      "cut", "px,py,pz,nx,ny,nz", 6, -kMaxCameraMm, kMaxCameraMm, "mm", "cutting plane px,py,pz,nx,ny,nz (a point and a normal): removes the eye's side, shows the data on it",
+      all, true,
+      [](FrameSettings& s, const std::optional<std::vector<double>>& v) {
+        s.cut = v ? std::optional(CutPlane{glm::dvec3((*v)[0], (*v)[1], (*v)[2]), glm::dvec3((*v)[3], (*v)[4], (*v)[5])}) : std::nullopt;
+      },
+      [](const FrameSettings& s) {
+        if (!s.cut) return std::optional<std::vector<double>>();
+        const CutPlane& c = *s.cut;
+        return std::optional(std::vector<double>{c.point.x, c.point.y, c.point.z, c.normal.x, c.normal.y, c.normal.z});
+      },
+      [](const std::vector<double>& v) { return nonZero({v[3], v[4], v[5]}).empty() ? "" : "a non-zero normal"; }));
+  f.push_back(onOff("cut_line", &FrameSettings::cutLine, "draw the isosurface's intersection with the cutting plane (default on)", all));
+  f.push_back(numbers(
+      "voi", "x0,y0,z0,x1,y1,z1", 6, -kMaxCameraMm, kMaxCameraMm, "mm", "volume of interest x0,y0,z0,x1,y1,z1 (its box's corners): opacity scaled inside and outside (Levoy)",
+      all, true,
+      [](FrameSettings& s, const std::optional<std::vector<double>>& v) {
+        s.voi = v ? std::optional(std::array<double, 6>{(*v)[0], (*v)[1], (*v)[2], (*v)[3], (*v)[4], (*v)[5]}) : std::nullopt;
+      },
+      [](const FrameSettings& s) { return s.voi ? std::optional(std::vector<double>(s.voi->begin(), s.voi->end())) : std::nullopt; },
+      [](const std::vector<double>& v) { return v[0] < v[3] && v[1] < v[4] && v[2] < v[5] ? "" : "x0 < x1, y0 < y1, z0 < z1"; }));
+  f.push_back(number("voi_inside", 0.0, 100.0, "", "opacity factor inside the volume of interest", all, [](FrameSettings& s) -> auto& { return s.voiInside; }));
+  f.push_back(number("voi_outside", 0.0, 100.0, "", "opacity factor outside the volume of interest", all, [](FrameSettings& s) -> auto& { return s.voiOutside; }));
+  f.push_back(number("voi_ramp", 0.0, kMaxCameraMm, "mm", "width of the smooth transition across the box's surface", all,
+                     [](FrameSettings& s) -> auto& { return s.voiRamp; }));
+  f.push_back(numbers(
+      "background", "r,g,b", 3, 0.0, 1.0, "", "background r,g,b (default 0,0,0)", cliPy, false,
+      [](FrameSettings& s, const std::optional<std::vector<double>>& v) { s.background = glm::vec3(float((*v)[0]), float((*v)[1]), float((*v)[2])); },
+      [](const FrameSettings& s) { return std::optional(std::vector<double>{typed(s.background.r), typed(s.background.g), typed(s.background.b)}); }));
+  // How well.
+  f.push_back(choice<Renderer>("renderer", {{"slices", Renderer::Slices}, {"raycast", Renderer::Raycast}},
+                               "the slice renderer (default) or the reference ray tracer", cliPy, [](FrameSettings& s) -> auto& { return s.quality.renderer; }));
+  f.push_back(number("epsilon", 0.0, kFloatMax, "data units", "user error epsilon_u: the largest nodal error of a brick drawn (0 = exact)", cliPy,
+                     [](FrameSettings& s) -> auto& { return s.quality.epsilon; }));
+  FrameField budget = word(
+      "budget", FieldKind::Budget, {}, "texture memory budget in MB, blend textures included (0 = unlimited), or P% of this view's full-resolution bytes",
+      cliPy, true, [](FrameSettings& s, const std::optional<std::string>& w) { s.budget = w.value_or(""); },
+      [](const FrameSettings& s) { return s.budget.empty() ? std::nullopt : std::optional(s.budget); });
+  f.push_back(budget);
+  f.push_back(number("step", 0.01, 4.0, "voxels", "slice / sample spacing (default 0.5 for slices, 0.25 for raycast)", cliPy,
+                     [](FrameSettings& s) -> auto& { return s.quality.step; }, true));
+  f.push_back(choice<Proxy>("proxy", {{"planes", Proxy::Planes}, {"shells", Proxy::Shells}},
+                            "slice geometry: view-aligned planes (default) or spherical shells around the eye (perspective)", cliPy,
+                            [](FrameSettings& s) -> auto& { return s.quality.proxy; }));
+  f.push_back(word(
+      "blend", FieldKind::Switch, {"on", "off"}, "blend bricks towards coarser neighbours, Carmona et al. (default on)", cliPy, false,
+      [](FrameSettings& s, const std::optional<std::string>& w) { s.quality.blend = *w == "on"; },
+      [](const FrameSettings& s) { return std::optional<std::string>(s.quality.blend ? "on" : "off"); }));
+  f.push_back(choice<Classification>(
+      "classification", {{"post", Classification::Post}, {"preintegrated", Classification::PreIntegrated}},
+      "post-classified samples (default) or segments pre-integrated between their ends' values (finds narrow transfer-function features "
+      "between samples; two brick reads a fragment)",
+      all, [](FrameSettings& s) -> auto& { return s.quality.classification; }));
+  f.push_back(number("image_scale", 0.0, 1.0, "", "render at this fraction of the size and magnify bilinearly (as VTK's image sample distance 1/S); 1 renders every pixel",
+                     cliPy, [](FrameSettings& s) -> auto& { return s.quality.imageScale; }, true));
+  f.push_back(number("lod_pixels", 0.0, 1e6, "pixels",
+                     "stop refining where texels are at most this many pixels apart on screen, and draw the surface with its vertices clustered by "
+                     "the largest cubes no wider (0 = off: full resolution)",
+                     cliPy, [](FrameSettings& s) -> auto& { return s.quality.lodPixels; }));
+  FrameField brick = number("max_brick", 1, 256, "texels", "brick edge (a power of two)", cliPy, [](FrameSettings& s) -> auto& { return s.quality.maxBrickEdge; });
+  brick.kind = FieldKind::Integer;
+  brick.check = [](const std::vector<double>& v) { return (int(v[0]) & (int(v[0]) - 1)) == 0 ? "" : "a power of two"; };
+  f.push_back(brick);
+  f.push_back(choice<TexelBits>("texel_bits", {{"8", TexelBits::Eight}, {"16", TexelBits::Sixteen}},
+                                "brick precision: value and gradient in 8 bits (default, fastest) or 16 (twice the memory, slower frames; for transfer "
+                                "functions narrow against a brick's values, e.g. soft tissue)",
+                                cliPy, [](FrameSettings& s) -> auto& { return s.quality.texelBits; }));
+  f.push_back(point("focus", "region of interest x,y,z: bricks away from it may be coarser", cliPy, [](FrameSettings& s) -> auto& { return s.quality.focus; }));
+  FrameField progressive = number("progressive", 1, 8, "images",
+                                  "write N images coarse to fine (out_1.png ... out_N.png, and out.png): slices one level coarser each, the reference's "
+                                  "rays on a grid 2^(N-k) pixels apart, refined where colours differ (Levoy's progressive refinement)",
+                                  kCommandLine, [](FrameSettings& s) -> auto& { return s.quality.progressive; });
+  progressive.kind = FieldKind::Integer;
+  f.push_back(progressive);
+  f.push_back(number("adaptive", 0.0, 255.0, "1/255",
+                     "reference only: Levoy's adaptive refinement, rays 8 pixels apart first and more only where neighbouring colours differ by "
+                     "more than this, the rest interpolated (0 = every pixel, exact)",
+                     kCommandLine, [](FrameSettings& s) -> auto& { return s.quality.adaptive; }));
+  return f;
+}
+
+}  // namespace
+
+void FrameField::parse(FrameSettings& s, const std::string& text, const std::string& as) const {
+  const auto refuse = [&](const std::string& why) {
+    HYB_THROW(ValueError, as, " ", quotedExcerpt(text, 80), " invalid (expected ", expected(), why.empty() ? "" : "; " + why, ")");
+  };
+  if (text.empty() && optional) {
+    if (setNumbers) setNumbers(s, std::nullopt);
+    else setWord(s, std::nullopt);
+    return;
+  }
+  switch (kind) {
+    case FieldKind::Number:
+    case FieldKind::Integer:
+    case FieldKind::Numbers:
+    case FieldKind::Size: {
+      std::string t = text;
+      if (kind == FieldKind::Size) std::replace(t.begin(), t.end(), 'X', 'x');  // 512X512 as well
+      const std::optional<std::vector<double>> v = numbersIn(t, kind == FieldKind::Size ? 'x' : ',');
+      if (!v || int(v->size()) != count) refuse("");
+      for (const double x : *v) {
+        const bool whole = kind == FieldKind::Integer || kind == FieldKind::Size;
+        if ((loOpen ? !(x > lo) : !(x >= lo)) || (hiOpen ? !(x < hi) : !(x <= hi)) || (whole && x != std::floor(x))) refuse("");
+      }
+      if (check)
+        if (const std::string why = check(*v); !why.empty()) refuse(why);
+      setNumbers(s, v);
+      return;
+    }
+    case FieldKind::Switch:
+    case FieldKind::Flag: {
+      const bool flag = kind == FieldKind::Flag;
+      if (text == "on" || (flag && text == "true")) return setWord(s, "on");
+      if (text == "off" || (flag && text == "false")) return setWord(s, "off");
+      refuse("");
+      return;
+    }
+    case FieldKind::Choice:
+      if (std::find(choices.begin(), choices.end(), text) == choices.end()) refuse("");
+      return setWord(s, text);
+    case FieldKind::Text:
+      if (text.find('\0') != std::string::npos || text.size() > 4096) refuse("");
+      return setWord(s, text);
+    case FieldKind::Budget:
+      if (const std::string why = budgetError(text); !why.empty()) refuse(why);
+      return setWord(s, text);
+    case FieldKind::Points:
+      if (!pointsIn(text)) refuse("");
+      return setWord(s, text);
+  }
+}
+
+std::string FrameField::flag() const {
+  std::string f = "--" + name;
+  std::replace(f.begin(), f.end(), '_', '-');
+  return f;
+}
+
+std::string FrameField::expected() const {
+  const auto number = [](double x) {  // whole numbers as they are, the rest to three digits
+    char t[32];
+    std::snprintf(t, sizeof t, x == std::floor(x) && std::abs(x) < 1e5 ? "%.0f" : "%.3g", x);
+    return std::string(t);
+  };
+  const auto range = [&] {
+    return std::string(loOpen ? "(" : "[") + number(lo) + ", " + number(hi) + (hiOpen ? ")" : "]") + (unit.empty() ? "" : " " + unit);
+  };
+  switch (kind) {
+    case FieldKind::Number: return "a number in " + range();
+    case FieldKind::Integer: return "a whole number in " + range();
+    case FieldKind::Numbers: return shape + ": " + std::to_string(count) + " numbers, each in " + range();
+    case FieldKind::Size: return "WxH, each a whole number in " + range();
+    case FieldKind::Switch: return "on or off";
+    case FieldKind::Flag: return "true or false";
+    case FieldKind::Choice: {
+      std::string c;
+      for (size_t i = 0; i < choices.size(); ++i) c += (i == 0 ? "" : i + 1 == choices.size() ? " or " : ", ") + choices[i];
+      return c;
+    }
+    case FieldKind::Text: return "a path";
+    case FieldKind::Budget: return "megabytes >= 0, or a percentage of the full-resolution texture bytes: 0 < P <= 100 followed by %";
+    case FieldKind::Points: return "1 to 256 points value,r,g,b,a separated by ';', colours and opacities in [0, 1], values increasing";
+  }
+  return "";
+}
+
+std::optional<std::string> FrameField::defaultText() const { return get(FrameSettings{}); }
+
+const std::vector<FrameField>& frameFields() {
+  static const std::vector<FrameField> kFields = makeFields();
+  return kFields;
+}
+
+const FrameField* frameField(std::string_view name) {
+  for (const FrameField& f : frameFields())
+    if (f.name == name) return &f;
+  return nullptr;
+}
+
+std::string FrameSettings::validate() const {
+  if (int(!tf.empty()) + int(!preset.empty()) + int(!tfPoints.empty()) > 1) return "--tf and --preset are exclusive";
+  if (!cameraFile.empty() && (eye || orbit || view)) return "--camera-file sets the whole camera (it excludes --eye, --orbit and --view)";
+  if ((center || up) && !eye) return "--center and --up need --eye (without it the view frames what is visible)";
+  if (view && (eye || orbit)) return "--view excludes --eye and --orbit (each sets the camera's direction)";
+  if (orbit && eye) return "--orbit excludes --eye (each sets the camera's direction)";
+  if (eye && center && glm::length(*eye - *center) == 0) return "--eye and --center must differ (the view direction runs from the eye to the center)";
+  if (eye && center && glm::length(glm::cross(*center - *eye, up.value_or(glm::dvec3(0, 0, 1)))) == 0)
+    return "--up must be non-zero and not parallel to the view direction (--eye to --center)";
+  return quality.validate();
+}
+
+// ---------------------------------------------------------------------------------------------
+// JSON, the command line and the camera.
+
+json fieldJson(const FrameField& f, const std::string& text) {
+  switch (f.kind) {
+    case FieldKind::Number: return numbersIn(text)->front();
+    case FieldKind::Integer: return int64_t(numbersIn(text)->front());
+    case FieldKind::Numbers: return *numbersIn(text);
+    case FieldKind::Size: {
+      const std::vector<double> v = *numbersIn(text, 'x');
+      return json::array({int64_t(v[0]), int64_t(v[1])});
+    }
+    case FieldKind::Switch:
+    case FieldKind::Flag: return text == "on";
+    case FieldKind::Choice:
+    case FieldKind::Text: return text;
+    case FieldKind::Budget: return text.ends_with('%') ? json(text) : json(numbersIn(text)->front());
+    case FieldKind::Points: {
+      json a = json::array();
+      const std::optional<std::vector<TransferFunction::Point>> points = pointsIn(text);
+      for (const TransferFunction::Point& p : *points) a.push_back({p.value, p.color.r, p.color.g, p.color.b, p.alpha});
+      return a;
+    }
+  }
+  return nullptr;
+}
+
+namespace {
+
+// The text of JSON value @p v for field @p f, or none when it is of the wrong JSON type.
+std::optional<std::string> textOf(const FrameField& f, const json& v) {
+  if (v.is_null()) return std::string();
+  auto numbersOf = [&](const json& a, char separator) -> std::optional<std::string> {
+    if (!a.is_array()) return std::nullopt;
+    std::string s;
+    for (const json& x : a) {
+      if (!x.is_number()) return std::nullopt;
+      s += (s.empty() ? "" : std::string(1, separator)) + exact(x.get<double>());
+    }
+    return s;
+  };
+  switch (f.kind) {
+    case FieldKind::Number:
+    case FieldKind::Integer: return v.is_number() ? std::optional(exact(v.get<double>())) : std::nullopt;
+    case FieldKind::Numbers: return numbersOf(v, ',');
+    case FieldKind::Size: return numbersOf(v, 'x');
+    case FieldKind::Switch:
+    case FieldKind::Flag: return v.is_boolean() ? std::optional<std::string>(v.get<bool>() ? "on" : "off") : std::nullopt;
+    case FieldKind::Choice:
+    case FieldKind::Text: return v.is_string() ? std::optional(v.get<std::string>()) : std::nullopt;
+    case FieldKind::Budget:
+      return v.is_number() ? std::optional(exact(v.get<double>())) : v.is_string() ? std::optional(v.get<std::string>()) : std::nullopt;
+    case FieldKind::Points: {
+      if (!v.is_array()) return std::nullopt;
+      std::string s;
+      for (const json& p : v) {
+        const std::optional<std::string> one = numbersOf(p, ',');
+        if (!one) return std::nullopt;
+        s += (s.empty() ? "" : ";") + *one;
+      }
+      return s;
+    }
+  }
+  return std::nullopt;
+}
+
+const char* jsonType(const FrameField& f) {
+  switch (f.kind) {
+    case FieldKind::Number:
+    case FieldKind::Integer: return "a number";
+    case FieldKind::Numbers: return "an array of numbers";
+    case FieldKind::Size: return "an array [width, height]";
+    case FieldKind::Switch:
+    case FieldKind::Flag: return "true or false";
+    case FieldKind::Choice:
+    case FieldKind::Text: return "a string";
+    case FieldKind::Budget: return "a number or a string \"P%\"";
+    case FieldKind::Points: return "an array of [value, r, g, b, a]";
+  }
+  return "";
+}
+
+}  // namespace
+
+void applyJson(FrameSettings* settings, const json& object, unsigned door, const std::vector<std::string>& skip, const std::string& where) {
+  if (!object.is_object()) HYB_THROW(ValueError, where, "expected a JSON object");
+  for (const auto& [key, value] : object.items()) {
+    if (std::find(skip.begin(), skip.end(), key) != skip.end()) continue;
+    const FrameField* f = frameField(key);
+    const std::string as = where + "field " + quotedExcerpt(key, 40);
+    if (!f || !(f->doors & door)) HYB_THROW(ValueError, as, ": no such field");
+    const std::optional<std::string> text = textOf(*f, value);
+    if (!text) HYB_THROW(ValueError, as, ": expected ", jsonType(*f), " (", f->expected(), ")");
+    if (text->empty() && !f->optional) HYB_THROW(ValueError, as, ": expected ", f->expected(), " (it cannot be unset)");
+    f->parse(*settings, *text, as);
+  }
+}
+
+json settingsJson(const FrameSettings& settings, unsigned door, const std::function<bool(const FrameField&)>& keep) {
+  json j = json::object();
+  for (const FrameField& f : frameFields()) {
+    if (!(f.doors & door) || (keep && !keep(f))) continue;
+    if (const std::optional<std::string> t = f.text(settings)) j[f.name] = fieldJson(f, *t);
+  }
+  return j;
+}
+
+json fieldsJson(unsigned door) {
+  json a = json::array();
+  for (const FrameField& f : frameFields()) {
+    if (!(f.doors & door)) continue;
+    static const char* kKinds[] = {"number", "integer", "numbers", "size", "switch", "flag", "choice", "text", "budget", "points"};
+    json row = {{"name", f.name}, {"kind", kKinds[int(f.kind)]}, {"unit", f.unit}, {"help", f.help}};
+    if (f.kind == FieldKind::Number || f.kind == FieldKind::Integer || f.kind == FieldKind::Numbers || f.kind == FieldKind::Size)
+      row.update({{"count", f.count}, {"min", f.lo}, {"max", f.hi}, {"min_open", f.loOpen}, {"max_open", f.hiOpen}});
+    if (!f.choices.empty()) row["choices"] = f.choices;
+    const std::optional<std::string> d = f.defaultText();
+    row["default"] = d ? fieldJson(f, *d) : json(nullptr);
+    a.push_back(row);
+  }
+  return a;
+}
+
+std::string shellQuote(const std::string& s) {
+  if (!s.empty() && s.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_./,:=%+") == std::string::npos) return s;
+  std::string out = "'";
+  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return out + "'";
+}
+
+std::string commandLineOf(const FrameSettings& settings, const std::function<bool(const FrameField&)>& keep) {
+  std::string out;
+  for (const FrameField& f : frameFields()) {
+    if (!(f.doors & kCommandLine) || (keep && !keep(f))) continue;
+    const std::optional<std::string> t = f.text(settings);
+    if (!t || t == f.defaultText()) continue;
+    out += ' ';
+    out += f.flag();
+    if (f.kind == FieldKind::Flag) continue;
+    out += ' ';
+    out += shellQuote(*t);
+  }
+  return out;
+}
+
+namespace {
+const char* const kCameraFields[] = {"eye", "center", "up", "fov", "ortho", "ortho_height", "size"};
+}
+
+FrameSettings cameraSettings(const Camera& c) {
+  FrameSettings s;
+  s.eye = c.eye;
+  s.center = c.center;
+  s.up = c.up;
+  s.fov = c.fovDeg;
+  s.ortho = c.ortho;
+  s.orthoHeight = c.orthoHeight;
+  s.size = glm::ivec2(c.width, c.height);
+  return s;
+}
+
+Camera explicitCamera(const FrameSettings& s) {
+  if (!s.eye || !s.center) HYB_THROW(ValueError, "a camera needs its eye and center");
+  Camera c;
+  c.eye = *s.eye;
+  c.center = *s.center;
+  c.up = s.up.value_or(glm::dvec3(0, 0, 1));
+  c.fovDeg = s.fov;
+  c.ortho = s.ortho;
+  if (s.orthoHeight) c.orthoHeight = *s.orthoHeight;
+  const glm::ivec2 size = s.size.value_or(glm::ivec2(512, 512));
+  c.width = size.x;
+  c.height = size.y;
+  return c;
+}
+
+std::string cameraJson(const Camera& camera, int indent) {
+  nlohmann::ordered_json j;
+  j["space"] = "LPS";
+  const FrameSettings s = cameraSettings(camera);
+  for (const char* name : kCameraFields) {
+    const FrameField& f = *frameField(name);
+    j[name] = fieldJson(f, *f.text(s));
+  }
+  return j.dump(indent);
+}
+
+Camera readCameraFile(const std::string& path) {
+  const std::vector<uint8_t> bytes = readFileBytes(path);
+  json j = json::parse(bytes.begin(), bytes.end(), nullptr, false);
+  if (j.is_discarded() || !j.is_object()) HYB_THROW(IoError, path, ": not a JSON object (expected a camera written by --stats)");
+  if (j.contains("camera")) j = j["camera"];
+  if (!j.is_object()) HYB_THROW(IoError, path, ": \"camera\" is not a JSON object");
+  if (j.contains("space") && j["space"] != "LPS") HYB_THROW(IoError, path, ": camera space ", j["space"].dump(), " unsupported (expected \"LPS\")");
+  // The earlier form: fov_deg, width and height.
+  if (j.contains("fov_deg") && !j.contains("fov")) j["fov"] = j["fov_deg"];
+  if (j.contains("width") && j.contains("height") && !j.contains("size")) j["size"] = json::array({j["width"], j["height"]});
+  json camera = json::object();
+  for (const char* name : kCameraFields)
+    if (j.contains(name)) camera[name] = j[name];
+  FrameSettings s;
+  try {
+    applyJson(&s, camera, kEveryDoor, {}, "camera ");
+  } catch (const ValueError& e) {
+    HYB_THROW(IoError, path, ": ", e.what());
+  }
+  for (const char* name : kCameraFields)
+    if (!frameField(name)->text(s)) HYB_THROW(IoError, path, ": camera field '", name, "' missing");
+  if (const std::string e = s.validate(); !e.empty()) HYB_THROW(IoError, path, ": camera: ", e);
+  return explicitCamera(s);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The frame a front door renders.
+
+namespace {
+
+// The transfer function the settings name, its opacities scaled.
+TransferFunction transferFunctionOf(const FrameSettings& s, const Volume& v) {
+  TransferFunction tf = !s.tfPoints.empty() ? TransferFunction(s.tfPoints, "tf_points")
+                        : !s.tf.empty()     ? TransferFunction::fromFile(s.tf)
+                        : !s.preset.empty() ? TransferFunction::preset(s.preset)
+                                            : TransferFunction::defaultFor(v.minValue(), v.maxValue());
+  if (s.opacity == 1.0) return tf;
+  std::vector<TransferFunction::Point> p = tf.points();
+  for (TransferFunction::Point& q : p) q.alpha = std::min(1.0f, q.alpha * float(s.opacity));
+  return TransferFunction(std::move(p), "opacity-scaled transfer function");
+}
+
+}  // namespace
+
+FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& warnings) {
+  if (const std::string e = s.validate(); !e.empty()) throw ValueError(e);
+  std::optional<Camera> fromFile;
+  if (!s.cameraFile.empty()) fromFile = readCameraFile(s.cameraFile);
+  FrameSetup job;
+  const Volume& v = scene.volume;
+  const PatientFrame& frame = v.frame();
+  // What is shown.
+  Look& look = job.look;
+  look.tf = transferFunctionOf(s, v);
+  if (s.iso) {
+    look.iso = float(*s.iso);
+    if (*s.iso <= v.minValue() || *s.iso > v.maxValue())
+      warnings << "hybrid-octree: warning: --iso " << *s.iso << " is outside the data's crossing range (" << v.minValue() << ", " << v.maxValue()
+               << "]: the surface is empty\n";
+  }
+  look.surfaceColor = s.surfaceColor;
+  look.normals = s.surfaceNormals;
+  look.shading = s.shading;
+  look.cut = s.cut;
+  look.cutLine = s.cutLine;
+  if (s.voi) {
+    VolumeOfInterest voi;
+    voi.lo = glm::dvec3((*s.voi)[0], (*s.voi)[1], (*s.voi)[2]);
+    voi.hi = glm::dvec3((*s.voi)[3], (*s.voi)[4], (*s.voi)[5]);
+    voi.inside = s.voiInside;
+    voi.outside = s.voiOutside;
+    voi.ramp = s.voiRamp;
+    look.voi = voi;
+  }
+  // Where from, in patient space: a camera file's, the eye given, or the view framing what the
+  // transfer function (or the isosurface) makes visible.
+  Camera& camera = job.view.camera;
+  const glm::ivec2 pixels = s.size.value_or(fromFile ? glm::ivec2(fromFile->width, fromFile->height) : glm::ivec2(512, 512));
+  if (fromFile) {
+    camera = *fromFile;
+  } else if (s.eye) {
+    FrameSettings explicitOne = s;
+    if (!explicitOne.center) explicitOne.center = frame.toPatient(0.5 * v.extentMm());
+    camera = explicitCamera(explicitOne);
+    if (!s.orthoHeight) camera.orthoHeight = glm::length(v.extentMm()) * 1.05;
+  } else {
+    const ViewDirection direction = s.orbit ? orbitDirection(s.orbit->x, s.orbit->y) : viewDirection(s.view.value_or(AnatomicalView::Anterior));
+    std::vector<glm::dvec3> points = visiblePoints(v, scene.octree, look.tf, look.iso, scene.knots.get());
+    if (points.empty())  // nothing visible: the data's box
+      for (int c = 0; c < 8; ++c) points.push_back(frame.toPatient(glm::dvec3(c & 1, (c >> 1) & 1, (c >> 2) & 1) * v.extentMm()));
+    camera = fitCamera(points, direction, s.fov, s.ortho, pixels.x, pixels.y);
+    if (s.orthoHeight) camera.orthoHeight = *s.orthoHeight;
+    scene.octree.releasePages();  // the fit walked every visible leaf; the frame reads far fewer
+  }
+  camera.width = pixels.x;
+  camera.height = pixels.y;
+  if (s.zoom != 1.0) zoomCamera(&camera, s.zoom);
+  if (!camera.ortho && !(camera.fovDeg >= kMinFovDeg && camera.fovDeg < kMaxFovDeg))
+    HYB_THROW(ValueError, "--zoom ", s.zoom, " makes a field of view of ", camera.fovDeg, " degrees (expected a zoom keeping it in [0.1, 179))");
+  job.quality = s.quality;
+  if (!s.budget.empty()) {
+    const bool percent = s.budget.back() == '%';
+    (percent ? job.quality.budgetPercent : job.quality.budgetMb) = numbersIn(percent ? s.budget.substr(0, s.budget.size() - 1) : s.budget)->front();
+  }
+  job.background = s.background;
+  return job;
+}
+
+}  // namespace hyb
