@@ -105,6 +105,14 @@ struct SlicesStats {
   uint64_t cutLineSegments = 0;   ///< segments of the surface's intersection with the cutting plane
 };
 
+/// What a slice frame draws, in the grid frame: the volume, its Volume Octree and the bricks
+/// selected from it, all of which must outlive the frame.
+struct SelectedBricks {
+  const Volume& volume;
+  const VolumeOctree& octree;
+  const Selection& selection;
+};
+
 /// Renders the bricks of @p selection. Requires a current GlContext.
 /// @throw RuntimeError when OpenGL fails (shader compilation, framebuffer).
 Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
