@@ -929,9 +929,9 @@ SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quali
   return so;
 }
 
-Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
-                   const Camera& camera, const SlicesOptions& options, SlicesStats* stats) {
-  SlicesFrame frame({volume, octree, selection}, tf, camera, options);  // the target, the table, the bricks in order, the programs
+Image renderSlices(const SelectedBricks& bricks, const TransferFunction& tf, const Camera& camera, const SlicesOptions& options,
+                   SlicesStats* stats) {
+  SlicesFrame frame(bricks, tf, camera, options);  // the target, the table, the bricks in order, the programs
   frame.drawOpaqueSurface();
   frame.planBricks();
   frame.drawCutPlane();

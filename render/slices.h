@@ -113,9 +113,9 @@ struct SelectedBricks {
   const Selection& selection;
 };
 
-/// Renders the bricks of @p selection. Requires a current GlContext.
+/// Renders the selected bricks of @p bricks. Requires a current GlContext.
 /// @throw RuntimeError when OpenGL fails (shader compilation, framebuffer).
-Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
-                   const Camera& camera, const SlicesOptions& options, SlicesStats* stats = nullptr);
+Image renderSlices(const SelectedBricks& bricks, const TransferFunction& tf, const Camera& camera, const SlicesOptions& options,
+                   SlicesStats* stats = nullptr);
 
 }  // namespace hyb
