@@ -629,7 +629,7 @@ void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
   const auto [bmin, bmax] = depth.range(d.blo, d.bhi);
   long long kLo = (long long)std::floor(bmin / d.delta) - 1, kHi = (long long)std::ceil(bmax / d.delta);
   if (surface) {
-    list.build(*surface, f.polygonsOf.of(d.brick), depth, d.delta, d.sliced, f.options.cutToSlabs, f.centres);
+    list.build(*surface, f.polygonsOf.of(d.brick), {depth, d.delta, d.sliced, f.options.cutToSlabs}, f.centres);
     if (d.sliced && !list.empty()) {
       kLo = std::min(kLo, list.firstSlab());
       kHi = std::max(kHi, list.lastSlab());
