@@ -1,5 +1,5 @@
 // Surface Octree, the build: I. Boada, I. Navazo, "An Octree Isosurface Codification based on
-// Discrete Planes", SCCG 2001, with the exact code and merge rule of DESIGN 3.2 (see surface_octree.h):
+// Discrete Planes", SCCG 2001, with an exact node code and merge rule (surface_octree.h, docs/surface.md):
 // DiscMC leaf codes, merged bottom-up without loss. The reconstruction is surface_octree_reconstruct.cpp.
 #include "hybrid_octree/surface_octree.h"
 

@@ -1,5 +1,5 @@
 // Hybrid slice renderer: I. Boada, I. Navazo, "3D Texture-based Hybrid Visualizations", 2002, §4,
-// with the view-aligned form of DESIGN 3.4 (slice polygons cut on the CPU, global slice planes).
+// in view-aligned form (slice polygons cut on the CPU, global slice planes; docs/renderer.md).
 // This file is the frame, stage by stage; the stages' internals are files of their own in
 // render/slices/: brick_textures (textures, blending, the cache), proxy_geometry (planes and
 // shells), slab_polygons (the SlabPolygon lists), cut_plane_pass and the shaders.
@@ -36,7 +36,7 @@ namespace {
 
 // Base slice spacings between a brick's slices when its texels are @p step voxels apart: full
 // resolution keeps the base spacing (half a voxel by default: twice a texel), two voxels a texel
-// take three (4/3 a texel), coarser levels twice their step (once a texel: DESIGN 4's slab width;
+// take three (4/3 a texel), coarser levels twice their step (once a texel: the paper's slab width, §4.1;
 // their knots hold the data smoothed by the lattice's tent). Every brick's planes lie on the base
 // grid, and coarse fragments cut the stretch they stand for to the brick's box (SEGMENTS in
 // the slice shader), so a level change shows no seam of sampling (docs/multires.md measures the

@@ -1,4 +1,4 @@
-// The hybrid slice renderer (Boada and Navazo 2002, §4; DESIGN 3.4–3.5) on OpenGL 4.5 core through
+// The hybrid slice renderer (Boada and Navazo 2002, §4; docs/renderer.md) on OpenGL 4.5 core through
 // OSMesa: one 3D texture per selected brick at its level p, view-aligned slices cut on the CPU from
 // globally aligned planes, bricks drawn back to front in octree order (valid for perspective and
 // orthographic views), composited in a float framebuffer with premultiplied colours.
