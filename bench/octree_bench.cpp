@@ -168,7 +168,7 @@ int main(int argc, char** argv) {
         opt.textures = &textures;
         hyb::SlicesStats st;
         hyb::Image img;
-        const double ms = bestMs(warmFrames, [&] { img = hyb::renderSlices(v, tree, sel, tf, cam, opt, &st); });
+        const double ms = bestMs(warmFrames, [&] { img = hyb::renderSlices({v, tree, sel}, tf, cam, opt, &st); });
         char label[64];
         std::snprintf(label, sizeof label, "slices eps %g, + surface", double(eps));
         std::printf("%-34s %10.0f %14llu %12llu %10.2f\n", label, ms, (unsigned long long)st.textureBytes,
@@ -181,7 +181,7 @@ int main(int argc, char** argv) {
       hyb::BrickTextureCache textures;
       hyb::SlicesOptions noSurface;
       noSurface.textures = &textures;
-      const double volMs = bestMs(warmFrames, [&] { img = hyb::renderSlices(v, tree, sel, tf, cam, noSurface, &vst); });
+      const double volMs = bestMs(warmFrames, [&] { img = hyb::renderSlices({v, tree, sel}, tf, cam, noSurface, &vst); });
       std::printf("%-34s %10.0f %14s %12s %10s\n", "slices eps 0, volume only", volMs, "", "", "");
       // Fragment throughput against plain full-screen quads sampling a float 3D texture (the
       // target's baseline) and the bricks' RGBA8 format (what the format alone costs).

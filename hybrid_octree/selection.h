@@ -1,4 +1,4 @@
-// Budgeted, importance-driven node selection (DESIGN 3.3 and 7): Boada, Navazo and Scopigno 2001
+// Budgeted, importance-driven node selection (docs/multires.md, docs/volume-octree.md): Boada, Navazo and Scopigno 2001
 // (OTcut: ε_u over importance), Carmona et al. (greedy refinement by priority under a texture budget,
 // restricted octree, per-corner blending towards coarser data), LaMar 1999 (culling).
 //

@@ -1,5 +1,5 @@
 // Surface Octree, the build: I. Boada, I. Navazo, "An Octree Isosurface Codification based on
-// Discrete Planes", SCCG 2001, with the exact code and merge rule of DESIGN 3.2 (see surface_octree.h):
+// Discrete Planes", SCCG 2001, with an exact node code and merge rule (surface_octree.h, docs/surface.md):
 // DiscMC leaf codes, merged bottom-up without loss. The reconstruction is surface_octree_reconstruct.cpp.
 #include "hybrid_octree/surface_octree.h"
 
@@ -435,11 +435,20 @@ namespace {
 // Reads the samples of a box (SampleBox::around a block) into it; called from several threads at once.
 using ReadBox = std::function<void(SampleBox*)>;
 
-// Merges @p blocks (volume-octree leaves) on all cores, block i's nodes into (*nodes)[i];
+// What a merge of leaves needs of the octree being built: the grid, the isovalue, the planes a node
+// may hold and the largest merged node's edge.
+struct MergeRule {
+  glm::ivec3 dims;
+  float iso;
+  int maxPlanes;
+  int mergeEdge;
+};
+
+// Merges @p blocks (volume-octree leaves) by @p rule on all cores, block i's nodes into (*nodes)[i];
 // returns the cells extracted. Consecutive leaves in one aligned cube of kStoreBlock voxels (Morton
 // order keeps them together) are read as one box: a paged store reads each of its blocks about once.
-size_t mergeBlocks(std::span<const VoxelBlock> blocks, const glm::ivec3& dims, float iso, const SurfaceOctreeOptions& options,
-                   int mergeEdge, const ReadBox& read, std::vector<std::vector<SurfaceNode>>* nodes, ProgressTask* progress) {
+size_t mergeBlocks(std::span<const VoxelBlock> blocks, const MergeRule& rule, const ReadBox& read, std::vector<std::vector<SurfaceNode>>* nodes,
+                   ProgressTask* progress) {
   std::vector<size_t> runs;  // where each run of leaves starts, and the end
   for (size_t i = 0; i < blocks.size(); ++i)
     if (i == 0 || blocks[i].lo / kStoreBlock != blocks[i - 1].lo / kStoreBlock) runs.push_back(i);
@@ -448,7 +457,7 @@ size_t mergeBlocks(std::span<const VoxelBlock> blocks, const glm::ivec3& dims, f
   ParallelFailure failure;
 #pragma omp parallel reduction(+ : cells) if (runs.size() > 2)
   {
-    BlockMerger merger(iso, options.maxPlanes, mergeEdge);
+    BlockMerger merger(rule.iso, rule.maxPlanes, rule.mergeEdge);
 #pragma omp for schedule(dynamic)
     for (size_t r = 0; r < runs.size() - 1; ++r)
       failure.run([&] {
@@ -457,7 +466,7 @@ size_t mergeBlocks(std::span<const VoxelBlock> blocks, const glm::ivec3& dims, f
           all.lo = glm::min(all.lo, blocks[i].lo);
           all.hi = glm::max(all.hi, blocks[i].hi);
         }
-        SampleBox box = SampleBox::around(all, dims);
+        SampleBox box = SampleBox::around(all, rule.dims);
         read(&box);
         for (size_t i = runs[r]; i < runs[r + 1]; ++i) cells += merger.run(blocks[i], box, &(*nodes)[i]);
         progress->advance(runs[r + 1] - runs[r]);
@@ -490,7 +499,7 @@ SurfaceOctree SurfaceOctree::build(const KnotSource& knots, const VolumeOctree& 
   const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
   std::vector<std::vector<SurfaceNode>> nodes(blocks.size());
   ProgressTask progress(options.progress, "surface octree", blocks.size());
-  so.mCellCount = mergeBlocks(blocks, so.mDims, iso, options, so.mMergeEdge,
+  so.mCellCount = mergeBlocks(blocks, {so.mDims, iso, options.maxPlanes, so.mMergeEdge},
                               [&](SampleBox* b) { knots.read(1, b->lo, b->count, b->values.data(), nullptr); }, &nodes, &progress);
   so.gather(std::move(nodes));
   return so;
@@ -523,7 +532,7 @@ SurfaceOctree SurfaceOctree::build(PlaneSource& planes, const VolumeOctree& octr
     const int top = std::max_element(slab.begin(), slab.end(), [](const VoxelBlock& p, const VoxelBlock& q) { return p.hi.z < q.hi.z; })->hi.z;
     while (window.next() <= top) window.load(planes);
     slabNodes.assign(slab.size(), {});
-    so.mCellCount += mergeBlocks(slab, so.mDims, iso, options, so.mMergeEdge, [&](SampleBox* box) {
+    so.mCellCount += mergeBlocks(slab, {so.mDims, iso, options.maxPlanes, so.mMergeEdge}, [&](SampleBox* box) {
       float* out = box->values.data();
       for (int k = 0; k < box->count.z; ++k)
         for (int j = 0; j < box->count.y; ++j, out += box->count.x) window.readRow(box->lo.x, box->lo.y + j, box->lo.z + k, box->count.x, out);

@@ -1,5 +1,5 @@
 // Surface Octree (Boada and Navazo, "An Octree Isosurface Codification based on Discrete Planes",
-// SCCG 2001; DESIGN 3.2): the DiscMC surface coded per terminal node by at most K discrete planes and
+// SCCG 2001; docs/surface.md): the DiscMC surface coded per terminal node by at most K discrete planes and
 // a truth table, merged bottom-up without loss.
 //
 // Coordinates. "Fine" coordinates are 12 × the doubled grid (24 × voxel index): every vertex of an
@@ -49,7 +49,7 @@ struct GeoPlane {
   }
 };
 
-/// Largest number of planes a terminal node may hold (DESIGN 3.2: K = 4). Leaves whose DiscMC case
+/// Largest number of planes a terminal node may hold (K = 4, docs/surface.md). Leaves whose DiscMC case
 /// needs the centre-diagonal variant hold 5; they never merge.
 inline constexpr int kMaxNodePlanes = 4;
 

@@ -1,4 +1,4 @@
-// Surface Octree, reconstruction (DESIGN 3.2): from the terminal nodes' codes back to polygons, in
+// Surface Octree, reconstruction (Boada and Navazo, SCCG 2001; docs/surface.md): from the terminal nodes' codes back to polygons, in
 // four stages: each node's polygons (its planes clipped to its box and split by each other, kept
 // where the solid changes, merged per plane and facing), T-junction vertices inserted where a
 // polygon meets finer neighbours along a node face, coplanar polygons merged within a merge cube,

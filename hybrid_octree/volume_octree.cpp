@@ -1,5 +1,5 @@
 // Volume Octree construction: Boada, Navazo and Scopigno, "Multiresolution volume visualization
-// with a texture-based octree", The Visual Computer 17(3), 2001; nodal-error lists per DESIGN 3.3.
+// with a texture-based octree", The Visual Computer 17(3), 2001; nodal-error lists as docs/volume-octree.md specifies.
 #include "hybrid_octree/volume_octree.h"
 
 #include <algorithm>

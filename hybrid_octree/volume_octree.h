@@ -1,5 +1,5 @@
 // Volume Octree (Boada, Navazo and Scopigno, TVC 2001; Boada and Navazo 2002 §2.1): one octree over
-// the volume whose nodes carry min/max and the list of nodal errors ε_p, p = 0…L−k (DESIGN 3.3).
+// the volume whose nodes carry min/max and the list of nodal errors ε_p, p = 0…L−k (docs/volume-octree.md).
 //
 // Geometry. The root covers 2^L cells per axis, L = ⌈log2(max(n_a − 1))⌉, in voxel-index space
 // (voxel centres at integers). A node at level k has edge E = 2^(L−k) cells and covers the closed

@@ -1,4 +1,4 @@
-// The image error of a brick: what the budgeted selection (DESIGN 7, Carmona et al.) weighs when
+// The image error of a brick: what the budgeted selection (Carmona et al.; docs/multires.md) weighs when
 // it spends texels, measured for the view and transfer function at hand instead of bounded from the
 // nodal error alone.
 //

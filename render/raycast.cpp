@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 #include "volume/error.h"
 #include "volume/parallel.h"
@@ -34,8 +35,15 @@ bool slab(const glm::dvec3& o, const glm::dvec3& d, const glm::dvec3& lo, const 
 // Shading factor of a headlight on a surface with normal n (two-sided Lambert with ambient).
 double headlight(const glm::dvec3& n, const glm::dvec3& dir) { return 0.25 + 0.75 * std::abs(glm::dot(n, dir)); }
 
-// What every pass of one reference frame reads, made once: its inputs, and the nodes whose value
-// range the transfer function maps to zero opacity (skipped along the rays).
+// The scene a reference frame traces: the volume, its Volume Octree and the transfer function.
+struct RayScene {
+  const Volume& volume;
+  const VolumeOctree& octree;
+  const TransferFunction& tf;
+};
+
+// What every pass of one reference frame reads, made once: its inputs, the ray march's constants,
+// and the nodes whose value range the transfer function maps to zero opacity (skipped along the rays).
 struct RayFrame {
   const Volume& volume;
   const VolumeOctree& octree;
@@ -44,33 +52,23 @@ struct RayFrame {
   const RaycastOptions& options;
   RaycastStats* stats;
   ProgressTask* progress;
+  glm::dvec3 spacing, boxHi;  // mm
+  double dt;                  // the segments' length, mm
+  glm::ivec3 cells;
+  glm::dvec4 cut;  // the cutting plane's kept side (everything kept without a plane)
   std::vector<uint8_t> transparent;
-  RayFrame(const Volume& v, const VolumeOctree& t, const TransferFunction& f, const Camera& c, const RaycastOptions& o, RaycastStats* s,
-           ProgressTask* p)
-      : volume(v), octree(t), tf(f), camera(c), options(o), stats(s), progress(p), transparent(t.nodes().size()) {
+  RayFrame(const RayScene& scene, const Camera& c, const RaycastOptions& o, RaycastStats* s, ProgressTask* p)
+      : volume(scene.volume), octree(scene.octree), tf(scene.tf), camera(c), options(o), stats(s), progress(p), spacing(volume.spacing()),
+        boxHi(volume.extentMm()), dt(o.stepVoxels * std::min({spacing.x, spacing.y, spacing.z})),
+        cells(glm::max(volume.dims() - 1, glm::ivec3(1))), cut(o.cut ? o.cut->keptSide(c) : glm::dvec4(0, 0, 0, 1)),
+        transparent(octree.nodes().size()) {
     for (size_t i = 0; i < transparent.size(); ++i)
-      transparent[i] = o.skipEmptySpace && f.maxAlpha(t.nodes()[i].minValue, t.nodes()[i].maxValue) <= 0.0f;
+      transparent[i] = o.skipEmptySpace && tf.maxAlpha(octree.nodes()[i].minValue, octree.nodes()[i].maxValue) <= 0.0f;
   }
-};
 
-// Traces pixels pixel(0) … pixel(count − 1) into @p out on all cores, chunk pixels at a time.
-template <class Pixel>
-void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pixel, Image* out) {
-  const Volume& volume = f.volume;
-  const VolumeOctree& octree = f.octree;
-  const TransferFunction& tf = f.tf;
-  const Camera& camera = f.camera;
-  const RaycastOptions& options = f.options;
-  const std::vector<uint8_t>& transparent = f.transparent;
-  Image& image = *out;
-  const glm::dvec3 spacing = volume.spacing();
-  const glm::dvec3 boxHi = volume.extentMm();
-  const double dt = options.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
-  const glm::ivec3 cells = glm::max(volume.dims() - 1, glm::ivec3(1));
-  const auto& nodes = octree.nodes();
-
-  // The transparent node containing voxel-space point q (or -1), with its box in mm.
-  auto transparentBoxAt = [&](const glm::dvec3& q, glm::dvec3* lo, glm::dvec3* hi) -> bool {
+  // The transparent node containing voxel-space point q, with its box in mm; false when none does.
+  bool transparentBoxAt(const glm::dvec3& q, glm::dvec3* lo, glm::dvec3* hi) const {
+    const auto& nodes = octree.nodes();
     const glm::dvec3 c = glm::clamp(q, glm::dvec3(0.0), glm::dvec3(cells) - 1e-6);
     uint32_t i = 0;
     for (;;) {
@@ -89,19 +87,179 @@ void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pix
       if (!(n.childMask & (1u << slot))) return false;
       i = childIndex(n, slot);
     }
-  };
+  }
+};
 
-  const glm::dvec4 cut = options.cut ? options.cut->keptSide(camera) : glm::dvec4(0, 0, 0, 1);
+// One ray as it is traced: where it runs, the stretch of it kept, and what it has composited.
+struct Ray {
+  glm::dvec3 o, d;
+  double t0 = 0, t1 = 0;  // its stretch inside the data box, then inside the kept stretch too
+  bool inBox = false;
+  double keepLo = 0.0, keepHi = 1e300;  // the stretch on the cutting plane's kept side
+  glm::dvec4 acc{0.0};                  // premultiplied rgb, alpha
+  size_t nextHit = 0;                   // the first surface crossing not composited yet
+  double backT = -1.0;                  // the last pre-integrated segment's end, and its value
+  float backValue = 0.0f;
+};
 
+// One thread's tracer: a ray's stages as methods (the cutting plane, the surface crossings, the
+// volume's segments), its buffers and counts kept from one pixel to the next.
+class PixelTracer {
+ public:
+  explicit PixelTracer(const RayFrame& f) : mF(f), mOptions(f.options) {
+    if (mOptions.knots) mPaged.emplace(*mOptions.knots);
+  }
+
+  // The colour of pixel (x, y): premultiplied, or the cutting plane's opaque where the ray meets it.
+  glm::vec4 trace(int x, int y) {
+    Ray r;
+    mF.camera.ray(x + 0.5, y + 0.5, &r.o, &r.d);
+    r.inBox = slab(r.o, r.d, glm::dvec3(0.0), mF.boxHi, &r.t0, &r.t1);
+    r.t0 = std::max(r.t0, 0.0);
+    if (mOptions.cut) {
+      if (const std::optional<glm::vec4> plane = keepCutSide(r)) return *plane;
+    }
+    r.t0 = std::max(r.t0, r.keepLo);
+    r.t1 = std::min(r.t1, r.keepHi);
+    if (mOptions.surface) mOptions.surface->allHits(r.o, r.d, r.keepLo, std::max(r.keepLo, r.keepHi), &mHits);
+    if (r.inBox && mOptions.volume && r.t1 > r.t0) marchVolume(r);
+    surfaceUntil(r, 1e300);
+    return glm::vec4(r.acc);
+  }
+
+  uint64_t samples = 0, skipped = 0, crossings = 0;
+
+ private:
+  float sampleAt(const glm::vec3& q) { return mPaged ? mPaged->sample(q) : mF.volume.sample(q); }
+  glm::vec3 gradientAt(const glm::vec3& q) { return mPaged ? mPaged->sampleGradient(q) : mF.volume.sampleGradient(q); }
+
+  static void composite(Ray& r, const glm::dvec3& rgb, double a) { r.acc += glm::dvec4(rgb * a, a) * (1.0 - r.acc.a); }
+
+  // The cutting plane: only [keepLo, keepHi] of the ray is kept; where the ray enters the kept side
+  // inside the data box, the plane shows the data's colour, opaque (returned).
+  std::optional<glm::vec4> keepCutSide(Ray& r) {
+    const glm::dvec4& cut = mF.cut;
+    const double sd = glm::dot(glm::dvec3(cut), r.o) + cut.w, dn = glm::dot(glm::dvec3(cut), r.d);
+    if (dn > 0.0) {
+      r.keepLo = std::max(0.0, -sd / dn);
+      const double slack = 1e-9 * glm::length(mF.boxHi);
+      if (r.inBox && r.keepLo >= r.t0 - slack && r.keepLo <= r.t1 + slack && (!mOptions.region || mOptions.region->contains(r.o + r.d * r.keepLo))) {
+        const glm::vec4 c = mF.tf.lookup(sampleAt(glm::vec3((r.o + r.d * r.keepLo) / mF.spacing)));
+        if (c.a > 0.0f) return glm::vec4(glm::vec3(c), 1.0f);
+      }
+    } else if (sd < 0.0) {
+      r.keepHi = -1.0;  // the whole ray is on the removed side
+    } else if (dn < 0.0) {
+      r.keepHi = -sd / dn;
+    }
+    return std::nullopt;
+  }
+
+  // Composites the surface crossings before distance @p t.
+  void surfaceUntil(Ray& r, double t) {
+    while (r.nextHit < mHits.size() && mHits[r.nextHit].t <= t && r.acc.a < 0.999) {
+      const glm::vec4 c = mOptions.surfaceColor;
+      composite(r, glm::dvec3(c) * headlight(mHits[r.nextHit].normal, r.d), c.a);
+      ++r.nextHit;
+      ++crossings;
+    }
+  }
+
+  // Volume segments of length dt from t0, split at surface crossings, the whole segments inside a
+  // transparent node skipped. A region's frame marches the segments whose (unclipped) middles lie in
+  // the region, on the whole frame's lattice from t0, so that the regions' images composite into
+  // the whole frame's.
+  void marchVolume(Ray& r) {
+    const double dt = mF.dt, t0 = r.t0, t1 = r.t1;
+    double first = t0, last = t1;
+    if (mOptions.region) {
+      double r0 = 0, r1 = 0;
+      if (slab(r.o, r.d, mOptions.region->lo, mOptions.region->hi, &r0, &r1)) {
+        first = t0 + std::max(0.0, std::floor((r0 - t0) / dt) - 1.0) * dt;
+        last = std::min(t1, r1 + dt);
+      } else {
+        last = first;
+      }
+    }
+    auto owned = [&](double ta) {  // by the lattice index, so that every region decides alike
+      return !mOptions.region || mOptions.region->contains(r.o + r.d * (t0 + (std::round((ta - t0) / dt) + 0.5) * dt));
+    };
+    for (double ta = first; ta < last && r.acc.a < 0.999;) {
+      if (!owned(ta)) {
+        ta += dt;
+        continue;
+      }
+      if (const double resume = skipTransparent(r, ta); resume > ta) {
+        surfaceUntil(r, std::min(resume, t1));
+        ++skipped;
+        ta = resume;
+        continue;
+      }
+      const double tb = std::min(ta + dt, t1);
+      for (double s = ta; s < tb && r.acc.a < 0.999;) {
+        const double e = (r.nextHit < mHits.size() && mHits[r.nextHit].t < tb) ? std::max(mHits[r.nextHit].t, s) : tb;
+        if (e > s) compositeSegment(r, s, e);
+        s = e;
+        surfaceUntil(r, s);
+      }
+      ta = tb;
+    }
+  }
+
+  // Where the segments inside the transparent node holding the segment starting at @p ta end (the
+  // one the ray leaves the node in is sampled: its middle, or its end pre-integrated, may lie beyond
+  // the node); @p ta itself when no transparent node holds it.
+  double skipTransparent(const Ray& r, double ta) const {
+    glm::dvec3 lo, hi;
+    if (!mF.transparentBoxAt((r.o + r.d * ta) / mF.spacing, &lo, &hi)) return ta;
+    double e0, e1;
+    slab(r.o, r.d, lo, hi, &e0, &e1);
+    return r.t0 + std::floor((std::max(e1, ta) - r.t0) / mF.dt + 1e-9) * mF.dt;
+  }
+
+  // Composites the volume's segment [s, e] of the ray: sampled at its middle, or pre-integrated
+  // between its two ends' values.
+  void compositeSegment(Ray& r, double s, double e) {
+    const double tm = 0.5 * (s + e);
+    const glm::dvec3 q = (r.o + r.d * tm) / mF.spacing;
+    auto shadeAt = [&] {
+      if (!mOptions.shading) return 1.0;
+      const glm::dvec3 g(gradientAt(glm::vec3(q)));
+      const double len = glm::length(g);
+      return len > 1e-6 ? headlight(g / len, r.d) : 1.0;
+    };
+    if (const PreIntegrationTable* pre = mOptions.preintegrated) {
+      // The front value is the last segment's back one when they meet.
+      const bool meets = s == r.backT;
+      const float front = meets ? r.backValue : sampleAt(glm::vec3((r.o + r.d * s) / mF.spacing));
+      r.backValue = sampleAt(glm::vec3((r.o + r.d * e) / mF.spacing));
+      r.backT = e;
+      samples += meets ? 1 : 2;
+      const glm::vec4 c = pre->lookup(front, r.backValue, e - s, mOptions.voi ? mOptions.voi->factor(r.o + r.d * tm) : 1.0);
+      if (c.a > 0.0f) r.acc += glm::dvec4(glm::dvec3(c) * shadeAt(), c.a) * (1.0 - r.acc.a);
+    } else {
+      glm::vec4 c = mF.tf.lookup(sampleAt(glm::vec3(q)));
+      if (mOptions.voi) c.a = float(std::min(1.0, double(c.a) * mOptions.voi->factor(r.o + r.d * tm)));
+      ++samples;
+      const float a = TransferFunction::segmentAlpha(c.a, float(e - s));
+      if (a > 0.0f) composite(r, glm::dvec3(c) * shadeAt(), a);
+    }
+  }
+
+  const RayFrame& mF;
+  const RaycastOptions& mOptions;
+  std::vector<Hit> mHits;  // the ray's surface crossings, in order
+  std::optional<KnotSampler> mPaged;
+};
+
+// Traces pixels pixel(0) … pixel(count − 1) into @p out on all cores, chunk pixels at a time.
+template <class Pixel>
+void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pixel, Image* out) {
   uint64_t samples = 0, skipped = 0, crossings = 0;
   ParallelFailure failure;  // a progress callback that stops the frame
 #pragma omp parallel reduction(+ : samples, skipped, crossings)
   {
-    std::vector<Hit> hits;
-    std::optional<KnotSampler> paged;
-    if (options.knots) paged.emplace(*options.knots);
-    auto sampleAt = [&](const glm::vec3& q) { return paged ? paged->sample(q) : volume.sample(q); };
-    auto gradientAt = [&](const glm::vec3& q) { return paged ? paged->sampleGradient(q) : volume.sampleGradient(q); };
+    PixelTracer tracer(f);
 #pragma omp for schedule(dynamic, chunk)
     for (size_t i = 0; i < count; ++i) {
       // One iteration a pixel; what it throws (a progress callback that stops, a block that cannot
@@ -109,128 +267,12 @@ void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pix
       failure.run([&] {
         f.progress->advance();
         const glm::ivec2 px = pixel(i);
-        const int x = px.x, y = px.y;
-        glm::dvec3 o, d;
-        camera.ray(x + 0.5, y + 0.5, &o, &d);
-        glm::dvec4 acc(0.0);  // premultiplied rgb, alpha
-        auto composite = [&](const glm::dvec3& rgb, double a) {
-          acc += glm::dvec4(rgb * a, a) * (1.0 - acc.a);
-        };
-        double t0 = 0, t1 = 0;
-        const bool inBox = slab(o, d, glm::dvec3(0.0), boxHi, &t0, &t1);
-        t0 = std::max(t0, 0.0);
-        // The cutting plane: only [keepLo, keepHi] of the ray is kept; where the ray enters the kept
-        // side inside the data box, the plane shows the data's colour, opaque.
-        double keepLo = 0.0, keepHi = 1e300;
-        if (options.cut) {
-          const double sd = glm::dot(glm::dvec3(cut), o) + cut.w, dn = glm::dot(glm::dvec3(cut), d);
-          if (dn > 0.0) {
-            keepLo = std::max(0.0, -sd / dn);
-            const double slack = 1e-9 * glm::length(boxHi);
-            if (inBox && keepLo >= t0 - slack && keepLo <= t1 + slack && (!options.region || options.region->contains(o + d * keepLo))) {
-              const glm::vec4 c = tf.lookup(sampleAt(glm::vec3((o + d * keepLo) / spacing)));
-              if (c.a > 0.0f) {
-                image.at(x, y) = glm::vec4(glm::vec3(c), 1.0f);
-                return;
-              }
-            }
-          } else if (sd < 0.0) {
-            keepHi = -1.0;  // the whole ray is on the removed side
-          } else if (dn < 0.0) {
-            keepHi = -sd / dn;
-          }
-        }
-        t0 = std::max(t0, keepLo);
-        t1 = std::min(t1, keepHi);
-        if (options.surface) options.surface->allHits(o, d, keepLo, std::max(keepLo, keepHi), &hits);
-        size_t nextHit = 0;
-        double backT = -1.0;  // the last pre-integrated segment's end, and its value
-        float backValue = 0.0f;
-        auto surfaceUntil = [&](double t) {  // composite surface crossings before distance t
-          while (nextHit < hits.size() && hits[nextHit].t <= t && acc.a < 0.999) {
-            const glm::vec4 c = options.surfaceColor;
-            composite(glm::dvec3(c) * headlight(hits[nextHit].normal, d), c.a);
-            ++nextHit;
-            ++crossings;
-          }
-        };
-        // A region's frame: the segments whose (unclipped) middles lie in the region, on the whole
-        // frame's lattice from t0, so that the regions' images composite into the whole frame's.
-        double first = t0, last = t1;
-        if (options.region && inBox) {
-          double r0 = 0, r1 = 0;
-          if (slab(o, d, options.region->lo, options.region->hi, &r0, &r1)) {
-            first = t0 + std::max(0.0, std::floor((r0 - t0) / dt) - 1.0) * dt;
-            last = std::min(t1, r1 + dt);
-          } else {
-            last = first;
-          }
-        }
-        auto owned = [&](double ta) {  // by the lattice index, so that every region decides alike
-          return !options.region || options.region->contains(o + d * (t0 + (std::round((ta - t0) / dt) + 0.5) * dt));
-        };
-        if (inBox && options.volume && t1 > t0) {
-          // Volume segments of length dt from t0, split at surface crossings.
-          for (double ta = first; ta < last && acc.a < 0.999;) {
-            if (!owned(ta)) {
-              ta += dt;
-              continue;
-            }
-            glm::dvec3 lo, hi;
-            const glm::dvec3 p = o + d * ta;
-            if (transparentBoxAt(p / spacing, &lo, &hi)) {
-              // The whole segments inside the transparent node are skipped; the one it leaves in is
-              // sampled (its middle, or its end pre-integrated, may lie beyond the node).
-              double e0, e1;
-              slab(o, d, lo, hi, &e0, &e1);
-              const double resume = t0 + std::floor((std::max(e1, ta) - t0) / dt + 1e-9) * dt;
-              if (resume > ta) {
-                surfaceUntil(std::min(resume, t1));
-                ++skipped;
-                ta = resume;
-                continue;
-              }
-            }
-            double tb = std::min(ta + dt, t1);
-            for (double s = ta; s < tb && acc.a < 0.999;) {
-              const double e = (nextHit < hits.size() && hits[nextHit].t < tb) ? std::max(hits[nextHit].t, s) : tb;
-              if (e > s) {
-                const double tm = 0.5 * (s + e);
-                const glm::dvec3 q = (o + d * tm) / spacing;
-                auto shadeAt = [&] {
-                  if (!options.shading) return 1.0;
-                  const glm::dvec3 g(gradientAt(glm::vec3(q)));
-                  const double len = glm::length(g);
-                  return len > 1e-6 ? headlight(g / len, d) : 1.0;
-                };
-                if (const PreIntegrationTable* pre = options.preintegrated) {
-                  // The segment [s, e] between its two ends' values (the front one is the last
-                  // segment's back one when they meet).
-                  const bool meets = s == backT;
-                  const float front = meets ? backValue : sampleAt(glm::vec3((o + d * s) / spacing));
-                  backValue = sampleAt(glm::vec3((o + d * e) / spacing));
-                  backT = e;
-                  samples += meets ? 1 : 2;
-                  const glm::vec4 c = pre->lookup(front, backValue, e - s, options.voi ? options.voi->factor(o + d * tm) : 1.0);
-                  if (c.a > 0.0f) acc += glm::dvec4(glm::dvec3(c) * shadeAt(), c.a) * (1.0 - acc.a);
-                } else {
-                  glm::vec4 c = tf.lookup(sampleAt(glm::vec3(q)));
-                  if (options.voi) c.a = float(std::min(1.0, double(c.a) * options.voi->factor(o + d * tm)));
-                  ++samples;
-                  const float a = TransferFunction::segmentAlpha(c.a, float(e - s));
-                  if (a > 0.0f) composite(glm::dvec3(c) * shadeAt(), a);
-                }
-              }
-              s = e;
-              surfaceUntil(s);
-            }
-            ta = tb;
-          }
-        }
-        surfaceUntil(1e300);
-        image.at(x, y) = glm::vec4(acc);
+        out->at(px.x, px.y) = tracer.trace(px.x, px.y);
       });
     }
+    samples += tracer.samples;
+    skipped += tracer.skipped;
+    crossings += tracer.crossings;
   }
   failure.rethrow();
   f.stats->samples += samples;
@@ -239,10 +281,6 @@ void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pix
   f.stats->rays += count;
 }
 
-// Levoy's progressive (adaptive) refinement: rays on a grid 2^(levels − 1) pixels apart, then, level
-// by level, at half the spacing inside every square whose corners' colours differ by more than the
-// tolerance; the other squares keep the bilinear interpolation of their corners. With tolerance 0
-// the last level traces every pixel not traced yet: the image is the exact one.
 Image refine(const RayFrame& f) {
   const RaycastOptions& options = f.options;
   const int W = f.camera.width, H = f.camera.height, levels = options.refineLevels;
@@ -351,7 +389,7 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
   RaycastStats counts;
   Image image(camera.width, camera.height);
   ProgressTask progress(options.progress, "ray tracing", uint64_t(camera.width) * uint64_t(rows.y - rows.x));
-  const RayFrame f(volume, octree, tf, camera, options, &counts, &progress);
+  const RayFrame f({volume, octree, tf}, camera, options, &counts, &progress);
   if (options.refineLevels > 1) {
     image = refine(f);
   } else {

@@ -1,4 +1,4 @@
-// The reference renderer (DESIGN 6): a CPU hybrid ray tracer after Levoy, "A Hybrid Ray Tracer for
+// The reference renderer (docs/renderer.md): a CPU hybrid ray tracer after Levoy, "A Hybrid Ray Tracer for
 // Rendering Polygon and Volume Data", IEEE CG&A 1990. Full-resolution trilinear samples, the
 // opacity-per-millimetre transfer function, surfaces intersected exactly and composited at their
 // depth, empty-space skipping with the Volume Octree's min/max, early termination at α ≥ 0.999.

@@ -613,13 +613,13 @@ void SceneRenderer::renderSlicesFrame(const FrameGrid& g, const Look& look, cons
     FrameStats ls = st;
     const auto p0 = Clock::now();
     const Selection coarse = selectNodes(mScene.octree, coarser);
-    const Image preview = renderSlices(volume(), mScene.octree, coarse, look.tf, g.camera, so, &ls.slices);
+    const Image preview = renderSlices({volume(), mScene.octree, coarse}, look.tf, g.camera, so, &ls.slices);
     ls.renderMs = msSince(p0);
     if (onLevel) onLevel(k, quality.progressive, preview, ls);
   }
   so.progress = mOptions.progress;
   const auto r0 = Clock::now();
-  out->image = renderSlices(volume(), mScene.octree, out->selection, look.tf, g.camera, so, &st.slices);
+  out->image = renderSlices({volume(), mScene.octree, out->selection}, look.tf, g.camera, so, &st.slices);
   st.renderMs = msSince(r0);
   st.brickErrorsMeasured = mErrors->errors->measured();  // the view's, made by the selection
   st.textureBytesKept = mTextures->bytes();

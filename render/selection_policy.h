@@ -1,4 +1,4 @@
-// The selection policy of a view (DESIGN 3.3 and 7): what hybrid_octree/selection.h's refinement
+// The selection policy of a view (docs/multires.md): what hybrid_octree/selection.h's refinement
 // weighs for one camera and transfer function. Importance by the focus and the eye (Boada, Navazo
 // and Scopigno's OTcut), LaMar's distance filter and screen-space stop, culling by the frustum, the
 // cutting plane and the volume of interest, and within a texture budget Carmona et al.'s greedy

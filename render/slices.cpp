@@ -1,5 +1,5 @@
 // Hybrid slice renderer: I. Boada, I. Navazo, "3D Texture-based Hybrid Visualizations", 2002, §4,
-// with the view-aligned form of DESIGN 3.4 (slice polygons cut on the CPU, global slice planes).
+// in view-aligned form (slice polygons cut on the CPU, global slice planes; docs/renderer.md).
 // This file is the frame, stage by stage; the stages' internals are files of their own in
 // render/slices/: brick_textures (textures, blending, the cache), proxy_geometry (planes and
 // shells), slab_polygons (the SlabPolygon lists), cut_plane_pass and the shaders.
@@ -36,7 +36,7 @@ namespace {
 
 // Base slice spacings between a brick's slices when its texels are @p step voxels apart: full
 // resolution keeps the base spacing (half a voxel by default: twice a texel), two voxels a texel
-// take three (4/3 a texel), coarser levels twice their step (once a texel: DESIGN 4's slab width;
+// take three (4/3 a texel), coarser levels twice their step (once a texel: the paper's slab width, §4.1;
 // their knots hold the data smoothed by the lattice's tent). Every brick's planes lie on the base
 // grid, and coarse fragments cut the stretch they stand for to the brick's box (SEGMENTS in
 // the slice shader), so a level change shows no seam of sampling (docs/multires.md measures the
@@ -129,44 +129,6 @@ bool meetsRows(const VolumeOctree& octree, const OctreeNode& n, const glm::dvec3
     y1 = std::max(y1, y);
   }
   return y1 + 2.0 >= double(rows.x) && y0 - 2.0 <= double(rows.y);
-}
-
-// Draws @p surface opaque with depth writes by @p program (kSurfaceFragment), headlight-shaded (by
-// its vertex normals when it has them), clipped by @p cutPlane. The frame's vertex buffer is bound.
-// The triangles that cover no pixel centre are left out (a large study's surface at a small size:
-// nearly all of them).
-uint64_t drawOpaqueSurface(GLuint program, const TriangleMesh& surface, const glm::mat4& viewProj, const Camera& camera, const glm::vec3& color,
-                           const glm::vec4& cutPlane, const PixelCentres* centres) {
-  glUseProgram(program);
-  std::vector<float> data;
-  uint64_t unseen = 0;
-  for (const glm::uvec3& t : surface.triangles) {
-    const glm::vec3 a = surface.vertices[t.x], b = surface.vertices[t.y], c = surface.vertices[t.z];
-    if (const PixelCentres::Cover cover = centres ? centres->cover(a, b, c, nullptr) : PixelCentres::Cover{}; cover.known && cover.centres == 0) {
-      ++unseen;
-      continue;
-    }
-    const glm::vec3 face = glm::normalize(glm::cross(b - a, c - a));
-    for (int k = 0; k < 3; ++k) {
-      const glm::vec3 p = surface.vertices[t[k]], n = surface.normals.empty() ? face : surface.normals[t[k]];
-      data.insert(data.end(), {p.x, p.y, p.z, n.x, n.y, n.z});
-    }
-  }
-  const glm::vec3 f(camera.forward());
-  auto at = [&](const char* name) { return glGetUniformLocation(program, name); };
-  glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(data.size() * sizeof(float)), data.data(), GL_STATIC_DRAW);
-  glEnableVertexAttribArray(0);
-  glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), nullptr);
-  glEnableVertexAttribArray(1);
-  glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
-  glUniformMatrix4fv(at("viewProj"), 1, GL_FALSE, glm::value_ptr(viewProj));
-  glUniform3f(at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
-  glUniform3fv(at("forward"), 1, glm::value_ptr(f));
-  glUniform1i(at("ortho"), camera.ortho ? 1 : 0);
-  glUniform3fv(at("color"), 1, glm::value_ptr(color));
-  glUniform4fv(at("cutPlane"), 1, glm::value_ptr(cutPlane));
-  glDrawArrays(GL_TRIANGLES, 0, GLsizei(data.size() / 6));
-  return unseen;
 }
 
 // The transfer function's lookup table (texture unit 1, read with texelFetch) and what it shows;
@@ -313,8 +275,40 @@ class FramePrograms {
   std::vector<gl::Program> mOwn;  // without a cache: the frame's own
 };
 
-// What every stage of one slice frame reads, made once: its inputs, its camera, the transfer
-// function's table, the bricks' draw order and the surface's polygons by brick.
+// The frame's target: float colour (premultiplied) and depth for opaque surfaces, cleared, a
+// band's rows only; the vertex array and buffer the surface passes draw from, bound; depth tested.
+struct SliceTarget {
+  glm::ivec2 rows;  // the image rows drawn [rows.x, rows.y), from the top
+  gl::FloatTarget target;
+  gl::VertexArray vao;
+  gl::Buffer vbo;
+  SliceTarget(const Camera& camera, const SlicesOptions& options)
+      : rows(options.rows.value_or(glm::ivec2(0, camera.height))), target(camera.width, camera.height) {
+    const int W = camera.width, H = camera.height;
+    HYB_CHECK(rows.x >= 0 && rows.x < rows.y && rows.y <= H);
+    if (options.rows) {
+      glEnable(GL_SCISSOR_TEST);
+      glScissor(0, H - rows.y, W, rows.y - rows.x);
+    } else {
+      glDisable(GL_SCISSOR_TEST);
+    }
+    glDepthMask(GL_TRUE);  // a previous frame may have left depth writes off, which would skip the clear
+    glDisable(GL_BLEND);
+    glClearColor(0, 0, 0, 0);
+    glClearDepth(1.0);
+    glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+    vao = gl::VertexArray::make();
+    glBindVertexArray(vao.id());
+    vbo = gl::Buffer::make();
+    glBindBuffer(GL_ARRAY_BUFFER, vbo.id());
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LESS);
+  }
+};
+
+// What every stage of one slice frame reads, made once after its target: its inputs, its camera,
+// the transfer function's table, the bricks' draw order and the surface's polygons by brick. Its
+// pointers point into it, so it is neither copied nor moved.
 struct SliceFrame {
   const Volume& volume;
   const VolumeOctree& octree;
@@ -322,16 +316,57 @@ struct SliceFrame {
   const TransferFunction& tf;
   const Camera& camera;
   const SlicesOptions& options;
-  const FrameCamera& view;       // the camera's matrices and forward axis
-  const TransferTable& table;
-  double baseDelta;              // the base slice spacing, mm
-  glm::dvec4 cut;                // the cutting plane's kept side (everything without a plane)
-  const BrickIndex& brickOf;
-  const std::vector<uint32_t>& order;       // the bricks' nodes, back to front
-  const SurfacePolygons* surface;           // the translucent surface's polygons (in SlabPolygon lists), or none
-  const BrickPolygons& polygonsOf;
-  const PixelCentres* centres;              // the triangles between pixel centres left out, or none
+  const glm::ivec2 rows;          // the image rows drawn, from the top
+  const double baseDelta;         // the base slice spacing, mm
+  const FrameCamera view;         // the camera's matrices and forward axis
+  const glm::dvec4 cut;           // the cutting plane's kept side (everything without a plane)
+  const bool withTriangles;       // a surface with triangles is drawn
+  const bool translucent;         // and drawn translucent, between the slices
+  const TransferTable table;
+  const PixelCentres pixelCentres;
+  const PixelCentres* centres;    // the triangles between pixel centres left out, or none
+  const BrickIndex brickOf;
+  const std::vector<uint32_t> order;              // the bricks' nodes, back to front
+  const std::optional<SurfacePolygons> polygons;  // the surface's, with triangles
+  const SurfacePolygons* surface;                 // the translucent surface's polygons (in SlabPolygon lists), or none
+  const BrickPolygons polygonsOf;
+
+  SliceFrame(const SelectedBricks& in, const TransferFunction& tfIn, const Camera& cameraIn, const SlicesOptions& optionsIn,
+             const glm::ivec2& rowsIn)
+      : volume(in.volume), octree(in.octree), selection(in.selection), tf(tfIn), camera(cameraIn), options(optionsIn), rows(rowsIn),
+        baseDelta(options.stepVoxels * std::min({spacing().x, spacing().y, spacing().z})), view(frameCamera(volume, camera, baseDelta)),
+        cut(options.cut ? options.cut->keptSide(camera) : glm::dvec4(0, 0, 0, 1)),
+        withTriangles(options.surface && !options.surface->triangles.empty()), translucent(withTriangles && options.surfaceColor.a < 1.0f),
+        table(volume, tf, options.preintegrated, options.textures), pixelCentres(view.viewProj, camera.width, camera.height),
+        centres(options.leaveOutUnseen ? &pixelCentres : nullptr), brickOf(selection), order(bricksInView()),
+        polygons(withTriangles ? std::optional<SurfacePolygons>(*options.surface) : std::nullopt), surface(translucent ? &*polygons : nullptr),
+        polygonsOf(polygons ? polygonsByBrick(volume, octree, selection, *polygons, options.region)
+                            : BrickPolygons{std::vector<uint32_t>(selection.bricks.size() + 1, 0), {}}) {
+    if (options.textures) {
+      options.textures->setBits(options.texelBits);
+      options.textures->beginFrame();
+    }
+  }
+  SliceFrame(const SliceFrame&) = delete;
+  SliceFrame& operator=(const SliceFrame&) = delete;
   glm::dvec3 spacing() const { return volume.spacing(); }
+
+ private:
+  // The bricks back to front, less those outside the band of rows or the region (the members
+  // above order made).
+  std::vector<uint32_t> bricksInView() const {
+    const glm::dvec3 eyeVoxel = (camera.ortho ? camera.eye - view.forward * 1e9 * view.diag : camera.eye) / spacing();
+    std::vector<uint32_t> inView = bricksBackToFront(octree, brickOf, eyeVoxel);
+    HYB_CHECK(inView.size() == selection.bricks.size());
+    if (options.rows)
+      std::erase_if(inView, [&](uint32_t node) { return !meetsRows(octree, octree.nodes()[node], spacing(), view.viewProj, camera.height, rows); });
+    if (options.region)
+      std::erase_if(inView, [&](uint32_t node) {  // a brick lies inside one region: its centre's
+        const OctreeNode& n = octree.nodes()[node];
+        return !options.region->contains((glm::dvec3(n.origin) + 0.5 * double(octree.edge(n))) * spacing());
+      });
+    return inView;
+  }
 };
 
 // What a worker reuses from one brick's stream to the next.
@@ -594,7 +629,7 @@ void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
   const auto [bmin, bmax] = depth.range(d.blo, d.bhi);
   long long kLo = (long long)std::floor(bmin / d.delta) - 1, kHi = (long long)std::ceil(bmax / d.delta);
   if (surface) {
-    list.build(*surface, f.polygonsOf.of(d.brick), depth, d.delta, d.sliced, f.options.cutToSlabs, f.centres);
+    list.build(*surface, f.polygonsOf.of(d.brick), {depth, d.delta, d.sliced, f.options.cutToSlabs}, f.centres);
     if (d.sliced && !list.empty()) {
       kLo = std::min(kLo, list.firstSlab());
       kHi = std::max(kHi, list.lastSlab());
@@ -633,192 +668,213 @@ void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
   }
 }
 
-}  // namespace
-
-SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const TriangleMesh* surface) {
-  SlicesOptions so;
-  so.stepVoxels = quality.step.value_or(0.5);
-  so.shading = look.shading;
-  so.texelBits = quality.texelBits;
-  so.proxy = quality.proxy;
-  so.surface = surface;
-  so.surfaceColor = look.surfaceColor;
-  so.cut = grid.cut ? &*grid.cut : nullptr;
-  so.cutLine = look.cutLine;
-  so.voi = grid.voi ? &*grid.voi : nullptr;
-  so.cutToSlabs = quality.cutToSlabs;
-  so.region = quality.region ? &*quality.region : nullptr;
-  so.rows = quality.rows;
-  return so;
-}
-
-Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
-                   const Camera& camera, const SlicesOptions& options, SlicesStats* stats) {
-  const int W = camera.width, H = camera.height;
-  const glm::dvec3 spacing = volume.spacing();
-  const double baseDelta = options.stepVoxels * std::min({spacing.x, spacing.y, spacing.z});
-  SlicesStats st;
-
-  // Framebuffer: float colour (premultiplied), depth for opaque surfaces; a band's rows only.
-  const gl::FloatTarget target(W, H);
-  const glm::ivec2 rows = options.rows.value_or(glm::ivec2(0, H));
-  HYB_CHECK(rows.x >= 0 && rows.x < rows.y && rows.y <= H);
-  if (options.rows) {
-    glEnable(GL_SCISSOR_TEST);
-    glScissor(0, H - rows.y, W, rows.y - rows.x);
-  } else {
-    glDisable(GL_SCISSOR_TEST);
+// One slice frame, its stages as methods (as vtkFlyingEdges3D's passes are methods of one
+// algorithm object): made, it holds the target, what every stage reads (SliceFrame) and the
+// programs; renderSlices calls the stages in order, each drawing over what those before it drew.
+class SlicesFrame {
+ public:
+  SlicesFrame(const SelectedBricks& in, const TransferFunction& tf, const Camera& camera, const SlicesOptions& options)
+      : mTarget(camera, options), mF(in, tf, camera, options, mTarget.rows),
+        mPrograms(options, camera, mF.view, mF.table, mF.translucent, glm::vec4(mF.cut)) {
+    if (options.cut) glEnable(GL_CLIP_DISTANCE0);
   }
-  glDepthMask(GL_TRUE);  // a previous frame may have left depth writes off, which would skip the clear
-  glDisable(GL_BLEND);
-  glClearColor(0, 0, 0, 0);
-  glClearDepth(1.0);
-  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
-  const FrameCamera frame = frameCamera(volume, camera, baseDelta);
-  const gl::VertexArray vao = gl::VertexArray::make();
-  glBindVertexArray(vao.id());
-  const gl::Buffer vbo = gl::Buffer::make();
-  glBindBuffer(GL_ARRAY_BUFFER, vbo.id());
-  glEnable(GL_DEPTH_TEST);
-  glDepthFunc(GL_LESS);
-  // The cutting plane's kept side (everything kept without a plane).
-  const glm::dvec4 cut = options.cut ? options.cut->keptSide(camera) : glm::dvec4(0, 0, 0, 1);
-  const glm::vec4 cutPlane(cut);
-  if (options.cut) glEnable(GL_CLIP_DISTANCE0);
 
-  // 1. The transfer function's table and the programs.
-  const bool withTriangles = options.surface && !options.surface->triangles.empty();
-  const bool translucent = withTriangles && options.surfaceColor.a < 1.0f;
-  const TransferTable table(volume, tf, options.preintegrated, options.textures);
-  if (options.textures) {
-    options.textures->setBits(options.texelBits);
-    options.textures->beginFrame();
+  // The opaque surface first, writing depth; then depth writes off and blending on for the rest.
+  void drawOpaqueSurface() {
+    const bool opaque = mF.withTriangles && !mF.translucent;
+    if (opaque) mStats.unseenTriangles = drawSurfaceTriangles();
+    glEnableVertexAttribArray(0);
+    glEnableVertexAttribArray(1);
+    glEnableVertexAttribArray(2);
+    glDepthMask(GL_FALSE);
+    // Only the opaque surface and the cutting plane write depth; without them every fragment passes
+    // (llvmpipe would still read and compare the depth of every one).
+    if (!opaque && !mF.options.cut) glDisable(GL_DEPTH_TEST);
+    glEnable(GL_BLEND);
+    glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
   }
-  FramePrograms programs(options, camera, frame, table, translucent, cutPlane);
-  const PixelCentres centres(frame.viewProj, W, H);  // which surface triangles draw no fragment
-  const PixelCentres* unseen = options.leaveOutUnseen ? &centres : nullptr;
 
-  // 2. The opaque surface first, writing depth.
-  if (withTriangles && !translucent)
-    st.unseenTriangles =
-        drawOpaqueSurface(programs.surface(), *options.surface, frame.viewProj, camera, glm::vec3(options.surfaceColor), cutPlane, unseen);
-  glEnableVertexAttribArray(0);
-  glEnableVertexAttribArray(1);
-  glEnableVertexAttribArray(2);
-  glDepthMask(GL_FALSE);
-  // Only the opaque surface and the cutting plane write depth; without them every fragment passes
-  // (llvmpipe would still read and compare the depth of every one).
-  if (!(withTriangles && !translucent) && !options.cut) glDisable(GL_DEPTH_TEST);
-  glEnable(GL_BLEND);
-  glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);  // premultiplied "over", back to front
+  // The bricks' draws planned in order, the textures of those the cutting plane crosses made; the
+  // fragments are counted from here on.
+  void planBricks() {
+    mQuery = gl::Query::make();
+    glBeginQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB, mQuery.id());
+    mPlanner.emplace(mF);
+  }
 
-  // 3. Bricks back to front, and the surface polygons each brick holds.
-  const BrickIndex brickOf(selection);
-  const glm::dvec3 eyeVoxel = (camera.ortho ? camera.eye - frame.forward * 1e9 * frame.diag : camera.eye) / spacing;
-  std::vector<uint32_t> order = bricksBackToFront(octree, brickOf, eyeVoxel);
-  HYB_CHECK(order.size() == selection.bricks.size());
-  if (options.rows) std::erase_if(order, [&](uint32_t node) { return !meetsRows(octree, octree.nodes()[node], spacing, frame.viewProj, H, rows); });
-  if (options.region)
-    std::erase_if(order, [&](uint32_t node) {  // a brick lies inside one region: its centre's
-      const OctreeNode& n = octree.nodes()[node];
-      return !options.region->contains((glm::dvec3(n.origin) + 0.5 * double(octree.edge(n))) * spacing);
-    });
-  const std::optional<SurfacePolygons> polygons = withTriangles ? std::optional<SurfacePolygons>(*options.surface) : std::nullopt;
-  const BrickPolygons polygonsOf =
-      polygons ? polygonsByBrick(volume, octree, selection, *polygons, options.region) : BrickPolygons{std::vector<uint32_t>(selection.bricks.size() + 1, 0), {}};
+  // The cutting plane, opaque and writing depth.
+  void drawCutPlane() {
+    if (mF.options.cut) mStats.cutPolygons = hyb::drawCutPlane(mPrograms.cut(), mPlanner->cut());
+  }
 
-  const SliceFrame f{volume, octree, selection, tf, camera, options, frame, table, baseDelta, cut, brickOf, order,
-                     translucent ? &*polygons : nullptr, polygonsOf, unseen};
-
-  const gl::Query query = gl::Query::make();
-  glBeginQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB, query.id());
-  // 4. The bricks the cutting plane crosses, their textures made.
-  BrickPlanner planner(f);
-  // 5. The cutting plane, opaque and writing depth.
-  if (options.cut) st.cutPolygons = drawCutPlane(programs.cut(), planner.cut());
-
-  // 6. The bricks' textures and slicing planned a batch ahead of the drawing (the next batch when
+  // The bricks' textures and slicing planned a batch ahead of the drawing (the next batch when
   // the drawing enters the last one planned); each brick's slices and SlabPolygon lists built by a
   // worker in draw order (it publishes how many are done) and drawn here. The worker builds only
   // planned draws, at most kLookahead bricks ahead of the drawing, so the streams held at once stay
   // a few bricks' worth however many bricks the frame has.
-  constexpr size_t kLookahead = 32;
-  std::vector<BrickDraw>& draws = planner.draws();
-  planner.planNext();
-  GLuint bound = 0;  // the slice program in use
-  constexpr size_t kTrimBytes = size_t(128) << 20;
-  size_t drawnBytes = 0;  // of streams and new textures since the heap was last trimmed
-  // The draws the worker may build, set here alone; kAbandon stops it.
-  constexpr size_t kAbandon = std::numeric_limits<size_t>::max();
-  std::atomic<size_t> built{0}, ready{0};
-  std::exception_ptr failure;
-  std::thread worker([&] {
-    StreamScratch scratch;
-    try {
-      for (size_t j = 0; j < draws.size(); ++j) {
-        size_t may = ready.load(std::memory_order_acquire);
-        for (; may <= j; may = ready.load(std::memory_order_acquire)) ready.wait(may);
-        if (may == kAbandon) return;
-        buildStream(draws[j], f, scratch);
-        built.fetch_add(1, std::memory_order_release);
+  void drawBricks() {
+    constexpr size_t kLookahead = 32;
+    BrickPlanner& planner = *mPlanner;
+    std::vector<BrickDraw>& draws = planner.draws();
+    planner.planNext();
+    // The draws the worker may build, set here alone; kAbandon stops it.
+    constexpr size_t kAbandon = std::numeric_limits<size_t>::max();
+    std::atomic<size_t> built{0}, ready{0};
+    std::exception_ptr failure;
+    std::thread worker([&] {
+      StreamScratch scratch;
+      try {
+        for (size_t j = 0; j < draws.size(); ++j) {
+          size_t may = ready.load(std::memory_order_acquire);
+          for (; may <= j; may = ready.load(std::memory_order_acquire)) ready.wait(may);
+          if (may == kAbandon) return;
+          buildStream(draws[j], mF, scratch);
+          built.fetch_add(1, std::memory_order_release);
+          built.notify_one();
+        }
+      } catch (...) {
+        failure = std::current_exception();
+        built.store(draws.size(), std::memory_order_release);
         built.notify_one();
       }
-    } catch (...) {
-      failure = std::current_exception();
-      built.store(draws.size(), std::memory_order_release);
-      built.notify_one();
-    }
-  });
-  // The worker is joined whatever happens here (an exception leaving this scope, from the drawing
-  // or the packing, would otherwise terminate the process through its std::thread); it is stopped
-  // first.
-  struct Join {
-    std::thread& t;
-    std::atomic<size_t>& ready;
-    ~Join() {
-      ready.store(kAbandon, std::memory_order_release);
+    });
+    // The worker is joined whatever happens here (an exception leaving this scope, from the drawing
+    // or the packing, would otherwise terminate the process through its std::thread); it is stopped
+    // first.
+    struct Join {
+      std::thread& t;
+      std::atomic<size_t>& ready;
+      ~Join() {
+        ready.store(kAbandon, std::memory_order_release);
+        ready.notify_one();
+        if (t.joinable()) t.join();
+      }
+    } join{worker, ready};
+    ProgressTask progress(mF.options.progress, "slices", draws.size());
+    for (size_t j = 0; j < draws.size(); ++j, progress.advance()) {
+      if (j >= planner.lastBatch() && planner.planned() < draws.size()) planner.planNext();
+      HYB_DCHECK(j < planner.planned());
+      ready.store(std::min(planner.planned(), j + kLookahead + 1), std::memory_order_release);
       ready.notify_one();
-      if (t.joinable()) t.join();
+      for (size_t seen = built.load(std::memory_order_acquire); seen <= j; seen = built.load(std::memory_order_acquire)) built.wait(seen);
+      if (failure) break;
+      drawBrick(draws[j]);
     }
-  } join{worker, ready};
-  ProgressTask progress(options.progress, "slices", draws.size());
-  for (size_t j = 0; j < draws.size(); ++j, progress.advance()) {
-    if (j >= planner.lastBatch() && planner.planned() < draws.size()) planner.planNext();
-    HYB_DCHECK(j < planner.planned());
-    ready.store(std::min(planner.planned(), j + kLookahead + 1), std::memory_order_release);
-    ready.notify_one();
-    for (size_t seen = built.load(std::memory_order_acquire); seen <= j; seen = built.load(std::memory_order_acquire)) built.wait(seen);
-    if (failure) break;
-    BrickDraw& d = draws[j];
-    st.slices += d.slices;
-    st.surfaceTriangles += d.surfaceTriangles;
-    st.unseenTriangles += d.unseenTriangles;
-    st.slabPolygonDraws += d.slabPolygonDraws;
+    worker.join();
+    if (failure) std::rethrow_exception(failure);
+  }
+
+  // The isosurface's outline on the cutting plane, on top.
+  void drawCutLine() {
+    const SlicesOptions& options = mF.options;
+    if (options.cut && options.cutLine && options.surface)
+      mStats.cutLineSegments = hyb::drawCutLine(*options.surface, mF.cut, mF.view.viewProj, options.surfaceColor);
+  }
+
+  // The band's pixels, and the frame's figures in @p stats (if given).
+  Image readBack(SlicesStats* stats) {
+    glEndQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB);
+    GLuint fragments = 0;  // libOSMesa exports only the 32-bit getter; frames stay below 2^32 fragments
+    glGetQueryObjectuiv(mQuery.id(), GL_QUERY_RESULT, &fragments);
+    mStats.fragments = fragments;
+    mPlanner->addStats(&mStats);
+    const int W = mF.camera.width, H = mF.camera.height;
+    const glm::ivec2 rows = mF.rows;
+    Image image(W, H);
+    std::vector<float> rgba(size_t(W) * size_t(rows.y - rows.x) * 4);
+    glReadPixels(0, H - rows.y, W, rows.y - rows.x, GL_RGBA, GL_FLOAT, rgba.data());
+    for (int y = rows.x; y < rows.y; ++y)
+      for (int x = 0; x < W; ++x) {
+        const float* p = &rgba[(size_t(rows.y - 1 - y) * W + x) * 4];
+        image.at(x, y) = glm::vec4(p[0], p[1], p[2], p[3]);
+      }
+    const GLenum err = glGetError();
+    glDisable(GL_CLIP_DISTANCE0);
+    glDisable(GL_SCISSOR_TEST);
+    if (mF.options.textures) mF.options.textures->evict();
+    if (err != GL_NO_ERROR) HYB_THROW(RuntimeError, "OpenGL error 0x", std::hex, err, " while rendering slices");
+    if (stats) *stats = mStats;
+    return image;
+  }
+
+ private:
+  // Draws the opaque surface with depth writes (kSurfaceFragment), headlight-shaded (by its vertex
+  // normals when it has them), clipped by the cutting plane, from the target's vertex buffer. The
+  // triangles that cover no pixel centre are left out (a large study's surface at a small size:
+  // nearly all of them); returns their count.
+  uint64_t drawSurfaceTriangles() {
+    const GLuint program = mPrograms.surface();
+    const TriangleMesh& surface = *mF.options.surface;
+    const Camera& camera = mF.camera;
+    const PixelCentres* centres = mF.centres;
+    const glm::vec3 color(mF.options.surfaceColor);
+    const glm::vec4 cutPlane(mF.cut);
+    glUseProgram(program);
+    std::vector<float> data;
+    uint64_t unseen = 0;
+    for (const glm::uvec3& t : surface.triangles) {
+      const glm::vec3 a = surface.vertices[t.x], b = surface.vertices[t.y], c = surface.vertices[t.z];
+      if (const PixelCentres::Cover cover = centres ? centres->cover(a, b, c, nullptr) : PixelCentres::Cover{}; cover.known && cover.centres == 0) {
+        ++unseen;
+        continue;
+      }
+      const glm::vec3 face = glm::normalize(glm::cross(b - a, c - a));
+      for (int k = 0; k < 3; ++k) {
+        const glm::vec3 p = surface.vertices[t[k]], n = surface.normals.empty() ? face : surface.normals[t[k]];
+        data.insert(data.end(), {p.x, p.y, p.z, n.x, n.y, n.z});
+      }
+    }
+    const glm::vec3 f(camera.forward());
+    auto at = [&](const char* name) { return glGetUniformLocation(program, name); };
+    glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(data.size() * sizeof(float)), data.data(), GL_STATIC_DRAW);
+    glEnableVertexAttribArray(0);
+    glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), nullptr);
+    glEnableVertexAttribArray(1);
+    glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
+    glUniformMatrix4fv(at("viewProj"), 1, GL_FALSE, glm::value_ptr(mF.view.viewProj));
+    glUniform3f(at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
+    glUniform3fv(at("forward"), 1, glm::value_ptr(f));
+    glUniform1i(at("ortho"), camera.ortho ? 1 : 0);
+    glUniform3fv(at("color"), 1, glm::value_ptr(color));
+    glUniform4fv(at("cutPlane"), 1, glm::value_ptr(cutPlane));
+    glDrawArrays(GL_TRIANGLES, 0, GLsizei(data.size() / 6));
+    return unseen;
+  }
+
+  // Draws @p d: its figures counted, its texture made from its packed texels, its stream sent to
+  // the slice program with its brick's uniforms.
+  void drawBrick(BrickDraw& d) {
+    const SlicesOptions& options = mF.options;
+    mStats.slices += d.slices;
+    mStats.surfaceTriangles += d.surfaceTriangles;
+    mStats.unseenTriangles += d.unseenTriangles;
+    mStats.slabPolygonDraws += d.slabPolygonDraws;
     // A packed brick's texture, made for its draw: kept by the cache if it has room (it evicts
-    // earlier frames' bricks for it), else deleted when this iteration ends.
+    // earlier frames' bricks for it), else deleted when this draw ends.
     CachedBrick drawing;
     if (d.pending) {
       drawing = uploadBrick(std::move(d.packed), d.texels, options.texelBits);
-      planner.uploaded(d);
+      mPlanner->uploaded(d);
       d.texture = drawing.texture.id();
     }
     // The frees of a frame's textures and streams leave the heap fragmented, its pages resident
     // though unused: handed back every kTrimBytes drawn, a frame's memory follows what it holds.
-    drawnBytes += d.stream.size() * sizeof(float) + drawing.bytes;
-    if (drawnBytes > kTrimBytes) {
+    constexpr size_t kTrimBytes = size_t(128) << 20;
+    mDrawnBytes += d.stream.size() * sizeof(float) + drawing.bytes;
+    if (mDrawnBytes > kTrimBytes) {
       malloc_trim(0);
-      drawnBytes = 0;
+      mDrawnBytes = 0;
     }
     auto keep = [&] {
       if (drawing.texture && options.textures && options.textures->makeRoom(drawing.bytes))
-        options.textures->insert(selection.bricks[d.brick], std::move(drawing));
+        options.textures->insert(mF.selection.bricks[d.brick], std::move(drawing));
     };
     if (d.stream.empty()) {
       keep();
-      continue;
+      return;
     }
-    const FramePrograms::Slice& sp = programs.slice(d.delta > baseDelta, d.slabPolygonDraws > 0);
-    if (sp.id != bound) glUseProgram(bound = sp.id);
+    const FramePrograms::Slice& sp = mPrograms.slice(d.delta > mF.baseDelta, d.slabPolygonDraws > 0);
+    if (sp.id != mBound) glUseProgram(mBound = sp.id);
     if (d.visible) {
       glActiveTexture(GL_TEXTURE0);
       glBindTexture(GL_TEXTURE_3D, d.texture);
@@ -843,32 +899,45 @@ Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selec
     std::vector<float>().swap(d.stream);
     keep();
   }
-  worker.join();
-  if (failure) std::rethrow_exception(failure);
-  // 7. The isosurface's outline on the cutting plane, on top.
-  if (options.cut && options.cutLine && options.surface) st.cutLineSegments = drawCutLine(*options.surface, cut, frame.viewProj, options.surfaceColor);
-  glEndQuery(GL_FRAGMENT_SHADER_INVOCATIONS_ARB);
-  GLuint fragments = 0;  // libOSMesa exports only the 32-bit getter; frames stay below 2^32 fragments
-  glGetQueryObjectuiv(query.id(), GL_QUERY_RESULT, &fragments);
-  st.fragments = fragments;
-  planner.addStats(&st);
 
-  // 8. Read back.
-  Image image(W, H);
-  std::vector<float> rgba(size_t(W) * size_t(rows.y - rows.x) * 4);
-  glReadPixels(0, H - rows.y, W, rows.y - rows.x, GL_RGBA, GL_FLOAT, rgba.data());
-  for (int y = rows.x; y < rows.y; ++y)
-    for (int x = 0; x < W; ++x) {
-      const float* p = &rgba[(size_t(rows.y - 1 - y) * W + x) * 4];
-      image.at(x, y) = glm::vec4(p[0], p[1], p[2], p[3]);
-    }
-  const GLenum err = glGetError();
-  glDisable(GL_CLIP_DISTANCE0);
-  glDisable(GL_SCISSOR_TEST);
-  if (options.textures) options.textures->evict();
-  if (err != GL_NO_ERROR) HYB_THROW(RuntimeError, "OpenGL error 0x", std::hex, err, " while rendering slices");
-  if (stats) *stats = st;
-  return image;
+  const SliceTarget mTarget;
+  const SliceFrame mF;
+  FramePrograms mPrograms;
+  SlicesStats mStats;
+  gl::Query mQuery;                      // counts the fragments from the planning on
+  std::optional<BrickPlanner> mPlanner;  // made by planBricks
+  GLuint mBound = 0;                     // the slice program in use
+  size_t mDrawnBytes = 0;                // of streams and new textures since the heap was last trimmed
+};
+
+}  // namespace
+
+SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const TriangleMesh* surface) {
+  SlicesOptions so;
+  so.stepVoxels = quality.step.value_or(0.5);
+  so.shading = look.shading;
+  so.texelBits = quality.texelBits;
+  so.proxy = quality.proxy;
+  so.surface = surface;
+  so.surfaceColor = look.surfaceColor;
+  so.cut = grid.cut ? &*grid.cut : nullptr;
+  so.cutLine = look.cutLine;
+  so.voi = grid.voi ? &*grid.voi : nullptr;
+  so.cutToSlabs = quality.cutToSlabs;
+  so.region = quality.region ? &*quality.region : nullptr;
+  so.rows = quality.rows;
+  return so;
+}
+
+Image renderSlices(const SelectedBricks& bricks, const TransferFunction& tf, const Camera& camera, const SlicesOptions& options,
+                   SlicesStats* stats) {
+  SlicesFrame frame(bricks, tf, camera, options);  // the target, the table, the bricks in order, the programs
+  frame.drawOpaqueSurface();
+  frame.planBricks();
+  frame.drawCutPlane();
+  frame.drawBricks();
+  frame.drawCutLine();
+  return frame.readBack(stats);
 }
 
 }  // namespace hyb

@@ -1,4 +1,4 @@
-// The hybrid slice renderer (Boada and Navazo 2002, §4; DESIGN 3.4–3.5) on OpenGL 4.5 core through
+// The hybrid slice renderer (Boada and Navazo 2002, §4; docs/renderer.md) on OpenGL 4.5 core through
 // OSMesa: one 3D texture per selected brick at its level p, view-aligned slices cut on the CPU from
 // globally aligned planes, bricks drawn back to front in octree order (valid for perspective and
 // orthographic views), composited in a float framebuffer with premultiplied colours.
@@ -105,9 +105,17 @@ struct SlicesStats {
   uint64_t cutLineSegments = 0;   ///< segments of the surface's intersection with the cutting plane
 };
 
-/// Renders the bricks of @p selection. Requires a current GlContext.
+/// What a slice frame draws, in the grid frame: the volume, its Volume Octree and the bricks
+/// selected from it, all of which must outlive the frame.
+struct SelectedBricks {
+  const Volume& volume;
+  const VolumeOctree& octree;
+  const Selection& selection;
+};
+
+/// Renders the selected bricks of @p bricks. Requires a current GlContext.
 /// @throw RuntimeError when OpenGL fails (shader compilation, framebuffer).
-Image renderSlices(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const TransferFunction& tf,
-                   const Camera& camera, const SlicesOptions& options, SlicesStats* stats = nullptr);
+Image renderSlices(const SelectedBricks& bricks, const TransferFunction& tf, const Camera& camera, const SlicesOptions& options,
+                   SlicesStats* stats = nullptr);
 
 }  // namespace hyb

@@ -1,4 +1,4 @@
-// 1D transfer function: data value → colour and opacity per millimetre (DESIGN 2).
+// 1D transfer function: data value → colour and opacity per millimetre (docs/renderer.md, Conventions).
 #pragma once
 
 #include <glm/glm.hpp>

@@ -1,5 +1,5 @@
 // Derivation of the Discretized Marching Cubes table: Montani, Scateni and Scopigno,
-// "Discretized Marching Cubes", Visualization '94, with the face-consistent loops of DESIGN 3.1.
+// "Discretized Marching Cubes", Visualization '94, with face-consistent loops (docs/surface.md).
 #include "surface/dmc_table.h"
 
 #include <algorithm>

@@ -1,5 +1,5 @@
 // The Discretized Marching Cubes case table (Montani, Scateni and Scopigno, "Discretized Marching
-// Cubes", Visualization '94; DESIGN 3.1), derived in code at first use.
+// Cubes", Visualization '94; docs/surface.md), derived in code at first use.
 //
 // Cell-local doubled coordinates: corner c sits at 2·(c&1, c>>1&1, c>>2&1); a corner is inside when
 // its sample is ≥ the isovalue. Vertices are the midpoints of the 12 edges.

@@ -139,7 +139,7 @@ TEST(BrickImageError, TheBudgetGoesWhereTheImageChangesMost) {
   const glm::ivec3 inRod(8, 15, 15), inPlate(44, 48, 48);
   const uint64_t full = selectNodes(t, bound).texels;
   const std::vector<uint8_t> reference = toRgba8(raycast(v, t, tf, cam, RaycastOptions{}), glm::vec3(0));
-  auto db = [&](const Selection& sel) { return psnr(toRgba8(renderSlices(v, t, sel, tf, cam, SlicesOptions{}), glm::vec3(0)), reference); };
+  auto db = [&](const Selection& sel) { return psnr(toRgba8(renderSlices({v, t, sel}, tf, cam, SlicesOptions{}), glm::vec3(0)), reference); };
   int discriminating = 0;
   for (uint64_t budget = full / 8; budget < full; budget += full / 16) {
     bound.texelBudget = measured.texelBudget = budget;

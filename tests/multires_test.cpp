@@ -141,7 +141,7 @@ TEST(Multires, BlendingRemovesTheSeamAtALevelChange) {
   const Camera cam = test::orthoDown(glm::dvec3(32, 16, 4), 32.0, 64);
   SlicesOptions o;
   o.shading = false;
-  const Image a = renderSlices(v, t, naive, tf, cam, o), b = renderSlices(v, t, blended, tf, cam, o);
+  const Image a = renderSlices({v, t, naive}, tf, cam, o), b = renderSlices({v, t, blended}, tf, cam, o);
   // Within one level the columns are equal (the field does not vary along x): the jumps around the
   // level change are the seam. Blending spreads it over the fine bricks next to the coarse ones.
   const float seamNaive = largestColumnJump(a, 20, 44), seamBlended = largestColumnJump(b, 20, 44);
@@ -176,7 +176,7 @@ TEST(Multires, CoarseBricksShadeWithTheDatasOwnGradients) {
   const TransferFunction tf = test::constantTf(0.05f);  // one colour and opacity: only the shading varies
   const Camera cam = test::orthoDown(glm::dvec3(8, 8, 8), 16.0, 32);
   const Image ref = raycast(v, t, tf, cam, RaycastOptions{});
-  const Image img = renderSlices(v, t, coarse, tf, cam, SlicesOptions{});
+  const Image img = renderSlices({v, t, coarse}, tf, cam, SlicesOptions{});
   // Looking down z the headlight gives 0.25 + 0.75 cos 45° at even x and 1 at odd x, in the
   // reference and in the coarse brick's interpolated gradients alike; the coarse field's own
   // differences would shade every column as 1 (0.1 brighter at even x).
@@ -217,8 +217,8 @@ TEST(Multires, PrefilteredCoarseLevelsDoNotAliasAThinShell) {
   const double truth = roughness(reference, inner);
   // Bricks at p = 3: nodes of edge 32 hold a texel every 4 voxels, nodes of edge 8 every voxel.
   const Selection coarse = cutAt(point, [](const OctreeNode&) { return 32; });
-  const double aliased = roughness(renderSlices(v, point, coarse, tf, cam, o), inner);
-  const double filtered = roughness(renderSlices(v, smooth, coarse, tf, cam, o), inner);
+  const double aliased = roughness(renderSlices({v, point, coarse}, tf, cam, o), inner);
+  const double filtered = roughness(renderSlices({v, smooth, coarse}, tf, cam, o), inner);
   // Measured: the reference 0.0063, point-subsampled knots 5× that, prefiltered ones 1.5×.
   const std::string what = "reference " + std::to_string(truth) + ", point-subsampled " + std::to_string(aliased) +
                            ", prefiltered " + std::to_string(filtered);
@@ -227,7 +227,7 @@ TEST(Multires, PrefilteredCoarseLevelsDoNotAliasAThinShell) {
   EXPECT_GT(aliased, 2.5 * filtered) << what;
   // At one texel per voxel there is nothing to filter: the same image.
   const Selection fine = cutAt(point, [](const OctreeNode&) { return 8; });
-  EXPECT_EQ(renderSlices(v, point, fine, tf, cam, o).pixels, renderSlices(v, smooth, fine, tf, cam, o).pixels);
+  EXPECT_EQ(renderSlices({v, point, fine}, tf, cam, o).pixels, renderSlices({v, smooth, fine}, tf, cam, o).pixels);
 }
 
 TEST(Multires, SurfaceDoesNotMoveWithTheVolumeLevel) {
@@ -257,10 +257,10 @@ TEST(Multires, SurfaceDoesNotMoveWithTheVolumeLevel) {
   SlicesOptions o;
   o.surface = &mesh;
   o.surfaceColor = glm::vec4(0.9f, 0.9f, 0.8f, 1.0f);
-  const Image a = renderSlices(v, t, fine, tf, cam, o), b = renderSlices(v, t, rough, tf, cam, o);
+  const Image a = renderSlices({v, t, fine}, tf, cam, o), b = renderSlices({v, t, rough}, tf, cam, o);
   // The surface's pixels: those a surface-only image covers.
   const TransferFunction clear({{0.0f, {0, 0, 0}, 0.0f}, {1.0f, {0, 0, 0}, 0.0f}}, "clear");
-  const Image s = renderSlices(v, t, fine, clear, cam, o);
+  const Image s = renderSlices({v, t, fine}, clear, cam, o);
   int surfacePixels = 0, volumeDiffers = 0;
   for (size_t i = 0; i < s.pixels.size(); ++i) {
     if (s.pixels[i].a > 0.0f) {
@@ -296,7 +296,7 @@ TEST(MultiresCranium, AccuracyAndBytesFallAsEpsilonGrowsOrTheBudgetShrinks) {
   };
   auto run = [&](const SelectionParams& params) {
     SlicesStats st;
-    const Image img = renderSlices(v, t, selectNodes(t, params), tf, cam, SlicesOptions{}, &st);
+    const Image img = renderSlices({v, t, selectNodes(t, params)}, tf, cam, SlicesOptions{}, &st);
     return Result{psnr(toRgba8(img, glm::vec3(0)), reference), st.textureBytes};
   };
   auto expectFalling = [](const std::vector<Result>& r, const char* what) {
@@ -340,7 +340,7 @@ TEST(Multires, AxisAlignedCutShowsTheDataSliceThroughTheTransferFunction) {
     so.cut = &cut;
     so.texelBits = bits;
     SlicesStats st;
-    const Image a = renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, so, &st);
+    const Image a = renderSlices({v, t, selectNodes(t, SelectionParams{})}, tf, cam, so, &st);
     EXPECT_GT(st.cutPolygons, 0u);
     const uint64_t bytes = st.texels * bytesPerTexel(bits);
     if (bits == TexelBits::Eight) {
@@ -380,7 +380,7 @@ TEST(Multires, VolumeOfInterestScalesOpacitySmoothly) {
   RaycastOptions ro;
   ro.shading = false;
   ro.voi = &voi;
-  const Image a = renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, so), b = raycast(v, t, tf, cam, ro);
+  const Image a = renderSlices({v, t, selectNodes(t, SelectionParams{})}, tf, cam, so), b = raycast(v, t, tf, cam, ro);
   for (int x = 0; x < 32; ++x) {
     const double factor = voi.factor(glm::dvec3(x + 0.5, 16, 16));
     const float expected = 1.0f - std::pow(1.0f - 0.05f * float(factor), 32.0f);
@@ -416,10 +416,10 @@ TEST(Multires, ShellsAndPlanesComposeTheClosedFormInPerspective) {
   const Selection sel = selectNodes(t, SelectionParams{});
   SlicesStats st;
   so.proxy = Proxy::Shells;
-  const Image shells = renderSlices(v, t, sel, tf, cam, so, &st);
+  const Image shells = renderSlices({v, t, sel}, tf, cam, so, &st);
   EXPECT_GT(st.shellBricks, 0u);
   so.proxy = Proxy::Planes;
-  const Image planes = renderSlices(v, t, sel, tf, cam, so), reference = raycast(v, t, tf, cam, ro);
+  const Image planes = renderSlices({v, t, sel}, tf, cam, so), reference = raycast(v, t, tf, cam, ro);
   // Entry at the top face z = 32 and the quad at z = 13.
   EXPECT_GE(expectBlockWithQuad(cam, 32.0, 13.0, surface, 8, 2.5f / 255.0f, {{&shells, "shells"}, {&planes, "planes"}, {&reference, "reference"}}), 9);
 }
@@ -450,8 +450,8 @@ TEST(Multires, CoarseBricksComposeTheClosedFormInPerspective) {
   for (const Proxy proxy : {Proxy::Shells, Proxy::Planes}) {
     so.proxy = proxy;
     SlicesStats st, full;
-    const Image img = renderSlices(v, t, sel, tf, cam, so, &st);
-    renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, so, &full);
+    const Image img = renderSlices({v, t, sel}, tf, cam, so, &st);
+    renderSlices({v, t, selectNodes(t, SelectionParams{})}, tf, cam, so, &full);
     EXPECT_EQ(st.shellBricks, proxy == Proxy::Shells ? 1u : 0u);
     EXPECT_LT(st.slabPolygonDraws, full.slabPolygonDraws);
     EXPECT_GE(expectBlockWithQuad(cam, 16.0, 6.5, surface, 4, tolerance, {{&img, proxy == Proxy::Shells ? "shells" : "planes"}}), 9);
@@ -474,7 +474,7 @@ TEST(Multires, CoarseBricksIntegrateExactlyTheirStretchOfEveryRay) {
   for (const Proxy proxy : {Proxy::Planes, Proxy::Shells}) {
     so.proxy = proxy;
     SlicesStats st;
-    const Image img = renderSlices(v, t, sel, tf, cam, so, &st);
+    const Image img = renderSlices({v, t, sel}, tf, cam, so, &st);
     ASSERT_EQ(st.shellBricks > 0, proxy == Proxy::Shells);
     int checked = 0, off = 0;
     double worst = 0.0;
@@ -542,7 +542,7 @@ TEST(Multires, ExtremesGiveFiniteImages) {
           o.surfaceColor = glm::vec4(0.9f, 0.9f, 0.9f, 0.5f);
           for (bool withVoi : {false, true}) {
             o.voi = withVoi ? &voi : nullptr;
-            const Image img = renderSlices(v, t, sel, tf, *cam, o);
+            const Image img = renderSlices({v, t, sel}, tf, *cam, o);
             for (const glm::vec4& p : img.pixels)
               for (int k = 0; k < 4; ++k) ASSERT_TRUE(std::isfinite(p[k]) && p[k] >= -1e-6f && p[k] <= 1.0f + 1e-5f);
           }
@@ -568,7 +568,7 @@ TEST(Multires, TrianglesOfBricksWithoutSlicesAreNotSplitIntoSlabs) {
   o.surface = &quads;
   o.surfaceColor = glm::vec4(0.2f, 0.6f, 1.0f, 0.5f);
   SlicesStats st;
-  const glm::vec4 p = renderSlices(v, t, sel, clear, test::orthoDown(glm::dvec3(8, 8, 8), 4.0, 8), o, &st).at(4, 4);
+  const glm::vec4 p = renderSlices({v, t, sel}, clear, test::orthoDown(glm::dvec3(8, 8, 8), 4.0, 8), o, &st).at(4, 4);
   EXPECT_EQ(st.slabPolygonDraws, 4u);  // one instance a triangle: no slabs without slices
   const float a = 0.5f;  // each quad faces the eye: shade 1
   EXPECT_NEAR(p.a, a + (1 - a) * a, 1e-5f);

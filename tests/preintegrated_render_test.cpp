@@ -49,7 +49,7 @@ std::vector<glm::vec4> centres(const Volume& v, const TransferFunction& tf, cons
   ro.stepVoxels = step;
   ro.shading = false;
   ro.preintegrated = pre;
-  const Image slices = renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, so);
+  const Image slices = renderSlices({v, t, selectNodes(t, SelectionParams{})}, tf, cam, so);
   const Image rays = raycast(v, t, tf, cam, ro);
   return {slices.at(cam.width / 2, cam.height / 2), rays.at(cam.width / 2, cam.height / 2)};
 }
@@ -119,9 +119,9 @@ TEST(PreIntegrated, VisibleBoxesLeaveTheImageAsItIs) {
     o.stepVoxels = step;
     o.preintegrated = &table;
     o.visibleBoxes = false;
-    const Image whole = renderSlices(v, t, sel, tf, cam, o);
+    const Image whole = renderSlices({v, t, sel}, tf, cam, o);
     o.visibleBoxes = true;
-    EXPECT_GE(psnrOf(renderSlices(v, t, sel, tf, cam, o), whole), 60.0) << step;
+    EXPECT_GE(psnrOf(renderSlices({v, t, sel}, tf, cam, o), whole), 60.0) << step;
   }
 }
 
@@ -138,9 +138,9 @@ TEST(PreIntegrated, TheKeptTableTextureFollowsTheTable) {
     const PreIntegrationTable table = preintegrationFor(*tf, v.minValue(), v.maxValue(), 0.25, 32.0);
     SlicesOptions o;
     o.preintegrated = &table;
-    const Image alone = renderSlices(v, t, sel, *tf, cam, o);
+    const Image alone = renderSlices({v, t, sel}, *tf, cam, o);
     o.textures = &cache;
-    const Image cached = renderSlices(v, t, sel, *tf, cam, o);
+    const Image cached = renderSlices({v, t, sel}, *tf, cam, o);
     EXPECT_EQ(toRgba8(cached, glm::vec3(0.0f)), toRgba8(alone, glm::vec3(0.0f)));
   }
   cache.clear();

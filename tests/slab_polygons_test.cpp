@@ -55,7 +55,7 @@ TEST(SlabPolygons, ATriangleComesWholeOnceInEachSlabItCoversFarToNear) {
   const uint32_t polygons[] = {0};
   SlabPolygonList list;
   const ProxyDepth depth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)};
-  list.build(surface, polygons, depth, 1.0, true);
+  list.build(surface, polygons, {depth, 1.0, true, true});
   EXPECT_EQ(list.firstSlab(), 0);
   EXPECT_EQ(list.lastSlab(), 2);
   EXPECT_EQ(list.triangles(), 1u);
@@ -86,7 +86,7 @@ TEST(SlabPolygons, TrianglesInOneSlabAreSortedByDepth) {
   const ProxyDepth depth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)};
   for (const bool sliced : {true, false}) {
     SlabPolygonList list;
-    list.build(surface, polygons, depth, 1.0, sliced);
+    list.build(surface, polygons, {depth, 1.0, sliced, true});
     std::vector<float> stream;
     list.emitRest(&stream);
     const std::vector<std::array<glm::vec3, 3>> t = triangles(stream);
@@ -106,7 +106,7 @@ TEST(SlabPolygons, UncutPolygonsGoWholeIntoTheSlabOfTheirCentroid) {
   const SurfacePolygons surface(mesh);
   const uint32_t polygons[] = {0, 1};
   SlabPolygonList list;
-  list.build(surface, polygons, ProxyDepth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)}, 1.0, true, false);
+  list.build(surface, polygons, {ProxyDepth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)}, 1.0, true, false});
   EXPECT_EQ(list.firstSlab(), 1);
   EXPECT_EQ(list.lastSlab(), 3);  // the second's centroid is at z = 3.43
   std::vector<float> stream;
@@ -148,7 +148,7 @@ TEST(SlabPolygons, EachSlabTakesThePolygonsOwnTrianglesThatReachIt) {
   const SurfacePolygons surface(mesh);
   const uint32_t polygons[] = {0};
   SlabPolygonList list;
-  list.build(surface, polygons, ProxyDepth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)}, 1.0, true);
+  list.build(surface, polygons, {ProxyDepth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)}, 1.0, true, true});
   ASSERT_EQ(list.firstSlab(), 0);
   ASSERT_EQ(list.lastSlab(), 2);  // z from 0.3 to 2.3
   size_t draws = 0;
@@ -195,7 +195,7 @@ TEST(SlabPolygons, TheSurfaceOctreesStreamHasNoFlatTriangle) {
     const double az = 0.7 + 0.9 * d, el = 0.3 * std::sin(1.7 * d);  // radians
     const glm::dvec3 forward(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
     SlabPolygonList list;
-    list.build(surface, all, ProxyDepth{false, forward, glm::dvec3(0.0)}, 0.5, true);
+    list.build(surface, all, {ProxyDepth{false, forward, glm::dvec3(0.0)}, 0.5, true, true});
     std::vector<float> stream;
     list.emitRest(&stream);
     size_t flat = 0;
@@ -226,7 +226,7 @@ TEST(SlabPolygons, TrianglesGoWhereThePixelCentresSeeThem) {
   EXPECT_NEAR(over.farthest, 1.5 + 4.0 / 64.0, 1e-3);
   const uint32_t both[] = {0, 1}, between[] = {0};
   SlabPolygonList list;
-  list.build(surface, both, depth, 1.0, true, true, &centres);
+  list.build(surface, both, {depth, 1.0, true, true}, &centres);
   EXPECT_EQ(list.triangles(), 2u);
   EXPECT_EQ(list.unseen(), 1u);
   EXPECT_EQ(list.firstSlab(), 1);
@@ -237,9 +237,9 @@ TEST(SlabPolygons, TrianglesGoWhereThePixelCentresSeeThem) {
   EXPECT_EQ(triangles(stream)[0][0], mesh.vertices[3]);
   EXPECT_EQ(slabsOf(stream)[0], glm::vec2(-1e30f, 1e30f));
   EXPECT_EQ(list.draws(), 1u);
-  list.build(surface, between, depth, 1.0, true, true, &centres);
+  list.build(surface, between, {depth, 1.0, true, true}, &centres);
   EXPECT_TRUE(list.empty());
-  list.build(surface, both, depth, 1.0, true, false, &centres);  // uncut: triangle 1's centroid z = 1.5
+  list.build(surface, both, {depth, 1.0, true, false}, &centres);  // uncut: triangle 1's centroid z = 1.5
   EXPECT_EQ(list.firstSlab(), 1);
   EXPECT_EQ(list.lastSlab(), 1);
   EXPECT_EQ(list.unseen(), 1u);
@@ -259,7 +259,7 @@ TEST(SlabPolygons, InstancesOfEqualDepthKeepThePolygonsOrder) {
   }
   const SurfacePolygons surface(mesh);
   SlabPolygonList list;
-  list.build(surface, order, ProxyDepth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)}, 1.0, true);
+  list.build(surface, order, {ProxyDepth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)}, 1.0, true, true});
   std::vector<float> stream;
   list.emitDownTo(1, &stream);
   stream.clear();

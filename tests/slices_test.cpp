@@ -60,7 +60,7 @@ TEST(Slices, MatchesTheReferenceOnASphereInBothProjections) {
   const Selection sel = selectNodes(t, SelectionParams{});
   for (bool ortho : {false, true}) {
     const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, ortho, 96, 96);
-    const Image a = renderSlices(v, t, sel, tf, cam, SlicesOptions{});
+    const Image a = renderSlices({v, t, sel}, tf, cam, SlicesOptions{});
     const Image b = raycast(v, t, tf, cam, RaycastOptions{});
     EXPECT_GE(psnrOf(a, b), 35.0) << "ortho " << ortho;
   }
@@ -84,18 +84,18 @@ TEST(Slices, PaddingValuesDoNotCoarsenTheLookupTable) {
   BrickTextureCache cache;
   SlicesOptions so;
   so.textures = &cache;
-  const Image a = renderSlices(v, t, sel, tf, cam, so);
+  const Image a = renderSlices({v, t, sel}, tf, cam, so);
   EXPECT_GE(psnrOf(a, raycast(v, t, tf, cam, RaycastOptions{})), 35.0);
   // Another transfer function with another domain (a shell outside the sphere), through the same
   // cache: the bricks' block ranges, kept as table entries, are rebuilt; read in the new table the
   // old entries would call the shell transparent and cut it away.
   const TransferFunction outer({{-5.0f, {1, 1, 1}, 0.0f}, {-3.0f, {0.9f, 0.5f, 0.2f}, 0.3f}, {-1.0f, {0.2f, 0.4f, 1.0f}, 0.0f}}, "outer");
-  const Image b = renderSlices(v, t, sel, outer, cam, so);
+  const Image b = renderSlices({v, t, sel}, outer, cam, so);
   EXPECT_GE(psnrOf(b, raycast(v, t, outer, cam, RaycastOptions{})), 35.0);
   // A transfer function of one point (the same colour and opacity everywhere: a table of one
   // value) still shades by the data's gradients.
   const TransferFunction constant({{5.0f, {0.9f, 0.7f, 0.5f}, 0.04f}}, "constant");
-  const Image c = renderSlices(v, t, sel, constant, cam, so);
+  const Image c = renderSlices({v, t, sel}, constant, cam, so);
   EXPECT_GE(psnrOf(c, raycast(v, t, constant, cam, RaycastOptions{})), 35.0);
 }
 
@@ -120,15 +120,15 @@ TEST(Slices, SixteenBitTexelsResolveANarrowWindow) {
   SlicesOptions so;
   so.textures = &cache;
   SlicesStats st8, st16;
-  const double db8 = psnrOf(renderSlices(v, t, sel, tf, cam, so, &st8), reference);
+  const double db8 = psnrOf(renderSlices({v, t, sel}, tf, cam, so, &st8), reference);
   so.texelBits = TexelBits::Sixteen;
-  const double db16 = psnrOf(renderSlices(v, t, sel, tf, cam, so, &st16), reference);
+  const double db16 = psnrOf(renderSlices({v, t, sel}, tf, cam, so, &st16), reference);
   EXPECT_GE(db16, 55.0);
   EXPECT_GE(db16, db8 + 8.0) << "8-bit " << db8 << " dB";
   EXPECT_EQ(st16.textureBytes, 2 * st8.textureBytes);
   SlicesOptions fresh;
   fresh.texelBits = TexelBits::Sixteen;
-  EXPECT_GE(psnrOf(renderSlices(v, t, sel, tf, cam, so), renderSlices(v, t, sel, tf, cam, fresh)), 60.0);
+  EXPECT_GE(psnrOf(renderSlices({v, t, sel}, tf, cam, so), renderSlices({v, t, sel}, tf, cam, fresh)), 60.0);
 }
 
 TEST(Slices, CachedBrickTexturesGiveTheSameImage) {
@@ -150,9 +150,9 @@ TEST(Slices, CachedBrickTexturesGiveTheSameImage) {
   for (const SelectionParams& params : {SelectionParams{}, naive, coarse}) {
     const Selection sel = selectNodes(t, params);
     SlicesStats st;
-    const Image fresh = renderSlices(v, t, sel, tf, cam, SlicesOptions{}, &st);
+    const Image fresh = renderSlices({v, t, sel}, tf, cam, SlicesOptions{}, &st);
     const size_t before = cache.size();
-    const Image first = renderSlices(v, t, sel, tf, cam, cached), again = renderSlices(v, t, sel, tf, cam, cached);
+    const Image first = renderSlices({v, t, sel}, tf, cam, cached), again = renderSlices({v, t, sel}, tf, cam, cached);
     EXPECT_LE(cache.size() - before, st.bricks);  // one texture a textured brick, none twice
     EXPECT_EQ(first.pixels, fresh.pixels);
     EXPECT_EQ(again.pixels, fresh.pixels);
@@ -172,7 +172,7 @@ TEST(Slices, AFrameLargerThanTheTextureLimitKeepsWhatFits) {
   const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "s");
   const Selection sel = selectNodes(t, SelectionParams{});
   SlicesStats st;
-  const Image fresh = renderSlices(v, t, sel, tf, Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64), SlicesOptions{}, &st);
+  const Image fresh = renderSlices({v, t, sel}, tf, Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64), SlicesOptions{}, &st);
   ASSERT_GT(st.bricks, 8u);
   const uint64_t limit = st.textureBytes / 3;
   BrickTextureCache cache(limit);
@@ -182,8 +182,8 @@ TEST(Slices, AFrameLargerThanTheTextureLimitKeepsWhatFits) {
   for (int f = 0; f < 3; ++f) {
     const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), azimuths[f], 20, 30, false, 64, 64);
     SlicesStats ks;
-    const Image image = renderSlices(v, t, sel, tf, cam, kept, &ks);
-    EXPECT_EQ(image.pixels, renderSlices(v, t, sel, tf, cam, SlicesOptions{}).pixels);
+    const Image image = renderSlices({v, t, sel}, tf, cam, kept, &ks);
+    EXPECT_EQ(image.pixels, renderSlices({v, t, sel}, tf, cam, SlicesOptions{}).pixels);
     EXPECT_LE(cache.bytes(), limit);  // not the whole frame's
     EXPECT_GT(cache.size(), 0u);
     if (f == 1) {
@@ -215,8 +215,8 @@ TEST(Slices, VisibleBoxesCutOnlyTransparentSpace) {
       boxes.surfaceColor = whole.surfaceColor = glm::vec4(0.2f, 0.9f, 0.4f, 0.5f);
       whole.visibleBoxes = false;
       SlicesStats sb, sw;
-      const std::vector<uint8_t> a = toRgba8(renderSlices(v, t, sel, tf, cam, boxes, &sb), glm::vec3(0.0f));
-      const std::vector<uint8_t> b = toRgba8(renderSlices(v, t, sel, tf, cam, whole, &sw), glm::vec3(0.0f));
+      const std::vector<uint8_t> a = toRgba8(renderSlices({v, t, sel}, tf, cam, boxes, &sb), glm::vec3(0.0f));
+      const std::vector<uint8_t> b = toRgba8(renderSlices({v, t, sel}, tf, cam, whole, &sw), glm::vec3(0.0f));
       const std::string what = std::string(proxy == Proxy::Shells ? "shells" : "planes") + ", budget " + std::to_string(params.texelBudget);
       EXPECT_EQ(sb.shellBricks > 0, proxy == Proxy::Shells) << what;
       int worst = 0;
@@ -227,8 +227,8 @@ TEST(Slices, VisibleBoxesCutOnlyTransparentSpace) {
       // fragments with planes, 0.43 with shells; shells cut to the brick's visible box alone 0.49).
       // Counted without the quad, whose triangles come whole in every slab they cover.
       boxes.surface = whole.surface = nullptr;
-      renderSlices(v, t, sel, tf, cam, boxes, &sb);
-      renderSlices(v, t, sel, tf, cam, whole, &sw);
+      renderSlices({v, t, sel}, tf, cam, boxes, &sb);
+      renderSlices({v, t, sel}, tf, cam, whole, &sw);
       EXPECT_LT(double(sb.fragments), (params.texelBudget == 0 ? 0.47 : 0.8) * double(sw.fragments)) << what;
     }
 }
@@ -246,16 +246,16 @@ TEST(Slices, AFrameThatThrowsLeaksNothingAndTheNextOneRendersRight) {
   const CutPlane cut{glm::dvec3(20, 18, 16), glm::dvec3(0.3, 1, 0)};
   SlicesOptions o;
   o.cut = &cut;
-  const Image before = renderSlices(v, t, sel, tf, cam, o);
+  const Image before = renderSlices({v, t, sel}, tf, cam, o);
   const size_t objects = liveGlObjects();
   const Progress stop([](const std::string&, double fraction) {
     if (fraction >= 0.5 && fraction < 1.0) throw std::runtime_error("stopped");
   });
   o.progress = &stop;
-  EXPECT_THROW(renderSlices(v, t, sel, tf, cam, o), std::runtime_error);
+  EXPECT_THROW(renderSlices({v, t, sel}, tf, cam, o), std::runtime_error);
   EXPECT_EQ(liveGlObjects(), objects);
   o.progress = nullptr;
-  EXPECT_EQ(renderSlices(v, t, sel, tf, cam, o).pixels, before.pixels);
+  EXPECT_EQ(renderSlices({v, t, sel}, tf, cam, o).pixels, before.pixels);
 }
 
 // A scene of hundreds of small bricks (leaves and bricks of 4), for the batched packing.
@@ -286,8 +286,8 @@ TEST(Slices, BricksArePackedABatchAheadOfTheirDraws) {
     whole.packBatch = size_t(1) << 30;
     batched.cut = whole.cut = plane;
     SlicesStats sb, sw;
-    const Image a = renderSlices(v, t, sel, tf, cam, batched, &sb);
-    const Image b = renderSlices(v, t, sel, tf, cam, whole, &sw);
+    const Image a = renderSlices({v, t, sel}, tf, cam, batched, &sb);
+    const Image b = renderSlices({v, t, sel}, tf, cam, whole, &sw);
     const std::string what = plane ? "with the plane" : "without";
     EXPECT_EQ(a.pixels, b.pixels) << what;
     EXPECT_GT(sb.uploadedBricks, 20u * batched.packBatch) << what;
@@ -304,10 +304,10 @@ TEST(Slices, BricksArePackedABatchAheadOfTheirDraws) {
     BrickTextureCache cache;
     batched.textures = &cache;
     SlicesStats cold, warm;
-    EXPECT_EQ(renderSlices(v, t, sel, tf, cam, batched, &cold).pixels, a.pixels) << what;
+    EXPECT_EQ(renderSlices({v, t, sel}, tf, cam, batched, &cold).pixels, a.pixels) << what;
     EXPECT_EQ(cold.uploadedBricks, sb.uploadedBricks) << what;
     EXPECT_LE(cold.peakPackedBricks, 2 * batched.packBatch) << what;
-    EXPECT_EQ(renderSlices(v, t, sel, tf, cam, batched, &warm).pixels, a.pixels) << what;
+    EXPECT_EQ(renderSlices({v, t, sel}, tf, cam, batched, &warm).pixels, a.pixels) << what;
     EXPECT_EQ(warm.uploadedBricks, 0u) << what;
     EXPECT_EQ(warm.peakPackedBricks, 0u) << what;
   }
@@ -340,19 +340,19 @@ TEST(Slices, APackingThatFailsMidFrameStopsItCleanly) {
   const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 48, 48);
   SlicesOptions o;
   o.packBatch = 16;
-  const Image before = renderSlices(v, t, sel, tf, cam, o);
+  const Image before = renderSlices({v, t, sel}, tf, cam, o);
   const size_t objects = liveGlObjects();
   const FailingKnots failing(v, t, 40);  // full-resolution bricks read once each: the third batch fails
   o.knots = &failing;
   double reached = 0.0;
   const Progress heard([&](const std::string&, double fraction) { reached = std::max(reached, fraction < 1.0 ? fraction : 0.0); });
   o.progress = &heard;
-  EXPECT_THROW(renderSlices(v, t, sel, tf, cam, o), IoError);
+  EXPECT_THROW(renderSlices({v, t, sel}, tf, cam, o), IoError);
   EXPECT_GT(reached, 0.0);  // some bricks were drawn before it failed
   EXPECT_EQ(liveGlObjects(), objects);
   o.knots = nullptr;
   o.progress = nullptr;
-  EXPECT_EQ(renderSlices(v, t, sel, tf, cam, o).pixels, before.pixels);
+  EXPECT_EQ(renderSlices({v, t, sel}, tf, cam, o).pixels, before.pixels);
 }
 
 TEST(Slices, OpacityDoesNotDependOnTheSliceSpacing) {
@@ -368,7 +368,7 @@ TEST(Slices, OpacityDoesNotDependOnTheSliceSpacing) {
     SlicesOptions o;
     o.stepVoxels = step;
     o.shading = false;
-    const Image img = renderSlices(v, t, sel, tf, cam, o);
+    const Image img = renderSlices({v, t, sel}, tf, cam, o);
     centres.push_back(img.at(4, 4));
   }
   const float expected = 1.0f - std::pow(0.93f, 16.0f);
@@ -407,9 +407,9 @@ TEST(Slices, CoarseBricksKeepTheirSpacingInVoxelsAtAWideBaseSpacing) {
   SlicesOptions o;
   o.shading = false;
   SlicesStats atDefault, atWide;
-  const Image base = renderSlices(v, t, sel, tf, cam, o, &atDefault);
+  const Image base = renderSlices({v, t, sel}, tf, cam, o, &atDefault);
   o.stepVoxels = 1.5;
-  const Image wide = renderSlices(v, t, sel, tf, cam, o, &atWide);
+  const Image wide = renderSlices({v, t, sel}, tf, cam, o, &atWide);
   EXPECT_EQ(atWide.slices, atDefault.slices);
   EXPECT_GE(psnrOf(base, wide), 60.0);
 }
@@ -425,7 +425,7 @@ TEST(Slices, OpaqueSurfaceHidesTheVolumeBehindIt) {
   o.shading = false;
   o.surface = &quad;
   o.surfaceColor = glm::vec4(0.2f, 0.4f, 0.6f, 1.0f);
-  const glm::vec4 p = renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, o).at(4, 4);
+  const glm::vec4 p = renderSlices({v, t, selectNodes(t, SelectionParams{})}, tf, cam, o).at(4, 4);
   const float a1 = 1.0f - std::pow(0.95f, 5.0f);  // the 5 mm in front of the quad
   EXPECT_NEAR(p.a, 1.0f, 1.0f / 255.0f);
   EXPECT_NEAR(p.b, 0.2f * a1 + (1 - a1) * 0.6f, 2.0f / 255.0f);
@@ -444,7 +444,7 @@ TEST(Slices, AnOpaqueSurfaceLeavesOutTrianglesBetweenPixelCentresAndNoPixel) {
   o.surface = &plane;
   o.surfaceColor = glm::vec4(0.2f, 0.4f, 0.6f, 1.0f);
   SlicesStats st;
-  const Image image = renderSlices(v, t, selectNodes(t, SelectionParams{}), constantTf(0.05f), straightOn(glm::dvec3(5.0)), o, &st);
+  const Image image = renderSlices({v, t, selectNodes(t, SelectionParams{})}, constantTf(0.05f), straightOn(glm::dvec3(5.0)), o, &st);
   EXPECT_GT(st.unseenTriangles, 78000u);
   const float a1 = 1.0f - std::pow(0.95f, 5.0f);  // the 5 mm in front of the plane
   for (int y = 0; y < image.height; ++y)
@@ -474,9 +474,9 @@ TEST(Slices, TrianglesLeftOutBetweenPixelCentresChangeNoPixel) {
       if (view == 3) o.rows = glm::ivec2(13, 29);
       const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, view == 2, 40, 40);
       SlicesStats left, all;
-      const Image a = renderSlices(v, t, sel, tf, cam, o, &left);
+      const Image a = renderSlices({v, t, sel}, tf, cam, o, &left);
       o.leaveOutUnseen = false;
-      const Image b = renderSlices(v, t, sel, tf, cam, o, &all);
+      const Image b = renderSlices({v, t, sel}, tf, cam, o, &all);
       const std::string what = "alpha " + std::to_string(alpha) + ", view " + std::to_string(view);
       EXPECT_GT(left.unseenTriangles, mesh.triangles.size() / 10) << what;
       EXPECT_EQ(all.unseenTriangles, 0u) << what;
@@ -534,7 +534,7 @@ TEST(Slices, TranslucentQuadLandsInTheRightSlab) {
           o.surfaceColor = surface;
           o.slabOrder = slabOrder;
           SlicesStats st;
-          const glm::vec4 p = renderSlices(v, t, sel, tf, cam, o, &st).at(4, 4);
+          const glm::vec4 p = renderSlices({v, t, sel}, tf, cam, o, &st).at(4, 4);
           const float error = glm::length(glm::vec3(p) - expected);
           const std::string where = "zq " + std::to_string(zq) + (kind == 0 ? " as triangles" : " as a polygon") +
                                     " dir " + std::to_string(dir.x) + "," + std::to_string(dir.y) + "," + std::to_string(dir.z);
@@ -573,7 +573,7 @@ TEST(Slices, ATranslucentSurfaceAcrossManySlabsCoversEachPixelOnce) {
   o.surface = &plane;
   o.surfaceColor = glm::vec4(0.1f, 0.9f, 0.3f, 0.5f);
   SlicesStats st;
-  const Image image = renderSlices(v, t, selectNodes(t, SelectionParams{}), constantTf(1e-4f), cam, o, &st);
+  const Image image = renderSlices({v, t, selectNodes(t, SelectionParams{})}, constantTf(1e-4f), cam, o, &st);
   EXPECT_GT(st.slabPolygonDraws, 2 * st.surfaceTriangles);
   int inside = 0;
   for (int y = 0; y < image.height; ++y)
@@ -636,10 +636,10 @@ TEST(Slices, TranslucentQuadKeepsItsOrderInCoarseBricks) {
       o.surface = &quad;
       o.surfaceColor = surface;
       SlicesStats atFine, atCoarse, unordered;
-      EXPECT_LE(glm::length(glm::vec3(renderSlices(v, t, fine, tf, cam, o, &atFine).at(4, 4)) - expected), 2.0f / 255.0f) << where;
-      EXPECT_LE(glm::length(glm::vec3(renderSlices(v, t, sel, tf, cam, o, &atCoarse).at(4, 4)) - expected), tolerance) << where;
+      EXPECT_LE(glm::length(glm::vec3(renderSlices({v, t, fine}, tf, cam, o, &atFine).at(4, 4)) - expected), 2.0f / 255.0f) << where;
+      EXPECT_LE(glm::length(glm::vec3(renderSlices({v, t, sel}, tf, cam, o, &atCoarse).at(4, 4)) - expected), tolerance) << where;
       o.slabOrder = false;
-      EXPECT_GT(glm::length(glm::vec3(renderSlices(v, t, sel, tf, cam, o, &unordered).at(4, 4)) - expected), 3.0f * tolerance)
+      EXPECT_GT(glm::length(glm::vec3(renderSlices({v, t, sel}, tf, cam, o, &unordered).at(4, 4)) - expected), 3.0f * tolerance)
           << "the wrong order went unnoticed at " << where;
       EXPECT_LT(atCoarse.slices, atFine.slices) << where;
       if (dir.x != 0.0) {
@@ -668,7 +668,7 @@ TEST(Slices, QuadSeenEdgeOnLeavesThePureSlab) {
   o.shading = false;
   o.surface = &quad;
   o.surfaceColor = glm::vec4(0.1f, 0.9f, 0.3f, 0.6f);
-  const glm::vec4 p = renderSlices(v, t, selectNodes(t, SelectionParams{}), tf, cam, o).at(4, 4);
+  const glm::vec4 p = renderSlices({v, t, selectNodes(t, SelectionParams{})}, tf, cam, o).at(4, 4);
   EXPECT_NEAR(p.a, 1.0f - std::pow(0.95f, 20.0f), 2.0f / 255.0f);
   EXPECT_NEAR(p.g, 0.5f * p.a, 2.0f / 255.0f);  // no green from the quad
 }
@@ -681,30 +681,30 @@ TEST(Slices, Extremes) {
   SlicesOptions o;
   o.shading = false;
   // Fully transparent: the background; fully opaque: the material's colour.
-  EXPECT_EQ(renderSlices(v, t, sel, constantTf(0.0f), straightOn(glm::dvec3(4.0)), o).at(4, 4), glm::vec4(0.0f));
-  const glm::vec4 opaque = renderSlices(v, t, sel, constantTf(1.0f), straightOn(glm::dvec3(4.0)), o).at(4, 4);
+  EXPECT_EQ(renderSlices({v, t, sel}, constantTf(0.0f), straightOn(glm::dvec3(4.0)), o).at(4, 4), glm::vec4(0.0f));
+  const glm::vec4 opaque = renderSlices({v, t, sel}, constantTf(1.0f), straightOn(glm::dvec3(4.0)), o).at(4, 4);
   EXPECT_NEAR(opaque.a, 1.0f, 1e-5f);
   EXPECT_NEAR(opaque.r, 0.8f, 1e-5f);
   // Camera inside the volume, looking down -z from z = 4: the 4 mm in front count, less at most one
   // slice spacing (0.5 mm) next to the eye, whose slice lies on the near plane.
-  const float in = renderSlices(v, t, sel, constantTf(0.1f), test::insideCamera(), o).at(1, 1).a;
+  const float in = renderSlices({v, t, sel}, constantTf(0.1f), test::insideCamera(), o).at(1, 1).a;
   EXPECT_GE(in, 1.0f - std::pow(0.9f, 3.5f) - 1e-4f);
   EXPECT_LE(in, 1.0f - std::pow(0.9f, 4.0f) + 1e-4f);
   // One voxel and a single slice: no volume to slice, no crash, an empty image.
   for (const glm::ivec3 dims : {glm::ivec3(1, 1, 1), glm::ivec3(16, 16, 1)}) {
     const Volume thin = test::makeVolume(dims, [](int, int, int) { return 1.0f; });
     const VolumeOctree tt = VolumeOctree::build(thin);
-    const Image img = renderSlices(thin, tt, selectNodes(tt, SelectionParams{}), constantTf(0.5f), straightOn(glm::dvec3(0.5)), o);
+    const Image img = renderSlices({thin, tt, selectNodes(tt, SelectionParams{})}, constantTf(0.5f), straightOn(glm::dvec3(0.5)), o);
     for (const glm::vec4& p : img.pixels) EXPECT_EQ(p, glm::vec4(0.0f));
   }
   // A 1x1 image and a 4096x4096 image.
   Camera tiny = straightOn(glm::dvec3(4.0));
   tiny.width = tiny.height = 1;
-  EXPECT_NEAR(renderSlices(v, t, sel, constantTf(0.1f), tiny, o).at(0, 0).a, 1.0f - std::pow(0.9f, 8.0f), 2.0f / 255.0f);
+  EXPECT_NEAR(renderSlices({v, t, sel}, constantTf(0.1f), tiny, o).at(0, 0).a, 1.0f - std::pow(0.9f, 8.0f), 2.0f / 255.0f);
   Camera big = straightOn(glm::dvec3(4.0));
   big.width = big.height = 4096;
   big.orthoHeight = 40.0;
-  const Image huge = renderSlices(v, t, sel, constantTf(0.1f), big, o);
+  const Image huge = renderSlices({v, t, sel}, constantTf(0.1f), big, o);
   EXPECT_NEAR(huge.at(2048, 2048).a, 1.0f - std::pow(0.9f, 8.0f), 2.0f / 255.0f);
   EXPECT_EQ(huge.at(0, 0), glm::vec4(0.0f));
   // Values near the float range's ends: finite images from both renderers.
@@ -712,7 +712,7 @@ TEST(Slices, Extremes) {
   const VolumeOctree wt = VolumeOctree::build(wild);
   const TransferFunction wtf({{-1e37f, {1, 1, 1}, 0.1f}, {1e37f, {0.5f, 0.5f, 1}, 0.3f}}, "wild");
   SlicesOptions shaded;
-  for (const Image& img : {renderSlices(wild, wt, selectNodes(wt, SelectionParams{}), wtf, straightOn(glm::dvec3(4.0)), shaded),
+  for (const Image& img : {renderSlices({wild, wt, selectNodes(wt, SelectionParams{})}, wtf, straightOn(glm::dvec3(4.0)), shaded),
                            raycast(wild, wt, wtf, straightOn(glm::dvec3(4.0)), RaycastOptions{})}) {
     for (const glm::vec4& p : img.pixels) ASSERT_TRUE(std::isfinite(p.r) && std::isfinite(p.a));
     EXPECT_GT(img.at(4, 4).a, 0.5f);
@@ -720,7 +720,7 @@ TEST(Slices, Extremes) {
   // A spacing that would need more than 2^30 slabs is refused with a message, not wrapped.
   SlicesOptions fine = o;
   fine.stepVoxels = 1e-9;
-  EXPECT_THROW(renderSlices(v, t, sel, constantTf(0.1f), straightOn(glm::dvec3(4.0)), fine), ValueError);
+  EXPECT_THROW(renderSlices({v, t, sel}, constantTf(0.1f), straightOn(glm::dvec3(4.0)), fine), ValueError);
 }
 
 TEST(SlicesCranium, MatchesTheReferenceAtFullResolution) {
@@ -731,7 +731,7 @@ TEST(SlicesCranium, MatchesTheReferenceAtFullResolution) {
   const Selection sel = selectNodes(t, SelectionParams{});
   for (bool ortho : {false, true}) {
     const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, ortho, 128, 128);
-    const double db = psnrOf(renderSlices(v, t, sel, tf, cam, SlicesOptions{}), raycast(v, t, tf, cam, RaycastOptions{}));
+    const double db = psnrOf(renderSlices({v, t, sel}, tf, cam, SlicesOptions{}), raycast(v, t, tf, cam, RaycastOptions{}));
     EXPECT_GE(db, 35.0) << "ortho " << ortho;
   }
   // With the translucent bone surface inside, through the SlabPolygon lists.
@@ -746,7 +746,7 @@ TEST(SlicesCranium, MatchesTheReferenceAtFullResolution) {
   ro.surface = &bvh;
   ro.surfaceColor = color;
   const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 180, 10, 30, false, 128, 128);
-  EXPECT_GE(psnrOf(renderSlices(v, t, sel, tf, cam, so2), raycast(v, t, tf, cam, ro)), 35.0);
+  EXPECT_GE(psnrOf(renderSlices({v, t, sel}, tf, cam, so2), raycast(v, t, tf, cam, ro)), 35.0);
 }
 
 // The translucent surface's views have no isolated black pixel where the reference has none. The

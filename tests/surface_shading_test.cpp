@@ -71,7 +71,7 @@ TEST(SurfaceShading, GradientNormalsMatchTheSpheresClosedFormShading) {
       // Translucent: the front and the back crossing shade alike, premultiplied a + a(1 − a).
       const double scale = alpha + alpha * (1.0 - alpha);
       const ShadingError ray = againstClosedForm(raycast(v, t, faint, cam, ro), cam, centre, radius, scale);
-      const ShadingError slices = againstClosedForm(renderSlices(v, t, sel, faint, cam, sopt), cam, centre, radius, scale);
+      const ShadingError slices = againstClosedForm(renderSlices({v, t, sel}, faint, cam, sopt), cam, centre, radius, scale);
       std::printf("sphere shading, %s normals, alpha %.1f: reference mean %.4f worst %.4f; slices mean %.4f worst %.4f\n",
                   gradient ? "gradient" : "facet", alpha, ray.mean, ray.worst, slices.mean, slices.worst);
       if (gradient) {

@@ -101,6 +101,26 @@ std::string hex(uint16_t v) {
 
 }  // namespace
 
+// One run of DicomHeaderParser::elements: the bytes [pos, end) it walks, and what it keeps.
+struct ElementWalk {
+  uint64_t end;
+  int depth = 0;                // of sequences nested around it
+  bool inItem = false;          // it ends at an item delimiter (an item of undefined length)
+  bool implicitVr = false;      // implicit VR though the file's is explicit (an unknown sequence's items)
+  DicomDataSet* out = nullptr;  // where the values kept go, or nowhere
+  bool* pixelData = nullptr;    // set when a header's walk stops at the pixel data
+};
+
+// One run of DicomHeaderParser::sequenceItems: the sequence's bytes up to end, and its items' kind.
+struct SequenceWalk {
+  uint64_t end;
+  int depth;
+  bool implicitVr;                     // its items' elements have implicit VR
+  bool undefinedLength;                // it ends at its delimiter rather than at end
+  bool fragments;                      // encapsulated pixel data: its items are bytes, not data sets
+  std::vector<DicomDataSet>* items;    // where its items go, or nowhere
+};
+
 // Walks a data set held in a byte buffer, every length checked against the file: GDCM allocates
 // what an element declares before it finds the file shorter (a 545-byte slice made it allocate 2
 // GB), and asserts on malformed structure. Sequences and encapsulated pixel data of undefined
@@ -113,9 +133,14 @@ class DicomHeaderParser {
   DicomHeaderParser(const std::vector<uint8_t>& b, uint64_t available, bool explicitVr, bool bigEndian, const std::string& path, Mode mode)
       : mB(b), mAvailable(available), mExplicit(explicitVr), mBig(bigEndian), mPath(path), mMode(mode) {}
 
-  // Elements from @p pos to @p end, or to an item delimiter when @p inItem; returns where it stopped.
-  // Reading a header, the pixel data at the top level ends the walk (@p pixelData set).
-  size_t elements(size_t pos, uint64_t end, int depth, bool inItem, bool implicitHere, DicomDataSet* out, bool* pixelData) {
+  // Elements from @p pos to the walk's end, or to an item delimiter when it is in an item; returns
+  // where it stopped. Reading a header, the pixel data at the top level ends the walk.
+  size_t elements(size_t pos, const ElementWalk& walk) {
+    const uint64_t end = walk.end;
+    const int depth = walk.depth;
+    const bool inItem = walk.inItem, implicitHere = walk.implicitVr;
+    DicomDataSet* const out = walk.out;
+    bool* const pixelData = walk.pixelData;
     if (depth > 16) fail(pos, "sequences nested more than 16 deep");
     const bool explicitVr = mExplicit && !implicitHere;
     while (pos + 8 <= end) {
@@ -160,7 +185,7 @@ class DicomHeaderParser {
       if (length == 0xffffffffu) {
         if (!maySequence) fail(pos - header, "an undefined length on a value that cannot hold items");
         std::vector<DicomDataSet>* items = out && descends(tag) ? &out->mItems[tag] : nullptr;
-        pos = sequenceItems(pos, end, depth + 1, implicitItems, items, true, pixels);
+        pos = sequenceItems(pos, {end, depth + 1, implicitItems, true, pixels, items});
         continue;
       }
       if (length > end - pos || pos + length > mAvailable)
@@ -168,7 +193,7 @@ class DicomHeaderParser {
                                   std::min<uint64_t>(end, mAvailable) - pos, " are left"));
       if (sequence && (mMode == Mode::WholeFile || descends(tag))) {
         need(pos, length);
-        sequenceItems(pos, pos + length, depth + 1, implicitItems, out && descends(tag) ? &out->mItems[tag] : nullptr, false, false);
+        sequenceItems(pos, {pos + length, depth + 1, implicitItems, false, false, out && descends(tag) ? &out->mItems[tag] : nullptr});
       } else if (out && keptTags().count(tag) && length <= 4096) {
         need(pos, length);
         out->mValues[tag] = value(tag, vr, pos, size_t(length));
@@ -187,12 +212,12 @@ class DicomHeaderParser {
   }
 
  private:
-  // Items of a sequence, to its delimiter (@p undefinedLength) or to @p end; each kept in @p items
-  // when asked for. The items of encapsulated pixel data (@p fragments) are bytes, not data sets.
-  size_t sequenceItems(size_t pos, uint64_t end, int depth, bool implicitHere, std::vector<DicomDataSet>* items, bool undefinedLength, bool fragments) {
+  // Items of a sequence from @p pos, to its delimiter or to its end; each kept when asked for.
+  size_t sequenceItems(size_t pos, const SequenceWalk& seq) {
+    const uint64_t end = seq.end;
     for (;;) {
       if (pos + 8 > end) {
-        if (!undefinedLength && pos == end) return pos;
+        if (!seq.undefinedLength && pos == end) return pos;
         need(pos, 8);
         fail(pos, "a sequence without its delimiter");
       }
@@ -202,19 +227,19 @@ class DicomHeaderParser {
       pos += 8;
       if (group != 0xfffe) fail(pos - 8, "a sequence holding something other than items");
       if (element == 0xe0dd) {
-        if (!undefinedLength) fail(pos - 8, "a sequence delimiter in a sequence of defined length");
+        if (!seq.undefinedLength) fail(pos - 8, "a sequence delimiter in a sequence of defined length");
         return pos;
       }
       if (element != 0xe000) fail(pos - 8, "an unknown item tag");
-      DicomDataSet* item = items ? &items->emplace_back() : nullptr;
-      if (length == 0xffffffffu && !fragments) {
-        pos = elements(pos, end, depth, true, implicitHere, item, nullptr);
+      DicomDataSet* item = seq.items ? &seq.items->emplace_back() : nullptr;
+      if (length == 0xffffffffu && !seq.fragments) {
+        pos = elements(pos, {.end = end, .depth = seq.depth, .inItem = true, .implicitVr = seq.implicitVr, .out = item});
         continue;
       }
       if (length > end - pos || pos + length > mAvailable) fail(pos - 8, concat("an item declaring ", length, " bytes where ", end - pos, " are left"));
-      if (!fragments) {
+      if (!seq.fragments) {
         need(pos, length);
-        elements(pos, pos + length, depth, false, implicitHere, item, nullptr);
+        elements(pos, {.end = pos + length, .depth = seq.depth, .implicitVr = seq.implicitVr, .out = item});
       }
       pos += length;
     }
@@ -381,7 +406,7 @@ bool checkDicomFile(const InputFile& file) {
   if (meta->transferSyntax == kDeflated) return true;  // lengths are inside the compressed stream: GDCM inflates it
   const std::vector<uint8_t> bytes = file.bytes(0, file.size());
   DicomHeaderParser(bytes, bytes.size(), meta->explicitVr(bytes), meta->bigEndian(), file.path(), DicomHeaderParser::Mode::WholeFile)
-      .elements(meta->dataSet, bytes.size(), 0, false, false, nullptr, nullptr);
+      .elements(meta->dataSet, {.end = bytes.size()});
   return true;
 }
 
@@ -400,7 +425,7 @@ std::optional<DicomHeader> readDicomHeader(const std::string& path, std::string*
     const std::vector<uint8_t> inflated = inflatedDataSet(file, meta->dataSet);
     try {
       DicomHeaderParser(inflated, inflated.size(), true, false, path, DicomHeaderParser::Mode::Header)
-          .elements(0, inflated.size(), 0, false, false, &h.data, &h.pixelData);
+          .elements(0, {.end = inflated.size(), .out = &h.data, .pixelData = &h.pixelData});
     } catch (const NeedMoreBytes&) {
       HYB_THROW(IoError, path, ": deflated DICOM data set longer than ", kMaxHeaderBytes, " bytes");
     }
@@ -410,7 +435,7 @@ std::optional<DicomHeader> readDicomHeader(const std::string& path, std::string*
     DicomHeader attempt = h;
     try {
       DicomHeaderParser(b, file.size(), meta->explicitVr(b), meta->bigEndian(), path, DicomHeaderParser::Mode::Header)
-          .elements(meta->dataSet, file.size(), 0, false, false, &attempt.data, &attempt.pixelData);
+          .elements(meta->dataSet, {.end = file.size(), .out = &attempt.data, .pixelData = &attempt.pixelData});
       return attempt;
     } catch (const NeedMoreBytes&) {
       if (b.size() >= kMaxHeaderBytes) HYB_THROW(IoError, path, ": DICOM header longer than ", kMaxHeaderBytes, " bytes (expected the pixel data sooner)");

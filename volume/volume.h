@@ -1,7 +1,7 @@
 // A scalar volume on a regular grid: dims, spacing, and samples with x varying fastest.
 //
 // The grid frame is millimetres with voxel (i,j,k) centred at (i*sx, j*sy, k*sz); the data domain
-// is the box spanned by the voxel centres (DESIGN 2). The volume's PatientFrame places that frame
+// is the box spanned by the voxel centres (docs/renderer.md, Conventions). The volume's PatientFrame places that frame
 // in the patient (LPS mm). Samples are held in the type they were read in where that type is 8 or
 // 16 bits (a CT's Hounsfield units take two bytes a voxel, as on disk), else as float; every value
 // converts to float exactly where it is read.

@@ -8,7 +8,7 @@ namespace hyb {
 
 namespace {
 
-// The texels of a knot lattice (DESIGN 3.3): value(knot index, knot position) at each knot, with
+// The texels of a knot lattice (docs/volume-octree.md, Nodal errors): value(knot index, knot position) at each knot, with
 // the overhanging last texel extrapolated so that uniform trilinear filtering reproduces the
 // lattice's position-clamped trilinear field exactly.
 template <class Value>

@@ -1,5 +1,5 @@
-// Brick textures of the slice renderer: one 3D texture per selected brick at its level p (DESIGN
-// 3.3: (2^p + 1)³ knots, a non-power-of-two texture a brick), holding the value and the shading
+// Brick textures of the slice renderer: one 3D texture per selected brick at its level p
+// ((2^p + 1)³ knots, docs/multires.md; a non-power-of-two texture a brick), holding the value and the shading
 // gradient; Carmona et al.'s blending towards coarser neighbours baked into the texels; and the
 // cache that keeps them across frames, bounded by a texture-memory limit (least recently used
 // bricks evicted). docs/renderer.md and docs/multires.md hold the measurements behind the choices.

@@ -1,5 +1,5 @@
 // Proxy geometry of the slice renderer (LaMar 1999): the polygons that sample a brick, on
-// view-aligned planes f·x = kΔ (globally aligned, DESIGN 3.4: cut from the brick's box on the CPU)
+// view-aligned planes f·x = kΔ (globally aligned, cut from the brick's box on the CPU; docs/renderer.md)
 // or on spherical shells |x − eye| = kΔ around the eye (perspective), each cut to the blocks of
 // the brick that the transfer function can make visible. Grid-frame millimetres throughout.
 #pragma once

@@ -111,8 +111,10 @@ BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, 
   return out;
 }
 
-void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const ProxyDepth& depth, double delta, bool sliced, bool cut,
-                            const PixelCentres* centres) {
+void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const SlabLayout& slabs, const PixelCentres* centres) {
+  const ProxyDepth& depth = slabs.depth;
+  const double delta = slabs.delta;
+  const bool sliced = slabs.sliced, cut = slabs.cut;
   mSurface = &surface;
   mDelta = delta;
   mSmooth = !surface.mesh->normals.empty();

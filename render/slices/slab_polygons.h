@@ -1,4 +1,5 @@
-// SlabPolygon lists (Boada and Navazo 2002, §4.1; DESIGN 3.4, corrected and in view-aligned form):
+// SlabPolygon lists (Boada and Navazo 2002, §4.1, corrected and in view-aligned form as
+// docs/renderer.md states):
 // every translucent surface polygon of a brick is put into each slab [kΔ, (k+1)Δ) between two of
 // the brick's proxies that its depth range covers, and the instances are sorted far to near (by
 // slab, then by depth inside a slab), so that the slice renderer draws them between the right two
@@ -83,18 +84,24 @@ class PixelCentres {
   glm::dvec2 mSize;
 };
 
+/// The slabs of one brick: width @p delta (mm) along @p depth.
+struct SlabLayout {
+  ProxyDepth depth;
+  double delta = 0.0;
+  bool sliced = true;  ///< false: the brick has no slices, its polygons all in slab 0
+  bool cut = true;     ///< false: each polygon whole in the slab of its centroid's depth
+};
+
 /// One brick's SlabPolygon list.
 class SlabPolygonList {
  public:
-  /// Buckets @p polygons of @p surface into the slabs of width @p delta along @p depth that their
-  /// depth ranges cover, and sorts the instances far to near (polygons of equal depth in their
-  /// order in @p polygons). With @p sliced false (a brick without slices) every polygon is one
-  /// instance in slab 0, sorted back to front by its centroid; with @p cut false every polygon is
-  /// one instance, whole, in the slab of its centroid's depth. Triangles that @p centres says
-  /// cover no pixel centre are left out (the polygon's depth stays that of all its triangles),
-  /// and those whose covered centres lie in one slab go to that slab alone.
-  void build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const ProxyDepth& depth, double delta, bool sliced, bool cut = true,
-             const PixelCentres* centres = nullptr);
+  /// Buckets @p polygons of @p surface into the slabs of @p slabs that their depth ranges cover,
+  /// and sorts the instances far to near (polygons of equal depth in their order in @p polygons).
+  /// In a brick without slices every polygon is one instance in slab 0, sorted back to front by its
+  /// centroid; uncut, every polygon is one instance, whole, in the slab of its centroid's depth.
+  /// Triangles that @p centres says cover no pixel centre are left out (the polygon's depth stays
+  /// that of all its triangles), and those whose covered centres lie in one slab go to that slab alone.
+  void build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const SlabLayout& slabs, const PixelCentres* centres = nullptr);
   /// Whether no polygon was placed.
   bool empty() const { return mInstances.empty(); }
   /// The first and last slab the polygons cover (when sliced and not empty).
