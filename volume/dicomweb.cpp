@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
@@ -135,12 +136,14 @@ struct Transfer {
   bool started = false;
   long status = 0;
   std::exception_ptr error;
-  uint64_t bytes = 0;
+  std::chrono::steady_clock::time_point lastByte;  // or the start
+  bool stalled = false;
 };
 
 size_t onData(char* p, size_t size, size_t count, void* user) {
   Transfer& t = *static_cast<Transfer*>(user);
   const size_t n = size * count;
+  t.lastByte = std::chrono::steady_clock::now();
   try {
     if (!t.started) {
       t.started = true;
@@ -153,7 +156,6 @@ size_t onData(char* p, size_t size, size_t count, void* user) {
       t.sink->start(type ? type : "", int64_t(length));
     }
     if (t.status < 200 || t.status >= 300) return n;
-    t.bytes += n;
     t.sink->data(p, n);
     return n;
   } catch (...) {
@@ -162,23 +164,27 @@ size_t onData(char* p, size_t size, size_t count, void* user) {
   }
 }
 
+// Stops a cancelled or stalled transfer (libcurl calls it at least once a second). libcurl's own
+// low-speed limit averages over seconds of history: a burst then a stall would outlast the limit.
 int onProgress(void* user, curl_off_t, curl_off_t, curl_off_t, curl_off_t) {
-  const Transfer& t = *static_cast<const Transfer*>(user);
-  return t.options->cancel && t.options->cancel->load() ? 1 : 0;
+  Transfer& t = *static_cast<Transfer*>(user);
+  if (t.options->cancel && t.options->cancel->load()) return 1;
+  t.stalled = std::chrono::duration<double>(std::chrono::steady_clock::now() - t.lastByte).count() > t.options->stallSeconds;
+  return t.stalled ? 1 : 0;
 }
 
 std::once_flag gCurlInit;
 
 // GETs @p url (Accept: @p accept) into @p sink; HTTP errors, transport faults and timeouts thrown
-// as one line naming the redacted address.
-void httpGet(const std::string& url, const std::string& accept, const DicomWebOptions& o, BodySink* sink) {
+// as one line starting with @p where (the redacted address the user gave).
+void httpGet(const std::string& url, const std::string& where, const std::string& accept, const DicomWebOptions& o, BodySink* sink) {
   std::call_once(gCurlInit, [] { curl_global_init(CURL_GLOBAL_DEFAULT); });
   const Credentials cred = credentials(o);
   const std::unique_ptr<CURL, void (*)(CURL*)> curl(curl_easy_init(), curl_easy_cleanup);
   if (!curl) HYB_THROW(RuntimeError, redactUrl(url), ": libcurl could not start a transfer");
   CURL* c = curl.get();
   char errorText[CURL_ERROR_SIZE] = {};
-  Transfer t{sink, c, &o, false, 0, nullptr, 0};
+  Transfer t{sink, c, &o, false, 0, nullptr, std::chrono::steady_clock::now(), false};
   const std::string acceptHeader = "Accept: " + accept;
   const std::unique_ptr<curl_slist, void (*)(curl_slist*)> headers(curl_slist_append(nullptr, acceptHeader.c_str()), curl_slist_free_all);
   curl_easy_setopt(c, CURLOPT_URL, url.c_str());
@@ -188,8 +194,6 @@ void httpGet(const std::string& url, const std::string& accept, const DicomWebOp
   curl_easy_setopt(c, CURLOPT_FOLLOWLOCATION, 1L);  // credentials are not sent on to another host (libcurl's default)
   curl_easy_setopt(c, CURLOPT_MAXREDIRS, 5L);
   curl_easy_setopt(c, CURLOPT_CONNECTTIMEOUT_MS, long(o.connectSeconds * 1000));
-  curl_easy_setopt(c, CURLOPT_LOW_SPEED_LIMIT, 1L);  // a stall, not a slow link, is a timeout
-  curl_easy_setopt(c, CURLOPT_LOW_SPEED_TIME, std::max(1L, long(o.stallSeconds + 0.5)));
   curl_easy_setopt(c, CURLOPT_NOSIGNAL, 1L);  // threads: no SIGALRM for DNS timeouts
   curl_easy_setopt(c, CURLOPT_ERRORBUFFER, errorText);
   curl_easy_setopt(c, CURLOPT_WRITEFUNCTION, onData);
@@ -207,10 +211,9 @@ void httpGet(const std::string& url, const std::string& accept, const DicomWebOp
     curl_easy_setopt(c, CURLOPT_PASSWORD, cred.password.c_str());
   }
   const CURLcode rc = curl_easy_perform(c);
-  const std::string where = redactUrl(url);
   if (t.error) std::rethrow_exception(t.error);
-  if (rc == CURLE_ABORTED_BY_CALLBACK) HYB_THROW(RuntimeError, where, ": cancelled");
-  if (rc == CURLE_OPERATION_TIMEDOUT)
+  if (rc == CURLE_ABORTED_BY_CALLBACK && !t.stalled) HYB_THROW(RuntimeError, where, ": cancelled");
+  if (t.stalled || rc == CURLE_OPERATION_TIMEDOUT)
     HYB_THROW(IoError, where, ": timed out: nothing received for ", o.stallSeconds, " s", t.started ? " after " + sink->received() : std::string(" (no response)"));
   if (rc == CURLE_PARTIAL_FILE || rc == CURLE_RECV_ERROR)
     HYB_THROW(IoError, where, ": the connection closed mid-transfer after ", sink->received(), " (", errorText, ")");
@@ -249,21 +252,22 @@ std::string jsonValue(const nlohmann::json& object, const char* tag) {
   return "";
 }
 
-// GETs a QIDO-RS listing: a JSON array of objects.
-nlohmann::json qido(const std::string& url, const DicomWebOptions& o) {
+// GETs a QIDO-RS listing: a JSON array of objects; messages start with @p where.
+nlohmann::json qido(const std::string& url, const std::string& where, const DicomWebOptions& o) {
   StringSink sink;
-  httpGet(url, "application/dicom+json, application/json", o, &sink);
+  httpGet(url, where, "application/dicom+json, application/json", o, &sink);
   if (sink.body.empty()) return nlohmann::json::array();  // 204 No Content: nothing matched
   nlohmann::json j = nlohmann::json::parse(sink.body, nullptr, false);
   if (j.is_discarded() || !j.is_array() || !std::all_of(j.begin(), j.end(), [](const nlohmann::json& x) { return x.is_object(); }))
-    HYB_THROW(IoError, redactUrl(url), ": answer is not DICOM JSON (expected an array of objects, QIDO-RS; Content-Type ", quotedExcerpt(sink.mType), ")");
+    HYB_THROW(IoError, where, ": answer is not DICOM JSON (expected an array of objects, QIDO-RS; Content-Type ", quotedExcerpt(sink.mType), ")");
   return j;
 }
 
 std::string escaped(const std::string& s) {
   std::string out;
   for (const unsigned char c : s) {
-    if (std::isalnum(c) || c == '-' || c == '.' || c == '_' || c == '~' || c == '*' || c == '?') out += char(c);
+    // ('^' of person names as it is: Orthanc matches it only so.)
+    if (std::isalnum(c) || c == '-' || c == '.' || c == '_' || c == '~' || c == '*' || c == '?' || c == '^') out += char(c);
     else out += concat("%", "0123456789ABCDEF"[c >> 4], "0123456789ABCDEF"[c & 15]);
   }
   return out;
@@ -296,7 +300,9 @@ std::string typeParameter(const std::string& contentType, const std::string& nam
 // The parts of a multipart/related body, each written to its file in @p dir as it arrives.
 class MultipartFiles final : public BodySink {
  public:
-  MultipartFiles(std::string where, std::string dir, const Progress* progress) : mWhere(std::move(where)), mDir(std::move(dir)), mProgress(progress) {}
+  /// @p expected: the instances the archive lists for the series (0: unknown), for progress and messages.
+  MultipartFiles(std::string where, std::string dir, size_t expected, const Progress* progress)
+      : mWhere(std::move(where)), mDir(std::move(dir)), mExpected(expected), mProgress(progress) {}
 
   void start(const std::string& contentType, int64_t contentLength) override {
     std::string type = detail::trim(contentType.substr(0, contentType.find(';')));
@@ -306,12 +312,13 @@ class MultipartFiles final : public BodySink {
       HYB_THROW(IoError, mWhere, ": answer is ", quotedExcerpt(contentType), " (expected multipart/related; type=\"application/dicom\" with a boundary, WADO-RS)");
     mDelimiter = "\r\n--" + boundary;
     mBuffer = "\r\n";  // the first delimiter may start the body without a line break before it
-    mTask = std::make_unique<ProgressTask>(mProgress, "DICOMweb series", contentLength > 0 ? uint64_t(contentLength) : 0);
+    mByBytes = contentLength > 0 || mExpected == 0;
+    mTask = std::make_unique<ProgressTask>(mProgress, "DICOMweb series", mByBytes ? uint64_t(std::max<int64_t>(contentLength, 0)) : mExpected);
   }
 
   void data(const char* p, size_t n) override {
     mBuffer.append(p, n);
-    if (mTask) mTask->advance(n);
+    if (mTask && mByBytes) mTask->advance(n);
     for (;;) {
       if (mState == State::Body) {
         const size_t at = mBuffer.find(mDelimiter);
@@ -356,7 +363,8 @@ class MultipartFiles final : public BodySink {
   }
 
   std::string received() const override {
-    return concat(mParts, mParts == 1 ? " instance" : " instances", " whole", mState == State::Body ? concat(" and ", mPartBytes, " bytes of the next") : "");
+    return concat(mParts, mExpected ? concat(" of ", mExpected) : "", mParts == 1 && !mExpected ? " instance" : " instances", " whole",
+                  mState == State::Body ? concat(" and ", mPartBytes + mBuffer.size(), " bytes of the next") : "");
   }
 
   /// Checks that the body ended where a multipart body ends.
@@ -407,6 +415,7 @@ class MultipartFiles final : public BodySink {
     if (!mFile) HYB_THROW(IoError, mPath, ": write failed (disk full?)");
     ++mParts;
     mBytes += mPartBytes;
+    if (mTask && !mByBytes) mTask->advance();
     std::string why;
     const std::optional<detail::DicomHeader> h = detail::readDicomHeader(mPath, &why);
     if (!h) HYB_THROW(IoError, mWhere, ": part ", mParts, " (", mPartBytes, " bytes) is ", why, " (expected a DICOM instance)");
@@ -417,7 +426,9 @@ class MultipartFiles final : public BodySink {
   }
 
   std::string mWhere, mDir;
+  size_t mExpected;
   const Progress* mProgress;
+  bool mByBytes = true;  // progress counts bytes (of a Content-Length), else instances
   std::unique_ptr<ProgressTask> mTask;
   std::string mDelimiter, mBuffer, mPath;
   State mState = State::Preamble;
@@ -552,14 +563,15 @@ std::vector<DicomWebSeries> queryDicomWeb(const std::string& rootUrl, const Dico
   if (!query.patient.empty()) filter += "&PatientName=" + escaped(query.patient);
   if (!query.studyDate.empty()) filter += "&StudyDate=" + escaped(query.studyDate);
   if (!query.modality.empty()) filter += "&ModalitiesInStudy=" + escaped(query.modality);
-  const nlohmann::json studies = qido(root + "/studies?includefield=00081030&includefield=00100010&includefield=00100020&includefield=00080020" + filter, options);
+  const nlohmann::json studies = qido(root + "/studies?includefield=00081030&includefield=00100010&includefield=00100020&includefield=00080020" + filter,
+                                             redactUrl(root), options);
   std::vector<DicomWebSeries> out;
   for (const nlohmann::json& study : studies) {
     const std::string studyUid = jsonValue(study, "0020000D");
     if (studyUid.empty()) continue;
     const nlohmann::json series = qido(root + "/studies/" + escaped(studyUid) + "/series?includefield=0008103E&includefield=00080021&includefield=00201209" +
                                            "&includefield=00200011" + (query.modality.empty() ? "" : "&Modality=" + escaped(query.modality)),
-                                       options);
+                                       redactUrl(root + "/studies/" + studyUid), options);
     for (const nlohmann::json& s : series) {
       DicomWebSeries r;
       DicomSeriesInfo& i = r.info;
@@ -583,11 +595,15 @@ std::vector<DicomWebSeries> queryDicomWeb(const std::string& rootUrl, const Dico
 }
 
 DicomWebFetch fetchDicomWebSeries(const std::string& seriesUrl, const std::string& dir, const DicomWebOptions& options, const Progress* progress) {
-  (void)seriesUids(seriesUrl);
+  const auto [studyUid, seriesUid] = seriesUids(seriesUrl);
   const std::string url = trimmedUrl(seriesUrl);
-  MultipartFiles files(redactUrl(url), dir, progress);
+  // The instances the archive lists (QIDO-RS): what progress counts when the body's length is not given.
+  const std::string root = url.substr(0, url.rfind("/studies/"));
+  const nlohmann::json listed = qido(root + "/studies/" + studyUid + "/series?SeriesInstanceUID=" + seriesUid + "&includefield=00201209", redactUrl(url), options);
+  const size_t expected = listed.size() == 1 ? size_t(std::strtoull(jsonValue(listed.front(), "00201209").c_str(), nullptr, 10)) : 0;
+  MultipartFiles files(redactUrl(url), dir, expected, progress);
   // The instances as stored (transfer-syntax=*): the bytes a folder of the same files holds, compressed or not.
-  httpGet(url, "multipart/related; type=\"application/dicom\"; transfer-syntax=*", options, &files);
+  httpGet(url, redactUrl(url), "multipart/related; type=\"application/dicom\"; transfer-syntax=*", options, &files);
   files.finish();
   return files.fetched();
 }
