@@ -28,7 +28,7 @@ struct PacsOptions {
 void printListing(const std::string& root, const std::vector<DicomWebSeries>& found, std::ostream& out) {
   size_t studies = 0;
   for (size_t k = 0; k < found.size(); ++k) studies += k == 0 || found[k].info.studyUid != found[k - 1].info.studyUid;
-  out << "pacs     " << redactUrl(root) << ": " << found.size() << (found.size() == 1 ? " series" : " series") << " in " << studies
+  out << "pacs     " << redactUrl(root) << ": " << found.size() << " series in " << studies
       << (studies == 1 ? " study" : " studies") << (found.empty() ? "" : "; give a series' address to info, build, render, export or view") << "\n";
   std::string patient = "\x01", study = "\x01";
   for (const DicomWebSeries& s : found) {
