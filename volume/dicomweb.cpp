@@ -225,13 +225,13 @@ void httpGet(const std::string& url, const std::string& where, const std::string
 // A body kept in memory, bounded: QIDO-RS answers.
 class StringSink final : public BodySink {
  public:
-  void start(const std::string& contentType, int64_t) override { mType = contentType; }
+  void start(const std::string& contentType, int64_t) override { type = contentType; }
   void data(const char* p, size_t n) override {
     if (body.size() + n > (size_t(64) << 20)) throw IoError("answer larger than 64 MB (expected a QIDO-RS listing)");
     body.append(p, n);
   }
   std::string received() const override { return concat(body.size(), " bytes"); }
-  std::string body, mType;
+  std::string body, type;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -259,7 +259,7 @@ nlohmann::json qido(const std::string& url, const std::string& where, const Dico
   if (sink.body.empty()) return nlohmann::json::array();  // 204 No Content: nothing matched
   nlohmann::json j = nlohmann::json::parse(sink.body, nullptr, false);
   if (j.is_discarded() || !j.is_array() || !std::all_of(j.begin(), j.end(), [](const nlohmann::json& x) { return x.is_object(); }))
-    HYB_THROW(IoError, where, ": answer is not DICOM JSON (expected an array of objects, QIDO-RS; Content-Type ", quotedExcerpt(sink.mType), ")");
+    HYB_THROW(IoError, where, ": answer is not DICOM JSON (expected an array of objects, QIDO-RS; Content-Type ", quotedExcerpt(sink.type), ")");
   return j;
 }
 
