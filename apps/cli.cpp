@@ -4,6 +4,7 @@
 #include "apps/frame.h"
 #include "apps/ranks.h"
 #include "apps/outputs.h"
+#include "apps/pacs_command.h"
 #include "apps/progress_display.h"
 #include "apps/viewer_server.h"
 
@@ -664,12 +665,14 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
   viewCmd->add_option("--memory", view.memoryMb,
                       "MB a scene file read paged holds, per scene: its octree, the surfaces made of it, the brick textures kept (--texture-mb), and the cache of decompressed blocks its bricks are read through, which gets what they leave, at least a quarter (default: an eighth of the physical memory)");
 
+  const PacsCommand pacs = addPacsCommand(app, out);
+
   try {
     try {
       const auto known = app.get_subcommands([](const CLI::App*) { return true; });
       if (argc > 1 && argv[1][0] != '-' &&
           std::none_of(known.begin(), known.end(), [&](const CLI::App* c) { return c->get_name() == argv[1]; }))
-        HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build, render, export, bench, compare or view; see --help)");
+        HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build, render, export, bench, compare, view or pacs; see --help)");
       app.parse(argc, argv);
     } catch (const CLI::CallForHelp&) {
       out << app.help();
@@ -713,6 +716,7 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
       view.volumeGiven = viewCmd->get_option("volume")->count() > 0;
       return check(view.validate()), runView(view, out, err);
     }
+    if (pacs.cmd->parsed()) return pacs.run();
     return 2;
   } catch (const IoError& e) {
     err << "hybrid-octree: error: " << e.what() << "\n";

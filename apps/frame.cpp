@@ -11,6 +11,7 @@
 #include "hybrid_octree/surface_octree.h"
 #include "render/bvh.h"
 #include "surface/mesh_ops.h"
+#include "volume/dicomweb.h"
 #include "volume/file_util.h"
 #include "volume/memory_limit.h"
 
@@ -38,8 +39,8 @@ glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
 
 void VolumeInput::add(CLI::App* cmd, bool scenes) {
   cmd->add_option("volume", path,
-                  "volume file (" + volumeExtensionsText() + "), DICOM directory (a series, a folder tree, a CD with its DICOMDIR), raw file" +
-                      (scenes ? ", or scene.hoct" : ""))
+                  "volume file (" + volumeExtensionsText() + "), DICOM directory (a series, a folder tree, a CD with its DICOMDIR), " +
+                      "DICOMweb series (http(s)://HOST:PORT/ROOT/studies/UID/series/UID; `pacs` lists them), raw file" + (scenes ? ", or scene.hoct" : ""))
       ->capture_default_str();
   cmd->add_option("--raw-dims", rawDims, "raw input: samples per axis X,Y,Z");
   cmd->add_option("--raw-type", rawType, "raw input: int16|uint16|uint8|int8|int32|uint32|float32|float64");
@@ -47,6 +48,8 @@ void VolumeInput::add(CLI::App* cmd, bool scenes) {
   cmd->add_option("--raw-endian", rawEndian, "raw input: little|big (default little)");
   cmd->add_option("--raw-header", rawHeader, "raw input: bytes to skip before the samples");
   cmd->add_option("--series", series, "DICOM directory: the Series Instance UID to read (default: the largest series; info lists them)");
+  cmd->add_option("--pacs-auth-file", pacsAuthFile,
+                  "DICOMweb: file whose first line is 'Bearer TOKEN' or 'USER:PASSWORD' (default: HYB_DICOMWEB_TOKEN or HYB_DICOMWEB_USER=USER:PASSWORD)");
 }
 
 std::optional<RawLayout> VolumeInput::rawLayout() const {
@@ -81,6 +84,7 @@ std::optional<RawLayout> VolumeInput::rawLayout() const {
 
 Volume VolumeInput::read(std::ostream& err) const {
   const std::optional<RawLayout> raw = rawLayout();
+  setDicomWebAuthFile(pacsAuthFile);
   Volume v = readVolume(path, raw ? &*raw : nullptr, series, progress);
   printWarnings(v, err);
   return v;
@@ -88,6 +92,7 @@ Volume VolumeInput::read(std::ostream& err) const {
 
 std::unique_ptr<PlaneSource> VolumeInput::openPlanes(std::ostream& err) const {
   const std::optional<RawLayout> raw = rawLayout();
+  setDicomWebAuthFile(pacsAuthFile);
   std::unique_ptr<PlaneSource> planes = hyb::openPlanes(path, raw ? &*raw : nullptr, series, progress);
   printWarnings(planes->description(), err);
   return planes;

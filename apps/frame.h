@@ -51,6 +51,7 @@ struct VolumeInput {
   std::string rawDims, rawType, rawSpacing, rawEndian = "little";
   uint64_t rawHeader = 0;
   std::string series;  // DICOM Series Instance UID; empty: the largest series
+  std::string pacsAuthFile;  // credentials for a DICOMweb address; empty: the environment's
   const Progress* progress = nullptr;  // where long steps report (runMain's display of --progress)
 
   /// Adds the volume argument and the raw and DICOM flags; @p scenes: the command also reads scene files.

@@ -10,6 +10,8 @@ packages=(
   libzstd-dev                                    # the scene file's compressed knot store
   libnifti2-dev                                  # NIfTI-1/2 reader (nifti_clib), .nii and .nii.gz
   libgdcm-dev                                    # DICOM series: parsing, decompression, rescale tags
+  libcurl4-openssl-dev                           # DICOMweb (PACS): HTTP with TLS, timeouts, redirects, authentication
+  orthanc orthanc-dicomweb                       # the DICOMweb archive the tests and bench/dicomweb_bench.sh upload series to
   libcli11-dev                                   # command-line parsing with subcommands
   nlohmann-json3-dev                             # JSON: --stats, camera files, the viewer's messages
   libboost-dev libturbojpeg0-dev                 # the viewer's server: Boost.Beast (HTTP, WebSocket); JPEG frames

@@ -26,8 +26,8 @@ const std::set<uint32_t>& keptTags() {
   static const std::set<uint32_t> kTags = {
       dicomTag(0x0002, 0x0002), dicomTag(0x0002, 0x0010),                            // meta: SOP class, transfer syntax
       dicomTag(0x0004, 0x1430), dicomTag(0x0004, 0x1500), dicomTag(0x0004, 0x1510),  // DICOMDIR records
-      dicomTag(0x0008, 0x0008), dicomTag(0x0008, 0x0016), dicomTag(0x0008, 0x0020), dicomTag(0x0008, 0x0021), dicomTag(0x0008, 0x0060),
-      dicomTag(0x0008, 0x1030), dicomTag(0x0008, 0x103e),                            // image type, SOP class, dates, modality, descriptions
+      dicomTag(0x0008, 0x0008), dicomTag(0x0008, 0x0016), dicomTag(0x0008, 0x0018), dicomTag(0x0008, 0x0020), dicomTag(0x0008, 0x0021), dicomTag(0x0008, 0x0060),
+      dicomTag(0x0008, 0x1030), dicomTag(0x0008, 0x103e),                            // image type, SOP class and instance, dates, modality, descriptions
       dicomTag(0x0010, 0x0010), dicomTag(0x0010, 0x0020),                            // patient
       dicomTag(0x0018, 0x0050), dicomTag(0x0018, 0x1120), dicomTag(0x0018, 0x5100),  // thickness, gantry tilt, patient position
       dicomTag(0x0020, 0x000d), dicomTag(0x0020, 0x000e), dicomTag(0x0020, 0x0011), dicomTag(0x0020, 0x0013),

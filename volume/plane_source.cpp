@@ -205,7 +205,7 @@ std::unique_ptr<PlaneSource> streamedPlanes(const SampleData& data, Volume descr
 }  // namespace detail
 
 std::unique_ptr<PlaneSource> openPlanes(const std::string& path, const RawLayout* raw, const std::string& series, const Progress* progress) {
-  if (std::unique_ptr<PlaneSource> s = detail::openStreamedPlanes(path, raw, series)) return s;
+  if (std::unique_ptr<PlaneSource> s = detail::openStreamedPlanes(path, raw, series, progress)) return s;
   auto v = std::make_shared<const Volume>(readVolume(path, raw, series, progress));
   const Volume& volume = *v;
   return std::make_unique<MemoryPlanes>(volume, path, std::move(v));

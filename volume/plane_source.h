@@ -97,7 +97,9 @@ std::unique_ptr<PlaneSource> niftiPlanes(const std::string& path);
 ///        IoError naming the slice file when a slice is damaged or changed since.
 std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::string& seriesUid);
 /// The streamed planes of @p path by the rules of readVolume(), or null when it is read whole.
-std::unique_ptr<PlaneSource> openStreamedPlanes(const std::string& path, const RawLayout* raw, const std::string& series);
+/// @p progress hears of a DICOMweb series' retrieval.
+std::unique_ptr<PlaneSource> openStreamedPlanes(const std::string& path, const RawLayout* raw, const std::string& series,
+                                                const Progress* progress = nullptr);
 
 /// Whether samples of file type @p t stream: their stored type does not depend on their range.
 inline bool streams(ScalarType t) { return t != ScalarType::UInt32 && t != ScalarType::Int32; }

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <string>
 
+#include "volume/dicomweb.h"
 #include "volume/file_util.h"
 #include "volume/plane_source.h"
 #include "volume/reader_util.h"
@@ -95,7 +96,17 @@ std::string volumeExtensionsText() {
 
 namespace {
 
+// Refuses flags a DICOMweb series' address does not take: it names its series and carries its layout.
+void checkDicomWebFlags(const std::string& path, const RawLayout* raw, const std::string& series) {
+  if (raw) HYB_THROW(ValueError, redactUrl(path), ": a DICOMweb series carries its own layout (--raw-dims, --raw-type and --raw-spacing are for headerless raw data)");
+  if (!series.empty()) HYB_THROW(ValueError, "--series is for DICOM directories (", redactUrl(path), " names its series in the address)");
+}
+
 Volume readByFormat(const std::string& path, const RawLayout* raw, const std::string& series, const Progress* progress) {
+  if (isDicomWebUrl(path)) {
+    checkDicomWebFlags(path, raw, series);
+    return readDicomWebSeries(path, progress);
+  }
   if (raw) return readRaw(path, *raw);
   std::error_code ec;
   if (!fs::exists(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
@@ -127,7 +138,7 @@ auto oneLineErrors(const std::string& path, const Read& read) {
   } catch (const RuntimeError& e) {
     throw RuntimeError(oneLine(e.what()));
   } catch (const std::bad_alloc&) {
-    HYB_THROW(RuntimeError, oneLine(path), ": out of memory while reading (expected a volume that fits; lower the memory limit to refuse it early)");
+    HYB_THROW(RuntimeError, oneLine(redactUrl(path)), ": out of memory while reading (expected a volume that fits; lower the memory limit to refuse it early)");
   }
 }
 
@@ -137,9 +148,14 @@ Volume readVolume(const std::string& path, const RawLayout* raw, const std::stri
   return oneLineErrors(path, [&] { return readByFormat(path, raw, series, progress); });
 }
 
-std::unique_ptr<PlaneSource> detail::openStreamedPlanes(const std::string& path, const RawLayout* raw, const std::string& series) {
+std::unique_ptr<PlaneSource> detail::openStreamedPlanes(const std::string& path, const RawLayout* raw, const std::string& series,
+                                                        const Progress* progress) {
   return oneLineErrors(path, [&]() -> std::unique_ptr<PlaneSource> {
     std::error_code ec;
+    if (isDicomWebUrl(path)) {
+      checkDicomWebFlags(path, raw, series);
+      return dicomWebPlanes(path, progress);
+    }
     if (raw) {
       if (!streams(raw->type)) return nullptr;
       Volume description = rawDescription(path, *raw);
