@@ -137,7 +137,7 @@ int main(int argc, char** argv) {
     omp_set_num_threads(2);
     {
       const hyb::TransferFunction tf = hyb::TransferFunction::preset("ct-skin-bone");
-      const hyb::Camera cam = hyb::Camera::orbit(glm::dvec3(0.0), v.extentMm(), 180, 10, 30, false, 512, 512);
+      const hyb::Camera cam = hyb::Camera::orbit(glm::dvec3(0.0), v.extentMm(), {180, 10, 30, false, 512, 512});
       const hyb::SurfaceOctree so = hyb::SurfaceOctree::build(v, tree, 400.0f);
       const hyb::TriangleMesh mesh = hyb::fineMeshToTriangles(so.reconstruct(), v.spacing());
       const hyb::Bvh bvh(mesh);

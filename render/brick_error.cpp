@@ -38,9 +38,9 @@ float shade(const glm::vec3& g, const glm::vec3& dir) {
 
 }  // namespace
 
-BrickImageError::BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-                                 const glm::dvec4& kept, const VolumeOfInterest* voi, const KnotSource* knots)
-    : mVolume(volume), mOctree(octree), mInMemory(volume, octree), mKnots(knots ? *knots : mInMemory), mTf(tf), mCamera(camera), mKept(kept), mVoi(voi), mLayout(volume.minValue(), volume.maxValue(), tf) {
+BrickImageError::BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera, const BrickErrorClipping& clipping)
+    : mVolume(volume), mOctree(octree), mInMemory(volume, octree), mKnots(clipping.knots ? *clipping.knots : mInMemory), mTf(tf), mCamera(camera),
+      mKept(clipping.kept), mVoi(clipping.voi), mLayout(volume.minValue(), volume.maxValue(), tf) {
   mTable.resize(LutLayout::kSize);
   for (int k = 0; k < LutLayout::kSize; ++k) {
     const glm::vec4 c = tf.lookup(mLayout.value(k));

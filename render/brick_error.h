@@ -31,6 +31,14 @@
 
 namespace hyb {
 
+/// What a view removes of the volume for BrickImageError: the cutting plane's kept side (all by
+/// default), a volume of interest, and where the bricks' knots are read (none: in memory).
+struct BrickErrorClipping {
+  glm::dvec4 kept{0, 0, 0, 1};
+  const VolumeOfInterest* voi = nullptr;
+  const KnotSource* knots = nullptr;
+};
+
 class BrickImageError {
  public:
   /// Prepares one view: the transfer function's table and the transmittance grid. Only the half
@@ -40,7 +48,7 @@ class BrickImageError {
   /// are never read whole. @p volume, @p octree, @p voi and @p knots must outlive this object (the
   /// transfer function and the camera are copied).
   BrickImageError(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-                  const glm::dvec4& kept = glm::dvec4(0, 0, 0, 1), const VolumeOfInterest* voi = nullptr, const KnotSource* knots = nullptr);
+                  const BrickErrorClipping& clipping = {});
 
   /// The image error of node @p node at level @p p (0 where the level is exact: one texel per
   /// voxel). Memoized: each brick is measured once.

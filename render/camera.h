@@ -33,10 +33,15 @@ struct Camera {
   /// patient's, and so must the camera be).
   bool mirrored = false;
 
-  /// Camera around the box [lo, hi] (mm): azimuth about +z from −y, elevation towards +z, degrees,
-  /// at a distance where the box's bounding sphere fills the view.
-  static Camera orbit(const glm::dvec3& lo, const glm::dvec3& hi, double azimuthDeg, double elevationDeg, double fovDeg,
-                      bool ortho, int width, int height);
+  /// Where an orbit looks from and through what lens.
+  struct Orbit {
+    double azimuthDeg = 0.0, elevationDeg = 0.0;  ///< azimuth about +z from −y, elevation towards +z
+    double fovDeg = 30.0;
+    bool ortho = false;
+    int width = 512, height = 512;
+  };
+  /// Camera around the box [lo, hi] (mm) at a distance where the box's bounding sphere fills the view.
+  static Camera orbit(const glm::dvec3& lo, const glm::dvec3& hi, const Orbit& o);
 
   glm::dvec3 forward() const { return glm::normalize(center - eye); }
   /// The unit direction of the image's x axis (to the right).

@@ -98,26 +98,16 @@ std::string budgetError(const std::string& text) {
   return "";
 }
 
-// Builders of the table's rows, one per kind of value.
-FrameField base(std::string name, FieldKind kind, std::string unit, std::string help, unsigned doors) {
-  FrameField f;
-  f.name = std::move(name);
-  f.kind = kind;
-  f.unit = std::move(unit);
-  f.help = std::move(help);
-  f.doors = doors;
-  return f;
-}
+// Builders of the table's rows: @p f holds the row's words (name, kind where it is not the
+// builder's, range, unit, help, doors), the builder where its value is held.
+using SetNumbers = std::function<void(FrameSettings&, const std::optional<std::vector<double>>&)>;
+using GetNumbers = std::function<std::optional<std::vector<double>>(const FrameSettings&)>;
+using SetWord = std::function<void(FrameSettings&, const std::optional<std::string>&)>;
+using GetWord = std::function<std::optional<std::string>(const FrameSettings&)>;
 
-// A number held in @p at (none: unset when @p optional).
+// A number (or a whole number: f.kind Integer) held in @p at; an optional one is unset by default.
 template <class At>
-FrameField number(std::string name, double lo, double hi, std::string unit, std::string help, unsigned doors, At at, bool loOpen = false,
-                  bool hiOpen = false) {
-  FrameField f = base(std::move(name), FieldKind::Number, std::move(unit), std::move(help), doors);
-  f.lo = lo;
-  f.hi = hi;
-  f.loOpen = loOpen;
-  f.hiOpen = hiOpen;
+FrameField number(FrameField f, At at) {
   using Held = std::remove_reference_t<decltype(at(std::declval<FrameSettings&>()))>;
   f.optional = !std::is_arithmetic_v<Held>;
   f.setNumbers = [at](FrameSettings& s, const std::optional<std::vector<double>>& v) {
@@ -133,16 +123,9 @@ FrameField number(std::string name, double lo, double hi, std::string unit, std:
   return f;
 }
 
-// @p count numbers, each in [lo, hi], held by @p set and given by @p get.
-FrameField numbers(std::string name, std::string shape, int count, double lo, double hi, std::string unit, std::string help, unsigned doors, bool optional,
-                   std::function<void(FrameSettings&, const std::optional<std::vector<double>>&)> set,
-                   std::function<std::optional<std::vector<double>>(const FrameSettings&)> get, std::function<std::string(const std::vector<double>&)> check = {}) {
-  FrameField f = base(std::move(name), FieldKind::Numbers, std::move(unit), std::move(help), doors);
-  f.shape = std::move(shape);
-  f.count = count;
-  f.lo = lo;
-  f.hi = hi;
-  f.optional = optional;
+// f.count numbers (f.kind Numbers), each in the row's range, held by @p set and given by @p get.
+FrameField numbers(FrameField f, SetNumbers set, GetNumbers get, std::function<std::string(const std::vector<double>&)> check = {}) {
+  f.kind = FieldKind::Numbers;
   f.setNumbers = std::move(set);
   f.check = std::move(check);
   f.get = [get](const FrameSettings& s) -> std::optional<std::string> {
@@ -152,21 +135,25 @@ FrameField numbers(std::string name, std::string shape, int count, double lo, do
   return f;
 }
 
-// A word: a switch (on|off), a flag, one of @p choices, or free text (@p choices empty).
-FrameField word(std::string name, FieldKind kind, std::vector<std::string> choices, std::string help, unsigned doors, bool optional,
-                std::function<void(FrameSettings&, const std::optional<std::string>&)> set, std::function<std::optional<std::string>(const FrameSettings&)> get) {
-  FrameField f = base(std::move(name), kind, "", std::move(help), doors);
-  f.choices = std::move(choices);
-  f.optional = optional;
+// A word (f.kind Switch, Flag, Choice, Text, Budget or Points).
+FrameField word(FrameField f, SetWord set, GetWord get) {
   f.setWord = std::move(set);
   f.get = std::move(get);
   return f;
 }
 
-FrameField onOff(std::string name, bool FrameSettings::*member, std::string help, unsigned doors) {
-  return word(std::move(name), FieldKind::Switch, {"on", "off"}, std::move(help), doors, false,
-              [member](FrameSettings& s, const std::optional<std::string>& w) { s.*member = *w == "on"; },
+FrameField onOff(FrameField f, bool FrameSettings::*member) {
+  f.kind = FieldKind::Switch;
+  f.choices = {"on", "off"};
+  return word(std::move(f), [member](FrameSettings& s, const std::optional<std::string>& w) { s.*member = *w == "on"; },
               [member](const FrameSettings& s) { return std::optional<std::string>(s.*member ? "on" : "off"); });
+}
+
+// A text held in @p member, unset when empty.
+FrameField textField(FrameField f, std::string FrameSettings::*member) {
+  f.optional = true;
+  return word(std::move(f), [member](FrameSettings& s, const std::optional<std::string>& w) { s.*member = w.value_or(""); },
+              [member](const FrameSettings& s) { return (s.*member).empty() ? std::nullopt : std::optional(s.*member); });
 }
 
 std::optional<std::vector<double>> vec(const std::optional<glm::dvec3>& v) {
@@ -177,9 +164,14 @@ std::optional<glm::dvec3> vec3(const std::optional<std::vector<double>>& v) {
 }
 
 // A point in patient mm (eye, center, focus).
-FrameField point(std::string name, std::string help, unsigned doors, std::optional<glm::dvec3>& (*at)(FrameSettings&)) {
-  return numbers(std::move(name), "x,y,z", 3, -kMaxCameraMm, kMaxCameraMm, "mm", std::move(help), doors, true,
-                 [at](FrameSettings& s, const std::optional<std::vector<double>>& v) { at(s) = vec3(v); },
+FrameField point(FrameField f, std::optional<glm::dvec3>& (*at)(FrameSettings&)) {
+  f.count = 3;
+  f.lo = -kMaxCameraMm;
+  f.hi = kMaxCameraMm;
+  f.unit = "mm";
+  f.shape = "x,y,z";
+  f.optional = true;
+  return numbers(std::move(f), [at](FrameSettings& s, const std::optional<std::vector<double>>& v) { at(s) = vec3(v); },
                  [at](const FrameSettings& s) { return vec(at(const_cast<FrameSettings&>(s))); });
 }
 
@@ -188,11 +180,11 @@ std::string nonZero(const std::vector<double>& v) {
 }
 
 template <class Enum>
-FrameField choice(std::string name, std::vector<std::pair<std::string, Enum>> words, std::string help, unsigned doors, Enum& (*at)(FrameSettings&)) {
-  std::vector<std::string> names;
-  for (const auto& w : words) names.push_back(w.first);
+FrameField choice(FrameField f, std::vector<std::pair<std::string, Enum>> words, Enum& (*at)(FrameSettings&)) {
+  f.kind = FieldKind::Choice;
+  for (const auto& w : words) f.choices.push_back(w.first);
   return word(
-      std::move(name), FieldKind::Choice, names, std::move(help), doors, false,
+      std::move(f),
       [at, words](FrameSettings& s, const std::optional<std::string>& w) {
         for (const auto& [text, value] : words)
           if (text == *w) at(s) = value;
@@ -204,82 +196,94 @@ FrameField choice(std::string name, std::vector<std::pair<std::string, Enum>> wo
       });
 }
 
-std::vector<FrameField> makeFields() {
-  const unsigned cliPy = kCommandLine | kPython, all = kEveryDoor;
-  std::vector<FrameField> f;
-  // Where from.
-  f.push_back(point("eye", "camera position x,y,z (LPS: x towards the patient's left, y posterior, z superior; with center and up)", all,
+constexpr unsigned kCliPy = kCommandLine | kPython;
+
+// Where from: the camera.
+void addCameraFields(std::vector<FrameField>& f) {
+  f.push_back(point({.name = "eye", .help = "camera position x,y,z (LPS: x towards the patient's left, y posterior, z superior; with center and up)"},
                     [](FrameSettings& s) -> auto& { return s.eye; }));
-  f.push_back(point("center", "point looked at x,y,z (default: the volume's centre); needs eye", all, [](FrameSettings& s) -> auto& { return s.center; }));
-  f.push_back(numbers(
-      "up", "x,y,z", 3, -kMaxCameraMm, kMaxCameraMm, "", "up direction x,y,z in patient axes (default 0,0,1, superior); needs eye", all, true,
-      [](FrameSettings& s, const std::optional<std::vector<double>>& v) { s.up = vec3(v); }, [](const FrameSettings& s) { return vec(s.up); }, nonZero));
+  f.push_back(point({.name = "center", .help = "point looked at x,y,z (default: the volume's centre); needs eye"}, [](FrameSettings& s) -> auto& { return s.center; }));
+  f.push_back(numbers({.name = "up", .count = 3, .lo = -kMaxCameraMm, .hi = kMaxCameraMm, .shape = "x,y,z",
+                       .help = "up direction x,y,z in patient axes (default 0,0,1, superior); needs eye", .optional = true},
+                      [](FrameSettings& s, const std::optional<std::vector<double>>& v) { s.up = vec3(v); }, [](const FrameSettings& s) { return vec(s.up); },
+                      nonZero));
   f.push_back(word(
-      "view", FieldKind::Choice, std::vector<std::string>(std::begin(kViews), std::end(kViews)),
-      "anatomical view: anterior (default; the patient's left on the image's right), posterior, left, right, superior, inferior", cliPy, true,
+      {.name = "view", .kind = FieldKind::Choice,
+       .help = "anatomical view: anterior (default; the patient's left on the image's right), posterior, left, right, superior, inferior",
+       .choices = std::vector<std::string>(std::begin(kViews), std::end(kViews)), .doors = kCliPy, .optional = true},
       [](FrameSettings& s, const std::optional<std::string>& w) {
         AnatomicalView v{};
         s.view = w && parseAnatomicalView(*w, &v) ? std::optional(v) : std::nullopt;
       },
       [](const FrameSettings& s) { return s.view ? std::optional<std::string>(kViews[int(*s.view)]) : std::nullopt; }));
   f.push_back(numbers(
-      "orbit", "azimuth,elevation", 2, -1e6, 1e6, "degrees",
-      "azimuth,elevation from the anterior view: azimuth towards the patient's left (90 = left view), elevation towards superior", cliPy, true,
+      {.name = "orbit", .count = 2, .lo = -1e6, .hi = 1e6, .unit = "degrees", .shape = "azimuth,elevation",
+       .help = "azimuth,elevation from the anterior view: azimuth towards the patient's left (90 = left view), elevation towards superior",
+       .doors = kCliPy, .optional = true},
       [](FrameSettings& s, const std::optional<std::vector<double>>& v) { s.orbit = v ? std::optional(glm::dvec2((*v)[0], (*v)[1])) : std::nullopt; },
       [](const FrameSettings& s) { return s.orbit ? std::optional(std::vector<double>{s.orbit->x, s.orbit->y}) : std::nullopt; }));
-  f.push_back(number("zoom", 0.0, 1000.0, "", "magnify the image about its centre (2 = twice as large; the default framing fits what is visible)", cliPy,
-                     [](FrameSettings& s) -> auto& { return s.zoom; }, true));
-  f.push_back(number("fov", kMinFovDeg, kMaxFovDeg, "degrees", "vertical field of view", all, [](FrameSettings& s) -> auto& { return s.fov; }, false, true));
-  f.push_back(word(
-      "ortho", FieldKind::Flag, {"on", "off"}, "orthographic projection", all, false,
-      [](FrameSettings& s, const std::optional<std::string>& w) { s.ortho = *w == "on"; },
-      [](const FrameSettings& s) { return std::optional<std::string>(s.ortho ? "on" : "off"); }));
-  f.push_back(number("ortho_height", 0.0, kMaxCameraMm, "mm", "height an orthographic view spans (default: what frames the volume)", all,
-                     [](FrameSettings& s) -> auto& { return s.orthoHeight; }, true));
+  f.push_back(number({.name = "zoom", .lo = 0.0, .hi = 1000.0, .loOpen = true,
+                      .help = "magnify the image about its centre (2 = twice as large; the default framing fits what is visible)", .doors = kCliPy},
+                     [](FrameSettings& s) -> auto& { return s.zoom; }));
+  f.push_back(number({.name = "fov", .lo = kMinFovDeg, .hi = kMaxFovDeg, .hiOpen = true, .unit = "degrees", .help = "vertical field of view"},
+                     [](FrameSettings& s) -> auto& { return s.fov; }));
+  f.push_back(word({.name = "ortho", .kind = FieldKind::Flag, .help = "orthographic projection", .choices = {"on", "off"}},
+                   [](FrameSettings& s, const std::optional<std::string>& w) { s.ortho = *w == "on"; },
+                   [](const FrameSettings& s) { return std::optional<std::string>(s.ortho ? "on" : "off"); }));
+  f.push_back(number({.name = "ortho_height", .lo = 0.0, .hi = kMaxCameraMm, .loOpen = true, .unit = "mm",
+                      .help = "height an orthographic view spans (default: what frames the volume)"},
+                     [](FrameSettings& s) -> auto& { return s.orthoHeight; }));
   FrameField size = numbers(
-      "size", "WxH", 2, 1, kMaxRenderEdge, "pixels", "image size WxH (default 512x512, or the camera file's)", all, true,
+      {.name = "size", .count = 2, .lo = 1, .hi = kMaxRenderEdge, .unit = "pixels", .shape = "WxH",
+       .help = "image size WxH (default 512x512, or the camera file's)", .optional = true},
       [](FrameSettings& s, const std::optional<std::vector<double>>& v) { s.size = v ? std::optional(glm::ivec2(int((*v)[0]), int((*v)[1]))) : std::nullopt; },
-      [](const FrameSettings& s) { return s.size ? std::optional(std::vector<double>{double(s.size->x), double(s.size->y)}) : std::nullopt; });
+      {});
   size.kind = FieldKind::Size;
   size.get = [](const FrameSettings& s) { return s.size ? std::optional(std::to_string(s.size->x) + "x" + std::to_string(s.size->y)) : std::nullopt; };
   f.push_back(size);
-  f.push_back(word("camera_file", FieldKind::Text, {}, "read the camera from a JSON file written by --stats (or its \"camera\" object alone)", cliPy, true,
-                   [](FrameSettings& s, const std::optional<std::string>& w) { s.cameraFile = w.value_or(""); },
-                   [](const FrameSettings& s) { return s.cameraFile.empty() ? std::nullopt : std::optional(s.cameraFile); }));
-  f.push_back(onOff("marker", &FrameSettings::marker, "orientation marker (patient axes L/R, P/A, S/I) in the lower-left corner (default off)", cliPy));
-  // What is shown.
+  f.push_back(textField({.name = "camera_file", .kind = FieldKind::Text, .help = "read the camera from a JSON file written by --stats (or its \"camera\" object alone)",
+                    .doors = kCliPy},
+                   &FrameSettings::cameraFile));
+  f.push_back(onOff({.name = "marker", .help = "orientation marker (patient axes L/R, P/A, S/I) in the lower-left corner (default off)", .doors = kCliPy},
+                    &FrameSettings::marker));
+}
+
+
+// What is shown: the transfer function, the surface, the cut, the volume of interest.
+void addLookFields(std::vector<FrameField>& f) {
   std::string presets;
   for (const TransferFunction::Preset& p : TransferFunction::presets()) presets += (presets.empty() ? "" : ", ") + std::string(p.name) + " (" + p.shows + ")";
-  f.push_back(word("preset", FieldKind::Choice, TransferFunction::presetNames(),
-                   "transfer function: " + presets + "; default " + TransferFunction::presets().front().name + " for CT, a ramp over the data's range for other data",
-                   all, true, [](FrameSettings& s, const std::optional<std::string>& w) { s.preset = w.value_or(""); },
-                   [](const FrameSettings& s) { return s.preset.empty() ? std::nullopt : std::optional(s.preset); }));
-  f.push_back(word("tf", FieldKind::Text, {}, "transfer function file: 'value r g b a' lines, a = opacity of 1 mm", cliPy, true,
-                   [](FrameSettings& s, const std::optional<std::string>& w) { s.tf = w.value_or(""); },
-                   [](const FrameSettings& s) { return s.tf.empty() ? std::nullopt : std::optional(s.tf); }));
+  f.push_back(textField({.name = "preset", .kind = FieldKind::Choice,
+                    .help = "transfer function: " + presets + "; default " + TransferFunction::presets().front().name +
+                            " for CT, a ramp over the data's range for other data",
+                    .choices = TransferFunction::presetNames()},
+                   &FrameSettings::preset));
+  f.push_back(textField({.name = "tf", .kind = FieldKind::Text, .help = "transfer function file: 'value r g b a' lines, a = opacity of 1 mm", .doors = kCliPy},
+                   &FrameSettings::tf));
   f.push_back(word(
-      "tf_points", FieldKind::Points, {}, "transfer function control points value,r,g,b,a;... (opacity of 1 mm), values increasing", kViewer, true,
+      {.name = "tf_points", .kind = FieldKind::Points,
+       .help = "transfer function control points value,r,g,b,a;... (opacity of 1 mm), values increasing", .doors = kViewer, .optional = true},
       [](FrameSettings& s, const std::optional<std::string>& w) { s.tfPoints = w ? *pointsIn(*w) : std::vector<TransferFunction::Point>{}; },
       [](const FrameSettings& s) { return s.tfPoints.empty() ? std::nullopt : std::optional(pointsText(s.tfPoints)); }));
-  f.push_back(number("opacity", 0.0, 10.0, "", "multiplies every opacity of the transfer function (at most 1 each)", all,
+  f.push_back(number({.name = "opacity", .lo = 0.0, .hi = 10.0, .help = "multiplies every opacity of the transfer function (at most 1 each)"},
                      [](FrameSettings& s) -> auto& { return s.opacity; }));
-  f.push_back(number("iso", -kFloatMax, kFloatMax, "data units", "isovalue of the embedded surface (none: volume only)", all,
+  f.push_back(number({.name = "iso", .lo = -kFloatMax, .hi = kFloatMax, .unit = "data units", .help = "isovalue of the embedded surface (none: volume only)"},
                      [](FrameSettings& s) -> auto& { return s.iso; }));
   f.push_back(numbers(
-      "surface_color", "r,g,b,a", 4, 0.0, 1.0, "", "surface r,g,b,a; a < 1 is translucent (default 0.95,0.92,0.85,1)", all, false,
+      {.name = "surface_color", .count = 4, .lo = 0.0, .hi = 1.0, .shape = "r,g,b,a", .help = "surface r,g,b,a; a < 1 is translucent (default 0.95,0.92,0.85,1)"},
       [](FrameSettings& s, const std::optional<std::vector<double>>& v) {
         s.surfaceColor = glm::vec4(float((*v)[0]), float((*v)[1]), float((*v)[2]), float((*v)[3]));
       },
       [](const FrameSettings& s) {
         return std::optional(std::vector<double>{typed(s.surfaceColor.r), typed(s.surfaceColor.g), typed(s.surfaceColor.b), typed(s.surfaceColor.a)});
       }));
-  f.push_back(choice<SurfaceNormals>("surface_normals", {{"gradient", SurfaceNormals::Gradient}, {"facet", SurfaceNormals::Facet}},
-                                     "surface shading: the volume's gradient at each vertex (smooth, default) or each polygon's own plane", all,
-                                     [](FrameSettings& s) -> auto& { return s.surfaceNormals; }));
-  f.push_back(onOff("shading", &FrameSettings::shading, "gradient shading of the volume (default on)", all));
+  f.push_back(choice<SurfaceNormals>(
+      {.name = "surface_normals", .help = "surface shading: the volume's gradient at each vertex (smooth, default) or each polygon's own plane"},
+      {{"gradient", SurfaceNormals::Gradient}, {"facet", SurfaceNormals::Facet}}, [](FrameSettings& s) -> auto& { return s.surfaceNormals; }));
+  f.push_back(onOff({.name = "shading", .help = "gradient shading of the volume (default on)"}, &FrameSettings::shading));
   f.push_back(numbers(
-      "cut", "px,py,pz,nx,ny,nz", 6, -kMaxCameraMm, kMaxCameraMm, "mm", "cutting plane px,py,pz,nx,ny,nz (a point and a normal): removes the eye's side, shows the data on it",
-      all, true,
+      {.name = "cut", .count = 6, .lo = -kMaxCameraMm, .hi = kMaxCameraMm, .unit = "mm", .shape = "px,py,pz,nx,ny,nz",
+       .help = "cutting plane px,py,pz,nx,ny,nz (a point and a normal): removes the eye's side, shows the data on it", .optional = true},
       [](FrameSettings& s, const std::optional<std::vector<double>>& v) {
         s.cut = v ? std::optional(CutPlane{glm::dvec3((*v)[0], (*v)[1], (*v)[2]), glm::dvec3((*v)[3], (*v)[4], (*v)[5])}) : std::nullopt;
       },
@@ -289,72 +293,90 @@ std::vector<FrameField> makeFields() {
         return std::optional(std::vector<double>{c.point.x, c.point.y, c.point.z, c.normal.x, c.normal.y, c.normal.z});
       },
       [](const std::vector<double>& v) { return nonZero({v[3], v[4], v[5]}).empty() ? "" : "a non-zero normal"; }));
-  f.push_back(onOff("cut_line", &FrameSettings::cutLine, "draw the isosurface's intersection with the cutting plane (default on)", all));
+  f.push_back(onOff({.name = "cut_line", .help = "draw the isosurface's intersection with the cutting plane (default on)"}, &FrameSettings::cutLine));
   f.push_back(numbers(
-      "voi", "x0,y0,z0,x1,y1,z1", 6, -kMaxCameraMm, kMaxCameraMm, "mm", "volume of interest x0,y0,z0,x1,y1,z1 (its box's corners): opacity scaled inside and outside (Levoy)",
-      all, true,
+      {.name = "voi", .count = 6, .lo = -kMaxCameraMm, .hi = kMaxCameraMm, .unit = "mm", .shape = "x0,y0,z0,x1,y1,z1",
+       .help = "volume of interest x0,y0,z0,x1,y1,z1 (its box's corners): opacity scaled inside and outside (Levoy)", .optional = true},
       [](FrameSettings& s, const std::optional<std::vector<double>>& v) {
         s.voi = v ? std::optional(std::array<double, 6>{(*v)[0], (*v)[1], (*v)[2], (*v)[3], (*v)[4], (*v)[5]}) : std::nullopt;
       },
       [](const FrameSettings& s) { return s.voi ? std::optional(std::vector<double>(s.voi->begin(), s.voi->end())) : std::nullopt; },
       [](const std::vector<double>& v) { return v[0] < v[3] && v[1] < v[4] && v[2] < v[5] ? "" : "x0 < x1, y0 < y1, z0 < z1"; }));
-  f.push_back(number("voi_inside", 0.0, 100.0, "", "opacity factor inside the volume of interest", all, [](FrameSettings& s) -> auto& { return s.voiInside; }));
-  f.push_back(number("voi_outside", 0.0, 100.0, "", "opacity factor outside the volume of interest", all, [](FrameSettings& s) -> auto& { return s.voiOutside; }));
-  f.push_back(number("voi_ramp", 0.0, kMaxCameraMm, "mm", "width of the smooth transition across the box's surface", all,
+  f.push_back(number({.name = "voi_inside", .lo = 0.0, .hi = 100.0, .help = "opacity factor inside the volume of interest"},
+                     [](FrameSettings& s) -> auto& { return s.voiInside; }));
+  f.push_back(number({.name = "voi_outside", .lo = 0.0, .hi = 100.0, .help = "opacity factor outside the volume of interest"},
+                     [](FrameSettings& s) -> auto& { return s.voiOutside; }));
+  f.push_back(number({.name = "voi_ramp", .lo = 0.0, .hi = kMaxCameraMm, .unit = "mm", .help = "width of the smooth transition across the box's surface"},
                      [](FrameSettings& s) -> auto& { return s.voiRamp; }));
   f.push_back(numbers(
-      "background", "r,g,b", 3, 0.0, 1.0, "", "background r,g,b (default 0,0,0)", cliPy, false,
+      {.name = "background", .count = 3, .lo = 0.0, .hi = 1.0, .shape = "r,g,b", .help = "background r,g,b (default 0,0,0)", .doors = kCliPy},
       [](FrameSettings& s, const std::optional<std::vector<double>>& v) { s.background = glm::vec3(float((*v)[0]), float((*v)[1]), float((*v)[2])); },
       [](const FrameSettings& s) { return std::optional(std::vector<double>{typed(s.background.r), typed(s.background.g), typed(s.background.b)}); }));
-  // How well.
-  f.push_back(choice<Renderer>("renderer", {{"slices", Renderer::Slices}, {"raycast", Renderer::Raycast}},
-                               "the slice renderer (default) or the reference ray tracer", cliPy, [](FrameSettings& s) -> auto& { return s.quality.renderer; }));
-  f.push_back(number("epsilon", 0.0, kFloatMax, "data units", "user error epsilon_u: the largest nodal error of a brick drawn (0 = exact)", cliPy,
+}
+
+// How well: the renderer and its quality knobs (the viewer's scheduler sets its own).
+void addQualityFields(std::vector<FrameField>& f) {
+  f.push_back(choice<Renderer>({.name = "renderer", .help = "the slice renderer (default) or the reference ray tracer", .doors = kCliPy},
+                               {{"slices", Renderer::Slices}, {"raycast", Renderer::Raycast}}, [](FrameSettings& s) -> auto& { return s.quality.renderer; }));
+  f.push_back(number({.name = "epsilon", .lo = 0.0, .hi = kFloatMax, .unit = "data units",
+                      .help = "user error epsilon_u: the largest nodal error of a brick drawn (0 = exact)", .doors = kCliPy},
                      [](FrameSettings& s) -> auto& { return s.quality.epsilon; }));
-  FrameField budget = word(
-      "budget", FieldKind::Budget, {}, "texture memory budget in MB, blend textures included (0 = unlimited), or P% of this view's full-resolution bytes",
-      cliPy, true, [](FrameSettings& s, const std::optional<std::string>& w) { s.budget = w.value_or(""); },
-      [](const FrameSettings& s) { return s.budget.empty() ? std::nullopt : std::optional(s.budget); });
-  f.push_back(budget);
-  f.push_back(number("step", 0.01, 4.0, "voxels", "slice / sample spacing (default 0.5 for slices, 0.25 for raycast)", cliPy,
-                     [](FrameSettings& s) -> auto& { return s.quality.step; }, true));
-  f.push_back(choice<Proxy>("proxy", {{"planes", Proxy::Planes}, {"shells", Proxy::Shells}},
-                            "slice geometry: view-aligned planes (default) or spherical shells around the eye (perspective)", cliPy,
-                            [](FrameSettings& s) -> auto& { return s.quality.proxy; }));
-  f.push_back(word(
-      "blend", FieldKind::Switch, {"on", "off"}, "blend bricks towards coarser neighbours, Carmona et al. (default on)", cliPy, false,
-      [](FrameSettings& s, const std::optional<std::string>& w) { s.quality.blend = *w == "on"; },
-      [](const FrameSettings& s) { return std::optional<std::string>(s.quality.blend ? "on" : "off"); }));
+  f.push_back(textField({.name = "budget", .kind = FieldKind::Budget,
+                    .help = "texture memory budget in MB, blend textures included (0 = unlimited), or P% of this view's full-resolution bytes",
+                    .doors = kCliPy},
+                   &FrameSettings::budget));
+  f.push_back(number({.name = "step", .lo = 0.01, .hi = 4.0, .loOpen = true, .unit = "voxels",
+                      .help = "slice / sample spacing (default 0.5 for slices, 0.25 for raycast)", .doors = kCliPy},
+                     [](FrameSettings& s) -> auto& { return s.quality.step; }));
+  f.push_back(choice<Proxy>({.name = "proxy", .help = "slice geometry: view-aligned planes (default) or spherical shells around the eye (perspective)", .doors = kCliPy},
+                            {{"planes", Proxy::Planes}, {"shells", Proxy::Shells}}, [](FrameSettings& s) -> auto& { return s.quality.proxy; }));
+  f.push_back(word({.name = "blend", .kind = FieldKind::Switch, .help = "blend bricks towards coarser neighbours, Carmona et al. (default on)",
+                    .choices = {"on", "off"}, .doors = kCliPy},
+                   [](FrameSettings& s, const std::optional<std::string>& w) { s.quality.blend = *w == "on"; },
+                   [](const FrameSettings& s) { return std::optional<std::string>(s.quality.blend ? "on" : "off"); }));
   f.push_back(choice<Classification>(
-      "classification", {{"post", Classification::Post}, {"preintegrated", Classification::PreIntegrated}},
-      "post-classified samples (default) or segments pre-integrated between their ends' values (finds narrow transfer-function features "
-      "between samples; two brick reads a fragment)",
-      all, [](FrameSettings& s) -> auto& { return s.quality.classification; }));
-  f.push_back(number("image_scale", 0.0, 1.0, "", "render at this fraction of the size and magnify bilinearly (as VTK's image sample distance 1/S); 1 renders every pixel",
-                     cliPy, [](FrameSettings& s) -> auto& { return s.quality.imageScale; }, true));
-  f.push_back(number("lod_pixels", 0.0, 1e6, "pixels",
-                     "stop refining where texels are at most this many pixels apart on screen, and draw the surface with its vertices clustered by "
-                     "the largest cubes no wider (0 = off: full resolution)",
-                     cliPy, [](FrameSettings& s) -> auto& { return s.quality.lodPixels; }));
-  FrameField brick = number("max_brick", 1, 256, "texels", "brick edge (a power of two)", cliPy, [](FrameSettings& s) -> auto& { return s.quality.maxBrickEdge; });
-  brick.kind = FieldKind::Integer;
+      {.name = "classification",
+       .help = "post-classified samples (default) or segments pre-integrated between their ends' values (finds narrow transfer-function features "
+               "between samples; two brick reads a fragment)"},
+      {{"post", Classification::Post}, {"preintegrated", Classification::PreIntegrated}}, [](FrameSettings& s) -> auto& { return s.quality.classification; }));
+  f.push_back(number({.name = "image_scale", .lo = 0.0, .hi = 1.0, .loOpen = true,
+                      .help = "render at this fraction of the size and magnify bilinearly (as VTK's image sample distance 1/S); 1 renders every pixel",
+                      .doors = kCliPy},
+                     [](FrameSettings& s) -> auto& { return s.quality.imageScale; }));
+  f.push_back(number({.name = "lod_pixels", .lo = 0.0, .hi = 1e6, .unit = "pixels",
+                      .help = "stop refining where texels are at most this many pixels apart on screen, and draw the surface with its vertices clustered by "
+                              "the largest cubes no wider (0 = off: full resolution)",
+                      .doors = kCliPy},
+                     [](FrameSettings& s) -> auto& { return s.quality.lodPixels; }));
+  FrameField brick = number({.name = "max_brick", .kind = FieldKind::Integer, .lo = 1, .hi = 256, .unit = "texels", .help = "brick edge (a power of two)",
+                             .doors = kCliPy},
+                            [](FrameSettings& s) -> auto& { return s.quality.maxBrickEdge; });
   brick.check = [](const std::vector<double>& v) { return (int(v[0]) & (int(v[0]) - 1)) == 0 ? "" : "a power of two"; };
   f.push_back(brick);
-  f.push_back(choice<TexelBits>("texel_bits", {{"8", TexelBits::Eight}, {"16", TexelBits::Sixteen}},
-                                "brick precision: value and gradient in 8 bits (default, fastest) or 16 (twice the memory, slower frames; for transfer "
-                                "functions narrow against a brick's values, e.g. soft tissue)",
-                                cliPy, [](FrameSettings& s) -> auto& { return s.quality.texelBits; }));
-  f.push_back(point("focus", "region of interest x,y,z: bricks away from it may be coarser", cliPy, [](FrameSettings& s) -> auto& { return s.quality.focus; }));
-  FrameField progressive = number("progressive", 1, 8, "images",
-                                  "write N images coarse to fine (out_1.png ... out_N.png, and out.png): slices one level coarser each, the reference's "
-                                  "rays on a grid 2^(N-k) pixels apart, refined where colours differ (Levoy's progressive refinement)",
-                                  kCommandLine, [](FrameSettings& s) -> auto& { return s.quality.progressive; });
-  progressive.kind = FieldKind::Integer;
-  f.push_back(progressive);
-  f.push_back(number("adaptive", 0.0, 255.0, "1/255",
-                     "reference only: Levoy's adaptive refinement, rays 8 pixels apart first and more only where neighbouring colours differ by "
-                     "more than this, the rest interpolated (0 = every pixel, exact)",
-                     kCommandLine, [](FrameSettings& s) -> auto& { return s.quality.adaptive; }));
+  f.push_back(choice<TexelBits>({.name = "texel_bits",
+                                 .help = "brick precision: value and gradient in 8 bits (default, fastest) or 16 (twice the memory, slower frames; for transfer "
+                                         "functions narrow against a brick's values, e.g. soft tissue)",
+                                 .doors = kCliPy},
+                                {{"8", TexelBits::Eight}, {"16", TexelBits::Sixteen}}, [](FrameSettings& s) -> auto& { return s.quality.texelBits; }));
+  f.push_back(point({.name = "focus", .help = "region of interest x,y,z: bricks away from it may be coarser", .doors = kCliPy},
+                    [](FrameSettings& s) -> auto& { return s.quality.focus; }));
+  f.push_back(number({.name = "progressive", .kind = FieldKind::Integer, .lo = 1, .hi = 8, .unit = "images",
+                      .help = "write N images coarse to fine (out_1.png ... out_N.png, and out.png): slices one level coarser each, the reference's "
+                              "rays on a grid 2^(N-k) pixels apart, refined where colours differ (Levoy's progressive refinement)",
+                      .doors = kCommandLine},
+                     [](FrameSettings& s) -> auto& { return s.quality.progressive; }));
+  f.push_back(number({.name = "adaptive", .lo = 0.0, .hi = 255.0, .unit = "1/255",
+                      .help = "reference only: Levoy's adaptive refinement, rays 8 pixels apart first and more only where neighbouring colours differ by "
+                              "more than this, the rest interpolated (0 = every pixel, exact)",
+                      .doors = kCommandLine},
+                     [](FrameSettings& s) -> auto& { return s.quality.adaptive; }));
+}
+
+std::vector<FrameField> makeFields() {
+  std::vector<FrameField> f;
+  addCameraFields(f);
+  addLookFields(f);
+  addQualityFields(f);
   return f;
 }
 

@@ -80,15 +80,15 @@ enum FieldDoor : unsigned { kCommandLine = 1, kViewer = 2, kPython = 4, kEveryDo
 
 /// One setting of a frame.
 struct FrameField {
-  std::string name;  ///< snake_case: the JSON key and the Python keyword; the flag is --name-with-dashes
+  std::string name{};  ///< snake_case: the JSON key and the Python keyword; the flag is --name-with-dashes
   FieldKind kind = FieldKind::Number;
   int count = 1;                 ///< numbers of a Numbers field (2 for a Size)
   double lo = 0.0, hi = 0.0;     ///< each number's range (Number, Integer, Numbers, Size)
   bool loOpen = false, hiOpen = false;
-  std::string unit;              ///< "mm", "degrees", "data units"... or empty
-  std::string shape;             ///< how a Numbers field's numbers are written: "x,y,z", "r,g,b,a"
-  std::string help;
-  std::vector<std::string> choices;  ///< a Choice's words
+  std::string unit{};            ///< "mm", "degrees", "data units"... or empty
+  std::string shape{};           ///< how a Numbers field's numbers are written: "x,y,z", "r,g,b,a"
+  std::string help{};
+  std::vector<std::string> choices{};  ///< a Choice's words
   unsigned doors = kEveryDoor;
   bool optional = false;         ///< unset by default; an empty text (JSON null) unsets it
 
@@ -108,10 +108,10 @@ struct FrameField {
   // How the value is held (by kind): numbers (none: unset) for Number, Integer, Numbers and Size;
   // a word for Switch and Flag ("on" or "off"), Choice, Text and Points. @p check refuses what the
   // range alone does not (a zero normal), saying why.
-  std::function<void(FrameSettings&, const std::optional<std::vector<double>>&)> setNumbers;
-  std::function<void(FrameSettings&, const std::optional<std::string>&)> setWord;
-  std::function<std::string(const std::vector<double>&)> check;
-  std::function<std::optional<std::string>(const FrameSettings&)> get;
+  std::function<void(FrameSettings&, const std::optional<std::vector<double>>&)> setNumbers{};
+  std::function<void(FrameSettings&, const std::optional<std::string>&)> setWord{};
+  std::function<std::string(const std::vector<double>&)> check{};
+  std::function<std::optional<std::string>(const FrameSettings&)> get{};
 };
 
 /// Every field, in the order help texts list them: the camera, what is shown, how well.

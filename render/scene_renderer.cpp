@@ -364,7 +364,7 @@ ViewErrors& SceneRenderer::viewErrors(const Camera& gridCamera, const TransferFu
     return *mErrors->errors;
   mErrors = std::make_unique<Errors>(Errors{gridCamera, tf, cut, voi, nullptr});
   Errors& e = *mErrors;
-  e.errors = std::make_unique<ViewErrors>(mScene.volume, mScene.octree, e.tf, e.camera, e.cut ? &*e.cut : nullptr, e.voi ? &*e.voi : nullptr,
+  e.errors = std::make_unique<ViewErrors>(mScene.volume, mScene.octree, ViewShown{e.tf, e.camera, e.cut ? &*e.cut : nullptr, e.voi ? &*e.voi : nullptr},
                                           mScene.knots.get());
   return *e.errors;
 }
@@ -433,7 +433,7 @@ SelectionParams SceneRenderer::selectionParams(const FrameGrid& g, const Look& l
   choice.lodPixels = quality.lodPixels;
   ViewErrors& errors = viewErrors(g.camera, look.tf, g.cut, g.voi, quality.reuseViewErrors);
   auto paramsOf = [&](const SelectionChoice& c) {
-    return viewSelectionParams(v, look.tf, g.camera, g.cut ? &*g.cut : nullptr, g.voi ? &*g.voi : nullptr, c, &errors);
+    return viewSelectionParams(v, {look.tf, g.camera, g.cut ? &*g.cut : nullptr, g.voi ? &*g.voi : nullptr}, c, &errors);
   };
   if (quality.budgetPercent > 0.0) {
     // A percentage is of this view's full-resolution texels (every visible brick exact), at least one.

@@ -6,12 +6,16 @@ namespace hyb {
 
 BrickImageError& ViewErrors::get() {
   if (!mErrors)
-    mErrors = std::make_unique<BrickImageError>(mVolume, mOctree, mTf, mCamera, mCut ? mCut->keptSide(mCamera) : glm::dvec4(0, 0, 0, 1), mVoi, mKnots);
+    mErrors = std::make_unique<BrickImageError>(mVolume, mOctree, mTf, mCamera,
+                                                BrickErrorClipping{mCut ? mCut->keptSide(mCamera) : glm::dvec4(0, 0, 0, 1), mVoi, mKnots});
   return *mErrors;
 }
 
-SelectionParams viewSelectionParams(const Volume& volume, const TransferFunction& tf, const Camera& camera, const CutPlane* cut,
-                                    const VolumeOfInterest* voi, const SelectionChoice& choice, ViewErrors* errors) {
+SelectionParams viewSelectionParams(const Volume& volume, const ViewShown& shown, const SelectionChoice& choice, ViewErrors* errors) {
+  const TransferFunction& tf = shown.tf;
+  const Camera& camera = shown.camera;
+  const CutPlane* cut = shown.cut;
+  const VolumeOfInterest* voi = shown.voi;
   SelectionParams params;
   params.epsilon = float(choice.epsilon);
   params.spacing = volume.spacing();

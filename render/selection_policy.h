@@ -35,6 +35,15 @@ struct SelectionChoice {
   double lodPixels = 0.0;             ///< LaMar's screen-space stop, pixels; 0 = off
 };
 
+/// What a view shows of a volume, in its grid frame: the transfer function, the camera, the cutting
+/// plane and the volume of interest (none: not set).
+struct ViewShown {
+  const TransferFunction& tf;
+  const Camera& camera;
+  const CutPlane* cut = nullptr;
+  const VolumeOfInterest* voi = nullptr;
+};
+
 /// The image errors of one view, made on first use and shared by the selections of that view
 /// (a budget sweep, progressive levels, repeated frames).
 class ViewErrors {
@@ -42,9 +51,8 @@ class ViewErrors {
   /// @p volume, @p octree, @p tf, @p camera, @p cut, @p voi and @p knots must outlive this object
   /// (grid frame). @p knots: where the bricks read their knots and samples (none: the volume in
   /// memory).
-  ViewErrors(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera, const CutPlane* cut,
-             const VolumeOfInterest* voi, const KnotSource* knots = nullptr)
-      : mVolume(volume), mOctree(octree), mTf(tf), mCamera(camera), mCut(cut), mVoi(voi), mKnots(knots) {}
+  ViewErrors(const Volume& volume, const VolumeOctree& octree, const ViewShown& shown, const KnotSource* knots = nullptr)
+      : mVolume(volume), mOctree(octree), mTf(shown.tf), mCamera(shown.camera), mCut(shown.cut), mVoi(shown.voi), mKnots(knots) {}
   BrickImageError& get();
   size_t measured() const { return mErrors ? mErrors->measured() : 0; }
 
@@ -59,12 +67,11 @@ class ViewErrors {
   std::unique_ptr<BrickImageError> mErrors;
 };
 
-/// The selection parameters of @p choice for the grid-frame @p camera: importance by the focus and
+/// The selection parameters of @p choice for the view @p shown (grid frame): importance by the focus and
 /// the eye, the transfer function's opacity (transparent nodes cost nothing) and distortion, the
 /// screen-space stop, culling by the frustum, the cut's removed side and a volume of interest that
 /// hides a node, and within a budget the priority measured by @p errors. Every pointer and
 /// reference must outlive the parameters' use.
-SelectionParams viewSelectionParams(const Volume& volume, const TransferFunction& tf, const Camera& camera, const CutPlane* cut,
-                                    const VolumeOfInterest* voi, const SelectionChoice& choice, ViewErrors* errors);
+SelectionParams viewSelectionParams(const Volume& volume, const ViewShown& shown, const SelectionChoice& choice, ViewErrors* errors);
 
 }  // namespace hyb

@@ -644,7 +644,7 @@ void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
     const double blockMm = 2.0 * d.lattice.step * std::max({spacing.x, spacing.y, spacing.z}), pixelMm = camera.pixelMmAt(d.blo, d.bhi);
     int merge = 1;
     while (merge < 64 && 2 * merge * blockMm <= 2.0 * pixelMm) merge *= 2;
-    proxyBoxes(*d.blocks, d.lattice, spacing, depth, d.delta, kLo, merge, &boxes, f.options.preintegrated ? kPreintegratedGrowth * d.delta : 0.0);
+    proxyBoxes(*d.blocks, d.lattice, spacing, depth, {d.delta, kLo, merge, f.options.preintegrated ? kPreintegratedGrowth * d.delta : 0.0}, &boxes);
   }
   for (long long k = kHi; k >= kLo; --k) {
     if (surface && f.options.slabOrder) list.emitDownTo(k, &d.stream);
@@ -656,7 +656,7 @@ void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
       hi = glm::min(hi, boxes[size_t(k - kLo)].second);
     }
     if (d.sliced && plane >= bmin && plane < bmax && glm::all(glm::lessThanEqual(lo, hi)) &&
-        (d.shell ? plane > 0.0 && shellPolygon(lo, hi, camera.eye, d.frame, plane, shellCells(d.frame, plane, d.delta), &one)
+        (d.shell ? plane > 0.0 && shellPolygon(lo, hi, d.frame, {camera.eye, plane, shellCells(d.frame, plane, d.delta)}, &one)
                  : slicePolygon(lo, hi, frame.forward, plane, &one))) {
       for (size_t v = 0; v < one.size(); v += 3) putVertex(&d.stream, glm::vec3(one[v], one[v + 1], one[v + 2]), glm::vec3(0.0f), 0.0f, -1e30f, 1e30f);
       ++d.slices;

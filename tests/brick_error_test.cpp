@@ -107,7 +107,7 @@ TEST(BrickImageError, ACutAwayOrFadedBrickWeighsWhatIsLeftOfIt) {
   const uint32_t rod = childIndex(t.root(), 0), plate = childIndex(t.root(), 7);
   BrickImageError all(v, t, tf, cam);
   // A cutting plane keeping x <= 40 mm removes the plate (x = 44, 45) and nothing of the rod.
-  BrickImageError cut(v, t, tf, cam, glm::dvec4(-1, 0, 0, 40));
+  BrickImageError cut(v, t, tf, cam, {glm::dvec4(-1, 0, 0, 40)});
   ASSERT_GT(all(plate, 4), 0.0);
   EXPECT_EQ(cut(plate, 4), 0.0);
   EXPECT_NEAR(cut(rod, 4), all(rod, 4), 1e-9 + 1e-6 * all(rod, 4));
@@ -117,7 +117,7 @@ TEST(BrickImageError, ACutAwayOrFadedBrickWeighsWhatIsLeftOfIt) {
   voi.lo = glm::dvec3(-1.0);
   voi.hi = glm::dvec3(33.0);
   voi.ramp = 0.0;
-  BrickImageError faded(v, t, tf, cam, glm::dvec4(0, 0, 0, 1), &voi);
+  BrickImageError faded(v, t, tf, cam, {glm::dvec4(0, 0, 0, 1), &voi});
   EXPECT_LT(faded(plate, 4), 0.1 * all(plate, 4));
   EXPECT_NEAR(faded(rod, 4), all(rod, 4), 1e-9 + 1e-6 * all(rod, 4));
 }

@@ -199,7 +199,7 @@ TEST(Multires, PrefilteredCoarseLevelsDoNotAliasAThinShell) {
     return 100.0 * std::max(0.0, 1.0 - std::abs(r - 24.0) / 1.5);
   });
   const TransferFunction tf({{10.0f, {1.0f, 0.8f, 0.6f}, 0.0f}, {100.0f, {1.0f, 0.8f, 0.6f}, 0.3f}}, "shell");
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 30, 20, 30, false, 96, 96);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {30, 20, 30, false, 96, 96});
   const VolumeOctree point = VolumeOctree::build(v, VolumeOctreeOptions{8, false}), smooth = VolumeOctree::build(v);
   SlicesOptions o;
   o.shading = false;  // the shell's own shading varies smoothly; what is left is the aliasing
@@ -244,7 +244,7 @@ TEST(Multires, SurfaceDoesNotMoveWithTheVolumeLevel) {
   const TriangleMesh mesh = fineMeshToTriangles(so.reconstruct(), v.spacing());
   ASSERT_GT(mesh.triangles.size(), 100u);
   const TransferFunction tf({{-300.0f, {0.9f, 0.4f, 0.2f}, 0.3f}, {-160.0f, {0.2f, 0.4f, 0.9f}, 0.3f}, {-150.0f, {0.2f, 0.4f, 0.9f}, 0.0f}}, "blob");
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 20, 15, 30, false, 96, 96);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {20, 15, 30, false, 96, 96});
   SelectionParams exact, coarse;
   for (SelectionParams* p : {&exact, &coarse}) {
     p->maxBrickEdge = 4;  // leaves (edge 8) reach one texel per voxel only when ε_u asks for it
@@ -279,7 +279,7 @@ TEST(MultiresCranium, AccuracyAndBytesFallAsEpsilonGrowsOrTheBudgetShrinks) {
   const Volume v = halfCranium();
   const VolumeOctree t = VolumeOctree::build(v);
   const TransferFunction tf = TransferFunction::preset("ct-skin-bone");
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 180, 10, 30, false, 128, 128);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {180, 10, 30, false, 128, 128});
   const std::vector<uint8_t> reference = toRgba8(raycast(v, t, tf, cam, RaycastOptions{}), glm::vec3(0));
   SelectionParams base;
   base.spacing = v.spacing();
@@ -516,7 +516,7 @@ TEST(Multires, ExtremesGiveFiniteImages) {
   inside.center = glm::dvec3(30, 17, 14);
   inside.up = glm::dvec3(0, 0, 1);
   inside.width = inside.height = 24;
-  const Camera outside = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 30, 20, 30, false, 24, 24);
+  const Camera outside = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {30, 20, 30, false, 24, 24});
   const CutPlane away{glm::dvec3(500, 0, 0), glm::dvec3(1, 0, 0)};  // misses the volume
   const CutPlane through{glm::dvec3(20, 18, 15), glm::dvec3(0.3, 1, 0.2)};
   VolumeOfInterest voi;

@@ -58,7 +58,7 @@ TEST(ProxyGeometry, ShellsStayOnTheirSphereInsideTheBox) {
   ASSERT_TRUE(shellFrame(lo, hi, eye, &frame));
   std::vector<float> out;
   const double r = 10.5;
-  ASSERT_TRUE(shellPolygon(lo, hi, eye, frame, r, shellCells(frame, r, 0.1), &out));
+  ASSERT_TRUE(shellPolygon(lo, hi, frame, {eye, r, shellCells(frame, r, 0.1)}, &out));
   // Chords of the sphere: their vertices on it (the clipped ones inside its chords), all in the box.
   for (size_t v = 0; v < out.size(); v += 3) {
     const glm::dvec3 p(out[v], out[v + 1], out[v + 2]);
@@ -120,7 +120,7 @@ TEST(ProxyGeometry, ProxyBoxesHoldTheVisibleBlocksEachPlaneMeetsAlsoWhenMerged) 
   const ProxyDepth depth{false, glm::dvec3(0, 0, 1), glm::dvec3(0.0)};  // planes z = k
   std::vector<std::pair<glm::dvec3, glm::dvec3>> boxes(9);
   const glm::dvec3 spacing(0.5, 1.0, 2.0);
-  proxyBoxes(v, L, spacing, depth, 2.0, 0, 1, &boxes);  // planes z = 0, 2, …, 16 mm
+  proxyBoxes(v, L, spacing, depth, {2.0, 0, 1}, &boxes);  // planes z = 0, 2, …, 16 mm
   // z = 0…4 mm meet the first block only, z = 12…16 mm the second, 6 and 10 mm neither.
   for (int k = 0; k <= 2; ++k) {
     EXPECT_EQ(boxes[size_t(k)].first, glm::dvec3(0.0)) << k;
@@ -133,7 +133,7 @@ TEST(ProxyGeometry, ProxyBoxesHoldTheVisibleBlocksEachPlaneMeetsAlsoWhenMerged) 
   }
   // Merged by 2: groups of 2³ blocks, visible where any block is: the boxes of the groups (0, 0, 0)
   // (voxels 0–4) and (1, 0, 1) (x 4–8, y 0–4, z 4–8), each over the planes its group spans.
-  proxyBoxes(v, L, spacing, depth, 2.0, 0, 2, &boxes);
+  proxyBoxes(v, L, spacing, depth, {2.0, 0, 2}, &boxes);
   for (int k = 0; k <= 3; ++k) {
     EXPECT_EQ(boxes[size_t(k)].first, glm::dvec3(0.0)) << k;
     EXPECT_EQ(boxes[size_t(k)].second, glm::dvec3(2.0, 4.0, 8.0)) << k;
@@ -153,9 +153,9 @@ TEST(ProxyGeometry, ProxyBoxesHoldTheVisibleBlocksEachPlaneMeetsAlsoWhenMerged) 
   last.blocks = glm::ivec3(5, 1, 1);
   last.bits.assign(1, uint64_t(1) << 4);
   std::vector<std::pair<glm::dvec3, glm::dvec3>> one(1);
-  proxyBoxes(last, row, glm::dvec3(1.0), ProxyDepth{false, glm::dvec3(1, 0, 0), glm::dvec3(0.0)}, 100.0, 0, 2, &one);  // plane x = 0 only
+  proxyBoxes(last, row, glm::dvec3(1.0), ProxyDepth{false, glm::dvec3(1, 0, 0), glm::dvec3(0.0)}, {100.0, 0, 2}, &one);  // plane x = 0 only
   EXPECT_GT(one[0].first.x, one[0].second.x);  // the group (x 8–10) does not reach x = 0
-  proxyBoxes(last, row, glm::dvec3(1.0), ProxyDepth{false, glm::dvec3(1, 0, 0), glm::dvec3(0.0)}, 9.0, 1, 2, &one);  // plane x = 9
+  proxyBoxes(last, row, glm::dvec3(1.0), ProxyDepth{false, glm::dvec3(1, 0, 0), glm::dvec3(0.0)}, {9.0, 1, 2}, &one);  // plane x = 9
   EXPECT_EQ(one[0].first, glm::dvec3(8.0, 0.0, 0.0));
   EXPECT_EQ(one[0].second, glm::dvec3(10.0, 2.0, 2.0));
 }

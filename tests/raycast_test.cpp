@@ -106,7 +106,7 @@ TEST(Raycast, EmptySpaceSkippingDoesNotChangeTheImage) {
   const Volume v = test::sphereVolume({40, 36, 30}, 11.0);  // values > 0 inside
   const VolumeOctree t = VolumeOctree::build(v);
   const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {12.0f, {1, 1, 1}, 0.6f}}, "sphere");
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 35, 20, 30, false, 48, 40);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {35, 20, 30, false, 48, 40});
   RaycastOptions o;
   RaycastStats with, without;
   const Image a = raycast(v, t, tf, cam, o, &with);
@@ -123,7 +123,7 @@ TEST(Raycast, AProgressCallbackThatThrowsStopsTheFrame) {
   const Volume v = test::sphereVolume({40, 36, 30}, 11.0);
   const VolumeOctree t = VolumeOctree::build(v);
   const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {12.0f, {1, 1, 1}, 0.6f}}, "sphere");
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 35, 20, 30, false, 48, 40);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {35, 20, 30, false, 48, 40});
   RaycastOptions o;
   const Image before = raycast(v, t, tf, cam, o);
   const Progress stop([](const std::string&, double fraction) {
@@ -143,7 +143,7 @@ TEST(Raycast, ProgressiveRefinementEndsWithTheExactImage) {
   const VolumeOctree t = VolumeOctree::build(v);
   const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {12.0f, {1, 1, 1}, 0.6f}}, "sphere");
   for (const glm::ivec2 size : {glm::ivec2(1, 1), glm::ivec2(2, 2), glm::ivec2(7, 5), glm::ivec2(33, 17), glm::ivec2(48, 40)}) {
-    const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 35, 20, 30, false, size.x, size.y);
+    const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {35, 20, 30, false, size.x, size.y});
     const Image exact = raycast(v, t, tf, cam, RaycastOptions{});
     for (int levels : {2, 3, 5}) {
       RaycastOptions o;
@@ -183,7 +183,7 @@ TEST(Raycast, AdaptiveRefinementTracesOnlyWhereColoursChange) {
   const Volume v = test::sphereVolume({40, 36, 30}, 11.0);
   const VolumeOctree t = VolumeOctree::build(v);
   const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {12.0f, {1, 1, 1}, 0.6f}}, "sphere");
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 35, 20, 60, false, 96, 96);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {35, 20, 60, false, 96, 96});
   const Image exact = raycast(v, t, tf, cam, RaycastOptions{});
   RaycastOptions o;
   o.refineLevels = 4;
@@ -230,7 +230,7 @@ TEST(Raycast, Extremes) {
 TEST(RaycastCranium, RendersTheRealCtWithItsBoneSurface) {
   const Volume v = readVolume(kDefaultVolumePath);
   const VolumeOctree t = VolumeOctree::build(v);
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 180, 10, 30, false, 64, 64);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {180, 10, 30, false, 64, 64});
   RaycastOptions o;
   const Image img = raycast(v, t, TransferFunction::preset("ct-bone"), cam, o);
   // The skull covers the middle of the frame and leaves the corners empty.

@@ -59,7 +59,7 @@ TEST(Slices, MatchesTheReferenceOnASphereInBothProjections) {
   const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "s");
   const Selection sel = selectNodes(t, SelectionParams{});
   for (bool ortho : {false, true}) {
-    const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, ortho, 96, 96);
+    const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {205, 20, 30, ortho, 96, 96});
     const Image a = renderSlices({v, t, sel}, tf, cam, SlicesOptions{});
     const Image b = raycast(v, t, tf, cam, RaycastOptions{});
     EXPECT_GE(psnrOf(a, b), 35.0) << "ortho " << ortho;
@@ -80,7 +80,7 @@ TEST(Slices, PaddingValuesDoNotCoarsenTheLookupTable) {
                              {9.0f, {0.3f, 0.6f, 1.0f}, 0.5f}},
                             "narrow");
   const Selection sel = selectNodes(t, SelectionParams{});
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 96, 96);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {205, 20, 30, false, 96, 96});
   BrickTextureCache cache;
   SlicesOptions so;
   so.textures = &cache;
@@ -114,7 +114,7 @@ TEST(Slices, SixteenBitTexelsResolveANarrowWindow) {
   const VolumeOctree t = VolumeOctree::build(v);
   const TransferFunction tf = TransferFunction::preset("ct-soft-tissue");
   const Selection sel = selectNodes(t, SelectionParams{});
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 96, 96);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {205, 20, 30, false, 96, 96});
   const Image reference = raycast(v, t, tf, cam, RaycastOptions{});
   BrickTextureCache cache;
   SlicesOptions so;
@@ -142,7 +142,7 @@ TEST(Slices, CachedBrickTexturesGiveTheSameImage) {
   SelectionParams coarse, naive;
   coarse.texelBudget = naive.texelBudget = selectNodes(t, SelectionParams{}).texels / 4;  // bricks at several levels
   naive.blend = false;                    // the same bricks, none blended
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {205, 20, 30, false, 64, 64});
   BrickTextureCache cache;
   SlicesOptions cached;
   cached.textures = &cache;
@@ -172,7 +172,7 @@ TEST(Slices, AFrameLargerThanTheTextureLimitKeepsWhatFits) {
   const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "s");
   const Selection sel = selectNodes(t, SelectionParams{});
   SlicesStats st;
-  const Image fresh = renderSlices({v, t, sel}, tf, Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64), SlicesOptions{}, &st);
+  const Image fresh = renderSlices({v, t, sel}, tf, Camera::orbit(glm::dvec3(0.0), v.extentMm(), {205, 20, 30, false, 64, 64}), SlicesOptions{}, &st);
   ASSERT_GT(st.bricks, 8u);
   const uint64_t limit = st.textureBytes / 3;
   BrickTextureCache cache(limit);
@@ -180,7 +180,7 @@ TEST(Slices, AFrameLargerThanTheTextureLimitKeepsWhatFits) {
   kept.textures = &cache;
   const double azimuths[] = {205.0, 205.0, 120.0};  // a view, the same again, another
   for (int f = 0; f < 3; ++f) {
-    const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), azimuths[f], 20, 30, false, 64, 64);
+    const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {azimuths[f], 20, 30, false, 64, 64});
     SlicesStats ks;
     const Image image = renderSlices({v, t, sel}, tf, cam, kept, &ks);
     EXPECT_EQ(image.pixels, renderSlices({v, t, sel}, tf, cam, SlicesOptions{}).pixels);
@@ -205,7 +205,7 @@ TEST(Slices, VisibleBoxesCutOnlyTransparentSpace) {
   SelectionParams coarse;
   coarse.texelBudget = selectNodes(t, SelectionParams{}).texels / 4;
   ASSERT_GT(selectNodes(t, coarse).blendedBricks, 0u);
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {205, 20, 30, false, 64, 64});
   for (const Proxy proxy : {Proxy::Planes, Proxy::Shells})
     for (const SelectionParams& params : {SelectionParams{}, coarse}) {
       const Selection sel = selectNodes(t, params);
@@ -242,7 +242,7 @@ TEST(Slices, AFrameThatThrowsLeaksNothingAndTheNextOneRendersRight) {
   const VolumeOctree t = VolumeOctree::build(v);
   const Selection sel = selectNodes(t, SelectionParams{});
   const TransferFunction tf({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "s");
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 48, 48);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {205, 20, 30, false, 48, 48});
   const CutPlane cut{glm::dvec3(20, 18, 16), glm::dvec3(0.3, 1, 0)};
   SlicesOptions o;
   o.cut = &cut;
@@ -278,7 +278,7 @@ TEST(Slices, BricksArePackedABatchAheadOfTheirDraws) {
   gl();
   const ManyBricks m;
   const auto& [v, t, tf, sel] = m;
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 64, 64);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {205, 20, 30, false, 64, 64});
   const CutPlane cut{glm::dvec3(20, 18, 16), glm::dvec3(0.3, 1, 0)};
   for (const CutPlane* plane : {static_cast<const CutPlane*>(nullptr), &cut}) {
     SlicesOptions batched, whole;
@@ -337,7 +337,7 @@ TEST(Slices, APackingThatFailsMidFrameStopsItCleanly) {
   gl();
   const ManyBricks m;
   const auto& [v, t, tf, sel] = m;
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, false, 48, 48);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {205, 20, 30, false, 48, 48});
   SlicesOptions o;
   o.packBatch = 16;
   const Image before = renderSlices({v, t, sel}, tf, cam, o);
@@ -472,7 +472,7 @@ TEST(Slices, TrianglesLeftOutBetweenPixelCentresChangeNoPixel) {
       o.surfaceColor = glm::vec4(0.9f, 0.8f, 0.6f, alpha);
       o.proxy = view == 1 ? Proxy::Shells : Proxy::Planes;
       if (view == 3) o.rows = glm::ivec2(13, 29);
-      const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, view == 2, 40, 40);
+      const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {205, 20, 30, view == 2, 40, 40});
       SlicesStats left, all;
       const Image a = renderSlices({v, t, sel}, tf, cam, o, &left);
       o.leaveOutUnseen = false;
@@ -730,7 +730,7 @@ TEST(SlicesCranium, MatchesTheReferenceAtFullResolution) {
   const TransferFunction tf = TransferFunction::preset("ct-skin-bone");
   const Selection sel = selectNodes(t, SelectionParams{});
   for (bool ortho : {false, true}) {
-    const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 205, 20, 30, ortho, 128, 128);
+    const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {205, 20, 30, ortho, 128, 128});
     const double db = psnrOf(renderSlices({v, t, sel}, tf, cam, SlicesOptions{}), raycast(v, t, tf, cam, RaycastOptions{}));
     EXPECT_GE(db, 35.0) << "ortho " << ortho;
   }
@@ -745,7 +745,7 @@ TEST(SlicesCranium, MatchesTheReferenceAtFullResolution) {
   RaycastOptions ro;
   ro.surface = &bvh;
   ro.surfaceColor = color;
-  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), 180, 10, 30, false, 128, 128);
+  const Camera cam = Camera::orbit(glm::dvec3(0.0), v.extentMm(), {180, 10, 30, false, 128, 128});
   EXPECT_GE(psnrOf(renderSlices({v, t, sel}, tf, cam, so2), raycast(v, t, tf, cam, ro)), 35.0);
 }
 

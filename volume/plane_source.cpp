@@ -195,7 +195,7 @@ namespace detail {
 SampleArray readSampleData(const SampleData& d, const glm::ivec3& dims) {
   const InputFile file(d.path);
   return d.compressed ? readCompressedSamples(file, d.offset, d.skip, dims, d.type, d.bigEndian)
-                      : readRawSamples(file, d.offset, d.skip, d.skipField, dims, d.type, d.bigEndian);
+                      : readRawSamples(file, {d.offset, d.skip, d.skipField}, dims, d.type, d.bigEndian);
 }
 
 std::unique_ptr<PlaneSource> streamedPlanes(const SampleData& data, Volume description, const std::string& path) {

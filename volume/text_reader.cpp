@@ -33,8 +33,10 @@ void checkSampleMemory(const std::string& file, uint64_t extra, const glm::ivec3
   checkMemory(file, extra + count * held, layoutName(dims, t) + " samples");
 }
 
-SampleArray readRawSamples(const InputFile& f, uint64_t offset, long long skip, const char* field, const glm::ivec3& dims,
-                                  ScalarType t, bool bigEndian) {
+SampleArray readRawSamples(const InputFile& f, const RawStart& start, const glm::ivec3& dims, ScalarType t, bool bigEndian) {
+  uint64_t offset = start.offset;
+  const long long skip = start.skip;
+  const char* const field = start.field;
   const uint64_t expected = expectedBytes(dims, t);
   const uint64_t present = f.size() - std::min(offset, f.size());
   if (skip == -1) {

@@ -40,11 +40,16 @@ std::string layoutName(const glm::ivec3& dims, ScalarType t);
 // Checks memory for @p extra bytes of file data held while decoding plus the samples as a Volume holds them.
 void checkSampleMemory(const std::string& file, uint64_t extra, const glm::ivec3& dims, ScalarType t);
 
-// The raw samples of @p f from byte @p offset on: @p skip bytes are skipped first (-1: the
-// samples are the file's last bytes) and exactly the samples must remain. Sizes are checked
-// against the file before anything is allocated. @p field names the skip in messages.
-SampleArray readRawSamples(const InputFile& f, uint64_t offset, long long skip, const char* field, const glm::ivec3& dims,
-                                  ScalarType t, bool bigEndian);
+// Where raw samples start: from byte offset on, skip bytes are skipped first (-1: the samples are
+// the file's last bytes); field names the skip in messages.
+struct RawStart {
+  uint64_t offset = 0;
+  long long skip = 0;
+  const char* field = "header";
+};
+// The raw samples of @p f from @p start on; exactly the samples must remain. Sizes are checked
+// against the file before anything is allocated.
+SampleArray readRawSamples(const InputFile& f, const RawStart& start, const glm::ivec3& dims, ScalarType t, bool bigEndian);
 
 // The samples of the gzip or zlib stream that makes up @p f from byte @p offset on, after
 // @p skip decompressed bytes; inflation is capped at what the header declares.

@@ -43,7 +43,7 @@ Volume rawDescription(const std::string& path, const RawLayout& layout) {
 Volume readRaw(const std::string& path, const RawLayout& layout) {
   const Volume description = rawDescription(path, layout);
   const InputFile file(path);
-  return detail::filled(description, readRawSamples(file, layout.headerBytes, 0, "header", layout.dims, layout.type, layout.bigEndian), path);
+  return detail::filled(description, readRawSamples(file, {layout.headerBytes, 0, "header"}, layout.dims, layout.type, layout.bigEndian), path);
 }
 
 namespace {

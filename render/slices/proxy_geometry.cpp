@@ -81,8 +81,11 @@ bool visibleBox(const VisibleBlocks& v, const KnotLattice& L, glm::dvec3* lo, gl
   return true;
 }
 
-void proxyBoxes(const VisibleBlocks& v, const KnotLattice& L, const glm::dvec3& spacing, const ProxyDepth& depth, double delta, long long kLo,
-                int merge, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes, double grow) {
+void proxyBoxes(const VisibleBlocks& v, const KnotLattice& L, const glm::dvec3& spacing, const ProxyDepth& depth, const ProxyPlanes& planes,
+                std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes) {
+  const double delta = planes.delta, grow = planes.grow;  // (named locals: clang 14 captures no bindings)
+  const long long kLo = planes.kLo;
+  const int merge = planes.merge;
   const long long count = (long long)boxes->size();
   std::fill(boxes->begin(), boxes->end(), std::pair{glm::dvec3(1e300), glm::dvec3(-1e300)});
   auto add = [&](const glm::ivec3& b0, const glm::ivec3& b1) {
@@ -208,8 +211,10 @@ int shellCells(const ShellFrame& frame, double r, double delta) {
   return std::clamp(int(std::ceil(std::max(frame.s1 - frame.s0, frame.t1 - frame.t0) / theta)), 1, 32);
 }
 
-bool shellPolygon(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& eye, const ShellFrame& fr, double r, int n,
-                  std::vector<float>* out) {
+bool shellPolygon(const glm::dvec3& lo, const glm::dvec3& hi, const ShellFrame& fr, const Shell& shell, std::vector<float>* out) {
+  const glm::dvec3 eye = shell.eye;  // (named locals: clang 14 captures no bindings)
+  const double r = shell.r;
+  const int n = shell.n;
   const size_t before = out->size();
   auto at = [&](int i, int j) {
     const double s = fr.s0 + (fr.s1 - fr.s0) * i / n, t = fr.t0 + (fr.t1 - fr.t0) * j / n;

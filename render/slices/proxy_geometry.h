@@ -51,13 +51,20 @@ struct ProxyDepth {
 /// The box (voxel units) of the visible blocks @p blocks of lattice @p lattice; false when there is none.
 bool visibleBox(const VisibleBlocks& blocks, const KnotLattice& lattice, glm::dvec3* lo, glm::dvec3* hi);
 
-/// For proxies at depth k·delta, k in [kLo, kLo + boxes->size()): the box (mm) of the visible blocks
-/// each proxy meets (empty boxes have lo > hi); a block meets the proxies its depth range spans.
-/// With @p merge > 1 the blocks are taken in groups of merge³, each visible when any of its
-/// blocks is: coarser boxes for fewer block visits. Each block's box grows by @p grow mm on every
-/// side first (pre-integrated fragments read their segment's ends, up to a spacing either side).
-void proxyBoxes(const VisibleBlocks& blocks, const KnotLattice& lattice, const glm::dvec3& spacing, const ProxyDepth& depth, double delta, long long kLo,
-                int merge, std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes, double grow = 0.0);
+/// The proxies at depth k·delta, k from kLo; with merge > 1 the blocks are taken in groups of
+/// merge³, each visible when any of its blocks is: coarser boxes for fewer block visits. Each
+/// block's box grows by grow mm on every side first (pre-integrated fragments read their
+/// segment's ends, up to a spacing either side).
+struct ProxyPlanes {
+  double delta = 1.0;
+  long long kLo = 0;
+  int merge = 1;
+  double grow = 0.0;
+};
+/// For the proxies k in [kLo, kLo + boxes->size()): the box (mm) of the visible blocks each proxy
+/// meets (empty boxes have lo > hi); a block meets the proxies its depth range spans.
+void proxyBoxes(const VisibleBlocks& blocks, const KnotLattice& lattice, const glm::dvec3& spacing, const ProxyDepth& depth, const ProxyPlanes& planes,
+                std::vector<std::pair<glm::dvec3, glm::dvec3>>* boxes);
 
 /// Appends plane f·x = depth ∩ box [lo, hi] as a triangle fan (mm, xyz a vertex) to @p out;
 /// returns whether the plane cuts the box in a polygon.
@@ -77,10 +84,14 @@ struct ShellFrame {
 bool shellFrame(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& eye, ShellFrame* frame);
 /// Cells of the n×n chord grid that keeps a shell of radius @p r within a quarter of @p delta.
 int shellCells(const ShellFrame& frame, double r, double delta);
-/// Appends the sphere |x − eye| = r inside the box [lo, hi] as triangles (mm, xyz a vertex): an n×n
-/// grid of chords over the box's directions, each clipped to the box. Returns whether anything was
-/// appended.
-bool shellPolygon(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& eye, const ShellFrame& frame, double r, int n,
-                  std::vector<float>* out);
+/// A shell: the sphere |x − eye| = r, drawn as an n×n grid of chords.
+struct Shell {
+  glm::dvec3 eye;
+  double r = 1.0;
+  int n = 1;
+};
+/// Appends shell @p shell inside the box [lo, hi] as triangles (mm, xyz a vertex): its chords over
+/// the box's directions @p frame, each clipped to the box. Returns whether anything was appended.
+bool shellPolygon(const glm::dvec3& lo, const glm::dvec3& hi, const ShellFrame& frame, const Shell& shell, std::vector<float>* out);
 
 }  // namespace hyb
