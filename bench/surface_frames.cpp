@@ -78,7 +78,7 @@ int main(int argc, char** argv) {
     Quality reference;
     reference.renderer = Renderer::Raycast;
     std::vector<View> views(static_cast<size_t>(frames));
-    for (int f = 0; f < frames; ++f) views[size_t(f)].camera = fitCamera(points, orbitDirection(5.0 * f, 10.0), 30.0, false, size, size);
+    for (int f = 0; f < frames; ++f) views[size_t(f)].camera = fitCamera(points, orbitDirection(5.0 * f, 10.0), {30.0, false, size, size});
     // Volume only, then the surface at each simplification error (0: level 0 always); the PSNR of
     // every eighth frame against the reference at the same size.
     for (const double errorPixels : {-1.0, 0.0, 1.0, 2.0, 4.0}) {

@@ -5,9 +5,9 @@
 namespace hyb {
 
 Camera Camera::orbit(const glm::dvec3& lo, const glm::dvec3& hi, const Orbit& o) {
-  const double azimuthDeg = o.azimuthDeg, elevationDeg = o.elevationDeg, fovDeg = o.fovDeg;
-  const bool ortho = o.ortho;
-  const int width = o.width, height = o.height;
+  const double azimuthDeg = o.azimuthDeg, elevationDeg = o.elevationDeg, fovDeg = o.lens.fovDeg;
+  const bool ortho = o.lens.ortho;
+  const int width = o.lens.width, height = o.lens.height;
   Camera c;
   c.center = 0.5 * (lo + hi);
   const double radius = std::max(1e-6, 0.5 * glm::length(hi - lo));

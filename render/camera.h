@@ -33,12 +33,16 @@ struct Camera {
   /// patient's, and so must the camera be).
   bool mirrored = false;
 
-  /// Where an orbit looks from and through what lens.
-  struct Orbit {
-    double azimuthDeg = 0.0, elevationDeg = 0.0;  ///< azimuth about +z from −y, elevation towards +z
+  /// The projection and the image a camera is made for.
+  struct Lens {
     double fovDeg = 30.0;
     bool ortho = false;
     int width = 512, height = 512;
+  };
+  /// Where an orbit looks from (azimuth about +z from −y, elevation towards +z, degrees) and through what lens.
+  struct Orbit {
+    double azimuthDeg = 0.0, elevationDeg = 0.0;
+    Lens lens;
   };
   /// Camera around the box [lo, hi] (mm) at a distance where the box's bounding sphere fills the view.
   static Camera orbit(const glm::dvec3& lo, const glm::dvec3& hi, const Orbit& o);

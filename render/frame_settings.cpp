@@ -768,7 +768,7 @@ FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& 
     std::vector<glm::dvec3> points = visiblePoints(v, scene.octree, look.tf, look.iso, scene.knots.get());
     if (points.empty())  // nothing visible: the data's box
       for (int c = 0; c < 8; ++c) points.push_back(frame.toPatient(glm::dvec3(c & 1, (c >> 1) & 1, (c >> 2) & 1) * v.extentMm()));
-    camera = fitCamera(points, direction, s.fov, s.ortho, pixels.x, pixels.y);
+    camera = fitCamera(points, direction, {s.fov, s.ortho, pixels.x, pixels.y});
     if (s.orthoHeight) camera.orthoHeight = *s.orthoHeight;
     scene.octree.releasePages();  // the fit walked every visible leaf; the frame reads far fewer
   }

@@ -52,8 +52,10 @@ ViewDirection orbitDirection(double azimuthDeg, double elevationDeg) {
   return d;
 }
 
-Camera fitCamera(const std::vector<glm::dvec3>& points, const ViewDirection& direction, double fovDeg, bool ortho, int width, int height,
-                 double margin) {
+Camera fitCamera(const std::vector<glm::dvec3>& points, const ViewDirection& direction, const Camera::Lens& lens, double margin) {
+  const double fovDeg = lens.fovDeg;
+  const bool ortho = lens.ortho;
+  const int width = lens.width, height = lens.height;
   HYB_CHECK(!points.empty() && width > 0 && height > 0 && margin >= 0.0 && margin < 1.0);
   const glm::dvec3 f = -glm::normalize(direction.toEye);
   const glm::dvec3 r = glm::normalize(glm::cross(f, direction.up)), u = glm::cross(r, f);

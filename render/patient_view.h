@@ -45,8 +45,7 @@ ViewDirection orbitDirection(double azimuthDeg, double elevationDeg);
 /// A patient-space camera looking along −direction.toEye that frames @p points (patient mm)
 /// in the image with @p margin of its half-extent free on the tighter side (perspective: the
 /// distance at which every point lies inside the frustum, centred on their projection).
-Camera fitCamera(const std::vector<glm::dvec3>& points, const ViewDirection& direction, double fovDeg, bool ortho, int width, int height,
-                 double margin = 0.05);
+Camera fitCamera(const std::vector<glm::dvec3>& points, const ViewDirection& direction, const Camera::Lens& lens, double margin = 0.05);
 
 /// Magnifies @p camera's image @p zoom times about its centre (a narrower field of view, or a
 /// smaller orthographic height): the eye does not move.

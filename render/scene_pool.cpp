@@ -62,7 +62,7 @@ SceneSummary summarizeScene(const Scene& scene, const std::string& key, const st
   if (points.empty())  // nothing visible: the data's box
     for (int c = 0; c < 8; ++c) points.push_back(glm::dvec3(c & 1 ? s.boundsHi.x : s.boundsLo.x, c & 2 ? s.boundsHi.y : s.boundsLo.y, c & 4 ? s.boundsHi.z : s.boundsLo.z));
   scene.octree.releasePages();  // the fit walked every visible leaf; a frame reads far fewer
-  for (int view = 0; view < 6; ++view) s.views[size_t(view)] = fitCamera(points, viewDirection(AnatomicalView(view)), 30.0, false, 512, 512);
+  for (int view = 0; view < 6; ++view) s.views[size_t(view)] = fitCamera(points, viewDirection(AnatomicalView(view)), {30.0, false, 512, 512});
   if (scene.surface) s.sceneIso = scene.surface->isovalue();
   return s;
 }

@@ -234,7 +234,7 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
     for (const double azimuth : {0.0, 70.0, 150.0, 250.0}) {
       SCOPED_TRACE(azimuth);
       View view;
-      view.camera = fitCamera(visible, orbitDirection(azimuth, 20), 30, false, 40, 40, 0.05);
+      view.camera = fitCamera(visible, orbitDirection(azimuth, 20), {30, false, 40, 40}, 0.05);
       for (const Quality& q : qualities) {
         const RenderedFrame a = paged.render(view, look, q), b = memory.render(view, look, q);
         if (q.renderer == Renderer::Slices) {
@@ -273,7 +273,7 @@ TEST(KnotStore, PagedFramesEqualInMemoryFramesWithinATenthOfTheData) {
   Quality lod;
   lod.lodPixels = 3.0;
   compare({lod});
-  EXPECT_GT(paged.render(View{fitCamera(visible, orbitDirection(0, 20), 30, false, 40, 40, 0.05)}, look, lod).stats.surfaceSpacing, 1);
+  EXPECT_GT(paged.render(View{fitCamera(visible, orbitDirection(0, 20), {30, false, 40, 40}, 0.05)}, look, lod).stats.surfaceSpacing, 1);
   for (const int s : {2, 4}) {
     const TriangleMesh a = clusteredSurface(store, t, s, 150.0f), b = clusteredSurface(VolumeKnots(v, t), t, s, 150.0f);
     ASSERT_GT(a.triangles.size(), 100u);
@@ -299,7 +299,7 @@ TEST(KnotStore, MovingFramesPackABoundedShareOfNewTexturesAndReachTheExactFrame)
   Look look;
   look.tf = headTf();
   View view;
-  view.camera = fitCamera(visiblePoints(v, t, look.tf), orbitDirection(30.0, 20), 30, false, 40, 40, 0.05);
+  view.camera = fitCamera(visiblePoints(v, t, look.tf), orbitDirection(30.0, 20), {30, false, 40, 40}, 0.05);
   for (const bool paged : {false, true}) {
     SceneRenderer r(loadScene(path, SceneLoadOptions{!paged, 0})), exact(loadScene(path));
     const RenderedFrame want = exact.render(view, look, Quality{});
@@ -346,7 +346,7 @@ TEST(KnotStore, AColdCacheDrawsCoarserBricksNeverAHoleWhileThePrefetchThreadLoad
   now.waitForBricks = false;
   const glm::ivec3 cells = v.dims() - 1;
   View view;
-  view.camera = fitCamera(visible, orbitDirection(0.0, 20), 30, false, 40, 40, 0.05);
+  view.camera = fitCamera(visible, orbitDirection(0.0, 20), {30, false, 40, 40}, 0.05);
   const RenderedFrame want = memory.render(view, look, Quality{});
   const RenderedFrame first = paged.render(view, look, now);
   // Cold: coarser bricks where the knots are not cached, and still every cell drawn once.
@@ -372,7 +372,7 @@ TEST(KnotStore, AColdCacheDrawsCoarserBricksNeverAHoleWhileThePrefetchThreadLoad
   EXPECT_EQ(then.stats.bricksNotResident, 0u);
   EXPECT_EQ(then.image.pixels, want.image.pixels);
   // Another view of the same bricks finds them all.
-  view.camera = fitCamera(visible, orbitDirection(150.0, 20), 30, false, 40, 40, 0.05);
+  view.camera = fitCamera(visible, orbitDirection(150.0, 20), {30, false, 40, 40}, 0.05);
   const RenderedFrame other = paged.render(view, look, now);
   EXPECT_EQ(other.stats.bricksNotResident, 0u);
   EXPECT_EQ(other.image.pixels, memory.render(view, look, Quality{}).image.pixels);

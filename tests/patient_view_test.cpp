@@ -68,7 +68,7 @@ TEST(PatientView, FitFramesEveryPointWithTheMargin) {
   for (int c = 0; c < 8; ++c) points.push_back(glm::dvec3(30 + 200 * (c & 1), -40 + 100 * ((c >> 1) & 1), 10 + 50 * ((c >> 2) & 1)));
   for (const bool ortho : {false, true})
     for (const ViewDirection& d : {viewDirection(AnatomicalView::Anterior), orbitDirection(35, 20)}) {
-      const Camera cam = fitCamera(points, d, 30.0, ortho, 320, 200, 0.05);
+      const Camera cam = fitCamera(points, d, {30.0, ortho, 320, 200}, 0.05);
       double maxX = 0, maxY = 0, minX = 1e9, minY = 1e9;
       for (const glm::dvec3& p : points) {
         // The point's image position, from the camera's own rays: project with its frame.
@@ -247,7 +247,7 @@ TEST(PatientView, TheDefaultCameraDoesNotDependOnTheStorageOrder) {
     ASSERT_FALSE(byIso.empty());
     cameras.emplace_back();
     for (const std::vector<glm::dvec3>* points : {&byTf, &byIso})
-      for (int view = 0; view < 6; ++view) cameras.back().push_back(fitCamera(*points, viewDirection(AnatomicalView(view)), 30.0, false, 64, 48));
+      for (int view = 0; view < 6; ++view) cameras.back().push_back(fitCamera(*points, viewDirection(AnatomicalView(view)), {30.0, false, 64, 48}));
   }
   for (size_t c = 1; c < cameras.size(); ++c)
     for (size_t k = 0; k < cameras[0].size(); ++k) {
@@ -294,7 +294,7 @@ TEST(PatientView, VisiblePointsCarryTheHullOfEveryVisibleCorner) {
       for (const double azimuth : {0.0, 37.0}) {
         ViewDirection dir = viewDirection(AnatomicalView(view));
         if (azimuth != 0.0) dir = orbitDirection(azimuth, 21.0);
-        const Camera a = fitCamera(hull, dir, 30.0, ortho, 64, 48), b = fitCamera(corners, dir, 30.0, ortho, 64, 48);
+        const Camera a = fitCamera(hull, dir, {30.0, ortho, 64, 48}), b = fitCamera(corners, dir, {30.0, ortho, 64, 48});
         EXPECT_LT(glm::length(a.eye - b.eye), 1e-9) << view << " " << ortho << ": " << vec(a.eye) << " vs " << vec(b.eye);
         EXPECT_LT(glm::length(a.center - b.center), 1e-9) << view << " " << ortho;
         EXPECT_NEAR(a.orthoHeight, b.orthoHeight, 1e-9);

@@ -158,7 +158,7 @@ TEST(PreIntegratedCranium, MatchesTheReferenceWithTheSurfaceAndACutAndTheBudget)
   const std::vector<glm::dvec3> points = visiblePoints(v, octree, look.tf);
   SceneRenderer r(Scene{std::move(v), std::move(octree), std::nullopt, nullptr});
   View view;
-  view.camera = fitCamera(points, orbitDirection(30, 15), 30, false, 128, 128);
+  view.camera = fitCamera(points, orbitDirection(30, 15), {30, false, 128, 128});
   glm::dvec3 middle(0.0);
   for (const glm::dvec3& p : points) middle += p / double(points.size());
   auto psnr = [&](const Look& l, Quality q, Classification how) {

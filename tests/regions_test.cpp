@@ -32,7 +32,7 @@ TransferFunction shellTf() {
 
 View cameraFrom(const Volume& v, double azimuth, bool ortho) {
   View view;
-  view.camera = fitCamera(visiblePoints(v, VolumeOctree::build(v), shellTf()), orbitDirection(azimuth, 25), 30, ortho, 96, 96, 0.05);
+  view.camera = fitCamera(visiblePoints(v, VolumeOctree::build(v), shellTf()), orbitDirection(azimuth, 25), {30, ortho, 96, 96}, 0.05);
   return view;
 }
 

@@ -58,7 +58,7 @@ std::unique_ptr<PreparedSurface> withLevels(const Scene& scene, float iso) {
 
 View viewFrom(double azimuth, const Volume& v, int pixels = 48, double margin = 0.05) {
   View view;
-  view.camera = fitCamera(visiblePoints(v, VolumeOctree::build(v), warm()), orbitDirection(azimuth, 15), 30, false, pixels, pixels, margin);
+  view.camera = fitCamera(visiblePoints(v, VolumeOctree::build(v), warm()), orbitDirection(azimuth, 15), {30, false, pixels, pixels}, margin);
   return view;
 }
 

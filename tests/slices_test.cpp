@@ -758,7 +758,7 @@ void expectNoSpecks(SceneRenderer& r, const Look& look, const Quality& quality, 
   const std::vector<glm::dvec3> points = visiblePoints(r.volume(), r.octree(), look.tf, look.iso);
   for (const auto& [name, direction] : views) {
     View view;
-    view.camera = fitCamera(points, direction, 30.0, false, pixels, pixels);
+    view.camera = fitCamera(points, direction, {30.0, false, pixels, pixels});
     const Image image = r.render(view, look, quality).image;
     std::vector<glm::ivec2> specks = test::isolatedBlackPixels(image);
     if (!specks.empty()) {

@@ -103,7 +103,7 @@ TEST(SurfaceShading, TerracesOfTheCraniumAreGone) {
   const TransferFunction clear({{-2000.0f, {0, 0, 0}, 0.0f}, {4000.0f, {0, 0, 0}, 0.0f}}, "clear");
   std::vector<double> db;
   for (const ViewDirection& d : {viewDirection(AnatomicalView::Anterior), orbitDirection(60, 25)}) {
-    const Camera cam = toGridCamera(fitCamera(visiblePoints(v, t, clear, 400.0f), d, 30.0, false, 160, 160), v.frame());
+    const Camera cam = toGridCamera(fitCamera(visiblePoints(v, t, clear, 400.0f), d, {30.0, false, 160, 160}), v.frame());
     auto image = [&](const TriangleMesh& mesh) {
       const Bvh bvh(mesh);
       RaycastOptions ro;
