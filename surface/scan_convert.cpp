@@ -127,8 +127,8 @@ double boxReach(const VoxelGrid& grid, const ScanOptions& o) {
   return o.filter == ScanFilter::None ? 0.0 : 0.5 * glm::length(boxSides(grid, o));
 }
 
-// Runs @p value(p) (grid mm → coverage) over every voxel of every row, z-planes on all cores; a
-// row may skip to the voxels @p rowRange(j, k, &lo, &hi) leaves (the rest are @p outsideValue).
+// Runs @p value(p) (grid mm → coverage) over every voxel, z-planes on all cores, and counts the
+// voxels partly (band) and wholly (inside) covered.
 template <class Value>
 void forEachVoxel(const VoxelGrid& grid, CoverageStore* store, size_t* band, size_t* inside, const Value& value) {
   const glm::ivec3 d = grid.dims;
@@ -194,7 +194,7 @@ bool ownsEdge(const glm::dvec2& d) { return d.y < 0.0 || (d.y == 0.0 && d.x > 0.
 struct SlabScratch {
   std::vector<float> best;      // squared distance to the closest triangle so far (mm²)
   std::vector<uint32_t> owner;  // that triangle, or kNone
-  std::vector<uint32_t> touched;  // voxels (in slab) whose owner is set, for stage 3 and the reset
+  std::vector<size_t> touched;  // voxels (in slab) whose owner is set, for stage 3 and the reset
   std::vector<std::pair<uint32_t, float>> crossings;  // (row in slab, x mm)
 };
 constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
@@ -301,7 +301,7 @@ struct MeshScan {
             if (dist2 < best) {
               best = dist2;
               uint32_t& owner = scratch->owner[at];
-              if (owner == kNone) scratch->touched.push_back(uint32_t(at));
+              if (owner == kNone) scratch->touched.push_back(at);
               owner = t;
             }
           }
@@ -318,7 +318,7 @@ struct MeshScan {
     const size_t planeSize = size_t(d.x) * size_t(d.y);
     const float r2 = float(reach * reach);
     size_t band = 0, bandInside = 0;
-    for (const uint32_t n : scratch->touched) {
+    for (const size_t n : scratch->touched) {
       const uint32_t t = scratch->owner[n];
       scratch->owner[n] = kNone;
       scratch->best[n] = r2;
@@ -455,7 +455,7 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
     SlabScratch scratch;
     failure.run([&] {
       if (band) {
-        const size_t slabVoxels = size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(kSlabPlanes);
+        const size_t slabVoxels = size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(std::min(kSlabPlanes, grid.dims.z));
         scratch.best.assign(slabVoxels, float(scan.reach * scan.reach));
         scratch.owner.assign(slabVoxels, kNone);
       }
