@@ -6,7 +6,6 @@
 // voxel's box fraction of the tangent plane at its closest point.
 #include "surface/scan_convert.h"
 
-#include <omp.h>
 #include <sys/mman.h>
 
 #include <algorithm>

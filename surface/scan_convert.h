@@ -66,7 +66,9 @@ struct ScanOptions {
 
 /// A coverage volume and what the scan-conversion noticed.
 struct ScanResult {
-  Volume coverage;  ///< on the grid, with its frame; values in [0, 1] (or 0 … 255 for UInt8)
+  /// On the grid, with its frame; values in [0, 1] (or 0 … 255 for UInt8). It owns its buffer as a
+  /// borrowing Volume does: read it with value(), at() or visitSamples() (samples() has no vector).
+  Volume coverage;
   /// Conditions that make the result suspect, one sentence each: a mesh wholly outside the grid,
   /// one smaller than a voxel (units?), a solid mesh that is not closed.
   std::vector<std::string> warnings;
