@@ -4,6 +4,7 @@
 #include <zlib.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <map>
@@ -238,6 +239,37 @@ Volume readNrrd(const std::string& path) {
   const bool ascii = l.encoding != "raw" && !l.data.compressed;
   return filled(l.description, ascii ? readAsciiSamples(InputFile(l.data.path), l.data.offset, dims, l.data.type) : readSampleData(l.data, dims),
                 path);
+}
+
+void writeNrrd(const Volume& volume, const std::string& path) {
+  const char* type = "float";
+  switch (volume.storedType()) {
+    case ScalarType::UInt8: type = "uchar"; break;
+    case ScalarType::Int8: type = "signed char"; break;
+    case ScalarType::UInt16: type = "ushort"; break;
+    case ScalarType::Int16: type = "short"; break;
+    default: break;
+  }
+  std::ostringstream h;
+  h << std::setprecision(17);
+  auto vec = [&h](const glm::dvec3& v) { h << '(' << v.x << ',' << v.y << ',' << v.z << ')'; };
+  const glm::ivec3 d = volume.dims();
+  h << "NRRD0004\ntype: " << type << "\ndimension: 3\nspace: left-posterior-superior\nsizes: " << d.x << ' ' << d.y << ' ' << d.z
+    << "\nspace directions: ";
+  for (int a = 0; a < 3; ++a) {
+    vec(volume.frame().direction[a] * volume.spacing()[a]);
+    h << (a < 2 ? " " : "\n");
+  }
+  h << "kinds: domain domain domain\nspace origin: ";
+  vec(volume.frame().origin);
+  h << "\nendian: " << (std::endian::native == std::endian::little ? "little" : "big") << "\nencoding: raw\n\n";
+  const std::string header = h.str();
+  writeFileAtomically(path, [&](std::ostream& out) {
+    out.write(header.data(), std::streamsize(header.size()));
+    volume.visitSamples([&](const auto* samples) {
+      out.write(reinterpret_cast<const char*>(samples), std::streamsize(volume.voxelCount() * sizeof(*samples)));
+    });
+  });
 }
 
 std::unique_ptr<PlaneSource> detail::nrrdPlanes(const std::string& path) {

@@ -117,4 +117,11 @@ Volume readInv3(const std::string& path);
 /// identity frame, with a warning.
 Volume readRaw(const std::string& path, const RawLayout& layout);
 
+/// Writes @p volume as one NRRD file (raw encoding, the host's byte order) in its stored type, on its
+/// grid: "space: left-posterior-superior", "space directions" the frame's axes times the spacing,
+/// "space origin" the frame's origin, each number to 17 significant digits, so readNrrd gives back
+/// the same grid. Written atomically (volume/file_util.h).
+/// @throw IoError naming @p path when it cannot be written.
+void writeNrrd(const Volume& volume, const std::string& path);
+
 }  // namespace hyb

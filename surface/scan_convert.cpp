@@ -1,0 +1,645 @@
+// Filtered 3D scan-conversion (Levoy 1989; docs/scan-conversion.md). A mesh is converted in
+// z-slabs, one thread each: (1) the solid's voxels by scanline parity along x, each triangle's
+// projection on the (y, z) rows rasterised with a top-left rule so that a row through a shared edge
+// or vertex crosses the surface exactly once; (2) the narrow band, each triangle visiting the voxels
+// within the filter's reach of its plane and keeping the closest triangle per voxel; (3) each band
+// voxel's box fraction of the tangent plane at its closest point.
+#include "surface/scan_convert.h"
+
+#include <sys/mman.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <limits>
+#include <memory>
+#include <numbers>
+#include <utility>
+
+#include "volume/error.h"
+#include "volume/parallel.h"
+
+namespace hyb {
+
+namespace {
+
+// z-planes per slab: small enough that two threads balance on a sphere, large enough that a
+// triangle rarely falls into more than one.
+constexpr int kSlabPlanes = 4;
+
+// Fraction of the unit cube [0, 1]³ where m·v ≤ t, for m1 ≥ m2 ≥ m3 ≥ 0, m1 > 0. Piecewise
+// polynomial (the inclusion–exclusion over the cube's corners), each piece written so that no term
+// divides by a component smaller than the piece's width: stable as m3 or m2 tend to 0.
+double sortedCubeFraction(double m1, double m2, double m3, double t) {
+  const double total = m1 + m2 + m3;
+  if (t <= 0.0) return 0.0;
+  if (t >= total) return 1.0;
+  if (t > 0.5 * total) return 1.0 - sortedCubeFraction(m1, m2, m3, total - t);
+  // The plane cuts only the four edges along the first axis: the average of its position.
+  if (t >= m2 + m3) return (t - 0.5 * (m2 + m3)) / m1;
+  // t < m2 + m3 ≤ total / 2 here, so (t − m2)⁺ and (t − m1)⁺ are below m3.
+  const double denom = 6.0 * m1 * m2;
+  double v = t <= m3 ? t * t * t / (denom * m3) : (3.0 * t * t - 3.0 * t * m3 + m3 * m3) / denom;
+  if (t > m2) v -= std::pow(t - m2, 3) / (denom * m3);
+  if (t > m1) v -= std::pow(t - m1, 3) / (denom * m3);
+  return std::clamp(v, 0.0, 1.0);
+}
+
+// Sheet coverage: the box fraction between the planes at distances −τ/2 and τ/2 from a surface
+// point at distance d (unsigned) along the unit direction whose box-scaled components are m.
+double sheetFraction(const glm::dvec3& m, double d, double halfThickness) {
+  return boxHalfSpaceFraction(m, halfThickness - d) - boxHalfSpaceFraction(m, -halfThickness - d);
+}
+
+void checkOptions(const ScanOptions& o, bool sheet) {
+  if (!std::isfinite(o.width) || o.width <= 0.0) HYB_THROW(ValueError, "scan conversion: width ", o.width, " must be a positive number of voxels");
+  if (!std::isfinite(o.thickness) || o.thickness < 0.0)
+    HYB_THROW(ValueError, "scan conversion: thickness ", o.thickness, " must be a number of mm ≥ 0");
+  if (sheet && o.thickness <= 0.0) HYB_THROW(ValueError, "scan conversion: a plane or polygon needs a thickness > 0 mm (got ", o.thickness, ")");
+}
+
+void checkGrid(const VoxelGrid& grid) {
+  validateDims(grid.dims, "scan conversion grid");
+  validateSpacing(grid.spacing, "scan conversion grid");
+}
+
+bool finite(const glm::dvec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
+
+// floor(v) and ceil(v) as an index clamped to [lo, hi] (a far-away vertex must not overflow an int).
+int floorIndex(double v, int lo, int hi) { return int(std::clamp(std::floor(v), double(lo) - 1.0, double(hi) + 1.0)); }
+int ceilIndex(double v, int lo, int hi) { return int(std::clamp(std::ceil(v), double(lo) - 1.0, double(hi) + 1.0)); }
+
+// A point of @p space in the grid frame (mm).
+glm::dvec3 toGridPoint(const glm::dvec3& p, ScanSpace space, const VoxelGrid& grid) {
+  switch (space) {
+    case ScanSpace::Index: return p * grid.spacing;
+    case ScanSpace::Grid: return p;
+    case ScanSpace::Patient: return grid.frame.toGrid(p);
+  }
+  return p;
+}
+// A normal of @p space in the grid frame (not unit): index-space normals scale by 1 / spacing.
+glm::dvec3 toGridNormal(const glm::dvec3& n, ScanSpace space, const VoxelGrid& grid) {
+  switch (space) {
+    case ScanSpace::Index: return n / grid.spacing;
+    case ScanSpace::Grid: return n;
+    case ScanSpace::Patient: return grid.frame.vectorToGrid(n);
+  }
+  return n;
+}
+
+// The coverage voxels being written, x fastest: one buffer, left uninitialised so that the threads
+// writing each slab touch its pages first, and backed by 2 MiB pages where the kernel gives them
+// (a 512³ grid's 4 KiB page faults took a quarter of its conversion). Every voxel is written once.
+struct CoverageStore {
+  std::shared_ptr<void> buffer;
+  uint8_t* u8 = nullptr;
+  float* f32 = nullptr;
+  bool bytes = true;
+
+  CoverageStore(const glm::ivec3& dims, CoverageType type) : bytes(type == CoverageType::UInt8) {
+    constexpr size_t kHuge = size_t(2) << 20;
+    const size_t n = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
+    const size_t size = (n * (bytes ? 1 : sizeof(float)) + kHuge - 1) / kHuge * kHuge;
+    void* p = std::aligned_alloc(kHuge, size);
+    if (!p) throw std::bad_alloc();
+    buffer.reset(p, std::free);
+    madvise(p, size, MADV_HUGEPAGE);  // a request: without it the buffer still works, with 4 KiB pages
+    if (bytes) u8 = static_cast<uint8_t*>(p);
+    else f32 = static_cast<float*>(p);
+  }
+  void set(size_t n, double v) {
+    if (bytes) u8[n] = uint8_t(std::lround(v * 255.0));
+    else f32[n] = float(v);
+  }
+  void fill(size_t n, size_t count, bool one) {
+    if (bytes) std::fill_n(u8 + n, count, uint8_t(one ? 255 : 0));
+    else std::fill_n(f32 + n, count, one ? 1.0f : 0.0f);
+  }
+  bool one(size_t n) const { return bytes ? u8[n] == 255 : f32[n] == 1.0f; }
+};
+
+ScanResult makeResult(const VoxelGrid& grid, CoverageStore&& store, std::vector<std::string> warnings, size_t band, size_t inside) {
+  ScanResult r;
+  const ScalarType type = store.bytes ? ScalarType::UInt8 : ScalarType::Float32;
+  const void* data = store.buffer.get();
+  r.coverage = Volume::borrowing(grid.dims, grid.spacing, type, type, data, std::move(store.buffer), "coverage");
+  r.coverage.setFrame(grid.frame);
+  r.coverage.addInfo("coverage", store.bytes ? "fraction x 255" : "fraction");
+  r.warnings = std::move(warnings);
+  r.bandVoxels = band;
+  r.insideVoxels = inside;
+  return r;
+}
+
+// The box's sides in mm, halved diagonal: no voxel farther than this from a plane is cut by it.
+glm::dvec3 boxSides(const VoxelGrid& grid, const ScanOptions& o) { return grid.spacing * o.width; }
+double boxReach(const VoxelGrid& grid, const ScanOptions& o) {
+  return o.filter == ScanFilter::None ? 0.0 : 0.5 * glm::length(boxSides(grid, o));
+}
+
+// Runs @p value(p) (grid mm → coverage) over every voxel, z-planes on all cores, and counts the
+// voxels partly (band) and wholly (inside) covered.
+template <class Value>
+void forEachVoxel(const VoxelGrid& grid, CoverageStore* store, size_t* band, size_t* inside, const Value& value) {
+  const glm::ivec3 d = grid.dims;
+  size_t bandCount = 0, insideCount = 0;
+#pragma omp parallel for schedule(dynamic, 1) reduction(+ : bandCount, insideCount)
+  for (int k = 0; k < d.z; ++k)
+    for (int j = 0; j < d.y; ++j) {
+      const size_t row = size_t(d.x) * (size_t(j) + size_t(d.y) * size_t(k));
+      for (int i = 0; i < d.x; ++i) {
+        const double v = value(glm::dvec3(i, j, k) * grid.spacing);
+        if (v >= 1.0) ++insideCount;
+        else if (v > 0.0) ++bandCount;
+        store->set(row + size_t(i), std::clamp(v, 0.0, 1.0));
+      }
+    }
+  *band = bandCount;
+  *inside = insideCount;
+}
+
+// ---- Meshes ----
+
+// A triangle in the grid frame (mm) with what the band pass needs.
+struct Tri {
+  glm::vec3 a, b, c;
+  glm::vec3 normal;  // unit; zero for a triangle without area (left out of the band)
+};
+
+// Closest point on triangle (a, b, c) to p (Ericson, Real-Time Collision Detection, 5.1.5).
+glm::vec3 closestOnTriangle(const glm::vec3& p, const glm::vec3& a, const glm::vec3& b, const glm::vec3& c) {
+  const glm::vec3 ab = b - a, ac = c - a, ap = p - a;
+  const float d1 = glm::dot(ab, ap), d2 = glm::dot(ac, ap);
+  if (d1 <= 0.0f && d2 <= 0.0f) return a;
+  const glm::vec3 bp = p - b;
+  const float d3 = glm::dot(ab, bp), d4 = glm::dot(ac, bp);
+  if (d3 >= 0.0f && d4 <= d3) return b;
+  const float vc = d1 * d4 - d3 * d2;
+  if (vc <= 0.0f && d1 >= 0.0f && d3 <= 0.0f) return a + ab * (d1 / (d1 - d3));
+  const glm::vec3 cp = p - c;
+  const float d5 = glm::dot(ab, cp), d6 = glm::dot(ac, cp);
+  if (d6 >= 0.0f && d5 <= d6) return c;
+  const float vb = d5 * d2 - d1 * d6;
+  if (vb <= 0.0f && d2 >= 0.0f && d6 <= 0.0f) return a + ac * (d2 / (d2 - d6));
+  const float va = d3 * d6 - d5 * d4;
+  if (va <= 0.0f && (d4 - d3) >= 0.0f && (d5 - d6) >= 0.0f) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+  const float denom = 1.0f / (va + vb + vc);
+  return a + ab * (vb * denom) + ac * (vc * denom);
+}
+
+// 2D edge function of the (y, z) projection, computed from the edge's endpoints in one canonical
+// order so that the two triangles sharing an edge get exactly opposite values.
+double edgeFunction(const glm::dvec2& a, const glm::dvec2& b, const glm::dvec2& q) {
+  const bool ordered = a.x < b.x || (a.x == b.x && a.y < b.y);
+  const glm::dvec2& s = ordered ? a : b;
+  const glm::dvec2& e = ordered ? b : a;
+  const double v = (e.x - s.x) * (q.y - s.y) - (e.y - s.y) * (q.x - s.x);
+  return ordered ? v : -v;
+}
+// Top-left rule for an edge of direction @p d in a counter-clockwise triangle: a point on it
+// belongs to exactly one of the two triangles sharing it.
+bool ownsEdge(const glm::dvec2& d) { return d.y < 0.0 || (d.y == 0.0 && d.x > 0.0); }
+
+// What one slab's thread keeps between slabs.
+struct SlabScratch {
+  std::vector<float> best;      // squared distance to the closest triangle so far (mm²)
+  std::vector<uint32_t> owner;  // that triangle, or kNone
+  std::vector<size_t> touched;  // voxels (in slab) whose owner is set, for stage 3 and the reset
+  std::vector<std::pair<uint32_t, float>> crossings;  // (row in slab, x mm)
+};
+constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
+
+// Everything the stages of one mesh conversion share.
+struct MeshScan {
+  const VoxelGrid& grid;
+  const ScanOptions& options;
+  std::vector<Tri> tris;
+  std::vector<uint32_t> slabStart, slabTris;  // triangles of slab s: slabTris[slabStart[s] .. slabStart[s + 1])
+  bool solid = true;
+  double reach = 0.0;  // mm from the surface within which a voxel is filtered
+  CoverageStore* store = nullptr;
+
+  int slabCount() const { return (grid.dims.z + kSlabPlanes - 1) / kSlabPlanes; }
+
+  // Stage 1: inside runs of every row of slab planes [k0, k1) by parity of the crossings; counts the
+  // voxels filled, and the rows crossed an odd number of times (the mesh is open along them; their
+  // last run is dropped).
+  void fillSolid(int k0, int k1, std::span<const uint32_t> list, SlabScratch* scratch, size_t* filled, size_t* oddRows) const {
+    const glm::ivec3 d = grid.dims;
+    const glm::dvec3 s = grid.spacing;
+    auto& crossings = scratch->crossings;
+    crossings.clear();
+    for (const uint32_t t : list) {
+      const Tri& tri = tris[t];
+      const glm::dvec2 a(tri.a.y, tri.a.z), b(tri.b.y, tri.b.z), c(tri.c.y, tri.c.z);
+      const double area = edgeFunction(a, b, c);
+      if (area == 0.0) continue;  // seen edge-on: its neighbours' edges stand in for it
+      const double sign = area > 0.0 ? 1.0 : -1.0;
+      const glm::dvec2 lo = glm::min(a, glm::min(b, c)), hi = glm::max(a, glm::max(b, c));
+      const int j0 = std::max(0, ceilIndex(lo.x / s.y, 0, d.y)), j1 = std::min(d.y - 1, floorIndex(hi.x / s.y, 0, d.y));
+      const int kk0 = std::max(k0, ceilIndex(lo.y / s.z, k0, k1)), kk1 = std::min(k1 - 1, floorIndex(hi.y / s.z, k0, k1));
+      const glm::dvec2 dab = (b - a) * sign, dbc = (c - b) * sign, dca = (a - c) * sign;
+      for (int k = kk0; k <= kk1; ++k)
+        for (int j = j0; j <= j1; ++j) {
+          const glm::dvec2 q(j * s.y, k * s.z);
+          const double wc = edgeFunction(a, b, q) * sign, wa = edgeFunction(b, c, q) * sign, wb = edgeFunction(c, a, q) * sign;
+          if (wa < 0.0 || wb < 0.0 || wc < 0.0) continue;
+          if ((wc == 0.0 && !ownsEdge(dab)) || (wa == 0.0 && !ownsEdge(dbc)) || (wb == 0.0 && !ownsEdge(dca))) continue;
+          const double sum = wa + wb + wc;
+          const double x = sum > 0.0 ? (wa * tri.a.x + wb * tri.b.x + wc * tri.c.x) / sum : tri.a.x;
+          crossings.emplace_back(uint32_t(size_t(k - k0) * size_t(d.y) + size_t(j)), float(x));
+        }
+    }
+    std::sort(crossings.begin(), crossings.end());
+    for (size_t n = 0; n < crossings.size();) {
+      size_t e = n;
+      while (e < crossings.size() && crossings[e].first == crossings[n].first) ++e;
+      if ((e - n) % 2) ++*oddRows;
+      const size_t rowStart = size_t(d.x) * (size_t(crossings[n].first) + size_t(k0) * size_t(d.y));
+      for (size_t m = n; m + 1 < e; m += 2) {
+        // Voxels whose centre lies strictly between an entry and the next exit.
+        const int i0 = std::max(0, floorIndex(double(crossings[m].second) / s.x, 0, d.x) + 1);
+        const int i1 = std::min(d.x - 1, ceilIndex(double(crossings[m + 1].second) / s.x, 0, d.x) - 1);
+        if (i1 >= i0) {
+          store->fill(rowStart + size_t(i0), size_t(i1 - i0 + 1), true);
+          *filled += size_t(i1 - i0 + 1);
+        }
+      }
+      n = e;
+    }
+  }
+
+  // Stage 2: the closest triangle of every voxel of planes [k0, k1) within `reach` of the surface.
+  void closestTriangles(int k0, int k1, std::span<const uint32_t> list, SlabScratch* scratch) const {
+    const glm::ivec3 d = grid.dims;
+    const glm::vec3 s(grid.spacing);
+    const float r = float(reach);
+    for (const uint32_t t : list) {
+      const Tri& tri = tris[t];
+      if (tri.normal == glm::vec3(0.0f)) continue;
+      const glm::vec3 lo = glm::min(tri.a, glm::min(tri.b, tri.c)) - r, hi = glm::max(tri.a, glm::max(tri.b, tri.c)) + r;
+      const int i0 = std::max(0, ceilIndex(lo.x / s.x, 0, d.x)), i1 = std::min(d.x - 1, floorIndex(hi.x / s.x, 0, d.x));
+      const int j0 = std::max(0, ceilIndex(lo.y / s.y, 0, d.y)), j1 = std::min(d.y - 1, floorIndex(hi.y / s.y, 0, d.y));
+      const int kk0 = std::max(k0, ceilIndex(lo.z / s.z, k0, k1)), kk1 = std::min(k1 - 1, floorIndex(hi.z / s.z, k0, k1));
+      // Walk the voxels in rows along the axis the plane is steepest across (n_w·s_w largest), so
+      // each row holds only the few voxels within the reach of the plane.
+      const int first[3] = {i0, j0, kk0}, last[3] = {i1, j1, kk1};
+      const glm::vec3 slope = tri.normal * s;
+      const glm::vec3 mag = glm::abs(slope);
+      const int w = mag.x >= mag.y && mag.x >= mag.z ? 0 : (mag.y >= mag.z ? 1 : 2);
+      const int u = w == 0 ? 1 : 0, v = w == 2 ? 1 : 2;
+      const size_t stride[3] = {1, size_t(d.x), size_t(d.x) * size_t(d.y)};
+      const float offset = -glm::dot(tri.normal, tri.a);
+      for (int a = first[u]; a <= last[u]; ++a)
+        for (int b = first[v]; b <= last[v]; ++b) {
+          const float a0 = slope[u] * float(a) + slope[v] * float(b) + offset;  // plane distance at index 0 along w
+          const float e0 = (-r - a0) / slope[w], e1 = (r - a0) / slope[w];
+          const int c0 = std::max(first[w], floorIndex(std::min(e0, e1), first[w], last[w]));
+          const int c1 = std::min(last[w], ceilIndex(std::max(e0, e1), first[w], last[w]));
+          glm::ivec3 idx;
+          idx[u] = a;
+          idx[v] = b;
+          for (int c = c0; c <= c1; ++c) {
+            idx[w] = c;
+            const float plane = a0 + slope[w] * float(c);
+            const size_t at = size_t(idx.x) * stride[0] + size_t(idx.y) * stride[1] + size_t(idx.z - k0) * stride[2];
+            float& best = scratch->best[at];
+            if (plane * plane >= best) continue;  // best starts at the reach²
+            const glm::vec3 p = glm::vec3(idx) * s;
+            const glm::vec3 q = closestOnTriangle(p, tri.a, tri.b, tri.c) - p;
+            const float dist2 = glm::dot(q, q);
+            if (dist2 < best) {
+              best = dist2;
+              uint32_t& owner = scratch->owner[at];
+              if (owner == kNone) scratch->touched.push_back(at);
+              owner = t;
+            }
+          }
+        }
+    }
+  }
+
+  // Stage 3: each band voxel's box fraction of the tangent plane at its closest point; resets the
+  // scratch for the next slab. Returns the band voxels and, of them, those the fill had inside.
+  std::pair<size_t, size_t> filterBand(int k0, SlabScratch* scratch) const {
+    const glm::ivec3 d = grid.dims;
+    const glm::dvec3 box = boxSides(grid, options);
+    const double half = 0.5 * options.thickness;
+    const size_t planeSize = size_t(d.x) * size_t(d.y);
+    const float r2 = float(reach * reach);
+    size_t band = 0, bandInside = 0;
+    for (const size_t n : scratch->touched) {
+      const uint32_t t = scratch->owner[n];
+      scratch->owner[n] = kNone;
+      scratch->best[n] = r2;
+      const int i = int(n % size_t(d.x)), j = int((n / size_t(d.x)) % size_t(d.y)), k = k0 + int(n / planeSize);
+      const size_t out = n + size_t(k0) * planeSize;
+      const Tri& tri = tris[t];
+      const glm::dvec3 p = glm::dvec3(i, j, k) * grid.spacing;
+      const glm::dvec3 c(closestOnTriangle(glm::vec3(p), tri.a, tri.b, tri.c));
+      const double dist = glm::length(p - c);
+      const glm::dvec3 dir = dist > 1e-6 * reach ? (p - c) / dist : glm::dvec3(tri.normal);
+      const glm::dvec3 m = glm::abs(dir) * box;
+      ++band;
+      if (solid) {
+        const bool inside = store->one(out);
+        bandInside += inside;
+        store->set(out, options.filter == ScanFilter::None ? double(inside) : boxHalfSpaceFraction(m, inside ? dist : -dist));
+      } else {
+        store->set(out, options.filter == ScanFilter::None ? double(dist <= half) : sheetFraction(m, dist, half));
+      }
+    }
+    scratch->touched.clear();
+    return {band, bandInside};
+  }
+};
+
+void validateMesh(const TriangleMesh& mesh) {
+  if (mesh.triangles.empty()) HYB_THROW(ValueError, "mesh: no triangles (expected a triangle mesh to scan-convert)");
+  for (size_t v = 0; v < mesh.vertices.size(); ++v) {
+    const glm::vec3& p = mesh.vertices[v];
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
+      HYB_THROW(ValueError, "mesh: vertex ", v, " is not finite (", p.x, ", ", p.y, ", ", p.z, ")");
+  }
+  for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const glm::uvec3& tri = mesh.triangles[t];
+    for (int c = 0; c < 3; ++c)
+      if (tri[c] >= mesh.vertices.size())
+        HYB_THROW(ValueError, "mesh: triangle ", t, " refers to vertex ", tri[c], " but the mesh has ", mesh.vertices.size(), " vertices");
+  }
+}
+
+// Sentences for a mesh that cannot give a useful coverage: outside the grid, or smaller than a voxel.
+void meshExtentWarnings(const glm::dvec3& lo, const glm::dvec3& hi, const VoxelGrid& grid, double reach, std::vector<std::string>* warnings) {
+  const glm::dvec3 gridLo = -0.5 * grid.spacing - reach, gridHi = glm::dvec3(grid.dims - 1) * grid.spacing + 0.5 * grid.spacing + reach;
+  auto box = [](const glm::dvec3& a, const glm::dvec3& b) {
+    return detail::concat("[", a.x, ", ", b.x, "] × [", a.y, ", ", b.y, "] × [", a.z, ", ", b.z, "] mm");
+  };
+  if (glm::any(glm::lessThan(hi, gridLo)) || glm::any(glm::greaterThan(lo, gridHi)))
+    warnings->push_back("mesh lies wholly outside the grid: it spans " + box(lo, hi) + " of the grid frame, the grid " + box(gridLo, gridHi));
+  const glm::dvec3 extent = (hi - lo) / grid.spacing;
+  if (std::max({extent.x, extent.y, extent.z}) < 1.0)
+    warnings->push_back(detail::concat("mesh is smaller than one voxel (", extent.x, " × ", extent.y, " × ", extent.z,
+                                       " voxels): are its coordinates in the grid's units (mm) and space? Detail below the filter's width is not resolved"));
+}
+
+}  // namespace
+
+double boxHalfSpaceFraction(const glm::dvec3& m, double t) {
+  glm::dvec3 a = glm::abs(m);
+  if (a.x < a.y) std::swap(a.x, a.y);
+  if (a.y < a.z) std::swap(a.y, a.z);
+  if (a.x < a.y) std::swap(a.x, a.y);
+  if (a.x == 0.0) return t >= 0.0 ? 1.0 : 0.0;
+  // Centred cube → unit cube: m·u ≤ t with u = v − ½ is m·v ≤ t + Σm/2.
+  return sortedCubeFraction(a.x, a.y, a.z, t + 0.5 * (a.x + a.y + a.z));
+}
+
+ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, const ScanOptions& options) {
+  validateMesh(mesh);
+  checkOptions(options, false);
+  checkGrid(grid);
+  MeshScan scan{grid, options, {}, {}, {}, options.thickness == 0.0, 0.0, nullptr};
+  scan.reach = boxReach(grid, options) + 0.5 * options.thickness;
+
+  // The triangles in the grid frame, with their unit normals.
+  const size_t n = mesh.triangles.size();
+  scan.tris.resize(n);
+  std::vector<glm::vec3> points(mesh.vertices.size());
+#pragma omp parallel for schedule(static)
+  for (int64_t v = 0; v < int64_t(points.size()); ++v) points[size_t(v)] = glm::vec3(toGridPoint(glm::dvec3(mesh.vertices[size_t(v)]), options.space, grid));
+  glm::dvec3 lo(std::numeric_limits<double>::max()), hi(-std::numeric_limits<double>::max());
+  for (const glm::vec3& p : points) {
+    lo = glm::min(lo, glm::dvec3(p));
+    hi = glm::max(hi, glm::dvec3(p));
+  }
+#pragma omp parallel for schedule(static)
+  for (int64_t t = 0; t < int64_t(n); ++t) {
+    const glm::uvec3& f = mesh.triangles[size_t(t)];
+    Tri& tri = scan.tris[size_t(t)];
+    tri.a = points[f.x], tri.b = points[f.y], tri.c = points[f.z];
+    const glm::vec3 cr = glm::cross(tri.b - tri.a, tri.c - tri.a);
+    const float len = glm::length(cr);
+    tri.normal = len > 0.0f && std::isfinite(len) ? cr / len : glm::vec3(0.0f);
+  }
+  std::vector<std::string> warnings;
+  meshExtentWarnings(lo, hi, grid, scan.reach, &warnings);
+
+  // Triangles to slabs: those whose z-extent, widened by the reach, meets a slab's planes and whose
+  // y-extent meets the grid's rows (x does not matter: a crossing left of the grid flips parity).
+  const int slabs = scan.slabCount();
+  const glm::dvec3 s = grid.spacing;
+  auto slabRange = [&](const Tri& tri, int* first, int* last) {
+    const double zlo = std::min({tri.a.z, tri.b.z, tri.c.z}) - scan.reach, zhi = std::max({tri.a.z, tri.b.z, tri.c.z}) + scan.reach;
+    const double ylo = std::min({tri.a.y, tri.b.y, tri.c.y}) - scan.reach, yhi = std::max({tri.a.y, tri.b.y, tri.c.y}) + scan.reach;
+    const double k0 = std::max(0.0, std::ceil(zlo / s.z)), k1 = std::min(double(grid.dims.z - 1), std::floor(zhi / s.z));
+    if (k1 < k0 || yhi < 0.0 || ylo > double(grid.dims.y - 1) * s.y) return false;
+    *first = int(k0) / kSlabPlanes;
+    *last = int(k1) / kSlabPlanes;
+    return true;
+  };
+  scan.slabStart.assign(size_t(slabs) + 1, 0);
+  for (const Tri& tri : scan.tris) {
+    int first, last;
+    if (slabRange(tri, &first, &last))
+      for (int sl = first; sl <= last; ++sl) ++scan.slabStart[size_t(sl) + 1];
+  }
+  for (int sl = 0; sl < slabs; ++sl) scan.slabStart[size_t(sl) + 1] += scan.slabStart[size_t(sl)];
+  scan.slabTris.resize(scan.slabStart.back());
+  {
+    std::vector<uint32_t> next(scan.slabStart.begin(), scan.slabStart.end() - 1);
+    for (uint32_t t = 0; t < uint32_t(n); ++t) {
+      int first, last;
+      if (slabRange(scan.tris[t], &first, &last))
+        for (int sl = first; sl <= last; ++sl) scan.slabTris[next[size_t(sl)]++] = t;
+    }
+  }
+
+  CoverageStore store(grid.dims, options.type);
+  scan.store = &store;
+  const bool band = scan.reach > 0.0;
+  size_t oddRows = 0, bandVoxels = 0, bandInside = 0, fillInside = 0;
+  ParallelFailure failure;
+#pragma omp parallel reduction(+ : oddRows, bandVoxels, bandInside, fillInside)
+  {
+    SlabScratch scratch;
+    failure.run([&] {
+      if (band) {
+        const size_t slabVoxels = size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(std::min(kSlabPlanes, grid.dims.z));
+        scratch.best.assign(slabVoxels, float(scan.reach * scan.reach));
+        scratch.owner.assign(slabVoxels, kNone);
+      }
+    });
+#pragma omp for schedule(dynamic, 1)
+    for (int sl = 0; sl < slabs; ++sl)
+      failure.run([&] {
+        const int k0 = sl * kSlabPlanes, k1 = std::min(grid.dims.z, k0 + kSlabPlanes);
+        const std::span<const uint32_t> list(scan.slabTris.data() + scan.slabStart[size_t(sl)], scan.slabStart[size_t(sl) + 1] - scan.slabStart[size_t(sl)]);
+        const size_t planeSize = size_t(grid.dims.x) * size_t(grid.dims.y);
+        store.fill(size_t(k0) * planeSize, size_t(k1 - k0) * planeSize, false);
+        if (scan.solid) scan.fillSolid(k0, k1, list, &scratch, &fillInside, &oddRows);
+        if (band) {
+          scan.closestTriangles(k0, k1, list, &scratch);
+          const auto [b, in] = scan.filterBand(k0, &scratch);
+          bandVoxels += b;
+          bandInside += in;
+        }
+      });
+  }
+  failure.rethrow();
+  if (oddRows > 0)
+    warnings.push_back(detail::concat("mesh is not closed: ", oddRows, " rows of voxels cross it an odd number of times (the solid is filled "
+                                      "only between pairs of crossings; give a thickness to scan-convert it as a sheet)"));
+  return makeResult(grid, std::move(store), std::move(warnings), bandVoxels, fillInside - bandInside);
+}
+
+// ---- Analytic primitives ----
+
+ScanResult scanConvertSphere(const glm::dvec3& center, double radius, const VoxelGrid& grid, const ScanOptions& options) {
+  checkOptions(options, false);
+  checkGrid(grid);
+  if (!finite(center)) HYB_THROW(ValueError, "sphere: centre (", center.x, ", ", center.y, ", ", center.z, ") is not finite");
+  if (!std::isfinite(radius) || radius <= 0.0) HYB_THROW(ValueError, "sphere: radius ", radius, " must be positive");
+  if (options.space == ScanSpace::Index && !(grid.spacing.x == grid.spacing.y && grid.spacing.y == grid.spacing.z))
+    HYB_THROW(ValueError, "sphere: a radius in voxels needs an isotropic grid (spacing ", grid.spacing.x, " × ", grid.spacing.y, " × ",
+              grid.spacing.z, " mm); give the sphere in grid or patient space");
+  const glm::dvec3 c = toGridPoint(center, options.space, grid);
+  const double r = options.space == ScanSpace::Index ? radius * grid.spacing.x : radius;
+  const double reach = boxReach(grid, options);
+  const glm::dvec3 box = boxSides(grid, options);
+  CoverageStore store(grid.dims, options.type);
+  size_t band = 0, inside = 0;
+  forEachVoxel(grid, &store, &band, &inside, [&](const glm::dvec3& p) {
+    const double rho = glm::length(p - c);
+    if (rho <= r - reach) return rho <= r ? 1.0 : 0.0;
+    if (rho >= r + reach) return 0.0;
+    const glm::dvec3 n = (p - c) / rho;
+    // The sphere bends away from its tangent plane by |u⊥|²/(2ρ) at a tangential offset u⊥; the
+    // box's mean |u⊥|² is Σ (side_i² / 12)(1 − n_i²).
+    const glm::dvec3 sq = box * box * (glm::dvec3(1.0) - n * n) / 12.0;
+    return boxHalfSpaceFraction(glm::abs(n) * box, (r - rho) - (sq.x + sq.y + sq.z) / (2.0 * rho));
+  });
+  std::vector<std::string> warnings;
+  meshExtentWarnings(c - r, c + r, grid, reach, &warnings);
+  return makeResult(grid, std::move(store), std::move(warnings), band, inside);
+}
+
+namespace {
+// The unit grid-frame normal and the grid-frame point of a plane given in @p options.space.
+std::pair<glm::dvec3, glm::dvec3> gridPlane(const glm::dvec3& point, const glm::dvec3& normal, const VoxelGrid& grid, const ScanOptions& options,
+                                            const char* what) {
+  if (!finite(point)) HYB_THROW(ValueError, what, ": point (", point.x, ", ", point.y, ", ", point.z, ") is not finite");
+  if (!finite(normal) || normal == glm::dvec3(0.0))
+    HYB_THROW(ValueError, what, ": normal (", normal.x, ", ", normal.y, ", ", normal.z, ") must be finite and not zero");
+  const glm::dvec3 n = toGridNormal(normal, options.space, grid);
+  return {toGridPoint(point, options.space, grid), n / glm::length(n)};
+}
+}  // namespace
+
+ScanResult scanConvertPlane(const glm::dvec3& point, const glm::dvec3& normal, const VoxelGrid& grid, const ScanOptions& options) {
+  checkOptions(options, true);
+  checkGrid(grid);
+  const auto [q, n] = gridPlane(point, normal, grid, options, "plane");
+  const double half = 0.5 * options.thickness, reach = half + boxReach(grid, options);
+  const glm::dvec3 m = glm::abs(n) * boxSides(grid, options);
+  CoverageStore store(grid.dims, options.type);
+  size_t band = 0, inside = 0;
+  forEachVoxel(grid, &store, &band, &inside, [&](const glm::dvec3& p) {
+    const double dist = std::abs(glm::dot(n, p - q));
+    if (dist >= reach) return 0.0;
+    return options.filter == ScanFilter::None ? double(dist <= half) : sheetFraction(m, dist, half);
+  });
+  return makeResult(grid, std::move(store), {}, band, inside);
+}
+
+ScanResult scanConvertHalfSpace(const glm::dvec3& point, const glm::dvec3& normal, const VoxelGrid& grid, const ScanOptions& options) {
+  checkOptions(options, false);
+  checkGrid(grid);
+  const auto [q, n] = gridPlane(point, normal, grid, options, "half-space");
+  const glm::dvec3 m = glm::abs(n) * boxSides(grid, options);
+  const bool none = options.filter == ScanFilter::None;
+  CoverageStore store(grid.dims, options.type);
+  size_t band = 0, inside = 0;
+  forEachVoxel(grid, &store, &band, &inside, [&](const glm::dvec3& p) {
+    const double t = -glm::dot(n, p - q);  // distance into the half-space
+    return none ? double(t >= 0.0) : boxHalfSpaceFraction(m, t);
+  });
+  return makeResult(grid, std::move(store), {}, band, inside);
+}
+
+ScanResult scanConvertPolygon(std::span<const glm::dvec3> corners, const VoxelGrid& grid, const ScanOptions& options) {
+  checkOptions(options, true);
+  if (corners.size() < 3) HYB_THROW(ValueError, "polygon: ", corners.size(), " corners (expected at least 3)");
+  for (size_t i = 0; i < corners.size(); ++i)
+    if (!finite(corners[i])) HYB_THROW(ValueError, "polygon: corner ", i, " is not finite");
+  // Newell's normal; every corner within 10⁻⁶ of the polygon's size of its plane, every fan
+  // triangle turning the same way (the fan from corner 0 covers the polygon once).
+  glm::dvec3 normal(0.0), centre(0.0);
+  double size = 0.0;
+  for (size_t i = 0; i < corners.size(); ++i) {
+    const glm::dvec3 &a = corners[i], &b = corners[(i + 1) % corners.size()];
+    normal += glm::dvec3((a.y - b.y) * (a.z + b.z), (a.z - b.z) * (a.x + b.x), (a.x - b.x) * (a.y + b.y));
+    centre += a / double(corners.size());
+    size = std::max(size, glm::length(b - a));
+  }
+  if (glm::length(normal) <= 1e-12 * size * size) HYB_THROW(ValueError, "polygon: its corners enclose no area");
+  normal = glm::normalize(normal);
+  TriangleMesh mesh;
+  for (size_t i = 0; i < corners.size(); ++i) {
+    if (std::abs(glm::dot(normal, corners[i] - centre)) > 1e-6 * size)
+      HYB_THROW(ValueError, "polygon: corner ", i, " lies ", glm::dot(normal, corners[i] - centre), " off the plane of the others (expected coplanar corners)");
+    if (i >= 2 && glm::dot(glm::cross(corners[i - 1] - corners[0], corners[i] - corners[0]), normal) < 0.0)
+      HYB_THROW(ValueError, "polygon: corner ", i, " folds the fan from corner 0 (expected a convex polygon, or one star-shaped from its first corner)");
+    mesh.vertices.emplace_back(corners[i]);
+    if (i >= 2) mesh.triangles.emplace_back(0u, uint32_t(i - 1), uint32_t(i));
+  }
+  return scanConvertMesh(mesh, grid, options);
+}
+
+// ---- Test and bench meshes ----
+
+TriangleMesh geodesicSphere(const glm::dvec3& center, double radius, int frequency) {
+  if (frequency < 1 || frequency > 4096) HYB_THROW(ValueError, "geodesic sphere: frequency ", frequency, " must be 1 … 4096");
+  if (!std::isfinite(radius) || radius <= 0.0) HYB_THROW(ValueError, "geodesic sphere: radius ", radius, " must be positive");
+  const double g = std::numbers::phi;
+  const glm::dvec3 ico[12] = {{-1, g, 0}, {1, g, 0}, {-1, -g, 0}, {1, -g, 0}, {0, -1, g}, {0, 1, g},
+                              {0, -1, -g}, {0, 1, -g}, {g, 0, -1}, {g, 0, 1}, {-g, 0, -1}, {-g, 0, 1}};
+  const int faces[20][3] = {{0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
+                            {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8}, {3, 8, 9}, {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
+  const int f = frequency;
+  TriangleMesh mesh;
+  mesh.vertices.reserve(size_t(20) * size_t(f + 1) * size_t(f + 2) / 2);
+  mesh.triangles.reserve(size_t(20) * size_t(f) * size_t(f));
+  for (const auto& face : faces) {
+    // Point (i, j) of the face: weights (f − i − j, i, j) on its corners, summed in the order of the
+    // corners' indices so that a point of an edge two faces share comes out the same in both.
+    auto point = [&](int i, int j) {
+      std::pair<int, int> w[3] = {{face[0], f - i - j}, {face[1], i}, {face[2], j}};
+      std::sort(std::begin(w), std::end(w));
+      glm::dvec3 p(0.0);
+      for (const auto& [corner, weight] : w) p += ico[corner] * double(weight);
+      return glm::vec3(center + radius * glm::normalize(p));
+    };
+    const uint32_t base = uint32_t(mesh.vertices.size());
+    auto index = [&](int i, int j) { return base + uint32_t(j * (f + 1) - j * (j - 1) / 2 + i); };  // row j holds f − j + 1 points
+    for (int j = 0; j <= f; ++j)
+      for (int i = 0; i + j <= f; ++i) mesh.vertices.push_back(point(i, j));
+    for (int j = 0; j < f; ++j)
+      for (int i = 0; i + j < f; ++i) {
+        mesh.triangles.emplace_back(index(i, j), index(i + 1, j), index(i, j + 1));
+        if (i + j + 1 < f) mesh.triangles.emplace_back(index(i + 1, j), index(i + 1, j + 1), index(i, j + 1));
+      }
+  }
+  return mesh;
+}
+
+double enclosedVolume(const TriangleMesh& mesh) {
+  double v = 0.0;
+  for (const glm::uvec3& t : mesh.triangles)
+    v += glm::dot(glm::dvec3(mesh.vertices[t.x]), glm::cross(glm::dvec3(mesh.vertices[t.y]), glm::dvec3(mesh.vertices[t.z])));
+  return v / 6.0;
+}
+
+}  // namespace hyb
