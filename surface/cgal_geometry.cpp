@@ -259,7 +259,8 @@ class TriangleBvh {
   // alone, so each subtree has its range of nodes before it is built: the halves are built at once.
   static std::pair<uint32_t, uint32_t> innerNodes(uint32_t m) {
     if (m < kLeafSize) return {0, 0};
-    const auto [half, halfPlusOne] = innerNodes(m / 2);
+    const std::pair<uint32_t, uint32_t> halves = innerNodes(m / 2);  // no structured binding: clang 14 (the fuzz build) cannot capture one
+    const uint32_t half = halves.first, halfPlusOne = halves.second;
     auto f = [&, h = m / 2](uint32_t x) { return x <= kLeafSize ? 0 : 1 + (x / 2 == h ? half : halfPlusOne) + (x - x / 2 == h ? half : halfPlusOne); };
     return {f(m), f(m + 1)};
   }
