@@ -3,11 +3,14 @@
 #   bash scripts/fuzz.sh --regress        every target over its seed corpus and the crashes found
 #                                         so far (tests/fuzz/crashes/<target>/), each input once
 #   bash scripts/fuzz.sh [SECONDS]        fuzz each target for SECONDS (default 600) from a copy of
-#                                         its corpus; prints executions a second and coverage
+#                                         its corpus, with its dictionary (tests/fuzz/<target>.dict)
+#                                         if it has one; prints executions a second and coverage
+#   either followed by target names (e.g. build) runs only those
 # Builds with clang in build-fuzz/ (Debian's clang-14 and libfuzzer-14-dev, installed by setup.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-targets=(volume_readers scene transfer_function viewer_message)
+targets=(volume_readers scene transfer_function viewer_message build)
+[ $# -lt 2 ] || targets=("${@:2}")
 cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
   -DHYB_FUZZ=ON -DHYB_BUILD_TESTS=OFF -DHYB_BUILD_BENCH=OFF > /dev/null
 cmake --build build-fuzz --parallel 2 --target "${targets[@]/#/fuzz_}"
@@ -27,7 +30,9 @@ for t in "${targets[@]}"; do
   work="build-fuzz/corpus-$t"
   mkdir -p "$work" tests/fuzz/crashes/"$t"
   cp -n tests/fuzz/corpus/"$t"/* "$work"/
-  build-fuzz/fuzz_"$t" -max_total_time="$seconds" -rss_limit_mb=2048 -timeout=30 -print_final_stats=1 \
+  dict=()
+  [ ! -f tests/fuzz/"$t".dict ] || dict=(-dict=tests/fuzz/"$t".dict)
+  build-fuzz/fuzz_"$t" -max_total_time="$seconds" -rss_limit_mb=2048 -timeout=30 -print_final_stats=1 "${dict[@]}" \
     -artifact_prefix=tests/fuzz/crashes/"$t"/ "$work" 2> "build-fuzz/$t.fuzz.log" || echo "fuzz_$t: found a crash (tests/fuzz/crashes/$t/)"
   echo "fuzz_$t: $(grep -E '^#[0-9]+.*(DONE|pulse)' "build-fuzz/$t.fuzz.log" | tail -1)"
 done
