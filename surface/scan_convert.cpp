@@ -541,7 +541,8 @@ std::pair<glm::dvec3, glm::dvec3> gridPlane(const glm::dvec3& point, const glm::
 ScanResult scanConvertPlane(const glm::dvec3& point, const glm::dvec3& normal, const VoxelGrid& grid, const ScanOptions& options) {
   checkOptions(options, true);
   checkGrid(grid);
-  const auto [q, n] = gridPlane(point, normal, grid, options, "plane");
+  const std::pair<glm::dvec3, glm::dvec3> plane = gridPlane(point, normal, grid, options, "plane");
+  const glm::dvec3 q = plane.first, n = plane.second;  // (named locals: clang 14 captures no bindings)
   const double half = 0.5 * options.thickness, reach = half + boxReach(grid, options);
   const glm::dvec3 m = glm::abs(n) * boxSides(grid, options);
   CoverageStore store(grid.dims, options.type);
@@ -557,7 +558,8 @@ ScanResult scanConvertPlane(const glm::dvec3& point, const glm::dvec3& normal, c
 ScanResult scanConvertHalfSpace(const glm::dvec3& point, const glm::dvec3& normal, const VoxelGrid& grid, const ScanOptions& options) {
   checkOptions(options, false);
   checkGrid(grid);
-  const auto [q, n] = gridPlane(point, normal, grid, options, "half-space");
+  const std::pair<glm::dvec3, glm::dvec3> plane = gridPlane(point, normal, grid, options, "half-space");
+  const glm::dvec3 q = plane.first, n = plane.second;  // (named locals: clang 14 captures no bindings)
   const glm::dvec3 m = glm::abs(n) * boxSides(grid, options);
   const bool none = options.filter == ScanFilter::None;
   CoverageStore store(grid.dims, options.type);
