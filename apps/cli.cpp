@@ -28,6 +28,7 @@
 
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/selection.h"
+#include "hybrid_octree/surface_export.h"
 #include "hybrid_octree/volume_octree.h"
 #include "render/orientation_marker.h"
 #include "render/raycast.h"
@@ -69,18 +70,6 @@ struct InfoOptions {
   int bins = 24;
   std::string validate() const { return bins < 1 || bins > 4096 ? "--bins must be in 1..4096" : ""; }
 };
-
-// One line on a Surface Octree, with its build time when it was just built.
-std::string surfaceSummary(const SurfaceOctree& so, std::optional<double> buildMs) {
-  std::ostringstream s;
-  size_t planes = 0;
-  for (const SurfaceNode& n : so.nodes()) planes += n.planeCount;
-  s << "surface  iso " << so.isovalue() << ": " << so.cellCount() << " DiscMC cells merged into " << so.nodes().size()
-    << " terminal nodes (" << planes << " plane ids, " << so.bytesUsed() << " bytes)";
-  if (buildMs) s << ", " << std::fixed << std::setprecision(1) << *buildMs << " ms";
-  else s << " (from the scene)";
-  return s.str() + "\n";
-}
 
 // A DICOM folder's patients, studies and series, the default marked, and what was skipped.
 std::string dicomListingText(const DicomListing& l) {
@@ -132,7 +121,7 @@ int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
     out << "store    " << store.levels().size() << " spacings (1.." << store.levels().back().spacing << ") in blocks of " << kStoreBlock
         << "^3 knots, " << formatBytes(store.compressedBytes()) << " compressed (" << std::fixed << std::setprecision(2)
         << double(store.compressedBytes()) / stored << "x the samples)\n";
-    out << (scene.surface ? surfaceSummary(*scene.surface, std::nullopt) : "surface  none (build --iso adds one)\n");
+    out << (scene.surface ? surfaceOctreeLine(*scene.surface, std::nullopt) : "surface  none (build --iso adds one)\n");
     // Every sample, a block at a time: the samples are never held.
     const Volume& v = scene.volume;
     out << "histogram (" << o.bins << " bins)\n"
@@ -179,7 +168,7 @@ int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
   if (o.iso) {
     const auto t1 = Clock::now();
     so = SurfaceOctree::build(*planes, t, float(*o.iso), SurfaceOctreeOptions{kMaxNodePlanes, 0, o.input.progress});
-    out << surfaceSummary(*so, msSince(t1));
+    out << surfaceOctreeLine(*so, msSince(t1));
   }
   saveScene(o.output, v, t, store, so ? &*so : nullptr);
   out << "wrote    " << o.output << "\n";
@@ -355,14 +344,12 @@ struct ExportOptions {
     if (!iso) return "--iso missing (expected the isovalue in data units)";
     if (memoryMb && !(*memoryMb >= 1.0 && *memoryMb <= 1e9)) return "--memory must be megabytes in [1, 1e9]";
     if (!isFloat(*iso)) return "--iso must be a finite number within the float range (|x| <= 3.4e38)";
-    if (output.empty()) return "-o missing (expected mesh.ply, .obj, .stl or .off)";
-    const std::string ext = fileExtension(output);
-    if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".off")
-      return "-o '" + output + "' has an unknown extension (expected .ply, .obj, .stl or .off)";
-    if (normals && ext != ".ply" && ext != ".obj") return "--normals needs a .ply or .obj file (STL keeps facet normals, OFF none)";
+    if (output.empty()) return "-o missing (expected mesh" + meshExtensionsText() + ")";
+    const MeshFormat* format = meshFormatOf(output);
+    if (!format) return "-o '" + output + "' has an unknown extension (expected " + meshExtensionsText() + ")";
+    if (normals && !format->normals) return "--normals needs a " + meshExtensionsText(true) + " file (STL keeps facet normals, OFF none)";
     if (std::string e = outputsError({{output, "-o"}}, {input.path}); !e.empty()) return e;
-    if (surface != "dmc" && surface != "mc" && surface != "octree")
-      return "--surface '" + surface + "' invalid (expected dmc, octree or mc)";
+    if (!isSurfaceKind(surface)) return "--surface '" + surface + "' invalid (expected " + kSurfaceKindsText + ")";
     return "";
   }
 };
@@ -377,75 +364,6 @@ std::string checkLine(const MeshCheck& c, double ms) {
          ", " + time.str() + " s\n";
 }
 
-}  // namespace
-
-ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string& kind, bool closed, bool normals, bool againstMc,
-                                const Progress* progress, std::ostream& out) {
-  if (kind != "dmc" && kind != "mc" && kind != "octree") HYB_THROW(ValueError, "surface kind '", kind, "' invalid (expected dmc, octree or mc)");
-  if (!scene.volume.hasSamples() && (kind != "octree" || closed || againstMc))
-    HYB_THROW(ValueError, "the ", kind, closed ? " closed" : "", " surface of a scene read paged needs its samples (load it whole)");
-  // Closed: the volume padded by one sample well below the isovalue on every face, so the surface
-  // is capped where it meets them (half a voxel outside the data, DiscMC's midpoints).
-  std::optional<Volume> padded;
-  std::optional<VolumeOctree> paddedOctree;
-  if (closed) {
-    const Volume& v = scene.volume;
-    padded = paddedVolume(v, std::min(v.minValue(), iso) - std::max(1.0f, v.maxValue() - v.minValue()));
-    paddedOctree = VolumeOctree::build(*padded, VolumeOctreeOptions{8, true, progress});
-  }
-  const Volume& v = closed ? *padded : scene.volume;
-  const VolumeOctree& octree = closed ? *paddedOctree : scene.octree;
-  const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
-  ExportedSurface e;
-  auto t0 = Clock::now();
-  if (kind == "mc" || againstMc) {
-    e.mc = extractMarchingCubes(v, iso, blocks);
-    scaleToMillimetres(&e.mc, v.spacing());
-    e.mcMs = msSince(t0);
-  }
-  t0 = Clock::now();
-  if (kind == "mc") {
-    if (againstMc) {
-      e.mesh = e.mc;
-    } else {
-      e.mesh = std::move(e.mc);
-      e.mc = TriangleMesh{};
-    }
-    e.polygons = e.mesh.triangles.size();
-  } else if (kind == "dmc") {
-    const DiscreteMesh d = extractDiscMC(v, iso, blocks);
-    e.polygons = d.faceCount();
-    e.mesh = toTriangleMesh(d, v.spacing());
-  } else {
-    const bool stored = !closed && scene.surface && scene.surface->isovalue() == iso;
-    const auto ts = Clock::now();
-    // A paged scene's is extracted through its cache, a leaf at a time.
-    const SurfaceOctree so = closed ? SurfaceOctree::build(v, octree, iso) : sceneSurface(scene, iso, progress);
-    out << surfaceSummary(so, stored ? std::nullopt : std::optional<double>(msSince(ts)));
-    const DiscreteMesh d = so.reconstruct(kMaxDim, progress);  // one mesh: merge coplanar polygons across bricks too
-    e.polygons = d.faceCount();
-    e.mesh = fineMeshToTriangles(d, v.spacing());
-  }
-  if (normals) {
-    if (closed)
-      setGradientNormals(v, &e.mesh);
-    else
-      setSceneNormals(scene, &e.mesh);  // a paged scene's through its cache, the same normals
-  }
-  // Patient coordinates (LPS mm), as the volume's own.
-  toPatientSpace(v.frame(), &e.mesh);
-  toPatientSpace(v.frame(), &e.mc);
-  e.ms = kind == "mc" ? e.mcMs : msSince(t0);
-  out << std::fixed << std::setprecision(1) << "surface  " << kind << " at iso " << iso << (closed ? " (closed)" : "") << ": " << e.polygons
-      << " polygons, " << e.mesh.triangles.size() << " triangles, " << e.mesh.vertices.size() << " vertices, " << e.ms << " ms\n";
-  if (againstMc)
-    out << "vs mc    " << e.mc.triangles.size() << " triangles in " << e.mcMs << " ms; triangles ratio " << std::setprecision(3)
-        << (e.mc.triangles.empty() ? 1.0 : double(e.mesh.triangles.size()) / double(e.mc.triangles.size())) << "\n";
-  return e;
-}
-
-namespace {
-
 int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   double buildMs = 0;
   const uint64_t memoryBytes = sceneMemoryBytes(o.memoryMb);
@@ -454,7 +372,7 @@ int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   if (iso <= scene.volume.minValue() || iso > scene.volume.maxValue())
     err << "hybrid-octree: warning: --iso " << iso << " is outside the data's crossing range (" << scene.volume.minValue() << ", "
         << scene.volume.maxValue() << "]: the surface is empty\n";
-  const ExportedSurface e = exportedSurface(scene, iso, o.surface, o.closed, o.normals, o.check, o.input.progress, out);
+  const ExportedSurface e = exportSurface(scene, ExportRequest{iso, o.surface, o.closed, o.normals, o.check}, o.input.progress, out);
   const TriangleMesh& mesh = e.mesh;
   const TriangleMesh& mc = e.mc;
   const Volume& v = scene.volume;

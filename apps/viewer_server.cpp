@@ -29,6 +29,7 @@
 #include "render/patient_view.h"
 #include "render/scene_pool.h"
 #include "render/scene_renderer.h"
+#include "hybrid_octree/surface_export.h"
 #include "surface/mesh_io.h"
 #include "surface/mesh_ops.h"
 #include "volume/error.h"
@@ -585,17 +586,11 @@ struct ServerState {
   }
 
   static std::string meshFile(const Scene& scene, float iso, const std::string& format) {
+    std::ostringstream log;  // export's report: the page shows none
+    const TriangleMesh mesh = exportSurface(scene, ExportRequest{iso, "octree"}, nullptr, log).mesh;
     const Volume& v = scene.volume;
-    const SurfaceOctree so = sceneSurface(scene, iso);
-    TriangleMesh mesh = fineMeshToTriangles(so.reconstruct(kMaxDim), v.spacing());
     if (mesh.triangles.empty()) HYB_THROW(ValueError, "iso: no surface at ", iso, " (the data's values are ", v.minValue(), " to ", v.maxValue(), ")");
-    toPatientSpace(v.frame(), &mesh);
-    const std::filesystem::path tmp = std::filesystem::temp_directory_path() / ("hybrid-octree-view-" + makeToken() + "." + format);
-    writeMesh(tmp.string(), mesh, MeshWriteOptions{false, "LPS"});
-    std::ifstream in(tmp, std::ios::binary);
-    std::string body((std::istreambuf_iterator<char>(in)), {});
-    std::filesystem::remove(tmp);
-    return body;
+    return meshBytes(mesh, *meshFormatOf("surface." + format), MeshWriteOptions{false, "LPS"});
   }
 
   // ---- network ------------------------------------------------------------------------------
@@ -879,8 +874,8 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
       respond(http::status::bad_request, "text/plain", "400: iso: expected a number\n", keepAlive, version);
       return;
     }
-    if (format != "ply" && format != "stl" && format != "obj") {
-      respond(http::status::bad_request, "text/plain", "400: format: expected ply, stl or obj\n", keepAlive, version);
+    if (!meshFormatOf("surface." + format)) {
+      respond(http::status::bad_request, "text/plain", "400: format: expected " + meshExtensionsText(false, false) + "\n", keepAlive, version);
       return;
     }
     auto self = shared_from_this();
