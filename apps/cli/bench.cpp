@@ -1,5 +1,5 @@
-#include "apps/bench.h"
-#include "apps/ranks.h"
+#include "apps/cli/bench.h"
+#include "apps/ranks/ranks.h"
 
 #include <spawn.h>
 #include <sys/wait.h>

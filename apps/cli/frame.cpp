@@ -1,4 +1,4 @@
-#include "apps/frame.h"
+#include "apps/cli/frame.h"
 
 #include <chrono>
 #include <cmath>
@@ -7,7 +7,7 @@
 #include <ostream>
 #include <sstream>
 
-#include "apps/outputs.h"
+#include "apps/cli/outputs.h"
 #include "hybrid_octree/surface_octree.h"
 #include "render/bvh.h"
 #include "surface/mesh_ops.h"

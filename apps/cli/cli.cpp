@@ -1,12 +1,12 @@
-#include "apps/cli.h"
+#include "apps/cli/cli.h"
 
-#include "apps/bench.h"
-#include "apps/frame.h"
-#include "apps/ranks.h"
-#include "apps/outputs.h"
-#include "apps/pacs_command.h"
-#include "apps/progress_display.h"
-#include "apps/viewer_server.h"
+#include "apps/cli/bench.h"
+#include "apps/cli/frame.h"
+#include "apps/ranks/ranks.h"
+#include "apps/cli/outputs.h"
+#include "apps/cli/pacs_command.h"
+#include "apps/cli/progress_display.h"
+#include "apps/viewer/viewer_server.h"
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>

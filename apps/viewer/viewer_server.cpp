@@ -1,4 +1,4 @@
-#include "apps/viewer_server.h"
+#include "apps/viewer/viewer_server.h"
 
 #include <turbojpeg.h>
 
@@ -23,9 +23,9 @@
 #include <sstream>
 #include <thread>
 
-#include "apps/viewer_files.h"
-#include "apps/viewer_protocol.h"
-#include "apps/viewer_quality.h"
+#include "apps/viewer/viewer_files.h"
+#include "apps/viewer/viewer_protocol.h"
+#include "apps/viewer/viewer_quality.h"
 #include "render/patient_view.h"
 #include "render/scene_pool.h"
 #include "render/scene_renderer.h"

@@ -1,7 +1,7 @@
 // The Python module `hybrid_octree` (pybind11): numpy volumes in without copying their samples,
 // images and meshes out, through the engine the command line uses. Rendering options are the
 // command line's flags as keyword arguments, parsed and checked by the same code, so a mistake gets
-// the command line's message. README "Python"; the API with types: apps/hybrid_octree.pyi.
+// the command line's message. README "Python"; the API with types: apps/python/hybrid_octree.pyi.
 #include <nlohmann/json.hpp>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
