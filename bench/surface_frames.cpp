@@ -14,7 +14,7 @@
 #include <string>
 #include <vector>
 
-#include "apps/viewer_quality.h"
+#include "apps/viewer/viewer_quality.h"
 #include "hybrid_octree/hybrid_io.h"
 #include "render/image.h"
 #include "render/patient_view.h"

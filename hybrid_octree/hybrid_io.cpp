@@ -3,6 +3,7 @@
 #include <zlib.h>
 
 #include <bit>
+#include <chrono>
 #include <cstring>
 #include <filesystem>
 #include <functional>
@@ -15,6 +16,7 @@
 #include "volume/file_util.h"
 #include "volume/memory_limit.h"
 #include "volume/reader_util.h"
+#include "volume/volume_io.h"
 
 namespace hyb {
 
@@ -517,6 +519,27 @@ void setSceneNormals(const Scene& scene, TriangleMesh* mesh) {
   const KnotStore& knots = *scene.knots;
   setGradientNormals(scene.volume.spacing(), [&](std::span<const glm::vec3> points, glm::vec3* gradients) { sampleGradients(knots, points, gradients); },
                      mesh);
+}
+
+OpenedScene openScene(const SceneSource& source, const VolumeOctreeOptions& options, const SceneLoadOptions& load) {
+  using Clock = std::chrono::steady_clock;
+  const auto msSince = [](Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); };
+  const auto t0 = Clock::now();
+  OpenedScene o;
+  if (!source.raw && isSceneFile(source.path)) {
+    o.scene = loadScene(source.path, load);
+    o.loaded = true;
+    o.readMs = msSince(t0);
+    return o;
+  }
+  o.scene.volume = readVolume(source.path, source.raw, source.series, source.progress);
+  o.readMs = msSince(t0);
+  const auto t1 = Clock::now();
+  VolumeOctreeOptions withProgress = options;
+  withProgress.progress = source.progress;
+  o.scene.octree = VolumeOctree::build(o.scene.volume, withProgress);
+  o.buildMs = msSince(t1);
+  return o;
 }
 
 }  // namespace hyb

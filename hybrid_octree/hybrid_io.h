@@ -24,6 +24,8 @@
 
 namespace hyb {
 
+struct RawLayout;  // volume/volume_io.h
+
 /// Current scene-file version.
 // 2: the octree records its knot mode; 3: the volume its patient frame and info; 4: the octree
 // sections the volume's content hash, surface nodes field by field (deterministic bytes); 5: the
@@ -85,5 +87,27 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options = Scene
 
 /// True when @p path starts with the scene-file magic.
 bool isSceneFile(const std::string& path);
+
+/// Where a scene comes from: a scene file, or a volume (file, DICOM directory or series, raw with
+/// its layout) whose octree is built.
+struct SceneSource {
+  std::string path;
+  const RawLayout* raw = nullptr;  ///< headerless raw data's layout; null: the file describes itself
+  std::string series;              ///< a DICOM directory's Series Instance UID; empty: the largest series
+  const Progress* progress = nullptr;  ///< where the read and the build report; may be null
+};
+
+/// A scene opened by openScene, with what it took.
+struct OpenedScene {
+  Scene scene;
+  bool loaded = false;  ///< read from a scene file (else read as a volume, its octree built)
+  double readMs = 0, buildMs = 0;  ///< a scene file's load counts as its read
+};
+
+/// Loads @p source when it is a scene file (as @p load says: paged or whole), else reads the volume
+/// and builds its octree with @p options (its progress: @p source's). The volume's reader warnings
+/// stay in scene.volume.warnings().
+/// @throw IoError or ValueError as loadScene and readVolume.
+OpenedScene openScene(const SceneSource& source, const VolumeOctreeOptions& options = {}, const SceneLoadOptions& load = {});
 
 }  // namespace hyb

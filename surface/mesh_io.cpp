@@ -39,25 +39,15 @@ class Quiet {
   bool mLog, mOut, mErr;
 };
 
-bool supported(const std::string& ext) { return ext == ".ply" || ext == ".obj" || ext == ".stl" || ext == ".off"; }
-
-// OpenMesh does not write a file for a mesh without vertices; write the format's empty form.
-void writeEmpty(const std::string& path, const std::string& ext) {
-  writeFileAtomically(path, [&](std::ostream& out) {
-    if (ext == ".ply")
-      out << "ply\nformat binary_little_endian 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
-             "property float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n";
-    else if (ext == ".off")
-      out << "OFF\n0 0 0\n";
-    else if (ext == ".obj")
-      out << "# empty mesh\n";
-    else {  // binary STL: 80-byte header and a zero triangle count
-      const std::string header(80, ' ');
-      out.write(header.data(), 80);
-      const uint32_t zero = 0;
-      out.write(reinterpret_cast<const char*>(&zero), 4);
-    }
-  });
+// OpenMesh does not write a file for a mesh without vertices: the format's empty form.
+std::string emptyBytes(const std::string& ext) {
+  if (ext == ".ply")
+    return "ply\nformat binary_little_endian 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+           "property float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n";
+  if (ext == ".off") return "OFF\n0 0 0\n";
+  if (ext == ".obj") return "# empty mesh\n";
+  // binary STL: 80-byte header and a zero triangle count
+  return std::string(80, ' ') + std::string(4, '\0');
 }
 
 // Records the coordinates' space where 3D Slicer looks for it: a PLY "comment SPACE=LPS" header
@@ -85,13 +75,40 @@ void recordSpace(std::string* bytes, const std::string& ext, const std::string& 
 
 }  // namespace
 
-void writeMesh(const std::string& path, const TriangleMesh& mesh, const MeshWriteOptions& options) {
+const std::vector<MeshFormat>& meshFormats() {
+  static const std::vector<MeshFormat> formats = {{".ply", true, true}, {".obj", false, true}, {".stl", true, false}, {".off", false, false}};
+  return formats;
+}
+
+const MeshFormat* meshFormatOf(const std::string& path) {
   const std::string ext = fileExtension(path);
-  if (!supported(ext)) HYB_THROW(IoError, path, ": unknown mesh format '", ext, "' (expected .ply, .obj, .stl or .off)");
+  for (const MeshFormat& f : meshFormats())
+    if (f.extension == ext) return &f;
+  return nullptr;
+}
+
+std::string meshExtensionsText(bool withNormals, bool dots) {
+  std::vector<std::string> names;
+  for (const MeshFormat& f : meshFormats())
+    if (!withNormals || f.normals) names.push_back(dots ? f.extension : f.extension.substr(1));
+  std::string text;
+  for (size_t i = 0; i < names.size(); ++i) text += (i == 0 ? "" : i + 1 == names.size() ? " or " : ", ") + names[i];
+  return text;
+}
+
+void writeMesh(const std::string& path, const TriangleMesh& mesh, const MeshWriteOptions& options) {
+  const MeshFormat* format = meshFormatOf(path);
+  if (!format) HYB_THROW(IoError, path, ": unknown mesh format '", fileExtension(path), "' (expected ", meshExtensionsText(), ")");
+  const std::string bytes = meshBytes(mesh, *format, options, path);
+  writeFileAtomically(path, [&](std::ostream& out) { out.write(bytes.data(), std::streamsize(bytes.size())); });
+}
+
+std::string meshBytes(const TriangleMesh& mesh, const MeshFormat& format, const MeshWriteOptions& options, const std::string& name) {
+  const std::string& ext = format.extension;
   const bool normals = options.normals && !mesh.normals.empty();
-  if (options.normals && ext != ".ply" && ext != ".obj")
-    HYB_THROW(IoError, path, ": vertex normals can be written to .ply and .obj files only (STL keeps facet normals, OFF none)");
-  if (mesh.triangles.empty()) return writeEmpty(path, ext);
+  if (options.normals && !format.normals)
+    HYB_THROW(IoError, name, ": vertex normals can be written to ", meshExtensionsText(true), " files only (STL keeps facet normals, OFF none)");
+  if (mesh.triangles.empty()) return emptyBytes(ext);
   OMesh om;
   if (normals) om.request_vertex_normals();
   om.reserve(mesh.vertices.size(), mesh.triangles.size() * 3 / 2, mesh.triangles.size());
@@ -119,7 +136,7 @@ void writeMesh(const std::string& path, const TriangleMesh& mesh, const MeshWrit
       }
   }
   OpenMesh::IO::Options io;
-  if (ext == ".ply" || ext == ".stl") io += OpenMesh::IO::Options::Binary;
+  if (format.binary) io += OpenMesh::IO::Options::Binary;
   if (normals) io += OpenMesh::IO::Options::VertexNormal;
   // Written to memory, then to the file by our own stream: OpenMesh's file writers report success
   // on a full disk.
@@ -128,11 +145,11 @@ void writeMesh(const std::string& path, const TriangleMesh& mesh, const MeshWrit
   {
     const Quiet quiet;  // the writers log what they write ("[STLWriter] : write binary file")
     if (!OpenMesh::IO::write_mesh(om, made, ext.substr(1), io) || !made)
-      HYB_THROW(IoError, path, ": OpenMesh could not write the mesh");
+      HYB_THROW(IoError, name, ": OpenMesh could not write the mesh");
   }
   std::string bytes = std::move(made).str();
-  if (!options.space.empty()) recordSpace(&bytes, ext, options.space, path);
-  writeFileAtomically(path, [&](std::ostream& out) { out.write(bytes.data(), std::streamsize(bytes.size())); });
+  if (!options.space.empty()) recordSpace(&bytes, ext, options.space, name);
+  return bytes;
 }
 
 TriangleMesh readMesh(const std::string& path) {

@@ -2,10 +2,27 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include "surface/mesh.h"
 
 namespace hyb {
+
+/// A mesh file format writeMesh writes: the one table every front door (export, the viewer's
+/// download, Python's export) checks a file's extension against.
+struct MeshFormat {
+  std::string extension;  ///< with its dot: ".ply"
+  bool binary = false;    ///< written binary (PLY, STL), else as text (OBJ, OFF)
+  bool normals = false;   ///< can carry vertex normals (PLY, OBJ)
+};
+
+/// The formats, in the order messages list them: .ply, .obj, .stl, .off.
+const std::vector<MeshFormat>& meshFormats();
+/// The format of @p path's extension (lower case); null when no format has it.
+const MeshFormat* meshFormatOf(const std::string& path);
+/// The extensions as a message lists them: ".ply, .obj, .stl or .off" (@p withNormals: only the
+/// formats that carry vertex normals, ".ply or .obj"; @p dots false: "ply, obj, stl or off").
+std::string meshExtensionsText(bool withNormals = false, bool dots = true);
 
 /// What a mesh file carries besides its triangles.
 struct MeshWriteOptions {
@@ -20,6 +37,10 @@ struct MeshWriteOptions {
 /// @throw IoError naming @p path for an unknown extension, normals asked of STL or OFF, or a
 ///        failed write.
 void writeMesh(const std::string& path, const TriangleMesh& mesh, const MeshWriteOptions& options = {});
+
+/// The bytes writeMesh writes for @p mesh as @p format (a file whose extension is @p format's).
+/// @throw IoError naming @p name (the file's name, for messages) as writeMesh does.
+std::string meshBytes(const TriangleMesh& mesh, const MeshFormat& format, const MeshWriteOptions& options = {}, const std::string& name = "mesh");
 
 /// Reads a triangle mesh (for round trips and checks), with its vertex normals when the file has them.
 /// @throw IoError naming @p path when it cannot be read.

@@ -1,4 +1,4 @@
-#include "apps/cli.h"
+#include "apps/cli/cli.h"
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -16,7 +16,7 @@
 #include <iomanip>
 #include <sstream>
 
-#include "apps/bench.h"
+#include "apps/cli/bench.h"
 #include "render/image.h"
 #include "surface/mesh_io.h"
 #include "cli_util.h"

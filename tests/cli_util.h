@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "apps/cli.h"
+#include "apps/cli/cli.h"
 
 namespace hyb::test {
 

@@ -10,8 +10,8 @@
 #include <cmath>
 #include <fstream>
 
-#include "apps/frame.h"
-#include "apps/viewer_protocol.h"
+#include "apps/cli/frame.h"
+#include "apps/viewer/viewer_protocol.h"
 #include "cli_util.h"
 #include "test_util.h"
 #include "volume/error.h"

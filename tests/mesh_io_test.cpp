@@ -1,5 +1,7 @@
 #include "surface/mesh_io.h"
 
+#include <fstream>
+
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
@@ -94,6 +96,33 @@ TEST(MeshIo, RejectsUnknownFormatsAndUnwritablePaths) {
   size_t files = 0;
   for (const auto& e : std::filesystem::recursive_directory_iterator(dir.path())) files += e.is_regular_file();
   EXPECT_EQ(files, size_t(0));  // nothing half-written
+}
+
+// One table of the formats: what export, the viewer's download and Python accept, and the bytes
+// a download sends are the file writeMesh writes.
+TEST(MeshIo, OneTableOfFormatsAndItsBytesAreTheFiles) {
+  EXPECT_EQ(meshFormats().size(), size_t(4));
+  EXPECT_EQ(meshExtensionsText(), ".ply, .obj, .stl or .off");
+  EXPECT_EQ(meshExtensionsText(true), ".ply or .obj");
+  EXPECT_EQ(meshExtensionsText(false, false), "ply, obj, stl or off");
+  EXPECT_EQ(meshFormatOf("m.vtk"), nullptr);
+  EXPECT_EQ(meshFormatOf("m"), nullptr);
+  ASSERT_NE(meshFormatOf("dir.x/m.stl"), nullptr);
+  EXPECT_EQ(meshFormatOf("dir.x/m.stl")->extension, ".stl");
+  test::TempDir dir;
+  const Volume v = test::sphereVolume(glm::ivec3(9), 3.2);
+  const TriangleMesh mesh = toTriangleMesh(extractDiscMC(v, 0.0f), v.spacing());
+  for (const MeshFormat& f : meshFormats()) {
+    const std::string path = dir.file("m" + f.extension);
+    writeMesh(path, mesh, MeshWriteOptions{false, "LPS"});
+    std::ifstream in(path, std::ios::binary);
+    const std::string file((std::istreambuf_iterator<char>(in)), {});
+    EXPECT_EQ(meshBytes(mesh, f, MeshWriteOptions{false, "LPS"}), file) << f.extension;
+    EXPECT_EQ(meshBytes(TriangleMesh{}, f).empty(), false) << f.extension;
+    if (!f.normals) {
+      EXPECT_THROW(meshBytes(mesh, f, MeshWriteOptions{true, ""}), IoError) << f.extension;
+    }
+  }
 }
 
 }  // namespace

@@ -12,7 +12,7 @@
 #include <thread>
 #include <vector>
 
-#include "apps/progress_display.h"
+#include "apps/cli/progress_display.h"
 #include "volume/parallel.h"
 
 namespace hyb {

@@ -1,4 +1,4 @@
-#include "apps/viewer_protocol.h"
+#include "apps/viewer/viewer_protocol.h"
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-#include "apps/viewer_quality.h"
+#include "apps/viewer/viewer_quality.h"
 
 #include <gtest/gtest.h>
 

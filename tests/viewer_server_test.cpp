@@ -1,4 +1,4 @@
-#include "apps/viewer_server.h"
+#include "apps/viewer/viewer_server.h"
 
 #include <sys/socket.h>
 
@@ -20,8 +20,8 @@
 #include <set>
 #include <string>
 
-#include "apps/viewer_protocol.h"
-#include "apps/viewer_quality.h"
+#include "apps/viewer/viewer_protocol.h"
+#include "apps/viewer/viewer_quality.h"
 #include "render/image.h"
 #include "render/scene_renderer.h"
 #include "volume/progress.h"

@@ -29,7 +29,7 @@
 #include <sstream>
 #include <vector>
 
-#include "apps/cli.h"
+#include "apps/cli/cli.h"
 #include "fuzz_util.h"
 #include "hybrid_octree/hybrid_io.h"
 

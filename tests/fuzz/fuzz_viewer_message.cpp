@@ -1,5 +1,5 @@
 // libFuzzer target: the viewer's message parser (what a hostile client sends).
-#include "apps/viewer_protocol.h"
+#include "apps/viewer/viewer_protocol.h"
 #include "fuzz_util.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {

@@ -410,7 +410,7 @@ def test_every_keyword_takes_its_python_forms(small_scene, key, form, text, form
 
 
 def test_the_stubs_declare_every_keyword_of_the_table_and_each_is_tested():
-    stub = open(os.path.join(os.path.dirname(__file__), "../../apps/hybrid_octree.pyi")).read()
+    stub = open(os.path.join(os.path.dirname(__file__), "../../apps/python/hybrid_octree.pyi")).read()
     declared = re.search(r"def render\(\n        self,\n        \*,\n(.*?)\*\*more", stub, re.S).group(1)
     names = set(re.findall(r"^\s+(\w+):", declared, re.M))
     table = {f["name"] for f in ho.frame_fields()}

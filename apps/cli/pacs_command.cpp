@@ -1,4 +1,4 @@
-#include "apps/pacs_command.h"
+#include "apps/cli/pacs_command.h"
 
 #include <CLI/CLI.hpp>
 

@@ -6,7 +6,7 @@
 #include <string>
 #include <vector>
 
-#include "apps/frame.h"
+#include "apps/cli/frame.h"
 
 namespace hyb::app {
 

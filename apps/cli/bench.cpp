@@ -1,5 +1,5 @@
-#include "apps/bench.h"
-#include "apps/ranks.h"
+#include "apps/cli/bench.h"
+#include "apps/ranks/ranks.h"
 
 #include <spawn.h>
 #include <sys/wait.h>
@@ -170,6 +170,101 @@ void BenchOptions::add(CLI::App* cmd) {
   cmd->add_flag("!--no-plot", plot, "skip the gnuplot plot");
 }
 
+namespace {
+
+// The epsilons the sweep chose from the view's nodal errors.
+void printEpsilons(const std::vector<double>& epsilons, std::ostream& out) {
+  if (epsilons.empty()) {
+    out << "epsilons: none (every nodal error is 0: each selection is the full resolution)\n";
+    return;
+  }
+  out << "epsilons";
+  for (const double e : epsilons) out << " " << e;
+  out << ": the smallest nodal errors whose selection holds at most 1/2, 1/4, ... of this view's full-resolution texels (up to 1/64)\n";
+}
+
+// A point's frame quality: the slice renderer at the point's epsilon, budget and blending.
+Quality sliceQuality(const Quality& base, const Point& p) {
+  Quality q = base;
+  q.renderer = Renderer::Slices;
+  q.epsilon = p.epsilon;
+  q.budgetMb = p.budgetMb;
+  q.budgetPercent = 0.0;
+  q.blend = p.blend;
+  q.progressive = 1;
+  return q;
+}
+
+// The sweep's table: one row per point.
+void writeTradeCsv(const std::string& path, const std::vector<Point>& points) {
+  writeFileAtomically(path, [&](std::ostream& s) {
+    s << "sweep,epsilon,budget_fraction,budget_mb,blend,bricks,textured_bricks,blended_bricks,texture_bytes,max_error,select_ms,frame_ms,"
+         "first_frame_ms,psnr_db,ssim,image\n";
+    for (const Point& p : points)
+      s << std::setprecision(6) << p.sweep << "," << p.epsilon << "," << p.budgetFraction << "," << p.budgetMb << "," << (p.blend ? "on" : "off")
+        << "," << p.bricks << "," << p.textured << "," << p.blended << "," << p.textureBytes << "," << p.maxError << "," << p.selectMs << ","
+        << p.frameMs << "," << p.firstFrameMs << "," << p.psnrDb << "," << p.ssim << "," << p.image << "\n";
+  });
+}
+
+// The summary: the full resolution's and each budget's trade, what a paged scene read, and whether
+// the trade only loses accuracy and bytes along each sweep.
+void printSummary(const std::vector<Point>& points, size_t budgets, double fullMb, double referenceMs, const Scene& scene, std::ostream& out) {
+  const Point& base = points[0];
+  out << std::setprecision(2) << "summary  full resolution: " << fullMb << " MB, " << std::setprecision(1) << base.frameMs << " ms, "
+      << std::setprecision(2) << base.psnrDb << " dB; reference " << std::setprecision(1) << referenceMs << " ms\n";
+  const size_t firstBudget = points.size() - 2 * budgets;
+  for (size_t i = 0; i < budgets; ++i) {
+    const Point &on = points[firstBudget + i], &off = points[firstBudget + budgets + i];
+    out << "  budget " << std::setprecision(4) << on.budgetFraction << ": " << std::setprecision(2) << base.frameMs / on.frameMs
+        << "x faster than full, " << on.psnrDb << " dB; blending costs " << std::setprecision(1) << 100.0 * (on.frameMs / off.frameMs - 1.0)
+        << " % frame time, " << 100.0 * (double(on.textureBytes) / double(std::max<uint64_t>(off.textureBytes, 1)) - 1.0)
+        << " % texture bytes, " << std::setprecision(2) << on.psnrDb - off.psnrDb << " dB, and removes steps of up to "
+        << std::setprecision(1) << on.seam << " between levels (data units)\n";
+  }
+  if (const auto& store = scene.knots) {
+    // What the paged scene read through its cache over the whole run.
+    const StoreCacheStats c = store->cacheStats();
+    out << std::setprecision(1) << std::fixed << "store    " << c.misses << " blocks read (" << double(c.bytesRead) / 1048576.0
+        << " MB compressed), " << c.hits << " from the cache, " << c.evicted << " evicted; the cache holds "
+        << double(c.bytesHeld) / 1048576.0 << " of " << double(c.limit) / 1048576.0 << " MB\n"
+        << std::defaultfloat;
+  }
+  // The trade should only lose accuracy and bytes along each sweep.
+  std::vector<TradePoint> epsilonSweep{{"full resolution", base.psnrDb, base.textureBytes}}, budgetSweep = epsilonSweep;
+  for (const Point& p : points) {
+    std::ostringstream label;
+    label << std::setprecision(6) << p.sweep << " " << (p.sweep == "epsilon" ? p.epsilon : p.budgetFraction);
+    if (p.sweep == "epsilon") epsilonSweep.push_back({label.str(), p.psnrDb, p.textureBytes});
+    if (p.sweep == "budget" && p.blend) budgetSweep.push_back({label.str(), p.psnrDb, p.textureBytes});
+  }
+  std::vector<std::string> breaks = monotonicityBreaks(epsilonSweep);
+  for (const std::string& b : monotonicityBreaks(budgetSweep)) breaks.push_back(b);
+  if (breaks.empty()) out << "  monotonic: PSNR and texture bytes fall as epsilon grows and as the budget shrinks (0.2 dB tolerance)\n";
+  for (const std::string& b : breaks) out << "  not monotonic: " << b << "\n";
+}
+
+// The plot of the table (gnuplot), written beside it.
+void writePlot(const BenchOptions& o, const Camera& camera, const std::string& dir, const std::vector<Point>& points, std::ostream& out) {
+  namespace fs = std::filesystem;
+  auto file = [&](const std::string& name) { return (fs::path(dir) / name).string(); };
+  std::error_code ec;
+  std::ostringstream title;
+  title << "hybrid-octree speed/accuracy: " << fs::path(o.render.input.path).filename().string() << ", " << camera.width << "x"
+        << camera.height << (camera.ortho ? ", orthographic" : ", perspective");
+  const std::string png = file("trade.png"), tmp = file(".trade.png.tmp");
+  writeFileAtomically(file("trade.gp"), [&](std::ostream& s) { s << plotScript(file("trade.csv"), tmp, title.str(), points); });
+  if (!runGnuplot(file("trade.gp"))) {
+    fs::remove(tmp, ec);
+    HYB_THROW(RuntimeError, file("trade.gp"), ": gnuplot failed or is not installed (apt-get install gnuplot-nox); the CSV is written");
+  }
+  fs::rename(tmp, png, ec);
+  if (ec) HYB_THROW(IoError, png, ": cannot write the plot (", ec.message(), ")");
+  out << "wrote    " << png << "\n";
+}
+
+}  // namespace
+
 int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   namespace fs = std::filesystem;
   // Bad lists or a bad volume leave no output directory behind: it is created last.
@@ -181,13 +276,7 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
   RenderJob job = prepareRender(o.render, out, err);
   if (o.epsilons.empty()) {
     epsilons = epsilonsOfTheView(*job.renderer, job.view, job.look, job.quality);
-    if (epsilons.empty()) {
-      out << "epsilons: none (every nodal error is 0: each selection is the full resolution)\n";
-    } else {
-      out << "epsilons";
-      for (const double e : epsilons) out << " " << e;
-      out << ": the smallest nodal errors whose selection holds at most 1/2, 1/4, ... of this view's full-resolution texels (up to 1/64)\n";
-    }
+    printEpsilons(epsilons, out);
   }
   std::error_code ec;
   const bool root = ranks().root();  // across MPI ranks, rank 0 writes the files
@@ -212,23 +301,13 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
 
   const size_t total = 1 + size_t(std::count_if(epsilons.begin(), epsilons.end(), [](double e) { return e > 0.0; })) + 2 * budgets.size();
   std::vector<Point> points;
-  auto qualityOf = [&](const Point& p) {
-    Quality q = job.quality;
-    q.renderer = Renderer::Slices;
-    q.epsilon = p.epsilon;
-    q.budgetMb = p.budgetMb;
-    q.budgetPercent = 0.0;
-    q.blend = p.blend;
-    q.progressive = 1;
-    return q;
-  };
   // The point's frames: the first packs and uploads the brick textures (and compiles the program);
   // the frames after it reuse them, and the fastest of those is the point's frame time.
   auto frames = [&](Point* p) {
     RenderedFrame f;
     for (int r = 0; r < o.repeat; ++r) {
       if (r == 0) job.renderer->dropTextures();
-      f = renderFrame(*job.renderer, job.view, job.look, qualityOf(*p), o.render.input.progress);
+      f = renderFrame(*job.renderer, job.view, job.look, sliceQuality(job.quality, *p), o.render.input.progress);
       const double ms = f.stats.renderMs;
       if (r == 0) {
         p->firstFrameMs = std::min(p->firstFrameMs, ms);
@@ -298,62 +377,10 @@ int runBench(const BenchOptions& o, std::ostream& out, std::ostream& err) {
 
   // The table and the plot.
   if (!root) return 0;
-  writeFileAtomically(file("trade.csv"), [&](std::ostream& s) {
-    s << "sweep,epsilon,budget_fraction,budget_mb,blend,bricks,textured_bricks,blended_bricks,texture_bytes,max_error,select_ms,frame_ms,"
-         "first_frame_ms,psnr_db,ssim,image\n";
-    for (const Point& p : points)
-      s << std::setprecision(6) << p.sweep << "," << p.epsilon << "," << p.budgetFraction << "," << p.budgetMb << "," << (p.blend ? "on" : "off")
-        << "," << p.bricks << "," << p.textured << "," << p.blended << "," << p.textureBytes << "," << p.maxError << "," << p.selectMs << ","
-        << p.frameMs << "," << p.firstFrameMs << "," << p.psnrDb << "," << p.ssim << "," << p.image << "\n";
-  });
+  writeTradeCsv(file("trade.csv"), points);
   out << "wrote    " << file("trade.csv") << "\n";
-  const Point& base = points[0];
-  out << std::setprecision(2) << "summary  full resolution: " << fullMb << " MB, " << std::setprecision(1) << base.frameMs << " ms, "
-      << std::setprecision(2) << base.psnrDb << " dB; reference " << std::setprecision(1) << referenceMs << " ms\n";
-  const size_t firstBudget = points.size() - 2 * budgets.size();
-  for (size_t i = 0; i < budgets.size(); ++i) {
-    const Point &on = points[firstBudget + i], &off = points[firstBudget + budgets.size() + i];
-    out << "  budget " << std::setprecision(4) << on.budgetFraction << ": " << std::setprecision(2) << base.frameMs / on.frameMs
-        << "x faster than full, " << on.psnrDb << " dB; blending costs " << std::setprecision(1) << 100.0 * (on.frameMs / off.frameMs - 1.0)
-        << " % frame time, " << 100.0 * (double(on.textureBytes) / double(std::max<uint64_t>(off.textureBytes, 1)) - 1.0)
-        << " % texture bytes, " << std::setprecision(2) << on.psnrDb - off.psnrDb << " dB, and removes steps of up to "
-        << std::setprecision(1) << on.seam << " between levels (data units)\n";
-  }
-  if (const auto& store = job.renderer->scene().knots) {
-    // What the paged scene read through its cache over the whole run.
-    const StoreCacheStats c = store->cacheStats();
-    out << std::setprecision(1) << std::fixed << "store    " << c.misses << " blocks read (" << double(c.bytesRead) / 1048576.0
-        << " MB compressed), " << c.hits << " from the cache, " << c.evicted << " evicted; the cache holds "
-        << double(c.bytesHeld) / 1048576.0 << " of " << double(c.limit) / 1048576.0 << " MB\n"
-        << std::defaultfloat;
-  }
-  // The trade should only lose accuracy and bytes along each sweep.
-  std::vector<TradePoint> epsilonSweep{{"full resolution", base.psnrDb, base.textureBytes}}, budgetSweep = epsilonSweep;
-  for (const Point& p : points) {
-    std::ostringstream label;
-    label << std::setprecision(6) << p.sweep << " " << (p.sweep == "epsilon" ? p.epsilon : p.budgetFraction);
-    if (p.sweep == "epsilon") epsilonSweep.push_back({label.str(), p.psnrDb, p.textureBytes});
-    if (p.sweep == "budget" && p.blend) budgetSweep.push_back({label.str(), p.psnrDb, p.textureBytes});
-  }
-  std::vector<std::string> breaks = monotonicityBreaks(epsilonSweep);
-  for (const std::string& b : monotonicityBreaks(budgetSweep)) breaks.push_back(b);
-  if (breaks.empty()) out << "  monotonic: PSNR and texture bytes fall as epsilon grows and as the budget shrinks (0.2 dB tolerance)\n";
-  for (const std::string& b : breaks) out << "  not monotonic: " << b << "\n";
-  if (o.plot) {
-    std::ostringstream title;
-    const Camera& camera = job.view.camera;
-    title << "hybrid-octree speed/accuracy: " << fs::path(o.render.input.path).filename().string() << ", " << camera.width << "x"
-          << camera.height << (camera.ortho ? ", orthographic" : ", perspective");
-    const std::string png = file("trade.png"), tmp = file(".trade.png.tmp");
-    writeFileAtomically(file("trade.gp"), [&](std::ostream& s) { s << plotScript(file("trade.csv"), tmp, title.str(), points); });
-    if (!runGnuplot(file("trade.gp"))) {
-      fs::remove(tmp, ec);
-      HYB_THROW(RuntimeError, file("trade.gp"), ": gnuplot failed or is not installed (apt-get install gnuplot-nox); the CSV is written");
-    }
-    fs::rename(tmp, png, ec);
-    if (ec) HYB_THROW(IoError, png, ": cannot write the plot (", ec.message(), ")");
-    out << "wrote    " << png << "\n";
-  }
+  printSummary(points, budgets.size(), fullMb, referenceMs, job.renderer->scene(), out);
+  if (o.plot) writePlot(o, job.view.camera, dir, points, out);
   return 0;
 }
 

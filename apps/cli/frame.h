@@ -23,6 +23,7 @@
 #include "render/scene_renderer.h"
 #include "render/transfer_function.h"
 #include "volume/file_util.h"
+#include "volume/number_text.h"
 #include "volume/plane_source.h"
 #include "volume/progress.h"
 #include "volume/volume_io.h"
@@ -33,14 +34,6 @@ using Clock = std::chrono::steady_clock;
 /// Milliseconds since @p t0.
 inline double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
 
-/// Whether @p x is finite as a float too (an isovalue or ε beyond 3.4e38 would become infinite).
-inline bool isFloat(double x) { return std::abs(x) <= double(std::numeric_limits<float>::max()); }
-
-/// Parses "a,b,c" into three finite numbers. @throw ValueError naming @p flag.
-glm::dvec3 parseVec3(const std::string& text, const std::string& flag);
-/// Parses @p n comma-separated finite numbers (any count ≥ 1 when @p n is 0).
-/// @throw ValueError naming @p flag and @p expected.
-std::vector<double> parseNumbers(const std::string& text, const std::string& flag, size_t n, const char* expected);
 /// Adds flag @p name taking on|off into @p field; anything else is refused naming the flag.
 CLI::Option* addSwitch(CLI::App* cmd, const std::string& name, bool* field, const std::string& help);
 
@@ -105,20 +98,6 @@ uint64_t sceneMemoryBytes(const std::optional<double>& memoryMb);
 /// what it did on @p out and warnings (the readers', an isovalue outside the data) on @p err.
 /// @p keepTextures: brick textures are kept for later frames (SceneRenderer::Options::keepTextures).
 RenderJob prepareRender(const RenderOptions& o, std::ostream& out, std::ostream& err, bool keepTextures = true);
-
-/// An isosurface as `export` writes it, in patient coordinates (LPS mm): @p kind dmc (DiscMC),
-/// octree (the Surface Octree's, coplanar polygons merged) or mc (classic Marching Cubes), capped on
-/// the volume's faces when @p closed, with gradient normals when @p normals; and, when
-/// @p againstMc, classic Marching Cubes' surface beside it (`export --check` compares them; not
-/// made otherwise: it doubles the extraction's time and memory). Prints what it made on @p out.
-/// @throw ValueError for another kind, or a scene without its samples.
-struct ExportedSurface {
-  TriangleMesh mesh, mc;
-  size_t polygons = 0;
-  double ms = 0, mcMs = 0;
-};
-ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string& kind, bool closed, bool normals, bool againstMc,
-                                const Progress* progress, std::ostream& out);
 
 /// One line on the surface of a frame that built or reconstructed it (empty when it was kept).
 std::string surfaceLine(const FrameStats& stats, float iso, bool fromScene);

@@ -1,4 +1,4 @@
-#include "apps/viewer_protocol.h"
+#include "apps/viewer/viewer_protocol.h"
 
 #include <nlohmann/json.hpp>
 

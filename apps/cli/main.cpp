@@ -1,11 +1,11 @@
-// hybrid-octree: the command-line entry point; all logic is in apps/cli.cpp.
+// hybrid-octree: the command-line entry point; all logic is in apps/cli/cli.cpp.
 #include <cstdio>
 #include <iostream>
 #include <sstream>
 #include <string>
 
-#include "apps/cli.h"
-#include "apps/ranks.h"
+#include "apps/cli/cli.h"
+#include "apps/ranks/ranks.h"
 
 int main(int argc, char** argv) {
   std::setvbuf(stdout, nullptr, _IOLBF, 0);  // piped output arrives line by line, as it happens

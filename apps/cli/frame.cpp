@@ -1,4 +1,4 @@
-#include "apps/frame.h"
+#include "apps/cli/frame.h"
 
 #include <chrono>
 #include <cmath>
@@ -7,7 +7,7 @@
 #include <ostream>
 #include <sstream>
 
-#include "apps/outputs.h"
+#include "apps/cli/outputs.h"
 #include "hybrid_octree/surface_octree.h"
 #include "render/bvh.h"
 #include "surface/mesh_ops.h"
@@ -18,24 +18,6 @@
 #include <nlohmann/json.hpp>
 
 namespace hyb::app {
-
-std::vector<double> parseNumbers(const std::string& text, const std::string& flag, size_t n, const char* expected) {
-  std::string t = text;
-  for (char& c : t)
-    if (c == ',') c = ' ';
-  std::istringstream s(t);
-  std::vector<double> x;
-  double e = 0;
-  while (s >> e && std::isfinite(e)) x.push_back(e);
-  if (!s.eof() || x.empty() || (n > 0 && x.size() != n)) HYB_THROW(ValueError, flag, " '", text, "' invalid (expected ", expected, ")");
-  return x;
-}
-
-
-glm::dvec3 parseVec3(const std::string& text, const std::string& flag) {
-  const std::vector<double> x = parseNumbers(text, flag, 3, "three finite numbers x,y,z");
-  return {x[0], x[1], x[2]};
-}
 
 void VolumeInput::add(CLI::App* cmd, bool scenes) {
   cmd->add_option("volume", path,
@@ -104,24 +86,18 @@ void printWarnings(const Volume& v, std::ostream& err) {
 
 Scene loadOrBuild(const VolumeInput& in, std::ostream& out, std::ostream& err, double* buildMs, const VolumeOctreeOptions& options,
                   const SceneLoadOptions& load) {
-  const auto t0 = Clock::now();
-  Scene scene;
-  if (!in.rawLayout() && isSceneFile(in.path)) {
-    if (!in.series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", in.path, " is a scene file)");
-    scene = loadScene(in.path, load);
-    *buildMs = 0.0;
-    out << "loaded scene " << in.path << " in " << std::fixed << std::setprecision(1) << msSince(t0) << " ms\n";
-    return scene;
+  const std::optional<RawLayout> raw = in.rawLayout();
+  if (!raw && !in.series.empty() && isSceneFile(in.path)) HYB_THROW(ValueError, "--series needs a DICOM directory (", in.path, " is a scene file)");
+  setDicomWebAuthFile(in.pacsAuthFile);
+  OpenedScene o = openScene(SceneSource{in.path, raw ? &*raw : nullptr, in.series, in.progress}, options, load);
+  *buildMs = o.buildMs;
+  if (o.loaded) {
+    out << "loaded scene " << in.path << " in " << std::fixed << std::setprecision(1) << o.readMs << " ms\n";
+    return std::move(o.scene);
   }
-  scene.volume = in.read(err);
-  const auto t1 = Clock::now();
-  VolumeOctreeOptions withProgress = options;
-  withProgress.progress = in.progress;
-  scene.octree = VolumeOctree::build(scene.volume, withProgress);
-  *buildMs = msSince(t1);
-  out << "read " << in.path << " in " << std::fixed << std::setprecision(1) << msSince(t0) - *buildMs
-      << " ms, built volume octree in " << *buildMs << " ms\n";
-  return scene;
+  printWarnings(o.scene.volume, err);
+  out << "read " << in.path << " in " << std::fixed << std::setprecision(1) << o.readMs << " ms, built volume octree in " << o.buildMs << " ms\n";
+  return std::move(o.scene);
 }
 
 CLI::Option* addSwitch(CLI::App* cmd, const std::string& name, bool* field, const std::string& help) {

@@ -1,4 +1,4 @@
-#include "apps/viewer_files.h"
+#include "apps/viewer/viewer_files.h"
 
 #include <algorithm>
 #include <cstdio>

@@ -1,7 +1,7 @@
 // The Python module `hybrid_octree` (pybind11): numpy volumes in without copying their samples,
 // images and meshes out, through the engine the command line uses. Rendering options are the
 // command line's flags as keyword arguments, parsed and checked by the same code, so a mistake gets
-// the command line's message. README "Python"; the API with types: apps/hybrid_octree.pyi.
+// the command line's message. README "Python"; the API with types: apps/python/hybrid_octree.pyi.
 #include <nlohmann/json.hpp>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
@@ -16,11 +16,15 @@
 #include <thread>
 #include <sstream>
 
-#include "apps/frame.h"
 #include "hybrid_octree/hybrid_io.h"
+#include "hybrid_octree/surface_export.h"
+#include "render/frame_settings.h"
+#include "render/scene_renderer.h"
 #include "render/orientation_marker.h"
 #include "surface/mesh_io.h"
 #include "volume/error.h"
+#include "volume/file_util.h"
+#include "volume/number_text.h"
 #include "volume/reader_util.h"
 
 namespace py = pybind11;
@@ -471,10 +475,9 @@ class PyScene {
   void exportMesh(const py::object& pathArg, const py::object& iso, const py::object& kind, const py::object& closed, const py::object& normals) {
     const std::string path = spelled("path", pathArg, Form::Word);
     const MeshRequest r(iso, kind, closed, normals);
-    const std::string ext = fileExtension(path);
-    if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".off")
-      HYB_THROW(ValueError, "'", path, "' has an unknown extension (expected .ply, .obj, .stl or .off)");
-    if (r.normals && ext != ".ply" && ext != ".obj") HYB_THROW(ValueError, "normals need a .ply or .obj file (STL keeps facet normals, OFF none)");
+    const MeshFormat* format = meshFormatOf(path);
+    if (!format) HYB_THROW(ValueError, "'", path, "' has an unknown extension (expected ", meshExtensionsText(), ")");
+    if (r.normals && !format->normals) HYB_THROW(ValueError, "normals need a ", meshExtensionsText(true), " file (STL keeps facet normals, OFF none)");
     const ExportedSurface e = exported(r);
     py::gil_scoped_release release;
     writeMesh(path, e.mesh, MeshWriteOptions{r.normals, "LPS"});
@@ -525,7 +528,7 @@ class PyScene {
     std::ostringstream out;
     py::gil_scoped_release release;
     const Busy busy(*this);
-    return exportedSurface(mRenderer->scene(), r.iso, r.kind, r.closed, r.normals, false, nullptr, out);
+    return exportSurface(mRenderer->scene(), ExportRequest{r.iso, r.kind, r.closed, r.normals, false}, nullptr, out);
   }
 
   static TransferFunction transferFunctionOf(const py::handle& v) {
@@ -586,18 +589,18 @@ std::unique_ptr<PyScene> sceneFromArray(const py::object& array, const py::objec
   return s;
 }
 
-std::unique_ptr<PyScene> openScene(const py::object& path) {
-  VolumeInput in;
-  in.path = spelled("path", path, Form::Word);
-  std::ostringstream out, err;
-  double buildMs = 0;
-  Scene scene;
+std::unique_ptr<PyScene> openPath(const py::object& pathArg) {
+  const std::string path = spelled("path", pathArg, Form::Word);
+  OpenedScene o;
   {
     py::gil_scoped_release release;
-    scene = loadOrBuild(in, out, err, &buildMs);
+    SceneSource source;
+    source.path = path;
+    o = openScene(source);
   }
-  warnLines(err.str());
-  return std::make_unique<PyScene>(std::move(scene), in.path);
+  if (!o.loaded)
+    for (const std::string& w : o.scene.volume.warnings()) warnLines("hybrid-octree: warning: " + w + "\n");
+  return std::make_unique<PyScene>(std::move(o.scene), path);
 }
 
 }  // namespace
@@ -628,7 +631,7 @@ PYBIND11_MODULE(hybrid_octree, m) {
       .def("surface", &PyScene::surface, py::arg("iso"), py::arg("kind") = "octree", py::arg("closed") = false, py::arg("normals") = false)
       .def("export", &PyScene::exportMesh, py::arg("path"), py::arg("iso"), py::arg("kind") = "dmc", py::arg("closed") = false,
            py::arg("normals") = false);
-  m.def("open", &openScene, py::arg("path"));
+  m.def("open", &openPath, py::arg("path"));
   m.def(
       "frame_fields", [] { return py::module_::import("json").attr("loads")(hyb::fieldsJson(hyb::kPython).dump()); },
       "render()'s keywords as the one table of a frame's settings holds them: name, kind, range, default, unit, help");

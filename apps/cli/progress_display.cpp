@@ -1,4 +1,4 @@
-#include "apps/progress_display.h"
+#include "apps/cli/progress_display.h"
 
 #include <cmath>
 #include <iomanip>

@@ -1,12 +1,12 @@
-#include "apps/cli.h"
+#include "apps/cli/cli.h"
 
-#include "apps/bench.h"
-#include "apps/frame.h"
-#include "apps/ranks.h"
-#include "apps/outputs.h"
-#include "apps/pacs_command.h"
-#include "apps/progress_display.h"
-#include "apps/viewer_server.h"
+#include "apps/cli/bench.h"
+#include "apps/cli/frame.h"
+#include "apps/ranks/ranks.h"
+#include "apps/cli/outputs.h"
+#include "apps/cli/pacs_command.h"
+#include "apps/cli/progress_display.h"
+#include "apps/viewer/viewer_server.h"
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
@@ -28,6 +28,7 @@
 
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/selection.h"
+#include "hybrid_octree/surface_export.h"
 #include "hybrid_octree/volume_octree.h"
 #include "render/orientation_marker.h"
 #include "render/raycast.h"
@@ -69,18 +70,6 @@ struct InfoOptions {
   int bins = 24;
   std::string validate() const { return bins < 1 || bins > 4096 ? "--bins must be in 1..4096" : ""; }
 };
-
-// One line on a Surface Octree, with its build time when it was just built.
-std::string surfaceSummary(const SurfaceOctree& so, std::optional<double> buildMs) {
-  std::ostringstream s;
-  size_t planes = 0;
-  for (const SurfaceNode& n : so.nodes()) planes += n.planeCount;
-  s << "surface  iso " << so.isovalue() << ": " << so.cellCount() << " DiscMC cells merged into " << so.nodes().size()
-    << " terminal nodes (" << planes << " plane ids, " << so.bytesUsed() << " bytes)";
-  if (buildMs) s << ", " << std::fixed << std::setprecision(1) << *buildMs << " ms";
-  else s << " (from the scene)";
-  return s.str() + "\n";
-}
 
 // A DICOM folder's patients, studies and series, the default marked, and what was skipped.
 std::string dicomListingText(const DicomListing& l) {
@@ -132,7 +121,7 @@ int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
     out << "store    " << store.levels().size() << " spacings (1.." << store.levels().back().spacing << ") in blocks of " << kStoreBlock
         << "^3 knots, " << formatBytes(store.compressedBytes()) << " compressed (" << std::fixed << std::setprecision(2)
         << double(store.compressedBytes()) / stored << "x the samples)\n";
-    out << (scene.surface ? surfaceSummary(*scene.surface, std::nullopt) : "surface  none (build --iso adds one)\n");
+    out << (scene.surface ? surfaceOctreeLine(*scene.surface, std::nullopt) : "surface  none (build --iso adds one)\n");
     // Every sample, a block at a time: the samples are never held.
     const Volume& v = scene.volume;
     out << "histogram (" << o.bins << " bins)\n"
@@ -179,7 +168,7 @@ int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
   if (o.iso) {
     const auto t1 = Clock::now();
     so = SurfaceOctree::build(*planes, t, float(*o.iso), SurfaceOctreeOptions{kMaxNodePlanes, 0, o.input.progress});
-    out << surfaceSummary(*so, msSince(t1));
+    out << surfaceOctreeLine(*so, msSince(t1));
   }
   saveScene(o.output, v, t, store, so ? &*so : nullptr);
   out << "wrote    " << o.output << "\n";
@@ -214,6 +203,83 @@ void printSelection(const RenderJob& job, const RenderedFrame& f, std::ostream& 
   for (const auto& [ratio, e] : perLevel) out << "  voxel:texel " << ratio << ":1  " << e.first << " bricks, " << e.second << " texels\n";
 }
 
+// The frames of a render run: the last, and its times (--repeat: the fastest and the first).
+struct RenderRun {
+  RenderedFrame frame;
+  double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0, tableMs = 0;
+};
+
+// The run's "render" line (and its classification's): what the frame drew and in what time.
+void printRenderLines(const RenderJob& job, const RenderRun& run, int repeat, std::ostream& out) {
+  const bool slices = job.quality.renderer == Renderer::Slices;
+  const int pixels = job.view.camera.width * job.view.camera.height;
+  const double renderMs = run.renderMs, firstMs = run.firstMs, tableMs = run.tableMs;
+  const FrameStats& st = run.frame.stats;
+  std::ostringstream timing;
+  timing << std::fixed << std::setprecision(1);
+  if (repeat > 1) timing << "first frame " << firstMs << " ms, best of " << repeat << " ";
+  timing << renderMs << " ms";
+  const glm::ivec2 size(job.view.camera.width, job.view.camera.height);
+  if (slices) {
+    out << "render   slices " << size.x << "x" << size.y << ", " << st.slices.bricks << " textured bricks (" << st.slices.blendedBricks << " blended), "
+        << st.slices.textureBytes << " texture bytes, " << st.slices.slices << " slices, " << st.slices.slabPolygonDraws << " slab polygon draws";
+    if (st.slices.unseenTriangles > 0) out << ", " << st.slices.unseenTriangles << " surface triangles between pixel centres left out";
+    out << ", " << timing.str() << "\n";
+  } else {
+    out << "render   raycast " << size.x << "x" << size.y << ", " << st.rays.rays << " rays (" << std::setprecision(1)
+        << 100.0 * double(st.rays.rays) / pixels << " % of the pixels), " << st.rays.samples << " samples, " << st.rays.skippedLeaves
+        << " empty-space skips, " << st.rays.surfaceHits << " surface crossings, " << timing.str() << "\n";
+  }
+  if (job.quality.classification == Classification::PreIntegrated)
+    out << "classify pre-integrated, table made in " << std::fixed << std::setprecision(1) << tableMs << " ms\n";
+}
+
+// --stats: the frame's selection, counts and times as JSON.
+std::string statsJson(const RenderJob& job, const RenderRun& run, const FrameStats& surface, const std::string& ranksJson) {
+  const bool slices = job.quality.renderer == Renderer::Slices;
+  const FrameStats& st = run.frame.stats;
+  const double renderMs = run.renderMs, firstMs = run.firstMs, tableMs = run.tableMs;
+  const Selection& sel = run.frame.selection;
+  nlohmann::ordered_json j;
+  j["renderer"] = slices ? "slices" : "raycast";
+  j["nodes_selected"] = sel.bricks.size();
+  j["nodes_hidden"] = std::count_if(sel.bricks.begin(), sel.bricks.end(), [](const Brick& b) { return b.hidden; });
+  j["texels"] = sel.texels;
+  j["blended_bricks"] = sel.blendedBricks;
+  j["texture_bytes"] = slices ? st.slices.textureBytes : sel.texels * bytesPerTexel(job.quality.texelBits);
+  j["slices"] = st.slices.slices;
+  j["surface_polygons"] = st.surfacePolygons;
+  j["surface_triangles"] = st.surfaceTriangles;
+  j["surface_spacing"] = st.surfaceSpacing;
+  j["slab_polygon_draws"] = st.slices.slabPolygonDraws;
+  j["unseen_triangles"] = st.slices.unseenTriangles;
+  j["fragments"] = st.slices.fragments;
+  j["shell_bricks"] = st.slices.shellBricks;
+  j["cut_polygons"] = st.slices.cutPolygons;
+  j["cut_line_segments"] = st.slices.cutLineSegments;
+  j["build_ms"] = job.buildMs + surface.surfaceBuildMs;
+  j["surface_polygons_ms"] = surface.surfacePolygonsMs;
+  j["select_ms"] = st.selectMs;
+  j["render_ms"] = renderMs;
+  j["first_render_ms"] = firstMs;
+  j["classification"] = job.quality.classification == Classification::PreIntegrated ? "preintegrated" : "post";
+  j["preintegration_ms"] = tableMs;
+  j["samples"] = st.rays.samples;
+  j["rays"] = st.rays.rays;
+  j["epsilon"] = job.quality.epsilon;
+  j["max_nodal_error_used"] = sel.maxError;
+  j["budget_met"] = sel.budgetMet;
+  if (const auto& store = job.renderer->scene().knots) {
+    // What the paged scene read: blocks from the file, from the cache, and what the cache holds.
+    const StoreCacheStats c = store->cacheStats();
+    j["store"] = {{"blocks_read", c.misses}, {"bytes_read", c.bytesRead}, {"cache_hits", c.hits}, {"cache_bytes", c.bytesHeld},
+                  {"cache_limit", c.limit}, {"evicted", c.evicted}};
+  }
+  if (!ranksJson.empty()) j["ranks"] = nlohmann::ordered_json::parse(ranksJson);
+  j["camera"] = nlohmann::ordered_json::parse(cameraJson(job.view.camera));
+  return j.dump(2);
+}
+
 int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   // One frame keeps no brick texture beyond its draw; repeated frames reuse them.
   RenderJob job = prepareRender(o, out, err, o.repeat > 1 || o.settings.quality.progressive > 1);
@@ -243,8 +309,8 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
           << " ms -> " << path << "\n";
   };
   // --repeat: the same view again; brick textures are uploaded once (as an interactive viewer would).
-  RenderedFrame frame;
-  double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0, tableMs = 0;
+  RenderRun run;
+  RenderedFrame& frame = run.frame;
   for (int r = 0; r < o.repeat; ++r) {
     const auto f0 = Clock::now();
     frame = job.renderer->render(job.view, job.look, job.quality, r == 0 && job.quality.progressive > 1 ? onLevel : LevelCallback{});
@@ -264,79 +330,25 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
       if (slices && !frame.selection.budgetMet)
         err << "hybrid-octree: warning: --budget " << o.settings.budget << (job.quality.budgetPercent > 0 ? "" : " MB") << " cannot be met; using "
             << frame.selection.texels << " texels\n";
-      firstMs = frame.stats.renderMs;
-      tableMs = frame.stats.preintegrationMs;
+      run.firstMs = frame.stats.renderMs;
+      run.tableMs = frame.stats.preintegrationMs;
     }
-    renderMs = std::min(renderMs, frame.stats.renderMs);
+    run.renderMs = std::min(run.renderMs, frame.stats.renderMs);
   }
   std::string ranksJson;
   if (rankFrame) {
     out << rankFrame->report(&ranksJson);
     if (!ranks().root()) return 0;  // rank 0 writes the frame
   }
-  const FrameStats& st = frame.stats;
-  std::ostringstream timing;
-  timing << std::fixed << std::setprecision(1);
-  if (o.repeat > 1) timing << "first frame " << firstMs << " ms, best of " << o.repeat << " ";
-  timing << renderMs << " ms";
-  const glm::ivec2 size(job.view.camera.width, job.view.camera.height);
-  if (slices) {
-    out << "render   slices " << size.x << "x" << size.y << ", " << st.slices.bricks << " textured bricks (" << st.slices.blendedBricks << " blended), "
-        << st.slices.textureBytes << " texture bytes, " << st.slices.slices << " slices, " << st.slices.slabPolygonDraws << " slab polygon draws";
-    if (st.slices.unseenTriangles > 0) out << ", " << st.slices.unseenTriangles << " surface triangles between pixel centres left out";
-    out << ", " << timing.str() << "\n";
-  } else {
-    out << "render   raycast " << size.x << "x" << size.y << ", " << st.rays.rays << " rays (" << std::setprecision(1)
-        << 100.0 * double(st.rays.rays) / pixels << " % of the pixels), " << st.rays.samples << " samples, " << st.rays.skippedLeaves
-        << " empty-space skips, " << st.rays.surfaceHits << " surface crossings, " << timing.str() << "\n";
-  }
-  if (job.quality.classification == Classification::PreIntegrated)
-    out << "classify pre-integrated, table made in " << std::fixed << std::setprecision(1) << tableMs << " ms\n";
-  Image image = std::move(frame.image);
+  printRenderLines(job, run, o.repeat, out);
+  Image image = std::move(run.frame.image);
   if (o.settings.marker) drawOrientationMarker(job.view.camera, &image);
   if (job.quality.progressive > 1)
     outputs.write(progressivePath(o.output, job.quality.progressive), [&](const std::string& to) { writePng(to, image, job.background); });
   outputs.write(o.output, [&](const std::string& to) { writePng(to, image, job.background); });
   if (!o.stats.empty()) {
-    const Selection& sel = frame.selection;
-    nlohmann::ordered_json j;
-    j["renderer"] = slices ? "slices" : "raycast";
-    j["nodes_selected"] = sel.bricks.size();
-    j["nodes_hidden"] = std::count_if(sel.bricks.begin(), sel.bricks.end(), [](const Brick& b) { return b.hidden; });
-    j["texels"] = sel.texels;
-    j["blended_bricks"] = sel.blendedBricks;
-    j["texture_bytes"] = slices ? st.slices.textureBytes : sel.texels * bytesPerTexel(job.quality.texelBits);
-    j["slices"] = st.slices.slices;
-    j["surface_polygons"] = st.surfacePolygons;
-    j["surface_triangles"] = st.surfaceTriangles;
-    j["surface_spacing"] = st.surfaceSpacing;
-    j["slab_polygon_draws"] = st.slices.slabPolygonDraws;
-    j["unseen_triangles"] = st.slices.unseenTriangles;
-    j["fragments"] = st.slices.fragments;
-    j["shell_bricks"] = st.slices.shellBricks;
-    j["cut_polygons"] = st.slices.cutPolygons;
-    j["cut_line_segments"] = st.slices.cutLineSegments;
-    j["build_ms"] = job.buildMs + surface.surfaceBuildMs;
-    j["surface_polygons_ms"] = surface.surfacePolygonsMs;
-    j["select_ms"] = st.selectMs;
-    j["render_ms"] = renderMs;
-    j["first_render_ms"] = firstMs;
-    j["classification"] = job.quality.classification == Classification::PreIntegrated ? "preintegrated" : "post";
-    j["preintegration_ms"] = tableMs;
-    j["samples"] = st.rays.samples;
-    j["rays"] = st.rays.rays;
-    j["epsilon"] = job.quality.epsilon;
-    j["max_nodal_error_used"] = sel.maxError;
-    j["budget_met"] = sel.budgetMet;
-    if (const auto& store = job.renderer->scene().knots) {
-      // What the paged scene read: blocks from the file, from the cache, and what the cache holds.
-      const StoreCacheStats c = store->cacheStats();
-      j["store"] = {{"blocks_read", c.misses}, {"bytes_read", c.bytesRead}, {"cache_hits", c.hits}, {"cache_bytes", c.bytesHeld},
-                    {"cache_limit", c.limit}, {"evicted", c.evicted}};
-    }
-    if (!ranksJson.empty()) j["ranks"] = nlohmann::ordered_json::parse(ranksJson);
-    j["camera"] = nlohmann::ordered_json::parse(cameraJson(job.view.camera));
-    outputs.write(o.stats, [&](const std::string& to) { writeFileAtomically(to, [&](std::ostream& s) { s << j.dump(2) << "\n"; }); });
+    const std::string text = statsJson(job, run, surface, ranksJson);
+    outputs.write(o.stats, [&](const std::string& to) { writeFileAtomically(to, [&](std::ostream& s) { s << text << "\n"; }); });
   }
   outputs.commit();
   out << "wrote    " << o.output << "\n";
@@ -355,14 +367,12 @@ struct ExportOptions {
     if (!iso) return "--iso missing (expected the isovalue in data units)";
     if (memoryMb && !(*memoryMb >= 1.0 && *memoryMb <= 1e9)) return "--memory must be megabytes in [1, 1e9]";
     if (!isFloat(*iso)) return "--iso must be a finite number within the float range (|x| <= 3.4e38)";
-    if (output.empty()) return "-o missing (expected mesh.ply, .obj, .stl or .off)";
-    const std::string ext = fileExtension(output);
-    if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".off")
-      return "-o '" + output + "' has an unknown extension (expected .ply, .obj, .stl or .off)";
-    if (normals && ext != ".ply" && ext != ".obj") return "--normals needs a .ply or .obj file (STL keeps facet normals, OFF none)";
+    if (output.empty()) return "-o missing (expected mesh" + meshExtensionsText() + ")";
+    const MeshFormat* format = meshFormatOf(output);
+    if (!format) return "-o '" + output + "' has an unknown extension (expected " + meshExtensionsText() + ")";
+    if (normals && !format->normals) return "--normals needs a " + meshExtensionsText(true) + " file (STL keeps facet normals, OFF none)";
     if (std::string e = outputsError({{output, "-o"}}, {input.path}); !e.empty()) return e;
-    if (surface != "dmc" && surface != "mc" && surface != "octree")
-      return "--surface '" + surface + "' invalid (expected dmc, octree or mc)";
+    if (!isSurfaceKind(surface)) return "--surface '" + surface + "' invalid (expected " + kSurfaceKindsText + ")";
     return "";
   }
 };
@@ -377,75 +387,6 @@ std::string checkLine(const MeshCheck& c, double ms) {
          ", " + time.str() + " s\n";
 }
 
-}  // namespace
-
-ExportedSurface exportedSurface(const Scene& scene, float iso, const std::string& kind, bool closed, bool normals, bool againstMc,
-                                const Progress* progress, std::ostream& out) {
-  if (kind != "dmc" && kind != "mc" && kind != "octree") HYB_THROW(ValueError, "surface kind '", kind, "' invalid (expected dmc, octree or mc)");
-  if (!scene.volume.hasSamples() && (kind != "octree" || closed || againstMc))
-    HYB_THROW(ValueError, "the ", kind, closed ? " closed" : "", " surface of a scene read paged needs its samples (load it whole)");
-  // Closed: the volume padded by one sample well below the isovalue on every face, so the surface
-  // is capped where it meets them (half a voxel outside the data, DiscMC's midpoints).
-  std::optional<Volume> padded;
-  std::optional<VolumeOctree> paddedOctree;
-  if (closed) {
-    const Volume& v = scene.volume;
-    padded = paddedVolume(v, std::min(v.minValue(), iso) - std::max(1.0f, v.maxValue() - v.minValue()));
-    paddedOctree = VolumeOctree::build(*padded, VolumeOctreeOptions{8, true, progress});
-  }
-  const Volume& v = closed ? *padded : scene.volume;
-  const VolumeOctree& octree = closed ? *paddedOctree : scene.octree;
-  const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
-  ExportedSurface e;
-  auto t0 = Clock::now();
-  if (kind == "mc" || againstMc) {
-    e.mc = extractMarchingCubes(v, iso, blocks);
-    scaleToMillimetres(&e.mc, v.spacing());
-    e.mcMs = msSince(t0);
-  }
-  t0 = Clock::now();
-  if (kind == "mc") {
-    if (againstMc) {
-      e.mesh = e.mc;
-    } else {
-      e.mesh = std::move(e.mc);
-      e.mc = TriangleMesh{};
-    }
-    e.polygons = e.mesh.triangles.size();
-  } else if (kind == "dmc") {
-    const DiscreteMesh d = extractDiscMC(v, iso, blocks);
-    e.polygons = d.faceCount();
-    e.mesh = toTriangleMesh(d, v.spacing());
-  } else {
-    const bool stored = !closed && scene.surface && scene.surface->isovalue() == iso;
-    const auto ts = Clock::now();
-    // A paged scene's is extracted through its cache, a leaf at a time.
-    const SurfaceOctree so = closed ? SurfaceOctree::build(v, octree, iso) : sceneSurface(scene, iso, progress);
-    out << surfaceSummary(so, stored ? std::nullopt : std::optional<double>(msSince(ts)));
-    const DiscreteMesh d = so.reconstruct(kMaxDim, progress);  // one mesh: merge coplanar polygons across bricks too
-    e.polygons = d.faceCount();
-    e.mesh = fineMeshToTriangles(d, v.spacing());
-  }
-  if (normals) {
-    if (closed)
-      setGradientNormals(v, &e.mesh);
-    else
-      setSceneNormals(scene, &e.mesh);  // a paged scene's through its cache, the same normals
-  }
-  // Patient coordinates (LPS mm), as the volume's own.
-  toPatientSpace(v.frame(), &e.mesh);
-  toPatientSpace(v.frame(), &e.mc);
-  e.ms = kind == "mc" ? e.mcMs : msSince(t0);
-  out << std::fixed << std::setprecision(1) << "surface  " << kind << " at iso " << iso << (closed ? " (closed)" : "") << ": " << e.polygons
-      << " polygons, " << e.mesh.triangles.size() << " triangles, " << e.mesh.vertices.size() << " vertices, " << e.ms << " ms\n";
-  if (againstMc)
-    out << "vs mc    " << e.mc.triangles.size() << " triangles in " << e.mcMs << " ms; triangles ratio " << std::setprecision(3)
-        << (e.mc.triangles.empty() ? 1.0 : double(e.mesh.triangles.size()) / double(e.mc.triangles.size())) << "\n";
-  return e;
-}
-
-namespace {
-
 int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   double buildMs = 0;
   const uint64_t memoryBytes = sceneMemoryBytes(o.memoryMb);
@@ -454,7 +395,7 @@ int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   if (iso <= scene.volume.minValue() || iso > scene.volume.maxValue())
     err << "hybrid-octree: warning: --iso " << iso << " is outside the data's crossing range (" << scene.volume.minValue() << ", "
         << scene.volume.maxValue() << "]: the surface is empty\n";
-  const ExportedSurface e = exportedSurface(scene, iso, o.surface, o.closed, o.normals, o.check, o.input.progress, out);
+  const ExportedSurface e = exportSurface(scene, ExportRequest{iso, o.surface, o.closed, o.normals, o.check}, o.input.progress, out);
   const TriangleMesh& mesh = e.mesh;
   const TriangleMesh& mc = e.mc;
   const Volume& v = scene.volume;
@@ -591,6 +532,82 @@ int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
 
 }  // namespace
 
+// The subcommands and their options, as the command line fills them (the options' flags point
+// into it: made in place, never copied).
+struct Commands {
+  InfoOptions info;
+  BuildOptions build;
+  RenderOptions render;
+  BenchOptions bench;
+  ExportOptions exportOpts;
+  CompareOptions compare;
+  ViewOptions view;
+  CLI::App *infoCmd = nullptr, *buildCmd = nullptr, *renderCmd = nullptr, *benchCmd = nullptr, *exportCmd = nullptr, *compareCmd = nullptr, *viewCmd = nullptr;
+
+  Commands() = default;
+  Commands(const Commands&) = delete;
+  Commands& operator=(const Commands&) = delete;
+
+  // info, build, render and bench: the commands that read a volume and build its octree.
+  void addScenes(CLI::App* app) {
+    infoCmd = app->add_subcommand("info", "print dims, spacing, type, value range and a histogram");
+    info.input.add(infoCmd);
+    infoCmd->add_option("--bins", info.bins, "histogram bins")->capture_default_str();
+
+    buildCmd = app->add_subcommand("build", "build the Hybrid Octree once and save it as a scene file");
+    build.input.add(buildCmd, false);
+    buildCmd->add_option("-o,--output", build.output, "scene file to write (.hoct)");
+    buildCmd->add_option("--iso", build.iso, "isovalue of the Surface Octree to build (data units; none = volume only)");
+    buildCmd->add_option("--leaf-edge", build.leafEdge, "edge in voxels of the smallest octree nodes")->capture_default_str();
+    addSwitch(buildCmd, "--prefilter", &build.prefilter,
+              "coarse levels (texels 4+ voxels apart) hold the data smoothed by their tent filter (default on)");
+
+    renderCmd = app->add_subcommand("render", "render one image (slice renderer or reference ray tracer)");
+    render.add(renderCmd);
+    renderCmd->add_option("-o,--output", render.output, "PNG to write");
+    renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
+    renderCmd->add_option("--repeat", render.repeat, "render the view N times, brick textures kept; report the fastest frame")
+        ->capture_default_str();
+
+    benchCmd = app->add_subcommand("bench", "speed/accuracy sweep over epsilon and budget: CSV, plot and images");
+    bench.add(benchCmd);
+  }
+
+  // export, compare and view.
+  void addOthers(CLI::App* app) {
+    exportCmd = app->add_subcommand("export", "write the isosurface as a mesh in millimetres");
+    exportOpts.input.add(exportCmd);
+    exportCmd->add_option("--iso", exportOpts.iso, "isovalue in data units (samples >= iso are inside)");
+    exportCmd->add_option("-o,--output", exportOpts.output, "mesh file: .ply .obj .stl .off");
+    exportCmd->add_option("--surface", exportOpts.surface, "dmc (Discretized Marching Cubes), octree (Surface Octree, merged) or mc (classic)")
+        ->capture_default_str();
+    exportCmd->add_flag("--check", exportOpts.check,
+                        "check manifold, closed, self-intersections (CGAL) and the Hausdorff distance to mc (exact bounds; sampled, 99.9 % confidence)");
+    exportCmd->add_flag("--closed", exportOpts.closed,
+                        "cap the surface where it meets the volume's faces (as if the volume were padded below the isovalue): a closed mesh to print");
+    exportCmd->add_flag("--normals", exportOpts.normals, "write vertex normals from the volume's gradient (.ply and .obj)");
+    exportCmd->add_option("--memory", exportOpts.memoryMb,
+                          "MB a scene file holds when its Surface Octree's surface is exported (--surface octree, without --closed or --check): "
+                          "its octrees and the cache of decompressed blocks the surface is extracted through (default: an eighth of the physical memory)");
+
+    compareCmd = app->add_subcommand("compare", "PSNR and SSIM of an image against a reference image, and where they differ");
+    compareCmd->add_option("reference", compare.reference, "reference PNG (e.g. from render --renderer raycast)");
+    compareCmd->add_option("image", compare.image, "PNG to compare, of the same size");
+    compareCmd->add_option("--diff", compare.diff, "write the per-pixel difference as a grey PNG (8x the RMS difference over RGB)");
+
+    viewCmd = app->add_subcommand("view", "serve the interactive viewer: open the printed URL in a browser");
+    view.input.add(viewCmd);
+    viewCmd->add_option("--host", view.host, "address to listen on (127.0.0.1: this machine only)")->capture_default_str();
+    viewCmd->add_option("--port", view.port, "TCP port (0: any free port)")->capture_default_str();
+    viewCmd->add_option("--data-dir", view.dataDir, "the page lists the volumes and DICOM series under this directory and opens them");
+    viewCmd->add_option("--token", view.token, "access token (default: a random one, printed in the URL)");
+    viewCmd->add_option("--frame-ms", view.frameMs, "frame time interactive frames aim at, ms")->capture_default_str();
+    viewCmd->add_option("--texture-mb", view.textureMb, "brick textures kept between frames, MB per volume")->capture_default_str();
+    viewCmd->add_option("--memory", view.memoryMb,
+                        "MB a scene file read paged holds, per scene: its octree, the surfaces made of it, the brick textures kept (--texture-mb), and the cache of decompressed blocks its bricks are read through, which gets what they leave, at least a quarter (default: an eighth of the physical memory)");
+  }
+};
+
 int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& err) {
   CLI::App app("hybrid-octree: CT volume and isosurface rendering with the Hybrid Octree", "hybrid-octree");
   app.require_subcommand(1);
@@ -605,73 +622,16 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
                  "progress of long steps on stderr: auto (a bar on a terminal, lines when piped), bar, lines, off")
       ->capture_default_str();
 
-  InfoOptions info;
-  CLI::App* infoCmd = app.add_subcommand("info", "print dims, spacing, type, value range and a histogram");
-  info.input.add(infoCmd);
-  infoCmd->add_option("--bins", info.bins, "histogram bins")->capture_default_str();
-
-  BuildOptions build;
-  CLI::App* buildCmd = app.add_subcommand("build", "build the Hybrid Octree once and save it as a scene file");
-  build.input.add(buildCmd, false);
-  buildCmd->add_option("-o,--output", build.output, "scene file to write (.hoct)");
-  buildCmd->add_option("--iso", build.iso, "isovalue of the Surface Octree to build (data units; none = volume only)");
-  buildCmd->add_option("--leaf-edge", build.leafEdge, "edge in voxels of the smallest octree nodes")->capture_default_str();
-  addSwitch(buildCmd, "--prefilter", &build.prefilter,
-            "coarse levels (texels 4+ voxels apart) hold the data smoothed by their tent filter (default on)");
-
-  RenderOptions render;
-  CLI::App* renderCmd = app.add_subcommand("render", "render one image (slice renderer or reference ray tracer)");
-  render.add(renderCmd);
-  renderCmd->add_option("-o,--output", render.output, "PNG to write");
-  renderCmd->add_option("--stats", render.stats, "write statistics as JSON");
-  renderCmd->add_option("--repeat", render.repeat, "render the view N times, brick textures kept; report the fastest frame")
-      ->capture_default_str();
-
-  BenchOptions bench;
-  CLI::App* benchCmd = app.add_subcommand("bench", "speed/accuracy sweep over epsilon and budget: CSV, plot and images");
-  bench.add(benchCmd);
-
-  ExportOptions exportOpts;
-  CLI::App* exportCmd = app.add_subcommand("export", "write the isosurface as a mesh in millimetres");
-  exportOpts.input.add(exportCmd);
-  exportCmd->add_option("--iso", exportOpts.iso, "isovalue in data units (samples >= iso are inside)");
-  exportCmd->add_option("-o,--output", exportOpts.output, "mesh file: .ply .obj .stl .off");
-  exportCmd->add_option("--surface", exportOpts.surface, "dmc (Discretized Marching Cubes), octree (Surface Octree, merged) or mc (classic)")
-      ->capture_default_str();
-  exportCmd->add_flag("--check", exportOpts.check,
-                      "check manifold, closed, self-intersections (CGAL) and the Hausdorff distance to mc (exact bounds; sampled, 99.9 % confidence)");
-  exportCmd->add_flag("--closed", exportOpts.closed,
-                      "cap the surface where it meets the volume's faces (as if the volume were padded below the isovalue): a closed mesh to print");
-  exportCmd->add_flag("--normals", exportOpts.normals, "write vertex normals from the volume's gradient (.ply and .obj)");
-  exportCmd->add_option("--memory", exportOpts.memoryMb,
-                        "MB a scene file holds when its Surface Octree's surface is exported (--surface octree, without --closed or --check): "
-                        "its octrees and the cache of decompressed blocks the surface is extracted through (default: an eighth of the physical memory)");
-
-  CompareOptions compare;
-  CLI::App* compareCmd = app.add_subcommand("compare", "PSNR and SSIM of an image against a reference image, and where they differ");
-  compareCmd->add_option("reference", compare.reference, "reference PNG (e.g. from render --renderer raycast)");
-  compareCmd->add_option("image", compare.image, "PNG to compare, of the same size");
-  compareCmd->add_option("--diff", compare.diff, "write the per-pixel difference as a grey PNG (8x the RMS difference over RGB)");
-
-  ViewOptions view;
-  CLI::App* viewCmd = app.add_subcommand("view", "serve the interactive viewer: open the printed URL in a browser");
-  view.input.add(viewCmd);
-  viewCmd->add_option("--host", view.host, "address to listen on (127.0.0.1: this machine only)")->capture_default_str();
-  viewCmd->add_option("--port", view.port, "TCP port (0: any free port)")->capture_default_str();
-  viewCmd->add_option("--data-dir", view.dataDir, "the page lists the volumes and DICOM series under this directory and opens them");
-  viewCmd->add_option("--token", view.token, "access token (default: a random one, printed in the URL)");
-  viewCmd->add_option("--frame-ms", view.frameMs, "frame time interactive frames aim at, ms")->capture_default_str();
-  viewCmd->add_option("--texture-mb", view.textureMb, "brick textures kept between frames, MB per volume")->capture_default_str();
-  viewCmd->add_option("--memory", view.memoryMb,
-                      "MB a scene file read paged holds, per scene: its octree, the surfaces made of it, the brick textures kept (--texture-mb), and the cache of decompressed blocks its bricks are read through, which gets what they leave, at least a quarter (default: an eighth of the physical memory)");
-
+  Commands c;
+  c.addScenes(&app);
+  c.addOthers(&app);
   const PacsCommand pacs = addPacsCommand(app, out);
 
   try {
     try {
       const auto known = app.get_subcommands([](const CLI::App*) { return true; });
       if (argc > 1 && argv[1][0] != '-' &&
-          std::none_of(known.begin(), known.end(), [&](const CLI::App* c) { return c->get_name() == argv[1]; }))
+          std::none_of(known.begin(), known.end(), [&](const CLI::App* sub) { return sub->get_name() == argv[1]; }))
         HYB_THROW(ValueError, "unknown subcommand '", argv[1], "' (expected info, build, render, export, bench, compare, view or pacs; see --help)");
       app.parse(argc, argv);
     } catch (const CLI::CallForHelp&) {
@@ -694,27 +654,27 @@ int runMain(int argc, const char* const* argv, std::ostream& out, std::ostream& 
     // Auto shows progress only on the process's own stderr (not on a caller's stream).
     const bool ownStderr = &err == &std::cerr;
     const ProgressDisplay display(mode == ProgressMode::Auto && !ownStderr ? ProgressMode::Off : mode, err, ownStderr && ::isatty(2));
-    for (VolumeInput* in : {&info.input, &build.input, &render.input, &bench.render.input, &exportOpts.input, &view.input})
+    for (VolumeInput* in : {&c.info.input, &c.build.input, &c.render.input, &c.bench.render.input, &c.exportOpts.input, &c.view.input})
       in->progress = display.progress();
-    for (const auto& [cmd, in] : {std::pair{infoCmd, &info.input}, {buildCmd, &build.input}, {renderCmd, &render.input},
-                                  {benchCmd, &bench.render.input}, {exportCmd, &exportOpts.input}, {viewCmd, &view.input}})
+    for (const auto& [cmd, in] : {std::pair{c.infoCmd, &c.info.input}, {c.buildCmd, &c.build.input}, {c.renderCmd, &c.render.input},
+                                  {c.benchCmd, &c.bench.render.input}, {c.exportCmd, &c.exportOpts.input}, {c.viewCmd, &c.view.input}})
       if (cmd->parsed()) subject = cmd->get_name() + " of " + in->path;
-    if (ranks().mpi && !renderCmd->parsed() && !benchCmd->parsed())
+    if (ranks().mpi && !c.renderCmd->parsed() && !c.benchCmd->parsed())
       check("only render and bench run across MPI ranks; run " + (app.get_subcommands().empty() ? std::string("it") : app.get_subcommands().front()->get_name()) +
             " without mpirun");
-    if (infoCmd->parsed()) return check(info.validate()), runInfo(info, out, err);
-    if (buildCmd->parsed()) return check(build.validate()), runBuild(build, out, err);
-    if (renderCmd->parsed()) {
-      check(render.validate());
-      if (render.output.empty()) check("-o missing (expected the PNG to write, e.g. -o out.png)");
-      return runRender(render, out, err);
+    if (c.infoCmd->parsed()) return check(c.info.validate()), runInfo(c.info, out, err);
+    if (c.buildCmd->parsed()) return check(c.build.validate()), runBuild(c.build, out, err);
+    if (c.renderCmd->parsed()) {
+      check(c.render.validate());
+      if (c.render.output.empty()) check("-o missing (expected the PNG to write, e.g. -o out.png)");
+      return runRender(c.render, out, err);
     }
-    if (exportCmd->parsed()) return check(exportOpts.validate()), runExport(exportOpts, out, err);
-    if (benchCmd->parsed()) return check(bench.validate()), runBench(bench, out, err);
-    if (compareCmd->parsed()) return check(compare.validate()), runCompare(compare, out);
-    if (viewCmd->parsed()) {
-      view.volumeGiven = viewCmd->get_option("volume")->count() > 0;
-      return check(view.validate()), runView(view, out, err);
+    if (c.exportCmd->parsed()) return check(c.exportOpts.validate()), runExport(c.exportOpts, out, err);
+    if (c.benchCmd->parsed()) return check(c.bench.validate()), runBench(c.bench, out, err);
+    if (c.compareCmd->parsed()) return check(c.compare.validate()), runCompare(c.compare, out);
+    if (c.viewCmd->parsed()) {
+      c.view.volumeGiven = c.viewCmd->get_option("volume")->count() > 0;
+      return check(c.view.validate()), runView(c.view, out, err);
     }
     if (pacs.cmd->parsed()) return pacs.run();
     return 2;

@@ -1,4 +1,4 @@
-#include "apps/viewer_server.h"
+#include "apps/viewer/viewer_server.h"
 
 #include <turbojpeg.h>
 
@@ -23,12 +23,13 @@
 #include <sstream>
 #include <thread>
 
-#include "apps/viewer_files.h"
-#include "apps/viewer_protocol.h"
-#include "apps/viewer_quality.h"
+#include "apps/viewer/viewer_files.h"
+#include "apps/viewer/viewer_protocol.h"
+#include "apps/viewer/viewer_quality.h"
 #include "render/patient_view.h"
 #include "render/scene_pool.h"
 #include "render/scene_renderer.h"
+#include "hybrid_octree/surface_export.h"
 #include "surface/mesh_io.h"
 #include "surface/mesh_ops.h"
 #include "volume/error.h"
@@ -123,6 +124,55 @@ struct SurfaceShown {
   explicit SurfaceShown(const ScenePool::Frame& f) : iso(f.iso), ready(f.surfaceReady), building(f.surfaceBuilding) {}
   /// The surface a frame of @p r draws: none when it asks for none.
   std::optional<float> drawn(const FrameRequest& r) const { return r.settings.iso ? iso : std::nullopt; }
+};
+
+// A frame message's header: the request it answers, the ladder's level it was drawn at, the
+// surface shown, when the request came, and the frame's counts and times.
+struct FrameHeader {
+  const SceneSummary& scene;
+  const FrameRequest& r;
+  const QualityLevel& q;
+  int level = 0;
+  bool final = false;
+  const SurfaceShown& surface;
+  const std::optional<Arrival>& arrival;
+  const FrameStats& st;
+  double maxError = 0, renderMs = 0;
+
+  /// The header as the page reads it (type "frame"), of an image @p width x @p height encoded in @p encodeMs.
+  json toJson(int width, int height, double encodeMs) const {
+    const std::optional<float> iso = surface.drawn(r);
+    json header = {{"type", "frame"},
+                   {"scene", scene.key},
+                   {"seq", r.seq},
+                   {"quality", r.interacting ? "interactive" : final ? "final" : "refining"},
+                   {"level", level},
+                   {"ladder", iso ? "surface" : "volume"},
+                   {"levelText", q.describe()},
+                   {"format", final ? "png" : "jpeg"},
+                   {"width", width},
+                   {"height", height},
+                   {"waitMs", arrival ? json(arrival->waitMs) : json(nullptr)},
+                   {"requestEpochMs", arrival ? json(arrival->epochMs) : json(nullptr)},
+                   {"sentEpochMs", epochMs()},
+                   {"renderMs", renderMs},
+                   {"encodeMs", encodeMs},
+                   {"textureBytes", st.slices.textureBytes},
+                   {"bricks", st.slices.bricks},
+                   {"maxError", maxError},
+                   {"bricksNotResident", st.bricksNotResident},  // > 0: bricks drawn coarser (beyond the packing bound, or loading)
+                   {"iso", iso ? json(*iso) : json(nullptr)},
+                   {"surfaceReady", !r.settings.iso || surface.ready},  // false: the surface asked for is still being built
+                   // > 1: the surface drawn is clustered by cubes this many voxels wide (a preview, or the level of detail)
+                   {"surfaceSpacing", iso ? json(st.surfaceSpacing) : json(nullptr)},
+                   {"surfaceBuilding", surface.building},  // the surface asked for, or its levels for moving frames, on its way
+                   {"camera", cameraToJson(explicitCamera(r.settings))}};
+    if (final && (!r.settings.iso || surface.ready)) {  // (while the surface asked for is built, the frame is not the command's)
+      header["command"] = renderCommand(scene.path, scene.series, r, "view.tf");
+      if (!r.settings.tfPoints.empty()) header["tfText"] = tfText(r.settings.tfPoints);
+    }
+    return header;
+  }
 };
 
 struct BandedFrame {
@@ -415,8 +465,8 @@ struct ServerState {
       // (also a ray-traced frame that made the surface's BVH, or one that made a pre-integration table)
       cold = 2 * st.slices.uploadedBricks > st.slices.bricks || st.bvhMs > 0.0 || st.preintegrationMs > 0.0;
       coarser = double(st.bricksNotResident) / double(std::max<size_t>(1, st.slices.bricks + st.bricksNotResident));
-      message = encodeFrame(summary, request, rung, level, final, shown, arrival, frame.image, st, frame.selection.maxError, renderMs, t0,
-                            &ms);
+      const FrameHeader header{summary, request, rung, level, final, shown, arrival, st, frame.selection.maxError, renderMs};
+      message = encodeFrame(header, frame.image, t0, &ms);
     } catch (const std::exception& e) {
       message.clear();
       client.send(errorMessage(e.what(), request.seq), false);
@@ -467,8 +517,8 @@ struct ServerState {
     lock.unlock();
     double total = 0.0;
     try {
-      message = encodeFrame(summary, done.request, rung, 0, true, done.surface, done.arrival, done.image, done.stats, done.maxError, done.renderMs,
-                            Clock::now(), &total);
+      const FrameHeader header{summary, done.request, rung, 0, true, done.surface, done.arrival, done.stats, done.maxError, done.renderMs};
+      message = encodeFrame(header, done.image, Clock::now(), &total);
     } catch (const std::exception& e) {
       error = e.what();
     }
@@ -514,45 +564,13 @@ struct ServerState {
 
   // A frame's message: its header and the image, JPEG before the final frame, PNG for it (render
   // thread, unlocked); @p ms receives the frame's time from @p t0, encoding included.
-  std::string encodeFrame(const SceneSummary& scene, const FrameRequest& r, const QualityLevel& q, int level, bool final,
-                          const SurfaceShown& surface, const std::optional<Arrival>& arrival, const Image& image,
-                          const FrameStats& st, double maxError, double renderMs, Clock::time_point t0, double* ms) const {
-    const std::optional<float> iso = surface.drawn(r);
+  static std::string encodeFrame(const FrameHeader& h, const Image& image, Clock::time_point t0, double* ms) {
     const auto t1 = Clock::now();
     const std::vector<uint8_t> rgba = toRgba8(image, glm::vec3(0.0f));
-    const std::vector<uint8_t> bytes = final ? encodePng(rgba, image.width, image.height) : encodeJpeg(rgba, image.width, image.height, 95);
+    const std::vector<uint8_t> bytes = h.final ? encodePng(rgba, image.width, image.height) : encodeJpeg(rgba, image.width, image.height, 95);
     const double encodeMs = msSince(t1);
     *ms = msSince(t0);
-    json header = {{"type", "frame"},
-                   {"scene", scene.key},
-                   {"seq", r.seq},
-                   {"quality", r.interacting ? "interactive" : final ? "final" : "refining"},
-                   {"level", level},
-                   {"ladder", iso ? "surface" : "volume"},
-                   {"levelText", q.describe()},
-                   {"format", final ? "png" : "jpeg"},
-                   {"width", image.width},
-                   {"height", image.height},
-                   {"waitMs", arrival ? json(arrival->waitMs) : json(nullptr)},
-                   {"requestEpochMs", arrival ? json(arrival->epochMs) : json(nullptr)},
-                   {"sentEpochMs", epochMs()},
-                   {"renderMs", renderMs},
-                   {"encodeMs", encodeMs},
-                   {"textureBytes", st.slices.textureBytes},
-                   {"bricks", st.slices.bricks},
-                   {"maxError", maxError},
-                   {"bricksNotResident", st.bricksNotResident},  // > 0: bricks drawn coarser (beyond the packing bound, or loading)
-                   {"iso", iso ? json(*iso) : json(nullptr)},
-                   {"surfaceReady", !r.settings.iso || surface.ready},  // false: the surface asked for is still being built
-                   // > 1: the surface drawn is clustered by cubes this many voxels wide (a preview, or the level of detail)
-                   {"surfaceSpacing", iso ? json(st.surfaceSpacing) : json(nullptr)},
-                   {"surfaceBuilding", surface.building},  // the surface asked for, or its levels for moving frames, on its way
-                   {"camera", cameraToJson(explicitCamera(r.settings))}};
-    if (final && (!r.settings.iso || surface.ready)) {  // (while the surface asked for is built, the frame is not the command's)
-      header["command"] = renderCommand(scene.path, scene.series, r, "view.tf");
-      if (!r.settings.tfPoints.empty()) header["tfText"] = tfText(r.settings.tfPoints);
-    }
-    return frameMessage(header.dump(-1, ' ', false, json::error_handler_t::replace), bytes);
+    return frameMessage(h.toJson(image.width, image.height, encodeMs).dump(-1, ' ', false, json::error_handler_t::replace), bytes);
   }
 
   // ---- exports ------------------------------------------------------------------------------
@@ -585,17 +603,11 @@ struct ServerState {
   }
 
   static std::string meshFile(const Scene& scene, float iso, const std::string& format) {
+    std::ostringstream log;  // export's report: the page shows none
+    const TriangleMesh mesh = exportSurface(scene, ExportRequest{iso, "octree"}, nullptr, log).mesh;
     const Volume& v = scene.volume;
-    const SurfaceOctree so = sceneSurface(scene, iso);
-    TriangleMesh mesh = fineMeshToTriangles(so.reconstruct(kMaxDim), v.spacing());
     if (mesh.triangles.empty()) HYB_THROW(ValueError, "iso: no surface at ", iso, " (the data's values are ", v.minValue(), " to ", v.maxValue(), ")");
-    toPatientSpace(v.frame(), &mesh);
-    const std::filesystem::path tmp = std::filesystem::temp_directory_path() / ("hybrid-octree-view-" + makeToken() + "." + format);
-    writeMesh(tmp.string(), mesh, MeshWriteOptions{false, "LPS"});
-    std::ifstream in(tmp, std::ios::binary);
-    std::string body((std::istreambuf_iterator<char>(in)), {});
-    std::filesystem::remove(tmp);
-    return body;
+    return meshBytes(mesh, *meshFormatOf("surface." + format), MeshWriteOptions{false, "LPS"});
   }
 
   // ---- network ------------------------------------------------------------------------------
@@ -806,6 +818,18 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
   size_t mWaitingTextBytes = 0;  // text messages in mQueue not being written yet
 };
 
+// An HTTP reply: its status, content type and body, and the headers some replies add.
+struct Reply {
+  http::status status = http::status::ok;
+  std::string type, body;
+  bool setCookie = false;  // the access token's cookie (the page opened with ?token=)
+  bool headOnly = false;   // a HEAD request: the headers only
+  std::string download;    // a file to save: its name (Content-Disposition)
+};
+
+// A plain-text reply: a refusal, or why a request failed.
+Reply textReply(http::status status, std::string text) { return Reply{status, "text/plain", std::move(text), false, false, ""}; }
+
 // One HTTP connection: the page's assets, the mesh export, or the upgrade to the WebSocket.
 class HttpSession : public std::enable_shared_from_this<HttpSession> {
  public:
@@ -825,7 +849,7 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
     if (ec) {
       if (ec != http::error::end_of_stream && ec != beast::error::timeout && ec != net::error::operation_aborted) {
         // A malformed request: answer once and close.
-        respond(http::status::bad_request, "text/plain", "bad request\n", false, 11);
+        respond(textReply(http::status::bad_request, "bad request\n"), false, 11);
       }
       return;
     }
@@ -833,7 +857,7 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
     const std::string target(req.target());
     const std::string path(targetPath(target));
     if (!mServer.authorised(req)) {
-      respond(http::status::forbidden, "text/plain", "403: this page needs its access token (the URL hybrid-octree view printed)\n", false, req.version());
+      respond(textReply(http::status::forbidden, "403: this page needs its access token (the URL hybrid-octree view printed)\n"), false, req.version());
       return;
     }
     if (websocket::is_upgrade(req)) {
@@ -842,14 +866,14 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
       const auto origin = req.find(http::field::origin);
       const auto host = req.find(http::field::host);
       if (path != "/ws" || origin == req.end() || host == req.end() || std::string(origin->value()) != "http://" + std::string(host->value())) {
-        respond(http::status::forbidden, "text/plain", "403: not this page's socket\n", false, req.version());
+        respond(textReply(http::status::forbidden, "403: not this page's socket\n"), false, req.version());
         return;
       }
       std::make_shared<WsSession>(mStream.release_socket(), mServer)->run(std::move(req));
       return;
     }
     if (req.method() != http::verb::get && req.method() != http::verb::head) {
-      respond(http::status::method_not_allowed, "text/plain", "405: only GET\n", req.keep_alive(), req.version());
+      respond(textReply(http::status::method_not_allowed, "405: only GET\n"), req.keep_alive(), req.version());
       return;
     }
     const bool setCookie = queryParam(target, "token").has_value();
@@ -859,11 +883,11 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
     }
     const Asset* asset = findAsset(path);
     if (!asset) {
-      respond(http::status::not_found, "text/plain", "404: no such page\n", req.keep_alive(), req.version());
+      respond(textReply(http::status::not_found, "404: no such page\n"), req.keep_alive(), req.version());
       return;
     }
-    respond(http::status::ok, std::string(asset->contentType), std::string(asset->bytes), req.keep_alive(), req.version(), setCookie,
-            req.method() == http::verb::head);
+    respond(Reply{http::status::ok, std::string(asset->contentType), std::string(asset->bytes), setCookie, req.method() == http::verb::head, ""},
+            req.keep_alive(), req.version());
   }
 
   void exportMesh(const std::string& target, unsigned version, bool keepAlive) {
@@ -876,11 +900,11 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
       value = iso ? std::stod(*iso, &used) : NAN;
       if (!iso || used != iso->size() || !std::isfinite(value)) throw std::invalid_argument("iso");
     } catch (const std::exception&) {
-      respond(http::status::bad_request, "text/plain", "400: iso: expected a number\n", keepAlive, version);
+      respond(textReply(http::status::bad_request, "400: iso: expected a number\n"), keepAlive, version);
       return;
     }
-    if (format != "ply" && format != "stl" && format != "obj") {
-      respond(http::status::bad_request, "text/plain", "400: format: expected ply, stl or obj\n", keepAlive, version);
+    if (!meshFormatOf("surface." + format)) {
+      respond(textReply(http::status::bad_request, "400: format: expected " + meshExtensionsText(false, false) + "\n"), keepAlive, version);
       return;
     }
     auto self = shared_from_this();
@@ -889,25 +913,24 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
     name << "surface-" << float(value) << "." << format;
     mServer.queueExport(scene, float(value), format, [self, executor, version, keepAlive, file = name.str()](std::string body, std::string error) {
       net::post(executor, [self, body = std::move(body), error = std::move(error), version, keepAlive, file]() {
-        if (!error.empty()) self->respond(http::status::bad_request, "text/plain", "400: " + error + "\n", keepAlive, version);
-        else self->respond(http::status::ok, "application/octet-stream", body, keepAlive, version, false, false, file);
+        if (!error.empty()) self->respond(textReply(http::status::bad_request, "400: " + error + "\n"), keepAlive, version);
+        else self->respond(Reply{http::status::ok, "application/octet-stream", body, false, false, file}, keepAlive, version);
       });
     });
   }
 
-  void respond(http::status status, const std::string& type, std::string body, bool keepAlive, unsigned version, bool setCookie = false,
-               bool headOnly = false, const std::string& download = "") {
-    auto res = std::make_shared<http::response<http::string_body>>(status, version);
+  void respond(Reply reply, bool keepAlive, unsigned version) {
+    auto res = std::make_shared<http::response<http::string_body>>(reply.status, version);
     res->set(http::field::server, "hybrid-octree");
-    res->set(http::field::content_type, type);
+    res->set(http::field::content_type, reply.type);
     res->set(http::field::cache_control, "no-store");
     res->set("X-Content-Type-Options", "nosniff");
     res->set("Content-Security-Policy", "default-src 'self'; img-src 'self' blob: data:; connect-src 'self'");
-    if (setCookie) res->set(http::field::set_cookie, "hyb_token=" + mServer.token + "; Path=/; HttpOnly; SameSite=Strict");
-    if (!download.empty()) res->set(http::field::content_disposition, "attachment; filename=\"" + download + "\"");
+    if (reply.setCookie) res->set(http::field::set_cookie, "hyb_token=" + mServer.token + "; Path=/; HttpOnly; SameSite=Strict");
+    if (!reply.download.empty()) res->set(http::field::content_disposition, "attachment; filename=\"" + reply.download + "\"");
     res->keep_alive(keepAlive);
-    const size_t size = body.size();
-    if (!headOnly) res->body() = std::move(body);
+    const size_t size = reply.body.size();
+    if (!reply.headOnly) res->body() = std::move(reply.body);
     res->content_length(size);
     http::async_write(mStream, *res, [self = shared_from_this(), res, keepAlive](beast::error_code ec, size_t) {
       if (ec || !keepAlive) {

@@ -1,4 +1,4 @@
-#include "apps/outputs.h"
+#include "apps/cli/outputs.h"
 
 #include <unistd.h>
 

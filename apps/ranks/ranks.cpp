@@ -1,17 +1,17 @@
-// Sort-last rendering across MPI ranks (apps/ranks.h). IceT is ParaView's (Debian's paraview and
+// Sort-last rendering across MPI ranks (apps/ranks/ranks.h). IceT is ParaView's (Debian's paraview and
 // paraview-dev: libvtkIceTCore/MPI-pv5.11, IceT 2.2's plain C API).
-#include "apps/ranks.h"
+#include "apps/ranks/ranks.h"
 
 #include <sys/resource.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <iomanip>
 #include <numeric>
 #include <sstream>
 
-#include "apps/frame.h"
 #include "volume/error.h"
 
 #if HYB_MPI
@@ -23,6 +23,9 @@
 namespace hyb::app {
 
 namespace {
+
+using Clock = std::chrono::steady_clock;
+[[maybe_unused]] double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
 
 Ranks gRanks;
 
