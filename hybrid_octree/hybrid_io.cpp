@@ -332,15 +332,10 @@ bool isSceneFile(const std::string& path) {
   }
 }
 
-Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
-  const InputFile file(path);
-  uint8_t top[16] = {};
-  if (file.size() < 16) HYB_THROW(IoError, path, ": not a hybrid-octree scene file (expected magic HYBOCT)");
-  file.read(0, 16, top);
-  if (std::memcmp(top, kMagic, 8) != 0) HYB_THROW(IoError, path, ": not a hybrid-octree scene file (expected magic HYBOCT)");
-  Reader header(top + 8, 8, path);
-  const uint32_t version = header.get<uint32_t>();
-  const uint32_t count = header.get<uint32_t>();
+namespace {
+
+// Refuses a scene file version this build does not read, saying what to do about it.
+void checkSceneVersion(uint32_t version, const std::string& path) {
   if (version > 0 && version < 3)
     HYB_THROW(IoError, path, ": scene file version ", version, " has no patient orientation (this build reads version ", kSceneVersion,
               "); build the scene again from its volume with hybrid-octree build");
@@ -355,141 +350,170 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
               ", which pages its bricks); build the scene again from its volume with hybrid-octree build");
   if (version != kSceneVersion)
     HYB_THROW(IoError, path, ": scene file version ", version, " unsupported (this build reads version ", kSceneVersion, ")");
+}
+
+// A scene file's sections, by tag (a repeated tag: the last one), each checked as it is read.
+struct SceneSections {
   struct Entry {
     uint64_t offset = 0, size = 0;
     uint32_t crc = 0, index = 0;
   };
-  std::map<uint32_t, Entry> entries;  // by tag; a repeated tag: the last one
-  uint64_t pos = 16;
-  for (uint32_t s = 0; s < count; ++s) {
-    if (file.size() - pos < 16) HYB_THROW(IoError, path, ": truncated scene file (section ", s, " of ", count, " header missing)");
-    uint8_t h[16];
-    file.read(pos, 16, h);
-    uint32_t t;
-    Entry e;
-    std::memcpy(&t, h, 4);
-    std::memcpy(&e.size, h + 4, 8);
-    std::memcpy(&e.crc, h + 12, 4);
-    e.offset = pos + 16;
-    e.index = s;
-    if (e.size > file.size() - e.offset)
-      HYB_THROW(IoError, path, ": truncated scene file (section ", s, " needs ", e.size, " bytes, ", file.size() - e.offset, " left)");
-    entries[t] = e;
-    pos = e.offset + e.size;
+  const InputFile& file;
+  const std::string& path;
+  std::map<uint32_t, Entry> entries;
+
+  // The header and the table of sections of @p file.
+  SceneSections(const InputFile& f, const std::string& p) : file(f), path(p) {
+    uint8_t top[16] = {};
+    if (file.size() < 16) HYB_THROW(IoError, path, ": not a hybrid-octree scene file (expected magic HYBOCT)");
+    file.read(0, 16, top);
+    if (std::memcmp(top, kMagic, 8) != 0) HYB_THROW(IoError, path, ": not a hybrid-octree scene file (expected magic HYBOCT)");
+    Reader header(top + 8, 8, path);
+    const uint32_t version = header.get<uint32_t>();
+    const uint32_t count = header.get<uint32_t>();
+    checkSceneVersion(version, path);
+    uint64_t pos = 16;
+    for (uint32_t s = 0; s < count; ++s) {
+      if (file.size() - pos < 16) HYB_THROW(IoError, path, ": truncated scene file (section ", s, " of ", count, " header missing)");
+      uint8_t h[16];
+      file.read(pos, 16, h);
+      uint32_t t;
+      Entry e;
+      std::memcpy(&t, h, 4);
+      std::memcpy(&e.size, h + 4, 8);
+      std::memcpy(&e.crc, h + 12, 4);
+      e.offset = pos + 16;
+      e.index = s;
+      if (e.size > file.size() - e.offset)
+        HYB_THROW(IoError, path, ": truncated scene file (section ", s, " needs ", e.size, " bytes, ", file.size() - e.offset, " left)");
+      entries[t] = e;
+      pos = e.offset + e.size;
+    }
   }
-  auto entry = [&](uint32_t t, const char* name) -> const Entry& {
+  const Entry& entry(uint32_t t, const char* name) const {
     const auto it = entries.find(t);
     if (it == entries.end()) HYB_THROW(IoError, path, ": scene file lacks the ", name, " section");
     return it->second;
-  };
-  const auto corrupt = [&](const Entry& e) {
-    HYB_THROW(IoError, path, ": corrupt scene file (checksum mismatch in section ", e.index, ")");
-  };
+  }
+  [[noreturn]] void corrupt(const Entry& e) const { HYB_THROW(IoError, path, ": corrupt scene file (checksum mismatch in section ", e.index, ")"); }
   // A section other than the store's blocks: read whole and checked.
-  auto payload = [&](const Entry& e) {
+  std::vector<uint8_t> payload(const Entry& e) const {
     std::vector<uint8_t> bytes = file.bytes(e.offset, e.size);
     if (kVerifyChecksums && Section{0, {{bytes.data(), bytes.size()}}}.crc() != e.crc) corrupt(e);
     return bytes;
-  };
-
-  Scene scene;
-  uint64_t volumeHash = 0;
-  {
-    const Entry& volumeEntry = entry(kVolumeTag, "volume");
-    const std::vector<uint8_t> vb = payload(volumeEntry);
-    Reader r(vb.data(), vb.size(), path);
-    const glm::ivec3 dims = r.get<glm::ivec3>();
-    const glm::dvec3 spacing = r.get<glm::dvec3>();
-    const uint32_t type = r.get<uint32_t>(), stored = r.get<uint32_t>();
-    const uint64_t samples = r.get<uint64_t>();
-    const float lo = r.get<float>(), hi = r.get<float>();
-    if (type > uint32_t(ScalarType::Float64)) HYB_THROW(IoError, path, ": unknown sample type code ", type);
-    const ScalarType storedType = ScalarType(stored);
-    if (stored > uint32_t(ScalarType::Float64) || storageTypeFor(storedType, 0, 0) != storedType)
-      HYB_THROW(IoError, path, ": stored sample type code ", stored, " invalid (expected uint8, int8, uint16, int16 or float32)");
-    validateDims(dims, path);
-    if (samples != uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z))
-      HYB_THROW(IoError, path, ": volume section holds ", samples, " samples for dims ", dims.x, "x", dims.y, "x", dims.z);
-    scene.volume = Volume::withoutSamples(dims, spacing, ScalarType(type), storedType, lo, hi, path);
-    const glm::dmat3 direction = r.get<glm::dmat3>();
-    const glm::dvec3 origin = r.get<glm::dvec3>();
-    PatientFrame frame = makePatientFrame(direction, origin, path);
-    if (glm::length(frame.direction[0] - direction[0]) + glm::length(frame.direction[1] - direction[1]) +
-            glm::length(frame.direction[2] - direction[2]) > 1e-9)
-      HYB_THROW(IoError, path, ": corrupt scene file (the volume's direction matrix is not orthonormal)");
-    const uint8_t assumed = r.get<uint8_t>();
-    if (assumed > 1) HYB_THROW(IoError, path, ": orientation flag ", int(assumed), " invalid (expected 0 or 1)");
-    frame.assumed = assumed == 1;
-    scene.volume.setFrame(frame);
-    const uint64_t infoCount = r.get<uint64_t>();
-    for (uint64_t i = 0; i < infoCount; ++i) {
-      const std::vector<char> key = r.getArray<char>(), value = r.getArray<char>();
-      scene.volume.addInfo(std::string(key.begin(), key.end()), std::string(value.begin(), value.end()));
-    }
-    // The knot store: its index is checked here, each block when it is read.
-    const Entry& blocks = entry(kBlocksTag, "knot store data");
-    const std::vector<uint8_t> index = payload(entry(kIndexTag, "knot store index"));
-    volumeHash = volumeHashOf(vb, index);
-    scene.knots = KnotStore::open(path, dims, spacing, index, blocks.offset, blocks.size, options.memoryBytes);
-    if (scene.knots->storedType() != storedType)
-      HYB_THROW(IoError, path, ": the knot store holds ", scalarName(scene.knots->storedType()), " samples for a volume of ", scalarName(storedType));
-    if (options.samples) {
-      checkMemory(path, samples * scalarSize(storedType), "the scene's samples");
-      try {
-        scene.volume.attachSamples(scene.knots->samples(), path);
-      } catch (const ValueError& e) {
-        HYB_THROW(IoError, e.what(), " (corrupt scene file: its knot store disagrees with its volume section)");
-      }
-      scene.knots.reset();
-    }
   }
   // Sections spliced from another scene of the same size would otherwise load and show the wrong data.
-  const auto sameVolume = [&](uint64_t hash, const char* name) {
+  void checkSameVolume(uint64_t hash, uint64_t volumeHash, const char* name) const {
     if (hash != volumeHash)
       HYB_THROW(IoError, path, ": the ", name, " section was built from another volume than the scene's (content hash mismatch)");
-  };
-  {
-    // Mapped, not read (390 MB on the phantom): the checksum and the checks read it through the
-    // mapping, then its pages are given back, so that a frame holds only the nodes it reads (the
-    // kernel pages them in from the file, and may drop them again). Arrays off their alignment (a
-    // scene written before its octree was aligned) are copied instead.
-    const Entry& e = entry(kOctreeTag, "volume octree");
-    const auto mapping = file.map(e.offset, e.size);
-    if (kVerifyChecksums && Section{0, {{mapping->data(), size_t(e.size)}}}.crc() != e.crc) corrupt(e);
-    Reader r(mapping->data(), size_t(e.size), path);
-    const uint64_t hash = r.get<uint64_t>();
-    const int32_t leafEdge = r.get<int32_t>();
-    const uint32_t prefiltered = r.get<uint32_t>();
-    const auto [nodesAt, nodeCount] = r.skipArray<OctreeNode>();
-    const auto [errorsAt, errorCount] = r.skipArray<float>();
-    if (r.left() != 0) corrupt(e);  // a count its checksum would have refused
-    sameVolume(hash, "volume octree");
-    if (prefiltered > 1) HYB_THROW(IoError, path, ": octree knot mode ", prefiltered, " unknown (expected 0 or 1)");
-    // Paged, the octree's prefiltered knots are the store's; in memory they are rebuilt, and the
-    // octree is checked against the samples.
-    const bool inMemory = scene.volume.hasSamples();
-    const Volume* knotsFrom = prefiltered && inMemory ? &scene.volume : nullptr;
-    if (reinterpret_cast<uintptr_t>(nodesAt) % alignof(OctreeNode) == 0 && reinterpret_cast<uintptr_t>(errorsAt) % alignof(float) == 0) {
-      scene.octree = VolumeOctree::fromParts(scene.volume.dims(), leafEdge, {reinterpret_cast<const OctreeNode*>(nodesAt), nodeCount},
-                                             {reinterpret_cast<const float*>(errorsAt), errorCount}, mapping, path, knotsFrom);
-    } else {
-      std::vector<OctreeNode> nodes(nodeCount);
-      std::vector<float> errors(errorCount);
-      std::memcpy(nodes.data(), nodesAt, nodeCount * sizeof(OctreeNode));
-      std::memcpy(errors.data(), errorsAt, errorCount * sizeof(float));
-      scene.octree = VolumeOctree::fromParts(scene.volume.dims(), leafEdge, std::move(nodes), std::move(errors), path, knotsFrom);
-    }
-    if (inMemory) scene.octree.validateAgainst(scene.volume, path);
-    scene.octree.releasePages();
-    // Bricks read the spacings 1 … the root's edge: the store must hold each.
-    if (scene.knots && scene.knots->levels().size() != size_t(scene.octree.depth()) + 1)
-      HYB_THROW(IoError, path, ": the knot store holds ", scene.knots->levels().size(), " spacings for an octree of depth ", scene.octree.depth(),
-                " (expected ", scene.octree.depth() + 1, ")");
   }
-  if (const auto it = entries.find(kSurfaceTag); it != entries.end()) {
-    const std::vector<uint8_t> b = payload(it->second);
+};
+
+// The volume section and the knot store into @p scene (their samples too when asked); returns the
+// volume's content hash, which the octrees' sections must carry.
+uint64_t loadVolumeSection(const SceneSections& sections, const SceneLoadOptions& options, Scene* scene) {
+  const std::string& path = sections.path;
+  const std::vector<uint8_t> vb = sections.payload(sections.entry(kVolumeTag, "volume"));
+  Reader r(vb.data(), vb.size(), path);
+  const glm::ivec3 dims = r.get<glm::ivec3>();
+  const glm::dvec3 spacing = r.get<glm::dvec3>();
+  const uint32_t type = r.get<uint32_t>(), stored = r.get<uint32_t>();
+  const uint64_t samples = r.get<uint64_t>();
+  const float lo = r.get<float>(), hi = r.get<float>();
+  if (type > uint32_t(ScalarType::Float64)) HYB_THROW(IoError, path, ": unknown sample type code ", type);
+  const ScalarType storedType = ScalarType(stored);
+  if (stored > uint32_t(ScalarType::Float64) || storageTypeFor(storedType, 0, 0) != storedType)
+    HYB_THROW(IoError, path, ": stored sample type code ", stored, " invalid (expected uint8, int8, uint16, int16 or float32)");
+  validateDims(dims, path);
+  if (samples != uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z))
+    HYB_THROW(IoError, path, ": volume section holds ", samples, " samples for dims ", dims.x, "x", dims.y, "x", dims.z);
+  scene->volume = Volume::withoutSamples(dims, spacing, ScalarType(type), storedType, lo, hi, path);
+  const glm::dmat3 direction = r.get<glm::dmat3>();
+  const glm::dvec3 origin = r.get<glm::dvec3>();
+  PatientFrame frame = makePatientFrame(direction, origin, path);
+  if (glm::length(frame.direction[0] - direction[0]) + glm::length(frame.direction[1] - direction[1]) +
+          glm::length(frame.direction[2] - direction[2]) > 1e-9)
+    HYB_THROW(IoError, path, ": corrupt scene file (the volume's direction matrix is not orthonormal)");
+  const uint8_t assumed = r.get<uint8_t>();
+  if (assumed > 1) HYB_THROW(IoError, path, ": orientation flag ", int(assumed), " invalid (expected 0 or 1)");
+  frame.assumed = assumed == 1;
+  scene->volume.setFrame(frame);
+  const uint64_t infoCount = r.get<uint64_t>();
+  for (uint64_t i = 0; i < infoCount; ++i) {
+    const std::vector<char> key = r.getArray<char>(), value = r.getArray<char>();
+    scene->volume.addInfo(std::string(key.begin(), key.end()), std::string(value.begin(), value.end()));
+  }
+  // The knot store: its index is checked here, each block when it is read.
+  const SceneSections::Entry& blocks = sections.entry(kBlocksTag, "knot store data");
+  const std::vector<uint8_t> index = sections.payload(sections.entry(kIndexTag, "knot store index"));
+  const uint64_t volumeHash = volumeHashOf(vb, index);
+  scene->knots = KnotStore::open(path, dims, spacing, index, blocks.offset, blocks.size, options.memoryBytes);
+  if (scene->knots->storedType() != storedType)
+    HYB_THROW(IoError, path, ": the knot store holds ", scalarName(scene->knots->storedType()), " samples for a volume of ", scalarName(storedType));
+  if (options.samples) {
+    checkMemory(path, samples * scalarSize(storedType), "the scene's samples");
+    try {
+      scene->volume.attachSamples(scene->knots->samples(), path);
+    } catch (const ValueError& e) {
+      HYB_THROW(IoError, e.what(), " (corrupt scene file: its knot store disagrees with its volume section)");
+    }
+    scene->knots.reset();
+  }
+  return volumeHash;
+}
+
+// The Volume Octree's section into @p scene. Mapped, not read (390 MB on the phantom): the
+// checksum and the checks read it through the mapping, then its pages are given back, so that a
+// frame holds only the nodes it reads (the kernel pages them in from the file, and may drop them
+// again). Arrays off their alignment (a scene written before its octree was aligned) are copied.
+void loadOctreeSection(const SceneSections& sections, uint64_t volumeHash, Scene* scene) {
+  const std::string& path = sections.path;
+  const SceneSections::Entry& e = sections.entry(kOctreeTag, "volume octree");
+  const auto mapping = sections.file.map(e.offset, e.size);
+  if (kVerifyChecksums && Section{0, {{mapping->data(), size_t(e.size)}}}.crc() != e.crc) sections.corrupt(e);
+  Reader r(mapping->data(), size_t(e.size), path);
+  const uint64_t hash = r.get<uint64_t>();
+  const int32_t leafEdge = r.get<int32_t>();
+  const uint32_t prefiltered = r.get<uint32_t>();
+  const auto [nodesAt, nodeCount] = r.skipArray<OctreeNode>();
+  const auto [errorsAt, errorCount] = r.skipArray<float>();
+  if (r.left() != 0) sections.corrupt(e);  // a count its checksum would have refused
+  sections.checkSameVolume(hash, volumeHash, "volume octree");
+  if (prefiltered > 1) HYB_THROW(IoError, path, ": octree knot mode ", prefiltered, " unknown (expected 0 or 1)");
+  // Paged, the octree's prefiltered knots are the store's; in memory they are rebuilt, and the
+  // octree is checked against the samples.
+  const bool inMemory = scene->volume.hasSamples();
+  const Volume* knotsFrom = prefiltered && inMemory ? &scene->volume : nullptr;
+  if (reinterpret_cast<uintptr_t>(nodesAt) % alignof(OctreeNode) == 0 && reinterpret_cast<uintptr_t>(errorsAt) % alignof(float) == 0) {
+    scene->octree = VolumeOctree::fromParts(scene->volume.dims(), leafEdge, {reinterpret_cast<const OctreeNode*>(nodesAt), nodeCount},
+                                            {reinterpret_cast<const float*>(errorsAt), errorCount}, mapping, path, knotsFrom);
+  } else {
+    std::vector<OctreeNode> nodes(nodeCount);
+    std::vector<float> errors(errorCount);
+    std::memcpy(nodes.data(), nodesAt, nodeCount * sizeof(OctreeNode));
+    std::memcpy(errors.data(), errorsAt, errorCount * sizeof(float));
+    scene->octree = VolumeOctree::fromParts(scene->volume.dims(), leafEdge, std::move(nodes), std::move(errors), path, knotsFrom);
+  }
+  if (inMemory) scene->octree.validateAgainst(scene->volume, path);
+  scene->octree.releasePages();
+  // Bricks read the spacings 1 … the root's edge: the store must hold each.
+  if (scene->knots && scene->knots->levels().size() != size_t(scene->octree.depth()) + 1)
+    HYB_THROW(IoError, path, ": the knot store holds ", scene->knots->levels().size(), " spacings for an octree of depth ", scene->octree.depth(),
+              " (expected ", scene->octree.depth() + 1, ")");
+}
+
+}  // namespace
+
+Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
+  const InputFile file(path);
+  const SceneSections sections(file, path);
+  Scene scene;
+  const uint64_t volumeHash = loadVolumeSection(sections, options, &scene);
+  loadOctreeSection(sections, volumeHash, &scene);
+  if (const auto it = sections.entries.find(kSurfaceTag); it != sections.entries.end()) {
+    const std::vector<uint8_t> b = sections.payload(it->second);
     Reader r(b.data(), b.size(), path);
-    sameVolume(r.get<uint64_t>(), "surface octree");
+    sections.checkSameVolume(r.get<uint64_t>(), volumeHash, "surface octree");
     const float iso = r.get<float>();
     const uint64_t cells = r.get<uint64_t>();
     const int32_t mergeEdge = r.get<int32_t>();
