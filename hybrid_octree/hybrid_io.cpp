@@ -447,7 +447,7 @@ uint64_t loadVolumeSection(const SceneSections& sections, const SceneLoadOptions
   const SceneSections::Entry& blocks = sections.entry(kBlocksTag, "knot store data");
   const std::vector<uint8_t> index = sections.payload(sections.entry(kIndexTag, "knot store index"));
   const uint64_t volumeHash = volumeHashOf(vb, index);
-  scene->knots = KnotStore::open(path, dims, spacing, index, blocks.offset, blocks.size, options.memoryBytes);
+  scene->knots = KnotStore::open(path, dims, spacing, index, {blocks.offset, blocks.size}, options.memoryBytes);
   if (scene->knots->storedType() != storedType)
     HYB_THROW(IoError, path, ": the knot store holds ", scalarName(scene->knots->storedType()), " samples for a volume of ", scalarName(storedType));
   if (options.samples) {
@@ -485,8 +485,8 @@ void loadOctreeSection(const SceneSections& sections, uint64_t volumeHash, Scene
   const bool inMemory = scene->volume.hasSamples();
   const Volume* knotsFrom = prefiltered && inMemory ? &scene->volume : nullptr;
   if (reinterpret_cast<uintptr_t>(nodesAt) % alignof(OctreeNode) == 0 && reinterpret_cast<uintptr_t>(errorsAt) % alignof(float) == 0) {
-    scene->octree = VolumeOctree::fromParts(scene->volume.dims(), leafEdge, {reinterpret_cast<const OctreeNode*>(nodesAt), nodeCount},
-                                            {reinterpret_cast<const float*>(errorsAt), errorCount}, mapping, path, knotsFrom);
+    const VolumeOctree::MappedParts parts{{reinterpret_cast<const OctreeNode*>(nodesAt), nodeCount}, {reinterpret_cast<const float*>(errorsAt), errorCount}, mapping};
+    scene->octree = VolumeOctree::fromParts(scene->volume.dims(), leafEdge, parts, path, knotsFrom);
   } else {
     std::vector<OctreeNode> nodes(nodeCount);
     std::vector<float> errors(errorCount);

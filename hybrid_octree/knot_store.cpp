@@ -339,13 +339,12 @@ KnotStore::~KnotStore() {
 }
 
 std::shared_ptr<KnotStore> KnotStore::open(const std::string& path, const glm::ivec3& dims, const glm::dvec3& spacing,
-                                           const std::vector<uint8_t>& index, uint64_t dataOffset, uint64_t dataSize,
-                                           uint64_t cacheBytes) {
+                                           const std::vector<uint8_t>& index, const Bytes& data, uint64_t cacheBytes) {
   std::shared_ptr<KnotStore> s(new KnotStore(path));
   s->mDims = dims;
   s->mSpacing = spacing;
-  s->mDataOffset = dataOffset;
-  s->mDataSize = dataSize;
+  s->mDataOffset = data.offset;
+  s->mDataSize = data.size;
   s->mStats.limit = cacheBytes;
   size_t pos = 0;
   auto get = [&]<class T>(T*) {
@@ -388,7 +387,7 @@ std::shared_ptr<KnotStore> KnotStore::open(const std::string& path, const glm::i
     e.offset = get((uint64_t*)nullptr);
     e.size = get((uint32_t*)nullptr);
     e.crc = get((uint32_t*)nullptr);
-    if (e.offset > dataSize || e.size > dataSize - e.offset) bad("a block lies beyond the data section's ", dataSize, " bytes");
+    if (e.offset > data.size || e.size > data.size - e.offset) bad("a block lies beyond the data section's ", data.size, " bytes");
   }
   return s;
 }

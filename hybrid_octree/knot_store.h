@@ -139,13 +139,16 @@ struct StoreCacheStats {
 /// A scene's knot store, read through its cache. Thread-safe.
 class KnotStore final : public KnotSource {
  public:
-  /// Opens the store whose index is @p index and whose blocks are the @p dataSize bytes at
-  /// @p dataOffset of @p path, for a volume of @p dims and @p spacing; its cache holds at most
-  /// @p cacheBytes of decompressed blocks (a block a read needs stays while it is copied).
+  /// Where a store's blocks lie in its file.
+  struct Bytes {
+    uint64_t offset = 0, size = 0;
+  };
+  /// Opens the store whose index is @p index and whose blocks are @p data of @p path, for a
+  /// volume of @p dims and @p spacing; its cache holds at most @p cacheBytes of decompressed
+  /// blocks (a block a read needs stays while it is copied).
   /// @throw IoError naming @p path when the index is inconsistent with the volume or the file.
   static std::shared_ptr<KnotStore> open(const std::string& path, const glm::ivec3& dims, const glm::dvec3& spacing,
-                                         const std::vector<uint8_t>& index, uint64_t dataOffset, uint64_t dataSize,
-                                         uint64_t cacheBytes);
+                                         const std::vector<uint8_t>& index, const Bytes& data, uint64_t cacheBytes);
 
   glm::ivec3 dims() const override { return mDims; }
   glm::dvec3 spacing() const override { return mSpacing; }

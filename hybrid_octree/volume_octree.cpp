@@ -490,9 +490,11 @@ VolumeOctree VolumeOctree::fromParts(glm::ivec3 dims, int leafEdge, std::vector<
   return t;
 }
 
-VolumeOctree VolumeOctree::fromParts(glm::ivec3 dims, int leafEdge, std::span<const OctreeNode> nodes, std::span<const float> errors,
-                                     std::shared_ptr<const InputFile::Mapping> owner, const std::string& source,
+VolumeOctree VolumeOctree::fromParts(glm::ivec3 dims, int leafEdge, const MappedParts& parts, const std::string& source,
                                      const Volume* prefilteredFrom) {
+  const std::span<const OctreeNode> nodes = parts.nodes;
+  const std::span<const float> errors = parts.errors;
+  std::shared_ptr<const InputFile::Mapping> owner = parts.owner;
   HYB_CHECK(owner);
   VolumeOctree t = checkedShell(dims, leafEdge, nodes, errors, source, prefilteredFrom);
   t.mOwner = std::move(owner);

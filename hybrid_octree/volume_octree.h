@@ -103,8 +103,12 @@ class VolumeOctree {
                                 const Volume* prefilteredFrom = nullptr);
   /// The same checks, the arrays left where they lie (a scene file's section mapped read-only:
   /// the kernel pages the nodes a frame reads in and out), kept alive by @p owner.
-  static VolumeOctree fromParts(glm::ivec3 dims, int leafEdge, std::span<const OctreeNode> nodes, std::span<const float> errors,
-                                std::shared_ptr<const InputFile::Mapping> owner, const std::string& source,
+  struct MappedParts {
+    std::span<const OctreeNode> nodes;
+    std::span<const float> errors;
+    std::shared_ptr<const InputFile::Mapping> owner;
+  };
+  static VolumeOctree fromParts(glm::ivec3 dims, int leafEdge, const MappedParts& parts, const std::string& source,
                                 const Volume* prefilteredFrom = nullptr);
 
   /// Checks a reassembled octree against the samples it claims to describe: every leaf's min/max
