@@ -90,11 +90,22 @@ std::string pointsText(const std::vector<TransferFunction::Point>& points) {
   return s;
 }
 
-std::string budgetError(const std::string& text) {
+// A budget's text: megabytes, or "P%" of the view's full-resolution bytes; none when it is not one number.
+struct Budget {
+  bool percent = false;
+  double value = 0.0;
+};
+std::optional<Budget> budgetIn(const std::string& text) {
   const bool percent = !text.empty() && text.back() == '%';
   const std::optional<std::vector<double>> v = numbersIn(percent ? text.substr(0, text.size() - 1) : text);
-  if (!v || v->size() != 1) return "not a number";
-  if (percent ? !((*v)[0] > 0.0 && (*v)[0] <= 100.0) : (*v)[0] < 0.0) return percent ? "a percentage in (0, 100]" : "megabytes >= 0";
+  if (!v || v->size() != 1) return std::nullopt;
+  return Budget{percent, v->front()};
+}
+
+std::string budgetError(const std::string& text) {
+  const std::optional<Budget> b = budgetIn(text);
+  if (!b) return "not a number";
+  if (b->percent ? !(b->value > 0.0 && b->value <= 100.0) : b->value < 0.0) return b->percent ? "a percentage in (0, 100]" : "megabytes >= 0";
   return "";
 }
 
@@ -621,10 +632,10 @@ std::string shellQuote(const std::string& s) {
   return out + "'";
 }
 
-std::string commandLineOf(const FrameSettings& settings, const std::function<bool(const FrameField&)>& keep) {
+std::string commandLineOf(const FrameSettings& settings) {
   std::string out;
   for (const FrameField& f : frameFields()) {
-    if (!(f.doors & kCommandLine) || (keep && !keep(f))) continue;
+    if (!(f.doors & kCommandLine)) continue;
     const std::optional<std::string> t = f.text(settings);
     if (!t || t == f.defaultText()) continue;
     out += ' ';
@@ -638,6 +649,10 @@ std::string commandLineOf(const FrameSettings& settings, const std::function<boo
 
 namespace {
 const char* const kCameraFields[] = {"eye", "center", "up", "fov", "ortho", "ortho_height", "size"};
+}
+
+bool isCameraField(const FrameField& f) {
+  return std::find(std::begin(kCameraFields), std::end(kCameraFields), f.name) != std::end(kCameraFields);
 }
 
 FrameSettings cameraSettings(const Camera& c) {
@@ -779,8 +794,8 @@ FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& 
     HYB_THROW(ValueError, "--zoom ", s.zoom, " makes a field of view of ", camera.fovDeg, " degrees (expected a zoom keeping it in [0.1, 179))");
   job.quality = s.quality;
   if (!s.budget.empty()) {
-    const bool percent = s.budget.back() == '%';
-    (percent ? job.quality.budgetPercent : job.quality.budgetMb) = numbersIn(percent ? s.budget.substr(0, s.budget.size() - 1) : s.budget)->front();
+    const Budget b = *budgetIn(s.budget);  // (checked when it was set)
+    (b.percent ? job.quality.budgetPercent : job.quality.budgetMb) = b.value;
   }
   job.background = s.background;
   return job;

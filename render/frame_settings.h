@@ -135,11 +135,13 @@ nlohmann::json fieldsJson(unsigned door);
 
 /// The flags of the fields of @p settings that differ from their defaults, as the command line
 /// writes them ("--eye 1,2,3 --fov 30 --iso 400"): the viewer's echo of a frame.
-std::string commandLineOf(const FrameSettings& settings, const std::function<bool(const FrameField&)>& keep = {});
+std::string commandLineOf(const FrameSettings& settings);
 
 /// @p s quoted for a POSIX shell when it needs it.
 std::string shellQuote(const std::string& s);
 
+/// Whether @p field is one of the camera's (eye, center, up, fov, ortho, ortho_height, size).
+bool isCameraField(const FrameField& field);
 /// The camera fields of @p camera (eye, center, up, fov, ortho, ortho_height, size): the one camera
 /// format that --stats writes, --camera-file reads and the viewer's frames carry.
 FrameSettings cameraSettings(const Camera& camera);

@@ -225,6 +225,9 @@ TEST(ViewerServer, BadMessagesGetTheirErrorAndTheServerKeepsServing) {
   EXPECT_EQ(info["dims"], json::array({40, 36, 32}));
   EXPECT_EQ(info["views"].size(), 6u);
   EXPECT_EQ(info["fields"], fieldsJson(kViewer));  // what the page's controls range over
+  const json& anterior = info["views"]["anterior"];  // a camera: the table's camera fields, nothing of the look
+  EXPECT_EQ(anterior.size(), 7u) << anterior.dump();
+  for (const auto& [name, value] : anterior.items()) EXPECT_TRUE(isCameraField(*frameField(name))) << name;
   const std::pair<std::string, std::string> bad[] = {
       {"{", "not JSON"},
       {R"({"type":"frame","seq":1})", "field 'eye': expected a value (missing)"},

@@ -416,7 +416,7 @@ class PyScene {
     for (const auto& [k, v] : kwargs) {
       const std::string key = py::cast<std::string>(k);
       const FrameField* field = frameField(key);
-      if ((!field || !(field->doors & kPython)) && key != "premultiplied" && key != "stats" && key != "tf")
+      if ((!field || !(field->doors & kPython)) && key != "premultiplied" && key != "stats")
         throw py::type_error(hyb::detail::concat("render() got an unexpected keyword argument '", key, "'"));
       if (v.is_none()) continue;
       if (key == "premultiplied") {

@@ -75,7 +75,7 @@ std::vector<uint8_t> encodeJpeg(const std::vector<uint8_t>& rgba, int width, int
 json vec3Json(const glm::dvec3& v) { return json::array({v.x, v.y, v.z}); }
 
 // The camera in the frame table's fields (eye, center, up, fov, ortho, ortho_height, size).
-json cameraToJson(const Camera& c) { return settingsJson(cameraSettings(c), kViewer); }
+json cameraToJson(const Camera& c) { return settingsJson(cameraSettings(c), kViewer, isCameraField); }
 
 // The `hybrid-octree render` command line that makes the same image (the transfer function's
 // points in the file @p tfFile when they are not a preset).
