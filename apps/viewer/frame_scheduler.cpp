@@ -1,0 +1,257 @@
+#include "apps/viewer/frame_scheduler.h"
+
+#include <turbojpeg.h>
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "render/patient_view.h"
+#include "render/scene_renderer.h"
+#include "volume/error.h"
+
+namespace hyb::viewer {
+
+// Frames before the final one draw the surface simplified, its finest level within blocks of this edge: with
+// bricks no smaller, each of its triangles lies inside one brick and is drawn in the right order (coarser
+// levels, drawn where pixels are larger than their error, are placed by their triangles' centroids).
+static_assert(kInteractiveBrickEdge == kSimplifiedBlockVoxels);
+
+namespace {
+
+double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
+
+std::vector<uint8_t> encodeJpeg(const std::vector<uint8_t>& rgba, int width, int height, int quality) {
+  tjhandle tj = tjInitCompress();
+  if (!tj) HYB_THROW(RuntimeError, "JPEG encoder: ", tjGetErrorStr());
+  unsigned char* buffer = nullptr;
+  unsigned long bytes = 0;
+  // Full chroma: interactive frames are small and shown magnified, where 4:2:0 costs 0.1-0.2 dB.
+  const int status = tjCompress2(tj, rgba.data(), width, 0, height, TJPF_RGBA, &buffer, &bytes, TJSAMP_444, quality, TJFLAG_FASTDCT);
+  std::vector<uint8_t> out;
+  if (status == 0) out.assign(buffer, buffer + bytes);
+  tjFree(buffer);
+  tjDestroy(tj);
+  if (status != 0) HYB_THROW(RuntimeError, "JPEG encoding failed");
+  return out;
+}
+
+// What a frame of @p r at @p level of the ladder (rung @p q) draws and how.
+FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const QualityLevel& q, int level, std::optional<float> iso) {
+  std::ostringstream warnings;  // (an isovalue outside the data: the page's info says so)
+  FrameSetup p = setUpFrame(r.settings, scene, warnings);
+  p.view.camera.width = std::max(kMinImageEdge, int(std::lround(r.size().x * q.scale)));
+  p.view.camera.height = std::max(kMinImageEdge, int(std::lround(r.size().y * q.scale)));
+  p.look.iso = iso;
+  p.quality.waitForSurface = false;  // the pool's builder makes it; meanwhile its preview, or none
+  if (q.rays) p.quality.renderer = Renderer::Raycast;
+  if (level > 0) {
+    p.quality.budgetPercent = q.budgetPercent < 100.0 ? q.budgetPercent : 0.0;
+    p.quality.step = q.step;
+    p.quality.reuseViewErrors = r.interacting;
+    // The refining frame too: it comes between the motion and the final frame, which it delays.
+    p.quality.simplifiedSurface = true;
+    p.quality.surfaceErrorPixels = kInteractiveSurfaceErrorPixels;
+    p.quality.cutToSlabs = false;
+    p.quality.maxBrickEdge = kInteractiveBrickEdge;
+    p.quality.lodPixels = kInteractiveLodPixels;
+    p.quality.waitForBricks = false;  // a paged scene's bricks not cached yet are drawn coarser meanwhile
+    p.quality.packTexels = kInteractivePackTexels;
+  } else {
+    p.quality.lodPixels = kFinalLodPixels;
+  }
+  return p;
+}
+
+// A frame's message: its header and the image, JPEG before the final frame, PNG for it (render
+// thread, unlocked); @p ms receives the frame's time from @p t0, encoding included.
+std::string encodeFrame(const FrameHeader& h, const Image& image, Clock::time_point t0, double* ms) {
+  const auto t1 = Clock::now();
+  const std::vector<uint8_t> rgba = toRgba8(image, glm::vec3(0.0f));
+  const std::vector<uint8_t> bytes = h.final ? encodePng(rgba, image.width, image.height) : encodeJpeg(rgba, image.width, image.height, 95);
+  const double encodeMs = msSince(t1);
+  *ms = msSince(t0);
+  return frameMessage(h.text(image.width, image.height, encodeMs), bytes);
+}
+
+}  // namespace
+
+void Client::ask(FrameRequest request) {
+  pending = std::move(request);
+  pendingSince = Clock::now();
+  pendingEpochMs = std::chrono::duration<double, std::milli>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+void Client::showScene(const std::string& key) {
+  sceneKey = key;
+  pending.reset();
+  current.reset();
+  refine.clear();
+  banded.reset();
+  volumeQuality.reset();
+  surfaceQuality.reset();
+  surfaceRayQuality.reset();
+}
+
+bool FrameScheduler::hasWork(const Clients& clients) {
+  return std::any_of(clients.begin(), clients.end(), [](const auto& c) { return c.second->hasWork(); });
+}
+
+void FrameScheduler::refineAgain(const Clients& clients, const std::string& key) {
+  for (const auto& entry : clients) {
+    Client& c = *entry.second;
+    if (c.sceneKey == key && c.current && !c.pending) {
+      c.pending = c.current;
+      c.pending->interacting = false;
+      c.pendingSince.reset();
+    }
+  }
+}
+
+void FrameScheduler::serveNext(const Clients& clients, std::unique_lock<std::mutex>& lock) {
+  std::vector<std::shared_ptr<Client>> waiting;
+  for (const auto& entry : clients)
+    if (entry.second->hasWork()) waiting.push_back(entry.second);
+  if (!waiting.empty()) serve(*waiting[mTurn++ % waiting.size()], lock);
+}
+
+int FrameScheduler::start(Client& client, std::optional<Arrival>* arrival, bool* surface) {
+  if (client.pendingSince) *arrival = Arrival{msSince(*client.pendingSince), client.pendingEpochMs};
+  client.pendingSince.reset();
+  client.current = std::move(client.pending);
+  client.pending.reset();
+  client.banded.reset();
+  client.refine.clear();
+  const FrameRequest& r = *client.current;
+  if (!r.scene.empty() && r.scene != client.sceneKey) {  // asked of the scene shown before this one
+    client.current.reset();
+    return -1;
+  }
+  const ScenePool::Frame shown = mPool.forFrame(client.id, r.iso());
+  *surface = shown.iso.has_value();
+  // (once the full surface is ready: the ray tracer draws no preview, it would build it here)
+  client.raysForSurface =
+      shown.renderer && shown.surfaceReady && surfaceRaysFit(shown.renderer->volume().dims(), shown.renderer->volume().spacing());
+  AdaptiveQuality& quality = client.quality(*surface);
+  if (r.interacting) return quality.chooseInteractiveLevel();
+  client.refine = quality.refinement();
+  client.refineSurface = *surface;
+  std::reverse(client.refine.begin(), client.refine.end());
+  const int level = client.refine.back();
+  client.refine.pop_back();
+  return level;
+}
+
+void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
+  int level = 0;
+  std::optional<Arrival> arrival;
+  bool surface = client.refineSurface;
+  if (client.pending) {
+    level = start(client, &arrival, &surface);
+    if (level < 0) return;
+  } else if (!client.banded) {
+    level = client.refine.back();
+    client.refine.pop_back();
+  }
+  const ScenePool::Frame scene = mPool.forFrame(client.id, client.current->iso());
+  if (!scene.renderer) {
+    client.refine.clear();
+    client.banded.reset();
+    return;
+  }
+  const FrameRequest request = client.banded ? client.banded->request : *client.current;
+  const bool final = !request.interacting && client.refine.empty() && level == 0;
+  const glm::ivec2 size = request.size();
+  if (final && !client.banded && int64_t(size.x) * size.y > kBandPixels) {
+    BandedFrame b(request, SurfaceShown(scene));
+    b.arrival = arrival;
+    b.image = Image(size.x, size.y);
+    b.rowsPerBand = std::max(16, kBandPixels / size.x);
+    client.banded = std::move(b);
+  }
+  if (client.banded) {
+    serveBand(client, *scene.renderer, *scene.summary, lock);
+    return;
+  }
+  const QualityLevel& rung = client.quality(surface).ladder()[size_t(level)];
+  const SurfaceShown shown(scene);
+  const SceneSummary summary = *scene.summary;
+  lock.unlock();
+  std::string message;
+  double ms = 0.0;
+  bool cold = false;
+  double coarser = 0.0;  // share of the bricks drawn coarser
+  try {
+    const auto t0 = Clock::now();
+    const FrameSetup parts = frameParts(request, scene.renderer->scene(), rung, level, shown.drawn(request));
+    const RenderedFrame frame = scene.renderer->render(parts.view, parts.look, parts.quality);
+    const double renderMs = msSince(t0);
+    const FrameStats& st = frame.stats;
+    // (also a ray-traced frame that made the surface's BVH, or one that made a pre-integration table)
+    cold = 2 * st.slices.uploadedBricks > st.slices.bricks || st.bvhMs > 0.0 || st.preintegrationMs > 0.0;
+    coarser = double(st.bricksNotResident) / double(std::max<size_t>(1, st.slices.bricks + st.bricksNotResident));
+    const FrameHeader header{summary, request, rung, level, final, shown, arrival, st, frame.selection.maxError, renderMs};
+    message = encodeFrame(header, frame.image, t0, &ms);
+  } catch (const std::exception& e) {
+    message.clear();
+    client.send(errorMessage(e.what(), request.seq), false);
+  }
+  lock.lock();
+  if (!message.empty()) {  // (a failed frame's time says nothing of its level)
+    client.quality(surface).record(level, ms, cold, coarser);
+    client.send(std::move(message), true);
+  }
+}
+
+// The next band of @p client's final frame; the frame goes out with its last.
+void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, std::unique_lock<std::mutex>& lock) {
+  BandedFrame& b = *client.banded;
+  const glm::ivec2 rows(b.next, std::min(b.next + b.rowsPerBand, b.image.height));
+  const QualityLevel& rung = client.quality(b.surface.iso.has_value()).ladder()[0];
+  const FrameRequest request = b.request;
+  const std::optional<float> iso = b.surface.drawn(request);
+  const SceneSummary summary = scene;
+  lock.unlock();
+  std::string message, error;
+  RenderedFrame frame;
+  const auto t0 = Clock::now();
+  try {
+    FrameSetup parts = frameParts(request, renderer.scene(), rung, 0, iso);
+    parts.quality.rows = rows;
+    frame = renderer.render(parts.view, parts.look, parts.quality);
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  const double ms = msSince(t0);
+  lock.lock();
+  if (!client.banded || client.banded->request.seq != request.seq) return;  // replaced meanwhile
+  if (!error.empty()) {
+    client.banded.reset();
+    client.send(errorMessage(error, request.seq), false);
+    return;
+  }
+  for (int y = rows.x; y < rows.y; ++y)
+    std::copy_n(&frame.image.at(0, y), b.image.width, &b.image.at(0, y));
+  b.renderMs += ms;
+  b.stats = frame.stats;
+  b.maxError = std::max(b.maxError, double(frame.selection.maxError));
+  b.next = rows.y;
+  if (b.next < b.image.height) return;
+  BandedFrame done = std::move(b);
+  client.banded.reset();
+  lock.unlock();
+  double total = 0.0;
+  try {
+    const FrameHeader header{summary, done.request, rung, 0, true, done.surface, done.arrival, done.stats, done.maxError, done.renderMs};
+    message = encodeFrame(header, done.image, Clock::now(), &total);
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  lock.lock();
+  if (!message.empty())
+    client.send(std::move(message), true);
+  else
+    client.send(errorMessage(error, done.request.seq), false);
+}
+
+}  // namespace hyb::viewer

@@ -1,0 +1,100 @@
+// The viewer's frame scheduler: each client's newest request, its ladder of refinements and its
+// final frame drawn band by band, served in turn on the render thread so that no client's large
+// frame holds the others' for longer than a band. State shared with the network thread lives in
+// Client, under the server's mutex.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "apps/viewer/viewer_protocol.h"
+#include "apps/viewer/viewer_quality.h"
+#include "apps/viewer/viewer_replies.h"
+#include "render/scene_pool.h"
+
+namespace hyb::viewer {
+
+using Clock = std::chrono::steady_clock;
+
+/// A final frame larger than this is drawn band by band, other clients' frames between its bands,
+/// so that it holds the render thread for one band at a time (the pixels are the whole frame's:
+/// SlicesOptions::rows).
+inline constexpr int kBandPixels = 512 * 512;
+
+/// A final frame part drawn.
+struct BandedFrame {
+  BandedFrame(FrameRequest r, const SurfaceShown& s) : request(std::move(r)), surface(s) {}
+  FrameRequest request;
+  SurfaceShown surface;
+  std::optional<Arrival> arrival;
+  Image image;
+  int next = 0;           ///< the first row not drawn yet
+  int rowsPerBand = 0;
+  double renderMs = 0.0;  ///< the bands' render times so far
+  FrameStats stats;       ///< the last band's
+  double maxError = 0.0;
+};
+
+/// A client: what its page asked for last, and how well its frames are made. Shared by its socket
+/// (network thread) and the render thread, under the server's mutex.
+struct Client {
+  uint64_t id = 0;
+  std::string sceneKey;                 ///< the scene its frames are of; empty before one is open
+  std::optional<FrameRequest> pending;  ///< the newest request not yet rendered
+  std::optional<Clock::time_point> pendingSince;  ///< when the page sent it (none: the server asks again)
+  double pendingEpochMs = 0.0;          ///< the same, wall clock
+  std::optional<FrameRequest> current;  ///< the request being refined
+  std::vector<int> refine;              ///< levels still to render for it, next last
+  bool refineSurface = false;           ///< ... of the surface's ladder
+  std::optional<BandedFrame> banded;    ///< its final frame, part drawn
+  AdaptiveQuality volumeQuality, surfaceQuality, surfaceRayQuality;
+  bool raysForSurface = false;  ///< the surface's ladder ray-traces small frames (surfaceRaysFit)
+  std::atomic<bool> open{true};
+  std::function<void(std::string message, bool binary)> send;  ///< posts to the socket; drops when closed
+
+  explicit Client(double targetMs)
+      : volumeQuality(kVolumeLadder, targetMs), surfaceQuality(kSurfaceLadder, targetMs), surfaceRayQuality(kSurfaceRayLadder, targetMs) {}
+  /// The ladder of frames with a surface or without: they cost and lose accuracy differently.
+  AdaptiveQuality& quality(bool surface) { return surface ? (raysForSurface ? surfaceRayQuality : surfaceQuality) : volumeQuality; }
+  bool hasWork() const { return open && !sceneKey.empty() && (pending || !refine.empty() || banded); }
+  /// A new request from the page: it replaces an older one not yet rendered.
+  void ask(FrameRequest request);
+  /// A new scene: nothing of the last one's requests, refinement or measured times applies to it.
+  void showScene(const std::string& key);
+};
+
+using Clients = std::map<uint64_t, std::shared_ptr<Client>>;
+
+/// Serves the clients' frames in turn (render thread, with the server's mutex held except while
+/// it renders and encodes).
+class FrameScheduler {
+ public:
+  explicit FrameScheduler(ScenePool& pool) : mPool(pool) {}
+
+  /// Whether a client of @p clients has a frame to make.
+  static bool hasWork(const Clients& clients);
+  /// Clients showing scene @p key refine again (a surface they asked for may have come).
+  static void refineAgain(const Clients& clients, const std::string& key);
+  /// One step of the next client with work, in turn: its newest request's first frame, the next
+  /// refinement, or the next band of its final frame.
+  void serveNext(const Clients& clients, std::unique_lock<std::mutex>& lock);
+
+ private:
+  void serve(Client& client, std::unique_lock<std::mutex>& lock);
+  /// Takes @p client's pending request as its current one: the ladder's level of its first frame.
+  int start(Client& client, std::optional<Arrival>* arrival, bool* surface);
+  void serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, std::unique_lock<std::mutex>& lock);
+
+  ScenePool& mPool;
+  size_t mTurn = 0;
+};
+
+}  // namespace hyb::viewer
