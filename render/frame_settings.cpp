@@ -11,6 +11,8 @@
 #include <sstream>
 
 #include "hybrid_octree/hybrid_io.h"
+#include "hybrid_octree/knot_store.h"
+#include "render/scene_renderer.h"
 #include "volume/error.h"
 #include "volume/file_util.h"
 
@@ -799,6 +801,46 @@ FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& 
   }
   job.background = s.background;
   return job;
+}
+
+std::string FrameReport::json() const {
+  const bool slices = quality.renderer == Renderer::Slices;
+  const FrameStats& st = frame.stats;
+  const Selection& sel = frame.selection;
+  nlohmann::ordered_json j;
+  j["renderer"] = slices ? "slices" : "raycast";
+  j["nodes_selected"] = sel.bricks.size();
+  j["nodes_hidden"] = std::count_if(sel.bricks.begin(), sel.bricks.end(), [](const Brick& b) { return b.hidden; });
+  j["textured_bricks"] = st.slices.bricks;
+  j["texels"] = sel.texels;
+  j["blended_bricks"] = sel.blendedBricks;
+  j["texture_bytes"] = slices ? st.slices.textureBytes : sel.texels * bytesPerTexel(quality.texelBits);
+  j["slices"] = st.slices.slices;
+  j["surface_polygons"] = st.surfacePolygons;
+  j["surface_triangles"] = st.surfaceTriangles;
+  j["surface_spacing"] = st.surfaceSpacing;
+  j["slab_polygon_draws"] = st.slices.slabPolygonDraws;
+  j["unseen_triangles"] = st.slices.unseenTriangles;
+  j["fragments"] = st.slices.fragments;
+  j["shell_bricks"] = st.slices.shellBricks;
+  j["cut_polygons"] = st.slices.cutPolygons;
+  j["cut_line_segments"] = st.slices.cutLineSegments;
+  j["select_ms"] = st.selectMs;
+  j["render_ms"] = renderMs;
+  j["classification"] = quality.classification == Classification::PreIntegrated ? "preintegrated" : "post";
+  j["preintegration_ms"] = preintegrationMs;
+  j["samples"] = st.rays.samples;
+  j["rays"] = st.rays.rays;
+  j["epsilon"] = quality.epsilon;
+  j["max_nodal_error_used"] = sel.maxError;
+  j["budget_met"] = sel.budgetMet;
+  if (store) {
+    const StoreCacheStats c = store->cacheStats();
+    j["store"] = {{"blocks_read", c.misses}, {"bytes_read", c.bytesRead}, {"cache_hits", c.hits}, {"cache_bytes", c.bytesHeld},
+                  {"cache_limit", c.limit}, {"evicted", c.evicted}};
+  }
+  j["camera"] = nlohmann::ordered_json::parse(cameraJson(camera));
+  return j.dump(2);
 }
 
 }  // namespace hyb

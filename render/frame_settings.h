@@ -25,6 +25,9 @@
 
 namespace hyb {
 
+struct RenderedFrame;
+class KnotStore;
+
 struct Scene;
 
 /// What a user sets of a frame, by any front door, in patient space (LPS mm).
@@ -150,6 +153,19 @@ FrameSettings cameraSettings(const Camera& camera);
 Camera explicitCamera(const FrameSettings& settings);
 /// The camera as JSON (patient space, LPS mm): {"space": "LPS", eye, center, up, fov, ortho, ortho_height, size}.
 std::string cameraJson(const Camera& camera, int indent = 2);
+/// What a frame drew and what it cost: the one format of a frame's statistics, which `--stats`
+/// writes (with the command's own figures added) and Python's `render(stats=True)` returns.
+struct FrameReport {
+  const RenderedFrame& frame;
+  const Quality& quality;
+  const Camera& camera;
+  const KnotStore* store = nullptr;  ///< a paged scene's: the blocks and bytes it read
+  double renderMs = 0.0;             ///< the frame's time (the best of repeated frames)
+  double preintegrationMs = 0.0;     ///< the pre-integration table's (the first frame's)
+  /// The statistics as a JSON object (ordered keys, camera last).
+  std::string json() const;
+};
+
 /// Reads a camera from @p path: a file of cameraJson's form, or a --stats file holding one under
 /// "camera"; files of the earlier form (fov_deg, width, height) are read too.
 /// @throw IoError naming the file and the field when it is not one.

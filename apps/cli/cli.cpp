@@ -234,49 +234,14 @@ void printRenderLines(const RenderJob& job, const RenderRun& run, int repeat, st
     out << "classify pre-integrated, table made in " << std::fixed << std::setprecision(1) << tableMs << " ms\n";
 }
 
-// --stats: the frame's selection, counts and times as JSON.
+// --stats: the frame's report (FrameReport) with the command's own times and, across ranks, theirs.
 std::string statsJson(const RenderJob& job, const RenderRun& run, const FrameStats& surface, const std::string& ranksJson) {
-  const bool slices = job.quality.renderer == Renderer::Slices;
-  const FrameStats& st = run.frame.stats;
-  const double renderMs = run.renderMs, firstMs = run.firstMs, tableMs = run.tableMs;
-  const Selection& sel = run.frame.selection;
-  nlohmann::ordered_json j;
-  j["renderer"] = slices ? "slices" : "raycast";
-  j["nodes_selected"] = sel.bricks.size();
-  j["nodes_hidden"] = std::count_if(sel.bricks.begin(), sel.bricks.end(), [](const Brick& b) { return b.hidden; });
-  j["texels"] = sel.texels;
-  j["blended_bricks"] = sel.blendedBricks;
-  j["texture_bytes"] = slices ? st.slices.textureBytes : sel.texels * bytesPerTexel(job.quality.texelBits);
-  j["slices"] = st.slices.slices;
-  j["surface_polygons"] = st.surfacePolygons;
-  j["surface_triangles"] = st.surfaceTriangles;
-  j["surface_spacing"] = st.surfaceSpacing;
-  j["slab_polygon_draws"] = st.slices.slabPolygonDraws;
-  j["unseen_triangles"] = st.slices.unseenTriangles;
-  j["fragments"] = st.slices.fragments;
-  j["shell_bricks"] = st.slices.shellBricks;
-  j["cut_polygons"] = st.slices.cutPolygons;
-  j["cut_line_segments"] = st.slices.cutLineSegments;
+  const FrameReport report{run.frame, job.quality, job.view.camera, job.renderer->scene().knots.get(), run.renderMs, run.tableMs};
+  nlohmann::ordered_json j = nlohmann::ordered_json::parse(report.json());
   j["build_ms"] = job.buildMs + surface.surfaceBuildMs;
   j["surface_polygons_ms"] = surface.surfacePolygonsMs;
-  j["select_ms"] = st.selectMs;
-  j["render_ms"] = renderMs;
-  j["first_render_ms"] = firstMs;
-  j["classification"] = job.quality.classification == Classification::PreIntegrated ? "preintegrated" : "post";
-  j["preintegration_ms"] = tableMs;
-  j["samples"] = st.rays.samples;
-  j["rays"] = st.rays.rays;
-  j["epsilon"] = job.quality.epsilon;
-  j["max_nodal_error_used"] = sel.maxError;
-  j["budget_met"] = sel.budgetMet;
-  if (const auto& store = job.renderer->scene().knots) {
-    // What the paged scene read: blocks from the file, from the cache, and what the cache holds.
-    const StoreCacheStats c = store->cacheStats();
-    j["store"] = {{"blocks_read", c.misses}, {"bytes_read", c.bytesRead}, {"cache_hits", c.hits}, {"cache_bytes", c.bytesHeld},
-                  {"cache_limit", c.limit}, {"evicted", c.evicted}};
-  }
+  j["first_render_ms"] = run.firstMs;
   if (!ranksJson.empty()) j["ranks"] = nlohmann::ordered_json::parse(ranksJson);
-  j["camera"] = nlohmann::ordered_json::parse(cameraJson(job.view.camera));
   return j.dump(2);
 }
 
@@ -578,7 +543,7 @@ struct Commands {
     exportCmd = app->add_subcommand("export", "write the isosurface as a mesh in millimetres");
     exportOpts.input.add(exportCmd);
     exportCmd->add_option("--iso", exportOpts.iso, "isovalue in data units (samples >= iso are inside)");
-    exportCmd->add_option("-o,--output", exportOpts.output, "mesh file: .ply .obj .stl .off");
+    exportCmd->add_option("-o,--output", exportOpts.output, "mesh file: " + meshExtensionsText());
     exportCmd->add_option("--surface", exportOpts.surface, "dmc (Discretized Marching Cubes), octree (Surface Octree, merged) or mc (classic)")
         ->capture_default_str();
     exportCmd->add_flag("--check", exportOpts.check,

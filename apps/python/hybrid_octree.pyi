@@ -107,7 +107,8 @@ class Scene:
         stats: Flag = False,
         **more: Any,
     ) -> Any:
-        """An (H, W, 4) uint8 image; with stats=True, (image, the frame's statistics). By default the
+        """An (H, W, 4) uint8 image; with stats=True, (image, the frame's statistics: the keys of
+        `--stats` but the command's own times). By default the
         image is straight alpha over transparent (premultiplied=True: premultiplied), so
         matplotlib's imshow shows it over white; background=(r, g, b) composites it over that colour
         as the command line's PNG does (alpha 255, the PNG's bytes). Keywords are `hybrid-octree

@@ -300,26 +300,8 @@ py::array_t<uint8_t> toArray(const Image& image, bool premultiplied, const std::
   return out;
 }
 
-py::dict statsOf(const RenderedFrame& f) {
-  const FrameStats& s = f.stats;
-  py::dict d;
-  d["renderer"] = s.renderer == Renderer::Slices ? "slices" : "raycast";
-  d["render_ms"] = s.renderMs;
-  d["select_ms"] = s.selectMs;
-  d["bricks"] = f.selection.bricks.size();
-  d["textured_bricks"] = s.slices.bricks;
-  d["texels"] = f.selection.texels;
-  d["texture_bytes"] = s.slices.textureBytes;
-  d["slices"] = s.slices.slices;
-  d["surface_triangles"] = s.surfaceTriangles;
-  d["slab_polygon_draws"] = s.slices.slabPolygonDraws;
-  d["rays"] = s.rays.rays;
-  d["samples"] = s.rays.samples;
-  d["max_nodal_error_used"] = f.selection.maxError;
-  d["budget_met"] = f.selection.budgetMet;
-  d["preintegration_ms"] = s.preintegrationMs;
-  return d;
-}
+// The frame's report as a dict: the keys and values of `--stats` (FrameReport).
+py::dict statsOf(const FrameReport& report) { return py::module_::import("json").attr("loads")(report.json()); }
 
 // Each line of @p text (the command line's warnings) as a Python UserWarning.
 void warnLines(const std::string& text) {
@@ -453,7 +435,8 @@ class PyScene {
     if (settings.marker) drawOrientationMarker(job.view.camera, &frame.image);
     py::array_t<uint8_t> image = toArray(frame.image, premultiplied, composited ? std::optional(job.background) : std::nullopt);
     if (!withStats) return image;
-    return py::make_tuple(image, statsOf(frame));
+    return py::make_tuple(image, statsOf(FrameReport{frame, job.quality, job.view.camera, mRenderer->scene().knots.get(), frame.stats.renderMs,
+                                                     frame.stats.preintegrationMs}));
   }
 
   py::tuple surface(const py::object& iso, const py::object& kind, const py::object& closed, const py::object& normals) {

@@ -452,6 +452,22 @@ def test_files_and_arrays_as_python_forms(tmp_path, small_scene):
     assert isinstance(small_scene.render(size=(32, 32), stats=np.bool_(True)), tuple)
 
 
+def test_statistics_are_the_command_lines_stats(tmp_path):
+    """One writer of a frame's statistics: render(stats=True) has --stats' keys and, for the same
+    frame, its counts; --stats adds the command's own times only."""
+    import json
+    path = tmp_path / "blobs.nrrd"
+    write_nrrd(path, blobs(), (1, 1, 1))
+    cli("render", path, "--orbit", "40,20", "--size", "48x40", "--iso", "500", "-o", tmp_path / "c.png", "--stats", tmp_path / "c.json")
+    written = json.loads((tmp_path / "c.json").read_text())
+    _, stats = ho.open(str(path)).render(size=(48, 40), orbit=(40, 20), iso=500, stats=True)
+    assert set(written) - set(stats) == {"build_ms", "surface_polygons_ms", "first_render_ms"}
+    assert set(stats) <= set(written)
+    for key in ("renderer", "nodes_selected", "textured_bricks", "texels", "slices", "surface_triangles", "slab_polygon_draws", "budget_met"):
+        assert stats[key] == written[key], key
+    assert stats["camera"] == written["camera"]
+
+
 # Values no text of a keyword's form spells, by form.
 WRONG_TYPES = {
     "Number": [(1, 2), [1.5], {}, 1 + 2j, True, np.bool_(True), np.array([1.5]), b"1", object()],
