@@ -39,3 +39,5 @@ read -r as am < <(best "$work/archive")
 echo "build 512x512x400 from a folder:       ${fs} s, peak RSS $((fm / 1024)) MiB"
 echo "build 512x512x400 from Orthanc (WADO): ${as} s, peak RSS $((am / 1024)) MiB"
 echo "archive/folder: time $(echo "scale=2; $as / $fs" | bc)x, memory $(echo "scale=2; $am / $fm" | bc)x"
+# The viewer: the click on the series to its first and final frames, cold and from the scene cache.
+node "$(dirname "$0")/viewer_pacs_bench.mjs" "$build/hybrid-octree" "http://127.0.0.1:$port/dicom-web" "$url"

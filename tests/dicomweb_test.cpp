@@ -25,6 +25,7 @@
 #include <fstream>
 #include <functional>
 #include <set>
+#include <algorithm>
 #include <thread>
 
 #include "cli_util.h"
@@ -348,6 +349,40 @@ TEST(DicomWeb, ASeriesReadsAsItsFilesDoInAFolder) {
   ASSERT_EQ(axial.warnings().size(), 1u);
   EXPECT_EQ(axial.warnings()[0], o.series(s.a.uid, s.axial) + ": 1 localizer image of series '" + s.axial + "' left out");
 }
+
+// What a cache of built scenes is keyed by: the series' UID and its instances as the archive lists
+// them, sorted (the localizer among the axial images too: it is an instance of the series).
+TEST(DicomWeb, TheInstancesOfASeriesAreListedSorted) {
+  TempDir dir;
+  const Studies& s = uploadedStudies(dir);
+  const Orthanc& o = Orthanc::shared();
+  const Credentials credentials;
+  const std::pair<std::string, std::vector<std::string>> listed = dicomWebInstances(o.series(s.a.uid, s.axial));
+  EXPECT_EQ(listed.first, s.axial);
+  ASSERT_EQ(listed.second.size(), 13u);  // 12 axial images and the localizer
+  EXPECT_TRUE(std::is_sorted(listed.second.begin(), listed.second.end()));
+  EXPECT_EQ(std::set<std::string>(listed.second.begin(), listed.second.end()).size(), 13u);
+  EXPECT_THROW(dicomWebInstances(o.root() + "/studies/" + s.a.uid), ValueError);  // a study's address, not a series'
+}
+
+#ifdef HYB_PYTHON_DIR
+// Python's open() takes a series' address as the command line does: the same samples.
+TEST(DicomWeb, PythonOpensASeriesByItsAddress) {
+  TempDir dir;
+  const Studies& s = uploadedStudies(dir);
+  const Orthanc& o = Orthanc::shared();
+  const Credentials credentials;
+  const std::string url = o.series(s.b.uid, s.other), out = dir.file("python.txt");
+  const std::string script = "import sys, hybrid_octree as ho; a = ho.open(sys.argv[1]).array; "
+                             "open(sys.argv[2], 'w').write('%s %d %d' % (a.shape, a.min(), a.max()))";
+  const std::string command = "PYTHONPATH=" HYB_PYTHON_DIR " /usr/bin/python3 -c \"" + script + "\" '" + url + "' '" + out + "' 2>" + dir.file("err.txt");
+  ASSERT_EQ(std::system(command.c_str()), 0) << test::readText(dir.file("err.txt"));
+  const Volume v = readVolume(url);
+  // numpy's shape is (z, y, x).
+  EXPECT_EQ(test::readText(out), "(" + std::to_string(v.dims().z) + ", " + std::to_string(v.dims().y) + ", " + std::to_string(v.dims().x) + ") " +
+                                     std::to_string(int(v.minValue())) + " " + std::to_string(int(v.maxValue())));
+}
+#endif
 
 // InVesalius' cranium written as a CT series: built and rendered from the archive as from its
 // folder, the same image (identical, or at least 60 dB).

@@ -97,6 +97,11 @@ TEST(ViewerProtocol, EveryBadMessageIsRefusedNamingItsField) {
       {frame(R"(,"voi_inside":-1)"), "'voi_inside'"},
       {R"({"type":"open"})", "'path'"},
       {R"({"type":"open","path":""})", "'path'"},
+      {R"({"type":"open","url":"file:///etc/passwd"})", "'url': expected a DICOMweb series address"},
+      {R"({"type":"open","url":"http://pacs/dicom-web/studies/1/series/2","path":"a"})", "'url': expected no path or series beside it"},
+      {R"({"type":"pacs-search","patient":1})", "'patient': expected a string"},
+      {R"({"type":"pacs-search","study_date":"20240101-20240202-2"})", "'study_date': expected at most 17 bytes"},
+      {R"({"type":"pacs-search","host":"evil"})", "'host': expected no such field"},
       {R"({"type":"frame","seq":1,"eye":[[[[[[[[[[1]]]]]]]]]]})", "nested deeper"},
   };
   for (const auto& [text, expected] : cases) EXPECT_THAT(refusal(text), HasSubstr(expected)) << text;
@@ -105,6 +110,18 @@ TEST(ViewerProtocol, EveryBadMessageIsRefusedNamingItsField) {
   for (int i = 0; i < 257; ++i) many += (i ? "," : "") + std::string("[") + std::to_string(i) + ",1,1,1,0]";
   EXPECT_THAT(refusal(many + "]}"), HasSubstr("'tf_points'"));
   EXPECT_THAT(refusal(std::string(kMaxMessageBytes + 1, ' ')), HasSubstr("at most"));
+}
+
+TEST(ViewerProtocol, APacsSearchAndAnOpenByAddressParse) {
+  const auto search = std::get<PacsSearchRequest>(parseRequest(R"({"type":"pacs-search","patient":"DOE*","study_date":"2024-","modality":"CT"})"));
+  EXPECT_EQ(search.patient, "DOE*");
+  EXPECT_EQ(search.studyDate, "2024-");
+  EXPECT_EQ(search.modality, "CT");
+  const auto all = std::get<PacsSearchRequest>(parseRequest(R"({"type":"pacs-search"})"));
+  EXPECT_TRUE(all.patient.empty() && all.studyDate.empty() && all.modality.empty());
+  const auto open = std::get<OpenRequest>(parseRequest(R"({"type":"open","url":"https://pacs/dicom-web/studies/1.2/series/1.2.3"})"));
+  EXPECT_EQ(open.url, "https://pacs/dicom-web/studies/1.2/series/1.2.3");
+  EXPECT_TRUE(open.path.empty());
 }
 
 TEST(ViewerProtocol, FrameMessagesSplitBackIntoHeaderAndImage) {

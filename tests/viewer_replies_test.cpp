@@ -33,7 +33,7 @@ SceneSummary summary() {
 TEST(ViewerReplies, InfoCarriesTheSummaryTheViewsTheSurfacesAndTheFrameTablesFields) {
   const SceneSummary s = summary();
   const std::vector<DataEntry> volumes{{"head/ct", "1.2.3", "head/ct (CT, 6 slices)"}};
-  const json info = json::parse(InfoReply{s, {400.0f}, volumes, true}.text());
+  const json info = json::parse(InfoReply{s, {400.0f}, volumes, true, "http://pacs:8042/dicom-web"}.text());
   EXPECT_EQ(info["type"], "info");
   EXPECT_EQ(info["scene"], s.key);
   EXPECT_EQ(info["dims"], json::array({4, 5, 6}));
@@ -42,6 +42,7 @@ TEST(ViewerReplies, InfoCarriesTheSummaryTheViewsTheSurfacesAndTheFrameTablesFie
   EXPECT_EQ(info["surfaces"], json::array({400.0}));
   EXPECT_EQ(info["volumes"][0]["label"], "head/ct (CT, 6 slices)");
   EXPECT_EQ(info["open"]["series"], "1.2.3");
+  EXPECT_EQ(info["pacs"], "http://pacs:8042/dicom-web");
   for (const char* view : {"anterior", "posterior", "left", "right", "superior", "inferior"}) {
     EXPECT_TRUE(info["views"].contains(view)) << view;
   }
@@ -49,7 +50,7 @@ TEST(ViewerReplies, InfoCarriesTheSummaryTheViewsTheSurfacesAndTheFrameTablesFie
   for (const json& row : info["fields"]) fields.insert(row["name"].get<std::string>());
   EXPECT_EQ(fields.size(), info["fields"].size());
   for (const FrameField& f : frameFields()) EXPECT_EQ(fields.count(f.name), (f.doors & kViewer) ? 1u : 0u) << f.name;
-  EXPECT_FALSE(json::parse(InfoReply{s, {}, volumes, false}.text()).contains("open"));  // (a --volume scene: no menu entry)
+  EXPECT_FALSE(json::parse(InfoReply{s, {}, volumes, false, ""}.text()).contains("open"));  // (a --volume scene: no menu entry)
 }
 
 TEST(ViewerReplies, EachProgressReplyHasItsTypeAndFields) {
@@ -63,7 +64,29 @@ TEST(ViewerReplies, EachProgressReplyHasItsTypeAndFields) {
   EXPECT_FALSE(ready.contains("progress"));  // (only while building)
   EXPECT_EQ(json::parse(SurfaceReply{"a", 400.0f, ScenePool::SurfaceState::Failed, "", 0.0}.text())["state"], "failed");
   const std::vector<DataEntry> none;
-  EXPECT_EQ(json::parse(VolumesReply{none}.text()), (json{{"type", "volumes"}, {"volumes", json::array()}}));
+  EXPECT_EQ(json::parse(VolumesReply{none, ""}.text()), (json{{"type", "volumes"}, {"volumes", json::array()}, {"pacs", nullptr}}));
+  EXPECT_EQ(json::parse(VolumesReply{none, "http://pacs/dicom-web"}.text())["pacs"], "http://pacs/dicom-web");
+}
+
+TEST(ViewerReplies, APacsSearchListsEachSeriesWithItsLabelAndAddress) {
+  DicomWebSeries a;
+  a.info.patientName = "DOE^JANE";
+  a.info.studyDate = "20240102";
+  a.info.modality = "CT";
+  a.info.description = "HEAD 1.0";
+  a.info.slices = 212;
+  a.url = "http://pacs/dicom-web/studies/1.2/series/1.2.3";
+  DicomWebSeries b;
+  b.info.slices = 1;
+  b.url = "http://pacs/dicom-web/studies/1.2/series/1.2.4";
+  const std::vector<DicomWebSeries> found{a, b};
+  const json m = json::parse(PacsReply{found}.text());
+  EXPECT_EQ(m["type"], "pacs");
+  ASSERT_EQ(m["series"].size(), 2u);
+  EXPECT_EQ(m["series"][0]["url"], a.url);
+  EXPECT_EQ(m["series"][0]["label"], "DOE^JANE · 20240102 · CT · HEAD 1.0 · 212 instances");
+  EXPECT_EQ(m["series"][0]["instances"], 212);
+  EXPECT_EQ(m["series"][1]["label"], "(no name) · 1 instance");
 }
 
 TEST(ViewerReplies, AFailedOpenIsAnErrorNamingTheSceneAndBadTextIsReplacedNotThrown) {

@@ -232,6 +232,8 @@ TEST(ViewerServer, BadMessagesGetTheirErrorAndTheServerKeepsServing) {
       {"{", "not JSON"},
       {R"({"type":"frame","seq":1})", "field 'eye': expected a value (missing)"},
       {R"({"type":"open","path":"x.nrrd"})", "no data directory"},
+      {R"({"type":"open","url":"http://127.0.0.1:1/dicom-web/studies/1/series/2"})", "open: the server has no PACS"},
+      {R"({"type":"pacs-search","patient":"A*"})", "pacs: the server has no PACS"},
       {frameRequest(2, false).dump().replace(1, 0, R"("extra":1,)"), "'extra'"},
   };
   for (const auto& [text, expected] : bad) {
@@ -779,6 +781,37 @@ TEST(ViewerServer, SwitchingVolumesTagsEveryMessageAndReleasesTheOneLeft) {
 
 // A volume of the data directory that cannot be read: the client hears why, in the words of the
 // listing and with the data directory's own path left out, and keeps the volume it showed.
+// The server fetches only from its own PACS: an address elsewhere is refused before any request;
+// a search the archive cannot answer is one error message (the archive here refuses connections).
+TEST(ViewerServer, APacsServerOpensOnlyItsOwnSeries) {
+  const std::string root = "http://127.0.0.1:1/dicom-web";
+  TestServer s(60.0, 8, [&](ServerOptions& o) { o.pacs = root + "/"; });
+  Socket c(s.port(), "/ws?token=" + s.token());
+  const json info = c.next();
+  ASSERT_EQ(info["type"], "info");
+  EXPECT_EQ(info["pacs"], root + "/");
+  for (const std::string& url : std::vector<std::string>{"http://evil.example/dicom-web/studies/1/series/2", root + "x/studies/1/series/2", root + "/studies/1"}) {
+    c.send(json{{"type", "open"}, {"url", url}}.dump());
+    const json e = c.next();
+    EXPECT_EQ(e["type"], "error") << url;
+    EXPECT_THAT(e["message"].get<std::string>(), HasSubstr("open: url must be a series of " + root + " (ROOT/studies/UID/series/UID)")) << url;
+  }
+  EXPECT_EQ(s.loads, 1);  // the sphere only: nothing was fetched
+  c.send(R"({"type":"pacs-search","modality":"CT"})");
+  const json refused = c.next();
+  EXPECT_EQ(refused["type"], "error");
+  EXPECT_THAT(refused["message"].get<std::string>(), HasSubstr("pacs: " + root));
+  // An address of the PACS goes to the loader, which is what reads it.
+  c.send(json{{"type", "open"}, {"url", root + "/studies/1.2/series/1.2.3"}}.dump());
+  for (json m = c.next();; m = c.next())
+    if (m["type"] == "info") {
+      EXPECT_EQ(m["scene"], root + "/studies/1.2/series/1.2.3");
+      EXPECT_EQ(m["name"], "studies/1.2/series/1.2.3");  // (no search named it)
+      break;
+    }
+  EXPECT_EQ(s.loadsOfFile("1.2.3"), 1);
+}
+
 TEST(ViewerServer, AFailedOpenSaysWhyAndKeepsTheVolumeShown) {
   test::TempDir dir;
   for (const char* name : {"a.nrrd", "bad.nrrd"}) test::writeText(dir.file(name), "NRRD0004\n");

@@ -594,6 +594,16 @@ std::vector<DicomWebSeries> queryDicomWeb(const std::string& rootUrl, const Dico
   return out;
 }
 
+std::pair<std::string, std::vector<std::string>> dicomWebInstances(const std::string& seriesUrl, const DicomWebOptions& options) {
+  const std::pair<std::string, std::string> uids = seriesUids(seriesUrl);
+  const std::string url = trimmedUrl(seriesUrl);
+  std::vector<std::string> instances;
+  for (const nlohmann::json& i : qido(url + "/instances?includefield=00080018", redactUrl(url), options))
+    if (std::string uid = jsonValue(i, "00080018"); !uid.empty()) instances.push_back(std::move(uid));
+  std::sort(instances.begin(), instances.end());
+  return {uids.second, std::move(instances)};
+}
+
 DicomWebFetch fetchDicomWebSeries(const std::string& seriesUrl, const std::string& dir, const DicomWebOptions& options, const Progress* progress) {
   const auto [studyUid, seriesUid] = seriesUids(seriesUrl);
   const std::string url = trimmedUrl(seriesUrl);

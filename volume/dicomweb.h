@@ -9,6 +9,7 @@
 #include <atomic>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "volume/progress.h"
@@ -60,6 +61,12 @@ struct DicomWebSeries {
 ///        403, 404, 5xx, a timeout, a body that is not DICOM JSON); ValueError for a malformed
 ///        address or query.
 std::vector<DicomWebSeries> queryDicomWeb(const std::string& root, const DicomWebQuery& query, const DicomWebOptions& options = dicomWebDefaults());
+
+/// The Series Instance UID of @p seriesUrl and the SOP Instance UIDs of its instances as the
+/// archive lists them now (QIDO-RS), sorted: what a cache of scenes built from the series is
+/// keyed by, so that a series whose instances changed is built again.
+/// @throw as queryDicomWeb(); ValueError for an address that is not a series'.
+std::pair<std::string, std::vector<std::string>> dicomWebInstances(const std::string& seriesUrl, const DicomWebOptions& options = dicomWebDefaults());
 
 /// What a retrieval brought.
 struct DicomWebFetch {

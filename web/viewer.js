@@ -149,7 +149,8 @@ function connect() {
 const shown = (scene) => state.info && scene === state.info.scene;
 function onText(m) {
   if (m.type === 'info') openInfo(m);
-  else if (m.type === 'volumes') listVolumes(m.volumes);
+  else if (m.type === 'volumes') { listVolumes(m.volumes, m.pacs); showPacs(m.pacs); }
+  else if (m.type === 'pacs') listPacs(m.series);
   else if (m.type === 'loading') onLoading(m);
   else if (m.type === 'surface') {
     if (!shown(m.scene)) return;
@@ -168,6 +169,7 @@ function onText(m) {
       return;
     }
     if (m.scene !== undefined && !shown(m.scene)) return;
+    if (m.message.startsWith('pacs: ')) $('pacs-state').textContent = '';
     showError(m.message);
   }
 }
@@ -317,12 +319,42 @@ function showSurfaceState() {
 }
 
 // ---- a volume opened ------------------------------------------------------------------------
-function listVolumes(volumes) {
+function listVolumes(volumes, pacs) {
   const select = $('volumes');
   $('volumes-row').hidden = volumes.length === 0;
   select.replaceChildren(new Option('choose a volume…', ''));
   for (const v of volumes) select.add(new Option(v.label, JSON.stringify({ path: v.path, series: v.series })));
-  if (!state.info) setState(volumes.length ? 'choose a volume' : 'no volumes in the data directory');
+  if (!state.info) setState(volumes.length ? 'choose a volume' : pacs ? 'search the PACS' : 'no volumes in the data directory');
+}
+
+// ---- the PACS: searched on the server (QIDO-RS), a series opened by its address ---------------
+function showPacs(pacs) {
+  $('pacs').hidden = !pacs;
+  if (pacs) $('pacs').querySelector('legend').textContent = `PACS ${pacs}`;
+}
+
+function listPacs(series) {
+  $('pacs-state').textContent = series.length ? `${series.length} series` : 'nothing found';
+  $('pacs-results').replaceChildren(...series.map((s) => {
+    const item = document.createElement('li');
+    const open = document.createElement('button');
+    open.type = 'button';
+    open.textContent = s.label;
+    open.title = s.url;
+    open.addEventListener('click', () => openSeries(s.url, s.label));
+    item.append(open);
+    return item;
+  }));
+}
+
+function openSeries(url, label) {
+  if (!socket) return;
+  state.opening = url;  // the scene key the server gives it
+  state.openingLabel = label;
+  dismissError('sticky');
+  socket.send(JSON.stringify({ type: 'open', url }));
+  if (!state.info) setState('');
+  showLoading(`opening ${label}`);
 }
 
 // The menu's value of the volume shown ('' when none is).
@@ -344,7 +376,8 @@ function openInfo(info) {
   const piece = (text) => { const s = document.createElement('span'); s.className = 'nowrap'; s.textContent = text; return s; };
   $('volume-name').replaceChildren(info.name, ' · ', piece(info.dims.join('×')), ' · ',
     piece(info.orientationAssumed ? `orientation unknown: grid axes taken as ${info.orientation}` : info.orientation));
-  if (info.volumes) listVolumes(info.volumes);
+  if (info.volumes) listVolumes(info.volumes, info.pacs);
+  showPacs(info.pacs);
   $('volumes').value = shownVolumeValue();
   const presets = $('preset');
   presets.replaceChildren();
@@ -679,6 +712,13 @@ $('volumes').addEventListener('change', () => {
   socket.send(JSON.stringify({ type: 'open', ...open }));
   if (!state.info) setState('');
   showLoading(`opening ${state.openingLabel}`);
+});
+$('pacs-search').addEventListener('submit', (event) => {
+  event.preventDefault();
+  if (!socket) return;
+  $('pacs-state').textContent = 'searching…';
+  socket.send(JSON.stringify({ type: 'pacs-search', patient: $('pacs-patient').value.trim(), study_date: $('pacs-date').value.trim(),
+                               modality: $('pacs-modality').value.trim() }));
 });
 $('save-png').addEventListener('click', () => {
   const save = (blob) => {

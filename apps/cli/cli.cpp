@@ -27,6 +27,7 @@
 #include <sstream>
 
 #include "hybrid_octree/hybrid_io.h"
+#include "hybrid_octree/scene_cache.h"
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/surface_export.h"
 #include "hybrid_octree/volume_octree.h"
@@ -37,6 +38,7 @@
 #include "surface/dmc.h"
 #include "surface/mesh_io.h"
 #include "surface/mesh_ops.h"
+#include "volume/dicomweb.h"
 #include "volume/file_util.h"
 #include "volume/memory_limit.h"
 #include "volume/volume_io.h"
@@ -442,8 +444,12 @@ struct ViewOptions {
   std::string dataDir, token;
   double frameMs = 80.0, textureMb = 512.0;
   std::optional<double> memoryMb;  // a scene file's block cache, per scene
+  std::string pacs, pacsCache;     // the PACS the page searches; where its series' scenes are kept
+  double pacsCacheMb = 8192.0;
   std::string validate() const {
     if (port < 0 || port > 65535) return "--port must be in 0..65535 (0: any free port)";
+    if (!pacs.empty() && !isDicomWebUrl(pacs)) return "--pacs '" + redactUrl(pacs) + "' invalid (expected a DICOMweb root, http(s)://HOST:PORT/ROOT)";
+    if (!(pacsCacheMb >= 16.0 && pacsCacheMb <= 1e9)) return "--pacs-cache-mb must be in [16, 1e9]";
     if (!dataDir.empty() && !std::filesystem::is_directory(dataDir)) return "--data-dir " + dataDir + ": not a directory";
     if (!(frameMs >= 10.0 && frameMs <= 1000.0)) return "--frame-ms must be in [10, 1000]";
     if (!(textureMb >= 16.0 && textureMb <= 65536.0)) return "--texture-mb must be in [16, 65536]";
@@ -453,6 +459,13 @@ struct ViewOptions {
     return "";
   }
 };
+
+// Where the viewer keeps the scenes it built from PACS series, by the XDG base directories.
+std::filesystem::path defaultSceneCacheDir() {
+  if (const char* xdg = std::getenv("XDG_CACHE_HOME"); xdg && *xdg == '/') return std::filesystem::path(xdg) / "hybrid-octree" / "scenes";
+  const char* home = std::getenv("HOME");
+  return std::filesystem::path(home && *home ? home : "/tmp") / ".cache" / "hybrid-octree" / "scenes";
+}
 
 int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
   viewer::ServerOptions so;
@@ -465,16 +478,34 @@ int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
   // A scene file is read paged within --memory, as render reads it: a study larger than memory
   // opens; the surfaces made of it and the brick textures kept count against it too.
   so.memoryBytes = sceneMemoryBytes(o.memoryMb);
-  if (o.volumeGiven || o.dataDir.empty()) {
+  if (o.volumeGiven || (o.dataDir.empty() && o.pacs.empty())) {
     so.volume = o.input.path;
     so.series = o.input.series;
   }
-  so.loader = [&o, &err, memoryBytes = so.memoryBytes](const std::string& path, const std::string& series, const Progress* progress) {
+  so.pacs = o.pacs;
+  // A series of a PACS is built once into a scene file of the cache, then read from it paged (the
+  // next open of the same instances reads no network).
+  std::unique_ptr<SceneCache> cache;
+  if (!o.pacs.empty() || isDicomWebUrl(so.volume))
+    cache = std::make_unique<SceneCache>(o.pacsCache.empty() ? defaultSceneCacheDir() : std::filesystem::path(o.pacsCache), uint64_t(o.pacsCacheMb * 1024 * 1024));
+  so.loader = [&o, &err, &cache, memoryBytes = so.memoryBytes](const std::string& path, const std::string& series, const Progress* progress) {
     VolumeInput in = o.input;
     in.path = path;
     in.series = series;
     in.progress = progress ? progress : o.input.progress;  // the page hears of a load it waits for
     std::ostringstream quiet;
+    if (cache && isDicomWebUrl(path)) {
+      setDicomWebAuthFile(in.pacsAuthFile);
+      const std::pair<std::string, std::vector<std::string>> listed = dicomWebInstances(path);
+      in.path = cache->scene(listed.first, listed.second, [&](const std::string& to) {
+        BuildOptions build;
+        build.input = in;
+        build.input.path = path;
+        build.output = to;
+        runBuild(build, quiet, err);
+      });
+      in.series.clear();
+    }
     double ms = 0;
     return loadOrBuild(in, quiet, err, &ms, {}, SceneLoadOptions{false, memoryBytes});
   };
@@ -568,6 +599,12 @@ struct Commands {
     viewCmd->add_option("--token", view.token, "access token (default: a random one, printed in the URL)");
     viewCmd->add_option("--frame-ms", view.frameMs, "frame time interactive frames aim at, ms")->capture_default_str();
     viewCmd->add_option("--texture-mb", view.textureMb, "brick textures kept between frames, MB per volume")->capture_default_str();
+    viewCmd->add_option("--pacs", view.pacs, "a PACS's DICOMweb root (http(s)://HOST:PORT/ROOT): the page searches it and opens its series "
+                        "(credentials: --pacs-auth-file or the environment, as for a series' address)");
+    viewCmd->add_option("--pacs-cache", view.pacsCache,
+                        "folder of the scenes built from PACS series, reopened without the network while their instances are unchanged "
+                        "(default: $XDG_CACHE_HOME/hybrid-octree/scenes, else ~/.cache/hybrid-octree/scenes)");
+    viewCmd->add_option("--pacs-cache-mb", view.pacsCacheMb, "MB the scene cache keeps, least recently used out first")->capture_default_str();
     viewCmd->add_option("--memory", view.memoryMb,
                         "MB a scene file read paged holds, per scene: its octree, the surfaces made of it, the brick textures kept (--texture-mb), and the cache of decompressed blocks its bricks are read through, which gets what they leave, at least a quarter (default: an eighth of the physical memory)");
   }

@@ -57,12 +57,27 @@ FrameRequest frameAt(const json& j) {
 }
 
 OpenRequest openAt(const json& j) {
-  onlyFields(j, "", {"type", "path", "series"});
+  onlyFields(j, "", {"type", "path", "series", "url"});
   OpenRequest r;
+  if (j.contains("url")) {
+    if (j.contains("path") || j.contains("series")) fail("url", "no path or series beside it");
+    r.url = stringAt(j["url"], "url", kMaxPathBytes);
+    if (r.url.rfind("http://", 0) != 0 && r.url.rfind("https://", 0) != 0) fail("url", "a DICOMweb series address, http(s)://HOST:PORT/ROOT/studies/UID/series/UID");
+    return r;
+  }
   if (!j.contains("path")) fail("path", "a value (missing)");
   r.path = stringAt(j["path"], "path", kMaxPathBytes);
   if (r.path.empty() || r.path.find('\0') != std::string::npos) fail("path", "a relative path in the data directory");
   if (j.contains("series")) r.series = stringAt(j["series"], "series", 128);
+  return r;
+}
+
+PacsSearchRequest pacsSearchAt(const json& j) {
+  onlyFields(j, "", {"type", "patient", "study_date", "modality"});
+  PacsSearchRequest r;
+  if (j.contains("patient")) r.patient = stringAt(j["patient"], "patient", 64);
+  if (j.contains("study_date")) r.studyDate = stringAt(j["study_date"], "study_date", 17);
+  if (j.contains("modality")) r.modality = stringAt(j["modality"], "modality", 16);
   return r;
 }
 
@@ -81,11 +96,13 @@ Request parseRequest(const std::string& text) {
     throw ValueError("message: not JSON (" + std::string(e.what()).substr(0, 160) + ")");
   }
   if (!j.is_object()) fail("message", "a JSON object");
-  if (!j.contains("type") || !j["type"].is_string()) fail("type", "\"frame\" or \"open\"");
+  constexpr const char* kTypes = "\"frame\", \"open\" or \"pacs-search\"";
+  if (!j.contains("type") || !j["type"].is_string()) fail("type", kTypes);
   const std::string type = j["type"].get<std::string>();
   if (type == "frame") return frameAt(j);
   if (type == "open") return openAt(j);
-  fail("type", "\"frame\" or \"open\"");
+  if (type == "pacs-search") return pacsSearchAt(j);
+  fail("type", kTypes);
 }
 
 std::string errorMessage(const std::string& message, std::optional<uint64_t> seq) {

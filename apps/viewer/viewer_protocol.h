@@ -43,13 +43,21 @@ struct FrameRequest {
 };
 
 /// Open a volume of the data directory (its path relative to that directory) and, for a DICOM
-/// directory, one series.
+/// directory, one series; or a series of the server's PACS by its DICOMweb address (url).
 struct OpenRequest {
   std::string path;
   std::string series;
+  std::string url;  ///< ROOT/studies/UID/series/UID under the server's --pacs root; then no path
 };
 
-using Request = std::variant<FrameRequest, OpenRequest>;
+/// Search the server's PACS (QIDO-RS); empty fields match everything.
+struct PacsSearchRequest {
+  std::string patient;    ///< Patient Name, DICOM wildcards (* ?)
+  std::string studyDate;  ///< YYYYMMDD or a range YYYYMMDD-YYYYMMDD
+  std::string modality;
+};
+
+using Request = std::variant<FrameRequest, OpenRequest, PacsSearchRequest>;
 
 /// Parses one text message. @throw ValueError with a message naming the field and what was expected.
 Request parseRequest(const std::string& text);

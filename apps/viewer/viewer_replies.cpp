@@ -67,10 +67,32 @@ std::string InfoReply::text() const {
                {"volumes", volumesJson(volumes)},
                {"fields", fieldsJson(kViewer)}};
   if (fromDataDir) info["open"] = {{"path", s.name}, {"series", s.series}};
+  info["pacs"] = pacs.empty() ? json(nullptr) : json(pacs);
   return dumped(info);
 }
 
-std::string VolumesReply::text() const { return dumped({{"type", "volumes"}, {"volumes", volumesJson(volumes)}}); }
+std::string VolumesReply::text() const {
+  return dumped({{"type", "volumes"}, {"volumes", volumesJson(volumes)}, {"pacs", pacs.empty() ? json(nullptr) : json(pacs)}});
+}
+
+std::string PacsReply::label(const DicomWebSeries& s) {
+  const DicomSeriesInfo& i = s.info;
+  std::string text = i.patientName.empty() ? "(no name)" : i.patientName;
+  for (const std::string& part : {i.studyDate, i.modality, i.description})
+    if (!part.empty()) text += " · " + part;
+  return text + " · " + std::to_string(i.slices) + (i.slices == 1 ? " instance" : " instances");
+}
+
+std::string PacsReply::text() const {
+  json list = json::array();
+  for (const DicomWebSeries& s : series) {
+    const DicomSeriesInfo& i = s.info;
+    list.push_back({{"url", s.url}, {"label", label(s)}, {"patient", i.patientName}, {"patient_id", i.patientId}, {"study_date", i.studyDate},
+                    {"study", i.studyDescription}, {"modality", i.modality}, {"description", i.description}, {"number", i.number},
+                    {"instances", i.slices}});
+  }
+  return dumped({{"type", "pacs"}, {"series", list}});
+}
 
 std::string LoadingReply::text() const { return dumped({{"type", "loading"}, {"scene", scene}, {"task", task}, {"progress", progress}}); }
 

@@ -11,6 +11,7 @@
 #include "apps/viewer/viewer_protocol.h"
 #include "apps/viewer/viewer_quality.h"
 #include "render/scene_pool.h"
+#include "volume/dicomweb.h"
 
 namespace hyb::viewer {
 
@@ -21,13 +22,23 @@ struct InfoReply {
   std::vector<float> surfaces;          ///< isovalues whose surfaces are ready
   const std::vector<DataEntry>& volumes;
   bool fromDataDir = false;             ///< opened from the data directory: the page's menu shows it
+  std::string pacs;                     ///< the PACS the page may search (its address redacted), or empty
   std::string text() const;
 };
 
 /// The data directory's volumes (a client that opens none yet).
 struct VolumesReply {
   const std::vector<DataEntry>& volumes;
+  std::string pacs;  ///< the PACS the page may search (its address redacted), or empty
   std::string text() const;
+};
+
+/// What a PACS search found: each series with what the page lists and its address, to open.
+struct PacsReply {
+  const std::vector<DicomWebSeries>& series;
+  std::string text() const;
+  /// What the page and the server's messages call @p s: patient, date, modality, description, instances.
+  static std::string label(const DicomWebSeries& s);
 };
 
 /// A scene's load under way: its current task and the fraction done.

@@ -11,6 +11,7 @@
 #include "hybrid_octree/surface_export.h"
 #include "render/scene_renderer.h"
 #include "surface/mesh_io.h"
+#include "volume/dicomweb.h"
 #include "volume/error.h"
 
 namespace hyb::viewer {
@@ -71,7 +72,7 @@ ScenePool::Events ServerState::poolEvents() {
       return;
     }
     c->second->showScene(key);
-    c->second->send(InfoReply{*summary, pool->readySurfaces(key), listing, !options.dataDir.empty()}.text(), false);
+    c->second->send(InfoReply{*summary, pool->readySurfaces(key), listing, !options.dataDir.empty(), pacsShown()}.text(), false);
   };
   e.surface = [this](uint64_t viewer, const std::string& key, float iso, ScenePool::SurfaceState state, const std::string& task, double fraction) {
     send(viewer, SurfaceReply{key, iso, state, task, fraction}.text());
@@ -102,30 +103,67 @@ void ServerState::renderLoop() {
   gone.reset();
 }
 
-// A mesh of a scene's isosurface, made on a thread of its own (frames go on meanwhile).
-void ServerState::exportLoop() {
+// Slow work on a thread of its own (frames go on meanwhile).
+void ServerState::sideLoop() {
   std::unique_lock<std::mutex> lock(mutex);
   while (!stopping) {
-    wake.wait(lock, [&] { return stopping || !exports.empty(); });
+    wake.wait(lock, [&] { return stopping || !sideJobs.empty(); });
     if (stopping) break;
-    ExportJob e = std::move(exports.front());
-    exports.pop_front();
+    const auto job = std::move(sideJobs.front());
+    sideJobs.pop_front();
+    job(lock);
+  }
+}
+
+void ServerState::queueExport(ExportJob e) {
+  const std::lock_guard<std::mutex> lock(mutex);
+  sideJobs.push_back([this, e = std::move(e)](std::unique_lock<std::mutex>& held) {
     const Scene* scene = pool->pin(e.sceneKey);
     if (!scene) {
       e.reply("", "no such scene");
-      continue;
+      return;
     }
-    lock.unlock();
+    held.unlock();
     std::string body, error;
     try {
       body = meshFile(*scene, e.iso, e.format);
     } catch (const std::exception& ex) {
       error = ex.what();
     }
-    lock.lock();
+    held.lock();
     pool->unpin(e.sceneKey);
     e.reply(std::move(body), std::move(error));
+  });
+  wake.notify_all();
+}
+
+std::string ServerState::pacsShown() const { return options.pacs.empty() ? "" : redactUrl(options.pacs); }
+
+void ServerState::searchPacs(const std::shared_ptr<Client>& c, const PacsSearchRequest& search) {
+  if (options.pacs.empty()) {
+    c->send(errorMessage("pacs: the server has no PACS (start it with --pacs http(s)://HOST:PORT/ROOT)"), false);
+    return;
   }
+  const std::lock_guard<std::mutex> lock(mutex);
+  sideJobs.push_back([this, c, search](std::unique_lock<std::mutex>& held) {
+    held.unlock();
+    std::vector<DicomWebSeries> found;
+    std::string error;
+    try {
+      found = queryDicomWeb(options.pacs, DicomWebQuery{search.patient, search.studyDate, search.modality});
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+    held.lock();
+    if (!error.empty()) {
+      c->send(errorMessage("pacs: " + error), false);
+      return;
+    }
+    if (pacsLabels.size() > 10000) pacsLabels.clear();  // (a bound: labels only name what is opened)
+    for (const DicomWebSeries& s : found) pacsLabels[s.url] = PacsReply::label(s);
+    c->send(PacsReply{found}.text(), false);
+  });
+  wake.notify_all();
 }
 
 bool ServerState::addClient(const std::shared_ptr<Client>& c) {
@@ -137,7 +175,7 @@ bool ServerState::addClient(const std::shared_ptr<Client>& c) {
     // Told at once while it is open; read again if it was released while no client showed it.
     pool->open(c->id, defaultScene, options.volume, options.series, std::filesystem::path(options.volume).filename().string());
   } else {
-    c->send(VolumesReply{listing}.text(), false);
+    c->send(VolumesReply{listing, pacsShown()}.text(), false);
   }
   return true;
 }
@@ -149,7 +187,26 @@ void ServerState::removeClient(const std::shared_ptr<Client>& c) {
   pool->leave(c->id);
 }
 
+// A series of the server's PACS only: the address names no other host (the server fetches it).
+void ServerState::openFromPacs(const std::shared_ptr<Client>& c, const std::string& url) {
+  std::string root = options.pacs;
+  while (!root.empty() && root.back() == '/') root.pop_back();
+  if (root.empty() || url.rfind(root + "/studies/", 0) != 0 || url.find("/series/") == std::string::npos) {
+    c->send(errorMessage(root.empty() ? "open: the server has no PACS (start it with --pacs http(s)://HOST:PORT/ROOT)"
+                                      : "open: url must be a series of " + redactUrl(root) + " (ROOT/studies/UID/series/UID)"),
+            false);
+    return;
+  }
+  const std::lock_guard<std::mutex> lock(mutex);
+  const auto label = pacsLabels.find(url);
+  pool->open(c->id, url, url, "", label != pacsLabels.end() ? label->second : url.substr(root.size() + 1));
+}
+
 void ServerState::open(const std::shared_ptr<Client>& c, const OpenRequest& open) {
+  if (!open.url.empty()) {
+    openFromPacs(c, open.url);
+    return;
+  }
   if (options.dataDir.empty()) {
     c->send(errorMessage("open: the server has no data directory (start it with --data-dir)"), false);
     return;
@@ -177,6 +234,10 @@ void ServerState::onMessage(const std::shared_ptr<Client>& c, const std::string&
     open(c, *o);
     return;
   }
+  if (const auto* search = std::get_if<PacsSearchRequest>(&request)) {
+    searchPacs(c, *search);
+    return;
+  }
   auto& frame = std::get<FrameRequest>(request);
   const std::lock_guard<std::mutex> lock(mutex);
   if (c->sceneKey.empty()) {
@@ -188,18 +249,13 @@ void ServerState::onMessage(const std::shared_ptr<Client>& c, const std::string&
   wake.notify_all();
 }
 
-void ServerState::queueExport(ExportJob job) {
-  const std::lock_guard<std::mutex> lock(mutex);
-  exports.push_back(std::move(job));
-  wake.notify_all();
-}
-
 Server::Server(ServerOptions options) : mImpl(std::make_unique<ServerState>()) {
   ServerState& s = *mImpl;
   s.options = std::move(options);
   s.token = s.options.token.empty() ? makeToken() : s.options.token;
   if (!s.options.loader) HYB_THROW(ValueError, "view: no volume loader");
-  if (s.options.volume.empty() && s.options.dataDir.empty()) HYB_THROW(ValueError, "view: expected a volume or --data-dir");
+  if (s.options.volume.empty() && s.options.dataDir.empty() && s.options.pacs.empty())
+    HYB_THROW(ValueError, "view: expected a volume, --data-dir or --pacs");
   if (!s.options.dataDir.empty()) {
     s.listing = listDataDir(s.options.dataDir);
     s.dataRoot = std::filesystem::canonical(s.options.dataDir).string();  // (listDataDir has read it)
@@ -240,7 +296,7 @@ void Server::start() {
   s.started = true;
   acceptConnections(s);
   s.renderThread = std::thread([&s] { s.renderLoop(); });
-  s.exportThread = std::thread([&s] { s.exportLoop(); });
+  s.sideThread = std::thread([&s] { s.sideLoop(); });
   s.netThread = std::thread([&s] { s.io.run(); });
 }
 
@@ -261,7 +317,7 @@ void Server::stop() {
     s.acceptor.close(ignored);
   });
   s.io.stop();
-  for (std::thread* t : {&s.netThread, &s.exportThread})
+  for (std::thread* t : {&s.netThread, &s.sideThread})
     if (t->joinable() && t->get_id() != std::this_thread::get_id()) t->join();
   {
     const std::lock_guard<std::mutex> lock(s.mutex);

@@ -32,6 +32,9 @@ struct ServerOptions {
   std::string volume;                  ///< opened for every client at start; empty with a data directory
   std::string series;                  ///< its DICOM series, or empty
   std::filesystem::path dataDir;       ///< the page lists and opens volumes under it; empty: none
+  /// A PACS's DICOMweb root (http(s)://HOST:PORT/ROOT) the page searches and opens series of (the
+  /// loader reads their addresses); empty: none.
+  std::string pacs;
   std::string token;                   ///< empty: a random one
   uint64_t textureLimitBytes = 1ull << 29;  ///< brick textures each scene keeps between frames
   uint64_t memoryBytes = 0;            ///< --memory: each paged scene's octrees, surfaces and block cache (0: the loader's bound)

@@ -11,6 +11,7 @@
 #include <condition_variable>
 #include <deque>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -23,7 +24,7 @@
 
 namespace hyb::viewer {
 
-/// A mesh of a scene's isosurface asked for over HTTP, made on the export thread; @p reply gets the
+/// A mesh of a scene's isosurface asked for over HTTP, made on the side thread; @p reply gets the
 /// file's bytes or why there are none.
 struct ExportJob {
   std::string sceneKey;
@@ -37,10 +38,10 @@ struct ServerState {
   std::string token;
   boost::asio::io_context io{1};
   boost::asio::ip::tcp::acceptor acceptor{io};
-  std::thread netThread, renderThread, exportThread;
+  std::thread netThread, renderThread, sideThread;
   std::atomic<bool> stopping{false};
   bool started = false;
-  bool othersStopped = false;  ///< the network and export threads have ended (under the mutex)
+  bool othersStopped = false;  ///< the network and side threads have ended (under the mutex)
 
   // Work shared by the threads, and the pool's state: under this mutex.
   std::mutex mutex;
@@ -48,7 +49,10 @@ struct ServerState {
   Clients clients;
   std::unique_ptr<ScenePool> pool;
   std::string defaultScene;  ///< the --volume scene's key, or empty
-  std::deque<ExportJob> exports;
+  /// Slow work beside the frames (mesh exports, PACS searches), in order on the side thread: each
+  /// is called with the mutex held and may unlock it while it works.
+  std::deque<std::function<void(std::unique_lock<std::mutex>&)>> sideJobs;
+  std::map<std::string, std::string> pacsLabels;  ///< what searches called the series found, by address
   uint64_t nextClient = 1;
   std::vector<DataEntry> listing;  ///< the data directory's volumes, listed at start
   std::string dataRoot;            ///< the data directory, every link resolved ("" without one)
@@ -61,10 +65,11 @@ struct ServerState {
   void removeClient(const std::shared_ptr<Client>& c);
   void onMessage(const std::shared_ptr<Client>& c, const std::string& text);
   void queueExport(ExportJob job);
+  void searchPacs(const std::shared_ptr<Client>& c, const PacsSearchRequest& search);
 
   // The threads' loops.
   void renderLoop();
-  void exportLoop();
+  void sideLoop();
   /// The pool's events: each goes to the client it concerns only (under the mutex).
   ScenePool::Events poolEvents();
 
@@ -73,6 +78,8 @@ struct ServerState {
   std::string labelOf(const std::string& key) const;
   std::string inDataDirTerms(std::string text) const;
   void open(const std::shared_ptr<Client>& c, const OpenRequest& open);
+  void openFromPacs(const std::shared_ptr<Client>& c, const std::string& url);
+  std::string pacsShown() const;
 };
 
 /// Accepts connections on @p s's acceptor until it is closed: each an HTTP session that serves the

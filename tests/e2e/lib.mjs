@@ -53,3 +53,28 @@ export function watchConsole(page) {
   page.on('pageerror', (e) => errors.push(e.message));
   return errors;
 }
+
+// One DICOM data element, explicit VR little endian as PS3.5 lays it out (values padded to even length).
+export function dicomElement(group, element, vr, value) {
+  let v = Buffer.isBuffer(value) ? value : Buffer.from(value, 'latin1');
+  if (v.length % 2) v = Buffer.concat([v, Buffer.from(vr === 'UI' || vr === 'OB' ? '\0' : ' ')]);
+  const long = vr === 'OB' || vr === 'OW';
+  const h = Buffer.alloc(long ? 12 : 8);
+  h.writeUInt16LE(group, 0);
+  h.writeUInt16LE(element, 2);
+  h.write(vr, 4, 'latin1');
+  if (long) h.writeUInt32LE(v.length, 8);
+  else h.writeUInt16LE(v.length, 6);
+  return Buffer.concat([h, v]);
+}
+
+// A PS3.10 file of the CT image @p instance (SOP Instance UID) whose data set's elements, in tag
+// order, are @p data: the preamble, DICM and the file meta information.
+export function dicomFile(instance, data) {
+  const ct = '1.2.840.10008.5.1.4.1.1.2';
+  const metaBody = Buffer.concat([dicomElement(2, 1, 'OB', Buffer.from([0, 1])), dicomElement(2, 2, 'UI', ct), dicomElement(2, 3, 'UI', instance),
+    dicomElement(2, 0x10, 'UI', '1.2.840.10008.1.2.1')]);
+  const groupLength = Buffer.alloc(4);
+  groupLength.writeUInt32LE(metaBody.length);
+  return Buffer.concat([Buffer.alloc(128), Buffer.from('DICM'), dicomElement(2, 0, 'UL', groupLength), metaBody, data]);
+}

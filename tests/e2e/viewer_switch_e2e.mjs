@@ -10,7 +10,7 @@
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
-import { checklist, launch, loadPuppeteer, startServer, watchConsole } from './lib.mjs';
+import { checklist, dicomElement, dicomFile, launch, loadPuppeteer, startServer, watchConsole } from './lib.mjs';
 
 const puppeteer = await loadPuppeteer();
 const exe = process.argv[2] || 'build/hybrid-octree';
@@ -34,33 +34,16 @@ const header = `NRRD0004\ntype: short\ndimension: 3\nsizes: ${n} ${n} ${n}\nendi
 fs.writeFileSync(path.join(dir, 'blob.nrrd'), Buffer.concat([Buffer.from(header), Buffer.from(samples.buffer)]));
 
 // A DICOM series of two 4×4 CT images without Image Orientation (Patient): listed (its headers
-// scan as images), but the reader cannot order its slices. Explicit VR little endian, as PS3.10 lays it out.
-function dicomElement(group, element, vr, value) {
-  let v = Buffer.isBuffer(value) ? value : Buffer.from(value, 'latin1');
-  if (v.length % 2) v = Buffer.concat([v, Buffer.from(vr === 'UI' || vr === 'OB' ? '\0' : ' ')]);
-  const long = vr === 'OB' || vr === 'OW';
-  const h = Buffer.alloc(long ? 12 : 8);
-  h.writeUInt16LE(group, 0);
-  h.writeUInt16LE(element, 2);
-  h.write(vr, 4, 'latin1');
-  if (long) h.writeUInt32LE(v.length, 8);
-  else h.writeUInt16LE(v.length, 6);
-  return Buffer.concat([h, v]);
-}
+// scan as images), but the reader cannot order its slices.
 const brokenUid = '1.2.826.0.1.3680043.8.498.4242', description = 'Head CT 0.625 mm, bone kernel H70h, arterial phase, contrast';
 fs.mkdirSync(path.join(dir, 'broken-ct'));
 for (let k = 0; k < 2; ++k) {
-  const ct = '1.2.840.10008.5.1.4.1.1.2', instance = `${brokenUid}.${k + 1}`, us = (n) => Buffer.from([n & 255, n >> 8]);
-  const metaBody = Buffer.concat([dicomElement(2, 1, 'OB', Buffer.from([0, 1])), dicomElement(2, 2, 'UI', ct), dicomElement(2, 3, 'UI', instance),
-    dicomElement(2, 0x10, 'UI', '1.2.840.10008.1.2.1')]);
-  const groupLength = Buffer.alloc(4);
-  groupLength.writeUInt32LE(metaBody.length);
-  const data = Buffer.concat([dicomElement(8, 0x16, 'UI', ct), dicomElement(8, 0x18, 'UI', instance), dicomElement(8, 0x60, 'CS', 'CT'),
+  const instance = `${brokenUid}.${k + 1}`, us = (n) => Buffer.from([n & 255, n >> 8]);
+  const data = Buffer.concat([dicomElement(8, 0x16, 'UI', '1.2.840.10008.5.1.4.1.1.2'), dicomElement(8, 0x18, 'UI', instance), dicomElement(8, 0x60, 'CS', 'CT'),
     dicomElement(8, 0x103e, 'LO', description), dicomElement(0x20, 0x0e, 'UI', brokenUid), dicomElement(0x20, 0x11, 'IS', '7'),
     dicomElement(0x20, 0x32, 'DS', `0\\0\\${2 * k}`), dicomElement(0x28, 0x10, 'US', us(4)), dicomElement(0x28, 0x11, 'US', us(4)),
     dicomElement(0x7fe0, 0x10, 'OW', Buffer.alloc(32))]);
-  fs.writeFileSync(path.join(dir, 'broken-ct', `slice${k}.dcm`),
-    Buffer.concat([Buffer.alloc(128), Buffer.from('DICM'), dicomElement(2, 0, 'UL', groupLength), metaBody, data]));
+  fs.writeFileSync(path.join(dir, 'broken-ct', `slice${k}.dcm`), dicomFile(instance, data));
 }
 
 const started = startServer(exe, ['--data-dir', dir]);
