@@ -497,7 +497,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     f.stats.renderMs += msSince(t0);
     return f;
   }
-  if (quality.region && !look.meshes.empty()) HYB_THROW(ValueError, "--mesh: user meshes are not drawn by sort-last frames (MPI ranks) yet");
+  if (quality.region && !look.meshes.empty()) HYB_THROW(ValueError, "--mesh: user meshes are not drawn by sort-last frames (MPI ranks)");
   RenderedFrame out;
   out.stats.renderer = quality.renderer;
   const FrameGrid g = frameGrid(view, look, volume().frame());
