@@ -27,7 +27,7 @@ RTCDevice device() {
 // What a query passes its filter: the mesh, the ray in double precision and the hits so far.
 struct Query {
   RTCIntersectContext context;  // first: Embree hands the filter this pointer
-  const TriangleMesh* mesh;
+  const std::vector<const TriangleMesh*>* meshes;
   glm::dvec3 origin, dir;
   double tMin, tMax;
   std::vector<Hit>* hits;
@@ -38,9 +38,10 @@ struct Query {
 void recordHit(const RTCFilterFunctionNArguments* args) {
   const Query& q = *reinterpret_cast<const Query*>(args->context);
   args->valid[0] = 0;
-  const uint32_t prim = RTCHitN_primID(args->hit, args->N, 0);
-  const glm::uvec3 tri = q.mesh->triangles[prim];
-  const glm::dvec3 p0 = q.mesh->vertices[tri.x], p1 = q.mesh->vertices[tri.y], p2 = q.mesh->vertices[tri.z];
+  const uint32_t prim = RTCHitN_primID(args->hit, args->N, 0), part = RTCHitN_geomID(args->hit, args->N, 0);
+  const TriangleMesh& mesh = *(*q.meshes)[part];
+  const glm::uvec3 tri = mesh.triangles[prim];
+  const glm::dvec3 p0 = mesh.vertices[tri.x], p1 = mesh.vertices[tri.y], p2 = mesh.vertices[tri.z];
   const glm::dvec3 e1 = p1 - p0, e2 = p2 - p0, pv = glm::cross(q.dir, e2);
   const double det = glm::dot(e1, pv);
   double t = RTCRayN_tfar(args->ray, args->N, 0), u = RTCHitN_u(args->hit, args->N, 0), v = RTCHitN_v(args->hit, args->N, 0);
@@ -52,41 +53,48 @@ void recordHit(const RTCFilterFunctionNArguments* args) {
   }
   if (!(t > q.tMin && t < q.tMax)) return;
   const glm::dvec3 facet = glm::normalize(glm::cross(e1, e2));
-  if (q.mesh->normals.empty()) {
-    q.hits->push_back({t, facet});
+  if (mesh.normals.empty()) {
+    q.hits->push_back({t, facet, part});
     return;
   }
-  const glm::dvec3 n = (1.0 - u - v) * glm::dvec3(q.mesh->normals[tri.x]) + u * glm::dvec3(q.mesh->normals[tri.y]) + v * glm::dvec3(q.mesh->normals[tri.z]);
+  const glm::dvec3 n = (1.0 - u - v) * glm::dvec3(mesh.normals[tri.x]) + u * glm::dvec3(mesh.normals[tri.y]) + v * glm::dvec3(mesh.normals[tri.z]);
   const double len = glm::length(n);
-  q.hits->push_back({t, len > 0.0 ? n / len : facet});
+  q.hits->push_back({t, len > 0.0 ? n / len : facet, part});
 }
 
 }  // namespace
 
-Bvh::Bvh(const TriangleMesh& mesh) : mMesh(&mesh) {
-  if (mesh.triangles.empty()) return;
+Bvh::Bvh(const std::vector<const TriangleMesh*>& meshes) : mMeshes(meshes) {
+  size_t triangles = 0;
+  for (const TriangleMesh* mesh : meshes) triangles += mesh->triangles.size();
+  if (triangles == 0) return;
   RTCDevice dev = device();
-  RTCGeometry geometry = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
-  // Copies (Embree pads its buffers for its vector loads): 12 bytes a vertex, 12 a triangle.
-  auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), mesh.vertices.size()));
-  auto* indices = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), mesh.triangles.size()));
-  if (!vertices || !indices) {
-    rtcReleaseGeometry(geometry);
-    HYB_THROW(RuntimeError, "Embree: cannot allocate the buffers of ", mesh.triangles.size(), " triangles");
-  }
-  std::memcpy(vertices, mesh.vertices.data(), mesh.vertices.size() * sizeof(glm::vec3));
-  std::memcpy(indices, mesh.triangles.data(), mesh.triangles.size() * sizeof(glm::uvec3));
-  rtcSetGeometryIntersectFilterFunction(geometry, recordHit);
-  rtcCommitGeometry(geometry);
   RTCScene scene = rtcNewScene(dev);
   rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);  // no shortcuts that could miss a crossing
   rtcSetSceneBuildQuality(scene, RTC_BUILD_QUALITY_HIGH);  // built once per surface, traced by every reference frame
-  rtcAttachGeometry(scene, geometry);
-  rtcReleaseGeometry(geometry);
+  for (size_t part = 0; part < meshes.size(); ++part) {
+    const TriangleMesh& mesh = *meshes[part];
+    if (mesh.triangles.empty()) continue;  // (attached by ID: the others keep their places)
+    RTCGeometry geometry = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+    // Copies (Embree pads its buffers for its vector loads): 12 bytes a vertex, 12 a triangle.
+    auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), mesh.vertices.size()));
+    auto* indices = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), mesh.triangles.size()));
+    if (!vertices || !indices) {
+      rtcReleaseGeometry(geometry);
+      rtcReleaseScene(scene);
+      HYB_THROW(RuntimeError, "Embree: cannot allocate the buffers of ", mesh.triangles.size(), " triangles");
+    }
+    std::memcpy(vertices, mesh.vertices.data(), mesh.vertices.size() * sizeof(glm::vec3));
+    std::memcpy(indices, mesh.triangles.data(), mesh.triangles.size() * sizeof(glm::uvec3));
+    rtcSetGeometryIntersectFilterFunction(geometry, recordHit);
+    rtcCommitGeometry(geometry);
+    rtcAttachGeometryByID(scene, geometry, unsigned(part));
+    rtcReleaseGeometry(geometry);
+  }
   rtcCommitScene(scene);
   if (const RTCError e = rtcGetDeviceError(dev); e != RTC_ERROR_NONE) {
     rtcReleaseScene(scene);
-    HYB_THROW(RuntimeError, "Embree: cannot build the BVH of ", mesh.triangles.size(), " triangles (error ", int(e), ")");
+    HYB_THROW(RuntimeError, "Embree: cannot build the BVH of ", triangles, " triangles (error ", int(e), ")");
   }
   mScene = scene;
 }
@@ -98,7 +106,7 @@ Bvh::~Bvh() {
 void Bvh::allHits(const glm::dvec3& o, const glm::dvec3& d, double tMin, double tMax, std::vector<Hit>* hits) const {
   hits->clear();
   if (!mScene) return;
-  Query q{{}, mMesh, o, d, tMin, tMax, hits};
+  Query q{{}, &mMeshes, o, d, tMin, tMax, hits};
   rtcInitIntersectContext(&q.context);
   RTCRayHit rh{};
   rh.ray.org_x = float(o.x);
@@ -118,10 +126,10 @@ void Bvh::allHits(const glm::dvec3& o, const glm::dvec3& d, double tMin, double 
   rh.ray.flags = 0;
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(mScene, &q.context, &rh);
-  std::sort(hits->begin(), hits->end(), [](const Hit& a, const Hit& b) { return a.t < b.t; });
-  // A ray through an edge or vertex shared by several triangles crosses the surface once there (and
-  // Embree's spatial splits may report one triangle twice).
-  auto same = [](const Hit& a, const Hit& b) { return std::abs(a.t - b.t) < 1e-9 * (1 + std::abs(a.t)); };
+  // A ray through an edge or vertex shared by several triangles of a mesh crosses it once there (and
+  // Embree's spatial splits may report one triangle twice); equal distances are ordered by mesh.
+  std::sort(hits->begin(), hits->end(), [](const Hit& a, const Hit& b) { return a.t != b.t ? a.t < b.t : a.part < b.part; });
+  auto same = [](const Hit& a, const Hit& b) { return a.part == b.part && std::abs(a.t - b.t) < 1e-9 * (1 + std::abs(a.t)); };
   hits->erase(std::unique(hits->begin(), hits->end(), same), hits->end());
 }
 

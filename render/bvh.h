@@ -13,11 +13,13 @@ struct RTCSceneTy;
 
 namespace hyb {
 
-/// A ray hit: distance along the (unit) ray and the shading normal: the mesh's vertex normals
-/// interpolated at the hit, or the triangle's own when the mesh has none.
+/// A ray hit: distance along the (unit) ray, the shading normal (the mesh's vertex normals
+/// interpolated at the hit, or the triangle's own when the mesh has none) and the mesh crossed
+/// (its place among the meshes the BVH was built over).
 struct Hit {
   double t;
   glm::dvec3 normal;
+  uint32_t part = 0;
 };
 
 class Bvh {
@@ -25,17 +27,19 @@ class Bvh {
   Bvh() = default;
   /// Builds over @p mesh (world millimetres, finite); the mesh must outlive the BVH.
   /// @throw RuntimeError when Embree cannot build it (out of memory).
-  explicit Bvh(const TriangleMesh& mesh);
+  explicit Bvh(const TriangleMesh& mesh) : Bvh(std::vector<const TriangleMesh*>{&mesh}) {}
+  /// Builds over the triangles of @p meshes (each one's hits carry its place as Hit::part).
+  explicit Bvh(const std::vector<const TriangleMesh*>& meshes);
   ~Bvh();
   Bvh(const Bvh&) = delete;
   Bvh& operator=(const Bvh&) = delete;
   /// All hits with tMin < t < tMax, sorted by t; hits at the same distance (a ray through a shared
-  /// edge or vertex) are counted once. Thread-safe.
+  /// edge or vertex of one mesh) are counted once. Thread-safe.
   void allHits(const glm::dvec3& origin, const glm::dvec3& dir, double tMin, double tMax, std::vector<Hit>* hits) const;
   bool empty() const { return mScene == nullptr; }
 
  private:
-  const TriangleMesh* mMesh = nullptr;
+  std::vector<const TriangleMesh*> mMeshes;
   RTCSceneTy* mScene = nullptr;
 };
 

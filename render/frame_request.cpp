@@ -37,6 +37,12 @@ std::string Look::validate() const {
     if (!(std::isfinite(voi->outside) && voi->outside >= 0)) return "--voi-outside must be a finite factor >= 0";
     if (!(std::isfinite(voi->ramp) && voi->ramp >= 0)) return "--voi-ramp must be a finite width >= 0 mm";
   }
+  if (meshes.size() > size_t(kMaxUserMeshes)) return detail::concat("--mesh: ", meshes.size(), " meshes (expected at most ", kMaxUserMeshes, ")");
+  for (const UserMesh& m : meshes) {
+    if (!m.mesh) return "--mesh " + m.name + ": no mesh";
+    for (int k = 0; k < 4; ++k)
+      if (!(m.color[k] >= 0.0f && m.color[k] <= 1.0f)) return "--mesh " + m.name + ": colour components must be in [0, 1]";
+  }
   return "";
 }
 

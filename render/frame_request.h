@@ -11,6 +11,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "hybrid_octree/selection.h"
 #include "render/camera.h"
@@ -19,6 +20,7 @@
 #include "render/regions.h"
 #include "render/transfer_function.h"
 #include "render/voi.h"
+#include "surface/mesh.h"
 #include "volume/patient_frame.h"
 
 namespace hyb {
@@ -53,7 +55,18 @@ struct View {
   std::string validate() const;
 };
 
-/// What a frame shows. Cut and volume of interest in patient space (LPS mm).
+/// A mesh of the user's own (an implant, a segmentation, a plan) drawn inside the volume with its
+/// own colour: its triangles in patient space (LPS mm), shared by the frames that show it.
+struct UserMesh {
+  std::string name;                          ///< the file it came from (or "meshes[k]"), for messages
+  std::shared_ptr<const TriangleMesh> mesh;  ///< finite vertices, indices in range (checkUserMesh)
+  glm::vec4 color{0.4f, 0.7f, 1.0f, 0.5f};   ///< straight RGBA; a < 1 is translucent (per crossing)
+};
+/// At most this many user meshes a frame (the slice shader's table of colours holds them and the
+/// isosurface's).
+inline constexpr int kMaxUserMeshes = 15;
+
+/// What a frame shows. Cut, volume of interest and meshes in patient space (LPS mm).
 struct Look {
   TransferFunction tf;
   std::optional<float> iso;                      ///< the isosurface's value, or none
@@ -63,6 +76,9 @@ struct Look {
   std::optional<CutPlane> cut;
   bool cutLine = true;                            ///< the surface's outline on the cutting plane
   std::optional<VolumeOfInterest> voi;            ///< its box along the patient's axes
+  /// Meshes drawn exactly in both renderers, in the SlabPolygon lists beside the isosurface (the
+  /// slices) and crossed by the rays (the reference); none: the frame is drawn as without them.
+  std::vector<UserMesh> meshes;
 
   /// Empty when valid, else a message naming the offending flag (--surface-color, --cut, --voi...).
   std::string validate() const;

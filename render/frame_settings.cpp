@@ -111,6 +111,40 @@ std::string budgetError(const std::string& text) {
   return "";
 }
 
+// Mesh files "FILE[:r,g,b,a]" separated by ';' or newlines (a repeated flag's), or why not.
+std::string meshFilesIn(const std::string& text, std::vector<FrameSettings::MeshFile>* out) {
+  std::vector<FrameSettings::MeshFile> files;
+  for (size_t at = 0; at <= text.size();) {
+    const size_t end = std::min(text.find_first_of(";\n", at), text.size());
+    const std::string item = text.substr(at, end - at);
+    at = end + 1;
+    if (item.empty()) continue;
+    FrameSettings::MeshFile m{item};
+    if (const size_t colon = item.rfind(':'); colon != std::string::npos) {
+      const std::string tail = item.substr(colon + 1);
+      if (const std::optional<std::vector<double>> v = numbersIn(tail)) {
+        if (v->size() != 4 || std::any_of(v->begin(), v->end(), [](double x) { return !(x >= 0.0 && x <= 1.0); }))
+          return "the colour after ':' is r,g,b,a, each in [0, 1]";
+        m = {item.substr(0, colon), glm::vec4(float((*v)[0]), float((*v)[1]), float((*v)[2]), float((*v)[3]))};
+      }
+    }
+    if (m.path.empty()) return "a file before the colour";
+    files.push_back(m);
+  }
+  if (files.size() > size_t(kMaxUserMeshes)) return "at most " + std::to_string(kMaxUserMeshes) + " meshes";
+  if (out) *out = std::move(files);
+  return "";
+}
+
+std::string meshFilesText(const std::vector<FrameSettings::MeshFile>& files) {
+  std::string s;
+  for (const FrameSettings::MeshFile& m : files) {
+    s += (s.empty() ? "" : ";") + m.path;
+    if (m.color != FrameSettings::MeshFile{}.color) s += ":" + joined({typed(m.color.r), typed(m.color.g), typed(m.color.b), typed(m.color.a)});
+  }
+  return s;
+}
+
 // Builders of the table's rows: @p f holds the row's words (name, kind where it is not the
 // builder's, range, unit, help, doors), the builder where its value is held.
 using SetNumbers = std::function<void(FrameSettings&, const std::optional<std::vector<double>>&)>;
@@ -325,6 +359,21 @@ void addLookFields(std::vector<FrameField>& f) {
       {.name = "background", .count = 3, .lo = 0.0, .hi = 1.0, .shape = "r,g,b", .help = "background r,g,b (default 0,0,0)", .doors = kCliPy},
       [](FrameSettings& s, const std::optional<std::vector<double>>& v) { s.background = glm::vec3(float((*v)[0]), float((*v)[1]), float((*v)[2])); },
       [](const FrameSettings& s) { return std::optional(std::vector<double>{typed(s.background.r), typed(s.background.g), typed(s.background.b)}); }));
+  // The viewer serves a data directory: a path it would open is the command line's and Python's.
+  FrameField mesh = word(
+      {.name = "mesh", .kind = FieldKind::Text,
+       .help = "a mesh drawn inside the volume, FILE[:r,g,b,a] (.ply .obj .stl .off, patient mm; a < 1 translucent; default colour 0.4,0.7,1,0.5); "
+               "the flag may be repeated, or files separated by ';'",
+       .doors = kCliPy, .optional = true, .repeatable = true},
+      [](FrameSettings& s, const std::optional<std::string>& w) {
+        s.meshes.clear();
+        if (w) meshFilesIn(*w, &s.meshes);
+      },
+      [](const FrameSettings& s) { return s.meshes.empty() ? std::nullopt : std::optional(meshFilesText(s.meshes)); });
+  mesh.checkText = [](const std::string& text) { return meshFilesIn(text, nullptr); };
+  f.push_back(mesh);
+  f.push_back(choice<MeshSpace>({.name = "mesh_space", .help = "the space of mesh files whose header does not name one (3D Slicer writes SPACE=RAS or SPACE=LPS): lps (default) or ras", .doors = kCliPy},
+                                {{"lps", MeshSpace::LPS}, {"ras", MeshSpace::RAS}}, [](FrameSettings& s) -> auto& { return s.meshSpace; }));
 }
 
 // How well: the renderer and its quality knobs (the viewer's scheduler sets its own).
@@ -435,6 +484,8 @@ void FrameField::parse(FrameSettings& s, const std::string& text, const std::str
       return setWord(s, text);
     case FieldKind::Text:
       if (text.find('\0') != std::string::npos || text.size() > 4096) refuse("");
+      if (checkText)
+        if (const std::string why = checkText(text); !why.empty()) refuse(why);
       return setWord(s, text);
     case FieldKind::Budget:
       if (const std::string why = budgetError(text); !why.empty()) refuse(why);
@@ -768,6 +819,10 @@ FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& 
     voi.outside = s.voiOutside;
     voi.ramp = s.voiRamp;
     look.voi = voi;
+  }
+  for (const FrameSettings::MeshFile& m : s.meshes) {
+    look.meshes.push_back(readUserMesh(m.path, m.color, s.meshSpace));
+    for (const std::string& w : userMeshWarnings(look.meshes.back(), v)) warnings << "hybrid-octree: warning: " << w << "\n";
   }
   // Where from, in patient space: a camera file's, the eye given, or the view framing what the
   // transfer function (or the isosurface) makes visible.

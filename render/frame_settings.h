@@ -22,6 +22,7 @@
 
 #include "render/frame_request.h"
 #include "render/patient_view.h"
+#include "render/user_meshes.h"
 
 namespace hyb {
 
@@ -56,6 +57,13 @@ struct FrameSettings {
   std::optional<std::array<double, 6>> voi;  ///< x0,y0,z0,x1,y1,z1
   double voiInside = 1.0, voiOutside = 0.1, voiRamp = 4.0;
   glm::vec3 background{0.0f};
+  /// A mesh file drawn inside the volume, with its colour.
+  struct MeshFile {
+    std::string path;
+    glm::vec4 color = UserMesh{}.color;
+  };
+  std::vector<MeshFile> meshes;
+  MeshSpace meshSpace = MeshSpace::LPS;  ///< of mesh files whose header does not say (Slicer's SPACE=)
   // How well.
   Quality quality;
   std::string budget;  ///< as given: megabytes, or P% of the view's full-resolution bytes
@@ -94,6 +102,7 @@ struct FrameField {
   std::vector<std::string> choices{};  ///< a Choice's words
   unsigned doors = kEveryDoor;
   bool optional = false;         ///< unset by default; an empty text (JSON null) unsets it
+  bool repeatable = false;       ///< the flag may be given several times, its values joined by a newline
 
   /// Sets the field from its @p text (the command line's form); @p as names the field where the
   /// text came from (the flag, a JSON field, a keyword).
@@ -114,6 +123,7 @@ struct FrameField {
   std::function<void(FrameSettings&, const std::optional<std::vector<double>>&)> setNumbers{};
   std::function<void(FrameSettings&, const std::optional<std::string>&)> setWord{};
   std::function<std::string(const std::vector<double>&)> check{};
+  std::function<std::string(const std::string&)> checkText{};  ///< a Text's: empty, or why it is refused
   std::function<std::optional<std::string>(const FrameSettings&)> get{};
 };
 

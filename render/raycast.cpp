@@ -122,6 +122,7 @@ class PixelTracer {
     r.t0 = std::max(r.t0, r.keepLo);
     r.t1 = std::min(r.t1, r.keepHi);
     if (mOptions.surface) mOptions.surface->allHits(r.o, r.d, r.keepLo, std::max(r.keepLo, r.keepHi), &mHits);
+    if (mOptions.meshes) addMeshHits(r);
     if (r.inBox && mOptions.volume && r.t1 > r.t0) marchVolume(r);
     surfaceUntil(r, 1e300);
     return glm::vec4(r.acc);
@@ -155,10 +156,22 @@ class PixelTracer {
     return std::nullopt;
   }
 
+  // The user meshes' crossings merged into the isosurface's (mesh k's as part k + 1).
+  void addMeshHits(const Ray& r) {
+    if (!mOptions.surface) mHits.clear();
+    mOptions.meshes->allHits(r.o, r.d, r.keepLo, std::max(r.keepLo, r.keepHi), &mMeshHits);
+    if (mMeshHits.empty()) return;
+    for (Hit& h : mMeshHits) ++h.part;
+    const size_t surface = mHits.size();
+    mHits.insert(mHits.end(), mMeshHits.begin(), mMeshHits.end());
+    std::inplace_merge(mHits.begin(), mHits.begin() + std::ptrdiff_t(surface), mHits.end(), [](const Hit& a, const Hit& b) { return a.t < b.t; });
+  }
+
   // Composites the surface crossings before distance @p t.
   void surfaceUntil(Ray& r, double t) {
     while (r.nextHit < mHits.size() && mHits[r.nextHit].t <= t && r.acc.a < 0.999) {
-      const glm::vec4 c = mOptions.surfaceColor;
+      const uint32_t part = mHits[r.nextHit].part;
+      const glm::vec4 c = part == 0 ? mOptions.surfaceColor : mOptions.meshColors[part - 1];
       composite(r, glm::dvec3(c) * headlight(mHits[r.nextHit].normal, r.d), c.a);
       ++r.nextHit;
       ++crossings;
@@ -249,6 +262,7 @@ class PixelTracer {
   const RayFrame& mF;
   const RaycastOptions& mOptions;
   std::vector<Hit> mHits;  // the ray's surface crossings, in order
+  std::vector<Hit> mMeshHits;
   std::optional<KnotSampler> mPaged;
 };
 

@@ -6,6 +6,7 @@
 
 #include <functional>
 #include <optional>
+#include <vector>
 
 #include "hybrid_octree/knot_source.h"
 #include "hybrid_octree/volume_octree.h"
@@ -29,6 +30,10 @@ struct RaycastOptions {
   bool shading = true;               ///< gradient (headlight) shading of the volume
   const Bvh* surface = nullptr;      ///< isosurface triangles in world mm, or none
   glm::vec4 surfaceColor{1.0f};      ///< straight RGBA; a < 1 is translucent (per crossing)
+  /// User meshes (GridMeshes::whole, built over in their order), or none; crossing mesh k composites
+  /// meshColors[k], shaded as the isosurface is.
+  const Bvh* meshes = nullptr;
+  std::vector<glm::vec4> meshColors;
   bool volume = true;                ///< false: surfaces only
   bool skipEmptySpace = true;        ///< jump over nodes the transfer function makes transparent
   const CutPlane* cut = nullptr;     ///< cutting plane, or none

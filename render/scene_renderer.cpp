@@ -497,6 +497,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
     f.stats.renderMs += msSince(t0);
     return f;
   }
+  if (quality.region && !look.meshes.empty()) HYB_THROW(ValueError, "--mesh: user meshes are not drawn by sort-last frames (MPI ranks)");
   RenderedFrame out;
   out.stats.renderer = quality.renderer;
   const FrameGrid g = frameGrid(view, look, volume().frame());
@@ -522,6 +523,30 @@ const TriangleMesh& SceneRenderer::regionSurface(const TriangleMesh& mesh, const
     r.box = region;
   }
   return r.mesh;
+}
+
+const GridMeshes* SceneRenderer::frameMeshes(const Look& look, bool bvh, FrameStats* st) {
+  if (look.meshes.empty()) return nullptr;
+  KeptMeshes& k = mMeshes;
+  bool same = k.from.size() == look.meshes.size();
+  for (size_t i = 0; same && i < k.from.size(); ++i) same = k.from[i] == look.meshes[i].mesh && k.colors[i] == look.meshes[i].color;
+  const auto t0 = Clock::now();
+  if (!same) {
+    k = KeptMeshes{};
+    for (const UserMesh& m : look.meshes) {
+      k.from.push_back(m.mesh);
+      k.colors.push_back(m.color);
+    }
+    k.grid = gridMeshes(look.meshes, volume().frame(), mScene.octree, volume().spacing());
+  }
+  if (bvh && !k.bvh) {
+    std::vector<const TriangleMesh*> parts;
+    for (const TriangleMesh& m : k.grid.whole) parts.push_back(&m);
+    k.bvh = std::make_unique<Bvh>(parts);
+  }
+  st->meshesMs = msSince(t0);
+  for (const TriangleMesh& m : k.grid.whole) st->meshTriangles += m.triangles.size();
+  return &k.grid;
 }
 
 const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look& look, const Quality& quality, FrameStats* st) {
@@ -563,6 +588,10 @@ void SceneRenderer::renderRaycast(const FrameGrid& g, const Look& look, const Qu
     bvh = s.bvh[k].get();
   }
   RaycastOptions ro = raycastOptions(g, look, quality, bvh);
+  if (const GridMeshes* meshes = frameMeshes(look, true, &st)) {
+    ro.meshes = mMeshes.bvh.get();
+    ro.meshColors = meshes->colors;
+  }
   ro.knots = volume().hasSamples() ? nullptr : mScene.knots.get();  // a paged scene's samples through its cache
   if (quality.classification == Classification::PreIntegrated) {
     // Segments are a step long, shorter where a surface crossing or the volume's end cuts them.
@@ -594,7 +623,7 @@ void SceneRenderer::renderSlicesFrame(const FrameGrid& g, const Look& look, cons
   st.selectMs = msSince(s0);
 
   ensureGl();
-  SlicesOptions so = slicesOptions(g, look, quality, mesh);
+  SlicesOptions so = slicesOptions(g, look, quality, mesh, frameMeshes(look, false, &st));
   so.textures = mOptions.keepTextures ? mTextures.get() : nullptr;
   so.knots = mScene.knots.get();
   if (quality.classification == Classification::PreIntegrated) {

@@ -60,6 +60,9 @@ struct FrameStats {
   double selectMs = 0, renderMs = 0;
   double preintegrationMs = 0;     ///< making the pre-integration table (0 when kept or not used)
   double bvhMs = 0;                ///< making the ray tracer's BVH of the surface (0 when kept or not used)
+  /// Putting the user meshes in the grid frame, cut to leaf cells, and their BVH (0 when kept).
+  double meshesMs = 0;
+  size_t meshTriangles = 0;        ///< the user meshes' triangles (before cutting)
   size_t brickErrorsMeasured = 0;  ///< the view's bricks whose image error has been measured
   uint64_t textureBytesKept = 0;   ///< the brick texture cache after the frame
   /// Bricks of the selection drawn from a coarser level because their knots were not cached (the
@@ -262,6 +265,9 @@ class SceneRenderer {
   const TriangleMesh& prepareAt(float iso, int s, SurfaceNormals normals, FrameStats* st);
   /// @p mesh cut to @p region (cutMeshToRegion), kept for the next frame of the same region.
   const TriangleMesh& regionSurface(const TriangleMesh& mesh, const RegionBox& region);
+  /// The look's user meshes in the grid frame (kept while the look's meshes and colours are the
+  /// same), with their BVH when @p bvh; none when the look has none.
+  const GridMeshes* frameMeshes(const Look& look, bool bvh, FrameStats* st);
   /// The size (mm) of a pixel of @p gridCamera where the volume comes nearest the eye.
   double nearestPixelMm(const Camera& gridCamera) const;
   PreparedSurface& keep(std::unique_ptr<PreparedSurface> surface);
@@ -298,6 +304,12 @@ class SceneRenderer {
     RegionBox box;
     TriangleMesh mesh;
   } mRegionSurface;  // the last sort-last frame's
+  struct KeptMeshes {
+    std::vector<std::shared_ptr<const TriangleMesh>> from;  // held: their addresses stay theirs
+    std::vector<glm::vec4> colors;
+    GridMeshes grid;
+    std::unique_ptr<Bvh> bvh;
+  } mMeshes;  // the last frame's user meshes
 };
 
 }  // namespace hyb

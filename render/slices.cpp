@@ -187,7 +187,8 @@ class FramePrograms {
     mDefines = "#version 450 core\n";
     for (const auto& [name, on] : {std::pair{"SHADING", options.shading}, {"CUT", bool(options.cut)},
                                    {"SHELLS", options.proxy == Proxy::Shells && !camera.ortho}, {"VOI", bool(options.voi)}, {"ORTHO", camera.ortho},
-                                   {"TEXEL16", options.texelBits == TexelBits::Sixteen}, {"PREINT", bool(options.preintegrated)}})
+                                   {"TEXEL16", options.texelBits == TexelBits::Sixteen}, {"PREINT", bool(options.preintegrated)},
+                                   {"MESHES", options.meshes && !options.meshes->empty()}})
       mDefines += std::string("#define ") + name + (on ? " 1\n" : " 0\n");
   }
 
@@ -206,6 +207,11 @@ class FramePrograms {
     glUniform3f(uniform("eye"), float(eye.x), float(eye.y), float(eye.z));
     glUniform3f(uniform("forward"), float(mFrame.forward.x), float(mFrame.forward.y), float(mFrame.forward.z));
     glUniform4fv(uniform("surfaceColor"), 1, glm::value_ptr(mOptions.surfaceColor));
+    if (mOptions.meshes && !mOptions.meshes->empty()) {  // the table of colours: the isosurface's, then each mesh's
+      std::vector<glm::vec4> colors{mOptions.surfaceColor};
+      colors.insert(colors.end(), mOptions.meshes->colors.begin(), mOptions.meshes->colors.end());
+      glUniform4fv(uniform("surfaceColors"), GLsizei(colors.size()), glm::value_ptr(colors.front()));
+    }
     glUniform4fv(uniform("cutPlane"), 1, glm::value_ptr(mCutPlane));
     if (const VolumeOfInterest* voi = mOptions.voi) {
       const glm::vec3 centre(0.5 * (voi->lo + voi->hi)), half(0.5 * (voi->hi - voi->lo));
@@ -330,6 +336,8 @@ struct SliceFrame {
   const std::optional<SurfacePolygons> polygons;  // the surface's, with triangles
   const SurfacePolygons* surface;                 // the translucent surface's polygons (in SlabPolygon lists), or none
   const BrickPolygons polygonsOf;
+  const std::optional<SurfacePolygons> meshes;    // the user meshes' pieces (in SlabPolygon lists), or none
+  const BrickPolygons meshesOf;
 
   SliceFrame(const SelectedBricks& in, const TransferFunction& tfIn, const Camera& cameraIn, const SlicesOptions& optionsIn,
              const glm::ivec2& rowsIn)
@@ -341,7 +349,10 @@ struct SliceFrame {
         centres(options.leaveOutUnseen ? &pixelCentres : nullptr), brickOf(selection), order(bricksInView()),
         polygons(withTriangles ? std::optional<SurfacePolygons>(*options.surface) : std::nullopt), surface(translucent ? &*polygons : nullptr),
         polygonsOf(polygons ? polygonsByBrick(volume, octree, selection, *polygons, options.region)
-                            : BrickPolygons{std::vector<uint32_t>(selection.bricks.size() + 1, 0), {}}) {
+                            : BrickPolygons{std::vector<uint32_t>(selection.bricks.size() + 1, 0), {}}),
+        meshes(meshPolygons(options)),
+        meshesOf(meshes ? polygonsByBrick(volume, octree, selection, *meshes, options.region)
+                        : BrickPolygons{std::vector<uint32_t>(selection.bricks.size() + 1, 0), {}}) {
     if (options.textures) {
       options.textures->setBits(options.texelBits);
       options.textures->beginFrame();
@@ -350,8 +361,19 @@ struct SliceFrame {
   SliceFrame(const SliceFrame&) = delete;
   SliceFrame& operator=(const SliceFrame&) = delete;
   glm::dvec3 spacing() const { return volume.spacing(); }
+  // Whether brick @p b holds polygons of the SlabPolygon lists.
+  bool holdsPolygons(size_t b) const { return (surface && !polygonsOf.of(b).empty()) || !meshesOf.of(b).empty(); }
 
  private:
+  // The user meshes' pieces as polygons coloured by their meshes (colour 0 is the isosurface's).
+  static std::optional<SurfacePolygons> meshPolygons(const SlicesOptions& options) {
+    if (!options.meshes || options.meshes->pieces.triangles.empty()) return std::nullopt;
+    SurfacePolygons p(options.meshes->pieces);
+    p.colors.reserve(options.meshes->pieceMesh.size());
+    for (const uint16_t m : options.meshes->pieceMesh) p.colors.push_back(uint16_t(m + 1));
+    return p;
+  }
+
   // The bricks back to front, less those outside the band of rows or the region (the members
   // above order made).
   std::vector<uint32_t> bricksInView() const {
@@ -429,7 +451,7 @@ class BrickPlanner {
       d.node = i;
       const Brick& b = f.selection.bricks[d.brick];
       d.visible = !b.hidden && f.tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
-      if (!d.visible && !(f.surface && !f.polygonsOf.of(d.brick).empty())) continue;
+      if (!d.visible && !f.holdsPolygons(d.brick)) continue;
       glm::ivec3 lo, hi;
       octree.voxelBox(n, &lo, &hi);
       d.blo = d.slo = glm::dvec3(lo) * mSpacing;
@@ -588,7 +610,7 @@ class BrickPlanner {
     // exact the brick keeps the base spacing so that the surface is composited exactly, and so
     // does a brick holding the eye, so that the near plane cuts the volume finely.
     const bool holdsEye = !mF.camera.ortho && glm::all(glm::greaterThanEqual(mF.camera.eye, d.blo)) && glm::all(glm::lessThanEqual(mF.camera.eye, d.bhi));
-    const bool exactWithSurface = !mF.polygonsOf.of(d.brick).empty() && b.error == 0.0f && b.coarseCorners == 0;
+    const bool exactWithSurface = (!mF.polygonsOf.of(d.brick).empty() || !mF.meshesOf.of(d.brick).empty()) && b.error == 0.0f && b.coarseCorners == 0;
     // At least four planes across the brick's box: a ray's stretch in the brick that meets none of
     // its planes is lost.
     const double across = std::min({d.bhi.x - d.blo.x, d.bhi.y - d.blo.y, d.bhi.z - d.blo.z});
@@ -628,8 +650,17 @@ void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
   // This brick owns the proxies with depth in [bmin, bmax).
   const auto [bmin, bmax] = depth.range(d.blo, d.bhi);
   long long kLo = (long long)std::floor(bmin / d.delta) - 1, kHi = (long long)std::ceil(bmax / d.delta);
-  if (surface) {
+  const bool meshes = f.meshes && !f.meshesOf.of(d.brick).empty();
+  if (meshes) {  // the user meshes' pieces beside the translucent isosurface's polygons
+    SlabSource sources[2];
+    size_t n = 0;
+    if (surface) sources[n++] = {surface, f.polygonsOf.of(d.brick)};
+    sources[n++] = {&*f.meshes, f.meshesOf.of(d.brick)};
+    list.build(std::span<const SlabSource>(sources, n), {depth, d.delta, d.sliced, f.options.cutToSlabs}, f.centres);
+  } else if (surface) {
     list.build(*surface, f.polygonsOf.of(d.brick), {depth, d.delta, d.sliced, f.options.cutToSlabs}, f.centres);
+  }
+  if (surface || meshes) {
     if (d.sliced && !list.empty()) {
       kLo = std::min(kLo, list.firstSlab());
       kHi = std::max(kHi, list.lastSlab());
@@ -647,7 +678,7 @@ void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
     proxyBoxes(*d.blocks, d.lattice, spacing, depth, {d.delta, kLo, merge, f.options.preintegrated ? kPreintegratedGrowth * d.delta : 0.0}, &boxes);
   }
   for (long long k = kHi; k >= kLo; --k) {
-    if (surface && f.options.slabOrder) list.emitDownTo(k, &d.stream);
+    if ((surface || meshes) && f.options.slabOrder) list.emitDownTo(k, &d.stream);
     const double plane = double(k) * d.delta;
     one.clear();
     glm::dvec3 lo = d.slo, hi = d.shi;
@@ -662,7 +693,7 @@ void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
       ++d.slices;
     }
   }
-  if (surface) {
+  if (surface || meshes) {
     list.emitRest(&d.stream);
     d.slabPolygonDraws = list.draws();
   }
@@ -912,8 +943,9 @@ class SlicesFrame {
 
 }  // namespace
 
-SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const TriangleMesh* surface) {
+SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const TriangleMesh* surface, const GridMeshes* meshes) {
   SlicesOptions so;
+  so.meshes = meshes && !meshes->empty() ? meshes : nullptr;
   so.stepVoxels = quality.step.value_or(0.5);
   so.shading = look.shading;
   so.texelBits = quality.texelBits;

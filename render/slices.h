@@ -25,6 +25,7 @@
 #include "render/preintegration.h"
 #include "render/regions.h"
 #include "render/transfer_function.h"
+#include "render/user_meshes.h"
 #include "surface/mesh.h"
 #include "volume/progress.h"
 #include "volume/volume.h"
@@ -41,6 +42,10 @@ struct SlicesOptions {
   /// volume leaf, hence one brick).
   const TriangleMesh* surface = nullptr;
   glm::vec4 surfaceColor{1.0f};           ///< straight RGBA; a < 1 is translucent (per crossing)
+  /// User meshes (their pieces, each in one leaf cell, hence one brick), or none: drawn in the
+  /// SlabPolygon lists beside the translucent isosurface, each piece with its mesh's colour,
+  /// translucent or opaque alike.
+  const GridMeshes* meshes = nullptr;
   const CutPlane* cut = nullptr;          ///< cutting plane, or none
   const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
   bool cutLine = true;                    ///< draw the surface's intersection with the cutting plane
@@ -82,10 +87,12 @@ struct SlicesOptions {
 };
 
 /// The options a frame's look and quality ask of the slice renderer, @p surface the triangles it
-/// draws (or none) and @p grid the frame in the grid frame, which must outlive them. What an
+/// draws (or none), @p meshes the user meshes (or none) and @p grid the frame in the grid frame,
+/// which must outlive them. What an
 /// engine keeps across frames (SlicesOptions::textures, knots, preintegrated) and the progress are
 /// its own to set.
-SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const TriangleMesh* surface);
+SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const TriangleMesh* surface,
+                            const GridMeshes* meshes = nullptr);
 
 /// What a frame used.
 struct SlicesStats {

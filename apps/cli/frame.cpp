@@ -135,7 +135,8 @@ void RenderOptions::add(CLI::App* cmd) {
       for (const std::string& c : f.choices) words += (words.empty() ? "" : "|") + c;
       help += " (" + words + ")";
     }
-    cmd->add_option_function<std::string>(f.flag(), [this, &f](const std::string& text) { f.parse(settings, text, f.flag()); }, help);
+    CLI::Option* option = cmd->add_option_function<std::string>(f.flag(), [this, &f](const std::string& text) { f.parse(settings, text, f.flag()); }, help);
+    if (f.repeatable) option->multi_option_policy(CLI::MultiOptionPolicy::Join);
   }
   cmd->add_option("--memory", memoryMb,
                   "MB a scene file read paged holds: its octree, the surface made of it, and the cache of decompressed blocks its bricks are read through, which gets what they leave, at least a quarter (default: an eighth of the physical memory)");

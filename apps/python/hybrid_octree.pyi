@@ -91,6 +91,9 @@ class Scene:
         voi_inside: Number = ...,
         voi_outside: Number = ...,
         voi_ramp: Number = ...,
+        mesh: Path = ...,
+        mesh_space: Literal["lps", "ras"] = ...,
+        meshes: list[tuple[npt.ArrayLike, npt.ArrayLike, Numbers]] = ...,
         renderer: Literal["slices", "raycast"] = ...,
         epsilon: Number = ...,
         budget: Number | str = ...,
@@ -115,7 +118,9 @@ class Scene:
         render`'s flags (--surface-color is surface_color), in the forms above, checked by the same
         code: a wrong value raises ValueError with the command line's message, an unknown keyword
         or a wrong type TypeError. tf: an (N, 5) array of control points (value, r, g, b, opacity
-        per mm) or a transfer-function file. The engine is kept between calls (brick textures,
+        per mm) or a transfer-function file. mesh: mesh files "FILE[:r,g,b,a]" separated by ';';
+        meshes: meshes given as arrays, each (vertices (N, 3) in patient mm (LPS), faces (M, 3)
+        indices, rgba), drawn after mesh's. The engine is kept between calls (brick textures,
         surfaces), and the GIL is released while rendering; Ctrl+C (KeyboardInterrupt) stops a
         frame."""
     @overload

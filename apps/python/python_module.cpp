@@ -389,6 +389,37 @@ class PyScene {
     return m;
   }
 
+  // render()'s meshes: a list of (vertices (N, 3), faces (M, 3), rgba), each checked as a mesh file is.
+  static std::vector<UserMesh> meshesOf(const py::object& list) {
+    if (!py::isinstance<py::sequence>(list) || py::isinstance<py::str>(list))
+      throw py::type_error("meshes: expected a list of (vertices, faces, rgba)");
+    std::vector<UserMesh> out;
+    const py::sequence items = list.cast<py::sequence>();
+    for (size_t k = 0; k < items.size(); ++k) {
+      const std::string name = "meshes[" + std::to_string(k) + "]";
+      const py::object item = items[k];
+      if (!py::isinstance<py::sequence>(item) || py::len(item) != 3) throw py::type_error(name + ": expected (vertices, faces, rgba)");
+      const py::sequence t = item.cast<py::sequence>();
+      const auto vertices = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(t[0]);
+      const auto faces = py::array_t<int64_t, py::array::c_style | py::array::forcecast>::ensure(t[1]);
+      const auto rgba = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(t[2]);
+      if (!vertices || vertices.ndim() != 2 || vertices.shape(1) != 3) throw ValueError(name + ": vertices must be an (N, 3) array of patient mm");
+      if (!faces || faces.ndim() != 2 || faces.shape(1) != 3) throw ValueError(name + ": faces must be an (M, 3) array of vertex indices");
+      if (!rgba || rgba.ndim() != 1 || rgba.shape(0) != 4) throw ValueError(name + ": rgba must be 4 numbers in [0, 1]");
+      TriangleMesh mesh;
+      const double* v = vertices.data();
+      for (py::ssize_t i = 0; i < vertices.shape(0); ++i) mesh.vertices.push_back(glm::vec3(float(v[3 * i]), float(v[3 * i + 1]), float(v[3 * i + 2])));
+      const int64_t* f = faces.data();
+      for (py::ssize_t i = 0; i < 3 * faces.shape(0); ++i)
+        if (f[i] < 0 || f[i] > int64_t(UINT32_MAX)) throw ValueError(hyb::detail::concat(name, ": triangle ", i / 3, " uses vertex ", f[i], " (expected indices below ", mesh.vertices.size(), ")"));
+      for (py::ssize_t i = 0; i < faces.shape(0); ++i) mesh.triangles.push_back(glm::uvec3(uint32_t(f[3 * i]), uint32_t(f[3 * i + 1]), uint32_t(f[3 * i + 2])));
+      checkUserMesh(mesh, name);
+      const double* c = rgba.data();
+      out.push_back(UserMesh{name, std::make_shared<const TriangleMesh>(std::move(mesh)), glm::vec4(float(c[0]), float(c[1]), float(c[2]), float(c[3]))});
+    }
+    return out;
+  }
+
   py::object render(const py::kwargs& kwargs) {
     // Each keyword is a field of the one table (render/frame_settings.h), its Python form spelled as
     // the flag's text and parsed by the field, so the messages are the command line's; tf,
@@ -398,10 +429,12 @@ class PyScene {
     for (const auto& [k, v] : kwargs) {
       const std::string key = py::cast<std::string>(k);
       const FrameField* field = frameField(key);
-      if ((!field || !(field->doors & kPython)) && key != "premultiplied" && key != "stats")
+      if ((!field || !(field->doors & kPython)) && key != "premultiplied" && key != "stats" && key != "meshes")
         throw py::type_error(hyb::detail::concat("render() got an unexpected keyword argument '", key, "'"));
       if (v.is_none()) continue;
-      if (key == "premultiplied") {
+      if (key == "meshes") {
+        continue;  // read after the frame is set up
+      } else if (key == "premultiplied") {
         premultiplied = flagOf(key, v);
       } else if (key == "stats") {
         withStats = flagOf(key, v);
@@ -418,7 +451,14 @@ class PyScene {
     const bool composited = kwargs.contains("background") && !kwargs["background"].is_none();
     if (composited && premultiplied) throw ValueError("premultiplied and background are exclusive (a composited image is opaque)");
     std::ostringstream warnings;
-    const FrameSetup job = setUpFrame(settings, mRenderer->scene(), warnings);
+    FrameSetup job = setUpFrame(settings, mRenderer->scene(), warnings);
+    if (kwargs.contains("meshes") && !kwargs["meshes"].is_none()) {
+      for (UserMesh& m : meshesOf(kwargs["meshes"])) {
+        for (const std::string& w : userMeshWarnings(m, mRenderer->scene().volume)) warnings << "hybrid-octree: warning: " << w << "\n";
+        job.look.meshes.push_back(std::move(m));
+      }
+      if (const std::string e = job.look.validate(); !e.empty()) throw ValueError(e);
+    }
     warnLines(warnings.str());
     RenderedFrame frame;
     {

@@ -20,7 +20,7 @@ void main() {
 )";
 
 /// One brick's stream of slices and translucent surface triangles in draw order. kind 0: a slice;
-/// kind 1: a surface triangle whose fragments are drawn where their depth (along forward, or the
+/// kind k ≥ 1: a surface triangle of colour k − 1 (the isosurface's, or a user mesh's) whose fragments are drawn where their depth (along forward, or the
 /// distance to the eye for shells) lies in [slab.x, slab.y) (SlabPolygon: a triangle covering
 /// several slabs comes once per slab). All are clipped by the cutting plane. Compiled after the
 /// same #defines as kSliceFragment: llvmpipe sets up every varying of every triangle, so the face
@@ -93,7 +93,8 @@ void main() {
 /// is compiled out: the source follows "#version 450 core\n" and a #define of SHADING (headlight
 /// shading by the brick's stored gradient), SURFACE (translucent triangles in the stream), CUT (a
 /// cutting plane clips the stream), SHELLS (spherical-shell bricks may occur), VOI, ORTHO,
-/// TEXEL16 (16-bit brick texels), SMOOTH (the surface's vertex normals interpolated) and SEGMENTS
+/// TEXEL16 (16-bit brick texels), SMOOTH (the surface's vertex normals interpolated), MESHES (user
+/// meshes' triangles in the stream, coloured by their kind from a table) and SEGMENTS
 /// (each fragment's segment cut to the brick's box: bricks sliced coarser than the base spacing)
 /// and PREINT (pre-integrated classification: the segment, always cut to the box, read from the
 /// PreIntegrationTable at the values of its two ends), each 0 or 1.
@@ -110,6 +111,9 @@ flat in vec2 vSlab;
 #endif
 out vec4 fragColor;
 uniform vec4 surfaceColor;  // straight rgb, alpha per crossing
+#if MESHES
+uniform vec4 surfaceColors[16];  // by kind − 1: the isosurface's, then each user mesh's
+#endif
 uniform sampler3D volumeTex;  // the brick's lattice: normalised value, gradient direction (RGBA8 or RGBA16)
 uniform vec3 eye, forward;
 uniform float sliceSpacing;  // mm between this brick's slice planes along forward (radii: shells)
@@ -193,7 +197,12 @@ void main() {
     // Vertex normals on either side of a thin plate can cancel inside a triangle: unshaded there.
     float nn = dot(vNormal, vNormal);
     float shade = nn > 0.0 ? 0.25 + 0.75 * abs(dot(vNormal, rayDirection())) * inversesqrt(nn) : 1.0;
-    fragColor = vec4(surfaceColor.rgb * shade * surfaceColor.a, surfaceColor.a);
+#if MESHES
+    vec4 color = surfaceColors[clamp(int(vKind + 0.5) - 1, 0, 15)];
+#else
+    vec4 color = surfaceColor;
+#endif
+    fragColor = vec4(color.rgb * shade * color.a, color.a);
     return;
   }
 #endif

@@ -111,13 +111,12 @@ BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, 
   return out;
 }
 
-void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const SlabLayout& slabs, const PixelCentres* centres) {
+void SlabPolygonList::build(std::span<const SlabSource> sources, const SlabLayout& slabs, const PixelCentres* centres) {
   const ProxyDepth& depth = slabs.depth;
   const double delta = slabs.delta;
   const bool sliced = slabs.sliced, cut = slabs.cut;
-  mSurface = &surface;
+  mSurfaces.clear();
   mDelta = delta;
-  mSmooth = !surface.mesh->normals.empty();
   mInstances.clear();
   mNext = 0;
   mPolygons.clear();
@@ -126,52 +125,57 @@ void SlabPolygonList::build(const SurfacePolygons& surface, std::span<const uint
   mFirst = std::numeric_limits<long long>::max();
   mLast = std::numeric_limits<long long>::min();
   mTriangles = mUnseen = mDraws = 0;
-  const TriangleMesh& mesh = *surface.mesh;
-  for (uint32_t pi : polygons) {
-    const uint32_t local = uint32_t(mPolygons.size());
-    mPolygons.push_back(pi);
-    mFirstSpan.push_back(uint32_t(mSpans.size()));
-    long long p0 = std::numeric_limits<long long>::max(), p1 = std::numeric_limits<long long>::min();
-    double centroid = 0;
-    for (uint32_t ti = surface.starts[pi]; ti < surface.starts[pi + 1]; ++ti) {
-      const glm::uvec3 tr = mesh.triangles[ti];
-      ++mTriangles;
-      double dmn = 1e300, dmx = -1e300, sum = 0;
-      for (int k = 0; k < 3; ++k) {
-        const double d = depth.of(glm::dvec3(mesh.vertices[tr[k]]));
-        dmn = std::min(dmn, d);
-        dmx = std::max(dmx, d);
-        sum += d;
+  for (const SlabSource& source : sources) {
+    const SurfacePolygons& surface = *source.surface;
+    const uint32_t sourceIndex = uint32_t(mSurfaces.size());
+    mSurfaces.push_back(&surface);
+    const TriangleMesh& mesh = *surface.mesh;
+    for (uint32_t pi : source.polygons) {
+      const uint32_t local = uint32_t(mPolygons.size());
+      mPolygons.push_back({sourceIndex, pi});
+      mFirstSpan.push_back(uint32_t(mSpans.size()));
+      long long p0 = std::numeric_limits<long long>::max(), p1 = std::numeric_limits<long long>::min();
+      double centroid = 0;
+      for (uint32_t ti = surface.starts[pi]; ti < surface.starts[pi + 1]; ++ti) {
+        const glm::uvec3 tr = mesh.triangles[ti];
+        ++mTriangles;
+        double dmn = 1e300, dmx = -1e300, sum = 0;
+        for (int k = 0; k < 3; ++k) {
+          const double d = depth.of(glm::dvec3(mesh.vertices[tr[k]]));
+          dmn = std::min(dmn, d);
+          dmx = std::max(dmx, d);
+          sum += d;
+        }
+        centroid += sum / 3;
+        const PixelCentres::Cover cover =
+            centres ? centres->cover(mesh.vertices[tr.x], mesh.vertices[tr.y], mesh.vertices[tr.z], sliced && cut ? &depth : nullptr) : PixelCentres::Cover{};
+        if ((cover.known && cover.centres == 0) || !std::isfinite(dmn) || !std::isfinite(dmx)) {  // (a corner not finite draws nothing)
+          mSpans.push_back({1, 0});
+          ++mUnseen;
+          continue;
+        }
+        if (depth.shells)  // the nearest point of a triangle to the eye may lie inside it
+          dmn = distanceToTriangle(depth.eye, glm::dvec3(mesh.vertices[tr.x]), glm::dvec3(mesh.vertices[tr.y]), glm::dvec3(mesh.vertices[tr.z]));
+        // A brick without slices needs no slabs: its polygons are only sorted back to front.
+        long long k0 = sliced ? (long long)std::floor(dmn / delta) : 0, k1 = sliced ? (long long)std::floor(dmx / delta) : 0;
+        if (cover.known && sliced && cut && std::floor(cover.nearest / delta) == std::floor(cover.farthest / delta))
+          k0 = k1 = (long long)std::floor(cover.nearest / delta);  // every fragment it draws is in that slab
+        mSpans.push_back({int32_t(k0), int32_t(k1)});
+        p0 = std::min(p0, k0);
+        p1 = std::max(p1, k1);
       }
-      centroid += sum / 3;
-      const PixelCentres::Cover cover =
-          centres ? centres->cover(mesh.vertices[tr.x], mesh.vertices[tr.y], mesh.vertices[tr.z], sliced && cut ? &depth : nullptr) : PixelCentres::Cover{};
-      if ((cover.known && cover.centres == 0) || !std::isfinite(dmn) || !std::isfinite(dmx)) {  // (a corner not finite draws nothing)
-        mSpans.push_back({1, 0});
-        ++mUnseen;
-        continue;
+      centroid /= double(surface.starts[pi + 1] - surface.starts[pi]);
+      if (!cut && sliced && p0 <= p1) {  // whole, in its centroid's slab
+        p0 = p1 = (long long)std::floor(centroid / delta);
+        for (size_t j = mFirstSpan.back(); j < mSpans.size(); ++j)
+          if (mSpans[j][0] <= mSpans[j][1]) mSpans[j] = {int32_t(p0), int32_t(p0)};
       }
-      if (depth.shells)  // the nearest point of a triangle to the eye may lie inside it
-        dmn = distanceToTriangle(depth.eye, glm::dvec3(mesh.vertices[tr.x]), glm::dvec3(mesh.vertices[tr.y]), glm::dvec3(mesh.vertices[tr.z]));
-      // A brick without slices needs no slabs: its polygons are only sorted back to front.
-      long long k0 = sliced ? (long long)std::floor(dmn / delta) : 0, k1 = sliced ? (long long)std::floor(dmx / delta) : 0;
-      if (cover.known && sliced && cut && std::floor(cover.nearest / delta) == std::floor(cover.farthest / delta))
-        k0 = k1 = (long long)std::floor(cover.nearest / delta);  // every fragment it draws is in that slab
-      mSpans.push_back({int32_t(k0), int32_t(k1)});
-      p0 = std::min(p0, k0);
-      p1 = std::max(p1, k1);
-    }
-    centroid /= double(surface.starts[pi + 1] - surface.starts[pi]);
-    if (!cut && sliced && p0 <= p1) {  // whole, in its centroid's slab
-      p0 = p1 = (long long)std::floor(centroid / delta);
-      for (size_t j = mFirstSpan.back(); j < mSpans.size(); ++j)
-        if (mSpans[j][0] <= mSpans[j][1]) mSpans[j] = {int32_t(p0), int32_t(p0)};
-    }
-    for (long long k = p0; k <= p1; ++k)
-      mInstances.push_back({sliced ? std::clamp(centroid, double(k) * delta, double(k + 1) * delta) : centroid, int32_t(k), local});
-    if (sliced && p0 <= p1) {
-      mFirst = std::min(mFirst, p0);
-      mLast = std::max(mLast, p1);
+      for (long long k = p0; k <= p1; ++k)
+        mInstances.push_back({sliced ? std::clamp(centroid, double(k) * delta, double(k + 1) * delta) : centroid, int32_t(k), local});
+      if (sliced && p0 <= p1) {
+        mFirst = std::min(mFirst, p0);
+        mLast = std::max(mLast, p1);
+      }
     }
   }
   if (mFirst > mLast) mFirst = 0, mLast = -1;
@@ -190,18 +194,20 @@ void SlabPolygonList::emitDownTo(long long slab, std::vector<float>* stream) {
 // none where the triangle is in one slab, else the slab's, open at the triangle's first and last
 // (a fragment the shader's float depth puts just beyond them is still drawn, in exactly one).
 void SlabPolygonList::emit(const Instance& in, std::vector<float>* stream) {
-  const SurfacePolygons& s = *mSurface;
+  const auto [source, pi] = mPolygons[in.polygon];
+  const SurfacePolygons& s = *mSurfaces[source];
   const TriangleMesh& mesh = *s.mesh;
-  const uint32_t pi = mPolygons[in.polygon];
+  const bool smooth = !mesh.normals.empty();
+  const float kind = 1.0f + (s.colors.empty() ? 0.0f : float(s.colors[pi]));
   size_t j = mFirstSpan[in.polygon];
   for (uint32_t ti = s.starts[pi]; ti < s.starts[pi + 1]; ++ti, ++j) {
     const auto [k0, k1] = mSpans[j];
     if (in.slab < k0 || in.slab > k1) continue;
     const glm::uvec3 tr = mesh.triangles[ti];
     const glm::vec3 a = mesh.vertices[tr.x], b = mesh.vertices[tr.y], c = mesh.vertices[tr.z];
-    const glm::vec3 face = mSmooth ? glm::vec3(0.0f) : glm::normalize(glm::cross(b - a, c - a));
+    const glm::vec3 face = smooth ? glm::vec3(0.0f) : glm::normalize(glm::cross(b - a, c - a));
     const float lo = in.slab > k0 ? float(double(in.slab) * mDelta) : -1e30f, hi = in.slab < k1 ? float(double(in.slab + 1) * mDelta) : 1e30f;
-    for (int k = 0; k < 3; ++k) putVertex(stream, mesh.vertices[tr[k]], mSmooth ? mesh.normals[tr[k]] : face, 1.0f, lo, hi);
+    for (int k = 0; k < 3; ++k) putVertex(stream, mesh.vertices[tr[k]], smooth ? mesh.normals[tr[k]] : face, kind, lo, hi);
     ++mDraws;
   }
 }

@@ -41,6 +41,9 @@ inline void putVertex(std::vector<float>* stream, const glm::vec3& p, const glm:
 struct SurfacePolygons {
   const TriangleMesh* mesh = nullptr;
   std::vector<uint32_t> starts;
+  /// Per polygon, the colour it is drawn with (the stream's kind is 1 + it: the slice shader's
+  /// table of colours, 0 the isosurface's), or empty: all 0.
+  std::vector<uint16_t> colors;
   explicit SurfacePolygons(const TriangleMesh& surface);
   size_t count() const { return starts.size() - 1; }
 };
@@ -92,16 +95,28 @@ struct SlabLayout {
   bool cut = true;     ///< false: each polygon whole in the slab of its centroid's depth
 };
 
+/// Polygons of one brick from one surface (the isosurface, or the user meshes' pieces).
+struct SlabSource {
+  const SurfacePolygons* surface = nullptr;
+  std::span<const uint32_t> polygons;
+};
+
 /// One brick's SlabPolygon list.
 class SlabPolygonList {
  public:
+  /// As the one-surface build, over the polygons of several surfaces sorted together (ties in the
+  /// order of the sources).
+  void build(std::span<const SlabSource> sources, const SlabLayout& slabs, const PixelCentres* centres = nullptr);
   /// Buckets @p polygons of @p surface into the slabs of @p slabs that their depth ranges cover,
   /// and sorts the instances far to near (polygons of equal depth in their order in @p polygons).
   /// In a brick without slices every polygon is one instance in slab 0, sorted back to front by its
   /// centroid; uncut, every polygon is one instance, whole, in the slab of its centroid's depth.
   /// Triangles that @p centres says cover no pixel centre are left out (the polygon's depth stays
   /// that of all its triangles), and those whose covered centres lie in one slab go to that slab alone.
-  void build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const SlabLayout& slabs, const PixelCentres* centres = nullptr);
+  void build(const SurfacePolygons& surface, std::span<const uint32_t> polygons, const SlabLayout& slabs, const PixelCentres* centres = nullptr) {
+    const SlabSource one{&surface, polygons};
+    build(std::span<const SlabSource>(&one, 1), slabs, centres);
+  }
   /// Whether no polygon was placed.
   bool empty() const { return mInstances.empty(); }
   /// The first and last slab the polygons cover (when sliced and not empty).
@@ -109,7 +124,7 @@ class SlabPolygonList {
   long long lastSlab() const { return mLast; }
   /// Appends to @p stream the triangles of the instances in slabs ≥ @p slab not emitted yet, far
   /// to near, each with its slab's depths; the normals are the mesh's vertex normals, or each
-  /// triangle's own.
+  /// triangle's own; the kind is 1 + the polygon's colour (SurfacePolygons::colors).
   void emitDownTo(long long slab, std::vector<float>* stream);
   /// Appends everything not emitted yet.
   void emitRest(std::vector<float>* stream) { emitDownTo(std::numeric_limits<long long>::min(), stream); }
@@ -129,12 +144,15 @@ class SlabPolygonList {
   };
   void emit(const Instance& in, std::vector<float>* stream);
 
-  const SurfacePolygons* mSurface = nullptr;
+  // A polygon of the list: its surface (index into mSurfaces) and its index there.
+  struct Polygon {
+    uint32_t source, index;
+  };
+  std::vector<const SurfacePolygons*> mSurfaces;
   double mDelta = 1.0;
-  bool mSmooth = false;
   std::vector<Instance> mInstances;
   size_t mNext = 0;                                  // instances emitted so far
-  std::vector<uint32_t> mPolygons;                   // the brick's polygons (surface indices)
+  std::vector<Polygon> mPolygons;                    // the brick's polygons
   std::vector<uint32_t> mFirstSpan;                  // per polygon: its first triangle's span
   std::vector<std::array<int32_t, 2>> mSpans;        // the slabs each triangle covers (first > last: left out)
   long long mFirst = 0, mLast = -1;

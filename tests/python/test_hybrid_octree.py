@@ -414,8 +414,34 @@ def test_the_stubs_declare_every_keyword_of_the_table_and_each_is_tested():
     declared = re.search(r"def render\(\n        self,\n        \*,\n(.*?)\*\*more", stub, re.S).group(1)
     names = set(re.findall(r"^\s+(\w+):", declared, re.M))
     table = {f["name"] for f in ho.frame_fields()}
-    assert names == table | {"premultiplied", "stats"}
-    assert {k[0] for k in KEYWORDS} | {"tf", "camera_file"} == table
+    assert names == table | {"premultiplied", "stats", "meshes"}
+    assert {k[0] for k in KEYWORDS} | {"tf", "camera_file", "mesh", "mesh_space"} == table
+
+
+def test_meshes_as_arrays_and_as_files_draw_alike(tmp_path, small_scene):
+    # A square plate across the blobs (LPS mm): as arrays, and as an OBJ in RAS read with mesh_space.
+    v = np.array([[5, 5, 20], [60, 5, 20], [60, 50, 20], [5, 50, 20]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    base = dict(size=(48, 40), orbit=(20, 30))
+    arrays = small_scene.render(**base, meshes=[(v, f, (1, 0, 0, 0.5))])
+    assert not np.array_equal(arrays, small_scene.render(**base))
+    obj = tmp_path / "plate.obj"
+    obj.write_text("".join(f"v {-x} {-y} {z}\n" for x, y, z in v) + "f 1 2 3\nf 1 3 4\n")
+    assert np.array_equal(small_scene.render(**base, mesh=f"{obj}:1,0,0,0.5", mesh_space="ras"), arrays)
+    with pytest.raises(ValueError, match=r"^meshes\[0\]: triangle 1 uses vertex 9 \(expected indices below 4\)"):
+        small_scene.render(**base, meshes=[(v, np.array([[0, 1, 2], [0, 2, 9]]), (1, 0, 0, 1))])
+    nan = v.copy()
+    nan[2, 1] = np.nan
+    with pytest.raises(ValueError, match=r"^meshes\[0\]: vertex 2 is not finite"):
+        small_scene.render(**base, meshes=[(nan, f, (1, 0, 0, 1))])
+    with pytest.raises(ValueError, match=r"^meshes\[0\]: the mesh has no triangles"):
+        small_scene.render(**base, meshes=[(v, np.zeros((0, 3), int), (1, 0, 0, 1))])
+    with pytest.raises(ValueError, match=r"--mesh meshes\[0\]: colour components must be in \[0, 1\]"):
+        small_scene.render(**base, meshes=[(v, f, (2, 0, 0, 1))])
+    with pytest.raises(TypeError, match="^meshes: expected a list"):
+        small_scene.render(**base, meshes=3)
+    with pytest.raises(OSError, match=r"nothing\.xyz: not a mesh file \(expected \.ply, \.obj, \.stl or \.off\)$"):
+        small_scene.render(**base, mesh=str(tmp_path / "nothing.xyz"))
 
 
 @pytest.mark.parametrize("field", [f for f in ho.frame_fields() if "max" in f and f["max"] < 1e30], ids=lambda f: f["name"])
