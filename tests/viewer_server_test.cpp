@@ -561,6 +561,8 @@ TEST(ViewerServer, ALargeFinalFrameDoesNotHoldOtherClientsFrames) {
     while (f["type"] == "frame" && f["seq"] != seq);
     ASSERT_EQ(f["type"], "frame") << f.dump();
     worst = std::max(worst, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    // A moving frame goes before any refinement or band: it waits for the render under way only.
+    EXPECT_LE(f["waitedRenders"].get<int>(), 1) << f.dump();
     ++frames;
   }
   reader.join();
@@ -568,6 +570,8 @@ TEST(ViewerServer, ALargeFinalFrameDoesNotHoldOtherClientsFrames) {
   ASSERT_EQ(final["type"], "frame") << final.dump();
   EXPECT_EQ(final["width"], 2048);
   EXPECT_EQ(final["format"], "png");
+  // While the mover moved, the bands were cut to its frame target (60 ms) from the rows' measured time.
+  EXPECT_GT(final["bands"].get<int>(), 2048 * 2048 / (512 * 512)) << final.dump();  // (kBandPixels each when nobody moves)
   EXPECT_GT(frames, 3) << "the mover was served while the large frame was drawn (" << wholeMs << " ms)";
   EXPECT_LE(worst, wholeMs / 4) << "a moving frame waited " << worst << " ms behind the large frame (" << wholeMs << " ms in all)";
 }

@@ -76,9 +76,10 @@ std::string encodeFrame(const FrameHeader& h, const Image& image, Clock::time_po
 
 }  // namespace
 
-void Client::ask(FrameRequest request) {
+void Client::ask(FrameRequest request, uint64_t renders) {
   pending = std::move(request);
-  pendingSince = Clock::now();
+  pendingRenders = renders;
+  pendingSince = lastAsked = Clock::now();
   pendingEpochMs = std::chrono::duration<double, std::milli>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
@@ -109,14 +110,27 @@ void FrameScheduler::refineAgain(const Clients& clients, const std::string& key)
 }
 
 void FrameScheduler::serveNext(const Clients& clients, std::unique_lock<std::mutex>& lock) {
-  std::vector<std::shared_ptr<Client>> waiting;
-  for (const auto& entry : clients)
+  std::vector<std::shared_ptr<Client>> moving, waiting;
+  for (const auto& entry : clients) {
+    if (entry.second->moving()) moving.push_back(entry.second);
     if (entry.second->hasWork()) waiting.push_back(entry.second);
-  if (!waiting.empty()) serve(*waiting[mTurn++ % waiting.size()], lock);
+  }
+  const std::vector<std::shared_ptr<Client>>& next = moving.empty() ? waiting : moving;
+  if (next.empty()) return;
+  mClients = &clients;
+  const std::shared_ptr<Client> client = next[mTurn++ % next.size()];  // (held: it may leave while its frame is drawn)
+  serve(*client, lock);
+  mClients = nullptr;
+}
+
+int FrameScheduler::bandRows(const BandedFrame& b, bool othersMove) const {
+  const int standard = std::max(16, kBandPixels / b.image.width);
+  if (!othersMove || b.msPerRow <= 0.0) return standard;
+  return std::clamp(int(std::max(mTargetMs, kMovingBandMs) / b.msPerRow), std::min(kMinBandRows, standard), standard);
 }
 
 int FrameScheduler::start(Client& client, std::optional<Arrival>* arrival, bool* surface) {
-  if (client.pendingSince) *arrival = Arrival{msSince(*client.pendingSince), client.pendingEpochMs};
+  if (client.pendingSince) *arrival = Arrival{msSince(*client.pendingSince), client.pendingEpochMs, mRenders - client.pendingRenders};
   client.pendingSince.reset();
   client.current = std::move(client.pending);
   client.pending.reset();
@@ -166,7 +180,6 @@ void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
     BandedFrame b(request, SurfaceShown(scene));
     b.arrival = arrival;
     b.image = Image(size.x, size.y);
-    b.rowsPerBand = std::max(16, kBandPixels / size.x);
     client.banded = std::move(b);
   }
   if (client.banded) {
@@ -176,6 +189,7 @@ void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
   const QualityLevel& rung = client.quality(surface).ladder()[size_t(level)];
   const SurfaceShown shown(scene);
   const SceneSummary summary = *scene.summary;
+  ++mRenders;
   lock.unlock();
   std::string message;
   double ms = 0.0;
@@ -190,7 +204,7 @@ void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
     // (also a ray-traced frame that made the surface's BVH, or one that made a pre-integration table)
     cold = 2 * st.slices.uploadedBricks > st.slices.bricks || st.bvhMs > 0.0 || st.preintegrationMs > 0.0;
     coarser = double(st.bricksNotResident) / double(std::max<size_t>(1, st.slices.bricks + st.bricksNotResident));
-    const FrameHeader header{summary, request, rung, level, final, shown, arrival, st, frame.selection.maxError, renderMs};
+    const FrameHeader header{summary, request, rung, level, final, shown, arrival, st, frame.selection.maxError, renderMs, 1, renderMs};
     message = encodeFrame(header, frame.image, t0, &ms);
   } catch (const std::exception& e) {
     message.clear();
@@ -206,11 +220,17 @@ void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
 // The next band of @p client's final frame; the frame goes out with its last.
 void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, std::unique_lock<std::mutex>& lock) {
   BandedFrame& b = *client.banded;
-  const glm::ivec2 rows(b.next, std::min(b.next + b.rowsPerBand, b.image.height));
+  bool othersMove = false;
+  const Clock::time_point now = Clock::now();
+  // (a mover's next request comes while a band is drawn: the window spans a few of them)
+  const auto window = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(std::max(1000.0, 3.0 * b.longestBandMs)));
+  for (const auto& entry : *mClients) othersMove = othersMove || (entry.second.get() != &client && entry.second->dragging(now, window));
+  const glm::ivec2 rows(b.next, std::min(b.next + bandRows(b, othersMove), b.image.height));
   const QualityLevel& rung = client.quality(b.surface.iso.has_value()).ladder()[0];
   const FrameRequest request = b.request;
   const std::optional<float> iso = b.surface.drawn(request);
   const SceneSummary summary = scene;
+  ++mRenders;
   lock.unlock();
   std::string message, error;
   RenderedFrame frame;
@@ -233,6 +253,9 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   for (int y = rows.x; y < rows.y; ++y)
     std::copy_n(&frame.image.at(0, y), b.image.width, &b.image.at(0, y));
   b.renderMs += ms;
+  b.msPerRow = ms / (rows.y - rows.x);
+  ++b.bands;
+  b.longestBandMs = std::max(b.longestBandMs, ms);
   b.stats = frame.stats;
   b.maxError = std::max(b.maxError, double(frame.selection.maxError));
   b.next = rows.y;
@@ -242,7 +265,8 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   lock.unlock();
   double total = 0.0;
   try {
-    const FrameHeader header{summary, done.request, rung, 0, true, done.surface, done.arrival, done.stats, done.maxError, done.renderMs};
+    const FrameHeader header{summary, done.request, rung, 0, true, done.surface, done.arrival, done.stats, done.maxError, done.renderMs, done.bands,
+                             done.longestBandMs};
     message = encodeFrame(header, done.image, Clock::now(), &total);
   } catch (const std::exception& e) {
     error = e.what();

@@ -26,8 +26,13 @@ using Clock = std::chrono::steady_clock;
 
 /// A final frame larger than this is drawn band by band, other clients' frames between its bands,
 /// so that it holds the render thread for one band at a time (the pixels are the whole frame's:
-/// SlicesOptions::rows).
+/// SlicesOptions::rows). While another client moves, a band is sized to kMovingBandMs (or the frame
+/// target, if longer) from the time per row the last band took, so that the mover waits about that
+/// at most: narrower bands would cost the large frame more than they save the mover (each band
+/// selects and draws every brick it crosses again).
 inline constexpr int kBandPixels = 512 * 512;
+inline constexpr int kMinBandRows = 32;
+inline constexpr double kMovingBandMs = 150.0;
 
 /// A final frame part drawn.
 struct BandedFrame {
@@ -37,8 +42,10 @@ struct BandedFrame {
   std::optional<Arrival> arrival;
   Image image;
   int next = 0;           ///< the first row not drawn yet
-  int rowsPerBand = 0;
   double renderMs = 0.0;  ///< the bands' render times so far
+  double msPerRow = 0.0;  ///< the last band's time per row
+  int bands = 0;
+  double longestBandMs = 0.0;
   FrameStats stats;       ///< the last band's
   double maxError = 0.0;
 };
@@ -51,6 +58,8 @@ struct Client {
   std::optional<FrameRequest> pending;  ///< the newest request not yet rendered
   std::optional<Clock::time_point> pendingSince;  ///< when the page sent it (none: the server asks again)
   double pendingEpochMs = 0.0;          ///< the same, wall clock
+  uint64_t pendingRenders = 0;          ///< the scheduler's render count when it came
+  Clock::time_point lastAsked;          ///< when the page last asked for a frame
   std::optional<FrameRequest> current;  ///< the request being refined
   std::vector<int> refine;              ///< levels still to render for it, next last
   bool refineSurface = false;           ///< ... of the surface's ladder
@@ -65,8 +74,17 @@ struct Client {
   /// The ladder of frames with a surface or without: they cost and lose accuracy differently.
   AdaptiveQuality& quality(bool surface) { return surface ? (raysForSurface ? surfaceRayQuality : surfaceQuality) : volumeQuality; }
   bool hasWork() const { return open && !sceneKey.empty() && (pending || !refine.empty() || banded); }
-  /// A new request from the page: it replaces an older one not yet rendered.
-  void ask(FrameRequest request);
+  /// A new request from the page, when the scheduler had made @p renders renders: it replaces an
+  /// older one not yet rendered.
+  void ask(FrameRequest request, uint64_t renders);
+  /// Whether its next work is a moving frame (served before refinements and bands of any client).
+  bool moving() const { return open && !sceneKey.empty() && pending && pending->interacting; }
+  /// Whether the user is dragging: its last request moved and came within @p window of @p now
+  /// (between its frames too, while the next request is on its way).
+  bool dragging(Clock::time_point now, Clock::duration window) const {
+    const std::optional<FrameRequest>& last = pending ? pending : current;
+    return open && last && last->interacting && now - lastAsked < window;
+  }
   /// A new scene: nothing of the last one's requests, refinement or measured times applies to it.
   void showScene(const std::string& key);
 };
@@ -77,24 +95,32 @@ using Clients = std::map<uint64_t, std::shared_ptr<Client>>;
 /// it renders and encodes).
 class FrameScheduler {
  public:
-  explicit FrameScheduler(ScenePool& pool) : mPool(pool) {}
+  /// Moving frames aim at @p frameTargetMs: a band drawn while another client moves takes about that.
+  FrameScheduler(ScenePool& pool, double frameTargetMs) : mPool(pool), mTargetMs(frameTargetMs) {}
 
   /// Whether a client of @p clients has a frame to make.
   static bool hasWork(const Clients& clients);
   /// Clients showing scene @p key refine again (a surface they asked for may have come).
   static void refineAgain(const Clients& clients, const std::string& key);
-  /// One step of the next client with work, in turn: its newest request's first frame, the next
-  /// refinement, or the next band of its final frame.
+  /// One step of the next client with work, in turn, the clients with a moving frame to make
+  /// first: its newest request's first frame, the next refinement, or the next band of its final frame.
   void serveNext(const Clients& clients, std::unique_lock<std::mutex>& lock);
+  /// Frames and bands rendered so far (under the server's mutex).
+  uint64_t renders() const { return mRenders; }
 
  private:
   void serve(Client& client, std::unique_lock<std::mutex>& lock);
   /// Takes @p client's pending request as its current one: the ladder's level of its first frame.
   int start(Client& client, std::optional<Arrival>* arrival, bool* surface);
   void serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, std::unique_lock<std::mutex>& lock);
+  /// The rows of @p b's next band: kBandPixels' worth, or a frame target's worth while @p othersMove.
+  int bandRows(const BandedFrame& b, bool othersMove) const;
 
   ScenePool& mPool;
+  double mTargetMs;
   size_t mTurn = 0;
+  uint64_t mRenders = 0;
+  const Clients* mClients = nullptr;  ///< those of the current serveNext
 };
 
 }  // namespace hyb::viewer

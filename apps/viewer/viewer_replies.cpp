@@ -123,6 +123,10 @@ std::string FrameHeader::text(int width, int height, double encodeMs) const {
                  {"height", height},
                  {"waitMs", nullable(arrival ? std::optional(arrival->waitMs) : std::nullopt)},
                  {"requestEpochMs", nullable(arrival ? std::optional(arrival->epochMs) : std::nullopt)},
+                 // other clients' frames or bands drawn between the request's arrival and its frame
+                 {"waitedRenders", arrival ? json(arrival->waitedRenders) : json(nullptr)},
+                 {"bands", bands},
+                 {"longestBandMs", longestBandMs},
                  {"sentEpochMs", epochMs()},
                  {"renderMs", renderMs},
                  {"encodeMs", encodeMs},

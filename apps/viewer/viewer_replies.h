@@ -68,6 +68,7 @@ struct SurfaceReply {
 /// wall clock (milliseconds since the epoch: the page compares them with its own clock).
 struct Arrival {
   double waitMs = 0.0, epochMs = 0.0;
+  uint64_t waitedRenders = 0;  ///< other clients' renders (frames or bands) drawn while it waited
 };
 
 /// What a frame shows of its scene's surfaces (ScenePool::Frame): the isovalue drawn, whether the
@@ -92,6 +93,8 @@ struct FrameHeader {
   const std::optional<Arrival>& arrival;
   const FrameStats& st;
   double maxError = 0, renderMs = 0;
+  int bands = 1;             ///< a final frame drawn band by band: how many
+  double longestBandMs = 0;  ///< ... and the longest band's time
 
   /// The header as the page reads it (type "frame"), of an image @p width x @p height encoded in
   /// @p encodeMs; the final frame's carries the `hybrid-octree render` command that makes it.

@@ -83,7 +83,6 @@ ScenePool::Events ServerState::poolEvents() {
 
 void ServerState::renderLoop() {
   std::unique_lock<std::mutex> lock(mutex);
-  FrameScheduler scheduler(*pool);
   auto ready = [&] { return stopping || pool->hasWork() || FrameScheduler::hasWork(clients); };
   while (!stopping) {
     if (const std::optional<ScenePool::Clock::time_point> due = pool->nextRelease())
@@ -92,7 +91,7 @@ void ServerState::renderLoop() {
       wake.wait(lock, ready);
     if (stopping) break;
     for (const std::string& key : pool->collect(lock)) FrameScheduler::refineAgain(clients, key);
-    scheduler.serveNext(clients, lock);  // a large final frame gives way between its bands
+    scheduler->serveNext(clients, lock);  // a large final frame gives way between its bands
   }
   // The renderers' OpenGL contexts are this thread's: destroyed here once the network and export
   // threads, which use the pool, have ended, and without the mutex (the pool's threads still want
@@ -245,7 +244,7 @@ void ServerState::onMessage(const std::shared_ptr<Client>& c, const std::string&
     return;
   }
   if (!frame.scene.empty() && frame.scene != c->sceneKey) return;  // for the scene shown before: stale
-  c->ask(std::move(frame));
+  c->ask(std::move(frame), scheduler->renders());
   wake.notify_all();
 }
 
@@ -266,6 +265,7 @@ Server::Server(ServerOptions options) : mImpl(std::make_unique<ServerState>()) {
   po.memoryBytes = s.options.memoryBytes;
   po.releaseAfter = s.options.releaseAfter;
   s.pool = std::make_unique<ScenePool>(s.mutex, std::move(po), s.poolEvents());
+  s.scheduler = std::make_unique<FrameScheduler>(*s.pool, s.options.frameTargetMs);
   if (!s.options.volume.empty()) {
     s.defaultScene = keyOf(s.options.volume, s.options.series);
     s.pool->preload(s.defaultScene, s.options.volume, s.options.series, std::filesystem::path(s.options.volume).filename().string());

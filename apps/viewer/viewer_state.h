@@ -48,6 +48,7 @@ struct ServerState {
   std::condition_variable wake;
   Clients clients;
   std::unique_ptr<ScenePool> pool;
+  std::unique_ptr<FrameScheduler> scheduler;  ///< of the pool's scenes, on the render thread
   std::string defaultScene;  ///< the --volume scene's key, or empty
   /// Slow work beside the frames (mesh exports, PACS searches), in order on the side thread: each
   /// is called with the mutex held and may unlock it while it works.
