@@ -251,7 +251,7 @@ Volume volumeOf(const py::handle& object, const glm::dvec3& spacing) {
   const auto keep = std::make_shared<ArrayKeeper>();
   if (type != ScalarType::UInt32 && type != ScalarType::Int32 && type != ScalarType::Float64) {
     keep->array = array;
-    return Volume::borrowing(dims, spacing, type, type, array.data(), keep, source);
+    return Volume::borrowing({dims, spacing, type, type}, array.data(), keep, source);
   }
   const size_t count = size_t(array.size());
   ValueScan scan;
@@ -278,7 +278,7 @@ Volume volumeOf(const py::handle& object, const glm::dvec3& spacing) {
     });
   }
   keep->array = copy;
-  return Volume::borrowing(dims, spacing, type, stored, copy.data(), keep, source);
+  return Volume::borrowing({dims, spacing, type, stored}, copy.data(), keep, source);
 }
 
 // The image as an (H, W, 4) uint8 array: over @p background, opaque, as the command line's PNG
