@@ -12,9 +12,9 @@
 
 #include "hybrid_octree/knot_store.h"
 #include "surface/mesh_ops.h"
-#include "volume/error.h"
-#include "volume/file_util.h"
-#include "volume/memory_limit.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
 #include "volume/reader_util.h"
 #include "volume/volume_io.h"
 

@@ -5,7 +5,7 @@
 #include <cmath>
 
 #include "hybrid_octree/knot_source.h"
-#include "volume/parallel.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 

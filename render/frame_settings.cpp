@@ -11,8 +11,8 @@
 #include <sstream>
 
 #include "hybrid_octree/hybrid_io.h"
-#include "volume/error.h"
-#include "volume/file_util.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
 
 namespace hyb {
 

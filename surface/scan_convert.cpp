@@ -17,8 +17,8 @@
 #include <numbers>
 #include <utility>
 
-#include "volume/error.h"
-#include "volume/parallel.h"
+#include "volume/core/error.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 

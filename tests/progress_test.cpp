@@ -1,4 +1,4 @@
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "apps/cli/progress_display.h"
-#include "volume/parallel.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 namespace {

@@ -6,7 +6,7 @@
 #include <string>
 
 #include "test_util.h"
-#include "volume/file_util.h"
+#include "volume/core/file_util.h"
 #include "volume/reader_util.h"
 
 namespace hyb {

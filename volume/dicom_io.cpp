@@ -23,9 +23,9 @@
 #include <type_traits>
 #include <variant>
 
+#include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
 #include "volume/dicom_scan.h"
-#include "volume/file_util.h"
-#include "volume/memory_limit.h"
 #include "volume/plane_source.h"
 #include "volume/plane_stack.h"
 #include "volume/reader_util.h"

@@ -21,8 +21,8 @@
 #include <optional>
 #include <variant>
 
+#include "volume/core/file_util.h"
 #include "volume/dicom_scan.h"
-#include "volume/file_util.h"
 #include "volume/plane_source.h"
 #include "volume/reader_util.h"
 

@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 #include "volume/volume.h"
 #include "volume/volume_io.h"
 

@@ -7,7 +7,7 @@
 #include <cstring>
 #include <filesystem>
 
-#include "volume/file_util.h"
+#include "volume/core/file_util.h"
 #include "volume/inflate.h"
 #include "volume/reader_util.h"
 #include "volume/text_reader.h"

@@ -6,7 +6,7 @@
 #include <limits>
 #include <sstream>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 #include "volume/reader_util.h"
 
 namespace hyb {

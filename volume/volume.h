@@ -21,7 +21,7 @@
 #include <variant>
 #include <vector>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 #include "volume/patient_frame.h"
 
 namespace hyb {

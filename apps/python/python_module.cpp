@@ -19,12 +19,12 @@
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/surface_export.h"
 #include "render/frame_settings.h"
-#include "render/scene_renderer.h"
 #include "render/orientation_marker.h"
+#include "render/scene_renderer.h"
 #include "surface/mesh_io.h"
-#include "volume/error.h"
-#include "volume/file_util.h"
-#include "volume/number_text.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
+#include "volume/core/number_text.h"
 #include "volume/reader_util.h"
 
 namespace py = pybind11;
