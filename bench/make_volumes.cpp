@@ -19,7 +19,7 @@
 #include <string>
 #include <vector>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 #include "volume/volume.h"
 #include "volume/volume_io.h"
 

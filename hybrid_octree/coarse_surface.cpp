@@ -7,8 +7,8 @@
 
 #include "surface/dmc_table.h"
 #include "surface/flat_map.h"
-#include "volume/error.h"
-#include "volume/parallel.h"
+#include "volume/core/error.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 

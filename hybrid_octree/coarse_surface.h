@@ -13,7 +13,7 @@
 #include "hybrid_octree/knot_source.h"
 #include "hybrid_octree/volume_octree.h"
 #include "surface/mesh.h"
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 
 namespace hyb {
 

@@ -11,7 +11,7 @@
 
 #include "hybrid_octree/surface_octree.h"
 #include "surface/discrete_plane.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb::detail {
 

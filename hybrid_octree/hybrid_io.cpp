@@ -12,9 +12,9 @@
 
 #include "hybrid_octree/knot_store.h"
 #include "surface/mesh_ops.h"
-#include "volume/error.h"
-#include "volume/file_util.h"
-#include "volume/memory_limit.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
 #include "volume/reader_util.h"
 #include "volume/volume_io.h"
 
@@ -427,7 +427,7 @@ uint64_t loadVolumeSection(const SceneSections& sections, const SceneLoadOptions
   validateDims(dims, path);
   if (samples != uint64_t(dims.x) * uint64_t(dims.y) * uint64_t(dims.z))
     HYB_THROW(IoError, path, ": volume section holds ", samples, " samples for dims ", dims.x, "x", dims.y, "x", dims.z);
-  scene->volume = Volume::withoutSamples(dims, spacing, ScalarType(type), storedType, lo, hi, path);
+  scene->volume = Volume::withoutSamples({dims, spacing, ScalarType(type), storedType}, lo, hi, path);
   const glm::dmat3 direction = r.get<glm::dmat3>();
   const glm::dvec3 origin = r.get<glm::dvec3>();
   PatientFrame frame = makePatientFrame(direction, origin, path);

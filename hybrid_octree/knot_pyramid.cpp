@@ -5,7 +5,7 @@
 #include <cstdlib>
 #include <memory>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

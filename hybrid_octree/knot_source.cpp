@@ -2,7 +2,7 @@
 
 #include <algorithm>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

@@ -17,8 +17,8 @@
 
 #include <unistd.h>
 
-#include "volume/error.h"
-#include "volume/parallel.h"
+#include "volume/core/error.h"
+#include "volume/core/parallel.h"
 #include "volume/reader_util.h"
 
 namespace hyb {

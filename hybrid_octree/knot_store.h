@@ -26,7 +26,7 @@
 #include <vector>
 
 #include "hybrid_octree/knot_source.h"
-#include "volume/file_util.h"
+#include "volume/core/file_util.h"
 
 namespace hyb {
 

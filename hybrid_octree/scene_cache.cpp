@@ -5,8 +5,8 @@
 #include <sstream>
 #include <system_error>
 
-#include "volume/error.h"
-#include "volume/file_util.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
 
 namespace hyb {
 

@@ -9,7 +9,7 @@
 #include <unordered_map>
 #include <unordered_set>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

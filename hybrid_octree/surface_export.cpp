@@ -9,7 +9,7 @@
 #include "hybrid_octree/surface_octree.h"
 #include "surface/dmc.h"
 #include "surface/mesh_ops.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

@@ -20,10 +20,10 @@
 #include "surface/dmc.h"
 #include "surface/dmc_table.h"
 #include "surface/flat_map.h"
-#include "volume/error.h"
-#include "volume/parallel.h"
+#include "volume/core/error.h"
+#include "volume/core/parallel.h"
+#include "volume/core/progress.h"
 #include "volume/plane_source.h"
-#include "volume/progress.h"
 #include "volume/sample_window.h"
 
 namespace hyb {

@@ -31,7 +31,7 @@
 
 #include "hybrid_octree/volume_octree.h"
 #include "surface/mesh.h"
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 #include "volume/volume.h"
 
 namespace hyb {

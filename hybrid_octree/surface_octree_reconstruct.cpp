@@ -13,8 +13,8 @@
 #include "hybrid_octree/surface_octree.h"
 #include "surface/dmc.h"
 #include "surface/flat_map.h"
-#include "volume/error.h"
-#include "volume/parallel.h"
+#include "volume/core/error.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 

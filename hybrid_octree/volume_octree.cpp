@@ -12,7 +12,7 @@
 
 #include <omp.h>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 #include "volume/sample_window.h"
 
 namespace hyb {

@@ -35,9 +35,9 @@
 #include "hybrid_octree/knot_pyramid.h"
 #include "hybrid_octree/octree_node.h"
 #include "surface/mesh.h"
-#include "volume/file_util.h"
+#include "volume/core/file_util.h"
+#include "volume/core/progress.h"
 #include "volume/plane_source.h"
-#include "volume/progress.h"
 #include "volume/sample_window.h"
 #include "volume/volume.h"
 

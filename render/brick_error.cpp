@@ -5,7 +5,7 @@
 #include <cmath>
 
 #include "hybrid_octree/knot_source.h"
-#include "volume/parallel.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 
@@ -173,153 +173,203 @@ void BrickImageError::prefetch(const std::vector<std::pair<uint32_t, int>>& bric
   for (size_t k = 0; k < todo.size(); ++k) mMemo.emplace(brickKey(todo[k].first, todo[k].second), errors[k]);
 }
 
-double BrickImageError::measure(const OctreeNode& n, int p) const {
-  const int step = mOctree.edge(n) >> p;
-  if (step <= 1) return 0.0;
-  const KnotLattice L = mOctree.lattice(n, p);
-  // The level's knots: value and shading gradient, as the brick's texels hold them.
-  const std::vector<glm::vec4> both = latticeKnots(mKnots, L);
-  std::vector<float> knots(L.count());
-  std::vector<glm::vec3> gradients(L.count());
-  for (size_t i = 0; i < both.size(); ++i) {
-    knots[i] = both[i].x;
-    gradients[i] = glm::vec3(both[i].y, both[i].z, both[i].w);
+// One brick's measure, its stages as methods (as SlicesFrame's are): made, it holds the level's
+// knots, the reference field, which of the level's cells can be visible and the node's projection
+// across the view; total() casts the rays.
+class BrickImageError::Measure {
+ public:
+  Measure(const BrickImageError& e, const OctreeNode& n, int p)
+      : mE(e), mStep(e.mOctree.edge(n) >> p), mL(e.mOctree.lattice(n, p)), mSpacing(e.mVolume.spacing()) {
+    readLevel();
+    readReference(n);
+    markVisibleCells();
+    project(n);
   }
-  const glm::ivec3 dims = mVolume.dims();
-  const glm::vec3 spacing(mVolume.spacing());
+
+  // The sum over the rays across the node's projection.
+  double total() const {
+    double total = 0.0;
+    for (float su = mPmin.x + 0.5f * mH; su < mPmax.x; su += mH)
+      for (float sv = mPmin.y + 0.5f * mH; sv < mPmax.y; sv += mH) total += ray(su, sv);
+    return total;
+  }
+
+ private:
+  // The level's knots: value and shading gradient, as the brick's texels hold them.
+  void readLevel() {
+    const std::vector<glm::vec4> both = latticeKnots(mE.mKnots, mL);
+    mKnots.resize(mL.count());
+    mGradients.resize(mL.count());
+    for (size_t i = 0; i < both.size(); ++i) {
+      mKnots[i] = both[i].x;
+      mGradients[i] = glm::vec3(both[i].y, both[i].z, both[i].w);
+    }
+  }
 
   // The reference field: the samples in a node up to 64 voxels across; beyond, the knots 1/64 of
   // its edge apart (what rays that sample every 1/64 of the edge resolve), so that a brick's
   // measure reads at most 66³ knots through the knot source whatever the node's size. Its knots
   // reach one step past the node's far faces (a gradient there looks ahead, as the samples' does).
-  const int f = std::max(1, mOctree.edge(n) / 64);
-  KnotLattice F;
-  F.origin = glm::ivec3(n.origin);
-  F.step = f;
-  F.last = glm::min(F.origin + mOctree.edge(n) + f, dims - 1);
-  F.dims = (F.last - F.origin + f - 1) / f + 1;
-  std::vector<float> reference(size_t(F.count()));
-  mKnots.read(f, F.origin / f, F.dims, reference.data(), nullptr);
+  void readReference(const OctreeNode& n) {
+    const int f = std::max(1, mE.mOctree.edge(n) / 64);
+    mF.origin = glm::ivec3(n.origin);
+    mF.step = f;
+    mF.last = glm::min(mF.origin + mE.mOctree.edge(n) + f, mE.mVolume.dims() - 1);
+    mF.dims = (mF.last - mF.origin + f - 1) / f + 1;
+    mReference.resize(size_t(mF.count()));
+    mE.mKnots.read(f, mF.origin / f, mF.dims, mReference.data(), nullptr);
+  }
+
+  // Whether the level's field can be visible in each cell (the range of its eight knots).
+  void markVisibleCells() {
+    mCells = glm::max(mL.dims - 1, glm::ivec3(1));
+    mVisibleCell.resize(size_t(mCells.x) * mCells.y * mCells.z);
+    for (int z = 0, i = 0; z < mCells.z; ++z)
+      for (int y = 0; y < mCells.y; ++y)
+        for (int x = 0; x < mCells.x; ++x, ++i) {
+          float vmin = 1e30f, vmax = -1e30f;
+          for (int s = 0; s < 8; ++s) {
+            const glm::ivec3 k = glm::min(glm::ivec3(x + (s & 1), y + ((s >> 1) & 1), z + ((s >> 2) & 1)), mL.dims - 1);
+            const float v = mKnots[linear(k, mL.dims)];
+            vmin = std::min(vmin, v);
+            vmax = std::max(vmax, v);
+          }
+          mVisibleCell[size_t(i)] = mE.mTf.maxAlpha(vmin, vmax) > 0.0f;
+        }
+  }
+
+  // The node's box, the rays' direction (towards its centre from the eye) and the box's projection
+  // on the plane across them; the rays' spacing and their samples'.
+  void project(const OctreeNode& n) {
+    const Camera& camera = mE.mCamera;
+    mE.mOctree.voxelBox(n, &mA, &mB);
+    mLo = glm::vec3(mA) * mSpacing;
+    mHi = glm::vec3(mB) * mSpacing;
+    mCentre = 0.5f * (mLo + mHi);
+    mDir = glm::vec3(camera.forward());
+    if (!camera.ortho && glm::length(mCentre - glm::vec3(camera.eye)) > 0.0f) mDir = glm::normalize(mCentre - glm::vec3(camera.eye));
+    mU = glm::normalize(std::abs(mDir.x) < 0.9f ? glm::cross(mDir, glm::vec3(1, 0, 0)) : glm::cross(mDir, glm::vec3(0, 1, 0)));
+    mV = glm::cross(mDir, mU);
+    mPmin = glm::vec2(1e30f);
+    mPmax = glm::vec2(-1e30f);
+    for (int c = 0; c < 8; ++c) {
+      const glm::vec3 corner((c & 1) ? mHi.x : mLo.x, (c & 2) ? mHi.y : mLo.y, (c & 4) ? mHi.z : mLo.z);
+      const glm::vec2 pc(glm::dot(corner - mCentre, mU), glm::dot(corner - mCentre, mV));
+      mPmin = glm::min(mPmin, pc);
+      mPmax = glm::max(mPmax, pc);
+    }
+    // Rays an eighth of the node's edge apart choose as rays a voxel apart do, for a fraction of the
+    // work (docs/multires.md); one sample per voxel spacing along them (coarser in large nodes).
+    const float minSpacing = std::min({mSpacing.x, mSpacing.y, mSpacing.z});
+    mH = minSpacing * std::max(1.0f, float(mE.mOctree.edge(n)) / 8.0f);
+    mDs = minSpacing * std::max(1.0f, float(mE.mOctree.edge(n)) / 64.0f);
+  }
+
   // The reference field and its gradient (per mm) at voxel position q.
-  auto fine = [&](const glm::vec3& q, glm::vec3* g) {
+  float fine(const glm::vec3& q, glm::vec3* g) const {
     glm::ivec3 i0, i1;
     glm::vec3 w, scale;
     for (int a = 0; a < 3; ++a) {
-      i0[a] = std::clamp(int((q[a] - float(F.origin[a])) / float(f)), 0, std::max(F.dims[a] - 2, 0));
-      i1[a] = std::min(i0[a] + 1, F.dims[a] - 1);
-      const int x0 = F.knot(a, i0[a]), x1 = F.knot(a, i1[a]);
+      i0[a] = std::clamp(int((q[a] - float(mF.origin[a])) / float(mF.step)), 0, std::max(mF.dims[a] - 2, 0));
+      i1[a] = std::min(i0[a] + 1, mF.dims[a] - 1);
+      const int x0 = mF.knot(a, i0[a]), x1 = mF.knot(a, i1[a]);
       w[a] = x1 > x0 ? (q[a] - float(x0)) / float(x1 - x0) : 0.0f;
-      scale[a] = x1 > x0 ? 1.0f / (float(x1 - x0) * spacing[a]) : 1.0f / spacing[a];
+      scale[a] = x1 > x0 ? 1.0f / (float(x1 - x0) * mSpacing[a]) : 1.0f / mSpacing[a];
     }
     float c[8];
     for (int s = 0; s < 8; ++s)
-      c[s] = reference[linear(glm::ivec3(s & 1 ? i1.x : i0.x, s & 2 ? i1.y : i0.y, s & 4 ? i1.z : i0.z), F.dims)];
+      c[s] = mReference[linear(glm::ivec3(s & 1 ? i1.x : i0.x, s & 2 ? i1.y : i0.y, s & 4 ? i1.z : i0.z), mF.dims)];
     const float v = trilinear(c, w, g);
     *g *= scale;
     return v;
-  };
+  }
+
   // Which cell of the knots holds q.
-  const glm::ivec3 cells = glm::max(L.dims - 1, glm::ivec3(1));
-  auto cellOf = [&](const glm::vec3& q) {
+  glm::ivec3 cellOf(const glm::vec3& q) const {
     glm::ivec3 j;
-    for (int a = 0; a < 3; ++a) j[a] = std::clamp(int((q[a] - float(L.origin[a])) / float(step)), 0, cells[a] - 1);
+    for (int a = 0; a < 3; ++a) j[a] = std::clamp(int((q[a] - float(mL.origin[a])) / float(mStep)), 0, mCells[a] - 1);
     return j;
-  };
-  // Whether the level's field can be visible in each cell (the range of its eight knots).
-  std::vector<uint8_t> visibleCell(size_t(cells.x) * cells.y * cells.z);
-  for (int z = 0, i = 0; z < cells.z; ++z)
-    for (int y = 0; y < cells.y; ++y)
-      for (int x = 0; x < cells.x; ++x, ++i) {
-        float vmin = 1e30f, vmax = -1e30f;
-        for (int s = 0; s < 8; ++s) {
-          const glm::ivec3 k = glm::min(glm::ivec3(x + (s & 1), y + ((s >> 1) & 1), z + ((s >> 2) & 1)), L.dims - 1);
-          const float v = knots[linear(k, L.dims)];
-          vmin = std::min(vmin, v);
-          vmax = std::max(vmax, v);
-        }
-        visibleCell[size_t(i)] = mTf.maxAlpha(vmin, vmax) > 0.0f;
-      }
+  }
+
   // The level's field (what the brick shows, without blending) and its shading gradient at q in cell j.
-  auto level = [&](const glm::vec3& q, const glm::ivec3& j, glm::vec3* g) {
+  float level(const glm::vec3& q, const glm::ivec3& j, glm::vec3* g) const {
     glm::vec3 w;
     for (int a = 0; a < 3; ++a) {
-      if (L.dims[a] < 2) {
+      if (mL.dims[a] < 2) {
         w[a] = 0.0f;
         continue;
       }
-      const float lo = float(L.knot(a, j[a])), hi = float(L.knot(a, j[a] + 1));
+      const float lo = float(mL.knot(a, j[a])), hi = float(mL.knot(a, j[a] + 1));
       w[a] = std::clamp((q[a] - lo) / (hi - lo), 0.0f, 1.0f);
     }
     float c[8];
     glm::vec3 gc[8];
     for (int s = 0; s < 8; ++s) {
-      const size_t k = linear(glm::min(j + glm::ivec3(s & 1, (s >> 1) & 1, (s >> 2) & 1), L.dims - 1), L.dims);
-      c[s] = knots[k];
-      gc[s] = gradients[k];
+      const size_t k = linear(glm::min(j + glm::ivec3(s & 1, (s >> 1) & 1, (s >> 2) & 1), mL.dims - 1), mL.dims);
+      c[s] = mKnots[k];
+      gc[s] = mGradients[k];
     }
     *g = glm::mix(glm::mix(glm::mix(gc[0], gc[1], w.x), glm::mix(gc[2], gc[3], w.x), w.y),
                   glm::mix(glm::mix(gc[4], gc[5], w.x), glm::mix(gc[6], gc[7], w.x), w.y), w.z);
     glm::vec3 unused;
     return trilinear(c, w, &unused);
-  };
-
-  glm::ivec3 a, b;
-  mOctree.voxelBox(n, &a, &b);
-  const glm::vec3 lo = glm::vec3(a) * spacing, hi = glm::vec3(b) * spacing, centre = 0.5f * (lo + hi);
-  glm::vec3 dir = glm::vec3(mCamera.forward());
-  if (!mCamera.ortho && glm::length(centre - glm::vec3(mCamera.eye)) > 0.0f) dir = glm::normalize(centre - glm::vec3(mCamera.eye));
-  const glm::vec3 u = glm::normalize(std::abs(dir.x) < 0.9f ? glm::cross(dir, glm::vec3(1, 0, 0)) : glm::cross(dir, glm::vec3(0, 1, 0)));
-  const glm::vec3 v = glm::cross(dir, u);
-  glm::vec2 pmin(1e30f), pmax(-1e30f);
-  for (int c = 0; c < 8; ++c) {
-    const glm::vec3 corner((c & 1) ? hi.x : lo.x, (c & 2) ? hi.y : lo.y, (c & 4) ? hi.z : lo.z);
-    const glm::vec2 pc(glm::dot(corner - centre, u), glm::dot(corner - centre, v));
-    pmin = glm::min(pmin, pc);
-    pmax = glm::max(pmax, pc);
   }
-  // Rays an eighth of the node's edge apart choose as rays a voxel apart do, for a fraction of the
-  // work (docs/multires.md); one sample per voxel spacing along them (coarser in large nodes).
-  const float minSpacing = std::min({spacing.x, spacing.y, spacing.z});
-  const float h = minSpacing * std::max(1.0f, float(mOctree.edge(n)) / 8.0f);
-  const float ds = minSpacing * std::max(1.0f, float(mOctree.edge(n)) / 64.0f);
+
   // One ray: the squared difference of the colours that reach the eye, times the area it stands for.
-  auto ray = [&](float su, float sv) -> double {
-    const glm::vec3 o = centre + u * su + v * sv;
+  double ray(float su, float sv) const {
+    const glm::vec3 o = mCentre + mU * su + mV * sv;
     float t0 = -1e30f, t1 = 1e30f;
     for (int k = 0; k < 3; ++k) {
-      if (std::abs(dir[k]) < 1e-12f) {
-        if (o[k] < lo[k] || o[k] > hi[k]) return 0.0;
+      if (std::abs(mDir[k]) < 1e-12f) {
+        if (o[k] < mLo[k] || o[k] > mHi[k]) return 0.0;
         continue;
       }
-      float ta = (lo[k] - o[k]) / dir[k], tb = (hi[k] - o[k]) / dir[k];
+      float ta = (mLo[k] - o[k]) / mDir[k], tb = (mHi[k] - o[k]) / mDir[k];
       if (ta > tb) std::swap(ta, tb);
       t0 = std::max(t0, ta);
       t1 = std::min(t1, tb);
     }
     if (!(t1 > t0)) return 0.0;
-    const float seen = transmittance((o + dir * t0) / spacing);
+    const float seen = mE.transmittance((o + mDir * t0) / mSpacing);
     if (seen < 1e-3f) return 0.0;
     glm::vec4 cf(0.0f), cl(0.0f);  // premultiplied colour and opacity, front to back
-    for (float t = t0 + 0.5f * ds; t < t1 && (cf.a < 0.999f || cl.a < 0.999f); t += ds) {
-      const glm::vec3 q = glm::clamp((o + dir * t) / spacing, glm::vec3(a), glm::vec3(b));
-      const glm::ivec3 block = glm::min(glm::ivec3(q) / mBlock, mBlockDims - 1), j = cellOf(q);
-      if (!mVisibleBlock[linear(block, mBlockDims)] && !visibleCell[linear(j, cells)])
+    for (float t = t0 + 0.5f * mDs; t < t1 && (cf.a < 0.999f || cl.a < 0.999f); t += mDs) {
+      const glm::vec3 q = glm::clamp((o + mDir * t) / mSpacing, glm::vec3(mA), glm::vec3(mB));
+      const glm::ivec3 block = glm::min(glm::ivec3(q) / mE.mBlock, mE.mBlockDims - 1), j = cellOf(q);
+      if (!mE.mVisibleBlock[linear(block, mE.mBlockDims)] && !mVisibleCell[linear(j, mCells)])
         continue;  // both fields transparent here
       glm::vec3 gf, gl;
-      const Entry &ef = classify(fine(q, &gf)), &el = classify(level(q, j, &gl));
+      const Entry &ef = mE.classify(fine(q, &gf)), &el = mE.classify(level(q, j, &gl));
       if (ef.kappa <= 0.0f && el.kappa <= 0.0f) continue;
-      const glm::vec3 x = q * spacing;
-      const float af = 1.0f - std::exp(-extinction(ef, x) * ds), al = 1.0f - std::exp(-extinction(el, x) * ds);
-      cf += (1.0f - cf.a) * af * glm::vec4(ef.rgb * shade(gf, dir), 1.0f);
-      cl += (1.0f - cl.a) * al * glm::vec4(el.rgb * shade(gl, dir), 1.0f);
+      const glm::vec3 x = q * mSpacing;
+      const float af = 1.0f - std::exp(-mE.extinction(ef, x) * mDs), al = 1.0f - std::exp(-mE.extinction(el, x) * mDs);
+      cf += (1.0f - cf.a) * af * glm::vec4(ef.rgb * shade(gf, mDir), 1.0f);
+      cl += (1.0f - cl.a) * al * glm::vec4(el.rgb * shade(gl, mDir), 1.0f);
     }
     const glm::vec4 d = (cf - cl) * seen;  // what reaches the eye of the difference
-    return double(glm::dot(d, d)) * double(h) * double(h);
-  };
-  double total = 0.0;
-  for (float su = pmin.x + 0.5f * h; su < pmax.x; su += h)
-    for (float sv = pmin.y + 0.5f * h; sv < pmax.y; sv += h) total += ray(su, sv);
-  return total;
+    return double(glm::dot(d, d)) * double(mH) * double(mH);
+  }
+
+  const BrickImageError& mE;
+  const int mStep;  // voxels between the level's knots
+  const KnotLattice mL;
+  const glm::vec3 mSpacing;
+  std::vector<float> mKnots;
+  std::vector<glm::vec3> mGradients;
+  KnotLattice mF;  // the reference field's knots
+  std::vector<float> mReference;
+  glm::ivec3 mCells{1};
+  std::vector<uint8_t> mVisibleCell;
+  glm::ivec3 mA{0}, mB{0};  // the node's voxel box
+  glm::vec3 mLo{0.0f}, mHi{0.0f}, mCentre{0.0f};  // the same in mm, and its centre
+  glm::vec3 mDir{0.0f}, mU{0.0f}, mV{0.0f};  // the rays' direction and the plane across them
+  glm::vec2 mPmin{0.0f}, mPmax{0.0f};  // the box's projection on that plane
+  float mH = 1.0f, mDs = 1.0f;  // mm between rays, between samples along a ray
+};
+
+double BrickImageError::measure(const OctreeNode& n, int p) const {
+  if ((mOctree.edge(n) >> p) <= 1) return 0.0;
+  return Measure(*this, n, p).total();
 }
 
 }  // namespace hyb

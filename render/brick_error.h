@@ -70,6 +70,7 @@ class BrickImageError {
     float alpha;    // opacity of one mm
     float kappa;    // extinction per mm, −ln(1 − alpha)
   };
+  class Measure;  // one brick's measure (brick_error.cpp)
   const Entry& classify(float value) const;
   /// Extinction per mm of @p e at world point @p x: none on the removed side, scaled by the VOI.
   float extinction(const Entry& e, const glm::vec3& x) const;

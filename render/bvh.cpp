@@ -8,7 +8,7 @@
 #include <limits>
 #include <mutex>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

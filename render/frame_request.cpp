@@ -4,7 +4,7 @@
 #include <limits>
 
 #include "render/patient_view.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

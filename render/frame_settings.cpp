@@ -13,8 +13,10 @@
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/knot_store.h"
 #include "render/scene_renderer.h"
-#include "volume/error.h"
-#include "volume/file_util.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
 
 namespace hyb {
 

@@ -6,7 +6,7 @@
 
 #include <vector>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

@@ -1,6 +1,6 @@
 #include "render/gl_objects.h"
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb::gl {
 

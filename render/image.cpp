@@ -10,8 +10,8 @@
 #include <limits>
 #include <memory>
 
-#include "volume/error.h"
-#include "volume/file_util.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
 
 namespace hyb {
 

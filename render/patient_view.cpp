@@ -5,8 +5,8 @@
 #include <cstring>
 #include <limits>
 
-#include "volume/error.h"
-#include "volume/parallel.h"
+#include "volume/core/error.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 

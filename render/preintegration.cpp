@@ -8,7 +8,7 @@
 #include <chrono>
 #include <cmath>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

@@ -7,8 +7,8 @@
 #include <cmath>
 #include <optional>
 
-#include "volume/error.h"
-#include "volume/parallel.h"
+#include "volume/core/error.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 

@@ -14,12 +14,12 @@
 #include "render/camera.h"
 #include "render/cut_plane.h"
 #include "render/frame_request.h"
-#include "render/voi.h"
 #include "render/image.h"
 #include "render/preintegration.h"
 #include "render/regions.h"
 #include "render/transfer_function.h"
-#include "volume/progress.h"
+#include "render/voi.h"
+#include "volume/core/progress.h"
 #include "volume/volume.h"
 
 namespace hyb {

@@ -6,7 +6,7 @@
 #include <limits>
 #include <numeric>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

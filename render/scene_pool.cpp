@@ -7,7 +7,7 @@
 #include "hybrid_octree/coarse_surface.h"
 #include "render/patient_view.h"
 #include "render/transfer_function.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

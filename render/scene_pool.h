@@ -29,7 +29,7 @@
 #include "hybrid_octree/hybrid_io.h"
 #include "render/camera.h"
 #include "render/scene_renderer.h"
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 #include "volume/volume.h"
 
 namespace hyb {

@@ -12,7 +12,7 @@
 #include "render/patient_view.h"
 #include "surface/mesh_ops.h"
 #include "surface/mesh_simplify.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

@@ -39,7 +39,7 @@
 #include "render/slices.h"
 #include "render/transfer_function.h"
 #include "render/voi.h"
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 
 namespace hyb {
 

@@ -22,13 +22,13 @@
 #include <thread>
 #include <utility>
 
-#include "render/slices/cut_plane_pass.h"
 #include "render/gl_objects.h"
+#include "render/slices/cut_plane_pass.h"
 #include "render/slices/proxy_geometry.h"
 #include "render/slices/shaders.h"
 #include "render/slices/slab_polygons.h"
-#include "volume/error.h"
-#include "volume/parallel.h"
+#include "volume/core/error.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 

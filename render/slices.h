@@ -15,19 +15,19 @@
 
 #include "hybrid_octree/selection.h"
 #include "hybrid_octree/volume_octree.h"
-#include "render/slices/brick_textures.h"
 #include "render/camera.h"
 #include "render/cut_plane.h"
 #include "render/frame_request.h"
-#include "render/voi.h"
 #include "render/gl_context.h"
 #include "render/image.h"
 #include "render/preintegration.h"
 #include "render/regions.h"
+#include "render/slices/brick_textures.h"
 #include "render/transfer_function.h"
 #include "render/user_meshes.h"
+#include "render/voi.h"
 #include "surface/mesh.h"
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 #include "volume/volume.h"
 
 namespace hyb {

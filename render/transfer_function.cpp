@@ -4,8 +4,8 @@
 #include <cmath>
 #include <sstream>
 
-#include "volume/error.h"
-#include "volume/file_util.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
 
 namespace hyb {
 

@@ -7,7 +7,7 @@
 #include <sstream>
 
 #include "surface/mesh_io.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

@@ -18,8 +18,8 @@
 #include <limits>
 #include <numbers>
 
-#include "volume/error.h"
-#include "volume/parallel.h"
+#include "volume/core/error.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 

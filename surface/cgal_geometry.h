@@ -6,7 +6,7 @@
 #include <limits>
 
 #include "surface/mesh.h"
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 
 namespace hyb {
 

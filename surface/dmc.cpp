@@ -12,7 +12,7 @@
 #include "surface/dmc_table.h"
 #include "surface/flat_map.h"
 #include "surface/triangulate.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

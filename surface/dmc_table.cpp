@@ -7,7 +7,7 @@
 #include <map>
 #include <set>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb::dmc {
 

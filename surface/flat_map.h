@@ -10,7 +10,7 @@
 
 #include <glm/glm.hpp>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

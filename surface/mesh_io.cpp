@@ -9,8 +9,8 @@
 #include <fstream>
 #include <sstream>
 
-#include "volume/error.h"
-#include "volume/file_util.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
 
 namespace hyb {
 

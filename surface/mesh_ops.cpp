@@ -5,7 +5,7 @@
 #include <cstdint>
 #include <utility>
 
-#include "volume/parallel.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 

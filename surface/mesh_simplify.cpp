@@ -13,8 +13,8 @@
 #include <vector>
 
 #include "surface/mesh_ops.h"
-#include "volume/error.h"
-#include "volume/parallel.h"
+#include "volume/core/error.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 

@@ -5,7 +5,7 @@
 #pragma once
 
 #include "surface/mesh.h"
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 
 namespace hyb {
 

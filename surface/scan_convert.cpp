@@ -17,8 +17,8 @@
 #include <numbers>
 #include <utility>
 
-#include "volume/error.h"
-#include "volume/parallel.h"
+#include "volume/core/error.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 
@@ -124,7 +124,7 @@ ScanResult makeResult(const VoxelGrid& grid, CoverageStore&& store, std::vector<
   ScanResult r;
   const ScalarType type = store.bytes ? ScalarType::UInt8 : ScalarType::Float32;
   const void* data = store.buffer.get();
-  r.coverage = Volume::borrowing(grid.dims, grid.spacing, type, type, data, std::move(store.buffer), "coverage");
+  r.coverage = Volume::borrowing({grid.dims, grid.spacing, type, type}, data, std::move(store.buffer), "coverage");
   r.coverage.setFrame(grid.frame);
   r.coverage.addInfo("coverage", store.bytes ? "fraction x 255" : "fraction");
   r.warnings = std::move(warnings);

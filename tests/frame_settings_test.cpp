@@ -14,7 +14,7 @@
 #include "apps/viewer/viewer_protocol.h"
 #include "cli_util.h"
 #include "test_util.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 namespace {

@@ -5,7 +5,7 @@
 
 #include <cmath>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 namespace {

@@ -1,24 +1,19 @@
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 
-#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
-
-#include <sstream>
 #include <stdexcept>
+#include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
-#include "apps/cli/progress_display.h"
-#include "volume/parallel.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 namespace {
-
-using ::testing::HasSubstr;
 
 // The first exception of an OpenMP loop's iterations comes out of it after the loop; the
 // iterations after it are skipped, those before it done.
@@ -72,30 +67,6 @@ TEST(Progress, TasksReportWholePercentsInOrderFromAnyThread) {
   }
   ProgressTask none(nullptr, "nothing", 10);  // no progress: a no-op
   none.advance(5);
-}
-
-TEST(Progress, DisplayDrawsABarOrLinesOnlyForTasksThatTakeTime) {
-  for (const app::ProgressMode mode : {app::ProgressMode::Lines, app::ProgressMode::Bar}) {
-    std::ostringstream err;
-    const app::ProgressDisplay display(mode, err, false);
-    { ProgressTask quick(display.progress(), "quick", 2); quick.advance(2); }
-    EXPECT_EQ(err.str(), "");  // short tasks stay silent
-    {
-      ProgressTask slow(display.progress(), "slow", 4);
-      std::this_thread::sleep_for(std::chrono::milliseconds(1050));
-      slow.advance(2);
-    }
-    if (mode == app::ProgressMode::Lines) {
-      EXPECT_THAT(err.str(), HasSubstr("progress slow: 50 %\n"));
-      EXPECT_THAT(err.str(), HasSubstr("progress slow: done in 1."));
-    } else {
-      EXPECT_THAT(err.str(), HasSubstr("\rslow                 [###############               ]  50 %"));
-      EXPECT_THAT(err.str(), HasSubstr("] 100 %, 1."));
-    }
-  }
-  std::ostringstream err;
-  const app::ProgressDisplay off(app::ProgressMode::Off, err, true);
-  EXPECT_EQ(off.progress(), nullptr);
 }
 
 }  // namespace

@@ -7,7 +7,7 @@
 #include <thread>
 
 #include "test_util.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 namespace {

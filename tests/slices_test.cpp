@@ -4,16 +4,16 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "render/raycast.h"
 #include "hybrid_octree/knot_source.h"
 #include "hybrid_octree/surface_octree.h"
 #include "render/gl_objects.h"
 #include "render/patient_view.h"
+#include "render/raycast.h"
 #include "render/scene_renderer.h"
 #include "render/slices.h"
 #include "render_util.h"
 #include "test_util.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 #include "volume/volume_io.h"
 
 namespace hyb {

@@ -11,7 +11,7 @@
 
 #include "dicom_writer.h"
 #include "test_util.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb::viewer {
 namespace {

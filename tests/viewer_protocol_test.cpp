@@ -5,7 +5,7 @@
 
 #include <string>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb::viewer {
 namespace {

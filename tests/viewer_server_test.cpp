@@ -24,9 +24,9 @@
 #include "apps/viewer/viewer_quality.h"
 #include "render/image.h"
 #include "render/scene_renderer.h"
-#include "volume/progress.h"
 #include "render_util.h"
 #include "test_util.h"
+#include "volume/core/progress.h"
 
 namespace hyb::viewer {
 namespace {

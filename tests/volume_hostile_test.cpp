@@ -25,8 +25,8 @@
 #include "hybrid_octree/hybrid_io.h"
 #include "render/transfer_function.h"
 #include "test_util.h"
-#include "volume/file_util.h"
-#include "volume/memory_limit.h"
+#include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
 #include "volume/plane_source.h"
 #include "volume/volume_io.h"
 

@@ -19,7 +19,7 @@
 
 #include "cli_util.h"
 #include "test_util.h"
-#include "volume/file_util.h"
+#include "volume/core/file_util.h"
 #include "volume/plane_source.h"
 #include "volume/reader_util.h"
 

@@ -6,7 +6,7 @@
 #include <string>
 
 #include "test_util.h"
-#include "volume/file_util.h"
+#include "volume/core/file_util.h"
 #include "volume/reader_util.h"
 
 namespace hyb {
@@ -102,7 +102,7 @@ namespace {
 TEST(Volume, ABorrowingVolumeReadsItsOwnersSamplesInPlace) {
   auto owner = std::make_shared<std::vector<int16_t>>(std::vector<int16_t>{-5, 3, 7, 100, 0, 1, 2, 9});
   {
-    const Volume v = Volume::borrowing({2, 2, 2}, glm::dvec3(1.0), ScalarType::Int16, ScalarType::Int16, owner->data(), owner, "borrowed");
+    const Volume v = Volume::borrowing({{2, 2, 2}, glm::dvec3(1.0), ScalarType::Int16, ScalarType::Int16}, owner->data(), owner, "borrowed");
     EXPECT_EQ(owner.use_count(), 2);
     EXPECT_TRUE(v.hasSamples());
     EXPECT_EQ(v.at(1, 1, 0), 100.0f);
@@ -114,10 +114,10 @@ TEST(Volume, ABorrowingVolumeReadsItsOwnersSamplesInPlace) {
   }
   EXPECT_EQ(owner.use_count(), 1);
   std::vector<float> bad{1.0f, std::nanf(""), 0, 0, 0, 0, 0, 0};
-  EXPECT_THROW(Volume::borrowing({2, 2, 2}, glm::dvec3(1.0), ScalarType::Float32, ScalarType::Float32, bad.data(), nullptr, "nan"), ValueError);
+  EXPECT_THROW(Volume::borrowing({{2, 2, 2}, glm::dvec3(1.0), ScalarType::Float32, ScalarType::Float32}, bad.data(), nullptr, "nan"), ValueError);
   std::vector<double> wide(8, 0.0);
-  EXPECT_THROW(Volume::borrowing({2, 2, 2}, glm::dvec3(1.0), ScalarType::Float64, ScalarType::Float64, wide.data(), nullptr, "f64"), ValueError);
-  EXPECT_THROW(Volume::borrowing({2, 2, 2}, glm::dvec3(-1.0), ScalarType::Int16, ScalarType::Int16, owner->data(), owner, "spacing"), ValueError);
+  EXPECT_THROW(Volume::borrowing({{2, 2, 2}, glm::dvec3(1.0), ScalarType::Float64, ScalarType::Float64}, wide.data(), nullptr, "f64"), ValueError);
+  EXPECT_THROW(Volume::borrowing({{2, 2, 2}, glm::dvec3(-1.0), ScalarType::Int16, ScalarType::Int16}, owner->data(), owner, "spacing"), ValueError);
 }
 
 }  // namespace

@@ -23,9 +23,9 @@
 #include <type_traits>
 #include <variant>
 
+#include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
 #include "volume/dicom_scan.h"
-#include "volume/file_util.h"
-#include "volume/memory_limit.h"
 #include "volume/plane_source.h"
 #include "volume/plane_stack.h"
 #include "volume/reader_util.h"
@@ -551,7 +551,7 @@ std::unique_ptr<PlaneSource> stackPlanes(SeriesLayout layout) {
   }
   // (The spacing along the normal of a stack to be resampled is its grid's, which replaces it.)
   const glm::dvec3 spacing(layout.stack.pixelSpacing, layout.grid.resampled ? 1.0 : layout.grid.spacing.z);
-  Volume description = placedSeries(Volume::withoutSamples(dims, spacing, headers.front().type, stored, 0.0f, 0.0f, layout.dir), layout,
+  Volume description = placedSeries(Volume::withoutSamples({dims, spacing, headers.front().type, stored}, 0.0f, 0.0f, layout.dir), layout,
                                     headers.front().slope, headers.front().intercept, rescaled);
   return std::make_unique<DicomPlanes>(std::move(description), std::move(layout), std::move(headers));
 }

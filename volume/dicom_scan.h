@@ -13,8 +13,8 @@
 #include <string>
 #include <vector>
 
-#include "volume/file_util.h"
-#include "volume/progress.h"
+#include "volume/core/file_util.h"
+#include "volume/core/progress.h"
 #include "volume/volume_io.h"
 
 namespace hyb::detail {

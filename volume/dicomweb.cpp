@@ -21,8 +21,8 @@
 #include <optional>
 #include <variant>
 
+#include "volume/core/file_util.h"
 #include "volume/dicom_scan.h"
-#include "volume/file_util.h"
 #include "volume/plane_source.h"
 #include "volume/reader_util.h"
 
@@ -506,8 +506,9 @@ Volume addressedAs(Volume out, const Volume& v, const std::string& folder, const
 class DicomWebPlanes final : public PlaneSource {
  public:
   DicomWebPlanes(std::unique_ptr<PlaneSource> inner, std::unique_ptr<TempFolder> folder, const std::string& url)
-      : PlaneSource(addressedAs(Volume::withoutSamples(inner->dims(), inner->description().spacing(), inner->description().sourceType(),
-                                                       inner->storedType(), 0.0f, 0.0f, url),
+      : PlaneSource(addressedAs(Volume::withoutSamples({inner->dims(), inner->description().spacing(), inner->description().sourceType(),
+                                                        inner->storedType()},
+                                                       0.0f, 0.0f, url),
                                 inner->description(), folder->path(), url),
                     url),
         mInner(std::move(inner)),
@@ -626,7 +627,7 @@ Volume readDicomWebSeries(const std::string& seriesUrl, const Progress* progress
   const auto v = std::make_shared<const Volume>(addressedErrors(folder.path(), url, [&] { return readDicomSeries(folder.path(), seriesUid, progress); }));
   // The same samples, borrowed: the volume is renamed, never copied.
   const void* data = std::visit([](const auto& s) -> const void* { return s.data(); }, v->samples());
-  return addressedAs(Volume::borrowing(v->dims(), v->spacing(), v->sourceType(), v->storedType(), data, v, url), *v, folder.path(), url);
+  return addressedAs(Volume::borrowing(v->layout(), data, v, url), *v, folder.path(), url);
 }
 
 std::unique_ptr<PlaneSource> detail::dicomWebPlanes(const std::string& seriesUrl, const Progress* progress, const DicomWebOptions& options) {

@@ -12,7 +12,7 @@
 #include <utility>
 #include <vector>
 
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 #include "volume/volume.h"
 #include "volume/volume_io.h"
 

@@ -5,8 +5,8 @@
 #include <algorithm>
 #include <memory>
 
-#include "volume/error.h"
-#include "volume/memory_limit.h"
+#include "volume/core/error.h"
+#include "volume/core/memory_limit.h"
 
 namespace hyb::detail {
 

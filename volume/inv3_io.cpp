@@ -15,8 +15,8 @@
 #include <iomanip>
 #include <sstream>
 
-#include "volume/file_util.h"
-#include "volume/memory_limit.h"
+#include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
 #include "volume/patient_frame.h"
 #include "volume/plist.h"
 #include "volume/reader_util.h"

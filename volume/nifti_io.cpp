@@ -13,9 +13,9 @@
 #include <iomanip>
 #include <sstream>
 
-#include "volume/file_util.h"
+#include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
 #include "volume/inflate.h"
-#include "volume/memory_limit.h"
 #include "volume/patient_frame.h"
 #include "volume/plane_source.h"
 #include "volume/plane_stack.h"

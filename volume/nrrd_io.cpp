@@ -14,11 +14,11 @@
 #include <iomanip>
 #include <sstream>
 
-#include "volume/file_util.h"
-#include "volume/memory_limit.h"
+#include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
+#include "volume/inflate.h"
 #include "volume/patient_frame.h"
 #include "volume/plane_source.h"
-#include "volume/inflate.h"
 #include "volume/reader_util.h"
 #include "volume/text_reader.h"
 

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

@@ -7,7 +7,7 @@
 #include <cstring>
 #include <filesystem>
 
-#include "volume/file_util.h"
+#include "volume/core/file_util.h"
 #include "volume/inflate.h"
 #include "volume/reader_util.h"
 #include "volume/text_reader.h"
@@ -18,7 +18,7 @@ namespace {
 
 // @p v without its samples, its range unknown.
 Volume describe(const Volume& v) {
-  return detail::placedAs(Volume::withoutSamples(v.dims(), v.spacing(), v.sourceType(), v.storedType(), 0.0f, 0.0f, "volume"), v);
+  return detail::placedAs(Volume::withoutSamples(v.layout(), 0.0f, 0.0f, "volume"), v);
 }
 
 // The planes of a volume in memory, copied out in its own type.

@@ -9,7 +9,7 @@
 #include <memory>
 #include <string>
 
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 #include "volume/volume.h"
 #include "volume/volume_io.h"
 

@@ -6,7 +6,7 @@
 #include <limits>
 #include <sstream>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 #include "volume/reader_util.h"
 
 namespace hyb {
@@ -244,7 +244,7 @@ class ResampledPlanes final : public PlaneSource {
 class OwningPlanes final : public PlaneSource {
  public:
   OwningPlanes(std::shared_ptr<const Volume> v, const std::string& name)
-      : PlaneSource(detail::placedAs(Volume::withoutSamples(v->dims(), v->spacing(), v->sourceType(), v->storedType(), 0.0f, 0.0f, name), *v), name),
+      : PlaneSource(detail::placedAs(Volume::withoutSamples(v->layout(), 0.0f, 0.0f, name), *v), name),
         mVolume(std::move(v)) {}
   bool whole() const override { return true; }
   void rewind() override { mNext = 0; }
@@ -268,7 +268,7 @@ class OwningPlanes final : public PlaneSource {
 std::unique_ptr<PlaneSource> resampledPlanes(std::unique_ptr<PlaneSource> source, StackGrid grid) {
   if (!grid.resampled) return source;
   const Volume& from = source->description();
-  Volume description = Volume::withoutSamples(grid.dims, grid.spacing, from.sourceType(), from.storedType(), 0.0f, 0.0f, source->name());
+  Volume description = Volume::withoutSamples({grid.dims, grid.spacing, from.sourceType(), from.storedType()}, 0.0f, 0.0f, source->name());
   description = detail::placed(std::move(description), grid.frame, {});
   for (const auto& [key, value] : from.info()) description.addInfo(key, value);
   for (const std::string& w : from.warnings()) description.addWarning(w);

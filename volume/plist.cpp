@@ -2,8 +2,8 @@
 
 #include <cstdlib>
 
-#include "volume/error.h"
-#include "volume/file_util.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
 
 namespace hyb::detail {
 

@@ -135,7 +135,7 @@ void rescaleSamples(SampleArray* samples, size_t first, const SampleArray& slice
 
 // @p v with the patient frame and the reader's warnings.
 Volume describedVolume(const glm::ivec3& dims, const glm::dvec3& spacing, ScalarType t, const std::string& path) {
-  return Volume::withoutSamples(dims, spacing, t, storageTypeFor(t, 0.0, 0.0), 0.0f, 0.0f, path);
+  return Volume::withoutSamples({dims, spacing, t, storageTypeFor(t, 0.0, 0.0)}, 0.0f, 0.0f, path);
 }
 
 Volume placedAs(Volume v, const Volume& from) {

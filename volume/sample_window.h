@@ -8,7 +8,7 @@
 #include <cmath>
 #include <cstdint>
 
-#include "volume/memory_limit.h"
+#include "volume/core/memory_limit.h"
 #include "volume/plane_source.h"
 #include "volume/reader_util.h"
 #include "volume/volume.h"

@@ -3,8 +3,8 @@
 #include <cctype>
 #include <cstdlib>
 
+#include "volume/core/memory_limit.h"
 #include "volume/inflate.h"
-#include "volume/memory_limit.h"
 #include "volume/reader_util.h"
 
 namespace hyb::detail {

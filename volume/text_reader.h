@@ -12,7 +12,7 @@
 #include <string>
 #include <vector>
 
-#include "volume/file_util.h"
+#include "volume/core/file_util.h"
 #include "volume/volume.h"
 
 namespace hyb::detail {

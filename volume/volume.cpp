@@ -111,13 +111,13 @@ Volume::Volume(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, Sampl
   scanSamples(source);
 }
 
-Volume Volume::borrowing(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, ScalarType storedType, const void* data,
-                         std::shared_ptr<const void> owner, const std::string& source) {
+Volume Volume::borrowing(const SampleLayout& layout, const void* data, std::shared_ptr<const void> owner, const std::string& source) {
+  const ScalarType storedType = layout.storedType;
   if (!(storedType == ScalarType::UInt8 || storedType == ScalarType::Int8 || storedType == ScalarType::UInt16 || storedType == ScalarType::Int16 ||
         storedType == ScalarType::Float32))
     HYB_THROW(ValueError, source, ": samples of type ", scalarName(storedType), " are held as float32 (expected uint8, int8, uint16, int16 or float32 to borrow)");
   HYB_CHECK(data != nullptr);
-  Volume v = withoutSamples(dims, spacing, sourceType, storedType, 0.0f, 0.0f, source);  // the grid, checked; the range scanned below
+  Volume v = withoutSamples(layout, 0.0f, 0.0f, source);  // the grid, checked; the range scanned below
   v.mOwner = std::move(owner);
   v.mData = data;
   v.scanSamples(source);
@@ -149,8 +149,9 @@ void Volume::scanSamples(const std::string& source) {
   mMax = hi;
 }
 
-Volume Volume::withoutSamples(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, ScalarType storedType, float minValue,
-                              float maxValue, const std::string& source) {
+Volume Volume::withoutSamples(const SampleLayout& layout, float minValue, float maxValue, const std::string& source) {
+  const glm::ivec3 dims = layout.dims;
+  const glm::dvec3 spacing = layout.spacing;
   validateDims(dims, source);
   validateSpacing(spacing, source);
   if (!(std::isfinite(minValue) && std::isfinite(maxValue) && minValue <= maxValue && std::isfinite(maxValue - minValue)))
@@ -158,8 +159,8 @@ Volume Volume::withoutSamples(glm::ivec3 dims, glm::dvec3 spacing, ScalarType so
   Volume v;
   v.mDims = dims;
   v.mSpacing = spacing;
-  v.mSourceType = sourceType;
-  v.mStored = storedType;
+  v.mSourceType = layout.sourceType;
+  v.mStored = layout.storedType;
   v.mCount = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
   v.mMin = minValue;
   v.mMax = maxValue;

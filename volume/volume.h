@@ -21,7 +21,7 @@
 #include <variant>
 #include <vector>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 #include "volume/patient_frame.h"
 
 namespace hyb {
@@ -115,6 +115,15 @@ inline constexpr double kMaxSpacingMm = 1e6;
 /// @throw ValueError naming @p what.
 void validateSpacing(const glm::dvec3& spacing, const std::string& what);
 
+/// A volume's grid and sample types: what Volume::borrowing and Volume::withoutSamples check and
+/// keep besides the samples.
+struct SampleLayout {
+  glm::ivec3 dims{0};                         ///< samples per axis
+  glm::dvec3 spacing{1.0};                    ///< mm between neighbouring voxel centres, per axis
+  ScalarType sourceType = ScalarType::Float32;  ///< the samples' type in the file they came from
+  ScalarType storedType = ScalarType::Float32;  ///< the type they are held in
+};
+
 /// Immutable scalar volume.
 class Volume {
  public:
@@ -128,18 +137,18 @@ class Volume {
          const std::string& source = "volume")
       : Volume(dims, spacing, sourceType, SampleArray(std::move(samples)), source) {}
 
-  /// Borrows @p data (the volume's samples of @p storedType, one of the SampleArray types, x
-  /// fastest) without copying them: @p owner keeps them alive and unchanged as long as this volume
-  /// and its copies (a numpy array a Python scene holds). Checked as the constructor checks them.
+  /// Borrows @p data (the volume's samples of @p layout's storedType, one of the SampleArray
+  /// types, x fastest) without copying them: @p owner keeps them alive and unchanged as long as
+  /// this volume and its copies (a numpy array a Python scene holds). Checked as the constructor
+  /// checks them.
   /// @throw ValueError as the constructor, or for a stored type no SampleArray holds.
-  static Volume borrowing(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, ScalarType storedType, const void* data,
-                          std::shared_ptr<const void> owner, const std::string& source = "volume");
+  static Volume borrowing(const SampleLayout& layout, const void* data, std::shared_ptr<const void> owner,
+                          const std::string& source = "volume");
 
   /// A volume whose samples are not in memory (a scene read through its knot store): its grid,
   /// types and range only. Reading a sample before attachSamples() is a caller error.
   /// @throw ValueError as the constructor, or for a range that is not finite.
-  static Volume withoutSamples(glm::ivec3 dims, glm::dvec3 spacing, ScalarType sourceType, ScalarType storedType, float minValue,
-                               float maxValue, const std::string& source = "volume");
+  static Volume withoutSamples(const SampleLayout& layout, float minValue, float maxValue, const std::string& source = "volume");
   /// This volume without samples with the range [@p minValue, @p maxValue] (a streamed volume's,
   /// known once its samples were read), checked as the constructor checks it. Requires !hasSamples().
   /// @throw ValueError naming @p source.
@@ -158,6 +167,8 @@ class Volume {
   ScalarType sourceType() const { return mSourceType; }
   /// Type the samples are held in (storedType of samples()).
   ScalarType storedType() const { return mStored; }
+  /// Grid and types together (what withoutSamples() takes).
+  SampleLayout layout() const { return {mDims, mSpacing, mSourceType, mStored}; }
   /// Number of samples.
   size_t voxelCount() const { return mCount; }
   /// Bytes the samples occupy in the source type (the size users know the data by).

@@ -5,8 +5,8 @@
 #include <filesystem>
 #include <string>
 
+#include "volume/core/file_util.h"
 #include "volume/dicomweb.h"
-#include "volume/file_util.h"
 #include "volume/plane_source.h"
 #include "volume/reader_util.h"
 #include "volume/text_reader.h"

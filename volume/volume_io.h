@@ -14,7 +14,7 @@
 #include <string>
 #include <vector>
 
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 #include "volume/volume.h"
 
 namespace hyb {
@@ -120,7 +120,7 @@ Volume readRaw(const std::string& path, const RawLayout& layout);
 /// Writes @p volume as one NRRD file (raw encoding, the host's byte order) in its stored type, on its
 /// grid: "space: left-posterior-superior", "space directions" the frame's axes times the spacing,
 /// "space origin" the frame's origin, each number to 17 significant digits, so readNrrd gives back
-/// the same grid. Written atomically (volume/file_util.h).
+/// the same grid. Written atomically (volume/core/file_util.h).
 /// @throw IoError naming @p path when it cannot be written.
 void writeNrrd(const Volume& volume, const std::string& path);
 

@@ -11,9 +11,9 @@
 #include <ostream>
 #include <sstream>
 
-#include "render/slices/brick_textures.h"
 #include "render/gl_context.h"
-#include "volume/file_util.h"
+#include "render/slices/brick_textures.h"
+#include "volume/core/file_util.h"
 
 extern char** environ;
 

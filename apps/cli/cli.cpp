@@ -38,9 +38,11 @@
 #include "surface/dmc.h"
 #include "surface/mesh_io.h"
 #include "surface/mesh_ops.h"
+#include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
 #include "volume/dicomweb.h"
-#include "volume/file_util.h"
-#include "volume/memory_limit.h"
+#include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
 #include "volume/volume_io.h"
 
 namespace hyb::app {

@@ -11,9 +11,9 @@
 #include "hybrid_octree/surface_octree.h"
 #include "render/bvh.h"
 #include "surface/mesh_ops.h"
+#include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
 #include "volume/dicomweb.h"
-#include "volume/file_util.h"
-#include "volume/memory_limit.h"
 
 #include <nlohmann/json.hpp>
 

@@ -17,15 +17,15 @@
 
 #include "hybrid_octree/hybrid_io.h"
 #include "render/camera.h"
-#include "render/image.h"
 #include "render/frame_settings.h"
+#include "render/image.h"
 #include "render/patient_view.h"
 #include "render/scene_renderer.h"
 #include "render/transfer_function.h"
-#include "volume/file_util.h"
-#include "volume/number_text.h"
+#include "volume/core/file_util.h"
+#include "volume/core/number_text.h"
+#include "volume/core/progress.h"
 #include "volume/plane_source.h"
-#include "volume/progress.h"
 #include "volume/volume_io.h"
 
 namespace hyb::app {

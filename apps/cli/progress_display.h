@@ -7,7 +7,7 @@
 #include <optional>
 #include <string>
 
-#include "volume/progress.h"
+#include "volume/core/progress.h"
 
 namespace hyb::app {
 

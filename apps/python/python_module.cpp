@@ -19,12 +19,12 @@
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/surface_export.h"
 #include "render/frame_settings.h"
-#include "render/scene_renderer.h"
 #include "render/orientation_marker.h"
+#include "render/scene_renderer.h"
 #include "surface/mesh_io.h"
-#include "volume/error.h"
-#include "volume/file_util.h"
-#include "volume/number_text.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
+#include "volume/core/number_text.h"
 #include "volume/reader_util.h"
 
 namespace py = pybind11;
@@ -251,7 +251,7 @@ Volume volumeOf(const py::handle& object, const glm::dvec3& spacing) {
   const auto keep = std::make_shared<ArrayKeeper>();
   if (type != ScalarType::UInt32 && type != ScalarType::Int32 && type != ScalarType::Float64) {
     keep->array = array;
-    return Volume::borrowing(dims, spacing, type, type, array.data(), keep, source);
+    return Volume::borrowing({dims, spacing, type, type}, array.data(), keep, source);
   }
   const size_t count = size_t(array.size());
   ValueScan scan;
@@ -278,7 +278,7 @@ Volume volumeOf(const py::handle& object, const glm::dvec3& spacing) {
     });
   }
   keep->array = copy;
-  return Volume::borrowing(dims, spacing, type, stored, copy.data(), keep, source);
+  return Volume::borrowing({dims, spacing, type, stored}, copy.data(), keep, source);
 }
 
 // The image as an (H, W, 4) uint8 array: over @p background, opaque, as the command line's PNG

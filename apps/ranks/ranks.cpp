@@ -12,7 +12,7 @@
 #include <numeric>
 #include <sstream>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 #if HYB_MPI
 #include <IceT.h>

@@ -8,7 +8,7 @@
 
 #include "render/patient_view.h"
 #include "render/scene_renderer.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb::viewer {
 

@@ -5,8 +5,8 @@
 #include <cstring>
 #include <random>
 
-#include "volume/error.h"
-#include "volume/file_util.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
 #include "volume/volume_io.h"
 
 namespace hyb::viewer {

@@ -4,7 +4,7 @@
 
 #include <cstring>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb::viewer {
 

@@ -6,13 +6,19 @@
 
 #include "apps/viewer/viewer_files.h"
 #include "apps/viewer/viewer_protocol.h"
+#include "apps/viewer/viewer_quality.h"
 #include "apps/viewer/viewer_replies.h"
 #include "apps/viewer/viewer_state.h"
 #include "hybrid_octree/surface_export.h"
+#include "render/patient_view.h"
+#include "render/scene_pool.h"
 #include "render/scene_renderer.h"
 #include "surface/mesh_io.h"
+#include "surface/mesh_ops.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
 #include "volume/dicomweb.h"
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb::viewer {
 

@@ -5,7 +5,7 @@
 #include <cmath>
 #include <limits>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

@@ -9,8 +9,8 @@
 #include <filesystem>
 #include <string>
 
-#include "volume/error.h"
-#include "volume/memory_limit.h"
+#include "volume/core/error.h"
+#include "volume/core/memory_limit.h"
 
 namespace hyb::fuzz {
 

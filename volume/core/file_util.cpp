@@ -1,4 +1,4 @@
-#include "volume/file_util.h"
+#include "volume/core/file_util.h"
 
 #include <fcntl.h>
 #include <sys/mman.h>
@@ -11,8 +11,8 @@
 #include <filesystem>
 #include <fstream>
 
-#include "volume/error.h"
-#include "volume/memory_limit.h"
+#include "volume/core/error.h"
+#include "volume/core/memory_limit.h"
 
 namespace hyb {
 

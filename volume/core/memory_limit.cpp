@@ -1,11 +1,11 @@
-#include "volume/memory_limit.h"
+#include "volume/core/memory_limit.h"
 
 #include <unistd.h>
 
 #include <atomic>
 #include <cstdio>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 

@@ -1,4 +1,4 @@
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 #include <cstdio>
 #include <cstdlib>

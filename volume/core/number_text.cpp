@@ -1,8 +1,8 @@
-#include "volume/number_text.h"
+#include "volume/core/number_text.h"
 
 #include <sstream>
 
-#include "volume/error.h"
+#include "volume/core/error.h"
 
 namespace hyb {
 
