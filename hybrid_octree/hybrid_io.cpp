@@ -8,6 +8,8 @@
 #include <filesystem>
 #include <functional>
 #include <map>
+#include <optional>
+#include <span>
 #include <ostream>
 
 #include "hybrid_octree/knot_store.h"
@@ -110,21 +112,9 @@ class Reader {
 };
 
 std::vector<SurfaceNode> getSurfaceNodes(Reader& r) {
-  constexpr size_t kBytes = 6 + 2 + 1 + std::tuple_size_v<decltype(SurfaceNode::planes)> * 5 + 4 + 4;  // as putSurfaceNodes writes one
-  const uint64_t n = r.get<uint64_t>();
-  r.needItems(n, kBytes);
-  std::vector<SurfaceNode> nodes(static_cast<size_t>(n));
-  for (SurfaceNode& s : nodes) {
-    s.origin = r.get<glm::u16vec3>();
-    s.edge = r.get<uint16_t>();
-    s.planeCount = r.get<uint8_t>();
-    for (GeoPlane& p : s.planes) {
-      p.orientation = r.get<int8_t>();
-      p.d = r.get<int32_t>();
-    }
-    s.inside = r.get<uint32_t>();
-    s.occurs = r.get<uint32_t>();
-  }
+  const auto [at, n] = r.skipArray<std::array<uint8_t, kSurfaceNodeBytes>>();
+  std::vector<SurfaceNode> nodes(n);
+  for (size_t i = 0; i < n; ++i) nodes[i] = decodeSurfaceNode(at + i * kSurfaceNodeBytes);
   return nodes;
 }
 
@@ -202,21 +192,19 @@ uint64_t volumeHashOf(const std::vector<uint8_t>& volume, const std::vector<uint
   return Section{0, {{volume.data(), volume.size()}, {index.data(), index.size()}}}.hash();
 }
 
-// Surface nodes field by field: the struct's padding would make the file's bytes differ between
-// two saves of the same scene.
-void putSurfaceNodes(Writer* w, const std::vector<SurfaceNode>& nodes) {
-  w->put(uint64_t(nodes.size()));
-  for (const SurfaceNode& n : nodes) {
-    w->put(n.origin);
-    w->put(n.edge);
-    w->put(n.planeCount);
-    for (const GeoPlane& p : n.planes) {
-      w->put(p.orientation);
-      w->put(p.d);
-    }
-    w->put(n.inside);
-    w->put(n.occurs);
-  }
+// What a SURF section is written from: its header's fields and its nodes, encoded a piece at a
+// time (an octree in memory, or one whose nodes wait in a temporary file).
+struct SurfaceSection {
+  float iso = 0;
+  uint64_t cells = 0;
+  int32_t mergeEdge = 0;
+  uint64_t nodeCount = 0;
+  std::function<void(const SurfaceNodeSink&)> encodeNodes;
+};
+
+template <class Octree>
+SurfaceSection surfaceSectionOf(const Octree& so, uint64_t nodeCount) {
+  return {so.isovalue(), uint64_t(so.cellCount()), int32_t(so.mergeEdge()), nodeCount, [&so](const SurfaceNodeSink& sink) { so.encodeNodes(sink); }};
 }
 
 }  // namespace
@@ -225,7 +213,7 @@ namespace {
 
 // The scene of @p volume (its header: samples need not be held), whose knot store @p writeStore
 // writes to the stream and returns the index of.
-void writeScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceOctree* surface,
+void writeScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceSection* surface,
                 const std::function<std::vector<uint8_t>(std::ostream&)>& writeStore) {
   Writer vol;
   vol.put(volume.dims());
@@ -287,14 +275,27 @@ void writeScene(const std::string& path, const Volume& volume, const VolumeOctre
                           {reinterpret_cast<const uint8_t*>(octree.nodes().data()), octree.nodes().size() * sizeof(OctreeNode)},
                           {errorCount.bytes().data(), errorCount.bytes().size()},
                           {reinterpret_cast<const uint8_t*>(octree.errorData().data()), octree.errorData().size() * sizeof(float)}}});
-    if (surface) {
-      Writer surf;
-      surf.put(volumeHash);
-      surf.put(surface->isovalue());
-      surf.put(uint64_t(surface->cellCount()));
-      surf.put(int32_t(surface->mergeEdge()));
-      putSurfaceNodes(&surf, surface->nodes());
-      write(kSurfaceTag, surf.bytes());
+    if (surface) {  // streamed: its size and CRC are known at its end
+      Writer head;
+      head.put(volumeHash);
+      head.put(surface->iso);
+      head.put(surface->cells);
+      head.put(surface->mergeEdge);
+      head.put(surface->nodeCount);
+      const std::streampos headerAt = out.tellp();
+      sectionHeader(kSurfaceTag, 0, 0);
+      uint64_t size = head.bytes().size();
+      uLong crc = crc32_z(crc32_z(0L, Z_NULL, 0), head.bytes().data(), head.bytes().size());
+      out.write(reinterpret_cast<const char*>(head.bytes().data()), std::streamsize(head.bytes().size()));
+      surface->encodeNodes([&](std::span<const uint8_t> bytes) {
+        crc = crc32_z(crc, bytes.data(), bytes.size());
+        size += bytes.size();
+        out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+      });
+      HYB_CHECK(size == head.bytes().size() + surface->nodeCount * kSurfaceNodeBytes);
+      out.seekp(headerAt);
+      sectionHeader(kSurfaceTag, size, uint32_t(crc));
+      out.seekp(0, std::ios::end);
     }
   });
 }
@@ -305,13 +306,23 @@ std::string directoryOf(const std::string& path) { return std::filesystem::path(
 }  // namespace
 
 void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceOctree* surface) {
-  writeScene(path, volume, octree, surface, [&](std::ostream& out) { return writeKnotStore(volume, octree, out, directoryOf(path)); });
+  const std::optional<SurfaceSection> section = surface ? std::optional(surfaceSectionOf(*surface, surface->nodes().size())) : std::nullopt;
+  writeScene(path, volume, octree, section ? &*section : nullptr, [&](std::ostream& out) { return writeKnotStore(volume, octree, out, directoryOf(path)); });
 }
 
 void saveScene(const std::string& path, const Volume& description, const VolumeOctree& octree, KnotStoreWriter& store,
                const SurfaceOctree* surface) {
-  writeScene(path, description, octree, surface, [&](std::ostream& out) { return store.finish(out); });
+  const std::optional<SurfaceSection> section = surface ? std::optional(surfaceSectionOf(*surface, surface->nodes().size())) : std::nullopt;
+  writeScene(path, description, octree, section ? &*section : nullptr, [&](std::ostream& out) { return store.finish(out); });
 }
+
+void saveScene(const std::string& path, const Volume& description, const VolumeOctree& octree, KnotStoreWriter& store,
+               const SpooledSurfaceOctree& surface) {
+  const SurfaceSection section = surfaceSectionOf(surface, surface.nodeCount());
+  writeScene(path, description, octree, &section, [&](std::ostream& out) { return store.finish(out); });
+}
+
+std::string spoolDirectoryFor(const std::string& path) { return directoryOf(path); }
 
 KnotStoreWriter storeWriterFor(const std::string& path, const PlaneSource& planes) {
   return KnotStoreWriter(planes.dims(), planes.storedType(), directoryOf(path));
