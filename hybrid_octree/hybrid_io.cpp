@@ -111,10 +111,17 @@ class Reader {
   std::string mWhat;
 };
 
-std::vector<SurfaceNode> getSurfaceNodes(Reader& r) {
+// Surface nodes as encodeSurfaceNode lays them out, from a mapped section: its pages are given back
+// every kReleaseBytes, so that the load holds the nodes and not the section's bytes too.
+std::vector<SurfaceNode> getSurfaceNodes(Reader& r, const InputFile::Mapping& mapping) {
+  constexpr size_t kReleaseBytes = size_t(64) << 20;
   const auto [at, n] = r.skipArray<std::array<uint8_t, kSurfaceNodeBytes>>();
   std::vector<SurfaceNode> nodes(n);
-  for (size_t i = 0; i < n; ++i) nodes[i] = decodeSurfaceNode(at + i * kSurfaceNodeBytes);
+  for (size_t i = 0; i < n; ++i) {
+    nodes[i] = decodeSurfaceNode(at + i * kSurfaceNodeBytes);
+    if ((i + 1) % (kReleaseBytes / kSurfaceNodeBytes) == 0) mapping.release();
+  }
+  mapping.release();
   return nodes;
 }
 
@@ -522,13 +529,22 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
   const uint64_t volumeHash = loadVolumeSection(sections, options, &scene);
   loadOctreeSection(sections, volumeHash, &scene);
   if (const auto it = sections.entries.find(kSurfaceTag); it != sections.entries.end()) {
-    const std::vector<uint8_t> b = sections.payload(it->second);
-    Reader r(b.data(), b.size(), path);
+    const auto mapping = file.map(it->second.offset, it->second.size);
+    if (kVerifyChecksums) {  // a piece at a time, each piece's pages given back
+      constexpr size_t kPiece = size_t(64) << 20;
+      uLong crc = crc32_z(0L, Z_NULL, 0);
+      for (uint64_t at = 0; at < it->second.size; at += kPiece) {
+        crc = crc32_z(crc, mapping->data() + at, size_t(std::min<uint64_t>(kPiece, it->second.size - at)));
+        mapping->release();
+      }
+      if (uint32_t(crc) != it->second.crc) sections.corrupt(it->second);
+    }
+    Reader r(mapping->data(), size_t(it->second.size), path);
     sections.checkSameVolume(r.get<uint64_t>(), volumeHash, "surface octree");
     const float iso = r.get<float>();
     const uint64_t cells = r.get<uint64_t>();
     const int32_t mergeEdge = r.get<int32_t>();
-    scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), mergeEdge, getSurfaceNodes(r), path);
+    scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), mergeEdge, getSurfaceNodes(r, *mapping), path);
   }
   if (scene.knots)  // the octrees count against the scene's memory: the cache gets what they leave
     scene.knots->setCacheLimit(sceneCacheBytes(options.memoryBytes, scene.octree.bytesUsed() + (scene.surface ? scene.surface->bytesUsed() : 0)));
