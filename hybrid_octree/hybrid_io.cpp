@@ -9,8 +9,8 @@
 #include <functional>
 #include <map>
 #include <optional>
-#include <span>
 #include <ostream>
+#include <span>
 
 #include "hybrid_octree/knot_store.h"
 #include "surface/mesh_ops.h"
@@ -210,9 +210,12 @@ struct SurfaceSection {
 };
 
 template <class Octree>
-SurfaceSection surfaceSectionOf(const Octree& so, uint64_t nodeCount) {
-  return {so.isovalue(), uint64_t(so.cellCount()), int32_t(so.mergeEdge()), nodeCount, [&so](const SurfaceNodeSink& sink) { so.encodeNodes(sink); }};
+SurfaceSection surfaceSectionOf(const Octree& so) {
+  return {so.isovalue(), uint64_t(so.cellCount()), int32_t(so.mergeEdge()), uint64_t(so.nodeCount()),
+          [&so](const SurfaceNodeSink& sink) { so.encodeNodes(sink); }};
 }
+
+std::optional<SurfaceSection> optionalSurfaceSection(const SurfaceOctree* so) { return so ? std::optional(surfaceSectionOf(*so)) : std::nullopt; }
 
 }  // namespace
 
@@ -313,19 +316,19 @@ std::string directoryOf(const std::string& path) { return std::filesystem::path(
 }  // namespace
 
 void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceOctree* surface) {
-  const std::optional<SurfaceSection> section = surface ? std::optional(surfaceSectionOf(*surface, surface->nodes().size())) : std::nullopt;
+  const std::optional<SurfaceSection> section = optionalSurfaceSection(surface);
   writeScene(path, volume, octree, section ? &*section : nullptr, [&](std::ostream& out) { return writeKnotStore(volume, octree, out, directoryOf(path)); });
 }
 
 void saveScene(const std::string& path, const Volume& description, const VolumeOctree& octree, KnotStoreWriter& store,
                const SurfaceOctree* surface) {
-  const std::optional<SurfaceSection> section = surface ? std::optional(surfaceSectionOf(*surface, surface->nodes().size())) : std::nullopt;
+  const std::optional<SurfaceSection> section = optionalSurfaceSection(surface);
   writeScene(path, description, octree, section ? &*section : nullptr, [&](std::ostream& out) { return store.finish(out); });
 }
 
 void saveScene(const std::string& path, const Volume& description, const VolumeOctree& octree, KnotStoreWriter& store,
                const SpooledSurfaceOctree& surface) {
-  const SurfaceSection section = surfaceSectionOf(surface, surface.nodeCount());
+  const SurfaceSection section = surfaceSectionOf(surface);
   writeScene(path, description, octree, &section, [&](std::ostream& out) { return store.finish(out); });
 }
 

@@ -120,6 +120,7 @@ class SurfaceOctree {
 
   /// Terminal surface nodes in Morton order of their origins (white, black and grey nodes are implicit).
   const std::vector<SurfaceNode>& nodes() const { return mNodes; }
+  size_t nodeCount() const { return mNodes.size(); }
   /// The nodes inside the aligned cube of cells [origin, origin + edge): a contiguous range of nodes().
   /// Nodes larger than the cube are not listed (none are when edge ≥ the build's maxEdge).
   std::pair<uint32_t, uint32_t> rangeIn(const glm::ivec3& origin, int edge) const;
