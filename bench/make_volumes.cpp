@@ -5,8 +5,10 @@
 //                      chest study's size, 216 MB) with Gaussian noise of 15 HU, in its patient frame
 //   phantom OUT.nhdr [X,Y,Z]  a head-like int16 phantom, 2048×2048×1024 by default (8 GiB): air,
 //                      skin and soft tissue, a skull shell, brain, a denser core, noise of 20 HU
+//   tiled OUT.nhdr [NX,NY,NZ]  the cranium of invesalius-examples repeated NX×NY×NZ times, 4×4×5 by
+//                      default (1024×1024×540 int16, 1.1 GB: 80 skulls, a surface-heavy study)
 //
-// usage: hyb_make_volumes clinical|phantom OUT.nhdr [X,Y,Z]
+// usage: hyb_make_volumes clinical|phantom|tiled OUT.nhdr [X,Y,Z]
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -101,12 +103,24 @@ void phantom(const std::string& out, glm::ivec3 dims) {
   });
 }
 
+// The cranium's samples repeated tiles.x × tiles.y × tiles.z times, in its spacing and frame.
+void tiled(const std::string& out, glm::ivec3 tiles) {
+  const Volume v = readVolume(kDefaultVolumePath);
+  const glm::ivec3 d = v.dims(), dims = d * tiles;
+  validateDims(dims, "tiled dims");
+  writeNrrd(out, dims, v.spacing(), v.frame(), [&](int k, std::vector<int16_t>* s) {
+    for (int j = 0; j < dims.y; ++j)
+      for (int i = 0; i < dims.x; ++i)
+        (*s)[size_t(i) + size_t(dims.x) * size_t(j)] = int16_t(std::clamp(v.at(i % d.x, j % d.y, k % d.z), -32768.0f, 32767.0f));
+  });
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   try {
     if (argc < 3) {
-      std::cerr << "usage: hyb_make_volumes clinical|phantom OUT.nhdr [X,Y,Z]\n";
+      std::cerr << "usage: hyb_make_volumes clinical|phantom|tiled OUT.nhdr [X,Y,Z]\n";
       return 2;
     }
     const std::string kind = argv[1], out = argv[2];
@@ -120,8 +134,15 @@ int main(int argc, char** argv) {
       }
       validateDims(dims, "dims");
       phantom(out, dims);
+    } else if (kind == "tiled") {
+      glm::ivec3 tiles(4, 4, 5);
+      if (argc > 3 && (std::sscanf(argv[3], "%d,%d,%d", &tiles.x, &tiles.y, &tiles.z) != 3 || glm::any(glm::lessThan(tiles, glm::ivec3(1))))) {
+        std::cerr << "hyb_make_volumes: tiles '" << argv[3] << "' invalid (expected NX,NY,NZ, each at least 1)\n";
+        return 2;
+      }
+      tiled(out, tiles);
     } else {
-      std::cerr << "hyb_make_volumes: '" << kind << "' unknown (expected clinical or phantom)\n";
+      std::cerr << "hyb_make_volumes: '" << kind << "' unknown (expected clinical, phantom or tiled)\n";
       return 2;
     }
     std::cerr << "wrote " << out << "\n";

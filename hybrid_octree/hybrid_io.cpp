@@ -8,7 +8,9 @@
 #include <filesystem>
 #include <functional>
 #include <map>
+#include <optional>
 #include <ostream>
+#include <span>
 
 #include "hybrid_octree/knot_store.h"
 #include "surface/mesh_ops.h"
@@ -109,22 +111,17 @@ class Reader {
   std::string mWhat;
 };
 
-std::vector<SurfaceNode> getSurfaceNodes(Reader& r) {
-  constexpr size_t kBytes = 6 + 2 + 1 + std::tuple_size_v<decltype(SurfaceNode::planes)> * 5 + 4 + 4;  // as putSurfaceNodes writes one
-  const uint64_t n = r.get<uint64_t>();
-  r.needItems(n, kBytes);
-  std::vector<SurfaceNode> nodes(static_cast<size_t>(n));
-  for (SurfaceNode& s : nodes) {
-    s.origin = r.get<glm::u16vec3>();
-    s.edge = r.get<uint16_t>();
-    s.planeCount = r.get<uint8_t>();
-    for (GeoPlane& p : s.planes) {
-      p.orientation = r.get<int8_t>();
-      p.d = r.get<int32_t>();
-    }
-    s.inside = r.get<uint32_t>();
-    s.occurs = r.get<uint32_t>();
+// Surface nodes as encodeSurfaceNode lays them out, from a mapped section: its pages are given back
+// every kReleaseBytes, so that the load holds the nodes and not the section's bytes too.
+std::vector<SurfaceNode> getSurfaceNodes(Reader& r, const InputFile::Mapping& mapping) {
+  constexpr size_t kReleaseBytes = size_t(64) << 20;
+  const auto [at, n] = r.skipArray<std::array<uint8_t, kSurfaceNodeBytes>>();
+  std::vector<SurfaceNode> nodes(n);
+  for (size_t i = 0; i < n; ++i) {
+    nodes[i] = decodeSurfaceNode(at + i * kSurfaceNodeBytes);
+    if ((i + 1) % (kReleaseBytes / kSurfaceNodeBytes) == 0) mapping.release();
   }
+  mapping.release();
   return nodes;
 }
 
@@ -202,22 +199,23 @@ uint64_t volumeHashOf(const std::vector<uint8_t>& volume, const std::vector<uint
   return Section{0, {{volume.data(), volume.size()}, {index.data(), index.size()}}}.hash();
 }
 
-// Surface nodes field by field: the struct's padding would make the file's bytes differ between
-// two saves of the same scene.
-void putSurfaceNodes(Writer* w, const std::vector<SurfaceNode>& nodes) {
-  w->put(uint64_t(nodes.size()));
-  for (const SurfaceNode& n : nodes) {
-    w->put(n.origin);
-    w->put(n.edge);
-    w->put(n.planeCount);
-    for (const GeoPlane& p : n.planes) {
-      w->put(p.orientation);
-      w->put(p.d);
-    }
-    w->put(n.inside);
-    w->put(n.occurs);
-  }
+// What a SURF section is written from: its header's fields and its nodes, encoded a piece at a
+// time (an octree in memory, or one whose nodes wait in a temporary file).
+struct SurfaceSection {
+  float iso = 0;
+  uint64_t cells = 0;
+  int32_t mergeEdge = 0;
+  uint64_t nodeCount = 0;
+  std::function<void(const SurfaceNodeSink&)> encodeNodes;
+};
+
+template <class Octree>
+SurfaceSection surfaceSectionOf(const Octree& so) {
+  return {so.isovalue(), uint64_t(so.cellCount()), int32_t(so.mergeEdge()), uint64_t(so.nodeCount()),
+          [&so](const SurfaceNodeSink& sink) { so.encodeNodes(sink); }};
 }
+
+std::optional<SurfaceSection> optionalSurfaceSection(const SurfaceOctree* so) { return so ? std::optional(surfaceSectionOf(*so)) : std::nullopt; }
 
 }  // namespace
 
@@ -225,7 +223,7 @@ namespace {
 
 // The scene of @p volume (its header: samples need not be held), whose knot store @p writeStore
 // writes to the stream and returns the index of.
-void writeScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceOctree* surface,
+void writeScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceSection* surface,
                 const std::function<std::vector<uint8_t>(std::ostream&)>& writeStore) {
   Writer vol;
   vol.put(volume.dims());
@@ -287,14 +285,27 @@ void writeScene(const std::string& path, const Volume& volume, const VolumeOctre
                           {reinterpret_cast<const uint8_t*>(octree.nodes().data()), octree.nodes().size() * sizeof(OctreeNode)},
                           {errorCount.bytes().data(), errorCount.bytes().size()},
                           {reinterpret_cast<const uint8_t*>(octree.errorData().data()), octree.errorData().size() * sizeof(float)}}});
-    if (surface) {
-      Writer surf;
-      surf.put(volumeHash);
-      surf.put(surface->isovalue());
-      surf.put(uint64_t(surface->cellCount()));
-      surf.put(int32_t(surface->mergeEdge()));
-      putSurfaceNodes(&surf, surface->nodes());
-      write(kSurfaceTag, surf.bytes());
+    if (surface) {  // streamed: its size and CRC are known at its end
+      Writer head;
+      head.put(volumeHash);
+      head.put(surface->iso);
+      head.put(surface->cells);
+      head.put(surface->mergeEdge);
+      head.put(surface->nodeCount);
+      const std::streampos headerAt = out.tellp();
+      sectionHeader(kSurfaceTag, 0, 0);
+      uint64_t size = head.bytes().size();
+      uLong crc = crc32_z(crc32_z(0L, Z_NULL, 0), head.bytes().data(), head.bytes().size());
+      out.write(reinterpret_cast<const char*>(head.bytes().data()), std::streamsize(head.bytes().size()));
+      surface->encodeNodes([&](std::span<const uint8_t> bytes) {
+        crc = crc32_z(crc, bytes.data(), bytes.size());
+        size += bytes.size();
+        out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+      });
+      HYB_CHECK(size == head.bytes().size() + surface->nodeCount * kSurfaceNodeBytes);
+      out.seekp(headerAt);
+      sectionHeader(kSurfaceTag, size, uint32_t(crc));
+      out.seekp(0, std::ios::end);
     }
   });
 }
@@ -305,13 +316,23 @@ std::string directoryOf(const std::string& path) { return std::filesystem::path(
 }  // namespace
 
 void saveScene(const std::string& path, const Volume& volume, const VolumeOctree& octree, const SurfaceOctree* surface) {
-  writeScene(path, volume, octree, surface, [&](std::ostream& out) { return writeKnotStore(volume, octree, out, directoryOf(path)); });
+  const std::optional<SurfaceSection> section = optionalSurfaceSection(surface);
+  writeScene(path, volume, octree, section ? &*section : nullptr, [&](std::ostream& out) { return writeKnotStore(volume, octree, out, directoryOf(path)); });
 }
 
 void saveScene(const std::string& path, const Volume& description, const VolumeOctree& octree, KnotStoreWriter& store,
                const SurfaceOctree* surface) {
-  writeScene(path, description, octree, surface, [&](std::ostream& out) { return store.finish(out); });
+  const std::optional<SurfaceSection> section = optionalSurfaceSection(surface);
+  writeScene(path, description, octree, section ? &*section : nullptr, [&](std::ostream& out) { return store.finish(out); });
 }
+
+void saveScene(const std::string& path, const Volume& description, const VolumeOctree& octree, KnotStoreWriter& store,
+               const SpooledSurfaceOctree& surface) {
+  const SurfaceSection section = surfaceSectionOf(surface);
+  writeScene(path, description, octree, &section, [&](std::ostream& out) { return store.finish(out); });
+}
+
+std::string spoolDirectoryFor(const std::string& path) { return directoryOf(path); }
 
 KnotStoreWriter storeWriterFor(const std::string& path, const PlaneSource& planes) {
   return KnotStoreWriter(planes.dims(), planes.storedType(), directoryOf(path));
@@ -511,13 +532,22 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
   const uint64_t volumeHash = loadVolumeSection(sections, options, &scene);
   loadOctreeSection(sections, volumeHash, &scene);
   if (const auto it = sections.entries.find(kSurfaceTag); it != sections.entries.end()) {
-    const std::vector<uint8_t> b = sections.payload(it->second);
-    Reader r(b.data(), b.size(), path);
+    const auto mapping = file.map(it->second.offset, it->second.size);
+    if (kVerifyChecksums) {  // a piece at a time, each piece's pages given back
+      constexpr size_t kPiece = size_t(64) << 20;
+      uLong crc = crc32_z(0L, Z_NULL, 0);
+      for (uint64_t at = 0; at < it->second.size; at += kPiece) {
+        crc = crc32_z(crc, mapping->data() + at, size_t(std::min<uint64_t>(kPiece, it->second.size - at)));
+        mapping->release();
+      }
+      if (uint32_t(crc) != it->second.crc) sections.corrupt(it->second);
+    }
+    Reader r(mapping->data(), size_t(it->second.size), path);
     sections.checkSameVolume(r.get<uint64_t>(), volumeHash, "surface octree");
     const float iso = r.get<float>();
     const uint64_t cells = r.get<uint64_t>();
     const int32_t mergeEdge = r.get<int32_t>();
-    scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), mergeEdge, getSurfaceNodes(r), path);
+    scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), mergeEdge, getSurfaceNodes(r, *mapping), path);
   }
   if (scene.knots)  // the octrees count against the scene's memory: the cache gets what they leave
     scene.knots->setCacheLimit(sceneCacheBytes(options.memoryBytes, scene.octree.bytesUsed() + (scene.surface ? scene.surface->bytesUsed() : 0)));

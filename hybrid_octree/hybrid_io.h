@@ -78,6 +78,14 @@ void saveScene(const std::string& path, const Volume& volume, const VolumeOctree
 void saveScene(const std::string& path, const Volume& description, const VolumeOctree& octree, KnotStoreWriter& store,
                const SurfaceOctree* surface = nullptr);
 
+/// The same with the Surface Octree @p surface, whose nodes are copied from its temporary file.
+/// @throw IoError naming @p path when it cannot be written, or as SpooledSurfaceOctree::encodeNodes.
+void saveScene(const std::string& path, const Volume& description, const VolumeOctree& octree, KnotStoreWriter& store,
+               const SpooledSurfaceOctree& surface);
+
+/// Where the temporary files of a scene to be saved at @p path wait: its directory.
+std::string spoolDirectoryFor(const std::string& path);
+
 /// The store writer of a scene to be saved at @p path from @p planes (its blocks wait beside it).
 KnotStoreWriter storeWriterFor(const std::string& path, const PlaneSource& planes);
 

@@ -93,46 +93,42 @@ float valueOf(const StoreLevel& l, const uint8_t* bytes, size_t i) {
 
 }  // namespace
 
-// A temporary file that is gone from the directory from the start: blocks wait in it in the order
-// the planes made them until they are copied into the scene in the store's order.
-class KnotStoreWriter::Spool {
- public:
-  explicit Spool(const std::string& dir) {
-    std::string name = (std::filesystem::path(dir.empty() ? "." : dir) / ".hyb-spool-XXXXXX").string();
-    mFd = ::mkstemp(name.data());
-    if (mFd < 0) HYB_THROW(IoError, dir, ": cannot create a temporary file for the knot store (", std::strerror(errno), ")");
-    ::unlink(name.c_str());
-  }
-  ~Spool() { ::close(mFd); }
-  Spool(const Spool&) = delete;
-  Spool& operator=(const Spool&) = delete;
-  uint64_t append(const std::vector<uint8_t>& bytes) {
-    const uint64_t at = mSize;
-    for (size_t done = 0; done < bytes.size();) {
-      const ssize_t n = ::write(mFd, bytes.data() + done, bytes.size() - done);
-      if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) HYB_THROW(IoError, "knot store: temporary file write failed (", std::strerror(errno), ")");
-      done += size_t(n);
-    }
-    mSize += bytes.size();
-    return at;
-  }
-  void read(uint64_t offset, size_t size, uint8_t* out) const {
-    for (size_t done = 0; done < size;) {
-      const ssize_t n = ::pread(mFd, out + done, size - done, off_t(offset + done));
-      if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) HYB_THROW(IoError, "knot store: temporary file read failed (", std::strerror(errno), ")");
-      done += size_t(n);
-    }
-  }
+namespace detail {
 
- private:
-  int mFd = -1;
-  uint64_t mSize = 0;
-};
+SpoolFile::SpoolFile(const std::string& dir, std::string what) : mWhat(std::move(what)) {
+  std::string name = (std::filesystem::path(dir.empty() ? "." : dir) / ".hyb-spool-XXXXXX").string();
+  mFd = ::mkstemp(name.data());
+  if (mFd < 0) HYB_THROW(IoError, dir, ": cannot create a temporary file for the ", mWhat, " (", std::strerror(errno), ")");
+  ::unlink(name.c_str());
+}
+
+SpoolFile::~SpoolFile() { ::close(mFd); }
+
+uint64_t SpoolFile::append(const uint8_t* bytes, size_t size) {
+  const uint64_t at = mSize;
+  for (size_t done = 0; done < size;) {
+    const ssize_t n = ::write(mFd, bytes + done, size - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) HYB_THROW(IoError, mWhat, ": temporary file write failed (", std::strerror(errno), ")");
+    done += size_t(n);
+  }
+  mSize += size;
+  return at;
+}
+
+void SpoolFile::read(uint64_t offset, size_t size, uint8_t* out) const {
+  for (size_t done = 0; done < size;) {
+    const ssize_t n = ::pread(mFd, out + done, size - done, off_t(offset + done));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) HYB_THROW(IoError, mWhat, ": temporary file read failed (", std::strerror(errno), ")");
+    done += size_t(n);
+  }
+}
+
+}  // namespace detail
 
 KnotStoreWriter::KnotStoreWriter(const glm::ivec3& dims, ScalarType storedType, const std::string& spoolDir, uint64_t rowBytes)
-    : mDims(dims), mStored(storedType), mRowBytes(std::max<uint64_t>(rowBytes, 1)), mSpool(std::make_unique<Spool>(spoolDir)) {}
+    : mDims(dims), mStored(storedType), mRowBytes(std::max<uint64_t>(rowBytes, 1)), mSpool(std::make_unique<detail::SpoolFile>(spoolDir, "knot store")) {}
 
 KnotStoreWriter::~KnotStoreWriter() = default;
 
@@ -258,7 +254,7 @@ void KnotStoreWriter::spoolRow(size_t li, int r) {
       const size_t b = first + k;
       const glm::ivec3 bi(int(b % size_t(nb.x)), by0 + int(b / size_t(nb.x)), r);
       mSpooled[size_t(l.blockIndex(bi))] =
-          StoreBlock{mSpool->append(packed[k]), uint32_t(packed[k].size()), crcOf(packed[k].data(), packed[k].size())};
+          StoreBlock{mSpool->append(packed[k].data(), packed[k].size()), uint32_t(packed[k].size()), crcOf(packed[k].data(), packed[k].size())};
     }
   }
   row.open = false;

@@ -30,6 +30,33 @@
 
 namespace hyb {
 
+namespace detail {
+
+/// A temporary file gone from its directory from the start (nothing is left behind, whatever stops
+/// the process): what a streamed build makes waits in it, in the order it is made, until it is
+/// copied into the scene in the file's order.
+class SpoolFile {
+ public:
+  /// In @p dir ("" = the working directory); @p what names it in messages ("knot store").
+  /// @throw IoError naming @p dir when it cannot be created.
+  SpoolFile(const std::string& dir, std::string what);
+  ~SpoolFile();
+  SpoolFile(const SpoolFile&) = delete;
+  SpoolFile& operator=(const SpoolFile&) = delete;
+  /// Appends @p size bytes and returns where they start. @throw IoError when the write fails.
+  uint64_t append(const uint8_t* bytes, size_t size);
+  /// Reads @p size bytes at @p offset into @p out. @throw IoError when the read fails.
+  void read(uint64_t offset, size_t size, uint8_t* out) const;
+  uint64_t size() const { return mSize; }
+
+ private:
+  int mFd = -1;
+  uint64_t mSize = 0;
+  std::string mWhat;
+};
+
+}  // namespace detail
+
 /// Whether scene files' checksums (sections and store blocks) are verified: not in a fuzzing build
 /// (HYB_FUZZ), where a mutated file would stop at them, while a hostile file can carry valid ones.
 #ifdef FUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION
@@ -102,7 +129,6 @@ class KnotStoreWriter final : public PlaneVisitor {
   std::vector<uint8_t> finish(std::ostream& out);
 
  private:
-  class Spool;
   void spoolRow(size_t level, int row);
   /// The block rows (along y) of level @p l that the current pass makes: [*first, *end).
   void strip(const StoreLevel& l, int* first, int* end) const;
@@ -120,7 +146,7 @@ class KnotStoreWriter final : public PlaneVisitor {
   };
   std::vector<Row> mRows;  // per level
   std::vector<StoreBlock> mSpooled;                      // per block: where it waits in the spool
-  std::unique_ptr<Spool> mSpool;
+  std::unique_ptr<detail::SpoolFile> mSpool;
 };
 
 /// Writes the store of @p volume and @p octree to @p out (a KnotStoreWriter fed the volume's

@@ -22,15 +22,27 @@ double msSince(Clock::time_point t0) { return std::chrono::duration<double, std:
 
 bool isSurfaceKind(const std::string& kind) { return kind == "dmc" || kind == "octree" || kind == "mc"; }
 
-std::string surfaceOctreeLine(const SurfaceOctree& so, std::optional<double> buildMs) {
+namespace {
+
+std::string surfaceOctreeLine(float iso, size_t cells, size_t nodes, uint64_t planeIds, std::optional<double> buildMs) {
   std::ostringstream s;
-  size_t planes = 0;
-  for (const SurfaceNode& n : so.nodes()) planes += n.planeCount;
-  s << "surface  iso " << so.isovalue() << ": " << so.cellCount() << " DiscMC cells merged into " << so.nodes().size()
-    << " terminal nodes (" << planes << " plane ids, " << so.bytesUsed() << " bytes)";
+  s << "surface  iso " << iso << ": " << cells << " DiscMC cells merged into " << nodes << " terminal nodes (" << planeIds << " plane ids, "
+    << SurfaceOctree::bytesFor(nodes) << " bytes)";
   if (buildMs) s << ", " << std::fixed << std::setprecision(1) << *buildMs << " ms";
   else s << " (from the scene)";
   return s.str() + "\n";
+}
+
+}  // namespace
+
+std::string surfaceOctreeLine(const SurfaceOctree& so, std::optional<double> buildMs) {
+  uint64_t planes = 0;
+  for (const SurfaceNode& n : so.nodes()) planes += n.planeCount;
+  return surfaceOctreeLine(so.isovalue(), so.cellCount(), so.nodes().size(), planes, buildMs);
+}
+
+std::string surfaceOctreeLine(const SpooledSurfaceOctree& so, double buildMs) {
+  return surfaceOctreeLine(so.isovalue(), so.cellCount(), so.nodeCount(), so.planeIds(), buildMs);
 }
 
 ExportedSurface exportSurface(const Scene& scene, const ExportRequest& request, const Progress* progress, std::ostream& out) {

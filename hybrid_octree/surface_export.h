@@ -43,5 +43,7 @@ ExportedSurface exportSurface(const Scene& scene, const ExportRequest& request, 
 
 /// One line on a Surface Octree, with its build time when it was just built (else "from the scene").
 std::string surfaceOctreeLine(const SurfaceOctree& so, std::optional<double> buildMs);
+/// The same of a streamed build's octree, built in @p buildMs.
+std::string surfaceOctreeLine(const SpooledSurfaceOctree& so, double buildMs);
 
 }  // namespace hyb

@@ -11,6 +11,7 @@
 #include <functional>
 #include <span>
 #include <cmath>
+#include <cstring>
 #include <iterator>
 #include <numeric>
 #include <tuple>
@@ -509,21 +510,25 @@ SurfaceOctree SurfaceOctree::build(const Volume& volume, const VolumeOctree& oct
   return build(VolumeKnots(volume, octree), octree, iso, options);
 }
 
-SurfaceOctree SurfaceOctree::build(PlaneSource& planes, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options) {
-  SurfaceOctree so = empty(planes.dims(), octree, iso, options);
-  // The leaves a slab at a time (their Morton order visits slabs back and forth): each reads the
-  // planes from one below its own to its top, leafEdge + 2 of them at most.
-  const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
+namespace {
+
+// The slabs of a streamed build: the leaves @p blocks (in Morton order) a slab at a time (their
+// Morton order visits slabs back and forth), each reading the planes from one below its own to
+// its top, leafEdge + 2 of them at most; @p done(indices, nodes) hears of each slab's leaves (their
+// indices in @p blocks, ascending) and their nodes. Returns the cells extracted.
+using SlabDone = std::function<void(std::span<const uint32_t>, std::vector<std::vector<SurfaceNode>>&)>;
+size_t mergeSlabs(PlaneSource& planes, std::span<const VoxelBlock> blocks, const MergeRule& rule, const Progress* progressTo, const SlabDone& done) {
   std::vector<uint32_t> bySlab(blocks.size());
   std::iota(bySlab.begin(), bySlab.end(), 0u);
   std::stable_sort(bySlab.begin(), bySlab.end(), [&](uint32_t a, uint32_t b) { return blocks[a].lo.z < blocks[b].lo.z; });
   std::vector<VoxelBlock> slab;
-  std::vector<std::vector<SurfaceNode>> nodes(blocks.size()), slabNodes;
+  std::vector<std::vector<SurfaceNode>> slabNodes;
   int height = 0;
   for (const VoxelBlock& b : blocks) height = std::max(height, b.hi.z - b.lo.z);
   SampleWindow window(planes, height + 2);
   planes.rewind();
-  ProgressTask progress(options.progress, "surface octree", blocks.size());
+  ProgressTask progress(progressTo, "surface octree", blocks.size());
+  size_t cells = 0;
   for (size_t b = 0, e; b < bySlab.size(); b = e) {
     const int z = blocks[bySlab[b]].lo.z;
     for (e = b; e < bySlab.size() && blocks[bySlab[e]].lo.z == z; ++e) {}
@@ -532,15 +537,131 @@ SurfaceOctree SurfaceOctree::build(PlaneSource& planes, const VolumeOctree& octr
     const int top = std::max_element(slab.begin(), slab.end(), [](const VoxelBlock& p, const VoxelBlock& q) { return p.hi.z < q.hi.z; })->hi.z;
     while (window.next() <= top) window.load(planes);
     slabNodes.assign(slab.size(), {});
-    so.mCellCount += mergeBlocks(slab, {so.mDims, iso, options.maxPlanes, so.mMergeEdge}, [&](SampleBox* box) {
+    cells += mergeBlocks(slab, rule, [&](SampleBox* box) {
       float* out = box->values.data();
       for (int k = 0; k < box->count.z; ++k)
         for (int j = 0; j < box->count.y; ++j, out += box->count.x) window.readRow(box->lo.x, box->lo.y + j, box->lo.z + k, box->count.x, out);
     }, &slabNodes, &progress);
-    for (size_t i = b; i < e; ++i) nodes[bySlab[i]] = std::move(slabNodes[i - b]);
+    done(std::span<const uint32_t>(bySlab).subspan(b, e - b), slabNodes);
   }
+  return cells;
+}
+
+// Nodes encoded a batch at a time: 64 Ki nodes, 2.75 MB.
+constexpr size_t kEncodeBatch = size_t(1) << 16;
+
+}  // namespace
+
+SurfaceOctree SurfaceOctree::build(PlaneSource& planes, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options) {
+  SurfaceOctree so = empty(planes.dims(), octree, iso, options);
+  const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
+  std::vector<std::vector<SurfaceNode>> nodes(blocks.size());
+  so.mCellCount = mergeSlabs(planes, blocks, {so.mDims, iso, options.maxPlanes, so.mMergeEdge}, options.progress,
+                             [&](std::span<const uint32_t> indices, std::vector<std::vector<SurfaceNode>>& slabNodes) {
+                               for (size_t i = 0; i < indices.size(); ++i) nodes[indices[i]] = std::move(slabNodes[i]);
+                             });
   so.gather(std::move(nodes));
   return so;
+}
+
+SpooledSurfaceOctree::SpooledSurfaceOctree() = default;
+SpooledSurfaceOctree::SpooledSurfaceOctree(SpooledSurfaceOctree&&) noexcept = default;
+SpooledSurfaceOctree& SpooledSurfaceOctree::operator=(SpooledSurfaceOctree&&) noexcept = default;
+SpooledSurfaceOctree::~SpooledSurfaceOctree() = default;
+
+SpooledSurfaceOctree SpooledSurfaceOctree::build(PlaneSource& planes, const VolumeOctree& octree, float iso, const std::string& spoolDir,
+                                                 const SurfaceOctreeOptions& options) {
+  SpooledSurfaceOctree so;
+  so.mHead = SurfaceOctree::empty(planes.dims(), octree, iso, options);
+  so.mSpool = std::make_unique<detail::SpoolFile>(spoolDir, "surface octree");
+  const std::vector<VoxelBlock> blocks = isoBlocks(octree, iso);
+  so.mLeaves.resize(blocks.size());
+  std::vector<uint8_t> bytes;
+  so.mHead.mCellCount = mergeSlabs(planes, blocks, {so.dims(), iso, options.maxPlanes, so.mergeEdge()}, options.progress,
+                                   [&](std::span<const uint32_t> indices, std::vector<std::vector<SurfaceNode>>& slabNodes) {
+                                     size_t count = 0;
+                                     for (const auto& n : slabNodes) count += n.size();
+                                     bytes.resize(count * kSurfaceNodeBytes);
+                                     uint8_t* at = bytes.data();
+                                     for (size_t i = 0; i < indices.size(); ++i) {
+                                       so.mLeaves[indices[i]] = Leaf{so.mNodeCount, uint32_t(slabNodes[i].size())};
+                                       so.mNodeCount += slabNodes[i].size();
+                                       for (const SurfaceNode& n : slabNodes[i]) {
+                                         encodeSurfaceNode(n, at);
+                                         at += kSurfaceNodeBytes;
+                                         so.mPlaneIds += n.planeCount;
+                                       }
+                                     }
+                                     so.mSpool->append(bytes.data(), bytes.size());
+                                   });
+  return so;
+}
+
+void SpooledSurfaceOctree::encodeNodes(const SurfaceNodeSink& sink) const {
+  // Runs of leaves whose nodes lie together in the spool are read as one, a batch at a time.
+  std::vector<uint8_t> bytes;
+  for (size_t i = 0; i < mLeaves.size();) {
+    const uint64_t first = mLeaves[i].first;
+    uint64_t end = first;
+    for (; i < mLeaves.size() && mLeaves[i].first == end && end - first < kEncodeBatch; ++i) end += mLeaves[i].count;
+    if (end == first) continue;
+    bytes.resize(size_t(end - first) * kSurfaceNodeBytes);
+    mSpool->read(first * kSurfaceNodeBytes, bytes.size(), bytes.data());
+    sink(bytes);
+  }
+}
+
+SurfaceOctree SpooledSurfaceOctree::load() const {
+  SurfaceOctree so = mHead;
+  so.mNodes.reserve(mNodeCount);
+  encodeNodes([&](std::span<const uint8_t> bytes) {
+    for (size_t at = 0; at < bytes.size(); at += kSurfaceNodeBytes) so.mNodes.push_back(decodeSurfaceNode(bytes.data() + at));
+  });
+  return so;
+}
+
+void SurfaceOctree::encodeNodes(const SurfaceNodeSink& sink) const {
+  std::vector<uint8_t> bytes;
+  for (size_t b = 0; b < mNodes.size(); b += kEncodeBatch) {
+    const size_t e = std::min(mNodes.size(), b + kEncodeBatch);
+    bytes.resize((e - b) * kSurfaceNodeBytes);
+    for (size_t i = b; i < e; ++i) encodeSurfaceNode(mNodes[i], bytes.data() + (i - b) * kSurfaceNodeBytes);
+    sink(bytes);
+  }
+}
+
+void encodeSurfaceNode(const SurfaceNode& node, uint8_t* out) {
+  auto put = [&out](const auto& v) {
+    std::memcpy(out, &v, sizeof v);
+    out += sizeof v;
+  };
+  put(node.origin);
+  put(node.edge);
+  put(node.planeCount);
+  for (const GeoPlane& p : node.planes) {
+    put(p.orientation);
+    put(p.d);
+  }
+  put(node.inside);
+  put(node.occurs);
+}
+
+SurfaceNode decodeSurfaceNode(const uint8_t* in) {
+  SurfaceNode node;
+  auto get = [&in](auto* v) {
+    std::memcpy(v, in, sizeof *v);
+    in += sizeof *v;
+  };
+  get(&node.origin);
+  get(&node.edge);
+  get(&node.planeCount);
+  for (GeoPlane& p : node.planes) {
+    get(&p.orientation);
+    get(&p.d);
+  }
+  get(&node.inside);
+  get(&node.occurs);
+  return node;
 }
 
 void SurfaceOctree::gather(std::vector<std::vector<SurfaceNode>> perBlock) {

@@ -25,6 +25,9 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
+#include <memory>
+#include <span>
 #include <string>
 #include <utility>
 #include <vector>
@@ -38,6 +41,9 @@ namespace hyb {
 
 class KnotSource;
 class PlaneSource;
+namespace detail {
+class SpoolFile;
+}
 
 /// A geometric discrete plane N_o·X = d in doubled coordinates (N_o the canonical normal).
 struct GeoPlane {
@@ -63,6 +69,16 @@ struct SurfaceNode {
   uint32_t occurs = 0;          ///< bit σ: region σ meets the node's box in a solid
   friend bool operator==(const SurfaceNode&, const SurfaceNode&) = default;
 };
+
+/// Bytes a node takes in a scene file (field by field, without the struct's padding, so that two
+/// saves of one scene are the same bytes).
+inline constexpr size_t kSurfaceNodeBytes = 6 + 2 + 1 + std::tuple_size_v<decltype(SurfaceNode::planes)> * 5 + 4 + 4;
+/// Writes @p node's kSurfaceNodeBytes bytes at @p out.
+void encodeSurfaceNode(const SurfaceNode& node, uint8_t* out);
+/// Reads a node encodeSurfaceNode wrote at @p in (unchecked: SurfaceOctree::fromParts checks it).
+SurfaceNode decodeSurfaceNode(const uint8_t* in);
+/// Takes encoded nodes a piece at a time, in order.
+using SurfaceNodeSink = std::function<void(std::span<const uint8_t>)>;
 
 /// Build options.
 struct SurfaceOctreeOptions {
@@ -94,6 +110,9 @@ class SurfaceOctree {
   static SurfaceOctree build(PlaneSource& planes, const VolumeOctree& octree, float iso,
                              const SurfaceOctreeOptions& options = SurfaceOctreeOptions());
 
+  /// Hands @p sink every node encoded (encodeSurfaceNode), in order, a few MB at a time.
+  void encodeNodes(const SurfaceNodeSink& sink) const;
+
   /// Reassembles a stored octree, checking every node against @p dims.
   /// @throw IoError naming @p source when a node is out of range or inconsistent.
   static SurfaceOctree fromParts(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge, std::vector<SurfaceNode> nodes,
@@ -101,6 +120,7 @@ class SurfaceOctree {
 
   /// Terminal surface nodes in Morton order of their origins (white, black and grey nodes are implicit).
   const std::vector<SurfaceNode>& nodes() const { return mNodes; }
+  size_t nodeCount() const { return mNodes.size(); }
   /// The nodes inside the aligned cube of cells [origin, origin + edge): a contiguous range of nodes().
   /// Nodes larger than the cube are not listed (none are when edge ≥ the build's maxEdge).
   std::pair<uint32_t, uint32_t> rangeIn(const glm::ivec3& origin, int edge) const;
@@ -110,7 +130,9 @@ class SurfaceOctree {
   size_t cellCount() const { return mCellCount; }
   /// Largest node edge the build allowed; reconstructed polygons never cross a cube of this edge.
   int mergeEdge() const { return mMergeEdge; }
-  size_t bytesUsed() const { return mNodes.size() * sizeof(SurfaceNode) + sizeof(*this); }
+  size_t bytesUsed() const { return bytesFor(mNodes.size()); }
+  /// What an octree of @p nodes nodes holds.
+  static size_t bytesFor(size_t nodes) { return nodes * sizeof(SurfaceNode) + sizeof(SurfaceOctree); }
   /// At most what reconstruct()'s working arrays hold beside the octree: 480–530 bytes a node on
   /// CT bone (docs/scale.md), with a margin.
   uint64_t reconstructBytes() const { return 600 * uint64_t(mNodes.size()); }
@@ -123,6 +145,7 @@ class SurfaceOctree {
   DiscreteMesh reconstruct(int mergeCube = 0, const Progress* progress = nullptr) const;
 
  private:
+  friend class SpooledSurfaceOctree;
   // The octree of @p iso over @p dims with its merge edge, @p options checked, no nodes yet.
   static SurfaceOctree empty(const glm::ivec3& dims, const VolumeOctree& octree, float iso, const SurfaceOctreeOptions& options);
   // Appends the leaves' nodes in their order (Morton order: the leaves are).
@@ -133,6 +156,48 @@ class SurfaceOctree {
   float mIso = 0;
   size_t mCellCount = 0;
   int mMergeEdge = 1;
+};
+
+/// A Surface Octree built from planes (a streamed build) whose nodes wait, encoded as a scene file
+/// holds them, in a temporary file beside the scene (gone from its directory from the start) until
+/// the scene is written: the build holds one slab of leaves' nodes at a time and an index of the
+/// leaves, never the whole surface (docs/scale.md, The streamed build).
+class SpooledSurfaceOctree {
+ public:
+  /// The octree SurfaceOctree::build(planes, octree, iso, options) makes, its nodes spooled in
+  /// @p spoolDir ("" = the working directory) a slab at a time.
+  /// @throw IoError as PlaneSource::read, or naming @p spoolDir when the temporary file cannot be
+  /// made or written.
+  static SpooledSurfaceOctree build(PlaneSource& planes, const VolumeOctree& octree, float iso, const std::string& spoolDir,
+                                    const SurfaceOctreeOptions& options = SurfaceOctreeOptions());
+  SpooledSurfaceOctree(SpooledSurfaceOctree&&) noexcept;
+  SpooledSurfaceOctree& operator=(SpooledSurfaceOctree&&) noexcept;
+  ~SpooledSurfaceOctree();
+
+  float isovalue() const { return mHead.isovalue(); }
+  const glm::ivec3& dims() const { return mHead.dims(); }
+  size_t cellCount() const { return mHead.cellCount(); }
+  int mergeEdge() const { return mHead.mergeEdge(); }
+  size_t nodeCount() const { return mNodeCount; }
+  /// Plane ids over every node (the sum of their plane counts).
+  uint64_t planeIds() const { return mPlaneIds; }
+  /// Hands @p sink the nodes encoded in Morton order, as SurfaceOctree::encodeNodes does.
+  /// @throw IoError when the temporary file cannot be read.
+  void encodeNodes(const SurfaceNodeSink& sink) const;
+  /// The octree in memory: SurfaceOctree::build(planes, …)'s, node for node.
+  SurfaceOctree load() const;
+
+ private:
+  SpooledSurfaceOctree();
+  SurfaceOctree mHead;  // the grid, isovalue, cell count and merge edge; no nodes
+  struct Leaf {
+    uint64_t first = 0;  // its first node's index in the spool
+    uint32_t count = 0;
+  };
+  std::vector<Leaf> mLeaves;  // per leaf the isovalue crosses, in Morton order
+  std::unique_ptr<detail::SpoolFile> mSpool;
+  size_t mNodeCount = 0;
+  uint64_t mPlaneIds = 0;
 };
 
 /// The code of DiscMC case @p mask (alternative: the centre-diagonal variant) for a cell at the

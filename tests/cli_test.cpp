@@ -605,55 +605,27 @@ TEST(Cli, UnwritableOutputLeavesNothing) {
   EXPECT_FALSE(std::filesystem::exists(dir.file("b.png")));
 }
 
-// Writes beyond @p bytes fail with EFBIG while it lives, as they would on a full disk.
-class FileSizeLimit {
- public:
-  explicit FileSizeLimit(rlim_t bytes) : mSignal(std::signal(SIGXFSZ, SIG_IGN)) {
-    ::getrlimit(RLIMIT_FSIZE, &mOld);
-    rlimit l = mOld;
-    l.rlim_cur = bytes;
-    ::setrlimit(RLIMIT_FSIZE, &l);
-  }
-  ~FileSizeLimit() {
-    ::setrlimit(RLIMIT_FSIZE, &mOld);
-    std::signal(SIGXFSZ, mSignal);
-  }
-
- private:
-  rlimit mOld{};
-  void (*mSignal)(int);
-};
-
-// The names in @p dir, sorted.
-std::vector<std::string> namesIn(const test::TempDir& dir) {
-  std::vector<std::string> names;
-  for (const auto& e : std::filesystem::directory_iterator(dir.file("")))
-    names.push_back(e.path().filename().string());
-  std::sort(names.begin(), names.end());
-  return names;
-}
-
 TEST(Cli, AFailedWriteLeavesNoFileBehind) {
   test::TempDir dir;
   const std::string nhdr = writeNrrd(dir, "s", kHeader, sphereBytes());
-  const std::vector<std::string> inputs = namesIn(dir);
+  const std::vector<std::string> inputs = test::namesIn(dir);
   {  // a mesh larger than the disk takes: exit 2, one line naming the file and the reason, no file
-    const FileSizeLimit full(2048);
+    const test::FileSizeLimit full(2048);
     const CliRun r = run({"export", nhdr, "--iso", "0.5", "-o", dir.file("m.ply")});
     EXPECT_EQ(r.status, 2);
     EXPECT_EQ(lines(r.err), size_t(1)) << r.err;
     EXPECT_THAT(r.err, HasSubstr("m.ply: write failed (File too large)"));
   }
-  EXPECT_EQ(namesIn(dir), inputs);
+  EXPECT_EQ(test::namesIn(dir), inputs);
   {  // a PNG larger than the disk takes
-    const FileSizeLimit full(64);
+    const test::FileSizeLimit full(64);
     const CliRun r = run({"render", nhdr, "--size", "16x16", "-o", dir.file("p.png")});
     EXPECT_EQ(r.status, 2);
     EXPECT_EQ(lines(r.err), size_t(1)) << r.err;
     EXPECT_THAT(r.err, HasSubstr("p.png: "));  // at the last row or at the close: the stream is buffered
     EXPECT_THAT(r.err, HasSubstr(" failed (File too large)"));
   }
-  EXPECT_EQ(namesIn(dir), inputs);
+  EXPECT_EQ(test::namesIn(dir), inputs);
   // render: the PNGs fit, --stats does not; none of the images is left.
   const std::vector<std::string> args = {"render", nhdr, "--size", "16x16", "--progressive", "2", "-o", dir.file("r.png"), "--stats", dir.file("r.json")};
   CliRun r = run(args);
@@ -662,13 +634,13 @@ TEST(Cli, AFailedWriteLeavesNoFileBehind) {
   ASSERT_LT(png, json);
   for (const char* f : {"r.png", "r_1.png", "r_2.png", "r.json"}) std::filesystem::remove(dir.file(f));
   {
-    const FileSizeLimit full((png + json) / 2);
+    const test::FileSizeLimit full((png + json) / 2);
     r = run(args);
   }
   EXPECT_EQ(r.status, 2);
   EXPECT_EQ(lines(r.err), size_t(1)) << r.err;
   EXPECT_THAT(r.err, HasSubstr("r.json: write failed"));
-  EXPECT_EQ(namesIn(dir), inputs);
+  EXPECT_EQ(test::namesIn(dir), inputs);
 }
 
 TEST(Cli, OutputsNeverReplaceInputsDevicesOrEachOther) {
@@ -719,7 +691,7 @@ TEST(Cli, EveryCommandRefusesAFifoVolumeAtOnce) {
     expectBadInput(with({"export", v, "--iso", "0", "-o", dir.file("m.ply")}), "FIFO");
   }
   alarm(0);
-  EXPECT_EQ(namesIn(dir), (std::vector<std::string>{"vol.hoct", "vol.nrrd", "vol.raw"}));
+  EXPECT_EQ(test::namesIn(dir), (std::vector<std::string>{"vol.hoct", "vol.nrrd", "vol.raw"}));
 }
 
 // An output directory where no file can be created (read-only) is refused before the work.
@@ -738,7 +710,7 @@ TEST(Cli, AnOutputDirectoryThatTakesNoFilesIsRefusedBeforeTheWork) {
   expectBadInput({"export", nhdr, "--iso", "0", "--check", "-o", target + "/m.ply"}, "cannot create files");
   expectBadInput({"bench", nhdr, "-o", target + "/trade"}, "cannot create files");
   std::filesystem::permissions(ro, std::filesystem::perms::owner_all);
-  EXPECT_EQ(namesIn(dir), (std::vector<std::string>{"ro", "s.nhdr", "s.raw"}));
+  EXPECT_EQ(test::namesIn(dir), (std::vector<std::string>{"ro", "s.nhdr", "s.raw"}));
 }
 
 TEST(Cli, ExtremeNumbersAreRefusedNamingTheirFlagOrRenderSanely) {

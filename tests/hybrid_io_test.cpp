@@ -216,6 +216,51 @@ TEST(SceneFile, SurfaceOctreeRoundTrip) {
   EXPECT_THROW(SurfaceOctree::fromParts(v.dims(), 0.0f, so.cellCount(), so.mergeEdge(), nodes, "x"), IoError);
 }
 
+// A streamed build's Surface Octree, its nodes copied into the scene from their temporary file, makes
+// the scene of the octree built in memory byte for byte; a write that fails (in the temporary file
+// or in the scene) leaves nothing in the directory.
+TEST(SceneFile, ASpooledSurfaceOctreeWritesTheSceneOfTheOctreeInMemory) {
+  test::TempDir dir;
+  const Volume v = test::sphereVolume(glm::ivec3(41, 37, 35), 15.3);
+  writeNrrd(v, dir.file("v.nrrd"));
+  const Volume read = readVolume(dir.file("v.nrrd"));
+  const VolumeOctree wholeOctree = VolumeOctree::build(read);
+  const SurfaceOctree so = SurfaceOctree::build(read, wholeOctree, 0.0f);
+  saveScene(dir.file("whole.hoct"), read, wholeOctree, &so);
+  const std::vector<std::string> before = test::namesIn(dir);
+  const std::unique_ptr<PlaneSource> planes = openPlanes(dir.file("v.nrrd"));
+  KnotStoreWriter store = storeWriterFor(dir.file("streamed.hoct"), *planes);
+  const VolumeOctree t = VolumeOctree::build(*planes, VolumeOctreeOptions{}, &store);
+  const Volume description = planes->description().withRange(t.root().minValue, t.root().maxValue, planes->name());
+  const SpooledSurfaceOctree spooled = SpooledSurfaceOctree::build(*planes, t, 0.0f, spoolDirectoryFor(dir.file("streamed.hoct")));
+  ASSERT_GT(spooled.nodeCount(), 200u);
+  {  // the scene is larger than the disk takes
+    const test::FileSizeLimit full(std::filesystem::file_size(dir.file("whole.hoct")) / 2);
+    try {
+      saveScene(dir.file("streamed.hoct"), description, t, store, spooled);
+      ADD_FAILURE() << "wrote a scene past the file size limit";
+    } catch (const IoError& e) {
+      EXPECT_THAT(e.what(), HasSubstr(dir.file("streamed.hoct") + ": write failed (File too large)"));
+    }
+  }
+  EXPECT_EQ(test::namesIn(dir), before);
+  {  // the temporary file is: the surface's first slab does not fit
+    const test::FileSizeLimit full(kSurfaceNodeBytes);
+    try {
+      SpooledSurfaceOctree::build(*planes, t, 0.0f, dir.path().string());
+      ADD_FAILURE() << "spooled past the file size limit";
+    } catch (const IoError& e) {
+      EXPECT_THAT(e.what(), HasSubstr("surface octree: temporary file write failed (File too large)"));
+    }
+  }
+  EXPECT_EQ(test::namesIn(dir), before);
+  saveScene(dir.file("streamed.hoct"), description, t, store, spooled);
+  EXPECT_TRUE(test::readBytes(dir.file("streamed.hoct")) == test::readBytes(dir.file("whole.hoct")));
+  const Scene s = loadScene(dir.file("streamed.hoct"));
+  ASSERT_TRUE(s.surface.has_value());
+  EXPECT_EQ(s.surface->nodes(), so.nodes());
+}
+
 TEST(SceneFile, RejectsForeignTruncatedCorruptAndNewer) {
   test::TempDir dir;
   const Volume v = test::randomVolume({17, 9, 5}, 4);

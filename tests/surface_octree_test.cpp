@@ -182,6 +182,65 @@ TEST(SurfaceOctree, AStreamedBuildReadsThePlanesASlabOfLeavesAtATime) {
   }
 }
 
+// A streamed build whose nodes wait in a temporary file holds the octree built in memory, node for
+// node: exact counts on a plane (x = 10.5 crosses 19 × 16 cells, merged into one node, a rectangle,
+// per leaf of 8³ cells it meets, 3 × 2) and on a noisy sphere, and the same reconstructed mesh. The file is
+// never seen in its directory.
+TEST(SurfaceOctree, ASpooledStreamedBuildHoldsTheOctreeBuiltInMemory) {
+  test::TempDir dir;
+  const Volume plane = test::makeVolume({33, 20, 17}, [](int i, int, int) { return float(i) - 10.5f; });
+  std::mt19937 rng(11);
+  const Volume sphere = test::makeVolume({37, 29, 45}, [&](int i, int j, int k) {
+    return float(16.0 - glm::length(glm::dvec3(i - 18, j - 14, k - 22)) + double(rng() % 5));
+  });
+  for (const Volume* v : {&plane, &sphere}) {
+    SCOPED_TRACE(v == &plane ? "plane" : "sphere");
+    const float iso = v == &plane ? 0.0f : 9.5f;
+    const VolumeOctree t = VolumeOctree::build(*v, VolumeOctreeOptions{8, true, nullptr});
+    const SurfaceOctree whole = SurfaceOctree::build(*v, t, iso);
+    const std::unique_ptr<PlaneSource> planes = planesOf(*v);
+    const SpooledSurfaceOctree spooled = SpooledSurfaceOctree::build(*planes, t, iso, dir.path().string());
+    EXPECT_TRUE(test::namesIn(dir).empty());
+    uint64_t planeIds = 0;
+    for (const SurfaceNode& n : whole.nodes()) planeIds += n.planeCount;
+    if (v == &plane) {
+      EXPECT_EQ(whole.cellCount(), size_t(19 * 16));
+      EXPECT_EQ(whole.nodes().size(), size_t(6));
+      EXPECT_EQ(planeIds, 6u);
+    } else {
+      EXPECT_GT(whole.nodes().size(), 500u);
+    }
+    EXPECT_EQ(spooled.nodeCount(), whole.nodes().size());
+    EXPECT_EQ(spooled.planeIds(), planeIds);
+    EXPECT_EQ(spooled.cellCount(), whole.cellCount());
+    EXPECT_EQ(spooled.mergeEdge(), whole.mergeEdge());
+    EXPECT_EQ(spooled.isovalue(), iso);
+    const SurfaceOctree loaded = spooled.load();
+    EXPECT_EQ(loaded.nodes(), whole.nodes());
+    const TriangleMesh a = fineMeshToTriangles(loaded.reconstruct(), v->spacing()), b = fineMeshToTriangles(whole.reconstruct(), v->spacing());
+    if (v == &plane) {
+      EXPECT_EQ(b.triangles.size(), size_t(6 * 2));  // a rectangle a node
+    }
+    EXPECT_EQ(a.triangles.size(), b.triangles.size());
+    EXPECT_TRUE(a.vertices == b.vertices);
+    EXPECT_TRUE(a.triangles == b.triangles);
+    // The encoded nodes are the in-memory octree's, in its order.
+    std::vector<uint8_t> fromSpool, fromMemory;
+    spooled.encodeNodes([&](std::span<const uint8_t> bytes) { fromSpool.insert(fromSpool.end(), bytes.begin(), bytes.end()); });
+    whole.encodeNodes([&](std::span<const uint8_t> bytes) { fromMemory.insert(fromMemory.end(), bytes.begin(), bytes.end()); });
+    EXPECT_EQ(fromSpool.size(), whole.nodes().size() * kSurfaceNodeBytes);
+    EXPECT_TRUE(fromSpool == fromMemory);
+  }
+  // A directory the temporary file cannot be made in is named.
+  const std::unique_ptr<PlaneSource> planes = planesOf(plane);
+  try {
+    SpooledSurfaceOctree::build(*planes, VolumeOctree::build(plane), 0.0f, dir.file("missing"));
+    ADD_FAILURE() << "spooled into a missing directory";
+  } catch (const IoError& e) {
+    EXPECT_NE(std::string(e.what()).find(dir.file("missing") + ": cannot create a temporary file for the surface octree"), std::string::npos) << e.what();
+  }
+}
+
 TEST(SurfaceOctree, DegenerateInputs) {
   const Volume sphere = test::sphereVolume(glm::ivec3(9), 3.0);
   const VolumeOctree t = VolumeOctree::build(sphere);

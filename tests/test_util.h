@@ -3,10 +3,12 @@
 #pragma once
 
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
+#include <csignal>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -90,6 +92,35 @@ class TempDir {
  private:
   std::filesystem::path mPath;
 };
+
+/// Writes beyond @p bytes fail with EFBIG while it lives, as they would on a full disk.
+class FileSizeLimit {
+ public:
+  explicit FileSizeLimit(rlim_t bytes) : mSignal(std::signal(SIGXFSZ, SIG_IGN)) {
+    ::getrlimit(RLIMIT_FSIZE, &mOld);
+    rlimit l = mOld;
+    l.rlim_cur = bytes;
+    ::setrlimit(RLIMIT_FSIZE, &l);
+  }
+  ~FileSizeLimit() {
+    ::setrlimit(RLIMIT_FSIZE, &mOld);
+    std::signal(SIGXFSZ, mSignal);
+  }
+  FileSizeLimit(const FileSizeLimit&) = delete;
+  FileSizeLimit& operator=(const FileSizeLimit&) = delete;
+
+ private:
+  rlimit mOld{};
+  void (*mSignal)(int);
+};
+
+/// The names in @p dir, sorted.
+inline std::vector<std::string> namesIn(const TempDir& dir) {
+  std::vector<std::string> names;
+  for (const auto& e : std::filesystem::directory_iterator(dir.path())) names.push_back(e.path().filename().string());
+  std::sort(names.begin(), names.end());
+  return names;
+}
 
 inline void writeBytes(const std::string& path, const void* data, size_t size) {
   std::ofstream out(path, std::ios::binary);

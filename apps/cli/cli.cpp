@@ -168,13 +168,15 @@ int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
   out << v.toString() << octreeSummary(v, t);
   out << "build    " << std::fixed << std::setprecision(1) << ms << " ms (" << double(v.voxelCount()) / (ms * 1e3)
       << " Mvoxels/s; " << (planes->whole() ? "read whole" : "streamed plane by plane") << ")\n";
-  std::optional<SurfaceOctree> so;
-  if (o.iso) {
+  if (o.iso) {  // its nodes wait in a temporary file beside the scene, as the store's blocks do
     const auto t1 = Clock::now();
-    so = SurfaceOctree::build(*planes, t, float(*o.iso), SurfaceOctreeOptions{kMaxNodePlanes, 0, o.input.progress});
-    out << surfaceOctreeLine(*so, msSince(t1));
+    const SpooledSurfaceOctree so = SpooledSurfaceOctree::build(*planes, t, float(*o.iso), spoolDirectoryFor(o.output),
+                                                                SurfaceOctreeOptions{kMaxNodePlanes, 0, o.input.progress});
+    out << surfaceOctreeLine(so, msSince(t1));
+    saveScene(o.output, v, t, store, so);
+  } else {
+    saveScene(o.output, v, t, store);
   }
-  saveScene(o.output, v, t, store, so ? &*so : nullptr);
   out << "wrote    " << o.output << "\n";
   return 0;
 }
