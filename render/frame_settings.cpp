@@ -906,6 +906,30 @@ TransferFunction transferFunctionOf(const FrameSettings& s, const Volume& v) {
 
 }  // namespace
 
+std::vector<UserMesh> userGeometry(const FrameSettings& s, const Volume& v, std::ostream& warnings) {
+  std::vector<UserMesh> meshes;
+  for (const FrameSettings::MeshFile& m : s.meshes) {
+    meshes.push_back(readUserMesh(m.path, m.color, s.meshSpace));
+    for (const std::string& w : userMeshWarnings(meshes.back(), v)) warnings << "hybrid-octree: warning: " << w << "\n";
+  }
+  for (const std::string& item : s.primitives) {
+    auto p = std::make_shared<UserPrimitive>();
+    UserMesh m;
+    if (const std::string why = primitiveIn(item, p.get(), &m.color); !why.empty())
+      HYB_THROW(ValueError, "--primitive ", quotedExcerpt(item, 60), " invalid (", why, ")");
+    m.name = "--primitive " + item.substr(0, item.find(':'));
+    m.mesh = std::make_shared<TriangleMesh>(tessellatePrimitive(*p, v));
+    m.primitive = std::move(p);
+    if (m.mesh->triangles.empty()) {
+      warnings << "hybrid-octree: warning: " << m.name << " misses the volume's box (nothing drawn)\n";
+      continue;
+    }
+    meshes.push_back(std::move(m));
+  }
+  if (meshes.size() > size_t(kMaxUserMeshes)) HYB_THROW(ValueError, "--mesh and --primitive: at most ", kMaxUserMeshes, " together");
+  return meshes;
+}
+
 FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& warnings) {
   if (const std::string e = s.validate(); !e.empty()) throw ValueError(e);
   std::optional<Camera> fromFile;
@@ -936,25 +960,7 @@ FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& 
     voi.ramp = s.voiRamp;
     look.voi = voi;
   }
-  for (const FrameSettings::MeshFile& m : s.meshes) {
-    look.meshes.push_back(readUserMesh(m.path, m.color, s.meshSpace));
-    for (const std::string& w : userMeshWarnings(look.meshes.back(), v)) warnings << "hybrid-octree: warning: " << w << "\n";
-  }
-  for (const std::string& item : s.primitives) {
-    auto p = std::make_shared<UserPrimitive>();
-    UserMesh m;
-    if (const std::string why = primitiveIn(item, p.get(), &m.color); !why.empty())
-      HYB_THROW(ValueError, "--primitive ", quotedExcerpt(item, 60), " invalid (", why, ")");
-    m.name = "--primitive " + item.substr(0, item.find(':'));
-    m.mesh = std::make_shared<TriangleMesh>(tessellatePrimitive(*p, v));
-    m.primitive = std::move(p);
-    if (m.mesh->triangles.empty()) {
-      warnings << "hybrid-octree: warning: " << m.name << " misses the volume's box (nothing drawn)\n";
-      continue;
-    }
-    look.meshes.push_back(std::move(m));
-  }
-  if (look.meshes.size() > size_t(kMaxUserMeshes)) HYB_THROW(ValueError, "--mesh and --primitive: at most ", kMaxUserMeshes, " together");
+  look.meshes = userGeometry(s, v, warnings);
   look.meshMethod = s.meshMethod;
   look.meshFilter = s.meshFilter;
   // Where from, in patient space: a camera file's, the eye given, or the view framing what the

@@ -198,6 +198,11 @@ struct FrameSetup {
 };
 FrameSetup setUpFrame(const FrameSettings& settings, const Scene& scene, std::ostream& warnings);
 
+/// The meshes of @p settings' mesh files and primitives (tessellated on @p volume's box), with
+/// their warnings (a mesh outside the volume, in metres?) on @p warnings.
+/// @throw IoError naming a mesh file, ValueError naming --primitive or --mesh.
+std::vector<UserMesh> userGeometry(const FrameSettings& settings, const Volume& volume, std::ostream& warnings);
+
 /// The primitive of one --primitive item "plane:PX,PY,PZ,NX,NY,NZ[,THICK][:r,g,b,a]",
 /// "sphere:CX,CY,CZ,R[:r,g,b,a]" or "polygon:X1,Y1,Z1,...[:r,g,b,a]" (patient mm, LPS), with its
 /// colour; or why it is not one (a number not finite, a zero normal, a radius or thickness not

@@ -149,6 +149,42 @@ GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const V
   return g;
 }
 
+Volume geometryVolume(const std::vector<UserMesh>& meshes, const Volume& volume, bool asFraction, std::vector<std::string>* warnings) {
+  const VoxelGrid grid = VoxelGrid::of(volume);
+  const double voxel = std::min({grid.spacing.x, grid.spacing.y, grid.spacing.z});
+  ScanOptions o;
+  o.type = CoverageType::Float32;
+  std::vector<float> most(size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(grid.dims.z), 0.0f);
+  for (const UserMesh& m : meshes) {
+    const UserPrimitive* p = m.primitive.get();
+    ScanResult r;
+    o.thickness = p && p->kind == UserPrimitive::Kind::Plane && p->thickness > 0.0 ? p->thickness : voxel;
+    if (p && p->kind == UserPrimitive::Kind::Plane) {
+      r = scanConvertPlane(p->points.front(), p->normal, grid, o);
+    } else if (p && p->kind == UserPrimitive::Kind::Polygon) {
+      r = scanConvertPolygon(p->points, grid, o);
+    } else if (p && p->kind == UserPrimitive::Kind::Sphere) {
+      o.thickness = 0.0;
+      r = scanConvertSphere(p->points.front(), p->radius, grid, o);
+    } else {
+      o.thickness = 0.0;
+      r = scanConvertMesh(*m.mesh, grid, o);
+    }
+    for (const std::string& w : r.warnings) warnings->push_back(m.name + ": " + w);
+    for (size_t n = 0; n < most.size(); ++n) most[n] = std::max(most[n], fraction(r, n));
+  }
+  Volume out;
+  if (asFraction) {
+    out = Volume(grid.dims, grid.spacing, ScalarType::Float32, std::move(most), "coverage fraction");
+  } else {
+    std::vector<uint8_t> label(most.size());
+    for (size_t n = 0; n < most.size(); ++n) label[n] = most[n] >= 0.5f ? 1 : 0;
+    out = Volume(grid.dims, grid.spacing, ScalarType::UInt8, SampleArray(std::move(label)), "coverage label");
+  }
+  out.setFrame(grid.frame);
+  return out;
+}
+
 glm::vec4 compositeGeometry(const GeometryChannel& g, const float* coverage, double lenMm, const glm::vec4& data) {
   glm::vec4 over(0.0f);  // the parts so far, premultiplied, each over those after it
   for (size_t k = 0; k < g.parts.size(); ++k) {

@@ -60,6 +60,14 @@ inline constexpr int kMaxGeometryParts = kMaxUserMeshes;
 GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const Volume& volume, const VolumeOctree& octree, ScanFilter filter,
                                     double width = 1.0);
 
+/// @p meshes scan-converted onto the grid of @p volume as an export (3D Slicer's model to labelmap):
+/// a mesh as the solid it bounds, a sphere as its ball, a plane or polygon as its sheet (a plane's
+/// thickness, else the smallest voxel spacing), the box filter of one cell, the union taken by the
+/// largest coverage. @p asFraction: float32 fractions in [0, 1]; else a uint8 label, 1 where the
+/// coverage is at least ½. On the grid and in the patient frame of @p volume.
+/// @p warnings receives the scan-conversions' ("a mesh not closed..."), one line each.
+Volume geometryVolume(const std::vector<UserMesh>& meshes, const Volume& volume, bool asFraction, std::vector<std::string>* warnings);
+
 /// The one rule both renderers composite a sample with (docs/user-geometry.md): the parts, in
 /// order, each over those after it, are over the data's sample. A part of coverage c over a segment
 /// of @p lenMm has opacity 1 − (1 − a)^(c · len / τ): its sheet crossed at normal incidence

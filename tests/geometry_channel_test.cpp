@@ -4,11 +4,16 @@
 #include <cmath>
 #include <numbers>
 
+#include <glm/gtc/matrix_transform.hpp>
+
+#include "cli_util.h"
 #include "render/frame_settings.h"
 #include "render/geometry_channel.h"
 #include "render/scene_renderer.h"
 #include "render_util.h"
+#include "surface/mesh_io.h"
 #include "test_util.h"
+#include "volume/volume_io.h"
 
 namespace hyb {
 namespace {
@@ -247,6 +252,58 @@ TEST(GeometryChannel, BadPrimitivesAreRefusedInOneLineNamingTheFlag) {
   f.parse(s, "plane:1,2,3,0,0,1,2:1,0,0,0.5;sphere:1,2,3,4\npolygon:0,0,0,1,0,0,1,1,0", "--primitive");
   EXPECT_EQ(s.primitives.size(), 3u);
   EXPECT_EQ(*f.text(s), "plane:1,2,3,0,0,1,2:1,0,0,0.5;sphere:1,2,3,4;polygon:0,0,0,1,0,0,1,1,0");
+}
+
+TEST(GeometryChannel, ExportWritesTheGeometryOnTheCtsGridAndFrame) {
+  test::TempDir dir;
+  // A CT of 48 × 44 × 40 voxels of 0.8 × 0.9 × 1.25 mm in a rotated, mirrored frame.
+  Volume ct = test::sphereVolume({48, 44, 40}, 13.0);
+  ct = Volume(ct.dims(), glm::dvec3(0.8, 0.9, 1.25), ScalarType::Float32, std::vector<float>(ct.voxelCount(), 0.0f), "ct");
+  glm::dmat3 d(glm::rotate(glm::dmat4(1.0), 0.6, glm::normalize(glm::dvec3(1, -2, 0.5))));
+  d[2] = -d[2];
+  ct.setFrame(makePatientFrame(d, glm::dvec3(-40.0, 12.5, 300.0), "test frame"));
+  writeNrrd(ct, dir.file("ct.nrrd"));
+  ct = readVolume(dir.file("ct.nrrd"));  // the grid as the export reads it (a spacing's last bit from its direction's length)
+  const glm::dvec3 centre = ct.frame().toPatient(0.5 * ct.extentMm());
+  const double radius = 12.0, ball = 4.0 / 3.0 * std::numbers::pi * radius * radius * radius;
+  writeMesh(dir.file("ball.stl"), geodesicSphere(centre, radius, 48), MeshWriteOptions{false, "LPS"});
+  const double voxel = 0.8 * 0.9 * 1.25;
+  char sphere[128];
+  std::snprintf(sphere, sizeof sphere, "sphere:%.9f,%.9f,%.9f,%.9f", centre.x, centre.y, centre.z, radius);
+  const std::pair<std::vector<std::string>, double> cases[] = {
+      {{"--primitive", sphere}, ball},
+      {{"--mesh", dir.file("ball.stl")}, enclosedVolume(geodesicSphere(centre, radius, 48))},
+  };
+  for (const auto& [given, exact] : cases) {
+    for (const bool fraction : {false, true}) {
+      std::vector<std::string> args = {"export", dir.file("ct.nrrd"), "--label-volume", dir.file("label.nrrd")};
+      args.insert(args.end(), given.begin(), given.end());
+      if (fraction) args.push_back("--fraction");
+      const test::CliRun r = test::run(args);
+      ASSERT_EQ(r.status, 0) << r.err;
+      const Volume label = readVolume(dir.file("label.nrrd"));
+      EXPECT_EQ(label.dims(), ct.dims());
+      EXPECT_EQ(label.spacing(), ct.spacing());  // written and read as the CT's own NRRD is
+      for (int c = 0; c < 3; ++c) EXPECT_LT(glm::length(label.frame().direction[c] - ct.frame().direction[c]), 1e-12);
+      EXPECT_LT(glm::length(label.frame().origin - ct.frame().origin), 1e-12);
+      EXPECT_EQ(label.storedType(), fraction ? ScalarType::Float32 : ScalarType::UInt8);
+      double sum = 0.0;
+      for (size_t n = 0; n < label.voxelCount(); ++n) {
+        if (!fraction) {
+          EXPECT_TRUE(label.value(n) == 0.0f || label.value(n) == 1.0f);
+        }
+        sum += label.value(n);
+      }
+      std::printf("%s%s: %.0f voxels' worth, %.3f %% off\n", given.front().c_str(), fraction ? " --fraction" : "", sum, 100.0 * (sum * voxel / exact - 1.0));
+      EXPECT_NEAR(sum * voxel, exact, (fraction ? 0.002 : 0.01) * exact);
+    }
+  }
+  // Refused in one line naming the flag, nothing written.
+  test::expectBadInput({"export", dir.file("ct.nrrd"), "--label-volume", dir.file("x.nii.gz"), "--primitive", sphere}, "--label-volume");
+  test::expectBadInput({"export", dir.file("ct.nrrd"), "--label-volume", dir.file("y.nrrd"), "--primitive", "sphere:1,2,3,-1"}, "--primitive");
+  test::expectBadInput({"export", dir.file("ct.nrrd"), "--label-volume", dir.file("y.nrrd")}, "--label-volume");
+  test::expectBadInput({"export", dir.file("ct.nrrd"), "--fraction", "--iso", "1", "-o", dir.file("m.stl")}, "--fraction");
+  EXPECT_FALSE(std::filesystem::exists(dir.file("y.nrrd")));
 }
 
 }  // namespace
