@@ -112,14 +112,21 @@ std::string budgetError(const std::string& text) {
   return "";
 }
 
+// Items separated by ';' or newlines (a repeated flag's), empty ones dropped.
+std::vector<std::string> itemsIn(const std::string& text) {
+  std::vector<std::string> items;
+  for (size_t at = 0; at <= text.size();) {
+    const size_t end = std::min(text.find_first_of(";\n", at), text.size());
+    if (end > at) items.push_back(text.substr(at, end - at));
+    at = end + 1;
+  }
+  return items;
+}
+
 // Mesh files "FILE[:r,g,b,a]" separated by ';' or newlines (a repeated flag's), or why not.
 std::string meshFilesIn(const std::string& text, std::vector<FrameSettings::MeshFile>* out) {
   std::vector<FrameSettings::MeshFile> files;
-  for (size_t at = 0; at <= text.size();) {
-    const size_t end = std::min(text.find_first_of(";\n", at), text.size());
-    const std::string item = text.substr(at, end - at);
-    at = end + 1;
-    if (item.empty()) continue;
+  for (const std::string& item : itemsIn(text)) {
     FrameSettings::MeshFile m{item};
     if (const size_t colon = item.rfind(':'); colon != std::string::npos) {
       const std::string tail = item.substr(colon + 1);
@@ -144,17 +151,6 @@ std::string meshFilesText(const std::vector<FrameSettings::MeshFile>& files) {
     if (m.color != FrameSettings::MeshFile{}.color) s += ":" + joined({typed(m.color.r), typed(m.color.g), typed(m.color.b), typed(m.color.a)});
   }
   return s;
-}
-
-// Items separated by ';' or newlines (a repeated flag's), empty ones dropped.
-std::vector<std::string> itemsIn(const std::string& text) {
-  std::vector<std::string> items;
-  for (size_t at = 0; at <= text.size();) {
-    const size_t end = std::min(text.find_first_of(";\n", at), text.size());
-    if (end > at) items.push_back(text.substr(at, end - at));
-    at = end + 1;
-  }
-  return items;
 }
 
 // Every --primitive item of @p text, or why one is not (naming it).

@@ -99,10 +99,6 @@ TEST(GeometryChannel, ScanConvertMatchesPolygonsOnASmoothSphere) {
   look.meshMethod = MeshMethod::ScanConvert;
   const RenderedFrame scan = r.render(view, look, reference);
   const double db = test::psnrOf(scan.image, polygons);
-  if (std::getenv("HYB_DUMP")) {
-    writePng("/tmp/scanwork/s_scan.png", scan.image, glm::vec3(0));
-    writePng("/tmp/scanwork/s_poly.png", polygons, glm::vec3(0));
-  }
   // Where the sphere is drawn (the polygons' image differs from the frame without it).
   Look plain = look;
   plain.meshes.clear();
@@ -207,7 +203,6 @@ TEST(GeometryChannel, ARotatingPlaneDoesNotShimmerWhenFiltered) {
       std::snprintf(text, sizeof text, "plane:19.5,17.5,15.5,%.9f,%.9f,%.9f,1:1,0.3,0.2,0.5", n.x, n.y, n.z);
       look.meshes = {primitiveOf(text, scene.volume)};
       const Image image = r.render(view, look, reference).image;
-      if (std::getenv("HYB_DUMP")) writePng("/tmp/scanwork/t_" + std::to_string(filter) + "_" + std::to_string(k) + ".png", image, glm::vec3(0));
       if (k > 0) {
         const double change = meanChange(last, image, plain);
         worst[filter] = std::max(worst[filter], change);
