@@ -15,6 +15,15 @@ namespace hyb {
 
 namespace {
 
+// ε_p of node i at level p: the data's, and params' channel error where the node holds the channel
+// and p is below its full resolution.
+float nodalError(const VolumeOctree& octree, const SelectionParams& params, uint32_t i, int p) {
+  const OctreeNode& n = octree.nodes()[i];
+  const float data = octree.errors(n)[size_t(p)];
+  if (!params.holdsChannel || p >= octree.maxLevel(n) || !params.holdsChannel(i)) return data;
+  return std::max(data, params.channelError);
+}
+
 // Calls visit(j) for every brick j whose closed node box meets the closed voxel box [lo, hi];
 // isBrick(j) tells the bricks apart from the inner nodes above them.
 template <class IsBrick, class Visit>
@@ -110,13 +119,15 @@ class Refiner {
 
   float tolerance(uint32_t i) const { return float(double(mParams.epsilon) / view(i).importance); }
 
-  bool overTolerance(uint32_t i) const { return mT.errors(mT.nodes()[i])[size_t(mP[i])] > tolerance(i); }
+  bool overTolerance(uint32_t i) const { return error(i) > tolerance(i); }
+  // ε_p of brick i: the data's, and the channel's where it holds one (by max).
+  float error(uint32_t i) const { return nodalError(mT, mParams, i, mP[i]); }
   // Refinement asked for by ε_u or by the distance filter (where it still changes anything).
   bool asked(uint32_t i) const {
     const OctreeNode& n = mT.nodes()[i];
     const double texelMm = double(mT.edge(n) >> mP[i]) * std::min({mParams.spacing.x, mParams.spacing.y, mParams.spacing.z});
     if (texelMm <= view(i).pixelMm) return false;  // finer texels would not be seen
-    return overTolerance(i) || (view(i).nearEye && mT.errors(n)[size_t(mP[i])] > 0.0f);
+    return overTolerance(i) || (view(i).nearEye && error(i) > 0.0f);
   }
 
   // Whether splitting brick i costs no more texels than keeping it: its transparent or culled
@@ -140,7 +151,7 @@ class Refiner {
   double priority(uint32_t i) const {
     if (!asked(i)) return std::numeric_limits<double>::infinity();
     const OctreeNode& n = mT.nodes()[i];
-    const float e = mT.errors(n)[size_t(mP[i])];
+    const float e = error(i);
     if (mParams.brickError && mParams.texelBudget > 0) return imageGain(i) * view(i).importance + 1e-12 * double(e);
     const double d = mParams.distortion ? mParams.distortion(n.minValue, n.maxValue, e) : double(e);
     return d * view(i).importance + 1e-12 * double(e);
@@ -257,7 +268,8 @@ class Refiner {
       const OctreeNode& n = mT.nodes()[i];
       glm::dvec3 boxLo, boxHi;
       worldBox(mT, n, mParams.spacing, &boxLo, &boxHi);
-      const bool transparent = mParams.opacity && !(mParams.opacity(n.minValue, n.maxValue) > 0.0f);
+      const bool transparent =
+          mParams.opacity && !(mParams.opacity(n.minValue, n.maxValue) > 0.0f) && !(mParams.holdsChannel && mParams.holdsChannel(i));
       v.hidden = transparent || (mParams.inView && !mParams.inView(boxLo, boxHi));
       v.importance = nodeImportance(mT, n, mParams);
       v.nearEye = mParams.eye && distanceToBox(*mParams.eye, boxLo, boxHi) < glm::length(boxHi - boxLo);
@@ -317,7 +329,7 @@ Selection selectNodes(const VolumeOctree& octree, const SelectionParams& params)
       Brick b;
       b.node = i;
       b.p = level[i];
-      b.error = octree.errors(n)[size_t(b.p)];
+      b.error = nodalError(octree, params, i, b.p);
       b.importance = float(refiner.importance(i));
       b.hidden = refiner.hidden(i);
       if (!b.hidden) b.texels = octree.texelDims(n, b.p);

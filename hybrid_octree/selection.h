@@ -61,6 +61,11 @@ struct SelectionParams {
   double lodPixels = 0.0;             ///< texel spacing, in pixels, below which refinement stops; 0 = off
   /// Whether the world box [lo, hi] (mm) can be seen (frustum culling); none: always.
   std::function<bool(const glm::dvec3& lo, const glm::dvec3& hi)> inView;
+  /// A second channel the nodes carry beside the data (a scan-converted geometry channel), or none:
+  /// a node for which it is true is never hidden as transparent, and its nodal error below its full
+  /// resolution is at least channelError (data units; combined with the data's by max).
+  std::function<bool(uint32_t node)> holdsChannel;
+  float channelError = 0.0f;
 
   /// Returns an empty string when valid, else a message naming the offending parameter.
   std::string validate() const;

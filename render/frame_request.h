@@ -55,12 +55,30 @@ struct View {
   std::string validate() const;
 };
 
+/// One of Levoy's analytic primitives (--primitive), in patient space (LPS mm).
+struct UserPrimitive {
+  enum class Kind { Plane, Sphere, Polygon };
+  Kind kind = Kind::Plane;
+  std::vector<glm::dvec3> points;  ///< a plane's point, a sphere's centre, a polygon's corners (in order)
+  glm::dvec3 normal{0.0};          ///< a plane's (not zero)
+  double radius = 0.0;             ///< a sphere's (> 0)
+  double thickness = 0.0;          ///< a plane's sheet (mm) when scan-converted; 0: the smallest voxel spacing
+};
+
+/// How a frame draws its user meshes and primitives (docs/user-geometry.md).
+enum class MeshMethod {
+  Polygons,     ///< exactly, in the SlabPolygon lists (the slices) and crossed by the rays (the reference)
+  ScanConvert,  ///< Levoy's: filtered and scan-converted into a coverage channel on the volume's grid
+};
+
 /// A mesh of the user's own (an implant, a segmentation, a plan) drawn inside the volume with its
 /// own colour: its triangles in patient space (LPS mm), shared by the frames that show it.
 struct UserMesh {
   std::string name;                          ///< the file it came from (or "meshes[k]"), for messages
   std::shared_ptr<const TriangleMesh> mesh;  ///< finite vertices, indices in range (checkUserMesh)
   glm::vec4 color{0.4f, 0.7f, 1.0f, 0.5f};   ///< straight RGBA; a < 1 is translucent (per crossing)
+  /// The analytic primitive @c mesh tessellates (scan-converted as itself), or none (a mesh).
+  std::shared_ptr<const UserPrimitive> primitive;
 };
 /// At most this many user meshes a frame (the slice shader's table of colours holds them and the
 /// isosurface's).
@@ -79,6 +97,10 @@ struct Look {
   /// Meshes drawn exactly in both renderers, in the SlabPolygon lists beside the isosurface (the
   /// slices) and crossed by the rays (the reference); none: the frame is drawn as without them.
   std::vector<UserMesh> meshes;
+  MeshMethod meshMethod = MeshMethod::Polygons;
+  /// The scan-convert method's kernel: a box of one voxel cell (the partial-volume fraction), or
+  /// none (the voxel centre point-sampled: binary, aliased).
+  bool meshFilter = true;
 
   /// Empty when valid, else a message naming the offending flag (--surface-color, --cut, --voi...).
   std::string validate() const;

@@ -12,6 +12,7 @@
 
 #include "hybrid_octree/hybrid_io.h"
 #include "hybrid_octree/knot_store.h"
+#include "render/geometry_channel.h"
 #include "render/scene_renderer.h"
 #include "volume/core/error.h"
 #include "volume/core/file_util.h"
@@ -113,14 +114,21 @@ std::string budgetError(const std::string& text) {
   return "";
 }
 
+// Items separated by ';' or newlines (a repeated flag's), empty ones dropped.
+std::vector<std::string> itemsIn(const std::string& text) {
+  std::vector<std::string> items;
+  for (size_t at = 0; at <= text.size();) {
+    const size_t end = std::min(text.find_first_of(";\n", at), text.size());
+    if (end > at) items.push_back(text.substr(at, end - at));
+    at = end + 1;
+  }
+  return items;
+}
+
 // Mesh files "FILE[:r,g,b,a]" separated by ';' or newlines (a repeated flag's), or why not.
 std::string meshFilesIn(const std::string& text, std::vector<FrameSettings::MeshFile>* out) {
   std::vector<FrameSettings::MeshFile> files;
-  for (size_t at = 0; at <= text.size();) {
-    const size_t end = std::min(text.find_first_of(";\n", at), text.size());
-    const std::string item = text.substr(at, end - at);
-    at = end + 1;
-    if (item.empty()) continue;
+  for (const std::string& item : itemsIn(text)) {
     FrameSettings::MeshFile m{item};
     if (const size_t colon = item.rfind(':'); colon != std::string::npos) {
       const std::string tail = item.substr(colon + 1);
@@ -145,6 +153,19 @@ std::string meshFilesText(const std::vector<FrameSettings::MeshFile>& files) {
     if (m.color != FrameSettings::MeshFile{}.color) s += ":" + joined({typed(m.color.r), typed(m.color.g), typed(m.color.b), typed(m.color.a)});
   }
   return s;
+}
+
+// Every --primitive item of @p text, or why one is not (naming it).
+std::string primitivesIn(const std::string& text, std::vector<std::string>* out) {
+  const std::vector<std::string> items = itemsIn(text);
+  if (items.size() > size_t(kMaxUserMeshes)) return "at most " + std::to_string(kMaxUserMeshes) + " meshes and primitives";
+  for (const std::string& item : items) {
+    UserPrimitive p;
+    glm::vec4 color;
+    if (const std::string why = primitiveIn(item, &p, &color); !why.empty()) return quotedExcerpt(item, 60) + ": " + why;
+  }
+  if (out) *out = items;
+  return "";
 }
 
 // Builders of the table's rows: @p f holds the row's words (name, kind where it is not the
@@ -374,6 +395,36 @@ void addLookFields(std::vector<FrameField>& f) {
       [](const FrameSettings& s) { return s.meshes.empty() ? std::nullopt : std::optional(meshFilesText(s.meshes)); });
   mesh.checkText = [](const std::string& text) { return meshFilesIn(text, nullptr); };
   f.push_back(mesh);
+  FrameField primitive = word(
+      {.name = "primitive", .kind = FieldKind::Text, .unit = "mm",
+       .shape = "plane:PX,PY,PZ,NX,NY,NZ[,THICK][:r,g,b,a], sphere:CX,CY,CZ,R[:r,g,b,a] or polygon:X1,Y1,Z1,X2,Y2,Z2,X3,Y3,Z3,...[:r,g,b,a] (patient mm, LPS)",
+       .help = "an analytic primitive drawn inside the volume (Levoy): plane:PX,PY,PZ,NX,NY,NZ[,THICK] (a point and a normal; THICK mm when "
+               "scan-converted, default one voxel), sphere:CX,CY,CZ,R, polygon:X1,Y1,Z1,X2,Y2,Z2,X3,Y3,Z3,... (its corners, convex), each "
+               "[:r,g,b,a] (default 0.4,0.7,1,0.5), patient mm (LPS); the flag may be repeated, or items separated by ';'",
+       .doors = kCliPy, .optional = true, .repeatable = true},
+      [](FrameSettings& s, const std::optional<std::string>& w) {
+        s.primitives.clear();
+        if (w) primitivesIn(*w, &s.primitives);
+      },
+      [](const FrameSettings& s) {
+        std::string t;
+        for (const std::string& item : s.primitives) t += (t.empty() ? "" : ";") + item;
+        return s.primitives.empty() ? std::nullopt : std::optional(t);
+      });
+  primitive.checkText = [](const std::string& text) { return primitivesIn(text, nullptr); };
+  f.push_back(primitive);
+  f.push_back(choice<MeshMethod>({.name = "mesh_method",
+                                  .help = "how meshes and primitives are drawn: polygons (default; exact, in the SlabPolygon lists and crossed by the "
+                                          "reference's rays) or scan-convert (Levoy: filtered and scan-converted into a coverage channel on the "
+                                          "volume's grid, composited with the data's samples)",
+                                  .doors = kCliPy},
+                                 {{"polygons", MeshMethod::Polygons}, {"scan-convert", MeshMethod::ScanConvert}},
+                                 [](FrameSettings& s) -> auto& { return s.meshMethod; }));
+  f.push_back(choice<bool>({.name = "mesh_filter",
+                            .help = "scan-convert's kernel: box (default; each voxel the fraction of its cell covered) or none (the voxel "
+                                    "centre point-sampled: binary, shimmers as the geometry moves)",
+                            .doors = kCliPy},
+                           {{"box", true}, {"none", false}}, [](FrameSettings& s) -> auto& { return s.meshFilter; }));
   f.push_back(choice<MeshSpace>({.name = "mesh_space", .help = "the space of mesh files whose header does not name one (3D Slicer writes SPACE=RAS or SPACE=LPS): lps (default) or ras", .doors = kCliPy},
                                 {{"lps", MeshSpace::LPS}, {"ras", MeshSpace::RAS}}, [](FrameSettings& s) -> auto& { return s.meshSpace; }));
 }
@@ -525,7 +576,7 @@ std::string FrameField::expected() const {
       for (size_t i = 0; i < choices.size(); ++i) c += (i == 0 ? "" : i + 1 == choices.size() ? " or " : ", ") + choices[i];
       return c;
     }
-    case FieldKind::Text: return "a path";
+    case FieldKind::Text: return shape.empty() ? "a path" : shape;
     case FieldKind::Budget: return "megabytes >= 0, or a percentage of the full-resolution texture bytes: 0 < P <= 100 followed by %";
     case FieldKind::Points: return "1 to 256 points value,r,g,b,a separated by ';', colours and opacities in [0, 1], values increasing";
   }
@@ -543,6 +594,67 @@ const FrameField* frameField(std::string_view name) {
   for (const FrameField& f : frameFields())
     if (f.name == name) return &f;
   return nullptr;
+}
+
+std::string primitiveIn(const std::string& item, UserPrimitive* p, glm::vec4* color) {
+  const size_t colon = item.find(':');
+  const std::string kind = item.substr(0, colon);
+  if (colon == std::string::npos) return "a kind (plane, sphere or polygon) and its numbers after ':'";
+  std::string numbers = item.substr(colon + 1);
+  *color = UserMesh{}.color;
+  if (const size_t second = numbers.find(':'); second != std::string::npos) {
+    const std::optional<std::vector<double>> c = numbersIn(numbers.substr(second + 1));
+    if (!c || c->size() != 4 || std::any_of(c->begin(), c->end(), [](double x) { return !(x >= 0.0 && x <= 1.0); }))
+      return "the colour after the second ':' is r,g,b,a, each in [0, 1]";
+    *color = glm::vec4(float((*c)[0]), float((*c)[1]), float((*c)[2]), float((*c)[3]));
+    numbers.resize(second);
+  }
+  const std::optional<std::vector<double>> v = numbersIn(numbers);
+  if (!v) return "finite numbers separated by ','";
+  for (const double x : *v)
+    if (std::abs(x) > kMaxCameraMm) return "coordinates within " + exact(kMaxCameraMm) + " mm";
+  const auto at = [&](size_t i) { return glm::dvec3((*v)[i], (*v)[i + 1], (*v)[i + 2]); };
+  *p = UserPrimitive{};
+  if (kind == "plane") {
+    if (v->size() != 6 && v->size() != 7) return "a plane is PX,PY,PZ,NX,NY,NZ[,THICK]";
+    p->kind = UserPrimitive::Kind::Plane;
+    p->points = {at(0)};
+    p->normal = at(3);
+    if (p->normal == glm::dvec3(0.0)) return "a plane's normal is not zero";
+    if (v->size() == 7 && !((*v)[6] > 0.0)) return "a plane's thickness > 0 mm";
+    if (v->size() == 7) p->thickness = (*v)[6];
+    return "";
+  }
+  if (kind == "sphere") {
+    if (v->size() != 4) return "a sphere is CX,CY,CZ,R";
+    p->kind = UserPrimitive::Kind::Sphere;
+    p->points = {at(0)};
+    p->radius = (*v)[3];
+    return p->radius > 0.0 ? "" : "a sphere's radius > 0 mm";
+  }
+  if (kind == "polygon") {
+    if (v->size() % 3 != 0 || v->size() < 9) return "a polygon is at least 3 corners X,Y,Z";
+    p->kind = UserPrimitive::Kind::Polygon;
+    for (size_t i = 0; i < v->size(); i += 3) p->points.push_back(at(i));
+    // Newell's normal: the corners enclose an area, lie in its plane and turn one way (convex).
+    glm::dvec3 normal(0.0), centre(0.0);
+    double size = 0.0;
+    const size_t n = p->points.size();
+    for (size_t i = 0; i < n; ++i) {
+      const glm::dvec3 &a = p->points[i], &b = p->points[(i + 1) % n];
+      normal += glm::dvec3((a.y - b.y) * (a.z + b.z), (a.z - b.z) * (a.x + b.x), (a.x - b.x) * (a.y + b.y));
+      centre += a / double(n);
+      size = std::max(size, glm::length(b - a));
+    }
+    if (!(glm::length(normal) > 1e-12 * size * size)) return "a polygon's corners enclose an area";
+    normal = glm::normalize(normal);
+    for (size_t i = 0; i < n; ++i) {
+      if (std::abs(glm::dot(normal, p->points[i] - centre)) > 1e-6 * size) return "a polygon's corners in one plane";
+      if (i >= 2 && glm::dot(glm::cross(p->points[i - 1] - p->points[0], p->points[i] - p->points[0]), normal) < 0.0) return "a convex polygon";
+    }
+    return "";
+  }
+  return "a kind: plane, sphere or polygon";
 }
 
 std::string FrameSettings::validate() const {
@@ -792,6 +904,30 @@ TransferFunction transferFunctionOf(const FrameSettings& s, const Volume& v) {
 
 }  // namespace
 
+std::vector<UserMesh> userGeometry(const FrameSettings& s, const Volume& v, std::ostream& warnings) {
+  std::vector<UserMesh> meshes;
+  for (const FrameSettings::MeshFile& m : s.meshes) {
+    meshes.push_back(readUserMesh(m.path, m.color, s.meshSpace));
+    for (const std::string& w : userMeshWarnings(meshes.back(), v)) warnings << "hybrid-octree: warning: " << w << "\n";
+  }
+  for (const std::string& item : s.primitives) {
+    auto p = std::make_shared<UserPrimitive>();
+    UserMesh m;
+    if (const std::string why = primitiveIn(item, p.get(), &m.color); !why.empty())
+      HYB_THROW(ValueError, "--primitive ", quotedExcerpt(item, 60), " invalid (", why, ")");
+    m.name = "--primitive " + item.substr(0, item.find(':'));
+    m.mesh = std::make_shared<TriangleMesh>(tessellatePrimitive(*p, v));
+    m.primitive = std::move(p);
+    if (m.mesh->triangles.empty()) {
+      warnings << "hybrid-octree: warning: " << m.name << " misses the volume's box (nothing drawn)\n";
+      continue;
+    }
+    meshes.push_back(std::move(m));
+  }
+  if (meshes.size() > size_t(kMaxUserMeshes)) HYB_THROW(ValueError, "--mesh and --primitive: at most ", kMaxUserMeshes, " together");
+  return meshes;
+}
+
 FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& warnings) {
   if (const std::string e = s.validate(); !e.empty()) throw ValueError(e);
   std::optional<Camera> fromFile;
@@ -822,10 +958,9 @@ FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& 
     voi.ramp = s.voiRamp;
     look.voi = voi;
   }
-  for (const FrameSettings::MeshFile& m : s.meshes) {
-    look.meshes.push_back(readUserMesh(m.path, m.color, s.meshSpace));
-    for (const std::string& w : userMeshWarnings(look.meshes.back(), v)) warnings << "hybrid-octree: warning: " << w << "\n";
-  }
+  look.meshes = userGeometry(s, v, warnings);
+  look.meshMethod = s.meshMethod;
+  look.meshFilter = s.meshFilter;
   // Where from, in patient space: a camera file's, the eye given, or the view framing what the
   // transfer function (or the isosurface) makes visible.
   Camera& camera = job.view.camera;

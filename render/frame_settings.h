@@ -64,6 +64,10 @@ struct FrameSettings {
   };
   std::vector<MeshFile> meshes;
   MeshSpace meshSpace = MeshSpace::LPS;  ///< of mesh files whose header does not say (Slicer's SPACE=)
+  /// Levoy's analytic primitives as given ("plane:...", "sphere:...", "polygon:..."; checked when set).
+  std::vector<std::string> primitives;
+  MeshMethod meshMethod = MeshMethod::Polygons;
+  bool meshFilter = true;  ///< scan-convert: the box filter (true) or point sampling
   // How well.
   Quality quality;
   std::string budget;  ///< as given: megabytes, or P% of the view's full-resolution bytes
@@ -193,5 +197,16 @@ struct FrameSetup {
   glm::vec3 background{0.0f};
 };
 FrameSetup setUpFrame(const FrameSettings& settings, const Scene& scene, std::ostream& warnings);
+
+/// The meshes of @p settings' mesh files and primitives (tessellated on @p volume's box), with
+/// their warnings (a mesh outside the volume, in metres?) on @p warnings.
+/// @throw IoError naming a mesh file, ValueError naming --primitive or --mesh.
+std::vector<UserMesh> userGeometry(const FrameSettings& settings, const Volume& volume, std::ostream& warnings);
+
+/// The primitive of one --primitive item "plane:PX,PY,PZ,NX,NY,NZ[,THICK][:r,g,b,a]",
+/// "sphere:CX,CY,CZ,R[:r,g,b,a]" or "polygon:X1,Y1,Z1,...[:r,g,b,a]" (patient mm, LPS), with its
+/// colour; or why it is not one (a number not finite, a zero normal, a radius or thickness not
+/// positive, fewer than 3 corners, corners not coplanar or folding).
+std::string primitiveIn(const std::string& item, UserPrimitive* primitive, glm::vec4* color);
 
 }  // namespace hyb

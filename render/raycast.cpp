@@ -63,7 +63,8 @@ struct RayFrame {
         cells(glm::max(volume.dims() - 1, glm::ivec3(1))), cut(o.cut ? o.cut->keptSide(c) : glm::dvec4(0, 0, 0, 1)),
         transparent(octree.nodes().size()) {
     for (size_t i = 0; i < transparent.size(); ++i)
-      transparent[i] = o.skipEmptySpace && tf.maxAlpha(octree.nodes()[i].minValue, octree.nodes()[i].maxValue) <= 0.0f;
+      transparent[i] = o.skipEmptySpace && tf.maxAlpha(octree.nodes()[i].minValue, octree.nodes()[i].maxValue) <= 0.0f &&
+                       !(o.geometry && o.geometry->holds(uint32_t(i)));
   }
 
   // The transparent node containing voxel-space point q, with its box in mm; false when none does.
@@ -249,20 +250,40 @@ class PixelTracer {
       r.backT = e;
       samples += meets ? 1 : 2;
       const glm::vec4 c = pre->lookup(front, r.backValue, e - s, mOptions.voi ? mOptions.voi->factor(r.o + r.d * tm) : 1.0);
+      const glm::vec4 data = c.a > 0.0f ? glm::vec4(glm::vec3(c) * float(shadeAt()), c.a) : glm::vec4(0.0f);
+      if (mOptions.geometry) return compositePremultiplied(r, withGeometry(q, e - s, data));
       if (c.a > 0.0f) r.acc += glm::dvec4(glm::dvec3(c) * shadeAt(), c.a) * (1.0 - r.acc.a);
     } else {
       glm::vec4 c = mF.tf.lookup(sampleAt(glm::vec3(q)));
       if (mOptions.voi) c.a = float(std::min(1.0, double(c.a) * mOptions.voi->factor(r.o + r.d * tm)));
       ++samples;
       const float a = TransferFunction::segmentAlpha(c.a, float(e - s));
+      if (mOptions.geometry) {
+        const glm::vec4 data = a > 0.0f ? glm::vec4(glm::vec3(c) * float(shadeAt()) * a, a) : glm::vec4(0.0f);
+        return compositePremultiplied(r, withGeometry(q, e - s, data));
+      }
       if (a > 0.0f) composite(r, glm::dvec3(c) * shadeAt(), a);
     }
+  }
+
+  // The sample @p data (premultiplied) at voxel-space point @p q of a segment @p len mm long with
+  // the geometry channel's parts composited over it (compositeGeometry).
+  glm::vec4 withGeometry(const glm::dvec3& q, double len, const glm::vec4& data) {
+    const GeometryChannel& g = *mOptions.geometry;
+    mCoverage.resize(g.parts.size());
+    for (size_t k = 0; k < g.parts.size(); ++k) mCoverage[k] = g.parts[k].at(glm::vec3(q));
+    return compositeGeometry(g, mCoverage.data(), len, data);
+  }
+
+  static void compositePremultiplied(Ray& r, const glm::vec4& c) {
+    if (c.a > 0.0f) r.acc += glm::dvec4(c) * (1.0 - r.acc.a);
   }
 
   const RayFrame& mF;
   const RaycastOptions& mOptions;
   std::vector<Hit> mHits;  // the ray's surface crossings, in order
   std::vector<Hit> mMeshHits;
+  std::vector<float> mCoverage;  // the geometry parts' at a sample
   std::optional<KnotSampler> mPaged;
 };
 

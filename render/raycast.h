@@ -14,11 +14,12 @@
 #include "render/camera.h"
 #include "render/cut_plane.h"
 #include "render/frame_request.h"
+#include "render/geometry_channel.h"
+#include "render/voi.h"
 #include "render/image.h"
 #include "render/preintegration.h"
 #include "render/regions.h"
 #include "render/transfer_function.h"
-#include "render/voi.h"
 #include "volume/core/progress.h"
 #include "volume/volume.h"
 
@@ -34,6 +35,9 @@ struct RaycastOptions {
   /// meshColors[k], shaded as the isosurface is.
   const Bvh* meshes = nullptr;
   std::vector<glm::vec4> meshColors;
+  /// The user geometry scan-converted onto the volume's grid (render/geometry_channel.h), or none:
+  /// composited with each segment's sample by compositeGeometry; nodes holding it are not skipped.
+  const GeometryChannel* geometry = nullptr;
   bool volume = true;                ///< false: surfaces only
   bool skipEmptySpace = true;        ///< jump over nodes the transfer function makes transparent
   const CutPlane* cut = nullptr;     ///< cutting plane, or none

@@ -448,7 +448,13 @@ SelectionParams SceneRenderer::selectionParams(const FrameGrid& g, const Look& l
     choice.texelBudget = texels < 0x1p62 ? uint64_t(texels) : 0;
   }
   st->budgetTexels = choice.texelBudget;
-  return paramsOf(choice);
+  SelectionParams params = paramsOf(choice);
+  if (const GeometryChannel* geometry = frameGeometry(look, st)) {
+    // A brick holding geometry is drawn, and at full resolution unless ε_u reaches the data's range.
+    params.holdsChannel = [geometry](uint32_t node) { return geometry->holds(node); };
+    params.channelError = std::max(v.maxValue() - v.minValue(), std::numeric_limits<float>::min());
+  }
+  return params;
 }
 
 Selection SceneRenderer::select(const View& view, const Look& look, const Quality& quality) {
@@ -525,8 +531,29 @@ const TriangleMesh& SceneRenderer::regionSurface(const TriangleMesh& mesh, const
   return r.mesh;
 }
 
+const GeometryChannel* SceneRenderer::frameGeometry(const Look& look, FrameStats* st) {
+  if (look.meshes.empty() || look.meshMethod != MeshMethod::ScanConvert) return nullptr;
+  KeptGeometry& k = mGeometry;
+  bool same = k.channel && k.from.size() == look.meshes.size() && k.filter == look.meshFilter;
+  for (size_t i = 0; same && i < k.from.size(); ++i) same = k.from[i] == look.meshes[i].mesh && k.colors[i] == look.meshes[i].color;
+  if (!same) {
+    if (mGl) mGl->makeCurrent();  // the textures of the channel replaced are deleted in their context
+    k = KeptGeometry{};
+    for (const UserMesh& m : look.meshes) {
+      k.from.push_back(m.mesh);
+      k.colors.push_back(m.color);
+    }
+    k.filter = look.meshFilter;
+    k.channel = std::make_unique<GeometryChannel>(
+        scanConvertGeometry(look.meshes, volume(), mScene.octree, look.meshFilter ? ScanFilter::Box : ScanFilter::None));
+    st->geometryMs = k.channel->ms;
+  }
+  st->geometryBytes = k.channel->bytes();
+  return k.channel.get();
+}
+
 const GridMeshes* SceneRenderer::frameMeshes(const Look& look, bool bvh, FrameStats* st) {
-  if (look.meshes.empty()) return nullptr;
+  if (look.meshes.empty() || look.meshMethod != MeshMethod::Polygons) return nullptr;
   KeptMeshes& k = mMeshes;
   bool same = k.from.size() == look.meshes.size();
   for (size_t i = 0; same && i < k.from.size(); ++i) same = k.from[i] == look.meshes[i].mesh && k.colors[i] == look.meshes[i].color;
@@ -592,6 +619,7 @@ void SceneRenderer::renderRaycast(const FrameGrid& g, const Look& look, const Qu
     ro.meshes = mMeshes.bvh.get();
     ro.meshColors = meshes->colors;
   }
+  ro.geometry = frameGeometry(look, &st);
   ro.knots = volume().hasSamples() ? nullptr : mScene.knots.get();  // a paged scene's samples through its cache
   if (quality.classification == Classification::PreIntegrated) {
     // Segments are a step long, shorter where a surface crossing or the volume's end cuts them.
@@ -626,6 +654,7 @@ void SceneRenderer::renderSlicesFrame(const FrameGrid& g, const Look& look, cons
   SlicesOptions so = slicesOptions(g, look, quality, mesh, frameMeshes(look, false, &st));
   so.textures = mOptions.keepTextures ? mTextures.get() : nullptr;
   so.knots = mScene.knots.get();
+  so.geometry = frameGeometry(look, &st);
   if (quality.classification == Classification::PreIntegrated) {
     // From half the base spacing (segments cut at bricks' faces) to twice the coarsest levels'
     // spacing (32 base spacings) along oblique rays (SlicesOptions::preintegrated).

@@ -63,6 +63,10 @@ struct FrameStats {
   /// Putting the user meshes in the grid frame, cut to leaf cells, and their BVH (0 when kept).
   double meshesMs = 0;
   size_t meshTriangles = 0;        ///< the user meshes' triangles (before cutting)
+  /// Scan-converting the user meshes and primitives (MeshMethod::ScanConvert; 0 when kept), and
+  /// the bytes their channel holds.
+  double geometryMs = 0;
+  uint64_t geometryBytes = 0;
   size_t brickErrorsMeasured = 0;  ///< the view's bricks whose image error has been measured
   uint64_t textureBytesKept = 0;   ///< the brick texture cache after the frame
   /// Bricks of the selection drawn from a coarser level because their knots were not cached (the
@@ -268,6 +272,9 @@ class SceneRenderer {
   /// The look's user meshes in the grid frame (kept while the look's meshes and colours are the
   /// same), with their BVH when @p bvh; none when the look has none.
   const GridMeshes* frameMeshes(const Look& look, bool bvh, FrameStats* st);
+  /// The look's user meshes and primitives scan-converted (MeshMethod::ScanConvert; kept while the
+  /// look's meshes, colours and filter are the same), or none.
+  const GeometryChannel* frameGeometry(const Look& look, FrameStats* st);
   /// The size (mm) of a pixel of @p gridCamera where the volume comes nearest the eye.
   double nearestPixelMm(const Camera& gridCamera) const;
   PreparedSurface& keep(std::unique_ptr<PreparedSurface> surface);
@@ -310,6 +317,12 @@ class SceneRenderer {
     GridMeshes grid;
     std::unique_ptr<Bvh> bvh;
   } mMeshes;  // the last frame's user meshes
+  struct KeptGeometry {
+    std::vector<std::shared_ptr<const TriangleMesh>> from;  // held: their addresses stay theirs
+    std::vector<glm::vec4> colors;
+    bool filter = true;
+    std::unique_ptr<GeometryChannel> channel;  // its textures are deleted in the context (declared after mGl)
+  } mGeometry;  // the last frame's scan-converted geometry
 };
 
 }  // namespace hyb

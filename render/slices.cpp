@@ -168,6 +168,48 @@ struct TransferTable {
   }
 };
 
+// The first texture unit of the geometry parts' coverage (0: the brick, 1: the transfer function, 2:
+// the pre-integration table).
+constexpr int kGeometryUnit = 3;
+
+// The geometry parts a slice frame samples.
+int geometryParts(const SlicesOptions& options) {
+  return options.geometry ? int(std::min(options.geometry->parts.size(), size_t(kMaxGeometryParts))) : 0;
+}
+
+// Binds the geometry parts' coverage textures to units kGeometryUnit…, made at the channel's first
+// slice frame (R8, clamped to a border of 0 as GeometryPart::at reads outside its crop).
+void bindGeometry(const SlicesOptions& options) {
+  const int parts = geometryParts(options);
+  if (parts == 0) return;
+  const GeometryChannel& g = *options.geometry;
+  if (g.textures.size() != size_t(parts)) {
+    g.textures.clear();
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+    for (int k = 0; k < parts; ++k) {
+      const GeometryPart& part = g.parts[size_t(k)];
+      gl::Texture t = gl::Texture::make();
+      glActiveTexture(GLenum(GL_TEXTURE0 + kGeometryUnit + k));
+      glBindTexture(GL_TEXTURE_3D, t.id());
+      const uint8_t zero = 0;
+      const glm::ivec3 dims = part.coverage.empty() ? glm::ivec3(1) : part.dims;
+      glTexImage3D(GL_TEXTURE_3D, 0, GL_R8, dims.x, dims.y, dims.z, 0, GL_RED, GL_UNSIGNED_BYTE, part.coverage.empty() ? &zero : part.coverage.data());
+      glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+      glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+      const float border[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+      glTexParameterfv(GL_TEXTURE_3D, GL_TEXTURE_BORDER_COLOR, border);
+      for (const GLenum wrap : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R}) glTexParameteri(GL_TEXTURE_3D, wrap, GL_CLAMP_TO_BORDER);
+      g.textures.push_back(std::move(t));
+    }
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+  }
+  for (int k = 0; k < parts; ++k) {
+    glActiveTexture(GLenum(GL_TEXTURE0 + kGeometryUnit + k));
+    glBindTexture(GL_TEXTURE_3D, g.textures[size_t(k)].id());
+  }
+  glActiveTexture(GL_TEXTURE0);
+}
+
 // The frame's programs: the slice program in variants, bricks sliced at the base spacing or coarser
 // (SEGMENTS: each fragment's segment cut to the brick's box, a cost full resolution need not pay;
 // docs/multires.md) and bricks whose stream holds translucent surface pieces or not (SURFACE:
@@ -181,8 +223,8 @@ class FramePrograms {
     GLint fineScale, fineOffset, valueOffset, valueScale, sliceSpacing, shells, boxLo, boxHi;
   };
   FramePrograms(const SlicesOptions& options, const Camera& camera, const FrameCamera& frame, const TransferTable& table, bool translucent,
-                const glm::vec4& cutPlane)
-      : mOptions(options), mCamera(camera), mFrame(frame), mTable(table), mCutPlane(cutPlane),
+                const glm::vec4& cutPlane, const glm::dvec3& spacing)
+      : mOptions(options), mCamera(camera), mFrame(frame), mTable(table), mCutPlane(cutPlane), mSpacing(spacing),
       mSmooth(translucent && !options.surface->normals.empty()) {
     mDefines = "#version 450 core\n";
     for (const auto& [name, on] : {std::pair{"SHADING", options.shading}, {"CUT", bool(options.cut)},
@@ -190,6 +232,7 @@ class FramePrograms {
                                    {"TEXEL16", options.texelBits == TexelBits::Sixteen}, {"PREINT", bool(options.preintegrated)},
                                    {"MESHES", options.meshes && !options.meshes->empty()}})
       mDefines += std::string("#define ") + name + (on ? " 1\n" : " 0\n");
+    mDefines += "#define GEOMETRY " + std::to_string(geometryParts(options)) + "\n";
   }
 
   // The slice program for bricks sliced at the base spacing or coarser (@p segments), whose stream
@@ -233,6 +276,29 @@ class FramePrograms {
       glUniform1f(uniform("preFirst"), float(pre->firstLayer()));
       glUniform1f(uniform("preLayers"), float(pre->layers()));
     }
+    if (const int parts = geometryParts(mOptions); parts > 0) {
+      const GeometryChannel& g = *mOptions.geometry;
+      std::vector<GLint> units;
+      std::vector<glm::vec3> scale, offset;
+      std::vector<glm::vec4> color;
+      std::vector<float> tau;
+      const glm::dvec3 spacing = mSpacing;
+      for (int k = 0; k < parts; ++k) {
+        const GeometryPart& part = g.parts[size_t(k)];
+        const glm::dvec3 dims(glm::max(part.dims, glm::ivec3(1)));
+        // uv = (x / spacing − lo + ½) / dims: texel j's centre on voxel lo + j, as GeometryPart::at reads.
+        units.push_back(kGeometryUnit + k);
+        scale.push_back(glm::vec3(1.0 / (spacing * dims)));
+        offset.push_back(glm::vec3((0.5 - glm::dvec3(part.lo)) / dims));
+        color.push_back(part.color);
+        tau.push_back(float(part.thicknessMm));
+      }
+      glUniform1iv(uniform("geomTex"), parts, units.data());
+      glUniform3fv(uniform("geomScale"), parts, glm::value_ptr(scale.front()));
+      glUniform3fv(uniform("geomOffset"), parts, glm::value_ptr(offset.front()));
+      glUniform4fv(uniform("geomColor"), parts, glm::value_ptr(color.front()));
+      glUniform1fv(uniform("geomTau"), parts, tau.data());
+    }
     p.fineScale = uniform("fineScale"), p.fineOffset = uniform("fineOffset"), p.valueOffset = uniform("valueOffset");
     p.valueScale = uniform("valueScale"), p.sliceSpacing = uniform("sliceSpacing"), p.shells = uniform("shells");
     p.boxLo = uniform("boxLo"), p.boxHi = uniform("boxHi");
@@ -275,6 +341,7 @@ class FramePrograms {
   const FrameCamera& mFrame;
   const TransferTable& mTable;
   glm::vec4 mCutPlane;
+  glm::dvec3 mSpacing;  // the volume's voxel spacing (mm)
   bool mSmooth;  // the translucent surface has vertex normals
   std::string mDefines;
   std::array<Slice, 4> mSlice;
@@ -405,6 +472,7 @@ struct BrickDraw {
   uint32_t brick = 0, node = 0;  // index into selection.bricks, and its node
   bool visible = false, sliced = false, shell = false;
   bool crossed = false;  // the cutting plane crosses its box (then it is textured)
+  bool geometry = false;  // its box holds scan-converted geometry: sliced whole, at the base spacing
   bool pending = false;  // its texels are packed into `packed`, uploaded when it is drawn
   GLuint texture = 0;
   glm::vec3 fineScale{0.0f}, fineOffset{0.0f};  // grid mm -> the texture's coordinates
@@ -449,8 +517,9 @@ class BrickPlanner {
       BrickDraw d;
       d.brick = uint32_t(f.brickOf[i]);
       d.node = i;
+      d.geometry = options.geometry && options.geometry->holds(i);
       const Brick& b = f.selection.bricks[d.brick];
-      d.visible = !b.hidden && f.tf.maxAlpha(n.minValue, n.maxValue) > 0.0f;
+      d.visible = !b.hidden && (f.tf.maxAlpha(n.minValue, n.maxValue) > 0.0f || d.geometry);
       if (!d.visible && !f.holdsPolygons(d.brick)) continue;
       glm::ivec3 lo, hi;
       octree.voxelBox(n, &lo, &hi);
@@ -582,7 +651,7 @@ class BrickPlanner {
       mTexels += fine.count();
       ++mBricks;
       mBlended += b.coarseCorners != 0;
-      if (mF.options.visibleBoxes) {
+      if (mF.options.visibleBoxes && !d.geometry) {
         glm::dvec3 vlo(0.0), vhi(0.0);
         findVisibleBlocks(brick.ranges, mF.table.visible, &brick.visible);
         d.sliced = visibleBox(brick.visible, fine, &vlo, &vhi);
@@ -615,7 +684,7 @@ class BrickPlanner {
     // its planes is lost.
     const double across = std::min({d.bhi.x - d.blo.x, d.bhi.y - d.blo.y, d.bhi.z - d.blo.z});
     const int period = std::clamp(int(across / (4.0 * mF.baseDelta)), 1, levelPeriod(fine.step, mF.options.stepVoxels));
-    d.delta = mF.baseDelta * (d.sliced && !holdsEye && !exactWithSurface ? period : 1);
+    d.delta = mF.baseDelta * (d.sliced && !holdsEye && !exactWithSurface && !d.geometry ? period : 1);
     if (mF.options.preintegrated && d.blocks) {  // its fragments read up to a spacing either side
       d.slo = glm::max(d.blo, d.slo - kPreintegratedGrowth * d.delta);
       d.shi = glm::min(d.bhi, d.shi + kPreintegratedGrowth * d.delta);
@@ -706,7 +775,7 @@ class SlicesFrame {
  public:
   SlicesFrame(const SelectedBricks& in, const TransferFunction& tf, const Camera& camera, const SlicesOptions& options)
       : mTarget(camera, options), mF(in, tf, camera, options, mTarget.rows),
-        mPrograms(options, camera, mF.view, mF.table, mF.translucent, glm::vec4(mF.cut)) {
+        mPrograms(options, camera, mF.view, mF.table, mF.translucent, glm::vec4(mF.cut), mF.spacing()) {
     if (options.cut) glEnable(GL_CLIP_DISTANCE0);
   }
 
@@ -964,6 +1033,7 @@ SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quali
 Image renderSlices(const SelectedBricks& bricks, const TransferFunction& tf, const Camera& camera, const SlicesOptions& options,
                    SlicesStats* stats) {
   SlicesFrame frame(bricks, tf, camera, options);  // the target, the table, the bricks in order, the programs
+  bindGeometry(options);
   frame.drawOpaqueSurface();
   frame.planBricks();
   frame.drawCutPlane();

@@ -18,6 +18,8 @@
 #include "render/camera.h"
 #include "render/cut_plane.h"
 #include "render/frame_request.h"
+#include "render/geometry_channel.h"
+#include "render/voi.h"
 #include "render/gl_context.h"
 #include "render/image.h"
 #include "render/preintegration.h"
@@ -25,7 +27,6 @@
 #include "render/slices/brick_textures.h"
 #include "render/transfer_function.h"
 #include "render/user_meshes.h"
-#include "render/voi.h"
 #include "surface/mesh.h"
 #include "volume/core/progress.h"
 #include "volume/volume.h"
@@ -46,6 +47,10 @@ struct SlicesOptions {
   /// SlabPolygon lists beside the translucent isosurface, each piece with its mesh's colour,
   /// translucent or opaque alike.
   const GridMeshes* meshes = nullptr;
+  /// The user geometry scan-converted onto the volume's grid (render/geometry_channel.h), or none:
+  /// each part's coverage a texture (made once, kept by the channel) composited with each slice
+  /// sample by the reference's rule; bricks holding it are sliced whole at the base spacing.
+  const GeometryChannel* geometry = nullptr;
   const CutPlane* cut = nullptr;          ///< cutting plane, or none
   const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
   bool cutLine = true;                    ///< draw the surface's intersection with the cutting plane

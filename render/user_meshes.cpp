@@ -135,7 +135,7 @@ UserMesh readUserMesh(const std::string& path, const glm::vec4& color, MeshSpace
   mesh.normals.clear();
   if (meshFileSpace(path).value_or(space) == MeshSpace::RAS)
     for (glm::vec3& p : mesh.vertices) p = glm::vec3(-p.x, -p.y, p.z);
-  return UserMesh{path, std::make_shared<const TriangleMesh>(std::move(mesh)), color};
+  return UserMesh{path, std::make_shared<const TriangleMesh>(std::move(mesh)), color, nullptr};
 }
 
 std::vector<std::string> userMeshWarnings(const UserMesh& m, const Volume& volume) {

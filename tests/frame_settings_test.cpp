@@ -55,7 +55,7 @@ std::string sampleText(const FrameField& f) {
     case FieldKind::Switch: return f.defaultText() == "on" ? "off" : "on";
     case FieldKind::Flag: return "on";
     case FieldKind::Choice: return f.choices.back() != f.defaultText() ? f.choices.back() : f.choices.front();
-    case FieldKind::Text: return "some dir/file.json";
+    case FieldKind::Text: return f.name == "primitive" ? "plane:1,2,3,0,0,1,2:1,0,0,0.5;sphere:4,5,6,7" : "some dir/file.json";
     case FieldKind::Budget: return "25%";
     case FieldKind::Points: return "0,1,1,1,0;100,1,0.5,0,0.25";
   }

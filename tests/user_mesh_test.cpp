@@ -38,7 +38,7 @@ TriangleMesh uvSphere(const glm::dvec3& c, double r, int rings) {
 }
 
 UserMesh userMesh(TriangleMesh mesh, const glm::vec4& color, const std::string& name = "mesh") {
-  return UserMesh{name, std::make_shared<const TriangleMesh>(std::move(mesh)), color};
+  return UserMesh{name, std::make_shared<const TriangleMesh>(std::move(mesh)), color, nullptr};
 }
 
 TransferFunction warm() { return TransferFunction({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.3f}, {15.0f, {0.3f, 0.6f, 1.0f}, 0.05f}}, "warm"); }

@@ -34,6 +34,7 @@
 #include "render/orientation_marker.h"
 #include "render/raycast.h"
 #include "render/slices.h"
+#include "render/geometry_channel.h"
 #include "surface/cgal_geometry.h"
 #include "surface/dmc.h"
 #include "surface/mesh_io.h"
@@ -332,9 +333,35 @@ struct ExportOptions {
   std::optional<double> iso;
   bool check = false, closed = false, normals = false;
   std::optional<double> memoryMb;  // a scene file read paged (--surface octree): its octrees and cache
+  // The user geometry scan-converted as a label or fraction volume on the CT's grid.
+  std::vector<std::string> meshes, primitives;
+  std::string meshSpace = "lps", labelVolume;
+  bool fraction = false;
+  FrameSettings geometry;  // the meshes and primitives, parsed by the frame table's rows
   /// Only the Surface Octree's surface is made through a scene's cache; the others need its samples.
-  bool paged() const { return surface == "octree" && !closed && !check && !input.rawLayout() && isSceneFile(input.path); }
-  std::string validate() const {
+  bool paged() const { return labelVolume.empty() && surface == "octree" && !closed && !check && !input.rawLayout() && isSceneFile(input.path); }
+  std::string validate() {
+    try {
+      auto joined = [](const std::vector<std::string>& v) {
+        std::string t;
+        for (const std::string& x : v) t += (t.empty() ? "" : "\n") + x;
+        return t;
+      };
+      if (!meshes.empty()) frameField("mesh")->parse(geometry, joined(meshes), "--mesh");
+      if (!primitives.empty()) frameField("primitive")->parse(geometry, joined(primitives), "--primitive");
+      frameField("mesh_space")->parse(geometry, meshSpace, "--mesh-space");
+    } catch (const ValueError& e) {
+      return e.what();
+    }
+    if (fraction && labelVolume.empty()) return "--fraction needs --label-volume";
+    if (!labelVolume.empty()) {
+      if (meshes.empty() && primitives.empty()) return "--label-volume needs --mesh or --primitive (the geometry it holds)";
+      if (!labelVolume.ends_with(".nrrd")) return "--label-volume '" + labelVolume + "' invalid (expected a .nrrd file)";
+      if (std::string e = outputsError({{labelVolume, "--label-volume"}}, {input.path}); !e.empty()) return e;
+      if (!iso && output.empty()) return "";  // the volume alone
+    } else if (!meshes.empty() || !primitives.empty()) {
+      return "--mesh and --primitive need --label-volume (export writes the isosurface's mesh, or the geometry's volume)";
+    }
     if (!iso) return "--iso missing (expected the isovalue in data units)";
     if (memoryMb && !(*memoryMb >= 1.0 && *memoryMb <= 1e9)) return "--memory must be megabytes in [1, 1e9]";
     if (!isFloat(*iso)) return "--iso must be a finite number within the float range (|x| <= 3.4e38)";
@@ -362,6 +389,24 @@ int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
   double buildMs = 0;
   const uint64_t memoryBytes = sceneMemoryBytes(o.memoryMb);
   const Scene scene = loadOrBuild(o.input, out, err, &buildMs, VolumeOctreeOptions{}, SceneLoadOptions{!o.paged(), memoryBytes});
+  if (!o.labelVolume.empty()) {
+    // The meshes and primitives filtered (a box of one voxel) and scan-converted on the CT's grid.
+    const auto t0 = Clock::now();
+    std::vector<std::string> warnings;
+    const Volume label = geometryVolume(userGeometry(o.geometry, scene.volume, err), scene.volume, o.fraction, &warnings);
+    for (const std::string& w : warnings) err << "hybrid-octree: warning: " << w << "\n";
+    size_t inside = 0;
+    double sum = 0.0;
+    for (size_t n = 0; n < label.voxelCount(); ++n) {
+      inside += label.value(n) >= (o.fraction ? 0.5f : 1.0f);
+      sum += label.value(n);
+    }
+    writeNrrd(label, o.labelVolume);
+    const glm::dvec3 s = scene.volume.spacing();
+    out << "wrote    " << o.labelVolume << " (" << (o.fraction ? "float32 fraction" : "uint8 label, 1 where the coverage is >= 0.5") << ", the CT's grid and frame; "
+        << inside << " voxels labelled, " << (o.fraction ? sum : double(inside)) * s.x * s.y * s.z << " mm^3; " << msSince(t0) << " ms)\n";
+    if (!o.iso) return 0;
+  }
   const float iso = float(*o.iso);
   if (iso <= scene.volume.minValue() || iso > scene.volume.maxValue())
     err << "hybrid-octree: warning: --iso " << iso << " is outside the data's crossing range (" << scene.volume.minValue() << ", "
@@ -586,6 +631,18 @@ struct Commands {
     exportCmd->add_flag("--closed", exportOpts.closed,
                         "cap the surface where it meets the volume's faces (as if the volume were padded below the isovalue): a closed mesh to print");
     exportCmd->add_flag("--normals", exportOpts.normals, "write vertex normals from the volume's gradient (.ply and .obj)");
+    exportCmd->add_option("--mesh", exportOpts.meshes, "a mesh FILE (.ply .obj .stl .off, patient mm) for --label-volume; repeatable")
+        ->allow_extra_args(false)
+        ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
+    exportCmd->add_option("--primitive", exportOpts.primitives,
+                          "an analytic primitive for --label-volume (render's --primitive: plane:..., sphere:..., polygon:...); repeatable")
+        ->allow_extra_args(false)
+        ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
+    exportCmd->add_option("--mesh-space", exportOpts.meshSpace, "the space of mesh files whose header does not name one: lps or ras")->capture_default_str();
+    exportCmd->add_option("--label-volume", exportOpts.labelVolume,
+                          "write the meshes and primitives scan-converted on the CT's grid and frame (box filter of one voxel; closed meshes and "
+                          "spheres solid, planes and polygons as sheets): a .nrrd uint8 label, 1 where a voxel is at least half covered");
+    exportCmd->add_flag("--fraction", exportOpts.fraction, "--label-volume holds each voxel's covered fraction (float32) instead of a label");
     exportCmd->add_option("--memory", exportOpts.memoryMb,
                           "MB a scene file holds when its Surface Octree's surface is exported (--surface octree, without --closed or --check): "
                           "its octrees and the cache of decompressed blocks the surface is extracted through (default: an eighth of the physical memory)");

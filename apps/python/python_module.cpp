@@ -415,7 +415,7 @@ class PyScene {
       for (py::ssize_t i = 0; i < faces.shape(0); ++i) mesh.triangles.push_back(glm::uvec3(uint32_t(f[3 * i]), uint32_t(f[3 * i + 1]), uint32_t(f[3 * i + 2])));
       checkUserMesh(mesh, name);
       const double* c = rgba.data();
-      out.push_back(UserMesh{name, std::make_shared<const TriangleMesh>(std::move(mesh)), glm::vec4(float(c[0]), float(c[1]), float(c[2]), float(c[3]))});
+      out.push_back(UserMesh{name, std::make_shared<const TriangleMesh>(std::move(mesh)), glm::vec4(float(c[0]), float(c[1]), float(c[2]), float(c[3])), nullptr});
     }
     return out;
   }

@@ -94,7 +94,8 @@ void main() {
 /// shading by the brick's stored gradient), SURFACE (translucent triangles in the stream), CUT (a
 /// cutting plane clips the stream), SHELLS (spherical-shell bricks may occur), VOI, ORTHO,
 /// TEXEL16 (16-bit brick texels), SMOOTH (the surface's vertex normals interpolated), MESHES (user
-/// meshes' triangles in the stream, coloured by their kind from a table) and SEGMENTS
+/// meshes' triangles in the stream, coloured by their kind from a table), GEOMETRY (the number of
+/// scan-converted geometry parts composited over each sample, 0 for none) and SEGMENTS
 /// (each fragment's segment cut to the brick's box: bricks sliced coarser than the base spacing)
 /// and PREINT (pre-integrated classification: the segment, always cut to the box, read from the
 /// PreIntegrationTable at the values of its two ends), each 0 or 1.
@@ -130,6 +131,28 @@ float voiFactor(vec3 x) {
   float t = voiRamp > 0.0 ? clamp(0.5 - d / voiRamp, 0.0, 1.0) : (d <= 0.0 ? 1.0 : 0.0);
   return mix(voiOutside, voiInside, t * t * (3.0 - 2.0 * t));
 }
+
+#if GEOMETRY
+// The scan-converted geometry (render/geometry_channel.h): each part's coverage texture (R8, a
+// crop of the grid), its colour and its sheet's thickness τ (mm).
+uniform sampler3D geomTex[GEOMETRY];
+uniform vec3 geomScale[GEOMETRY], geomOffset[GEOMETRY];
+uniform vec4 geomColor[GEOMETRY];
+uniform float geomTau[GEOMETRY];
+
+// compositeGeometry: the parts, each over those after it, over the data's premultiplied sample;
+// a part of coverage c over len mm has opacity 1 − (1 − a)^(c·len/τ).
+vec4 withGeometry(float cov[GEOMETRY], float len, vec4 data) {
+  vec4 over = vec4(0.0);
+  for (int k = 0; k < GEOMETRY; ++k) {
+    if (cov[k] > 0.0) {
+      float a = 1.0 - pow(1.0 - geomColor[k].a, cov[k] * len / geomTau[k]);
+      over += vec4(geomColor[k].rgb * a, a) * (1.0 - over.a);
+    }
+  }
+  return over + data * (1.0 - over.a);
+}
+#endif
 
 #if PREINT
 // The pre-integration table (PreIntegrationTable): colour C / α and optical depth per mm, the front
@@ -207,6 +230,18 @@ void main() {
   }
 #endif
   vec3 x = vWorld;
+#if GEOMETRY
+  // The parts' coverage here: a sample the data leaves transparent is kept where one covers it.
+  float cov[GEOMETRY];
+  bool covered = false;
+  for (int k = 0; k < GEOMETRY; ++k) {
+    cov[k] = texture(geomTex[k], x * geomScale[k] + geomOffset[k]).r;
+    covered = covered || cov[k] > 0.0;
+  }
+#define EMPTY(a) ((a) <= 0.0 && !covered)
+#else
+#define EMPTY(a) ((a) <= 0.0)
+#endif
   // The ray r through this fragment, unnormalised, and its squared length.
 #if ORTHO
   vec3 r = forward;
@@ -230,14 +265,14 @@ void main() {
   depthScale = voiFactor(x);
 #endif
   vec4 c = preintegrated(valueOf(texelFront.x), valueOf(texelBack.x), len, depthScale);
-  if (c.a <= 0.0) discard;
+  if (EMPTY(c.a)) discard;
   vec3 color = c.rgb;  // premultiplied
   float alpha = c.a;
 #else
   // The brick's field and gradient at x (blending towards coarser bricks is baked into its texels).
   vec4 texel = texture(volumeTex, x * fineScale + fineOffset);
   vec4 c = classify(texel.x);
-  if (c.a <= 0.0) discard;
+  if (EMPTY(c.a)) discard;
 #if SEGMENTS
   vec3 v;
   float front, back;
@@ -254,7 +289,7 @@ void main() {
 #endif
 #if VOI
   c.a = min(c.a * voiFactor(x), 1.0);
-  if (c.a <= 0.0) discard;
+  if (EMPTY(c.a)) discard;
 #endif
   float alpha = c.a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - c.a, len);
   vec3 color = c.rgb * alpha;
@@ -271,7 +306,11 @@ void main() {
     if (gg > 1e-12) shade = 0.25 + 0.75 * abs(dot(g, r)) * inversesqrt(gg * rr);
   }
 #endif
+#if GEOMETRY
+  fragColor = withGeometry(cov, len, vec4(color * shade, alpha));
+#else
   fragColor = vec4(color * shade, alpha);
+#endif
 }
 )";
 

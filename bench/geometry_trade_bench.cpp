@@ -1,0 +1,92 @@
+// The trade between the two methods of drawing user geometry (docs/user-geometry.md): a geodesic
+// sphere mesh (R = 20 mm) and a 1 mm plate (a polygon primitive), translucent, inside a soft ball
+// of data, on grids of N³ voxels over the same 64 mm box. Against the exact image (the reference
+// ray tracer crossing the polygons): the PSNR and warm frame time of `polygons` and of
+// `scan-convert` (box filter and point sampling) in the slice renderer, and the scan-conversion's
+// time and bytes.
+//
+//   hyb_geometry_trade_bench [size=256] [runs=3]
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+
+#include "render/frame_settings.h"
+#include "render/geometry_channel.h"
+#include "render/scene_renderer.h"
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double psnr(const hyb::Image& a, const hyb::Image& b) {
+  const std::vector<uint8_t> x = hyb::toRgba8(a, glm::vec3(0)), y = hyb::toRgba8(b, glm::vec3(0));
+  double se = 0.0;
+  size_t n = 0;
+  for (size_t p = 0; p < x.size(); p += 4)
+    for (size_t c = 0; c < 3; ++c, ++n) se += std::pow(double(x[p + c]) - double(y[p + c]), 2);
+  return 10.0 * std::log10(255.0 * 255.0 / std::max(se / double(n), 1e-12));
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace hyb;
+  const int size = argc > 1 ? std::atoi(argv[1]) : 256, runs = argc > 2 ? std::atoi(argv[2]) : 3;
+  std::printf("| grid | method | frame ms (slices) | PSNR dB | scan-conversion ms | channel bytes |\n|---|---|---|---|---|---|\n");
+  for (const int n : {32, 64, 128}) {
+    const double s = 64.0 / n;
+    std::vector<float> values(size_t(n) * size_t(n) * size_t(n));
+    for (int k = 0; k < n; ++k)
+      for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i)
+          values[size_t(i) + size_t(n) * (size_t(j) + size_t(n) * size_t(k))] = float(26.0 - glm::length(glm::dvec3(i, j, k) * s - 32.0)) * 0.5f;
+    Scene scene;
+    scene.volume = Volume({n, n, n}, glm::dvec3(s), ScalarType::Float32, std::move(values), "soft ball");
+    scene.octree = VolumeOctree::build(scene.volume);
+    SceneRenderer r(std::move(scene));
+    const Volume& v = r.volume();
+    View view;
+    view.camera.eye = {-40.0, -70.0, 90.0};
+    view.camera.center = {32.0, 32.0, 32.0};
+    view.camera.up = {0, 0, 1};
+    view.camera.fovDeg = 40.0;
+    view.camera.width = view.camera.height = size;
+    Look look;
+    look.tf = TransferFunction({{0.0f, {1, 1, 1}, 0.0f}, {2.0f, {1.0f, 0.6f, 0.3f}, 0.05f}, {13.0f, {0.3f, 0.6f, 1.0f}, 0.02f}}, "soft");
+    look.meshes.push_back(UserMesh{"sphere", std::make_shared<const TriangleMesh>(geodesicSphere({36.0, 30.0, 34.0}, 20.0, 32)),
+                                   glm::vec4(1.0f, 0.25f, 0.2f, 0.4f), nullptr});
+    auto plate = std::make_shared<UserPrimitive>();
+    glm::vec4 color;
+    primitiveIn("polygon:6,6,20,58,6,30,58,58,40,6,58,30:0.2,0.9,0.3,0.5", plate.get(), &color);
+    look.meshes.push_back(UserMesh{"plate", std::make_shared<const TriangleMesh>(tessellatePrimitive(*plate, v)), color, plate});
+    Quality reference;
+    reference.renderer = Renderer::Raycast;
+    const Image exact = r.render(view, look, reference).image;
+    for (const int method : {0, 1, 2}) {
+      Look l = look;
+      l.meshMethod = method == 0 ? MeshMethod::Polygons : MeshMethod::ScanConvert;
+      l.meshFilter = method != 2;
+      double best = 1e300;
+      RenderedFrame f;
+      for (int k = 0; k <= runs; ++k) {  // the first frame makes the channel and the textures
+        const auto t0 = Clock::now();
+        f = r.render(view, l, Quality{});
+        if (k > 0) best = std::min(best, std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+      }
+      const RenderedFrame first = r.render(view, Look(l), Quality{});  // kept: geometryBytes
+      const char* name = method == 0 ? "polygons" : method == 1 ? "scan-convert, box" : "scan-convert, none";
+      double convertMs = 0.0;
+      if (method > 0) {
+        const auto t0 = Clock::now();
+        const GeometryChannel g = scanConvertGeometry(l.meshes, v, r.scene().octree, l.meshFilter ? ScanFilter::Box : ScanFilter::None);
+        convertMs = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+      }
+      std::printf("| %d³ (%.2f mm) | %s | %.1f | %.2f | %.1f | %llu |\n", n, s, name, best, psnr(f.image, exact), convertMs,
+                  (unsigned long long)first.stats.geometryBytes);
+    }
+  }
+  return 0;
+}

@@ -1,0 +1,254 @@
+#include "render/geometry_channel.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numbers>
+
+#include "volume/core/error.h"
+
+namespace hyb {
+
+namespace {
+
+// The coverage of @p r (Float32) at voxel n.
+float fraction(const ScanResult& r, size_t n) { return r.coverage.value(n); }
+
+// @p values (a full grid of fractions) cropped to its non-zero voxels with a voxel of zeros around
+// them, as bytes.
+GeometryPart cropped(const std::vector<float>& values, const glm::ivec3& dims) {
+  GeometryPart part;
+  glm::ivec3 lo(dims), hi(-1);
+  for (int k = 0; k < dims.z; ++k)
+    for (int j = 0; j < dims.y; ++j) {
+      const size_t row = size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k));
+      for (int i = 0; i < dims.x; ++i)
+        if (values[row + size_t(i)] * 255.0f >= 0.5f) {  // what rounds to a byte above 0
+          lo = glm::min(lo, glm::ivec3(i, j, k));
+          hi = glm::max(hi, glm::ivec3(i, j, k));
+        }
+    }
+  if (hi.x < 0) return part;
+  lo = glm::max(lo - 1, glm::ivec3(0));
+  hi = glm::min(hi + 1, dims - 1);
+  part.lo = lo;
+  part.dims = hi - lo + 1;
+  part.coverage.resize(size_t(part.dims.x) * size_t(part.dims.y) * size_t(part.dims.z));
+  size_t out = 0;
+  for (int k = lo.z; k <= hi.z; ++k)
+    for (int j = lo.y; j <= hi.y; ++j)
+      for (int i = lo.x; i <= hi.x; ++i)
+        part.coverage[out++] = uint8_t(std::lround(std::clamp(values[size_t(i) + size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k))], 0.0f, 1.0f) * 255.0f));
+  return part;
+}
+
+std::vector<float> fractions(const ScanResult& r) {
+  std::vector<float> v(r.coverage.voxelCount());
+  for (size_t n = 0; n < v.size(); ++n) v[n] = fraction(r, n);
+  return v;
+}
+
+// The largest coverage of @p parts over node @p i's voxel box, its descendants' first.
+float nodeMaximum(const VolumeOctree& octree, const std::vector<GeometryPart>& parts, uint32_t i, std::vector<float>* out) {
+  const OctreeNode& n = octree.nodes()[i];
+  float m = 0.0f;
+  if (n.isLeaf()) {
+    glm::ivec3 a, b;
+    octree.voxelBox(n, &a, &b);
+    for (const GeometryPart& p : parts) {
+      if (p.coverage.empty()) continue;
+      const glm::ivec3 lo = glm::max(a, p.lo), hi = glm::min(b, p.lo + p.dims - 1);
+      for (int k = lo.z; k <= hi.z; ++k)
+        for (int j = lo.y; j <= hi.y; ++j)
+          for (int x = lo.x; x <= hi.x; ++x) {
+            const glm::ivec3 q = glm::ivec3(x, j, k) - p.lo;
+            m = std::max(m, float(p.coverage[size_t(q.x) + size_t(p.dims.x) * (size_t(q.y) + size_t(p.dims.y) * size_t(q.z))]) / 255.0f);
+          }
+    }
+  } else {
+    for (int slot = 0; slot < 8; ++slot)
+      if (n.childMask & (1u << slot)) m = std::max(m, nodeMaximum(octree, parts, childIndex(n, slot), out));
+  }
+  (*out)[i] = m;
+  return m;
+}
+
+}  // namespace
+
+float GeometryPart::at(const glm::vec3& q) const {
+  if (coverage.empty()) return 0.0f;
+  const glm::vec3 p = q - glm::vec3(lo);
+  const glm::ivec3 i0(glm::floor(p));
+  const glm::vec3 t = p - glm::vec3(i0);
+  auto fetch = [&](int x, int y, int z) {
+    if (x < 0 || y < 0 || z < 0 || x >= dims.x || y >= dims.y || z >= dims.z) return 0.0f;
+    return float(coverage[size_t(x) + size_t(dims.x) * (size_t(y) + size_t(dims.y) * size_t(z))]);
+  };
+  auto lerp = [](float a, float b, float w) { return a + (b - a) * w; };
+  const float c00 = lerp(fetch(i0.x, i0.y, i0.z), fetch(i0.x + 1, i0.y, i0.z), t.x);
+  const float c10 = lerp(fetch(i0.x, i0.y + 1, i0.z), fetch(i0.x + 1, i0.y + 1, i0.z), t.x);
+  const float c01 = lerp(fetch(i0.x, i0.y, i0.z + 1), fetch(i0.x + 1, i0.y, i0.z + 1), t.x);
+  const float c11 = lerp(fetch(i0.x, i0.y + 1, i0.z + 1), fetch(i0.x + 1, i0.y + 1, i0.z + 1), t.x);
+  return lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z) / 255.0f;
+}
+
+uint64_t GeometryChannel::bytes() const {
+  uint64_t b = nodeMax.size() * sizeof(float);
+  for (const GeometryPart& p : parts) b += p.coverage.size();
+  return b;
+}
+
+GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const Volume& volume, const VolumeOctree& octree, ScanFilter filter,
+                                    double width) {
+  const auto t0 = std::chrono::steady_clock::now();
+  GeometryChannel g;
+  const VoxelGrid grid = VoxelGrid::of(volume);
+  const double voxel = std::min({grid.spacing.x, grid.spacing.y, grid.spacing.z});
+  ScanOptions o;
+  o.space = ScanSpace::Patient;
+  o.filter = filter;
+  o.width = width;
+  o.type = CoverageType::Float32;
+  for (const UserMesh& m : meshes) {
+    std::vector<float> values;
+    double tau = voxel;
+    const UserPrimitive* p = m.primitive.get();
+    ScanResult r;
+    if (p && p->kind == UserPrimitive::Kind::Plane) {
+      tau = p->thickness > 0.0 ? p->thickness : voxel;
+      o.thickness = tau;
+      r = scanConvertPlane(p->points.front(), p->normal, grid, o);
+      values = fractions(r);
+    } else if (p && p->kind == UserPrimitive::Kind::Sphere) {
+      // The sphere's surface as a shell: the ball of R + τ/2 less the ball of R − τ/2.
+      o.thickness = 0.0;
+      r = scanConvertSphere(p->points.front(), p->radius + 0.5 * tau, grid, o);
+      values = fractions(r);
+      if (p->radius > 0.5 * tau) {
+        const ScanResult inner = scanConvertSphere(p->points.front(), p->radius - 0.5 * tau, grid, o);
+        for (size_t n = 0; n < values.size(); ++n) values[n] = std::max(0.0f, values[n] - fraction(inner, n));
+      }
+    } else if (p && p->kind == UserPrimitive::Kind::Polygon) {
+      o.thickness = tau;
+      r = scanConvertPolygon(p->points, grid, o);
+      values = fractions(r);
+    } else {
+      o.thickness = tau;
+      r = scanConvertMesh(*m.mesh, grid, o);
+      values = fractions(r);
+    }
+    for (const std::string& w : r.warnings) g.warnings.push_back(m.name + ": " + w);
+    GeometryPart part = cropped(values, grid.dims);
+    part.color = m.color;
+    part.thicknessMm = tau;
+    g.parts.push_back(std::move(part));
+  }
+  g.nodeMax.assign(octree.nodes().size(), 0.0f);
+  if (!octree.nodes().empty()) nodeMaximum(octree, g.parts, 0, &g.nodeMax);
+  g.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return g;
+}
+
+Volume geometryVolume(const std::vector<UserMesh>& meshes, const Volume& volume, bool asFraction, std::vector<std::string>* warnings) {
+  const VoxelGrid grid = VoxelGrid::of(volume);
+  const double voxel = std::min({grid.spacing.x, grid.spacing.y, grid.spacing.z});
+  ScanOptions o;
+  o.type = CoverageType::Float32;
+  std::vector<float> most(size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(grid.dims.z), 0.0f);
+  for (const UserMesh& m : meshes) {
+    const UserPrimitive* p = m.primitive.get();
+    ScanResult r;
+    o.thickness = p && p->kind == UserPrimitive::Kind::Plane && p->thickness > 0.0 ? p->thickness : voxel;
+    if (p && p->kind == UserPrimitive::Kind::Plane) {
+      r = scanConvertPlane(p->points.front(), p->normal, grid, o);
+    } else if (p && p->kind == UserPrimitive::Kind::Polygon) {
+      r = scanConvertPolygon(p->points, grid, o);
+    } else if (p && p->kind == UserPrimitive::Kind::Sphere) {
+      o.thickness = 0.0;
+      r = scanConvertSphere(p->points.front(), p->radius, grid, o);
+    } else {
+      o.thickness = 0.0;
+      r = scanConvertMesh(*m.mesh, grid, o);
+    }
+    for (const std::string& w : r.warnings) warnings->push_back(m.name + ": " + w);
+    for (size_t n = 0; n < most.size(); ++n) most[n] = std::max(most[n], fraction(r, n));
+  }
+  Volume out;
+  if (asFraction) {
+    out = Volume(grid.dims, grid.spacing, ScalarType::Float32, std::move(most), "coverage fraction");
+  } else {
+    std::vector<uint8_t> label(most.size());
+    for (size_t n = 0; n < most.size(); ++n) label[n] = most[n] >= 0.5f ? 1 : 0;
+    out = Volume(grid.dims, grid.spacing, ScalarType::UInt8, SampleArray(std::move(label)), "coverage label");
+  }
+  out.setFrame(grid.frame);
+  return out;
+}
+
+glm::vec4 compositeGeometry(const GeometryChannel& g, const float* coverage, double lenMm, const glm::vec4& data) {
+  glm::vec4 over(0.0f);  // the parts so far, premultiplied, each over those after it
+  for (size_t k = 0; k < g.parts.size(); ++k) {
+    const float c = coverage[k];
+    if (!(c > 0.0f)) continue;
+    const GeometryPart& p = g.parts[k];
+    const float a = 1.0f - std::pow(1.0f - p.color.a, float(double(c) * lenMm / p.thicknessMm));
+    over += glm::vec4(glm::vec3(p.color) * a, a) * (1.0f - over.a);
+  }
+  return over + data * (1.0f - over.a);
+}
+
+TriangleMesh tessellatePrimitive(const UserPrimitive& p, const Volume& volume) {
+  TriangleMesh mesh;
+  const PatientFrame& frame = volume.frame();
+  const glm::dvec3 extent = volume.extentMm();
+  const double voxel = std::min({volume.spacing().x, volume.spacing().y, volume.spacing().z});
+  switch (p.kind) {
+    case UserPrimitive::Kind::Sphere: {
+      const int f = std::clamp(int(std::ceil(1.05 * p.radius / voxel)), 1, 64);
+      return geodesicSphere(p.points.front(), p.radius, f);
+    }
+    case UserPrimitive::Kind::Polygon:
+      for (size_t i = 0; i < p.points.size(); ++i) {
+        mesh.vertices.emplace_back(p.points[i]);
+        if (i >= 2) mesh.triangles.emplace_back(0u, uint32_t(i - 1), uint32_t(i));
+      }
+      return mesh;
+    case UserPrimitive::Kind::Plane: {
+      // The plane cut to the volume's box (grid frame), its corners ordered about their centre.
+      const glm::dvec3 q = frame.toGrid(p.points.front());
+      glm::dvec3 n = frame.toGrid(p.points.front() + p.normal) - q;
+      n = glm::normalize(n);
+      std::vector<glm::dvec3> corners;
+      for (int axis = 0; axis < 3; ++axis)
+        for (int c = 0; c < 4; ++c) {  // the four box edges along axis
+          const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+          glm::dvec3 a(0.0);
+          a[u] = (c & 1) ? extent[u] : 0.0;
+          a[v] = (c & 2) ? extent[v] : 0.0;
+          if (std::abs(n[axis]) < 1e-12) continue;
+          const double t = glm::dot(n, q - a) / n[axis];
+          if (t < 0.0 || t > extent[axis]) continue;
+          a[axis] = t;
+          corners.push_back(a);
+        }
+      if (corners.size() < 3) return mesh;
+      glm::dvec3 centre(0.0);
+      for (const glm::dvec3& c : corners) centre += c / double(corners.size());
+      const glm::dvec3 e1 = glm::normalize(std::abs(n.x) < 0.9 ? glm::cross(n, glm::dvec3(1, 0, 0)) : glm::cross(n, glm::dvec3(0, 1, 0)));
+      const glm::dvec3 e2 = glm::cross(n, e1);
+      std::sort(corners.begin(), corners.end(), [&](const glm::dvec3& a, const glm::dvec3& b) {
+        return std::atan2(glm::dot(a - centre, e2), glm::dot(a - centre, e1)) < std::atan2(glm::dot(b - centre, e2), glm::dot(b - centre, e1));
+      });
+      corners.erase(std::unique(corners.begin(), corners.end(), [](const glm::dvec3& a, const glm::dvec3& b) { return glm::length(a - b) < 1e-9; }),
+                    corners.end());
+      for (size_t i = 0; i < corners.size(); ++i) {
+        mesh.vertices.emplace_back(frame.toPatient(corners[i]));
+        if (i >= 2) mesh.triangles.emplace_back(0u, uint32_t(i - 1), uint32_t(i));
+      }
+      return mesh;
+    }
+  }
+  return mesh;
+}
+
+}  // namespace hyb
