@@ -15,29 +15,12 @@
 #include "render/patient_view.h"
 #include "render/scene_renderer.h"
 #include "render/user_meshes.h"
+#include "surface/scan_convert.h"
 #include "volume/volume_io.h"
 
 namespace {
 
 using Clock = std::chrono::steady_clock;
-
-// A UV sphere of rings × 2·rings quads, split into triangles (4·rings² − 4·rings of them: 99 224 for 158).
-hyb::TriangleMesh uvSphere(const glm::dvec3& c, double r, int rings) {
-  hyb::TriangleMesh m;
-  const int segments = 2 * rings;
-  for (int i = 0; i <= rings; ++i)
-    for (int j = 0; j < segments; ++j) {
-      const double th = std::numbers::pi * i / rings, ph = 2.0 * std::numbers::pi * j / segments;
-      m.vertices.push_back(glm::vec3(c + r * glm::dvec3(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th))));
-    }
-  auto at = [&](int i, int j) { return uint32_t(i * segments + (j % segments)); };
-  for (int i = 0; i < rings; ++i)
-    for (int j = 0; j < segments; ++j) {
-      if (i > 0) m.triangles.push_back({at(i, j), at(i + 1, j), at(i, j + 1)});
-      if (i + 1 < rings) m.triangles.push_back({at(i, j + 1), at(i + 1, j), at(i + 1, j + 1)});
-    }
-  return m;
-}
 
 // The fastest of @p runs warm frames (one cold frame first), in ms.
 double bestMs(hyb::SceneRenderer& r, const hyb::View& view, const hyb::Look& look, int runs, hyb::RenderedFrame* last) {
@@ -73,7 +56,7 @@ int main(int argc, char** argv) {
   const glm::dvec3 middle = scene.volume.frame().toPatient(0.5 * scene.volume.extentMm());
   const glm::dvec3 centre = middle + glm::normalize(view.camera.eye - middle) * (glm::length(scene.volume.extentMm()) / 3.0);
   hyb::Look withMesh = look;
-  withMesh.meshes.push_back({"sphere", std::make_shared<const hyb::TriangleMesh>(uvSphere(centre, 25.0, rings)), glm::vec4(0.3f, 0.6f, 1.0f, 0.5f)});
+  withMesh.meshes.push_back({"sphere", std::make_shared<const hyb::TriangleMesh>(hyb::uvSphere(centre, 25.0, rings)), glm::vec4(0.3f, 0.6f, 1.0f, 0.5f), nullptr});
   const size_t triangles = withMesh.meshes[0].mesh->triangles.size();
   hyb::SceneRenderer r(std::move(scene));
   hyb::RenderedFrame plain, meshed;

@@ -602,6 +602,23 @@ ScanResult scanConvertPolygon(std::span<const glm::dvec3> corners, const VoxelGr
 
 // ---- Test and bench meshes ----
 
+TriangleMesh uvSphere(const glm::dvec3& center, double radius, int rings) {
+  TriangleMesh m;
+  const int segments = 2 * rings;
+  for (int i = 0; i <= rings; ++i)
+    for (int j = 0; j < segments; ++j) {
+      const double th = std::numbers::pi * i / rings, ph = 2.0 * std::numbers::pi * j / segments;
+      m.vertices.push_back(glm::vec3(center + radius * glm::dvec3(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th))));
+    }
+  auto at = [&](int i, int j) { return uint32_t(i * segments + (j % segments)); };
+  for (int i = 0; i < rings; ++i)
+    for (int j = 0; j < segments; ++j) {
+      if (i > 0) m.triangles.push_back({at(i, j), at(i + 1, j), at(i, j + 1)});
+      if (i + 1 < rings) m.triangles.push_back({at(i, j + 1), at(i + 1, j), at(i + 1, j + 1)});
+    }
+  return m;
+}
+
 TriangleMesh geodesicSphere(const glm::dvec3& center, double radius, int frequency) {
   if (frequency < 1 || frequency > 4096) HYB_THROW(ValueError, "geodesic sphere: frequency ", frequency, " must be 1 … 4096");
   if (!std::isfinite(radius) || radius <= 0.0) HYB_THROW(ValueError, "geodesic sphere: radius ", radius, " must be positive");

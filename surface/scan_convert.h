@@ -116,6 +116,11 @@ ScanResult scanConvertPolygon(std::span<const glm::dvec3> corners, const VoxelGr
 /// @throw ValueError when the frequency is below 1 or above 4096 or the radius not positive.
 TriangleMesh geodesicSphere(const glm::dvec3& center, double radius, int frequency);
 
+/// A UV sphere: @p rings bands of 2·rings quads between the poles, split into triangles
+/// (4·rings² − 4·rings of them, the poles' bands fans), projected onto the sphere of @p radius
+/// about @p center; outward winding. Its thin triangles near the poles are what a CAD export holds.
+TriangleMesh uvSphere(const glm::dvec3& center, double radius, int rings);
+
 /// The volume a closed, consistently wound mesh encloses (divergence theorem), in its units³;
 /// negative when it is wound inward.
 double enclosedVolume(const TriangleMesh& mesh);

@@ -350,3 +350,20 @@ TEST(ScanConvert, CoverageNrrdReadsBackOnTheSameGrid) {
 
 }  // namespace
 }  // namespace hyb
+
+namespace hyb {
+namespace {
+
+// The UV sphere's counts are exact and it closes outward: its enclosed volume approaches the ball's
+// from below (an inscribed polyhedron) within 1 % at 24 rings.
+TEST(ScanConvert, AUvSphereHasItsCountsAndEnclosesTheBall) {
+  const TriangleMesh m = uvSphere(glm::dvec3(1.0, 2.0, 3.0), 5.0, 24);
+  EXPECT_EQ(m.vertices.size(), size_t(25 * 48));
+  EXPECT_EQ(m.triangles.size(), size_t(4 * 24 * 24 - 4 * 24));
+  const double ball = 4.0 / 3.0 * std::numbers::pi * 125.0;
+  EXPECT_LT(enclosedVolume(m), ball);
+  EXPECT_GT(enclosedVolume(m), 0.99 * ball);
+}
+
+}  // namespace
+}  // namespace hyb

@@ -9,6 +9,7 @@
 #include "cli_util.h"
 #include "render/scene_renderer.h"
 #include "render/user_meshes.h"
+#include "surface/scan_convert.h"
 #include "render_util.h"
 #include "surface/mesh_io.h"
 #include "test_util.h"
@@ -19,23 +20,6 @@ namespace {
 
 using ::testing::HasSubstr;
 
-// A UV sphere of @p rings × 2·rings quads (split into triangles), wound outward.
-TriangleMesh uvSphere(const glm::dvec3& c, double r, int rings) {
-  TriangleMesh m;
-  const int segments = 2 * rings;
-  for (int i = 0; i <= rings; ++i)
-    for (int j = 0; j < segments; ++j) {
-      const double th = std::numbers::pi * i / rings, ph = 2.0 * std::numbers::pi * j / segments;
-      m.vertices.push_back(glm::vec3(c + r * glm::dvec3(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th))));
-    }
-  auto at = [&](int i, int j) { return uint32_t(i * segments + (j % segments)); };
-  for (int i = 0; i < rings; ++i)
-    for (int j = 0; j < segments; ++j) {
-      if (i > 0) m.triangles.push_back({at(i, j), at(i + 1, j), at(i, j + 1)});
-      if (i + 1 < rings) m.triangles.push_back({at(i, j + 1), at(i + 1, j), at(i + 1, j + 1)});
-    }
-  return m;
-}
 
 UserMesh userMesh(TriangleMesh mesh, const glm::vec4& color, const std::string& name = "mesh") {
   return UserMesh{name, std::make_shared<const TriangleMesh>(std::move(mesh)), color, nullptr};
