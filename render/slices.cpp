@@ -216,16 +216,21 @@ void bindGeometry(const SlicesOptions& options) {
 // llvmpipe runs the surface's branch for every slice fragment too), and the cutting plane's. Kept with the brick
 // textures across frames when there is a cache: llvmpipe compiles a new program's shaders again at
 // its first draw.
+struct SliceFrame;
+
 class FramePrograms {
  public:
   struct Slice {
     GLuint id = 0;
     GLint fineScale, fineOffset, valueOffset, valueScale, sliceSpacing, shells, boxLo, boxHi;
   };
-  FramePrograms(const SlicesOptions& options, const Camera& camera, const FrameCamera& frame, const TransferTable& table, bool translucent,
-                const glm::vec4& cutPlane, const glm::dvec3& spacing)
-      : mOptions(options), mCamera(camera), mFrame(frame), mTable(table), mCutPlane(cutPlane), mSpacing(spacing),
-      mSmooth(translucent && !options.surface->normals.empty()) {
+  /// The programs of frame @p f (defined after SliceFrame).
+  explicit FramePrograms(const SliceFrame& f);
+
+ private:
+  void define() {
+    const SlicesOptions& options = mOptions;
+    const Camera& camera = mCamera;
     mDefines = "#version 450 core\n";
     for (const auto& [name, on] : {std::pair{"SHADING", options.shading}, {"CUT", bool(options.cut)},
                                    {"SHELLS", options.proxy == Proxy::Shells && !camera.ortho}, {"VOI", bool(options.voi)}, {"ORTHO", camera.ortho},
@@ -234,6 +239,8 @@ class FramePrograms {
       mDefines += std::string("#define ") + name + (on ? " 1\n" : " 0\n");
     mDefines += "#define GEOMETRY " + std::to_string(geometryParts(options)) + "\n";
   }
+
+ public:
 
   // The slice program for bricks sliced at the base spacing or coarser (@p segments), whose stream
   // holds surface pieces (@p surface) or not.
@@ -768,6 +775,12 @@ void buildStream(BrickDraw& d, const SliceFrame& f, StreamScratch& scratch) {
   }
 }
 
+FramePrograms::FramePrograms(const SliceFrame& f)
+    : mOptions(f.options), mCamera(f.camera), mFrame(f.view), mTable(f.table), mCutPlane(glm::vec4(f.cut)), mSpacing(f.spacing()),
+      mSmooth(f.translucent && !f.options.surface->normals.empty()) {
+  define();
+}
+
 // One slice frame, its stages as methods (as vtkFlyingEdges3D's passes are methods of one
 // algorithm object): made, it holds the target, what every stage reads (SliceFrame) and the
 // programs; renderSlices calls the stages in order, each drawing over what those before it drew.
@@ -775,7 +788,7 @@ class SlicesFrame {
  public:
   SlicesFrame(const SelectedBricks& in, const TransferFunction& tf, const Camera& camera, const SlicesOptions& options)
       : mTarget(camera, options), mF(in, tf, camera, options, mTarget.rows),
-        mPrograms(options, camera, mF.view, mF.table, mF.translucent, glm::vec4(mF.cut), mF.spacing()) {
+        mPrograms(mF) {
     if (options.cut) glEnable(GL_CLIP_DISTANCE0);
   }
 
