@@ -175,10 +175,14 @@ void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
   }
   const FrameRequest request = client.banded ? client.banded->request : *client.current;
   const bool final = !request.interacting && client.refine.empty() && level == 0;
-  const glm::ivec2 size = request.size();
-  if (final && !client.banded && int64_t(size.x) * size.y > kBandPixels) {
+  const QualityLevel& rung = client.quality(surface).ladder()[size_t(level)];
+  // A refinement as large as a final frame is banded too: it would hold the movers as long.
+  const glm::ivec2 size = glm::max(glm::ivec2(kMinImageEdge), glm::ivec2(glm::round(glm::dvec2(request.size()) * rung.scale)));
+  if (!request.interacting && !client.banded && int64_t(size.x) * size.y > kBandPixels) {
     BandedFrame b(request, SurfaceShown(scene));
     b.arrival = arrival;
+    b.level = level;
+    b.final = final;
     b.image = Image(size.x, size.y);
     client.banded = std::move(b);
   }
@@ -186,7 +190,6 @@ void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
     serveBand(client, *scene.renderer, *scene.summary, lock);
     return;
   }
-  const QualityLevel& rung = client.quality(surface).ladder()[size_t(level)];
   const SurfaceShown shown(scene);
   const SceneSummary summary = *scene.summary;
   ++mRenders;
@@ -217,7 +220,7 @@ void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
   }
 }
 
-// The next band of @p client's final frame; the frame goes out with its last.
+// The next band of @p client's large frame (a final one, or a refinement as large); the frame goes out with its last.
 void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, std::unique_lock<std::mutex>& lock) {
   BandedFrame& b = *client.banded;
   bool othersMove = false;
@@ -226,7 +229,8 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   const auto window = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(std::max(1000.0, 3.0 * b.longestBandMs)));
   for (const auto& entry : *mClients) othersMove = othersMove || (entry.second.get() != &client && entry.second->dragging(now, window));
   const glm::ivec2 rows(b.next, std::min(b.next + bandRows(b, othersMove), b.image.height));
-  const QualityLevel& rung = client.quality(b.surface.iso.has_value()).ladder()[0];
+  const QualityLevel& rung = client.quality(b.surface.iso.has_value()).ladder()[size_t(b.level)];
+  const int level = b.level;
   const FrameRequest request = b.request;
   const std::optional<float> iso = b.surface.drawn(request);
   const SceneSummary summary = scene;
@@ -236,7 +240,7 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   RenderedFrame frame;
   const auto t0 = Clock::now();
   try {
-    FrameSetup parts = frameParts(request, renderer.scene(), rung, 0, iso);
+    FrameSetup parts = frameParts(request, renderer.scene(), rung, level, iso);
     parts.quality.rows = rows;
     frame = renderer.render(parts.view, parts.look, parts.quality);
   } catch (const std::exception& e) {
@@ -265,8 +269,8 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   lock.unlock();
   double total = 0.0;
   try {
-    const FrameHeader header{summary, done.request, rung, 0, true, done.surface, done.arrival, done.stats, done.maxError, done.renderMs, done.bands,
-                             done.longestBandMs};
+    const FrameHeader header{summary, done.request, rung, done.level, done.final, done.surface, done.arrival, done.stats, done.maxError, done.renderMs,
+                             done.bands, done.longestBandMs};
     message = encodeFrame(header, done.image, Clock::now(), &total);
   } catch (const std::exception& e) {
     error = e.what();

@@ -34,12 +34,14 @@ inline constexpr int kBandPixels = 512 * 512;
 inline constexpr int kMinBandRows = 32;
 inline constexpr double kMovingBandMs = 150.0;
 
-/// A final frame part drawn.
+/// A large frame (final, or a refinement as large) part drawn.
 struct BandedFrame {
   BandedFrame(FrameRequest r, const SurfaceShown& s) : request(std::move(r)), surface(s) {}
   FrameRequest request;
   SurfaceShown surface;
   std::optional<Arrival> arrival;
+  int level = 0;       ///< the ladder's level it is drawn at
+  bool final = true;   ///< the request's last frame
   Image image;
   int next = 0;           ///< the first row not drawn yet
   double renderMs = 0.0;  ///< the bands' render times so far
@@ -63,7 +65,7 @@ struct Client {
   std::optional<FrameRequest> current;  ///< the request being refined
   std::vector<int> refine;              ///< levels still to render for it, next last
   bool refineSurface = false;           ///< ... of the surface's ladder
-  std::optional<BandedFrame> banded;    ///< its final frame, part drawn
+  std::optional<BandedFrame> banded;    ///< its large frame (final, or a refinement as large), part drawn
   AdaptiveQuality volumeQuality, surfaceQuality, surfaceRayQuality;
   bool raysForSurface = false;  ///< the surface's ladder ray-traces small frames (surfaceRaysFit)
   std::atomic<bool> open{true};
