@@ -36,12 +36,18 @@ std::vector<uint8_t> encodeJpeg(const std::vector<uint8_t>& rgba, int width, int
   return out;
 }
 
+// The image a frame of @p r at rung @p q draws: the page's size scaled by the rung.
+glm::ivec2 scaledSize(const FrameRequest& r, const QualityLevel& q) {
+  return glm::max(glm::ivec2(kMinImageEdge), glm::ivec2(glm::round(glm::dvec2(r.size()) * q.scale)));
+}
+
 // What a frame of @p r at @p level of the ladder (rung @p q) draws and how.
 FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const QualityLevel& q, int level, std::optional<float> iso) {
   std::ostringstream warnings;  // (an isovalue outside the data: the page's info says so)
   FrameSetup p = setUpFrame(r.settings, scene, warnings);
-  p.view.camera.width = std::max(kMinImageEdge, int(std::lround(r.size().x * q.scale)));
-  p.view.camera.height = std::max(kMinImageEdge, int(std::lround(r.size().y * q.scale)));
+  const glm::ivec2 size = scaledSize(r, q);
+  p.view.camera.width = size.x;
+  p.view.camera.height = size.y;
   p.look.iso = iso;
   p.quality.waitForSurface = false;  // the pool's builder makes it; meanwhile its preview, or none
   if (q.rays) p.quality.renderer = Renderer::Raycast;
@@ -117,15 +123,18 @@ void FrameScheduler::serveNext(const Clients& clients, std::unique_lock<std::mut
   }
   const std::vector<std::shared_ptr<Client>>& next = moving.empty() ? waiting : moving;
   if (next.empty()) return;
-  mClients = &clients;
   const std::shared_ptr<Client> client = next[mTurn++ % next.size()];  // (held: it may leave while its frame is drawn)
-  serve(*client, lock);
-  mClients = nullptr;
+  // Whether another client drags; a mover's next request comes while a band is drawn: the window spans a few of them.
+  const double windowMs = std::max(1000.0, 3.0 * (client->banded ? client->banded->longestBandMs : 0.0));
+  const auto window = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(windowMs));
+  const Clock::time_point now = Clock::now();
+  const bool othersDrag = std::any_of(clients.begin(), clients.end(), [&](const auto& c) { return c.second != client && c.second->dragging(now, window); });
+  serve(*client, othersDrag, lock);
 }
 
-int FrameScheduler::bandRows(const BandedFrame& b, bool othersMove) const {
+int FrameScheduler::bandRows(const BandedFrame& b, bool othersDrag) const {
   const int standard = std::max(16, kBandPixels / b.image.width);
-  if (!othersMove || b.msPerRow <= 0.0) return standard;
+  if (!othersDrag || b.msPerRow <= 0.0) return standard;
   return std::clamp(int(std::max(mTargetMs, kMovingBandMs) / b.msPerRow), std::min(kMinBandRows, standard), standard);
 }
 
@@ -156,7 +165,7 @@ int FrameScheduler::start(Client& client, std::optional<Arrival>* arrival, bool*
   return level;
 }
 
-void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
+void FrameScheduler::serve(Client& client, bool othersDrag, std::unique_lock<std::mutex>& lock) {
   int level = 0;
   std::optional<Arrival> arrival;
   bool surface = client.refineSurface;
@@ -177,7 +186,7 @@ void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
   const bool final = !request.interacting && client.refine.empty() && level == 0;
   const QualityLevel& rung = client.quality(surface).ladder()[size_t(level)];
   // A refinement as large as a final frame is banded too: it would hold the movers as long.
-  const glm::ivec2 size = glm::max(glm::ivec2(kMinImageEdge), glm::ivec2(glm::round(glm::dvec2(request.size()) * rung.scale)));
+  const glm::ivec2 size = scaledSize(request, rung);
   if (!request.interacting && !client.banded && int64_t(size.x) * size.y > kBandPixels) {
     BandedFrame b(request, SurfaceShown(scene));
     b.arrival = arrival;
@@ -187,7 +196,7 @@ void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
     client.banded = std::move(b);
   }
   if (client.banded) {
-    serveBand(client, *scene.renderer, *scene.summary, lock);
+    serveBand(client, *scene.renderer, *scene.summary, othersDrag, lock);
     return;
   }
   const SurfaceShown shown(scene);
@@ -221,14 +230,10 @@ void FrameScheduler::serve(Client& client, std::unique_lock<std::mutex>& lock) {
 }
 
 // The next band of @p client's large frame (a final one, or a refinement as large); the frame goes out with its last.
-void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, std::unique_lock<std::mutex>& lock) {
+void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, bool othersDrag,
+                               std::unique_lock<std::mutex>& lock) {
   BandedFrame& b = *client.banded;
-  bool othersMove = false;
-  const Clock::time_point now = Clock::now();
-  // (a mover's next request comes while a band is drawn: the window spans a few of them)
-  const auto window = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(std::max(1000.0, 3.0 * b.longestBandMs)));
-  for (const auto& entry : *mClients) othersMove = othersMove || (entry.second.get() != &client && entry.second->dragging(now, window));
-  const glm::ivec2 rows(b.next, std::min(b.next + bandRows(b, othersMove), b.image.height));
+  const glm::ivec2 rows(b.next, std::min(b.next + bandRows(b, othersDrag), b.image.height));
   const QualityLevel& rung = client.quality(b.surface.iso.has_value()).ladder()[size_t(b.level)];
   const int level = b.level;
   const FrameRequest request = b.request;

@@ -111,18 +111,18 @@ class FrameScheduler {
   uint64_t renders() const { return mRenders; }
 
  private:
-  void serve(Client& client, std::unique_lock<std::mutex>& lock);
+  /// @p othersDrag: another client drags (a large frame's bands are then cut to kMovingBandMs).
+  void serve(Client& client, bool othersDrag, std::unique_lock<std::mutex>& lock);
   /// Takes @p client's pending request as its current one: the ladder's level of its first frame.
   int start(Client& client, std::optional<Arrival>* arrival, bool* surface);
-  void serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, std::unique_lock<std::mutex>& lock);
-  /// The rows of @p b's next band: kBandPixels' worth, or a frame target's worth while @p othersMove.
-  int bandRows(const BandedFrame& b, bool othersMove) const;
+  void serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, bool othersDrag, std::unique_lock<std::mutex>& lock);
+  /// The rows of @p b's next band: kBandPixels' worth, or kMovingBandMs' worth while @p othersDrag.
+  int bandRows(const BandedFrame& b, bool othersDrag) const;
 
   ScenePool& mPool;
   double mTargetMs;
   size_t mTurn = 0;
   uint64_t mRenders = 0;
-  const Clients* mClients = nullptr;  ///< those of the current serveNext
 };
 
 }  // namespace hyb::viewer

@@ -34,8 +34,6 @@ json volumesJson(const std::vector<DataEntry>& volumes) {
 
 double epochMs() { return std::chrono::duration<double, std::milli>(std::chrono::system_clock::now().time_since_epoch()).count(); }
 
-json nullable(const std::optional<double>& v) { return v ? json(*v) : json(nullptr); }
-
 }  // namespace
 
 std::string InfoReply::text() const {
@@ -121,8 +119,8 @@ std::string FrameHeader::text(int width, int height, double encodeMs) const {
                  {"format", final ? "png" : "jpeg"},
                  {"width", width},
                  {"height", height},
-                 {"waitMs", nullable(arrival ? std::optional(arrival->waitMs) : std::nullopt)},
-                 {"requestEpochMs", nullable(arrival ? std::optional(arrival->epochMs) : std::nullopt)},
+                 {"waitMs", arrival ? json(arrival->waitMs) : json(nullptr)},
+                 {"requestEpochMs", arrival ? json(arrival->epochMs) : json(nullptr)},
                  // other clients' frames or bands drawn between the request's arrival and its frame
                  {"waitedRenders", arrival ? json(arrival->waitedRenders) : json(nullptr)},
                  {"bands", bands},
