@@ -1,7 +1,8 @@
 // The viewer opening a series of a PACS (bench/dicomweb_bench.sh starts the archive and passes its
-// root): the time from the click on the series to its first frame on the page and to its final
-// frame, with the series retrieved and built (an empty scene cache), then from the scene cache
-// (a server started again), in one run. Uses the e2e tests' puppeteer-core and chromium.
+// root): the time from the click on the series to its first frame on the page (of the preview when
+// the series is retrieved), to the first frame of the whole series and to its final frame, with the
+// series retrieved and built (an empty scene cache), then from the scene cache (a server started
+// again), in one run. Uses the e2e tests' puppeteer-core and chromium.
 //   node bench/viewer_pacs_bench.mjs BUILD/hybrid-octree PACS_ROOT SERIES_URL
 import fs from 'node:fs';
 import os from 'node:os';
@@ -26,12 +27,16 @@ try {
         [...document.querySelectorAll('#pacs-results button')].find((b) => b.title === s).click();
         return performance.now();
       }, series);
-      await page.waitForFunction((s) => window.hybViewer.metrics().some((m) => m.scene === s && m.quality === 'final'), { timeout: 600000 }, series);
+      await page.waitForFunction((s) => window.hybViewer.metrics().some((m) => m.scene === s && m.quality === 'final' && !m.preview), { timeout: 600000 }, series);
       const r = await page.evaluate((s, t) => {
         const frames = window.hybViewer.metrics().filter((m) => m.scene === s);
-        return { first: frames[0].paintedAt - t, quality: frames[0].quality, final: frames.find((m) => m.quality === 'final').paintedAt - t };
+        const scene = frames.find((m) => !m.preview);
+        return { first: frames[0].paintedAt - t, quality: frames[0].quality, preview: frames[0].preview, scene: scene.paintedAt - t,
+                 final: frames.find((m) => m.quality === 'final' && !m.preview).paintedAt - t };
       }, series, t0);
-      console.log(`${run.padEnd(22)} first frame ${(r.first / 1000).toFixed(1)} s (${r.quality}), final frame ${(r.final / 1000).toFixed(1)} s`);
+      const s = (ms) => `${(ms / 1000).toFixed(1)} s`;
+      console.log(`${run.padEnd(22)} first frame ${s(r.first)} (${r.quality}${r.preview ? ', preview' : ''}), ` +
+                  `first of the whole series ${s(r.scene)}, its final frame ${s(r.final)}`);
     } finally {
       server.kill('SIGTERM');
     }

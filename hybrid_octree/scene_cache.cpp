@@ -27,6 +27,11 @@ std::string fileText(const fs::path& path) {
   return in ? s.str() : std::string();
 }
 
+void checkUid(const std::string& seriesUid) {
+  if (seriesUid.empty() || seriesUid.size() > 64 || seriesUid.find_first_not_of("0123456789.") != std::string::npos)
+    HYB_THROW(ValueError, "series UID '", seriesUid.substr(0, 80), "' invalid (expected digits and dots, at most 64)");
+}
+
 }  // namespace
 
 SceneCache::SceneCache(fs::path dir, uint64_t limitBytes) : mDir(std::move(dir)), mLimit(limitBytes) {
@@ -35,10 +40,16 @@ SceneCache::SceneCache(fs::path dir, uint64_t limitBytes) : mDir(std::move(dir))
   if (ec || !fs::is_directory(mDir)) HYB_THROW(IoError, mDir.string(), ": cannot make the scene cache's folder (", ec.message(), ")");
 }
 
+bool SceneCache::holds(const std::string& seriesUid, const std::vector<std::string>& instances) const {
+  checkUid(seriesUid);
+  const std::lock_guard<std::mutex> lock(mMutex);
+  std::error_code ec;
+  return fs::is_regular_file(mDir / (seriesUid + ".hoct"), ec) && fileText(mDir / (seriesUid + ".instances")) == instancesText(instances);
+}
+
 std::string SceneCache::scene(const std::string& seriesUid, const std::vector<std::string>& instances,
                               const std::function<void(const std::string& path)>& build) {
-  if (seriesUid.empty() || seriesUid.size() > 64 || seriesUid.find_first_not_of("0123456789.") != std::string::npos)
-    HYB_THROW(ValueError, "series UID '", seriesUid.substr(0, 80), "' invalid (expected digits and dots, at most 64)");
+  checkUid(seriesUid);
   const std::lock_guard<std::mutex> lock(mMutex);
   const fs::path file = mDir / (seriesUid + ".hoct"), listed = mDir / (seriesUid + ".instances");
   const std::string key = instancesText(instances);

@@ -30,6 +30,9 @@ class SceneCache {
   std::string scene(const std::string& seriesUid, const std::vector<std::string>& instances,
                     const std::function<void(const std::string& path)>& build);
 
+  /// Whether scene() would return a cached file for these instances (no build).
+  bool holds(const std::string& seriesUid, const std::vector<std::string>& instances) const;
+
   Counts counts() const;
   const std::filesystem::path& dir() const { return mDir; }
 

@@ -111,7 +111,10 @@ ScenePool::~ScenePool() {
   if (mLoader.joinable()) mLoader.join();
   for (auto& [key, e] : mScenes)
     if (e->builder.joinable()) e->builder.join();
+  for (auto& e : mRetired)
+    if (e->builder.joinable()) e->builder.join();
   mScenes.clear();  // the renderers, on this (the render) thread
+  mRetired.clear();
 }
 
 std::unique_ptr<ScenePool::Entry> ScenePool::makeEntry(Scene scene, const std::string& key, const std::string& path, const std::string& series,
@@ -147,7 +150,7 @@ void ScenePool::open(uint64_t viewer, const std::string& key, const std::string&
     it->second->repin = true;
     mEvents.opened(viewer, key, &it->second->summary, "");
     mEvents.wake();  // (the scene it left may be due for release)
-    return;
+    if (!it->second->summary.preview) return;  // (a preview's viewer waits for the scene too)
   }
   v.loading = key;
   for (const auto& load : mLoads)
@@ -203,38 +206,81 @@ void ScenePool::loaderLoop() {
     });
     const std::string key = load.key, path = load.path, series = load.series, name = load.name;
     for (const uint64_t viewer : load.waiters) mEvents.loading(viewer, key, "reading", 0.0);
-    lock.unlock();
     std::unique_ptr<Entry> entry;
     std::string error;
     bool stopped = false;
     try {
+      if (mOptions.previewer && !mScenes.count(key)) preview(load, progress, lock);
+      lock.unlock();
       entry = makeEntry(mOptions.loader(path, series, &progress), key, path, series, name);
     } catch (const Cancelled&) {
       stopped = true;
     } catch (const std::exception& e) {
       error = e.what();
     }
-    lock.lock();
+    if (!lock.owns_lock()) lock.lock();
     const std::unique_ptr<Load> done = std::move(mLoads.front());
     mLoads.pop_front();
     if (mStopping) return;
+    // The viewers waiting for it, and those shown its preview meanwhile.
+    std::set<uint64_t> told = done->waiters;
+    for (const auto& [id, v] : mViewers)
+      if (v.key == key) told.insert(id);
+    const bool previewed = mScenes.count(key) && mScenes[key]->summary.preview;
     if (!entry) {
-      for (const uint64_t viewer : done->waiters) {
-        mViewers[viewer].loading.clear();
-        if (!stopped) mEvents.opened(viewer, key, nullptr, error);
+      if (stopped) continue;  // (a preview stays, for a viewer that opens it again)
+      if (previewed) retire(key);
+      for (const uint64_t viewer : told) {
+        Viewer& v = mViewers[viewer];
+        if (v.key == key) v.key.clear();
+        if (v.loading == key) v.loading.clear();
+        mEvents.opened(viewer, key, nullptr, error);
       }
       continue;
     }
+    if (previewed) retire(key);
     Entry& e = *(mScenes[key] = std::move(entry));
-    for (const uint64_t viewer : done->waiters) {
+    for (const uint64_t viewer : told) {
       Viewer& v = mViewers[viewer];
       if (const auto old = mScenes.find(v.key); old != mScenes.end()) old->second->repin = true;
       v = Viewer{key, "", std::nullopt, std::nullopt};
       mEvents.opened(viewer, key, &e.summary, "");
     }
-    if (done->waiters.empty()) e.unusedSince = Clock::now();
+    if (told.empty()) e.unusedSince = Clock::now();
     mEvents.wake();
   }
+}
+
+void ScenePool::preview(Load& load, const Progress& progress, std::unique_lock<std::mutex>& lock) {
+  lock.unlock();
+  std::unique_ptr<Entry> entry;
+  try {
+    if (std::optional<Scene> scene = mOptions.previewer(load.path, load.series, &progress)) {
+      entry = makeEntry(std::move(*scene), load.key, load.path, load.series, load.name);
+      entry->summary.preview = true;
+    }
+  } catch (const Cancelled&) {
+    throw;
+  } catch (const std::exception&) {
+    // (no preview: the load itself says what is wrong with the series, if anything)
+  }
+  lock.lock();
+  if (!entry || mStopping || load.waiters.empty() || mScenes.count(load.key)) return;
+  Entry& e = *(mScenes[load.key] = std::move(entry));
+  for (const uint64_t viewer : load.waiters) {
+    Viewer& v = mViewers[viewer];
+    if (const auto old = mScenes.find(v.key); old != mScenes.end()) old->second->repin = true;
+    v = Viewer{load.key, load.key, std::nullopt, std::nullopt};
+    mEvents.opened(viewer, load.key, &e.summary, "");
+  }
+  mEvents.wake();
+}
+
+void ScenePool::retire(const std::string& key) {
+  const auto it = mScenes.find(key);
+  mRetired.push_back(std::move(it->second));
+  mScenes.erase(it);
+  mEvents.wake();
 }
 
 void ScenePool::sendSurface(const Entry& e, float iso, SurfaceState state, const std::string& task, double fraction) {
@@ -254,7 +300,9 @@ void ScenePool::startBuild(Entry& e, float iso) {
   e.builder = std::thread([this, &e, iso, preview, smooth = e.renderer->unsimplified(iso)]() mutable {
     const std::string key = e.summary.key;
     auto wanted = [&] {
-      return std::any_of(mViewers.begin(), mViewers.end(), [&](const auto& v) { return v.second.key == key && v.second.asked == iso; });
+      const auto current = mScenes.find(key);  // (not a preview replaced meanwhile)
+      return current != mScenes.end() && current->second.get() == &e &&
+             std::any_of(mViewers.begin(), mViewers.end(), [&](const auto& v) { return v.second.key == key && v.second.asked == iso; });
     };
     bool ready = smooth != nullptr;  // the full-resolution surface is the renderer's: frames draw it
     const Progress progress([&](const std::string& task, double fraction) {
@@ -361,6 +409,7 @@ void ScenePool::repin(Entry& e) {
 
 bool ScenePool::hasWork() const {
   const auto now = Clock::now();
+  if (std::any_of(mRetired.begin(), mRetired.end(), [](const auto& e) { return !e->builder.joinable() || e->buildDone; })) return true;
   for (const auto& [key, e] : mScenes)
     if (e->buildDone || !e->handed.empty() || e->repin) return true;
   const std::optional<Clock::time_point> due = nextRelease();
@@ -433,6 +482,14 @@ std::vector<std::string> ScenePool::collect(std::unique_lock<std::mutex>& lock) 
       ++it;
     }
   }
+  for (auto it = mRetired.begin(); it != mRetired.end();) {
+    if ((*it)->builder.joinable() && !(*it)->buildDone) {
+      ++it;
+      continue;
+    }
+    gone.push_back(std::move(*it));
+    it = mRetired.erase(it);
+  }
   if (!gone.empty()) {
     // Its renderer's OpenGL context is this thread's; the memory it held goes back to the system.
     lock.unlock();
@@ -445,7 +502,7 @@ std::vector<std::string> ScenePool::collect(std::unique_lock<std::mutex>& lock) 
 
 const Scene* ScenePool::pin(const std::string& key) {
   const auto e = mScenes.find(key);
-  if (e == mScenes.end()) return nullptr;
+  if (e == mScenes.end() || e->second->summary.preview) return nullptr;  // (a preview is replaced, pinned or not)
   ++e->second->pins;
   return &e->second->renderer->scene();
 }

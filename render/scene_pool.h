@@ -50,6 +50,9 @@ struct SceneSummary {
   /// function (TransferFunction::defaultFor the value range) makes visible.
   std::array<Camera, 6> views;
   std::optional<float> sceneIso;  ///< the isovalue of the scene file's own Surface Octree
+  /// A coarse stand-in shown while the scene itself loads (ScenePool::Options::previewer); the
+  /// scene replaces it under the same key.
+  bool preview = false;
 };
 
 /// A paged scene of more samples than this summarizes the histogram of its samples at even
@@ -77,9 +80,13 @@ class ScenePool {
   /// Reads a volume or scene file (path and DICOM series) and builds its octree, reporting to
   /// @p progress (which throws to stop it when no viewer waits for it any more).
   using Loader = std::function<Scene(const std::string& path, const std::string& series, const Progress* progress)>;
+  /// A coarse scene of the same path and series, quick to make, to show while the loader reads
+  /// (a PACS series being retrieved), or none when the loader will be quick enough.
+  using Previewer = std::function<std::optional<Scene>(const std::string& path, const std::string& series, const Progress* progress)>;
 
   struct Options {
     Loader loader;
+    Previewer previewer;  ///< may be empty: no previews
     uint64_t textureLimitBytes = 0;   ///< each scene's brick texture cache (0: no limit)
     uint64_t memoryBytes = 0;         ///< each paged scene's --memory (SceneRenderer::Options::memoryBytes)
     /// A scene no viewer shows is released this long after the last one left it (0: at once).
@@ -117,7 +124,9 @@ class ScenePool {
   /// @p viewer asks to show scene @p key (read from @p path and @p series, called @p name): at once
   /// when it is open (Events::opened before returning), else when the loader has read it (the
   /// viewer keeps what it showed until then). A viewer's earlier open still loading is forgotten
-  /// (its load stops when no other viewer waits for it).
+  /// (its load stops when no other viewer waits for it). While a preview of the scene is open the
+  /// viewer shows it and waits for the scene: Events::opened again, with the scene, when it is read
+  /// (or without, when it fails: the preview is then closed).
   void open(uint64_t viewer, const std::string& key, const std::string& path, const std::string& series, const std::string& name);
   /// @p viewer is gone: what it showed and asked for is forgotten.
   void leave(uint64_t viewer);
@@ -154,7 +163,7 @@ class ScenePool {
   size_t loaded() const { return mScenes.size(); }
 
   /// Keeps scene @p key open while the caller reads it without the mutex (an export); null when
-  /// it is not open. Every pin needs an unpin.
+  /// it is not open or is a preview. Every pin needs an unpin.
   const Scene* pin(const std::string& key);
   void unpin(const std::string& key);
 
@@ -168,6 +177,11 @@ class ScenePool {
     std::optional<float> drawn;   // the one its last frame drew
   };
   void loaderLoop();
+  /// Shows the preview of @p load's scene to its waiters, when the previewer makes one (mutex held).
+  void preview(Load& load, const Progress& progress, std::unique_lock<std::mutex>& lock);
+  /// The open scene @p key is a preview replaced or closed: destroyed on the render thread (collect)
+  /// once its builder has ended.
+  void retire(const std::string& key);
   void startBuild(Entry& e, float iso);
   /// Whether the surface of @p iso has yet to be built, or its simplified levels.
   bool needsBuild(const Entry& e, float iso) const;
@@ -181,6 +195,7 @@ class ScenePool {
   Options mOptions;
   Events mEvents;
   std::map<std::string, std::unique_ptr<Entry>> mScenes;
+  std::vector<std::unique_ptr<Entry>> mRetired;  // previews replaced, for collect() to destroy
   std::map<uint64_t, Viewer> mViewers;
   std::deque<std::unique_ptr<Load>> mLoads;  // waiting, then the one being read first
   std::condition_variable mLoadWake;

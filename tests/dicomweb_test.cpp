@@ -32,6 +32,7 @@
 #include "dicom_writer.h"
 #include "render/image.h"
 #include "test_util.h"
+#include "volume/core/progress.h"
 #include "volume/dicomweb.h"
 #include "volume/plane_source.h"
 #include "volume/plane_stack.h"
@@ -314,6 +315,19 @@ void expectSameAsFolder(const std::string& url, const std::string& folder, const
 
 // What the folder reader makes of a gantry tilt, uneven spacing, an enhanced multi-frame image and
 // a localizer among a series' images, it makes of the same series retrieved from the archive.
+// An Enhanced CT series under @p dir: one instance of 9 frames, 2 mm apart.
+void writeEnhanced(const std::string& dir, const DicomStudy& study, const std::string& seriesUid) {
+  std::vector<DicomImage> frames;
+  for (const double z : evenly(-8.0, 2.0, 9)) {
+    DicomImage f = model(seriesUid);
+    f.position = {-16.0, -16.0, z};
+    test::sampleField(&f, head);
+    frames.push_back(f);
+  }
+  fs::create_directories(dir);
+  test::writeEnhancedCt(dir + "/E1", study, frames);
+}
+
 TEST(DicomWeb, ASeriesReadsAsItsFilesDoInAFolder) {
   TempDir dir;
   const Studies& s = uploadedStudies(dir);
@@ -329,15 +343,7 @@ TEST(DicomWeb, ASeriesReadsAsItsFilesDoInAFolder) {
   tilted.tilt = 18.5;
   test::writeSeries(dir.file("tilted"), "I", study, tilted, positions(evenly(-12.0, 2.0, 12)), head);
   test::writeSeries(dir.file("uneven"), "I", study, model(unevenUid), positions({-12, -10, -7, -5, -2, 0, 3, 5, 8}), head);
-  std::vector<DicomImage> frames;
-  for (const double z : evenly(-8.0, 2.0, 9)) {
-    DicomImage f = model(enhancedUid);
-    f.position = {-16.0, -16.0, z};
-    test::sampleField(&f, head);
-    frames.push_back(f);
-  }
-  fs::create_directories(dir.file("enhanced"));
-  test::writeEnhancedCt(dir.file("enhanced/E1"), study, frames);
+  writeEnhanced(dir.file("enhanced"), study, enhancedUid);
   for (const char* d : {"tilted", "uneven", "enhanced"}) o.upload(dir.file(d));
 
   expectSameAsFolder(o.series(study.uid, tiltedUid), dir.file("tilted"), "", 1);    // the tilt resampled
@@ -348,6 +354,46 @@ TEST(DicomWeb, ASeriesReadsAsItsFilesDoInAFolder) {
   EXPECT_EQ(axial.dims(), glm::ivec3(32, 32, 12));
   ASSERT_EQ(axial.warnings().size(), 1u);
   EXPECT_EQ(axial.warnings()[0], o.series(s.a.uid, s.axial) + ": 1 localizer image of series '" + s.axial + "' left out");
+}
+
+// A preview retrieves every stride-th instance of the stack by its position, the localizer left
+// out, and averages them in blocks: each sample is the mean of the series' samples of its block,
+// where they lie. A series a preview would not shorten much, or of multi-frame instances, has none.
+TEST(DicomWeb, APreviewIsEveryStrideThPlaneOfTheSeriesAveraged) {
+  TempDir dir;
+  const Studies& s = uploadedStudies(dir);
+  const Orthanc& o = Orthanc::shared();
+  const Credentials credentials;
+  const std::string url = o.series(s.a.uid, s.axial);
+  const Volume full = readVolume(url);  // 32×32×12, z from −12 mm by 2
+  std::vector<double> told;  // the preview's fractions
+  const Progress progress([&](const std::string& task, double f) {
+    if (task == "DICOMweb preview") told.push_back(f);
+  });
+  const std::optional<Volume> p = readDicomWebPreview(url, {4, 16}, &progress);
+  ASSERT_TRUE(p);
+  // 12 planes by a stride of 3, centred: planes 1, 4, 7 and 10 (z −10, −4, 2, 8).
+  EXPECT_EQ(p->dims(), glm::ivec3(16, 16, 4));
+  EXPECT_EQ(p->spacing(), glm::dvec3(2.0, 2.0, 6.0));
+  EXPECT_NEAR(glm::length(p->frame().origin - full.frame().toPatient({0.5, 0.5, 2.0})), 0.0, 1e-9);
+  double worst = 0.0;
+  for (int k = 0; k < 4; ++k)
+    for (int j = 0; j < 16; ++j)
+      for (int i = 0; i < 16; ++i) {
+        const int z = 1 + 3 * k;
+        const double mean = (full.at(2 * i, 2 * j, z) + full.at(2 * i + 1, 2 * j, z) + full.at(2 * i, 2 * j + 1, z) + full.at(2 * i + 1, 2 * j + 1, z)) / 4.0;
+        worst = std::max(worst, std::abs(p->at(i, j, k) - mean));
+      }
+  EXPECT_LT(worst, 1e-3);
+  ASSERT_FALSE(told.empty());
+  EXPECT_EQ(told.back(), 1.0);
+  EXPECT_FALSE(readDicomWebPreview(url, {6, 16}));  // 12 planes: not more than twice 6
+  DicomStudy study;
+  study.uid = "1.2.826.0.1.3680043.8.498.105";
+  writeEnhanced(dir.file("enhanced"), study, study.uid + ".1");
+  o.upload(dir.file("enhanced"));
+  EXPECT_FALSE(readDicomWebPreview(o.series(study.uid, study.uid + ".1"), {2, 16}));
+  EXPECT_THROW(readDicomWebPreview(url, {1, 16}), ValueError);
 }
 
 // What a cache of built scenes is keyed by: the series' UID and its instances as the archive lists

@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include <atomic>
+#include <condition_variable>
 #include <chrono>
 #include <filesystem>
 #include <map>
@@ -845,6 +846,87 @@ TEST(ViewerServer, AFailedOpenSaysWhyAndKeepsTheVolumeShown) {
   const json f = c.nextFrameOrError();
   EXPECT_EQ(f["type"], "frame") << f.dump();
   EXPECT_EQ(f["scene"], "a.nrrd");
+}
+
+
+// A volume slow to load shows its preview first, under its own key and marked as one (its frames
+// too, and no mesh is made of it), while the load's progress goes on; the scene then takes its
+// place under the same key. A load that fails after its preview closes the preview with the error.
+TEST(ViewerServer, ASlowVolumeShowsItsPreviewThenTheSceneInItsPlace) {
+  test::TempDir dir;
+  for (const char* name : {"slow.nrrd", "bad.nrrd"}) test::writeText(dir.file(name), "NRRD0004\n");
+  std::mutex m;
+  std::condition_variable cv;
+  bool release = false;
+  TestServer s(60.0, 8, [&](ServerOptions& o) {
+    o.volume.clear();
+    o.dataDir = dir.path();
+    o.previewer = [](const std::string&, const std::string&, const Progress*) { return std::optional<Scene>(sphereScene({20, 18, 16}, 6.5)); };
+    o.loader = [&](const std::string& path, const std::string&, const Progress* progress) {
+      ProgressTask task(progress, "reading", 1);
+      std::unique_lock<std::mutex> lock(m);
+      cv.wait(lock, [&] { return release; });
+      if (std::filesystem::path(path).filename() == "bad.nrrd") HYB_THROW(IoError, path, ": no 'sizes' field");
+      return sphereScene();
+    };
+  });
+  Socket c(s.port(), "/ws?token=" + s.token());
+  EXPECT_EQ(c.next()["type"], "volumes");
+  auto nextInfo = [&](const std::string& scene) {
+    for (json i = c.next();; i = c.next()) {
+      if (i["type"] == "info") return i;
+      EXPECT_EQ(i["type"], "loading") << i.dump();
+      EXPECT_EQ(i["scene"], scene);
+    }
+  };
+  c.send(json{{"type", "open"}, {"path", "slow.nrrd"}}.dump());
+  const json preview = nextInfo("slow.nrrd");
+  EXPECT_EQ(preview["scene"], "slow.nrrd");
+  EXPECT_EQ(preview["preview"], true);
+  EXPECT_EQ(preview["dims"], json::array({20, 18, 16}));
+  json r = frameRequest(1, false, 32);
+  r["scene"] = "slow.nrrd";
+  c.send(r.dump());
+  json f;
+  do f = c.nextFrameOrError();
+  while (f["type"] == "frame" && f["quality"] != "final");
+  EXPECT_EQ(f["preview"], true) << f.dump();
+  EXPECT_FALSE(f.contains("command")) << "a preview's frame is not the render command's";
+  const Reply mesh = httpRequest(s.port(), "/api/mesh?scene=slow.nrrd&iso=4&format=stl", "hyb_token=" + s.token());
+  EXPECT_EQ(mesh.status, 400u) << mesh.body;  // (not of the preview: of the scene, once it is open)
+  EXPECT_EQ(mesh.body, "400: slow.nrrd is still loading (a preview is shown): its mesh can be exported once it is open\n");
+  {
+    const std::lock_guard<std::mutex> lock(m);
+    release = true;
+  }
+  cv.notify_all();
+  json full;
+  do full = c.next();
+  while (full["type"] != "info");
+  EXPECT_EQ(full["scene"], "slow.nrrd");
+  EXPECT_EQ(full["preview"], false);
+  EXPECT_EQ(full["dims"], json::array({40, 36, 32}));
+  r["seq"] = 2;
+  c.send(r.dump());
+  do f = c.nextFrameOrError();
+  while (f["type"] == "frame" && (f["seq"] != 2 || f["quality"] != "final"));
+  EXPECT_EQ(f["preview"], false) << f.dump();
+  EXPECT_TRUE(f.contains("command"));
+  EXPECT_EQ(s.loads, 0);  // (this server's loader counts nothing: both loads are the lambda's above)
+
+  c.send(json{{"type", "open"}, {"path", "bad.nrrd"}}.dump());
+  EXPECT_EQ(nextInfo("bad.nrrd")["preview"], true);
+  json e;
+  do e = c.next();
+  while (e["type"] == "loading");
+  EXPECT_EQ(e["type"], "error") << e.dump();
+  EXPECT_EQ(e["scene"], "bad.nrrd");
+  EXPECT_EQ(e["message"], "cannot open bad.nrrd: bad.nrrd: no 'sizes' field");
+  r["seq"] = 3;
+  r["scene"] = "bad.nrrd";
+  c.send(r.dump());
+  const json closed = c.nextFrameOrError();
+  EXPECT_EQ(closed["type"], "error") << "the preview of a volume that failed is closed: " << closed.dump();
 }
 
 }  // namespace

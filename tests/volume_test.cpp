@@ -58,6 +58,30 @@ TEST(Volume, TypedSamplesReadExactlyAndCopiesShareThem) {
   EXPECT_THROW(Volume(dims, glm::dvec3(1.0), ScalarType::UInt8, SampleArray(std::vector<uint8_t>(11))), ValueError);
 }
 
+// Averaging a field linear in the patient over blocks gives the field at each block's centre:
+// the averaged volume's frame puts each sample where its block's voxels lie (rotated, mirrored
+// grids too). A block cut short at a far face averages the voxels it has.
+TEST(Volume, BlockAveragesStandAtTheirBlocksCentresInThePatient) {
+  PatientFrame frame;
+  frame.direction = glm::dmat3(glm::dvec3(0, 1, 0), glm::dvec3(-1, 0, 0), glm::dvec3(0, 0, -1));  // (mirrored)
+  frame.origin = {10.0, -20.0, 30.0};
+  const glm::dvec3 spacing(0.5, 0.75, 2.0);
+  auto field = [](const glm::dvec3& p) { return float(3.0 * p.x - 2.0 * p.y + 0.5 * p.z); };
+  Volume v = test::makeVolume({8, 6, 5}, [&](int i, int j, int k) { return field(frame.toPatient(glm::dvec3(i, j, k) * spacing)); }, spacing);
+  v.setFrame(frame);
+  const Volume a = boxAveraged(v, {2, 3, 2});
+  EXPECT_EQ(a.dims(), glm::ivec3(4, 2, 3));
+  EXPECT_EQ(a.spacing(), glm::dvec3(1.0, 2.25, 4.0));
+  EXPECT_EQ(a.frame().direction, frame.direction);
+  for (int k = 0; k < 2; ++k)  // (whole blocks)
+    for (int j = 0; j < 2; ++j)
+      for (int i = 0; i < 4; ++i) EXPECT_NEAR(a.at(i, j, k), field(a.frame().toPatient(glm::dvec3(i, j, k) * a.spacing())), 1e-4) << i << j << k;
+  // The last block along k holds plane 4 alone: its value, though it stands half a plane further.
+  EXPECT_NEAR(a.at(1, 1, 2), (v.at(2, 3, 4) + v.at(3, 3, 4) + v.at(2, 4, 4) + v.at(3, 4, 4) + v.at(2, 5, 4) + v.at(3, 5, 4)) / 6.0f, 1e-4);
+  EXPECT_EQ(boxAveraged(v, {1, 1, 1}).dims(), v.dims());
+  EXPECT_THROW(boxAveraged(v, {0, 1, 1}), ValueError);
+}
+
 TEST(Volume, RescaledSlicesStayIn16BitsUntilAValueIsNotOneOfItsIntegers) {
   SampleArray samples = detail::rescaleTarget(ScalarType::UInt16, 1.0, -1024.0, 6);
   ASSERT_EQ(storedType(samples), ScalarType::Int16);

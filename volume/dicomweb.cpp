@@ -301,8 +301,9 @@ std::string typeParameter(const std::string& contentType, const std::string& nam
 class MultipartFiles final : public BodySink {
  public:
   /// @p expected: the instances the archive lists for the series (0: unknown), for progress and messages.
-  MultipartFiles(std::string where, std::string dir, size_t expected, const Progress* progress)
-      : mWhere(std::move(where)), mDir(std::move(dir)), mExpected(expected), mProgress(progress) {}
+  /// Parts are written to files named @p partName and their number until their UID names them.
+  MultipartFiles(std::string where, std::string dir, size_t expected, const Progress* progress, std::string partName = "part")
+      : mWhere(std::move(where)), mDir(std::move(dir)), mPartName(std::move(partName)), mExpected(expected), mProgress(progress) {}
 
   void start(const std::string& contentType, int64_t contentLength) override {
     std::string type = detail::trim(contentType.substr(0, contentType.find(';')));
@@ -396,7 +397,7 @@ class MultipartFiles final : public BodySink {
     std::transform(bare.begin(), bare.end(), bare.begin(), [](unsigned char c) { return char(std::tolower(c)); });
     if (!bare.empty() && bare != "application/dicom")
       HYB_THROW(IoError, mWhere, ": part ", mParts + 1, " is ", quotedExcerpt(type), " (expected application/dicom: an instance)");
-    mPath = (fs::path(mDir) / concat("part", mParts + 1)).string();
+    mPath = (fs::path(mDir) / concat(mPartName, mParts + 1)).string();
     mFile.open(mPath, std::ios::binary | std::ios::trunc);
     if (!mFile) HYB_THROW(IoError, mPath, ": cannot write (expected a writable temporary folder for the series)");
     mPartBytes = 0;
@@ -425,7 +426,7 @@ class MultipartFiles final : public BodySink {
     if (plain && !fs::exists(fs::path(mDir) / uid, ec)) fs::rename(mPath, fs::path(mDir) / uid);
   }
 
-  std::string mWhere, mDir;
+  std::string mWhere, mDir, mPartName;
   size_t mExpected;
   const Progress* mProgress;
   bool mByBytes = true;  // progress counts bytes (of a Content-Length), else instances
@@ -617,6 +618,85 @@ DicomWebFetch fetchDicomWebSeries(const std::string& seriesUrl, const std::strin
   httpGet(url, redactUrl(url), "multipart/related; type=\"application/dicom\"; transfer-syntax=*", options, &files);
   files.finish();
   return files.fetched();
+}
+
+namespace {
+
+// The numbers of @p tag (8 hex digits) of a DICOM JSON object: JSON numbers, or decimal strings
+// as some archives give DS values.
+std::vector<double> jsonNumbers(const nlohmann::json& object, const char* tag) {
+  std::vector<double> out;
+  const auto e = object.find(tag);
+  if (e == object.end() || !e->is_object() || !e->contains("Value") || !(*e)["Value"].is_array()) return out;
+  for (const nlohmann::json& v : (*e)["Value"]) {
+    if (v.is_number()) {
+      out.push_back(v.get<double>());
+    } else if (v.is_string()) {
+      char* end = nullptr;
+      const std::string text = v.get<std::string>();
+      out.push_back(std::strtod(text.c_str(), &end));
+      if (end == text.c_str()) return {};
+    } else {
+      return {};
+    }
+  }
+  return out;
+}
+
+// The instances of the series at @p url that a preview of about @p planes retrieves: of the
+// orientation most instances share, by depth along its normal, every stride-th, centred; empty when
+// the series is too small for a preview to gain or its instances lack what the choice needs.
+std::vector<std::string> previewInstances(const nlohmann::json& listed, int planes) {
+  struct Listed {
+    std::string uid;
+    double depth = 0.0;
+  };
+  std::map<std::vector<long long>, std::vector<Listed>> byOrientation;  // orientations to 10⁻⁴
+  for (const nlohmann::json& i : listed) {
+    const std::string uid = jsonValue(i, "00080018");
+    const std::vector<double> p = jsonNumbers(i, "00200032"), o = jsonNumbers(i, "00200037");
+    const std::vector<double> frames = jsonNumbers(i, "00280008");
+    if (!frames.empty() && frames.front() > 1) return {};
+    if (uid.empty() || p.size() != 3 || o.size() != 6) return {};
+    std::vector<long long> key;
+    for (const double c : o) key.push_back(std::llround(c * 1e4));
+    const glm::dvec3 normal = glm::cross(glm::dvec3(o[0], o[1], o[2]), glm::dvec3(o[3], o[4], o[5]));
+    byOrientation[key].push_back({uid, glm::dot(normal, glm::dvec3(p[0], p[1], p[2]))});
+  }
+  std::vector<Listed>* stack = nullptr;
+  for (auto& group : byOrientation)
+    if (!stack || group.second.size() > stack->size()) stack = &group.second;
+  if (!stack || stack->size() <= size_t(2 * planes)) return {};
+  std::sort(stack->begin(), stack->end(), [](const Listed& a, const Listed& b) { return a.depth < b.depth; });
+  const size_t n = stack->size(), stride = (n + size_t(planes) - 1) / size_t(planes);
+  std::vector<std::string> chosen;
+  for (size_t at = ((n - 1) % stride) / 2; at < n; at += stride) chosen.push_back((*stack)[at].uid);
+  return chosen;
+}
+
+}  // namespace
+
+std::optional<Volume> readDicomWebPreview(const std::string& seriesUrl, const DicomWebPreview& size, const Progress* progress,
+                                          const DicomWebOptions& options) {
+  if (size.planes < 2 || size.edge < 2) HYB_THROW(ValueError, "preview of ", size.planes, " planes of ", size.edge, " samples invalid (expected at least 2 of each)");
+  const std::string seriesUid = seriesUids(seriesUrl).second;
+  const std::string url = trimmedUrl(seriesUrl);
+  const std::vector<std::string> chosen = previewInstances(
+      qido(url + "/instances?includefield=00080018&includefield=00200032&includefield=00200037&includefield=00280008", redactUrl(url), options), size.planes);
+  if (chosen.empty()) return std::nullopt;
+  const TempFolder folder;
+  ProgressTask task(progress, "DICOMweb preview", chosen.size());
+  for (size_t i = 0; i < chosen.size(); ++i) {
+    const std::string instance = url + "/instances/" + chosen[i];
+    MultipartFiles files(redactUrl(instance), folder.path(), 1, nullptr, concat("instance", i + 1, "-part"));
+    httpGet(instance, redactUrl(instance), "multipart/related; type=\"application/dicom\"; transfer-syntax=*", options, &files);
+    files.finish();
+    task.advance();
+  }
+  const Volume planes = addressedErrors(folder.path(), url, [&] { return readDicomSeries(folder.path(), seriesUid); });
+  const int edge = std::max(planes.dims().x, planes.dims().y);
+  const int factor = (edge + size.edge - 1) / size.edge;
+  return factor > 1 ? boxAveraged(planes, {factor, factor, 1}) : planes;
 }
 
 Volume readDicomWebSeries(const std::string& seriesUrl, const Progress* progress, const DicomWebOptions& options) {

@@ -8,6 +8,7 @@
 
 #include <atomic>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -90,6 +91,24 @@ DicomWebFetch fetchDicomWebSeries(const std::string& seriesUrl, const std::strin
 /// an instance by its address, ROOT/studies/UID/series/UID/instances/UID.
 /// @throw as fetchDicomWebSeries() and readDicomSeries().
 Volume readDicomWebSeries(const std::string& seriesUrl, const Progress* progress = nullptr, const DicomWebOptions& options = dicomWebDefaults());
+
+/// How large a series' preview is (readDicomWebPreview()).
+struct DicomWebPreview {
+  int planes = 64;  ///< instances retrieved, at most
+  int edge = 256;   ///< samples a side in the image plane, at most
+};
+
+/// A coarse look at the series at @p seriesUrl in a fraction of the time its retrieval takes: its
+/// instances listed with their positions (QIDO-RS), about @p size.planes of them evenly spaced
+/// along the stack retrieved one by one (WADO-RS) and read as readDicomSeries() reads a folder of
+/// them, then averaged in blocks to at most @p size.edge samples a side (boxAveraged). Its patient
+/// box is the series' within a stride along the stack. Empty when a preview would not be much
+/// quicker than the series (at most twice size.planes instances of the stack) or cannot be made
+/// this way (multi-frame instances, instances without a position or orientation). A localizer
+/// (another orientation) is left out as the folder reader leaves it out.
+/// @throw as fetchDicomWebSeries() and readDicomSeries().
+std::optional<Volume> readDicomWebPreview(const std::string& seriesUrl, const DicomWebPreview& size = {}, const Progress* progress = nullptr,
+                                          const DicomWebOptions& options = dicomWebDefaults());
 
 namespace detail {
 

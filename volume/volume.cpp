@@ -279,6 +279,35 @@ Volume paddedVolume(const Volume& v, float value) {
   return out;
 }
 
+Volume boxAveraged(const Volume& v, const glm::ivec3& factor) {
+  if (glm::any(glm::lessThan(factor, glm::ivec3(1)))) HYB_THROW(ValueError, "block factor ", factor.x, "x", factor.y, "x", factor.z, " invalid (expected at least 1 per axis)");
+  const glm::ivec3 d = (v.dims() + factor - 1) / factor;
+  std::vector<float> out(size_t(d.x) * size_t(d.y) * size_t(d.z));
+  std::vector<float> row(size_t(v.dims().x));
+  std::vector<double> sums(size_t(d.x));
+  std::vector<int> counts(size_t(d.x));
+  for (int k = 0; k < d.z; ++k)
+    for (int j = 0; j < d.y; ++j) {
+      std::fill(sums.begin(), sums.end(), 0.0);
+      std::fill(counts.begin(), counts.end(), 0);
+      for (int z = k * factor.z; z < std::min(v.dims().z, (k + 1) * factor.z); ++z)
+        for (int y = j * factor.y; y < std::min(v.dims().y, (j + 1) * factor.y); ++y) {
+          v.readRow(0, y, z, v.dims().x, row.data());
+          for (int x = 0; x < v.dims().x; ++x) {
+            sums[size_t(x / factor.x)] += row[size_t(x)];
+            ++counts[size_t(x / factor.x)];
+          }
+        }
+      float* o = &out[size_t(d.x) * (size_t(j) + size_t(d.y) * size_t(k))];
+      for (int i = 0; i < d.x; ++i) o[i] = float(sums[size_t(i)] / counts[size_t(i)]);
+    }
+  Volume result(d, v.spacing() * glm::dvec3(factor), v.sourceType(), std::move(out), "averaged volume");
+  PatientFrame frame = v.frame();
+  frame.origin = v.frame().toPatient(glm::dvec3(factor - 1) * 0.5 * v.spacing());
+  result.setFrame(frame);
+  return result;
+}
+
 Histogram computeHistogram(uint64_t count, float lo, float hi, int bins, const ValuePieces& pieces) {
   HYB_CHECK(bins >= 1);
   Histogram h;

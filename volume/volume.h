@@ -276,6 +276,12 @@ class Volume {
 /// An isosurface of the padded volume at an isovalue above @p value is closed.
 Volume paddedVolume(const Volume& v, float value);
 
+/// @p v averaged over blocks of @p factor voxels, held as float, each average at its block's centre
+/// in the patient: the same anatomy on a coarser grid (a preview of a study). A block cut short at
+/// the far faces averages the voxels it has and stands where a whole block's centre would.
+/// @throw ValueError for a factor below 1.
+Volume boxAveraged(const Volume& v, const glm::ivec3& factor);
+
 /// Value histogram with summary statistics, for `hybrid-octree info`.
 struct Histogram {
   double minValue = 0, maxValue = 0, mean = 0, stddev = 0;

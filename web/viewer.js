@@ -163,6 +163,7 @@ function onText(m) {
       // server's words: the menu's label and the reader's error) stays until dismissed.
       state.opening = null;
       showLoading('');
+      if (state.info && state.info.preview && state.info.scene === m.scene) state.info = null;  // (its preview is closed too)
       $('volumes').value = shownVolumeValue();
       if (!state.info) setState('choose a volume');
       showError(m.message, { sticky: true });
@@ -203,7 +204,7 @@ async function onFrame(buffer) {
   const painted = performance.now();
   const sentAt = state.sent.get(header.seq);
   state.metrics.push({
-    scene: header.scene, iso: header.iso, surfaceReady: header.surfaceReady, surfaceSpacing: header.surfaceSpacing, surfaceBuilding: header.surfaceBuilding, seq: header.seq, quality: header.quality, level: header.level, levelText: header.levelText,
+    scene: header.scene, preview: header.preview, iso: header.iso, surfaceReady: header.surfaceReady, surfaceSpacing: header.surfaceSpacing, surfaceBuilding: header.surfaceBuilding, seq: header.seq, quality: header.quality, level: header.level, levelText: header.levelText,
     width: header.width, height: header.height, bytes: buffer.byteLength, renderMs: header.renderMs,
     encodeMs: header.encodeMs, waitMs: header.waitMs, paintMs: painted - received,
     // (a frame the server made without a new request, refining or after a surface came, has no arrival)
@@ -366,16 +367,26 @@ function shownVolumeValue() {
 function cloneCamera(c) { return { eye: c.eye.slice(), center: c.center.slice(), up: c.up.slice(), fov: c.fov }; }
 
 function openInfo(info) {
+  // The scene replacing its preview keeps what the user did meanwhile: view, look, isovalue, cut.
+  const upgrade = state.info && state.info.preview && !info.preview && state.info.scene === info.scene;
   state.info = info;
-  state.opening = null;
-  showLoading('');
-  state.opened.push({ scene: info.scene, at: performance.now() });
+  state.opening = info.preview ? info.scene : null;  // a preview's progress is the scene's load
+  if (!info.preview) showLoading('');
+  state.opened.push({ scene: info.scene, at: performance.now(), preview: info.preview });
   state.surfaceStates = {};
   for (const iso of info.surfaces) state.surfaceStates[iso] = 'ready';
   // The name may wrap anywhere; the dimensions and the orientation never inside themselves.
   const piece = (text) => { const s = document.createElement('span'); s.className = 'nowrap'; s.textContent = text; return s; };
-  $('volume-name').replaceChildren(info.name, ' · ', piece(info.dims.join('×')), ' · ',
+  $('volume-name').replaceChildren(info.name, ' · ', piece((info.preview ? 'preview ' : '') + info.dims.join('×')), ' · ',
     piece(info.orientationAssumed ? `orientation unknown: grid axes taken as ${info.orientation}` : info.orientation));
+  if (upgrade) {
+    const [lo, hi] = info.range;
+    for (const id of ['iso', 'iso-number']) { $(id).min = Math.min(lo + 1, hi); $(id).max = hi; }
+    showSurfaceState();
+    setState(`opened ${info.name}`);
+    request(false);
+    return;
+  }
   if (info.volumes) listVolumes(info.volumes, info.pacs);
   showPacs(info.pacs);
   $('volumes').value = shownVolumeValue();

@@ -495,10 +495,12 @@ struct ViewOptions {
   std::optional<double> memoryMb;  // a scene file's block cache, per scene
   std::string pacs, pacsCache;     // the PACS the page searches; where its series' scenes are kept
   double pacsCacheMb = 8192.0;
+  int pacsPreview = DicomWebPreview{}.planes;  // instances a PACS series' preview retrieves (0: none)
   std::string validate() const {
     if (port < 0 || port > 65535) return "--port must be in 0..65535 (0: any free port)";
     if (!pacs.empty() && !isDicomWebUrl(pacs)) return "--pacs '" + redactUrl(pacs) + "' invalid (expected a DICOMweb root, http(s)://HOST:PORT/ROOT)";
     if (!(pacsCacheMb >= 16.0 && pacsCacheMb <= 1e9)) return "--pacs-cache-mb must be in [16, 1e9]";
+    if (pacsPreview != 0 && (pacsPreview < 2 || pacsPreview > 1024)) return "--pacs-preview must be 0 (no preview) or instances in 2..1024";
     if (!dataDir.empty() && !std::filesystem::is_directory(dataDir)) return "--data-dir " + dataDir + ": not a directory";
     if (!(frameMs >= 10.0 && frameMs <= 1000.0)) return "--frame-ms must be in [10, 1000]";
     if (!(textureMb >= 16.0 && textureMb <= 65536.0)) return "--texture-mb must be in [16, 65536]";
@@ -514,6 +516,27 @@ std::filesystem::path defaultSceneCacheDir() {
   if (const char* xdg = std::getenv("XDG_CACHE_HOME"); xdg && *xdg == '/') return std::filesystem::path(xdg) / "hybrid-octree" / "scenes";
   const char* home = std::getenv("HOME");
   return std::filesystem::path(home && *home ? home : "/tmp") / ".cache" / "hybrid-octree" / "scenes";
+}
+
+// A series of the PACS that is not in @p cache is shown as a preview of a few of its instances
+// while it is retrieved and built: seconds, where the series itself takes tens.
+ScenePool::Previewer pacsPreviewer(const ViewOptions& o, SceneCache& cache) {
+  return [&o, &cache](const std::string& path, const std::string&, const Progress* progress) -> std::optional<Scene> {
+    if (!isDicomWebUrl(path)) return std::nullopt;
+    setDicomWebAuthFile(o.input.pacsAuthFile);
+    const std::pair<std::string, std::vector<std::string>> listed = dicomWebInstances(path);
+    if (cache.holds(listed.first, listed.second)) return std::nullopt;
+    DicomWebPreview size;
+    size.planes = o.pacsPreview;
+    std::optional<Volume> v = readDicomWebPreview(path, size, progress);
+    if (!v) return std::nullopt;
+    Scene scene;
+    scene.volume = std::move(*v);
+    VolumeOctreeOptions options;
+    options.progress = progress;
+    scene.octree = VolumeOctree::build(scene.volume, options);
+    return scene;
+  };
 }
 
 int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
@@ -558,6 +581,7 @@ int runView(const ViewOptions& o, std::ostream& out, std::ostream& err) {
     double ms = 0;
     return loadOrBuild(in, quiet, err, &ms, {}, SceneLoadOptions{false, memoryBytes});
   };
+  if (cache && o.pacsPreview > 0) so.previewer = pacsPreviewer(o, *cache);
   so.log = &out;
   // SIGINT and SIGTERM end the server: blocked in every thread, awaited here.
   sigset_t stopSignals;
@@ -666,6 +690,9 @@ struct Commands {
                         "folder of the scenes built from PACS series, reopened without the network while their instances are unchanged "
                         "(default: $XDG_CACHE_HOME/hybrid-octree/scenes, else ~/.cache/hybrid-octree/scenes)");
     viewCmd->add_option("--pacs-cache-mb", view.pacsCacheMb, "MB the scene cache keeps, least recently used out first")->capture_default_str();
+    viewCmd->add_option("--pacs-preview", view.pacsPreview,
+                        "instances of a PACS series retrieved first for a coarse preview, shown while the series is retrieved and built (0: none)")
+        ->capture_default_str();
     viewCmd->add_option("--memory", view.memoryMb,
                         "MB a scene file read paged holds, per scene: its octree, the surfaces made of it, the brick textures kept (--texture-mb), and the cache of decompressed blocks its bricks are read through, which gets what they leave, at least a quarter (default: an eighth of the physical memory)");
   }

@@ -63,7 +63,8 @@ std::string InfoReply::text() const {
                {"defaultIso", TransferFunction::defaultIsoFor(s.minValue, s.maxValue)},
                {"surfaces", surfaces},
                {"volumes", volumesJson(volumes)},
-               {"fields", fieldsJson(kViewer)}};
+               {"fields", fieldsJson(kViewer)},
+               {"preview", s.preview}};
   if (fromDataDir) info["open"] = {{"path", s.name}, {"series", s.series}};
   info["pacs"] = pacs.empty() ? json(nullptr) : json(pacs);
   return dumped(info);
@@ -137,8 +138,10 @@ std::string FrameHeader::text(int width, int height, double encodeMs) const {
                  // > 1: the surface drawn is clustered by cubes this many voxels wide (a preview, or the level of detail)
                  {"surfaceSpacing", iso ? json(st.surfaceSpacing) : json(nullptr)},
                  {"surfaceBuilding", surface.building},  // the surface asked for, or its levels for moving frames, on its way
-                 {"camera", viewerCamera(explicitCamera(r.settings))}};
-  if (final && (!r.settings.iso || surface.ready)) {  // (while the surface asked for is built, the frame is not the command's)
+                 {"camera", viewerCamera(explicitCamera(r.settings))},
+                 {"preview", scene.preview}};  // of the coarse stand-in shown while the scene loads
+  // (while the surface asked for is built, or of a preview, the frame is not the command's)
+  if (final && !scene.preview && (!r.settings.iso || surface.ready)) {
     header["command"] = renderCommand(scene.path, scene.series, r, "view.tf");
     if (!r.settings.tfPoints.empty()) header["tfText"] = tfText(r.settings.tfPoints);
   }

@@ -18,7 +18,6 @@
 #include "volume/core/error.h"
 #include "volume/core/file_util.h"
 #include "volume/dicomweb.h"
-#include "volume/core/error.h"
 
 namespace hyb::viewer {
 
@@ -74,6 +73,7 @@ ScenePool::Events ServerState::poolEvents() {
     const auto c = clients.find(viewer);
     if (c == clients.end()) return;
     if (!summary) {
+      if (c->second->sceneKey == key) c->second->showScene("");  // (its preview was shown: closed)
       c->second->send(OpenFailedReply{key, "cannot open " + labelOf(key) + ": " + inDataDirTerms(error)}.text(), false);
       return;
     }
@@ -125,7 +125,8 @@ void ServerState::queueExport(ExportJob e) {
   sideJobs.push_back([this, e = std::move(e)](std::unique_lock<std::mutex>& held) {
     const Scene* scene = pool->pin(e.sceneKey);
     if (!scene) {
-      e.reply("", "no such scene");
+      const SceneSummary* preview = pool->summary(e.sceneKey);
+      e.reply("", preview ? labelOf(e.sceneKey) + " is still loading (a preview is shown): its mesh can be exported once it is open" : "no such scene");
       return;
     }
     held.unlock();
@@ -267,6 +268,7 @@ Server::Server(ServerOptions options) : mImpl(std::make_unique<ServerState>()) {
   }
   ScenePool::Options po;
   po.loader = s.options.loader;
+  po.previewer = s.options.previewer;
   po.textureLimitBytes = s.options.textureLimitBytes;
   po.memoryBytes = s.options.memoryBytes;
   po.releaseAfter = s.options.releaseAfter;

@@ -45,6 +45,8 @@ struct ServerOptions {
   /// A message whose first bytes came this long ago and is not complete closes its socket.
   std::chrono::milliseconds messageTimeout{10000};
   SceneLoader loader;
+  /// A coarse scene shown while the loader reads a volume that takes long (a PACS series); may be empty.
+  ScenePool::Previewer previewer;
   std::ostream* log = nullptr;         ///< one line per connection and error; null: silent
 };
 

@@ -1,7 +1,8 @@
 // End-to-end test of `hybrid-octree view --pacs` against a real archive (Debian's Orthanc with its
 // DICOMweb plugin, started here on a free port with HTTP basic authentication, stopped at the end):
 // the page searches the PACS, lists the series found, opens one with its load's progress shown
-// (the retrieval, then the build) and draws it; a server started again opens the same series from
+// (a preview of a few instances drawn first, then the retrieval and the build) and draws it in the
+// preview's place; a server started again opens the same series from
 // its scene cache without retrieving it; once the archive holds one more instance of the series,
 // the cache is not served and the series is retrieved and built again. A search the archive
 // refuses is one message on the page.
@@ -90,7 +91,7 @@ try {
 
   // A server with the PACS and a page on it; resolves with the page once the PACS panel shows.
   const serve = async () => {
-    const started = startServer(exe, ['--pacs', root, '--pacs-cache', cache]);
+    const started = startServer(exe, ['--pacs', root, '--pacs-cache', cache, '--pacs-preview', '4']);
     servers.push(started.server);
     const page = await browser.newPage();
     await page.setViewport({ width: 1100, height: 720 });
@@ -108,11 +109,14 @@ try {
     const listed = await page.$$eval('#pacs-results button', (b) => b.map((x) => ({ label: x.textContent, url: x.title })));
     const clicked = await page.evaluate(() => performance.now());
     await page.click('#pacs-results button');
-    await page.waitForFunction((s) => window.hybViewer.metrics().some((m) => m.scene === s && m.quality === 'final'), { timeout: 180000 }, address);
+    await page.waitForFunction((s) => window.hybViewer.metrics().some((m) => m.scene === s && m.quality === 'final' && !m.preview), { timeout: 180000 }, address);
     return page.evaluate((s, t0, l) => {
       const frames = window.hybViewer.metrics().filter((m) => m.scene === s);
       return { listed: l, tasks: [...new Set(window.hybViewer.loads().filter((x) => x.scene === s).map((x) => x.task))],
-        firstFrameMs: frames[0].paintedAt - t0, name: document.getElementById('volume-name').textContent };
+        firstFrameMs: frames[0].paintedAt - t0, name: document.getElementById('volume-name').textContent,
+        // what was shown, in order: the preview's frames, then the scene's (never a preview's after the scene's)
+        shown: window.hybViewer.opened().filter((o) => o.scene === s).map((o) => (o.preview ? 'preview' : 'scene')),
+        previewAfterScene: frames.some((m, i) => m.preview && frames.slice(0, i).some((x) => !x.preview)) };
     }, address, clicked, listed);
   };
 
@@ -122,7 +126,9 @@ try {
   check(first.listed.length === 1 && first.listed[0].label === 'E2E^PACS · 20240102 · CT · HEAD 2.0 · 24 instances' && first.listed[0].url === address,
     `the search lists the series with its label and address (${first.listed.map((l) => l.label).join(' | ')})`);
   check(first.tasks.some((t) => t.startsWith('DICOMweb')) && first.tasks.length >= 2, `the load's progress names the retrieval and the build (${first.tasks.join(', ')})`);
-  check(first.name.includes('48×48×24'), `the series is shown (${first.name})`);
+  check(first.name.includes('48×48×24') && !first.name.includes('preview'), `the series is shown (${first.name})`);
+  check(first.shown.join(',') === 'preview,scene' && !first.previewAfterScene && first.tasks.includes('DICOMweb preview'),
+    `a preview of 4 instances is shown first, then the series in its place (${first.shown.join(', ')})`);
   console.log(`     first frame ${first.firstFrameMs.toFixed(0)} ms after the click (retrieved and built)`);
   const cached = fs.readdirSync(cache);
   check(cached.includes(`${series}.hoct`) && cached.includes(`${series}.instances`), `the scene is cached (${cached.join(', ')})`);
@@ -143,6 +149,7 @@ try {
   s = await serve();
   const again = await openFromPacs(s.page);
   check(!again.tasks.some((t) => t.startsWith('DICOMweb')), `opened again, the series comes from the cache (${again.tasks.join(', ') || 'no load tasks'})`);
+  check(again.shown.join(',') === 'scene', `from the cache, no preview is made (${again.shown.join(', ')})`);
   console.log(`     first frame ${again.firstFrameMs.toFixed(0)} ms after the click (from the cache)`);
   s.server.kill('SIGTERM');
 
