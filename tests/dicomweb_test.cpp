@@ -471,6 +471,19 @@ TEST(DicomWeb, TheCraniumRendersAsFromItsFolder) {
   EXPECT_THAT(built.out, HasSubstr("dims     256 x 256 x 108"));
   EXPECT_THAT(built.out, HasSubstr("range    -1024 .. 2986"));
   EXPECT_THAT(built.out, HasSubstr("streamed plane by plane"));
+  // Its preview: 27 of the 108 slices (a stride of 4, centred) averaged 2×2, where the series lies.
+  const Volume series = readVolume(url);
+  const std::optional<Volume> preview = readDicomWebPreview(url, {32, 128});
+  ASSERT_TRUE(preview);
+  EXPECT_EQ(preview->dims(), glm::ivec3(128, 128, 27));
+  EXPECT_NEAR(preview->spacing().z, 4.0 * series.spacing().z, 1e-6);
+  EXPECT_LT(glm::length(preview->frame().origin - series.frame().toPatient(glm::dvec3(0.5, 0.5, 1.0) * series.spacing())), 1e-3);
+  for (const glm::ivec3 p : {glm::ivec3(64, 64, 13), glm::ivec3(20, 100, 3), glm::ivec3(127, 0, 26)}) {
+    const int z = 1 + 4 * p.z;
+    const float mean = (series.at(2 * p.x, 2 * p.y, z) + series.at(2 * p.x + 1, 2 * p.y, z) + series.at(2 * p.x, 2 * p.y + 1, z) +
+                        series.at(2 * p.x + 1, 2 * p.y + 1, z)) / 4.0f;
+    EXPECT_NEAR(preview->at(p.x, p.y, p.z), mean, 1e-3) << p.x << " " << p.y << " " << p.z;
+  }
 }
 
 // The archive's refusals, each one line naming the redacted address and what was expected.
