@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <charconv>
 #include <cstdio>
+#include <filesystem>
 #include <cmath>
 #include <limits>
 #include <ostream>
@@ -14,8 +15,6 @@
 #include "hybrid_octree/knot_store.h"
 #include "render/geometry_channel.h"
 #include "render/scene_renderer.h"
-#include "volume/core/error.h"
-#include "volume/core/file_util.h"
 #include "volume/core/error.h"
 #include "volume/core/file_util.h"
 
@@ -382,12 +381,12 @@ void addLookFields(std::vector<FrameField>& f) {
       {.name = "background", .count = 3, .lo = 0.0, .hi = 1.0, .shape = "r,g,b", .help = "background r,g,b (default 0,0,0)", .doors = kCliPy},
       [](FrameSettings& s, const std::optional<std::vector<double>>& v) { s.background = glm::vec3(float((*v)[0]), float((*v)[1]), float((*v)[2])); },
       [](const FrameSettings& s) { return std::optional(std::vector<double>{typed(s.background.r), typed(s.background.g), typed(s.background.b)}); }));
-  // The viewer serves a data directory: a path it would open is the command line's and Python's.
+  // The viewer reads a mesh's path in its data directory (the server resolves it there).
   FrameField mesh = word(
       {.name = "mesh", .kind = FieldKind::Text,
        .help = "a mesh drawn inside the volume, FILE[:r,g,b,a] (.ply .obj .stl .off, patient mm; a < 1 translucent; default colour 0.4,0.7,1,0.5); "
                "the flag may be repeated, or files separated by ';'",
-       .doors = kCliPy, .optional = true, .repeatable = true},
+       .optional = true, .repeatable = true},
       [](FrameSettings& s, const std::optional<std::string>& w) {
         s.meshes.clear();
         if (w) meshFilesIn(*w, &s.meshes);
@@ -401,7 +400,7 @@ void addLookFields(std::vector<FrameField>& f) {
        .help = "an analytic primitive drawn inside the volume (Levoy): plane:PX,PY,PZ,NX,NY,NZ[,THICK] (a point and a normal; THICK mm when "
                "scan-converted, default one voxel), sphere:CX,CY,CZ,R, polygon:X1,Y1,Z1,X2,Y2,Z2,X3,Y3,Z3,... (its corners, convex), each "
                "[:r,g,b,a] (default 0.4,0.7,1,0.5), patient mm (LPS); the flag may be repeated, or items separated by ';'",
-       .doors = kCliPy, .optional = true, .repeatable = true},
+       .optional = true, .repeatable = true},
       [](FrameSettings& s, const std::optional<std::string>& w) {
         s.primitives.clear();
         if (w) primitivesIn(*w, &s.primitives);
@@ -416,16 +415,14 @@ void addLookFields(std::vector<FrameField>& f) {
   f.push_back(choice<MeshMethod>({.name = "mesh_method",
                                   .help = "how meshes and primitives are drawn: polygons (default; exact, in the SlabPolygon lists and crossed by the "
                                           "reference's rays) or scan-convert (Levoy: filtered and scan-converted into a coverage channel on the "
-                                          "volume's grid, composited with the data's samples)",
-                                  .doors = kCliPy},
+                                          "volume's grid, composited with the data's samples)"},
                                  {{"polygons", MeshMethod::Polygons}, {"scan-convert", MeshMethod::ScanConvert}},
                                  [](FrameSettings& s) -> auto& { return s.meshMethod; }));
   f.push_back(choice<bool>({.name = "mesh_filter",
                             .help = "scan-convert's kernel: box (default; each voxel the fraction of its cell covered) or none (the voxel "
-                                    "centre point-sampled: binary, shimmers as the geometry moves)",
-                            .doors = kCliPy},
+                                    "centre point-sampled: binary, shimmers as the geometry moves)"},
                            {{"box", true}, {"none", false}}, [](FrameSettings& s) -> auto& { return s.meshFilter; }));
-  f.push_back(choice<MeshSpace>({.name = "mesh_space", .help = "the space of mesh files whose header does not name one (3D Slicer writes SPACE=RAS or SPACE=LPS): lps (default) or ras", .doors = kCliPy},
+  f.push_back(choice<MeshSpace>({.name = "mesh_space", .help = "the space of mesh files whose header does not name one (3D Slicer writes SPACE=RAS or SPACE=LPS): lps (default) or ras"},
                                 {{"lps", MeshSpace::LPS}, {"ras", MeshSpace::RAS}}, [](FrameSettings& s) -> auto& { return s.meshSpace; }));
 }
 
@@ -928,7 +925,29 @@ std::vector<UserMesh> userGeometry(const FrameSettings& s, const Volume& v, std:
   return meshes;
 }
 
-FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& warnings) {
+std::vector<UserMesh> UserGeometryMemo::of(const FrameSettings& s, const Volume& v, std::ostream& warnings) {
+  if (s.meshes.empty() && s.primitives.empty()) return {};
+  std::ostringstream key;  // (the volume by its object and grid: a scene released and another read may share an address)
+  key << &v << ' ' << v.dims().x << ' ' << v.dims().y << ' ' << v.dims().z << ' ' << int(s.meshSpace);
+  for (const FrameSettings::MeshFile& m : s.meshes) {
+    std::error_code ec;
+    const auto changed = std::filesystem::last_write_time(m.path, ec);
+    key << '\n' << m.path << ' ' << m.color.r << ',' << m.color.g << ',' << m.color.b << ',' << m.color.a << ' '
+        << (ec ? 0 : changed.time_since_epoch().count());
+  }
+  for (const std::string& item : s.primitives) key << "\n" << item;
+  const auto hit = std::find_if(mKept.begin(), mKept.end(), [&](const auto& e) { return e.first == key.str(); });
+  if (hit != mKept.end()) {
+    std::rotate(hit, hit + 1, mKept.end());
+    return mKept.back().second;
+  }
+  std::vector<UserMesh> made = userGeometry(s, v, warnings);
+  if (mKept.size() == kKept) mKept.erase(mKept.begin());
+  mKept.emplace_back(key.str(), made);
+  return made;
+}
+
+FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& warnings, UserGeometryMemo* memo) {
   if (const std::string e = s.validate(); !e.empty()) throw ValueError(e);
   std::optional<Camera> fromFile;
   if (!s.cameraFile.empty()) fromFile = readCameraFile(s.cameraFile);
@@ -958,7 +977,7 @@ FrameSetup setUpFrame(const FrameSettings& s, const Scene& scene, std::ostream& 
     voi.ramp = s.voiRamp;
     look.voi = voi;
   }
-  look.meshes = userGeometry(s, v, warnings);
+  look.meshes = memo ? memo->of(s, v, warnings) : userGeometry(s, v, warnings);
   look.meshMethod = s.meshMethod;
   look.meshFilter = s.meshFilter;
   // Where from, in patient space: a camera file's, the eye given, or the view framing what the

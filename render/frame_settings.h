@@ -196,12 +196,28 @@ struct FrameSetup {
   Quality quality;
   glm::vec3 background{0.0f};
 };
-FrameSetup setUpFrame(const FrameSettings& settings, const Scene& scene, std::ostream& warnings);
+class UserGeometryMemo;
+/// With @p memo, the meshes come from it (a viewer's frames).
+FrameSetup setUpFrame(const FrameSettings& settings, const Scene& scene, std::ostream& warnings, UserGeometryMemo* memo = nullptr);
 
 /// The meshes of @p settings' mesh files and primitives (tessellated on @p volume's box), with
 /// their warnings (a mesh outside the volume, in metres?) on @p warnings.
 /// @throw IoError naming a mesh file, ValueError naming --primitive or --mesh.
 std::vector<UserMesh> userGeometry(const FrameSettings& settings, const Volume& volume, std::ostream& warnings);
+
+/// The meshes of the last few sets of settings a series of frames asked for (files by path, space
+/// and time of their last change, primitives by their text, on one volume): a frame asking for the
+/// same set gets the same meshes, so no file is read nor primitive tessellated again and the
+/// renderer keeps what it made of them (it knows them by their objects). One thread at a time.
+class UserGeometryMemo {
+ public:
+  /// userGeometry(), or the meshes it gave for the same set (its warnings were told then).
+  std::vector<UserMesh> of(const FrameSettings& settings, const Volume& volume, std::ostream& warnings);
+
+ private:
+  static constexpr size_t kKept = 8;
+  std::vector<std::pair<std::string, std::vector<UserMesh>>> mKept;  // most recently used last
+};
 
 /// The primitive of one --primitive item "plane:PX,PY,PZ,NX,NY,NZ[,THICK][:r,g,b,a]",
 /// "sphere:CX,CY,CZ,R[:r,g,b,a]" or "polygon:X1,Y1,Z1,...[:r,g,b,a]" (patient mm, LPS), with its

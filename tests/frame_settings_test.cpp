@@ -7,12 +7,17 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 
 #include "apps/cli/frame.h"
 #include "apps/viewer/viewer_protocol.h"
 #include "cli_util.h"
+#include "render/user_meshes.h"
+#include "surface/mesh_io.h"
+#include "surface/scan_convert.h"
 #include "test_util.h"
 #include "volume/core/error.h"
 
@@ -190,6 +195,34 @@ TEST(FrameSettings, EveryFieldsTextJsonAndFlagRoundTrip) {
   std::reverse(args.begin(), args.end());  // (CLI11 takes them last first)
   parser.parse(args);
   EXPECT_EQ(settingsJson(o.settings, kCommandLine), settingsJson(cli, kCommandLine)) << line;
+}
+
+// A viewer's frames share the meshes of the same set of files and primitives (the renderer knows
+// them by their objects): read once, read again when a file changes or the set does.
+TEST(FrameSettings, TheMemoGivesTheSameMeshesForTheSameFilesAndPrimitives) {
+  test::TempDir dir;
+  const Volume v = test::sphereVolume({20, 20, 20}, 6.0);
+  writeMesh(dir.file("a.stl"), uvSphere({10, 10, 10}, 4.0, 8));
+  FrameSettings s;
+  s.meshes = {{dir.file("a.stl"), glm::vec4(1, 0, 0, 0.5f)}};
+  s.primitives = {"sphere:10,10,10,3"};
+  UserGeometryMemo memo;
+  std::ostringstream warnings;
+  const std::vector<UserMesh> first = memo.of(s, v, warnings);
+  ASSERT_EQ(first.size(), 2u);
+  const std::vector<UserMesh> again = memo.of(s, v, warnings);
+  EXPECT_EQ(again[0].mesh, first[0].mesh);
+  EXPECT_EQ(again[1].mesh, first[1].mesh);
+  s.meshes[0].color.a = 0.6f;  // another colour: another set
+  EXPECT_NE(memo.of(s, v, warnings)[0].mesh, first[0].mesh);
+  s.meshes[0].color.a = 0.5f;
+  EXPECT_EQ(memo.of(s, v, warnings)[0].mesh, first[0].mesh);  // (still kept)
+  writeMesh(dir.file("a.stl"), uvSphere({10, 10, 10}, 5.0, 8));
+  std::filesystem::last_write_time(dir.file("a.stl"), std::filesystem::last_write_time(dir.file("a.stl")) + std::chrono::seconds(2));
+  EXPECT_NE(memo.of(s, v, warnings)[0].mesh, first[0].mesh);  // the file changed: read again
+  s.meshes.clear();
+  s.primitives.clear();
+  EXPECT_TRUE(memo.of(s, v, warnings).empty());
 }
 
 TEST(FrameSettings, OneCameraFormatWrittenAndReadEverywhere) {

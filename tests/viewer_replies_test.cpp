@@ -64,7 +64,7 @@ TEST(ViewerReplies, EachProgressReplyHasItsTypeAndFields) {
   EXPECT_FALSE(ready.contains("progress"));  // (only while building)
   EXPECT_EQ(json::parse(SurfaceReply{"a", 400.0f, ScenePool::SurfaceState::Failed, "", 0.0}.text())["state"], "failed");
   const std::vector<DataEntry> none;
-  EXPECT_EQ(json::parse(VolumesReply{none, ""}.text()), (json{{"type", "volumes"}, {"volumes", json::array()}, {"pacs", nullptr}}));
+  EXPECT_EQ(json::parse(VolumesReply{none, ""}.text()), (json{{"type", "volumes"}, {"volumes", json::array()}, {"pacs", nullptr}, {"meshes", json::array()}}));
   EXPECT_EQ(json::parse(VolumesReply{none, "http://pacs/dicom-web"}.text())["pacs"], "http://pacs/dicom-web");
 }
 

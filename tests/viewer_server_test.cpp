@@ -25,6 +25,8 @@
 #include "apps/viewer/viewer_quality.h"
 #include "render/image.h"
 #include "render/scene_renderer.h"
+#include "surface/mesh_io.h"
+#include "surface/scan_convert.h"
 #include "render_util.h"
 #include "test_util.h"
 #include "volume/core/progress.h"
@@ -927,6 +929,69 @@ TEST(ViewerServer, ASlowVolumeShowsItsPreviewThenTheSceneInItsPlace) {
   c.send(r.dump());
   const json closed = c.nextFrameOrError();
   EXPECT_EQ(closed["type"], "error") << "the preview of a volume that failed is closed: " << closed.dump();
+}
+
+
+// The user's geometry through the viewer's door: primitives as they are, mesh files only from the
+// data directory (listed for the page; a path elsewhere, or without a data directory, refused in one
+// line that names no server path), drawn by both methods; the frame differs from the one without.
+TEST(ViewerServer, TheUsersGeometryIsDrawnAndItsFilesComeFromTheDataDirectoryOnly) {
+  test::TempDir dir;
+  test::writeText(dir.file("a.nrrd"), "NRRD0004\n");
+  std::filesystem::create_directories(dir.file("models"));
+  writeMesh(dir.file("models/implant.stl"), uvSphere({19.5, 17.5, 15.5}, 6.0, 12));
+  test::writeText(dir.file("../outside.stl"), "solid x\nendsolid x\n");
+  TestServer s(60.0, 8, [&](ServerOptions& o) {
+    o.volume.clear();
+    o.dataDir = dir.path();
+  });
+  Socket c(s.port(), "/ws?token=" + s.token());
+  const json volumes = c.next();
+  EXPECT_EQ(volumes["meshes"], json::array({"models/implant.stl"}));
+  c.send(json{{"type", "open"}, {"path", "a.nrrd"}}.dump());
+  json m;
+  do m = c.next();
+  while (m["type"] != "info");
+  EXPECT_EQ(m["meshes"], json::array({"models/implant.stl"}));
+  // The final frame of @p extra's request, its image in @p image (or the error).
+  uint64_t seq = 0;
+  auto finalFrame = [&](const json& extra, std::string* image) {
+    json r = frameRequest(++seq, false, 64);
+    r["scene"] = "a.nrrd";
+    r.erase("iso");
+    r.update(extra);
+    c.send(r.dump());
+    json f;
+    do f = c.nextFrameOrError(image);
+    while (f["type"] == "frame" && (f["seq"] != seq || f["quality"] != "final"));
+    return f;
+  };
+  std::string plain, withMesh, scanned, withSphere;
+  ASSERT_EQ(finalFrame(json::object(), &plain)["type"], "frame");
+  ASSERT_EQ(finalFrame({{"mesh", "models/implant.stl:1,0,0,0.8"}}, &withMesh)["type"], "frame");
+  ASSERT_EQ(finalFrame({{"mesh", "models/implant.stl:1,0,0,0.8"}, {"mesh_method", "scan-convert"}}, &scanned)["type"], "frame");
+  ASSERT_EQ(finalFrame({{"primitive", "sphere:19.5,17.5,15.5,8:0,1,0,0.8"}}, &withSphere)["type"], "frame");
+  EXPECT_NE(withMesh, plain);
+  EXPECT_NE(scanned, withMesh);
+  EXPECT_NE(withSphere, plain);
+  for (const std::string& path : {std::string("../outside.stl"), dir.file("models/implant.stl"), std::string("models/none.stl")}) {
+    const json e = finalFrame({{"mesh", path}}, nullptr);
+    EXPECT_EQ(e["type"], "error") << path;
+    EXPECT_THAT(e["message"].get<std::string>(), HasSubstr("mesh: path '")) << path;
+  }
+  const json bad = finalFrame({{"primitive", "sphere:1,2,3,-4"}}, nullptr);
+  EXPECT_EQ(bad["type"], "error");
+  EXPECT_THAT(bad["message"].get<std::string>(), HasSubstr("a sphere's radius > 0 mm"));
+
+  TestServer noDir;
+  Socket d(noDir.port(), "/ws?token=" + noDir.token());
+  EXPECT_EQ(d.next()["type"], "info");
+  json r = frameRequest(1, false, 32);
+  r["mesh"] = "implant.stl";
+  d.send(r.dump());
+  const json refused = d.nextFrameOrError();
+  EXPECT_EQ(refused["type"], "error");
+  EXPECT_EQ(refused["message"], "mesh: the server has no data directory (a mesh is a file in it: start the server with --data-dir)");
 }
 
 }  // namespace

@@ -67,6 +67,29 @@ function surfaceFields() {
   return { iso: Number($('iso').value), surface_color: [...rgb, Number($('surface-alpha').value)] };
 }
 
+// The user's geometry: a mesh file of the data directory and primitives (Levoy's plane, sphere,
+// polygon), in the colour picked unless an item carries its own, drawn as polygons or scan-converted.
+function geometryFields() {
+  if (!$('geometry-on').checked) return {};
+  const hex = $('mesh-color').value;
+  const rgba = [...[1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16) / 255), Number($('mesh-alpha').value)]
+    .map((v) => Number(v.toFixed(3))).join(',');
+  const items = $('primitive').value.split(';').map((t) => t.trim()).filter((t) => t)
+    .map((t) => (t.split(':').length === 2 ? `${t}:${rgba}` : t));
+  const fields = { mesh_method: $('mesh-method').value };
+  if ($('mesh').value) fields.mesh = `${$('mesh').value}:${rgba}`;
+  if (items.length) fields.primitive = items.join(';');
+  return fields;
+}
+
+function listMeshes(meshes) {
+  const select = $('mesh'), chosen = select.value;
+  select.replaceChildren(new Option('none', ''));
+  for (const m of meshes || []) select.add(new Option(m, m));
+  select.value = (meshes || []).includes(chosen) ? chosen : '';
+  $('mesh-row').hidden = !(meshes && meshes.length);
+}
+
 // The cutting plane: a point and a normal, px,py,pz,nx,ny,nz.
 function cutField() {
   if (!$('cut-on').checked || !state.info) return null;
@@ -117,6 +140,7 @@ function send(interacting) {
     ...surfaceFields(),
     cut: cutField(),
     ...voiFields(),
+    ...geometryFields(),
   };
   state.sent.set(message.seq, performance.now());
   if (state.sent.size > 500) state.sent.delete(state.sent.keys().next().value);
@@ -149,7 +173,7 @@ function connect() {
 const shown = (scene) => state.info && scene === state.info.scene;
 function onText(m) {
   if (m.type === 'info') openInfo(m);
-  else if (m.type === 'volumes') { listVolumes(m.volumes, m.pacs); showPacs(m.pacs); }
+  else if (m.type === 'volumes') { listVolumes(m.volumes, m.pacs); showPacs(m.pacs); listMeshes(m.meshes); }
   else if (m.type === 'pacs') listPacs(m.series);
   else if (m.type === 'loading') onLoading(m);
   else if (m.type === 'surface') {
@@ -388,6 +412,7 @@ function openInfo(info) {
     return;
   }
   if (info.volumes) listVolumes(info.volumes, info.pacs);
+  listMeshes(info.meshes);
   showPacs(info.pacs);
   $('volumes').value = shownVolumeValue();
   const presets = $('preset');
@@ -709,6 +734,8 @@ $('cut-axis').addEventListener('change', () => { setCutRange(); request(false); 
 $('cut-flip').addEventListener('change', () => request(false));
 $('cut-pos').addEventListener('input', () => { $('cut-value').textContent = `${Number($('cut-pos').value).toFixed(0)} mm`; if ($('cut-on').checked) burst(); });
 $('voi-on').addEventListener('change', () => request(false));
+for (const id of ['geometry-on', 'mesh', 'mesh-method', 'primitive']) $(id).addEventListener('change', () => request(false));
+for (const id of ['mesh-color', 'mesh-alpha']) $(id).addEventListener('input', () => { if ($('geometry-on').checked) burst(); });
 $('voi-outside').addEventListener('input', () => { if ($('voi-on').checked) burst(); });
 $('volumes').addEventListener('change', () => {
   const select = $('volumes');

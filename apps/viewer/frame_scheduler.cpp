@@ -41,10 +41,11 @@ glm::ivec2 scaledSize(const FrameRequest& r, const QualityLevel& q) {
   return glm::max(glm::ivec2(kMinImageEdge), glm::ivec2(glm::round(glm::dvec2(r.size()) * q.scale)));
 }
 
-// What a frame of @p r at @p level of the ladder (rung @p q) draws and how.
-FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const QualityLevel& q, int level, std::optional<float> iso) {
+// What a frame of @p r at @p level of the ladder (rung @p q) draws and how, its meshes from @p memo.
+FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const QualityLevel& q, int level, std::optional<float> iso,
+                      UserGeometryMemo& memo) {
   std::ostringstream warnings;  // (an isovalue outside the data: the page's info says so)
-  FrameSetup p = setUpFrame(r.settings, scene, warnings);
+  FrameSetup p = setUpFrame(r.settings, scene, warnings, &memo);
   const glm::ivec2 size = scaledSize(r, q);
   p.view.camera.width = size.x;
   p.view.camera.height = size.y;
@@ -209,7 +210,7 @@ void FrameScheduler::serve(Client& client, bool othersDrag, std::unique_lock<std
   double coarser = 0.0;  // share of the bricks drawn coarser
   try {
     const auto t0 = Clock::now();
-    const FrameSetup parts = frameParts(request, scene.renderer->scene(), rung, level, shown.drawn(request));
+    const FrameSetup parts = frameParts(request, scene.renderer->scene(), rung, level, shown.drawn(request), mGeometry);
     const RenderedFrame frame = scene.renderer->render(parts.view, parts.look, parts.quality);
     const double renderMs = msSince(t0);
     const FrameStats& st = frame.stats;
@@ -220,7 +221,7 @@ void FrameScheduler::serve(Client& client, bool othersDrag, std::unique_lock<std
     message = encodeFrame(header, frame.image, t0, &ms);
   } catch (const std::exception& e) {
     message.clear();
-    client.send(errorMessage(e.what(), request.seq), false);
+    client.send(errorMessage(mScrub(e.what()), request.seq), false);
   }
   lock.lock();
   if (!message.empty()) {  // (a failed frame's time says nothing of its level)
@@ -245,7 +246,7 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   RenderedFrame frame;
   const auto t0 = Clock::now();
   try {
-    FrameSetup parts = frameParts(request, renderer.scene(), rung, level, iso);
+    FrameSetup parts = frameParts(request, renderer.scene(), rung, level, iso, mGeometry);
     parts.quality.rows = rows;
     frame = renderer.render(parts.view, parts.look, parts.quality);
   } catch (const std::exception& e) {
@@ -256,7 +257,7 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   if (!client.banded || client.banded->request.seq != request.seq) return;  // replaced meanwhile
   if (!error.empty()) {
     client.banded.reset();
-    client.send(errorMessage(error, request.seq), false);
+    client.send(errorMessage(mScrub(error), request.seq), false);
     return;
   }
   for (int y = rows.x; y < rows.y; ++y)
@@ -284,7 +285,7 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   if (!message.empty())
     client.send(std::move(message), true);
   else
-    client.send(errorMessage(error, done.request.seq), false);
+    client.send(errorMessage(mScrub(error), done.request.seq), false);
 }
 
 }  // namespace hyb::viewer

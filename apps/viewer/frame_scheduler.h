@@ -18,6 +18,7 @@
 #include "apps/viewer/viewer_protocol.h"
 #include "apps/viewer/viewer_quality.h"
 #include "apps/viewer/viewer_replies.h"
+#include "render/frame_settings.h"
 #include "render/scene_pool.h"
 
 namespace hyb::viewer {
@@ -98,7 +99,9 @@ using Clients = std::map<uint64_t, std::shared_ptr<Client>>;
 class FrameScheduler {
  public:
   /// Moving frames aim at @p frameTargetMs: a band drawn while another client moves takes about that.
-  FrameScheduler(ScenePool& pool, double frameTargetMs) : mPool(pool), mTargetMs(frameTargetMs) {}
+  /// A frame's error goes to its client as @p scrub words it (the server's own paths left out).
+  FrameScheduler(ScenePool& pool, double frameTargetMs, std::function<std::string(std::string)> scrub)
+      : mPool(pool), mTargetMs(frameTargetMs), mScrub(std::move(scrub)) {}
 
   /// Whether a client of @p clients has a frame to make.
   static bool hasWork(const Clients& clients);
@@ -120,7 +123,9 @@ class FrameScheduler {
   int bandRows(const BandedFrame& b, bool othersDrag) const;
 
   ScenePool& mPool;
+  UserGeometryMemo mGeometry;  ///< the meshes of the frames asked for (render thread)
   double mTargetMs;
+  std::function<std::string(std::string)> mScrub;
   size_t mTurn = 0;
   uint64_t mRenders = 0;
 };

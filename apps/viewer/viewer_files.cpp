@@ -5,6 +5,7 @@
 #include <cstring>
 #include <random>
 
+#include "surface/mesh_io.h"
 #include "volume/core/error.h"
 #include "volume/core/file_util.h"
 #include "volume/volume_io.h"
@@ -125,7 +126,7 @@ const Asset* findAsset(std::string_view path) {
   return nullptr;
 }
 
-std::vector<DataEntry> listDataDir(const fs::path& dir, size_t maxEntries) {
+std::vector<DataEntry> listDataDir(const fs::path& dir, size_t maxEntries, std::vector<std::string>* meshes) {
   std::vector<DataEntry> out;
   std::error_code ec;
   const fs::path root = fs::canonical(dir, ec);
@@ -155,6 +156,7 @@ std::vector<DataEntry> listDataDir(const fs::path& dir, size_t maxEntries) {
         if (depth < 6 && !fs::is_symlink(c) && !cd) self(self, real, depth + 1);
       } else if (fs::is_regular_file(real, e) && !cd) {
         if (isVolumeName(c)) out.push_back({relative(c), "", relative(c)});
+        else if (meshFormatOf(c.string())) { if (meshes && meshes->size() < maxEntries) meshes->push_back(relative(c)); }
         else dicomHere = dicomHere || looksLikeDicom(real);
       }
     }

@@ -38,8 +38,9 @@ struct DataEntry {
   std::string series;  ///< a DICOM series' UID, or empty
   std::string label;   ///< what the page shows
 };
-/// The volumes under @p dir (at most @p maxEntries, at most 6 directories deep), sorted by path.
-std::vector<DataEntry> listDataDir(const std::filesystem::path& dir, size_t maxEntries = 500);
+/// The volumes under @p dir (at most @p maxEntries, at most 6 directories deep), sorted by path;
+/// with @p meshes, the mesh files there too (.ply .obj .stl .off, paths as DataEntry's, as many at most).
+std::vector<DataEntry> listDataDir(const std::filesystem::path& dir, size_t maxEntries = 500, std::vector<std::string>* meshes = nullptr);
 
 /// The file or directory @p relative names under @p dir, with every symbolic link followed.
 /// @throw ValueError naming @p relative when it is absolute, has a ".." or empty component, does not

@@ -64,14 +64,15 @@ std::string InfoReply::text() const {
                {"surfaces", surfaces},
                {"volumes", volumesJson(volumes)},
                {"fields", fieldsJson(kViewer)},
-               {"preview", s.preview}};
+               {"preview", s.preview},
+               {"meshes", meshes}};
   if (fromDataDir) info["open"] = {{"path", s.name}, {"series", s.series}};
   info["pacs"] = pacs.empty() ? json(nullptr) : json(pacs);
   return dumped(info);
 }
 
 std::string VolumesReply::text() const {
-  return dumped({{"type", "volumes"}, {"volumes", volumesJson(volumes)}, {"pacs", pacs.empty() ? json(nullptr) : json(pacs)}});
+  return dumped({{"type", "volumes"}, {"volumes", volumesJson(volumes)}, {"pacs", pacs.empty() ? json(nullptr) : json(pacs)}, {"meshes", meshes}});
 }
 
 std::string PacsReply::label(const DicomWebSeries& s) {

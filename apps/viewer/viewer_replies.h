@@ -23,6 +23,7 @@ struct InfoReply {
   const std::vector<DataEntry>& volumes;
   bool fromDataDir = false;             ///< opened from the data directory: the page's menu shows it
   std::string pacs;                     ///< the PACS the page may search (its address redacted), or empty
+  std::vector<std::string> meshes = {}; ///< the data directory's mesh files, which frames may draw
   std::string text() const;
 };
 
@@ -30,6 +31,7 @@ struct InfoReply {
 struct VolumesReply {
   const std::vector<DataEntry>& volumes;
   std::string pacs;  ///< the PACS the page may search (its address redacted), or empty
+  std::vector<std::string> meshes = {};  ///< the data directory's mesh files, which frames may draw
   std::string text() const;
 };
 

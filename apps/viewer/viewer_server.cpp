@@ -78,7 +78,7 @@ ScenePool::Events ServerState::poolEvents() {
       return;
     }
     c->second->showScene(key);
-    c->second->send(InfoReply{*summary, pool->readySurfaces(key), listing, !options.dataDir.empty(), pacsShown()}.text(), false);
+    c->second->send(InfoReply{*summary, pool->readySurfaces(key), listing, !options.dataDir.empty(), pacsShown(), meshes}.text(), false);
   };
   e.surface = [this](uint64_t viewer, const std::string& key, float iso, ScenePool::SurfaceState state, const std::string& task, double fraction) {
     send(viewer, SurfaceReply{key, iso, state, task, fraction}.text());
@@ -181,7 +181,7 @@ bool ServerState::addClient(const std::shared_ptr<Client>& c) {
     // Told at once while it is open; read again if it was released while no client showed it.
     pool->open(c->id, defaultScene, options.volume, options.series, std::filesystem::path(options.volume).filename().string());
   } else {
-    c->send(VolumesReply{listing, pacsShown()}.text(), false);
+    c->send(VolumesReply{listing, pacsShown(), meshes}.text(), false);
   }
   return true;
 }
@@ -228,6 +228,20 @@ void ServerState::open(const std::shared_ptr<Client>& c, const OpenRequest& open
   pool->open(c->id, keyOf(open.path, open.series), real.string(), open.series, open.path);
 }
 
+// A frame's mesh files are paths in the data directory (no other file is read): each replaced by
+// the file it names there; why not, when one is not.
+std::string ServerState::meshesInDataDir(FrameSettings* settings) const {
+  for (FrameSettings::MeshFile& m : settings->meshes) {
+    if (options.dataDir.empty()) return "mesh: the server has no data directory (a mesh is a file in it: start the server with --data-dir)";
+    try {
+      m.path = resolveInDataDir(options.dataDir, m.path).string();
+    } catch (const Error& e) {
+      return std::string("mesh: ") + e.what();
+    }
+  }
+  return "";
+}
+
 void ServerState::onMessage(const std::shared_ptr<Client>& c, const std::string& text) {
   Request request;
   try {
@@ -245,6 +259,10 @@ void ServerState::onMessage(const std::shared_ptr<Client>& c, const std::string&
     return;
   }
   auto& frame = std::get<FrameRequest>(request);
+  if (const std::string why = meshesInDataDir(&frame.settings); !why.empty()) {
+    c->send(errorMessage(why, frame.seq), false);
+    return;
+  }
   const std::lock_guard<std::mutex> lock(mutex);
   if (c->sceneKey.empty()) {
     c->send(errorMessage("no volume is open (send an open message first)", frame.seq), false);
@@ -263,7 +281,7 @@ Server::Server(ServerOptions options) : mImpl(std::make_unique<ServerState>()) {
   if (s.options.volume.empty() && s.options.dataDir.empty() && s.options.pacs.empty())
     HYB_THROW(ValueError, "view: expected a volume, --data-dir or --pacs");
   if (!s.options.dataDir.empty()) {
-    s.listing = listDataDir(s.options.dataDir);
+    s.listing = listDataDir(s.options.dataDir, 500, &s.meshes);
     s.dataRoot = std::filesystem::canonical(s.options.dataDir).string();  // (listDataDir has read it)
   }
   ScenePool::Options po;
@@ -273,7 +291,7 @@ Server::Server(ServerOptions options) : mImpl(std::make_unique<ServerState>()) {
   po.memoryBytes = s.options.memoryBytes;
   po.releaseAfter = s.options.releaseAfter;
   s.pool = std::make_unique<ScenePool>(s.mutex, std::move(po), s.poolEvents());
-  s.scheduler = std::make_unique<FrameScheduler>(*s.pool, s.options.frameTargetMs);
+  s.scheduler = std::make_unique<FrameScheduler>(*s.pool, s.options.frameTargetMs, [&s](std::string text) { return s.inDataDirTerms(std::move(text)); });
   if (!s.options.volume.empty()) {
     s.defaultScene = keyOf(s.options.volume, s.options.series);
     s.pool->preload(s.defaultScene, s.options.volume, s.options.series, std::filesystem::path(s.options.volume).filename().string());

@@ -56,6 +56,7 @@ struct ServerState {
   std::map<std::string, std::string> pacsLabels;  ///< what searches called the series found, by address
   uint64_t nextClient = 1;
   std::vector<DataEntry> listing;  ///< the data directory's volumes, listed at start
+  std::vector<std::string> meshes; ///< ... and its mesh files
   std::string dataRoot;            ///< the data directory, every link resolved ("" without one)
 
   void log(const std::string& line);
@@ -73,11 +74,13 @@ struct ServerState {
   void sideLoop();
   /// The pool's events: each goes to the client it concerns only (under the mutex).
   ScenePool::Events poolEvents();
+  /// @p text with the data directory's own path left out of the paths it names.
+  std::string inDataDirTerms(std::string text) const;
 
  private:
   void send(uint64_t viewer, const std::string& message);
   std::string labelOf(const std::string& key) const;
-  std::string inDataDirTerms(std::string text) const;
+  std::string meshesInDataDir(FrameSettings* settings) const;
   void open(const std::shared_ptr<Client>& c, const OpenRequest& open);
   void openFromPacs(const std::shared_ptr<Client>& c, const std::string& url);
   std::string pacsShown() const;

@@ -4,7 +4,8 @@
 // other's surface builds leaves no stale label and paints no frame of the volume left. A DICOM
 // series that cannot be read: the volume shown stays, on screen and in the menu, and the page says
 // why in the menu's words (not the series' UID) until the message is dismissed. The menu fits its
-// panel in a window 1100 pixels wide.
+// panel in a window 1100 pixels wide. On the cranium, the data directory's mesh and a primitive are
+// drawn, as polygons and scan-converted, and the render command carries them.
 //
 // usage: node tests/e2e/viewer_switch_e2e.mjs BUILD/hybrid-octree [--screenshot page.png]
 import fs from 'node:fs';
@@ -45,6 +46,27 @@ for (let k = 0; k < 2; ++k) {
     dicomElement(0x7fe0, 0x10, 'OW', Buffer.alloc(32))]);
   fs.writeFileSync(path.join(dir, 'broken-ct', `slice${k}.dcm`), dicomFile(instance, data));
 }
+
+// A mesh of the user's in the data directory: an implant-like ball (an icosphere of radius 20 mm,
+// ASCII STL, patient mm) inside the cranium.
+function icosphereStl(center, radius, levels) {
+  const t = (1 + Math.sqrt(5)) / 2;
+  let v = [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]];
+  let f = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2],
+    [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]];
+  const unit = (p) => { const l = Math.hypot(...p); return p.map((c) => c / l); };
+  v = v.map(unit);
+  for (let k = 0; k < levels; ++k) {
+    const mid = new Map(), next = [];
+    const m = (a, b) => { const key = a < b ? `${a},${b}` : `${b},${a}`; if (!mid.has(key)) { v.push(unit(v[a].map((c, i) => c + v[b][i]))); mid.set(key, v.length - 1); } return mid.get(key); };
+    for (const [a, b, c] of f) { const ab = m(a, b), bc = m(b, c), ca = m(c, a); next.push([a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]); }
+    f = next;
+  }
+  const p = (i) => v[i].map((c, k) => (center[k] + radius * c).toFixed(4)).join(' ');
+  return `solid implant\n${f.map(([a, b, c]) => `facet normal 0 0 0\nouter loop\nvertex ${p(a)}\nvertex ${p(b)}\nvertex ${p(c)}\nendloop\nendfacet\n`).join('')}endsolid implant\n`;
+}
+fs.mkdirSync(path.join(dir, 'models'));
+fs.writeFileSync(path.join(dir, 'models', 'implant.stl'), icosphereStl([122, -122, 80], 20, 3));
 
 const started = startServer(exe, ['--data-dir', dir]);
 const server = started.server;
@@ -146,6 +168,32 @@ try {
   await page.click('#message .sticky button');
   const dismissed = await failed();
   check(!dismissed.shown && dismissed.message === null, 'the dismiss button takes it away');
+
+  // The user's geometry on the cranium: the data directory's mesh and a primitive, drawn as
+  // polygons and scan-converted, each final frame another image than the one without.
+  await open('Cranium.inv3');
+  await waitOpened('Cranium.inv3', 2);
+  const meshes = await page.$$eval('#mesh option', (o) => o.map((x) => x.value));
+  check(meshes.includes('models/implant.stl') && !(await page.$eval('#mesh-row', (e) => e.hidden)), `the page lists the data directory's meshes (${meshes.join(', ')})`);
+  const finalImage = async () => {
+    const asked = await page.evaluate(() => { window.hybViewer.request(false); return performance.now(); });
+    await page.waitForFunction((t) => window.hybViewer.metrics().some((m) => m.paintedAt > t && m.quality === 'final' && m.scene === 'Cranium.inv3'), { timeout: 120000 }, asked);
+    return page.evaluate(() => document.getElementById('view').toDataURL());
+  };
+  const bare = await finalImage();
+  await page.click('#geometry-on');
+  await page.select('#mesh', 'models/implant.stl');
+  await page.$eval('#primitive', (e) => { e.value = 'plane:122,-122,80,0,0,1'; });
+  const polygons = await finalImage();
+  await page.select('#mesh-method', 'scan-convert');
+  const scanned = await finalImage();
+  const shownError = await page.evaluate(() => (document.getElementById('message').hidden ? '' : document.getElementById('message').textContent));
+  check(polygons !== bare && scanned !== bare && scanned !== polygons && !shownError,
+    `the mesh and the plane are drawn on the cranium, as polygons and scan-converted${shownError ? ` (${shownError})` : ''}`);
+  const command = await page.$eval('#command', (e) => e.value);
+  check(command.includes('--mesh ') && command.includes('implant.stl') && command.includes('--mesh-method scan-convert') && command.includes('--primitive'),
+    `the render command draws the same geometry (${command})`);
+  if (screenshot) await page.screenshot({ path: screenshot.replace(/\.png$/, '-geometry.png') });
   check(consoleErrors.length === 0, `the console shows no errors${consoleErrors.length ? ': ' + consoleErrors.join(' | ') : ''}`);
 } catch (e) {
   check(false, e.message);
