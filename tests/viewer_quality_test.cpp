@@ -88,6 +88,23 @@ TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLev
   EXPECT_EQ(fast.estimateMs(1), 0.0);
 }
 
+// Clients dragging together on one render thread each wait for the others' frames: each aims at
+// the target shared among them, and alone again at the whole target.
+TEST(ViewerQuality, MoversShareTheFrameTarget) {
+  AdaptiveQuality q(kVolumeLadder, 80.0);
+  q.record(1, 240.0);
+  const int alone = q.chooseInteractiveLevel();
+  EXPECT_LE(q.estimateMs(alone), 80.0);
+  q.share(4);
+  const int shared = q.chooseInteractiveLevel();
+  EXPECT_GT(shared, alone);
+  EXPECT_LE(q.estimateMs(shared), 20.0);
+  EXPECT_GT(q.estimateMs(shared - 1), 20.0);
+  q.share(1);
+  for (int i = 0; i < 4; ++i) q.record(shared, q.estimateMs(shared));
+  EXPECT_EQ(q.chooseInteractiveLevel(), alone);
+}
+
 // When no level fits the target and the cheapest save little (a surface's triangles cost the same
 // at any size), the best level within a quarter of the fastest is kept.
 TEST(ViewerQuality, WhenNothingFitsTheBestOfTheFastestIsKept) {

@@ -994,5 +994,37 @@ TEST(ViewerServer, TheUsersGeometryIsDrawnAndItsFilesComeFromTheDataDirectoryOnl
   EXPECT_EQ(refused["message"], "mesh: the server has no data directory (a mesh is a file in it: start the server with --data-dir)");
 }
 
+
+// Movers are served in the order they asked: with four clients dragging at once, a moving frame
+// waits behind at most the others' frames under way (one each), however their requests interleave.
+TEST(ViewerServer, ClientsDraggingTogetherAreServedInTheOrderTheyAsked) {
+  TestServer s(60.0);
+  constexpr int kMovers = 4;
+  std::vector<std::unique_ptr<Socket>> movers;
+  for (int i = 0; i < kMovers; ++i) {
+    movers.push_back(std::make_unique<Socket>(s.port(), "/ws?token=" + s.token()));
+    movers.back()->next();
+  }
+  std::vector<std::thread> threads;
+  std::vector<int> worst(kMovers, 0), frames(kMovers, 0);
+  for (int i = 0; i < kMovers; ++i)
+    threads.emplace_back([&, i] {
+      for (uint64_t seq = 1; seq <= 25; ++seq) {
+        movers[size_t(i)]->send(frameRequest(seq, true, 64, double(seq * 7 + uint64_t(i))).dump());
+        json f;
+        do f = movers[size_t(i)]->nextFrameOrError();
+        while (f["type"] == "frame" && f["seq"] != seq);
+        if (f["type"] != "frame") return;
+        ++frames[size_t(i)];
+        worst[size_t(i)] = std::max(worst[size_t(i)], f["waitedRenders"].get<int>());
+      }
+    });
+  for (std::thread& t : threads) t.join();
+  for (int i = 0; i < kMovers; ++i) {
+    EXPECT_EQ(frames[size_t(i)], 25) << "mover " << i;
+    EXPECT_LE(worst[size_t(i)], kMovers - 1) << "mover " << i << " waited behind more than the others' frames";
+  }
+}
+
 }  // namespace
 }  // namespace hyb::viewer

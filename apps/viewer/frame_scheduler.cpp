@@ -99,6 +99,8 @@ void Client::showScene(const std::string& key) {
   volumeQuality.reset();
   surfaceQuality.reset();
   surfaceRayQuality.reset();
+  bandMsPerPixel = 0.0;
+  bandLevel = -1;
 }
 
 bool FrameScheduler::hasWork(const Clients& clients) {
@@ -122,24 +124,29 @@ void FrameScheduler::serveNext(const Clients& clients, std::unique_lock<std::mut
     if (entry.second->moving()) moving.push_back(entry.second);
     if (entry.second->hasWork()) waiting.push_back(entry.second);
   }
-  const std::vector<std::shared_ptr<Client>>& next = moving.empty() ? waiting : moving;
-  if (next.empty()) return;
-  const std::shared_ptr<Client> client = next[mTurn++ % next.size()];  // (held: it may leave while its frame is drawn)
+  if (moving.empty() && waiting.empty()) return;
+  // The moving frame asked first, else the client served longest ago: none waits behind another's turns.
+  const Clock::time_point now = Clock::now();
+  const auto asked = [&](const std::shared_ptr<Client>& c) { return c->pendingSince.value_or(now); };
+  const std::shared_ptr<Client> client =  // (held: it may leave while its frame is drawn)
+      !moving.empty() ? *std::min_element(moving.begin(), moving.end(), [&](const auto& a, const auto& b) { return asked(a) < asked(b); })
+                      : *std::min_element(waiting.begin(), waiting.end(), [](const auto& a, const auto& b) { return a->lastServed < b->lastServed; });
+  client->lastServed = now;
   // Whether another client drags; a mover's next request comes while a band is drawn: the window spans a few of them.
   const double windowMs = std::max(1000.0, 3.0 * (client->banded ? client->banded->longestBandMs : 0.0));
   const auto window = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(windowMs));
-  const Clock::time_point now = Clock::now();
-  const bool othersDrag = std::any_of(clients.begin(), clients.end(), [&](const auto& c) { return c.second != client && c.second->dragging(now, window); });
-  serve(*client, othersDrag, lock);
+  const int othersDragging = int(std::count_if(clients.begin(), clients.end(), [&](const auto& c) { return c.second != client && c.second->dragging(now, window); }));
+  serve(*client, othersDragging, lock);
 }
 
 int FrameScheduler::bandRows(const BandedFrame& b, bool othersDrag) const {
   const int standard = std::max(16, kBandPixels / b.image.width);
-  if (!othersDrag || b.msPerRow <= 0.0) return standard;
-  return std::clamp(int(std::max(mTargetMs, kMovingBandMs) / b.msPerRow), std::min(kMinBandRows, standard), standard);
+  if (b.msPerRow <= 0.0) return standard;
+  const double ms = othersDrag ? std::max(mTargetMs, kMovingBandMs) : kIdleBandMs;
+  return std::clamp(int(ms / b.msPerRow), std::min(kMinBandRows, standard), standard);
 }
 
-int FrameScheduler::start(Client& client, std::optional<Arrival>* arrival, bool* surface) {
+int FrameScheduler::start(Client& client, int movers, std::optional<Arrival>* arrival, bool* surface) {
   if (client.pendingSince) *arrival = Arrival{msSince(*client.pendingSince), client.pendingEpochMs, mRenders - client.pendingRenders};
   client.pendingSince.reset();
   client.current = std::move(client.pending);
@@ -157,6 +164,7 @@ int FrameScheduler::start(Client& client, std::optional<Arrival>* arrival, bool*
   client.raysForSurface =
       shown.renderer && shown.surfaceReady && surfaceRaysFit(shown.renderer->volume().dims(), shown.renderer->volume().spacing());
   AdaptiveQuality& quality = client.quality(*surface);
+  quality.share(movers);
   if (r.interacting) return quality.chooseInteractiveLevel();
   client.refine = quality.refinement();
   client.refineSurface = *surface;
@@ -166,12 +174,13 @@ int FrameScheduler::start(Client& client, std::optional<Arrival>* arrival, bool*
   return level;
 }
 
-void FrameScheduler::serve(Client& client, bool othersDrag, std::unique_lock<std::mutex>& lock) {
+void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<std::mutex>& lock) {
+  const bool othersDrag = othersDragging > 0;
   int level = 0;
   std::optional<Arrival> arrival;
   bool surface = client.refineSurface;
   if (client.pending) {
-    level = start(client, &arrival, &surface);
+    level = start(client, 1 + othersDragging, &arrival, &surface);
     if (level < 0) return;
   } else if (!client.banded) {
     level = client.refine.back();
@@ -194,6 +203,7 @@ void FrameScheduler::serve(Client& client, bool othersDrag, std::unique_lock<std
     b.level = level;
     b.final = final;
     b.image = Image(size.x, size.y);
+    if (client.bandLevel == level) b.msPerRow = client.bandMsPerPixel * size.x;  // (its first band sized by the last one's time)
     client.banded = std::move(b);
   }
   if (client.banded) {
@@ -264,6 +274,8 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
     std::copy_n(&frame.image.at(0, y), b.image.width, &b.image.at(0, y));
   b.renderMs += ms;
   b.msPerRow = ms / (rows.y - rows.x);
+  client.bandMsPerPixel = b.msPerRow / b.image.width;
+  client.bandLevel = b.level;
   ++b.bands;
   b.longestBandMs = std::max(b.longestBandMs, ms);
   b.stats = frame.stats;

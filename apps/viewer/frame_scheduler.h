@@ -28,12 +28,14 @@ using Clock = std::chrono::steady_clock;
 /// A final frame larger than this is drawn band by band, other clients' frames between its bands,
 /// so that it holds the render thread for one band at a time (the pixels are the whole frame's:
 /// SlicesOptions::rows). While another client moves, a band is sized to kMovingBandMs (or the frame
-/// target, if longer) from the time per row the last band took, so that the mover waits about that
-/// at most: narrower bands would cost the large frame more than they save the mover (each band
-/// selects and draws every brick it crosses again).
+/// target, if longer) from the time per pixel the client's last band took, so that the mover waits
+/// about that at most; otherwise to kIdleBandMs, so that a client starting to drag waits at most
+/// about that for its first frame: narrower bands would cost the large frame more than they save
+/// the mover (each band selects and draws every brick it crosses again).
 inline constexpr int kBandPixels = 512 * 512;
 inline constexpr int kMinBandRows = 32;
 inline constexpr double kMovingBandMs = 150.0;
+inline constexpr double kIdleBandMs = 250.0;
 
 /// A large frame (final, or a refinement as large) part drawn.
 struct BandedFrame {
@@ -63,10 +65,13 @@ struct Client {
   double pendingEpochMs = 0.0;          ///< the same, wall clock
   uint64_t pendingRenders = 0;          ///< the scheduler's render count when it came
   Clock::time_point lastAsked;          ///< when the page last asked for a frame
+  Clock::time_point lastServed;         ///< when the scheduler last drew for it
   std::optional<FrameRequest> current;  ///< the request being refined
   std::vector<int> refine;              ///< levels still to render for it, next last
   bool refineSurface = false;           ///< ... of the surface's ladder
   std::optional<BandedFrame> banded;    ///< its large frame (final, or a refinement as large), part drawn
+  double bandMsPerPixel = 0.0;          ///< its last band's time per pixel (a new large frame's first band is sized by it) ...
+  int bandLevel = -1;                   ///< ... at this level of the ladder (another level's pixels cost differently)
   AdaptiveQuality volumeQuality, surfaceQuality, surfaceRayQuality;
   bool raysForSurface = false;  ///< the surface's ladder ray-traces small frames (surfaceRaysFit)
   std::atomic<bool> open{true};
@@ -107,17 +112,20 @@ class FrameScheduler {
   static bool hasWork(const Clients& clients);
   /// Clients showing scene @p key refine again (a surface they asked for may have come).
   static void refineAgain(const Clients& clients, const std::string& key);
-  /// One step of the next client with work, in turn, the clients with a moving frame to make
-  /// first: its newest request's first frame, the next refinement, or the next band of its final frame.
+  /// One step of the next client with work: the moving frame asked for first, else the client
+  /// served longest ago (its newest request's first frame, the next refinement, or the next band
+  /// of its final frame).
   void serveNext(const Clients& clients, std::unique_lock<std::mutex>& lock);
   /// Frames and bands rendered so far (under the server's mutex).
   uint64_t renders() const { return mRenders; }
 
  private:
-  /// @p othersDrag: another client drags (a large frame's bands are then cut to kMovingBandMs).
-  void serve(Client& client, bool othersDrag, std::unique_lock<std::mutex>& lock);
-  /// Takes @p client's pending request as its current one: the ladder's level of its first frame.
-  int start(Client& client, std::optional<Arrival>* arrival, bool* surface);
+  /// @p othersDragging: how many other clients drag (a large frame's bands are then cut to
+  /// kMovingBandMs, and a moving frame aims at the frame target shared among the movers).
+  void serve(Client& client, int othersDragging, std::unique_lock<std::mutex>& lock);
+  /// Takes @p client's pending request as its current one: the ladder's level of its first frame,
+  /// one of @p movers clients dragging.
+  int start(Client& client, int movers, std::optional<Arrival>* arrival, bool* surface);
   void serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, bool othersDrag, std::unique_lock<std::mutex>& lock);
   /// The rows of @p b's next band: kBandPixels' worth, or kMovingBandMs' worth while @p othersDrag.
   int bandRows(const BandedFrame& b, bool othersDrag) const;
@@ -126,7 +134,6 @@ class FrameScheduler {
   UserGeometryMemo mGeometry;  ///< the meshes of the frames asked for (render thread)
   double mTargetMs;
   std::function<std::string(std::string)> mScrub;
-  size_t mTurn = 0;
   uint64_t mRenders = 0;
 };
 

@@ -35,7 +35,7 @@ void AdaptiveQuality::record(int level, double ms, bool cold, double coarser) {
   const bool untrusted = passing && mCold < kColdFramesTrusted;
   // A probe is done once measured, or once a frame of it, even drawing coarser bricks or
   // uploading a bounded share of textures, took longer than the target: the level does not fit.
-  if (level == mProbe && (!untrusted || ms > mTargetMs)) mProbe = -1;
+  if (level == mProbe && (!untrusted || ms > mTargetMs / mShare)) mProbe = -1;
   if (untrusted) return;
   ms /= std::max(1.0 - coarser, 1.0 / kMaxCoarserScale);
   double& m = mMeasured[size_t(level)];
@@ -64,7 +64,8 @@ int AdaptiveQuality::chooseInteractiveLevel() {
   int level = -1;
   for (int k = 1; k < n && level < 0; ++k) {
     // Moving to a better level than the current needs a margin; staying or going coarser does not.
-    const double allowed = k < mCurrent ? kUpMargin * mTargetMs : mTargetMs;
+    const double target = mTargetMs / mShare;
+    const double allowed = k < mCurrent ? kUpMargin * target : target;
     if (estimateMs(k) <= allowed) level = k;
   }
   if (level < 0) {

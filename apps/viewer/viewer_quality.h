@@ -6,6 +6,7 @@
 
 #include <glm/glm.hpp>
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <string>
@@ -164,10 +165,14 @@ class AdaptiveQuality {
   /// The measured time of @p level, or one predicted from the last measured level's.
   double estimateMs(int level) const;
   double targetMs() const { return mTargetMs; }
+  /// @p movers clients (this one among them) are dragging on one render thread: each one's next
+  /// frame waits for the others', so an interactive frame aims at the target shared among them.
+  void share(int movers) { mShare = std::max(1, movers); }
 
  private:
   const Ladder& mLadder;
   double mTargetMs;
+  int mShare = 1;  // share(): the interactive frames aim at mTargetMs / mShare
   std::array<double, Ladder().size()> mMeasured;  // smoothed ms per level, -1 unknown
   int mLast = 0;     // the level measured last
   int mCurrent = 0;  // the interactive level in use
