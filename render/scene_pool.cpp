@@ -324,15 +324,17 @@ void ScenePool::startBuild(Entry& e, float iso) {
     };
     try {
       // Only reads the scene: the render thread keeps drawing with the renderer meanwhile. A large
-      // paged scene's frames draw a clustered surface first, made in a fraction of the time; the
-      // final frames draw the full-resolution one while its simplified levels are made.
+      // scene's frames draw a clustered surface first, made in a fraction of the time; the final
+      // frames draw the full-resolution one while its simplified levels are made.
       const Scene& scene = e.renderer->scene();
       if (!smooth) {
-        if (preview && !scene.volume.hasSamples() && scene.volume.voxelCount() > mOptions.previewSamples) {
+        if (preview && scene.volume.voxelCount() > mOptions.previewSamples) {
           auto made = std::make_unique<PreparedSurface>();
           made->iso = iso;
           const int cubes = previewSpacing(scene.volume.dims(), scene.volume.spacing(), scene.octree.leafEdge());
-          made->coarse.emplace(cubes, clusteredSurface(*scene.knots, scene.octree, cubes, iso, &progress));
+          const VolumeKnots inMemory(scene.volume, scene.octree);  // (read only when the scene is not paged)
+          const KnotSource& knots = scene.knots ? static_cast<const KnotSource&>(*scene.knots) : inMemory;
+          made->coarse.emplace(cubes, clusteredSurface(knots, scene.octree, cubes, iso, &progress));
           hand(std::move(made));
         }
         std::unique_ptr<PreparedSurface> exact = SceneRenderer::prepareSurface(scene, iso, &progress, nullptr, e.renderer->surfaceReservation());

@@ -59,9 +59,9 @@ struct SceneSummary {
 /// positions (an eighth, read in a few seconds where all of an 8 GiB study take half a minute).
 inline constexpr uint64_t kSummarySamples = uint64_t(1) << 27;
 
-/// A paged scene of more samples than this draws a clustered surface (previewSpacing) while the
-/// full-resolution one is made: a clinical study's in about a second where the full one takes
-/// seven, the 8 GiB phantom's in seconds where the full one takes over a minute.
+/// A scene of more samples than this (paged or in memory) draws a clustered surface
+/// (previewSpacing) while the full-resolution one is made: a clinical study's in about a second
+/// where the full one takes seven, the 8 GiB phantom's in seconds where the full one takes over a minute.
 inline constexpr uint64_t kPreviewSurfaceSamples = uint64_t(1) << 24;
 
 /// The cubes of a scene's surface preview: about a pixel of a 96-pixel frame of the whole volume
@@ -91,7 +91,7 @@ class ScenePool {
     uint64_t memoryBytes = 0;         ///< each paged scene's --memory (SceneRenderer::Options::memoryBytes)
     /// A scene no viewer shows is released this long after the last one left it (0: at once).
     std::chrono::milliseconds releaseAfter{10000};
-    /// A paged scene of more samples than this draws a clustered preview of a surface first.
+    /// A scene of more samples than this draws a clustered preview of a surface first.
     uint64_t previewSamples = kPreviewSurfaceSamples;
   };
 

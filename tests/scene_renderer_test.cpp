@@ -520,9 +520,9 @@ TEST(SceneRenderer, FramesThatDoNotWaitDrawTheKeptSurfaceNearestTheirOwn) {
   EXPECT_TRUE(made.surfaceBuilt);
 }
 
-// A paged scene above the pool's preview size gets from the builder thread a clustered surface
-// (previewSpacing), then the full-resolution one; the renderer keeps both, and a frame that does
-// not wait draws the preview where its pixels allow cubes that large, building nothing.
+// A scene above the pool's preview size, paged or in memory, gets from the builder thread a
+// clustered surface (previewSpacing), then the full-resolution one; the renderer keeps both, and a
+// frame that does not wait draws the preview where its pixels allow cubes that large, building nothing.
 // About a pixel of a 96-pixel frame of the whole volume, along its longest voxel edge.
 TEST(ScenePool, PreviewCubesAreAboutAPixelOfTheSmallestMovingFrame) {
   EXPECT_EQ(previewSpacing({512, 512, 432}, {0.4776, 0.4776, 0.3724}, 8), 4);  // the clinical study: 2.55 mm pixels
@@ -537,75 +537,80 @@ TEST(SceneRenderer, ThePoolsBuilderHandsOverAClusteredPreviewFirst) {
   test::gl();
   test::TempDir dir;
   saveScene(dir.file("s.hoct"), sphereScene().volume, sphereScene().octree);
-  std::mutex mutex;
-  std::condition_variable changed;
-  bool opened = false, ready = false;
-  int buildingSix = 0;
-  ScenePool::Events events;
-  events.loading = [](uint64_t, const std::string&, const std::string&, double) {};
-  events.opened = [&](uint64_t, const std::string&, const SceneSummary* summary, const std::string&) { opened = summary != nullptr; changed.notify_all(); };
-  events.surface = [&](uint64_t, const std::string&, float iso, ScenePool::SurfaceState state, const std::string&, double) {
-    ready = ready || state == ScenePool::SurfaceState::Ready;
-    buildingSix += iso == 6.0f && state == ScenePool::SurfaceState::Building;
-  };
-  events.wake = [&] { changed.notify_all(); };
-  ScenePool::Options options;
-  options.loader = [](const std::string& path, const std::string&, const Progress*) { return loadScene(path, SceneLoadOptions{false, 1 << 20}); };
-  options.previewSamples = 0;
-  {
-    ScenePool pool(mutex, options, events);
-    std::unique_lock<std::mutex> lock(mutex);
-    pool.open(1, "k", dir.file("s.hoct"), "", "s");
-    changed.wait(lock, [&] { return opened; });
-    ScenePool::Frame f = pool.forFrame(1, 5.0f);
-    ASSERT_TRUE(f.renderer);
-    EXPECT_FALSE(f.surfaceReady);
-    EXPECT_TRUE(f.surfaceBuilding);
-    while (!ready) {
-      changed.wait_for(lock, std::chrono::milliseconds(50));
-      pool.collect(lock);
-    }
-    f = pool.forFrame(1, 5.0f);
-    EXPECT_TRUE(f.surfaceReady);
-    ASSERT_EQ(f.iso, std::optional<float>(5.0f));
-    Look look;
-    look.tf = warm();
-    look.iso = 5.0f;
-    const int preview = previewSpacing(f.renderer->volume().dims(), f.renderer->volume().spacing(), f.renderer->octree().leafEdge());
-    EXPECT_EQ(preview, 2);  // (40 mm across: below a voxel a pixel at 96 pixels)
-    // Frames asking coarser and coarser cubes: the one asking the preview's draws it, the others the
-    // full-resolution surface (finer than asked, never a cube size not kept).
-    bool drewPreview = false;
-    for (double pixels = 1.0; pixels <= 64.0; pixels *= 2.0) {
-      Quality coarse;
-      coarse.lodPixels = pixels;
-      coarse.waitForSurface = false;
-      const FrameStats st = f.renderer->render(viewFrom(20, sphereScene().volume), look, coarse).stats;  // (framed from the samples in memory)
-      EXPECT_TRUE(st.surfaceSpacing == 1 || st.surfaceSpacing == preview) << pixels << " pixels";
-      EXPECT_FALSE(st.surfaceBuilt) << pixels << " pixels";
-      EXPECT_GT(st.surfaceTriangles, 0u);
-      drewPreview = drewPreview || st.surfaceSpacing == preview;
-    }
-    EXPECT_TRUE(drewPreview);
-    // Then the simplified levels of the moving frames.
-    auto levelsCome = [&](float iso) {
-      for (int i = 0; i < 600 && f.renderer->unsimplified(iso); ++i) {
+  for (const bool paged : {true, false}) {
+    SCOPED_TRACE(paged ? "paged" : "in memory");
+    std::mutex mutex;
+    std::condition_variable changed;
+    bool opened = false, ready = false;
+    int buildingSix = 0;
+    ScenePool::Events events;
+    events.loading = [](uint64_t, const std::string&, const std::string&, double) {};
+    events.opened = [&](uint64_t, const std::string&, const SceneSummary* summary, const std::string&) { opened = summary != nullptr; changed.notify_all(); };
+    events.surface = [&](uint64_t, const std::string&, float iso, ScenePool::SurfaceState state, const std::string&, double) {
+      ready = ready || state == ScenePool::SurfaceState::Ready;
+      buildingSix += iso == 6.0f && state == ScenePool::SurfaceState::Building;
+    };
+    events.wake = [&] { changed.notify_all(); };
+    ScenePool::Options options;
+    options.loader = [paged](const std::string& path, const std::string&, const Progress*) {
+      return paged ? loadScene(path, SceneLoadOptions{false, 1 << 20}) : sphereScene();
+    };
+    options.previewSamples = 0;
+    {
+      ScenePool pool(mutex, options, events);
+      std::unique_lock<std::mutex> lock(mutex);
+      pool.open(1, "k", dir.file("s.hoct"), "", "s");
+      changed.wait(lock, [&] { return opened; });
+      ScenePool::Frame f = pool.forFrame(1, 5.0f);
+      ASSERT_TRUE(f.renderer);
+      EXPECT_FALSE(f.surfaceReady);
+      EXPECT_TRUE(f.surfaceBuilding);
+      while (!ready) {
         changed.wait_for(lock, std::chrono::milliseconds(50));
         pool.collect(lock);
       }
-      return f.renderer->unsimplified(iso) == nullptr;
-    };
-    EXPECT_TRUE(levelsCome(5.0f));
-    EXPECT_FALSE(pool.forFrame(1, 5.0f).surfaceBuilding);
-    // A full-resolution surface kept without its levels (its build stopped before them) is ready at
-    // once; the builder makes only the levels, telling no viewer it builds.
-    f.renderer->adoptSurface(SceneRenderer::prepareSurface(f.renderer->scene(), 6.0f));
-    f = pool.forFrame(1, 6.0f);
-    EXPECT_TRUE(f.surfaceReady);
-    EXPECT_TRUE(f.surfaceBuilding);
-    EXPECT_TRUE(levelsCome(6.0f));
-    EXPECT_EQ(buildingSix, 0);
-    lock.unlock();
+      f = pool.forFrame(1, 5.0f);
+      EXPECT_TRUE(f.surfaceReady);
+      ASSERT_EQ(f.iso, std::optional<float>(5.0f));
+      Look look;
+      look.tf = warm();
+      look.iso = 5.0f;
+      const int preview = previewSpacing(f.renderer->volume().dims(), f.renderer->volume().spacing(), f.renderer->octree().leafEdge());
+      EXPECT_EQ(preview, 2);  // (40 mm across: below a voxel a pixel at 96 pixels)
+      // Frames asking coarser and coarser cubes: the one asking the preview's draws it, the others the
+      // full-resolution surface (finer than asked, never a cube size not kept).
+      bool drewPreview = false;
+      for (double pixels = 1.0; pixels <= 64.0; pixels *= 2.0) {
+        Quality coarse;
+        coarse.lodPixels = pixels;
+        coarse.waitForSurface = false;
+        const FrameStats st = f.renderer->render(viewFrom(20, sphereScene().volume), look, coarse).stats;  // (framed from the samples in memory)
+        EXPECT_TRUE(st.surfaceSpacing == 1 || st.surfaceSpacing == preview) << pixels << " pixels";
+        EXPECT_FALSE(st.surfaceBuilt) << pixels << " pixels";
+        EXPECT_GT(st.surfaceTriangles, 0u);
+        drewPreview = drewPreview || st.surfaceSpacing == preview;
+      }
+      EXPECT_TRUE(drewPreview);
+      // Then the simplified levels of the moving frames.
+      auto levelsCome = [&](float iso) {
+        for (int i = 0; i < 600 && f.renderer->unsimplified(iso); ++i) {
+          changed.wait_for(lock, std::chrono::milliseconds(50));
+          pool.collect(lock);
+        }
+        return f.renderer->unsimplified(iso) == nullptr;
+      };
+      EXPECT_TRUE(levelsCome(5.0f));
+      EXPECT_FALSE(pool.forFrame(1, 5.0f).surfaceBuilding);
+      // A full-resolution surface kept without its levels (its build stopped before them) is ready at
+      // once; the builder makes only the levels, telling no viewer it builds.
+      f.renderer->adoptSurface(SceneRenderer::prepareSurface(f.renderer->scene(), 6.0f));
+      f = pool.forFrame(1, 6.0f);
+      EXPECT_TRUE(f.surfaceReady);
+      EXPECT_TRUE(f.surfaceBuilding);
+      EXPECT_TRUE(levelsCome(6.0f));
+      EXPECT_EQ(buildingSix, 0);
+      lock.unlock();
+    }
   }
 }
 
