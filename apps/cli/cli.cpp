@@ -356,7 +356,7 @@ struct ExportOptions {
     if (fraction && labelVolume.empty()) return "--fraction needs --label-volume";
     if (!labelVolume.empty()) {
       if (meshes.empty() && primitives.empty()) return "--label-volume needs --mesh or --primitive (the geometry it holds)";
-      if (!labelVolume.ends_with(".nrrd")) return "--label-volume '" + labelVolume + "' invalid (expected a .nrrd file)";
+      if (!writableVolume(labelVolume)) return "--label-volume '" + labelVolume + "' invalid (expected one of " + writableVolumeExtensionsText() + ")";
       if (std::string e = outputsError({{labelVolume, "--label-volume"}}, {input.path}); !e.empty()) return e;
       if (!iso && output.empty()) return "";  // the volume alone
     } else if (!meshes.empty() || !primitives.empty()) {
@@ -401,7 +401,7 @@ int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
       inside += label.value(n) >= (o.fraction ? 0.5f : 1.0f);
       sum += label.value(n);
     }
-    writeNrrd(label, o.labelVolume);
+    writeVolume(label, o.labelVolume);
     const glm::dvec3 s = scene.volume.spacing();
     out << "wrote    " << o.labelVolume << " (" << (o.fraction ? "float32 fraction" : "uint8 label, 1 where the coverage is >= 0.5") << ", the CT's grid and frame; "
         << inside << " voxels labelled, " << (o.fraction ? sum : double(inside)) * s.x * s.y * s.z << " mm^3; " << msSince(t0) << " ms)\n";
@@ -665,7 +665,7 @@ struct Commands {
     exportCmd->add_option("--mesh-space", exportOpts.meshSpace, "the space of mesh files whose header does not name one: lps or ras")->capture_default_str();
     exportCmd->add_option("--label-volume", exportOpts.labelVolume,
                           "write the meshes and primitives scan-converted on the CT's grid and frame (box filter of one voxel; closed meshes and "
-                          "spheres solid, planes and polygons as sheets): a .nrrd uint8 label, 1 where a voxel is at least half covered");
+                          "spheres solid, planes and polygons as sheets): a .nrrd, .nii or .nii.gz uint8 label, 1 where a voxel is at least half covered");
     exportCmd->add_flag("--fraction", exportOpts.fraction, "--label-volume holds each voxel's covered fraction (float32) instead of a label");
     exportCmd->add_option("--memory", exportOpts.memoryMb,
                           "MB a scene file holds when its Surface Octree's surface is exported (--surface octree, without --closed or --check): "
