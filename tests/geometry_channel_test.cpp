@@ -6,6 +6,7 @@
 #include <numbers>
 
 #include <glm/gtc/matrix_transform.hpp>
+#include <nlohmann/json.hpp>
 #include <nifti1.h>
 #include <nifti2_io.h>
 
@@ -218,6 +219,34 @@ TEST(GeometryChannel, ARotatingPlaneDoesNotShimmerWhenFiltered) {
               mean[0], worst[0]);
   EXPECT_LT(worst[1], 6.0);
   EXPECT_GT(mean[0], 3.0 * mean[1]);
+}
+
+// --stats (and Python's stats, the same FrameReport) report the scan-conversion of a frame that
+// composites scan-converted geometry: its time (the first frame's, when --repeat keeps the channel)
+// and the channel's bytes; a frame without it has neither key.
+TEST(GeometryChannel, StatsReportTheScanConversionOfFramesThatHaveIt) {
+  test::TempDir dir;
+  writeNrrd(test::sphereVolume({24, 22, 20}, 8.0), dir.file("ct.nrrd"));
+  const std::string sphere = "--primitive=sphere:11.5,10.5,9.5,5";
+  for (const char* renderer : {"slices", "raycast"}) {
+    SCOPED_TRACE(renderer);
+    auto stats = [&](std::vector<std::string> extra) {
+      std::vector<std::string> args = {"render", dir.file("ct.nrrd"), "--size", "16x16", "--renderer", renderer, "--repeat", "2",
+                                       "-o",     dir.file("f.png"),   "--stats", dir.file("f.json")};
+      args.insert(args.end(), extra.begin(), extra.end());
+      const test::CliRun r = test::run(args);
+      EXPECT_EQ(r.status, 0) << r.err;
+      return nlohmann::json::parse(test::readText(dir.file("f.json")));
+    };
+    const nlohmann::json scan = stats({"--mesh-method", "scan-convert", sphere});
+    ASSERT_TRUE(scan.contains("geometry_ms") && scan.contains("geometry_bytes")) << scan.dump();
+    EXPECT_GT(scan["geometry_ms"].get<double>(), 0.0);
+    EXPECT_GT(scan["geometry_bytes"].get<double>(), 0.0);
+    for (const std::vector<std::string>& without : {std::vector<std::string>{}, {"--mesh-method", "polygons", sphere}}) {
+      const nlohmann::json none = stats(without);
+      EXPECT_FALSE(none.contains("geometry_ms") || none.contains("geometry_bytes")) << none.dump();
+    }
+  }
 }
 
 TEST(GeometryChannel, BadPrimitivesAreRefusedInOneLineNamingTheFlag) {

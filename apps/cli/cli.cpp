@@ -213,7 +213,7 @@ void printSelection(const RenderJob& job, const RenderedFrame& f, std::ostream& 
 // The frames of a render run: the last, and its times (--repeat: the fastest and the first).
 struct RenderRun {
   RenderedFrame frame;
-  double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0, tableMs = 0;
+  double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0, tableMs = 0, geometryMs = 0;
 };
 
 // The run's "render" line (and its classification's): what the frame drew and in what time.
@@ -243,7 +243,7 @@ void printRenderLines(const RenderJob& job, const RenderRun& run, int repeat, st
 
 // --stats: the frame's report (FrameReport) with the command's own times and, across ranks, theirs.
 std::string statsJson(const RenderJob& job, const RenderRun& run, const FrameStats& surface, const std::string& ranksJson) {
-  const FrameReport report{run.frame, job.quality, job.view.camera, job.renderer->scene().knots.get(), run.renderMs, run.tableMs};
+  const FrameReport report{run.frame, job.quality, job.view.camera, job.renderer->scene().knots.get(), run.renderMs, run.tableMs, run.geometryMs};
   nlohmann::ordered_json j = nlohmann::ordered_json::parse(report.json());
   j["build_ms"] = job.buildMs + surface.surfaceBuildMs;
   j["surface_polygons_ms"] = surface.surfacePolygonsMs;
@@ -304,6 +304,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
             << frame.selection.texels << " texels\n";
       run.firstMs = frame.stats.renderMs;
       run.tableMs = frame.stats.preintegrationMs;
+      run.geometryMs = frame.stats.geometryMs;
     }
     run.renderMs = std::min(run.renderMs, frame.stats.renderMs);
   }
