@@ -229,8 +229,8 @@ short niftiDatatype(ScalarType t) {
 }
 
 // The NIfTI-1 header of @p volume: its grid in RAS (x and y of the LPS frame negated) as both the
-// sform and the qform, so that readers taking either (ITK and nibabel the sform, others the qform)
-// place it alike.
+// sform and the qform, so that readers taking either (this one and nibabel the sform, others the
+// qform) place it alike.
 nifti_1_header niftiHeader(const Volume& volume, const std::string& path) {
   static_assert(sizeof(nifti_1_header) == 348);
   const glm::ivec3 dims = volume.dims();
@@ -250,7 +250,8 @@ nifti_1_header niftiHeader(const Volume& volume, const std::string& path) {
   h.xyzt_units = NIFTI_UNITS_MM;
   std::strncpy(h.descrip, "hybrid-octree", sizeof h.descrip);
   std::memcpy(h.magic, "n+1", 4);
-  // The affine: column a is axis a's RAS direction times its spacing; column 3 the origin.
+  // The affine: column a is axis a's RAS direction times its spacing; column 3 the origin (RAS;
+  // rasToLps is its own inverse).
   nifti_dmat44 m{};
   const PatientFrame& f = volume.frame();
   for (int a = 0; a < 3; ++a) {
