@@ -1040,6 +1040,10 @@ std::string FrameReport::json() const {
   j["render_ms"] = renderMs;
   j["classification"] = quality.classification == Classification::PreIntegrated ? "preintegrated" : "post";
   j["preintegration_ms"] = preintegrationMs;
+  if (st.geometryBytes > 0) {  // a scan-converted channel (its node maxima alone are never empty)
+    j["geometry_ms"] = geometryMs;
+    j["geometry_bytes"] = st.geometryBytes;
+  }
   j["samples"] = st.rays.samples;
   j["rays"] = st.rays.rays;
   j["epsilon"] = quality.epsilon;

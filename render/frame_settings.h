@@ -176,7 +176,9 @@ struct FrameReport {
   const KnotStore* store = nullptr;  ///< a paged scene's: the blocks and bytes it read
   double renderMs = 0.0;             ///< the frame's time (the best of repeated frames)
   double preintegrationMs = 0.0;     ///< the pre-integration table's (the first frame's)
-  /// The statistics as a JSON object (ordered keys, camera last).
+  double geometryMs = 0.0;           ///< scan-converting the look's geometry (the first frame's; 0 when kept)
+  /// The statistics as a JSON object (ordered keys, camera last); geometry_ms and geometry_bytes
+  /// only when the frame composites scan-converted geometry.
   std::string json() const;
 };
 

@@ -5,9 +5,15 @@
 #include "surface/mesh_io.h"
 
 #include <algorithm>
+#include <bit>
+#include <charconv>
+#include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
+#include <string_view>
 
 #include "volume/core/error.h"
 #include "volume/core/file_util.h"
@@ -71,6 +77,244 @@ void recordSpace(std::string* bytes, const std::string& ext, const std::string& 
     }
   }
   bytes->insert(at, ext == ".ply" ? "comment " + tag + "\n" : "# " + tag + "\n");
+}
+
+// ---- Face indices a file names but does not hold
+// OpenMesh's importer drops a face naming a vertex it does not hold, its only word going to the
+// silenced omerr; these scans of the face records refuse such a file instead, naming the face, and
+// a header declaring more rows than the file has bytes. A record they cannot parse ends the scan
+// quietly: OpenMesh's reader judges the rest.
+
+[[noreturn]] void badIndex(const std::string& path, uint64_t face, long long index, uint64_t vertices) {
+  HYB_THROW(IoError, path, ": face ", face, " uses vertex ", index, " (expected indices below ", vertices, ")");
+}
+
+// Refuses a header's count of @p count @p rows that the file's @p bytes cannot hold: OpenMesh would
+// reserve memory for them or step through them one by one.
+void tooManyRows(const std::string& path, const std::string& rows, uint64_t count, uint64_t bytes) {
+  if (count > bytes) HYB_THROW(IoError, path, ": the header declares ", count, " ", rows, " (expected at most the file's ", bytes, " bytes)");
+}
+
+// A text file's bytes read word by word, as a stream's >> reads them.
+class Words {
+ public:
+  explicit Words(std::string_view text) : mText(text) {}
+  /// The next word; empty at the end.
+  std::string_view word() {
+    const size_t start = std::min(mText.find_first_not_of(" \t\r\n\f\v", mAt), mText.size());
+    mAt = std::min(mText.find_first_of(" \t\r\n\f\v", start), mText.size());
+    return mText.substr(start, mAt - start);
+  }
+  /// The next word as an integer (false when it is not one).
+  bool integer(long long* out) {
+    const std::string_view w = word();
+    return !w.empty() && std::from_chars(w.data(), w.data() + w.size(), *out).ptr == w.data() + w.size();
+  }
+  /// The rest of the current line, its end included.
+  std::string_view line() {
+    const size_t start = mAt;
+    const size_t nl = mText.find('\n', mAt);
+    mAt = nl == std::string_view::npos ? mText.size() : nl + 1;
+    return mText.substr(start, mAt - start);
+  }
+  bool atEnd() const { return mAt >= mText.size(); }
+
+ private:
+  std::string_view mText;
+  size_t mAt = 0;
+};
+
+// OFF as OpenMesh's ASCII reader reads it: [ST][C][N]OFF on the first line, the counts, each vertex
+// as its coordinates (and normal) and the rest of its line, each face as its count and indices (and,
+// with C, the rest of its line). Binary and higher-dimensional OFF are not scanned.
+void checkOffFaces(const std::string& path, std::string_view text) {
+  Words in(text);
+  const std::string_view header = in.line();
+  size_t p = header.starts_with("ST") ? 2 : 0;
+  const bool colors = header.substr(p).starts_with("C");
+  p += colors;
+  const bool normals = header.substr(p).starts_with("N");
+  p += normals;
+  if (!header.substr(p).starts_with("OFF") || header.find("BINARY") != std::string_view::npos) return;
+  long long vertices = 0, faces = 0, edges = 0;
+  if (!in.integer(&vertices) || !in.integer(&faces) || !in.integer(&edges) || vertices < 0 || faces < 0) return;
+  tooManyRows(path, "vertices", uint64_t(vertices), text.size());
+  tooManyRows(path, "faces", uint64_t(faces), text.size());
+  for (long long v = 0; v < vertices; ++v) {
+    for (int c = 0; c < (normals ? 6 : 3); ++c) in.word();
+    in.line();
+  }
+  for (long long f = 0; f < faces; ++f) {
+    long long n = 0, index = 0;
+    if (!in.integer(&n) || n < 0) return;
+    for (long long k = 0; k < n; ++k) {
+      if (!in.integer(&index)) return;
+      if (index < 0 || index >= vertices) badIndex(path, uint64_t(f), index, uint64_t(vertices));
+    }
+    if (colors) in.line();
+  }
+}
+
+// OBJ as OpenMesh reads it: a face's vertex is the number before its first '/', counted from 1
+// among all the file's vertices, or from -1 back from the last vertex defined above the face.
+void checkObjFaces(const std::string& path, std::string_view text) {
+  // Calls @p line with each line's number, its keyword ('v' or 'f') and the words after it.
+  auto lines = [text](const std::function<void(uint64_t, char, Words&)>& line) {
+    Words in(text);
+    for (uint64_t number = 1; !in.atEnd(); ++number) {
+      const std::string_view l = in.line();
+      const size_t start = l.find_first_not_of(" \t");
+      if (start != std::string_view::npos && l.size() > start + 1 && (l[start] == 'v' || l[start] == 'f') &&
+          (l[start + 1] == ' ' || l[start + 1] == '\t')) {
+        Words rest(l.substr(start + 2));
+        line(number, l[start], rest);
+      }
+    }
+  };
+  // OpenMesh's first pass adds the vertices whose x, y and z are numbers; its second counts every
+  // "v" line for the indices counted back.
+  uint64_t vertices = 0, above = 0, faces = 0;
+  lines([&](uint64_t, char key, Words& rest) {
+    if (key != 'v') return;
+    int numbers = 0;
+    for (std::string_view w = rest.word(); numbers < 3 && !w.empty(); w = rest.word(), ++numbers) {
+      if (w.starts_with('+')) w.remove_prefix(1);
+      double x;
+      if (std::from_chars(w.data(), w.data() + w.size(), x).ptr == w.data()) break;
+    }
+    vertices += numbers == 3;
+  });
+  lines([&](uint64_t number, char key, Words& rest) {
+    if (key == 'v') {
+      ++above;
+      return;
+    }
+    for (std::string_view w = rest.word(); !w.empty(); w = rest.word()) {
+      long long index = 0;
+      const auto [stop, error] = std::from_chars(w.data(), w.data() + w.size(), index);
+      if (error != std::errc() || (stop != w.data() + w.size() && *stop != '/')) continue;  // as OpenMesh: not a number, no vertex
+      if (index > 0 ? uint64_t(index) <= vertices : index < 0 && uint64_t(0) - uint64_t(index) <= above) continue;
+      HYB_THROW(IoError, path, ": face ", faces, " (line ", number, ") uses vertex ", index, " (expected 1 to ", vertices,
+                above ? detail::concat(", or -1 to -", above, " counting back from the last vertex above it") : std::string(), ")");
+    }
+    ++faces;
+  });
+}
+
+// A PLY value of type T from its bytes in the host's order.
+template <class T>
+double plyValue(const unsigned char* bytes) {
+  T v;
+  std::memcpy(&v, bytes, sizeof v);
+  return double(v);
+}
+
+// PLY, ASCII or binary: every element read property by property (lists as their count and items),
+// the indices of the face element's vertex_indices (or vertex_index) list checked.
+void checkPlyFaces(const std::string& path) {
+  struct Type {
+    const char* name;
+    int size;
+    double (*read)(const unsigned char*);  // the value of its bytes in the host's order
+  };
+  static constexpr Type kTypes[] = {
+      {"char", 1, plyValue<int8_t>},     {"int8", 1, plyValue<int8_t>},      {"uchar", 1, plyValue<uint8_t>},   {"uint8", 1, plyValue<uint8_t>},
+      {"short", 2, plyValue<int16_t>},   {"int16", 2, plyValue<int16_t>},    {"ushort", 2, plyValue<uint16_t>}, {"uint16", 2, plyValue<uint16_t>},
+      {"int", 4, plyValue<int32_t>},     {"int32", 4, plyValue<int32_t>},    {"uint", 4, plyValue<uint32_t>},   {"uint32", 4, plyValue<uint32_t>},
+      {"float", 4, plyValue<float>},     {"float32", 4, plyValue<float>},    {"double", 8, plyValue<double>},   {"float64", 8, plyValue<double>}};
+  auto typeOf = [](const std::string& name) -> const Type* {
+    for (const Type& t : kTypes)
+      if (name == t.name) return &t;
+    return nullptr;
+  };
+  struct Property {
+    const Type* type = nullptr;
+    const Type* count = nullptr;  // a list's count; null: not a list
+    bool indices = false;         // the face element's vertex list
+  };
+  struct Element {
+    std::string name;
+    uint64_t count = 0;
+    std::vector<Property> properties;
+  };
+  std::ifstream in(path, std::ios::binary);
+  std::string line, format;
+  std::vector<Element> elements;
+  while (std::getline(in, line)) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    std::istringstream words(line);
+    std::string word, type, countType, name;
+    words >> word;
+    if (word == "format") {
+      words >> format;
+    } else if (word == "element") {
+      elements.emplace_back();
+      if (!(words >> elements.back().name >> elements.back().count)) return;
+    } else if (word == "property" && !elements.empty()) {
+      Property p;
+      if (!(words >> type)) return;
+      if (type == "list" && !(words >> countType && (p.count = typeOf(countType)))) return;
+      if (type == "list" && !(words >> type)) return;
+      if (!(words >> name) || !(p.type = typeOf(type))) return;
+      p.indices = elements.back().name == "face" && p.count && (name == "vertex_indices" || name == "vertex_index");
+      elements.back().properties.push_back(p);
+    } else if (word == "end_header") {
+      break;
+    }
+  }
+  const bool ascii = format == "ascii";
+  const bool swap = (format == "binary_big_endian") != (std::endian::native == std::endian::big);
+  if (!in || (!ascii && format != "binary_little_endian" && format != "binary_big_endian")) return;
+  uint64_t vertices = 0;
+  std::error_code ec;
+  const uint64_t bytes = std::filesystem::file_size(path, ec);
+  for (const Element& e : elements) {
+    tooManyRows(path, "'" + e.name + "' rows", e.count, bytes);
+    if (e.name == "vertex") vertices = e.count;
+  }
+  // One value (false at the file's end, or on a word that is not a number).
+  auto value = [&](const Type& t, double* out) {
+    if (ascii) return bool(in >> *out);
+    unsigned char b[8];
+    if (!in.read(reinterpret_cast<char*>(b), t.size)) return false;
+    if (swap) std::reverse(b, b + t.size);
+    *out = t.read(b);
+    return true;
+  };
+  uint64_t face = 0;
+  for (const Element& e : elements) {
+    if (!ascii && std::none_of(e.properties.begin(), e.properties.end(), [](const Property& p) { return p.count; })) {
+      int64_t row = 0;  // no list: the element's rows are skipped whole
+      for (const Property& p : e.properties) row += p.type->size;
+      in.seekg(std::streamoff(row * int64_t(e.count)), std::ios::cur);
+      continue;
+    }
+    for (uint64_t i = 0; i < e.count; ++i) {
+      for (const Property& p : e.properties) {
+        double items = 1, item = 0;
+        if (p.count && (!value(*p.count, &items) || !(items >= 0))) return;
+        for (double k = 0; k < items; ++k) {
+          if (!value(*p.type, &item)) return;
+          if (p.indices && !(item >= 0 && item < double(vertices))) {
+            if (!(std::abs(item) < 9e18)) return;  // no integer: OpenMesh's to judge
+            badIndex(path, face, (long long)item, vertices);
+          }
+        }
+      }
+      face += e.name == "face";
+    }
+  }
+}
+
+// Refuses a face naming a vertex the file does not hold (STL has no indices).
+void checkFaceIndices(const std::string& path) {
+  const std::string ext = fileExtension(path);
+  if (ext == ".ply") return checkPlyFaces(path);
+  if (ext != ".off" && ext != ".obj") return;
+  const std::vector<uint8_t> bytes = readFileBytes(path);
+  const std::string_view text(reinterpret_cast<const char*>(bytes.data()), bytes.size());
+  if (ext == ".off") checkOffFaces(path, text);
+  if (ext == ".obj") checkObjFaces(path, text);
 }
 
 }  // namespace
@@ -163,6 +407,7 @@ TriangleMesh readMesh(const std::string& path) {
         head.size() == 84)
       return out;
   }
+  checkFaceIndices(path);
   OMesh om;
   om.request_vertex_normals();
   OpenMesh::IO::Options options = OpenMesh::IO::Options::VertexNormal;

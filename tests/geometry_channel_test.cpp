@@ -2,9 +2,13 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <fstream>
 #include <numbers>
 
 #include <glm/gtc/matrix_transform.hpp>
+#include <nlohmann/json.hpp>
+#include <nifti1.h>
+#include <nifti2_io.h>
 
 #include "cli_util.h"
 #include "render/frame_settings.h"
@@ -217,6 +221,34 @@ TEST(GeometryChannel, ARotatingPlaneDoesNotShimmerWhenFiltered) {
   EXPECT_GT(mean[0], 3.0 * mean[1]);
 }
 
+// --stats (and Python's stats, the same FrameReport) report the scan-conversion of a frame that
+// composites scan-converted geometry: its time (the first frame's, when --repeat keeps the channel)
+// and the channel's bytes; a frame without it has neither key.
+TEST(GeometryChannel, StatsReportTheScanConversionOfFramesThatHaveIt) {
+  test::TempDir dir;
+  writeNrrd(test::sphereVolume({24, 22, 20}, 8.0), dir.file("ct.nrrd"));
+  const std::string sphere = "--primitive=sphere:11.5,10.5,9.5,5";
+  for (const char* renderer : {"slices", "raycast"}) {
+    SCOPED_TRACE(renderer);
+    auto stats = [&](std::vector<std::string> extra) {
+      std::vector<std::string> args = {"render", dir.file("ct.nrrd"), "--size", "16x16", "--renderer", renderer, "--repeat", "2",
+                                       "-o",     dir.file("f.png"),   "--stats", dir.file("f.json")};
+      args.insert(args.end(), extra.begin(), extra.end());
+      const test::CliRun r = test::run(args);
+      EXPECT_EQ(r.status, 0) << r.err;
+      return nlohmann::json::parse(test::readText(dir.file("f.json")));
+    };
+    const nlohmann::json scan = stats({"--mesh-method", "scan-convert", sphere});
+    ASSERT_TRUE(scan.contains("geometry_ms") && scan.contains("geometry_bytes")) << scan.dump();
+    EXPECT_GT(scan["geometry_ms"].get<double>(), 0.0);
+    EXPECT_GT(scan["geometry_bytes"].get<double>(), 0.0);
+    for (const std::vector<std::string>& without : {std::vector<std::string>{}, {"--mesh-method", "polygons", sphere}}) {
+      const nlohmann::json none = stats(without);
+      EXPECT_FALSE(none.contains("geometry_ms") || none.contains("geometry_bytes")) << none.dump();
+    }
+  }
+}
+
 TEST(GeometryChannel, BadPrimitivesAreRefusedInOneLineNamingTheFlag) {
   const FrameField& f = *frameField("primitive");
   const std::pair<const char*, const char*> bad[] = {
@@ -249,16 +281,20 @@ TEST(GeometryChannel, BadPrimitivesAreRefusedInOneLineNamingTheFlag) {
   EXPECT_EQ(*f.text(s), "plane:1,2,3,0,0,1,2:1,0,0,0.5;sphere:1,2,3,4;polygon:0,0,0,1,0,0,1,1,0");
 }
 
-TEST(GeometryChannel, ExportWritesTheGeometryOnTheCtsGridAndFrame) {
-  test::TempDir dir;
-  // A CT of 48 × 44 × 40 voxels of 0.8 × 0.9 × 1.25 mm in a rotated, mirrored frame.
-  Volume ct = test::sphereVolume({48, 44, 40}, 13.0);
-  ct = Volume(ct.dims(), glm::dvec3(0.8, 0.9, 1.25), ScalarType::Float32, std::vector<float>(ct.voxelCount(), 0.0f), "ct");
+// A CT of 48 × 44 × 40 voxels of 0.8 × 0.9 × 1.25 mm in a rotated, mirrored frame, written as
+// @p path and read back (the grid as the export reads it: a spacing's last bit from its direction's length).
+Volume rotatedMirroredCt(const std::string& path) {
+  Volume ct(glm::ivec3(48, 44, 40), glm::dvec3(0.8, 0.9, 1.25), ScalarType::Float32, std::vector<float>(48 * 44 * 40, 0.0f), "ct");
   glm::dmat3 d(glm::rotate(glm::dmat4(1.0), 0.6, glm::normalize(glm::dvec3(1, -2, 0.5))));
   d[2] = -d[2];
   ct.setFrame(makePatientFrame(d, glm::dvec3(-40.0, 12.5, 300.0), "test frame"));
-  writeNrrd(ct, dir.file("ct.nrrd"));
-  ct = readVolume(dir.file("ct.nrrd"));  // the grid as the export reads it (a spacing's last bit from its direction's length)
+  writeNrrd(ct, path);
+  return readVolume(path);
+}
+
+TEST(GeometryChannel, ExportWritesTheGeometryOnTheCtsGridAndFrame) {
+  test::TempDir dir;
+  const Volume ct = rotatedMirroredCt(dir.file("ct.nrrd"));
   const glm::dvec3 centre = ct.frame().toPatient(0.5 * ct.extentMm());
   const double radius = 12.0, ball = 4.0 / 3.0 * std::numbers::pi * radius * radius * radius;
   writeMesh(dir.file("ball.stl"), geodesicSphere(centre, radius, 48), MeshWriteOptions{false, "LPS"});
@@ -294,11 +330,73 @@ TEST(GeometryChannel, ExportWritesTheGeometryOnTheCtsGridAndFrame) {
     }
   }
   // Refused in one line naming the flag, nothing written.
-  test::expectBadInput({"export", dir.file("ct.nrrd"), "--label-volume", dir.file("x.nii.gz"), "--primitive", sphere}, "--label-volume");
+  test::expectBadInput({"export", dir.file("ct.nrrd"), "--label-volume", dir.file("x.mha"), "--primitive", sphere},
+                       "--label-volume '" + dir.file("x.mha") + "' invalid (expected one of .nrrd .nii .nii.gz)");
   test::expectBadInput({"export", dir.file("ct.nrrd"), "--label-volume", dir.file("y.nrrd"), "--primitive", "sphere:1,2,3,-1"}, "--primitive");
   test::expectBadInput({"export", dir.file("ct.nrrd"), "--label-volume", dir.file("y.nrrd")}, "--label-volume");
   test::expectBadInput({"export", dir.file("ct.nrrd"), "--fraction", "--iso", "1", "-o", dir.file("m.stl")}, "--fraction");
   EXPECT_FALSE(std::filesystem::exists(dir.file("y.nrrd")));
+  EXPECT_FALSE(std::filesystem::exists(dir.file("x.mha")));
+}
+
+TEST(GeometryChannel, ExportWritesNiftiHoldingWhatItsNrrdHolds) {
+  test::TempDir dir;
+  const Volume ct = rotatedMirroredCt(dir.file("ct.nrrd"));
+  const glm::dvec3 centre = ct.frame().toPatient(0.5 * ct.extentMm());
+  char sphere[128];
+  std::snprintf(sphere, sizeof sphere, "sphere:%.9f,%.9f,%.9f,12", centre.x, centre.y, centre.z);
+  for (const bool fraction : {false, true}) {
+    auto exported = [&](const std::string& name) {
+      std::vector<std::string> args = {"export", dir.file("ct.nrrd"), "--label-volume", dir.file(name), "--primitive", sphere};
+      if (fraction) args.push_back("--fraction");
+      const test::CliRun r = test::run(args);
+      EXPECT_EQ(r.status, 0) << r.err;
+      return readVolume(dir.file(name));
+    };
+    const Volume nrrd = exported("label.nrrd");
+    for (const std::string name : {"label.nii", "label.nii.gz"}) {
+      SCOPED_TRACE(name + (fraction ? " --fraction" : ""));
+      const Volume nifti = exported(name);
+      EXPECT_EQ(nifti.dims(), nrrd.dims());
+      EXPECT_EQ(nifti.storedType(), nrrd.storedType());
+      ASSERT_EQ(nifti.voxelCount(), nrrd.voxelCount());
+      size_t differ = 0, labelled = 0;
+      for (size_t n = 0; n < nrrd.voxelCount(); ++n) {
+        differ += nifti.value(n) != nrrd.value(n);
+        labelled += nrrd.value(n) > 0.0f;
+      }
+      EXPECT_EQ(differ, 0u);
+      EXPECT_GT(labelled, 1000u);  // the ball: not an empty volume compared with an empty one
+      // NIfTI-1 holds the affine as float: the CT's grid within 10⁻⁶ mm (its origin is exact in float).
+      EXPECT_LT(glm::length(nifti.spacing() - nrrd.spacing()), 1e-6);
+      for (int c = 0; c < 3; ++c) EXPECT_LT(glm::length(nifti.frame().direction[c] - nrrd.frame().direction[c]), 1e-6);
+      EXPECT_LT(glm::length(nifti.frame().origin - nrrd.frame().origin), 1e-6);
+      EXPECT_FALSE(nifti.frame().assumed);
+    }
+    // The raw header: the qform as the sform, x and y of LPS negated (RAS).
+    nifti_1_header h;
+    std::ifstream in(dir.file("label.nii"), std::ios::binary);
+    ASSERT_TRUE(in.read(reinterpret_cast<char*>(&h), sizeof h));
+    EXPECT_EQ(h.sizeof_hdr, 348);
+    EXPECT_EQ(std::string(h.magic, 3), "n+1");
+    EXPECT_EQ(h.vox_offset, 352.0f);
+    EXPECT_EQ(h.datatype, fraction ? DT_FLOAT32 : DT_UINT8);
+    EXPECT_EQ(h.sform_code, NIFTI_XFORM_SCANNER_ANAT);
+    EXPECT_EQ(h.qform_code, NIFTI_XFORM_SCANNER_ANAT);
+    EXPECT_EQ(h.xyzt_units, NIFTI_UNITS_MM);
+    EXPECT_EQ(h.pixdim[0], -1.0f);  // the mirrored frame: qfac −1
+    const glm::dvec3 i = ct.frame().direction[0] * ct.spacing().x;
+    EXPECT_NEAR(h.srow_x[0], -i.x, 1e-6);
+    EXPECT_NEAR(h.srow_y[0], -i.y, 1e-6);
+    EXPECT_NEAR(h.srow_z[0], i.z, 1e-6);
+    EXPECT_NEAR(h.srow_x[3], 40.0, 1e-6);
+    EXPECT_NEAR(h.srow_y[3], -12.5, 1e-6);
+    // The qform's quaternion gives the sform's matrix (nifti_clib's qto_xyz against sto_xyz).
+    std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nifti_image_read(dir.file("label.nii.gz").c_str(), 0), nifti_image_free);
+    ASSERT_TRUE(nim);
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c) EXPECT_NEAR(nim->qto_xyz.m[r][c], nim->sto_xyz.m[r][c], 1e-5) << r << "," << c;
+  }
 }
 
 }  // namespace

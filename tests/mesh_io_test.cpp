@@ -1,5 +1,8 @@
 #include "surface/mesh_io.h"
 
+#include <algorithm>
+#include <bit>
+#include <cstring>
 #include <fstream>
 
 #include <gmock/gmock.h>
@@ -122,6 +125,96 @@ TEST(MeshIo, OneTableOfFormatsAndItsBytesAreTheFiles) {
     if (!f.normals) {
       EXPECT_THROW(meshBytes(mesh, f, MeshWriteOptions{true, ""}), IoError) << f.extension;
     }
+  }
+}
+
+// A face naming a vertex the file does not hold (OpenMesh's importer would drop it without a word)
+// refuses the file in one line naming the face and the index; the same files with every index in
+// range read whole.
+TEST(MeshIo, AFaceNamingAVertexTheFileDoesNotHoldIsRefusedNamingIt) {
+  test::TempDir dir;
+  // Reads @p name holding @p text: its triangle count, or -1 after checking the one-line message
+  // "<path>: <said>" and that nothing was printed.
+  auto read = [&dir](const std::string& name, const std::string& text, const std::string& said = "") -> long {
+    const std::string path = dir.file(name);
+    test::writeText(path, text);
+    testing::internal::CaptureStderr();
+    testing::internal::CaptureStdout();
+    try {
+      const size_t triangles = readMesh(path).triangles.size();
+      testing::internal::GetCapturedStdout();
+      testing::internal::GetCapturedStderr();
+      EXPECT_EQ(said, "") << name << " read";
+      return long(triangles);
+    } catch (const IoError& e) {
+      EXPECT_EQ(testing::internal::GetCapturedStdout(), "") << name;
+      EXPECT_EQ(testing::internal::GetCapturedStderr(), "") << name;
+      EXPECT_EQ(std::string(e.what()), path + ": " + said);
+      return -1;
+    }
+  };
+  const std::string tetra = "0 0 0\n5 0 0\n0 5 0\n0 0 5\n";  // four corners, then faces 012, 143... below
+  // OFF, and COFF whose vertices and faces carry colours.
+  EXPECT_EQ(read("t.off", "OFF\n4 4 0\n" + tetra + "3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n"), 4);
+  EXPECT_EQ(read("b.off", "OFF\n4 4 0\n" + tetra + "3 0 2 1\n3 0 1 4\n3 0 3 2\n3 1 2 3\n", "face 1 uses vertex 4 (expected indices below 4)"), -1);
+  EXPECT_EQ(read("n.off", "OFF\n4 4 0\n" + tetra + "3 0 2 1\n3 0 1 3\n3 0 3 -1\n3 1 2 3\n", "face 2 uses vertex -1 (expected indices below 4)"), -1);
+  const std::string coff = "COFF\n4 4 0\n0 0 0 255 0 0 255\n5 0 0 0 255 0 255\n0 5 0 0 0 255 255\n0 0 5 9 9 9 255\n";
+  EXPECT_EQ(read("t.coff.off", coff + "3 0 2 1 1 0 0\n3 0 1 3 1 0 0\n3 0 3 2 1 0 0\n3 1 2 3 1 0 0\n"), 4);
+  EXPECT_EQ(read("b.coff.off", coff + "3 0 2 1 1 0 0\n3 0 1 3 1 0 0\n3 0 3 2 1 0 0\n3 1 2 30 1 0 0\n", "face 3 uses vertex 30 (expected indices below 4)"), -1);
+  // OBJ: indices from 1 over the whole file (a face may name a vertex defined below it), or counted
+  // back from the last vertex above the face; texture and normal references after '/'.
+  const std::string obj = "# SPACE=LPS\nv 0 0 0\nv 5 0 0\nv 0 5 0\nf 1 3 2\nf 2 3 4\nv 0 0 5\nvn 0 0 1\n";
+  EXPECT_EQ(read("t.obj", obj + "f -4 -3 -1\nf 1//1 4//1 3//1\n"), 4);
+  EXPECT_EQ(read("b.obj", obj + "f -4 -3 -1\nf 1//1 5//1 3//1\n",
+                 "face 3 (line 10) uses vertex 5 (expected 1 to 4, or -1 to -4 counting back from the last vertex above it)"), -1);
+  EXPECT_EQ(read("n.obj", "v 0 0 0\nv 5 0 0\nv 0 5 0\nf -1 -2 -4\nv 0 0 5\nf 1 2 4\n",
+                 "face 0 (line 4) uses vertex -4 (expected 1 to 4, or -1 to -3 counting back from the last vertex above it)"), -1);
+  EXPECT_EQ(read("z.obj", "f 0 1 2\nv 0 0 0\nv 5 0 0\nv 0 5 0\n", "face 0 (line 1) uses vertex 0 (expected 1 to 3)"), -1);
+  // A "v" line without three numbers adds no vertex (OpenMesh, given the face's normal, would write
+  // it past the end of its vertices).
+  EXPECT_EQ(read("s.obj", "v 0 0 0\nv 5 0 0\nv 0 5\nv 0 0 5\nvn 0 0 1\nf 1//1 2//1 4//1\n",
+                 "face 0 (line 6) uses vertex 4 (expected 1 to 3, or -1 to -4 counting back from the last vertex above it)"), -1);
+  // PLY, ASCII.
+  const std::string ply = "ply\nformat ascii 1.0\ncomment SPACE=LPS\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                          "element face 4\nproperty list uchar int vertex_indices\nend_header\n" + tetra;
+  EXPECT_EQ(read("t.ply", ply + "3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n"), 4);
+  EXPECT_EQ(read("b.ply", ply + "3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 312\n", "face 3 uses vertex 312 (expected indices below 4)"), -1);
+  EXPECT_EQ(read("n.ply", ply + "3 0 2 1\n3 -7 1 3\n3 0 3 2\n3 1 2 3\n", "face 1 uses vertex -7 (expected indices below 4)"), -1);
+  // A header declaring more rows than the file has bytes (OpenMesh would reserve or step through them).
+  EXPECT_EQ(read("h.off", "OFF\n999999999999999 2 0\n0 0 0\n", "the header declares 999999999999999 vertices (expected at most the file's 30 bytes)"), -1);
+  EXPECT_EQ(read("h.ply", "ply\nformat ascii 1.0\nelement junk 999999999999\nend_header\n",
+                 "the header declares 999999999999 'junk' rows (expected at most the file's 58 bytes)"), -1);
+  // PLY, binary in either byte order, with a colour on each vertex, a flag on each face and an edge
+  // element after the faces: every property is stepped over by its type.
+  for (const bool big : {false, true}) {
+    auto binary = [big](int badIndex) {
+      std::string b = std::string("ply\nformat ") + (big ? "binary_big_endian" : "binary_little_endian") +
+                      " 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\n"
+                      "element face 4\nproperty list uchar int vertex_indices\nproperty ushort flags\n"
+                      "element edge 1\nproperty int vertex1\nproperty int vertex2\nend_header\n";
+      auto put = [&b, big](const auto value) {
+        char bytes[sizeof value];
+        std::memcpy(bytes, &value, sizeof value);
+        if (big != (std::endian::native == std::endian::big)) std::reverse(bytes, bytes + sizeof value);
+        b.append(bytes, sizeof value);
+      };
+      const float corners[4][3] = {{0, 0, 0}, {5, 0, 0}, {0, 5, 0}, {0, 0, 5}};
+      for (const auto& c : corners) {
+        for (const float x : c) put(x);
+        put(uint8_t(200));
+      }
+      const int32_t faces[4][3] = {{0, 2, 1}, {0, 1, 3}, {0, 3, badIndex}, {1, 2, 3}};
+      for (const auto& f : faces) {
+        put(uint8_t(3));
+        for (const int32_t i : f) put(i);
+        put(uint16_t(0xffff));
+      }
+      put(int32_t(0));
+      put(int32_t(1));
+      return b;
+    };
+    EXPECT_EQ(read(big ? "tb.ply" : "tl.ply", binary(2)), 4);
+    EXPECT_EQ(read(big ? "bb.ply" : "bl.ply", binary(1000), "face 2 uses vertex 1000 (expected indices below 4)"), -1);
   }
 }
 

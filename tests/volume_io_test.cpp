@@ -516,6 +516,57 @@ TEST(NiftiReader, PlainGzipAndScaling) {
 
 // Every sample type is held in the narrowest of uint8, int8, uint16, int16 and float32 that keeps
 // its values exact (32-bit integers by their range), and reads back exactly.
+TEST(NiftiWriter, EveryStoredTypeAndFrameReadsBackAsWritten) {
+  TempDir dir;
+  const std::vector<std::pair<SampleArray, int>> cases = {
+      {std::vector<uint8_t>{0, 7, 255, 128}, DT_UINT8},         {std::vector<int8_t>{-128, 0, 127, -5}, DT_INT8},
+      {std::vector<uint16_t>{0, 65535, 4095, 1}, DT_UINT16},    {std::vector<int16_t>{-32768, 32767, -1024, 3071}, DT_INT16},
+      {std::vector<float>{-0.5f, 1e-3f, 2.25f, 3e5f}, DT_FLOAT32}};
+  for (const Geometry& g : geometries()) {
+    for (const auto& [samples, datatype] : cases) {
+      Volume v({2, 2, 1}, kSpacing, storedType(samples), samples, "v");
+      v.setFrame(makePatientFrame(g.direction, g.origin, g.name));
+      for (const char* name : {"v.nii", "v.nii.gz"}) {
+        SCOPED_TRACE(std::string(g.name) + " " + scalarName(v.storedType()) + " " + name);
+        writeVolume(v, dir.file(name));
+        const Volume back = readVolume(dir.file(name));
+        EXPECT_EQ(back.storedType(), v.storedType());
+        for (size_t n = 0; n < 4; ++n) EXPECT_EQ(back.value(n), v.value(n)) << n;
+        expectFrame(back, g, 1e-6);
+        EXPECT_TRUE(back.warnings().empty());
+        // Both transforms set, the same: the quaternion (qfac for a left-handed grid) gives the sform's matrix.
+        std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nifti_image_read(dir.file(name).c_str(), 0), nifti_image_free);
+        ASSERT_TRUE(nim);
+        EXPECT_EQ(nim->datatype, datatype);
+        EXPECT_EQ(nim->sform_code, NIFTI_XFORM_SCANNER_ANAT);
+        EXPECT_EQ(nim->qform_code, NIFTI_XFORM_SCANNER_ANAT);
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 4; ++c) EXPECT_NEAR(nim->qto_xyz.m[r][c], nim->sto_xyz.m[r][c], 1e-5) << r << "," << c;
+      }
+    }
+  }
+  // A frame the reader assumed is written as aligned (code 2), not the scanner's.
+  Volume assumed({2, 2, 1}, kSpacing, ScalarType::UInt8, std::vector<uint8_t>(4, 1), "v");
+  PatientFrame f;
+  f.assumed = true;
+  assumed.setFrame(f);
+  writeVolume(assumed, dir.file("a.nii"));
+  std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nifti_image_read(dir.file("a.nii").c_str(), 0), nifti_image_free);
+  ASSERT_TRUE(nim);
+  EXPECT_EQ(nim->sform_code, NIFTI_XFORM_ALIGNED_ANAT);
+  // An axis longer than NIfTI-1's dim[] holds, and an extension without a writer: refused naming the file, nothing left.
+  const Volume wide({32768, 1, 1}, kSpacing, ScalarType::UInt8, std::vector<uint8_t>(32768, 0), "wide");
+  try {
+    writeVolume(wide, dir.file("w.nii"));
+    ADD_FAILURE() << "32768 voxels along x written";
+  } catch (const IoError& e) {
+    EXPECT_THAT(e.what(), HasSubstr("w.nii: 32768x1x1 voxels do not fit NIfTI-1 (expected at most 32767 per axis)"));
+  }
+  EXPECT_THROW(writeVolume(assumed, dir.file("v.mha")), IoError);
+  EXPECT_FALSE(std::filesystem::exists(dir.file("w.nii")));
+  EXPECT_FALSE(std::filesystem::exists(dir.file("v.mha")));
+}
+
 TEST(VolumeReaders, SamplesAreHeldInTheirOwnTypeOrTheNarrowestExactOne) {
   TempDir dir;
   struct Case {

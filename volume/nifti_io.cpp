@@ -2,6 +2,7 @@
 #include "volume/volume_io.h"
 
 #include <nifti2_io.h>
+#include <zlib.h>
 
 #include <algorithm>
 #include <cmath>
@@ -212,6 +213,110 @@ std::unique_ptr<PlaneSource> detail::niftiPlanes(const std::string& path) {
   std::optional<StackGrid> grid = std::move(l.grid);
   std::unique_ptr<PlaneSource> planes = streamedPlanes(l.data, std::move(l.description), path);
   return grid ? resampledPlanes(std::move(planes), std::move(*grid)) : std::move(planes);
+}
+
+namespace {
+
+// The NIfTI-1 datatype of a stored sample type (every SampleArray type has one).
+short niftiDatatype(ScalarType t) {
+  switch (t) {
+    case ScalarType::UInt8: return DT_UINT8;
+    case ScalarType::Int8: return DT_INT8;
+    case ScalarType::UInt16: return DT_UINT16;
+    case ScalarType::Int16: return DT_INT16;
+    default: return DT_FLOAT32;
+  }
+}
+
+// The NIfTI-1 header of @p volume: its grid in RAS (x and y of the LPS frame negated) as both the
+// sform and the qform, so that readers taking either (this one and nibabel the sform, others the
+// qform) place it alike.
+nifti_1_header niftiHeader(const Volume& volume, const std::string& path) {
+  static_assert(sizeof(nifti_1_header) == 348);
+  const glm::ivec3 dims = volume.dims();
+  constexpr int kNiftiMaxDim = 32767;  // dim[] is a short
+  if (dims.x > kNiftiMaxDim || dims.y > kNiftiMaxDim || dims.z > kNiftiMaxDim)
+    HYB_THROW(IoError, path, ": ", dims.x, "x", dims.y, "x", dims.z, " voxels do not fit NIfTI-1 (expected at most ", kNiftiMaxDim, " per axis)");
+  nifti_1_header h;
+  std::memset(&h, 0, sizeof h);
+  h.sizeof_hdr = 348;
+  h.dim[0] = 3;
+  for (int a = 0; a < 3; ++a) h.dim[a + 1] = short(dims[a]);
+  for (int a = 4; a < 8; ++a) h.dim[a] = 1;
+  h.datatype = niftiDatatype(volume.storedType());
+  h.bitpix = short(8 * scalarSize(volume.storedType()));
+  h.vox_offset = 352.0f;  // the header and the 4 bytes saying no extension follows
+  h.scl_slope = 1.0f;
+  h.xyzt_units = NIFTI_UNITS_MM;
+  std::strncpy(h.descrip, "hybrid-octree", sizeof h.descrip);
+  std::memcpy(h.magic, "n+1", 4);
+  // The affine: column a is axis a's RAS direction times its spacing; column 3 the origin (RAS;
+  // rasToLps is its own inverse).
+  nifti_dmat44 m{};
+  const PatientFrame& f = volume.frame();
+  for (int a = 0; a < 3; ++a) {
+    const glm::dvec3 c = rasToLps(f.direction[a] * volume.spacing()[a]);
+    for (int r = 0; r < 3; ++r) m.m[r][a] = c[r];
+  }
+  const glm::dvec3 o = rasToLps(f.origin);
+  for (int r = 0; r < 3; ++r) m.m[r][3] = o[r];
+  m.m[3][3] = 1.0;
+  float* rows[3] = {h.srow_x, h.srow_y, h.srow_z};
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) rows[r][c] = float(m.m[r][c]);
+  double qb, qc, qd, qx, qy, qz, dx, dy, dz, qfac;
+  nifti_dmat44_to_quatern(m, &qb, &qc, &qd, &qx, &qy, &qz, &dx, &dy, &dz, &qfac);
+  h.quatern_b = float(qb);
+  h.quatern_c = float(qc);
+  h.quatern_d = float(qd);
+  h.qoffset_x = float(qx);
+  h.qoffset_y = float(qy);
+  h.qoffset_z = float(qz);
+  h.pixdim[0] = float(qfac);
+  for (int a = 0; a < 3; ++a) h.pixdim[a + 1] = float(volume.spacing()[a]);
+  // A frame the CT's reader assumed is only aligned to that file as read here, not the scanner's.
+  h.qform_code = h.sform_code = short(f.assumed ? NIFTI_XFORM_ALIGNED_ANAT : NIFTI_XFORM_SCANNER_ANAT);
+  return h;
+}
+
+// Writes @p size bytes to @p out, deflated through the gzip stream @p z when it is not null;
+// @p flush Z_FINISH ends that stream.
+void writeBytes(std::ostream& out, z_stream* z, const void* data, size_t size, const std::string& path, int flush = Z_NO_FLUSH) {
+  if (!z) {
+    out.write(static_cast<const char*>(data), std::streamsize(size));
+    return;
+  }
+  unsigned char chunk[1 << 16];
+  z->next_in = static_cast<Bytef*>(const_cast<void*>(data));
+  do {
+    const uInt in = uInt(std::min<size_t>(size, 1u << 30));  // avail_in is 32 bits
+    z->avail_in = in;
+    size -= in;
+    do {
+      z->next_out = chunk;
+      z->avail_out = sizeof chunk;
+      if (deflate(z, size == 0 ? flush : Z_NO_FLUSH) == Z_STREAM_ERROR) HYB_THROW(IoError, path, ": gzip compression failed");
+      out.write(reinterpret_cast<const char*>(chunk), std::streamsize(sizeof chunk - z->avail_out));
+    } while (z->avail_out == 0);
+  } while (size > 0);
+}
+
+}  // namespace
+
+void writeNifti(const Volume& volume, const std::string& path) {
+  const nifti_1_header header = niftiHeader(volume, path);
+  const bool gz = fileExtension(path).ends_with(".gz");
+  writeFileAtomically(path, [&](std::ostream& out) {
+    z_stream z{};
+    if (gz && deflateInit2(&z, Z_DEFAULT_COMPRESSION, Z_DEFLATED, 15 + 16, 8, Z_DEFAULT_STRATEGY) != Z_OK)  // 15 + 16: a gzip wrapper
+      HYB_THROW(IoError, path, ": gzip compression could not start");
+    std::unique_ptr<z_stream, int (*)(z_stream*)> end(gz ? &z : nullptr, deflateEnd);
+    const uint32_t noExtension = 0;
+    writeBytes(out, end.get(), &header, sizeof header, path);
+    writeBytes(out, end.get(), &noExtension, sizeof noExtension, path);
+    volume.visitSamples([&](const auto* samples) { writeBytes(out, end.get(), samples, volume.voxelCount() * sizeof(*samples), path); });
+    if (gz) writeBytes(out, &z, nullptr, 0, path, Z_FINISH);
+  });
 }
 
 }  // namespace hyb

@@ -96,6 +96,41 @@ std::string volumeExtensionsText() {
 
 namespace {
 
+// The writers, by extension.
+struct VolumeWriterRow {
+  const char* extension;
+  void (*write)(const Volume&, const std::string&);
+};
+constexpr VolumeWriterRow kVolumeWriters[] = {{".nrrd", writeNrrd}, {".nii", writeNifti}, {".nii.gz", writeNifti}};
+
+const VolumeWriterRow* volumeWriter(const std::string& path) {
+  const std::string ext = fileExtension(path);
+  for (const VolumeWriterRow& row : kVolumeWriters)
+    if (ext == row.extension) return &row;
+  return nullptr;
+}
+
+}  // namespace
+
+std::string writableVolumeExtensionsText() {
+  std::string out;
+  for (const VolumeWriterRow& row : kVolumeWriters) {
+    if (!out.empty()) out += ' ';
+    out += row.extension;
+  }
+  return out;
+}
+
+bool writableVolume(const std::string& path) { return volumeWriter(path) != nullptr; }
+
+void writeVolume(const Volume& volume, const std::string& path) {
+  const VolumeWriterRow* row = volumeWriter(path);
+  if (!row) HYB_THROW(IoError, path, ": no volume writer for '", fileExtension(path), "' (expected ", writableVolumeExtensionsText(), ")");
+  row->write(volume, path);
+}
+
+namespace {
+
 // Refuses flags a DICOMweb series' address does not take: it names its series and carries its layout.
 void checkDicomWebFlags(const std::string& path, const RawLayout* raw, const std::string& series) {
   if (raw) HYB_THROW(ValueError, redactUrl(path), ": a DICOMweb series carries its own layout (--raw-dims, --raw-type and --raw-spacing are for headerless raw data)");

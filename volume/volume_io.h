@@ -123,5 +123,20 @@ Volume readRaw(const std::string& path, const RawLayout& layout);
 /// the same grid. Written atomically (volume/core/file_util.h).
 /// @throw IoError naming @p path when it cannot be written.
 void writeNrrd(const Volume& volume, const std::string& path);
+/// Writes @p volume as one NIfTI-1 file (.nii, or .nii.gz as one gzip stream), in its stored type
+/// (float32 for what is stored as float), the host's byte order, on its grid: the sform and the
+/// qform (codes 1, scanner, or 2, aligned when the frame was assumed) both the frame in RAS (x and y
+/// negated), pixdim the spacing and qfac the handedness, mm units, the samples from byte 352 (no
+/// extension). The affine is stored as float, as NIfTI-1 has it. Written atomically.
+/// @throw IoError naming @p path when it cannot be written or an axis exceeds NIfTI-1's 32767.
+void writeNifti(const Volume& volume, const std::string& path);
+
+/// The extensions writeVolume knows, space-separated (".nrrd .nii .nii.gz"), for messages.
+std::string writableVolumeExtensionsText();
+/// Whether writeVolume knows @p path's extension.
+bool writableVolume(const std::string& path);
+/// Writes @p volume in the format its extension names: writeNrrd (.nrrd) or writeNifti (.nii .nii.gz).
+/// @throw IoError naming @p path when it cannot be written or the extension is none of them.
+void writeVolume(const Volume& volume, const std::string& path);
 
 }  // namespace hyb

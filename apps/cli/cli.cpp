@@ -213,7 +213,7 @@ void printSelection(const RenderJob& job, const RenderedFrame& f, std::ostream& 
 // The frames of a render run: the last, and its times (--repeat: the fastest and the first).
 struct RenderRun {
   RenderedFrame frame;
-  double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0, tableMs = 0;
+  double renderMs = std::numeric_limits<double>::infinity(), firstMs = 0, tableMs = 0, geometryMs = 0;
 };
 
 // The run's "render" line (and its classification's): what the frame drew and in what time.
@@ -243,7 +243,7 @@ void printRenderLines(const RenderJob& job, const RenderRun& run, int repeat, st
 
 // --stats: the frame's report (FrameReport) with the command's own times and, across ranks, theirs.
 std::string statsJson(const RenderJob& job, const RenderRun& run, const FrameStats& surface, const std::string& ranksJson) {
-  const FrameReport report{run.frame, job.quality, job.view.camera, job.renderer->scene().knots.get(), run.renderMs, run.tableMs};
+  const FrameReport report{run.frame, job.quality, job.view.camera, job.renderer->scene().knots.get(), run.renderMs, run.tableMs, run.geometryMs};
   nlohmann::ordered_json j = nlohmann::ordered_json::parse(report.json());
   j["build_ms"] = job.buildMs + surface.surfaceBuildMs;
   j["surface_polygons_ms"] = surface.surfacePolygonsMs;
@@ -304,6 +304,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
             << frame.selection.texels << " texels\n";
       run.firstMs = frame.stats.renderMs;
       run.tableMs = frame.stats.preintegrationMs;
+      run.geometryMs = frame.stats.geometryMs;
     }
     run.renderMs = std::min(run.renderMs, frame.stats.renderMs);
   }
@@ -356,7 +357,7 @@ struct ExportOptions {
     if (fraction && labelVolume.empty()) return "--fraction needs --label-volume";
     if (!labelVolume.empty()) {
       if (meshes.empty() && primitives.empty()) return "--label-volume needs --mesh or --primitive (the geometry it holds)";
-      if (!labelVolume.ends_with(".nrrd")) return "--label-volume '" + labelVolume + "' invalid (expected a .nrrd file)";
+      if (!writableVolume(labelVolume)) return "--label-volume '" + labelVolume + "' invalid (expected one of " + writableVolumeExtensionsText() + ")";
       if (std::string e = outputsError({{labelVolume, "--label-volume"}}, {input.path}); !e.empty()) return e;
       if (!iso && output.empty()) return "";  // the volume alone
     } else if (!meshes.empty() || !primitives.empty()) {
@@ -401,7 +402,7 @@ int runExport(const ExportOptions& o, std::ostream& out, std::ostream& err) {
       inside += label.value(n) >= (o.fraction ? 0.5f : 1.0f);
       sum += label.value(n);
     }
-    writeNrrd(label, o.labelVolume);
+    writeVolume(label, o.labelVolume);
     const glm::dvec3 s = scene.volume.spacing();
     out << "wrote    " << o.labelVolume << " (" << (o.fraction ? "float32 fraction" : "uint8 label, 1 where the coverage is >= 0.5") << ", the CT's grid and frame; "
         << inside << " voxels labelled, " << (o.fraction ? sum : double(inside)) * s.x * s.y * s.z << " mm^3; " << msSince(t0) << " ms)\n";
@@ -665,7 +666,7 @@ struct Commands {
     exportCmd->add_option("--mesh-space", exportOpts.meshSpace, "the space of mesh files whose header does not name one: lps or ras")->capture_default_str();
     exportCmd->add_option("--label-volume", exportOpts.labelVolume,
                           "write the meshes and primitives scan-converted on the CT's grid and frame (box filter of one voxel; closed meshes and "
-                          "spheres solid, planes and polygons as sheets): a .nrrd uint8 label, 1 where a voxel is at least half covered");
+                          "spheres solid, planes and polygons as sheets): a .nrrd, .nii or .nii.gz uint8 label, 1 where a voxel is at least half covered");
     exportCmd->add_flag("--fraction", exportOpts.fraction, "--label-volume holds each voxel's covered fraction (float32) instead of a label");
     exportCmd->add_option("--memory", exportOpts.memoryMb,
                           "MB a scene file holds when its Surface Octree's surface is exported (--surface octree, without --closed or --check): "

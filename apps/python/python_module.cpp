@@ -476,7 +476,7 @@ class PyScene {
     py::array_t<uint8_t> image = toArray(frame.image, premultiplied, composited ? std::optional(job.background) : std::nullopt);
     if (!withStats) return image;
     return py::make_tuple(image, statsOf(FrameReport{frame, job.quality, job.view.camera, mRenderer->scene().knots.get(), frame.stats.renderMs,
-                                                     frame.stats.preintegrationMs}));
+                                                     frame.stats.preintegrationMs, frame.stats.geometryMs}));
   }
 
   py::tuple surface(const py::object& iso, const py::object& kind, const py::object& closed, const py::object& normals) {

@@ -497,6 +497,23 @@ def test_statistics_are_the_command_lines_stats(tmp_path):
     assert stats["camera"] == written["camera"]
 
 
+
+def test_statistics_report_the_scan_conversion(tmp_path):
+    """A frame compositing scan-converted geometry reports its conversion's time and the channel's
+    bytes (each call sets its geometry up anew, so each converts it); a frame without it has
+    neither key."""
+    path = tmp_path / "blobs.nrrd"
+    write_nrrd(path, blobs(), (1, 1, 1))
+    scene = ho.open(str(path))
+    geometry = {"primitive": "sphere:31.5,27.5,20,8:1,0,0,0.5", "mesh_method": "scan-convert"}
+    _, first = scene.render(size=(24, 24), stats=True, **geometry)
+    _, again = scene.render(size=(24, 24), stats=True, **geometry)
+    assert first["geometry_ms"] > 0 and first["geometry_bytes"] > 0
+    assert again["geometry_ms"] > 0 and again["geometry_bytes"] == first["geometry_bytes"]
+    for without in ({}, {"primitive": geometry["primitive"]}):
+        _, stats = scene.render(size=(24, 24), stats=True, **without)
+        assert "geometry_ms" not in stats and "geometry_bytes" not in stats
+
 # Values no text of a keyword's form spells, by form.
 WRONG_TYPES = {
     "Number": [(1, 2), [1.5], {}, 1 + 2j, True, np.bool_(True), np.array([1.5]), b"1", object()],
