@@ -119,7 +119,7 @@ async function orbit(label, withSurface) {
     if (!s.header || s.header.quality !== 'interactive') continue;
     const shot = path.join(tmp, `${label}-${k}.png`), ref = path.join(tmp, `${label}-${k}-ref.png`);
     fs.writeFileSync(shot, Buffer.from(s.png.split(',')[1], 'base64'));
-    reference(s.header, withSurface, ref, `${s.header.camera.pixels[0]}x${s.header.camera.pixels[1]}`);
+    reference(s.header, withSurface, ref, `${s.header.camera.size[0]}x${s.header.camera.size[1]}`);
     painted.push(psnrOf(ref, shot));
     // The frame as sent, at its own size, against the reference at that size.
     const own = path.join(tmp, `${label}-${k}-own.png`), ownRef = path.join(tmp, `${label}-${k}-ownref.png`);
@@ -127,7 +127,7 @@ async function orbit(label, withSurface) {
     reference(s.header, withSurface, ownRef, `${s.header.width}x${s.header.height}`);
     sent.push(`${psnrOf(ownRef, own).toFixed(1)} (${s.header.width}²)`);
     const ownRefMagnified = path.join(tmp, `${label}-${k}-ownref-magnified.png`);
-    await magnified(ownRef, ownRefMagnified, s.header.camera.pixels[0], s.header.camera.pixels[1]);
+    await magnified(ownRef, ownRefMagnified, s.header.camera.size[0], s.header.camera.size[1]);
     bound.push(psnrOf(ref, ownRefMagnified));
   }
   const bytes = interactive.map((m) => m.bytes);

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <numeric>
 
+#include "surface/dmc.h"
 #include "surface/dmc_table.h"
 #include "surface/flat_map.h"
 #include "volume/core/error.h"
@@ -232,6 +233,41 @@ void clusterBlock(const ClusterJob& job, const glm::ivec3& lo, const glm::ivec3&
 }
 
 }  // namespace
+
+TriangleMesh knotSurface(const KnotSource& knots, int s, float iso) {
+  const glm::ivec3 dims = knots.dims(), n = knotCounts(dims, s);
+  const size_t count = size_t(n.x) * size_t(n.y) * size_t(n.z);
+  std::vector<float> values(count);
+  std::vector<glm::vec3> gradients(s >= 2 ? count : 0);
+  knots.read(s, glm::ivec3(0), n, values.data(), s >= 2 ? gradients.data() : nullptr);
+  TriangleMesh mesh = extractMarchingCubes(Volume(n, glm::dvec3(1.0), ScalarType::Float32, std::move(values), "knots"), iso);
+  // A knot coordinate in voxels: j·s, the last knot on the last sample.
+  auto voxel = [&](float x, int axis) {
+    const int last = n[axis] - 1;
+    if (last == 0 || x <= float(last - 1)) return x * float(s);
+    const float before = float((last - 1) * s);
+    return before + (x - float(last - 1)) * (float(dims[axis] - 1) - before);
+  };
+  if (!gradients.empty()) {
+    mesh.normals.resize(mesh.vertices.size());
+    for (size_t v = 0; v < mesh.vertices.size(); ++v) {
+      const glm::vec3 q = glm::clamp(mesh.vertices[v], glm::vec3(0.0f), glm::vec3(n - 1));
+      const glm::ivec3 i0 = glm::min(glm::ivec3(q), n - 1), i1 = glm::min(i0 + 1, n - 1);
+      const glm::vec3 t = q - glm::vec3(i0);
+      glm::vec3 g(0.0f);
+      for (int c = 0; c < 8; ++c) {
+        const glm::ivec3 at(c & 1 ? i1.x : i0.x, c & 2 ? i1.y : i0.y, c & 4 ? i1.z : i0.z);
+        const float w = (c & 1 ? t.x : 1.0f - t.x) * (c & 2 ? t.y : 1.0f - t.y) * (c & 4 ? t.z : 1.0f - t.z);
+        g += w * gradients[size_t(at.x) + size_t(n.x) * (size_t(at.y) + size_t(n.y) * size_t(at.z))];
+      }
+      const float length = glm::length(g);
+      mesh.normals[v] = length > 0.0f ? -g / length : glm::vec3(0.0f, 0.0f, 1.0f);  // (outward: towards lower values)
+    }
+  }
+  const glm::vec3 spacing(knots.spacing());
+  for (glm::vec3& p : mesh.vertices) p = glm::vec3(voxel(p.x, 0), voxel(p.y, 1), voxel(p.z, 2)) * spacing;
+  return mesh;
+}
 
 int clusterSpacingFor(double pixelMm, const glm::dvec3& spacing, int maxSpacing) {
   const double voxelMm = std::max({spacing.x, spacing.y, spacing.z});

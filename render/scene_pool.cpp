@@ -329,13 +329,16 @@ void ScenePool::startBuild(Entry& e, float iso) {
       const Scene& scene = e.renderer->scene();
       if (!smooth) {
         if (preview && scene.volume.voxelCount() > mOptions.previewSamples) {
-          auto made = std::make_unique<PreparedSurface>();
-          made->iso = iso;
           const int cubes = previewSpacing(scene.volume.dims(), scene.volume.spacing(), scene.octree.leafEdge());
           const VolumeKnots inMemory(scene.volume, scene.octree);  // (read only when the scene is not paged)
           const KnotSource& knots = scene.knots ? static_cast<const KnotSource&>(*scene.knots) : inMemory;
-          made->coarse.emplace(cubes, clusteredSurface(knots, scene.octree, cubes, iso, &progress));
-          hand(std::move(made));
+          // First the knots' Marching Cubes (a fraction of a second), then the clustered surface in its place.
+          for (const bool quick : {true, false}) {
+            auto made = std::make_unique<PreparedSurface>();
+            made->iso = iso;
+            made->coarse.emplace(cubes, quick ? knotSurface(knots, cubes, iso) : clusteredSurface(knots, scene.octree, cubes, iso, &progress));
+            hand(std::move(made));
+          }
         }
         std::unique_ptr<PreparedSurface> exact = SceneRenderer::prepareSurface(scene, iso, &progress, nullptr, e.renderer->surfaceReservation());
         smooth = exact->smooth;  // shared, not copied

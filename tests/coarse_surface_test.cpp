@@ -180,6 +180,35 @@ TEST(CoarseSurface, BlocksThreadsAndSkippedBlocksChangeNothing) {
   }
 }
 
+// The knots' Marching Cubes: a linear field's surface exactly where it lies, in the last cell too
+// (its knot on the last sample, nearer than s); a sphere's within half a knot spacing of its radius,
+// its normals outward, at the prefiltered spacings as well.
+TEST(CoarseSurface, TheKnotsSurfaceLiesWhereTheSamplesPutIt) {
+  const glm::dvec3 spacing(0.8, 1.0, 1.25);
+  const Volume ramp = test::makeVolume({40, 12, 10}, [](int i, int, int) { return float(i); }, spacing);
+  const VolumeOctree rampTree = VolumeOctree::build(ramp);
+  const TriangleMesh plane = knotSurface(VolumeKnots(ramp, rampTree), 2, 38.5f);  // knots 0, 2, ..., 38 and 39
+  ASSERT_FALSE(plane.triangles.empty());
+  for (const glm::vec3& p : plane.vertices) EXPECT_NEAR(p.x, 38.5 * spacing.x, 1e-4);
+  const glm::ivec3 dims(61, 58, 53);
+  const glm::dvec3 c = glm::dvec3(dims - 1) / 2.0;
+  const Volume ball = test::makeVolume(dims, [&](int i, int j, int k) { return float(20.0 - glm::length((glm::dvec3(i, j, k) - c) * spacing)); }, spacing);
+  const VolumeOctree tree = VolumeOctree::build(ball);
+  for (const int s : {2, 4, 8}) {
+    const TriangleMesh m = knotSurface(VolumeKnots(ball, tree), s, 0.0f);
+    ASSERT_FALSE(m.triangles.empty()) << s;
+    ASSERT_EQ(m.normals.size(), m.vertices.size()) << s;
+    double worst = 0.0, leastOutward = 1.0;
+    for (size_t v = 0; v < m.vertices.size(); ++v) {
+      const glm::dvec3 out = glm::dvec3(m.vertices[v]) - c * spacing;
+      worst = std::max(worst, std::abs(glm::length(out) - 20.0));
+      leastOutward = std::min(leastOutward, glm::dot(glm::normalize(out), glm::dvec3(m.normals[v])));
+    }
+    EXPECT_LT(worst, 0.5 * s * spacing.z) << s;
+    EXPECT_GT(leastOutward, 0.9) << s;
+  }
+}
+
 TEST(CoarseSurface, SpacingIsTheCoarsestWhoseCubesFitThePixels) {
   const glm::dvec3 spacing(0.5, 0.4, 2.0);  // the longest axis decides: no cube wider than asked
   EXPECT_EQ(clusterSpacingFor(0.0, spacing, 16), 1);
