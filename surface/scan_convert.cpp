@@ -208,6 +208,7 @@ struct SlabScratch {
   std::vector<uint32_t> owner;  // that triangle, or kNone
   std::vector<size_t> touched;  // voxels (in slab) whose owner is set, for stage 3 and the reset
   std::vector<std::pair<uint32_t, float>> crossings;  // (row in slab, x mm)
+  std::vector<VoxelNormal> normals;                   // the band voxels' (ScanOptions::normals), this thread's slabs'
 };
 constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
 
@@ -343,6 +344,7 @@ struct MeshScan {
       const glm::dvec3 dir = dist > 1e-6 * reach ? (p - c) / dist : glm::dvec3(tri.normal);
       const glm::dvec3 m = glm::abs(dir) * box;
       ++band;
+      if (options.normals) scratch->normals.push_back({uint64_t(out), tri.normal});
       if (solid) {
         const bool inside = store->one(out);
         bandInside += inside;
@@ -461,6 +463,7 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
   scan.store = &store;
   const bool band = scan.reach > 0.0;
   size_t oddRows = 0, bandVoxels = 0, bandInside = 0, fillInside = 0;
+  std::vector<VoxelNormal> normals;
   ParallelFailure failure;
 #pragma omp parallel reduction(+ : oddRows, bandVoxels, bandInside, fillInside)
   {
@@ -487,12 +490,16 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
           bandInside += in;
         }
       });
+#pragma omp critical
+    failure.run([&] { normals.insert(normals.end(), scratch.normals.begin(), scratch.normals.end()); });
   }
   failure.rethrow();
   if (oddRows > 0)
     warnings.push_back(detail::concat("mesh is not closed: ", oddRows, " rows of voxels cross it an odd number of times (the solid is filled "
                                       "only between pairs of crossings; give a thickness to scan-convert it as a sheet)"));
-  return makeResult(grid, std::move(store), std::move(warnings), bandVoxels, fillInside - bandInside);
+  ScanResult result = makeResult(grid, std::move(store), std::move(warnings), bandVoxels, fillInside - bandInside);
+  result.normals = std::move(normals);
+  return result;
 }
 
 // ---- Analytic primitives ----
