@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <numbers>
+#include <type_traits>
 
 #include "volume/core/error.h"
 
@@ -19,16 +20,17 @@ glm::u8vec3 encodeNormal(const glm::vec3& n) {
   return glm::u8vec3(glm::clamp(glm::round(128.0f + 127.0f * n), glm::vec3(1.0f), glm::vec3(255.0f)));
 }
 
-// @p values (a full grid of fractions) cropped to its non-zero voxels with a voxel of zeros around
-// them, as texels without normals.
-GeometryPart cropped(const std::vector<float>& values, const glm::ivec3& dims) {
+// A full grid of fractions, @p value(n) at voxel n (x fastest), cropped to its non-zero voxels with
+// a voxel of zeros around them, as texels without normals.
+template <class Value>
+GeometryPart cropped(const glm::ivec3& dims, const Value& value) {
   GeometryPart part;
   glm::ivec3 lo(dims), hi(-1);
   for (int k = 0; k < dims.z; ++k)
     for (int j = 0; j < dims.y; ++j) {
       const size_t row = size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k));
       for (int i = 0; i < dims.x; ++i)
-        if (values[row + size_t(i)] * 255.0f >= 0.5f) {  // what rounds to a byte above 0
+        if (value(row + size_t(i)) * 255.0f >= 0.5f) {  // what rounds to a byte above 0
           lo = glm::min(lo, glm::ivec3(i, j, k));
           hi = glm::max(hi, glm::ivec3(i, j, k));
         }
@@ -43,7 +45,7 @@ GeometryPart cropped(const std::vector<float>& values, const glm::ivec3& dims) {
   for (int k = lo.z; k <= hi.z; ++k)
     for (int j = lo.y; j <= hi.y; ++j)
       for (int i = lo.x; i <= hi.x; ++i) {
-        const float v = values[size_t(i) + size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k))];
+        const float v = value(size_t(i) + size_t(dims.x) * (size_t(j) + size_t(dims.y) * size_t(k)));
         part.texels[out++] = glm::u8vec4(uint8_t(std::lround(std::clamp(v, 0.0f, 1.0f) * 255.0f)), 128, 128, 128);
       }
   return part;
@@ -72,10 +74,12 @@ void setNormals(GeometryPart* part, const glm::ivec3& dims, const std::vector<Vo
   }
 }
 
-std::vector<float> fractions(const ScanResult& r) {
-  std::vector<float> v(r.coverage.voxelCount());
-  for (size_t n = 0; n < v.size(); ++n) v[n] = fraction(r, n);
-  return v;
+// @p r's coverage (UInt8 or Float32) cropped.
+GeometryPart cropped(const ScanResult& r) {
+  return r.coverage.visitSamples([&](const auto* d) {
+    const float scale = std::is_same_v<std::remove_cv_t<std::remove_pointer_t<decltype(d)>>, float> ? 1.0f : 1.0f / 255.0f;
+    return cropped(r.coverage.dims(), [&](size_t n) { return float(d[n]) * scale; });
+  });
 }
 
 // The largest coverage of @p parts over node @p i's voxel box, its descendants' first.
@@ -139,38 +143,39 @@ GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const V
   o.space = ScanSpace::Patient;
   o.filter = filter;
   o.width = width;
-  o.type = CoverageType::Float32;
   o.normals = true;
   for (const UserMesh& m : meshes) {
-    std::vector<float> values;
     double tau = voxel;
     const UserPrimitive* p = m.primitive.get();
     ScanResult r;
+    GeometryPart part;
+    // Bytes, as the crop keeps them; a sphere's shell, a difference of two balls, in floats.
+    o.type = p && p->kind == UserPrimitive::Kind::Sphere ? CoverageType::Float32 : CoverageType::UInt8;
     if (p && p->kind == UserPrimitive::Kind::Plane) {
       tau = p->thickness > 0.0 ? p->thickness : voxel;
       o.thickness = tau;
       r = scanConvertPlane(p->points.front(), p->normal, grid, o);
-      values = fractions(r);
+      part = cropped(r);
     } else if (p && p->kind == UserPrimitive::Kind::Sphere) {
       // The sphere's surface as a shell: the ball of R + τ/2 less the ball of R − τ/2.
       o.thickness = 0.0;
       r = scanConvertSphere(p->points.front(), p->radius + 0.5 * tau, grid, o);
-      values = fractions(r);
       if (p->radius > 0.5 * tau) {
         const ScanResult inner = scanConvertSphere(p->points.front(), p->radius - 0.5 * tau, grid, o);
-        for (size_t n = 0; n < values.size(); ++n) values[n] = std::max(0.0f, values[n] - fraction(inner, n));
+        part = cropped(grid.dims, [&](size_t n) { return std::max(0.0f, fraction(r, n) - fraction(inner, n)); });
+      } else {
+        part = cropped(r);
       }
     } else if (p && p->kind == UserPrimitive::Kind::Polygon) {
       o.thickness = tau;
       r = scanConvertPolygon(p->points, grid, o);
-      values = fractions(r);
+      part = cropped(r);
     } else {
       o.thickness = tau;
       r = scanConvertMesh(*m.mesh, grid, o);
-      values = fractions(r);
+      part = cropped(r);
     }
     for (const std::string& w : r.warnings) g.warnings.push_back(m.name + ": " + w);
-    GeometryPart part = cropped(values, grid.dims);
     if (!part.texels.empty()) {
       // The normals: the plane's, the sphere's radial direction, or the closest triangle's.
       if (p && p->kind == UserPrimitive::Kind::Plane) {

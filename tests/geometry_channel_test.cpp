@@ -122,11 +122,11 @@ TEST(GeometryChannel, ScanConvertMatchesPolygonsOnASmoothSphere) {
   std::printf("  opacity at the footprint's centre: %.4f (polygons %.4f)\n", scan.image.at(c.x, c.y).a, polygons.at(c.x, c.y).a);
   EXPECT_NEAR(scan.image.at(c.x, c.y).a, 0.75f, 0.02f);
   EXPECT_NEAR(polygons.at(c.x, c.y).a, 0.75f, 1e-4f);
-  // Measured 38.89 and 27.32 dB (21.23 and 18.83 unshaded and unprojected); the reference is
+  // Measured 38.88 and 27.31 dB (21.23 and 18.83 unshaded and unprojected); the reference is
   // deterministic, the slack is for compilers' rounding.
   constexpr double kSlackDb = 0.4;
-  EXPECT_GE(db, 38.89 - kSlackDb);
-  EXPECT_GE(alphaDb, 27.32 - kSlackDb);  // its rim: the shell's half-thickness and the filter's half cell beyond the polygons
+  EXPECT_GE(db, 38.88 - kSlackDb);
+  EXPECT_GE(alphaDb, 27.31 - kSlackDb);  // its rim: the shell's half-thickness and the filter's half cell beyond the polygons
   EXPECT_GT(pixels, 1000u);
   EXPECT_LT(absent, inside - 2.0);
   EXPECT_GT(scan.stats.geometryBytes, 0u);
@@ -137,7 +137,7 @@ TEST(GeometryChannel, ScanConvertMatchesPolygonsOnASmoothSphere) {
     return p;
   }(), reference).image);
   std::printf("within the data: %.2f dB\n", withData);
-  EXPECT_GE(withData, 62.99 - kSlackDb);
+  EXPECT_GE(withData, 62.95 - kSlackDb);
 }
 
 TEST(GeometryChannel, ASheetIsShadedAndCompositesItsOpacityOncePerCrossingAtAnyIncidence) {
