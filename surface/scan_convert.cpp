@@ -100,9 +100,8 @@ glm::dvec3 toGridNormal(const glm::dvec3& n, ScanSpace space, const VoxelGrid& g
   return n;
 }
 
-// An uninitialised buffer of at least @p bytes backed by 2 MiB pages where the kernel gives them:
-// on this (virtualised) machine a 4 KiB page fault costs about 12 µs, so that a 512³ grid's faults
-// took a quarter of its conversion and a million triangles' 48 MB copy a seventh.
+// An uninitialised buffer of at least @p bytes backed by 2 MiB pages where the kernel gives them: 4 KiB
+// page faults are costly on a virtualised machine (docs/scan-conversion.md).
 std::shared_ptr<void> hugePageBuffer(size_t bytes) {
   constexpr size_t kHuge = size_t(2) << 20;
   const size_t size = std::max<size_t>(1, (bytes + kHuge - 1) / kHuge) * kHuge;
