@@ -2,8 +2,8 @@
 // sphere mesh (R = 20 mm) and a 1 mm plate (a polygon primitive), translucent, inside a soft ball
 // of data, on grids of N³ voxels over the same 64 mm box. Against the exact image (the reference
 // ray tracer crossing the polygons): the PSNR and warm frame time of `polygons` and of
-// `scan-convert` (box filter and point sampling) in the slice renderer, and the scan-conversion's
-// time and bytes.
+// `scan-convert` (box filters of 1, 1.5 and 2 cells and point sampling) in the slice renderer, and
+// the scan-conversion's time and bytes.
 //
 //   hyb_geometry_trade_bench [size=256] [runs=3]
 #include <algorithm>
@@ -65,10 +65,11 @@ int main(int argc, char** argv) {
     Quality reference;
     reference.renderer = Renderer::Raycast;
     const Image exact = r.render(view, look, reference).image;
-    for (const int method : {0, 1, 2}) {
+    // polygons, then scan-convert with a box of 1, 1.5 and 2 cells and point-sampled (width 0).
+    for (const double width : {-1.0, 1.0, 1.5, 2.0, 0.0}) {
       Look l = look;
-      l.meshMethod = method == 0 ? MeshMethod::Polygons : MeshMethod::ScanConvert;
-      l.meshFilter = method != 2;
+      l.meshMethod = width < 0.0 ? MeshMethod::Polygons : MeshMethod::ScanConvert;
+      l.meshFilter = std::max(width, 0.0);
       double best = 1e300;
       RenderedFrame f;
       for (int k = 0; k <= runs; ++k) {  // the first frame makes the channel and the textures
@@ -77,11 +78,14 @@ int main(int argc, char** argv) {
         if (k > 0) best = std::min(best, std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
       }
       const RenderedFrame first = r.render(view, Look(l), Quality{});  // kept: geometryBytes
-      const char* name = method == 0 ? "polygons" : method == 1 ? "scan-convert, box" : "scan-convert, none";
+      char name[64];
+      if (width < 0.0) std::snprintf(name, sizeof name, "polygons");
+      else if (width == 0.0) std::snprintf(name, sizeof name, "scan-convert, none");
+      else std::snprintf(name, sizeof name, "scan-convert, box %g", width);
       double convertMs = 0.0;
-      if (method > 0) {
+      if (width >= 0.0) {
         const auto t0 = Clock::now();
-        const GeometryChannel g = scanConvertGeometry(l.meshes, v, r.scene().octree, l.meshFilter ? ScanFilter::Box : ScanFilter::None);
+        const GeometryChannel g = scanConvertGeometry(l.meshes, v, r.scene().octree, width > 0.0 ? ScanFilter::Box : ScanFilter::None, std::max(width, 1.0));
         convertMs = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
       }
       std::printf("| %d³ (%.2f mm) | %s | %.1f | %.2f | %.1f | %llu |\n", n, s, name, best, psnr(f.image, exact), convertMs,

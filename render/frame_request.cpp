@@ -37,6 +37,7 @@ std::string Look::validate() const {
     if (!(std::isfinite(voi->outside) && voi->outside >= 0)) return "--voi-outside must be a finite factor >= 0";
     if (!(std::isfinite(voi->ramp) && voi->ramp >= 0)) return "--voi-ramp must be a finite width >= 0 mm";
   }
+  if (!(meshFilter == 0.0 || (meshFilter >= 1.0 && meshFilter <= 4.0))) return "--mesh-filter must be none or a box of 1 to 4 voxel cells";
   if (meshes.size() > size_t(kMaxUserMeshes)) return detail::concat("--mesh: ", meshes.size(), " meshes (expected at most ", kMaxUserMeshes, ")");
   for (const UserMesh& m : meshes) {
     if (!m.mesh) return "--mesh " + m.name + ": no mesh";

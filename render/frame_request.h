@@ -98,9 +98,10 @@ struct Look {
   /// slices) and crossed by the rays (the reference); none: the frame is drawn as without them.
   std::vector<UserMesh> meshes;
   MeshMethod meshMethod = MeshMethod::Polygons;
-  /// The scan-convert method's kernel: a box of one voxel cell (the partial-volume fraction), or
-  /// none (the voxel centre point-sampled: binary, aliased).
-  bool meshFilter = true;
+  /// The scan-convert method's kernel: the side of a box in voxel cells (1: each voxel's own cell,
+  /// the partial-volume fraction; wider is softer), or 0 for none (the voxel centre point-sampled:
+  /// binary, aliased).
+  double meshFilter = 1.0;
 
   /// Empty when valid, else a message naming the offending flag (--surface-color, --cut, --voi...).
   std::string validate() const;

@@ -418,10 +418,11 @@ void addLookFields(std::vector<FrameField>& f) {
                                           "volume's grid, composited with the data's samples)"},
                                  {{"polygons", MeshMethod::Polygons}, {"scan-convert", MeshMethod::ScanConvert}},
                                  [](FrameSettings& s) -> auto& { return s.meshMethod; }));
-  f.push_back(choice<bool>({.name = "mesh_filter",
-                            .help = "scan-convert's kernel: box (default; each voxel the fraction of its cell covered) or none (the voxel "
-                                    "centre point-sampled: binary, shimmers as the geometry moves)"},
-                           {{"box", true}, {"none", false}}, [](FrameSettings& s) -> auto& { return s.meshFilter; }));
+  f.push_back(choice<double>({.name = "mesh_filter",
+                              .help = "scan-convert's kernel: box (default; each voxel the fraction of its cell covered), box1.5 or box2 (a box "
+                                      "of 1.5 or 2 cells: softer, less aliased), or none (the voxel centre point-sampled: binary, shimmers as "
+                                      "the geometry moves)"},
+                             {{"box", 1.0}, {"box1.5", 1.5}, {"box2", 2.0}, {"none", 0.0}}, [](FrameSettings& s) -> auto& { return s.meshFilter; }));
   f.push_back(choice<MeshSpace>({.name = "mesh_space", .help = "the space of mesh files whose header does not name one (3D Slicer writes SPACE=RAS or SPACE=LPS): lps (default) or ras"},
                                 {{"lps", MeshSpace::LPS}, {"ras", MeshSpace::RAS}}, [](FrameSettings& s) -> auto& { return s.meshSpace; }));
 }

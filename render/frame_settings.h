@@ -67,7 +67,7 @@ struct FrameSettings {
   /// Levoy's analytic primitives as given ("plane:...", "sphere:...", "polygon:..."; checked when set).
   std::vector<std::string> primitives;
   MeshMethod meshMethod = MeshMethod::Polygons;
-  bool meshFilter = true;  ///< scan-convert: the box filter (true) or point sampling
+  double meshFilter = 1.0;  ///< scan-convert: the box filter's side in voxel cells, 0 point sampling (Look::meshFilter)
   // How well.
   Quality quality;
   std::string budget;  ///< as given: megabytes, or P% of the view's full-resolution bytes

@@ -1,12 +1,14 @@
 // The `scan-convert` method of drawing user geometry (Levoy 1989; docs/user-geometry.md): each
 // mesh or analytic primitive of a frame is filtered and scan-converted (surface/scan_convert.h) into
 // a coverage channel on the volume's grid, a sheet of one voxel (a plane's own thickness) around its
-// surface, which both renderers composite with the data's classified samples by one rule
-// (compositeGeometry). The Volume Octree's nodes carry the channel's largest coverage, so that a
+// surface, with the normal of the closest surface at each voxel, which both renderers shade and
+// composite with the data's classified samples by one rule (compositeGeometry). The Volume Octree's nodes carry the channel's largest coverage, so that a
 // brick holding geometry is never skipped as empty and is refined to full resolution.
 #pragma once
 
 #include <glm/glm.hpp>
+#include <glm/ext/vector_uint3_sized.hpp>
+#include <glm/ext/vector_uint4_sized.hpp>
 
 #include <cstdint>
 #include <string>
@@ -20,16 +22,20 @@
 
 namespace hyb {
 
-/// One mesh's or primitive's coverage, cropped to the voxels where it is not zero (with a voxel of
-/// zeros around them where the grid has one).
+/// One mesh's or primitive's coverage and surface normal, cropped to the voxels where it covers
+/// anything (with a voxel of zeros around them where the grid has one).
 struct GeometryPart {
-  glm::ivec3 lo{0}, dims{0};      ///< the crop's first voxel and its size (voxels)
-  std::vector<uint8_t> coverage;  ///< fraction · 255, x fastest; empty when the part covers nothing
-  glm::vec4 color{1.0f};          ///< straight RGBA; a is the opacity of one crossing of the sheet at normal incidence
-  double thicknessMm = 1.0;       ///< the sheet's thickness τ (mm)
-  /// The coverage in [0, 1] at @p q (voxel units), trilinear, zero outside the crop (as a texture
-  /// clamped to a border of 0 reads it).
-  float at(const glm::vec3& q) const;
+  glm::ivec3 lo{0}, dims{0};  ///< the crop's first voxel and its size (voxels)
+  /// Per voxel of the crop, x fastest: the coverage (fraction · 255), then the unit normal n of the
+  /// closest surface (grid frame; a mesh's by its triangles' winding) as 128 + 127·n, 128s where
+  /// there is none: the RGBA8 texels the slices sample. Empty when the part covers nothing.
+  std::vector<glm::u8vec4> texels;
+  glm::vec4 color{1.0f};     ///< straight RGBA; a is the opacity of one crossing of the sheet
+  double thicknessMm = 1.0;  ///< the sheet's thickness τ (mm)
+  /// The coverage in [0, 1] (x) and the normal (yzw: the decoded n, trilinear, so not unit; zero
+  /// where there is none) at @p q (voxel units), trilinear, zero outside the crop (as a texture
+  /// clamped to its border reads it).
+  glm::vec4 at(const glm::vec3& q) const;
 };
 
 /// A frame's user geometry scan-converted onto the volume's grid.
@@ -39,13 +45,13 @@ struct GeometryChannel {
   std::vector<float> nodeMax;
   std::vector<std::string> warnings;  ///< the scan-conversions' (a mesh not closed...), one line each
   double ms = 0.0;                    ///< the scan-conversion's time
-  /// The parts' textures (R8, texture units 3…), made by the first slice frame that draws them.
+  /// The parts' textures (RGBA8, texture units 3…), made by the first slice frame that draws them.
   mutable std::vector<gl::Texture> textures;
 
   bool empty() const { return parts.empty(); }
   /// Whether node @p node's box holds any coverage.
   bool holds(uint32_t node) const { return node < nodeMax.size() && nodeMax[node] > 0.0f; }
-  /// Bytes of the parts' coverage (as much again in their textures once made).
+  /// Bytes of the parts' texels (as much again in their textures once made).
   uint64_t bytes() const;
 };
 
@@ -55,8 +61,9 @@ inline constexpr int kMaxGeometryParts = kMaxUserMeshes;
 /// Scan-converts @p meshes (patient mm) onto the grid of @p volume with @p filter of @p width voxel
 /// cells: a mesh as a sheet of the smallest voxel spacing around its surface; an analytic primitive
 /// (UserMesh::primitive) exactly (a plane as a sheet of its thickness, a sphere's surface as a shell
-/// of the smallest voxel spacing, a polygon as a sheet of it). Then each node of @p octree gets its
-/// box's largest coverage.
+/// of the smallest voxel spacing, a polygon as a sheet of it). Each voxel's normal is its closest
+/// triangle's (a mesh, a polygon), the sphere's radial direction or the plane's. Then each node of
+/// @p octree gets its box's largest coverage.
 GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const Volume& volume, const VolumeOctree& octree, ScanFilter filter,
                                     double width = 1.0);
 
@@ -69,11 +76,14 @@ GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const V
 Volume geometryVolume(const std::vector<UserMesh>& meshes, const Volume& volume, bool asFraction, std::vector<std::string>* warnings);
 
 /// The one rule both renderers composite a sample with (docs/user-geometry.md): the parts, in
-/// order, each over those after it, are over the data's sample. A part of coverage c over a segment
-/// of @p lenMm has opacity 1 − (1 − a)^(c · len / τ): its sheet crossed at normal incidence
-/// composites a, as a polygon crossing does. @p data and the result are premultiplied RGBA;
-/// @p coverage holds each part's coverage at the sample.
-glm::vec4 compositeGeometry(const GeometryChannel& g, const float* coverage, double lenMm, const glm::vec4& data);
+/// order, each over those after it, are over the data's sample. With c a part's coverage and n its
+/// normal at the sample, d the ray's direction and cos = |n·d| (1 where it has no normal), the part
+/// over a segment of @p lenMm has opacity 1 − (1 − a)^(c · cos · len / τ): the path's projection on
+/// the normal integrates to τ across the sheet, so a crossing at any incidence composites a, as a
+/// polygon crossing does; its colour is shaded by the polygons' and the isosurface's headlight,
+/// 0.25 + 0.75·cos. @p data and the result are premultiplied RGBA; @p samples holds each part's
+/// GeometryPart::at at the sample; @p dir is the ray's unit direction (grid frame).
+glm::vec4 compositeGeometry(const GeometryChannel& g, const glm::vec4* samples, const glm::vec3& dir, double lenMm, const glm::vec4& data);
 
 /// The triangles drawn for analytic primitive @p p by the `polygons` method, in patient mm: a
 /// plane's polygon inside the box of @p volume, a sphere's geodesic sphere with edges of about a

@@ -251,7 +251,7 @@ class PixelTracer {
       samples += meets ? 1 : 2;
       const glm::vec4 c = pre->lookup(front, r.backValue, e - s, mOptions.voi ? mOptions.voi->factor(r.o + r.d * tm) : 1.0);
       const glm::vec4 data = c.a > 0.0f ? glm::vec4(glm::vec3(c) * float(shadeAt()), c.a) : glm::vec4(0.0f);
-      if (mOptions.geometry) return compositePremultiplied(r, withGeometry(q, e - s, data));
+      if (mOptions.geometry) return compositePremultiplied(r, withGeometry(q, r.d, e - s, data));
       if (c.a > 0.0f) r.acc += glm::dvec4(glm::dvec3(c) * shadeAt(), c.a) * (1.0 - r.acc.a);
     } else {
       glm::vec4 c = mF.tf.lookup(sampleAt(glm::vec3(q)));
@@ -260,19 +260,19 @@ class PixelTracer {
       const float a = TransferFunction::segmentAlpha(c.a, float(e - s));
       if (mOptions.geometry) {
         const glm::vec4 data = a > 0.0f ? glm::vec4(glm::vec3(c) * float(shadeAt()) * a, a) : glm::vec4(0.0f);
-        return compositePremultiplied(r, withGeometry(q, e - s, data));
+        return compositePremultiplied(r, withGeometry(q, r.d, e - s, data));
       }
       if (a > 0.0f) composite(r, glm::dvec3(c) * shadeAt(), a);
     }
   }
 
-  // The sample @p data (premultiplied) at voxel-space point @p q of a segment @p len mm long with
-  // the geometry channel's parts composited over it (compositeGeometry).
-  glm::vec4 withGeometry(const glm::dvec3& q, double len, const glm::vec4& data) {
+  // The sample @p data (premultiplied) at voxel-space point @p q of a segment @p len mm long of a ray
+  // along @p dir with the geometry channel's parts composited over it (compositeGeometry).
+  glm::vec4 withGeometry(const glm::dvec3& q, const glm::dvec3& dir, double len, const glm::vec4& data) {
     const GeometryChannel& g = *mOptions.geometry;
-    mCoverage.resize(g.parts.size());
-    for (size_t k = 0; k < g.parts.size(); ++k) mCoverage[k] = g.parts[k].at(glm::vec3(q));
-    return compositeGeometry(g, mCoverage.data(), len, data);
+    mGeometry.resize(g.parts.size());
+    for (size_t k = 0; k < g.parts.size(); ++k) mGeometry[k] = g.parts[k].at(glm::vec3(q));
+    return compositeGeometry(g, mGeometry.data(), glm::vec3(dir), len, data);
   }
 
   static void compositePremultiplied(Ray& r, const glm::vec4& c) {
@@ -283,7 +283,7 @@ class PixelTracer {
   const RaycastOptions& mOptions;
   std::vector<Hit> mHits;  // the ray's surface crossings, in order
   std::vector<Hit> mMeshHits;
-  std::vector<float> mCoverage;  // the geometry parts' at a sample
+  std::vector<glm::vec4> mGeometry;  // the geometry parts' coverage and normal at a sample
   std::optional<KnotSampler> mPaged;
 };
 

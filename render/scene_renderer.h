@@ -320,7 +320,7 @@ class SceneRenderer {
   struct KeptGeometry {
     std::vector<std::shared_ptr<const TriangleMesh>> from;  // held: their addresses stay theirs
     std::vector<glm::vec4> colors;
-    bool filter = true;
+    double filter = 1.0;  // Look::meshFilter
     std::unique_ptr<GeometryChannel> channel;  // its textures are deleted in the context (declared after mGl)
   } mGeometry;  // the last frame's scan-converted geometry
 };

@@ -177,8 +177,8 @@ int geometryParts(const SlicesOptions& options) {
   return options.geometry ? int(std::min(options.geometry->parts.size(), size_t(kMaxGeometryParts))) : 0;
 }
 
-// Binds the geometry parts' coverage textures to units kGeometryUnit…, made at the channel's first
-// slice frame (R8, clamped to a border of 0 as GeometryPart::at reads outside its crop).
+// Binds the geometry parts' textures to units kGeometryUnit…, made at the channel's first slice
+// frame (RGBA8, clamped to a border of no coverage and no normal as GeometryPart::at reads outside its crop).
 void bindGeometry(const SlicesOptions& options) {
   const int parts = geometryParts(options);
   if (parts == 0) return;
@@ -191,12 +191,12 @@ void bindGeometry(const SlicesOptions& options) {
       gl::Texture t = gl::Texture::make();
       glActiveTexture(GLenum(GL_TEXTURE0 + kGeometryUnit + k));
       glBindTexture(GL_TEXTURE_3D, t.id());
-      const uint8_t zero = 0;
-      const glm::ivec3 dims = part.coverage.empty() ? glm::ivec3(1) : part.dims;
-      glTexImage3D(GL_TEXTURE_3D, 0, GL_R8, dims.x, dims.y, dims.z, 0, GL_RED, GL_UNSIGNED_BYTE, part.coverage.empty() ? &zero : part.coverage.data());
+      const glm::u8vec4 none(0, 128, 128, 128);
+      const glm::ivec3 dims = part.texels.empty() ? glm::ivec3(1) : part.dims;
+      glTexImage3D(GL_TEXTURE_3D, 0, GL_RGBA8, dims.x, dims.y, dims.z, 0, GL_RGBA, GL_UNSIGNED_BYTE, part.texels.empty() ? &none : part.texels.data());
       glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
       glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-      const float border[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+      const float border[4] = {0.0f, 128.0f / 255.0f, 128.0f / 255.0f, 128.0f / 255.0f};
       glTexParameterfv(GL_TEXTURE_3D, GL_TEXTURE_BORDER_COLOR, border);
       for (const GLenum wrap : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R}) glTexParameteri(GL_TEXTURE_3D, wrap, GL_CLAMP_TO_BORDER);
       g.textures.push_back(std::move(t));

@@ -66,9 +66,20 @@ void checkGrid(const VoxelGrid& grid) {
 
 bool finite(const glm::dvec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
 
-// floor(v) and ceil(v) as an index clamped to [lo, hi] (a far-away vertex must not overflow an int).
-int floorIndex(double v, int lo, int hi) { return int(std::clamp(std::floor(v), double(lo) - 1.0, double(hi) + 1.0)); }
-int ceilIndex(double v, int lo, int hi) { return int(std::clamp(std::ceil(v), double(lo) - 1.0, double(hi) + 1.0)); }
+// floor(v) and ceil(v) as an index clamped to [lo − 1, hi + 1] (a far-away vertex must not overflow
+// an int): clamped first, then truncated and corrected, which is cheaper than std::floor without SSE4.1.
+template <class Real>
+int floorIndex(Real v, int lo, int hi) {
+  v = std::clamp(v, Real(lo - 1), Real(hi + 1));
+  const int i = int(v);
+  return i - (Real(i) > v);
+}
+template <class Real>
+int ceilIndex(Real v, int lo, int hi) {
+  v = std::clamp(v, Real(lo - 1), Real(hi + 1));
+  const int i = int(v);
+  return i + (Real(i) < v);
+}
 
 // A point of @p space in the grid frame (mm).
 glm::dvec3 toGridPoint(const glm::dvec3& p, ScanSpace space, const VoxelGrid& grid) {
@@ -89,9 +100,19 @@ glm::dvec3 toGridNormal(const glm::dvec3& n, ScanSpace space, const VoxelGrid& g
   return n;
 }
 
-// The coverage voxels being written, x fastest: one buffer, left uninitialised so that the threads
-// writing each slab touch its pages first, and backed by 2 MiB pages where the kernel gives them
-// (a 512³ grid's 4 KiB page faults took a quarter of its conversion). Every voxel is written once.
+// An uninitialised buffer of at least @p bytes backed by 2 MiB pages where the kernel gives them: 4 KiB
+// page faults are costly on a virtualised machine (docs/scan-conversion.md).
+std::shared_ptr<void> hugePageBuffer(size_t bytes) {
+  constexpr size_t kHuge = size_t(2) << 20;
+  const size_t size = std::max<size_t>(1, (bytes + kHuge - 1) / kHuge) * kHuge;
+  void* p = std::aligned_alloc(kHuge, size);
+  if (!p) throw std::bad_alloc();
+  madvise(p, size, MADV_HUGEPAGE);  // a request: without it the buffer still works, with 4 KiB pages
+  return std::shared_ptr<void>(p, std::free);
+}
+
+// The coverage voxels being written, x fastest: one buffer on huge pages, left uninitialised so that
+// the threads writing each slab touch its pages first. Every voxel is written once.
 struct CoverageStore {
   std::shared_ptr<void> buffer;
   uint8_t* u8 = nullptr;
@@ -99,15 +120,10 @@ struct CoverageStore {
   bool bytes = true;
 
   CoverageStore(const glm::ivec3& dims, CoverageType type) : bytes(type == CoverageType::UInt8) {
-    constexpr size_t kHuge = size_t(2) << 20;
     const size_t n = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
-    const size_t size = (n * (bytes ? 1 : sizeof(float)) + kHuge - 1) / kHuge * kHuge;
-    void* p = std::aligned_alloc(kHuge, size);
-    if (!p) throw std::bad_alloc();
-    buffer.reset(p, std::free);
-    madvise(p, size, MADV_HUGEPAGE);  // a request: without it the buffer still works, with 4 KiB pages
-    if (bytes) u8 = static_cast<uint8_t*>(p);
-    else f32 = static_cast<float*>(p);
+    buffer = hugePageBuffer(n * (bytes ? 1 : sizeof(float)));
+    if (bytes) u8 = static_cast<uint8_t*>(buffer.get());
+    else f32 = static_cast<float*>(buffer.get());
   }
   void set(size_t n, double v) {
     if (bytes) u8[n] = uint8_t(std::lround(v * 255.0));
@@ -162,10 +178,15 @@ void forEachVoxel(const VoxelGrid& grid, CoverageStore* store, size_t* band, siz
 
 // ---- Meshes ----
 
-// A triangle in the grid frame (mm) with what the band pass needs.
+// A triangle's corners in the grid frame (mm).
 struct Tri {
   glm::vec3 a, b, c;
-  glm::vec3 normal;  // unit; zero for a triangle without area (left out of the band)
+  // Its unit normal, the way its corners turn counter-clockwise; zero for a triangle without area.
+  glm::vec3 normal() const {
+    const glm::vec3 cr = glm::cross(b - a, c - a);
+    const float len = glm::length(cr);
+    return len > 0.0f && std::isfinite(len) ? cr / len : glm::vec3(0.0f);
+  }
 };
 
 // Closest point on triangle (a, b, c) to p (Ericson, Real-Time Collision Detection, 5.1.5).
@@ -189,6 +210,34 @@ glm::vec3 closestOnTriangle(const glm::vec3& p, const glm::vec3& a, const glm::v
   return a + ab * (vb * denom) + ac * (vc * denom);
 }
 
+// The squared distance from a point to a triangle, from the point's offset from corner a and its
+// signed distance to the plane: Ericson's regions (closestOnTriangle) with every dot product but
+// two taken once per triangle, and each region's distance in closed form (a corner's, the
+// projection on an edge's line, or the plane's).
+struct TriangleDistance {
+  glm::vec3 ab, ac;
+  float d11, d12, d22;  // ab·ab, ab·ac, ac·ac
+  explicit TriangleDistance(const Tri& t) : ab(t.b - t.a), ac(t.c - t.a), d11(glm::dot(ab, ab)), d12(glm::dot(ab, ac)), d22(glm::dot(ac, ac)) {}
+  float squared(const glm::vec3& ap, float plane) const {
+    const float d1 = glm::dot(ab, ap), d2 = glm::dot(ac, ap), aa = glm::dot(ap, ap);
+    if (d1 <= 0.0f && d2 <= 0.0f) return aa;                    // corner a
+    const float d3 = d1 - d11, d4 = d2 - d12;                   // ab·bp, ac·bp
+    if (d3 >= 0.0f && d4 <= d3) return aa - 2.0f * d1 + d11;    // corner b
+    const float vc = d1 * d4 - d3 * d2;
+    if (vc <= 0.0f && d1 >= 0.0f && d3 <= 0.0f) return std::max(0.0f, aa - d1 * d1 / d11);  // edge ab
+    const float d5 = d1 - d12, d6 = d2 - d22;                   // ab·cp, ac·cp
+    if (d6 >= 0.0f && d5 <= d6) return aa - 2.0f * d2 + d22;    // corner c
+    const float vb = d5 * d2 - d1 * d6;
+    if (vb <= 0.0f && d2 >= 0.0f && d6 <= 0.0f) return std::max(0.0f, aa - d2 * d2 / d22);  // edge ac
+    const float va = d3 * d6 - d5 * d4;
+    if (va <= 0.0f && d4 - d3 >= 0.0f && d5 - d6 >= 0.0f) {    // edge bc: |bp|² less bp's projection on bc
+      const float e = d4 - d3;
+      return std::max(0.0f, aa - 2.0f * d1 + d11 - e * e / (e + d5 - d6));
+    }
+    return plane * plane;  // inside: the projection on the plane
+  }
+};
+
 // 2D edge function of the (y, z) projection, computed from the edge's endpoints in one canonical
 // order so that the two triangles sharing an edge get exactly opposite values.
 double edgeFunction(const glm::dvec2& a, const glm::dvec2& b, const glm::dvec2& q) {
@@ -208,6 +257,7 @@ struct SlabScratch {
   std::vector<uint32_t> owner;  // that triangle, or kNone
   std::vector<size_t> touched;  // voxels (in slab) whose owner is set, for stage 3 and the reset
   std::vector<std::pair<uint32_t, float>> crossings;  // (row in slab, x mm)
+  std::vector<VoxelNormal> normals;                   // the band voxels' (ScanOptions::normals), this thread's slabs'
 };
 constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
 
@@ -215,13 +265,15 @@ constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
 struct MeshScan {
   const VoxelGrid& grid;
   const ScanOptions& options;
-  std::vector<Tri> tris;
+  const glm::vec3* points = nullptr;  // the vertices in the grid frame (mm)
+  const glm::uvec3* faces = nullptr;  // the mesh's triangles
   std::vector<uint32_t> slabStart, slabTris;  // triangles of slab s: slabTris[slabStart[s] .. slabStart[s + 1])
   bool solid = true;
   double reach = 0.0;  // mm from the surface within which a voxel is filtered
   CoverageStore* store = nullptr;
 
   int slabCount() const { return (grid.dims.z + kSlabPlanes - 1) / kSlabPlanes; }
+  Tri tri(uint32_t t) const { return {points[faces[t].x], points[faces[t].y], points[faces[t].z]}; }
 
   // Stage 1: inside runs of every row of slab planes [k0, k1) by parity of the crossings; counts the
   // voxels filled, and the rows crossed an odd number of times (the mesh is open along them; their
@@ -232,7 +284,7 @@ struct MeshScan {
     auto& crossings = scratch->crossings;
     crossings.clear();
     for (const uint32_t t : list) {
-      const Tri& tri = tris[t];
+      const Tri tri = this->tri(t);
       const glm::dvec2 a(tri.a.y, tri.a.z), b(tri.b.y, tri.b.z), c(tri.c.y, tri.c.z);
       const double area = edgeFunction(a, b, c);
       if (area == 0.0) continue;  // seen edge-on: its neighbours' edges stand in for it
@@ -277,8 +329,9 @@ struct MeshScan {
     const glm::vec3 s(grid.spacing);
     const float r = float(reach);
     for (const uint32_t t : list) {
-      const Tri& tri = tris[t];
-      if (tri.normal == glm::vec3(0.0f)) continue;
+      const Tri tri = this->tri(t);
+      const glm::vec3 normal = tri.normal();
+      if (normal == glm::vec3(0.0f)) continue;
       const glm::vec3 lo = glm::min(tri.a, glm::min(tri.b, tri.c)) - r, hi = glm::max(tri.a, glm::max(tri.b, tri.c)) + r;
       const int i0 = std::max(0, ceilIndex(lo.x / s.x, 0, d.x)), i1 = std::min(d.x - 1, floorIndex(hi.x / s.x, 0, d.x));
       const int j0 = std::max(0, ceilIndex(lo.y / s.y, 0, d.y)), j1 = std::min(d.y - 1, floorIndex(hi.y / s.y, 0, d.y));
@@ -286,30 +339,34 @@ struct MeshScan {
       // Walk the voxels in rows along the axis the plane is steepest across (n_w·s_w largest), so
       // each row holds only the few voxels within the reach of the plane.
       const int first[3] = {i0, j0, kk0}, last[3] = {i1, j1, kk1};
-      const glm::vec3 slope = tri.normal * s;
+      const glm::vec3 slope = normal * s;
       const glm::vec3 mag = glm::abs(slope);
       const int w = mag.x >= mag.y && mag.x >= mag.z ? 0 : (mag.y >= mag.z ? 1 : 2);
       const int u = w == 0 ? 1 : 0, v = w == 2 ? 1 : 2;
       const size_t stride[3] = {1, size_t(d.x), size_t(d.x) * size_t(d.y)};
-      const float offset = -glm::dot(tri.normal, tri.a);
+      const float offset = -glm::dot(normal, tri.a);
+      const TriangleDistance distance(tri);
+      const float invSlope = 1.0f / slope[w];
       for (int a = first[u]; a <= last[u]; ++a)
         for (int b = first[v]; b <= last[v]; ++b) {
           const float a0 = slope[u] * float(a) + slope[v] * float(b) + offset;  // plane distance at index 0 along w
-          const float e0 = (-r - a0) / slope[w], e1 = (r - a0) / slope[w];
+          const float e0 = (-r - a0) * invSlope, e1 = (r - a0) * invSlope;
           const int c0 = std::max(first[w], floorIndex(std::min(e0, e1), first[w], last[w]));
           const int c1 = std::min(last[w], ceilIndex(std::max(e0, e1), first[w], last[w]));
+          if (c1 < c0) continue;
+          // Along the row: the voxel's index in the slab, its offset from corner a, and its plane
+          // distance, each stepped by one voxel along w.
           glm::ivec3 idx;
           idx[u] = a;
           idx[v] = b;
-          for (int c = c0; c <= c1; ++c) {
-            idx[w] = c;
-            const float plane = a0 + slope[w] * float(c);
-            const size_t at = size_t(idx.x) * stride[0] + size_t(idx.y) * stride[1] + size_t(idx.z - k0) * stride[2];
+          idx[w] = c0;
+          size_t at = size_t(idx.x) * stride[0] + size_t(idx.y) * stride[1] + size_t(idx.z - k0) * stride[2];
+          glm::vec3 ap = glm::vec3(idx) * s - tri.a;
+          float plane = a0 + slope[w] * float(c0);
+          for (int c = c0; c <= c1; ++c, at += stride[w], ap[w] += s[w], plane += slope[w]) {
             float& best = scratch->best[at];
             if (plane * plane >= best) continue;  // best starts at the reach²
-            const glm::vec3 p = glm::vec3(idx) * s;
-            const glm::vec3 q = closestOnTriangle(p, tri.a, tri.b, tri.c) - p;
-            const float dist2 = glm::dot(q, q);
+            const float dist2 = distance.squared(ap, plane);
             if (dist2 < best) {
               best = dist2;
               uint32_t& owner = scratch->owner[at];
@@ -336,13 +393,15 @@ struct MeshScan {
       scratch->best[n] = r2;
       const int i = int(n % size_t(d.x)), j = int((n / size_t(d.x)) % size_t(d.y)), k = k0 + int(n / planeSize);
       const size_t out = n + size_t(k0) * planeSize;
-      const Tri& tri = tris[t];
+      const Tri tri = this->tri(t);
+      const glm::vec3 normal = tri.normal();
       const glm::dvec3 p = glm::dvec3(i, j, k) * grid.spacing;
       const glm::dvec3 c(closestOnTriangle(glm::vec3(p), tri.a, tri.b, tri.c));
       const double dist = glm::length(p - c);
-      const glm::dvec3 dir = dist > 1e-6 * reach ? (p - c) / dist : glm::dvec3(tri.normal);
+      const glm::dvec3 dir = dist > 1e-6 * reach ? (p - c) / dist : glm::dvec3(normal);
       const glm::dvec3 m = glm::abs(dir) * box;
       ++band;
+      if (options.normals) scratch->normals.push_back({uint64_t(out), normal});
       if (solid) {
         const bool inside = store->one(out);
         bandInside += inside;
@@ -401,28 +460,20 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
   validateMesh(mesh);
   checkOptions(options, false);
   checkGrid(grid);
-  MeshScan scan{grid, options, {}, {}, {}, options.thickness == 0.0, 0.0, nullptr};
+  MeshScan scan{grid, options, nullptr, mesh.triangles.data(), {}, {}, options.thickness == 0.0, 0.0, nullptr};
   scan.reach = boxReach(grid, options) + 0.5 * options.thickness;
 
-  // The triangles in the grid frame, with their unit normals.
-  const size_t n = mesh.triangles.size();
-  scan.tris.resize(n);
-  std::vector<glm::vec3> points(mesh.vertices.size());
+  // The vertices in the grid frame (the triangles' corners are read through their indices).
+  const size_t n = mesh.triangles.size(), vertices = mesh.vertices.size();
+  const std::shared_ptr<void> pointBuffer = hugePageBuffer(vertices * sizeof(glm::vec3));
+  glm::vec3* points = static_cast<glm::vec3*>(pointBuffer.get());
+  scan.points = points;
 #pragma omp parallel for schedule(static)
-  for (int64_t v = 0; v < int64_t(points.size()); ++v) points[size_t(v)] = glm::vec3(toGridPoint(glm::dvec3(mesh.vertices[size_t(v)]), options.space, grid));
+  for (int64_t v = 0; v < int64_t(vertices); ++v) points[v] = glm::vec3(toGridPoint(glm::dvec3(mesh.vertices[size_t(v)]), options.space, grid));
   glm::dvec3 lo(std::numeric_limits<double>::max()), hi(-std::numeric_limits<double>::max());
-  for (const glm::vec3& p : points) {
-    lo = glm::min(lo, glm::dvec3(p));
-    hi = glm::max(hi, glm::dvec3(p));
-  }
-#pragma omp parallel for schedule(static)
-  for (int64_t t = 0; t < int64_t(n); ++t) {
-    const glm::uvec3& f = mesh.triangles[size_t(t)];
-    Tri& tri = scan.tris[size_t(t)];
-    tri.a = points[f.x], tri.b = points[f.y], tri.c = points[f.z];
-    const glm::vec3 cr = glm::cross(tri.b - tri.a, tri.c - tri.a);
-    const float len = glm::length(cr);
-    tri.normal = len > 0.0f && std::isfinite(len) ? cr / len : glm::vec3(0.0f);
+  for (size_t v = 0; v < vertices; ++v) {
+    lo = glm::min(lo, glm::dvec3(points[v]));
+    hi = glm::max(hi, glm::dvec3(points[v]));
   }
   std::vector<std::string> warnings;
   meshExtentWarnings(lo, hi, grid, scan.reach, &warnings);
@@ -441,9 +492,9 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
     return true;
   };
   scan.slabStart.assign(size_t(slabs) + 1, 0);
-  for (const Tri& tri : scan.tris) {
+  for (uint32_t t = 0; t < uint32_t(n); ++t) {
     int first, last;
-    if (slabRange(tri, &first, &last))
+    if (slabRange(scan.tri(t), &first, &last))
       for (int sl = first; sl <= last; ++sl) ++scan.slabStart[size_t(sl) + 1];
   }
   for (int sl = 0; sl < slabs; ++sl) scan.slabStart[size_t(sl) + 1] += scan.slabStart[size_t(sl)];
@@ -452,7 +503,7 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
     std::vector<uint32_t> next(scan.slabStart.begin(), scan.slabStart.end() - 1);
     for (uint32_t t = 0; t < uint32_t(n); ++t) {
       int first, last;
-      if (slabRange(scan.tris[t], &first, &last))
+      if (slabRange(scan.tri(t), &first, &last))
         for (int sl = first; sl <= last; ++sl) scan.slabTris[next[size_t(sl)]++] = t;
     }
   }
@@ -461,6 +512,7 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
   scan.store = &store;
   const bool band = scan.reach > 0.0;
   size_t oddRows = 0, bandVoxels = 0, bandInside = 0, fillInside = 0;
+  std::vector<VoxelNormal> normals;
   ParallelFailure failure;
 #pragma omp parallel reduction(+ : oddRows, bandVoxels, bandInside, fillInside)
   {
@@ -487,12 +539,16 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
           bandInside += in;
         }
       });
+#pragma omp critical
+    failure.run([&] { normals.insert(normals.end(), scratch.normals.begin(), scratch.normals.end()); });
   }
   failure.rethrow();
   if (oddRows > 0)
     warnings.push_back(detail::concat("mesh is not closed: ", oddRows, " rows of voxels cross it an odd number of times (the solid is filled "
                                       "only between pairs of crossings; give a thickness to scan-convert it as a sheet)"));
-  return makeResult(grid, std::move(store), std::move(warnings), bandVoxels, fillInside - bandInside);
+  ScanResult result = makeResult(grid, std::move(store), std::move(warnings), bandVoxels, fillInside - bandInside);
+  result.normals = std::move(normals);
+  return result;
 }
 
 // ---- Analytic primitives ----

@@ -13,6 +13,7 @@
 
 #include <glm/glm.hpp>
 
+#include <cstdint>
 #include <span>
 #include <string>
 #include <vector>
@@ -62,6 +63,15 @@ struct ScanOptions {
   /// of this thickness in mm centred on its surface. Polygons and planes need it > 0.
   double thickness = 0.0;
   CoverageType type = CoverageType::UInt8;
+  /// Meshes and polygons: also return each band voxel's closest triangle's normal (ScanResult::normals).
+  bool normals = false;
+};
+
+/// A voxel's surface normal: the unit normal of its closest triangle, in the grid frame, pointing
+/// the way the triangle's corners turn counter-clockwise (so consistent over a consistently wound mesh).
+struct VoxelNormal {
+  uint64_t voxel = 0;  ///< its index, x fastest
+  glm::vec3 normal{0.0f};
 };
 
 /// A coverage volume and what the scan-conversion noticed.
@@ -74,6 +84,9 @@ struct ScanResult {
   std::vector<std::string> warnings;
   size_t bandVoxels = 0;    ///< voxels within the filter's reach of the surface, whose value was filtered
   size_t insideVoxels = 0;  ///< voxels wholly inside (value 1)
+  /// With ScanOptions::normals, a mesh's or polygon's band voxels' normals, in no particular order;
+  /// empty otherwise.
+  std::vector<VoxelNormal> normals;
 };
 
 /// The fraction of the cube [−½, ½]³ where m·u ≤ t, exact (closed form, stable for any m ≠ 0,

@@ -126,8 +126,11 @@ TEST(GeometryChannel, ScanConvertMatchesPolygonsOnASmoothSphere) {
   std::printf("  opacity at the footprint's centre: %.4f (polygons %.4f)\n", scan.image.at(c.x, c.y).a, polygons.at(c.x, c.y).a);
   EXPECT_NEAR(scan.image.at(c.x, c.y).a, 0.75f, 0.02f);
   EXPECT_NEAR(polygons.at(c.x, c.y).a, 0.75f, 1e-4f);
-  EXPECT_GE(db, 20.0);  // the polygons are shaded by a headlight, the channel is not
-  EXPECT_GE(alphaDb, 18.0);  // its rim: longer paths through the sheets, and their half-thickness
+  // Measured 38.88 and 27.31 dB (21.23 and 18.83 unshaded and unprojected); the reference is
+  // deterministic, the slack is for compilers' rounding.
+  constexpr double kSlackDb = 0.4;
+  EXPECT_GE(db, 38.88 - kSlackDb);
+  EXPECT_GE(alphaDb, 27.31 - kSlackDb);  // its rim: the shell's half-thickness and the filter's half cell beyond the polygons
   EXPECT_GT(pixels, 1000u);
   EXPECT_LT(absent, inside - 2.0);
   EXPECT_GT(scan.stats.geometryBytes, 0u);
@@ -138,7 +141,63 @@ TEST(GeometryChannel, ScanConvertMatchesPolygonsOnASmoothSphere) {
     return p;
   }(), reference).image);
   std::printf("within the data: %.2f dB\n", withData);
-  EXPECT_GE(withData, 40.0);
+  EXPECT_GE(withData, 62.95 - kSlackDb);
+}
+
+TEST(GeometryChannel, ASheetIsShadedAndCompositesItsOpacityOncePerCrossingAtAnyIncidence) {
+  // A 1 mm plane through the volume's centre (data transparent), its normal θ off an orthographic
+  // view's rays, in both renderers. In the 11² pixels about the centre (about 5 voxels across):
+  // the straight colour is the headlight's, (0.25 + 0.75 cos θ) · rgb, and the mean optical depth
+  // (in crossings, log(1 − α) / log(1 − a)) is one crossing's, as a polygon's: the path's projection
+  // on the normal integrates to τ at any incidence. A single ray's depth varies by about ±13 % at
+  // normal incidence (the one-cell box's aliasing of a one-voxel sheet), so the patch's mean is asserted.
+  const Scene scene = test::sphereScene();
+  SceneRenderer r(test::sphereScene());
+  View view;
+  view.camera = test::perspective({-30.0, -45.0, 50.0}, {19.5, 17.5, 15.5}, {0, 0, 1}, 10.0, 33);
+  view.camera.ortho = true;  // one direction: one shade
+  view.camera.orthoHeight = 14.0;
+  const glm::dvec3 d = glm::normalize(view.camera.eye - view.camera.center), u = glm::normalize(glm::cross(d, glm::dvec3(0, 0, 1)));
+  const glm::vec3 rgb(1.0f, 0.5f, 0.25f);
+  constexpr float kShadeTolerance = 0.005f;  // the normal's bytes (1/127)
+  constexpr double kDepthTolerance = 0.03;  // crossings: the patch's mean over a few voxels of the sheet's aliasing
+  Look look;
+  look.tf = clear();
+  look.meshMethod = MeshMethod::ScanConvert;
+  for (const double degrees : {0.0, 40.0, 70.0}) {
+    const double a = degrees * std::numbers::pi / 180.0;
+    const glm::dvec3 n = d * std::cos(a) + glm::cross(u, d) * std::sin(a);
+    char text[160];
+    std::snprintf(text, sizeof text, "plane:19.5,17.5,15.5,%.9f,%.9f,%.9f,1:1,0.5,0.25,0.5", n.x, n.y, n.z);
+    look.meshes = {primitiveOf(text, scene.volume)};
+    const float shade = float(0.25 + 0.75 * std::cos(a));
+    for (const Renderer renderer : {Renderer::Raycast, Renderer::Slices}) {
+      Quality q;
+      q.renderer = renderer;
+      const Image image = r.render(view, look, q).image;
+      double depth = 0.0, worstShade = 0.0;
+      for (int y = 11; y <= 21; ++y)
+        for (int x = 11; x <= 21; ++x) {
+          const glm::vec4 p = image.at(x, y);
+          depth += std::log(1.0 - double(p.a)) / std::log(0.5) / 121.0;
+          for (int c = 0; c < 3; ++c) worstShade = std::max(worstShade, std::abs(double(p[c] / p.a - shade * rgb[c])));
+        }
+      std::printf("θ = %2.0f°, %s: mean depth %.4f crossings, straight colour within %.4f of the headlight's\n", degrees,
+                  renderer == Renderer::Raycast ? "reference" : "slices", depth, worstShade);
+      EXPECT_NEAR(depth, 1.0, kDepthTolerance) << degrees;
+      EXPECT_LT(worstShade, kShadeTolerance) << degrees;
+    }
+  }
+  // Every covered texel holds the plane's normal (grid frame = patient here), within a byte's step.
+  const GeometryChannel g = scanConvertGeometry(look.meshes, scene.volume, scene.octree, ScanFilter::Box);
+  const glm::vec3 n = glm::normalize(glm::vec3(look.meshes.front().primitive->normal));
+  size_t covered = 0;
+  for (const glm::u8vec4& t : g.parts.front().texels) {
+    if (t.x == 0) continue;
+    ++covered;
+    EXPECT_LT(glm::length((glm::vec3(t.y, t.z, t.w) - 128.0f) / 127.0f - n), 0.01f);
+  }
+  EXPECT_GT(covered, 1000u);
 }
 
 TEST(GeometryChannel, TheRenderersAgreeOnScanConvertFrames) {
@@ -193,9 +252,10 @@ TEST(GeometryChannel, ARotatingPlaneDoesNotShimmerWhenFiltered) {
   look.tf = clear();
   look.meshMethod = MeshMethod::ScanConvert;
   const Image plain = r.render(view, look, reference).image;
-  double worst[2] = {0.0, 0.0}, mean[2] = {0.0, 0.0};
-  for (int filter = 0; filter < 2; ++filter) {
-    look.meshFilter = filter == 1;
+  const double widths[] = {0.0, 1.0, 1.5, 2.0};  // point sampling, then boxes of 1, 1.5 and 2 cells
+  double worst[4] = {}, mean[4] = {};
+  for (int filter = 0; filter < 4; ++filter) {
+    look.meshFilter = widths[filter];
     Image last;
     for (int k = 0; k <= 10; ++k) {
       // A plane of 1 mm through the volume's centre facing the eye 20° off, turned k degrees more
@@ -214,11 +274,33 @@ TEST(GeometryChannel, ARotatingPlaneDoesNotShimmerWhenFiltered) {
       }
       last = image;
     }
+    std::printf("rotating plane, mean |change| a frame in its footprint, filter %g: %.2f (worst %.2f) /255\n", widths[filter], mean[filter], worst[filter]);
   }
-  std::printf("rotating plane, mean |change| a frame in its footprint: box %.2f (worst %.2f), none %.2f (worst %.2f) /255\n", mean[1], worst[1],
-              mean[0], worst[0]);
   EXPECT_LT(worst[1], 6.0);
   EXPECT_GT(mean[0], 3.0 * mean[1]);
+  // Wider boxes band-limit further: less change still (measured 0.72× the one cell's, 0.76× the 1.5 cells').
+  EXPECT_LT(mean[2], 0.85 * mean[1]);
+  EXPECT_LT(mean[3], 0.85 * mean[2]);
+}
+
+TEST(GeometryChannel, TheFilterRowReadsBoxWidths) {
+  const FrameField& f = *frameField("mesh_filter");
+  for (const auto& [word, width] : {std::pair{"box", 1.0}, {"box1.5", 1.5}, {"box2", 2.0}, {"none", 0.0}}) {
+    FrameSettings s;
+    f.parse(s, word, "--mesh-filter");
+    EXPECT_EQ(s.meshFilter, width) << word;
+    EXPECT_EQ(*f.text(s), word);
+  }
+  FrameSettings s;
+  try {
+    f.parse(s, "box3", "--mesh-filter");
+    ADD_FAILURE() << "box3 accepted";
+  } catch (const ValueError& e) {
+    EXPECT_NE(std::string(e.what()).find("--mesh-filter"), std::string::npos) << e.what();
+  }
+  Look look;
+  look.meshFilter = 0.5;
+  EXPECT_EQ(look.validate(), "--mesh-filter must be none or a box of 1 to 4 voxel cells");
 }
 
 // --stats (and Python's stats, the same FrameReport) report the scan-conversion of a frame that

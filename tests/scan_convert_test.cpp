@@ -324,6 +324,47 @@ TEST(ScanConvert, SheetOfAClosedMeshHasItsAreaTimesThickness) {
   EXPECT_NEAR(total(scanConvertMesh(geodesicSphere(glm::dvec3(19.6), radius, 32), grid, o)), shell, 0.01 * shell);
 }
 
+TEST(ScanConvert, BandNormalsAreTheClosestTrianglesFollowingTheWinding) {
+  // A geodesic sphere (R = 12 mm, 20 480 triangles of about 2° each) in patient space, a 1 mm sheet
+  // on a 0.8 × 1 × 1.3 mm grid in a rotated, mirrored frame.
+  const VoxelGrid grid{{40, 40, 40}, {0.8, 1.0, 1.3}, obliqueFrame()};
+  const glm::dvec3 centre(16.1, 19.7, 25.9);  // grid mm
+  TriangleMesh mesh = geodesicSphere(grid.frame.toPatient(centre), 12.0, 32);
+  ScanOptions o;
+  o.thickness = 1.0;
+  EXPECT_TRUE(scanConvertMesh(mesh, grid, o).normals.empty());  // only when asked
+  o.normals = true;
+  const ScanResult r = scanConvertMesh(mesh, grid, o);
+  ASSERT_EQ(r.normals.size(), r.bandVoxels);  // one per band voxel
+  // Each the unit normal of a facet near the voxel: within 3° of its radial direction (grid frame),
+  // outward as the mesh is wound in patient space, so inward in the grid frame this frame mirrors.
+  const double cos3 = std::cos(3.0 * std::numbers::pi / 180.0), mirror = glm::determinant(grid.frame.direction) < 0.0 ? -1.0 : 1.0;
+  double worst = 1.0;
+  std::vector<std::pair<uint64_t, glm::vec3>> forward;
+  for (const VoxelNormal& v : r.normals) {
+    const size_t i = v.voxel % 40, j = (v.voxel / 40) % 40, k = v.voxel / 1600;
+    const glm::dvec3 radial = mirror * glm::normalize(glm::dvec3(i, j, k) * grid.spacing - centre);
+    EXPECT_NEAR(glm::length(v.normal), 1.0f, 1e-5f);
+    worst = std::min(worst, glm::dot(glm::dvec3(v.normal), radial));
+    forward.emplace_back(v.voxel, v.normal);
+  }
+  std::printf("band normals: %zu, the worst %.3f° off the radial direction\n", r.normals.size(), std::acos(std::min(worst, 1.0)) * 180.0 / std::numbers::pi);
+  EXPECT_GT(worst, cos3);
+  // Wound the other way: the same voxels, each normal turned over (a tie between neighbours may pick the other).
+  for (glm::uvec3& t : mesh.triangles) std::swap(t.y, t.z);
+  const ScanResult turned = scanConvertMesh(mesh, grid, o);
+  ASSERT_EQ(turned.normals.size(), forward.size());
+  std::vector<std::pair<uint64_t, glm::vec3>> back;
+  for (const VoxelNormal& v : turned.normals) back.emplace_back(v.voxel, v.normal);
+  auto byVoxel = [](const auto& a, const auto& b) { return a.first < b.first; };
+  std::sort(forward.begin(), forward.end(), byVoxel);
+  std::sort(back.begin(), back.end(), byVoxel);
+  for (size_t n = 0; n < back.size(); ++n) {
+    ASSERT_EQ(back[n].first, forward[n].first);
+    EXPECT_LT(glm::dot(back[n].second, forward[n].second), -cos3);
+  }
+}
+
 TEST(ScanConvert, CoverageNrrdReadsBackOnTheSameGrid) {
   const test::TempDir dir;
   const VoxelGrid grid{{20, 18, 16}, {0.8, 1.0, 1.3}, obliqueFrame()};

@@ -94,7 +94,7 @@ class Scene:
         mesh: Path = ...,
         primitive: str = ...,
         mesh_method: Literal["polygons", "scan-convert"] = ...,
-        mesh_filter: Literal["box", "none"] = ...,
+        mesh_filter: Literal["box", "box1.5", "box2", "none"] = ...,
         mesh_space: Literal["lps", "ras"] = ...,
         meshes: list[tuple[npt.ArrayLike, npt.ArrayLike, Numbers]] = ...,
         renderer: Literal["slices", "raycast"] = ...,

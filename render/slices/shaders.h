@@ -133,21 +133,25 @@ float voiFactor(vec3 x) {
 }
 
 #if GEOMETRY
-// The scan-converted geometry (render/geometry_channel.h): each part's coverage texture (R8, a
-// crop of the grid), its colour and its sheet's thickness τ (mm).
+// The scan-converted geometry (render/geometry_channel.h): each part's texture (RGBA8, a crop of the
+// grid: coverage, then its normal n as 128 + 127·n), its colour and its sheet's thickness τ (mm).
 uniform sampler3D geomTex[GEOMETRY];
 uniform vec3 geomScale[GEOMETRY], geomOffset[GEOMETRY];
 uniform vec4 geomColor[GEOMETRY];
 uniform float geomTau[GEOMETRY];
 
 // compositeGeometry: the parts, each over those after it, over the data's premultiplied sample;
-// a part of coverage c over len mm has opacity 1 − (1 − a)^(c·len/τ).
-vec4 withGeometry(float cov[GEOMETRY], float len, vec4 data) {
+// with cosine = |n·dir| (1 where a part has no normal n), a part of coverage c over len mm has opacity
+// 1 − (1 − a)^(c·cosine·len/τ) and its colour is shaded by the headlight, 0.25 + 0.75·cosine.
+vec4 withGeometry(vec4 geom[GEOMETRY], float len, vec4 data, vec3 dir) {
   vec4 over = vec4(0.0);
   for (int k = 0; k < GEOMETRY; ++k) {
-    if (cov[k] > 0.0) {
-      float a = 1.0 - pow(1.0 - geomColor[k].a, cov[k] * len / geomTau[k]);
-      over += vec4(geomColor[k].rgb * a, a) * (1.0 - over.a);
+    if (geom[k].r > 0.0) {
+      vec3 n = geom[k].gba - vec3(128.0 / 255.0);
+      float nn = dot(n, n);
+      float cosine = nn > 1e-12 ? abs(dot(n, dir)) * inversesqrt(nn) : 1.0;
+      float a = 1.0 - pow(1.0 - geomColor[k].a, geom[k].r * cosine * len / geomTau[k]);
+      over += vec4(geomColor[k].rgb * ((0.25 + 0.75 * cosine) * a), a) * (1.0 - over.a);
     }
   }
   return over + data * (1.0 - over.a);
@@ -231,12 +235,12 @@ void main() {
 #endif
   vec3 x = vWorld;
 #if GEOMETRY
-  // The parts' coverage here: a sample the data leaves transparent is kept where one covers it.
-  float cov[GEOMETRY];
+  // The parts' coverage and normal here: a sample the data leaves transparent is kept where one covers it.
+  vec4 geom[GEOMETRY];
   bool covered = false;
   for (int k = 0; k < GEOMETRY; ++k) {
-    cov[k] = texture(geomTex[k], x * geomScale[k] + geomOffset[k]).r;
-    covered = covered || cov[k] > 0.0;
+    geom[k] = texture(geomTex[k], x * geomScale[k] + geomOffset[k]);
+    covered = covered || geom[k].r > 0.0;
   }
 #define EMPTY(a) ((a) <= 0.0 && !covered)
 #else
@@ -307,7 +311,7 @@ void main() {
   }
 #endif
 #if GEOMETRY
-  fragColor = withGeometry(cov, len, vec4(color * shade, alpha));
+  fragColor = withGeometry(geom, len, vec4(color * shade, alpha), rayDirection());
 #else
   fragColor = vec4(color * shade, alpha);
 #endif
