@@ -388,6 +388,35 @@ TEST(DicomWeb, APreviewIsEveryStrideThPlaneOfTheSeriesAveraged) {
   ASSERT_FALSE(told.empty());
   EXPECT_EQ(told.back(), 1.0);
   EXPECT_FALSE(readDicomWebPreview(url, {6, 16}));  // 12 planes: not more than twice 6
+  // A gantry-tilted series (18.5°): the preview's planes are put on the grid as the series' are,
+  // and the ball lands where the series puts it (its bone's centroid in the patient).
+  DicomStudy tiltedStudy;
+  tiltedStudy.uid = "1.2.826.0.1.3680043.8.498.106";
+  DicomImage tilted = model(tiltedStudy.uid + ".1");
+  const double t = 18.5 * 3.14159265358979323846 / 180.0;
+  const double cosines[6] = {1, 0, 0, 0, std::cos(t), std::sin(t)};
+  std::copy(std::begin(cosines), std::end(cosines), tilted.cosines);
+  tilted.tilt = 18.5;
+  test::writeSeries(dir.file("tilted"), "I", tiltedStudy, tilted, positions(evenly(-12.0, 2.0, 12)), head);
+  o.upload(dir.file("tilted"));
+  const std::string tiltedUrl = o.series(tiltedStudy.uid, tilted.seriesUid);
+  const Volume tiltedSeries = readVolume(tiltedUrl);
+  const std::optional<Volume> tiltedPreview = readDicomWebPreview(tiltedUrl, {4, 16});
+  ASSERT_TRUE(tiltedPreview);
+  EXPECT_EQ(tiltedPreview->frame().direction, tiltedSeries.frame().direction);
+  auto boneCentroid = [](const Volume& v) {
+    glm::dvec3 sum(0.0);
+    double weight = 0.0;
+    for (int k = 0; k < v.dims().z; ++k)
+      for (int j = 0; j < v.dims().y; ++j)
+        for (int i = 0; i < v.dims().x; ++i)
+          if (const double w = std::max(0.0, double(v.at(i, j, k))); w > 0.0) {
+            sum += w * v.frame().toPatient(glm::dvec3(i, j, k) * v.spacing());
+            weight += w;
+          }
+    return sum / weight;
+  };
+  EXPECT_LT(glm::length(boneCentroid(*tiltedPreview) - boneCentroid(tiltedSeries)), 1.0);
   DicomStudy study;
   study.uid = "1.2.826.0.1.3680043.8.498.105";
   writeEnhanced(dir.file("enhanced"), study, study.uid + ".1");
