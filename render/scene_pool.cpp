@@ -144,11 +144,7 @@ void ScenePool::open(uint64_t viewer, const std::string& key, const std::string&
   dropLoadWaiter(viewer);
   Viewer& v = mViewers[viewer];
   if (const auto it = mScenes.find(key); it != mScenes.end()) {
-    if (!v.key.empty() && v.key != key && mScenes.count(v.key)) mScenes[v.key]->repin = true;
-    v = Viewer{key, "", std::nullopt, std::nullopt};
-    it->second->unusedSince.reset();
-    it->second->repin = true;
-    mEvents.opened(viewer, key, &it->second->summary, "");
+    show(viewer, *it->second);
     mEvents.wake();  // (the scene it left may be due for release)
     if (!it->second->summary.preview) return;  // (a preview's viewer waits for the scene too)
   }
@@ -240,12 +236,7 @@ void ScenePool::loaderLoop() {
     }
     if (previewed) retire(key);
     Entry& e = *(mScenes[key] = std::move(entry));
-    for (const uint64_t viewer : told) {
-      Viewer& v = mViewers[viewer];
-      if (const auto old = mScenes.find(v.key); old != mScenes.end()) old->second->repin = true;
-      v = Viewer{key, "", std::nullopt, std::nullopt};
-      mEvents.opened(viewer, key, &e.summary, "");
-    }
+    for (const uint64_t viewer : told) show(viewer, e);
     if (told.empty()) e.unusedSince = Clock::now();
     mEvents.wake();
   }
@@ -267,13 +258,18 @@ void ScenePool::preview(Load& load, const Progress& progress, std::unique_lock<s
   lock.lock();
   if (!entry || mStopping || load.waiters.empty() || mScenes.count(load.key)) return;
   Entry& e = *(mScenes[load.key] = std::move(entry));
-  for (const uint64_t viewer : load.waiters) {
-    Viewer& v = mViewers[viewer];
-    if (const auto old = mScenes.find(v.key); old != mScenes.end()) old->second->repin = true;
-    v = Viewer{load.key, load.key, std::nullopt, std::nullopt};
-    mEvents.opened(viewer, load.key, &e.summary, "");
-  }
+  for (const uint64_t viewer : load.waiters) show(viewer, e);
   mEvents.wake();
+}
+
+void ScenePool::show(uint64_t viewer, Entry& e) {
+  Viewer& v = mViewers[viewer];
+  if (const auto left = mScenes.find(v.key); left != mScenes.end() && left->second.get() != &e) left->second->repin = true;
+  const std::string& key = e.summary.key;
+  v = Viewer{key, e.summary.preview ? key : "", std::nullopt, std::nullopt};
+  e.unusedSince.reset();
+  e.repin = true;
+  mEvents.opened(viewer, key, &e.summary, "");
 }
 
 void ScenePool::retire(const std::string& key) {

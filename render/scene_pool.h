@@ -179,6 +179,8 @@ class ScenePool {
   void loaderLoop();
   /// Shows the preview of @p load's scene to its waiters, when the previewer makes one (mutex held).
   void preview(Load& load, const Progress& progress, std::unique_lock<std::mutex>& lock);
+  /// @p viewer shows @p e from now on (a preview's viewer also waits for the scene), and is told.
+  void show(uint64_t viewer, Entry& e);
   /// The open scene @p key is a preview replaced or closed: destroyed on the render thread (collect)
   /// once its builder has ended.
   void retire(const std::string& key);

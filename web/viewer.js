@@ -60,20 +60,19 @@ function tfFields() {
 }
 
 // The surface's fields: no isovalue, no surface.
+// A colour input's #rrggbb as r, g, b in [0, 1].
+const rgbOf = (hex) => [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16) / 255);
+
 function surfaceFields() {
   if (!$('surface-on').checked) return { iso: null };
-  const hex = $('surface-color').value;
-  const rgb = [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16) / 255);
-  return { iso: Number($('iso').value), surface_color: [...rgb, Number($('surface-alpha').value)] };
+  return { iso: Number($('iso').value), surface_color: [...rgbOf($('surface-color').value), Number($('surface-alpha').value)] };
 }
 
 // The user's geometry: a mesh file of the data directory and primitives (Levoy's plane, sphere,
 // polygon), in the colour picked unless an item carries its own, drawn as polygons or scan-converted.
 function geometryFields() {
   if (!$('geometry-on').checked) return {};
-  const hex = $('mesh-color').value;
-  const rgba = [...[1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16) / 255), Number($('mesh-alpha').value)]
-    .map((v) => Number(v.toFixed(3))).join(',');
+  const rgba = [...rgbOf($('mesh-color').value), Number($('mesh-alpha').value)].map((v) => Number(v.toFixed(3))).join(',');
   const items = $('primitive').value.split(';').map((t) => t.trim()).filter((t) => t)
     .map((t) => (t.split(':').length === 2 ? `${t}:${rgba}` : t));
   const fields = { mesh_method: $('mesh-method').value };
