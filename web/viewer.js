@@ -217,6 +217,11 @@ async function onFrame(buffer) {
   const headerLength = bytes[0] | (bytes[1] << 8) | (bytes[2] << 16) | (bytes[3] << 24);
   const header = JSON.parse(new TextDecoder().decode(bytes.subarray(4, 4 + headerLength)));
   if (!shown(header.scene)) return;  // a frame of the volume shown before
+  // The surface's state as of this frame, before the decoding's await lets later messages in: a
+  // 'ready' sent after this frame must not be undone by it.
+  // (ready, the builder may still simplify it for moving frames, which draw a preview meanwhile)
+  state.simplifying = header.iso !== null && header.surfaceReady && header.surfaceBuilding ? header.iso : null;
+  if (header.iso !== null && header.surfaceReady) onSurface({ iso: header.iso, state: 'ready' });
   const blob = new Blob([bytes.subarray(4 + headerLength)], { type: header.format === 'png' ? 'image/png' : 'image/jpeg' });
   const bitmap = await createImageBitmap(blob);
   ctx.imageSmoothingEnabled = true;
@@ -238,9 +243,6 @@ async function onFrame(buffer) {
   if (state.metrics.length > 5000) state.metrics.shift();
   state.displayed = header;
   state.displayedBlob = blob;
-  // (ready, the builder may still simplify it for moving frames, which draw a preview meanwhile)
-  state.simplifying = header.iso !== null && header.surfaceReady && header.surfaceBuilding ? header.iso : null;
-  if (header.iso !== null && header.surfaceReady) onSurface({ iso: header.iso, state: 'ready' });
   drawMarker(header.camera);
   const building = header.iso === null ? 'final without the surface (building)'
     : header.iso === Number($('iso').value) ? 'final with a clustered preview of the surface (building)' : `final with the surface at ${header.iso} (building)`;

@@ -77,6 +77,16 @@ try {
   const page = await browser.newPage();
   await page.setViewport({ width: 1100, height: 720 });
   const consoleErrors = watchConsole(page);
+  // Decoding as slow as on a busy machine when asked (window.slowDecodeMs): messages that come
+  // after a frame are handled before it is painted.
+  await page.evaluateOnNewDocument(() => {
+    const decode = window.createImageBitmap.bind(window);
+    window.createImageBitmap = async (...args) => {
+      const bitmap = await decode(...args);
+      if (window.slowDecodeMs) await new Promise((r) => setTimeout(r, window.slowDecodeMs));
+      return bitmap;
+    };
+  });
   await page.goto(url);
   await page.waitForFunction(() => document.querySelectorAll('#volumes option').length >= 4, { timeout: 60000 });
   // Opens the volume whose menu label is @p name (or starts with it, with @p prefix).
@@ -101,11 +111,14 @@ try {
   const blobLoads = await page.evaluate(() => window.hybViewer.loads().filter((l) => l.scene === 'blob.nrrd'));
   check(blobLoads.length >= 1, `the load's progress is shown (${blobLoads.map((l) => `${l.task} ${Math.round(100 * l.progress)} %`).join(', ')})`);
 
-  // Its 400 HU surface, drawn and ready.
+  // Its 400 HU surface, drawn and ready: its simplified levels' 'ready' comes while the final
+  // frame before it is decoded, and the frame's header must not say it is still being simplified.
+  await page.evaluate(() => { window.slowDecodeMs = 400; });
   await page.click('#surface-on');
   await waitFinalWith('blob.nrrd', 400);
   await page.waitForFunction(() => window.hybViewer.surfaceLabel() === '400 ready', { timeout: 60000 });
   check(true, "the blob's 400 surface is ready");
+  await page.evaluate(() => { window.slowDecodeMs = 0; });
 
   // The cranium: nothing of the blob's surface shows under its name; its load's progress does.
   await open('Cranium.inv3');
