@@ -358,6 +358,36 @@ TEST(ViewerServer, EachClientDrawsItsOwnIsosurface) {
   EXPECT_EQ(finalOf(a, 4, 4.0, {4.0})["iso"], 4.0);
 }
 
+// A new isovalue's final frame waits for its surface while nothing of it can be drawn (on a large
+// study the final frame takes seconds and would hold the first look back); the frames refining
+// towards it are drawn meanwhile, and a client asking no surface gets its final frame.
+TEST(ViewerServer, ANewIsovaluesFinalFrameWaitsForItsSurface) {
+  TestServer s(1000.0, 8, [](ServerOptions& o) {
+    o.loader = [](const std::string&, const std::string&, const Progress*) { return sphereScene({128, 128, 128}, 48.0); };
+  });
+  Socket a(s.port(), "/ws?token=" + s.token()), b(s.port(), "/ws?token=" + s.token());
+  a.next();
+  b.next();
+  json plain = frameRequest(1, false, 48);
+  plain.erase("iso");
+  a.send(plain.dump());  // (its bricks uploaded: the frames below take milliseconds, the surface a second)
+  json f;
+  do f = a.nextFrameOrError();
+  while (f["type"] == "frame" && f["quality"] != "final");
+  a.send(frameRequest(2, false, 48).dump());
+  b.send(plain.dump());
+  int before = 0;
+  for (f = a.nextFrameOrError(); f["type"] == "frame" && f["quality"] != "final"; f = a.nextFrameOrError()) ++before;
+  ASSERT_EQ(f["type"], "frame") << f.dump();
+  EXPECT_EQ(f["iso"], 4.0) << "the first final frame draws the surface asked for: " << f.dump();
+  EXPECT_EQ(f["surfaceReady"], true) << f.dump();
+  EXPECT_GE(before, 1) << "the coarser frames before it are drawn";
+  json g;
+  do g = b.nextFrameOrError();
+  while (g["type"] == "frame" && g["quality"] != "final");
+  EXPECT_TRUE(g["type"] == "frame" && g["iso"].is_null()) << g.dump();
+}
+
 // Interactive frames until one comes at the best interactive level (full size, no budget): the
 // first of a volume just opened are the cheapest (nothing measured predicts the others), the
 // first of them uploading its textures (not taken as the level's time). Returns that frame.

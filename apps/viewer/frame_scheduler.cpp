@@ -192,6 +192,12 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
     client.banded.reset();
     return;
   }
+  // The surface asked for is on its way and nothing of it is drawn yet: the final frame (seconds on
+  // a large volume) would hold its first look back; the pool's collect() refines again when it comes.
+  if (level == 0 && !client.banded && !client.current->interacting && scene.surfaceBuilding && scene.iso != client.current->iso()) {
+    client.refine.clear();
+    return;
+  }
   const FrameRequest request = client.banded ? client.banded->request : *client.current;
   const bool final = !request.interacting && client.refine.empty() && level == 0;
   const QualityLevel& rung = client.quality(surface).ladder()[size_t(level)];
