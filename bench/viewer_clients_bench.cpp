@@ -105,7 +105,8 @@ int main(int argc, char** argv) {
   };
   hyb::viewer::Server server(o);
   server.start();
-  std::printf("%-8s %10s %10s %12s %14s %12s\n", "clients", "frames/s", "p95 ms", "longest ms", "waited renders", "2048² frames");
+  std::printf("%-8s %10s %10s %12s %14s %12s %14s %12s\n", "clients", "frames/s", "p95 ms", "longest ms", "waited renders", "2048² frames",
+              "longest band", "2048² encode");
   for (const int n : counts) {
     std::vector<std::unique_ptr<Socket>> sockets;
     json info;
@@ -120,6 +121,7 @@ int main(int argc, char** argv) {
     }
     std::atomic<bool> stop{false};
     std::atomic<int> bigFrames{0};
+    double longestBand = 0.0, encodeMs = 0.0;  // of the 2048² frames (their thread's only)
     std::vector<std::thread> threads;
     std::vector<std::vector<double>> waits(static_cast<size_t>(n));
     std::vector<int> waited(size_t(n), 0);
@@ -134,6 +136,8 @@ int main(int argc, char** argv) {
           const json f = s.frame(seq, big);
           if (big) {
             ++bigFrames;
+            longestBand = std::max(longestBand, f["longestBandMs"].get<double>());
+            encodeMs = std::max(encodeMs, f["encodeMs"].get<double>());
             continue;
           }
           waits[size_t(k)].push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
@@ -149,8 +153,8 @@ int main(int argc, char** argv) {
       all.insert(all.end(), waits[size_t(k)].begin(), waits[size_t(k)].end());
       mostWaited = std::max(mostWaited, waited[size_t(k)]);
     }
-    std::printf("%-8d %10.1f %10.0f %12.0f %14d %12d\n", n, double(all.size()) / seconds / movers, percentile(all, 0.95), percentile(all, 1.0),
-                mostWaited, bigFrames.load());
+    std::printf("%-8d %10.1f %10.0f %12.0f %14d %12d %14.0f %12.0f\n", n, double(all.size()) / seconds / movers, percentile(all, 0.95),
+                percentile(all, 1.0), mostWaited, bigFrames.load(), longestBand, encodeMs);
   }
   server.stop();
   return 0;
