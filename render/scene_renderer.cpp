@@ -699,7 +699,6 @@ const TriangleMesh& SceneRenderer::regionSurface(const FrameGrid& g, const Look&
     }
     boundCache();  // (the cache gives back what the polygons kept take)
   }
-  boundCache();
   st->surfacePolygons = polygons;
   st->surfaceTriangles = triangles;
   st->surfacePolygonsMs = msSince(t0);
@@ -708,6 +707,10 @@ const TriangleMesh& SceneRenderer::regionSurface(const FrameGrid& g, const Look&
 
 const TriangleMesh* SceneRenderer::frameSurface(const FrameGrid& g, const Look& look, const Quality& quality, FrameStats* st) {
   if (byRegions(g.camera, quality, *look.iso)) return &regionSurface(g, look, st);
+  if (!mRegions.frame.triangles.empty()) {  // a frame by regions before this one: its triangles go
+    mRegions.frame = TriangleMesh{};
+    boundCache();
+  }
   // Kept from earlier frames, or built now; none when the frame does not wait and nothing is kept.
   const Camera& camera = g.camera;
   const int spacing = drawnSpacing(camera, quality, *look.iso);

@@ -356,6 +356,18 @@ TEST(SurfaceOctree, RegionsReconstructTheWholeSurfaceFaceForFace) {
   const Volume v = test::sphereVolume(glm::ivec3(40, 37, 30), 13.1);
   const VolumeOctree t = VolumeOctree::build(v);
   const SurfaceOctree so = SurfaceOctree::build(v, t, 0.0f);
+  // (No surface plane passes through a node's face: its axis planes lie between samples, at odd
+  // doubled coordinates, the faces at even ones. A neighbour's merge then keeps the vertices it
+  // shares with a region.)
+  size_t axisPlanes = 0;
+  for (const SurfaceNode& n : so.nodes())
+    for (int j = 0; j < n.planeCount; ++j) {
+      const glm::ivec3 normal = orientationNormal(n.planes[size_t(j)].orientation);
+      if (std::abs(normal.x) + std::abs(normal.y) + std::abs(normal.z) != 1) continue;
+      ++axisPlanes;
+      EXPECT_EQ(std::abs(n.planes[size_t(j)].d) % 2, 1);
+    }
+  EXPECT_GT(axisPlanes, 0u);
   EXPECT_GT(expectRegionsMakeTheWhole(so, 1), 0u);
   EXPECT_GT(expectRegionsMakeTheWhole(so, 200), 0u);
   // One region holding every node is the whole.
