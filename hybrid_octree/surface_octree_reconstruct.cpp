@@ -431,7 +431,6 @@ void dropStraightVertices(const OutPolys& polys, Loops& loops, std::pair<uint32_
   }
 }
 
-
 // The four stages over @p nodes (consecutive nodes of one octree, in its order), the faces of
 // nodes [keep.first, keep.second) added to the mesh.
 DiscreteMesh reconstructNodes(std::span<const SurfaceNode> nodes, const glm::ivec3& dims, int mergeCube, std::pair<uint32_t, uint32_t> keep,
