@@ -547,7 +547,12 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
     const float iso = r.get<float>();
     const uint64_t cells = r.get<uint64_t>();
     const int32_t mergeEdge = r.get<int32_t>();
-    scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), mergeEdge, getSurfaceNodes(r, *mapping), path);
+    if (scene.knots) {  // paged: the nodes stay in the file, read a region at a time
+      const auto [at, n] = r.skipArray<std::array<uint8_t, kSurfaceNodeBytes>>();
+      scene.surface = SurfaceOctree::fromMapped(scene.volume.dims(), iso, size_t(cells), mergeEdge, mapping, at, n, path);
+    } else {
+      scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), mergeEdge, getSurfaceNodes(r, *mapping), path);
+    }
   }
   if (scene.knots)  // the octrees count against the scene's memory: the cache gets what they leave
     scene.knots->setCacheLimit(sceneCacheBytes(options.memoryBytes, scene.octree.bytesUsed() + (scene.surface ? scene.surface->bytesUsed() : 0)));

@@ -37,8 +37,9 @@ std::string surfaceOctreeLine(float iso, size_t cells, size_t nodes, uint64_t pl
 
 std::string surfaceOctreeLine(const SurfaceOctree& so, std::optional<double> buildMs) {
   uint64_t planes = 0;
-  for (const SurfaceNode& n : so.nodes()) planes += n.planeCount;
-  return surfaceOctreeLine(so.isovalue(), so.cellCount(), so.nodes().size(), planes, buildMs);
+  for (size_t i = 0; i < so.nodeCount(); ++i) planes += so.node(i).planeCount;
+  so.releasePages();
+  return surfaceOctreeLine(so.isovalue(), so.cellCount(), so.nodeCount(), planes, buildMs);
 }
 
 std::string surfaceOctreeLine(const SpooledSurfaceOctree& so, double buildMs) {

@@ -622,8 +622,14 @@ SurfaceOctree SpooledSurfaceOctree::load() const {
 
 void SurfaceOctree::encodeNodes(const SurfaceNodeSink& sink) const {
   std::vector<uint8_t> bytes;
-  for (size_t b = 0; b < mNodes.size(); b += kEncodeBatch) {
-    const size_t e = std::min(mNodes.size(), b + kEncodeBatch);
+  const size_t count = nodeCount();
+  for (size_t b = 0; b < count; b += kEncodeBatch) {
+    const size_t e = std::min(count, b + kEncodeBatch);
+    if (mapped()) {  // already encoded: the mapping's bytes, its pages given back a batch at a time
+      sink({mEncoded + b * kSurfaceNodeBytes, (e - b) * kSurfaceNodeBytes});
+      releasePages();
+      continue;
+    }
     bytes.resize((e - b) * kSurfaceNodeBytes);
     for (size_t i = b; i < e; ++i) encodeSurfaceNode(mNodes[i], bytes.data() + (i - b) * kSurfaceNodeBytes);
     sink(bytes);
@@ -676,37 +682,109 @@ void SurfaceOctree::gather(std::vector<std::vector<SurfaceNode>> perBlock) {
 
 std::pair<uint32_t, uint32_t> SurfaceOctree::rangeIn(const glm::ivec3& origin, int edge) const {
   const uint64_t lo = morton(origin), hi = lo + uint64_t(edge) * uint64_t(edge) * uint64_t(edge);
-  auto key = [](const SurfaceNode& n) { return morton(glm::ivec3(n.origin)); };
-  const auto b = std::partition_point(mNodes.begin(), mNodes.end(), [&](const SurfaceNode& n) { return key(n) < lo; });
-  const auto e = std::partition_point(b, mNodes.end(), [&](const SurfaceNode& n) { return key(n) < hi; });
-  return {uint32_t(b - mNodes.begin()), uint32_t(e - mNodes.begin())};
+  // The first node at or past a Morton code: a binary search reading only the nodes' origins.
+  auto firstAt = [&](size_t from, uint64_t code) {
+    size_t count = nodeCount() - from;
+    while (count > 0) {
+      const size_t half = count / 2, mid = from + half;
+      glm::u16vec3 o;
+      if (mapped())
+        std::memcpy(&o, mEncoded + mid * kSurfaceNodeBytes, sizeof o);  // (the origin leads a node's bytes)
+      else
+        o = mNodes[mid].origin;
+      if (morton(glm::ivec3(o)) < code) {
+        from = mid + 1;
+        count -= half + 1;
+      } else {
+        count = half;
+      }
+    }
+    return from;
+  };
+  const size_t b = firstAt(0, lo), e = firstAt(b, hi);
+  return {uint32_t(b), uint32_t(e)};
 }
 
-SurfaceOctree SurfaceOctree::fromParts(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge,
-                                       std::vector<SurfaceNode> nodes, const std::string& source) {
+std::vector<SurfaceRegion> SurfaceOctree::regions(size_t maxNodes) const {
+  std::vector<SurfaceRegion> out;
+  int root = mMergeEdge;
+  while (root < mDims.x || root < mDims.y || root < mDims.z) root *= 2;
+  const glm::ivec3 cells = glm::max(mDims - 1, glm::ivec3(1));
+  // Depth first, children in Morton order: the regions' node ranges follow each other.
+  std::function<void(const glm::ivec3&, int)> split = [&](const glm::ivec3& origin, int edge) {
+    if (glm::any(glm::greaterThanEqual(origin, cells))) return;
+    const auto [b, e] = rangeIn(origin, edge);
+    if (b == e) return;
+    if (e - b <= maxNodes || edge <= mMergeEdge) {
+      out.push_back({origin, edge, b, e});
+      return;
+    }
+    const int h = edge / 2;
+    for (int c = 0; c < 8; ++c) split(origin + h * glm::ivec3(c & 1, (c >> 1) & 1, (c >> 2) & 1), h);
+  };
+  split(glm::ivec3(0), root);
+  return out;
+}
+
+void SurfaceOctree::checkNode(const SurfaceNode& n, size_t i, const glm::ivec3& dims, int mergeEdge, uint64_t* previous,
+                              const std::string& source) {
+  const glm::ivec3 o(n.origin);
+  const bool ok = n.edge >= 1 && (n.edge & (n.edge - 1)) == 0 && o.x % n.edge == 0 && o.y % n.edge == 0 && o.z % n.edge == 0 &&
+                  glm::all(glm::lessThan(o, glm::max(dims - 1, glm::ivec3(1)))) && n.planeCount >= 1 && n.planeCount <= n.planes.size() &&
+                  (uint64_t(n.occurs) >> (1u << n.planeCount)) == 0 && (n.inside & ~n.occurs) == 0 && morton(o) >= *previous &&
+                  n.edge <= mergeEdge;
+  bool planesOk = ok;  // (only a plane count within the array: a hostile one is past its end)
+  for (int j = 0; planesOk && j < n.planeCount; ++j)
+    planesOk = n.planes[size_t(j)].orientation >= 0 && n.planes[size_t(j)].orientation < kOrientationCount;
+  if (!ok || !planesOk) HYB_THROW(IoError, source, ": surface octree node ", i, " is invalid");
+  *previous = morton(o);
+}
+
+namespace {
+
+void checkHead(const glm::ivec3& dims, float iso, int mergeEdge, const std::string& source) {
   validateDims(dims, source);
   if (mergeEdge < 1 || mergeEdge > kMaxDim || (mergeEdge & (mergeEdge - 1)))
     HYB_THROW(IoError, source, ": surface octree merge edge ", mergeEdge, " invalid (expected a power of two)");
+  if (!std::isfinite(iso)) HYB_THROW(IoError, source, ": surface octree isovalue ", iso, " is invalid");
+}
+
+}  // namespace
+
+SurfaceOctree SurfaceOctree::fromParts(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge,
+                                       std::vector<SurfaceNode> nodes, const std::string& source) {
+  checkHead(dims, iso, mergeEdge, source);
   uint64_t previous = 0;
-  for (size_t i = 0; i < nodes.size(); ++i) {
-    const SurfaceNode& n = nodes[i];
-    const glm::ivec3 o(n.origin);
-    const bool ok = n.edge >= 1 && (n.edge & (n.edge - 1)) == 0 && o.x % n.edge == 0 && o.y % n.edge == 0 &&
-                    o.z % n.edge == 0 && glm::all(glm::lessThan(o, glm::max(dims - 1, glm::ivec3(1)))) && n.planeCount >= 1 &&
-                    n.planeCount <= n.planes.size() && (uint64_t(n.occurs) >> (1u << n.planeCount)) == 0 &&
-                    (n.inside & ~n.occurs) == 0 && morton(o) >= previous && n.edge <= mergeEdge;
-    bool planesOk = ok;  // (only a plane count within the array: a hostile one is past its end)
-    for (int j = 0; planesOk && j < n.planeCount; ++j)
-      planesOk = n.planes[size_t(j)].orientation >= 0 && n.planes[size_t(j)].orientation < kOrientationCount;
-    if (!ok || !planesOk || !std::isfinite(iso)) HYB_THROW(IoError, source, ": surface octree node ", i, " is invalid");
-    previous = morton(o);
-  }
+  for (size_t i = 0; i < nodes.size(); ++i) checkNode(nodes[i], i, dims, mergeEdge, &previous, source);
   SurfaceOctree so;
   so.mDims = dims;
   so.mIso = iso;
   so.mCellCount = cellCount;
   so.mMergeEdge = mergeEdge;
   so.mNodes = std::move(nodes);
+  return so;
+}
+
+SurfaceOctree SurfaceOctree::fromMapped(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge,
+                                        std::shared_ptr<const InputFile::Mapping> mapping, const uint8_t* at, size_t count,
+                                        const std::string& source) {
+  HYB_CHECK(mapping && at >= mapping->data() && uint64_t(at - mapping->data()) + count * kSurfaceNodeBytes <= mapping->size());
+  checkHead(dims, iso, mergeEdge, source);
+  constexpr size_t kReleaseNodes = (size_t(64) << 20) / kSurfaceNodeBytes;
+  uint64_t previous = 0;
+  for (size_t i = 0; i < count; ++i) {
+    checkNode(decodeSurfaceNode(at + i * kSurfaceNodeBytes), i, dims, mergeEdge, &previous, source);
+    if ((i + 1) % kReleaseNodes == 0) mapping->release();
+  }
+  mapping->release();
+  SurfaceOctree so;
+  so.mDims = dims;
+  so.mIso = iso;
+  so.mCellCount = cellCount;
+  so.mMergeEdge = mergeEdge;
+  so.mMapping = std::move(mapping);
+  so.mEncoded = at;
+  so.mMappedCount = count;
   return so;
 }
 

@@ -34,6 +34,8 @@
 
 #include "hybrid_octree/volume_octree.h"
 #include "surface/mesh.h"
+#include "volume/core/error.h"
+#include "volume/core/file_util.h"
 #include "volume/core/progress.h"
 #include "volume/volume.h"
 
@@ -90,6 +92,14 @@ struct SurfaceOctreeOptions {
   const Progress* progress = nullptr;  ///< hears of the leaves merged ("surface octree")
 };
 
+/// An aligned cube of cells and the range of a Surface Octree's nodes inside it
+/// (SurfaceOctree::regions).
+struct SurfaceRegion {
+  glm::ivec3 origin{0};
+  int edge = 0;
+  uint32_t first = 0, last = 0;  ///< nodes [first, last)
+};
+
 /// The Surface Octree of one isovalue.
 class SurfaceOctree {
  public:
@@ -117,10 +127,29 @@ class SurfaceOctree {
   /// @throw IoError naming @p source when a node is out of range or inconsistent.
   static SurfaceOctree fromParts(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge, std::vector<SurfaceNode> nodes,
                                  const std::string& source);
+  /// The same over @p count nodes encoded (encodeSurfaceNode) at @p at inside @p mapping (a scene
+  /// file's SURF section), left there: each is checked once here, the pages read given back as it
+  /// goes, and decoded again when read (node(), reconstructIn), so the octree holds none of them.
+  /// @throw IoError as fromParts.
+  static SurfaceOctree fromMapped(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge,
+                                  std::shared_ptr<const InputFile::Mapping> mapping, const uint8_t* at, size_t count,
+                                  const std::string& source);
 
   /// Terminal surface nodes in Morton order of their origins (white, black and grey nodes are implicit).
-  const std::vector<SurfaceNode>& nodes() const { return mNodes; }
-  size_t nodeCount() const { return mNodes.size(); }
+  /// @pre !mapped(): a mapped octree's are read one at a time by node().
+  const std::vector<SurfaceNode>& nodes() const {
+    HYB_CHECK(!mapped());
+    return mNodes;
+  }
+  /// Node @p i of nodeCount(), decoded when the octree is mapped.
+  SurfaceNode node(size_t i) const { return mapped() ? decodeSurfaceNode(mEncoded + i * kSurfaceNodeBytes) : mNodes[i]; }
+  size_t nodeCount() const { return mapped() ? mMappedCount : mNodes.size(); }
+  /// Whether the nodes stay in a scene file's mapping (fromMapped).
+  bool mapped() const { return mMapping != nullptr; }
+  /// Gives back the pages of the mapping read so far (nothing when not mapped).
+  void releasePages() const {
+    if (mMapping) mMapping->release();
+  }
   /// The nodes inside the aligned cube of cells [origin, origin + edge): a contiguous range of nodes().
   /// Nodes larger than the cube are not listed (none are when edge ≥ the build's maxEdge).
   std::pair<uint32_t, uint32_t> rangeIn(const glm::ivec3& origin, int edge) const;
@@ -130,12 +159,14 @@ class SurfaceOctree {
   size_t cellCount() const { return mCellCount; }
   /// Largest node edge the build allowed; reconstructed polygons never cross a cube of this edge.
   int mergeEdge() const { return mMergeEdge; }
+  /// What the octree holds in memory: its nodes, none when mapped (a region's are decoded while it
+  /// is reconstructed).
   size_t bytesUsed() const { return bytesFor(mNodes.size()); }
   /// What an octree of @p nodes nodes holds.
   static size_t bytesFor(size_t nodes) { return nodes * sizeof(SurfaceNode) + sizeof(SurfaceOctree); }
   /// At most what reconstruct()'s working arrays hold beside the octree: 480–530 bytes a node on
   /// CT bone (docs/scale.md), with a margin.
-  uint64_t reconstructBytes() const { return 600 * uint64_t(mNodes.size()); }
+  uint64_t reconstructBytes() const { return 600 * uint64_t(nodeCount()); }
 
   /// Polygons of every terminal node, merged per plane and facing inside each node and then across
   /// nodes inside each aligned cube of @p mergeCube cells (0 = mergeEdge(), so every polygon lies in
@@ -144,6 +175,16 @@ class SurfaceOctree {
   /// ("surface polygons").
   DiscreteMesh reconstruct(int mergeCube = 0, const Progress* progress = nullptr) const;
 
+  /// The aligned cubes of cells, in Morton order, that partition the nodes into runs of at most
+  /// @p maxNodes (a cube of mergeEdge() cells may hold more): the cubes the root splits into,
+  /// recursively, until each holds few enough; cubes holding no node are left out.
+  std::vector<SurfaceRegion> regions(size_t maxNodes) const;
+  /// The polygons reconstruct() gives the nodes of @p region (one of regions()), the same loops in
+  /// the same order, vertices renumbered in their order there: the region's nodes are reconstructed
+  /// with those of the neighbouring cubes that touch it (their vertices on its faces make its
+  /// T-junctions, and a vertex they share is not dropped), not the whole octree.
+  DiscreteMesh reconstructIn(const SurfaceRegion& region) const;
+
  private:
   friend class SpooledSurfaceOctree;
   // The octree of @p iso over @p dims with its merge edge, @p options checked, no nodes yet.
@@ -151,7 +192,13 @@ class SurfaceOctree {
   // Appends the leaves' nodes in their order (Morton order: the leaves are).
   void gather(std::vector<std::vector<SurfaceNode>> perBlock);
 
+  // Every node's check (fromParts, fromMapped): throws naming @p source and node @p i.
+  static void checkNode(const SurfaceNode& n, size_t i, const glm::ivec3& dims, int mergeEdge, uint64_t* previous, const std::string& source);
+  // The nodes in memory, or (mapped) the section's encoded nodes in its mapping.
   std::vector<SurfaceNode> mNodes;
+  std::shared_ptr<const InputFile::Mapping> mMapping;
+  const uint8_t* mEncoded = nullptr;
+  size_t mMappedCount = 0;
   glm::ivec3 mDims{0};
   float mIso = 0;
   size_t mCellCount = 0;

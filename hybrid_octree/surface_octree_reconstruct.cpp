@@ -240,7 +240,7 @@ bool faceLine(const Box& box, const V64& a, const V64& b, uint64_t* key) {
 // Stage 2, T-junctions: every polygon's loop as vertex ids of @p mesh, with the vertices that lie on
 // one of its edges along a node face (a finer neighbour's) inserted in order, so the surface is
 // watertight.
-Loops insertTJunctions(const OutPolys& polys, const std::vector<SurfaceNode>& nodes, const glm::ivec3& dims, DiscreteMesh* out) {
+Loops insertTJunctions(const OutPolys& polys, std::span<const SurfaceNode> nodes, const glm::ivec3& dims, DiscreteMesh* out) {
   DiscreteMesh& mesh = *out;
   auto boxOf = [&](size_t p) {
     const SurfaceNode& n = nodes[polys.nodes[p]];
@@ -324,7 +324,7 @@ Loops insertTJunctions(const OutPolys& polys, const std::vector<SurfaceNode>& no
 // Stage 3: polygons of different nodes on the same plane with the same facing that share an edge,
 // within one merge cube of @p mergeCube cells, become one where their union's boundary is a single
 // loop (union-find over shared edges; the surface is unchanged).
-void mergeCoplanar(const OutPolys& polys, const std::vector<SurfaceNode>& nodes, int mergeCube, Loops* loopsOut) {
+void mergeCoplanar(const OutPolys& polys, std::span<const SurfaceNode> nodes, int mergeCube, Loops* loopsOut) {
   Loops& loops = *loopsOut;
   std::vector<uint32_t> parent(polys.size());
   std::iota(parent.begin(), parent.end(), 0u);
@@ -401,14 +401,16 @@ void mergeCoplanar(const OutPolys& polys, const std::vector<SurfaceNode>& nodes,
 }
 
 // Stage 4: drops straight-through vertices no other polygon uses (they only add triangles; a vertex
-// another polygon references is kept, so no T-junction opens), and adds the faces to @p mesh.
-void dropStraightVertices(const OutPolys& polys, Loops& loops, DiscreteMesh* out) {
+// another polygon references is kept, so no T-junction opens), and adds to @p mesh the faces of the
+// nodes in @p keep (the others only count the vertices they use).
+void dropStraightVertices(const OutPolys& polys, Loops& loops, std::pair<uint32_t, uint32_t> keep, DiscreteMesh* out) {
   DiscreteMesh& mesh = *out;
   std::vector<uint32_t> uses(mesh.vertices.size(), 0);
   for (size_t pi = 0; pi < polys.size(); ++pi)
     for (uint32_t v : loops.of(pi)) ++uses[v];
   for (size_t pi = 0; pi < polys.size(); ++pi) {
     if (loops.size[pi] == 0) continue;  // merged into another polygon
+    if (polys.nodes[pi] < keep.first || polys.nodes[pi] >= keep.second) continue;
     uint32_t* loop = loops.of(pi).data();
     uint32_t& n = loops.size[pi];
     for (bool removed = true; removed && n > 3;) {
@@ -429,14 +431,13 @@ void dropStraightVertices(const OutPolys& polys, Loops& loops, DiscreteMesh* out
   }
 }
 
-}  // namespace
-
-DiscreteMesh SurfaceOctree::reconstruct(int mergeCube, const Progress* progress) const {
-  if (mergeCube <= 0) mergeCube = mMergeEdge;
-  HYB_CHECK((mergeCube & (mergeCube - 1)) == 0);
+// The four stages over @p nodes (consecutive nodes of one octree, in its order), the faces of
+// nodes [keep.first, keep.second) added to the mesh.
+DiscreteMesh reconstructNodes(std::span<const SurfaceNode> nodes, const glm::ivec3& dims, int mergeCube, std::pair<uint32_t, uint32_t> keep,
+                              const Progress* progress) {
   // A node's polygons depend on the node alone: nodes are processed in parallel, in contiguous
   // chunks whose polygons are concatenated in node order (the output does not depend on threads).
-  const size_t chunks = std::min<size_t>(mNodes.size(), 64), per = chunks ? (mNodes.size() + chunks - 1) / chunks : 0;
+  const size_t chunks = std::min<size_t>(nodes.size(), 64), per = chunks ? (nodes.size() + chunks - 1) / chunks : 0;
   const size_t stage = std::max<size_t>(1, chunks / 8);  // progress: a later stage counts as this many chunks
   ProgressTask task(progress, "surface polygons", chunks + 3 * stage);
   std::vector<OutPolys> parts(chunks);
@@ -445,7 +446,7 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube, const Progress* progress)
   for (size_t c = 0; c < chunks; ++c)
     failure.run([&] {
       Poly pos, neg;
-      for (size_t k = c * per; k < std::min(mNodes.size(), (c + 1) * per); ++k) nodePolygons(mNodes[k], uint32_t(k), mDims, pos, neg, parts[c]);
+      for (size_t k = c * per; k < std::min(nodes.size(), (c + 1) * per); ++k) nodePolygons(nodes[k], uint32_t(k), dims, pos, neg, parts[c]);
       task.advance();
     });
   failure.rethrow();
@@ -456,13 +457,85 @@ DiscreteMesh SurfaceOctree::reconstruct(int mergeCube, const Progress* progress)
   }
   task.advance(stage);
   DiscreteMesh mesh;
-  Loops loops = insertTJunctions(polys, mNodes, mDims, &mesh);
+  Loops loops = insertTJunctions(polys, nodes, dims, &mesh);
   std::vector<glm::ivec3>().swap(polys.points);  // the loops are vertex ids now
   std::vector<size_t>().swap(polys.starts);
   task.advance(stage);
-  mergeCoplanar(polys, mNodes, mergeCube, &loops);
+  mergeCoplanar(polys, nodes, mergeCube, &loops);
   task.advance(stage);
-  dropStraightVertices(polys, loops, &mesh);
+  dropStraightVertices(polys, loops, keep, &mesh);
+  return mesh;
+}
+
+// @p mesh's vertices that its faces use, in their order, the faces renumbered.
+void dropUnusedVertices(DiscreteMesh* mesh) {
+  constexpr uint32_t kUnused = UINT32_MAX;
+  std::vector<uint32_t> remap(mesh->vertices.size(), kUnused);
+  for (uint32_t v : mesh->indices) remap[v] = 0;
+  uint32_t next = 0;
+  for (size_t v = 0; v < remap.size(); ++v)
+    if (remap[v] != kUnused) {
+      remap[v] = next;
+      mesh->vertices[next++] = mesh->vertices[v];
+    }
+  mesh->vertices.resize(next);
+  for (uint32_t& v : mesh->indices) v = remap[v];
+}
+
+}  // namespace
+
+DiscreteMesh SurfaceOctree::reconstruct(int mergeCube, const Progress* progress) const {
+  if (mergeCube <= 0) mergeCube = mMergeEdge;
+  HYB_CHECK((mergeCube & (mergeCube - 1)) == 0);
+  if (!mapped()) return reconstructNodes(mNodes, mDims, mergeCube, {0u, uint32_t(mNodes.size())}, progress);
+  std::vector<SurfaceNode> nodes(nodeCount());  // decoded while they are reconstructed
+  for (size_t i = 0; i < nodes.size(); ++i) nodes[i] = node(i);
+  releasePages();
+  return reconstructNodes(nodes, mDims, mergeCube, {0u, uint32_t(nodes.size())}, progress);
+}
+
+DiscreteMesh SurfaceOctree::reconstructIn(const SurfaceRegion& region) const {
+  const int m = mMergeEdge;
+  HYB_CHECK(region.edge >= m && region.edge % m == 0 && region.first <= region.last && region.last <= nodeCount());
+  // The region's closed box and the nodes of the cubes of mergeEdge cells around it (no node is
+  // larger) whose closed boxes touch it: every polygon with a vertex on the region's faces is
+  // theirs, so the region's T-junctions, merges and shared vertices are those of the whole.
+  const glm::ivec3 lo = region.origin, hi = region.origin + region.edge;
+  auto touches = [&](const SurfaceNode& n) {
+    const glm::ivec3 o(n.origin);
+    return glm::all(glm::lessThanEqual(o, hi)) && glm::all(glm::greaterThanEqual(o + int(n.edge), lo));
+  };
+  const glm::ivec3 cells = glm::max(mDims - 1, glm::ivec3(1));
+  std::vector<std::pair<uint32_t, uint32_t>> around;  // node ranges of the cubes around the region
+  for (int z = lo.z - m; z <= hi.z; z += m)
+    for (int y = lo.y - m; y <= hi.y; y += m)
+      for (int x = lo.x - m; x <= hi.x; x += m) {
+        const glm::ivec3 c(x, y, z);
+        const bool inside = glm::all(glm::greaterThanEqual(c, lo)) && glm::all(glm::lessThan(c, hi));
+        if (inside) {  // (the interior's cubes are the region's range: skip along x to its far side)
+          x = hi.x - m;
+          continue;
+        }
+        if (glm::any(glm::lessThan(c, glm::ivec3(0))) || glm::any(glm::greaterThanEqual(c, cells))) continue;
+        const auto r = rangeIn(c, m);
+        if (r.first < r.second) around.push_back(r);
+      }
+  around.push_back({region.first, region.last});
+  std::sort(around.begin(), around.end());
+  std::vector<SurfaceNode> nodes;
+  std::pair<uint32_t, uint32_t> keep{0, 0};
+  for (const auto& [b, e] : around) {
+    if (b == region.first && e == region.last) {
+      keep.first = uint32_t(nodes.size());
+      for (uint32_t i = b; i < e; ++i) nodes.push_back(node(i));
+      keep.second = uint32_t(nodes.size());
+      continue;
+    }
+    for (uint32_t i = b; i < e; ++i)
+      if (const SurfaceNode n = node(i); touches(n)) nodes.push_back(n);
+  }
+  DiscreteMesh mesh = reconstructNodes(nodes, mDims, m, keep, nullptr);
+  dropUnusedVertices(&mesh);
   return mesh;
 }
 

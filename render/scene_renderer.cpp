@@ -1,6 +1,8 @@
 #include "render/scene_renderer.h"
 
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -13,6 +15,7 @@
 #include "surface/mesh_ops.h"
 #include "surface/mesh_simplify.h"
 #include "volume/core/error.h"
+#include "volume/core/parallel.h"
 
 namespace hyb {
 
@@ -178,7 +181,7 @@ size_t PreparedSurface::bytesUsed() const {
 }
 
 size_t SceneRenderer::surfaceBytes() const {
-  size_t n = 0;
+  size_t n = mRegions.bytes();
   for (const auto& s : mSurfaces) n += s->bytesUsed();
   return n;
 }
@@ -313,7 +316,9 @@ int SceneRenderer::drawnSpacing(const Camera& gridCamera, const Quality& quality
 FrameStats SceneRenderer::prepare(const View& view, const Look& look, const Quality& quality) {
   FrameStats st;
   if (!look.iso) return st;
-  const int spacing = drawnSpacing(toGridCamera(view.camera, volume().frame()), quality, *look.iso);
+  const Camera gridCamera = toGridCamera(view.camera, volume().frame());
+  if (byRegions(gridCamera, quality, *look.iso)) return st;  // the frame reconstructs what it draws
+  const int spacing = drawnSpacing(gridCamera, quality, *look.iso);
   if (spacing > 0) prepareAt(*look.iso, spacing, look.normals, &st);
   return st;
 }
@@ -507,7 +512,7 @@ RenderedFrame SceneRenderer::render(const View& view, const Look& look, const Qu
   RenderedFrame out;
   out.stats.renderer = quality.renderer;
   const FrameGrid g = frameGrid(view, look, volume().frame());
-  const TriangleMesh* mesh = look.iso ? frameSurface(g.camera, look, quality, &out.stats) : nullptr;
+  const TriangleMesh* mesh = look.iso ? frameSurface(g, look, quality, &out.stats) : nullptr;
   if (mesh && quality.region) mesh = &regionSurface(*mesh, *quality.region);
   if (quality.renderer == Renderer::Raycast)
     renderRaycast(g, look, quality, mesh, onLevel, &out);
@@ -577,8 +582,137 @@ const GridMeshes* SceneRenderer::frameMeshes(const Look& look, bool bvh, FrameSt
   return &k.grid;
 }
 
-const TriangleMesh* SceneRenderer::frameSurface(const Camera& camera, const Look& look, const Quality& quality, FrameStats* st) {
+bool SceneRenderer::byRegions(const Camera& gridCamera, const Quality& quality, float iso) const {
+  if (!mScene.surface || mScene.surface->isovalue() != iso || mOptions.memoryBytes == 0) return false;
+  if (quality.renderer != Renderer::Slices || !quality.waitForSurface || quality.simplifiedSurface || quality.region) return false;
+  if (surfaceSpacing(gridCamera, quality) != 1 || surfacePolygons(iso) > 0) return false;
+  return mScene.surface->reconstructBytes() > mOptions.memoryBytes / kWholeSurfaceMemoryDivisor;
+}
+
+namespace {
+
+// What a frame draws of @p mesh (triangulated, polygonStarts set): the polygons one of whose
+// triangles @p seen keeps, whole (@p wholePolygons: a translucent surface's are sorted by their
+// centroids), or only the triangles it keeps (an opaque surface draws triangle by triangle).
+TriangleMesh seenPart(const TriangleMesh& mesh, const std::function<bool(const glm::vec3&, const glm::vec3&, const glm::vec3&)>& seen,
+                      bool wholePolygons) {
+  TriangleMesh out;
+  out.vertices = mesh.vertices;
+  out.polygonStarts.push_back(0);
+  for (size_t p = 0; p + 1 < mesh.polygonStarts.size(); ++p) {
+    const uint32_t b = mesh.polygonStarts[p], e = mesh.polygonStarts[p + 1];
+    const size_t first = out.triangles.size();
+    for (uint32_t t = b; t < e; ++t) {
+      const glm::uvec3 tr = mesh.triangles[t];
+      if (!seen(mesh.vertices[tr.x], mesh.vertices[tr.y], mesh.vertices[tr.z])) continue;
+      if (wholePolygons) {
+        out.triangles.insert(out.triangles.end(), mesh.triangles.begin() + b, mesh.triangles.begin() + e);
+        break;
+      }
+      out.triangles.push_back(tr);
+    }
+    if (out.triangles.size() > first) out.polygonStarts.push_back(uint32_t(out.triangles.size()));
+  }
+  removeUnreferencedVertices(&out);
+  return out;
+}
+
+// Appends @p part to @p mesh (its polygons after @p mesh's).
+void appendMesh(const TriangleMesh& part, TriangleMesh* mesh) {
+  const uint32_t base = uint32_t(mesh->vertices.size()), first = uint32_t(mesh->triangles.size());
+  mesh->vertices.insert(mesh->vertices.end(), part.vertices.begin(), part.vertices.end());
+  mesh->normals.insert(mesh->normals.end(), part.normals.begin(), part.normals.end());
+  for (const glm::uvec3& t : part.triangles) mesh->triangles.push_back(t + base);
+  for (size_t p = 1; p < part.polygonStarts.size(); ++p) mesh->polygonStarts.push_back(first + part.polygonStarts[p]);
+}
+
+}  // namespace
+
+const TriangleMesh& SceneRenderer::regionSurface(const FrameGrid& g, const Look& look, FrameStats* st) {
+  const auto t0 = Clock::now();
+  const SurfaceOctree& so = *mScene.surface;
+  SurfaceRegions& r = mRegions;
+  if (r.regions.empty() || r.iso != so.isovalue()) {
+    r = SurfaceRegions{};
+    r.iso = so.isovalue();
+    r.regions = so.regions(mOptions.surfaceRegionNodes);
+    r.kept.resize(r.regions.size());
+  }
+  r.frame = TriangleMesh{};
+  r.frame.polygonStarts.push_back(0);
+  boundCache();  // (the last frame's polygons are gone)
+  // What the slice renderer draws of a triangle: a pixel centre it may cover, or its line on the
+  // cutting plane (cut_plane_pass.cpp draws a segment where the corners' sides differ).
+  const PixelCentres centres = framePixelCentres(volume(), g.camera);
+  const std::optional<glm::dvec4> cut = g.cut && look.cutLine ? std::optional(g.cut->keptSide(g.camera)) : std::nullopt;
+  auto seen = [&](const glm::vec3& a, const glm::vec3& b, const glm::vec3& c) {
+    if (const PixelCentres::Cover cover = centres.cover(a, b, c, nullptr); !(cover.known && cover.centres == 0)) return true;
+    if (!cut) return false;
+    const double sa = glm::dot(glm::dvec3(*cut), glm::dvec3(a)) + cut->w, sb = glm::dot(glm::dvec3(*cut), glm::dvec3(b)) + cut->w,
+                 sc = glm::dot(glm::dvec3(*cut), glm::dvec3(c)) + cut->w;
+    return std::min({sa, sb, sc}) <= 0.0 && std::max({sa, sb, sc}) >= 0.0;
+  };
+  // A region whose box lies beside the image draws nothing: it is not reconstructed.
+  const glm::dvec3 spacing = volume().spacing();
+  auto offImage = [&](const SurfaceRegion& region) {
+    return centres.besideImage(glm::dvec3(region.origin) * spacing, glm::dvec3(region.origin + region.edge) * spacing);
+  };
+  // Regions are kept (without normals) while they fit in an eighth of the bound: the next frame
+  // reconstructs only the others.
+  const uint64_t keptBound = mOptions.memoryBytes / 8;
+  std::atomic<uint64_t> admitted{r.keptBytes};
+  const bool gradient = look.normals == SurfaceNormals::Gradient, translucent = look.surfaceColor.a < 1.0f;
+  size_t polygons = 0, triangles = 0;
+  constexpr size_t kBatch = 16;  // regions made at once: their meshes are held until appended
+  for (size_t b = 0; b < r.regions.size(); b += kBatch) {
+    const size_t e = std::min(r.regions.size(), b + kBatch);
+    std::vector<std::shared_ptr<const TriangleMesh>> kept(e - b);
+    std::vector<TriangleMesh> parts(e - b);
+    std::vector<std::array<size_t, 3>> sizes(e - b, {0, 0, 0});  // made or kept, its polygons and triangles
+    ParallelFailure failure;
+#pragma omp parallel for schedule(dynamic)
+    for (size_t i = b; i < e; ++i)
+      failure.run([&] {
+        if (offImage(r.regions[i])) return;
+        std::shared_ptr<const TriangleMesh> mesh =
+            r.kept[i] ? r.kept[i] : std::make_shared<const TriangleMesh>(fineMeshToTriangles(so.reconstructIn(r.regions[i]), spacing));
+        sizes[i - b] = {1, mesh->polygonStarts.size() - 1, mesh->triangles.size()};
+        parts[i - b] = seenPart(*mesh, seen, translucent);
+        if (gradient) setSceneNormals(mScene, &parts[i - b]);
+        if (!r.kept[i] && admitted.fetch_add(mesh->bytesUsed()) + mesh->bytesUsed() <= keptBound)
+          kept[i - b] = std::move(mesh);
+        else if (!r.kept[i])
+          admitted -= mesh->bytesUsed();
+      });
+    failure.rethrow();
+    so.releasePages();
+    for (size_t i = b; i < e; ++i) {
+      if (sizes[i - b][0] == 0) continue;  // beside the image
+      ++(r.kept[i] ? st->surfaceRegionsKept : st->surfaceRegionsMade);
+      polygons += sizes[i - b][1];
+      triangles += sizes[i - b][2];
+      if (kept[i - b]) {
+        r.keptBytes += kept[i - b]->bytesUsed();
+        r.kept[i] = std::move(kept[i - b]);
+      }
+      appendMesh(parts[i - b], &r.frame);
+    }
+    boundCache();  // (the cache gives back what the polygons kept take)
+  }
+  st->surfacePolygons = polygons;
+  st->surfaceTriangles = triangles;
+  st->surfacePolygonsMs = msSince(t0);
+  return r.frame;
+}
+
+const TriangleMesh* SceneRenderer::frameSurface(const FrameGrid& g, const Look& look, const Quality& quality, FrameStats* st) {
+  if (byRegions(g.camera, quality, *look.iso)) return &regionSurface(g, look, st);
+  if (!mRegions.frame.triangles.empty()) {  // a frame by regions before this one: its triangles go
+    mRegions.frame = TriangleMesh{};
+    boundCache();
+  }
   // Kept from earlier frames, or built now; none when the frame does not wait and nothing is kept.
+  const Camera& camera = g.camera;
   const int spacing = drawnSpacing(camera, quality, *look.iso);
   if (spacing == 0) return nullptr;
   const TriangleMesh& mesh = prepareAt(*look.iso, spacing, look.normals, st);

@@ -57,6 +57,9 @@ struct FrameStats {
   bool surfaceBuilt = false;  ///< the surface was built for this frame (not from the scene or an earlier frame)
   bool surfaceSimplified = false;  ///< a level of the simplified surface was drawn (Quality::simplifiedSurface)
   double surfaceBuildMs = 0, surfacePolygonsMs = 0;  ///< this frame's work on the surface (0 when kept)
+  /// Regions of the scene's Surface Octree this frame reconstructed and kept from earlier frames,
+  /// when it draws the surface by regions (SceneRenderer::byRegions; both 0 otherwise).
+  size_t surfaceRegionsMade = 0, surfaceRegionsKept = 0;
   double selectMs = 0, renderMs = 0;
   double preintegrationMs = 0;     ///< making the pre-integration table (0 when kept or not used)
   double bvhMs = 0;                ///< making the ray tracer's BVH of the surface (0 when kept or not used)
@@ -134,6 +137,12 @@ struct PreparedSurface {
   }
 };
 
+/// A frame whose Surface Octree's reconstruction (SurfaceOctree::reconstructBytes) would take more
+/// than this fraction of Options::memoryBytes reconstructs it region by region (regions of at most
+/// kSurfaceRegionNodes nodes), keeping only the polygons it draws (SceneRenderer::byRegions).
+inline constexpr int kWholeSurfaceMemoryDivisor = 2;
+inline constexpr size_t kSurfaceRegionNodes = 16384;
+
 /// Decompressed bytes of the store's coarse levels that a frame which does not wait for the store
 /// reads whether cached or not (the phantom's spacings of 16 and more; the clinical study's of 4).
 inline constexpr uint64_t kReadAnywayBytes = uint64_t(16) << 20;
@@ -153,6 +162,8 @@ class SceneRenderer {
     /// leave (sceneCacheBytes), shrinking as surfaces are made and growing as they go. 0: the
     /// cache keeps the bound it was opened with.
     uint64_t memoryBytes = 0;
+    /// Largest region a surface drawn by regions is reconstructed in (SurfaceOctree::regions).
+    size_t surfaceRegionNodes = kSurfaceRegionNodes;
   };
   explicit SceneRenderer(Scene scene, const Options& options);
   explicit SceneRenderer(Scene scene) : SceneRenderer(std::move(scene), Options{}) {}
@@ -243,7 +254,16 @@ class SceneRenderer {
  private:
   struct Errors;
   /// The surface a frame draws (Look::iso set), its work and size in @p st.
-  const TriangleMesh* frameSurface(const Camera& gridCamera, const Look& look, const Quality& quality, FrameStats* st);
+  const TriangleMesh* frameSurface(const FrameGrid& g, const Look& look, const Quality& quality, FrameStats* st);
+  /// Whether a frame of @p quality draws the scene's surface of @p iso reconstructed region by
+  /// region: a slice frame that waits for its full-resolution surface, none kept, whose
+  /// reconstruction whole would take more than 1/kWholeSurfaceMemoryDivisor of the memory bound.
+  bool byRegions(const Camera& gridCamera, const Quality& quality, float iso) const;
+  /// That frame's surface: the polygons of the scene's Surface Octree that it draws (one of whose
+  /// triangles PixelCentres does not know to cover no centre, or crossing the cutting plane whose
+  /// line is drawn), region by region, in the whole surface's order: the frame's image is the one
+  /// the whole surface gives. Regions are kept (mRegions) while they fit in their bound.
+  const TriangleMesh& regionSurface(const FrameGrid& g, const Look& look, FrameStats* st);
   /// The two renderers' frames, the surface @p mesh (or none) in it.
   void renderRaycast(const FrameGrid& g, const Look& look, const Quality& quality, const TriangleMesh* mesh, const LevelCallback& onLevel,
                      RenderedFrame* out);
@@ -311,6 +331,14 @@ class SceneRenderer {
     RegionBox box;
     TriangleMesh mesh;
   } mRegionSurface;  // the last sort-last frame's
+  struct SurfaceRegions {
+    float iso = 0.0f;
+    std::vector<SurfaceRegion> regions;
+    std::vector<std::shared_ptr<const TriangleMesh>> kept;  // per region its triangles (grid mm, no normals), or none
+    uint64_t keptBytes = 0;
+    TriangleMesh frame;  // the last frame's polygons
+    uint64_t bytes() const { return keptBytes + frame.bytesUsed(); }
+  } mRegions;  // the scene's surface by regions (byRegions)
   struct KeptMeshes {
     std::vector<std::shared_ptr<const TriangleMesh>> from;  // held: their addresses stay theirs
     std::vector<glm::vec4> colors;

@@ -923,8 +923,29 @@ class SlicesFrame {
     const glm::vec3 color(mF.options.surfaceColor);
     const glm::vec4 cutPlane(mF.cut);
     glUseProgram(program);
+    const glm::vec3 f(camera.forward());
+    auto at = [&](const char* name) { return glGetUniformLocation(program, name); };
+    glUniformMatrix4fv(at("viewProj"), 1, GL_FALSE, glm::value_ptr(mF.view.viewProj));
+    glUniform3f(at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
+    glUniform3fv(at("forward"), 1, glm::value_ptr(f));
+    glUniform1i(at("ortho"), camera.ortho ? 1 : 0);
+    glUniform3fv(at("color"), 1, glm::value_ptr(color));
+    glUniform4fv(at("cutPlane"), 1, glm::value_ptr(cutPlane));
+    // Drawn a run of triangles at a time, in order (the depth test keeps the same fragments): the
+    // vertex stream, and llvmpipe's copy of it, never hold a large surface whole.
+    constexpr size_t kRunFloats = size_t(6) << 20;
     std::vector<float> data;
     uint64_t unseen = 0;
+    glEnableVertexAttribArray(0);
+    glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), nullptr);
+    glEnableVertexAttribArray(1);
+    glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
+    auto draw = [&] {
+      if (data.empty()) return;
+      glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(data.size() * sizeof(float)), data.data(), GL_STREAM_DRAW);
+      glDrawArrays(GL_TRIANGLES, 0, GLsizei(data.size() / 6));
+      data.clear();
+    };
     for (const glm::uvec3& t : surface.triangles) {
       const glm::vec3 a = surface.vertices[t.x], b = surface.vertices[t.y], c = surface.vertices[t.z];
       if (const PixelCentres::Cover cover = centres ? centres->cover(a, b, c, nullptr) : PixelCentres::Cover{}; cover.known && cover.centres == 0) {
@@ -936,21 +957,9 @@ class SlicesFrame {
         const glm::vec3 p = surface.vertices[t[k]], n = surface.normals.empty() ? face : surface.normals[t[k]];
         data.insert(data.end(), {p.x, p.y, p.z, n.x, n.y, n.z});
       }
+      if (data.size() >= kRunFloats) draw();
     }
-    const glm::vec3 f(camera.forward());
-    auto at = [&](const char* name) { return glGetUniformLocation(program, name); };
-    glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(data.size() * sizeof(float)), data.data(), GL_STATIC_DRAW);
-    glEnableVertexAttribArray(0);
-    glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), nullptr);
-    glEnableVertexAttribArray(1);
-    glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), reinterpret_cast<void*>(3 * sizeof(float)));
-    glUniformMatrix4fv(at("viewProj"), 1, GL_FALSE, glm::value_ptr(mF.view.viewProj));
-    glUniform3f(at("eye"), float(camera.eye.x), float(camera.eye.y), float(camera.eye.z));
-    glUniform3fv(at("forward"), 1, glm::value_ptr(f));
-    glUniform1i(at("ortho"), camera.ortho ? 1 : 0);
-    glUniform3fv(at("color"), 1, glm::value_ptr(color));
-    glUniform4fv(at("cutPlane"), 1, glm::value_ptr(cutPlane));
-    glDrawArrays(GL_TRIANGLES, 0, GLsizei(data.size() / 6));
+    draw();
     return unseen;
   }
 
@@ -1024,6 +1033,11 @@ class SlicesFrame {
 };
 
 }  // namespace
+
+PixelCentres framePixelCentres(const Volume& volume, const Camera& camera) {
+  // (the slice spacing only bounds the slab indices, which these centres do not use)
+  return PixelCentres(frameCamera(volume, camera, std::numeric_limits<double>::max()).viewProj, camera.width, camera.height);
+}
 
 SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const TriangleMesh* surface, const GridMeshes* meshes) {
   SlicesOptions so;

@@ -25,6 +25,7 @@
 #include "render/preintegration.h"
 #include "render/regions.h"
 #include "render/slices/brick_textures.h"
+#include "render/slices/slab_polygons.h"
 #include "render/transfer_function.h"
 #include "render/user_meshes.h"
 #include "surface/mesh.h"
@@ -98,6 +99,11 @@ struct SlicesOptions {
 /// its own to set.
 SlicesOptions slicesOptions(const FrameGrid& grid, const Look& look, const Quality& quality, const TriangleMesh* surface,
                             const GridMeshes* meshes = nullptr);
+
+/// The pixel centres a slice frame of @p camera over @p volume tests its surface's triangles
+/// against (SlicesOptions::leaveOutUnseen): a triangle PixelCentres::cover knows to cover none of
+/// them is left out of the frame.
+PixelCentres framePixelCentres(const Volume& volume, const Camera& camera);
 
 /// What a frame used.
 struct SlicesStats {

@@ -202,6 +202,24 @@ TEST(SceneFile, SurfaceOctreeRoundTrip) {
   EXPECT_EQ(s.surface->cellCount(), so.cellCount());
   EXPECT_EQ(s.surface->nodes(), so.nodes());
   EXPECT_EQ(s.surface->reconstruct().indices, so.reconstruct().indices);
+  // Paged, its nodes stay in the file, each decoded when read: the same nodes, ranges, regions
+  // and surface, none of them held.
+  SceneLoadOptions paged;
+  paged.samples = false;
+  const Scene p = loadScene(dir.file("s.hoct"), paged);
+  ASSERT_TRUE(p.surface.has_value());
+  EXPECT_TRUE(p.surface->mapped());
+  EXPECT_FALSE(s.surface->mapped());
+  ASSERT_EQ(p.surface->nodeCount(), so.nodeCount());
+  for (size_t i = 0; i < so.nodeCount(); ++i) EXPECT_EQ(p.surface->node(i), so.nodes()[i]) << i;
+  EXPECT_EQ(p.surface->bytesUsed(), SurfaceOctree::bytesFor(0));
+  for (int edge : {4, 8, 16})
+    for (int z = 0; z < 16; z += edge)
+      for (int y = 0; y < 16; y += edge)
+        for (int x = 0; x < 16; x += edge) EXPECT_EQ(p.surface->rangeIn({x, y, z}, edge), so.rangeIn({x, y, z}, edge));
+  EXPECT_EQ(p.surface->regions(50).size(), so.regions(50).size());
+  EXPECT_EQ(p.surface->reconstruct().indices, so.reconstruct().indices);
+  EXPECT_EQ(p.surface->reconstructIn(so.regions(50)[1]).indices, so.reconstructIn(so.regions(50)[1]).indices);
   // A scene without a surface loads without one.
   saveScene(dir.file("v.hoct"), v, t);
   EXPECT_FALSE(loadScene(dir.file("v.hoct")).surface.has_value());

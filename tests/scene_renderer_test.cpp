@@ -240,6 +240,65 @@ TEST(SceneRenderer, APagedSceneBuildsItsSurfacesThroughItsCacheAndStaysPaged) {
   EXPECT_FALSE(paged.volume().hasSamples());
 }
 
+// A scene whose Surface Octree's reconstruction exceeds its memory draws its surface region by
+// region, keeping only the polygons the frame draws: the image is the whole surface's, opaque or
+// translucent, smooth or by facets, with a cutting plane and its line, from near and far; a
+// region beside the image is not reconstructed, and regions that fit their bound are kept.
+TEST(SceneRenderer, ASurfaceBeyondTheMemoryIsDrawnRegionByRegionAsTheWholeWould) {
+  test::gl();
+  test::TempDir dir;
+  const Scene s = sphereScene({48, 44, 40}, 17.0);
+  const SurfaceOctree so = SurfaceOctree::build(s.volume, s.octree, 0.0f);
+  saveScene(dir.file("s.hoct"), s.volume, s.octree, &so);
+  SceneRenderer::Options small, unbounded;
+  small.memoryBytes = so.reconstructBytes();  // the whole reconstruction takes more than half of it
+  small.surfaceRegionNodes = 64;
+  unbounded.memoryBytes = 0;
+  SceneRenderer regions(loadScene(dir.file("s.hoct"), SceneLoadOptions{false, small.memoryBytes}), small);
+  SceneRenderer whole(loadScene(dir.file("s.hoct"), SceneLoadOptions{false, 0}), unbounded);
+  ASSERT_TRUE(regions.scene().surface->mapped());
+  const size_t count = so.regions(small.surfaceRegionNodes).size();
+  ASSERT_GT(count, 8u);
+  Look look;
+  look.tf = warm();
+  look.iso = 0.0f;
+  auto expectSame = [&](const View& view, const Look& l, const char* what) {
+    const RenderedFrame a = regions.render(view, l, Quality{}), b = whole.render(view, l, Quality{});
+    EXPECT_GT(a.stats.surfaceRegionsMade + a.stats.surfaceRegionsKept, 0u) << what;
+    EXPECT_EQ(b.stats.surfaceRegionsMade + b.stats.surfaceRegionsKept, 0u) << what;
+    EXPECT_EQ(a.image.pixels, b.image.pixels) << what;
+    EXPECT_TRUE(std::any_of(a.image.pixels.begin(), a.image.pixels.end(), [](const glm::vec4& p) { return p.a > 0.0f; })) << what;
+    return a.stats;
+  };
+  const View view = viewFrom(20, s.volume, 64);
+  const FrameStats first = expectSame(view, look, "opaque");
+  EXPECT_EQ(first.surfaceRegionsMade + first.surfaceRegionsKept, count);
+  EXPECT_EQ(first.surfacePolygons, whole.surfacePolygons(0.0f));
+  EXPECT_EQ(first.surfaceTriangles, whole.surface(0.0f, SurfaceNormals::Gradient).triangles.size());
+  look.surfaceColor = glm::vec4(0.9f, 0.8f, 0.7f, 0.5f);
+  expectSame(view, look, "translucent");
+  look.normals = SurfaceNormals::Facet;
+  expectSame(view, look, "facets");
+  look.normals = SurfaceNormals::Gradient;
+  look.cut = CutPlane{s.volume.frame().toPatient(glm::dvec3(24.0, 22.0, 20.0) * s.volume.spacing()), glm::dvec3(0.3, 1.0, 0.2)};
+  expectSame(view, look, "cut");
+  look.cut.reset();
+  View near = view;
+  near.camera.eye = near.camera.center + (near.camera.eye - near.camera.center) * 0.3;
+  const FrameStats zoomed = expectSame(near, look, "near");
+  EXPECT_LT(zoomed.surfaceRegionsMade + zoomed.surfaceRegionsKept, count);  // the regions beside the image are skipped
+  // With room, the regions are kept: the next frame reconstructs none.
+  SceneRenderer::Options roomy = small;
+  roomy.memoryBytes = 2 * so.reconstructBytes() - 1;
+  SceneRenderer keeping(loadScene(dir.file("s.hoct"), SceneLoadOptions{false, roomy.memoryBytes}), roomy);
+  const RenderedFrame k1 = keeping.render(view, look, Quality{}), k2 = keeping.render(view, look, Quality{});
+  EXPECT_EQ(k1.stats.surfaceRegionsMade, count);
+  EXPECT_EQ(k2.stats.surfaceRegionsMade, 0u);
+  EXPECT_EQ(k2.stats.surfaceRegionsKept, count);
+  EXPECT_EQ(k2.image.pixels, k1.image.pixels);
+  EXPECT_GT(keeping.surfaceBytes(), 0u);
+}
+
 TEST(SceneRenderer, ChangesRedoOnlyWhatDependsOnThem) {
   test::gl();
   SceneRenderer r(sphereScene());

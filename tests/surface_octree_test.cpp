@@ -37,6 +37,54 @@ Compared compare(const Volume& v, float iso, SurfaceOctreeOptions options = {}) 
   return c;
 }
 
+// Face f of @p m as its plane and its loop's points (fine coordinates).
+std::pair<PlaneId, std::vector<glm::ivec3>> faceOf(const DiscreteMesh& m, size_t f) {
+  std::vector<glm::ivec3> loop;
+  for (uint32_t k = m.offsets[f]; k < m.offsets[f + 1]; ++k) loop.push_back(m.vertices[m.indices[k]]);
+  return {m.planes[f], loop};
+}
+
+// Reconstructed region by region (regions of at most @p maxNodes nodes), the surface is the whole
+// reconstruction's, face for face in its order, each region's vertices those its faces use; returns
+// the regions whose nodes reconstructed alone (without their neighbours) would give other faces.
+size_t expectRegionsMakeTheWhole(const SurfaceOctree& so, size_t maxNodes) {
+  const DiscreteMesh whole = so.reconstruct();
+  const std::vector<SurfaceRegion> regions = so.regions(maxNodes);
+  EXPECT_GT(regions.size(), 1u);
+  size_t f = 0, differAlone = 0;
+  uint32_t next = 0;
+  for (const SurfaceRegion& r : regions) {
+    EXPECT_EQ(r.first, next);
+    next = r.last;
+    EXPECT_TRUE(r.last - r.first <= maxNodes || r.edge == so.mergeEdge());
+    const DiscreteMesh m = so.reconstructIn(r);
+    std::vector<bool> used(m.vertices.size(), false);
+    for (uint32_t v : m.indices) used[v] = true;
+    EXPECT_EQ(std::count(used.begin(), used.end(), false), 0);
+    for (size_t g = 0; g < m.faceCount(); ++g, ++f) {
+      if (f >= whole.faceCount()) {
+        ADD_FAILURE() << "region faces beyond the whole's " << whole.faceCount();
+        return differAlone;
+      }
+      if (faceOf(m, g) != faceOf(whole, f)) {
+        ADD_FAILURE() << "face " << f << " (region at " << r.origin.x << "," << r.origin.y << "," << r.origin.z << " edge " << r.edge
+                      << ") differs from the whole reconstruction's";
+        return differAlone;
+      }
+    }
+    // The same nodes without their neighbours: what the neighbours add shows here.
+    std::vector<SurfaceNode> own(so.nodes().begin() + r.first, so.nodes().begin() + r.last);
+    const DiscreteMesh alone = SurfaceOctree::fromParts(so.dims(), so.isovalue(), 0, so.mergeEdge(), own, "region").reconstruct();
+    bool same = alone.faceCount() == m.faceCount();
+    for (size_t g = 0; same && g < m.faceCount(); ++g) same = faceOf(alone, g) == faceOf(m, g);
+    differAlone += !same;
+  }
+  EXPECT_EQ(next, so.nodeCount());
+  EXPECT_EQ(f, whole.faceCount());
+  return differAlone;
+}
+
+
 TEST(SurfaceOctree, LeafCodesReproduceEveryConfiguration) {
   // Each configuration alone: the reconstructed leaf equals the DiscMC cell (same area, and every
   // region's truth value agrees with the corner classes where a corner is strictly inside a region).
@@ -298,6 +346,45 @@ TEST(SurfaceOctreeCranium, LosslessOnBoneAndSkin) {
     const MeshCheck c = checkMesh(octree);
     EXPECT_TRUE(c.manifold) << iso;
     EXPECT_FALSE(c.selfIntersecting) << iso;
+  }
+}
+
+// A region's polygons (reconstructIn) are exactly the whole reconstruction's polygons of its nodes:
+// the T-junctions its neighbours' vertices make on its faces, its merges and the vertices a
+// neighbour shares (kept, not dropped as straight) included; regions as small as a leaf.
+TEST(SurfaceOctree, RegionsReconstructTheWholeSurfaceFaceForFace) {
+  const Volume v = test::sphereVolume(glm::ivec3(40, 37, 30), 13.1);
+  const VolumeOctree t = VolumeOctree::build(v);
+  const SurfaceOctree so = SurfaceOctree::build(v, t, 0.0f);
+  // (No surface plane passes through a node's face: its axis planes lie between samples, at odd
+  // doubled coordinates, the faces at even ones. A neighbour's merge then keeps the vertices it
+  // shares with a region.)
+  size_t axisPlanes = 0;
+  for (const SurfaceNode& n : so.nodes())
+    for (int j = 0; j < n.planeCount; ++j) {
+      const glm::ivec3 normal = orientationNormal(n.planes[size_t(j)].orientation);
+      if (std::abs(normal.x) + std::abs(normal.y) + std::abs(normal.z) != 1) continue;
+      ++axisPlanes;
+      EXPECT_EQ(std::abs(n.planes[size_t(j)].d) % 2, 1);
+    }
+  EXPECT_GT(axisPlanes, 0u);
+  EXPECT_GT(expectRegionsMakeTheWhole(so, 1), 0u);
+  EXPECT_GT(expectRegionsMakeTheWhole(so, 200), 0u);
+  // One region holding every node is the whole.
+  const std::vector<SurfaceRegion> all = so.regions(so.nodeCount());
+  ASSERT_EQ(all.size(), 1u);
+  EXPECT_EQ(all[0].last - all[0].first, so.nodeCount());
+  const DiscreteMesh one = so.reconstructIn(all[0]), whole = so.reconstruct();
+  ASSERT_EQ(one.faceCount(), whole.faceCount());
+  for (size_t f = 0; f < one.faceCount(); ++f) EXPECT_EQ(faceOf(one, f), faceOf(whole, f)) << f;
+}
+
+TEST(SurfaceOctreeCranium, RegionsReconstructTheWholeSurfaceFaceForFace) {
+  const Volume v = readVolume(kDefaultVolumePath);
+  const VolumeOctree t = VolumeOctree::build(v);
+  for (float iso : {400.0f, -500.0f}) {
+    const SurfaceOctree so = SurfaceOctree::build(v, t, iso);
+    EXPECT_GT(expectRegionsMakeTheWhole(so, 4096), 0u) << iso;
   }
 }
 

@@ -259,7 +259,7 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
   const bool slices = job.quality.renderer == Renderer::Slices;
   const bool fromScene = job.renderer->scene().surface && job.look.iso && job.renderer->scene().surface->isovalue() == *job.look.iso;
   const int pixels = job.view.camera.width * job.view.camera.height;
-  const FrameStats surface = job.renderer->prepare(job.view, job.look, job.quality);
+  FrameStats surface = job.renderer->prepare(job.view, job.look, job.quality);
   if (job.look.iso) out << surfaceLine(surface, *job.look.iso, fromScene);
   // Across MPI ranks: this rank's region of the frame, composited with the others' by IceT.
   std::unique_ptr<RankFrame> rankFrame;
@@ -291,6 +291,10 @@ int runRender(const RenderOptions& o, std::ostream& out, std::ostream& err) {
       frame.stats.renderMs = msSince(f0);  // the whole frame's, to the end of the compositing
     }
     if (r == 0) {
+      if (job.look.iso && frame.stats.surfaceRegionsMade + frame.stats.surfaceRegionsKept > 0) {  // made by the frame, region by region
+        surface = frame.stats;
+        out << surfaceLine(surface, *job.look.iso, fromScene);
+      }
       if (job.quality.budgetPercent > 0) {
         auto mb = [&](uint64_t texels) { return double(texels * bytesPerTexel(job.quality.texelBits)) / (1024.0 * 1024.0); };
         std::ostringstream line;

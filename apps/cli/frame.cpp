@@ -184,7 +184,10 @@ std::string surfaceLine(const FrameStats& stats, float iso, bool fromScene) {
   else
     line << (fromScene ? "from the scene" : "kept");
   line << ", " << stats.surfacePolygons << " polygons (" << stats.surfaceTriangles << " triangles) reconstructed in " << stats.surfacePolygonsMs
-       << " ms\n";
+       << " ms";
+  if (stats.surfaceRegionsMade + stats.surfaceRegionsKept > 0)
+    line << " by regions (" << stats.surfaceRegionsMade << " made, " << stats.surfaceRegionsKept << " kept; the polygons the frame draws kept)";
+  line << "\n";
   return line.str();
 }
 

@@ -72,6 +72,19 @@ PixelCentres::Cover PixelCentres::cover(const glm::vec3& a, const glm::vec3& b, 
   return out;
 }
 
+bool PixelCentres::besideImage(const glm::dvec3& lo, const glm::dvec3& hi) const {
+  // In front of the eye, the box projects into the hull of its corners' projections.
+  glm::bvec4 beside(true);  // left, right, below, above
+  for (int k = 0; k < 8; ++k) {
+    const glm::dvec3 p((k & 1) ? hi.x : lo.x, (k & 2) ? hi.y : lo.y, (k & 4) ? hi.z : lo.z);
+    const glm::dvec4 q = mViewProj * glm::dvec4(p, 1.0);
+    if (!(q.w > 0.0)) return false;
+    const glm::dvec2 w = (glm::dvec2(q) / q.w * 0.5 + 0.5) * mSize;
+    beside = glm::bvec4(beside[0] && w.x < -1.0, beside[1] && w.x > mSize.x + 1.0, beside[2] && w.y < -1.0, beside[3] && w.y > mSize.y + 1.0);
+  }
+  return glm::any(beside);
+}
+
 // A grid of leaves says which brick holds each polygon's centroid.
 BrickPolygons polygonsByBrick(const Volume& volume, const VolumeOctree& octree, const Selection& selection, const SurfacePolygons& surface,
                               const RegionBox* region) {

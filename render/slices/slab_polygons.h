@@ -81,6 +81,9 @@ class PixelCentres {
   };
   static constexpr int kMaxCentres = 4;
   Cover cover(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c, const ProxyDepth* depth) const;
+  /// Whether the box [@p lo, @p hi] lies in front of the eye and more than a pixel beside the image
+  /// on one side: cover() knows every triangle inside it to cover no centre.
+  bool besideImage(const glm::dvec3& lo, const glm::dvec3& hi) const;
 
  private:
   glm::dmat4 mViewProj, mInverse;
