@@ -64,7 +64,7 @@ void setNormals(GeometryPart* part, const glm::dvec3& spacing, const Normal& nor
 }
 
 // Sets the normals of @p part's voxels that @p normals (a mesh's band, grid voxel indices) holds.
-void setNormals(GeometryPart* part, const glm::ivec3& dims, const std::vector<VoxelNormal>& normals) {
+void setBandNormals(GeometryPart* part, const glm::ivec3& dims, std::span<const VoxelNormal> normals) {
   const size_t plane = size_t(dims.x) * size_t(dims.y);
   for (const VoxelNormal& v : normals) {
     const glm::ivec3 q = glm::ivec3(int(v.voxel % size_t(dims.x)), int((v.voxel / size_t(dims.x)) % size_t(dims.y)), int(v.voxel / plane)) - part->lo;
@@ -188,7 +188,7 @@ GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const V
           return rho > 0.0 ? (x - c) / rho : glm::dvec3(0.0);
         });
       } else {
-        setNormals(&part, grid.dims, r.normals);
+        setBandNormals(&part, grid.dims, r.normals);
       }
     }
     part.color = m.color;
