@@ -204,9 +204,9 @@ GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const V
 Volume geometryVolume(const std::vector<UserMesh>& meshes, const Volume& volume, bool asFraction, std::vector<std::string>* warnings) {
   const VoxelGrid grid = VoxelGrid::of(volume);
   const double voxel = std::min({grid.spacing.x, grid.spacing.y, grid.spacing.z});
-  ScanOptions o;
-  o.type = CoverageType::Float32;
-  std::vector<float> most(size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(grid.dims.z), 0.0f);
+  ScanOptions o;  // the bytes the renderers' channel is made of: no float grid per mesh
+  // The union: each voxel's largest coverage (fraction · 255) over the meshes.
+  std::vector<uint8_t> most(size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(grid.dims.z), 0);
   for (const UserMesh& m : meshes) {
     const UserPrimitive* p = m.primitive.get();
     ScanResult r;
@@ -223,15 +223,20 @@ Volume geometryVolume(const std::vector<UserMesh>& meshes, const Volume& volume,
       r = scanConvertMesh(*m.mesh, grid, o);
     }
     for (const std::string& w : r.warnings) warnings->push_back(m.name + ": " + w);
-    for (size_t n = 0; n < most.size(); ++n) most[n] = std::max(most[n], fraction(r, n));
+    HYB_CHECK(r.coverage.storedType() == ScalarType::UInt8 && r.coverage.voxelCount() == most.size());
+    r.coverage.visitSamples([&](const auto* c) {
+      for (size_t n = 0; n < most.size(); ++n) most[n] = std::max<uint8_t>(most[n], uint8_t(c[n]));
+    });
   }
   Volume out;
   if (asFraction) {
-    out = Volume(grid.dims, grid.spacing, ScalarType::Float32, std::move(most), "coverage fraction");
+    // The fraction in steps of 1/255 (Slicer's 6 × 6 × 6 supersampled fractional labelmap has 1/216).
+    std::vector<float> fraction(most.size());
+    for (size_t n = 0; n < most.size(); ++n) fraction[n] = float(most[n]) / 255.0f;
+    out = Volume(grid.dims, grid.spacing, ScalarType::Float32, std::move(fraction), "coverage fraction");
   } else {
-    std::vector<uint8_t> label(most.size());
-    for (size_t n = 0; n < most.size(); ++n) label[n] = most[n] >= 0.5f ? 1 : 0;
-    out = Volume(grid.dims, grid.spacing, ScalarType::UInt8, SampleArray(std::move(label)), "coverage label");
+    for (uint8_t& v : most) v = v >= 128 ? 1 : 0;  // at least half covered (a fraction f is stored as f · 255 rounded)
+    out = Volume(grid.dims, grid.spacing, ScalarType::UInt8, SampleArray(std::move(most)), "coverage label");
   }
   out.setFrame(grid.frame);
   return out;
