@@ -133,16 +133,15 @@ uint64_t GeometryChannel::bytes() const {
   return b;
 }
 
-GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const Volume& volume, const VolumeOctree& octree, ScanFilter filter,
-                                    double width) {
+GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const Volume& volume, const VolumeOctree& octree, double meshFilter) {
   const auto t0 = std::chrono::steady_clock::now();
   GeometryChannel g;
   const VoxelGrid grid = VoxelGrid::of(volume);
   const double voxel = std::min({grid.spacing.x, grid.spacing.y, grid.spacing.z});
   ScanOptions o;
   o.space = ScanSpace::Patient;
-  o.filter = filter;
-  o.width = width;
+  o.filter = meshFilter > 0.0 ? ScanFilter::Box : ScanFilter::None;
+  o.width = meshFilter > 0.0 ? meshFilter : 1.0;  // (unused when point-sampled)
   o.normals = true;
   for (const UserMesh& m : meshes) {
     double tau = voxel;
