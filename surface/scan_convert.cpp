@@ -331,9 +331,11 @@ struct SlabScratch {
   };
   // Per voxel of the slab (8 MiB for 512² × 4), on 2 MiB pages; the two side by side, in one cache line.
   std::vector<Closest, HugePageAllocator<Closest>> closest;
-  // Voxels (in slab) whose owner is set, for stage 3 and the reset: the first touchedCount of one
-  // more than the slab's voxels (the branch-free update writes one past them).
-  std::vector<uint32_t, HugePageAllocator<uint32_t>> touched;
+  // Voxels (in slab) whose owner is set, for stage 3 and the reset: the first touchedCount of room
+  // for one more than the slab's voxels (the branch-free update writes one past them), uninitialised
+  // so that only the pages used are touched.
+  std::shared_ptr<void> touchedBuffer;
+  uint32_t* touched = nullptr;
   size_t touchedCount = 0;
   std::vector<std::pair<uint32_t, float>> crossings;  // (row in slab, x mm)
   VoxelNormals normals;                               // the band voxels' (ScanOptions::normals), this thread's slabs'
@@ -446,7 +448,7 @@ struct MeshScan {
     // Keeps each candidate closer than its voxel's best so far (branch-free: most are not).
     auto flush = [&] {
       distance.measure(&cand);
-      uint32_t* touched = scratch->touched.data() + scratch->touchedCount;
+      uint32_t* touched = scratch->touched + scratch->touchedCount;
       size_t count = 0;
       for (int i = 0; i < cand.count; ++i) {
         SlabScratch::Closest& best = scratch->closest[cand.at[i]];
@@ -649,7 +651,8 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
       if (band) {
         const size_t slabVoxels = size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(std::min(kSlabPlanes, grid.dims.z));
         scratch.closest.assign(slabVoxels, {float(scan.reach * scan.reach), kNone});
-        scratch.touched.resize(slabVoxels + 1);
+        scratch.touchedBuffer = hugePageBuffer((slabVoxels + 1) * sizeof(uint32_t));
+        scratch.touched = static_cast<uint32_t*>(scratch.touchedBuffer.get());
       }
     });
 #pragma omp for schedule(dynamic, 1)

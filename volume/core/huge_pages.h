@@ -9,8 +9,9 @@
 
 namespace hyb {
 
-/// An uninitialised buffer of at least @p bytes, aligned to 2 MiB and backed by 2 MiB pages where
-/// the kernel grants them (madvise MADV_HUGEPAGE; without them it works with 4 KiB pages).
+/// An uninitialised buffer of at least @p bytes: from 2 MiB on, a mapping of its own aligned to
+/// 2 MiB and backed by 2 MiB pages where the kernel grants them (madvise MADV_HUGEPAGE; without them
+/// it works with 4 KiB pages), returned to the kernel when freed; smaller ones from operator new.
 /// @throw std::bad_alloc when the memory is not there.
 std::shared_ptr<void> hugePageBuffer(size_t bytes);
 
