@@ -32,7 +32,7 @@ namespace {
 // triangle rarely falls into more than one.
 constexpr int kSlabPlanes = 4;
 
-double cube(double x) { return x * x * x; }
+double cube(double x) { return x * x * x; }  // (std::pow(x, 3) is a call)
 
 // Fraction of the unit cube [0, 1]³ where m·v ≤ t, for m1 ≥ m2 ≥ m3 ≥ 0, m1 > 0. Piecewise
 // polynomial (the inclusion–exclusion over the cube's corners), each piece written so that no term
@@ -223,17 +223,24 @@ glm::vec3 closestOnTriangle(const glm::vec3& p, const glm::vec3& a, const glm::v
 }
 
 // Voxels near one triangle whose distances are being taken, gathered row by row and measured
-// kCandidateBatch at a time: the offset from corner a of each, its components in the order of
-// the triangle's rows (TriangleDistance), and its index in the slab.
+// about kCandidateBatch at a time: the offset from corner a of each, its components in the order
+// of the triangle's rows (TriangleDistance), and its index in the slab. Measured before a row that
+// would take them past the batch, so that the room past it holds the longest row (a thick sheet's
+// may span the grid), and a lane's worth more for the lanes measured past the count.
 constexpr int kCandidateBatch = 256;
-static_assert(kCandidateBatch % 4 == 0, "whole SSE lanes");
 struct Candidates {
-  alignas(16) float u[kCandidateBatch] = {};
-  alignas(16) float v[kCandidateBatch] = {};
-  alignas(16) float w[kCandidateBatch] = {};
-  alignas(16) float dist2[kCandidateBatch] = {};
-  uint32_t at[kCandidateBatch] = {};
+  std::vector<float> buffer;  // u, v, w and dist2, `room` each
+  std::vector<uint32_t> atBuffer;
+  float *u = nullptr, *v = nullptr, *w = nullptr, *dist2 = nullptr;
+  uint32_t* at = nullptr;
   int count = 0;
+  // Room for a batch and the longest row of @p longestRow voxels.
+  void allocate(int longestRow) {
+    const size_t room = size_t(kCandidateBatch + longestRow + 3);
+    buffer.assign(4 * room, 0.0f);
+    atBuffer.assign(room, 0);
+    u = buffer.data(), v = u + room, w = v + room, dist2 = w + room, at = atBuffer.data();
+  }
 };
 
 float minf(float a, float b) { return b < a ? b : a; }
@@ -291,7 +298,7 @@ struct TriangleDistance {
       return _mm_sub_ps(len2, _mm_mul_ps(t, _mm_sub_ps(_mm_mul_ps(two, pe), _mm_mul_ps(t, ee2))));
     };
     for (; i < c->count; i += 4) {
-      const __m128 pu = _mm_load_ps(c->u + i), pv = _mm_load_ps(c->v + i), pw = _mm_load_ps(c->w + i);
+      const __m128 pu = _mm_loadu_ps(c->u + i), pv = _mm_loadu_ps(c->v + i), pw = _mm_loadu_ps(c->w + i);
       const __m128 d1 = dot(abu, abv, abw, pu, pv, pw), d2 = dot(acu, acv, acw, pu, pv, pw);
       const __m128 aa = dot(pu, pv, pw, pu, pv, pw), plane = dot(nu, nv, nw, pu, pv, pw);
       const __m128 vb = _mm_sub_ps(_mm_mul_ps(s22, d1), _mm_mul_ps(s12, d2)), vc = _mm_sub_ps(_mm_mul_ps(s11, d2), _mm_mul_ps(s12, d1));
@@ -301,7 +308,7 @@ struct TriangleDistance {
       const __m128 qbc = edgeSquared(_mm_add_ps(_mm_sub_ps(aa, _mm_mul_ps(two, d1)), s11), tbc, e, see);
       const __m128 inside = _mm_cmpge_ps(_mm_min_ps(_mm_min_ps(vb, vc), _mm_sub_ps(_mm_sub_ps(sArea, vb), vc)), zero);
       const __m128 edge = _mm_max_ps(_mm_min_ps(qab, _mm_min_ps(qac, qbc)), zero);
-      _mm_store_ps(c->dist2 + i, _mm_or_ps(_mm_and_ps(inside, _mm_mul_ps(plane, plane)), _mm_andnot_ps(inside, edge)));
+      _mm_storeu_ps(c->dist2 + i, _mm_or_ps(_mm_and_ps(inside, _mm_mul_ps(plane, plane)), _mm_andnot_ps(inside, edge)));
     }
 #endif
     for (; i < c->count; ++i) c->dist2[i] = squared(c->u[i], c->v[i], c->w[i]);
@@ -500,7 +507,7 @@ struct MeshScan {
         const float lo = rowLo + float(a) * dA;
         const int c0 = std::max(first[W], ceilIndex(lo, first[W], last[W])), c1 = std::min(last[W], floorIndex(lo + width, first[W], last[W]));
         if (c1 < c0) continue;
-        if (cand.count + (c1 - c0 + 1) > kCandidateBatch) flush();
+        if (cand.count + (c1 - c0 + 1) > kCandidateBatch) flush();  // (a longer row fits the room past the batch)
         const float pu = float(a) * s[U] - tri.a[U];
         uint32_t at = uint32_t(a) * stride[U] + uint32_t(b) * stride[V] + uint32_t(c0) * stride[W] - uint32_t(k0) * stride[2];
         for (int c = c0; c <= c1; ++c, at += stride[W]) {
@@ -653,6 +660,7 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
         scratch.closest.assign(slabVoxels, {float(scan.reach * scan.reach), kNone});
         scratch.touchedBuffer = hugePageBuffer((slabVoxels + 1) * sizeof(uint32_t));
         scratch.touched = static_cast<uint32_t*>(scratch.touchedBuffer.get());
+        scratch.candidates.allocate(std::max({grid.dims.x, grid.dims.y, kSlabPlanes}));  // (rows along z stay in the slab)
       }
     });
 #pragma omp for schedule(dynamic, 1)

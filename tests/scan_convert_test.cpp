@@ -505,10 +505,21 @@ TEST(ScanConvert, SheetBandMatchesABruteForceSearchOverAwkwardTriangles) {
     expectBruteForceBand(one, grid, o, &alone, &worst);
   }
   EXPECT_GT(alone, size_t(10000));
+  // A sheet thicker than a batch of candidates is long: a square across a 6 × 5 × 300 grid, 280 mm thick.
+  const VoxelGrid tall{{6, 5, 300}, {1.0, 1.0, 1.0}, {}};
+  TriangleMesh square;
+  for (const glm::vec3& p : {glm::vec3(-1, -1, 150.3f), glm::vec3(7, -1, 150.3f), glm::vec3(7, 6, 150.3f), glm::vec3(-1, 6, 150.3f)}) square.vertices.push_back(p);
+  square.triangles = {{0, 1, 2}, {0, 2, 3}};
+  ScanOptions thick = o;
+  thick.thickness = 280.0;
+  size_t across = 0;
+  expectBruteForceBand(square, tall, thick, &across, &worst);
+  EXPECT_GT(across, size_t(8000));  // of about 8 400 (those as near both triangles left out)
   // The converter's closest points are in float (about 10⁻⁶ mm here), so the direction to one very
   // near the voxel turns by up to 10⁻⁶ mm over its distance.
   EXPECT_LT(worst, 1e-3);
-  std::printf("voxels compared: %zu with the whole mesh, %zu with each triangle alone; the worst coverage %.2g off\n", compared, alone, worst);
+  std::printf("voxels compared: %zu with the whole mesh, %zu with each triangle alone, %zu across the thick sheet; the worst coverage %.2g off\n",
+              compared, alone, across, worst);
 }
 
 TEST(ScanConvert, CoverageNrrdReadsBackOnTheSameGrid) {
