@@ -2,8 +2,8 @@
 // sphere mesh (R = 20 mm) and a 1 mm plate (a polygon primitive), translucent, inside a soft ball
 // of data, on grids of N³ voxels over the same 64 mm box. Against the exact image (the reference
 // ray tracer crossing the polygons): the PSNR and warm frame time of `polygons` and of
-// `scan-convert` (box filters of 1, 1.5 and 2 cells and point sampling) in the slice renderer, and
-// the scan-conversion's time and bytes.
+// `scan-convert` (each filter --mesh-filter names: boxes of 1, 1.5 and 2 cells and point sampling)
+// in the slice renderer, and the scan-conversion's time and bytes.
 //
 //   hyb_geometry_trade_bench [size=256] [runs=3]
 #include <algorithm>
@@ -65,11 +65,18 @@ int main(int argc, char** argv) {
     Quality reference;
     reference.renderer = Renderer::Raycast;
     const Image exact = r.render(view, look, reference).image;
-    // polygons, then scan-convert with a box of 1, 1.5 and 2 cells and point-sampled (width 0).
-    for (const double width : {-1.0, 1.0, 1.5, 2.0, 0.0}) {
+    // polygons, then scan-convert with each filter of --mesh-filter (box, box1.5, box2, none).
+    const FrameField& filters = *frameField("mesh_filter");
+    std::vector<std::string> methods = {"polygons"};
+    methods.insert(methods.end(), filters.choices.begin(), filters.choices.end());
+    for (const std::string& method : methods) {
       Look l = look;
-      l.meshMethod = width < 0.0 ? MeshMethod::Polygons : MeshMethod::ScanConvert;
-      l.meshFilter = std::max(width, 0.0);
+      l.meshMethod = method == "polygons" ? MeshMethod::Polygons : MeshMethod::ScanConvert;
+      if (l.meshMethod == MeshMethod::ScanConvert) {
+        FrameSettings settings;
+        filters.parse(settings, method, filters.flag());
+        l.meshFilter = settings.meshFilter;
+      }
       double best = 1e300;
       RenderedFrame f;
       for (int k = 0; k <= runs; ++k) {  // the first frame makes the channel and the textures
@@ -78,17 +85,14 @@ int main(int argc, char** argv) {
         if (k > 0) best = std::min(best, std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
       }
       const RenderedFrame first = r.render(view, Look(l), Quality{});  // kept: geometryBytes
-      char name[64];
-      if (width < 0.0) std::snprintf(name, sizeof name, "polygons");
-      else if (width == 0.0) std::snprintf(name, sizeof name, "scan-convert, none");
-      else std::snprintf(name, sizeof name, "scan-convert, box %g", width);
+      const std::string name = l.meshMethod == MeshMethod::Polygons ? method : "scan-convert, " + method;
       double convertMs = 0.0;
-      if (width >= 0.0) {
+      if (l.meshMethod == MeshMethod::ScanConvert) {
         const auto t0 = Clock::now();
-        const GeometryChannel g = scanConvertGeometry(l.meshes, v, r.scene().octree, width > 0.0 ? ScanFilter::Box : ScanFilter::None, std::max(width, 1.0));
+        const GeometryChannel g = scanConvertGeometry(l.meshes, v, r.scene().octree, l.meshFilter);
         convertMs = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
       }
-      std::printf("| %d³ (%.2f mm) | %s | %.1f | %.2f | %.1f | %llu |\n", n, s, name, best, psnr(f.image, exact), convertMs,
+      std::printf("| %d³ (%.2f mm) | %s | %.1f | %.2f | %.1f | %llu |\n", n, s, name.c_str(), best, psnr(f.image, exact), convertMs,
                   (unsigned long long)first.stats.geometryBytes);
     }
   }

@@ -1,6 +1,7 @@
 // Filtered 3D scan-conversion speed: geodesic spheres of ~100 k and ~1 M triangles onto a 512³
-// grid, as a solid (box filter, uint8) and as a 1 mm sheet; best of N runs, triangles/s, band
-// voxels/s and grid voxels/s, and the peak memory (docs/scan-conversion.md).
+// grid, as a solid (box filter, uint8), as a 1 mm sheet, and as the sheet with each band voxel's
+// normal (what the renderers' geometry channel asks for); best of N runs, triangles/s, band voxels/s
+// and grid voxels/s, and the peak memory (docs/scan-conversion.md).
 //
 //   hyb_scan_convert_bench [runs=3] [dim=512]
 #include <sys/resource.h>
@@ -38,16 +39,18 @@ int main(int argc, char** argv) {
   const hyb::VoxelGrid grid{glm::ivec3(dim), glm::dvec3(1.0), {}};
   const glm::dvec3 centre(0.5 * (dim - 1) + 0.31, 0.5 * (dim - 1) - 0.17, 0.5 * (dim - 1) + 0.07);
   std::printf("grid %d^3 (%.0f M voxels), %d threads, best of %d\n", dim, double(dim) * dim * dim * 1e-6, omp_get_max_threads(), runs);
-  std::printf("%-10s %-6s %10s %8s %8s %10s %10s %12s %12s %10s\n", "triangles", "mode", "band vox", "seconds", "cpu s", "Mtri/s", "Mband/s",
+  std::printf("%-10s %-7s %10s %8s %8s %10s %10s %12s %12s %10s\n", "triangles", "mode", "band vox", "seconds", "cpu s", "Mtri/s", "Mband/s",
               "Mgrid vox/s", "vol error", "peak MiB");
   for (const int frequency : {71, 224}) {  // 20·f² triangles: 100 820 and 1 003 520
     const double radius = 0.45 * (dim - 1);
     const hyb::TriangleMesh mesh = hyb::geodesicSphere(centre, radius, frequency);
     const double polyhedron = hyb::enclosedVolume(mesh);
-    for (const bool sheet : {false, true}) {
+    for (const int mode : {0, 1, 2}) {  // solid, sheet, sheet with normals
+      const bool sheet = mode > 0;
       hyb::ScanOptions o;
       o.space = hyb::ScanSpace::Grid;
       o.thickness = sheet ? 1.0 : 0.0;
+      o.normals = mode == 2;
       double best = 1e30, bestCpu = 1e30, volume = 0.0;
       size_t band = 0;
       for (int r = 0; r < runs; ++r) {
@@ -67,7 +70,7 @@ int main(int argc, char** argv) {
       }
       const double n = double(mesh.triangles.size());
       const std::string error = sheet ? "-" : std::to_string((volume - polyhedron) / polyhedron);
-      std::printf("%-10.0f %-6s %10zu %8.3f %8.3f %10.2f %10.1f %12.1f %12s %10.0f\n", n, sheet ? "sheet" : "solid", band, best, bestCpu, n / best * 1e-6,
+      std::printf("%-10.0f %-7s %10zu %8.3f %8.3f %10.2f %10.1f %12.1f %12s %10.0f\n", n, mode == 0 ? "solid" : (mode == 1 ? "sheet" : "sheet+n"), band, best, bestCpu, n / best * 1e-6,
                   double(band) / best * 1e-6, double(dim) * dim * dim / best * 1e-6, error.c_str(), peakRssMiB());
     }
   }

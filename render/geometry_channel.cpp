@@ -64,7 +64,7 @@ void setNormals(GeometryPart* part, const glm::dvec3& spacing, const Normal& nor
 }
 
 // Sets the normals of @p part's voxels that @p normals (a mesh's band, grid voxel indices) holds.
-void setNormals(GeometryPart* part, const glm::ivec3& dims, const std::vector<VoxelNormal>& normals) {
+void setBandNormals(GeometryPart* part, const glm::ivec3& dims, std::span<const VoxelNormal> normals) {
   const size_t plane = size_t(dims.x) * size_t(dims.y);
   for (const VoxelNormal& v : normals) {
     const glm::ivec3 q = glm::ivec3(int(v.voxel % size_t(dims.x)), int((v.voxel / size_t(dims.x)) % size_t(dims.y)), int(v.voxel / plane)) - part->lo;
@@ -133,16 +133,15 @@ uint64_t GeometryChannel::bytes() const {
   return b;
 }
 
-GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const Volume& volume, const VolumeOctree& octree, ScanFilter filter,
-                                    double width) {
+GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const Volume& volume, const VolumeOctree& octree, double meshFilter) {
   const auto t0 = std::chrono::steady_clock::now();
   GeometryChannel g;
   const VoxelGrid grid = VoxelGrid::of(volume);
   const double voxel = std::min({grid.spacing.x, grid.spacing.y, grid.spacing.z});
   ScanOptions o;
   o.space = ScanSpace::Patient;
-  o.filter = filter;
-  o.width = width;
+  o.filter = meshFilter > 0.0 ? ScanFilter::Box : ScanFilter::None;
+  o.width = meshFilter > 0.0 ? meshFilter : 1.0;  // (unused when point-sampled)
   o.normals = true;
   for (const UserMesh& m : meshes) {
     double tau = voxel;
@@ -188,7 +187,7 @@ GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const V
           return rho > 0.0 ? (x - c) / rho : glm::dvec3(0.0);
         });
       } else {
-        setNormals(&part, grid.dims, r.normals);
+        setBandNormals(&part, grid.dims, r.normals);
       }
     }
     part.color = m.color;
@@ -204,9 +203,9 @@ GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const V
 Volume geometryVolume(const std::vector<UserMesh>& meshes, const Volume& volume, bool asFraction, std::vector<std::string>* warnings) {
   const VoxelGrid grid = VoxelGrid::of(volume);
   const double voxel = std::min({grid.spacing.x, grid.spacing.y, grid.spacing.z});
-  ScanOptions o;
-  o.type = CoverageType::Float32;
-  std::vector<float> most(size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(grid.dims.z), 0.0f);
+  ScanOptions o;  // the bytes the renderers' channel is made of: no float grid per mesh
+  // The union: each voxel's largest coverage (fraction · 255) over the meshes.
+  std::vector<uint8_t> most(size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(grid.dims.z), 0);
   for (const UserMesh& m : meshes) {
     const UserPrimitive* p = m.primitive.get();
     ScanResult r;
@@ -223,15 +222,20 @@ Volume geometryVolume(const std::vector<UserMesh>& meshes, const Volume& volume,
       r = scanConvertMesh(*m.mesh, grid, o);
     }
     for (const std::string& w : r.warnings) warnings->push_back(m.name + ": " + w);
-    for (size_t n = 0; n < most.size(); ++n) most[n] = std::max(most[n], fraction(r, n));
+    HYB_CHECK(r.coverage.storedType() == ScalarType::UInt8 && r.coverage.voxelCount() == most.size());
+    r.coverage.visitSamples([&](const auto* c) {
+      for (size_t n = 0; n < most.size(); ++n) most[n] = std::max<uint8_t>(most[n], uint8_t(c[n]));
+    });
   }
   Volume out;
   if (asFraction) {
-    out = Volume(grid.dims, grid.spacing, ScalarType::Float32, std::move(most), "coverage fraction");
+    // The fraction in steps of 1/255 (Slicer's 6 × 6 × 6 supersampled fractional labelmap has 1/216).
+    std::vector<float> fraction(most.size());
+    for (size_t n = 0; n < most.size(); ++n) fraction[n] = float(most[n]) / 255.0f;
+    out = Volume(grid.dims, grid.spacing, ScalarType::Float32, std::move(fraction), "coverage fraction");
   } else {
-    std::vector<uint8_t> label(most.size());
-    for (size_t n = 0; n < most.size(); ++n) label[n] = most[n] >= 0.5f ? 1 : 0;
-    out = Volume(grid.dims, grid.spacing, ScalarType::UInt8, SampleArray(std::move(label)), "coverage label");
+    for (uint8_t& v : most) v = v >= 128 ? 1 : 0;  // at least half covered (a fraction f is stored as f · 255 rounded)
+    out = Volume(grid.dims, grid.spacing, ScalarType::UInt8, SampleArray(std::move(most)), "coverage label");
   }
   out.setFrame(grid.frame);
   return out;

@@ -58,14 +58,14 @@ struct GeometryChannel {
 /// The most parts a slice frame samples (texture units 3 … 3 + kMaxGeometryParts − 1).
 inline constexpr int kMaxGeometryParts = kMaxUserMeshes;
 
-/// Scan-converts @p meshes (patient mm) onto the grid of @p volume with @p filter of @p width voxel
-/// cells: a mesh as a sheet of the smallest voxel spacing around its surface; an analytic primitive
-/// (UserMesh::primitive) exactly (a plane as a sheet of its thickness, a sphere's surface as a shell
-/// of the smallest voxel spacing, a polygon as a sheet of it). Each voxel's normal is its closest
-/// triangle's (a mesh, a polygon), the sphere's radial direction or the plane's. Then each node of
-/// @p octree gets its box's largest coverage.
-GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const Volume& volume, const VolumeOctree& octree, ScanFilter filter,
-                                    double width = 1.0);
+/// Scan-converts @p meshes (patient mm) onto the grid of @p volume with the filter of @p meshFilter
+/// (Look::meshFilter, --mesh-filter: a box of that many voxel cells, 0 the voxel centre
+/// point-sampled): a mesh as a sheet of the smallest voxel spacing around its surface; an analytic
+/// primitive (UserMesh::primitive) exactly (a plane as a sheet of its thickness, a sphere's surface
+/// as a shell of the smallest voxel spacing, a polygon as a sheet of it). Each voxel's normal is its
+/// closest triangle's (a mesh, a polygon), the sphere's radial direction or the plane's. Then each
+/// node of @p octree gets its box's largest coverage.
+GeometryChannel scanConvertGeometry(const std::vector<UserMesh>& meshes, const Volume& volume, const VolumeOctree& octree, double meshFilter = 1.0);
 
 /// @p meshes scan-converted onto the grid of @p volume as an export (3D Slicer's model to labelmap):
 /// a mesh as the solid it bounds, a sphere as its ball, a plane or polygon as its sheet (a plane's

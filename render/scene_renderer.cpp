@@ -549,9 +549,7 @@ const GeometryChannel* SceneRenderer::frameGeometry(const Look& look, FrameStats
       k.colors.push_back(m.color);
     }
     k.filter = look.meshFilter;
-    const bool box = look.meshFilter > 0.0;
-    k.channel = std::make_unique<GeometryChannel>(
-        scanConvertGeometry(look.meshes, volume(), mScene.octree, box ? ScanFilter::Box : ScanFilter::None, box ? look.meshFilter : 1.0));
+    k.channel = std::make_unique<GeometryChannel>(scanConvertGeometry(look.meshes, volume(), mScene.octree, look.meshFilter));
     st->geometryMs = k.channel->ms;
   }
   st->geometryBytes = k.channel->bytes();

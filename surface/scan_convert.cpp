@@ -2,11 +2,10 @@
 // z-slabs, one thread each: (1) the solid's voxels by scanline parity along x, each triangle's
 // projection on the (y, z) rows rasterised with a top-left rule so that a row through a shared edge
 // or vertex crosses the surface exactly once; (2) the narrow band, each triangle visiting the voxels
-// within the filter's reach of its plane and keeping the closest triangle per voxel; (3) each band
-// voxel's box fraction of the tangent plane at its closest point.
+// within the filter's reach of its plane in the rows within reach of its outline, their distances
+// taken four at a time (SSE), and keeping the closest triangle per voxel; (3) each band voxel's box
+// fraction of the tangent plane at its closest point.
 #include "surface/scan_convert.h"
-
-#include <sys/mman.h>
 
 #include <algorithm>
 #include <cmath>
@@ -18,7 +17,12 @@
 #include <utility>
 
 #include "volume/core/error.h"
+#include "volume/core/huge_pages.h"
 #include "volume/core/parallel.h"
+
+#ifdef __SSE2__
+#include <immintrin.h>
+#endif
 
 namespace hyb {
 
@@ -27,6 +31,8 @@ namespace {
 // z-planes per slab: small enough that two threads balance on a sphere, large enough that a
 // triangle rarely falls into more than one.
 constexpr int kSlabPlanes = 4;
+
+double cube(double x) { return x * x * x; }  // (std::pow(x, 3) is a call)
 
 // Fraction of the unit cube [0, 1]³ where m·v ≤ t, for m1 ≥ m2 ≥ m3 ≥ 0, m1 > 0. Piecewise
 // polynomial (the inclusion–exclusion over the cube's corners), each piece written so that no term
@@ -41,15 +47,32 @@ double sortedCubeFraction(double m1, double m2, double m3, double t) {
   // t < m2 + m3 ≤ total / 2 here, so (t − m2)⁺ and (t − m1)⁺ are below m3.
   const double denom = 6.0 * m1 * m2;
   double v = t <= m3 ? t * t * t / (denom * m3) : (3.0 * t * t - 3.0 * t * m3 + m3 * m3) / denom;
-  if (t > m2) v -= std::pow(t - m2, 3) / (denom * m3);
-  if (t > m1) v -= std::pow(t - m1, 3) / (denom * m3);
+  if (t > m2) v -= cube(t - m2) / (denom * m3);
+  if (t > m1) v -= cube(t - m1) / (denom * m3);
   return std::clamp(v, 0.0, 1.0);
+}
+
+// |m| sorted largest first.
+glm::dvec3 sortedMagnitudes(const glm::dvec3& m) {
+  glm::dvec3 a = glm::abs(m);
+  if (a.x < a.y) std::swap(a.x, a.y);
+  if (a.y < a.z) std::swap(a.y, a.z);
+  if (a.x < a.y) std::swap(a.x, a.y);
+  return a;
+}
+
+// boxHalfSpaceFraction for @p a = sortedMagnitudes(m).
+double sortedBoxFraction(const glm::dvec3& a, double t) {
+  if (a.x == 0.0) return t >= 0.0 ? 1.0 : 0.0;
+  // Centred cube → unit cube: m·u ≤ t with u = v − ½ is m·v ≤ t + Σm/2.
+  return sortedCubeFraction(a.x, a.y, a.z, t + 0.5 * (a.x + a.y + a.z));
 }
 
 // Sheet coverage: the box fraction between the planes at distances −τ/2 and τ/2 from a surface
 // point at distance d (unsigned) along the unit direction whose box-scaled components are m.
 double sheetFraction(const glm::dvec3& m, double d, double halfThickness) {
-  return boxHalfSpaceFraction(m, halfThickness - d) - boxHalfSpaceFraction(m, -halfThickness - d);
+  const glm::dvec3 a = sortedMagnitudes(m);
+  return sortedBoxFraction(a, halfThickness - d) - sortedBoxFraction(a, -halfThickness - d);
 }
 
 void checkOptions(const ScanOptions& o, bool sheet) {
@@ -100,17 +123,6 @@ glm::dvec3 toGridNormal(const glm::dvec3& n, ScanSpace space, const VoxelGrid& g
   return n;
 }
 
-// An uninitialised buffer of at least @p bytes backed by 2 MiB pages where the kernel gives them: 4 KiB
-// page faults are costly on a virtualised machine (docs/scan-conversion.md).
-std::shared_ptr<void> hugePageBuffer(size_t bytes) {
-  constexpr size_t kHuge = size_t(2) << 20;
-  const size_t size = std::max<size_t>(1, (bytes + kHuge - 1) / kHuge) * kHuge;
-  void* p = std::aligned_alloc(kHuge, size);
-  if (!p) throw std::bad_alloc();
-  madvise(p, size, MADV_HUGEPAGE);  // a request: without it the buffer still works, with 4 KiB pages
-  return std::shared_ptr<void>(p, std::free);
-}
-
 // The coverage voxels being written, x fastest: one buffer on huge pages, left uninitialised so that
 // the threads writing each slab touch its pages first. Every voxel is written once.
 struct CoverageStore {
@@ -126,7 +138,7 @@ struct CoverageStore {
     else f32 = static_cast<float*>(buffer.get());
   }
   void set(size_t n, double v) {
-    if (bytes) u8[n] = uint8_t(std::lround(v * 255.0));
+    if (bytes) u8[n] = uint8_t(v * 255.0 + 0.5);  // v in [0, 1]: rounded half up
     else f32[n] = float(v);
   }
   void fill(size_t n, size_t count, bool one) {
@@ -210,31 +222,96 @@ glm::vec3 closestOnTriangle(const glm::vec3& p, const glm::vec3& a, const glm::v
   return a + ab * (vb * denom) + ac * (vc * denom);
 }
 
-// The squared distance from a point to a triangle, from the point's offset from corner a and its
-// signed distance to the plane: Ericson's regions (closestOnTriangle) with every dot product but
-// two taken once per triangle, and each region's distance in closed form (a corner's, the
-// projection on an edge's line, or the plane's).
+// Voxels near one triangle whose distances are being taken, gathered row by row and measured
+// about kCandidateBatch at a time: the offset from corner a of each, its components in the order
+// of the triangle's rows (TriangleDistance), and its index in the slab. Measured before a row that
+// would take them past the batch, so that the room past it holds the longest row (a thick sheet's
+// may span the grid), and a lane's worth more for the lanes measured past the count.
+constexpr int kCandidateBatch = 256;
+struct Candidates {
+  std::vector<float> buffer;  // u, v, w and dist2, `room` each
+  std::vector<uint32_t> atBuffer;
+  float *u = nullptr, *v = nullptr, *w = nullptr, *dist2 = nullptr;
+  uint32_t* at = nullptr;
+  int count = 0;
+  // Room for a batch and the longest row of @p longestRow voxels.
+  void allocate(int longestRow) {
+    const size_t room = size_t(kCandidateBatch + longestRow + 3);
+    buffer.assign(4 * room, 0.0f);
+    atBuffer.assign(room, 0);
+    u = buffer.data(), v = u + room, w = v + room, dist2 = w + room, at = atBuffer.data();
+  }
+};
+
+float minf(float a, float b) { return b < a ? b : a; }
+float maxf(float a, float b) { return b > a ? b : a; }
+
+// The squared distance from a point to a triangle, without a branch, so that a batch of points
+// runs in vector lanes (voxels near a triangle fall in its regions unpredictably): the plane's
+// where the point projects inside the triangle (its barycentric weights, linear in ab·ap and
+// ac·ap, all ≥ 0), else the least of the three edges' distances, each to the point's projection
+// on the edge clamped to its ends. Every dot product but those with ap is taken once per triangle;
+// the vectors are in the (u, v, w) order of the triangle's rows.
 struct TriangleDistance {
-  glm::vec3 ab, ac;
-  float d11, d12, d22;  // ab·ab, ab·ac, ac·ac
-  explicit TriangleDistance(const Tri& t) : ab(t.b - t.a), ac(t.c - t.a), d11(glm::dot(ab, ab)), d12(glm::dot(ab, ac)), d22(glm::dot(ac, ac)) {}
-  float squared(const glm::vec3& ap, float plane) const {
-    const float d1 = glm::dot(ab, ap), d2 = glm::dot(ac, ap), aa = glm::dot(ap, ap);
-    if (d1 <= 0.0f && d2 <= 0.0f) return aa;                    // corner a
-    const float d3 = d1 - d11, d4 = d2 - d12;                   // ab·bp, ac·bp
-    if (d3 >= 0.0f && d4 <= d3) return aa - 2.0f * d1 + d11;    // corner b
-    const float vc = d1 * d4 - d3 * d2;
-    if (vc <= 0.0f && d1 >= 0.0f && d3 <= 0.0f) return std::max(0.0f, aa - d1 * d1 / d11);  // edge ab
-    const float d5 = d1 - d12, d6 = d2 - d22;                   // ab·cp, ac·cp
-    if (d6 >= 0.0f && d5 <= d6) return aa - 2.0f * d2 + d22;    // corner c
-    const float vb = d5 * d2 - d1 * d6;
-    if (vb <= 0.0f && d2 >= 0.0f && d6 <= 0.0f) return std::max(0.0f, aa - d2 * d2 / d22);  // edge ac
-    const float va = d3 * d6 - d5 * d4;
-    if (va <= 0.0f && d4 - d3 >= 0.0f && d5 - d6 >= 0.0f) {    // edge bc: |bp|² less bp's projection on bc
-      const float e = d4 - d3;
-      return std::max(0.0f, aa - 2.0f * d1 + d11 - e * e / (e + d5 - d6));
+  glm::vec3 ab, ac, n;             // b − a, c − a, the unit normal
+  float d11, d12, d22, ee, area2;  // ab·ab, ab·ac, ac·ac, bc·bc, |ab × ac|² (−∞ for a sliver)
+  float inv11, inv22, invEe;
+  TriangleDistance(const Tri& t, const glm::vec3& normal, const glm::ivec3& order)
+      : ab(swizzle(t.b - t.a, order)), ac(swizzle(t.c - t.a, order)), n(swizzle(normal, order)), d11(glm::dot(ab, ab)), d12(glm::dot(ab, ac)),
+        d22(glm::dot(ac, ac)), ee(d11 + d22 - 2.0f * d12), area2(d11 * d22 - d12 * d12), inv11(1.0f / d11), inv22(1.0f / d22), invEe(1.0f / ee) {
+    // A sliver (an angle under about 0.06°) is taken as its edges, within a thousandth of its
+    // length: the rounding of its area would put points beside it inside, at its plane's distance.
+    if (!(area2 > 1e-6f * d11 * d22)) area2 = -std::numeric_limits<float>::infinity();
+  }
+  static glm::vec3 swizzle(const glm::vec3& q, const glm::ivec3& order) { return {q[order.x], q[order.y], q[order.z]}; }
+
+  // The squared distance of the point at offset (pu, pv, pw) from corner a.
+  float squared(float pu, float pv, float pw) const {
+    const float d1 = (ab.x * pu + ab.y * pv) + ab.z * pw, d2 = (ac.x * pu + ac.y * pv) + ac.z * pw;
+    const float aa = (pu * pu + pv * pv) + pw * pw, plane = (n.x * pu + n.y * pv) + n.z * pw;
+    const float vb = d22 * d1 - d12 * d2, vc = d11 * d2 - d12 * d1;  // the weights of b and c, times area2
+    const float e = ((d2 - d12) - d1) + d11;                          // bc·bp
+    const float tab = minf(maxf(d1 * inv11, 0.0f), 1.0f), tac = minf(maxf(d2 * inv22, 0.0f), 1.0f), tbc = minf(maxf(e * invEe, 0.0f), 1.0f);
+    const float qab = aa - tab * (2.0f * d1 - tab * d11), qac = aa - tac * (2.0f * d2 - tac * d22);
+    const float qbc = ((aa - 2.0f * d1) + d11) - tbc * (2.0f * e - tbc * ee);  // |bp|² = |ap|² − 2 ab·ap + |ab|²
+    const float inside = minf(minf(vb, vc), (area2 - vb) - vc);  // ≥ 0 where ap projects inside
+    return inside >= 0.0f ? plane * plane : maxf(minf(qab, minf(qac, qbc)), 0.0f);
+  }
+
+  // The squared distance of every candidate; four at a time in SSE lanes (the same operations as
+  // squared(), so the same results), the lanes past the count measured and ignored.
+  void measure(Candidates* c) const {
+    int i = 0;
+#ifdef __SSE2__
+    const __m128 abu = _mm_set1_ps(ab.x), abv = _mm_set1_ps(ab.y), abw = _mm_set1_ps(ab.z);
+    const __m128 acu = _mm_set1_ps(ac.x), acv = _mm_set1_ps(ac.y), acw = _mm_set1_ps(ac.z);
+    const __m128 nu = _mm_set1_ps(n.x), nv = _mm_set1_ps(n.y), nw = _mm_set1_ps(n.z);
+    const __m128 s11 = _mm_set1_ps(d11), s12 = _mm_set1_ps(d12), s22 = _mm_set1_ps(d22), see = _mm_set1_ps(ee), sArea = _mm_set1_ps(area2);
+    const __m128 i11 = _mm_set1_ps(inv11), i22 = _mm_set1_ps(inv22), iEe = _mm_set1_ps(invEe);
+    const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.0f), two = _mm_set1_ps(2.0f);
+    auto dot = [](__m128 x, __m128 y, __m128 z, __m128 pu, __m128 pv, __m128 pw) {
+      return _mm_add_ps(_mm_add_ps(_mm_mul_ps(x, pu), _mm_mul_ps(y, pv)), _mm_mul_ps(z, pw));
+    };
+    auto clamp01 = [&](__m128 t) { return _mm_min_ps(_mm_max_ps(t, zero), one); };
+    // |p − q|² for q the point at t along an edge: len2 is |p − edge start|², pe its dot with the edge.
+    auto edgeSquared = [&](__m128 len2, __m128 t, __m128 pe, __m128 ee2) {
+      return _mm_sub_ps(len2, _mm_mul_ps(t, _mm_sub_ps(_mm_mul_ps(two, pe), _mm_mul_ps(t, ee2))));
+    };
+    for (; i < c->count; i += 4) {
+      const __m128 pu = _mm_loadu_ps(c->u + i), pv = _mm_loadu_ps(c->v + i), pw = _mm_loadu_ps(c->w + i);
+      const __m128 d1 = dot(abu, abv, abw, pu, pv, pw), d2 = dot(acu, acv, acw, pu, pv, pw);
+      const __m128 aa = dot(pu, pv, pw, pu, pv, pw), plane = dot(nu, nv, nw, pu, pv, pw);
+      const __m128 vb = _mm_sub_ps(_mm_mul_ps(s22, d1), _mm_mul_ps(s12, d2)), vc = _mm_sub_ps(_mm_mul_ps(s11, d2), _mm_mul_ps(s12, d1));
+      const __m128 e = _mm_add_ps(_mm_sub_ps(_mm_sub_ps(d2, s12), d1), s11);
+      const __m128 tab = clamp01(_mm_mul_ps(d1, i11)), tac = clamp01(_mm_mul_ps(d2, i22)), tbc = clamp01(_mm_mul_ps(e, iEe));
+      const __m128 qab = edgeSquared(aa, tab, d1, s11), qac = edgeSquared(aa, tac, d2, s22);
+      const __m128 qbc = edgeSquared(_mm_add_ps(_mm_sub_ps(aa, _mm_mul_ps(two, d1)), s11), tbc, e, see);
+      const __m128 inside = _mm_cmpge_ps(_mm_min_ps(_mm_min_ps(vb, vc), _mm_sub_ps(_mm_sub_ps(sArea, vb), vc)), zero);
+      const __m128 edge = _mm_max_ps(_mm_min_ps(qab, _mm_min_ps(qac, qbc)), zero);
+      _mm_storeu_ps(c->dist2 + i, _mm_or_ps(_mm_and_ps(inside, _mm_mul_ps(plane, plane)), _mm_andnot_ps(inside, edge)));
     }
-    return plane * plane;  // inside: the projection on the plane
+#endif
+    for (; i < c->count; ++i) c->dist2[i] = squared(c->u[i], c->v[i], c->w[i]);
   }
 };
 
@@ -251,15 +328,26 @@ double edgeFunction(const glm::dvec2& a, const glm::dvec2& b, const glm::dvec2& 
 // belongs to exactly one of the two triangles sharing it.
 bool ownsEdge(const glm::dvec2& d) { return d.y < 0.0 || (d.y == 0.0 && d.x > 0.0); }
 
+constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
+
 // What one slab's thread keeps between slabs.
 struct SlabScratch {
-  std::vector<float> best;      // squared distance to the closest triangle so far (mm²)
-  std::vector<uint32_t> owner;  // that triangle, or kNone
-  std::vector<size_t> touched;  // voxels (in slab) whose owner is set, for stage 3 and the reset
+  struct Closest {
+    float dist2;     // squared distance to the closest triangle so far (mm²)
+    uint32_t owner;  // that triangle, or kNone
+  };
+  // Per voxel of the slab (8 MiB for 512² × 4), on 2 MiB pages; the two side by side, in one cache line.
+  std::vector<Closest, HugePageAllocator<Closest>> closest;
+  // Voxels (in slab) whose owner is set, for stage 3 and the reset: the first touchedCount of room
+  // for one more than the slab's voxels (the branch-free update writes one past them), uninitialised
+  // so that only the pages used are touched.
+  std::shared_ptr<void> touchedBuffer;
+  uint32_t* touched = nullptr;
+  size_t touchedCount = 0;
   std::vector<std::pair<uint32_t, float>> crossings;  // (row in slab, x mm)
-  std::vector<VoxelNormal> normals;                   // the band voxels' (ScanOptions::normals), this thread's slabs'
+  VoxelNormals normals;                               // the band voxels' (ScanOptions::normals), this thread's slabs'
+  Candidates candidates;
 };
-constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
 
 // Everything the stages of one mesh conversion share.
 struct MeshScan {
@@ -326,56 +414,112 @@ struct MeshScan {
   // Stage 2: the closest triangle of every voxel of planes [k0, k1) within `reach` of the surface.
   void closestTriangles(int k0, int k1, std::span<const uint32_t> list, SlabScratch* scratch) const {
     const glm::ivec3 d = grid.dims;
-    const glm::vec3 s(grid.spacing);
+    const glm::vec3 s(grid.spacing), inv = 1.0f / s;
     const float r = float(reach);
     for (const uint32_t t : list) {
       const Tri tri = this->tri(t);
       const glm::vec3 normal = tri.normal();
       if (normal == glm::vec3(0.0f)) continue;
-      const glm::vec3 lo = glm::min(tri.a, glm::min(tri.b, tri.c)) - r, hi = glm::max(tri.a, glm::max(tri.b, tri.c)) + r;
-      const int i0 = std::max(0, ceilIndex(lo.x / s.x, 0, d.x)), i1 = std::min(d.x - 1, floorIndex(hi.x / s.x, 0, d.x));
-      const int j0 = std::max(0, ceilIndex(lo.y / s.y, 0, d.y)), j1 = std::min(d.y - 1, floorIndex(hi.y / s.y, 0, d.y));
-      const int kk0 = std::max(k0, ceilIndex(lo.z / s.z, k0, k1)), kk1 = std::min(k1 - 1, floorIndex(hi.z / s.z, k0, k1));
-      // Walk the voxels in rows along the axis the plane is steepest across (n_w·s_w largest), so
-      // each row holds only the few voxels within the reach of the plane.
-      const int first[3] = {i0, j0, kk0}, last[3] = {i1, j1, kk1};
-      const glm::vec3 slope = normal * s;
-      const glm::vec3 mag = glm::abs(slope);
-      const int w = mag.x >= mag.y && mag.x >= mag.z ? 0 : (mag.y >= mag.z ? 1 : 2);
-      const int u = w == 0 ? 1 : 0, v = w == 2 ? 1 : 2;
-      const size_t stride[3] = {1, size_t(d.x), size_t(d.x) * size_t(d.y)};
-      const float offset = -glm::dot(normal, tri.a);
-      const TriangleDistance distance(tri);
-      const float invSlope = 1.0f / slope[w];
-      for (int a = first[u]; a <= last[u]; ++a)
-        for (int b = first[v]; b <= last[v]; ++b) {
-          const float a0 = slope[u] * float(a) + slope[v] * float(b) + offset;  // plane distance at index 0 along w
-          const float e0 = (-r - a0) * invSlope, e1 = (r - a0) * invSlope;
-          const int c0 = std::max(first[w], floorIndex(std::min(e0, e1), first[w], last[w]));
-          const int c1 = std::min(last[w], ceilIndex(std::max(e0, e1), first[w], last[w]));
-          if (c1 < c0) continue;
-          // Along the row: the voxel's index in the slab, its offset from corner a, and its plane
-          // distance, each stepped by one voxel along w.
-          glm::ivec3 idx;
-          idx[u] = a;
-          idx[v] = b;
-          idx[w] = c0;
-          size_t at = size_t(idx.x) * stride[0] + size_t(idx.y) * stride[1] + size_t(idx.z - k0) * stride[2];
-          glm::vec3 ap = glm::vec3(idx) * s - tri.a;
-          float plane = a0 + slope[w] * float(c0);
-          for (int c = c0; c <= c1; ++c, at += stride[w], ap[w] += s[w], plane += slope[w]) {
-            float& best = scratch->best[at];
-            if (plane * plane >= best) continue;  // best starts at the reach²
-            const float dist2 = distance.squared(ap, plane);
-            if (dist2 < best) {
-              best = dist2;
-              uint32_t& owner = scratch->owner[at];
-              if (owner == kNone) scratch->touched.push_back(at);
-              owner = t;
-            }
-          }
-        }
+      const glm::vec3 lo = (glm::min(tri.a, glm::min(tri.b, tri.c)) - r) * inv, hi = (glm::max(tri.a, glm::max(tri.b, tri.c)) + r) * inv;
+      const glm::ivec3 first(std::max(0, ceilIndex(lo.x, 0, d.x)), std::max(0, ceilIndex(lo.y, 0, d.y)), std::max(k0, ceilIndex(lo.z, k0, k1)));
+      const glm::ivec3 last(std::min(d.x - 1, floorIndex(hi.x, 0, d.x)), std::min(d.y - 1, floorIndex(hi.y, 0, d.y)),
+                            std::min(k1 - 1, floorIndex(hi.z, k0, k1)));
+      if (glm::any(glm::lessThan(last, first))) continue;
+      // Rows along the axis w the plane is steepest across (n_w·s_w largest), so that each row
+      // holds only the few voxels within the reach of the plane.
+      const glm::vec3 mag = glm::abs(normal * s);
+      const Box box{first, last - first + 1};
+      if (mag.x >= mag.y && mag.x >= mag.z) closestAlong<0>(t, tri, normal, box, k0, scratch);
+      else if (mag.y >= mag.z) closestAlong<1>(t, tri, normal, box, k0, scratch);
+      else closestAlong<2>(t, tri, normal, box, k0, scratch);
     }
+  }
+
+  // Voxels [lo, lo + size) of the grid.
+  struct Box {
+    glm::ivec3 lo, size;
+  };
+
+  // Stage 2 for triangle @p t over the voxels of @p box (slab planes from k0), in rows along axis
+  // W: the voxels within the reach of the triangle's plane in each row whose (u, v) is within the
+  // reach of the triangle's projection, their distances taken kCandidateBatch at a time.
+  template <int W>
+  void closestAlong(uint32_t t, const Tri& tri, const glm::vec3& normal, const Box& box, int k0, SlabScratch* scratch) const {
+    constexpr int U = W == 0 ? 1 : 0, V = W == 2 ? 1 : 2;
+    const glm::ivec3 d = grid.dims, first = box.lo, last = box.lo + box.size - 1;
+    const glm::vec3 s(grid.spacing);
+    const float r = float(reach);
+    const uint32_t stride[3] = {1, uint32_t(d.x), uint32_t(d.x) * uint32_t(d.y)};  // (a slab holds under 2³² voxels)
+    const TriangleDistance distance(tri, normal, glm::ivec3(U, V, W));
+    Candidates& cand = scratch->candidates;
+    // Keeps each candidate closer than its voxel's best so far (branch-free: most are not).
+    auto flush = [&] {
+      distance.measure(&cand);
+      uint32_t* touched = scratch->touched + scratch->touchedCount;
+      size_t count = 0;
+      for (int i = 0; i < cand.count; ++i) {
+        SlabScratch::Closest& best = scratch->closest[cand.at[i]];
+        const bool closer = cand.dist2[i] < best.dist2;  // it starts at the reach²
+        touched[count] = cand.at[i];
+        count += size_t(closer & (best.owner == kNone));
+        best.dist2 = closer ? cand.dist2[i] : best.dist2;
+        best.owner = closer ? t : best.owner;
+      }
+      scratch->touchedCount += count;
+      cand.count = 0;
+    };
+    // A row (a, b) holds the voxels c ∈ [cLo + a·dA + b·dB, … + width] within the reach of the
+    // plane (a hundredth of a voxel more for rounding).
+    const glm::vec3 slope = normal * s;  // the plane's distance per voxel along each axis
+    const float margin = 0.01f;
+    const float dA = -slope[U] / slope[W], dB = -slope[V] / slope[W], width = 2.0f * r / std::abs(slope[W]) + 2.0f * margin;
+    const float cLo = (glm::dot(normal, tri.a) - r * (slope[W] > 0.0f ? 1.0f : -1.0f)) / slope[W] - margin;
+    // The rows within the reach of the triangle's projection along W: inside each of its edges'
+    // lines moved out by the reach. Each line bounds a row's a from below or above as a linear
+    // function of b; the unused bound of each is out of the grid.
+    float loSlope[3], loOffset[3], hiSlope[3], hiOffset[3];
+    {
+      const glm::vec2 corner[3] = {{tri.a[U], tri.a[V]}, {tri.b[U], tri.b[V]}, {tri.c[U], tri.c[V]}};
+      const glm::vec2 e01 = corner[1] - corner[0], e02 = corner[2] - corner[0];
+      const float cross = e01.x * e02.y - e01.y * e02.x, turn = cross > 0.0f ? 1.0f : -1.0f;
+      // (A sliver whose turn rounding may get wrong bounds no row.)
+      const bool sliver = std::abs(cross) <= 1e-4f * (glm::dot(e01, e01) + glm::dot(e02, e02));
+      for (int e = 0; e < 3; ++e) {
+        // out·(q − corner) ≤ reach·|out| for q = (a·s_u, b·s_v), out the edge's outward normal.
+        const glm::vec2 dir = corner[(e + 1) % 3] - corner[e], out = turn * glm::vec2(dir.y, -dir.x);
+        const float bound = (r * glm::length(out) + glm::dot(out, corner[e])) / (out.x * s[U]) + (out.x > 0.0f ? margin : -margin);
+        const float across = -out.y * s[V] / (out.x * s[U]);
+        // (out.x = 0, an edge along u, bounds b only: the box's b-range holds it.)
+        const bool upper = out.x > 0.0f && !sliver, lower = out.x < 0.0f && !sliver;
+        loSlope[e] = lower ? across : 0.0f;
+        loOffset[e] = lower ? bound : -1e30f;
+        hiSlope[e] = upper ? across : 0.0f;
+        hiOffset[e] = upper ? bound : 1e30f;
+      }
+    }
+    for (int b = first[V]; b <= last[V]; ++b) {
+      const float fb = float(b);
+      const float aLo = maxf(maxf(loSlope[0] * fb + loOffset[0], loSlope[1] * fb + loOffset[1]), loSlope[2] * fb + loOffset[2]);
+      const float aHi = minf(minf(hiSlope[0] * fb + hiOffset[0], hiSlope[1] * fb + hiOffset[1]), hiSlope[2] * fb + hiOffset[2]);
+      const int a0 = std::max(first[U], ceilIndex(aLo, first[U], last[U])), a1 = std::min(last[U], floorIndex(aHi, first[U], last[U]));
+      const float rowLo = cLo + fb * dB, pv = fb * s[V] - tri.a[V];
+      for (int a = a0; a <= a1; ++a) {
+        const float lo = rowLo + float(a) * dA;
+        const int c0 = std::max(first[W], ceilIndex(lo, first[W], last[W])), c1 = std::min(last[W], floorIndex(lo + width, first[W], last[W]));
+        if (c1 < c0) continue;
+        if (cand.count + (c1 - c0 + 1) > kCandidateBatch) flush();  // (a longer row fits the room past the batch)
+        const float pu = float(a) * s[U] - tri.a[U];
+        uint32_t at = uint32_t(a) * stride[U] + uint32_t(b) * stride[V] + uint32_t(c0) * stride[W] - uint32_t(k0) * stride[2];
+        for (int c = c0; c <= c1; ++c, at += stride[W]) {
+          const int i = cand.count++;
+          cand.u[i] = pu;
+          cand.v[i] = pv;
+          cand.w[i] = float(c) * s[W] - tri.a[W];
+          cand.at[i] = at;
+        }
+      }
+    }
+    if (cand.count > 0) flush();
   }
 
   // Stage 3: each band voxel's box fraction of the tangent plane at its closest point; resets the
@@ -387,11 +531,12 @@ struct MeshScan {
     const size_t planeSize = size_t(d.x) * size_t(d.y);
     const float r2 = float(reach * reach);
     size_t band = 0, bandInside = 0;
-    for (const size_t n : scratch->touched) {
-      const uint32_t t = scratch->owner[n];
-      scratch->owner[n] = kNone;
-      scratch->best[n] = r2;
-      const int i = int(n % size_t(d.x)), j = int((n / size_t(d.x)) % size_t(d.y)), k = k0 + int(n / planeSize);
+    for (size_t q = 0; q < scratch->touchedCount; ++q) {
+      const uint32_t n = scratch->touched[q];
+      const uint32_t t = scratch->closest[n].owner;
+      scratch->closest[n] = {r2, kNone};
+      const uint32_t row = n / uint32_t(d.x);  // (32-bit divisions: a slab holds under 2³² voxels)
+      const int i = int(n - row * uint32_t(d.x)), j = int(row % uint32_t(d.y)), k = k0 + int(row / uint32_t(d.y));
       const size_t out = n + size_t(k0) * planeSize;
       const Tri tri = this->tri(t);
       const glm::vec3 normal = tri.normal();
@@ -410,7 +555,7 @@ struct MeshScan {
         store->set(out, options.filter == ScanFilter::None ? double(dist <= half) : sheetFraction(m, dist, half));
       }
     }
-    scratch->touched.clear();
+    scratch->touchedCount = 0;
     return {band, bandInside};
   }
 };
@@ -446,15 +591,7 @@ void meshExtentWarnings(const glm::dvec3& lo, const glm::dvec3& hi, const VoxelG
 
 }  // namespace
 
-double boxHalfSpaceFraction(const glm::dvec3& m, double t) {
-  glm::dvec3 a = glm::abs(m);
-  if (a.x < a.y) std::swap(a.x, a.y);
-  if (a.y < a.z) std::swap(a.y, a.z);
-  if (a.x < a.y) std::swap(a.x, a.y);
-  if (a.x == 0.0) return t >= 0.0 ? 1.0 : 0.0;
-  // Centred cube → unit cube: m·u ≤ t with u = v − ½ is m·v ≤ t + Σm/2.
-  return sortedCubeFraction(a.x, a.y, a.z, t + 0.5 * (a.x + a.y + a.z));
-}
+double boxHalfSpaceFraction(const glm::dvec3& m, double t) { return sortedBoxFraction(sortedMagnitudes(m), t); }
 
 ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, const ScanOptions& options) {
   validateMesh(mesh);
@@ -512,7 +649,7 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
   scan.store = &store;
   const bool band = scan.reach > 0.0;
   size_t oddRows = 0, bandVoxels = 0, bandInside = 0, fillInside = 0;
-  std::vector<VoxelNormal> normals;
+  VoxelNormals normals;
   ParallelFailure failure;
 #pragma omp parallel reduction(+ : oddRows, bandVoxels, bandInside, fillInside)
   {
@@ -520,8 +657,10 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
     failure.run([&] {
       if (band) {
         const size_t slabVoxels = size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(std::min(kSlabPlanes, grid.dims.z));
-        scratch.best.assign(slabVoxels, float(scan.reach * scan.reach));
-        scratch.owner.assign(slabVoxels, kNone);
+        scratch.closest.assign(slabVoxels, {float(scan.reach * scan.reach), kNone});
+        scratch.touchedBuffer = hugePageBuffer((slabVoxels + 1) * sizeof(uint32_t));
+        scratch.touched = static_cast<uint32_t*>(scratch.touchedBuffer.get());
+        scratch.candidates.allocate(std::max({grid.dims.x, grid.dims.y, kSlabPlanes}));  // (rows along z stay in the slab)
       }
     });
 #pragma omp for schedule(dynamic, 1)
@@ -540,7 +679,10 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
         }
       });
 #pragma omp critical
-    failure.run([&] { normals.insert(normals.end(), scratch.normals.begin(), scratch.normals.end()); });
+    failure.run([&] {
+      if (normals.empty()) normals = std::move(scratch.normals);
+      else normals.insert(normals.end(), scratch.normals.begin(), scratch.normals.end());
+    });
   }
   failure.rethrow();
   if (oddRows > 0)

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "surface/mesh.h"
+#include "volume/core/huge_pages.h"
 #include "volume/patient_frame.h"
 #include "volume/volume.h"
 
@@ -73,6 +74,8 @@ struct VoxelNormal {
   uint64_t voxel = 0;  ///< its index, x fastest
   glm::vec3 normal{0.0f};
 };
+/// Band voxels' normals: a million of them take tens of MB, on 2 MiB pages (volume/core/huge_pages.h).
+using VoxelNormals = std::vector<VoxelNormal, HugePageAllocator<VoxelNormal>>;
 
 /// A coverage volume and what the scan-conversion noticed.
 struct ScanResult {
@@ -86,7 +89,7 @@ struct ScanResult {
   size_t insideVoxels = 0;  ///< voxels wholly inside (value 1)
   /// With ScanOptions::normals, a mesh's or polygon's band voxels' normals, in no particular order;
   /// empty otherwise.
-  std::vector<VoxelNormal> normals;
+  VoxelNormals normals;
 };
 
 /// The fraction of the cube [−½, ½]³ where m·u ≤ t, exact (closed form, stable for any m ≠ 0,

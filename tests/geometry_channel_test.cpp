@@ -189,7 +189,7 @@ TEST(GeometryChannel, ASheetIsShadedAndCompositesItsOpacityOncePerCrossingAtAnyI
     }
   }
   // Every covered texel holds the plane's normal (grid frame = patient here), within a byte's step.
-  const GeometryChannel g = scanConvertGeometry(look.meshes, scene.volume, scene.octree, ScanFilter::Box);
+  const GeometryChannel g = scanConvertGeometry(look.meshes, scene.volume, scene.octree);
   const glm::vec3 n = glm::normalize(glm::vec3(look.meshes.front().primitive->normal));
   size_t covered = 0;
   for (const glm::u8vec4& t : g.parts.front().texels) {
@@ -227,7 +227,7 @@ TEST(GeometryChannel, TheRenderersAgreeOnScanConvertFrames) {
   Quality coarse;
   coarse.epsilon = 5.0;  // the sphere's range is 13 … −7
   const Selection sel = r.select(view, alone, coarse);
-  const GeometryChannel g = scanConvertGeometry(alone.meshes, scene.volume, scene.octree, ScanFilter::Box);
+  const GeometryChannel g = scanConvertGeometry(alone.meshes, scene.volume, scene.octree);
   size_t holding = 0;
   for (const Brick& b : sel.bricks) {
     const OctreeNode& n = scene.octree.nodes()[b.node];

@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <map>
 #include <numbers>
 #include <random>
 
@@ -363,6 +364,162 @@ TEST(ScanConvert, BandNormalsAreTheClosestTrianglesFollowingTheWinding) {
     ASSERT_EQ(back[n].first, forward[n].first);
     EXPECT_LT(glm::dot(back[n].second, forward[n].second), -cos3);
   }
+}
+
+// The closest point of triangle (a, b, c) to p, in double: Ericson's regions (Real-Time Collision
+// Detection, 5.1.5), independent of the converter's branch-free float form.
+glm::dvec3 closestPoint(const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {
+  const glm::dvec3 ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = glm::dot(ab, ap), d2 = glm::dot(ac, ap);
+  if (d1 <= 0.0 && d2 <= 0.0) return a;
+  const glm::dvec3 bp = p - b;
+  const double d3 = glm::dot(ab, bp), d4 = glm::dot(ac, bp);
+  if (d3 >= 0.0 && d4 <= d3) return b;
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) return a + ab * (d1 / (d1 - d3));
+  const glm::dvec3 cp = p - c;
+  const double d5 = glm::dot(ab, cp), d6 = glm::dot(ac, cp);
+  if (d6 >= 0.0 && d5 <= d6) return c;
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) return a + ac * (d2 / (d2 - d6));
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+  return a + ab * (vb / (va + vb + vc)) + ac * (vc / (va + vb + vc));
+}
+
+// Checks the sheet @p o makes of @p mesh (grid mm) against every voxel's distance to every
+// triangle (closestPoint, double): the band holds exactly the voxels within the reach (but those
+// within 10⁻⁴ mm of it), each once, with the closest triangle's normal and, where no other
+// triangle is within 10⁻⁴ mm as close, the box fraction of the tangent plane at the closest point;
+// the others are 0. Adds to @p compared and raises @p worst (the largest coverage difference).
+void expectBruteForceBand(const TriangleMesh& mesh, const VoxelGrid& grid, const ScanOptions& o, size_t* compared, double* worst) {
+  const ScanResult r = scanConvertMesh(mesh, grid, o);
+  const double half = 0.5 * o.thickness, reach = 0.5 * glm::length(grid.spacing) + half;
+  std::map<uint64_t, glm::vec3> normals;
+  for (const VoxelNormal& v : r.normals) normals[v.voxel] = v.normal;
+  ASSERT_EQ(normals.size(), r.normals.size());  // each voxel once
+  // Every voxel against every triangle: the closest and the second closest distance.
+  size_t band = 0;
+  for (int k = 0; k < grid.dims.z; ++k)
+    for (int j = 0; j < grid.dims.y; ++j)
+      for (int i = 0; i < grid.dims.x; ++i) {
+        const uint64_t voxel = uint64_t(i) + uint64_t(grid.dims.x) * (uint64_t(j) + uint64_t(grid.dims.y) * uint64_t(k));
+        const glm::dvec3 p = glm::dvec3(i, j, k) * grid.spacing;
+        double best = 1e30, second = 1e30;
+        glm::dvec3 closest(0.0), normal(0.0);
+        for (const glm::uvec3& t : mesh.triangles) {
+          const glm::dvec3 a(mesh.vertices[t.x]), b(mesh.vertices[t.y]), c(mesh.vertices[t.z]);
+          const glm::dvec3 q = closestPoint(p, a, b, c);
+          const double dist = glm::length(p - q);
+          if (dist < best) {
+            second = best;
+            best = dist;
+            closest = q;
+            normal = glm::normalize(glm::cross(b - a, c - a));
+          } else {
+            second = std::min(second, dist);
+          }
+        }
+        const auto found = normals.find(voxel);
+        if (std::abs(best - reach) < 1e-4) continue;  // at the reach: either way
+        ASSERT_EQ(found != normals.end(), best < reach) << "voxel " << i << ", " << j << ", " << k << " at " << best << " mm (reach " << reach << ")";
+        if (best >= reach) {
+          ASSERT_EQ(r.coverage.value(voxel), 0.0f);
+          continue;
+        }
+        ++band;
+        if (second - best < 1e-4) continue;  // two triangles as close: either may be kept
+        ++*compared;
+        // The box fraction between the planes ±τ/2 from the closest point, across the direction to it.
+        const glm::dvec3 dir = best > 1e-6 ? (p - closest) / best : normal;
+        const glm::dvec3 m = glm::abs(dir) * grid.spacing;
+        const double expected = boxHalfSpaceFraction(m, half - best) - boxHalfSpaceFraction(m, -half - best);
+        *worst = std::max(*worst, std::abs(r.coverage.value(voxel) - expected));
+        // The kept triangle is the closest: its normal, from its corners in float.
+        EXPECT_NEAR(glm::dot(glm::dvec3(found->second), normal), 1.0, 1e-5) << "voxel " << i << ", " << j << ", " << k << " at " << best << " mm";
+      }
+  EXPECT_EQ(r.normals.size(), r.bandVoxels);
+  EXPECT_GE(r.bandVoxels, band);  // (and those at the reach)
+}
+
+TEST(ScanConvert, SheetBandMatchesABruteForceSearchOverAwkwardTriangles) {
+  // Triangles the band's row search must not cut short: small and large, slivers and needles, an
+  // edge along each axis, normals along each axis and on the diagonals, some crossing the grid's
+  // faces; a 1.1 mm sheet on a 0.8 × 1 × 1.3 mm grid, triangles in grid mm.
+  const VoxelGrid grid{{22, 18, 14}, {0.8, 1.0, 1.3}, {}};
+  const glm::dvec3 extent = glm::dvec3(grid.dims - 1) * grid.spacing;
+  TriangleMesh mesh;
+  auto add = [&](const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {
+    const uint32_t v = uint32_t(mesh.vertices.size());
+    for (const glm::dvec3& p : {a, b, c}) mesh.vertices.emplace_back(p);
+    mesh.triangles.emplace_back(v, v + 1, v + 2);
+  };
+  std::mt19937 rng(54);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  auto point = [&] { return glm::dvec3(unit(rng), unit(rng), unit(rng)) * (extent + 4.0) - 2.0; };
+  for (int n = 0; n < 60; ++n) {  // anywhere, any size (up to the grid's)
+    const glm::dvec3 a = point();
+    add(a, a + (point() - a) * unit(rng), a + (point() - a) * unit(rng));
+  }
+  for (int n = 0; n < 20; ++n) {  // slivers: the third corner within 10⁻³ mm of the first edge
+    const glm::dvec3 a = point(), b = point(), off = glm::dvec3(unit(rng), unit(rng), unit(rng)) * 1e-3;
+    add(a, b, a + (b - a) * unit(rng) + off);
+  }
+  for (int n = 0; n < 20; ++n) {  // needles: one edge under 0.05 mm
+    const glm::dvec3 a = point();
+    add(a, a + glm::dvec3(unit(rng), unit(rng), unit(rng)) * 0.05, point());
+  }
+  for (int axis = 0; axis < 3; ++axis)
+    for (int n = 0; n < 6; ++n) {  // an edge along the axis, and a triangle facing along it
+      glm::dvec3 a = point(), b = a, c = point();
+      b[axis] += 3.0 + 4.0 * unit(rng);
+      add(a, b, c);
+      c = a;
+      c[(axis + 1) % 3] += 2.0 + 3.0 * unit(rng);
+      b[(axis + 2) % 3] = a[(axis + 2) % 3] + 0.5 + 2.0 * unit(rng);
+      b[axis] = a[axis];
+      b[(axis + 1) % 3] = a[(axis + 1) % 3];
+      add(a, b, c);
+    }
+  for (int n = 0; n < 8; ++n) {  // normals on the diagonals: (1, ±1, ±1)
+    const glm::dvec3 a = point(), d = glm::dvec3(1.0, n & 1 ? 1.0 : -1.0, n & 2 ? 1.0 : -1.0);
+    const glm::dvec3 e1 = glm::normalize(glm::cross(d, glm::dvec3(0.0, 0.0, 1.0))), e2 = glm::normalize(glm::cross(d, e1));
+    add(a, a + e1 * (1.0 + 5.0 * unit(rng)), a + e2 * (1.0 + 5.0 * unit(rng)));
+  }
+  ScanOptions o;
+  o.space = ScanSpace::Grid;
+  o.thickness = 1.1;
+  o.type = CoverageType::Float32;
+  o.normals = true;
+  size_t compared = 0;
+  double worst = 0.0;
+  expectBruteForceBand(mesh, grid, o, &compared, &worst);
+  EXPECT_GT(compared, size_t(4000));
+  // Each triangle alone, so that none hides a row another's search would have missed.
+  size_t alone = 0;
+  for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+    SCOPED_TRACE(::testing::Message() << "triangle " << t << " alone");
+    TriangleMesh one;
+    for (int c = 0; c < 3; ++c) one.vertices.push_back(mesh.vertices[mesh.triangles[t][c]]);
+    one.triangles.emplace_back(0u, 1u, 2u);
+    expectBruteForceBand(one, grid, o, &alone, &worst);
+  }
+  EXPECT_GT(alone, size_t(10000));
+  // A sheet thicker than a batch of candidates is long: a square across a 6 × 5 × 300 grid, 280 mm thick.
+  const VoxelGrid tall{{6, 5, 300}, {1.0, 1.0, 1.0}, {}};
+  TriangleMesh square;
+  for (const glm::vec3& p : {glm::vec3(-1, -1, 150.3f), glm::vec3(7, -1, 150.3f), glm::vec3(7, 6, 150.3f), glm::vec3(-1, 6, 150.3f)}) square.vertices.push_back(p);
+  square.triangles = {{0, 1, 2}, {0, 2, 3}};
+  ScanOptions thick = o;
+  thick.thickness = 280.0;
+  size_t across = 0;
+  expectBruteForceBand(square, tall, thick, &across, &worst);
+  EXPECT_GT(across, size_t(8000));  // of about 8 400 (those as near both triangles left out)
+  // The converter's closest points are in float (about 10⁻⁶ mm here), so the direction to one very
+  // near the voxel turns by up to 10⁻⁶ mm over its distance.
+  EXPECT_LT(worst, 1e-3);
+  std::printf("voxels compared: %zu with the whole mesh, %zu with each triangle alone, %zu across the thick sheet; the worst coverage %.2g off\n",
+              compared, alone, across, worst);
 }
 
 TEST(ScanConvert, CoverageNrrdReadsBackOnTheSameGrid) {

@@ -420,6 +420,8 @@ class PyScene {
     return out;
   }
 
+  static bool sameMesh(const TriangleMesh& a, const TriangleMesh& b) { return a.vertices == b.vertices && a.triangles == b.triangles; }
+
   py::object render(const py::kwargs& kwargs) {
     // Each keyword is a field of the one table (render/frame_settings.h), its Python form spelled as
     // the flag's text and parsed by the field, so the messages are the command line's; tf,
@@ -451,12 +453,20 @@ class PyScene {
     const bool composited = kwargs.contains("background") && !kwargs["background"].is_none();
     if (composited && premultiplied) throw ValueError("premultiplied and background are exclusive (a composited image is opaque)");
     std::ostringstream warnings;
-    FrameSetup job = setUpFrame(settings, mRenderer->scene(), warnings);
+    // The same mesh files and primitives as a render before give the same meshes, whose
+    // scan-converted channel the renderer keeps (as the viewer's frames do).
+    FrameSetup job = setUpFrame(settings, mRenderer->scene(), warnings, &mGeometry);
     if (kwargs.contains("meshes") && !kwargs["meshes"].is_none()) {
-      for (UserMesh& m : meshesOf(kwargs["meshes"])) {
-        for (const std::string& w : userMeshWarnings(m, mRenderer->scene().volume)) warnings << "hybrid-octree: warning: " << w << "\n";
-        job.look.meshes.push_back(std::move(m));
+      std::vector<UserMesh> arrays = meshesOf(kwargs["meshes"]);
+      for (size_t k = 0; k < arrays.size(); ++k) {
+        UserMesh& m = arrays[k];
+        // Arrays holding the last render's k-th mesh give its object again.
+        if (k < mArrayMeshes.size() && sameMesh(*mArrayMeshes[k].mesh, *m.mesh) && mArrayMeshes[k].color == m.color) m = mArrayMeshes[k];
+        else
+          for (const std::string& w : userMeshWarnings(m, mRenderer->scene().volume)) warnings << "hybrid-octree: warning: " << w << "\n";
+        job.look.meshes.push_back(m);
       }
+      mArrayMeshes = std::move(arrays);
       if (const std::string e = job.look.validate(); !e.empty()) throw ValueError(e);
     }
     warnLines(warnings.str());
@@ -578,6 +588,8 @@ class PyScene {
   std::atomic<std::thread::id> mOwner{};
   std::unique_ptr<Progress> mProgress;
   std::unique_ptr<SceneRenderer> mRenderer;
+  UserGeometryMemo mGeometry;           ///< render()'s mesh files and primitives (under the GIL)
+  std::vector<UserMesh> mArrayMeshes;   ///< the last render()'s meshes= arrays
 };
 
 std::unique_ptr<PyScene> sceneFromArray(const py::object& array, const py::object& spacing, const py::object& origin, const py::object& direction,
