@@ -275,7 +275,7 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
   lock.lock();
   if (!message.empty()) {  // (a failed frame's time says nothing of its level)
     client.quality(surface).record(level, ms, cold, coarser);
-    sendFrame(client, std::move(message), request.seq);
+    sendFrame(client, std::move(message));
   }
 }
 
@@ -321,7 +321,7 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   b.next = rows.y;
   if (b.next < b.image.height) return;
   // Encoded beside the next renders: the image's PNG would hold the other clients' frames.
-  mEncoder.add([this, to = client.shared_from_this(), done = std::make_shared<BandedFrame>(std::move(b)), summary, rung] {
+  mEncoder.add([this, to = client.shared_from_this(), sent = client.framesSent, done = std::make_shared<BandedFrame>(std::move(b)), summary, rung] {
     std::string message, failed;
     double total = 0.0;
     try {
@@ -332,17 +332,17 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
       failed = e.what();
     }
     const std::lock_guard<std::mutex> held(mMutex);
+    if (to->framesSent != sent) return;  // the page shows a newer request's frame: this one would replace it
     if (!message.empty())
-      sendFrame(*to, std::move(message), done->request.seq);
+      sendFrame(*to, std::move(message));
     else
       to->send(errorMessage(mScrub(failed), done->request.seq), false);
   });
   client.banded.reset();
 }
 
-void FrameScheduler::sendFrame(Client& client, std::string message, uint64_t seq) {
-  if (seq < client.sentSeq) return;  // the page shows a newer request's frame: this one would replace it
-  client.sentSeq = seq;
+void FrameScheduler::sendFrame(Client& client, std::string message) {
+  ++client.framesSent;
   client.send(std::move(message), true);
 }
 

@@ -77,7 +77,7 @@ struct Client : std::enable_shared_from_this<Client> {
   int bandLevel = -1;                   ///< ... at this level of the ladder (another level's pixels cost differently)
   AdaptiveQuality volumeQuality, surfaceQuality, surfaceRayQuality;
   bool raysForSurface = false;  ///< the surface's ladder ray-traces small frames (surfaceRaysFit)
-  uint64_t sentSeq = 0;  ///< the newest request a frame went out for (an older one encoded late is dropped)
+  uint64_t framesSent = 0;  ///< frames gone out (one encoded late is dropped when others went out since)
   std::atomic<bool> open{true};
   std::function<void(std::string message, bool binary)> send;  ///< posts to the socket; drops when closed
 
@@ -153,8 +153,8 @@ class FrameScheduler {
   /// The rows of @p b's next band: kBandPixels' worth, or kMovingBandMs' worth while @p othersDrag.
   int bandRows(const BandedFrame& b, bool othersDrag) const;
 
-  /// Sends @p message, a frame of request @p seq, to @p client (server's mutex held).
-  static void sendFrame(Client& client, std::string message, uint64_t seq);
+  /// Sends @p message, a frame, to @p client (server's mutex held).
+  static void sendFrame(Client& client, std::string message);
 
   ScenePool& mPool;
   std::mutex& mMutex;
