@@ -148,7 +148,7 @@ struct Quality {
   int progressive = 1;
   double adaptive = 0.0;            ///< reference: refine where colours differ by more than this (1/255 units)
   /// Renders only the image rows [rows.x, rows.y) (from the top), exactly as the whole frame has
-  /// them; the other rows stay transparent. Not with progressive or adaptive refinement.
+  /// them; the image is those rows only (its row 0 is rows.x). Not with progressive or adaptive refinement.
   std::optional<glm::ivec2> rows;
   /// A paged scene's slice frames: true reads every block the selection needs (the exact frame);
   /// false draws each brick whose knots are not cached from a coarser resident level

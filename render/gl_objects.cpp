@@ -1,5 +1,7 @@
 #include "render/gl_objects.h"
 
+#include <algorithm>
+
 #include "volume/core/error.h"
 
 namespace hyb::gl {
@@ -43,7 +45,7 @@ Texture volumeTexture() {
 }
 
 FloatTarget::FloatTarget(int width, int height)
-    : mFramebuffer(Framebuffer::make()), mColor(Texture::make()), mDepth(Renderbuffer::make()) {
+    : mWidth(width), mHeight(height), mFramebuffer(Framebuffer::make()), mColor(Texture::make()), mDepth(Renderbuffer::make()) {
   glBindFramebuffer(GL_FRAMEBUFFER, mFramebuffer.id());
   glBindTexture(GL_TEXTURE_2D, mColor.id());
   glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA32F, width, height, 0, GL_RGBA, GL_FLOAT, nullptr);
@@ -54,6 +56,23 @@ FloatTarget::FloatTarget(int width, int height)
   if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
     HYB_THROW(RuntimeError, "OpenGL framebuffer incomplete for a ", width, "x", height, " float image");
   glViewport(0, 0, width, height);
+}
+
+void FloatTarget::bind() const {
+  glBindFramebuffer(GL_FRAMEBUFFER, mFramebuffer.id());
+  glViewport(0, 0, mWidth, mHeight);
+}
+
+FloatTarget& TargetCache::get(int width, int height) {
+  const auto it = std::find_if(mTargets.begin(), mTargets.end(), [&](const auto& t) { return t->width() == width && t->height() == height; });
+  if (it != mTargets.end()) {
+    std::rotate(it, it + 1, mTargets.end());  // the most recently used last
+    mTargets.back()->bind();
+    return *mTargets.back();
+  }
+  if (mTargets.size() >= kKept) mTargets.erase(mTargets.begin());
+  mTargets.push_back(std::make_unique<FloatTarget>(width, height));
+  return *mTargets.back();
 }
 
 }  // namespace hyb::gl

@@ -7,7 +7,9 @@
 #include <GL/gl.h>
 #include <GL/glext.h>
 
+#include <memory>
 #include <string>
+#include <vector>
 #include <utility>
 
 namespace hyb::gl {
@@ -104,11 +106,29 @@ class FloatTarget {
  public:
   /// @throw RuntimeError when the framebuffer is incomplete.
   FloatTarget(int width, int height);
+  /// Binds it and sets the viewport to it again.
+  void bind() const;
+  int width() const { return mWidth; }
+  int height() const { return mHeight; }
 
  private:
+  int mWidth, mHeight;
   Framebuffer mFramebuffer;
   Texture mColor;
   Renderbuffer mDepth;
+};
+
+/// The float targets of the last few sizes drawn, kept across frames: llvmpipe zeroes a target's
+/// memory when it is made (80 MB for 2048², most of a 2048² frame's narrow band), and a large
+/// frame's bands alternate with other clients' smaller frames.
+class TargetCache {
+ public:
+  /// A target of @p width x @p height, bound (the least recently used one is let go beyond kKept).
+  FloatTarget& get(int width, int height);
+
+ private:
+  static constexpr size_t kKept = 3;
+  std::vector<std::unique_ptr<FloatTarget>> mTargets;  // the most recently used last
 };
 
 }  // namespace hyb::gl

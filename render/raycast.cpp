@@ -289,7 +289,7 @@ class PixelTracer {
 
 // Traces pixels pixel(0) … pixel(count − 1) into @p out on all cores, chunk pixels at a time.
 template <class Pixel>
-void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pixel, Image* out) {
+void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pixel, Image* out, int firstRow = 0) {
   uint64_t samples = 0, skipped = 0, crossings = 0;
   ParallelFailure failure;  // a progress callback that stops the frame
 #pragma omp parallel reduction(+ : samples, skipped, crossings)
@@ -302,7 +302,7 @@ void tracePixels(const RayFrame& f, size_t count, size_t chunk, const Pixel& pix
       failure.run([&] {
         f.progress->advance();
         const glm::ivec2 px = pixel(i);
-        out->at(px.x, px.y) = tracer.trace(px.x, px.y);
+        out->at(px.x, px.y - firstRow) = tracer.trace(px.x, px.y);
       });
     }
     samples += tracer.samples;
@@ -422,7 +422,7 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
   if (!withinCameraRange(camera.eye) || !withinCameraRange(camera.center))
     HYB_THROW(ValueError, "camera eye and center must lie within ", kMaxCameraMm, " mm of the origin");
   RaycastStats counts;
-  Image image(camera.width, camera.height);
+  Image image(camera.width, rows.y - rows.x);  // (a band's rows only: a 2048² frame's whole image is 64 MB)
   ProgressTask progress(options.progress, "ray tracing", uint64_t(camera.width) * uint64_t(rows.y - rows.x));
   const RayFrame f({volume, octree, tf}, camera, options, &counts, &progress);
   if (options.refineLevels > 1) {
@@ -437,7 +437,7 @@ Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFu
       for (int x0 = 0; x0 < camera.width; x0 += kSquare)
         for (int y = y0; y < std::min(y0 + kSquare, rows.y); ++y)
           for (int x = x0; x < std::min(x0 + kSquare, camera.width); ++x) order.push_back({x, y});
-    tracePixels(f, order.size(), kSquare * kSquare, [&order](size_t i) { return order[i]; }, &image);
+    tracePixels(f, order.size(), kSquare * kSquare, [&order](size_t i) { return order[i]; }, &image, rows.x);
   }
   if (stats) *stats = counts;
   return image;

@@ -63,7 +63,7 @@ struct RaycastOptions {
   /// middles lie in it are composited (the surface given should be cut to it, cutMeshToRegion),
   /// so that the regions' images composited front to back make the whole frame's image.
   const RegionBox* region = nullptr;
-  /// Traces only the image rows [rows.x, rows.y) (from the top; the others stay transparent).
+  /// Traces only the image rows [rows.x, rows.y) (from the top); the image is those rows only.
   /// Needs refineLevels 1.
   std::optional<glm::ivec2> rows;
 };

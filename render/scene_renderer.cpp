@@ -786,6 +786,7 @@ void SceneRenderer::renderSlicesFrame(const FrameGrid& g, const Look& look, cons
   ensureGl();
   SlicesOptions so = slicesOptions(g, look, quality, mesh, frameMeshes(look, false, &st));
   so.textures = mOptions.keepTextures ? mTextures.get() : nullptr;
+  so.targets = &mTargets;
   so.knots = mScene.knots.get();
   so.geometry = frameGeometry(look, &st);
   if (quality.classification == Classification::PreIntegrated) {

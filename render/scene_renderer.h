@@ -318,6 +318,7 @@ class SceneRenderer {
   Options mOptions;
   std::optional<GlContext> mGl;                  // made at the first slice frame
   std::unique_ptr<BrickTextureCache> mTextures;  // destroyed before the context
+  gl::TargetCache mTargets;                      // (the same)
   std::list<std::unique_ptr<PreparedSurface>> mSurfaces;  // most recently used first
   std::vector<float> mPinned;                             // kept whatever else is built
   std::mutex mBoundMutex;                                 // the cache bound is set from two threads

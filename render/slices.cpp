@@ -356,19 +356,22 @@ class FramePrograms {
 };
 
 // The frame's target: float colour (premultiplied) and depth for opaque surfaces, cleared, a
-// band's rows only; the vertex array and buffer the surface passes draw from, bound; depth tested.
+// band's rows only (a scissor: a viewport shifted to the band changes llvmpipe's interpolation by
+// float rounding); the vertex array and buffer the surface passes draw from, bound; depth tested.
 struct SliceTarget {
   glm::ivec2 rows;  // the image rows drawn [rows.x, rows.y), from the top
-  gl::FloatTarget target;
+  std::optional<gl::FloatTarget> own;  // (without a cache)
   gl::VertexArray vao;
   gl::Buffer vbo;
-  SliceTarget(const Camera& camera, const SlicesOptions& options)
-      : rows(options.rows.value_or(glm::ivec2(0, camera.height))), target(camera.width, camera.height) {
-    const int W = camera.width, H = camera.height;
-    HYB_CHECK(rows.x >= 0 && rows.x < rows.y && rows.y <= H);
+  SliceTarget(const Camera& camera, const SlicesOptions& options) : rows(options.rows.value_or(glm::ivec2(0, camera.height))) {
+    HYB_CHECK(rows.x >= 0 && rows.x < rows.y && rows.y <= camera.height);
+    if (options.targets)
+      options.targets->get(camera.width, camera.height);
+    else
+      own.emplace(camera.width, camera.height);
     if (options.rows) {
       glEnable(GL_SCISSOR_TEST);
-      glScissor(0, H - rows.y, W, rows.y - rows.x);
+      glScissor(0, camera.height - rows.y, camera.width, rows.y - rows.x);
     } else {
       glDisable(GL_SCISSOR_TEST);
     }
@@ -891,14 +894,13 @@ class SlicesFrame {
     glGetQueryObjectuiv(mQuery.id(), GL_QUERY_RESULT, &fragments);
     mStats.fragments = fragments;
     mPlanner->addStats(&mStats);
-    const int W = mF.camera.width, H = mF.camera.height;
-    const glm::ivec2 rows = mF.rows;
-    Image image(W, H);
-    std::vector<float> rgba(size_t(W) * size_t(rows.y - rows.x) * 4);
-    glReadPixels(0, H - rows.y, W, rows.y - rows.x, GL_RGBA, GL_FLOAT, rgba.data());
-    for (int y = rows.x; y < rows.y; ++y)
+    const int W = mF.camera.width, h = mF.rows.y - mF.rows.x;
+    Image image(W, h);
+    std::vector<float> rgba(size_t(W) * size_t(h) * 4);
+    glReadPixels(0, mF.camera.height - mF.rows.y, W, h, GL_RGBA, GL_FLOAT, rgba.data());
+    for (int y = 0; y < h; ++y)
       for (int x = 0; x < W; ++x) {
-        const float* p = &rgba[(size_t(rows.y - 1 - y) * W + x) * 4];
+        const float* p = &rgba[(size_t(h - 1 - y) * W + x) * 4];
         image.at(x, y) = glm::vec4(p[0], p[1], p[2], p[3]);
       }
     const GLenum err = glGetError();

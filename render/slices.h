@@ -56,6 +56,7 @@ struct SlicesOptions {
   const VolumeOfInterest* voi = nullptr;  ///< opacity scaling box, or none
   bool cutLine = true;                    ///< draw the surface's intersection with the cutting plane
   BrickTextureCache* textures = nullptr;  ///< brick textures reused across frames (none: uploaded per frame)
+  gl::TargetCache* targets = nullptr;     ///< render targets reused across frames (none: the frame's own)
   /// Where bricks read their knots (a scene's paged store), or none: the volume and octree in
   /// memory. Both give bit-identical bricks.
   const KnotSource* knots = nullptr;
@@ -78,9 +79,10 @@ struct SlicesOptions {
   /// centres lie in one slab there alone (PixelCentres; the image is the same either way).
   bool leaveOutUnseen = true;
   const Progress* progress = nullptr;     ///< hears of the bricks drawn ("slices"); may throw to stop the frame
-  /// Renders only the image rows [rows.x, rows.y) (from the top; the others stay transparent), with
-  /// exactly the pixels a whole frame has there: a scissor, and bricks whose projection misses the
-  /// band skipped. A large frame drawn band by band lets other work run between its bands.
+  /// Renders only the image rows [rows.x, rows.y) (from the top), with exactly the pixels a whole
+  /// frame has there: a scissor, and bricks whose projection misses the band skipped; the image is
+  /// those rows only. A large frame drawn band by
+  /// band lets other work run between its bands.
   std::optional<glm::ivec2> rows;
   /// A region of a sort-last frame (render/regions.h), or none: only the bricks inside it are
   /// drawn (the surface given should be cut to it, cutMeshToRegion); the slices stay on the whole

@@ -702,13 +702,10 @@ TEST(SceneRenderer, AFrameInBandsIsTheWholeFrame) {
           Quality band = whole;
           band.rows = glm::ivec2(y, std::min(y + 10, 53));
           const RenderedFrame part = r.render(view, l, band);
-          for (int row = 0; row < 53; ++row)
-            for (int x = 0; x < 61; ++x) {
-              if (row >= band.rows->x && row < band.rows->y)
-                merged.at(x, row) = part.image.at(x, row);
-              else
-                ASSERT_EQ(part.image.at(x, row), glm::vec4(0.0f)) << "a row outside the band";
-            }
+          ASSERT_EQ(part.image.width, 61);
+          ASSERT_EQ(part.image.height, band.rows->y - band.rows->x) << "the band's rows only";
+          for (int row = band.rows->x; row < band.rows->y; ++row)
+            for (int x = 0; x < 61; ++x) merged.at(x, row) = part.image.at(x, row - band.rows->x);
           fewest = std::min(fewest, part.stats.slices.bricks);
         }
         EXPECT_EQ(merged.pixels, all.image.pixels) << "ortho " << ortho << " cut " << cut << " renderer " << int(renderer);

@@ -83,6 +83,37 @@ std::string encodeFrame(const FrameHeader& h, const Image& image, Clock::time_po
 
 }  // namespace
 
+FrameEncoder::FrameEncoder()
+    : mThread([this] {
+        std::unique_lock<std::mutex> lock(mMutex);
+        for (;;) {
+          mWake.wait(lock, [&] { return mStopping || !mJobs.empty(); });
+          if (mStopping) return;
+          const std::function<void()> job = std::move(mJobs.front());
+          mJobs.pop_front();
+          lock.unlock();
+          job();
+          lock.lock();
+        }
+      }) {}
+
+FrameEncoder::~FrameEncoder() {
+  {
+    const std::lock_guard<std::mutex> lock(mMutex);
+    mStopping = true;
+  }
+  mWake.notify_all();
+  mThread.join();
+}
+
+void FrameEncoder::add(std::function<void()> job) {
+  {
+    const std::lock_guard<std::mutex> lock(mMutex);
+    mJobs.push_back(std::move(job));
+  }
+  mWake.notify_one();
+}
+
 void Client::ask(FrameRequest request, uint64_t renders) {
   pending = std::move(request);
   pendingRenders = renders;
@@ -141,7 +172,9 @@ void FrameScheduler::serveNext(const Clients& clients, std::unique_lock<std::mut
 
 int FrameScheduler::bandRows(const BandedFrame& b, bool othersDrag) const {
   const int standard = std::max(16, kBandPixels / b.image.width);
-  if (b.msPerRow <= 0.0) return standard;
+  // Not measured yet at this level: the narrowest band while another moves (a final frame's rows
+  // can cost ten times a moving frame's).
+  if (b.msPerRow <= 0.0) return othersDrag ? std::min(kMinBandRows, standard) : standard;
   const double ms = othersDrag ? std::max(mTargetMs, kMovingBandMs) : kIdleBandMs;
   return std::clamp(int(ms / b.msPerRow), std::min(kMinBandRows, standard), standard);
 }
@@ -242,7 +275,7 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
   lock.lock();
   if (!message.empty()) {  // (a failed frame's time says nothing of its level)
     client.quality(surface).record(level, ms, cold, coarser);
-    client.send(std::move(message), true);
+    sendFrame(client, std::move(message));
   }
 }
 
@@ -258,7 +291,7 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   const SceneSummary summary = scene;
   ++mRenders;
   lock.unlock();
-  std::string message, error;
+  std::string error;
   RenderedFrame frame;
   const auto t0 = Clock::now();
   try {
@@ -276,8 +309,7 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
     client.send(errorMessage(mScrub(error), request.seq), false);
     return;
   }
-  for (int y = rows.x; y < rows.y; ++y)
-    std::copy_n(&frame.image.at(0, y), b.image.width, &b.image.at(0, y));
+  std::copy(frame.image.pixels.begin(), frame.image.pixels.end(), &b.image.at(0, rows.x));  // (the band's rows only)
   b.renderMs += ms;
   b.msPerRow = ms / (rows.y - rows.x);
   client.bandMsPerPixel = b.msPerRow / b.image.width;
@@ -288,22 +320,30 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   b.maxError = std::max(b.maxError, double(frame.selection.maxError));
   b.next = rows.y;
   if (b.next < b.image.height) return;
-  BandedFrame done = std::move(b);
+  // Encoded beside the next renders: the image's PNG would hold the other clients' frames.
+  mEncoder.add([this, to = client.shared_from_this(), sent = client.framesSent, done = std::make_shared<BandedFrame>(std::move(b)), summary, rung] {
+    std::string message, failed;
+    double total = 0.0;
+    try {
+      const FrameHeader header{summary, done->request, rung, done->level, done->final, done->surface, done->arrival, done->stats, done->maxError,
+                               done->renderMs, done->bands, done->longestBandMs};
+      message = encodeFrame(header, done->image, Clock::now(), &total);
+    } catch (const std::exception& e) {
+      failed = e.what();
+    }
+    const std::lock_guard<std::mutex> held(mMutex);
+    if (to->framesSent != sent) return;  // the page shows a newer request's frame: this one would replace it
+    if (!message.empty())
+      sendFrame(*to, std::move(message));
+    else
+      to->send(errorMessage(mScrub(failed), done->request.seq), false);
+  });
   client.banded.reset();
-  lock.unlock();
-  double total = 0.0;
-  try {
-    const FrameHeader header{summary, done.request, rung, done.level, done.final, done.surface, done.arrival, done.stats, done.maxError, done.renderMs,
-                             done.bands, done.longestBandMs};
-    message = encodeFrame(header, done.image, Clock::now(), &total);
-  } catch (const std::exception& e) {
-    error = e.what();
-  }
-  lock.lock();
-  if (!message.empty())
-    client.send(std::move(message), true);
-  else
-    client.send(errorMessage(mScrub(error), done.request.seq), false);
+}
+
+void FrameScheduler::sendFrame(Client& client, std::string message) {
+  ++client.framesSent;
+  client.send(std::move(message), true);
 }
 
 }  // namespace hyb::viewer

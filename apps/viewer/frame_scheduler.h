@@ -6,6 +6,8 @@
 
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
+#include <deque>
 #include <cstdint>
 #include <functional>
 #include <map>
@@ -13,6 +15,7 @@
 #include <mutex>
 #include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "apps/viewer/viewer_protocol.h"
@@ -33,7 +36,7 @@ using Clock = std::chrono::steady_clock;
 /// about that for its first frame: narrower bands would cost the large frame more than they save
 /// the mover (each band selects and draws every brick it crosses again).
 inline constexpr int kBandPixels = 512 * 512;
-inline constexpr int kMinBandRows = 32;
+inline constexpr int kMinBandRows = 8;
 inline constexpr double kMovingBandMs = 150.0;
 inline constexpr double kIdleBandMs = 250.0;
 
@@ -57,7 +60,7 @@ struct BandedFrame {
 
 /// A client: what its page asked for last, and how well its frames are made. Shared by its socket
 /// (network thread) and the render thread, under the server's mutex.
-struct Client {
+struct Client : std::enable_shared_from_this<Client> {
   uint64_t id = 0;
   std::string sceneKey;                 ///< the scene its frames are of; empty before one is open
   std::optional<FrameRequest> pending;  ///< the newest request not yet rendered
@@ -74,6 +77,7 @@ struct Client {
   int bandLevel = -1;                   ///< ... at this level of the ladder (another level's pixels cost differently)
   AdaptiveQuality volumeQuality, surfaceQuality, surfaceRayQuality;
   bool raysForSurface = false;  ///< the surface's ladder ray-traces small frames (surfaceRaysFit)
+  uint64_t framesSent = 0;  ///< frames gone out (one encoded late is dropped when others went out since)
   std::atomic<bool> open{true};
   std::function<void(std::string message, bool binary)> send;  ///< posts to the socket; drops when closed
 
@@ -99,14 +103,33 @@ struct Client {
 
 using Clients = std::map<uint64_t, std::shared_ptr<Client>>;
 
+/// Runs jobs in the order given on a thread of its own: a large frame's encoding (a 2048² PNG takes
+/// a few hundred milliseconds) that the other clients' frames need not wait for.
+class FrameEncoder {
+ public:
+  FrameEncoder();
+  ~FrameEncoder();  ///< the jobs not started are dropped
+  FrameEncoder(const FrameEncoder&) = delete;
+  FrameEncoder& operator=(const FrameEncoder&) = delete;
+  void add(std::function<void()> job);
+
+ private:
+  std::mutex mMutex;
+  std::condition_variable mWake;
+  std::deque<std::function<void()>> mJobs;
+  bool mStopping = false;
+  std::thread mThread;
+};
+
 /// Serves the clients' frames in turn (render thread, with the server's mutex held except while
 /// it renders and encodes).
 class FrameScheduler {
  public:
   /// Moving frames aim at @p frameTargetMs: a band drawn while another client moves takes about that.
   /// A frame's error goes to its client as @p scrub words it (the server's own paths left out).
-  FrameScheduler(ScenePool& pool, double frameTargetMs, std::function<std::string(std::string)> scrub)
-      : mPool(pool), mTargetMs(frameTargetMs), mScrub(std::move(scrub)) {}
+  /// @p mutex is the server's (the encoder's thread takes it to send).
+  FrameScheduler(ScenePool& pool, std::mutex& mutex, double frameTargetMs, std::function<std::string(std::string)> scrub)
+      : mPool(pool), mMutex(mutex), mTargetMs(frameTargetMs), mScrub(std::move(scrub)) {}
 
   /// Whether a client of @p clients has a frame to make.
   static bool hasWork(const Clients& clients);
@@ -130,11 +153,16 @@ class FrameScheduler {
   /// The rows of @p b's next band: kBandPixels' worth, or kMovingBandMs' worth while @p othersDrag.
   int bandRows(const BandedFrame& b, bool othersDrag) const;
 
+  /// Sends @p message, a frame, to @p client (server's mutex held).
+  static void sendFrame(Client& client, std::string message);
+
   ScenePool& mPool;
+  std::mutex& mMutex;
   UserGeometryMemo mGeometry;  ///< the meshes of the frames asked for (render thread)
   double mTargetMs;
   std::function<std::string(std::string)> mScrub;
   uint64_t mRenders = 0;
+  FrameEncoder mEncoder;  ///< (last: its thread ends before the members its jobs use)
 };
 
 }  // namespace hyb::viewer

@@ -291,7 +291,7 @@ Server::Server(ServerOptions options) : mImpl(std::make_unique<ServerState>()) {
   po.memoryBytes = s.options.memoryBytes;
   po.releaseAfter = s.options.releaseAfter;
   s.pool = std::make_unique<ScenePool>(s.mutex, std::move(po), s.poolEvents());
-  s.scheduler = std::make_unique<FrameScheduler>(*s.pool, s.options.frameTargetMs, [&s](std::string text) { return s.inDataDirTerms(std::move(text)); });
+  s.scheduler = std::make_unique<FrameScheduler>(*s.pool, s.mutex, s.options.frameTargetMs, [&s](std::string text) { return s.inDataDirTerms(std::move(text)); });
   if (!s.options.volume.empty()) {
     s.defaultScene = keyOf(s.options.volume, s.options.series);
     s.pool->preload(s.defaultScene, s.options.volume, s.options.series, std::filesystem::path(s.options.volume).filename().string());
