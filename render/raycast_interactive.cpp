@@ -16,6 +16,10 @@ namespace hyb {
 
 namespace {
 
+// What every sample calls: inlined whatever the size of the loop it lands in (GCC leaves these
+// small helpers as calls inside the tracer's large loop: a fifth of a frame).
+#define HYB_HOT [[gnu::always_inline]] inline
+
 // One entry of the transfer function's table: a full segment's premultiplied colour and opacity,
 // and the straight colour and optical depth per mm for shorter ones.
 struct Entry {
@@ -33,38 +37,41 @@ struct Lattice {
   const char* base;
   size_t sy, sz;
 
-  float at(size_t i) const {
+  HYB_HOT float at(size_t i) const {
     T x;  // (a paged store's blocks are bytes: copied, not aliased)
     std::memcpy(&x, base + i * sizeof(T), sizeof(T));
     return float(x);
   }
-  size_t index(const glm::ivec3& i) const { return size_t(i.x) + sy * size_t(i.y) + sz * size_t(i.z); }
+  HYB_HOT size_t index(const glm::ivec3& i) const { return size_t(i.x) + sy * size_t(i.y) + sz * size_t(i.z); }
 
-  float value(size_t c, const glm::vec3& t) const {
-    auto lerp = [](float a, float b, float w) { return a + (b - a) * w; };
+  HYB_HOT static float lerp(float a, float b, float w) { return a + (b - a) * w; }
+  HYB_HOT float value(size_t c, const glm::vec3& t) const {
     const float c00 = lerp(at(c), at(c + 1), t.x), c10 = lerp(at(c + sy), at(c + sy + 1), t.x);
     const float c01 = lerp(at(c + sz), at(c + sz + 1), t.x), c11 = lerp(at(c + sz + sy), at(c + sz + sy + 1), t.x);
     return lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z);
   }
 
-  glm::vec3 differences(size_t c, const glm::vec3& t) const {
-    // Each component mixes its differences at the eight corners: along x, those at x0 and x1 of the
-    // four rows (y, z) by t.x, then the rows by t.y and t.z.
-    auto along = [&](size_t s, size_t u, size_t v, float ts, float tu, float tv) {
-      auto row = [&](size_t r) { return (1.0f - ts) * (at(r + s) - at(r - s)) + ts * (at(r + 2 * s) - at(r)); };
-      const float a = row(c) + tu * (row(c + u) - row(c)), b = row(c + v) + tu * (row(c + v + u) - row(c + v));
-      return a + tv * (b - a);
-    };
-    return glm::vec3(along(1, sy, sz, t.x, t.y, t.z), along(sy, 1, sz, t.y, t.x, t.z), along(sz, 1, sy, t.z, t.x, t.y));
+  // The central differences along stride s at the row's two corners r and r + s, mixed by ts.
+  HYB_HOT float row(size_t r, size_t s, float ts) const { return lerp(at(r + s) - at(r - s), at(r + 2 * s) - at(r), ts); }
+  // One component: the rows of stride s at the cell's four corners across u and v, mixed by tu, tv.
+  HYB_HOT float along(size_t c, size_t s, size_t u, size_t v, float ts, float tu, float tv) const {
+    return lerp(lerp(row(c, s, ts), row(c + u, s, ts), tu), lerp(row(c + v, s, ts), row(c + v + u, s, ts), tu), tv);
+  }
+  HYB_HOT glm::vec3 differences(size_t c, const glm::vec3& t) const {
+    return glm::vec3(along(c, 1, sy, sz, t.x, t.y, t.z), along(c, sy, 1, sz, t.y, t.x, t.z), along(c, sz, 1, sy, t.z, t.x, t.y));
   }
 };
 
 // The cell of voxel-space point @p p in a grid of @p dims (≥ 2 a side): its first corner, and where
-// @p p lies in it; clamped to the grid as Volume::sample clamps.
-inline glm::ivec3 cellOf(const glm::vec3& p, const glm::ivec3& dims, glm::vec3* t) {
-  const glm::vec3 q = glm::clamp(p, glm::vec3(0.0f), glm::vec3(dims - 1));
-  const glm::ivec3 i = glm::min(glm::ivec3(q), dims - 2);
-  *t = q - glm::vec3(i);
+// @p p lies in it; clamped to the grid as Volume::sample clamps. (Per axis in scalars: glm's
+// component-wise min and max are calls the compiler does not inline here, a tenth of a frame.)
+HYB_HOT glm::ivec3 cellOf(const glm::vec3& p, const glm::ivec3& dims, glm::vec3* t) {
+  glm::ivec3 i;
+  for (int a = 0; a < 3; ++a) {
+    const float q = std::clamp(p[a], 0.0f, float(dims[a] - 1));
+    i[a] = std::min(int(q), dims[a] - 2);
+    (*t)[a] = q - float(i[a]);
+  }
   return i;
 }
 
@@ -86,7 +93,7 @@ struct MemoryField {
   MemoryField(const T* data, const glm::ivec3& n, const glm::dvec3& s)
       : d(data), lattice{reinterpret_cast<const char*>(data), size_t(n.x), size_t(n.x) * size_t(n.y)}, dims(n), spacing(s), inv2s(glm::vec3(0.5 / s)) {}
 
-  float value(const glm::vec3& p) const {
+  HYB_HOT float value(const glm::vec3& p) const {
     glm::vec3 t;
     return lattice.value(lattice.index(cellOf(p, dims, &t)), t);
   }
@@ -120,21 +127,20 @@ struct PagedField {
   explicit PagedField(const KnotSource& source) : sampler(source), dims(source.dims()), inv2s(glm::vec3(0.5 / source.spacing())) {}
 
   // Whether block @p b holds voxel @p v (SampleBlock::holds, inlined: it is asked at every sample).
-  static bool holds(const SampleBlock& b, const glm::ivec3& v) {
+  HYB_HOT static bool holds(const SampleBlock& b, const glm::ivec3& v) {
     return v.x >= b.lo.x && v.y >= b.lo.y && v.z >= b.lo.z && v.x < b.lo.x + b.dims.x && v.y < b.lo.y + b.dims.y && v.z < b.lo.z + b.dims.z;
   }
   // The block holding voxels lo … hi in type T, or none.
-  const SampleBlock* holding(const glm::ivec3& lo, const glm::ivec3& hi) {
+  HYB_HOT const SampleBlock* holding(const glm::ivec3& lo, const glm::ivec3& hi) {
     if (!block || !holds(*block, lo)) block = &sampler.blockAt(lo);
     return holds(*block, hi) && block->type == kType ? block : nullptr;
   }
   static Lattice<T> latticeOf(const SampleBlock& b) {
     return {static_cast<const char*>(b.samples), size_t(b.dims.x), size_t(b.dims.x) * size_t(b.dims.y)};
   }
-  // Gathers the voxels around cell @p i (its stencil, inside the grid) into `around`, a block at a
-  // time; false when a block does not hold type T.
-  bool gather(const glm::ivec3& i) {
-    const glm::ivec3 lo = i - 1, hi = i + 2;
+  // Gathers voxels lo … hi of cell @p i's stencil (inside the grid: the cell's corners, or the whole
+  // stencil) into `around`, a block at a time; false when a block does not hold type T.
+  bool gather(const glm::ivec3& i, const glm::ivec3& lo, const glm::ivec3& hi) {
     block = nullptr;
     for (glm::ivec3 v = lo; v.z <= hi.z;) {
       const SampleBlock& b = sampler.blockAt(v);
@@ -144,7 +150,7 @@ struct PagedField {
       for (int z = v.z; z <= end.z; ++z)
         for (int y = v.y; y <= end.y; ++y) {
           const char* from = l.base + l.index(glm::ivec3(v.x, y, z) - b.lo) * sizeof(T);
-          T* to = &around[size_t(v.x - lo.x) + 4 * size_t(y - lo.y) + 16 * size_t(z - lo.z)];
+          T* to = &around[size_t(v.x - i.x + 1) + 4 * size_t(y - i.y + 1) + 16 * size_t(z - i.z + 1)];
           for (int x = 0; x <= end.x - v.x; ++x) std::memcpy(to + x, from + size_t(x) * sizeof(T), sizeof(T));
         }
       // The next block: along x, then y, then z.
@@ -160,14 +166,14 @@ struct PagedField {
   }
   Lattice<T> gathered() const { return {reinterpret_cast<const char*>(around), 4, 16}; }
 
-  float value(const glm::vec3& p) {
+  HYB_HOT float value(const glm::vec3& p) {
     glm::vec3 t;
     const glm::ivec3 i = cellOf(p, dims, &t);
     if (const SampleBlock* b = holding(i, i + 1)) {
       const Lattice<T> l = latticeOf(*b);
       return l.value(l.index(i - b->lo), t);
     }
-    if (stencilInside(i, glm::ivec3(0), dims) && gather(i)) return gathered().value(kAroundCorner, t);
+    if (gather(i, i, i + 1)) return gathered().value(kAroundCorner, t);
     block = nullptr;
     return sampler.sample(p);
   }
@@ -179,7 +185,7 @@ struct PagedField {
         const Lattice<T> l = latticeOf(*b);
         return l.differences(l.index(i - b->lo), t) * inv2s;
       }
-      if (gather(i)) return gathered().differences(kAroundCorner, t) * inv2s;
+      if (gather(i, i - 1, i + 2)) return gathered().differences(kAroundCorner, t) * inv2s;
     }
     block = nullptr;
     return sampler.sampleGradient(p);
@@ -239,17 +245,20 @@ struct Frame {
     }
   }
 
-  size_t leafIndex(const glm::ivec3& l) const { return size_t(l.x) + size_t(leaves.x) * (size_t(l.y) + size_t(leaves.y) * size_t(l.z)); }
+  HYB_HOT size_t leafIndex(const glm::ivec3& l) const { return size_t(l.x) + size_t(leaves.x) * (size_t(l.y) + size_t(leaves.y) * size_t(l.z)); }
 
   // The region holding voxel-space point @p q: the largest transparent node holding it, else its
   // leaf; its box in voxels. True when transparent.
-  bool region(const glm::vec3& q, glm::vec3* lo, glm::vec3* hi) const {
-    const glm::ivec3 c = glm::min(glm::ivec3(glm::max(q, glm::vec3(0.0f))), cells - 1);
+  HYB_HOT bool region(const glm::vec3& q, glm::vec3* lo, glm::vec3* hi) const {
+    glm::ivec3 c;
+    for (int a = 0; a < 3; ++a) c[a] = std::min(int(std::max(q[a], 0.0f)), cells[a] - 1);
     const uint8_t skip = leafSkip[leafIndex(c >> leafShift)];
     const int shift = skip == kVisible ? leafShift : skip;
-    const glm::ivec3 a = (c >> shift) << shift;
-    *lo = glm::vec3(a);
-    *hi = glm::vec3(glm::min(a + (1 << shift), cells));
+    for (int a = 0; a < 3; ++a) {
+      const int first = (c[a] >> shift) << shift;
+      (*lo)[a] = float(first);
+      (*hi)[a] = float(std::min(first + (1 << shift), cells[a]));
+    }
     return skip != kVisible;
   }
 };
@@ -373,7 +382,7 @@ class Tracer {
   }
 
   // Where the ray leaves the voxel-space box [lo, hi], from distance @p t inside it.
-  double exit(const glm::vec3& lo, const glm::vec3& hi, double t) const {
+  HYB_HOT double exit(const glm::vec3& lo, const glm::vec3& hi, double t) const {
     double e = 1e300;
     for (int k = 0; k < 3; ++k) {
       if (mQd[k] > 0.0f)
@@ -385,14 +394,14 @@ class Tracer {
   }
 
   // The field at distance @p t; @p q receives where that is in voxels.
-  float valueAt(float t, glm::vec3* q) {
+  HYB_HOT float valueAt(float t, glm::vec3* q) {
     *q = mQo + mQd * t;
     ++samples;
     return mField.value(*q);
   }
 
   // Composites a segment dt long sampled at distance @p t.
-  void sampleFull(float t) {
+  HYB_HOT void sampleFull(float t) {
     glm::vec3 q;
     const size_t e = size_t(mF.layout.entry(valueAt(t, &q)));
     if (mF.visible[e]) composite(q, mF.table[e].full, t);
@@ -499,5 +508,7 @@ Image raycastInteractive(const Volume& volume, const VolumeOctree& octree, const
   if (stats) *stats = counts;
   return image;
 }
+
+#undef HYB_HOT
 
 }  // namespace hyb
