@@ -75,23 +75,22 @@ HYB_HOT glm::ivec3 cellOf(const glm::vec3& p, const glm::ivec3& dims, glm::vec3*
   return i;
 }
 
-// Whether Levoy's stencil around cell @p i (i − 1 … i + 2) lies inside [lo, hi).
-inline bool stencilInside(const glm::ivec3& i, const glm::ivec3& lo, const glm::ivec3& hi) {
-  return i.x > lo.x && i.y > lo.y && i.z > lo.z && i.x + 2 < hi.x && i.y + 2 < hi.y && i.z + 2 < hi.z;
+// Whether Levoy's stencil around cell @p i (voxels i − 1 … i + 2) lies inside a grid of @p dims.
+inline bool stencilInside(const glm::ivec3& i, const glm::ivec3& dims) {
+  return i.x > 0 && i.y > 0 && i.z > 0 && i.x + 2 < dims.x && i.y + 2 < dims.y && i.z + 2 < dims.z;
 }
 
 // The samples of a volume in memory, of type T: Volume::sample and sampleGradient's numbers, read
 // without their per-read clamps inside the grid.
 template <class T>
 struct MemoryField {
-  const T* d;
   Lattice<T> lattice;
   glm::ivec3 dims;
   glm::dvec3 spacing;
   glm::vec3 inv2s;  // 1 / (2 · spacing)
 
   MemoryField(const T* data, const glm::ivec3& n, const glm::dvec3& s)
-      : d(data), lattice{reinterpret_cast<const char*>(data), size_t(n.x), size_t(n.x) * size_t(n.y)}, dims(n), spacing(s), inv2s(glm::vec3(0.5 / s)) {}
+      : lattice{reinterpret_cast<const char*>(data), size_t(n.x), size_t(n.x) * size_t(n.y)}, dims(n), spacing(s), inv2s(glm::vec3(0.5 / s)) {}
 
   HYB_HOT float value(const glm::vec3& p) const {
     glm::vec3 t;
@@ -102,16 +101,16 @@ struct MemoryField {
   glm::vec3 gradient(const glm::vec3& p) const {
     glm::vec3 t;
     const glm::ivec3 i = cellOf(p, dims, &t);
-    if (!stencilInside(i, glm::ivec3(0), dims))
+    if (!stencilInside(i, dims))
       return trilinearGradient(p, dims, spacing, [this](int x, int y, int z) { return lattice.at(lattice.index({x, y, z})); });
     return lattice.differences(lattice.index(i), t) * inv2s;
   }
 };
 
 // A paged scene's samples of type T through a sampler of its cached blocks (one a thread): read in
-// place from the block holding a sample's cell (its stencil, for a gradient), else from the 4³
-// voxels around the cell gathered from their blocks, else (at the grid's faces) through the
-// sampler voxel by voxel (KnotSampler's numbers, Volume's).
+// place from the block holding a sample's cell (its stencil, for a gradient), else from the cell's
+// corners (its stencil) gathered from their blocks; a gradient at the grid's faces through the
+// sampler (KnotSampler's numbers, Volume's).
 template <class T>
 struct PagedField {
   static constexpr ScalarType kType = std::is_same_v<T, uint8_t> ? ScalarType::UInt8 : std::is_same_v<T, int8_t> ? ScalarType::Int8
@@ -180,7 +179,7 @@ struct PagedField {
   glm::vec3 gradient(const glm::vec3& p) {
     glm::vec3 t;
     const glm::ivec3 i = cellOf(p, dims, &t);
-    if (stencilInside(i, glm::ivec3(0), dims)) {
+    if (stencilInside(i, dims)) {
       if (const SampleBlock* b = holding(i - 1, i + 2)) {
         const Lattice<T> l = latticeOf(*b);
         return l.differences(l.index(i - b->lo), t) * inv2s;
@@ -330,9 +329,9 @@ class Tracer {
   }
   bool crossingBefore(double t) const { return mHit && mHit->t < t; }
 
-  // The segments of length dt from t0 (raycast's lattice), split at surface crossings; a region's
-  // query at the segment that enters it, every segment starting inside a visible one sampled.
-  // The segments of [t0, t1] between the lattice points t0 − off + k·dt.
+  // The segments of [t0, t1] between the lattice points t0 − off + k·dt (raycast's lattice, offset),
+  // split at surface crossings; a region's query at the segment that enters it, every segment
+  // starting inside a visible one sampled.
   void march(const glm::dvec3& o, const glm::dvec3& d, double t0, double t1, double off) {
     const double dt = mF.dt;
     mQo = glm::vec3(o) * mF.invSpacing;

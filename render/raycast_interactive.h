@@ -1,10 +1,13 @@
-// The ray tracer of moving frames: the reference's rays (render/raycast.h: segments on the same
-// lattice, split at the same surface crossings, empty space skipped by the same octree nodes) in
-// float arithmetic, the transfer function read from a table, an empty-space query per octree leaf
-// crossed rather than per segment, and rays stopped once nearly opaque. Its images are within a
-// stated PSNR of the reference's at the same camera and spacing (tests/raycast_test.cpp), for a
-// fraction of the time (docs/viewer.md, Ray-traced moving frames).
+// The ray tracer of moving frames: the reference's rays (render/raycast.h: segments of the same
+// length, split at the same surface crossings, empty space skipped by the same octree nodes) in
+// float arithmetic, the transfer function read from a table, one empty-space query per octree node
+// entered rather than per segment, crossings found as the ray reaches them, rays stopped once
+// nearly opaque and sample offsets interleaved across each 2² square of pixels. Its images are
+// within a stated PSNR of the reference's at the same camera and spacing
+// (tests/raycast_interactive_test.cpp), for half the time (docs/renderer.md).
 #pragma once
+
+#include <vector>
 
 #include "render/raycast.h"
 
@@ -17,7 +20,8 @@ namespace hyb {
 bool interactiveRaysServe(const Volume& volume, const RaycastOptions& options);
 
 /// Alpha at which a moving frame's ray stops: 0.99 leaves at most 1 % of a pixel's colour out
-/// where the reference (0.999) goes on; the cranium's rays stop there about a fifth sooner.
+/// where the reference (0.999) goes on; the reference's own rays on the cranium take a seventh
+/// fewer samples stopping there (docs/renderer.md, Alternatives: early ray termination).
 inline constexpr float kInteractiveOpaqueAlpha = 0.99f;
 
 /// Renders what raycast() renders for @p options (which interactiveRaysServe must accept), on all
