@@ -158,55 +158,59 @@ void reuse(SceneRenderer& r, const Look& look, const TriangleMesh* surface, cons
 
 int main(int argc, char** argv) {
   if (argc < 2) {
-    std::fprintf(stderr, "usage: hyb_moving_frames VOLUME|SCENE.hoct [--iso V | --volume-only] [--canvas N] [--views K] [--frames F] [--refs DIR] [--methods LIST]\n");
+    std::fprintf(stderr, "usage: hyb_moving_frames VOLUME|SCENE.hoct [--iso V | --volume-only] [--canvas N] [--views K] [--frames F] [--rounds R]"
+                         " [--refs DIR] [--dump DIR] [--methods LIST] [--reuse DEG:SIZE:STEP]\n");
     return 2;
   }
-  const std::string path = argv[1];
-  float iso = 400.0f;
-  bool surface = true;
-  int canvas = 512, viewCount = 4, frames = 4, rounds = 2;
-  std::string refs, methodList, dump;
-  double reuseDeg = 0.0, reuseStep = 2.5;
-  int reuseSize = 128;
-  for (int i = 2; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&] {
-      if (i + 1 >= argc) HYB_THROW(ValueError, a, " needs a value");
-      return std::string(argv[++i]);
-    };
-    if (a == "--iso") iso = std::stof(next());
-    else if (a == "--volume-only") surface = false;
-    else if (a == "--canvas") canvas = std::stoi(next());
-    else if (a == "--views") viewCount = std::stoi(next());
-    else if (a == "--frames") frames = std::stoi(next());
-    else if (a == "--rounds") rounds = std::stoi(next());
-    else if (a == "--refs") refs = next();
-    else if (a == "--methods") methodList = next();
-    else if (a == "--dump") dump = next();
-    else if (a == "--reuse") {  // DEG:SIZE:STEP
-      const std::string v = next();
-      std::sscanf(v.c_str(), "%lf:%d:%lf", &reuseDeg, &reuseSize, &reuseStep);
-    }
-    else {
-      std::fprintf(stderr, "hyb_moving_frames: unknown option %s\n", a.c_str());
-      return 2;
-    }
-  }
-  std::vector<Method> methods;
-  if (methodList.empty()) methodList = surface ? "slices:128:2.5,slices:160:2.5,rays:128:2.5,rays:160:2.5,fast:128:2.5,fast:192:2,fast:256:2,fast:256:1.5,fast:320:2"
-                                               : "slices:128:1.3,slices:160:1.3,fast:128:2,fast:192:2,fast:256:1.5,fast:256:2,fast:320:2";
-  {
-    std::istringstream in(methodList);
-    for (std::string item; std::getline(in, item, ',');) {
-      Method m;
-      const size_t a = item.find(':'), b = item.find(':', a + 1);
-      m.kind = item.substr(0, a);
-      m.size = std::stoi(item.substr(a + 1, b - a - 1));
-      m.step = std::stod(item.substr(b + 1));
-      methods.push_back(m);
-    }
-  }
   try {
+    const std::string path = argv[1];
+    float iso = 400.0f;
+    bool surface = true;
+    int canvas = 512, viewCount = 4, frames = 4, rounds = 2;
+    std::string refs, methodList, dump;
+    double reuseDeg = 0.0, reuseStep = 2.5;
+    int reuseSize = 128;
+    for (int i = 2; i < argc; ++i) {
+      const std::string a = argv[i];
+      auto next = [&] {
+        if (i + 1 >= argc) HYB_THROW(ValueError, a, " needs a value");
+        return std::string(argv[++i]);
+      };
+      if (a == "--iso") iso = std::stof(next());
+      else if (a == "--volume-only") surface = false;
+      else if (a == "--canvas") canvas = std::stoi(next());
+      else if (a == "--views") viewCount = std::stoi(next());
+      else if (a == "--frames") frames = std::stoi(next());
+      else if (a == "--rounds") rounds = std::stoi(next());
+      else if (a == "--refs") refs = next();
+      else if (a == "--methods") methodList = next();
+      else if (a == "--dump") dump = next();
+      else if (a == "--reuse") {
+        const std::string v = next();
+        if (std::sscanf(v.c_str(), "%lf:%d:%lf", &reuseDeg, &reuseSize, &reuseStep) != 3 || !(reuseDeg > 0.0) || reuseSize < 16 || !(reuseStep > 0.0))
+          HYB_THROW(ValueError, "--reuse ", v, ": expected DEG:SIZE:STEP (degrees > 0, pixels >= 16, voxels > 0)");
+      } else {
+        HYB_THROW(ValueError, "unknown option ", a);
+      }
+    }
+    if (canvas < 16 || viewCount < 1 || frames < 1 || rounds < 1) HYB_THROW(ValueError, "--canvas (>= 16), --views, --frames and --rounds (>= 1) out of range");
+    std::vector<Method> methods;
+    if (methodList.empty())  // (docs/renderer.md's tables)
+      methodList = surface ? "slices:128:2.5,slices:160:2.5,rays:128:2.5,rays:160:2.5,fast:128:2.5,fast:160:2,fast:192:1.5,fast:224:1.5,fast:256:1.5,fast:320:2"
+                           : "slices:128:1.3,slices:160:1.3,slices:192:1.3,slices:256:1,fast:128:2,fast:192:1.5,fast:256:1.5";
+    {
+      std::istringstream in(methodList);
+      for (std::string item; std::getline(in, item, ',');) {
+        Method m;
+        char kind[16] = {};
+        if (std::sscanf(item.c_str(), "%15[a-z]:%d:%lf", kind, &m.size, &m.step) != 3 || m.size < 16 || !(m.step > 0.0))
+          HYB_THROW(ValueError, "--methods ", item, ": expected METHOD:SIZE:STEP (pixels >= 16, voxels > 0)");
+        m.kind = kind;
+        if (m.kind != "slices" && m.kind != "rays" && m.kind != "rayspre" && m.kind != "fast")
+          HYB_THROW(ValueError, "--methods ", item, ": METHOD is slices, rays, rayspre or fast");
+        methods.push_back(m);
+      }
+    }
     SceneSource source;
     source.path = path;
     OpenedScene opened = openScene(source, {}, SceneLoadOptions{false, 0});

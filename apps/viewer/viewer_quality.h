@@ -68,7 +68,7 @@ inline constexpr Ladder kSurfaceLadder{{
 /// At those sizes a slice frame's cost follows the surface's triangles (llvmpipe shades 4×4
 /// blocks), a ray-traced one its pixels, and the ray tracer draws the exact surface composited
 /// exactly: on the cranium a 192² frame at 1.5 voxels costs what the reference tracer's 128² at
-/// 2.5 did and shows 3 dB more as painted (docs/viewer.md). In memory or paged alike (the tracer
+/// 2.5 costs and shows 3 dB more as painted (docs/viewer.md). In memory or paged alike (the tracer
 /// reads a scene file's cached blocks in place).
 inline constexpr Ladder kSurfaceRayLadder{{
     {1.0, 100.0, 0.5},
