@@ -7,6 +7,7 @@
 // usage (after scripts/setup.sh): node bench/viewer_bench.mjs build/hybrid-octree [--seconds 5] [--samples 4] [--frame-ms 80]
 //                                  [--volume FILE] [--iso V]   (default: the cranium and 400 HU)
 //                                  [--volume-only]   (no surface orbit: a study too large to extract one from)
+//                                  [--surface-only]  (no volume orbit)
 //                                  [--frames]   (also print each interactive frame's level, time and bricks drawn coarser)
 import { spawn, execFileSync } from 'node:child_process';
 import { createRequire } from 'node:module';
@@ -156,7 +157,7 @@ try {
   await page.evaluate(() => { document.getElementById('surface-on').checked = false; });
   await page.evaluate(() => window.hybViewer.request(false));
   await waitFinal();
-  await orbit('volume only', false);
+  if (!process.argv.includes('--surface-only')) await orbit('volume only', false);
   if (!process.argv.includes('--volume-only')) {
     await page.evaluate((v) => { document.getElementById('iso').value = document.getElementById('iso-number').value = String(v); }, iso);
     const asked = await page.evaluate(() => performance.now());

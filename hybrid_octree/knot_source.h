@@ -143,14 +143,15 @@ class KnotSampler {
   /// @throw IoError as KnotSource::sampleBlock.
   float sample(const glm::vec3& p);
   glm::vec3 sampleGradient(const glm::vec3& p);
+  /// The block holding voxel @p v, from the one last used or the table, else read: valid until the
+  /// sampler's next call. @throw IoError as KnotSource::sampleBlock.
+  const SampleBlock& blockAt(const glm::ivec3& v);
 
  private:
   struct Entry {
     SampleBlock block;
     uint64_t used = 0;  // the sampler's clock at its last use
   };
-  /// The block holding voxel @p v, from the one last used or the table, else read.
-  const SampleBlock& blockAt(const glm::ivec3& v);
   /// Calls @p f with a reader of voxels (i, j, k) → float for the voxels lo … hi around @p p: one
   /// block's typed reader where a block holds them all (most samples), else voxel by voxel.
   template <class F>

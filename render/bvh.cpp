@@ -7,6 +7,7 @@
 #include <cstring>
 #include <limits>
 #include <mutex>
+#include <optional>
 
 #include "volume/core/error.h"
 
@@ -30,36 +31,73 @@ struct Query {
   const std::vector<const TriangleMesh*>* meshes;
   glm::dvec3 origin, dir;
   double tMin, tMax;
-  std::vector<Hit>* hits;
+  std::vector<Hit>* hits;  // every hit (allHits), or null: the nearest only, in nearest (firstHit)
+  std::optional<Hit> nearest;
 };
 
 // Records the crossing Embree found, measured again in double precision (Möller–Trumbore on the
-// same triangle), and rejects it so that the traversal goes on to the next.
+// same triangle), and rejects it so that the traversal goes on to the next; for firstHit, keeps
+// the nearest as Embree measured it and accepts it, so that Embree leaves out what lies beyond.
 void recordHit(const RTCFilterFunctionNArguments* args) {
-  const Query& q = *reinterpret_cast<const Query*>(args->context);
-  args->valid[0] = 0;
+  Query& q = *reinterpret_cast<Query*>(args->context);
   const uint32_t prim = RTCHitN_primID(args->hit, args->N, 0), part = RTCHitN_geomID(args->hit, args->N, 0);
   const TriangleMesh& mesh = *(*q.meshes)[part];
   const glm::uvec3 tri = mesh.triangles[prim];
   const glm::dvec3 p0 = mesh.vertices[tri.x], p1 = mesh.vertices[tri.y], p2 = mesh.vertices[tri.z];
-  const glm::dvec3 e1 = p1 - p0, e2 = p2 - p0, pv = glm::cross(q.dir, e2);
-  const double det = glm::dot(e1, pv);
+  const glm::dvec3 e1 = p1 - p0, e2 = p2 - p0;
   double t = RTCRayN_tfar(args->ray, args->N, 0), u = RTCHitN_u(args->hit, args->N, 0), v = RTCHitN_v(args->hit, args->N, 0);
-  if (std::abs(det) >= 1e-18) {  // (edge-on: Embree's own numbers)
-    const glm::dvec3 tv = q.origin - p0, qv = glm::cross(tv, e1);
-    u = std::clamp(glm::dot(tv, pv) / det, 0.0, 1.0);
-    v = std::clamp(glm::dot(q.dir, qv) / det, 0.0, 1.0 - u);
-    t = glm::dot(e2, qv) / det;
+  if (q.hits) {
+    args->valid[0] = 0;
+    const glm::dvec3 pv = glm::cross(q.dir, e2);
+    const double det = glm::dot(e1, pv);
+    if (std::abs(det) >= 1e-18) {  // (edge-on: Embree's own numbers)
+      const glm::dvec3 tv = q.origin - p0, qv = glm::cross(tv, e1);
+      u = std::clamp(glm::dot(tv, pv) / det, 0.0, 1.0);
+      v = std::clamp(glm::dot(q.dir, qv) / det, 0.0, 1.0 - u);
+      t = glm::dot(e2, qv) / det;
+    }
   }
-  if (!(t > q.tMin && t < q.tMax)) return;
-  const glm::dvec3 facet = glm::normalize(glm::cross(e1, e2));
-  if (mesh.normals.empty()) {
-    q.hits->push_back({t, facet, part});
+  if (!(t > q.tMin && t < q.tMax)) {
+    args->valid[0] = 0;
     return;
   }
-  const glm::dvec3 n = (1.0 - u - v) * glm::dvec3(mesh.normals[tri.x]) + u * glm::dvec3(mesh.normals[tri.y]) + v * glm::dvec3(mesh.normals[tri.z]);
-  const double len = glm::length(n);
-  q.hits->push_back({t, len > 0.0 ? n / len : facet, part});
+  if (!q.hits && q.nearest && !(t < q.nearest->t || (t == q.nearest->t && part < q.nearest->part))) {
+    args->valid[0] = 0;
+    return;
+  }
+  const glm::dvec3 facet = glm::normalize(glm::cross(e1, e2));
+  Hit hit{t, facet, part};
+  if (!mesh.normals.empty()) {
+    const glm::dvec3 n = (1.0 - u - v) * glm::dvec3(mesh.normals[tri.x]) + u * glm::dvec3(mesh.normals[tri.y]) + v * glm::dvec3(mesh.normals[tri.z]);
+    const double len = glm::length(n);
+    if (len > 0.0) hit.normal = n / len;
+  }
+  if (q.hits)
+    q.hits->push_back(hit);
+  else
+    q.nearest = hit;
+}
+
+// Embree's ray for a query from @p o along @p d over (tMin, tMax), widened by float's rounding of
+// the origin and of finite bounds: the filter keeps only tMin < t < tMax, in double. A bound beyond
+// float's range is none.
+RTCRayHit rayOf(const glm::dvec3& o, const glm::dvec3& d, double tMin, double tMax) {
+  RTCRayHit rh{};
+  rh.ray.org_x = float(o.x);
+  rh.ray.org_y = float(o.y);
+  rh.ray.org_z = float(o.z);
+  rh.ray.dir_x = float(d.x);
+  rh.ray.dir_y = float(d.y);
+  rh.ray.dir_z = float(d.z);
+  constexpr double kFloatMax = double(std::numeric_limits<float>::max());
+  const bool far = !(tMax < 0.5 * kFloatMax);
+  const double slack = 1e-6 * (glm::length(o) + std::abs(tMin) + (far ? 0.0 : std::abs(tMax))) + 1e-6;
+  rh.ray.tnear = float(std::clamp(tMin - slack, 0.0, 0.5 * kFloatMax));
+  rh.ray.tfar = far ? std::numeric_limits<float>::infinity() : float(tMax + slack);
+  rh.ray.mask = ~0u;
+  rh.ray.flags = 0;
+  rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  return rh;
 }
 
 }  // namespace
@@ -106,31 +144,24 @@ Bvh::~Bvh() {
 void Bvh::allHits(const glm::dvec3& o, const glm::dvec3& d, double tMin, double tMax, std::vector<Hit>* hits) const {
   hits->clear();
   if (!mScene) return;
-  Query q{{}, &mMeshes, o, d, tMin, tMax, hits};
+  Query q{{}, &mMeshes, o, d, tMin, tMax, hits, std::nullopt};
   rtcInitIntersectContext(&q.context);
-  RTCRayHit rh{};
-  rh.ray.org_x = float(o.x);
-  rh.ray.org_y = float(o.y);
-  rh.ray.org_z = float(o.z);
-  rh.ray.dir_x = float(d.x);
-  rh.ray.dir_y = float(d.y);
-  rh.ray.dir_z = float(d.z);
-  // Widened by float's rounding of the origin and of finite bounds: the filter keeps only
-  // tMin < t < tMax, in double. A bound beyond float's range is none.
-  constexpr double kFloatMax = double(std::numeric_limits<float>::max());
-  const bool far = !(tMax < 0.5 * kFloatMax);
-  const double slack = 1e-6 * (glm::length(o) + std::abs(tMin) + (far ? 0.0 : std::abs(tMax))) + 1e-6;
-  rh.ray.tnear = float(std::clamp(tMin - slack, 0.0, 0.5 * kFloatMax));
-  rh.ray.tfar = far ? std::numeric_limits<float>::infinity() : float(tMax + slack);
-  rh.ray.mask = ~0u;
-  rh.ray.flags = 0;
-  rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  RTCRayHit rh = rayOf(o, d, tMin, tMax);
   rtcIntersect1(mScene, &q.context, &rh);
   // A ray through an edge or vertex shared by several triangles of a mesh crosses it once there (and
   // Embree's spatial splits may report one triangle twice); equal distances are ordered by mesh.
   std::sort(hits->begin(), hits->end(), [](const Hit& a, const Hit& b) { return a.t != b.t ? a.t < b.t : a.part < b.part; });
   auto same = [](const Hit& a, const Hit& b) { return a.part == b.part && std::abs(a.t - b.t) < 1e-9 * (1 + std::abs(a.t)); };
   hits->erase(std::unique(hits->begin(), hits->end(), same), hits->end());
+}
+
+std::optional<Hit> Bvh::firstHit(const glm::dvec3& o, const glm::dvec3& d, double tMin, double tMax) const {
+  if (!mScene) return std::nullopt;
+  Query q{{}, &mMeshes, o, d, tMin, tMax, nullptr, std::nullopt};
+  rtcInitIntersectContext(&q.context);
+  RTCRayHit rh = rayOf(o, d, tMin, tMax);
+  rtcIntersect1(mScene, &q.context, &rh);
+  return q.nearest;
 }
 
 }  // namespace hyb

@@ -5,6 +5,7 @@
 
 #include <glm/glm.hpp>
 
+#include <optional>
 #include <vector>
 
 #include "surface/mesh.h"
@@ -36,6 +37,11 @@ class Bvh {
   /// All hits with tMin < t < tMax, sorted by t; hits at the same distance (a ray through a shared
   /// edge or vertex of one mesh) are counted once. Thread-safe.
   void allHits(const glm::dvec3& origin, const glm::dvec3& dir, double tMin, double tMax, std::vector<Hit>* hits) const;
+  /// The hit of allHits with the smallest t (then the lowest part), or none, its t, u and v in
+  /// Embree's float precision (a few 1e-5 mm on a head): Embree's traversal leaves out what lies
+  /// beyond the nearest found so far, so a ray that needs only its first few crossings (one
+  /// stopped once opaque) costs less than with all of them. Thread-safe.
+  std::optional<Hit> firstHit(const glm::dvec3& origin, const glm::dvec3& dir, double tMin, double tMax) const;
   bool empty() const { return mScene == nullptr; }
 
  private:

@@ -178,6 +178,10 @@ struct Quality {
   /// clustered one) without making anything, as a viewer's frames do while its builder thread
   /// makes the surface (FrameStats::surfaceSpacing says which was drawn).
   bool waitForSurface = true;
+  /// Ray-traced frames drawn by the moving frames' tracer (render/raycast_interactive.h: float
+  /// arithmetic, a table for the transfer function, rays stopped at α ≥ 0.99) where it serves the
+  /// frame; false: the reference's.
+  bool interactiveRays = false;
 
   /// Empty when valid, else a message naming the offending flag (--epsilon, --step, --budget...).
   std::string validate() const;

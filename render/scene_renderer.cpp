@@ -12,6 +12,7 @@
 #include "hybrid_octree/coarse_surface.h"
 #include "hybrid_octree/surface_octree.h"
 #include "render/patient_view.h"
+#include "render/raycast_interactive.h"
 #include "surface/mesh_ops.h"
 #include "surface/mesh_simplify.h"
 #include "volume/core/error.h"
@@ -769,7 +770,10 @@ void SceneRenderer::renderRaycast(const FrameGrid& g, const Look& look, const Qu
       ls.renderMs = msSince(t0);
       onLevel(level, ro.refineLevels, image, ls);
     };
-  out->image = raycast(volume(), mScene.octree, look.tf, g.camera, ro, &st.rays);
+  if (quality.interactiveRays && interactiveRaysServe(volume(), ro))
+    out->image = raycastInteractive(volume(), mScene.octree, look.tf, g.camera, ro, &st.rays);
+  else
+    out->image = raycast(volume(), mScene.octree, look.tf, g.camera, ro, &st.rays);
   st.renderMs = msSince(t0);
 }
 

@@ -64,6 +64,7 @@ FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const QualityLe
     p.quality.lodPixels = kInteractiveLodPixels;
     p.quality.waitForBricks = false;  // a paged scene's bricks not cached yet are drawn coarser meanwhile
     p.quality.packTexels = kInteractivePackTexels;
+    p.quality.interactiveRays = true;  // a ray-traced rung's frame by the moving frames' tracer
   } else {
     p.quality.lodPixels = kFinalLodPixels;
   }

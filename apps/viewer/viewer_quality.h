@@ -63,22 +63,24 @@ inline constexpr Ladder kSurfaceLadder{{
     {0.1875, 100.0, 2.5},
     {0.15625, 100.0, 2.5},
 }};
-/// The surface's ladder for a volume whose rays are short (surfaceRaysFit): below half the canvas
-/// the frames are ray-traced. At those sizes a slice frame's cost follows the surface's triangles (llvmpipe
-/// shades 4×4 blocks), a ray-traced one its pixels, and the ray tracer draws the exact surface
-/// composited exactly: more accurate for the time at those sizes (docs/viewer.md). In memory or
-/// paged alike (the ray tracer reads a scene file's cached blocks in place).
+/// The surface's ladder for a volume whose rays are short (surfaceRaysFit): below three quarters of
+/// the canvas the frames are ray-traced by the moving frames' tracer (render/raycast_interactive.h).
+/// At those sizes a slice frame's cost follows the surface's triangles (llvmpipe shades 4×4
+/// blocks), a ray-traced one its pixels, and the ray tracer draws the exact surface composited
+/// exactly: on the cranium a 192² frame at 1.5 voxels costs what the reference tracer's 128² at
+/// 2.5 costs and shows 3 dB more as painted (docs/viewer.md). In memory or paged alike (the tracer
+/// reads a scene file's cached blocks in place).
 inline constexpr Ladder kSurfaceRayLadder{{
     {1.0, 100.0, 0.5},
     {1.0, 100.0, 1.0},
     {0.75, 100.0, 1.3},
-    {0.5, 100.0, 1.6},
-    {0.5, 100.0, 2.5, true},
-    {0.375, 100.0, 2.5, true},
-    {0.3125, 100.0, 2.5, true},
-    {0.3125, 100.0, 3.0, true},
+    {0.5, 100.0, 1.5, true},
+    {0.4375, 100.0, 1.5, true},
+    {0.375, 100.0, 1.5, true},
+    {0.375, 100.0, 2.0, true},
+    {0.3125, 100.0, 2.0, true},
     {0.25, 100.0, 2.5, true},
-    {0.25, 100.0, 3.0, true},
+    {0.21875, 100.0, 2.5, true},
     {0.1875, 100.0, 3.0, true},
     {0.15625, 100.0, 3.0, true},
 }};
