@@ -12,10 +12,7 @@
 
 namespace hyb {
 
-namespace {
-
-// Entry and exit distances of the ray through the box [lo, hi]; false when it misses.
-bool slab(const glm::dvec3& o, const glm::dvec3& d, const glm::dvec3& lo, const glm::dvec3& hi, double* t0, double* t1) {
+bool raySlab(const glm::dvec3& o, const glm::dvec3& d, const glm::dvec3& lo, const glm::dvec3& hi, double* t0, double* t1) {
   double a = -1e300, b = 1e300;
   for (int k = 0; k < 3; ++k) {
     if (std::abs(d[k]) < 1e-300) {
@@ -31,6 +28,8 @@ bool slab(const glm::dvec3& o, const glm::dvec3& d, const glm::dvec3& lo, const 
   *t1 = b;
   return a <= b;
 }
+
+namespace {
 
 // Shading factor of a headlight on a surface with normal n (two-sided Lambert with ambient).
 double headlight(const glm::dvec3& n, const glm::dvec3& dir) { return 0.25 + 0.75 * std::abs(glm::dot(n, dir)); }
@@ -115,7 +114,7 @@ class PixelTracer {
   glm::vec4 trace(int x, int y) {
     Ray r;
     mF.camera.ray(x + 0.5, y + 0.5, &r.o, &r.d);
-    r.inBox = slab(r.o, r.d, glm::dvec3(0.0), mF.boxHi, &r.t0, &r.t1);
+    r.inBox = raySlab(r.o, r.d, glm::dvec3(0.0), mF.boxHi, &r.t0, &r.t1);
     r.t0 = std::max(r.t0, 0.0);
     if (mOptions.cut) {
       if (const std::optional<glm::vec4> plane = keepCutSide(r)) return *plane;
@@ -188,7 +187,7 @@ class PixelTracer {
     double first = t0, last = t1;
     if (mOptions.region) {
       double r0 = 0, r1 = 0;
-      if (slab(r.o, r.d, mOptions.region->lo, mOptions.region->hi, &r0, &r1)) {
+      if (raySlab(r.o, r.d, mOptions.region->lo, mOptions.region->hi, &r0, &r1)) {
         first = t0 + std::max(0.0, std::floor((r0 - t0) / dt) - 1.0) * dt;
         last = std::min(t1, r1 + dt);
       } else {
@@ -227,7 +226,7 @@ class PixelTracer {
     glm::dvec3 lo, hi;
     if (!mF.transparentBoxAt((r.o + r.d * ta) / mF.spacing, &lo, &hi)) return ta;
     double e0, e1;
-    slab(r.o, r.d, lo, hi, &e0, &e1);
+    raySlab(r.o, r.d, lo, hi, &e0, &e1);
     return r.t0 + std::floor((std::max(e1, ta) - r.t0) / mF.dt + 1e-9) * mF.dt;
   }
 

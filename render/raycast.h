@@ -82,6 +82,10 @@ struct RaycastStats {
   uint64_t rays = 0;            ///< pixels traced (the others interpolated by refinement)
 };
 
+/// Entry and exit distances @p t0, @p t1 of the ray o + t·d through the box [lo, hi]; false when
+/// it misses (both ray tracers).
+bool raySlab(const glm::dvec3& o, const glm::dvec3& d, const glm::dvec3& lo, const glm::dvec3& hi, double* t0, double* t1);
+
 /// Renders @p volume (world mm: voxel (i,j,k) at (i·sx, j·sy, k·sz)) into premultiplied RGBA,
 /// multithreaded over rows. Deterministic.
 Image raycast(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,

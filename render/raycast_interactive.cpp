@@ -196,7 +196,6 @@ struct PagedField {
 struct Frame {
   const Camera& camera;
   const RaycastOptions& options;
-  float opaque;
   LutLayout layout;
   std::vector<Entry> table;
   std::vector<uint8_t> visible;  // table[e].full.a > 0: most samples read this small table alone
@@ -212,8 +211,8 @@ struct Frame {
   glm::ivec3 leaves;
   std::vector<uint8_t> leafSkip;
 
-  Frame(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& c, const RaycastOptions& opt, float stop)
-      : camera(c), options(opt), opaque(stop), layout(volume.minValue(), volume.maxValue(), tf), table(LutLayout::kSize), visible(LutLayout::kSize),
+  Frame(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& c, const RaycastOptions& opt)
+      : camera(c), options(opt), layout(volume.minValue(), volume.maxValue(), tf), table(LutLayout::kSize), visible(LutLayout::kSize),
         invSpacing(glm::vec3(1.0 / volume.spacing())), boxHi(volume.extentMm()), cells(glm::max(volume.dims() - 1, glm::ivec3(1))),
         dt(opt.stepVoxels * std::min({volume.spacing().x, volume.spacing().y, volume.spacing().z})),
         leafShift(std::countr_zero(unsigned(octree.leafEdge()))), leaves((cells + octree.leafEdge() - 1) >> leafShift),
@@ -262,24 +261,6 @@ struct Frame {
   }
 };
 
-// Entry and exit distances of the ray o + t·d through the box [lo, hi]; false when it misses.
-bool slab(const glm::dvec3& o, const glm::dvec3& d, const glm::dvec3& lo, const glm::dvec3& hi, double* t0, double* t1) {
-  double a = -1e300, b = 1e300;
-  for (int k = 0; k < 3; ++k) {
-    if (std::abs(d[k]) < 1e-300) {
-      if (o[k] < lo[k] || o[k] > hi[k]) return false;
-      continue;
-    }
-    double ta = (lo[k] - o[k]) / d[k], tb = (hi[k] - o[k]) / d[k];
-    if (ta > tb) std::swap(ta, tb);
-    a = std::max(a, ta);
-    b = std::min(b, tb);
-  }
-  *t0 = a;
-  *t1 = b;
-  return a <= b;
-}
-
 // One thread's rays over the samples of @p Field.
 template <class Field>
 class Tracer {
@@ -302,7 +283,7 @@ class Tracer {
     // lattices and the wood-grain of one (the slices' aliasing at a wide step) averages out.
     constexpr double kOffsets[4] = {0.0, 0.5, 0.75, 0.25};
     const double off = kOffsets[(x & 1) | (y & 1) << 1] * mF.dt;
-    if (slab(o, d, glm::dvec3(0.0), mF.boxHi, &t0, &t1) && std::max(t0, 0.0) < t1) march(o, d, std::max(t0, 0.0), t1, off);
+    if (raySlab(o, d, glm::dvec3(0.0), mF.boxHi, &t0, &t1) && std::max(t0, 0.0) < t1) march(o, d, std::max(t0, 0.0), t1, off);
     surfaceUntil(1e300);
     return mAcc;
   }
@@ -317,7 +298,7 @@ class Tracer {
   // (Bvh::firstHit: a ray stopped once opaque never looks for those beyond).
   void surfaceUntil(double t) {
     const glm::vec4& c = mF.options.surfaceColor;
-    while (mHit && mHit->t <= t && mAcc.a < mF.opaque) {
+    while (mHit && mHit->t <= t && mAcc.a < kInteractiveOpaqueAlpha) {
       const float shade = 0.25f + 0.75f * std::abs(glm::dot(glm::vec3(mHit->normal), mDir));
       add(glm::vec4(glm::vec3(c) * shade * c.a, c.a), float(mHit->t));
       ++crossings;
@@ -341,7 +322,7 @@ class Tracer {
       segment(t0, tb);
       t0 = tb;
     }
-    for (double ta = t0; ta < t1 && mAcc.a < mF.opaque;) {
+    for (double ta = t0; ta < t1 && mAcc.a < kInteractiveOpaqueAlpha;) {
       glm::vec3 lo, hi;
       const bool clear = mF.region(mQo + mQd * float(ta), &lo, &hi);
       double te = exit(lo, hi, ta);
@@ -366,13 +347,13 @@ class Tracer {
         else
           sampleFull(float(ta + 0.5 * dt));
         ta = tb;
-      } while (ta < end && mAcc.a < mF.opaque);
+      } while (ta < end && mAcc.a < kInteractiveOpaqueAlpha);
     }
   }
 
   // The segment [ta, tb], split at the crossings in it, each part sampled at its middle.
   void segment(double ta, double tb) {
-    for (double s = ta; s < tb && mAcc.a < mF.opaque;) {
+    for (double s = ta; s < tb && mAcc.a < kInteractiveOpaqueAlpha;) {
       const double e = crossingBefore(tb) ? std::max(mHit->t, s) : tb;
       if (e > s) sample(s, e);
       s = e;
@@ -481,13 +462,13 @@ bool interactiveRaysServe(const Volume& volume, const RaycastOptions& o) {
 }
 
 Image raycastInteractive(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-                         const RaycastOptions& options, RaycastStats* stats, float opaqueAlpha, std::vector<float>* depth) {
-  HYB_CHECK(interactiveRaysServe(volume, options) && opaqueAlpha > 0.0f && opaqueAlpha <= 1.0f);
+                         const RaycastOptions& options, RaycastStats* stats, std::vector<float>* depth) {
+  HYB_CHECK(interactiveRaysServe(volume, options));
   if (!withinCameraRange(camera.eye) || !withinCameraRange(camera.center))
     HYB_THROW(ValueError, "camera eye and center must lie within ", kMaxCameraMm, " mm of the origin");
   RaycastStats counts;
   Image image(camera.width, camera.height);
-  const Frame f(volume, octree, tf, camera, options, opaqueAlpha);
+  const Frame f(volume, octree, tf, camera, options);
   if (depth) depth->assign(size_t(camera.width) * size_t(camera.height), 0.0f);
   if (options.knots) {
     // Blocks hold the volume's stored type (a type they do not hold is read through the sampler).

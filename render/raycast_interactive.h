@@ -27,11 +27,10 @@ inline constexpr float kInteractiveOpaqueAlpha = 0.99f;
 /// Renders what raycast() renders for @p options (which interactiveRaysServe must accept), on all
 /// cores: the transfer function read at the nearest of LutLayout's 4096 entries, the segments'
 /// opacity corrected by a table for their common length (exactly for shorter ones), the shading
-/// gradient Levoy's as in raycast(), rays stopped at @p opaqueAlpha. @p stats counts as raycast's do;
+/// gradient Levoy's as in raycast(), rays stopped at kInteractiveOpaqueAlpha. @p stats counts as raycast's do;
 /// @p depth, unless null, receives each pixel's distance (mm from the eye, rows from the top) at
 /// which its opacity reaches ½, infinity where it never does: where a reprojection would move it.
 Image raycastInteractive(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-                         const RaycastOptions& options, RaycastStats* stats = nullptr, float opaqueAlpha = kInteractiveOpaqueAlpha,
-                         std::vector<float>* depth = nullptr);
+                         const RaycastOptions& options, RaycastStats* stats = nullptr, std::vector<float>* depth = nullptr);
 
 }  // namespace hyb
