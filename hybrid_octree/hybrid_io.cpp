@@ -549,7 +549,7 @@ Scene loadScene(const std::string& path, const SceneLoadOptions& options) {
     const int32_t mergeEdge = r.get<int32_t>();
     if (scene.knots) {  // paged: the nodes stay in the file, read a region at a time
       const auto [at, n] = r.skipArray<std::array<uint8_t, kSurfaceNodeBytes>>();
-      scene.surface = SurfaceOctree::fromMapped(scene.volume.dims(), iso, size_t(cells), mergeEdge, mapping, at, n, path);
+      scene.surface = SurfaceOctree::fromMapped(scene.volume.dims(), iso, size_t(cells), mergeEdge, {mapping, at, n}, path);
     } else {
       scene.surface = SurfaceOctree::fromParts(scene.volume.dims(), iso, size_t(cells), mergeEdge, getSurfaceNodes(r, *mapping), path);
     }

@@ -740,51 +740,43 @@ void SurfaceOctree::checkNode(const SurfaceNode& n, size_t i, const glm::ivec3& 
   *previous = morton(o);
 }
 
-namespace {
-
-void checkHead(const glm::ivec3& dims, float iso, int mergeEdge, const std::string& source) {
+SurfaceOctree SurfaceOctree::withHead(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge, const std::string& source) {
   validateDims(dims, source);
   if (mergeEdge < 1 || mergeEdge > kMaxDim || (mergeEdge & (mergeEdge - 1)))
     HYB_THROW(IoError, source, ": surface octree merge edge ", mergeEdge, " invalid (expected a power of two)");
   if (!std::isfinite(iso)) HYB_THROW(IoError, source, ": surface octree isovalue ", iso, " is invalid");
-}
-
-}  // namespace
-
-SurfaceOctree SurfaceOctree::fromParts(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge,
-                                       std::vector<SurfaceNode> nodes, const std::string& source) {
-  checkHead(dims, iso, mergeEdge, source);
-  uint64_t previous = 0;
-  for (size_t i = 0; i < nodes.size(); ++i) checkNode(nodes[i], i, dims, mergeEdge, &previous, source);
   SurfaceOctree so;
   so.mDims = dims;
   so.mIso = iso;
   so.mCellCount = cellCount;
   so.mMergeEdge = mergeEdge;
+  return so;
+}
+
+SurfaceOctree SurfaceOctree::fromParts(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge,
+                                       std::vector<SurfaceNode> nodes, const std::string& source) {
+  SurfaceOctree so = withHead(dims, iso, cellCount, mergeEdge, source);
+  uint64_t previous = 0;
+  for (size_t i = 0; i < nodes.size(); ++i) checkNode(nodes[i], i, dims, mergeEdge, &previous, source);
   so.mNodes = std::move(nodes);
   return so;
 }
 
-SurfaceOctree SurfaceOctree::fromMapped(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge,
-                                        std::shared_ptr<const InputFile::Mapping> mapping, const uint8_t* at, size_t count,
+SurfaceOctree SurfaceOctree::fromMapped(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge, MappedNodes nodes,
                                         const std::string& source) {
-  HYB_CHECK(mapping && at >= mapping->data() && uint64_t(at - mapping->data()) + count * kSurfaceNodeBytes <= mapping->size());
-  checkHead(dims, iso, mergeEdge, source);
+  const InputFile::Mapping* mapping = nodes.mapping.get();
+  HYB_CHECK(mapping && nodes.at >= mapping->data() && uint64_t(nodes.at - mapping->data()) + nodes.count * kSurfaceNodeBytes <= mapping->size());
+  SurfaceOctree so = withHead(dims, iso, cellCount, mergeEdge, source);
   constexpr size_t kReleaseNodes = (size_t(64) << 20) / kSurfaceNodeBytes;
   uint64_t previous = 0;
-  for (size_t i = 0; i < count; ++i) {
-    checkNode(decodeSurfaceNode(at + i * kSurfaceNodeBytes), i, dims, mergeEdge, &previous, source);
+  for (size_t i = 0; i < nodes.count; ++i) {
+    checkNode(decodeSurfaceNode(nodes.at + i * kSurfaceNodeBytes), i, dims, mergeEdge, &previous, source);
     if ((i + 1) % kReleaseNodes == 0) mapping->release();
   }
   mapping->release();
-  SurfaceOctree so;
-  so.mDims = dims;
-  so.mIso = iso;
-  so.mCellCount = cellCount;
-  so.mMergeEdge = mergeEdge;
-  so.mMapping = std::move(mapping);
-  so.mEncoded = at;
-  so.mMappedCount = count;
+  so.mMapping = std::move(nodes.mapping);
+  so.mEncoded = nodes.at;
+  so.mMappedCount = nodes.count;
   return so;
 }
 

@@ -127,13 +127,16 @@ class SurfaceOctree {
   /// @throw IoError naming @p source when a node is out of range or inconsistent.
   static SurfaceOctree fromParts(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge, std::vector<SurfaceNode> nodes,
                                  const std::string& source);
-  /// The same over @p count nodes encoded (encodeSurfaceNode) at @p at inside @p mapping (a scene
-  /// file's SURF section), left there: each is checked once here, the pages read given back as it
-  /// goes, and decoded again when read (node(), reconstructIn), so the octree holds none of them.
-  /// @throw IoError as fromParts.
-  static SurfaceOctree fromMapped(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge,
-                                  std::shared_ptr<const InputFile::Mapping> mapping, const uint8_t* at, size_t count,
-                                  const std::string& source);
+  /// Nodes encoded (encodeSurfaceNode) inside a scene file's mapping (its SURF section).
+  struct MappedNodes {
+    std::shared_ptr<const InputFile::Mapping> mapping;
+    const uint8_t* at = nullptr;  ///< the first node's bytes, inside mapping
+    size_t count = 0;
+  };
+  /// The same over @p nodes, left in their mapping: each is checked once here, the pages read given
+  /// back as it goes, and decoded again when read (node(), reconstructIn), so the octree holds none
+  /// of them. @throw IoError as fromParts.
+  static SurfaceOctree fromMapped(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge, MappedNodes nodes, const std::string& source);
 
   /// Terminal surface nodes in Morton order of their origins (white, black and grey nodes are implicit).
   /// @pre !mapped(): a mapped octree's are read one at a time by node().
@@ -192,6 +195,8 @@ class SurfaceOctree {
   // Appends the leaves' nodes in their order (Morton order: the leaves are).
   void gather(std::vector<std::vector<SurfaceNode>> perBlock);
 
+  // An octree of no nodes with the stored head, checked (fromParts, fromMapped): throws naming @p source.
+  static SurfaceOctree withHead(glm::ivec3 dims, float iso, size_t cellCount, int mergeEdge, const std::string& source);
   // Every node's check (fromParts, fromMapped): throws naming @p source and node @p i.
   static void checkNode(const SurfaceNode& n, size_t i, const glm::ivec3& dims, int mergeEdge, uint64_t* previous, const std::string& source);
   // The nodes in memory, or (mapped) the section's encoded nodes in its mapping.
