@@ -1,6 +1,7 @@
 // Filtered 3D scan-conversion against closed forms: the box fraction of a half-space by
 // inclusion–exclusion, a ball by fine quadrature, a polyhedron's volume by the divergence theorem;
 // a rotating sheet filtered and point-sampled; malformed meshes; the NRRD export's grid.
+#include "surface/closest_point.h"
 #include "surface/scan_convert.h"
 
 #include <gmock/gmock.h>
@@ -366,30 +367,9 @@ TEST(ScanConvert, BandNormalsAreTheClosestTrianglesFollowingTheWinding) {
   }
 }
 
-// The closest point of triangle (a, b, c) to p, in double: Ericson's regions (Real-Time Collision
-// Detection, 5.1.5), independent of the converter's branch-free float form.
-glm::dvec3 closestPoint(const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {
-  const glm::dvec3 ab = b - a, ac = c - a, ap = p - a;
-  const double d1 = glm::dot(ab, ap), d2 = glm::dot(ac, ap);
-  if (d1 <= 0.0 && d2 <= 0.0) return a;
-  const glm::dvec3 bp = p - b;
-  const double d3 = glm::dot(ab, bp), d4 = glm::dot(ac, bp);
-  if (d3 >= 0.0 && d4 <= d3) return b;
-  const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) return a + ab * (d1 / (d1 - d3));
-  const glm::dvec3 cp = p - c;
-  const double d5 = glm::dot(ab, cp), d6 = glm::dot(ac, cp);
-  if (d6 >= 0.0 && d5 <= d6) return c;
-  const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) return a + ac * (d2 / (d2 - d6));
-  const double va = d3 * d6 - d5 * d4;
-  if (va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
-  return a + ab * (vb / (va + vb + vc)) + ac * (vc / (va + vb + vc));
-}
-
 // Checks the sheet @p o makes of @p mesh (grid mm) against every voxel's distance to every
-// triangle (closestPoint, double): the band holds exactly the voxels within the reach (but those
-// within 10⁻⁴ mm of it), each once, with the closest triangle's normal and, where no other
+// triangle (closestOnTriangle in double, not the converter's branch-free float search): the band
+// holds exactly the voxels within the reach (but those within 10⁻⁴ mm of it), each once, with the closest triangle's normal and, where no other
 // triangle is within 10⁻⁴ mm as close, the box fraction of the tangent plane at the closest point;
 // the others are 0. Adds to @p compared and raises @p worst (the largest coverage difference).
 void expectBruteForceBand(const TriangleMesh& mesh, const VoxelGrid& grid, const ScanOptions& o, size_t* compared, double* worst) {
@@ -409,7 +389,7 @@ void expectBruteForceBand(const TriangleMesh& mesh, const VoxelGrid& grid, const
         glm::dvec3 closest(0.0), normal(0.0);
         for (const glm::uvec3& t : mesh.triangles) {
           const glm::dvec3 a(mesh.vertices[t.x]), b(mesh.vertices[t.y]), c(mesh.vertices[t.z]);
-          const glm::dvec3 q = closestPoint(p, a, b, c);
+          const glm::dvec3 q = closestOnTriangle(p, a, b, c);
           const double dist = glm::length(p - q);
           if (dist < best) {
             second = best;
