@@ -96,7 +96,7 @@ void reuse(SceneRenderer& r, const Look& look, const TriangleMesh* surface, cons
     o.stepVoxels = s;
     o.surface = surface ? &bvh : nullptr;
     o.surfaceColor = look.surfaceColor;
-    return raycastInteractive(r.volume(), r.octree(), look.tf, toGridCamera(patient, r.volume().frame()), o, nullptr, depth);
+    return raycastInteractive(r.volume(), r.octree(), look.tf, toGridCamera(patient, r.volume().frame()), o, {.depth = depth});
   };
   std::printf("reuse of a converged frame %g degrees before, moved by a %d² frame's depth at step %g:\n", deg, size, step);
   const int n = int(views.size());

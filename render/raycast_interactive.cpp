@@ -53,12 +53,17 @@ struct Lattice {
 
   // The central differences along stride s at the row's two corners r and r + s, mixed by ts.
   HYB_HOT float row(size_t r, size_t s, float ts) const { return lerp(at(r + s) - at(r - s), at(r + 2 * s) - at(r), ts); }
-  // One component: the rows of stride s at the cell's four corners across u and v, mixed by tu, tv.
-  HYB_HOT float along(size_t c, size_t s, size_t u, size_t v, float ts, float tu, float tv) const {
-    return lerp(lerp(row(c, s, ts), row(c + u, s, ts), tu), lerp(row(c + v, s, ts), row(c + v + u, s, ts), tu), tv);
+  // The strides of one gradient component: s along it, u and v across it.
+  struct Strides {
+    size_t s, u, v;
+  };
+  // One component: the rows of stride a.s at the cell's four corners across a.u and a.v, mixed by
+  // t = (along s, along u, along v).
+  HYB_HOT float along(size_t c, Strides a, const glm::vec3& t) const {
+    return lerp(lerp(row(c, a.s, t.x), row(c + a.u, a.s, t.x), t.y), lerp(row(c + a.v, a.s, t.x), row(c + a.v + a.u, a.s, t.x), t.y), t.z);
   }
   HYB_HOT glm::vec3 differences(size_t c, const glm::vec3& t) const {
-    return glm::vec3(along(c, 1, sy, sz, t.x, t.y, t.z), along(c, sy, 1, sz, t.y, t.x, t.z), along(c, sz, 1, sy, t.z, t.x, t.y));
+    return glm::vec3(along(c, {1, sy, sz}, t), along(c, {sy, 1, sz}, glm::vec3(t.y, t.x, t.z)), along(c, {sz, 1, sy}, glm::vec3(t.z, t.x, t.y)));
   }
 };
 
@@ -462,7 +467,9 @@ bool interactiveRaysServe(const Volume& volume, const RaycastOptions& o) {
 }
 
 Image raycastInteractive(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-                         const RaycastOptions& options, RaycastStats* stats, std::vector<float>* depth) {
+                         const RaycastOptions& options, InteractiveOutputs out) {
+  RaycastStats* stats = out.stats;
+  std::vector<float>* depth = out.depth;
   HYB_CHECK(interactiveRaysServe(volume, options));
   if (!withinCameraRange(camera.eye) || !withinCameraRange(camera.center))
     HYB_THROW(ValueError, "camera eye and center must lie within ", kMaxCameraMm, " mm of the origin");

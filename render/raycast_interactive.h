@@ -24,13 +24,19 @@ bool interactiveRaysServe(const Volume& volume, const RaycastOptions& options);
 /// fewer samples stopping there (docs/renderer.md, Alternatives: early ray termination).
 inline constexpr float kInteractiveOpaqueAlpha = 0.99f;
 
+/// What raycastInteractive reports beside its image, each where not null: @p stats counted as
+/// raycast's are; @p depth each pixel's distance (mm from the eye, rows from the top) at which its
+/// opacity reaches ½, infinity where it never does (where a reprojection would move it).
+struct InteractiveOutputs {
+  RaycastStats* stats = nullptr;
+  std::vector<float>* depth = nullptr;
+};
+
 /// Renders what raycast() renders for @p options (which interactiveRaysServe must accept), on all
 /// cores: the transfer function read at the nearest of LutLayout's 4096 entries, the segments'
 /// opacity corrected by a table for their common length (exactly for shorter ones), the shading
-/// gradient Levoy's as in raycast(), rays stopped at kInteractiveOpaqueAlpha. @p stats counts as raycast's do;
-/// @p depth, unless null, receives each pixel's distance (mm from the eye, rows from the top) at
-/// which its opacity reaches ½, infinity where it never does: where a reprojection would move it.
+/// gradient Levoy's as in raycast(), rays stopped at kInteractiveOpaqueAlpha.
 Image raycastInteractive(const Volume& volume, const VolumeOctree& octree, const TransferFunction& tf, const Camera& camera,
-                         const RaycastOptions& options, RaycastStats* stats = nullptr, std::vector<float>* depth = nullptr);
+                         const RaycastOptions& options, InteractiveOutputs out = {});
 
 }  // namespace hyb

@@ -771,7 +771,7 @@ void SceneRenderer::renderRaycast(const FrameGrid& g, const Look& look, const Qu
       onLevel(level, ro.refineLevels, image, ls);
     };
   if (quality.interactiveRays && interactiveRaysServe(volume(), ro))
-    out->image = raycastInteractive(volume(), mScene.octree, look.tf, g.camera, ro, &st.rays);
+    out->image = raycastInteractive(volume(), mScene.octree, look.tf, g.camera, ro, {.stats = &st.rays});
   else
     out->image = raycast(volume(), mScene.octree, look.tf, g.camera, ro, &st.rays);
   st.renderMs = msSince(t0);

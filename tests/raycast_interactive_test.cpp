@@ -65,9 +65,9 @@ TEST(RaycastInteractive, SkippingEmptySpaceChangesNoPixel) {
   RaycastOptions o;
   o.stepVoxels = 0.25;
   RaycastStats with, without;
-  const Image a = raycastInteractive(v, t, warm(), cam, o, &with);
+  const Image a = raycastInteractive(v, t, warm(), cam, o, {.stats = &with});
   o.skipEmptySpace = false;
-  const Image b = raycastInteractive(v, t, warm(), cam, o, &without);
+  const Image b = raycastInteractive(v, t, warm(), cam, o, {.stats = &without});
   EXPECT_EQ(toRgba8(a, glm::vec3(0)), toRgba8(b, glm::vec3(0)));
   EXPECT_GT(with.skippedLeaves, uint64_t(0));
   EXPECT_LT(with.samples, without.samples / 2);
