@@ -17,6 +17,7 @@
 
 #include "volume/core/error.h"
 #include "volume/core/file_util.h"
+#include "volume/core/memory_limit.h"
 
 namespace hyb {
 
@@ -79,11 +80,12 @@ void recordSpace(std::string* bytes, const std::string& ext, const std::string& 
   bytes->insert(at, ext == ".ply" ? "comment " + tag + "\n" : "# " + tag + "\n");
 }
 
-// ---- Face indices a file names but does not hold
+// ---- Records OpenMesh would drop without a word
 // OpenMesh's importer drops a face naming a vertex it does not hold, its only word going to the
-// silenced omerr; these scans of the face records refuse such a file instead, naming the face, and
-// a header declaring more rows than the file has bytes. A record they cannot parse ends the scan
-// quietly: OpenMesh's reader judges the rest.
+// silenced omerr, and drops or stops at a vertex that is not finite; these scans of the records
+// refuse such a file instead, naming the face or vertex, and a header declaring more rows than the
+// file has bytes or more faces than the memory limit allows. A record they cannot parse ends the
+// scan quietly: OpenMesh's reader judges the rest.
 
 [[noreturn]] void badIndex(const std::string& path, uint64_t face, long long index, uint64_t vertices) {
   HYB_THROW(IoError, path, ": face ", face, " uses vertex ", index, " (expected indices below ", vertices, ")");
@@ -93,6 +95,31 @@ void recordSpace(std::string* bytes, const std::string& ext, const std::string& 
 // reserve memory for them or step through them one by one.
 void tooManyRows(const std::string& path, const std::string& rows, uint64_t count, uint64_t bytes) {
   if (count > bytes) HYB_THROW(IoError, path, ": the header declares ", count, " ", rows, " (expected at most the file's ", bytes, " bytes)");
+}
+
+// A number as a text mesh writes it, "nan" and "inf" included (a leading '+' too, as >> reads it);
+// false when @p w is not one.
+bool numberOf(std::string_view w, double* out) {
+  if (w.starts_with('+')) w.remove_prefix(1);
+  const auto [stop, error] = std::from_chars(w.data(), w.data() + w.size(), *out);
+  return error == std::errc() && stop == w.data() + w.size();
+}
+
+// Refuses vertex @p v (its @p where, e.g. " (line 7)") at @p p unless each coordinate is finite:
+// OpenMesh's readers drop such a vertex, or stop there, without a word.
+void finiteVertex(const std::string& path, uint64_t v, const std::string& where, const double p[3]) {
+  if (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2])) return;
+  HYB_THROW(IoError, path, ": vertex ", v, where, " is not finite (", p[0], ", ", p[1], ", ", p[2], ")");
+}
+
+// Refuses a file of @p faces faces whose reading would take more than memoryLimit(): OpenMesh's
+// half-edge mesh and the TriangleMesh made of it take about kReadBytesPerFace a face (docs/user-geometry.md).
+constexpr uint64_t kReadBytesPerFace = 128;
+void checkFaceMemory(const std::string& path, uint64_t faces) {
+  const uint64_t bytes = faces * kReadBytesPerFace, limit = memoryLimit();
+  if (bytes > limit)
+    HYB_THROW(IoError, path, ": its ", faces, " faces need about ", formatBytes(bytes), " to read, more than the memory limit of ", formatBytes(limit),
+              " (--memory-limit MB on the command line; by default half the physical memory)");
 }
 
 // A text file's bytes read word by word, as a stream's >> reads them.
@@ -140,8 +167,13 @@ void checkOffFaces(const std::string& path, std::string_view text) {
   if (!in.integer(&vertices) || !in.integer(&faces) || !in.integer(&edges) || vertices < 0 || faces < 0) return;
   tooManyRows(path, "vertices", uint64_t(vertices), text.size());
   tooManyRows(path, "faces", uint64_t(faces), text.size());
+  checkFaceMemory(path, uint64_t(faces));
   for (long long v = 0; v < vertices; ++v) {
-    for (int c = 0; c < (normals ? 6 : 3); ++c) in.word();
+    double corner[3];
+    bool numbers = true;
+    for (double& x : corner) numbers = numberOf(in.word(), &x) && numbers;
+    if (numbers) finiteVertex(path, uint64_t(v), "", corner);
+    for (int c = 3; c < (normals ? 6 : 3); ++c) in.word();
     in.line();
   }
   for (long long f = 0; f < faces; ++f) {
@@ -174,15 +206,17 @@ void checkObjFaces(const std::string& path, std::string_view text) {
   // OpenMesh's first pass adds the vertices whose x, y and z are numbers; its second counts every
   // "v" line for the indices counted back.
   uint64_t vertices = 0, above = 0, faces = 0;
-  lines([&](uint64_t, char key, Words& rest) {
+  lines([&](uint64_t number, char key, Words& rest) {
     if (key != 'v') return;
+    double p[3];
     int numbers = 0;
     for (std::string_view w = rest.word(); numbers < 3 && !w.empty(); w = rest.word(), ++numbers) {
       if (w.starts_with('+')) w.remove_prefix(1);
-      double x;
-      if (std::from_chars(w.data(), w.data() + w.size(), x).ptr == w.data()) break;
+      if (std::from_chars(w.data(), w.data() + w.size(), p[numbers]).ptr == w.data()) break;
     }
-    vertices += numbers == 3;
+    if (numbers < 3) return;
+    finiteVertex(path, vertices, detail::concat(" (line ", number, ")"), p);
+    ++vertices;
   });
   lines([&](uint64_t number, char key, Words& rest) {
     if (key == 'v') {
@@ -199,6 +233,7 @@ void checkObjFaces(const std::string& path, std::string_view text) {
     }
     ++faces;
   });
+  checkFaceMemory(path, faces);
 }
 
 // A PLY value of type T from its bytes in the host's order.
@@ -231,6 +266,7 @@ void checkPlyFaces(const std::string& path) {
     const Type* type = nullptr;
     const Type* count = nullptr;  // a list's count; null: not a list
     bool indices = false;         // the face element's vertex list
+    int axis = -1;                // the vertex element's x, y or z: 0, 1, 2
   };
   struct Element {
     std::string name;
@@ -257,6 +293,7 @@ void checkPlyFaces(const std::string& path) {
       if (type == "list" && !(words >> type)) return;
       if (!(words >> name) || !(p.type = typeOf(type))) return;
       p.indices = elements.back().name == "face" && p.count && (name == "vertex_indices" || name == "vertex_index");
+      if (elements.back().name == "vertex" && !p.count && name.size() == 1 && name[0] >= 'x' && name[0] <= 'z') p.axis = name[0] - 'x';
       elements.back().properties.push_back(p);
     } else if (word == "end_header") {
       break;
@@ -271,10 +308,14 @@ void checkPlyFaces(const std::string& path) {
   for (const Element& e : elements) {
     tooManyRows(path, "'" + e.name + "' rows", e.count, bytes);
     if (e.name == "vertex") vertices = e.count;
+    if (e.name == "face") checkFaceMemory(path, e.count);
   }
   // One value (false at the file's end, or on a word that is not a number).
   auto value = [&](const Type& t, double* out) {
-    if (ascii) return bool(in >> *out);
+    if (ascii) {
+      std::string w;
+      return in >> w && numberOf(w, out);
+    }
     unsigned char b[8];
     if (!in.read(reinterpret_cast<char*>(b), t.size)) return false;
     if (swap) std::reverse(b, b + t.size);
@@ -283,33 +324,79 @@ void checkPlyFaces(const std::string& path) {
   };
   uint64_t face = 0;
   for (const Element& e : elements) {
-    if (!ascii && std::none_of(e.properties.begin(), e.properties.end(), [](const Property& p) { return p.count; })) {
+    const bool corners = e.name == "vertex";
+    if (!ascii && !corners && std::none_of(e.properties.begin(), e.properties.end(), [](const Property& p) { return p.count; })) {
       int64_t row = 0;  // no list: the element's rows are skipped whole
       for (const Property& p : e.properties) row += p.type->size;
       in.seekg(std::streamoff(row * int64_t(e.count)), std::ios::cur);
       continue;
     }
     for (uint64_t i = 0; i < e.count; ++i) {
+      double corner[3] = {0.0, 0.0, 0.0};
       for (const Property& p : e.properties) {
         double items = 1, item = 0;
         if (p.count && (!value(*p.count, &items) || !(items >= 0))) return;
         for (double k = 0; k < items; ++k) {
           if (!value(*p.type, &item)) return;
+          if (p.axis >= 0) corner[p.axis] = item;
           if (p.indices && !(item >= 0 && item < double(vertices))) {
             if (!(std::abs(item) < 9e18)) return;  // no integer: OpenMesh's to judge
             badIndex(path, face, (long long)item, vertices);
           }
         }
       }
+      if (corners) finiteVertex(path, i, "", corner);
       face += e.name == "face";
     }
   }
 }
 
-// Refuses a face naming a vertex the file does not hold (STL has no indices).
-void checkFaceIndices(const std::string& path) {
+// STL as OpenMesh tells its forms apart: binary when the file is the 84 bytes of its header and
+// count and 50 bytes a facet (a normal, three corners, two bytes), else text ("vertex x y z" lines).
+// Each corner is checked; OpenMesh merges corners by position, so vertices are counted by corner.
+void checkStlFaces(const std::string& path) {
+  std::error_code ec;
+  const uint64_t size = std::filesystem::file_size(path, ec);
+  std::ifstream in(path, std::ios::binary);
+  unsigned char head[84];
+  uint32_t facets = 0;
+  if (in.read(reinterpret_cast<char*>(head), 84)) std::memcpy(&facets, head + 80, 4);  // (little-endian hosts, as OpenMesh reads it)
+  if (in && size == 84 + 50 * uint64_t(facets)) {
+    checkFaceMemory(path, facets);
+    std::vector<unsigned char> chunk(50 * 4096);
+    for (uint64_t f = 0; f < facets;) {
+      const uint64_t n = std::min<uint64_t>(4096, facets - f);
+      if (!in.read(reinterpret_cast<char*>(chunk.data()), std::streamsize(50 * n))) return;
+      for (uint64_t k = 0; k < n; ++k, ++f)
+        for (int c = 0; c < 3; ++c) {
+          float x[3];
+          std::memcpy(x, &chunk[50 * k + 12 * (c + 1)], sizeof x);
+          const double p[3] = {x[0], x[1], x[2]};
+          finiteVertex(path, 3 * f + uint64_t(c), detail::concat(" (corner ", c, " of facet ", f, ")"), p);
+        }
+    }
+    return;
+  }
+  const std::vector<uint8_t> bytes = readFileBytes(path);
+  Words words(std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
+  uint64_t corners = 0;
+  for (std::string_view w = words.word(); !w.empty(); w = words.word()) {
+    if (w != "vertex") continue;
+    double p[3];
+    bool numbers = true;
+    for (double& x : p) numbers = numberOf(words.word(), &x) && numbers;
+    if (numbers) finiteVertex(path, corners, detail::concat(" (corner ", corners % 3, " of facet ", corners / 3, ")"), p);
+    ++corners;
+  }
+  checkFaceMemory(path, corners / 3);
+}
+
+// Refuses a face naming a vertex the file does not hold (STL has no indices), a vertex that is
+// not finite, and a file too large to read within the memory limit.
+void checkMeshRecords(const std::string& path) {
   const std::string ext = fileExtension(path);
   if (ext == ".ply") return checkPlyFaces(path);
+  if (ext == ".stl") return checkStlFaces(path);
   if (ext != ".off" && ext != ".obj") return;
   const std::vector<uint8_t> bytes = readFileBytes(path);
   const std::string_view text(reinterpret_cast<const char*>(bytes.data()), bytes.size());
@@ -407,7 +494,7 @@ TriangleMesh readMesh(const std::string& path) {
         head.size() == 84)
       return out;
   }
-  checkFaceIndices(path);
+  checkMeshRecords(path);
   OMesh om;
   om.request_vertex_normals();
   OpenMesh::IO::Options options = OpenMesh::IO::Options::VertexNormal;

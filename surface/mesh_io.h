@@ -43,8 +43,9 @@ void writeMesh(const std::string& path, const TriangleMesh& mesh, const MeshWrit
 std::string meshBytes(const TriangleMesh& mesh, const MeshFormat& format, const MeshWriteOptions& options = {}, const std::string& name = "mesh");
 
 /// Reads a triangle mesh (for round trips and checks), with its vertex normals when the file has them.
-/// @throw IoError naming @p path when it cannot be read, or naming the face when one of an OFF, OBJ
-///        or PLY file's faces uses a vertex the file does not hold.
+/// @throw IoError naming @p path when it cannot be read, naming the face when one of an OFF, OBJ
+///        or PLY file's faces uses a vertex the file does not hold, naming the vertex when one is
+///        not finite, and when its faces would take more than memoryLimit() to read.
 TriangleMesh readMesh(const std::string& path);
 
 }  // namespace hyb

@@ -11,6 +11,7 @@
 #include "surface/dmc.h"
 #include "surface/mesh_ops.h"
 #include "test_util.h"
+#include "volume/core/memory_limit.h"
 
 namespace hyb {
 namespace {
@@ -131,6 +132,75 @@ TEST(MeshIo, OneTableOfFormatsAndItsBytesAreTheFiles) {
 // A face naming a vertex the file does not hold (OpenMesh's importer would drop it without a word)
 // refuses the file in one line naming the face and the index; the same files with every index in
 // range read whole.
+// A vertex that is not finite (OpenMesh's readers drop it, or stop there, quietly) is refused in
+// every format, naming it; so is a file whose faces would take more than the memory limit to read.
+TEST(MeshIo, AVertexThatIsNotFiniteOrAFileBeyondTheMemoryLimitIsRefusedNamingIt) {
+  test::TempDir dir;
+  auto said = [&dir](const std::string& name, const std::string& bytes) -> std::string {
+    const std::string path = dir.file(name);
+    test::writeText(path, bytes);
+    try {
+      return "read " + std::to_string(readMesh(path).triangles.size()) + " triangles";
+    } catch (const IoError& e) {
+      const std::string what = e.what();
+      return what.rfind(path + ": ", 0) == 0 ? what.substr(path.size() + 2) : "unnamed: " + what;
+    }
+  };
+  const std::string corners[2] = {"0 0 0\n5 0 0\n0 5 0\n0 0 5\n", "0 0 0\n5 0 0\n0 5 0\n0 nan 5\n"};
+  const std::string faces = "3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
+  EXPECT_EQ(said("t.off", "OFF\n4 4 0\n" + corners[0] + faces), "read 4 triangles");
+  EXPECT_EQ(said("n.off", "OFF\n4 4 0\n" + corners[1] + faces), "vertex 3 is not finite (0, nan, 5)");
+  EXPECT_EQ(said("i.off", "OFF\n4 4 0\n0 0 0\n5 -inf 0\n0 5 0\n0 0 5\n" + faces), "vertex 1 is not finite (5, -inf, 0)");
+  EXPECT_EQ(said("n.obj", "v 0 0 0\nv 5 0 0\nv 0 5 0\nv 0 nan 5\nf 1 3 2\nf 1 2 4\n"), "vertex 3 (line 4) is not finite (0, nan, 5)");
+  EXPECT_EQ(said("i.obj", "v 0 0 0\nv +inf 0 0\nv 0 5 0\nf 1 3 2\n"), "vertex 1 (line 2) is not finite (inf, 0, 0)");
+  const std::string ply = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                          "element face 4\nproperty list uchar int vertex_indices\nend_header\n";
+  EXPECT_EQ(said("t.ply", ply + corners[0] + faces), "read 4 triangles");
+  EXPECT_EQ(said("n.ply", ply + corners[1] + faces), "vertex 3 is not finite (0, nan, 5)");
+  // Binary PLY and STL: a NaN float among the corners.
+  std::string bply = "ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                     "element face 4\nproperty list uchar int vertex_indices\nend_header\n";
+  auto put = [](std::string* b, const auto value) { b->append(reinterpret_cast<const char*>(&value), sizeof value); };
+  const float xyz[4][3] = {{0, 0, 0}, {5, 0, 0}, {0, std::nanf(""), 0}, {0, 0, 5}};
+  for (const auto& p : xyz)
+    for (const float x : p) put(&bply, x);
+  for (int k = 0; k < 4; ++k) {
+    const int32_t f[4][3] = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+    put(&bply, uint8_t(3));
+    for (const int32_t i : f[k]) put(&bply, i);
+  }
+  EXPECT_EQ(said("n_bin.ply", bply), "vertex 2 is not finite (0, nan, 0)");
+  // @p facets separate triangles, the last one's third corner at y = @p bad.
+  auto stl = [&](uint32_t facets, float bad) {
+    std::string b(80, ' ');
+    put(&b, facets);
+    for (uint32_t k = 0; k < facets; ++k) {
+      const float x = 10.0f * float(k), y = k + 1 == facets ? bad : 5.0f;
+      for (const float v : {0.0f, 0.0f, 1.0f, x, 0.0f, 0.0f, x + 5.0f, 0.0f, 0.0f, x, y, 0.0f}) put(&b, v);
+      put(&b, uint16_t(0));
+    }
+    return b;
+  };
+  EXPECT_EQ(said("t.stl", stl(2, 5.0f)), "read 2 triangles");
+  EXPECT_EQ(said("n.stl", stl(2, std::numeric_limits<float>::infinity())), "vertex 5 (corner 2 of facet 1) is not finite (10, inf, 0)");
+  EXPECT_EQ(said("n_text.stl", "solid s\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 5 0 0\nvertex 0 NaN 0\nendloop\nendfacet\nendsolid s\n"),
+            "vertex 2 (corner 2 of facet 0) is not finite (0, nan, 0)");
+  // Within a memory limit of 1000 bytes, four faces (about 512 bytes to read) are read and eight are not.
+  setMemoryLimit(1000);
+  EXPECT_EQ(said("t4.off", "OFF\n4 4 0\n" + corners[0] + faces), "read 4 triangles");
+  EXPECT_EQ(said("t8.off", "OFF\n4 8 0\n" + corners[0] + faces + faces),
+            "its 8 faces need about 1.0 KiB to read, more than the memory limit of 1000 bytes (--memory-limit MB on the command line; by default half the physical memory)");
+  EXPECT_THAT(said("t8.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                             "element face 8\nproperty list uchar int vertex_indices\nend_header\n" + corners[0] + faces + faces),
+              testing::StartsWith("its 8 faces need"));
+  EXPECT_THAT(said("t8.obj", "v 0 0 0\nv 5 0 0\nv 0 5 0\nf 1 2 3\nf 1 2 3\nf 1 2 3\nf 1 2 3\nf 1 2 3\nf 1 2 3\nf 1 2 3\nf 1 2 3\n"),
+              testing::StartsWith("its 8 faces need"));
+  const std::string big = stl(8, 5.0f);
+  EXPECT_THAT(said("t8.stl", big), testing::StartsWith("its 8 faces need"));
+  setMemoryLimit(0);
+  EXPECT_EQ(said("t8.stl", big), "read 8 triangles");
+}
+
 TEST(MeshIo, AFaceNamingAVertexTheFileDoesNotHoldIsRefusedNamingIt) {
   test::TempDir dir;
   // Reads @p name holding @p text: its triangle count, or -1 after checking the one-line message
