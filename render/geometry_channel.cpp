@@ -204,6 +204,7 @@ Volume geometryVolume(const std::vector<UserMesh>& meshes, const Volume& volume,
   const VoxelGrid grid = VoxelGrid::of(volume);
   const double voxel = std::min({grid.spacing.x, grid.spacing.y, grid.spacing.z});
   ScanOptions o;  // the bytes the renderers' channel is made of: no float grid per mesh
+  o.extentWarnings = false;  // userMeshWarnings told them as the meshes were read
   // The union: each voxel's largest coverage (fraction · 255) over the meshes.
   std::vector<uint8_t> most(size_t(grid.dims.x) * size_t(grid.dims.y) * size_t(grid.dims.z), 0);
   for (const UserMesh& m : meshes) {

@@ -4,7 +4,9 @@
 #include <cmath>
 #include <fstream>
 #include <iterator>
+#include <numeric>
 #include <sstream>
+#include <tuple>
 
 #include "surface/mesh_io.h"
 #include "volume/core/error.h"
@@ -138,6 +140,30 @@ UserMesh readUserMesh(const std::string& path, const glm::vec4& color, MeshSpace
   return UserMesh{path, std::make_shared<const TriangleMesh>(std::move(mesh)), color, nullptr};
 }
 
+size_t nonManifoldEdges(const TriangleMesh& mesh) {
+  // Vertices at one position are one: a reader gives a face its half-edge structure cannot take
+  // vertices of its own there.
+  std::vector<uint32_t> order(mesh.vertices.size()), same(mesh.vertices.size());
+  std::iota(order.begin(), order.end(), 0u);
+  auto key = [&](uint32_t v) { return std::tuple(mesh.vertices[v].x, mesh.vertices[v].y, mesh.vertices[v].z); };
+  std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return key(a) < key(b); });
+  for (size_t i = 0; i < order.size(); ++i) same[order[i]] = i > 0 && key(order[i]) == key(order[i - 1]) ? same[order[i - 1]] : order[i];
+  std::vector<uint64_t> edges;  // each triangle's edges, as their (lower, higher) vertices
+  edges.reserve(3 * mesh.triangles.size());
+  for (const glm::uvec3& t : mesh.triangles)
+    for (int k = 0; k < 3; ++k) {
+      const uint32_t a = same[t[k]], b = same[t[(k + 1) % 3]];
+      edges.push_back(uint64_t(std::min(a, b)) << 32 | std::max(a, b));
+    }
+  std::sort(edges.begin(), edges.end());
+  size_t shared = 0;
+  for (size_t i = 0, j = 0; i < edges.size(); i = j) {
+    for (j = i + 1; j < edges.size() && edges[j] == edges[i];) ++j;
+    shared += j - i > 2;
+  }
+  return shared;
+}
+
 std::vector<std::string> userMeshWarnings(const UserMesh& m, const Volume& volume) {
   std::vector<std::string> out;
   const PatientFrame& frame = volume.frame();
@@ -152,9 +178,11 @@ std::vector<std::string> userMeshWarnings(const UserMesh& m, const Volume& volum
     out.push_back(detail::concat(m.name, ": the mesh lies wholly outside the volume's box (drawn where it is visible)"));
   const glm::dvec3 s = volume.spacing();
   const double voxel = std::min({s.x, s.y, s.z}), extent = std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z});
-  if (extent < 0.01 * voxel)
-    out.push_back(detail::concat(m.name, ": the mesh spans ", extent, " mm, under a hundredth of a voxel (", voxel,
-                                 " mm): in metres? (expected millimetres)"));
+  if (extent < voxel)
+    out.push_back(detail::concat(m.name, ": the mesh spans ", extent, " mm, less than one voxel (", voxel, " mm): in metres? (expected millimetres)"));
+  if (const size_t edges = nonManifoldEdges(*m.mesh))
+    out.push_back(detail::concat(m.name, ": ", edges, edges == 1 ? " edge is" : " edges are",
+                                 " shared by more than two triangles (non-manifold): drawn as given, but a solid label volume's inside may be wrong there"));
   return out;
 }
 

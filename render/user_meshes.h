@@ -36,9 +36,12 @@ void checkUserMesh(const TriangleMesh& mesh, const std::string& name);
 ///        refuses it.
 UserMesh readUserMesh(const std::string& path, const glm::vec4& color, MeshSpace space);
 
-/// What is odd about where @p mesh lies against @p volume, one line each (empty: nothing): wholly
-/// outside the volume's box (it is still drawn where visible), or smaller than a hundredth of a
-/// voxel (a file in metres?).
+/// The edges of @p mesh that more than two of its triangles share (vertices at one position being one).
+size_t nonManifoldEdges(const TriangleMesh& mesh);
+
+/// What is odd about @p mesh against @p volume, one line each (empty: nothing): wholly outside the
+/// volume's box (it is still drawn where visible), smaller than one voxel (a file in metres?), or
+/// non-manifold (nonManifoldEdges).
 std::vector<std::string> userMeshWarnings(const UserMesh& mesh, const Volume& volume);
 
 /// A frame's user meshes in the grid frame (mm), as the renderers take them.

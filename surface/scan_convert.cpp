@@ -593,7 +593,7 @@ ScanResult scanConvertMesh(const TriangleMesh& mesh, const VoxelGrid& grid, cons
     hi = glm::max(hi, glm::dvec3(points[v]));
   }
   std::vector<std::string> warnings;
-  meshExtentWarnings(lo, hi, grid, scan.reach, &warnings);
+  if (options.extentWarnings) meshExtentWarnings(lo, hi, grid, scan.reach, &warnings);
 
   // Triangles to slabs: those whose z-extent, widened by the reach, meets a slab's planes and whose
   // y-extent meets the grid's rows (x does not matter: a crossing left of the grid flips parity).
@@ -700,7 +700,7 @@ ScanResult scanConvertSphere(const glm::dvec3& center, double radius, const Voxe
     return boxHalfSpaceFraction(glm::abs(n) * box, (r - rho) - (sq.x + sq.y + sq.z) / (2.0 * rho));
   });
   std::vector<std::string> warnings;
-  meshExtentWarnings(c - r, c + r, grid, reach, &warnings);
+  if (options.extentWarnings) meshExtentWarnings(c - r, c + r, grid, reach, &warnings);
   return makeResult(grid, std::move(store), std::move(warnings), band, inside);
 }
 

@@ -66,6 +66,8 @@ struct ScanOptions {
   CoverageType type = CoverageType::UInt8;
   /// Meshes and polygons: also return each band voxel's closest triangle's normal (ScanResult::normals).
   bool normals = false;
+  /// Warn of a mesh wholly outside the grid or smaller than a voxel (false: the caller has).
+  bool extentWarnings = true;
 };
 
 /// A voxel's surface normal: the unit normal of its closest triangle, in the grid frame, pointing

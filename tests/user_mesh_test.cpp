@@ -158,16 +158,37 @@ TEST(UserMesh, BadMeshesAreRefusedWithOneLineNamingTheFile) {
   EXPECT_EQ(refused([&] { readUserMesh(dir.file("bad.off"), c, MeshSpace::LPS); }),
             dir.file("bad.off") + ": face 0 uses vertex 7 (expected indices below 3)");
 
-  // Odd but drawable: wholly outside the volume, or a thousand times too small.
+  // Odd but drawable: wholly outside the volume, a thousand times too small, or non-manifold.
   const Volume v = test::sphereVolume({40, 36, 32}, 13.0);
   EXPECT_TRUE(userMeshWarnings(userMesh(uvSphere({20, 18, 16}, 5, 6), c, "inside.stl"), v).empty());
   const std::vector<std::string> far = userMeshWarnings(userMesh(uvSphere({200, 18, 16}, 5, 6), c, "far.stl"), v);
   ASSERT_EQ(far.size(), 1u);
   EXPECT_EQ(far[0], "far.stl: the mesh lies wholly outside the volume's box (drawn where it is visible)");
-  const std::vector<std::string> tiny = userMeshWarnings(userMesh(uvSphere({0.020, 0.018, 0.016}, 0.004, 6), c, "metres.stl"), v);
-  ASSERT_EQ(tiny.size(), 1u);
-  EXPECT_THAT(tiny[0], HasSubstr("metres.stl: the mesh spans 0.008"));
-  EXPECT_THAT(tiny[0], HasSubstr("under a hundredth of a voxel (1 mm): in metres? (expected millimetres)"));
+  // A ball of 36 mm written in metres, and one of 0.8 mm: under one voxel (1 mm) both.
+  for (const double radius : {0.018, 0.4}) {
+    const std::vector<std::string> tiny = userMeshWarnings(userMesh(uvSphere({0.020, 0.018, 0.016}, radius, 6), c, "metres.stl"), v);
+    ASSERT_EQ(tiny.size(), 1u) << radius;
+    EXPECT_THAT(tiny[0], HasSubstr("metres.stl: the mesh spans 0."));
+    EXPECT_THAT(tiny[0], HasSubstr("less than one voxel (1 mm): in metres? (expected millimetres)"));
+  }
+  EXPECT_TRUE(userMeshWarnings(userMesh(uvSphere({20, 18, 16}, 0.6, 6), c, "bead.stl"), v).empty());  // 1.2 mm
+  // Two fins on one edge of a closed ball, one on another: two edges of three or four triangles.
+  TriangleMesh finned = uvSphere({20, 18, 16}, 5, 6);
+  EXPECT_EQ(nonManifoldEdges(finned), 0u);
+  const glm::uvec3 t = finned.triangles[3], u = finned.triangles[finned.triangles.size() / 2];
+  for (const glm::uvec3& edge : {t, t, u}) {
+    finned.vertices.push_back({30.0f, 18.0f + float(finned.vertices.size() % 3), 16.0f});
+    finned.triangles.push_back({edge.x, edge.y, uint32_t(finned.vertices.size() - 1)});
+  }
+  EXPECT_EQ(nonManifoldEdges(finned), 2u);
+  const std::vector<std::string> fins = userMeshWarnings(userMesh(finned, c, "fins.off"), v);
+  ASSERT_EQ(fins.size(), 1u);
+  EXPECT_EQ(fins[0], "fins.off: 2 edges are shared by more than two triangles (non-manifold): drawn as given, but a solid label volume's inside may be wrong there");
+  // Read from a file: three triangles on one edge (the reader gives the third vertices of its own).
+  std::ofstream(dir.file("fan.off")) << "OFF\n5 3 0\n10 10 10\n20 10 10\n15 20 10\n15 0 10\n15 10 20\n3 0 1 2\n3 0 1 3\n3 0 1 4\n";
+  const std::vector<std::string> fan = userMeshWarnings(readUserMesh(dir.file("fan.off"), c, MeshSpace::LPS), v);
+  ASSERT_EQ(fan.size(), 1u);
+  EXPECT_THAT(fan[0], HasSubstr("fan.off: 1 edge is shared by more than two triangles (non-manifold)"));
 }
 
 TEST(UserMesh, RenderDrawsTheMeshFilesGivenAndRefusesBadOnes) {
@@ -209,6 +230,13 @@ TEST(UserMesh, RenderDrawsTheMeshFilesGivenAndRefusesBadOnes) {
   const test::CliRun far = test::run({"render", dir.file("ball.nrrd"), "--mesh", dir.file("far.ply"), "-o", dir.file("far.png")});
   EXPECT_EQ(far.status, 0) << far.err;
   EXPECT_THAT(far.err, HasSubstr("warning: " + dir.file("far.ply") + ": the mesh lies wholly outside the volume's box"));
+  // Exported as a label volume: the same one warning (the scan-conversion does not repeat it).
+  const test::CliRun label = test::run({"export", dir.file("ball.nrrd"), "--mesh", dir.file("far.ply"), "--label-volume", dir.file("far.nrrd")});
+  EXPECT_EQ(label.status, 0) << label.err;
+  size_t warnings = 0;
+  for (size_t at = label.err.find("warning:"); at != std::string::npos; at = label.err.find("warning:", at + 1)) ++warnings;
+  EXPECT_EQ(warnings, 1u) << label.err;
+  EXPECT_THAT(label.err, HasSubstr("warning: " + dir.file("far.ply") + ": the mesh lies wholly outside the volume's box"));
 }
 
 }  // namespace
