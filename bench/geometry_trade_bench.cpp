@@ -5,17 +5,19 @@
 // `scan-convert` (each filter --mesh-filter names: boxes of 1, 1.5 and 2 cells and point sampling)
 // in the slice renderer, and the scan-conversion's time and bytes.
 //
-//   hyb_geometry_trade_bench [size=256] [runs=3]
+//   hyb_geometry_trade_bench [--size 256] [--runs 3] [--grids 32,64,128]
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
+#include <charconv>
 #include <string>
+#include <vector>
 
 #include "render/frame_settings.h"
 #include "render/geometry_channel.h"
 #include "render/scene_renderer.h"
+#include "volume/core/error.h"
 
 namespace {
 
@@ -30,13 +32,65 @@ double psnr(const hyb::Image& a, const hyb::Image& b) {
   return 10.0 * std::log10(255.0 * 255.0 / std::max(se / double(n), 1e-12));
 }
 
-}  // namespace
+constexpr const char* kUsage =
+    "usage: hyb_geometry_trade_bench [--size N] [--runs N] [--grids N,N,...]\n"
+    "  --size N      the image's width and height in pixels, 16 to 4096 (256)\n"
+    "  --runs N      warm frames timed per method, the best kept, 1 to 100 (3)\n"
+    "  --grids LIST  the grids' N (N^3 voxels over the 64 mm box), each 8 to 256 (32,64,128)\n"
+    "  -h, --help    this text\n";
 
-int main(int argc, char** argv) {
+struct Options {
+  int size = 256;
+  int runs = 3;
+  std::vector<int> grids = {32, 64, 128};
+  bool help = false;
+};
+
+// A whole decimal integer in [lo, hi], else a ValueError naming the flag.
+int intIn(const std::string& flag, const std::string& text, int lo, int hi) {
+  int v = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+  if (ec != std::errc() || end != text.data() + text.size() || v < lo || v > hi)
+    HYB_THROW(hyb::ValueError, flag, " '", text, "' invalid (expected an integer from ", lo, " to ", hi, ")");
+  return v;
+}
+
+// @throw ValueError naming the flag or argument that is not understood.
+Options parseOptions(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&] {
+      if (i + 1 >= argc) HYB_THROW(hyb::ValueError, a, " needs a value");
+      return std::string(argv[++i]);
+    };
+    if (a == "-h" || a == "--help") {
+      o.help = true;
+    } else if (a == "--size") {
+      o.size = intIn(a, value(), 16, 4096);
+    } else if (a == "--runs") {
+      o.runs = intIn(a, value(), 1, 100);
+    } else if (a == "--grids") {
+      const std::string list = value();
+      o.grids.clear();
+      for (size_t start = 0;;) {
+        const size_t comma = list.find(',', start);
+        o.grids.push_back(intIn(a, list.substr(start, comma - start), 8, 256));
+        if (comma == std::string::npos) break;
+        start = comma + 1;
+      }
+    } else {
+      HYB_THROW(hyb::ValueError, "unknown argument '", a, "' (expected --size, --runs, --grids or --help)");
+    }
+  }
+  return o;
+}
+
+void run(const Options& o) {
   using namespace hyb;
-  const int size = argc > 1 ? std::atoi(argv[1]) : 256, runs = argc > 2 ? std::atoi(argv[2]) : 3;
+  const int size = o.size, runs = o.runs;
   std::printf("| grid | method | frame ms (slices) | PSNR dB | scan-conversion ms | channel bytes |\n|---|---|---|---|---|---|\n");
-  for (const int n : {32, 64, 128}) {
+  for (const int n : o.grids) {
     const double s = 64.0 / n;
     std::vector<float> values(size_t(n) * size_t(n) * size_t(n));
     for (int k = 0; k < n; ++k)
@@ -95,6 +149,28 @@ int main(int argc, char** argv) {
       std::printf("| %d³ (%.2f mm) | %s | %.1f | %.2f | %.1f | %llu |\n", n, s, name.c_str(), best, psnr(f.image, exact), convertMs,
                   (unsigned long long)first.stats.geometryBytes);
     }
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options options;
+  try {
+    options = parseOptions(argc, argv);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "hyb_geometry_trade_bench: %s\n", e.what());
+    return 2;
+  }
+  if (options.help) {
+    std::fputs(kUsage, stdout);
+    return 0;
+  }
+  try {
+    run(options);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "hyb_geometry_trade_bench: %s\n", e.what());
+    return 1;
   }
   return 0;
 }
