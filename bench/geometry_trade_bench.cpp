@@ -1,17 +1,18 @@
 // The trade between the two methods of drawing user geometry (docs/user-geometry.md): a geodesic
 // sphere mesh (R = 20 mm), a screw (a mesh, its shaft 2 mm across) and a plate (a large polygon
-// primitive) inside a soft ball of data, on grids of N³ voxels over the same 64 mm box. Against the exact image (the reference
-// ray tracer crossing the polygons): the PSNR and warm frame time of `polygons` and of
-// `scan-convert` (each filter --mesh-filter names: boxes of 1, 1.5 and 2 cells and point sampling)
-// in the slice renderer, and the scan-conversion's time and bytes; with --images, each frame as a PNG.
+// primitive) inside a soft ball of data, on grids of N³ voxels over the same 64 mm box. Against
+// the exact image (the reference ray tracer crossing the polygons): the PSNR (the whole image's,
+// the screw's and the plate's pixels') and warm frame time of `polygons` and of `scan-convert`
+// (each filter --mesh-filter names: boxes of 1, 1.5 and 2 cells and point sampling) in the slice
+// renderer, and the scan-conversion's time and bytes; with --images, each frame as a PNG.
 //
 //   hyb_geometry_trade_bench [--size 256] [--runs 3] [--grids 32,64,128] [--images DIR]
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
 #include <charconv>
+#include <filesystem>
 #include <string>
 #include <vector>
 
@@ -132,7 +133,9 @@ Options parseOptions(int argc, char** argv) {
 void run(const Options& o) {
   using namespace hyb;
   const int size = o.size, runs = o.runs;
-  if (!o.images.empty()) std::filesystem::create_directories(o.images);
+  std::error_code error;
+  if (!o.images.empty() && (std::filesystem::create_directories(o.images, error), error))
+    HYB_THROW(IoError, "--images ", o.images, ": cannot create the directory (", error.message(), ")");
   auto image = [&](int n, const std::string& method, const Image& frame) {
     if (!o.images.empty()) writePng(o.images + "/trade-" + std::to_string(n) + "-" + method + ".png", frame, glm::vec3(0));
   };
@@ -176,7 +179,7 @@ void run(const Options& o) {
       l.meshes.erase(l.meshes.begin() + std::ptrdiff_t(part));
       return footprint(exact, r.render(view, l, reference).image);
     };
-    const std::vector<bool> screwPixels = without(1), platePixels = without(2);
+    const std::vector<bool> screwPixels = without(1), platePixels = without(2);  // look.meshes' order
     // polygons, then scan-convert with each filter of --mesh-filter (box, box1.5, box2, none).
     const FrameField& filters = *frameField("mesh_filter");
     std::vector<std::string> methods = {"polygons"};
