@@ -78,9 +78,36 @@ TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLev
   EXPECT_LE(slow.estimateMs(steps[0]), AdaptiveQuality::kRefineFactor * 60.0);
   EXPECT_GT(slow.estimateMs(steps[0] - 1), AdaptiveQuality::kRefineFactor * 60.0);
   EXPECT_EQ(steps[1], 0);
+  // After a final frame slower than kSlowFinalMs (a cold one counts), a sharper step comes
+  // between: the best level costing at most kSharpStepShare of the final one, 75 % of the size at
+  // step 1.3 on the surface's ladder (0.216 of the final frame's cost; full size at step 1 costs
+  // 0.5), 75 % at step 1 on the volume's (0.281).
+  for (const bool cold : {false, true}) {
+    AdaptiveQuality surface(kSurfaceLadder, 60.0);
+    surface.record(8, 50.0);
+    surface.record(0, AdaptiveQuality::kSlowFinalMs + 1.0, cold);
+    const int interactive = surface.chooseInteractiveLevel();
+    const std::vector<int> sharper = surface.refinement();
+    ASSERT_EQ(sharper.size(), 3u);
+    EXPECT_LT(sharper[0], interactive);
+    EXPECT_EQ(sharper[1], 2);
+    EXPECT_EQ(surface.sharperStep(), 2);
+    EXPECT_EQ(sharper[2], 0);
+  }
+  slow.record(0, 1.5 * AdaptiveQuality::kSlowFinalMs);
+  const std::vector<int> withSharper = slow.refinement();
+  ASSERT_EQ(withSharper.size(), 3u);
+  EXPECT_GT(withSharper[0], 2);
+  EXPECT_EQ(withSharper[1], 2);
+  EXPECT_EQ(withSharper[2], 0);
+  slow.record(0, AdaptiveQuality::kSlowFinalMs);  // no longer slower: no sharper step
+  EXPECT_EQ(slow.refinement(), (std::vector<int>{withSharper[0], 0}));
+  EXPECT_EQ(slow.sharperStep(), -1);
   AdaptiveQuality fast(kSurfaceLadder, 60.0);
   fast.record(1, 10.0);
   EXPECT_EQ(fast.chooseInteractiveLevel(), 1);
+  EXPECT_EQ(fast.refinement(), (std::vector<int>{0}));
+  fast.record(0, 5000.0);  // a slow final frame, but the interactive level is already better
   EXPECT_EQ(fast.refinement(), (std::vector<int>{0}));
   // Another volume: what was measured on this one says nothing of it.
   fast.reset();

@@ -41,9 +41,19 @@ glm::ivec2 scaledSize(const FrameRequest& r, const QualityLevel& q) {
   return glm::max(glm::ivec2(kMinImageEdge), glm::ivec2(glm::round(glm::dvec2(r.size()) * q.scale)));
 }
 
-// What a frame of @p r at @p level of the ladder (rung @p q) draws and how, its meshes from @p memo.
-FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const QualityLevel& q, int level, std::optional<float> iso,
-                      UserGeometryMemo& memo) {
+// A frame's level of its ladder, that level's rung, and whether it draws the final frame's bricks:
+// the sharper step before a slow final frame (AdaptiveQuality::sharperStep), whose textures the
+// last final frame left in the cache, where the moving frames' 32-texel bricks at 0.7 pixels were
+// mostly new at its size and drawn coarser beyond the packing bound.
+struct FrameRung {
+  const QualityLevel& q;
+  int level = 0;
+  bool finalBricks = false;
+};
+
+// What a frame of @p r at @p rung draws and how, its meshes from @p memo.
+FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const FrameRung& rung, std::optional<float> iso, UserGeometryMemo& memo) {
+  const QualityLevel& q = rung.q;
   std::ostringstream warnings;  // (an isovalue outside the data: the page's info says so)
   FrameSetup p = setUpFrame(r.settings, scene, warnings, &memo);
   const glm::ivec2 size = scaledSize(r, q);
@@ -52,7 +62,7 @@ FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const QualityLe
   p.look.iso = iso;
   p.quality.waitForSurface = false;  // the pool's builder makes it; meanwhile its preview, or none
   if (q.rays) p.quality.renderer = Renderer::Raycast;
-  if (level > 0) {
+  if (rung.level > 0) {
     p.quality.budgetPercent = q.budgetPercent < 100.0 ? q.budgetPercent : 0.0;
     p.quality.step = q.step;
     p.quality.reuseViewErrors = r.interacting;
@@ -60,10 +70,14 @@ FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const QualityLe
     p.quality.simplifiedSurface = true;
     p.quality.surfaceErrorPixels = kInteractiveSurfaceErrorPixels;
     p.quality.cutToSlabs = false;
-    p.quality.maxBrickEdge = kInteractiveBrickEdge;
-    p.quality.lodPixels = kInteractiveLodPixels;
-    p.quality.waitForBricks = false;  // a paged scene's bricks not cached yet are drawn coarser meanwhile
-    p.quality.packTexels = kInteractivePackTexels;
+    if (!rung.finalBricks) {
+      p.quality.maxBrickEdge = kInteractiveBrickEdge;
+      p.quality.lodPixels = kInteractiveLodPixels;
+      p.quality.waitForBricks = false;  // a paged scene's bricks not cached yet are drawn coarser meanwhile
+      p.quality.packTexels = kInteractivePackTexels;
+    } else {
+      p.quality.lodPixels = kFinalLodPixels;
+    }
     p.quality.interactiveRays = true;  // a ray-traced rung's frame by the moving frames' tracer
   } else {
     p.quality.lodPixels = kFinalLodPixels;
@@ -127,6 +141,7 @@ void Client::showScene(const std::string& key) {
   pending.reset();
   current.reset();
   refine.clear();
+  sharperStep = -1;
   banded.reset();
   volumeQuality.reset();
   surfaceQuality.reset();
@@ -201,6 +216,7 @@ int FrameScheduler::start(Client& client, int movers, std::optional<Arrival>* ar
   quality.share(movers);
   if (r.interacting) return quality.chooseInteractiveLevel();
   client.refine = quality.refinement();
+  client.sharperStep = quality.sharperStep();
   client.refineSurface = *surface;
   std::reverse(client.refine.begin(), client.refine.end());
   const int level = client.refine.back();
@@ -252,6 +268,7 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
   }
   const SurfaceShown shown(scene);
   const SceneSummary summary = *scene.summary;
+  const FrameRung frameRung{rung, level, !request.interacting && level == client.sharperStep};
   ++mRenders;
   lock.unlock();
   std::string message;
@@ -260,7 +277,7 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
   double coarser = 0.0;  // share of the bricks drawn coarser
   try {
     const auto t0 = Clock::now();
-    const FrameSetup parts = frameParts(request, scene.renderer->scene(), rung, level, shown.drawn(request), mGeometry);
+    const FrameSetup parts = frameParts(request, scene.renderer->scene(), frameRung, shown.drawn(request), mGeometry);
     const RenderedFrame frame = scene.renderer->render(parts.view, parts.look, parts.quality);
     const double renderMs = msSince(t0);
     const FrameStats& st = frame.stats;
@@ -288,6 +305,7 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   const QualityLevel& rung = client.quality(b.surface.iso.has_value()).ladder()[size_t(b.level)];
   const int level = b.level;
   const FrameRequest request = b.request;
+  const FrameRung frameRung{rung, level, !request.interacting && level == client.sharperStep};
   const std::optional<float> iso = b.surface.drawn(request);
   const SceneSummary summary = scene;
   ++mRenders;
@@ -296,7 +314,7 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   RenderedFrame frame;
   const auto t0 = Clock::now();
   try {
-    FrameSetup parts = frameParts(request, renderer.scene(), rung, level, iso, mGeometry);
+    FrameSetup parts = frameParts(request, renderer.scene(), frameRung, iso, mGeometry);
     parts.quality.rows = rows;
     frame = renderer.render(parts.view, parts.look, parts.quality);
   } catch (const std::exception& e) {

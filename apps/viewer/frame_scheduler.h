@@ -77,6 +77,7 @@ struct Client : std::enable_shared_from_this<Client> {
   int bandLevel = -1;                   ///< ... at this level of the ladder (another level's pixels cost differently)
   AdaptiveQuality volumeQuality, surfaceQuality, surfaceRayQuality;
   bool raysForSurface = false;  ///< the surface's ladder ray-traces small frames (surfaceRaysFit)
+  int sharperStep = -1;         ///< the current request's refinement level drawn with the final frame's bricks
   uint64_t framesSent = 0;  ///< frames gone out (one encoded late is dropped when others went out since)
   std::atomic<bool> open{true};
   std::function<void(std::string message, bool binary)> send;  ///< posts to the socket; drops when closed

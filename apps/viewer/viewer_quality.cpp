@@ -30,6 +30,7 @@ double AdaptiveQuality::estimateMs(int level) const {
 }
 
 void AdaptiveQuality::record(int level, double ms, bool cold, double coarser) {
+  if (level == 0) mFinalMs = ms;  // (a cold one too: the first final frame of a large study is)
   const bool passing = cold || coarser > 0.0;  // a state the level's later frames leave behind, or not
   mCold = passing ? mCold + 1 : 0;
   const bool untrusted = passing && mCold < kColdFramesTrusted;
@@ -45,6 +46,7 @@ void AdaptiveQuality::record(int level, double ms, bool cold, double coarser) {
 
 void AdaptiveQuality::reset() {
   mMeasured.fill(-1.0);
+  mFinalMs = -1.0;
   mLast = mCurrent = int(mLadder.size()) - 1;
   mStay = mCold = mProbeFrames = 0;
   mProbe = -1;
@@ -86,12 +88,31 @@ int AdaptiveQuality::chooseInteractiveLevel() {
   return level;
 }
 
+// The refining step before the final frame that fits kRefineFactor times the target, or -1.
+int AdaptiveQuality::firstRefinement() const {
+  for (int k = 1; k < mCurrent; ++k)
+    if (estimateMs(k) <= kRefineFactor * mTargetMs) return k;
+  return -1;
+}
+
+int AdaptiveQuality::sharperStep() const {
+  if (mMeasured[size_t(mLast)] < 0.0 || !(mFinalMs > kSlowFinalMs)) return -1;
+  const int first = firstRefinement();
+  // By the cost model from the final frame: the small frames' times, with their fixed costs,
+  // overestimate a large one's several times over.
+  for (int k = 1; k < (first < 0 ? mCurrent : first); ++k)
+    if (mLadder[size_t(k)].cost() / mLadder[0].cost() <= kSharpStepShare) return k;
+  return -1;
+}
+
 std::vector<int> AdaptiveQuality::refinement() const {
   const int n = int(mLadder.size());
   if (mMeasured[size_t(mLast)] < 0.0) return {n - 1, 0};  // nothing measured: a coarse frame first
-  for (int k = 1; k < mCurrent; ++k)
-    if (estimateMs(k) <= kRefineFactor * mTargetMs) return {k, 0};
-  return {0};
+  std::vector<int> steps;
+  for (const int k : {firstRefinement(), sharperStep()})
+    if (k > 0) steps.push_back(k);
+  steps.push_back(0);
+  return steps;
 }
 
 }  // namespace hyb::viewer

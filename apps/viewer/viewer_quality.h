@@ -148,12 +148,19 @@ class AdaptiveQuality {
   static constexpr double kUpMargin = 0.9;  ///< a better level than the current must fit this share of the target
   /// The levels after the input stops, ending with 0: first, when it is better than the
   /// interactive one, the best level whose time fits kRefineFactor times the target (an image
-  /// sharper soon, and the final frame not much later); with nothing measured, the cheapest (a
-  /// volume just opened shows a coarse frame first).
+  /// sharper soon, and the final frame not much later); then, when the last final frame took
+  /// more than kSlowFinalMs, the best better level predicted from it to take at most
+  /// kSharpStepShare of it (a full-size or nearly full-size image in a fraction of the final
+  /// frame's seconds, painted while the final frame renders); with nothing measured, the
+  /// cheapest (a volume just opened shows a coarse frame first).
   std::vector<int> refinement() const;
+  /// The sharper step refinement() puts before the final frame, or -1 when it puts none.
+  int sharperStep() const;
   /// Forgets every time measured: another volume is shown, whose frames cost differently.
   void reset();
   static constexpr double kRefineFactor = 2.0;
+  static constexpr double kSlowFinalMs = 2000.0;
+  static constexpr double kSharpStepShare = 0.3;
   /// Records that a frame at @p level took @p ms (render and encode). A @p cold frame, one that
   /// uploaded most of its textures, or one that drew a share @p coarser of its bricks from coarser
   /// ones (textures beyond its packing bound, or knots the store is still loading), is not taken
@@ -172,11 +179,13 @@ class AdaptiveQuality {
   void share(int movers) { mShare = std::max(1, movers); }
 
  private:
+  int firstRefinement() const;
   const Ladder& mLadder;
   double mTargetMs;
   int mShare = 1;  // share(): the interactive frames aim at mTargetMs / mShare
   std::array<double, Ladder().size()> mMeasured;  // smoothed ms per level, -1 unknown
   int mLast = 0;     // the level measured last
+  double mFinalMs = -1.0;  // the last final frame's time, cold or not (-1: none yet)
   int mCurrent = 0;  // the interactive level in use
   int mStay = 0;     // frames at mCurrent since it was chosen or probed
   int mCold = 0;     // cold frames in a row
