@@ -9,6 +9,7 @@
 //                                  [--volume-only]   (no surface orbit: a study too large to extract one from)
 //                                  [--surface-only]  (no volume orbit)
 //                                  [--frames]   (also print each interactive frame's level, time and bricks drawn coarser)
+//                                  [--server-args 'ARGS']   (more flags for the server, e.g. '--texture-mb 1024')
 import { spawn, execFileSync } from 'node:child_process';
 import { createRequire } from 'node:module';
 import fs from 'node:fs';
@@ -27,7 +28,8 @@ if (!fs.existsSync(volume)) { console.error(`viewer_bench: --volume ${volume} do
 if (!Number.isFinite(iso)) { console.error('viewer_bench: --iso must be a number (data units)'); process.exit(2); }
 const tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'hyb-viewer-bench-'));
 
-const server = spawn(exe, ['view', volume, '--port', '0', '--progress', 'off', '--frame-ms', String(frameMs)], { stdio: ['ignore', 'pipe', 'inherit'] });
+const serverArgs = text('--server-args', '').split(' ').filter((a) => a);
+const server = spawn(exe, ['view', volume, '--port', '0', '--progress', 'off', '--frame-ms', String(frameMs), ...serverArgs], { stdio: ['ignore', 'pipe', 'inherit'] });
 const url = await new Promise((resolve, reject) => {
   let out = '';
   server.stdout.on('data', (d) => { out += d; const m = out.match(/(http:\/\/\S+\?token=[0-9a-f]+)/); if (m) resolve(m[1]); });
@@ -150,7 +152,8 @@ async function orbit(label, withSurface) {
   console.log(`  the reference at each frame's size, magnified as painted (the most a frame of that size can score): ${bound.map((p) => p.toFixed(1)).join(', ')} dB`);
   console.log(`  final frame painted ${final ? (final.paintedAt - tUp).toFixed(0) : '?'} ms after the motion stopped (target <= 2000)`);
   const after = metrics.filter((m) => m.paintedAt > tUp && m.paintedAt <= (final ? final.paintedAt : Infinity));
-  console.log(`  frames after the motion: ${after.map((m) => `${m.quality} ${m.levelText} at +${(m.paintedAt - tUp).toFixed(0)} ms (render ${m.renderMs.toFixed(0)} + encode ${m.encodeMs.toFixed(0)} ms)`).join('; ')}`);
+  console.log(`  frames after the motion: ${after.map((m) => `${m.quality} ${m.levelText} at +${(m.paintedAt - tUp).toFixed(0)} ms (render ${m.renderMs.toFixed(0)} + encode ${m.encodeMs.toFixed(0)} ms, ` +
+    `${(m.textureBytes / 1048576).toFixed(0)} MB of textures${m.bricksNotResident ? `, ${m.bricksNotResident} bricks coarser` : ''})`).join('; ')}`);
 }
 
 try {

@@ -239,6 +239,7 @@ async function onFrame(buffer) {
     upMs: sentAt === undefined || header.requestEpochMs === null ? null : header.requestEpochMs - (performance.timeOrigin + sentAt),
     downMs: performance.timeOrigin + received - header.sentEpochMs,
     latencyMs: sentAt === undefined ? null : painted - sentAt, paintedAt: painted, bricksNotResident: header.bricksNotResident || 0,
+    textureBytes: header.textureBytes || 0,
   });
   if (state.metrics.length > 5000) state.metrics.shift();
   state.displayed = header;
