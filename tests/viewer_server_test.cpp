@@ -21,6 +21,7 @@
 #include <set>
 #include <string>
 
+#include "apps/viewer/frame_scheduler.h"
 #include "apps/viewer/viewer_protocol.h"
 #include "apps/viewer/viewer_quality.h"
 #include "render/image.h"
@@ -556,6 +557,19 @@ TEST(ViewerServer, ClientsBeyondTheLimitAreToldAndClosed) {
   EXPECT_EQ(ec, websocket::error::closed);
   first.send(frameRequest(1, true).dump());  // the first is still served
   EXPECT_EQ(first.nextFrameOrError()["seq"], 1);
+}
+
+// A band sized by the last large frame's row times: the rows from the first whose times fit, at
+// least the least and at most the most rows, never past the last row.
+TEST(ViewerServer, ABandTakesTheRowsWhoseLastTimesFit) {
+  const std::vector<float> rowMs = {1, 1, 1, 10, 10, 10, 1, 1};
+  EXPECT_EQ(rowsWithin(rowMs, 0, 15.0, {1, 8}), 4);  // 1 + 1 + 1 + 10 = 13; a fifth row makes 23
+  EXPECT_EQ(rowsWithin(rowMs, 3, 15.0, {1, 8}), 1);
+  EXPECT_EQ(rowsWithin(rowMs, 3, 5.0, {1, 8}), 1);   // the least, though it takes longer
+  EXPECT_EQ(rowsWithin(rowMs, 3, 15.0, {2, 8}), 2);
+  EXPECT_EQ(rowsWithin(rowMs, 0, 100.0, {1, 5}), 5);  // the most
+  EXPECT_EQ(rowsWithin(rowMs, 6, 100.0, {1, 8}), 2);  // the last rows
+  EXPECT_EQ(rowsWithin(rowMs, 0, 35.0, {1, 8}), 8);   // 35 exactly: all of them
 }
 
 // A client's 2048² final frame is drawn band by band (16 of them), the other clients' frames between

@@ -148,6 +148,7 @@ void Client::showScene(const std::string& key) {
   surfaceRayQuality.reset();
   bandMsPerPixel = 0.0;
   bandLevel = -1;
+  bandRowMs.clear();
 }
 
 bool FrameScheduler::hasWork(const Clients& clients) {
@@ -186,13 +187,35 @@ void FrameScheduler::serveNext(const Clients& clients, std::unique_lock<std::mut
   serve(*client, othersDragging, lock);
 }
 
+int rowsWithin(std::span<const float> rowMs, int first, double ms, glm::ivec2 limits) {
+  const int last = int(rowMs.size());
+  int r = first;
+  for (double sum = 0.0; r < last && r - first < limits.y && (r - first < limits.x || sum + rowMs[size_t(r)] <= ms); ++r) sum += rowMs[size_t(r)];
+  return r - first;
+}
+
 int FrameScheduler::bandRows(const BandedFrame& b, bool othersDrag) const {
   const int standard = std::max(16, kBandPixels / b.image.width);
+  const glm::ivec2 limits(std::min(kMinBandRows, standard), standard);
+  const double ms = othersDrag ? std::max(mTargetMs, kMovingBandMs) : kIdleBandMs;
+  if (!b.predicted.empty()) {
+    // The last frame's row times, scaled by how this frame's bands compared with them: all of them
+    // so far, or the last one where it took longer (the view moved the costly rows).
+    auto ratio = [&b](int from) {
+      double done = 0.0, was = 0.0;
+      for (int r = from; r < b.next; ++r) {
+        done += b.rowMs[size_t(r)];
+        was += b.predicted[size_t(r)];
+      }
+      return done > 0.0 && was > 0.0 ? done / was : 1.0;
+    };
+    const double scale = std::clamp(std::max(ratio(0), ratio(b.lastBand)), 0.25, 4.0);
+    return rowsWithin(b.predicted, b.next, ms / scale, limits);
+  }
   // Not measured yet at this level: the narrowest band while another moves (a final frame's rows
   // can cost ten times a moving frame's).
-  if (b.msPerRow <= 0.0) return othersDrag ? std::min(kMinBandRows, standard) : standard;
-  const double ms = othersDrag ? std::max(mTargetMs, kMovingBandMs) : kIdleBandMs;
-  return std::clamp(int(ms / b.msPerRow), std::min(kMinBandRows, standard), standard);
+  if (b.msPerRow <= 0.0) return othersDrag ? limits.x : standard;
+  return std::clamp(int(ms / b.msPerRow), limits.x, limits.y);
 }
 
 int FrameScheduler::start(Client& client, int movers, std::optional<Arrival>* arrival, bool* surface) {
@@ -260,6 +283,9 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
     b.final = final;
     b.image = Image(size.x, size.y);
     if (client.bandLevel == level) b.msPerRow = client.bandMsPerPixel * size.x;  // (its first band sized by the last one's time)
+    if (const auto it = client.bandRowMs.find(level); it != client.bandRowMs.end() && it->second.first == size.x && int(it->second.second.size()) == size.y)
+      b.predicted = it->second.second;
+    b.rowMs.assign(size_t(size.y), 0.0f);
     client.banded = std::move(b);
   }
   if (client.banded) {
@@ -331,6 +357,8 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   std::copy(frame.image.pixels.begin(), frame.image.pixels.end(), &b.image.at(0, rows.x));  // (the band's rows only)
   b.renderMs += ms;
   b.msPerRow = ms / (rows.y - rows.x);
+  std::fill(b.rowMs.begin() + rows.x, b.rowMs.begin() + rows.y, float(b.msPerRow));
+  b.lastBand = rows.x;
   client.bandMsPerPixel = b.msPerRow / b.image.width;
   client.bandLevel = b.level;
   ++b.bands;
@@ -339,6 +367,7 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   b.maxError = std::max(b.maxError, double(frame.selection.maxError));
   b.next = rows.y;
   if (b.next < b.image.height) return;
+  client.bandRowMs[b.level] = {b.image.width, b.rowMs};
   // Encoded beside the next renders: the image's PNG would hold the other clients' frames.
   mEncoder.add([this, to = client.shared_from_this(), sent = client.framesSent, done = std::make_shared<BandedFrame>(std::move(b)), summary, rung] {
     std::string message, failed;

@@ -14,6 +14,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -31,7 +32,8 @@ using Clock = std::chrono::steady_clock;
 /// A final frame larger than this is drawn band by band, other clients' frames between its bands,
 /// so that it holds the render thread for one band at a time (the pixels are the whole frame's:
 /// SlicesOptions::rows). While another client moves, a band is sized to kMovingBandMs (or the frame
-/// target, if longer) from the time per pixel the client's last band took, so that the mover waits
+/// target, if longer) from the client's last large frame's row times (rowsWithin), or else the time
+/// per pixel its last band took, so that the mover waits
 /// about that at most; otherwise to kIdleBandMs, so that a client starting to drag waits at most
 /// about that for its first frame: narrower bands would cost the large frame more than they save
 /// the mover (each band selects and draws every brick it crosses again).
@@ -39,6 +41,13 @@ inline constexpr int kBandPixels = 512 * 512;
 inline constexpr int kMinBandRows = 8;
 inline constexpr double kMovingBandMs = 150.0;
 inline constexpr double kIdleBandMs = 250.0;
+
+/// The rows from @p first whose times in @p rowMs add up to at most @p ms, at least @p limits.x and
+/// at most @p limits.y (and no further than the last row): a band sized by where the frame's cost
+/// lies, as the client's last large frame at the same level and size measured it row by row (a
+/// frame's rows through the skull cost ten times those beside it, and the band after a cheap one
+/// would otherwise be sized by the cheap one's time).
+int rowsWithin(std::span<const float> rowMs, int first, double ms, glm::ivec2 limits);
 
 /// A large frame (final, or a refinement as large) part drawn.
 struct BandedFrame {
@@ -50,8 +59,11 @@ struct BandedFrame {
   bool final = true;   ///< the request's last frame
   Image image;
   int next = 0;           ///< the first row not drawn yet
+  int lastBand = 0;       ///< the first row of the last band drawn
   double renderMs = 0.0;  ///< the bands' render times so far
   double msPerRow = 0.0;  ///< the last band's time per row
+  std::vector<float> rowMs;      ///< each drawn row's share of its band's time
+  std::vector<float> predicted;  ///< the client's last large frame's rowMs at this level and size; empty: none
   int bands = 0;
   double longestBandMs = 0.0;
   FrameStats stats;       ///< the last band's
@@ -75,6 +87,8 @@ struct Client : std::enable_shared_from_this<Client> {
   std::optional<BandedFrame> banded;    ///< its large frame (final, or a refinement as large), part drawn
   double bandMsPerPixel = 0.0;          ///< its last band's time per pixel (a new large frame's first band is sized by it) ...
   int bandLevel = -1;                   ///< ... at this level of the ladder (another level's pixels cost differently)
+  /// Per level of the ladder: its last whole large frame's width and BandedFrame::rowMs.
+  std::map<int, std::pair<int, std::vector<float>>> bandRowMs;
   AdaptiveQuality volumeQuality, surfaceQuality, surfaceRayQuality;
   bool raysForSurface = false;  ///< the surface's ladder ray-traces small frames (surfaceRaysFit)
   int sharperStep = -1;         ///< the current request's refinement level drawn with the final frame's bricks
