@@ -572,6 +572,33 @@ TEST(ViewerServer, ABandTakesTheRowsWhoseLastTimesFit) {
   EXPECT_EQ(rowsWithin(rowMs, 0, 35.0, {1, 8}), 8);   // 35 exactly: all of them
 }
 
+// The sharper step before a slow final frame is its rung's size, spacing and simplified surface,
+// drawn with the final frame's bricks (their textures kept from the last final frame); the same
+// rung moving, or refining first, draws the moving frames' bricks within the packing bound.
+TEST(ViewerServer, TheSharperStepDrawsTheFinalFramesBricks) {
+  const Scene scene = sphereScene();
+  const FrameRequest r = std::get<FrameRequest>(parseRequest(frameRequest(1, false, 512).dump()));
+  UserGeometryMemo memo;
+  const FrameSetup final = frameParts(r, scene, {kSurfaceLadder[0], 0, false}, 6.0f, memo);
+  const FrameSetup refining = frameParts(r, scene, {kSurfaceLadder[2], 2, false}, 6.0f, memo);
+  const FrameSetup sharper = frameParts(r, scene, {kSurfaceLadder[2], 2, true}, 6.0f, memo);
+  for (const FrameSetup* f : {&refining, &sharper}) {
+    EXPECT_EQ(f->view.camera.width, 384);
+    EXPECT_EQ(f->quality.step, 1.3);
+    EXPECT_TRUE(f->quality.simplifiedSurface);
+  }
+  EXPECT_EQ(final.view.camera.width, 512);
+  EXPECT_EQ(sharper.quality.maxBrickEdge, final.quality.maxBrickEdge);
+  EXPECT_EQ(sharper.quality.lodPixels, kFinalLodPixels);
+  EXPECT_EQ(sharper.quality.packTexels, final.quality.packTexels);
+  EXPECT_EQ(sharper.quality.waitForBricks, final.quality.waitForBricks);
+  EXPECT_EQ(refining.quality.maxBrickEdge, kInteractiveBrickEdge);
+  EXPECT_NE(refining.quality.maxBrickEdge, final.quality.maxBrickEdge);
+  EXPECT_EQ(refining.quality.lodPixels, kInteractiveLodPixels);
+  EXPECT_EQ(refining.quality.packTexels, kInteractivePackTexels);
+  EXPECT_FALSE(refining.quality.waitForBricks);
+}
+
 // A client's 2048² final frame is drawn band by band (16 of them), the other clients' frames between
 // its bands: another client dragging meanwhile waits about a band for each of its frames, far less
 // than the whole frame (the bound is relative, as the machine's load scales both), and the large

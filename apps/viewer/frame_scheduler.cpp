@@ -41,17 +41,19 @@ glm::ivec2 scaledSize(const FrameRequest& r, const QualityLevel& q) {
   return glm::max(glm::ivec2(kMinImageEdge), glm::ivec2(glm::round(glm::dvec2(r.size()) * q.scale)));
 }
 
-// A frame's level of its ladder, that level's rung, and whether it draws the final frame's bricks:
-// the sharper step before a slow final frame (AdaptiveQuality::sharperStep), whose textures the
-// last final frame left in the cache, where the moving frames' 32-texel bricks at 0.7 pixels were
-// mostly new at its size and drawn coarser beyond the packing bound.
-struct FrameRung {
-  const QualityLevel& q;
-  int level = 0;
-  bool finalBricks = false;
-};
+// A frame's message: its header and the image, JPEG before the final frame, PNG for it (render
+// thread, unlocked); @p ms receives the frame's time from @p t0, encoding included.
+std::string encodeFrame(const FrameHeader& h, const Image& image, Clock::time_point t0, double* ms) {
+  const auto t1 = Clock::now();
+  const std::vector<uint8_t> rgba = toRgba8(image, glm::vec3(0.0f));
+  const std::vector<uint8_t> bytes = h.final ? encodePng(rgba, image.width, image.height) : encodeJpeg(rgba, image.width, image.height, 95);
+  const double encodeMs = msSince(t1);
+  *ms = msSince(t0);
+  return frameMessage(h.text(image.width, image.height, encodeMs), bytes);
+}
 
-// What a frame of @p r at @p rung draws and how, its meshes from @p memo.
+}  // namespace
+
 FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const FrameRung& rung, std::optional<float> iso, UserGeometryMemo& memo) {
   const QualityLevel& q = rung.q;
   std::ostringstream warnings;  // (an isovalue outside the data: the page's info says so)
@@ -84,19 +86,6 @@ FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const FrameRung
   }
   return p;
 }
-
-// A frame's message: its header and the image, JPEG before the final frame, PNG for it (render
-// thread, unlocked); @p ms receives the frame's time from @p t0, encoding included.
-std::string encodeFrame(const FrameHeader& h, const Image& image, Clock::time_point t0, double* ms) {
-  const auto t1 = Clock::now();
-  const std::vector<uint8_t> rgba = toRgba8(image, glm::vec3(0.0f));
-  const std::vector<uint8_t> bytes = h.final ? encodePng(rgba, image.width, image.height) : encodeJpeg(rgba, image.width, image.height, 95);
-  const double encodeMs = msSince(t1);
-  *ms = msSince(t0);
-  return frameMessage(h.text(image.width, image.height, encodeMs), bytes);
-}
-
-}  // namespace
 
 FrameEncoder::FrameEncoder()
     : mThread([this] {

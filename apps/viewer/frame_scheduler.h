@@ -49,6 +49,20 @@ inline constexpr double kIdleBandMs = 250.0;
 /// would otherwise be sized by the cheap one's time).
 int rowsWithin(std::span<const float> rowMs, int first, double ms, glm::ivec2 limits);
 
+/// A frame's level of its ladder, that level's rung, and whether it draws the final frame's bricks:
+/// the sharper step before a slow final frame (AdaptiveQuality::sharperStep), whose textures the
+/// last final frame left in the cache, where the moving frames' 32-texel bricks at 0.7 pixels were
+/// mostly new at its size and drawn coarser beyond the packing bound.
+struct FrameRung {
+  const QualityLevel& q;
+  int level = 0;
+  bool finalBricks = false;
+};
+
+/// What a frame of @p r at @p rung draws and how (its size, spacing, surface, bricks), its meshes
+/// from @p memo.
+FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const FrameRung& rung, std::optional<float> iso, UserGeometryMemo& memo);
+
 /// A large frame (final, or a refinement as large) part drawn.
 struct BandedFrame {
   BandedFrame(FrameRequest r, const SurfaceShown& s) : request(std::move(r)), surface(s) {}
