@@ -184,7 +184,7 @@ int rowsWithin(std::span<const float> rowMs, int first, double ms, glm::ivec2 li
 }
 
 int FrameScheduler::bandRows(const BandedFrame& b, bool othersDrag) const {
-  const int standard = std::max(16, kBandPixels / b.image.width);
+  const int standard = std::max(16, kBandPixels / b.size.x);
   const glm::ivec2 limits(std::min(kMinBandRows, standard), standard);
   const double ms = othersDrag ? std::max(mTargetMs, kMovingBandMs) : kIdleBandMs;
   if (!b.predicted.empty()) {
@@ -204,7 +204,10 @@ int FrameScheduler::bandRows(const BandedFrame& b, bool othersDrag) const {
   // Not measured yet at this level: the narrowest band while another moves (a final frame's rows
   // can cost ten times a moving frame's).
   if (b.msPerRow <= 0.0) return othersDrag ? limits.x : standard;
-  return std::clamp(int(ms / b.msPerRow), limits.x, limits.y);
+  // Rows growing costlier (down into the skull) are taken to go on growing as the last two bands
+  // did, up to twice the last one's time a row.
+  const double growth = b.lastMsPerRow > 0.0 ? std::clamp(b.msPerRow / b.lastMsPerRow, 1.0, 2.0) : 1.0;
+  return std::clamp(int(ms / (b.msPerRow * growth)), limits.x, limits.y);
 }
 
 int FrameScheduler::start(Client& client, int movers, std::optional<Arrival>* arrival, bool* surface) {
@@ -270,7 +273,7 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
     b.arrival = arrival;
     b.level = level;
     b.final = final;
-    b.image = Image(size.x, size.y);
+    b.size = size;  // (its image is made by its first band, outside the lock: 64 MB for 2048², 0.2 s of page faults)
     if (client.bandLevel == level) b.msPerRow = client.bandMsPerPixel * size.x;  // (its first band sized by the last one's time)
     if (const auto it = client.bandRowMs.find(level); it != client.bandRowMs.end() && it->second.first == size.x && int(it->second.second.size()) == size.y)
       b.predicted = it->second.second;
@@ -316,7 +319,9 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
 void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, bool othersDrag,
                                std::unique_lock<std::mutex>& lock) {
   BandedFrame& b = *client.banded;
-  const glm::ivec2 rows(b.next, std::min(b.next + bandRows(b, othersDrag), b.image.height));
+  const glm::ivec2 rows(b.next, std::min(b.next + bandRows(b, othersDrag), b.size.y));
+  const glm::ivec2 size = b.size;
+  const bool first = b.image.pixels.empty();
   const QualityLevel& rung = client.quality(b.surface.iso.has_value()).ladder()[size_t(b.level)];
   const int level = b.level;
   const FrameRequest request = b.request;
@@ -327,6 +332,8 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   lock.unlock();
   std::string error;
   RenderedFrame frame;
+  Image whole;
+  if (first) whole = Image(size.x, size.y);
   const auto t0 = Clock::now();
   try {
     FrameSetup parts = frameParts(request, renderer.scene(), frameRung, iso, mGeometry);
@@ -343,20 +350,22 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
     client.send(errorMessage(mScrub(error), request.seq), false);
     return;
   }
+  if (b.image.pixels.empty()) b.image = std::move(whole);
   std::copy(frame.image.pixels.begin(), frame.image.pixels.end(), &b.image.at(0, rows.x));  // (the band's rows only)
   b.renderMs += ms;
+  b.lastMsPerRow = b.msPerRow;
   b.msPerRow = ms / (rows.y - rows.x);
   std::fill(b.rowMs.begin() + rows.x, b.rowMs.begin() + rows.y, float(b.msPerRow));
   b.lastBand = rows.x;
-  client.bandMsPerPixel = b.msPerRow / b.image.width;
+  client.bandMsPerPixel = b.msPerRow / b.size.x;
   client.bandLevel = b.level;
   ++b.bands;
   b.longestBandMs = std::max(b.longestBandMs, ms);
   b.stats = frame.stats;
   b.maxError = std::max(b.maxError, double(frame.selection.maxError));
   b.next = rows.y;
-  if (b.next < b.image.height) return;
-  client.bandRowMs[b.level] = {b.image.width, b.rowMs};
+  if (b.next < b.size.y) return;
+  client.bandRowMs[b.level] = {b.size.x, b.rowMs};
   // Encoded beside the next renders: the image's PNG would hold the other clients' frames.
   mEncoder.add([this, to = client.shared_from_this(), sent = client.framesSent, done = std::make_shared<BandedFrame>(std::move(b)), summary, rung] {
     std::string message, failed;

@@ -71,11 +71,13 @@ struct BandedFrame {
   std::optional<Arrival> arrival;
   int level = 0;       ///< the ladder's level it is drawn at
   bool final = true;   ///< the request's last frame
-  Image image;
+  glm::ivec2 size{0};     ///< its pixels
+  Image image;            ///< made by its first band
   int next = 0;           ///< the first row not drawn yet
   int lastBand = 0;       ///< the first row of the last band drawn
   double renderMs = 0.0;  ///< the bands' render times so far
   double msPerRow = 0.0;  ///< the last band's time per row
+  double lastMsPerRow = 0.0;  ///< the band's before it
   std::vector<float> rowMs;      ///< each drawn row's share of its band's time
   std::vector<float> predicted;  ///< the client's last large frame's rowMs at this level and size; empty: none
   int bands = 0;
