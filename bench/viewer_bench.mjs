@@ -40,6 +40,11 @@ const page = await browser.newPage();
 await page.setViewport({ width: 900, height: 720 });
 await page.goto(url);
 await page.waitForFunction(() => window.hybViewer && window.hybViewer.lastFinal(), { timeout: 120000 });
+{
+  // (painted times are the page's performance.now(): milliseconds since it began to load)
+  const opened = await page.evaluate(() => { const m = window.hybViewer.metrics(); return [m[0].paintedAt, m.find((f) => f.quality === 'final').paintedAt, m[0].levelText, m[0].renderMs]; });
+  console.log(`opening: the first frame (${opened[2]}, render ${opened[3].toFixed(0)} ms) painted ${opened[0].toFixed(0)} ms after the page began to load, the final frame ${opened[1].toFixed(0)} ms`);
+}
 
 const quantile = (xs, q) => { const s = [...xs].sort((a, b) => a - b); return s[Math.min(s.length - 1, Math.floor(q * s.length))]; };
 

@@ -38,8 +38,13 @@ TEST(ViewerQuality, RayTracedSurfaceFramesGoToVolumesWhoseRaysAreShort) {
 
 TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLevel) {
   AdaptiveQuality q(kVolumeLadder, 60.0);
-  // Nothing measured (a volume just opened): the cheapest level, whose time predicts the others'.
-  const int cheapest = int(kVolumeLadder.size()) - 1;
+  // Nothing measured (a volume just opened): the cheapest level without a budget (a budget's
+  // selection measures the view's brick errors first), whose time predicts the others'.
+  const int cheapest = int(kVolumeLadder.size()) - 2;
+  ASSERT_LT(kVolumeLadder[size_t(cheapest) + 1].budgetPercent, 100.0);
+  ASSERT_EQ(kVolumeLadder[size_t(cheapest)].budgetPercent, 100.0);
+  EXPECT_EQ(q.firstLevel(), cheapest);
+  EXPECT_EQ(AdaptiveQuality(kSurfaceLadder, 60.0).firstLevel(), int(kSurfaceLadder.size()) - 1);
   EXPECT_EQ(q.chooseInteractiveLevel(), cheapest);
   EXPECT_EQ(q.refinement(), (std::vector<int>{cheapest, 0}));  // a coarse frame first
   // Level 1 is slow: 240 ms. Predictions scale by cost: the first level under 60 ms is chosen.

@@ -173,6 +173,8 @@ class AdaptiveQuality {
   static constexpr int kColdFramesTrusted = 3;
   /// The measured time of @p level, or one predicted from the last measured level's.
   double estimateMs(int level) const;
+  /// The level of a volume just opened, nothing measured: the cheapest without a budget.
+  int firstLevel() const;
   double targetMs() const { return mTargetMs; }
   /// @p movers clients (this one among them) are dragging on one render thread: each one's next
   /// frame waits for the others', so an interactive frame aims at the target shared among them.
