@@ -12,7 +12,6 @@
 #include "render/scene_renderer.h"
 #include "render_util.h"
 #include "test_util.h"
-#include "volume/volume_io.h"
 
 namespace hyb {
 namespace {
@@ -142,10 +141,7 @@ TEST(RaycastInteractive, FramesItDoesNotServeAreTheReferences) {
 // float arithmetic and the rays stopped at 0.99 lose about what the interleaved offsets gain back
 // in the magnification), and it takes fewer samples.
 TEST(RaycastInteractive, MovingFramesOfTheCraniumAreWithinAStatedPsnrOfTheReferences) {
-  Scene cranium;
-  cranium.volume = readVolume(kDefaultVolumePath);
-  cranium.octree = VolumeOctree::build(cranium.volume);
-  SceneRenderer r(std::move(cranium));
+  SceneRenderer r(test::craniumScene());
   Look look;
   look.tf = TransferFunction::preset("ct-skin-bone");
   look.iso = 400.0f;

@@ -12,6 +12,7 @@
 #include "render/transfer_function.h"
 #include "surface/mesh.h"
 #include "test_util.h"
+#include "volume/volume_io.h"
 
 namespace hyb::test {
 
@@ -27,6 +28,14 @@ inline GlContext& gl() {
 inline Scene sphereScene(glm::ivec3 dims = {40, 36, 32}, double radius = 13.0) {
   Scene s;
   s.volume = sphereVolume(dims, radius);
+  s.octree = VolumeOctree::build(s.volume);
+  return s;
+}
+
+/// A scene of the real CT (InVesalius' cranium, kDefaultVolumePath) with its Volume Octree.
+inline Scene craniumScene() {
+  Scene s;
+  s.volume = readVolume(kDefaultVolumePath);
   s.octree = VolumeOctree::build(s.volume);
   return s;
 }

@@ -797,10 +797,7 @@ Quality moving() {
 }
 
 TEST(SlicesCranium, NoIsolatedBlackPixelsOnTheTranslucentSurface) {
-  Scene scene;
-  scene.volume = readVolume(kDefaultVolumePath);
-  scene.octree = VolumeOctree::build(scene.volume);
-  SceneRenderer r(std::move(scene));
+  SceneRenderer r(test::craniumScene());
   Look look;
   look.tf = TransferFunction::defaultFor(r.volume().minValue(), r.volume().maxValue());
   look.iso = 400.0f;
