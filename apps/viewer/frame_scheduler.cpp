@@ -273,7 +273,7 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
     b.arrival = arrival;
     b.level = level;
     b.final = final;
-    b.size = size;  // (its image is made by its first band, outside the lock: 64 MB for 2048², 0.2 s of page faults)
+    b.size = size;  // (its image is made by its first band, outside the lock: its page faults would hold the clients' requests)
     if (client.bandLevel == level) b.msPerRow = client.bandMsPerPixel * size.x;  // (its first band sized by the last one's time)
     if (const auto it = client.bandRowMs.find(level); it != client.bandRowMs.end() && it->second.first == size.x && int(it->second.second.size()) == size.y)
       b.predicted = it->second.second;

@@ -45,7 +45,7 @@ inline constexpr double kIdleBandMs = 250.0;
 /// The rows from @p first whose times in @p rowMs add up to at most @p ms, at least @p limits.x and
 /// at most @p limits.y (and no further than the last row): a band sized by where the frame's cost
 /// lies, as the client's last large frame at the same level and size measured it row by row (a
-/// frame's rows through the skull cost ten times those beside it, and the band after a cheap one
+/// frame's rows through the skull cost many times those beside it, and the band after a cheap one
 /// would otherwise be sized by the cheap one's time).
 int rowsWithin(std::span<const float> rowMs, int first, double ms, glm::ivec2 limits);
 

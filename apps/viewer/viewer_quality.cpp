@@ -45,8 +45,8 @@ void AdaptiveQuality::record(int level, double ms, bool cold, double coarser) {
 }
 
 int AdaptiveQuality::firstLevel() const {
-  // A budget rung's selection measures the view's brick errors first: 1.2 s on a clinical
-  // study's first frame, 5 ms without the budget (docs/viewer.md).
+  // A budget rung's selection measures the view's brick errors first, most of a large study's
+  // first frame (docs/viewer.md).
   int k = int(mLadder.size()) - 1;
   while (k > 0 && mLadder[size_t(k)].budgetPercent < 100.0) --k;
   return k;

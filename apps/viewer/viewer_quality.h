@@ -151,8 +151,8 @@ class AdaptiveQuality {
   /// sharper soon, and the final frame not much later); then, when the last final frame took
   /// more than kSlowFinalMs, the best better level predicted from it to take at most
   /// kSharpStepShare of it (a full-size or nearly full-size image in a fraction of the final
-  /// frame's seconds, painted while the final frame renders); with nothing measured, the
-  /// cheapest (a volume just opened shows a coarse frame first).
+  /// frame's seconds, painted while the final frame renders); with nothing measured,
+  /// firstLevel() (a volume just opened shows a coarse frame first).
   std::vector<int> refinement() const;
   /// The sharper step refinement() puts before the final frame, or -1 when it puts none.
   int sharperStep() const;
