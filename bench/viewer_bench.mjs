@@ -28,6 +28,11 @@ if (!fs.existsSync(volume)) { console.error(`viewer_bench: --volume ${volume} do
 if (!Number.isFinite(iso)) { console.error('viewer_bench: --iso must be a number (data units)'); process.exit(2); }
 const tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'hyb-viewer-bench-'));
 
+// The browser first, as a user's is already running: launched with the server, its start-up shared
+// the two cores with the scene's first frame.
+const browser = await puppeteer.launch({ executablePath: '/usr/bin/chromium', headless: true, args: ['--no-sandbox', '--disable-gpu'] });
+const page = await browser.newPage();
+await page.setViewport({ width: 900, height: 720 });
 const serverArgs = text('--server-args', '').split(' ').filter((a) => a);
 const server = spawn(exe, ['view', volume, '--port', '0', '--progress', 'off', '--frame-ms', String(frameMs), ...serverArgs], { stdio: ['ignore', 'pipe', 'inherit'] });
 const url = await new Promise((resolve, reject) => {
@@ -35,9 +40,6 @@ const url = await new Promise((resolve, reject) => {
   server.stdout.on('data', (d) => { out += d; const m = out.match(/(http:\/\/\S+\?token=[0-9a-f]+)/); if (m) resolve(m[1]); });
   server.on('exit', (code) => reject(new Error(`server exited (${code})`)));
 });
-const browser = await puppeteer.launch({ executablePath: '/usr/bin/chromium', headless: true, args: ['--no-sandbox', '--disable-gpu'] });
-const page = await browser.newPage();
-await page.setViewport({ width: 900, height: 720 });
 await page.goto(url);
 await page.waitForFunction(() => window.hybViewer && window.hybViewer.lastFinal(), { timeout: 120000 });
 {
