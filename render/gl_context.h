@@ -13,6 +13,9 @@ class GlContext {
  public:
   /// @throw RuntimeError when no 4.5 core context can be created.
   GlContext();
+  /// A context sharing @p share's textures, buffers and renderbuffers, current on the calling
+  /// thread: what it makes there, @p share's thread can use once it is made (glFinish).
+  explicit GlContext(const GlContext* share);
   ~GlContext();
   GlContext(const GlContext&) = delete;
   GlContext& operator=(const GlContext&) = delete;

@@ -1,6 +1,11 @@
 #include "render/gl_objects.h"
 
 #include <algorithm>
+#include <atomic>
+#include <exception>
+#include <thread>
+
+#include "render/gl_context.h"
 
 #include "volume/core/error.h"
 
@@ -44,14 +49,26 @@ Texture volumeTexture() {
   return tex;
 }
 
-FloatTarget::FloatTarget(int width, int height)
-    : mWidth(width), mHeight(height), mFramebuffer(Framebuffer::make()), mColor(Texture::make()), mDepth(Renderbuffer::make()) {
-  glBindFramebuffer(GL_FRAMEBUFFER, mFramebuffer.id());
-  glBindTexture(GL_TEXTURE_2D, mColor.id());
+Texture FloatTarget::colorTexture(int width, int height) {
+  Texture color = Texture::make();
+  glBindTexture(GL_TEXTURE_2D, color.id());
   glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA32F, width, height, 0, GL_RGBA, GL_FLOAT, nullptr);
-  glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, mColor.id(), 0);
-  glBindRenderbuffer(GL_RENDERBUFFER, mDepth.id());
+  return color;
+}
+
+Renderbuffer FloatTarget::depthBuffer(int width, int height) {
+  Renderbuffer depth = Renderbuffer::make();
+  glBindRenderbuffer(GL_RENDERBUFFER, depth.id());
   glRenderbufferStorage(GL_RENDERBUFFER, GL_DEPTH_COMPONENT24, width, height);
+  return depth;
+}
+
+FloatTarget::FloatTarget(int width, int height) : FloatTarget(width, height, colorTexture(width, height), depthBuffer(width, height)) {}
+
+FloatTarget::FloatTarget(int width, int height, Texture color, Renderbuffer depth)
+    : mWidth(width), mHeight(height), mFramebuffer(Framebuffer::make()), mColor(std::move(color)), mDepth(std::move(depth)) {
+  glBindFramebuffer(GL_FRAMEBUFFER, mFramebuffer.id());
+  glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, mColor.id(), 0);
   glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, mDepth.id());
   if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
     HYB_THROW(RuntimeError, "OpenGL framebuffer incomplete for a ", width, "x", height, " float image");
@@ -63,16 +80,66 @@ void FloatTarget::bind() const {
   glViewport(0, 0, mWidth, mHeight);
 }
 
+struct TargetCache::Prepared {
+  int width = 0, height = 0;
+  Texture color;
+  Renderbuffer depth;
+  std::exception_ptr error;
+  std::atomic<bool> done{false};
+  std::thread thread;
+};
+
+TargetCache::TargetCache() = default;
+
+TargetCache::~TargetCache() {
+  if (mPrepared) mPrepared->thread.join();
+}
+
+void TargetCache::keep(std::unique_ptr<FloatTarget> target) {
+  if (mTargets.size() >= kKept) mTargets.erase(mTargets.begin());
+  mTargets.push_back(std::move(target));
+}
+
+void TargetCache::adoptPrepared(bool wait) {
+  if (!mPrepared || (!wait && !mPrepared->done)) return;
+  mPrepared->thread.join();
+  const std::unique_ptr<Prepared> p = std::move(mPrepared);
+  if (p->error) std::rethrow_exception(p->error);
+  keep(std::make_unique<FloatTarget>(p->width, p->height, std::move(p->color), std::move(p->depth)));
+}
+
 FloatTarget& TargetCache::get(int width, int height) {
+  const bool ahead = mPrepared && mPrepared->width == width && mPrepared->height == height;
+  adoptPrepared(ahead);
+  mMadeAhead += ahead;
   const auto it = std::find_if(mTargets.begin(), mTargets.end(), [&](const auto& t) { return t->width() == width && t->height() == height; });
   if (it != mTargets.end()) {
     std::rotate(it, it + 1, mTargets.end());  // the most recently used last
     mTargets.back()->bind();
     return *mTargets.back();
   }
-  if (mTargets.size() >= kKept) mTargets.erase(mTargets.begin());
-  mTargets.push_back(std::make_unique<FloatTarget>(width, height));
+  keep(std::make_unique<FloatTarget>(width, height));
   return *mTargets.back();
+}
+
+void TargetCache::prepare(int width, int height, const GlContext& context) {
+  adoptPrepared(false);
+  if (mPrepared || std::any_of(mTargets.begin(), mTargets.end(), [&](const auto& t) { return t->width() == width && t->height() == height; }))
+    return;
+  mPrepared = std::make_unique<Prepared>();
+  mPrepared->width = width;
+  mPrepared->height = height;
+  mPrepared->thread = std::thread([p = mPrepared.get(), &context] {
+    try {
+      const GlContext own(&context);
+      p->color = FloatTarget::colorTexture(p->width, p->height);
+      p->depth = FloatTarget::depthBuffer(p->width, p->height);
+      glFinish();  // (the texture and renderbuffer outlive this context: the other one shares them)
+    } catch (...) {
+      p->error = std::current_exception();
+    }
+    p->done = true;
+  });
 }
 
 }  // namespace hyb::gl

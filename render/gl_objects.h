@@ -12,6 +12,10 @@
 #include <vector>
 #include <utility>
 
+namespace hyb {
+class GlContext;
+}
+
 namespace hyb::gl {
 
 /// One OpenGL name of a kind (Traits::create/destroy), deleted with its owner.
@@ -106,6 +110,11 @@ class FloatTarget {
  public:
   /// @throw RuntimeError when the framebuffer is incomplete.
   FloatTarget(int width, int height);
+  /// The same of a colour texture and depth renderbuffer made by colorTexture and depthBuffer (in
+  /// a context sharing this one's objects).
+  FloatTarget(int width, int height, Texture color, Renderbuffer depth);
+  static Texture colorTexture(int width, int height);
+  static Renderbuffer depthBuffer(int width, int height);
   /// Binds it and sets the viewport to it again.
   void bind() const;
   int width() const { return mWidth; }
@@ -123,12 +132,30 @@ class FloatTarget {
 /// frame's bands alternate with other clients' smaller frames.
 class TargetCache {
  public:
+  TargetCache();
+  TargetCache(const TargetCache&) = delete;
+  TargetCache& operator=(const TargetCache&) = delete;
+  /// Waits for a target on its way (its owner's context current).
+  ~TargetCache();
   /// A target of @p width x @p height, bound (the least recently used one is let go beyond kKept).
   FloatTarget& get(int width, int height);
+  /// Starts making a target of @p width x @p height on a thread of its own, in a context sharing
+  /// @p context's objects, unless it is kept or another is on its way: made by get() on the render
+  /// thread, a 2048² target's memory takes that thread a quarter of a second to fault in, which
+  /// the other clients' frames would wait for.
+  void prepare(int width, int height, const GlContext& context);
+  /// Targets get() returned that prepare() had made.
+  size_t madeAhead() const { return mMadeAhead; }
 
  private:
+  struct Prepared;
+  /// Takes the target made by prepare() into the cache: when it is done, or (@p wait) once it is.
+  void adoptPrepared(bool wait);
+  void keep(std::unique_ptr<FloatTarget> target);
   static constexpr size_t kKept = 3;
   std::vector<std::unique_ptr<FloatTarget>> mTargets;  // the most recently used last
+  std::unique_ptr<Prepared> mPrepared;
+  size_t mMadeAhead = 0;
 };
 
 }  // namespace hyb::gl

@@ -68,6 +68,10 @@ SceneRenderer::~SceneRenderer() {
   if (mGl) mGl->makeCurrent();  // the textures and programs are deleted in their own context
 }
 
+void SceneRenderer::prepareTarget(int width, int height) {
+  if (mGl) mTargets.prepare(width, height, *mGl);
+}
+
 void SceneRenderer::ensureGl() {
   if (!mGl) mGl.emplace();
   mGl->makeCurrent();  // another renderer's context may have been made (or destroyed) since

@@ -246,6 +246,13 @@ class SceneRenderer {
   /// others, the two used most recently. Unpinned surfaces beyond those are dropped now.
   void pinSurfaces(std::vector<float> isos);
 
+  /// Starts making the render target of a slice frame of @p width x @p height on a thread of its
+  /// own (gl::TargetCache::prepare), once a frame has made this renderer's context: a large frame
+  /// asked for ahead of its first band finds it made.
+  void prepareTarget(int width, int height);
+  /// Frames drawn into a target prepareTarget made.
+  size_t targetsMadeAhead() const { return mTargets.madeAhead(); }
+
   /// Drops the brick textures and programs: the next frame packs, uploads and compiles anew.
   void dropTextures();
   /// Texture memory the cache holds.

@@ -724,6 +724,35 @@ TEST(SceneRenderer, AFrameInBandsIsTheWholeFrame) {
   EXPECT_THROW(r.render(view, look, bad), ValueError);
 }
 
+// A large frame's target made ahead on another thread, in a context sharing the renderer's, draws
+// the frame the renderer's own would; asked before the renderer has a context, or for a size kept
+// already, nothing is made.
+TEST(SceneRenderer, ATargetMadeAheadOnAnotherThreadDrawsTheSameFrame) {
+  test::gl();
+  SceneRenderer ahead(sphereScene()), here(sphereScene());
+  Look look;
+  look.tf = warm();
+  look.iso = 4.0f;
+  look.surfaceColor = glm::vec4(0.9f, 0.8f, 0.7f, 0.5f);
+  ahead.prepareTarget(61, 53);  // no context yet: nothing to share
+  View small = viewFrom(40, ahead.volume(), 20);
+  ahead.render(small, look, Quality{});
+  EXPECT_EQ(ahead.targetsMadeAhead(), 0u);
+  View view = viewFrom(40, ahead.volume(), 61);
+  view.camera.height = 53;
+  ahead.prepareTarget(61, 53);
+  const RenderedFrame a = ahead.render(view, look, Quality{});
+  EXPECT_EQ(ahead.targetsMadeAhead(), 1u);
+  const RenderedFrame b = here.render(view, look, Quality{});
+  ASSERT_EQ(a.image.pixels.size(), size_t(61 * 53));
+  EXPECT_EQ(a.image.pixels, b.image.pixels);
+  EXPECT_GT(std::count_if(a.image.pixels.begin(), a.image.pixels.end(), [](const glm::vec4& p) { return p.a > 0.1f; }), 500) << "the sphere is drawn";
+  ahead.prepareTarget(61, 53);  // kept: not made again
+  ahead.prepareTarget(20, 20);
+  EXPECT_EQ(ahead.render(view, look, Quality{}).image.pixels, b.image.pixels);
+  EXPECT_EQ(ahead.targetsMadeAhead(), 1u);
+}
+
 TEST(SceneRenderer, TextureMemoryStaysWithinItsLimitAcrossFrames) {
   test::gl();
   Look look;
