@@ -1097,5 +1097,52 @@ TEST(ViewerServer, ClientsDraggingTogetherAreServedInTheOrderTheyAsked) {
   }
 }
 
+// Movers that ask again as soon as their frame comes keep a moving frame pending all the time; a
+// large final frame of another client still gets a band once it has waited kLongestDeferMs, so it
+// comes while they drag, and each moving frame waits behind the others' and one band at most.
+TEST(ViewerServer, MoversAskingWithoutPauseDoNotStarveALargeFinalFrame) {
+  TestServer s(60.0);
+  constexpr int kMovers = 3;
+  Socket big(s.port(), "/ws?token=" + s.token());
+  big.next();
+  std::vector<std::unique_ptr<Socket>> movers;
+  for (int i = 0; i < kMovers; ++i) {
+    movers.push_back(std::make_unique<Socket>(s.port(), "/ws?token=" + s.token()));
+    movers.back()->next();
+  }
+  warmUp(*movers.front(), 64);  // (the surface built)
+  std::atomic<bool> done{false};
+  std::vector<int> worst(kMovers, 0), frames(kMovers, 0);
+  std::vector<std::thread> threads;
+  for (int i = 0; i < kMovers; ++i)
+    threads.emplace_back([&, i] {
+      for (uint64_t seq = 10; !done && seq < 5000; ++seq) {
+        movers[size_t(i)]->send(frameRequest(seq, true, 64, double(seq * 3 + uint64_t(i) * 40)).dump());
+        json f;
+        do f = movers[size_t(i)]->nextFrameOrError();
+        while (f["type"] == "frame" && f["seq"] != seq);
+        if (f["type"] != "frame") return;
+        ++frames[size_t(i)];
+        worst[size_t(i)] = std::max(worst[size_t(i)], f["waitedRenders"].get<int>());
+      }
+    });
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));  // all of them dragging
+  big.send(frameRequest(1, false, 1024).dump());
+  json final;
+  do final = big.nextFrameOrError();
+  while (final["type"] == "frame" && final["quality"] != "final");
+  const std::vector<int> before = frames;
+  done = true;
+  for (std::thread& t : threads) t.join();
+  ASSERT_EQ(final["type"], "frame") << final.dump();
+  EXPECT_EQ(final["width"], 1024);
+  EXPECT_GT(final["bands"].get<int>(), 1) << final.dump();
+  for (int i = 0; i < kMovers; ++i) {
+    EXPECT_LT(before[size_t(i)], 4990) << "mover " << i << " stopped before the final frame came";
+    EXPECT_GT(before[size_t(i)], 10) << "mover " << i << " was served while the large frame was drawn";
+    EXPECT_LE(worst[size_t(i)], kMovers) << "mover " << i << " waited behind more than the others' frames and one band";
+  }
+}
+
 }  // namespace
 }  // namespace hyb::viewer

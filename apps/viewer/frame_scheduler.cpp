@@ -52,6 +52,15 @@ std::string encodeFrame(const FrameHeader& h, const Image& image, Clock::time_po
   return frameMessage(h.text(image.width, image.height, encodeMs), bytes);
 }
 
+// The image of a banded frame of @p size from its @p bands, top first.
+Image joinBands(glm::ivec2 size, const std::vector<Image>& bands) {
+  Image image(size.x, size.y);
+  auto at = image.pixels.begin();
+  for (const Image& band : bands) at = std::copy(band.pixels.begin(), band.pixels.end(), at);
+  HYB_CHECK(at == image.pixels.end());
+  return image;
+}
+
 }  // namespace
 
 FrameSetup frameParts(const FrameRequest& r, const Scene& scene, const FrameRung& rung, std::optional<float> iso, UserGeometryMemo& memo) {
@@ -162,18 +171,25 @@ void FrameScheduler::serveNext(const Clients& clients, std::unique_lock<std::mut
     if (entry.second->hasWork()) waiting.push_back(entry.second);
   }
   if (moving.empty() && waiting.empty()) return;
-  // The moving frame asked first, else the client served longest ago: none waits behind another's turns.
+  // The moving frame asked first, else the client served longest ago: none waits behind another's
+  // turns; other work deferred kLongestDeferMs goes before the moving frames.
   const Clock::time_point now = Clock::now();
   const auto asked = [&](const std::shared_ptr<Client>& c) { return c->pendingSince.value_or(now); };
+  const auto servedFirst = [](const auto& a, const auto& b) { return a->lastServed < b->lastServed; };
+  const auto overdue = [&](const std::shared_ptr<Client>& c) {
+    const Clock::time_point since = std::max(c->lastServed, c->pendingSince.value_or(c->lastServed));
+    return !c->moving() && now - since >= std::chrono::duration<double, std::milli>(kLongestDeferMs);
+  };
+  std::erase_if(waiting, [&](const auto& c) { return !moving.empty() && !overdue(c); });
   const std::shared_ptr<Client> client =  // (held: it may leave while its frame is drawn)
-      !moving.empty() ? *std::min_element(moving.begin(), moving.end(), [&](const auto& a, const auto& b) { return asked(a) < asked(b); })
-                      : *std::min_element(waiting.begin(), waiting.end(), [](const auto& a, const auto& b) { return a->lastServed < b->lastServed; });
-  client->lastServed = now;
+      !waiting.empty() ? *std::min_element(waiting.begin(), waiting.end(), servedFirst)
+                       : *std::min_element(moving.begin(), moving.end(), [&](const auto& a, const auto& b) { return asked(a) < asked(b); });
   // Whether another client drags; a mover's next request comes while a band is drawn: the window spans a few of them.
   const double windowMs = std::max(1000.0, 3.0 * (client->banded ? client->banded->longestBandMs : 0.0));
   const auto window = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(windowMs));
   const int othersDragging = int(std::count_if(clients.begin(), clients.end(), [&](const auto& c) { return c.second != client && c.second->dragging(now, window); }));
   serve(*client, othersDragging, lock);
+  client->lastServed = Clock::now();
 }
 
 int rowsWithin(std::span<const float> rowMs, int first, double ms, glm::ivec2 limits) {
@@ -231,6 +247,9 @@ int FrameScheduler::start(Client& client, int movers, std::optional<Arrival>* ar
   quality.share(movers);
   if (r.interacting) return quality.chooseInteractiveLevel();
   client.refine = quality.refinement();
+  // A banded final frame's target is made on another thread while the steps before it are drawn.
+  if (const glm::ivec2 size = scaledSize(r, quality.ladder().front()); int64_t(size.x) * size.y > kBandPixels && shown.renderer)
+    shown.renderer->prepareTarget(size.x, size.y);
   client.sharperStep = quality.sharperStep();
   client.refineSurface = *surface;
   std::reverse(client.refine.begin(), client.refine.end());
@@ -273,7 +292,7 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
     b.arrival = arrival;
     b.level = level;
     b.final = final;
-    b.size = size;  // (its image is made by its first band, outside the lock: its page faults would hold the clients' requests)
+    b.size = size;
     if (client.bandLevel == level) b.msPerRow = client.bandMsPerPixel * size.x;  // (its first band sized by the last one's time)
     if (const auto it = client.bandRowMs.find(level); it != client.bandRowMs.end() && it->second.first == size.x && int(it->second.second.size()) == size.y)
       b.predicted = it->second.second;
@@ -320,8 +339,6 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
                                std::unique_lock<std::mutex>& lock) {
   BandedFrame& b = *client.banded;
   const glm::ivec2 rows(b.next, std::min(b.next + bandRows(b, othersDrag), b.size.y));
-  const glm::ivec2 size = b.size;
-  const bool first = b.image.pixels.empty();
   const QualityLevel& rung = client.quality(b.surface.iso.has_value()).ladder()[size_t(b.level)];
   const int level = b.level;
   const FrameRequest request = b.request;
@@ -332,8 +349,6 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   lock.unlock();
   std::string error;
   RenderedFrame frame;
-  Image whole;
-  if (first) whole = Image(size.x, size.y);
   const auto t0 = Clock::now();
   try {
     FrameSetup parts = frameParts(request, renderer.scene(), frameRung, iso, mGeometry);
@@ -350,8 +365,7 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
     client.send(errorMessage(mScrub(error), request.seq), false);
     return;
   }
-  if (b.image.pixels.empty()) b.image = std::move(whole);
-  std::copy(frame.image.pixels.begin(), frame.image.pixels.end(), &b.image.at(0, rows.x));  // (the band's rows only)
+  b.bands.push_back(std::move(frame.image));  // (the band's rows only)
   b.renderMs += ms;
   b.lastMsPerRow = b.msPerRow;
   b.msPerRow = ms / (rows.y - rows.x);
@@ -359,7 +373,6 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   b.lastBand = rows.x;
   client.bandMsPerPixel = b.msPerRow / b.size.x;
   client.bandLevel = b.level;
-  ++b.bands;
   b.longestBandMs = std::max(b.longestBandMs, ms);
   b.stats = frame.stats;
   b.maxError = std::max(b.maxError, double(frame.selection.maxError));
@@ -372,8 +385,8 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
     double total = 0.0;
     try {
       const FrameHeader header{summary, done->request, rung, done->level, done->final, done->surface, done->arrival, done->stats, done->maxError,
-                               done->renderMs, done->bands, done->longestBandMs};
-      message = encodeFrame(header, done->image, Clock::now(), &total);
+                               done->renderMs, int(done->bands.size()), done->longestBandMs};
+      message = encodeFrame(header, joinBands(done->size, done->bands), Clock::now(), &total);
     } catch (const std::exception& e) {
       failed = e.what();
     }

@@ -41,6 +41,11 @@ inline constexpr int kBandPixels = 512 * 512;
 inline constexpr int kMinBandRows = 8;
 inline constexpr double kMovingBandMs = 150.0;
 inline constexpr double kIdleBandMs = 250.0;
+/// The longest another client's refinement or band waits behind moving frames. Movers asking
+/// again as soon as their frame comes would otherwise hold it back for as long as they drag; with
+/// it, such work gets about a third of the render thread (a band of kMovingBandMs in each
+/// kLongestDeferMs of moving frames), and a mover's gap grows by one band at most.
+inline constexpr double kLongestDeferMs = 300.0;
 
 /// The rows from @p first whose times in @p rowMs add up to at most @p ms, at least @p limits.x and
 /// at most @p limits.y (and no further than the last row): a band sized by where the frame's cost
@@ -72,7 +77,9 @@ struct BandedFrame {
   int level = 0;       ///< the ladder's level it is drawn at
   bool final = true;   ///< the request's last frame
   glm::ivec2 size{0};     ///< its pixels
-  Image image;            ///< made by its first band
+  /// Each band's rows, top first: the encoder puts them together (a whole 2048² image made on the
+  /// render thread would hold the other clients' frames for its page faults).
+  std::vector<Image> bands;
   int next = 0;           ///< the first row not drawn yet
   int lastBand = 0;       ///< the first row of the last band drawn
   double renderMs = 0.0;  ///< the bands' render times so far
@@ -80,7 +87,6 @@ struct BandedFrame {
   double lastMsPerRow = 0.0;  ///< the band's before it
   std::vector<float> rowMs;      ///< each drawn row's share of its band's time
   std::vector<float> predicted;  ///< the client's last large frame's rowMs at this level and size; empty: none
-  int bands = 0;
   double longestBandMs = 0.0;
   FrameStats stats;       ///< the last band's
   double maxError = 0.0;
@@ -96,7 +102,7 @@ struct Client : std::enable_shared_from_this<Client> {
   double pendingEpochMs = 0.0;          ///< the same, wall clock
   uint64_t pendingRenders = 0;          ///< the scheduler's render count when it came
   Clock::time_point lastAsked;          ///< when the page last asked for a frame
-  Clock::time_point lastServed;         ///< when the scheduler last drew for it
+  Clock::time_point lastServed;         ///< when the scheduler last drew for it (the end of that render)
   std::optional<FrameRequest> current;  ///< the request being refined
   std::vector<int> refine;              ///< levels still to render for it, next last
   bool refineSurface = false;           ///< ... of the surface's ladder
@@ -168,7 +174,7 @@ class FrameScheduler {
   static void refineAgain(const Clients& clients, const std::string& key);
   /// One step of the next client with work: the moving frame asked for first, else the client
   /// served longest ago (its newest request's first frame, the next refinement, or the next band
-  /// of its final frame).
+  /// of its final frame); that client first when it has waited kLongestDeferMs.
   void serveNext(const Clients& clients, std::unique_lock<std::mutex>& lock);
   /// Frames and bands rendered so far (under the server's mutex).
   uint64_t renders() const { return mRenders; }
