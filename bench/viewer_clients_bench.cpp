@@ -4,7 +4,8 @@
 // Prints, per N, the movers' frames per second, their p95 and longest wait from request to frame
 // (and the longest after each mover's first frame: the movers' first requests come together and
 // queue behind each other), and how many other renders a moving frame waited behind (the
-// scheduler's count; docs/viewer.md). The longest band is the 2048² frames' (bands drawn after the
+// scheduler's count; docs/viewer.md), and how long the 2048² client waited for its slowest final frame
+// (one still being drawn when the run ends is waited for). The longest band is the 2048² frames' (bands drawn after the
 // run's end, with no mover left, included).
 //
 //   hyb_viewer_clients_bench [volume=the cranium] [seconds=15] [clients=1,2,8]
@@ -108,8 +109,8 @@ int main(int argc, char** argv) {
   };
   hyb::viewer::Server server(o);
   server.start();
-  std::printf("%-8s %10s %10s %12s %12s %14s %12s %14s %12s\n", "clients", "frames/s", "p95 ms", "longest ms", "after 1st", "waited renders",
-              "2048² frames", "longest band", "2048² encode");
+  std::printf("%-8s %10s %10s %12s %12s %14s %12s %10s %14s %12s\n", "clients", "frames/s", "p95 ms", "longest ms", "after 1st", "waited renders",
+              "2048² frames", "2048² s", "longest band", "2048² encode");
   for (const int n : counts) {
     std::vector<std::unique_ptr<Socket>> sockets;
     json info;
@@ -124,7 +125,7 @@ int main(int argc, char** argv) {
     }
     std::atomic<bool> stop{false};
     std::atomic<int> bigFrames{0};
-    double longestBand = 0.0, encodeMs = 0.0;  // of the 2048² frames (their thread's only)
+    double longestBand = 0.0, encodeMs = 0.0, bigSeconds = 0.0;  // of the 2048² frames (their thread's only)
     std::vector<std::thread> threads;
     std::vector<std::vector<double>> waits(static_cast<size_t>(n));
     std::vector<int> waited(size_t(n), 0);
@@ -139,6 +140,7 @@ int main(int argc, char** argv) {
           const json f = s.frame(seq, big);
           if (big) {
             ++bigFrames;
+            bigSeconds = std::max(bigSeconds, std::chrono::duration<double>(Clock::now() - t0).count());
             longestBand = std::max(longestBand, f["longestBandMs"].get<double>());
             encodeMs = std::max(encodeMs, f["encodeMs"].get<double>());
             continue;
@@ -158,8 +160,8 @@ int main(int argc, char** argv) {
       if (waits[size_t(k)].size() > 1) afterFirst = std::max(afterFirst, *std::max_element(waits[size_t(k)].begin() + 1, waits[size_t(k)].end()));
       mostWaited = std::max(mostWaited, waited[size_t(k)]);
     }
-    std::printf("%-8d %10.1f %10.0f %12.0f %12.0f %14d %12d %14.0f %12.0f\n", n, double(all.size()) / seconds / movers, percentile(all, 0.95),
-                percentile(all, 1.0), afterFirst, mostWaited, bigFrames.load(), longestBand, encodeMs);
+    std::printf("%-8d %10.1f %10.0f %12.0f %12.0f %14d %12d %10.1f %14.0f %12.0f\n", n, double(all.size()) / seconds / movers, percentile(all, 0.95),
+                percentile(all, 1.0), afterFirst, mostWaited, bigFrames.load(), bigSeconds, longestBand, encodeMs);
   }
   server.stop();
   return 0;
