@@ -95,30 +95,34 @@ TargetCache::~TargetCache() {
   if (mPrepared) mPrepared->thread.join();
 }
 
-void TargetCache::keep(std::unique_ptr<FloatTarget> target) {
+void TargetCache::keep(std::unique_ptr<FloatTarget> target, bool recent) {
   if (mTargets.size() >= kKept) mTargets.erase(mTargets.begin());
-  mTargets.push_back(std::move(target));
+  mTargets.insert(recent ? mTargets.end() : mTargets.begin(), std::move(target));
 }
 
-void TargetCache::adoptPrepared(bool wait) {
-  if (!mPrepared || (!wait && !mPrepared->done)) return;
+bool TargetCache::adoptPrepared(bool wait) {
+  if (!mPrepared || (!wait && !mPrepared->done)) return false;
   mPrepared->thread.join();
   const std::unique_ptr<Prepared> p = std::move(mPrepared);
-  if (p->error) std::rethrow_exception(p->error);
-  keep(std::make_unique<FloatTarget>(p->width, p->height, std::move(p->color), std::move(p->depth)));
+  if (p->error) return false;  // (get() makes its own, and says why when it cannot)
+  try {
+    keep(std::make_unique<FloatTarget>(p->width, p->height, std::move(p->color), std::move(p->depth)), wait);
+  } catch (const RuntimeError&) {
+    return false;
+  }
+  return true;
 }
 
 FloatTarget& TargetCache::get(int width, int height) {
   const bool ahead = mPrepared && mPrepared->width == width && mPrepared->height == height;
-  adoptPrepared(ahead);
-  mMadeAhead += ahead;
+  mMadeAhead += adoptPrepared(ahead) && ahead;
   const auto it = std::find_if(mTargets.begin(), mTargets.end(), [&](const auto& t) { return t->width() == width && t->height() == height; });
   if (it != mTargets.end()) {
     std::rotate(it, it + 1, mTargets.end());  // the most recently used last
     mTargets.back()->bind();
     return *mTargets.back();
   }
-  keep(std::make_unique<FloatTarget>(width, height));
+  keep(std::make_unique<FloatTarget>(width, height), true);
   return *mTargets.back();
 }
 
@@ -126,10 +130,10 @@ void TargetCache::prepare(int width, int height, const GlContext& context) {
   adoptPrepared(false);
   if (mPrepared || std::any_of(mTargets.begin(), mTargets.end(), [&](const auto& t) { return t->width() == width && t->height() == height; }))
     return;
-  mPrepared = std::make_unique<Prepared>();
-  mPrepared->width = width;
-  mPrepared->height = height;
-  mPrepared->thread = std::thread([p = mPrepared.get(), &context] {
+  auto p = std::make_unique<Prepared>();
+  p->width = width;
+  p->height = height;
+  p->thread = std::thread([p = p.get(), &context] {
     try {
       const GlContext own(&context);
       p->color = FloatTarget::colorTexture(p->width, p->height);
@@ -140,6 +144,7 @@ void TargetCache::prepare(int width, int height, const GlContext& context) {
     }
     p->done = true;
   });
+  mPrepared = std::move(p);  // (only once its thread runs: the destructor joins it)
 }
 
 }  // namespace hyb::gl

@@ -142,16 +142,19 @@ class TargetCache {
   /// Starts making a target of @p width x @p height on a thread of its own, in a context sharing
   /// @p context's objects, unless it is kept or another is on its way: made by get() on the render
   /// thread, a 2048² target's memory takes that thread a quarter of a second to fault in, which
-  /// the other clients' frames would wait for.
+  /// the other clients' frames would wait for. @p context must be current (a target made ahead
+  /// before may be taken into the cache). @throw std::system_error when no thread can start.
   void prepare(int width, int height, const GlContext& context);
   /// Targets get() returned that prepare() had made.
   size_t madeAhead() const { return mMadeAhead; }
 
  private:
   struct Prepared;
-  /// Takes the target made by prepare() into the cache: when it is done, or (@p wait) once it is.
-  void adoptPrepared(bool wait);
-  void keep(std::unique_ptr<FloatTarget> target);
+  /// Takes the target made by prepare() into the cache, when it is done or (@p wait) once it is,
+  /// as the most recently used when waited for, else as the least; whether it did (one whose
+  /// making failed is dropped: get() makes its own).
+  bool adoptPrepared(bool wait);
+  void keep(std::unique_ptr<FloatTarget> target, bool recent);
   static constexpr size_t kKept = 3;
   std::vector<std::unique_ptr<FloatTarget>> mTargets;  // the most recently used last
   std::unique_ptr<Prepared> mPrepared;

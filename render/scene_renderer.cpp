@@ -69,7 +69,9 @@ SceneRenderer::~SceneRenderer() {
 }
 
 void SceneRenderer::prepareTarget(int width, int height) {
-  if (mGl) mTargets.prepare(width, height, *mGl);
+  if (!mGl) return;
+  mGl->makeCurrent();  // (another renderer's may be)
+  mTargets.prepare(width, height, *mGl);
 }
 
 void SceneRenderer::ensureGl() {
