@@ -54,10 +54,15 @@ std::string encodeFrame(const FrameHeader& h, const Image& image, Clock::time_po
 
 // The image of a banded frame of @p size from its @p bands, top first.
 Image joinBands(glm::ivec2 size, const std::vector<Image>& bands) {
+  int rows = 0;
+  for (const Image& band : bands) {
+    HYB_CHECK(band.width == size.x);
+    rows += band.height;
+  }
+  HYB_CHECK(rows == size.y);
   Image image(size.x, size.y);
   auto at = image.pixels.begin();
   for (const Image& band : bands) at = std::copy(band.pixels.begin(), band.pixels.end(), at);
-  HYB_CHECK(at == image.pixels.end());
   return image;
 }
 
@@ -176,20 +181,25 @@ void FrameScheduler::serveNext(const Clients& clients, std::unique_lock<std::mut
   const Clock::time_point now = Clock::now();
   const auto asked = [&](const std::shared_ptr<Client>& c) { return c->pendingSince.value_or(now); };
   const auto servedFirst = [](const auto& a, const auto& b) { return a->lastServed < b->lastServed; };
+  // (one such step in each kLongestDeferMs, whatever the clients waiting: each of several would
+  // otherwise become overdue in turn, and the movers wait for all of them)
   const auto overdue = [&](const std::shared_ptr<Client>& c) {
-    const Clock::time_point since = std::max(c->lastServed, c->pendingSince.value_or(c->lastServed));
+    const Clock::time_point since = std::max({c->lastServed, c->pendingSince.value_or(c->lastServed), mLastDeferred});
     return !c->moving() && now - since >= std::chrono::duration<double, std::milli>(kLongestDeferMs);
   };
-  std::erase_if(waiting, [&](const auto& c) { return !moving.empty() && !overdue(c); });
+  const bool moversWait = !moving.empty();
+  std::erase_if(waiting, [&](const auto& c) { return moversWait && !overdue(c); });
   const std::shared_ptr<Client> client =  // (held: it may leave while its frame is drawn)
       !waiting.empty() ? *std::min_element(waiting.begin(), waiting.end(), servedFirst)
                        : *std::min_element(moving.begin(), moving.end(), [&](const auto& a, const auto& b) { return asked(a) < asked(b); });
+  const bool deferred = moversWait && !client->moving();
   // Whether another client drags; a mover's next request comes while a band is drawn: the window spans a few of them.
   const double windowMs = std::max(1000.0, 3.0 * (client->banded ? client->banded->longestBandMs : 0.0));
   const auto window = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(windowMs));
   const int othersDragging = int(std::count_if(clients.begin(), clients.end(), [&](const auto& c) { return c.second != client && c.second->dragging(now, window); }));
   serve(*client, othersDragging, lock);
   client->lastServed = Clock::now();
+  if (deferred) mLastDeferred = client->lastServed;
 }
 
 int rowsWithin(std::span<const float> rowMs, int first, double ms, glm::ivec2 limits) {
@@ -248,8 +258,12 @@ int FrameScheduler::start(Client& client, int movers, std::optional<Arrival>* ar
   if (r.interacting) return quality.chooseInteractiveLevel();
   client.refine = quality.refinement();
   // A banded final frame's target is made on another thread while the steps before it are drawn.
-  if (const glm::ivec2 size = scaledSize(r, quality.ladder().front()); int64_t(size.x) * size.y > kBandPixels && shown.renderer)
-    shown.renderer->prepareTarget(size.x, size.y);
+  if (const glm::ivec2 size = scaledSize(r, quality.ladder().front()); int64_t(size.x) * size.y > kBandPixels && shown.renderer) {
+    try {
+      shown.renderer->prepareTarget(size.x, size.y);
+    } catch (const std::exception&) {  // (no thread: the first band makes it)
+    }
+  }
   client.sharperStep = quality.sharperStep();
   client.refineSurface = *surface;
   std::reverse(client.refine.begin(), client.refine.end());

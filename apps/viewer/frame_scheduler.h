@@ -41,10 +41,11 @@ inline constexpr int kBandPixels = 512 * 512;
 inline constexpr int kMinBandRows = 8;
 inline constexpr double kMovingBandMs = 150.0;
 inline constexpr double kIdleBandMs = 250.0;
-/// The longest another client's refinement or band waits behind moving frames. Movers asking
-/// again as soon as their frame comes would otherwise hold it back for as long as they drag; with
-/// it, such work gets about a third of the render thread (a band of kMovingBandMs in each
-/// kLongestDeferMs of moving frames), and a mover's gap grows by one band at most.
+/// The longest other work (a client's refinement or band) waits behind moving frames: one such
+/// step goes first in each kLongestDeferMs. Movers asking again as soon as their frame comes would
+/// otherwise hold it back for as long as they drag; with it, such work gets about a third of the
+/// render thread (a band of kMovingBandMs in each kLongestDeferMs of moving frames), and a mover's
+/// gap grows by one band (or a refinement frame, which is not cut) in each kLongestDeferMs.
 inline constexpr double kLongestDeferMs = 300.0;
 
 /// The rows from @p first whose times in @p rowMs add up to at most @p ms, at least @p limits.x and
@@ -199,6 +200,7 @@ class FrameScheduler {
   double mTargetMs;
   std::function<std::string(std::string)> mScrub;
   uint64_t mRenders = 0;
+  Clock::time_point mLastDeferred{};  ///< the end of the last step served before waiting moving frames
   FrameEncoder mEncoder;  ///< (last: its thread ends before the members its jobs use)
 };
 
