@@ -137,6 +137,33 @@ TEST(ViewerQuality, MoversShareTheFrameTarget) {
   EXPECT_EQ(q.chooseInteractiveLevel(), alone);
 }
 
+// Times measured at one canvas size predict another's by their pixels: a window made four times
+// larger starts on a cheaper level, and back at its old size returns to the times it had.
+TEST(ViewerQuality, ANewCanvasSizeScalesTheTimesMeasured) {
+  AdaptiveQuality q(kVolumeLadder, 80.0);
+  q.canvas(128.0 * 128.0);
+  q.record(1, 40.0);
+  q.record(0, 300.0);
+  const int small = q.chooseInteractiveLevel();
+  EXPECT_EQ(small, 1);
+  q.canvas(256.0 * 256.0);
+  EXPECT_DOUBLE_EQ(q.estimateMs(1), 160.0);
+  const int large = q.chooseInteractiveLevel();
+  EXPECT_GT(large, small);
+  EXPECT_LE(q.estimateMs(large), 80.0);
+  q.canvas(256.0 * 256.0);  // the same size: nothing scaled again
+  EXPECT_DOUBLE_EQ(q.estimateMs(1), 160.0);
+  // The final frame's time too: 300 ms at 128² is 4.8 s at 512², slow enough for a sharper step.
+  EXPECT_EQ(q.sharperStep(), -1);
+  q.canvas(512.0 * 512.0);
+  EXPECT_GT(q.sharperStep(), 0);
+  q.canvas(128.0 * 128.0);
+  EXPECT_DOUBLE_EQ(q.estimateMs(1), 40.0);
+  q.reset();
+  q.canvas(512.0 * 512.0);  // nothing measured: nothing to scale
+  EXPECT_DOUBLE_EQ(q.estimateMs(1), 0.0);
+}
+
 // When no level fits the target and the cheapest save little (a surface's triangles cost the same
 // at any size), the best level within a quarter of the fastest is kept.
 TEST(ViewerQuality, WhenNothingFitsTheBestOfTheFastestIsKept) {

@@ -255,6 +255,7 @@ int FrameScheduler::start(Client& client, int movers, std::optional<Arrival>* ar
       shown.renderer && shown.surfaceReady && surfaceRaysFit(shown.renderer->volume().dims(), shown.renderer->volume().spacing());
   AdaptiveQuality& quality = client.quality(*surface);
   quality.share(movers);
+  quality.canvas(double(r.size().x) * double(r.size().y));
   if (r.interacting) return quality.chooseInteractiveLevel();
   client.refine = quality.refinement();
   // A banded final frame's target is made on another thread while the steps before it are drawn.

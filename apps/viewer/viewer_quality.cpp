@@ -52,9 +52,20 @@ int AdaptiveQuality::firstLevel() const {
   return k;
 }
 
+void AdaptiveQuality::canvas(double pixels) {
+  if (mCanvasPixels > 0.0 && pixels != mCanvasPixels) {
+    const double ratio = pixels / mCanvasPixels;
+    for (double& ms : mMeasured)
+      if (ms >= 0.0) ms *= ratio;
+    if (mFinalMs >= 0.0) mFinalMs *= ratio;
+  }
+  mCanvasPixels = pixels;
+}
+
 void AdaptiveQuality::reset() {
   mMeasured.fill(-1.0);
   mFinalMs = -1.0;
+  mCanvasPixels = 0.0;
   mLast = mCurrent = int(mLadder.size()) - 1;
   mStay = mCold = mProbeFrames = 0;
   mProbe = -1;

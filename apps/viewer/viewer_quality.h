@@ -179,6 +179,9 @@ class AdaptiveQuality {
   /// @p movers clients (this one among them) are dragging on one render thread: each one's next
   /// frame waits for the others', so an interactive frame aims at the target shared among them.
   void share(int movers) { mShare = std::max(1, movers); }
+  /// The page's canvas has @p pixels: a new size scales the times measured at the last one by the
+  /// ratio of their pixels, else a resized window's first frames are chosen by the old size's times.
+  void canvas(double pixels);
 
  private:
   int firstRefinement() const;
@@ -188,6 +191,7 @@ class AdaptiveQuality {
   std::array<double, Ladder().size()> mMeasured;  // smoothed ms per level, -1 unknown
   int mLast = 0;     // the level measured last
   double mFinalMs = -1.0;  // the last final frame's time, cold or not (-1: none yet)
+  double mCanvasPixels = 0.0;  // canvas(): the size the times were measured at (0: none yet)
   int mCurrent = 0;  // the interactive level in use
   int mStay = 0;     // frames at mCurrent since it was chosen or probed
   int mCold = 0;     // cold frames in a row
