@@ -163,6 +163,15 @@ json frameRequest(uint64_t seq, bool interacting, int pixels = 64, double azimut
           {"surface_color", {0.9, 0.9, 0.8, 0.5}}};
 }
 
+// Sends @p request to @p c and returns the message answering it (its frame, or an error).
+json answer(Socket& c, const json& request) {
+  c.send(request.dump());
+  json f;
+  do f = c.nextFrameOrError();
+  while (f["type"] == "frame" && f["seq"] != request["seq"]);
+  return f;
+}
+
 TEST(ViewerServer, EveryRequestNeedsTheTokenAndOnlyAssetsAreServed) {
   TestServer s;
   const uint16_t port = s.port();
@@ -394,10 +403,7 @@ TEST(ViewerServer, ANewIsovaluesFinalFrameWaitsForItsSurface) {
 // first of them uploading its textures (not taken as the level's time). Returns that frame.
 json warmUp(Socket& c, int pixels) {
   for (uint64_t seq = 1000; seq < 1010; ++seq) {
-    c.send(frameRequest(seq, true, pixels).dump());
-    json f;
-    do f = c.nextFrameOrError();
-    while (f["type"] == "frame" && f["seq"] != seq);
+    const json f = answer(c, frameRequest(seq, true, pixels));
     EXPECT_EQ(f["type"], "frame") << f.dump();
     if (seq == 1000) {
       EXPECT_EQ(f["level"], AdaptiveQuality(kVolumeLadder).firstLevel()) << "the first frame: the cheapest without a budget";
@@ -629,10 +635,7 @@ TEST(ViewerServer, ALargeFinalFrameDoesNotHoldOtherClientsFrames) {
   int frames = 0;
   for (uint64_t seq = 10; !done && seq < 400; ++seq) {
     const auto t0 = std::chrono::steady_clock::now();
-    mover.send(frameRequest(seq, true, 64, double(seq)).dump());
-    json f;
-    do f = mover.nextFrameOrError();
-    while (f["type"] == "frame" && f["seq"] != seq);
+    const json f = answer(mover, frameRequest(seq, true, 64, double(seq)));
     ASSERT_EQ(f["type"], "frame") << f.dump();
     worst = std::max(worst, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
     // A moving frame goes before any refinement or band not deferred 300 ms yet: it waits for
@@ -736,13 +739,7 @@ std::string invalidMessages(int count) {
 }
 
 // Asks @p c for a moving frame and returns the message answering it (a frame, or an error).
-json askFrame(Socket& c, uint64_t seq) {
-  c.send(frameRequest(seq, true, 32, double(seq)).dump());
-  json f;
-  do f = c.nextFrameOrError();
-  while (f["type"] == "frame" && f["seq"] != seq);
-  return f;
-}
+json askFrame(Socket& c, uint64_t seq) { return answer(c, frameRequest(seq, true, 32, double(seq))); }
 
 // A client with the token floods the server with up to 100,000 invalid one-byte messages without
 // reading the error replies, then resets its connection (SO_LINGER 0). Another client gets a frame
@@ -1082,10 +1079,7 @@ TEST(ViewerServer, ClientsDraggingTogetherAreServedInTheOrderTheyAsked) {
   for (int i = 0; i < kMovers; ++i)
     threads.emplace_back([&, i] {
       for (uint64_t seq = 1; seq <= 25; ++seq) {
-        movers[size_t(i)]->send(frameRequest(seq, true, 64, double(seq * 7 + uint64_t(i))).dump());
-        json f;
-        do f = movers[size_t(i)]->nextFrameOrError();
-        while (f["type"] == "frame" && f["seq"] != seq);
+        const json f = answer(*movers[size_t(i)], frameRequest(seq, true, 64, double(seq * 7 + uint64_t(i))));
         if (f["type"] != "frame") return;
         ++frames[size_t(i)];
         worst[size_t(i)] = std::max(worst[size_t(i)], f["waitedRenders"].get<int>());
@@ -1126,10 +1120,7 @@ TEST(ViewerServer, MoversAskingWithoutPauseDoNotStarveALargeFinalFrame) {
   for (int i = 0; i < kMovers; ++i)
     threads.emplace_back([&, i] {
       for (uint64_t seq = 10; !done && seq < 10 + kMostFrames; ++seq) {
-        movers[size_t(i)]->send(frameRequest(seq, true, 64, double(seq * 3 + uint64_t(i) * 40)).dump());
-        json f;
-        do f = movers[size_t(i)]->nextFrameOrError();
-        while (f["type"] == "frame" && f["seq"] != seq);
+        const json f = answer(*movers[size_t(i)], frameRequest(seq, true, 64, double(seq * 3 + uint64_t(i) * 40)));
         if (f["type"] != "frame") return;
         ++frames[size_t(i)];
         worst[size_t(i)] = std::max(worst[size_t(i)], f["waitedRenders"].get<int>());
