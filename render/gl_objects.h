@@ -141,8 +141,8 @@ class TargetCache {
   FloatTarget& get(int width, int height);
   /// Starts making a target of @p width x @p height on a thread of its own, in a context sharing
   /// @p context's objects, unless it is kept or another is on its way: made by get() on the render
-  /// thread, a 2048² target's memory takes that thread a quarter of a second to fault in, which
-  /// the other clients' frames would wait for. @p context must be current (a target made ahead
+  /// thread, a 2048² target's memory holds that thread for its page faults, and the other clients'
+  /// frames with it (docs/viewer.md). @p context must be current (a target made ahead
   /// before may be taken into the cache). @throw std::system_error when no thread can start.
   void prepare(int width, int height, const GlContext& context);
   /// Targets get() returned that prepare() had made.
