@@ -41,8 +41,9 @@ inline constexpr int kBandPixels = 512 * 512;
 inline constexpr int kMinBandRows = 8;
 inline constexpr double kMovingBandMs = 150.0;
 inline constexpr double kIdleBandMs = 250.0;
-/// The longest other work (a client's refinement or band) waits behind moving frames: one such
-/// step goes first in each kLongestDeferMs. Movers asking again as soon as their frame comes would
+/// How long other work (a client's refinement or band) waits behind moving frames: one such step,
+/// whichever client's, goes first once it and the last one are kLongestDeferMs old. Movers asking
+/// again as soon as their frame comes would
 /// otherwise hold it back for as long as they drag; with it, such work gets about a third of the
 /// render thread (a band of kMovingBandMs in each kLongestDeferMs of moving frames), and a mover's
 /// gap grows by one band (or a refinement frame, which is not cut) in each kLongestDeferMs.
@@ -175,7 +176,7 @@ class FrameScheduler {
   static void refineAgain(const Clients& clients, const std::string& key);
   /// One step of the next client with work: the moving frame asked for first, else the client
   /// served longest ago (its newest request's first frame, the next refinement, or the next band
-  /// of its final frame); that client first when it has waited kLongestDeferMs.
+  /// of its final frame), which goes first when deferred kLongestDeferMs.
   void serveNext(const Clients& clients, std::unique_lock<std::mutex>& lock);
   /// Frames and bands rendered so far (under the server's mutex).
   uint64_t renders() const { return mRenders; }
