@@ -43,10 +43,10 @@ inline constexpr double kMovingBandMs = 150.0;
 inline constexpr double kIdleBandMs = 250.0;
 /// How long other work (a client's refinement or band) waits behind moving frames: one such step,
 /// whichever client's, goes first once it and the last one are kLongestDeferMs old. Movers asking
-/// again as soon as their frame comes would
-/// otherwise hold it back for as long as they drag; with it, such work gets about a third of the
-/// render thread (a band of kMovingBandMs in each kLongestDeferMs of moving frames), and a mover's
-/// gap grows by one band (or a refinement frame, which is not cut) in each kLongestDeferMs.
+/// again as soon as their frame comes would otherwise hold it back for as long as they drag; with
+/// it, such work gets about a third of the render thread (a band of kMovingBandMs in each
+/// kLongestDeferMs of moving frames), and a mover's gap grows by one band (or a refinement frame,
+/// which is not cut) in each kLongestDeferMs.
 inline constexpr double kLongestDeferMs = 300.0;
 
 /// The rows from @p first whose times in @p rowMs add up to at most @p ms, at least @p limits.x and
