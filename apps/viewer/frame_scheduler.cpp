@@ -41,6 +41,9 @@ glm::ivec2 scaledSize(const FrameRequest& r, const QualityLevel& q) {
   return glm::max(glm::ivec2(kMinImageEdge), glm::ivec2(glm::round(glm::dvec2(r.size()) * q.scale)));
 }
 
+// Whether a frame of @p size is drawn in bands (kBandPixels).
+bool drawnInBands(glm::ivec2 size) { return int64_t(size.x) * size.y > kBandPixels; }
+
 // A frame's message: its header and the image, JPEG before the final frame, PNG for it (render
 // thread, unlocked); @p ms receives the frame's time from @p t0, encoding included.
 std::string encodeFrame(const FrameHeader& h, const Image& image, Clock::time_point t0, double* ms) {
@@ -259,7 +262,7 @@ int FrameScheduler::start(Client& client, int movers, std::optional<Arrival>* ar
   if (r.interacting) return quality.chooseInteractiveLevel();
   client.refine = quality.refinement();
   // A banded final frame's target is made on another thread while the steps before it are drawn.
-  if (const glm::ivec2 size = scaledSize(r, quality.ladder().front()); int64_t(size.x) * size.y > kBandPixels && shown.renderer) {
+  if (const glm::ivec2 size = scaledSize(r, quality.ladder().front()); drawnInBands(size) && shown.renderer) {
     try {
       shown.renderer->prepareTarget(size.x, size.y);
     } catch (const std::exception&) {  // (no thread: the first band makes it)
@@ -302,7 +305,7 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
   const QualityLevel& rung = client.quality(surface).ladder()[size_t(level)];
   // A refinement as large as a final frame is banded too: it would hold the movers as long.
   const glm::ivec2 size = scaledSize(request, rung);
-  if (!request.interacting && !client.banded && int64_t(size.x) * size.y > kBandPixels) {
+  if (!request.interacting && !client.banded && drawnInBands(size)) {
     BandedFrame b(request, SurfaceShown(scene));
     b.arrival = arrival;
     b.level = level;
