@@ -113,11 +113,14 @@ bool TargetCache::adoptPrepared(bool wait) {
   return true;
 }
 
+std::vector<std::unique_ptr<FloatTarget>>::iterator TargetCache::kept(int width, int height) {
+  return std::find_if(mTargets.begin(), mTargets.end(), [&](const auto& t) { return t->width() == width && t->height() == height; });
+}
+
 FloatTarget& TargetCache::get(int width, int height) {
   const bool ahead = mPrepared && mPrepared->width == width && mPrepared->height == height;
   mMadeAhead += adoptPrepared(ahead) && ahead;
-  const auto it = std::find_if(mTargets.begin(), mTargets.end(), [&](const auto& t) { return t->width() == width && t->height() == height; });
-  if (it != mTargets.end()) {
+  if (const auto it = kept(width, height); it != mTargets.end()) {
     std::rotate(it, it + 1, mTargets.end());  // the most recently used last
     mTargets.back()->bind();
     return *mTargets.back();
@@ -128,8 +131,7 @@ FloatTarget& TargetCache::get(int width, int height) {
 
 void TargetCache::prepare(int width, int height, const GlContext& context) {
   adoptPrepared(false);
-  if (mPrepared || std::any_of(mTargets.begin(), mTargets.end(), [&](const auto& t) { return t->width() == width && t->height() == height; }))
-    return;
+  if (mPrepared || kept(width, height) != mTargets.end()) return;
   auto p = std::make_unique<Prepared>();
   p->width = width;
   p->height = height;

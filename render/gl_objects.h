@@ -155,6 +155,8 @@ class TargetCache {
   /// making failed is dropped: get() makes its own).
   bool adoptPrepared(bool wait);
   void keep(std::unique_ptr<FloatTarget> target, bool recent);
+  /// The kept target of @p width x @p height, or mTargets.end().
+  std::vector<std::unique_ptr<FloatTarget>>::iterator kept(int width, int height);
   static constexpr size_t kKept = 3;
   std::vector<std::unique_ptr<FloatTarget>> mTargets;  // the most recently used last
   std::unique_ptr<Prepared> mPrepared;
