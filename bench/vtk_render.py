@@ -4,7 +4,8 @@ reference ray tracer as curves, for each of our renderers (slices post-classifie
 pre-integrated over slice spacings, the reference ray tracer over sample spacings) and each peer:
 VTK's GPU ray cast mapper (volume only; with the translucent isosurface, with and without depth
 peeling) and its CPU fixed-point ray caster (volume only; its automatic sample distances, then
-fixed ones), through Mesa's llvmpipe under Xvfb, on the same volume, view, transfer function and
+fixed ones; and at equal quality, its frames against its own finest sample distance as ours
+are against our reference), through Mesa's llvmpipe under Xvfb, on the same volume, view, transfer function and
 size; with --volpack, orthographic frames of ours against Lacroute and Levoy's shear-warp
 (VolPack, `hyb_volpack`, built when Debian's libvolpack1-dev is installed; VolPack has no
 perspective). Prints one row per frame (name, ms, dB, ratio of the peer's frame to this one), the
@@ -13,7 +14,7 @@ targets' rows, and writes the curves as a CSV table and a plot.
 Needs Debian's python3-vtk9, python3-matplotlib and xvfb (not dependencies of the project). From
 the repository root:
 
-    xvfb-run -a /usr/bin/python3 bench/vtk_render.py cranium_256x256x108_int16le.nhdr [--runs 3] [--images DIR] [--csv docs/trade-vtk.csv] [--plot docs/trade-vtk.png]
+    xvfb-run -a /usr/bin/python3 bench/vtk_render.py cranium_256x256x108_int16le.nhdr [--runs 3] [--volume-only] [--images DIR] [--csv docs/trade-vtk.csv] [--plot docs/trade-vtk.png]
 """
 import argparse
 import math
@@ -68,6 +69,10 @@ def main():
     parser.add_argument("--scaled-steps", default="1.2,1.6,2,3", help="their slice spacings, voxels")
     parser.add_argument("--ray-steps", default="0.5,1,2", help="the reference ray tracer's sample spacings, voxels")
     parser.add_argument("--vtk-distances", default="0.5,1,2,4", help="VTK's sample distances, in smallest voxel spacings")
+    parser.add_argument("--own-distances", default="0.25,0.5,1,2,3,4",
+                        help="the fixed-point caster's sample distances against its own finest, in smallest voxel spacings")
+    parser.add_argument("--own-image-distances", default="1,1.5,2", help="and its image sample distances (1/S, as our --image-scale S)")
+    parser.add_argument("--volume-only", action="store_true", help="only the volume-only curves (no surface, no GPU caster)")
     parser.add_argument("--volpack", help="hyb_volpack: add the orthographic comparison with VolPack")
     parser.add_argument("--csv", help="write the curves here")
     parser.add_argument("--plot", help="plot the curves here (PNG)")
@@ -191,13 +196,13 @@ def main():
     def ours(name, extra):
         return lambda: ours_ms(exe, args.volume, args.runs, extra, view, os.path.join(folder, name + ".png"))
 
-    def cpu_mapper(distance):
+    def cpu_mapper(distance, image_distance=1.0):
         cpu = vtkFixedPointVolumeRayCastMapper()
         cpu.SetInputData(image)
         if distance:
             cpu.SetAutoAdjustSampleDistances(0)
             cpu.SetSampleDistance(distance)
-            cpu.SetImageSampleDistance(1.0)
+            cpu.SetImageSampleDistance(image_distance)
         return cpu
 
     def gpu(distance):
@@ -206,7 +211,7 @@ def main():
         return mapper
 
     curves = []  # (curve, look, [(label, name, measure)])
-    for look, extra in (("volume", []), ("surface", surface)):
+    for look, extra in (("volume", []),) + ((("surface", surface),) if not args.volume_only else ()):
         for mode in ("post", "preintegrated"):
             curves.append((f"hybrid-octree slices, {mode}", look, [
                 (f"--step {st}", f"ours_{look}_{mode}_{st}", ours(f"ours_{look}_{mode}_{st}", extra + ["--step", st, "--classification", mode]))
@@ -222,12 +227,22 @@ def main():
             for st in args.ray_steps.split(",")]))
     mm = min(spacing)
     distances = [float(f) * mm for f in args.vtk_distances.split(",")]
-    curves.append(("VTK GPU ray cast", "volume", [
-        (f"sample {d:.2f} mm", f"gpu_volume_{d:.2f}", (lambda d=d: scene(gpu(d), False, f"gpu_volume_{d:.2f}"))) for d in distances]))
+    if not args.volume_only:
+        curves.append(("VTK GPU ray cast", "volume", [
+            (f"sample {d:.2f} mm", f"gpu_volume_{d:.2f}", (lambda d=d: scene(gpu(d), False, f"gpu_volume_{d:.2f}"))) for d in distances]))
     curves.append(("VTK CPU fixed-point ray cast", "volume",
                    [("automatic", "cpu_volume_auto", lambda: scene(cpu_mapper(0), False, "cpu_volume_auto"))] +
                    [(f"sample {d:.2f} mm", f"cpu_volume_{d:.2f}", (lambda d=d: scene(cpu_mapper(d), False, f"cpu_volume_{d:.2f}"))) for d in distances]))
-    for peeling in (True, False):
+    # Equal quality, each renderer against its own converged image: the fixed-point caster's frames
+    # against its frame at the finest sample distance (its reference, rendered once, untimed), as
+    # ours are against our reference ray tracer; its sample distance and image sample distance both
+    # free, as our step and image scale are.
+    own = [float(f) * mm for f in args.own_distances.split(",")]
+    own_reference = f"cpu_own_{own[0]:.2f}_1"
+    curves.append(("VTK CPU fixed-point, against its own finest", "vtk-own", [
+        (f"sample {d:.2f} mm, image 1/{i:g}", f"cpu_own_{d:.2f}_{i:g}", (lambda d=d, i=i: scene(cpu_mapper(d, i), False, f"cpu_own_{d:.2f}_{i:g}")))
+        for d in own[1:] for i in (float(x) for x in args.own_image_distances.split(","))]))
+    for peeling in (True, False) if not args.volume_only else ():
         tag = "peeled" if peeling else "unpeeled"
         curves.append((f"VTK GPU ray cast + surface, {'depth peeling' if peeling else 'no depth peeling'}", "surface", [
             (f"sample {d:.2f} mm", f"gpu_surface_{tag}_{d:.2f}", (lambda d=d, p=peeling, t=tag: scene(gpu(d), True, f"gpu_surface_{t}_{d:.2f}", p)))
@@ -261,6 +276,7 @@ def main():
     for name, extra in (("reference_surface", surface), ("reference_volume", [])):
         subprocess.run([exe, "render", args.volume, "--size", "512x512", "--renderer", "raycast", "-o", os.path.join(folder, name + ".png")]
                        + view + extra, check=True, capture_output=True)
+    scene(cpu_mapper(own[0]), False, "reference_vtk-own")
     # Interleaved rounds, the best of each kept: the load of a shared machine drifts over a run, and
     # measuring one curve after the other would put the drift into the ratios.
     best = {}
@@ -276,7 +292,9 @@ def main():
     # The peers' frames the targets name: the fixed-point caster's own (automatic) frame, and the
     # GPU caster with depth peeling at the sample distance closest to our default slice spacing.
     peers = {"volume": ("VTK CPU fixed-point, automatic", best["cpu_volume_auto"]),
-             "surface": ("VTK GPU + depth peeling, 0.5 voxel", best[f"gpu_surface_peeled_{distances[0]:.2f}"])}
+             "vtk-own": ("VTK CPU fixed-point, automatic", best["cpu_volume_auto"])}
+    if not args.volume_only:
+        peers["surface"] = ("VTK GPU + depth peeling, 0.5 voxel", best[f"gpu_surface_peeled_{distances[0]:.2f}"])
     if args.volpack:
         peers["ortho"] = ("VolPack shear-warp", best["volpack_ortho"])
     print(f"volume {args.volume}, 512x512, ct-skin-bone, perspective; best of {args.runs} frames x {args.rounds} rounds, ms;"
@@ -290,16 +308,25 @@ def main():
             rows.append((look, curve, label, best[name], db[name]))
     if args.volpack:
         print(f"VolPack's classification (once per transfer function): {min(volpack_classify):.1f} ms")
-    for look, target, ratio in (("volume", 35.0, 2.0), ("surface", 35.0, 20.0)):
+    def cheapest(look, prefix, target):
+        ok = [(best[n], db[n], c, l) for c, lk, pts in curves if lk == look and c.startswith(prefix) for l, n, _ in pts if db[n] >= target]
+        return min(ok) if ok else None
+    for look, target, ratio in (("volume", 35.0, 2.0),) + ((("surface", 35.0, 20.0),) if not args.volume_only else ()):
         peer_name, peer_ms = peers[look]
-        ok = [(best[n], db[n], c, l) for c, lk, pts in curves if lk == look and c.startswith("hybrid-octree slices") for l, n, _ in pts
-              if db[n] >= target]
+        ok = cheapest(look, "hybrid-octree slices", target)
         if ok:
-            ms, d, c, l = min(ok)
+            ms, d, c, l = ok
             print(f"target, {look} at >= {target:g} dB: {c}, {l}: {ms:.1f} ms, {d:.2f} dB against {peer_name} {peer_ms:.1f} ms: "
                   f"{peer_ms / ms:.2f}x (target >= {ratio:g}x)")
         else:
             print(f"target, {look} at >= {target:g} dB: no frame of ours reaches it")
+    # Equal quality: each side's cheapest frame within 35 dB of its own converged image.
+    ours_eq, theirs_eq = cheapest("volume", "hybrid-octree slices", 35.0), cheapest("vtk-own", "VTK", 35.0)
+    if ours_eq and theirs_eq:
+        print(f"target, volume at >= 35 dB each against its own reference: ours {ours_eq[2]}, {ours_eq[3]}: {ours_eq[0]:.1f} ms ({ours_eq[1]:.2f} dB); "
+              f"VTK fixed-point {theirs_eq[3]}: {theirs_eq[0]:.1f} ms ({theirs_eq[1]:.2f} dB): {theirs_eq[0] / ours_eq[0]:.2f}x (target >= 4x)")
+    else:
+        print("target, volume at >= 35 dB each against its own reference: " + ("no frame of ours reaches it" if not ours_eq else "no VTK frame reaches it"))
     if args.csv:
         with open(args.csv + ".tmp", "w") as f:
             f.write("look,renderer,setting,ms,psnr_db\n")
@@ -315,7 +342,7 @@ def main():
         titles = {"volume": "volume only", "surface": "volume + translucent 400 HU surface", "ortho": "volume only, orthographic (VolPack)"}
         for ax, look in zip(axes, looks):
             for curve, lk, points in curves:
-                if lk != look:
+                if (lk if lk != "vtk-own" else "volume") != look:  # (VTK against its own reference beside ours)
                     continue
                 pts = [(best[n], min(db[n], 60.0)) for _, n, _ in points]  # in the order of their setting
                 ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=curve)
