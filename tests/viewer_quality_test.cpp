@@ -84,9 +84,9 @@ TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLev
   EXPECT_GT(slow.estimateMs(steps[0] - 1), AdaptiveQuality::kRefineFactor * 60.0);
   EXPECT_EQ(steps[1], 0);
   // After a final frame slower than kSlowFinalMs (a cold one counts), a sharper step comes
-  // between: the best level costing at most kSharpStepShare of the final one, 75 % of the size at
-  // step 1.3 on the surface's ladder (0.216 of the final frame's cost; full size at step 1 costs
-  // 0.5), 75 % at step 1 on the volume's (0.281).
+  // between: the best level costing at most kSharpStepShare of the final one, the full size at
+  // step 1.5 on the surface's ladder (1/3 of the final frame's cost), 75 % at step 1 on the
+  // volume's (0.281; full size at step 1 costs 0.5).
   for (const bool cold : {false, true}) {
     AdaptiveQuality surface(kSurfaceLadder, 60.0);
     surface.record(8, 50.0);
@@ -95,8 +95,10 @@ TEST(ViewerQuality, InteractiveFramesHoldTheTargetAndRefinementEndsAtTheFinalLev
     const std::vector<int> sharper = surface.refinement();
     ASSERT_EQ(sharper.size(), 3u);
     EXPECT_LT(sharper[0], interactive);
-    EXPECT_EQ(sharper[1], 2);
-    EXPECT_EQ(surface.sharperStep(), 2);
+    EXPECT_EQ(sharper[1], 1);
+    EXPECT_EQ(surface.sharperStep(), 1);
+    EXPECT_EQ(kSurfaceLadder[1].scale, 1.0);
+    EXPECT_EQ(kSurfaceRayLadder[1].scale, 1.0);
     EXPECT_EQ(sharper[2], 0);
   }
   slow.record(0, 1.5 * AdaptiveQuality::kSlowFinalMs);

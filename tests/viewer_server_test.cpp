@@ -578,31 +578,53 @@ TEST(ViewerServer, ABandTakesTheRowsWhoseLastTimesFit) {
   EXPECT_EQ(rowsWithin(rowMs, 0, 35.0, {1, 8}), 8);   // 35 exactly: all of them
 }
 
-// The sharper step before a slow final frame is its rung's size, spacing and simplified surface,
-// drawn with the final frame's bricks (their textures kept from the last final frame); the same
-// rung moving, or refining first, draws the moving frames' bricks within the packing bound.
-TEST(ViewerServer, TheSharperStepDrawsTheFinalFramesBricks) {
+// The sharper step before a slow final frame is its rung's size and spacing, drawn as the final
+// frame is: the final frame's bricks (their textures kept from the last final frame) and its
+// surface, cut to the slabs; the same rung moving, or refining first, draws the moving frames'
+// bricks within the packing bound and the simplified surface uncut.
+TEST(ViewerServer, TheSharperStepDrawsTheFinalFramesBricksAndSurface) {
   const Scene scene = sphereScene();
   const FrameRequest r = std::get<FrameRequest>(parseRequest(frameRequest(1, false, 512).dump()));
   UserGeometryMemo memo;
   const FrameSetup final = frameParts(r, scene, {kSurfaceLadder[0], 0, false}, 6.0f, memo);
-  const FrameSetup refining = frameParts(r, scene, {kSurfaceLadder[2], 2, false}, 6.0f, memo);
-  const FrameSetup sharper = frameParts(r, scene, {kSurfaceLadder[2], 2, true}, 6.0f, memo);
+  const FrameSetup refining = frameParts(r, scene, {kSurfaceLadder[1], 1, false}, 6.0f, memo);
+  const FrameSetup sharper = frameParts(r, scene, {kSurfaceLadder[1], 1, true}, 6.0f, memo);
   for (const FrameSetup* f : {&refining, &sharper}) {
-    EXPECT_EQ(f->view.camera.width, 384);
-    EXPECT_EQ(f->quality.step, 1.3);
-    EXPECT_TRUE(f->quality.simplifiedSurface);
+    EXPECT_EQ(f->view.camera.width, 512);
+    EXPECT_EQ(f->quality.step, 1.5);
   }
   EXPECT_EQ(final.view.camera.width, 512);
   EXPECT_EQ(sharper.quality.maxBrickEdge, final.quality.maxBrickEdge);
   EXPECT_EQ(sharper.quality.lodPixels, kFinalLodPixels);
   EXPECT_EQ(sharper.quality.packTexels, final.quality.packTexels);
   EXPECT_EQ(sharper.quality.waitForBricks, final.quality.waitForBricks);
+  EXPECT_EQ(sharper.quality.simplifiedSurface, final.quality.simplifiedSurface);
+  EXPECT_FALSE(sharper.quality.simplifiedSurface);
+  EXPECT_EQ(sharper.quality.cutToSlabs, final.quality.cutToSlabs);
+  EXPECT_TRUE(sharper.quality.cutToSlabs);
   EXPECT_EQ(refining.quality.maxBrickEdge, kInteractiveBrickEdge);
   EXPECT_NE(refining.quality.maxBrickEdge, final.quality.maxBrickEdge);
   EXPECT_EQ(refining.quality.lodPixels, kInteractiveLodPixels);
   EXPECT_EQ(refining.quality.packTexels, kInteractivePackTexels);
   EXPECT_FALSE(refining.quality.waitForBricks);
+  EXPECT_TRUE(refining.quality.simplifiedSurface);
+  EXPECT_FALSE(refining.quality.cutToSlabs);
+}
+
+// The sharper step goes out as PNG, as the final frame does: it differs from the final frame by
+// less than JPEG would change it; the other frames before the final one are JPEG.
+TEST(ViewerServer, TheSharperStepIsSentAsPng) {
+  const SceneSummary summary;
+  const FrameRequest r = std::get<FrameRequest>(parseRequest(frameRequest(1, false, 512).dump()));
+  const SurfaceShown surface(ScenePool::Frame{});
+  const std::optional<Arrival> arrival;
+  const FrameStats stats;
+  for (const bool png : {false, true}) {
+    const FrameHeader h{summary, r, kSurfaceLadder[1], 1, false, surface, arrival, stats, 0.0, 10.0, 1, 10.0, png};
+    const json text = json::parse(h.text(512, 512, 1.0));
+    EXPECT_EQ(text["quality"], "refining");
+    EXPECT_EQ(text["format"], png ? "png" : "jpeg");
+  }
 }
 
 // A client's 2048² final frame is drawn band by band (16 of them), the other clients' frames between
