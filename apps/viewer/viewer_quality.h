@@ -35,7 +35,7 @@ struct QualityLevel {
 /// volume's (it compounds badly with a coarse spacing) and not in the surface's: a surface's
 /// frames cost their triangles, and a budget rung's first frames upload new textures. The
 /// surface's second rung, the full size at 1.5 voxels, is its sharper step (sharperStep): drawn
-/// as the final frame is, it differs from it by what the spacing changes alone (47 dB on the
+/// as the final frame is, it differs from it by what the spacing changes alone (48 dB on the
 /// clinical study), where any smaller image magnified loses its edges (35-36 dB).
 using Ladder = std::array<QualityLevel, 12>;
 inline constexpr Ladder kVolumeLadder{{
