@@ -578,6 +578,34 @@ TEST(ViewerServer, ABandTakesTheRowsWhoseLastTimesFit) {
   EXPECT_EQ(rowsWithin(rowMs, 0, 35.0, {1, 8}), 8);   // 35 exactly: all of them
 }
 
+// While another client moves, a band of a large frame never holds more rows than would fit if
+// each cost the costliest rows known: a first frame's band stops at kUnmeasuredBandRows (after
+// cheap rows the head may begin in the next), and a band sized by the last frame's row times stops
+// where its costliest rows would fill the band's time. Nobody moving, the rows' times alone size it.
+TEST(ViewerServer, ABandBesideAMoverStaysWithinItsTimeWhereTheCostlyRowsMayBegin) {
+  BandedFrame b(std::get<FrameRequest>(parseRequest(frameRequest(1, false, 2048).dump())), SurfaceShown(ScenePool::Frame{}));
+  b.size = {2048, 2048};
+  b.rowMs.assign(2048, 0.0f);
+  b.next = 256;
+  b.msPerRow = b.lastMsPerRow = 0.1;  // empty rows so far: 150 ms would take 1,500 of them
+  EXPECT_EQ(bandRows(b, 150.0, true), kUnmeasuredBandRows);
+  EXPECT_EQ(bandRows(b, 150.0, false), kBandPixels / 2048);
+  b.msPerRow = b.lastMsPerRow = 5.0;  // into the skull: its own time sizes the band
+  EXPECT_EQ(bandRows(b, 150.0, true), 30);
+  b.msPerRow = b.lastMsPerRow = 2.5;  // (60 rows' worth)
+  EXPECT_EQ(bandRows(b, 150.0, true), kUnmeasuredBandRows);
+  // Row times of the last frame: cheap rows above costly ones (3 ms a row from row 600).
+  b.msPerRow = b.lastMsPerRow = 0.0;
+  b.next = 0;
+  b.predicted.assign(2048, 0.1f);
+  std::fill(b.predicted.begin() + 600, b.predicted.begin() + 1400, 3.0f);
+  b.costliestRowMs = 3.0f;
+  EXPECT_EQ(bandRows(b, 150.0, true), 50);   // 150 / 3
+  EXPECT_EQ(bandRows(b, 150.0, false), 128);  // the cheap rows' times: kBandPixels' worth
+  b.costliestRowMs = 0.0f;                    // (the cap alone makes the difference)
+  EXPECT_EQ(bandRows(b, 150.0, true), 128);
+}
+
 // The sharper step before a slow final frame is its rung's size and spacing, drawn as the final
 // frame is: the final frame's bricks (their textures kept from the last final frame) and its
 // surface, cut to the slabs; the same rung moving, or refining first, draws the moving frames'

@@ -212,10 +212,9 @@ int rowsWithin(std::span<const float> rowMs, int first, double ms, glm::ivec2 li
   return r - first;
 }
 
-int FrameScheduler::bandRows(const BandedFrame& b, bool othersDrag) const {
+int bandRows(const BandedFrame& b, double ms, bool othersDrag) {
   const int standard = std::max(16, kBandPixels / b.size.x);
   const glm::ivec2 limits(std::min(kMinBandRows, standard), standard);
-  const double ms = othersDrag ? std::max(mTargetMs, kMovingBandMs) : kIdleBandMs;
   if (!b.predicted.empty()) {
     // The last frame's row times, scaled by how this frame's bands compared with them: all of them
     // so far, or the last one where it took longer (the view moved the costly rows).
@@ -228,7 +227,9 @@ int FrameScheduler::bandRows(const BandedFrame& b, bool othersDrag) const {
       return done > 0.0 && was > 0.0 ? done / was : 1.0;
     };
     const double scale = std::clamp(std::max(ratio(0), ratio(b.lastBand)), 0.25, 4.0);
-    return rowsWithin(b.predicted, b.next, ms / scale, limits);
+    glm::ivec2 within = limits;
+    if (othersDrag && b.costliestRowMs > 0.0f) within.y = std::clamp(int(ms / (scale * double(b.costliestRowMs))), limits.x, limits.y);
+    return rowsWithin(b.predicted, b.next, ms / scale, within);
   }
   // Not measured yet at this level: the narrowest band while another moves (a final frame's rows
   // can cost ten times a moving frame's).
@@ -236,7 +237,7 @@ int FrameScheduler::bandRows(const BandedFrame& b, bool othersDrag) const {
   // Rows growing costlier (down into the skull) are taken to go on growing as the last two bands
   // did, up to twice the last one's time a row.
   const double growth = b.lastMsPerRow > 0.0 ? std::clamp(b.msPerRow / b.lastMsPerRow, 1.0, 2.0) : 1.0;
-  return std::clamp(int(ms / (b.msPerRow * growth)), limits.x, limits.y);
+  return std::clamp(int(ms / (b.msPerRow * growth)), limits.x, othersDrag ? std::min(limits.y, kUnmeasuredBandRows) : limits.y);
 }
 
 int FrameScheduler::start(Client& client, int movers, std::optional<Arrival>* arrival, bool* surface) {
@@ -312,8 +313,13 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
     b.final = final;
     b.size = size;
     if (client.bandLevel == level) b.msPerRow = client.bandMsPerPixel * size.x;  // (its first band sized by the last one's time)
-    if (const auto it = client.bandRowMs.find(level); it != client.bandRowMs.end() && it->second.first == size.x && int(it->second.second.size()) == size.y)
+    if (const auto it = client.bandRowMs.find(level); it != client.bandRowMs.end() && it->second.first == size.x && int(it->second.second.size()) == size.y) {
       b.predicted = it->second.second;
+      std::vector<float> sorted = b.predicted;
+      const auto p90 = sorted.begin() + std::ptrdiff_t(sorted.size() * 9 / 10);
+      std::nth_element(sorted.begin(), p90, sorted.end());
+      b.costliestRowMs = *p90;
+    }
     b.rowMs.assign(size_t(size.y), 0.0f);
     client.banded = std::move(b);
   }
@@ -357,7 +363,8 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
 void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, bool othersDrag,
                                std::unique_lock<std::mutex>& lock) {
   BandedFrame& b = *client.banded;
-  const glm::ivec2 rows(b.next, std::min(b.next + bandRows(b, othersDrag), b.size.y));
+  const double bandMs = othersDrag ? std::max(mTargetMs, kMovingBandMs) : kIdleBandMs;
+  const glm::ivec2 rows(b.next, std::min(b.next + bandRows(b, bandMs, othersDrag), b.size.y));
   const QualityLevel& rung = client.quality(b.surface.iso.has_value()).ladder()[size_t(b.level)];
   const int level = b.level;
   const FrameRequest request = b.request;

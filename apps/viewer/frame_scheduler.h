@@ -89,10 +89,21 @@ struct BandedFrame {
   double lastMsPerRow = 0.0;  ///< the band's before it
   std::vector<float> rowMs;      ///< each drawn row's share of its band's time
   std::vector<float> predicted;  ///< the client's last large frame's rowMs at this level and size; empty: none
+  float costliestRowMs = 0.0f;   ///< predicted's 90th percentile (bandRows)
   double longestBandMs = 0.0;
   FrameStats stats;       ///< the last band's
   double maxError = 0.0;
 };
+
+/// The rows of @p b's next band, to take about @p ms (at least kMinBandRows, at most kBandPixels'
+/// worth): by the client's last large frame's row times (rowsWithin, scaled by how this frame's
+/// bands compared with them), else by the time a row of its last band took. While another client
+/// moves (@p othersDrag) a band also holds no more rows than would fit if each cost the last
+/// frame's costliest (its 90th percentile: the view may have moved them here), or without row
+/// times kUnmeasuredBandRows: the rows where the head begins cost ten times those above it, a jump
+/// that no band's time foresees, and a band of kBandPixels' worth met it at twice its time.
+int bandRows(const BandedFrame& b, double ms, bool othersDrag);
+inline constexpr int kUnmeasuredBandRows = 48;
 
 /// A client: what its page asked for last, and how well its frames are made. Shared by its socket
 /// (network thread) and the render thread, under the server's mutex.
@@ -189,8 +200,6 @@ class FrameScheduler {
   /// one of @p movers clients dragging.
   int start(Client& client, int movers, std::optional<Arrival>* arrival, bool* surface);
   void serveBand(Client& client, SceneRenderer& renderer, const SceneSummary& scene, bool othersDrag, std::unique_lock<std::mutex>& lock);
-  /// The rows of @p b's next band: kBandPixels' worth, or kMovingBandMs' worth while @p othersDrag.
-  int bandRows(const BandedFrame& b, bool othersDrag) const;
 
   /// Sends @p message, a frame, to @p client (server's mutex held).
   static void sendFrame(Client& client, std::string message);
