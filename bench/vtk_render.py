@@ -234,11 +234,10 @@ def main():
                    [("automatic", "cpu_volume_auto", lambda: scene(cpu_mapper(0), False, "cpu_volume_auto"))] +
                    [(f"sample {d:.2f} mm", f"cpu_volume_{d:.2f}", (lambda d=d: scene(cpu_mapper(d), False, f"cpu_volume_{d:.2f}"))) for d in distances]))
     # Equal quality, each renderer against its own converged image: the fixed-point caster's frames
-    # against its frame at the finest sample distance (its reference, rendered once, untimed), as
+    # against its frame at the finest sample distance (its reference, whose time is not used), as
     # ours are against our reference ray tracer; its sample distance and image sample distance both
     # free, as our step and image scale are.
     own = [float(f) * mm for f in args.own_distances.split(",")]
-    own_reference = f"cpu_own_{own[0]:.2f}_1"
     curves.append(("VTK CPU fixed-point, against its own finest", "vtk-own", [
         (f"sample {d:.2f} mm, image 1/{i:g}", f"cpu_own_{d:.2f}_{i:g}", (lambda d=d, i=i: scene(cpu_mapper(d, i), False, f"cpu_own_{d:.2f}_{i:g}")))
         for d in own[1:] for i in (float(x) for x in args.own_image_distances.split(","))]))

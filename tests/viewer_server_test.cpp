@@ -647,11 +647,11 @@ TEST(ViewerServer, TheSharperStepIsSentAsPng) {
   const SurfaceShown surface(ScenePool::Frame{});
   const std::optional<Arrival> arrival;
   const FrameStats stats;
-  for (const bool png : {false, true}) {
-    const FrameHeader h{summary, r, kSurfaceLadder[1], 1, false, surface, arrival, stats, 0.0, 10.0, 1, 10.0, png};
+  for (const bool sharper : {false, true}) {
+    const FrameHeader h{summary, r, kSurfaceLadder[1], 1, false, surface, arrival, stats, 0.0, 10.0, 1, 10.0, sharper};
     const json text = json::parse(h.text(512, 512, 1.0));
     EXPECT_EQ(text["quality"], "refining");
-    EXPECT_EQ(text["format"], png ? "png" : "jpeg");
+    EXPECT_EQ(text["format"], sharper ? "png" : "jpeg");
   }
 }
 

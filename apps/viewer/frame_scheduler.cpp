@@ -44,12 +44,12 @@ glm::ivec2 scaledSize(const FrameRequest& r, const QualityLevel& q) {
 // Whether a frame of @p size is drawn in bands (kBandPixels).
 bool drawnInBands(glm::ivec2 size) { return int64_t(size.x) * size.y > kBandPixels; }
 
-// A frame's message: its header and the image, as JPEG or PNG (FrameHeader::png; render thread,
+// A frame's message: its header and the image, as JPEG or PNG (FrameHeader::png(); render thread,
 // unlocked); @p ms receives the frame's time from @p t0, encoding included.
 std::string encodeFrame(const FrameHeader& h, const Image& image, Clock::time_point t0, double* ms) {
   const auto t1 = Clock::now();
   const std::vector<uint8_t> rgba = toRgba8(image, glm::vec3(0.0f));
-  const std::vector<uint8_t> bytes = h.png ? encodePng(rgba, image.width, image.height) : encodeJpeg(rgba, image.width, image.height, 95);
+  const std::vector<uint8_t> bytes = h.png() ? encodePng(rgba, image.width, image.height) : encodeJpeg(rgba, image.width, image.height, 95);
   const double encodeMs = msSince(t1);
   *ms = msSince(t0);
   return frameMessage(h.text(image.width, image.height, encodeMs), bytes);
@@ -346,7 +346,7 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
     cold = 2 * st.slices.uploadedBricks > st.slices.bricks || st.bvhMs > 0.0 || st.preintegrationMs > 0.0;
     coarser = double(st.bricksNotResident) / double(std::max<size_t>(1, st.slices.bricks + st.bricksNotResident));
     const FrameHeader header{summary, request, rung, level, final, shown, arrival, st, frame.selection.maxError, renderMs, 1, renderMs,
-                             final || frameRung.finalBricks};
+                             frameRung.finalBricks};
     message = encodeFrame(header, frame.image, t0, &ms);
   } catch (const std::exception& e) {
     message.clear();
@@ -406,13 +406,13 @@ void FrameScheduler::serveBand(Client& client, SceneRenderer& renderer, const Sc
   if (b.next < b.size.y) return;
   client.bandRowMs[b.level] = {b.size.x, b.rowMs};
   // Encoded beside the next renders: the image's PNG would hold the other clients' frames.
-  mEncoder.add([this, to = client.shared_from_this(), sent = client.framesSent, png = b.final || frameRung.finalBricks,
+  mEncoder.add([this, to = client.shared_from_this(), sent = client.framesSent, sharper = frameRung.finalBricks,
                 done = std::make_shared<BandedFrame>(std::move(b)), summary, rung] {
     std::string message, failed;
     double total = 0.0;
     try {
       const FrameHeader header{summary, done->request, rung, done->level, done->final, done->surface, done->arrival, done->stats, done->maxError,
-                               done->renderMs, int(done->bands.size()), done->longestBandMs, png};
+                               done->renderMs, int(done->bands.size()), done->longestBandMs, sharper};
       message = encodeFrame(header, joinBands(done->size, done->bands), Clock::now(), &total);
     } catch (const std::exception& e) {
       failed = e.what();

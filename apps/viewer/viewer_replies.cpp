@@ -118,7 +118,7 @@ std::string FrameHeader::text(int width, int height, double encodeMs) const {
                  {"level", level},
                  {"ladder", iso ? "surface" : "volume"},
                  {"levelText", q.describe()},
-                 {"format", png ? "png" : "jpeg"},
+                 {"format", png() ? "png" : "jpeg"},
                  {"width", width},
                  {"height", height},
                  {"waitMs", arrival ? json(arrival->waitMs) : json(nullptr)},

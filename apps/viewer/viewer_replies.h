@@ -97,9 +97,10 @@ struct FrameHeader {
   double maxError = 0, renderMs = 0;
   int bands = 1;             ///< a final frame drawn band by band: how many
   double longestBandMs = 0;  ///< ... and the longest band's time
-  /// Sent as PNG: the final frame, and the sharper step before a slow one (drawn as the final frame
-  /// is but for its spacing, it differs from it by less than JPEG would change it).
-  bool png = false;
+  bool sharper = false;  ///< the sharper step before a slow final frame (AdaptiveQuality::sharperStep)
+  /// Sent as PNG: the final frame, and the sharper step (drawn as the final frame is but for its
+  /// spacing, it differs from it by less than JPEG would change it).
+  bool png() const { return final || sharper; }
 
   /// The header as the page reads it (type "frame"), of an image @p width x @p height encoded in
   /// @p encodeMs; the final frame's carries the `hybrid-octree render` command that makes it.
