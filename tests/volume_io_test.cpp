@@ -1147,6 +1147,14 @@ TEST(NiftiReader, SformThenQformThenMethodOne) {
   const glm::dmat3 inPlane(glm::dvec3(1, 0, 0), glm::dvec3(0.3, 1, 0), glm::dvec3(0, 0, 1));
   writeBytes(dir.file("sh.nii"), orientedNifti(data, &inPlane, {0, 0, 0}, nullptr, {}));
   expectRejected(dir.file("sh.nii"), "sh.nii (sform)", "not orthogonal");
+  // A column or the origin not finite: refused by the frame's check, not taken for a sheared stack.
+  const double nan = std::nan("");
+  const glm::dmat3 nanColumn(glm::dvec3(1, 0, 0), glm::dvec3(0, 1, 0), glm::dvec3(0, nan, 1));
+  writeBytes(dir.file("nan.nii"), orientedNifti(data, &nanColumn, {0, 0, 0}, nullptr, {}));
+  expectRejected(dir.file("nan.nii"), "nan.nii (sform)", "not finite");
+  const glm::dmat3 identity(1.0);
+  writeBytes(dir.file("nanorigin.nii"), orientedNifti(data, &identity, {nan, 0, 0}, nullptr, {}));
+  expectRejected(dir.file("nanorigin.nii"), "nanorigin.nii (sform)", "is not finite");
   // Neither: method 1, RAS axes, and a warning.
   writeBytes(dir.file("none.nii"), niftiFile(0.0f, 0.0f, data));
   const Volume none = readVolume(dir.file("none.nii"));

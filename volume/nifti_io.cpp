@@ -33,6 +33,8 @@ namespace {
 // A sform whose first two columns are orthogonal but whose third leaves their normal (dcm2niix's
 // conversion of a gantry-tilted series): the stack of its planes, each at origin + k·column 3.
 std::optional<PlaneStack> shearedStack(const glm::dmat3& d, const glm::dvec3& origin, const glm::ivec3& dims, const std::string& path) {
+  for (int c = 0; c < 3; ++c)  // a non-finite sform is refused by the frame's own check, rethrown
+    if (!std::isfinite(glm::dot(d[c], glm::dvec3(1.0))) || !std::isfinite(origin[c])) return std::nullopt;
   const double l0 = glm::length(d[0]), l1 = glm::length(d[1]);
   if (!(l0 > 0.0 && l1 > 0.0) || std::abs(glm::dot(d[0], d[1])) > 1e-3 * l0 * l1) return std::nullopt;
   glm::dvec3 n = glm::cross(d[0] / l0, d[1] / l1);

@@ -40,6 +40,8 @@ StackGrid stackGrid(const PlaneStack& stack, const std::string& what, const std:
   std::vector<double> depth(n);
   std::vector<glm::dvec2> offset(n);  // in-plane position of each plane's origin relative to the first's, mm
   for (size_t k = 0; k < n; ++k) {
+    if (!std::isfinite(glm::dot(stack.origins[k], glm::dvec3(1.0))))
+      HYB_THROW(IoError, stack.names[k], ": position not finite (expected a plane's position in millimetres)");
     depth[k] = glm::dot(stack.origins[k], normal);
     const glm::dvec3 d = stack.origins[k] - stack.origins[0];
     offset[k] = {glm::dot(d, r), glm::dot(d, c)};
