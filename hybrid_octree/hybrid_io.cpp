@@ -17,6 +17,7 @@
 #include "volume/core/error.h"
 #include "volume/core/file_util.h"
 #include "volume/core/memory_limit.h"
+#include "volume/dicomweb.h"
 #include "volume/reader_util.h"
 #include "volume/volume_io.h"
 
@@ -580,6 +581,12 @@ void setSceneNormals(const Scene& scene, TriangleMesh* mesh) {
                      mesh);
 }
 
+void checkSceneGrid(const glm::ivec3& d, const std::string& what) {
+  if (glm::any(glm::lessThan(d, glm::ivec3(2))))
+    HYB_THROW(ValueError, what, ": a volume of ", d.x, "x", d.y, "x", d.z,
+              " samples (expected at least 2 along each axis to render or mesh; a single image, such as a localizer: choose another series)");
+}
+
 OpenedScene openScene(const SceneSource& source, const VolumeOctreeOptions& options, const SceneLoadOptions& load) {
   using Clock = std::chrono::steady_clock;
   const auto msSince = [](Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); };
@@ -593,6 +600,7 @@ OpenedScene openScene(const SceneSource& source, const VolumeOctreeOptions& opti
   }
   o.scene.volume = readVolume(source.path, source.raw, source.series, source.progress);
   o.readMs = msSince(t0);
+  checkSceneGrid(o.scene.volume.dims(), redactUrl(source.path));
   const auto t1 = Clock::now();
   VolumeOctreeOptions withProgress = options;
   withProgress.progress = source.progress;

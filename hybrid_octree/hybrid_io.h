@@ -112,10 +112,14 @@ struct OpenedScene {
   double readMs = 0, buildMs = 0;  ///< a scene file's load counts as its read
 };
 
+/// Refuses a grid with fewer than 2 samples along an axis (a single DICOM image: a localizer), which
+/// has nothing between its samples to render or mesh. @throw ValueError naming @p what.
+void checkSceneGrid(const glm::ivec3& dims, const std::string& what);
+
 /// Loads @p source when it is a scene file (as @p load says: paged or whole), else reads the volume
 /// and builds its octree with @p options (its progress: @p source's). The volume's reader warnings
 /// stay in scene.volume.warnings().
-/// @throw IoError or ValueError as loadScene and readVolume.
+/// @throw IoError or ValueError as loadScene and readVolume, and as checkSceneGrid.
 OpenedScene openScene(const SceneSource& source, const VolumeOctreeOptions& options = {}, const SceneLoadOptions& load = {});
 
 }  // namespace hyb

@@ -395,6 +395,23 @@ TEST(ClinicalDicom, APatientCdListsItsStudiesAndOpensTheRightSeries) {
     EXPECT_THAT(info.out, HasSubstr(withDicomdir ? "skipped  1 of 34 files: 1 structured report\n" : "skipped  3 of 36 files: 2 not DICOM, 1 structured report\n"));
     // The localizer is read when named.
     EXPECT_EQ(readVolume(root, nullptr, "1.2.826.0.1.3680043.8.498.3").dims(), glm::ivec3(32, 32, 1));
+    // ... but one image has nothing between its samples to render or build.
+    for (const std::string out : {"scout.png", "scout.hoct"}) {
+      test::expectBadInput({out == "scout.png" ? "render" : "build", root, "--series", "1.2.826.0.1.3680043.8.498.3", "-o", dir.file(out)},
+                           "a volume of 32x32x1 samples (expected at least 2 along each axis to render or mesh; a single image, such as a localizer");
+      EXPECT_FALSE(std::filesystem::exists(dir.file(out)));
+    }
+  }
+}
+
+// Reading @p path (its series @p series) fails with one line holding @p what.
+void expectOneLine(const std::string& path, const std::string& what, const std::string& series = "") {
+  try {
+    readVolume(path, nullptr, series);
+    ADD_FAILURE() << path << " was read; expected " << what;
+  } catch (const Error& e) {
+    EXPECT_THAT(e.what(), HasSubstr(what));
+    EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos);
   }
 }
 
@@ -408,20 +425,17 @@ TEST(ClinicalDicom, WhatIsNotOneVolumeIsRefusedInOneLine) {
   model.size = {16, 16};
   std::vector<glm::dvec3> zs;
   for (int k = 0; k < 4; ++k) zs.push_back({0.0, 0.0, 2.0 * k});
-  auto expectOneLine = [](const std::string& path, const std::string& what) {
-    try {
-      readVolume(path);
-      ADD_FAILURE() << path << " was read; expected " << what;
-    } catch (const Error& e) {
-      EXPECT_THAT(e.what(), HasSubstr(what));
-      EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos);
-    }
-  };
   const std::string cd = dir.file("cd");
   test::writeSeries(cd + "/A", "I", DicomStudy{}, model, zs, hu);
   test::writeDicomdir(cd, {"A/I1", "A/I2", "A/I3", "A/I4"});
   std::filesystem::remove(cd + "/A/I3");
   expectOneLine(cd, "DICOMDIR: names 1 of its 4 image files that are not there, 'A\\I3' first");
+  // A record naming a file outside the CD's folder (a viewer's data folder must hold what it opens).
+  const std::string escape = dir.file("escape");
+  test::writeSeries(dir.file("outside"), "I", DicomStudy{}, model, zs, hu);
+  std::filesystem::create_directories(escape);
+  test::writeDicomdir(escape, {"../outside/I1", "../outside/I2"});
+  expectOneLine(escape, "DICOMDIR: Referenced File ID '..\\outside\\I1' leaves its folder (expected backslash-separated names within ");
   const std::string sizes = dir.file("sizes");
   test::writeSeries(sizes, "I", DicomStudy{}, model, zs, hu);
   DicomImage big = model;
@@ -440,6 +454,107 @@ TEST(ClinicalDicom, WhatIsNotOneVolumeIsRefusedInOneLine) {
   test::writeBytes(nothing + "/README", std::vector<uint8_t>(40, 'x'));
   test::writeStructuredReport(nothing + "/SR", DicomStudy{}, "1.2.3.4");
   expectOneLine(nothing, "no DICOM image series found (2 files: 1 not DICOM, 1 structured report;");
+}
+
+
+// What a user points at on a CD opens its series: the DICOMDIR (the largest series, or the one
+// named), or one image (its own series, from its folder's files alone, whatever else is beside).
+TEST(ClinicalDicom, ADicomdirOrOneImageOpensItsSeries) {
+  TempDir dir;
+  const Phantom ph;
+  const auto hu = [&](const glm::dvec3& p) { return ph.hu(p); };
+  const std::string root = dir.file("CD");
+  DicomImage head;
+  head.size = {16, 16};
+  std::vector<glm::dvec3> zs;
+  for (int k = 0; k < 8; ++k) zs.push_back({0.0, 0.0, 2.0 * k});
+  test::writeSeries(root + "/S1/A", "I", DicomStudy{}, head, zs, hu);
+  DicomImage chest = head;
+  chest.seriesUid = "1.2.826.0.1.3680043.8.498.60";
+  zs.resize(5);
+  test::writeSeries(root + "/S1/B", "I", DicomStudy{}, chest, zs, hu);
+  test::writeSeries(root + "/S1/B/copy", "I", DicomStudy{}, chest, zs, hu);  // beside it, not read with it
+  std::vector<std::string> files;
+  for (int k = 1; k <= 8; ++k) files.push_back("S1/A/I" + std::to_string(k));
+  test::writeDicomdir(root, files);
+  EXPECT_EQ(readVolume(root + "/DICOMDIR").dims(), glm::ivec3(16, 16, 8));
+  EXPECT_EQ(readVolume(root + "/S1/B/I2").dims(), glm::ivec3(16, 16, 5));
+  EXPECT_EQ(readVolume(root + "/S1/B/I2", nullptr, chest.seriesUid).dims(), glm::ivec3(16, 16, 5));
+  EXPECT_EQ(detail::readAllPlanes(*openPlanes(root + "/S1/B/I2")).dims(), glm::ivec3(16, 16, 5));
+  expectOneLine(root + "/S1/B/I2", "is an image of series '1.2.826.0.1.3680043.8.498.60' (expected its folder with --series", head.seriesUid);
+  // A Series Number stands for its series when no other has it.
+  const std::string numbered = dir.file("numbered");
+  test::writeSeries(numbered, "A", DicomStudy{}, head, zs, hu);
+  DicomImage seventh = head;
+  seventh.seriesUid = "1.2.826.0.1.3680043.8.498.61";
+  seventh.seriesNumber = 7;
+  test::writeSeries(numbered, "C", DicomStudy{}, seventh, {zs[0], zs[1], zs[2]}, hu);
+  EXPECT_EQ(readVolume(numbered, nullptr, "7").dims().z, 3);
+  EXPECT_EQ(readVolume(numbered, nullptr, "2").dims().z, 5);
+  chest.seriesNumber = 7;
+  test::writeSeries(numbered, "B", DicomStudy{}, chest, zs, hu);
+  expectOneLine(numbered, "--series 7: several series in " + numbered + " are numbered 7 (expected a UID: ", "7");
+  const test::CliRun info = test::run({"info", root + "/DICOMDIR"});
+  ASSERT_EQ(info.status, 0) << info.err;
+  EXPECT_THAT(info.out, HasSubstr("(from its DICOMDIR)"));
+  EXPECT_THAT(info.out, HasSubstr("dims     16 x 16 x 8"));
+}
+
+// The messages name what a user must fix: a whole 64-character UID to copy into --series, the
+// transfer syntax not decoded (a deflated one is read), the file skipped where a slice is
+// missing, an enhanced image's frames its functional groups do not cover.
+TEST(ClinicalDicom, MessagesNameTheSyntaxTheSkippedFileAndTheFrame) {
+  TempDir dir;
+  const Phantom ph;
+  const auto hu = [&](const glm::dvec3& p) { return ph.hu(p); };
+  DicomImage model;
+  model.size = {16, 16};
+  std::vector<glm::dvec3> zs;
+  for (int k = 0; k < 6; ++k) zs.push_back({0.0, 0.0, 2.0 * k});
+  const std::string plain = dir.file("plain"), deflated = dir.file("deflated");
+  test::writeSeries(plain, "I", DicomStudy{}, model, zs, hu);
+  DicomImage packed = model;
+  packed.transferSyntax = "1.2.840.10008.1.2.1.99";
+  test::writeSeries(deflated, "I", DicomStudy{}, packed, zs, hu);
+  EXPECT_TRUE(readBothWays(deflated).samples() == readVolume(plain).samples());
+  // A copy of a slice beside it is left out, said once.
+  std::filesystem::copy_file(deflated + "/I2", deflated + "/I2 copy");
+  std::filesystem::copy_file(deflated + "/I4", deflated + "/I4 copy");
+  const Volume copied = readBothWays(deflated);
+  EXPECT_TRUE(copied.samples() == readVolume(plain).samples());
+  ASSERT_EQ(copied.warnings().size(), 1u);
+  EXPECT_THAT(copied.warnings()[0], HasSubstr(" copy is a copy of " + deflated + "/I"));
+  EXPECT_THAT(copied.warnings()[0], HasSubstr(" (the same SOP Instance UID and position): left out, and 1 more copies"));
+  const std::string part2 = dir.file("part2");
+  DicomImage labelled = model;
+  labelled.transferSyntax = "1.2.840.10008.1.2.4.92";
+  test::writeSeries(part2, "I", DicomStudy{}, labelled, zs, hu);
+  expectOneLine(part2, "transfer syntax 1.2.840.10008.1.2.4.92 (JPEG 2000 part 2 multi-component lossless) unsupported (expected uncompressed");
+  const std::string uid = "1.2.826.0.1.3680043.8.498.12345678901234567890123456789012345678";
+  ASSERT_EQ(uid.size(), 64u);
+  DicomImage longUid = model;
+  longUid.seriesUid = uid;
+  test::writeSeries(plain + "/long", "I", DicomStudy{}, longUid, zs, hu);
+  expectOneLine(plain, "'" + uid + "' (CT, HEAD 2.5, 6 slices", "1.2.3");
+  std::filesystem::resize_file(plain + "/I3", 0);
+  expectOneLine(plain, "; skipped in the series' folder: " + plain + "/I3: not DICOM", model.seriesUid);
+  // Five frames declared, four items in the Per-frame Functional Groups (Number of Frames patched).
+  std::vector<DicomImage> frames;
+  for (int k = 0; k < 4; ++k) {
+    DicomImage f = model;
+    f.position = {0.0, 0.0, 2.0 * k};
+    test::sampleField(&f, hu);
+    frames.push_back(f);
+  }
+  const std::string enhanced = dir.file("enhanced");
+  test::writeEnhancedCt(enhanced + "/E1", DicomStudy{}, frames);
+  std::vector<uint8_t> bytes = test::readBytes(enhanced + "/E1");
+  const uint8_t numberOfFrames[] = {0x28, 0x00, 0x08, 0x00, 'I', 'S', 2, 0, '4'};
+  const auto at = std::search(bytes.begin(), bytes.end(), std::begin(numberOfFrames), std::end(numberOfFrames));
+  ASSERT_NE(at, bytes.end());
+  at[8] = '5';
+  test::writeBytes(enhanced + "/E1", bytes);
+  expectOneLine(enhanced, "E1: Per-frame Functional Groups Sequence (5200,9230) holds 4 items (expected one per frame: Number of Frames (0028,0008) is 5)");
 }
 
 }  // namespace

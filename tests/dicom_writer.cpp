@@ -118,10 +118,14 @@ void putPixels(gdcm::DataSet& ds, const glm::ivec2& size, const std::vector<int1
   ds.Replace(data);
 }
 
-// The file meta information of SOP instance @p sop of class @p sopClass, explicit VR little endian, and the file written.
-void writeFile(gdcm::Writer& w, const std::string& path, const std::string& sopClass, const std::string& sop) {
+// The file meta information of SOP instance @p sop of class @p sopClass, in transfer syntax @p syntax
+// (GDCM deflates the data set for the deflated one), and the file written.
+void writeFile(gdcm::Writer& w, const std::string& path, const std::string& sopClass, const std::string& sop,
+               const std::string& syntax = "1.2.840.10008.1.2.1") {
   gdcm::FileMetaInformation& meta = w.GetFile().GetHeader();
-  meta.SetDataSetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
+  const gdcm::TransferSyntax ts(gdcm::TransferSyntax::GetTSType(syntax.c_str()));
+  check(ts.IsValid(), "unknown transfer syntax " + syntax);
+  meta.SetDataSetTransferSyntax(ts);
   meta.Replace(text(0x0002, 0x0002, gdcm::VR::UI, sopClass));
   meta.Replace(text(0x0002, 0x0003, gdcm::VR::UI, sop));
   std::filesystem::create_directories(std::filesystem::path(path).parent_path());
@@ -167,7 +171,7 @@ void writeCtImage(const std::string& path, const DicomStudy& study, const DicomI
   ds.Replace(text(0x0028, 0x1053, gdcm::VR::DS, decimalString({image.slope})));
   check(image.pixels.size() == size_t(image.size.x) * size_t(image.size.y), "pixels of another size than the image");
   putPixels(ds, image.size, image.pixels);
-  writeFile(w, path, sopClass, sop);
+  writeFile(w, path, sopClass, sop, image.transferSyntax);
 }
 
 void writeEnhancedCt(const std::string& path, const DicomStudy& study, const std::vector<DicomImage>& frames) {

@@ -34,6 +34,7 @@ struct DicomImage {
   double slope = 1.0, intercept = -1024.0;
   double tilt = 0.0;               ///< Gantry/Detector Tilt (0018,1120), written when not 0
   double thickness = 2.0;
+  std::string transferSyntax = "1.2.840.10008.1.2.1";  ///< (0002,0010): explicit VR little endian, or deflated; others only named
   std::vector<int16_t> pixels;     ///< stored values, x fastest
   /// The LPS position of pixel (i, j).
   glm::dvec3 at(int i, int j) const;

@@ -822,7 +822,8 @@ TEST(DicomReader, InfoListsTheSeriesAndRenderNamesTheOneItReads) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(r.err, "");
   test::expectBadInput({"render", dir.path().string(), "--series", "7.7", "--size", "8x8", "-o", dir.file("t.png")}, "--series '7.7'");
-  test::expectBadInput({"info", dir.file("a0.dcm"), "--series", "1.2.3.100"}, "--series needs a DICOM directory");
+  // One image stands for its series; --series naming another is refused.
+  test::expectBadInput({"info", dir.file("a0.dcm"), "--series", "1.2.3.200"}, "is an image of series '1.2.3.100'");
 }
 
 // A series of kDims.z slices in @p dir/@p name: slice k of format @p formatOf(k) holds the stored

@@ -97,9 +97,14 @@ int64_t pixelDataLength(const InputFile& file, uint64_t valueStart, const gdcm::
 
 // Checks what GDCM needs to decode @p file without asserting; @p where names it and its slice.
 PixelModule checkPixelModule(const InputFile& file, const std::string& where) {
+  const std::string syntax = detail::fileTransferSyntax(file);
+  detail::checkTransferSyntax(syntax, where);
   gdcm::Reader reader;
   reader.SetFileName(file.path().c_str());
-  if (!reader.ReadUpToTag(kPixelData, {kPixelData})) HYB_THROW(IoError, where, ": not a readable DICOM file (expected a DICOM image)");
+  // GDCM stops early only in an uncompressed stream; a deflated one is inflated whole.
+  const bool deflated = syntax == detail::kDeflatedTransferSyntax;
+  if (!(deflated ? reader.Read() : reader.ReadUpToTag(kPixelData, {kPixelData})))
+    HYB_THROW(IoError, where, ": not a readable DICOM file (expected a DICOM image)");
   const gdcm::DataSet& ds = reader.GetFile().GetDataSet();
   gdcm::StringFilter sf;
   sf.SetFile(reader.GetFile());
@@ -168,9 +173,9 @@ std::string sliceWhere(const SeriesLayout& l, size_t s) {
 }
 
 // Orders and checks the planes of the series @p seriesUid of @p dir's catalog (the default when empty).
-SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid, const Progress* progress) {
+SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid, const Progress* progress, bool recursive) {
   silenceGdcm();
-  const DicomCatalog catalog = catalogDicom(dir, true, progress);
+  const DicomCatalog catalog = catalogDicom(dir, recursive, progress);
   SeriesLayout l;
   l.dir = dir;
   std::string listing;
@@ -181,13 +186,20 @@ SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid, 
   }
   const DicomSeriesInfo* chosen = &catalog.series.front();
   if (!seriesUid.empty()) {
-    const auto it = std::find_if(catalog.series.begin(), catalog.series.end(), [&](const DicomSeriesInfo& s) { return s.uid == seriesUid; });
-    if (it == catalog.series.end()) HYB_THROW(ValueError, "--series ", quotedExcerpt(seriesUid), ": no such series in ", dir, " (it holds ", listing, ")");
+    auto it = std::find_if(catalog.series.begin(), catalog.series.end(), [&](const DicomSeriesInfo& s) { return s.uid == seriesUid; });
+    // A Series Number (the listing's #N) stands for its series when no other has that number.
+    if (it == catalog.series.end() && seriesUid.find_first_not_of("0123456789") == std::string::npos) {
+      const auto numbered = [&](const DicomSeriesInfo& s) { return trim(s.number) == seriesUid; };
+      it = std::find_if(catalog.series.begin(), catalog.series.end(), numbered);
+      if (std::count_if(catalog.series.begin(), catalog.series.end(), numbered) > 1)
+        HYB_THROW(ValueError, "--series ", seriesUid, ": several series in ", dir, " are numbered ", seriesUid, " (expected a UID: ", listing, ")");
+    }
+    if (it == catalog.series.end()) HYB_THROW(ValueError, "--series ", quotedExcerpt(seriesUid, detail::kUidChars), ": no such series in ", dir, " (it holds ", listing, ")");
     chosen = &*it;
   } else if (catalog.series.size() > 1) {
     l.warnings.push_back(detail::concat(dir, ": ", catalog.series.size(), " series", studies.size() > 1 ? detail::concat(" in ", studies.size(), " studies") : "",
                                         "; reading the largest", chosen->localizer ? "" : chosen->axial ? " axial one that is not a localizer" : " that is not a localizer",
-                                        ", ", describeSeries(*chosen), " (choose another with --series UID: ", listing, ")"));
+                                        ", ", describeSeries(*chosen), " (choose another by its UID, --series or Python's open(series=...): ", listing, ")"));
   }
   l.chosen = *chosen;
   const std::vector<DicomInstance>& instances = catalog.instances.at(chosen->uid);
@@ -211,16 +223,18 @@ SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid, 
       else l.slices.push_back(f);
     }
   if (localizers)
-    l.warnings.push_back(detail::concat(dir, ": ", localizers, " localizer image", localizers == 1 ? "" : "s", " of series ", quotedExcerpt(chosen->uid), " left out"));
+    l.warnings.push_back(detail::concat(dir, ": ", localizers, " localizer image", localizers == 1 ? "" : "s", " of series ", quotedExcerpt(chosen->uid, detail::kUidChars), " left out"));
   const DicomInstance* first = nullptr;
   for (const DicomInstance& in : instances) {
     if (std::none_of(l.slices.begin(), l.slices.end(), [&](const DicomFrame& f) { return f.file == in.file; })) continue;
+    detail::checkTransferSyntax(in.transferSyntax, in.file);
+    if (!in.defect.empty()) HYB_THROW(IoError, in.file, ": ", in.defect);
     if (!first) first = &in;
     if (in.columns != first->columns || in.rows != first->rows)
-      HYB_THROW(IoError, dir, ": series ", quotedExcerpt(chosen->uid), " holds images of two sizes, ", first->columns, "x", first->rows, " (", first->file,
+      HYB_THROW(IoError, dir, ": series ", quotedExcerpt(chosen->uid, detail::kUidChars), " holds images of two sizes, ", first->columns, "x", first->rows, " (", first->file,
                 ") and ", in.columns, "x", in.rows, " (", in.file, "; expected one size for a volume)");
     if (glm::length(in.pixelSpacing - first->pixelSpacing) > 1e-4 * std::max(1.0, glm::length(first->pixelSpacing)))
-      HYB_THROW(IoError, dir, ": series ", quotedExcerpt(chosen->uid), " holds images of two pixel spacings, ", first->pixelSpacing.x, " x ",
+      HYB_THROW(IoError, dir, ": series ", quotedExcerpt(chosen->uid, detail::kUidChars), " holds images of two pixel spacings, ", first->pixelSpacing.x, " x ",
                 first->pixelSpacing.y, " mm (", first->file, ") and ", in.pixelSpacing.x, " x ", in.pixelSpacing.y, " mm (", in.file,
                 "; expected one spacing for a volume)");
   }
@@ -242,6 +256,8 @@ SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid, 
   }
   const PatientFrame axes = makePatientFrame(direction, glm::dvec3(0.0), top.file + " (Image Orientation (Patient))");
   for (const DicomFrame& f : l.slices) {
+    if (!f.hasPosition && l.slices.size() > 1 && f.frame >= 0)
+      HYB_THROW(IoError, f.file, " (frame ", f.frame + 1, "): Image Position (Patient) of its Plane Position Sequence (0020,9113) missing or malformed (expected three numbers in the frame's Per-frame Functional Groups item, or the Shared one, to order the frames)");
     if (!f.hasPosition && l.slices.size() > 1)
       HYB_THROW(IoError, f.file, ": Image Position (Patient) missing or malformed (expected three numbers to order the slices)");
     bool same = !oriented || f.orientation.size() == 6;
@@ -252,6 +268,20 @@ SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid, 
   std::stable_sort(l.slices.begin(), l.slices.end(), [&](const DicomFrame& a, const DicomFrame& b) {
     return glm::dot(a.position, axes.direction[2]) < glm::dot(b.position, axes.direction[2]);
   });
+  // The same image twice (a copy beside the original, as exports leave them): one is read.
+  std::vector<DicomFrame> kept;
+  size_t copies = 0;
+  for (DicomFrame& f : l.slices) {
+    const DicomFrame* last = kept.empty() ? nullptr : &kept.back();
+    if (last && !f.sopInstance.empty() && f.sopInstance == last->sopInstance && f.frame == last->frame && f.position == last->position) {
+      if (copies++ == 0)
+        l.warnings.push_back(detail::concat(f.file, " is a copy of ", last->file, " (the same SOP Instance UID and position): left out"));
+      continue;
+    }
+    kept.push_back(std::move(f));
+  }
+  if (copies > 1) l.warnings.back() += detail::concat(", and ", copies - 1, " more copies");
+  l.slices = std::move(kept);
   glm::dvec2 spacing = first->pixelSpacing;
   if (spacing.x <= 0.0 || spacing.y <= 0.0) {
     spacing = glm::dvec2(1.0);
@@ -268,7 +298,17 @@ SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid, 
     stack.names.push_back(sliceWhere(l, s));
   }
   if (const double t = std::strtod(l.thickness.c_str(), nullptr); std::isfinite(t) && t > 0.0) stack.singleSpacing = t;
-  l.grid = stackGrid(stack, dir, first->tilt.empty() ? "" : "Gantry/Detector Tilt (0018,1120) says " + first->tilt + " degrees");
+  try {
+    l.grid = stackGrid(stack, dir, first->tilt.empty() ? "" : "Gantry/Detector Tilt (0018,1120) says " + first->tilt + " degrees");
+  } catch (const IoError& e) {
+    // A slice the scan skipped (no pixel data, not DICOM, empty) is often the one the stack misses.
+    std::string beside;
+    size_t named = 0;
+    for (const auto& [file, reason] : catalog.skippedFiles)
+      if (folders.count(fs::path(file).parent_path()) && named++ < 3) beside += detail::concat(beside.empty() ? "" : ", ", file, ": ", reason);
+    if (beside.empty()) throw;
+    throw IoError(detail::concat(e.what(), "; skipped in the series' folder: ", beside, named > 3 ? detail::concat(" and ", named - 3, " more") : ""));
+  }
   return l;
 }
 
@@ -569,8 +609,8 @@ DicomListing listDicomSeries(const std::string& dir, const Progress* progress, b
   return out;
 }
 
-Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, const Progress* progress) {
-  SeriesLayout layout = seriesLayout(dir, seriesUid, progress);
+Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, const Progress* progress, bool recursive) {
+  SeriesLayout layout = seriesLayout(dir, seriesUid, progress, recursive);
   const StackGrid grid = layout.grid;
   const size_t n = layout.slices.size();
   glm::ivec3 dims(layout.stack.size, int(n));
@@ -609,8 +649,8 @@ Volume readDicomSeries(const std::string& dir, const std::string& seriesUid, con
 
 namespace detail {
 
-std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::string& seriesUid) {
-  SeriesLayout layout = seriesLayout(dir, seriesUid, nullptr);
+std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::string& seriesUid, bool recursive) {
+  SeriesLayout layout = seriesLayout(dir, seriesUid, nullptr, recursive);
   const StackGrid grid = layout.grid;
   return resampledPlanes(stackPlanes(std::move(layout)), grid);
 }

@@ -394,7 +394,39 @@ std::optional<Meta> readMeta(const InputFile& file, const std::vector<uint8_t>& 
   return m;
 }
 
-const char* const kDeflated = "1.2.840.10008.1.2.1.99";
+const char* const kDeflated = kDeflatedTransferSyntax;
+
+// The transfer syntaxes GDCM decodes here (Debian's GDCM 3.0, greyscale), and the names of those
+// it does not that CT archives may hold, for the message.
+constexpr struct {
+  const char* uid;
+  const char* name;
+  bool decoded;
+} kTransferSyntaxes[] = {
+    {"1.2.840.10008.1.2", "implicit VR little endian", true},
+    {"1.2.840.10008.1.2.1", "explicit VR little endian", true},
+    {"1.2.840.10008.1.2.1.99", "deflated explicit VR little endian", true},
+    {"1.2.840.10008.1.2.2", "explicit VR big endian", true},
+    {"1.2.840.10008.1.2.4.50", "JPEG baseline", true},
+    {"1.2.840.10008.1.2.4.51", "JPEG extended", true},
+    {"1.2.840.10008.1.2.4.57", "JPEG lossless", true},
+    {"1.2.840.10008.1.2.4.70", "JPEG lossless, first-order prediction", true},
+    {"1.2.840.10008.1.2.4.80", "JPEG-LS lossless", true},
+    {"1.2.840.10008.1.2.4.81", "JPEG-LS near-lossless", true},
+    {"1.2.840.10008.1.2.4.90", "JPEG 2000 lossless", true},
+    {"1.2.840.10008.1.2.4.91", "JPEG 2000", true},
+    {"1.2.840.10008.1.2.5", "RLE lossless", true},
+    {"1.2.840.10008.1.2.4.92", "JPEG 2000 part 2 multi-component lossless", false},
+    {"1.2.840.10008.1.2.4.93", "JPEG 2000 part 2 multi-component", false},
+    {"1.2.840.10008.1.2.4.94", "JPIP referenced", false},
+    {"1.2.840.10008.1.2.4.95", "JPIP referenced deflate", false},
+    {"1.2.840.10008.1.2.4.110", "JPEG XL lossless", false},
+    {"1.2.840.10008.1.2.4.111", "JPEG XL JPEG recompression", false},
+    {"1.2.840.10008.1.2.4.112", "JPEG XL", false},
+    {"1.2.840.10008.1.2.4.201", "HTJ2K lossless", false},
+    {"1.2.840.10008.1.2.4.202", "HTJ2K lossless RPCL", false},
+    {"1.2.840.10008.1.2.4.203", "HTJ2K", false},
+};
 
 }  // namespace
 
@@ -408,6 +440,25 @@ bool checkDicomFile(const InputFile& file) {
   DicomHeaderParser(bytes, bytes.size(), meta->explicitVr(bytes), meta->bigEndian(), file.path(), DicomHeaderParser::Mode::WholeFile)
       .elements(meta->dataSet, {.end = bytes.size()});
   return true;
+}
+
+std::string fileTransferSyntax(const InputFile& file) {
+  std::vector<uint8_t> head(size_t(std::min<uint64_t>(file.size(), 132 + kMaxMetaBytes)));
+  file.read(0, head.size(), head.data());
+  const std::optional<Meta> meta = readMeta(file, head);
+  return meta ? meta->transferSyntax : std::string();
+}
+
+void checkTransferSyntax(const std::string& uid, const std::string& where) {
+  if (uid.empty()) return;
+  std::string expected;
+  for (const auto& t : kTransferSyntaxes) {
+    if (uid == t.uid && t.decoded) return;
+    if (uid == t.uid) HYB_THROW(IoError, where, ": transfer syntax ", uid, " (", t.name, ") unsupported (expected uncompressed, deflated, JPEG, JPEG-LS, JPEG 2000 or RLE; convert the series, e.g. with gdcmconv --raw)");
+  }
+  HYB_THROW(IoError, where, ": transfer syntax ", quotedExcerpt(uid, kUidChars),
+            uid.rfind("1.2.840.10008.", 0) == 0 ? " unsupported" : " (not a standard one) unsupported",
+            " (expected uncompressed, deflated, JPEG, JPEG-LS, JPEG 2000 or RLE; convert the series, e.g. with gdcmconv --raw)");
 }
 
 std::optional<DicomHeader> readDicomHeader(const std::string& path, std::string* why) {
@@ -466,14 +517,20 @@ namespace {
 
 // The file @p id names under @p root (components separated by backslashes, as a DICOMDIR's
 // Referenced File ID), each component matched without regard to case when not found as written
-// (CDs are written in capitals; copies may not be).
-std::optional<std::string> referencedFile(const fs::path& root, const std::string& id) {
+// (CDs are written in capitals; copies may not be); none when it is not there.
+// @throw IoError naming @p dicomdir when the ID leaves @p root.
+std::optional<std::string> referencedFile(const fs::path& root, const std::string& id, const fs::path& dicomdir) {
   fs::path at = root;
   std::string part;
   std::istringstream in(id);
   while (std::getline(in, part, '\\')) {
     while (!part.empty() && (part.back() == ' ' || part.back() == '\0')) part.pop_back();
-    if (part.empty() || part == "." || part == "..") return std::nullopt;
+    // PS3.10 8.5: components separated by backslashes, below the DICOMDIR's folder; another separator,
+    // a parent or an absolute part would reach files outside it (a viewer's data folder, say).
+    if (part == ".." || part.find_first_of("/:") != std::string::npos)
+      HYB_THROW(IoError, dicomdir.string(), ": Referenced File ID ", quotedExcerpt(id), " leaves its folder (expected backslash-separated names within ",
+                root.string(), ")");
+    if (part.empty() || part == ".") return std::nullopt;
     std::error_code ec;
     if (fs::exists(at / part, ec)) {
       at /= part;
@@ -544,7 +601,7 @@ std::vector<std::string> dicomdirFiles(const fs::path& root, const fs::path& dic
       continue;
     }
     if (type != "IMAGE" || id.empty()) continue;
-    if (const std::optional<std::string> f = referencedFile(root, id)) files.push_back(*f);
+    if (const std::optional<std::string> f = referencedFile(root, id, dicomdir)) files.push_back(*f);
     else missing.push_back(id);
   }
   if (!missing.empty())
@@ -582,6 +639,7 @@ std::vector<DicomFrame> imagePlanes(const std::string& file, const DicomDataSet&
   DicomFrame top;
   top.file = file;
   top.localizer = localizer;
+  top.sopInstance = d.text(dicomTag(0x0008, 0x0018));
   if (const std::vector<double> p = d.numbers(dicomTag(0x0020, 0x0032)); p.size() == 3) {
     top.position = {p[0], p[1], p[2]};
     top.hasPosition = true;
@@ -648,7 +706,7 @@ glm::dvec3 normalOf(const std::vector<double>& iop) {
 }  // namespace
 
 std::string describeSeries(const DicomSeriesInfo& s) {
-  return concat("", quotedExcerpt(s.uid), " (", s.modality.empty() ? "?" : s.modality, s.description.empty() ? "" : ", " + s.description, ", ",
+  return concat("", quotedExcerpt(s.uid, kUidChars), " (", s.modality.empty() ? "?" : s.modality, s.description.empty() ? "" : ", " + s.description, ", ",
                 s.slices, s.slices == 1 ? " slice" : " slices", " of ", s.columns, "x", s.rows, s.localizer ? ", localizer" : "", ")");
 }
 
@@ -679,6 +737,7 @@ DicomCatalog catalogDicom(const std::string& dir, bool recursive, const Progress
     }
     if (!h) {
       countSkipped(&c.skipped, why);
+      c.skippedFiles.push_back({f, why});
       continue;
     }
     const DicomDataSet& d = h->data;
@@ -690,6 +749,7 @@ DicomCatalog catalogDicom(const std::string& dir, bool recursive, const Progress
     if (reason.empty() && d.text(dicomTag(0x0020, 0x000e)).empty()) reason = "no Series Instance UID";
     if (!reason.empty()) {
       countSkipped(&c.skipped, reason);
+      c.skippedFiles.push_back({f, reason});
       continue;
     }
     DicomInstance in;
@@ -698,6 +758,7 @@ DicomCatalog catalogDicom(const std::string& dir, bool recursive, const Progress
     in.sopClass = sop;
     in.studyUid = d.text(dicomTag(0x0020, 0x000d));
     in.seriesUid = d.text(dicomTag(0x0020, 0x000e));
+    in.transferSyntax = h->transferSyntax;
     in.rows = int(d.integer(dicomTag(0x0028, 0x0010)).value_or(0));
     in.columns = int(d.integer(dicomTag(0x0028, 0x0011)).value_or(0));
     in.frames = int(std::clamp<long>(d.integer(dicomTag(0x0028, 0x0008)).value_or(1), 1, 1 << 20));
@@ -706,6 +767,9 @@ DicomCatalog catalogDicom(const std::string& dir, bool recursive, const Progress
     pixelMeasures(d, &in);
     const std::string imageType = d.text(dicomTag(0x0008, 0x0008));
     in.planes = imagePlanes(f, d, in.frames, imageType.find("LOCALIZER") != std::string::npos);
+    if (const std::vector<DicomDataSet>* perFrame = d.items(dicomTag(0x5200, 0x9230)); in.frames > 1 && perFrame && perFrame->size() != size_t(in.frames))
+      in.defect = concat("Per-frame Functional Groups Sequence (5200,9230) holds ", perFrame->size(), " items (expected one per frame: Number of Frames (0028,0008) is ",
+                         in.frames, ")");
     std::vector<DicomInstance>& series = c.instances[in.seriesUid];
     if (series.empty()) {
       DicomSeriesInfo s;

@@ -67,6 +67,20 @@ std::optional<DicomHeader> readDicomHeader(const std::string& path, std::string*
 ///        allocate what the file does not hold.
 bool checkDicomFile(const InputFile& file);
 
+/// The transfer syntax (0002,0010) of a file checkDicomFile accepted, or empty without meta information.
+std::string fileTransferSyntax(const InputFile& file);
+
+/// A UID's most characters (PS3.5 9.1): messages show whole UIDs, which a user copies into --series.
+inline constexpr size_t kUidChars = 64;
+
+/// The deflated transfer syntax's UID: its lengths lie inside the compressed stream.
+inline constexpr const char* kDeflatedTransferSyntax = "1.2.840.10008.1.2.1.99";
+
+/// Refuses a transfer syntax the reader cannot decode, naming @p where and the syntax (HTJ2K, JPEG XL,
+/// video and private ones); empty (no meta information: implicit little endian) passes.
+/// @throw IoError naming @p where, the UID and what is expected.
+void checkTransferSyntax(const std::string& uid, const std::string& where);
+
 /// Where one slice's plane lies and how its values are rescaled: an image of one frame, or one
 /// frame of an enhanced multi-frame image (its Per-frame Functional Groups).
 struct DicomFrame {
@@ -77,6 +91,7 @@ struct DicomFrame {
   std::vector<double> orientation;  ///< Image Orientation (Patient): six cosines, or empty
   double slope = 1.0, intercept = 0.0;
   bool localizer = false;       ///< ImageType holds LOCALIZER
+  std::string sopInstance;      ///< SOP Instance UID (0008,0018): a copy of the image has the same
 };
 
 /// One image instance (a file) of a series.
@@ -84,10 +99,12 @@ struct DicomInstance {
   std::string file;
   uint64_t bytes = 0;
   std::string sopClass, studyUid, seriesUid;
+  std::string transferSyntax;  ///< (0002,0010), or empty without meta information
   int rows = 0, columns = 0, frames = 1;
   glm::dvec2 pixelSpacing{0.0};  ///< between columns, between rows (Pixel Spacing's second and first); 0 when absent
   std::string patientPosition, thickness, tilt;
   std::vector<DicomFrame> planes;  ///< one per frame
+  std::string defect;  ///< what makes its frames unreadable as a series (refused when its series is read), or empty
 };
 
 /// A folder's catalog: its image series (with their instances) and what was skipped.
@@ -99,6 +116,7 @@ struct DicomCatalog {
   std::map<std::string, std::vector<DicomInstance>> instances;  ///< by series UID
   std::vector<std::pair<std::string, size_t>> skipped;  ///< reason, count
   std::vector<std::pair<std::string, std::string>> damaged;  ///< DICOM files whose header is damaged: file, message
+  std::vector<std::pair<std::string, std::string>> skippedFiles;  ///< files read and skipped: file, reason
 };
 
 /// The catalog of @p dir: from its DICOMDIR when it holds one (the files it names), else from every

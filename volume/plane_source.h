@@ -95,7 +95,7 @@ std::unique_ptr<PlaneSource> niftiPlanes(const std::string& path);
 /// first slice without one), from the values, each slice decoded once more here.
 /// @throw IoError / ValueError as readDicomSeries() for the series and its headers; read() throws
 ///        IoError naming the slice file when a slice is damaged or changed since.
-std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::string& seriesUid);
+std::unique_ptr<PlaneSource> dicomPlanes(const std::string& dir, const std::string& seriesUid, bool recursive = true);
 /// The streamed planes of @p path by the rules of readVolume(), or null when it is read whole.
 /// @p progress hears of a DICOMweb series' retrieval.
 std::unique_ptr<PlaneSource> openStreamedPlanes(const std::string& path, const RawLayout* raw, const std::string& series,

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "volume/core/file_util.h"
+#include "volume/dicom_scan.h"
 #include "volume/dicomweb.h"
 #include "volume/plane_source.h"
 #include "volume/reader_util.h"
@@ -129,6 +130,24 @@ void writeVolume(const Volume& volume, const std::string& path) {
   row->write(volume, path);
 }
 
+std::optional<DicomFolder> dicomFolderOf(const std::string& path, const std::string& series) {
+  std::error_code ec;
+  if (isDicomWebUrl(path) || !fs::is_regular_file(path, ec) || volumeFormatRow(path)) return std::nullopt;
+  const fs::path file(path);
+  const std::string dir = file.has_parent_path() ? file.parent_path().string() : ".";
+  std::string name = file.filename().string();
+  std::transform(name.begin(), name.end(), name.begin(), [](unsigned char c) { return char(std::toupper(c)); });
+  if (name == "DICOMDIR") return DicomFolder{dir, series};
+  const std::optional<detail::DicomHeader> header = detail::readDicomHeader(path);
+  if (!header || !header->pixelData) return std::nullopt;
+  const std::string uid = header->data.text(detail::dicomTag(0x0020, 0x000e));
+  if (uid.empty()) return std::nullopt;
+  if (!series.empty() && series != uid)
+    HYB_THROW(ValueError, "--series ", quotedExcerpt(series, detail::kUidChars), ": ", path, " is an image of series ", quotedExcerpt(uid, detail::kUidChars),
+              " (expected its folder with --series, or the image alone)");
+  return DicomFolder{dir, uid, false};
+}
+
 namespace {
 
 // Refuses flags a DICOMweb series' address does not take: it names its series and carries its layout.
@@ -146,7 +165,8 @@ Volume readByFormat(const std::string& path, const RawLayout* raw, const std::st
   std::error_code ec;
   if (!fs::exists(path, ec)) HYB_THROW(IoError, path, ": file does not exist");
   if (fs::is_directory(path, ec)) return readDicomSeries(path, series, progress);
-  if (!series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", path, " is a file)");
+  if (const std::optional<DicomFolder> folder = dicomFolderOf(path, series)) return readDicomSeries(folder->dir, folder->series, progress, folder->recursive);
+  if (!series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory or DICOMDIR (", path, " is a file)");
   InputFile{path};  // what is not a regular file is refused here, whatever its name, before a reader opens it
   if (const VolumeFormatRow* row = volumeFormatRow(path)) return row->read(path);
   const std::string ext = fileExtension(path);
@@ -197,6 +217,7 @@ std::unique_ptr<PlaneSource> detail::openStreamedPlanes(const std::string& path,
       return streamedPlanes(SampleData{path, raw->headerBytes, 0, "header", false, raw->type, raw->bigEndian}, std::move(description), path);
     }
     if (fs::is_directory(path, ec)) return dicomPlanes(path, series);
+    if (const std::optional<DicomFolder> folder = dicomFolderOf(path, series)) return dicomPlanes(folder->dir, folder->series, folder->recursive);
     if (!series.empty()) return nullptr;  // readVolume says what is wrong
     InputFile{path};  // as readVolume: a FIFO or device is refused before any reader opens it
     const VolumeFormatRow* row = volumeFormatRow(path);

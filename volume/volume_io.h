@@ -11,6 +11,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -108,8 +109,19 @@ DicomListing listDicomSeries(const std::string& dir, const Progress* progress = 
 /// are resampled onto an orthogonal regular grid (plane_stack.h), a missing slice refused; rescale
 /// slope/intercept applied per plane (CT comes out in HU). The frame: i along the rows' direction,
 /// j along the columns', k along the normal. Info: modality, series, patient position, slice
-/// thickness, rescale. @p progress hears of the headers and slices read.
-Volume readDicomSeries(const std::string& dir, const std::string& seriesUid = "", const Progress* progress = nullptr);
+/// thickness, rescale. @p progress hears of the headers and slices read; @p recursive false reads
+/// the folder's own files only.
+Volume readDicomSeries(const std::string& dir, const std::string& seriesUid = "", const Progress* progress = nullptr, bool recursive = true);
+/// A DICOM folder named by a file in it: a CD's DICOMDIR (the folder, the series asked for), or one
+/// image of a series (the folder holding it, its own files only, and that image's series).
+struct DicomFolder {
+  std::string dir, series;
+  bool recursive = true;
+};
+/// The folder @p path names when it is a DICOMDIR or a DICOM image (of no other format), else none.
+/// @throw ValueError when @p series names another series than the image's; IoError naming the file
+///        when it is DICOM with a damaged header.
+std::optional<DicomFolder> dicomFolderOf(const std::string& path, const std::string& series);
 /// An InVesalius 3 project (.inv3: gzip tar with main.plist and the raw matrix). InVesalius keeps
 /// its matrix LAS (its DICOM import's layout) unless the project stores an affine (NIfTI import).
 Volume readInv3(const std::string& path);

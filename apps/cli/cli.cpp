@@ -114,8 +114,11 @@ std::string dicomListingText(const DicomListing& l) {
 }
 
 int runInfo(const InfoOptions& o, std::ostream& out, std::ostream& err) {
-  if (std::error_code ec; std::filesystem::is_directory(o.input.path, ec) && !o.input.rawLayout())
-    out << dicomListingText(listDicomSeries(o.input.path, o.input.progress));
+  if (std::error_code ec; !o.input.rawLayout()) {
+    if (std::filesystem::is_directory(o.input.path, ec)) out << dicomListingText(listDicomSeries(o.input.path, o.input.progress));
+    else if (const std::optional<DicomFolder> folder = dicomFolderOf(o.input.path, o.input.series))
+      out << dicomListingText(listDicomSeries(folder->dir, o.input.progress, folder->recursive));
+  }
   if (!o.input.rawLayout() && isSceneFile(o.input.path)) {
     if (!o.input.series.empty()) HYB_THROW(ValueError, "--series needs a DICOM directory (", o.input.path, " is a scene file)");
     Scene scene = loadScene(o.input.path, SceneLoadOptions{false, 0});
@@ -161,6 +164,7 @@ int runBuild(const BuildOptions& o, std::ostream& out, std::ostream& err) {
   // The build streams its input plane by plane: twice for the octree and its store, once more for
   // an isosurface.
   const std::unique_ptr<PlaneSource> planes = o.input.openPlanes(err);
+  checkSceneGrid(planes->description().dims(), planes->name());
   KnotStoreWriter store = storeWriterFor(o.output, *planes);
   const auto t0 = Clock::now();
   const VolumeOctree t = VolumeOctree::build(*planes, VolumeOctreeOptions{o.leafEdge, o.prefilter, o.input.progress}, &store);

@@ -29,7 +29,7 @@ void VolumeInput::add(CLI::App* cmd, bool scenes) {
   cmd->add_option("--raw-spacing", rawSpacing, "raw input: voxel spacing sx,sy,sz in mm (default 1,1,1)");
   cmd->add_option("--raw-endian", rawEndian, "raw input: little|big (default little)");
   cmd->add_option("--raw-header", rawHeader, "raw input: bytes to skip before the samples");
-  cmd->add_option("--series", series, "DICOM directory: the Series Instance UID to read (default: the largest series; info lists them)");
+  cmd->add_option("--series", series, "DICOM directory: the Series Instance UID to read, or its Series Number when no other series has it (default: the largest series; info lists them)");
   cmd->add_option("--pacs-auth-file", pacsAuthFile,
                   "DICOMweb: file whose first line is 'Bearer TOKEN' or 'USER:PASSWORD' (default: HYB_DICOMWEB_TOKEN or HYB_DICOMWEB_USER=USER:PASSWORD)");
 }

@@ -138,9 +138,11 @@ class Scene:
     def export(self, path: Path, iso: Number, kind: str = "dmc", closed: Flag = False, normals: Flag = False) -> None:
         """Writes the isosurface as `hybrid-octree export` does (.ply, .obj, .stl or .off; LPS mm)."""
 
-def open(path: Path) -> Scene:
+def open(path: Path, series: str | None = None) -> Scene:
     """A scene from any file the command line reads: NRRD, MetaImage, NIfTI, InVesalius .inv3, a
-    DICOM directory, or a scene file (.hoct, its samples loaded)."""
+    DICOM directory, a CD's DICOMDIR or one image of a series, or a scene file (.hoct, its samples
+    loaded). series: a DICOM folder's Series Instance UID (the command line's --series); None, the
+    largest axial series that is not a localizer."""
 
 def frame_fields() -> list[dict[str, Any]]:
     """render()'s keywords as the one table of a frame's settings holds them (the command line's

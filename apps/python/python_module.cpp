@@ -624,13 +624,15 @@ std::unique_ptr<PyScene> sceneFromArray(const py::object& array, const py::objec
   return s;
 }
 
-std::unique_ptr<PyScene> openPath(const py::object& pathArg) {
+std::unique_ptr<PyScene> openPath(const py::object& pathArg, const py::object& seriesArg) {
   const std::string path = spelled("path", pathArg, Form::Word);
+  const std::string series = seriesArg.is_none() ? std::string() : spelled("series", seriesArg, Form::Word);
   OpenedScene o;
   {
     py::gil_scoped_release release;
     SceneSource source;
     source.path = path;
+    source.series = series;
     o = openScene(source);
   }
   if (!o.loaded)
@@ -666,7 +668,7 @@ PYBIND11_MODULE(hybrid_octree, m) {
       .def("surface", &PyScene::surface, py::arg("iso"), py::arg("kind") = "octree", py::arg("closed") = false, py::arg("normals") = false)
       .def("export", &PyScene::exportMesh, py::arg("path"), py::arg("iso"), py::arg("kind") = "dmc", py::arg("closed") = false,
            py::arg("normals") = false);
-  m.def("open", &openPath, py::arg("path"));
+  m.def("open", &openPath, py::arg("path"), py::arg("series") = py::none());
   m.def(
       "frame_fields", [] { return py::module_::import("json").attr("loads")(hyb::fieldsJson(hyb::kPython).dump()); },
       "render()'s keywords as the one table of a frame's settings holds them: name, kind, range, default, unit, help");

@@ -711,7 +711,7 @@ def dicom_element(group, element, vr, value):
     return struct.pack("<HH2sH", group, element, vr.encode(), len(value)) + value
 
 
-def write_ct_slice(path, position, cosines, pixels, spacing, tilt):
+def write_ct_slice(path, position, cosines, pixels, spacing, tilt, series="1.2.826.0.1.3680043.8.498.302"):
     """A CT image as a scanner writes it: HU = stored - 1024, Image Position and Orientation."""
     ct, uid = "1.2.840.10008.5.1.4.1.1.2", "1.2.826.0.1.3680043.8.498.300." + path.name
     meta = dicom_element(2, 1, "OB", b"\0\1") + dicom_element(2, 2, "UI", ct) + dicom_element(2, 3, "UI", uid) + dicom_element(2, 0x10, "UI", "1.2.840.10008.1.2.1")
@@ -720,7 +720,7 @@ def write_ct_slice(path, position, cosines, pixels, spacing, tilt):
     data = b"".join([
         dicom_element(8, 0x16, "UI", ct), dicom_element(8, 0x18, "UI", uid), dicom_element(8, 0x60, "CS", "CT"),
         dicom_element(0x18, 0x1120, "DS", ds(tilt)),
-        dicom_element(0x20, 0x0D, "UI", "1.2.826.0.1.3680043.8.498.301"), dicom_element(0x20, 0x0E, "UI", "1.2.826.0.1.3680043.8.498.302"),
+        dicom_element(0x20, 0x0D, "UI", "1.2.826.0.1.3680043.8.498.301"), dicom_element(0x20, 0x0E, "UI", series),
         dicom_element(0x20, 0x32, "DS", ds(*position)), dicom_element(0x20, 0x37, "DS", ds(*cosines)),
         dicom_element(0x28, 2, "US", struct.pack("<H", 1)), dicom_element(0x28, 4, "CS", "MONOCHROME2"),
         dicom_element(0x28, 0x10, "US", struct.pack("<H", rows)), dicom_element(0x28, 0x11, "US", struct.pack("<H", cols)),
@@ -761,3 +761,20 @@ def test_a_tilted_dicom_series_lands_where_its_slices_put_it_through_array_and_a
     assert np.linalg.norm(points.mean(axis=0) - truth) < 0.5
     assert np.linalg.norm(centre - truth) < 0.6  # (the slices' own centroid is the ball's: the test's check of itself)
     assert np.linalg.norm(untilted - truth) > 8.0  # what ignoring the tilt would cost
+
+
+def test_open_chooses_a_dicom_series_by_uid_or_by_one_of_its_images(tmp_path):
+    """A folder holding two series: the larger by default (the warning says how to choose), the
+    other by series= or by naming one of its images; a series= the image is not of is refused."""
+    other = "1.2.826.0.1.3680043.8.498.303"
+    hu = np.full((16, 16), -1000, np.int16)
+    for k in range(6):
+        write_ct_slice(tmp_path / f"A{k}", (0.0, 0.0, 2.0 * k), (1, 0, 0, 0, 1, 0), hu, 1.0, 0.0)
+    for k in range(4):
+        write_ct_slice(tmp_path / f"B{k}", (0.0, 0.0, 2.0 * k), (1, 0, 0, 0, 1, 0), hu, 1.0, 0.0, series=other)
+    with pytest.warns(UserWarning, match=r"open\(series=\.\.\.\)"):
+        assert ho.open(tmp_path).info()["dims"] == (16, 16, 6)
+    assert ho.open(tmp_path, series=other).info()["dims"] == (16, 16, 4)
+    assert ho.open(tmp_path / "B2").info()["dims"] == (16, 16, 4)
+    with pytest.raises(ValueError, match="is an image of series '1.2.826.0.1.3680043.8.498.303'"):
+        ho.open(tmp_path / "B2", series="1.2.826.0.1.3680043.8.498.302")
