@@ -398,6 +398,20 @@ TEST(ViewerServer, ANewIsovaluesFinalFrameWaitsForItsSurface) {
   EXPECT_TRUE(g["type"] == "frame" && g["iso"].is_null()) << g.dump();
 }
 
+// The sharper step is drawn as the final frame is and takes seconds on a clinical study: it waits
+// for a new surface as the final frame does (after a volume's orbit the surface's first look came
+// after a sharper step of the volume alone); coarser refinements and moving frames do not wait.
+TEST(ViewerServer, TheSharperStepWaitsForANewSurfaceAsTheFinalFrameDoes) {
+  const int sharper = 1;
+  EXPECT_TRUE(waitsForSurface(0, sharper, false, true, false));
+  EXPECT_TRUE(waitsForSurface(sharper, sharper, false, true, false));
+  EXPECT_FALSE(waitsForSurface(2, sharper, false, true, false)) << "a coarser refinement is drawn meanwhile";
+  EXPECT_FALSE(waitsForSurface(1, -1, false, true, false)) << "without a sharper step, level 1 is a refinement";
+  EXPECT_FALSE(waitsForSurface(sharper, sharper, true, true, false)) << "moving frames never wait";
+  EXPECT_FALSE(waitsForSurface(0, sharper, false, false, false)) << "nothing on its way";
+  EXPECT_FALSE(waitsForSurface(0, sharper, false, true, true)) << "something of it drawn";
+}
+
 // Interactive frames until one comes at the best interactive level (full size, no budget): the
 // first of a volume just opened are the cheapest without a budget (nothing measured predicts the others), the
 // first of them uploading its textures (not taken as the level's time). Returns that frame.

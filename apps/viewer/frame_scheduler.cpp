@@ -212,6 +212,10 @@ int rowsWithin(std::span<const float> rowMs, int first, double ms, glm::ivec2 li
   return r - first;
 }
 
+bool waitsForSurface(int level, int sharperStep, bool interacting, bool building, bool shown) {
+  return (level == 0 || level == sharperStep) && !interacting && building && !shown;
+}
+
 int bandRows(const BandedFrame& b, double ms, bool othersDrag) {
   const int standard = std::max(16, kBandPixels / b.size.x);
   const glm::ivec2 limits(std::min(kMinBandRows, standard), standard);
@@ -295,9 +299,8 @@ void FrameScheduler::serve(Client& client, int othersDragging, std::unique_lock<
     client.banded.reset();
     return;
   }
-  // The surface asked for is on its way and nothing of it is drawn yet: the final frame (seconds on
-  // a large volume) would hold its first look back; the pool's collect() refines again when it comes.
-  if (level == 0 && !client.banded && !client.current->interacting && scene.surfaceBuilding && scene.iso != client.current->iso()) {
+  if (!client.banded &&
+      waitsForSurface(level, client.sharperStep, client.current->interacting, scene.surfaceBuilding, scene.iso == client.current->iso())) {
     client.refine.clear();
     return;
   }

@@ -105,6 +105,13 @@ struct BandedFrame {
 int bandRows(const BandedFrame& b, double ms, bool othersDrag);
 inline constexpr int kUnmeasuredBandRows = 48;
 
+/// Whether a frame at @p level of a request not @p interacting waits for the surface asked for
+/// while it is @p building and nothing of it is @p shown: the final frame (level 0) and the sharper
+/// step drawn as it is (@p sharperStep) take seconds on a large volume and would hold the surface's
+/// first look back; the coarser frames before them are drawn, and the pool refines again when
+/// the surface comes.
+bool waitsForSurface(int level, int sharperStep, bool interacting, bool building, bool shown);
+
 /// A client: what its page asked for last, and how well its frames are made. Shared by its socket
 /// (network thread) and the render thread, under the server's mutex.
 struct Client : std::enable_shared_from_this<Client> {
