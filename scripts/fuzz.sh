@@ -9,7 +9,7 @@
 # Builds with clang in build-fuzz/ (Debian's clang-14 and libfuzzer-14-dev, installed by setup.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-targets=(volume_readers scene transfer_function viewer_message build)
+targets=(volume_readers scene transfer_function viewer_message build dicomweb_answer)
 [ $# -lt 2 ] || targets=("${@:2}")
 cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
   -DHYB_FUZZ=ON -DHYB_BUILD_TESTS=OFF -DHYB_BUILD_BENCH=OFF > /dev/null

@@ -606,6 +606,14 @@ std::pair<std::string, std::vector<std::string>> dicomWebInstances(const std::st
   return {uids.second, std::move(instances)};
 }
 
+DicomWebFetch detail::splitMultipart(const std::string& contentType, std::string_view body, const std::string& dir, size_t chunk) {
+  MultipartFiles files("answer", dir, 0, nullptr);
+  files.start(contentType, int64_t(body.size()));
+  for (size_t at = 0; at < body.size(); at += std::max<size_t>(chunk, 1)) files.data(body.data() + at, std::min(std::max<size_t>(chunk, 1), body.size() - at));
+  files.finish();
+  return files.fetched();
+}
+
 DicomWebFetch fetchDicomWebSeries(const std::string& seriesUrl, const std::string& dir, const DicomWebOptions& options, const Progress* progress) {
   const auto [studyUid, seriesUid] = seriesUids(seriesUrl);
   const std::string url = trimmedUrl(seriesUrl);

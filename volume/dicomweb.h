@@ -10,6 +10,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <utility>
 #include <vector>
 
@@ -111,6 +112,12 @@ std::optional<Volume> readDicomWebPreview(const std::string& seriesUrl, const Di
                                           const DicomWebOptions& options = dicomWebDefaults());
 
 namespace detail {
+
+/// A WADO-RS answer's body of type @p contentType split into its instances' files in @p dir, as a
+/// retrieval writes them, the body given @p chunk bytes at a time (as the network hands it over):
+/// what a hostile archive's answer meets (the fuzz target `dicomweb_answer`).
+/// @throw IoError as fetchDicomWebSeries() for a body that is not multipart DICOM.
+DicomWebFetch splitMultipart(const std::string& contentType, std::string_view body, const std::string& dir, size_t chunk);
 
 /// The streamed planes of the series at @p seriesUrl, as dicomPlanes() gives a folder's: the
 /// series is retrieved into a private temporary folder that lives as long as the planes.
