@@ -394,8 +394,6 @@ std::optional<Meta> readMeta(const InputFile& file, const std::vector<uint8_t>& 
   return m;
 }
 
-const char* const kDeflated = kDeflatedTransferSyntax;
-
 // The transfer syntaxes GDCM decodes here (Debian's GDCM 3.0, greyscale), and the names of those
 // it does not that CT archives may hold, for the message.
 constexpr struct {
@@ -435,7 +433,7 @@ bool checkDicomFile(const InputFile& file) {
   file.read(0, head.size(), head.data());
   const std::optional<Meta> meta = readMeta(file, head);
   if (!meta) return false;
-  if (meta->transferSyntax == kDeflated) return true;  // lengths are inside the compressed stream: GDCM inflates it
+  if (meta->transferSyntax == kDeflatedTransferSyntax) return true;  // lengths are inside the compressed stream: GDCM inflates it
   const std::vector<uint8_t> bytes = file.bytes(0, file.size());
   DicomHeaderParser(bytes, bytes.size(), meta->explicitVr(bytes), meta->bigEndian(), file.path(), DicomHeaderParser::Mode::WholeFile)
       .elements(meta->dataSet, {.end = bytes.size()});
@@ -451,14 +449,13 @@ std::string fileTransferSyntax(const InputFile& file) {
 
 void checkTransferSyntax(const std::string& uid, const std::string& where) {
   if (uid.empty()) return;
-  std::string expected;
-  for (const auto& t : kTransferSyntaxes) {
-    if (uid == t.uid && t.decoded) return;
-    if (uid == t.uid) HYB_THROW(IoError, where, ": transfer syntax ", uid, " (", t.name, ") unsupported (expected uncompressed, deflated, JPEG, JPEG-LS, JPEG 2000 or RLE; convert the series, e.g. with gdcmconv --raw)");
-  }
-  HYB_THROW(IoError, where, ": transfer syntax ", quotedExcerpt(uid, kUidChars),
-            uid.rfind("1.2.840.10008.", 0) == 0 ? " unsupported" : " (not a standard one) unsupported",
-            " (expected uncompressed, deflated, JPEG, JPEG-LS, JPEG 2000 or RLE; convert the series, e.g. with gdcmconv --raw)");
+  const char* const expected = " unsupported (expected uncompressed, deflated, JPEG, JPEG-LS, JPEG 2000 or RLE; convert the series, e.g. with gdcmconv --raw)";
+  for (const auto& t : kTransferSyntaxes)
+    if (uid == t.uid) {
+      if (t.decoded) return;
+      HYB_THROW(IoError, where, ": transfer syntax ", uid, " (", t.name, ")", expected);
+    }
+  HYB_THROW(IoError, where, ": transfer syntax ", quotedExcerpt(uid, kUidChars), uid.rfind("1.2.840.10008.", 0) == 0 ? "" : " (not a standard one)", expected);
 }
 
 std::optional<DicomHeader> readDicomHeader(const std::string& path, std::string* why) {
@@ -472,7 +469,7 @@ std::optional<DicomHeader> readDicomHeader(const std::string& path, std::string*
   DicomHeader h;
   h.transferSyntax = meta->transferSyntax;
   h.mediaStorage = meta->mediaStorage;
-  if (meta->transferSyntax == kDeflated) {  // the data set is one raw deflate stream
+  if (meta->transferSyntax == kDeflatedTransferSyntax) {  // the data set is one raw deflate stream
     const std::vector<uint8_t> inflated = inflatedDataSet(file, meta->dataSet);
     try {
       DicomHeaderParser(inflated, inflated.size(), true, false, path, DicomHeaderParser::Mode::Header)
