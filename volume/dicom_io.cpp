@@ -95,9 +95,9 @@ int64_t pixelDataLength(const InputFile& file, uint64_t valueStart, const gdcm::
   return big ? int64_t(uint32_t(l[0]) << 24 | uint32_t(l[1]) << 16 | uint32_t(l[2]) << 8 | l[3]) : int64_t(le32(l));
 }
 
-// Checks what GDCM needs to decode @p file without asserting; @p where names it and its slice.
-PixelModule checkPixelModule(const InputFile& file, const std::string& where) {
-  const std::string syntax = detail::fileTransferSyntax(file);
+// Checks what GDCM needs to decode @p file (its transfer syntax @p syntax) without asserting; @p where
+// names it and its slice.
+PixelModule checkPixelModule(const InputFile& file, const std::string& syntax, const std::string& where) {
   detail::checkTransferSyntax(syntax, where);
   gdcm::Reader reader;
   reader.SetFileName(file.path().c_str());
@@ -256,10 +256,11 @@ SeriesLayout seriesLayout(const std::string& dir, const std::string& seriesUid, 
   }
   const PatientFrame axes = makePatientFrame(direction, glm::dvec3(0.0), top.file + " (Image Orientation (Patient))");
   for (const DicomFrame& f : l.slices) {
-    if (!f.hasPosition && l.slices.size() > 1 && f.frame >= 0)
-      HYB_THROW(IoError, f.file, " (frame ", f.frame + 1, "): Image Position (Patient) of its Plane Position Sequence (0020,9113) missing or malformed (expected three numbers in the frame's Per-frame Functional Groups item, or the Shared one, to order the frames)");
-    if (!f.hasPosition && l.slices.size() > 1)
+    if (!f.hasPosition && l.slices.size() > 1) {
+      if (f.frame >= 0)
+        HYB_THROW(IoError, f.file, " (frame ", f.frame + 1, "): Image Position (Patient) of its Plane Position Sequence (0020,9113) missing or malformed (expected three numbers in the frame's Per-frame Functional Groups item, or the Shared one, to order the frames)");
       HYB_THROW(IoError, f.file, ": Image Position (Patient) missing or malformed (expected three numbers to order the slices)");
+    }
     bool same = !oriented || f.orientation.size() == 6;
     for (size_t c = 0; oriented && same && c < 6; ++c) same = std::abs(f.orientation[c] - iop[c]) <= 1e-4;
     if (!same)
@@ -410,8 +411,9 @@ SampleArray framePlane(const SampleArray& all, int frame, size_t planeSize) {
 PixelModule checkedModule(const SeriesLayout& l, size_t s) {
   const std::string where = sliceWhere(l, s);
   const InputFile file(l.slices[s].file);
-  if (!detail::checkDicomFile(file)) HYB_THROW(IoError, where, ": not a DICOM file (expected the slice the series was opened with)");
-  const PixelModule module = checkPixelModule(file, where);
+  const std::optional<std::string> syntax = detail::checkDicomFile(file);
+  if (!syntax) HYB_THROW(IoError, where, ": not a DICOM file (expected the slice the series was opened with)");
+  const PixelModule module = checkPixelModule(file, *syntax, where);
   checkSliceSize(where, module, glm::ivec3(l.stack.size, 0));
   return module;
 }

@@ -428,23 +428,16 @@ constexpr struct {
 
 }  // namespace
 
-bool checkDicomFile(const InputFile& file) {
+std::optional<std::string> checkDicomFile(const InputFile& file) {
   std::vector<uint8_t> head(size_t(std::min<uint64_t>(file.size(), 132 + kMaxMetaBytes)));
   file.read(0, head.size(), head.data());
   const std::optional<Meta> meta = readMeta(file, head);
-  if (!meta) return false;
-  if (meta->transferSyntax == kDeflatedTransferSyntax) return true;  // lengths are inside the compressed stream: GDCM inflates it
+  if (!meta) return std::nullopt;
+  if (meta->transferSyntax == kDeflatedTransferSyntax) return meta->transferSyntax;  // lengths are inside the compressed stream: GDCM inflates it
   const std::vector<uint8_t> bytes = file.bytes(0, file.size());
   DicomHeaderParser(bytes, bytes.size(), meta->explicitVr(bytes), meta->bigEndian(), file.path(), DicomHeaderParser::Mode::WholeFile)
       .elements(meta->dataSet, {.end = bytes.size()});
-  return true;
-}
-
-std::string fileTransferSyntax(const InputFile& file) {
-  std::vector<uint8_t> head(size_t(std::min<uint64_t>(file.size(), 132 + kMaxMetaBytes)));
-  file.read(0, head.size(), head.data());
-  const std::optional<Meta> meta = readMeta(file, head);
-  return meta ? meta->transferSyntax : std::string();
+  return meta->transferSyntax;
 }
 
 void checkTransferSyntax(const std::string& uid, const std::string& where) {

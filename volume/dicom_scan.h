@@ -63,12 +63,10 @@ std::optional<DicomHeader> readDicomHeader(const std::string& path, std::string*
 /// Whether @p file is DICOM (the "DICM" prefix, or a data set starting at group 0002 or 0008 as old
 /// files do), walking all of it as GDCM will read it: every length within the file, sequences and
 /// items well formed, the image module's value representations those GDCM's typed reading expects.
+/// Returns its transfer syntax (0002,0010), empty without meta information; none when not DICOM.
 /// @throw IoError naming the file and the byte when it is DICOM that would make GDCM assert or
 ///        allocate what the file does not hold.
-bool checkDicomFile(const InputFile& file);
-
-/// The transfer syntax (0002,0010) of a file checkDicomFile accepted, or empty without meta information.
-std::string fileTransferSyntax(const InputFile& file);
+std::optional<std::string> checkDicomFile(const InputFile& file);
 
 /// A UID's most characters (PS3.5 9.1): messages show whole UIDs, which a user copies into --series.
 inline constexpr size_t kUidChars = 64;
